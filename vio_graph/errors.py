@@ -1,0 +1,37 @@
+"""Exception hierarchy. Library code raises these; only the CLI turns them into messages."""
+
+from __future__ import annotations
+
+
+class VioGraphError(Exception):
+    """Base class of every error vio_graph raises on purpose."""
+
+
+class ConfigError(VioGraphError):
+    """A configuration file or value is invalid."""
+
+
+class RecordingError(VioGraphError):
+    """A recording on disk is missing, malformed or inconsistent.
+
+    The message always names the offending file and, where there is one, the field.
+    """
+
+    def __init__(self, path: object, problem: str, field: str | None = None) -> None:
+        self.path = str(path)
+        self.field = field
+        self.problem = problem
+        where = f"{self.path}" + (f" [{field}]" if field else "")
+        super().__init__(f"{where}: {problem}")
+
+
+class SimulationError(VioGraphError):
+    """The simulator was asked for something it cannot produce (e.g. an unreachable pose)."""
+
+
+class EstimationError(VioGraphError):
+    """An estimator was fed data it cannot use (e.g. out-of-order timestamps)."""
+
+
+class OutputError(VioGraphError):
+    """An output folder or file cannot be written as asked."""

@@ -1,0 +1,114 @@
+"""Frozen sample and result types shared by every layer.
+
+Units are in the names: metres (``_m``), seconds (``_s``), radians (``_rad``), m/s^2
+(``_mps2``), rad/s (``_radps``). Frames follow docs/conventions.md.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class ImuSample:
+    """One IMU output as an Xsens MTi gives it (body frame = IMU frame).
+
+    ``quat_wxyz`` is the vendor orientation R_world_imu (gravity-aligned, heading arbitrary).
+    """
+
+    timestamp_s: float
+    accel_mps2: NDArray[np.float64]  # (3,) specific force
+    gyro_radps: NDArray[np.float64]  # (3,)
+    quat_wxyz: NDArray[np.float64]  # (4,)
+
+
+@dataclass(frozen=True)
+class JointAngles:
+    """Thigh IMU pitch and joint encoder angles (rad), see vio_graph.kinematics for signs."""
+
+    timestamp_s: float
+    thigh_pitch_rad: float
+    knee_rad: float
+    ankle_rad: float
+
+
+@dataclass(frozen=True)
+class DepthFrame:
+    """One organised ToF depth image.
+
+    ``depth_m``: (H, W) float32 depth along the optical axis in metres, 0 where invalid.
+    ``confidence``: (H, W) uint8, 0 = invalid .. 255 (royale's depthConfidence).
+    """
+
+    index: int
+    timestamp_s: float
+    depth_m: NDArray[np.float32]
+    confidence: NDArray[np.uint8]
+
+
+class TerrainKind(str, enum.Enum):
+    """Terrain class of the sagittal profile in front of the camera."""
+
+    STAIR_UP = "stair_up"
+    STAIR_DOWN = "stair_down"
+    OBSTACLE = "obstacle"
+    LEVEL = "level"
+    UNKNOWN = "unknown"
+
+
+class EstimateStatus(str, enum.Enum):
+    """How an estimate was obtained."""
+
+    FUSED = "fused"  # IMU propagation corrected by an ICP displacement
+    IMU_ONLY = "imu_only"  # no usable displacement this frame
+    INITIALISING = "initialising"
+
+
+@dataclass(frozen=True)
+class Displacement2D:
+    """Camera displacement between two frames in the ground (world-aligned) x-z plane.
+
+    ``delta_xz_m`` = camera position at ``t1_s`` minus camera position at ``t0_s``;
+    ``cov_m2`` is its 2x2 covariance.
+    """
+
+    t0_s: float
+    t1_s: float
+    delta_xz_m: NDArray[np.float64]
+    cov_m2: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class CornerObservation:
+    """A terrain corner (stair nosing / obstacle top edge) seen from the camera.
+
+    ``corner_rel_xz_m``: corner minus camera position, ground-aligned axes, metres.
+    ``track_id``: the same physical corner keeps its id across consecutive frames.
+    """
+
+    timestamp_s: float
+    track_id: int
+    corner_rel_xz_m: NDArray[np.float64]
+    cov_m2: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FrameEstimate:
+    """What the online estimator returns for one depth frame."""
+
+    timestamp_s: float
+    status: EstimateStatus
+    camera_xz_m: NDArray[np.float64]
+    velocity_xz_mps: NDArray[np.float64]
+    cov_position_m2: NDArray[np.float64]
+    knee_xz_m: NDArray[np.float64]
+    ankle_xz_m: NDArray[np.float64]
+    heel_xz_m: NDArray[np.float64]
+    toe_xz_m: NDArray[np.float64]
+    terrain: TerrainKind = TerrainKind.UNKNOWN
+    is_keyframe: bool = False
+    timings_ms: dict[str, float] = field(default_factory=dict)

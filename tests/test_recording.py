@@ -1,0 +1,162 @@
+"""Recording format: round trips, laziness, and malformed input naming file and field."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from tests.conftest import tiny_metadata, tiny_streams
+from vio_graph.errors import OutputError, RecordingError
+from vio_graph.recording import Recording, write_recording
+from vio_graph.recording.tum import read_tum, write_tum
+
+
+def test_round_trip(tiny_recording: Path) -> None:
+    meta = tiny_metadata()
+    imu, joints, gt, t_frames, frames = tiny_streams(meta)
+    rec = Recording.open(tiny_recording)
+    assert rec.metadata == meta
+    np.testing.assert_allclose(rec.imu.accel_mps2, imu.accel_mps2, rtol=1e-8, atol=1e-9)
+    np.testing.assert_allclose(rec.imu.quat_wxyz, imu.quat_wxyz, atol=1e-8)
+    np.testing.assert_allclose(rec.joints.knee_rad, joints.knee_rad)
+    np.testing.assert_allclose(rec.frame_timestamps_s, t_frames)
+    assert rec.num_frames == len(frames)
+    for k in (0, 5, len(frames) - 1):
+        f = rec.frame(k)
+        assert f.depth_m.dtype == np.float32
+        np.testing.assert_allclose(f.depth_m[f.depth_m > 0], frames[k][0][f.depth_m > 0], atol=5e-4)
+    assert rec.frame(0).depth_m[0, 0] == 0 and rec.frame(0).confidence[0, 0] == 0
+    for body, traj in gt.trajectories.items():
+        np.testing.assert_allclose(rec.groundtruth.trajectories[body].position_m, traj.position_m,
+                                   atol=1e-6)
+    np.testing.assert_array_equal(rec.groundtruth.frame_edge_visible, gt.frame_edge_visible)
+
+
+def test_frames_are_memory_mapped(tiny_recording: Path) -> None:
+    rec = Recording.open(tiny_recording)
+    depth, _, conf = rec._depth
+    assert isinstance(depth, np.memmap) and isinstance(conf, np.memmap)
+
+
+def test_summary(tiny_recording: Path) -> None:
+    s = Recording.open(tiny_recording).summary()
+    assert s["frames"] == 30 and s["image_size"] == [16, 12]
+    assert abs(s["frame_rate_hz"] - 30) < 0.1 and abs(s["imu_rate_hz"] - 100) < 0.1
+    assert abs(s["gt_rate_hz"] - 120) < 0.1
+    assert s["terrain"]["kind"] == "stair_up"
+
+
+def test_writer_refuses_existing_folder(tiny_recording: Path) -> None:
+    meta = tiny_metadata()
+    imu, joints, gt, t_frames, frames = tiny_streams(meta)
+    with pytest.raises(OutputError):
+        write_recording(tiny_recording, meta, imu, joints, gt, t_frames, iter(frames))
+
+
+def test_writer_leaves_nothing_on_failure(tmp_path: Path) -> None:
+    meta = tiny_metadata()
+    imu, joints, gt, t_frames, frames = tiny_streams(meta)
+    with pytest.raises(RecordingError):
+        write_recording(tmp_path / "rec", meta, imu, joints, gt, t_frames, iter(frames[:-1]))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_tum_round_trip(tmp_path: Path) -> None:
+    meta = tiny_metadata()
+    _, _, gt, _, _ = tiny_streams(meta)
+    traj = gt.trajectories["toe"]
+    write_tum(tmp_path / "toe.tum", traj)
+    back = read_tum(tmp_path / "toe.tum")
+    np.testing.assert_allclose(back.position_m, traj.position_m, atol=1e-6)
+    np.testing.assert_allclose(back.timestamp_s, traj.timestamp_s, atol=1e-9)
+
+
+# --------------------------------------------------------------------------- malformed input
+def _copy(src: Path, tmp_path: Path) -> Path:
+    dst = tmp_path / "bad"
+    shutil.copytree(src, dst)
+    return dst
+
+
+def _edit_csv(path: Path, fn) -> None:
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(fn(lines)) + "\n")
+
+
+def _set_meta(root: Path, fn) -> None:
+    p = root / "metadata.yaml"
+    d = yaml.safe_load(p.read_text())
+    fn(d)
+    p.write_text(yaml.safe_dump(d))
+
+
+CASES = {
+    "missing imu": (lambda r: (r / "imu.csv").unlink(), "imu.csv", "missing"),
+    "missing metadata": (lambda r: (r / "metadata.yaml").unlink(), "metadata.yaml", "missing"),
+    "nan in imu": (
+        lambda r: _edit_csv(r / "imu.csv", lambda ls: ls[:3] + [ls[3].replace(ls[3].split(",")[2], "nan", 1)] + ls[4:]),
+        "imu.csv", "NaN",
+    ),
+    "imu backwards": (lambda r: _edit_csv(r / "imu.csv", lambda ls: [ls[0], ls[2], ls[1]] + ls[3:]),
+                      "imu.csv", "backwards"),
+    "imu duplicate": (lambda r: _edit_csv(r / "imu.csv", lambda ls: ls[:2] + [ls[1]] + ls[2:]),
+                      "imu.csv", "duplicated"),
+    "imu header": (lambda r: _edit_csv(r / "imu.csv", lambda ls: ["t,a,b"] + ls[1:]), "imu.csv",
+                   "missing columns"),
+    "imu truncated row": (lambda r: _edit_csv(r / "imu.csv", lambda ls: ls[:-1] + [ls[-1][:10]]),
+                          "imu.csv", "malformed"),
+    "version": (lambda r: _set_meta(r, lambda d: d.update(format_version=99)), "metadata.yaml",
+                "unknown format version"),
+    "meta field": (lambda r: _set_meta(r, lambda d: d["camera"].pop("fx_px")), "metadata.yaml",
+                   "camera.fx_px"),
+    "rate mismatch": (lambda r: _set_meta(r, lambda d: d["imu"].update(rate_hz=200.0)), "imu.csv",
+                      "does not match"),
+    "depth unit": (lambda r: _set_meta(r, lambda d: d["camera"].update(depth_unit_m=1.0)),
+                   "depth_mm.npy", "wrong depth unit"),
+    "truncated npy": (lambda r: (r / "depth/depth_mm.npy").write_bytes(
+        (r / "depth/depth_mm.npy").read_bytes()[:500]), "depth_mm.npy", "truncated"),
+    "wrong dtype": (lambda r: np.save(r / "depth/confidence.npy",
+                                      np.zeros((30, 12, 16), np.float64)), "confidence.npy", "dtype"),
+    "wrong shape": (lambda r: np.save(r / "depth/confidence.npy", np.zeros((29, 12, 16), np.uint8)),
+                    "confidence.npy", "shape"),
+    "gt missing body": (lambda r: (r / "groundtruth/toe.tum").unlink(), "toe.tum", "missing"),
+    "accel in g": (lambda r: _edit_csv(r / "imu.csv", lambda ls: [ls[0]] + [
+        ",".join([v if i not in (1, 2, 3) else str(float(v) / 9.81) for i, v in enumerate(x.split(","))])
+        for x in ls[1:]]), "imu.csv", "g units"),
+    "joints in degrees": (lambda r: _edit_csv(r / "joints.csv", lambda ls: [ls[0]] + [
+        ",".join([v if i == 0 else str(float(v) * 57.3 * 20) for i, v in enumerate(x.split(","))])
+        for x in ls[1:]]), "joints.csv", "degrees"),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_malformed_recording_names_file(tiny_recording: Path, tmp_path: Path, name: str) -> None:
+    mutate, fname, words = CASES[name]
+    bad = _copy(tiny_recording, tmp_path)
+    mutate(bad)
+    with pytest.raises(RecordingError) as exc:
+        Recording.open(bad)
+    assert fname in str(exc.value) and words in str(exc.value), str(exc.value)
+
+
+def test_symlink_escape_rejected(tiny_recording: Path, tmp_path: Path) -> None:
+    bad = _copy(tiny_recording, tmp_path)
+    outside = tmp_path / "outside.csv"
+    shutil.copy(bad / "joints.csv", outside)
+    (bad / "joints.csv").unlink()
+    (bad / "joints.csv").symlink_to(outside)
+    with pytest.raises(RecordingError, match="outside the recording"):
+        Recording.open(bad)
+
+
+def test_reader_never_modifies_input(tiny_recording: Path) -> None:
+    before = {p: p.stat().st_mtime_ns for p in tiny_recording.rglob("*") if p.is_file()}
+    rec = Recording.open(tiny_recording)
+    for f in rec.frames():
+        pass
+    after = {p: p.stat().st_mtime_ns for p in tiny_recording.rglob("*") if p.is_file()}
+    assert before == after

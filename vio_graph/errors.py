@@ -35,3 +35,7 @@ class EstimationError(VioGraphError):
 
 class OutputError(VioGraphError):
     """An output folder or file cannot be written as asked."""
+
+
+class MappingError(VioGraphError):
+    """The terrain map or the step extraction was given unusable input (e.g. bad shapes)."""

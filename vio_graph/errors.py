@@ -39,3 +39,7 @@ class OutputError(VioGraphError):
 
 class MappingError(VioGraphError):
     """The terrain map or the step extraction was given unusable input (e.g. bad shapes)."""
+
+
+class FrontendError(VioGraphError):
+    """The visual front end was given inputs it cannot use (wrong shapes, non-finite values)."""

@@ -1,0 +1,21 @@
+"""Progress bars for the CLI and the pipeline (tqdm on stderr), with a silent stub."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+
+from tqdm import tqdm
+
+
+class _Bar(tqdm):
+    def update_to(self, n: int) -> None:
+        """Set the absolute count (callbacks that report 'n done so far')."""
+        self.update(n - self.n)
+
+
+@contextlib.contextmanager
+def progress_bar(total: int | None, desc: str, unit: str = "it", enabled: bool = True) -> Iterator[_Bar]:
+    with _Bar(total=total, desc=desc, unit=unit, disable=not enabled, leave=False,
+              dynamic_ncols=True) as bar:
+        yield bar

@@ -1,0 +1,128 @@
+"""Rerun recording (``.rrd``) of a trial, and a null logger with the same interface.
+
+The pipeline logs through :class:`Visualizer`; with visualisation off it gets a
+:class:`NullVisualizer`, so there are no ``if visualize:`` branches in the loop. Sagittal (x, z)
+data is shown in 3D at y = 0. Entity layout:
+
+- ``world/terrain``            terrain mesh (static) and true profile
+- ``world/camera``             estimated camera pose; ``world/camera/image`` depth image
+- ``world/cloud``              depth cloud in the world frame (subsampled)
+- ``world/slice``              sagittal slice (ground frame, placed at the estimate)
+- ``world/features``           corner feature points; ``world/icp`` ICP matches
+- ``world/est/<body>``, ``world/gt/<body>``   estimated and true paths (camera, knee, toe, ...)
+- ``world/leg/est``, ``world/leg/gt``         leg links knee-ankle-heel-toe
+- ``world/map``                 2D map points and step edges
+- ``plots/...``                 scalar time series (errors, status)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+_COLORS = {
+    "est": (230, 120, 20),
+    "gt": (40, 160, 60),
+    "filter": (230, 120, 20),
+    "smoother": (40, 110, 220),
+    "batch": (150, 60, 200),
+    "imu_only": (150, 150, 150),
+    "icp_only": (200, 60, 60),
+}
+
+
+def _xz_to_xyz(xz: NDArray[np.float64]) -> NDArray[np.float64]:
+    xz = np.atleast_2d(np.asarray(xz, dtype=float))
+    return np.column_stack([xz[:, 0], np.zeros(xz.shape[0]), xz[:, 1]])
+
+
+class NullVisualizer:
+    """Does nothing; same interface as :class:`Visualizer`."""
+
+    def set_time(self, timestamp_s: float) -> None: ...
+    def log_terrain(self, vertices_m, triangles, profile_xz_m) -> None: ...
+    def log_camera(self, position_m, R_world_cam, K, width_px, height_px, depth_m=None) -> None: ...
+    def log_cloud(self, points_world_m) -> None: ...
+    def log_sagittal(self, name, points_xz_m, radius_m: float = 0.004, color=None) -> None: ...
+    def log_segments(self, name, starts_xz_m, ends_xz_m, color=None) -> None: ...
+    def log_leg(self, name, points_xz_m) -> None: ...
+    def log_path(self, name, xz_m, static: bool = True) -> None: ...
+    def log_scalar(self, name, value: float) -> None: ...
+    def close(self) -> None: ...
+
+
+class Visualizer(NullVisualizer):
+    """Writes a rerun ``.rrd`` file (no viewer needed)."""
+
+    def __init__(self, rrd_path: Path, application_id: str = "vio_graph") -> None:
+        import rerun as rr
+
+        self._rr = rr
+        self.path = Path(rrd_path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._rec = rr.RecordingStream(application_id)
+        # written under a temporary name and renamed by close(): never a half-written .rrd
+        self._tmp_path = self.path.with_name(f".{self.path.name}.partial")
+        self._rec.save(str(self._tmp_path))
+        self._rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+
+    def set_time(self, timestamp_s: float) -> None:
+        self._rec.set_time("time", duration=float(timestamp_s))
+
+    def log_terrain(self, vertices_m, triangles, profile_xz_m) -> None:
+        rr = self._rr
+        if vertices_m is not None and len(vertices_m):
+            self._rec.log("world/terrain/mesh", rr.Mesh3D(
+                vertex_positions=np.asarray(vertices_m, dtype=np.float32),
+                triangle_indices=np.asarray(triangles, dtype=np.uint32),
+                albedo_factor=[0.75, 0.75, 0.78, 0.6]), static=True)
+        if profile_xz_m is not None and len(profile_xz_m):
+            self._rec.log("world/terrain/profile", rr.LineStrips3D(
+                [_xz_to_xyz(profile_xz_m)], colors=[(60, 60, 60)]), static=True)
+
+    def log_camera(self, position_m, R_world_cam, K, width_px, height_px, depth_m=None) -> None:
+        rr = self._rr
+        self._rec.log("world/camera", rr.Transform3D(
+            translation=np.asarray(position_m, dtype=float), mat3x3=np.asarray(R_world_cam)))
+        self._rec.log("world/camera/image", rr.Pinhole(
+            image_from_camera=np.asarray(K, dtype=float), width=width_px, height=height_px,
+            image_plane_distance=0.1))
+        if depth_m is not None:
+            self._rec.log("world/camera/image/depth", rr.DepthImage(
+                np.asarray(depth_m, dtype=np.float32), meter=1.0))
+
+    def log_cloud(self, points_world_m) -> None:
+        pts = np.asarray(points_world_m, dtype=np.float32)
+        self._rec.log("world/cloud", self._rr.Points3D(pts, radii=0.002, colors=[(120, 140, 200)]))
+
+    def log_sagittal(self, name, points_xz_m, radius_m: float = 0.004, color=None) -> None:
+        self._rec.log(f"world/{name}", self._rr.Points3D(
+            _xz_to_xyz(points_xz_m), radii=radius_m, colors=[color or (250, 200, 0)]))
+
+    def log_segments(self, name, starts_xz_m, ends_xz_m, color=None) -> None:
+        a, b = _xz_to_xyz(starts_xz_m), _xz_to_xyz(ends_xz_m)
+        self._rec.log(f"world/{name}", self._rr.LineStrips3D(
+            np.stack([a, b], axis=1), colors=[color or (255, 0, 255)], radii=0.001))
+
+    def log_leg(self, name, points_xz_m) -> None:
+        color = _COLORS["gt"] if name.endswith("gt") else _COLORS["est"]
+        self._rec.log(f"world/leg/{name}", self._rr.LineStrips3D(
+            [_xz_to_xyz(points_xz_m)], colors=[color], radii=0.006))
+
+    def log_path(self, name, xz_m, static: bool = True) -> None:
+        kind = name.split("/")[0]
+        self._rec.log(f"world/{name}", self._rr.LineStrips3D(
+            [_xz_to_xyz(xz_m)], colors=[_COLORS.get(kind, (0, 0, 0))], radii=0.0015),
+            static=static)
+
+    def log_scalar(self, name, value: float) -> None:
+        self._rec.log(f"plots/{name}", self._rr.Scalars(float(value)))
+
+    def close(self) -> None:
+        import os
+
+        self._rec.flush()
+        self._rec.disconnect()
+        os.replace(self._tmp_path, self.path)

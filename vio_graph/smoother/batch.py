@@ -1,0 +1,87 @@
+"""Full-batch smoother: the whole recording as one graph, Levenberg-Marquardt (QR, robust).
+
+Same ingestion as :class:`~vio_graph.smoother.sliding_window.SlidingWindowSmoother`; factors
+are accumulated and :meth:`BatchSmoother.solve` optimises everything at once (the offline
+upper bound of what the graph can do).
+"""
+
+from __future__ import annotations
+
+import time
+
+import gtsam
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vio_graph.errors import EstimationError
+from vio_graph.smoother.config import SmootherConfig
+from vio_graph.smoother.graph import X, KeyframeUpdate, camera_xz_cov_from_pose_cov
+from vio_graph.smoother.interface import KeyframeEstimate, KeyframeSmootherBase
+
+
+class BatchSmoother(KeyframeSmootherBase):
+    """Accumulate every keyframe's factors; :meth:`solve` runs LM over the whole graph.
+
+    Attributes:
+        solve_time_ms: wall time of the last :meth:`solve` (ms).
+        solve_iterations: LM iterations of the last :meth:`solve`.
+    """
+
+    def __init__(self, config: SmootherConfig | None = None, imu_T_cam: ArrayLike | None = None):
+        config = config or SmootherConfig()
+        super().__init__(config, np.eye(4) if imu_T_cam is None else imu_T_cam)
+        self.graph = gtsam.NonlinearFactorGraph()
+        self.initial = gtsam.Values()
+        self._result: gtsam.Values | None = None
+        self._marginals: gtsam.Marginals | None = None
+        self.solve_time_ms = float("nan")
+        self.solve_iterations = 0
+
+    def _consume(self, u: KeyframeUpdate) -> None:
+        self.graph.push_back(u.factors)
+        self.initial.insert(u.values)
+        self._result = None
+        self._marginals = None
+
+    def solve(self) -> gtsam.Values:
+        """Optimise the whole graph (pending keyframe flushed first); returns the Values."""
+        self.flush()
+        if self.initial.size() == 0:
+            raise EstimationError("no keyframe to optimise")
+        params = gtsam.LevenbergMarquardtParams()
+        if self.config.batch_factorization == "QR":
+            params.setLinearSolverType("MULTIFRONTAL_QR")
+        params.setMaxIterations(self.config.batch_max_iterations)
+        params.setRelativeErrorTol(self.config.batch_relative_error_tol)
+        t0 = time.perf_counter()
+        opt = gtsam.LevenbergMarquardtOptimizer(self.graph, self.initial, params)
+        try:
+            self._result = opt.optimize()
+        except RuntimeError as exc:
+            raise EstimationError(f"batch optimisation failed: {exc}") from exc
+        self.solve_time_ms = (time.perf_counter() - t0) * 1e3
+        self.solve_iterations = int(opt.iterations())
+        return self._result
+
+    def keyframe_estimates(self, with_covariance: bool = True) -> list[KeyframeEstimate]:
+        """Refined camera x-z of every keyframe (solves first if needed)."""
+        if self._result is None:
+            self.solve()
+        assert self._result is not None
+        if with_covariance and self._marginals is None:
+            try:  # the wheel's Marginals only offers Cholesky; NaN covariances if it fails
+                self._marginals = gtsam.Marginals(self.graph, self._result)
+            except RuntimeError:
+                self._marginals = None
+        out = []
+        for i, t in enumerate(self._kf_times_s):
+            pose = self._result.atPose3(X(i))
+            R = pose.rotation().matrix()
+            cam = np.asarray(pose.translation()) + R @ self.imu_p_cam_m
+            cov: NDArray[np.float64] = np.full((2, 2), np.nan)
+            if with_covariance and self._marginals is not None:
+                cov = camera_xz_cov_from_pose_cov(
+                    R, self._marginals.marginalCovariance(X(i)), self.imu_p_cam_m
+                )
+            out.append(KeyframeEstimate(t, cam[[0, 2]], cov))
+        return out

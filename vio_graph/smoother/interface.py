@@ -1,0 +1,117 @@
+"""Ingestion interface shared by the fixed-lag and the batch smoother.
+
+Both smoothers take the same stream as the SP-ESKF replay loop (IMU samples, then per depth
+frame the filter's estimate, the ICP displacement and corner observations), so one replay loop
+drives every estimator and the comparison is like for like.
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vio_graph.errors import EstimationError
+from vio_graph.smoother.config import SmootherConfig
+from vio_graph.smoother.graph import KeyframeGraphBuilder, KeyframeUpdate
+from vio_graph.types import CornerObservation, Displacement2D, FrameEstimate, ImuSample
+
+
+class KeyframeEstimate(NamedTuple):
+    """Refined camera position of one keyframe (world x-z, metres) and its 2x2 covariance.
+
+    ``cov_m2`` is NaN where the solver gives no marginal (e.g. BatchFixedLagSmoother).
+    """
+
+    timestamp_s: float
+    camera_xz_m: NDArray[np.float64]
+    cov_m2: NDArray[np.float64]
+
+
+class KeyframeSmootherBase(ABC):
+    """Common ingestion (``add_imu``, ``add_frame``) and per-frame output (``frame_trajectory``).
+
+    Subclasses consume :class:`KeyframeUpdate` batches and report refined keyframes.
+    """
+
+    def __init__(self, config: SmootherConfig, imu_T_cam: ArrayLike) -> None:
+        self.config = config
+        self._builder = KeyframeGraphBuilder(config, imu_T_cam)
+        self.imu_p_cam_m = self._builder.imu_p_cam_m
+        #: wall time (ms) spent building each keyframe's factors (preintegration included)
+        self.build_times_ms: list[float] = []
+        self._kf_times_s: list[float] = []
+        self._kf_filter_xz: list[NDArray[np.float64]] = []
+
+    # ---- ingestion (same as the filter's replay loop) ------------------------------------------
+    def add_imu(self, sample: ImuSample) -> None:
+        """Feed one IMU sample (timestamps strictly increasing)."""
+        t0 = time.perf_counter()
+        updates = self._builder.add_imu(sample)
+        self._dispatch(updates, t0)
+
+    def add_frame(
+        self,
+        timestamp_s: float,
+        is_keyframe: bool,
+        filter_estimate: FrameEstimate | None,
+        displacement: Displacement2D | None,
+        observation: CornerObservation | Sequence[CornerObservation] | None,
+    ) -> None:
+        """Feed one depth frame's outputs.
+
+        Non-keyframes only extend the displacement chain (their corner observations are not
+        used). A keyframe becomes a node once IMU data reaches its time; ``filter_estimate`` is
+        its initial guess (None: IMU prediction from the previous keyframe).
+        """
+        t0 = time.perf_counter()
+        updates = self._builder.add_frame(
+            timestamp_s, is_keyframe, filter_estimate, displacement, observation
+        )
+        self._dispatch(updates, t0)
+
+    def flush(self) -> None:
+        """Insert a keyframe still waiting for IMU data (the last IMU sample is held)."""
+        t0 = time.perf_counter()
+        self._dispatch(self._builder.flush(), t0)
+
+    def _dispatch(self, updates: list[KeyframeUpdate], t0: float) -> None:
+        if not updates:
+            return
+        self.build_times_ms.append((time.perf_counter() - t0) * 1e3)
+        for u in updates:
+            self._kf_times_s.append(u.timestamp_s)
+            self._kf_filter_xz.append(u.filter_camera_xz_m)
+            self._consume(u)
+
+    @abstractmethod
+    def _consume(self, update: KeyframeUpdate) -> None: ...
+
+    # ---- outputs -------------------------------------------------------------------------------
+    @abstractmethod
+    def keyframe_estimates(self, with_covariance: bool = True) -> list[KeyframeEstimate]:
+        """Latest refined camera x-z of every keyframe added so far, oldest first."""
+
+    def frame_trajectory(
+        self, frame_times_s: ArrayLike, filter_xz_m: ArrayLike
+    ) -> NDArray[np.float64]:
+        """Per-frame camera x-z (N, 2): filter estimate + smoother correction.
+
+        The correction (refined minus initial-guess camera position) is known at keyframes and
+        linearly interpolated in time (held constant before the first / after the last
+        keyframe), so all estimators are evaluated on the same frame timestamps.
+        """
+        t = np.asarray(frame_times_s, dtype=float).reshape(-1)
+        f = np.asarray(filter_xz_m, dtype=float).reshape(-1, 2)
+        if t.shape[0] != f.shape[0]:
+            raise EstimationError(f"{t.shape[0]} frame times but {f.shape[0]} filter positions")
+        est = self.keyframe_estimates(with_covariance=False)
+        if not est:
+            raise EstimationError("no keyframe in the smoother yet")
+        kt = np.array([e.timestamp_s for e in est])
+        corr = np.array([e.camera_xz_m for e in est]) - np.asarray(self._kf_filter_xz)
+        return f + np.stack([np.interp(t, kt, corr[:, 0]), np.interp(t, kt, corr[:, 1])], -1)

@@ -1,0 +1,145 @@
+"""Online fixed-lag smoother over keyframes (GTSAM IncrementalFixedLagSmoother).
+
+Per keyframe: build its factors (graph.py), drop any factor touching a key that already left
+the window (GTSAM would raise and the batch variant would stay broken), store the last
+estimate (and marginal) of keyframes about to be marginalised, update the smoother, re-read
+the newest state for the next prediction.
+"""
+
+from __future__ import annotations
+
+import time
+
+import gtsam
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vio_graph.errors import EstimationError
+from vio_graph.smoother.config import SmootherConfig
+from vio_graph.smoother.graph import B, V, X, KeyframeUpdate, camera_xz_cov_from_pose_cov
+from vio_graph.smoother.interface import KeyframeEstimate, KeyframeSmootherBase
+
+_NAN2 = np.full((2, 2), np.nan)
+
+
+class SlidingWindowSmoother(KeyframeSmootherBase):
+    """Fixed-lag smoother, lag = ``config.smoother_lag_s()`` (window_s rounded to n*dt + dt/2).
+
+    Attributes:
+        update_times_ms: wall time (ms) of each keyframe's smoother update, bookkeeping
+            included (factor building is in ``build_times_ms``).
+    """
+
+    def __init__(self, config: SmootherConfig | None = None, imu_T_cam: ArrayLike | None = None):
+        config = config or SmootherConfig()
+        super().__init__(config, np.eye(4) if imu_T_cam is None else imu_T_cam)
+        self.lag_s = config.smoother_lag_s()
+        if config.fixed_lag_batch_solver:
+            lm = gtsam.LevenbergMarquardtParams()
+            if config.fixed_lag_factorization == "QR":
+                lm.setLinearSolverType("MULTIFRONTAL_QR")
+            self._smoother: gtsam.FixedLagSmoother = gtsam.BatchFixedLagSmoother(self.lag_s, lm)
+        else:
+            p = gtsam.ISAM2Params()
+            p.setFactorization(config.fixed_lag_factorization)
+            p.setRelinearizeThreshold(config.relinearize_threshold)
+            p.relinearizeSkip = 1
+            self._smoother = gtsam.IncrementalFixedLagSmoother(self.lag_s, p)
+        self._incremental = not config.fixed_lag_batch_solver
+        self._live: dict[int, float] = {}  # key -> timestamp (s), mirrors GTSAM's window
+        self._frozen: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+        self._newest_cov: dict[int, NDArray[np.float64]] = {}
+        self.update_times_ms: list[float] = []
+
+    # ---- one keyframe --------------------------------------------------------------------------
+    def _consume(self, u: KeyframeUpdate) -> None:
+        t0 = time.perf_counter()
+        new_keys = set(u.values.keys())
+        # drop factors that touch keys already marginalised (never re-add dead keys)
+        if any(not all(k in self._live or k in new_keys for k in ks) for ks in u.factor_keys):
+            kept = gtsam.NonlinearFactorGraph()
+            for n, ks in enumerate(u.factor_keys):
+                if all(k in self._live or k in new_keys for k in ks):
+                    kept.add(u.factors.at(n))
+            factors = kept
+        else:
+            factors = u.factors
+        stamps = {k: s for k, s in u.timestamps.items() if k in self._live or k in new_keys}
+
+        # keys that this update will marginalise (same rule as GTSAM: stamp < newest - lag)
+        newest = max([u.timestamp_s, *self._live.values()])
+        cutoff = newest - self.lag_s
+        merged = {**self._live, **stamps}
+        leaving = [k for k, s in merged.items() if s < cutoff and k in self._live]
+        for k in leaving:
+            if gtsam.Symbol(k).chr() == ord("x"):
+                i_old = gtsam.Symbol(k).index()
+                cov_now = self.config.marginal_covariance == "at_exit"
+                xz, cov = self._camera_estimate(i_old, with_covariance=cov_now)
+                self._frozen[i_old] = (xz, cov if cov_now else self._newest_cov.get(i_old, _NAN2))
+
+        try:
+            self._smoother.update(factors, u.values, stamps)
+        except RuntimeError as exc:  # GTSAM's exceptions surface as RuntimeError
+            raise EstimationError(f"fixed-lag update at {u.timestamp_s:.3f} s failed: {exc}") from exc
+
+        self._live = {k: s for k, s in merged.items() if s >= cutoff}
+        dead_landmarks = [k for k in leaving if gtsam.Symbol(k).chr() == ord("l")]
+        if dead_landmarks:
+            self._builder.forget_landmarks(dead_landmarks)
+        i = u.index
+        self._builder.set_latest_state(
+            self._smoother.calculateEstimatePose3(X(i)),
+            self._smoother.calculateEstimateVector(V(i)),
+            self._smoother.calculateEstimateConstantBias(B(i)),
+        )
+        if self.config.marginal_covariance == "when_newest" and self._incremental:
+            self._newest_cov[i] = self._camera_estimate(i, with_covariance=True)[1]
+        self.update_times_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _camera_estimate(
+        self, i: int, with_covariance: bool
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        pose = self._smoother.calculateEstimatePose3(X(i))
+        R = pose.rotation().matrix()
+        cam = np.asarray(pose.translation()) + R @ self.imu_p_cam_m
+        cov = _NAN2
+        if with_covariance and self._incremental:
+            cov = camera_xz_cov_from_pose_cov(
+                R, self._smoother.marginalCovariance(X(i)), self.imu_p_cam_m
+            )
+        return cam[[0, 2]], cov
+
+    # ---- outputs -------------------------------------------------------------------------------
+    def keyframe_estimates(self, with_covariance: bool = True) -> list[KeyframeEstimate]:
+        """Every keyframe ever added: live ones freshly read, marginalised ones frozen."""
+        out = []
+        for i, t in enumerate(self._kf_times_s):
+            if i in self._frozen:
+                xz, cov = self._frozen[i]
+            else:
+                xz, cov = self._camera_estimate(i, with_covariance)
+            out.append(KeyframeEstimate(t, xz.copy(), cov.copy()))
+        return out
+
+    def live_keys(self) -> set[int]:
+        """Keys currently inside the window (our mirror of GTSAM's key-timestamp map)."""
+        return set(self._live)
+
+    def smoother_keys(self) -> set[int]:
+        """Keys GTSAM itself reports in its window (for checking :meth:`live_keys`)."""
+        return {int(k) for k in self._smoother.timestamps().keys()}
+
+    def latest_state(self) -> tuple[gtsam.Pose3, NDArray[np.float64], gtsam.imuBias.ConstantBias]:
+        """Newest keyframe's (IMU pose, velocity (3,) m/s, bias)."""
+        i = len(self._kf_times_s) - 1
+        if i < 0:
+            raise EstimationError("no keyframe yet")
+        return (
+            self._smoother.calculateEstimatePose3(X(i)),
+            self._smoother.calculateEstimateVector(V(i)),
+            self._smoother.calculateEstimateConstantBias(B(i)),
+        )
+
+
+__all__ = ["SlidingWindowSmoother"]

@@ -1,0 +1,139 @@
+"""Baselines driven through the filter's surface (``propagate`` / ``update_displacement`` /
+``state``), so that one replay loop compares them like for like with the SP-ESKF.
+
+* :class:`ImuDeadReckoning` -- the SP-ESKF propagation (eq. 6-7) and nothing else.
+* :class:`IcpOdometry` -- the chain of ICP displacements, no IMU; holds the last position
+  while no displacement comes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from vio_graph.errors import EstimationError
+from vio_graph.filter.config import FilterConfig
+from vio_graph.filter.eskf import ERROR_STATE_DIM, FilterState, SagittalEskf
+from vio_graph.types import Displacement2D, EstimateStatus, ImuSample
+
+
+class ImuDeadReckoning:
+    """IMU-only integration of the camera position: the filter without corrections.
+
+    Displacements are counted as received but never used (``n_rejected`` stays 0;
+    ``n_stale`` counts them). Status is always IMU_ONLY after initialisation.
+    """
+
+    def __init__(self, config: FilterConfig | None = None, imu_T_cam: ArrayLike | None = None):
+        self._eskf = SagittalEskf(config, imu_T_cam)
+        self._n_ignored = 0
+
+    def initialise(self, timestamp_s: float, p_xz: ArrayLike, v_xz: ArrayLike = (0.0, 0.0),
+                   **kwargs: object) -> None:
+        """Same arguments as :meth:`SagittalEskf.initialise`."""
+        self._eskf.initialise(timestamp_s, p_xz, v_xz, **kwargs)  # type: ignore[arg-type]
+
+    def propagate(self, imu: ImuSample) -> None:
+        """Eq. 6-7 propagation to ``imu.timestamp_s``."""
+        self._eskf.propagate(imu)
+
+    def update_displacement(self, d: Displacement2D) -> bool:
+        """Ignored (dead reckoning); returns False."""
+        self._n_ignored += 1
+        return False
+
+    @property
+    def state(self) -> FilterState:
+        s = self._eskf.state
+        status = (
+            EstimateStatus.INITIALISING
+            if s.status is EstimateStatus.INITIALISING
+            else EstimateStatus.IMU_ONLY
+        )
+        return FilterState(
+            timestamp_s=s.timestamp_s,
+            p_xz_m=s.p_xz_m,
+            v_xz_mps=s.v_xz_mps,
+            accel_bias_xz_mps2=s.accel_bias_xz_mps2,
+            gravity_xz_mps2=s.gravity_xz_mps2,
+            P=s.P,
+            status=status,
+            n_imu=s.n_imu,
+            n_stale=self._n_ignored,
+        )
+
+
+class IcpOdometry:
+    """Camera position as the running sum of ICP displacements (no IMU).
+
+    The position covariance is the sum of the displacement covariances; the velocity is the
+    last displacement divided by its duration. ``propagate`` only advances the clock.
+    Displacements are chained whatever their ``t0_s``: motion during a gap without
+    displacements is lost (the odometry has nothing to bridge it with).
+    """
+
+    def __init__(self, fused_timeout_s: float = 0.1):
+        self._fused_timeout_s = float(fused_timeout_s)
+        self._initialised = False
+        self._t_s = 0.0
+        self._p = np.zeros(2)
+        self._v = np.zeros(2)
+        self._cov = np.zeros((2, 2))
+        self._last_t1_s = -np.inf
+        self._n_imu = 0
+        self._n_acc = 0
+
+    def initialise(self, timestamp_s: float, p_xz: ArrayLike, v_xz: ArrayLike = (0.0, 0.0),
+                   **_: object) -> None:
+        """Start at camera position ``p_xz`` (m) at ``timestamp_s`` (s)."""
+        self._t_s = float(timestamp_s)
+        self._p = np.asarray(p_xz, dtype=float).reshape(2).copy()
+        self._v = np.asarray(v_xz, dtype=float).reshape(2).copy()
+        self._cov = np.zeros((2, 2))
+        self._last_t1_s = self._t_s
+        self._initialised = True
+
+    def propagate(self, imu: ImuSample) -> None:
+        """Advance the clock only (the position is held)."""
+        if not self._initialised:
+            raise EstimationError("propagate() called before initialise()")
+        self._t_s = max(self._t_s, float(imu.timestamp_s))
+        self._n_imu += 1
+
+    def update_displacement(self, d: Displacement2D) -> bool:
+        """Add ``d.delta_xz_m`` to the position; always accepted."""
+        if not self._initialised:
+            raise EstimationError("update_displacement() called before initialise()")
+        delta = np.asarray(d.delta_xz_m, dtype=float).reshape(2)
+        if not np.all(np.isfinite(delta)):
+            raise EstimationError("displacement holds NaN or inf")
+        self._p = self._p + delta
+        self._cov = self._cov + np.asarray(d.cov_m2, dtype=float)
+        dur = float(d.t1_s) - float(d.t0_s)
+        self._v = delta / dur if dur > 0 else self._v
+        self._last_t1_s = float(d.t1_s)
+        self._t_s = max(self._t_s, self._last_t1_s)
+        self._n_acc += 1
+        return True
+
+    @property
+    def state(self) -> FilterState:
+        if not self._initialised:
+            status = EstimateStatus.INITIALISING
+        elif self._t_s - self._last_t1_s <= self._fused_timeout_s:
+            status = EstimateStatus.FUSED
+        else:
+            status = EstimateStatus.IMU_ONLY
+        P = np.zeros((ERROR_STATE_DIM, ERROR_STATE_DIM))
+        P[:2, :2] = self._cov
+        return FilterState(
+            timestamp_s=self._t_s,
+            p_xz_m=self._p.copy(),
+            v_xz_mps=self._v.copy(),
+            accel_bias_xz_mps2=np.zeros(2),
+            gravity_xz_mps2=np.zeros(2),
+            P=P,
+            status=status,
+            n_imu=self._n_imu,
+            n_accepted=self._n_acc,
+        )

@@ -1,0 +1,455 @@
+"""Sagittal-plane error-state Kalman filter, SP-ESKF (paper Section II.C, eq. 5-8).
+
+Nominal state x = (p, v, a_b, g), each a 2D vector in the ground x-z plane (a_b in the IMU
+x-z axes); error state dx = (dp, dv, da_b, dg), dimension 8. ``p`` is the CAMERA optical
+centre, because the ICP displacements the filter fuses are camera displacements.
+
+Per IMU sample (:meth:`SagittalEskf.propagate`):
+  1. R in SO(2) maps IMU (x, z) to ground (x, z); it is the pitch of the vendor orientation
+     with the heading removed (eq. 5, docs/conventions.md).
+  2. optional lever-arm transfer of the specific force from the IMU to the camera centre.
+  3. nominal propagation, eq. 6; error-state / covariance propagation, eq. 7.
+Per displacement (:meth:`SagittalEskf.update_displacement`): Kalman correction eq. 8, error
+injection into the nominal state and reset (the reset Jacobian is the identity here because
+every error is additive).
+
+Two measurement models (``FilterConfig.measurement_model``):
+
+* ``position_pseudo`` -- the paper's eq. 8 with H = [I 0 0 0]: the ICP displacement delta
+  between t0 and t1 becomes a position measurement z = p_hat(t0) + delta of p(t1), with
+  noise V = cov(delta). Weakness: p_hat(t0) is itself the filter's estimate, strongly
+  correlated with the state, but is treated as exact. The filter therefore believes it
+  observes absolute position with ICP-level noise, its position covariance collapses to
+  ~cov(delta) and it over-trusts every new displacement.
+* ``stochastic_cloning`` -- the state is augmented with a copy p_c of the position at t0
+  (Roumeliotis & Burdick, ICRA 2002); the displacement is the proper relative measurement
+  z = p(t1) - p_c with H = [I 0 0 0 -I]. The clone carries its cross-covariance with the
+  current state, so the innovation covariance is the (small) uncertainty of the IMU-predicted
+  displacement plus cov(delta), and absolute-position uncertainty grows as it should.
+
+Measurement times need not coincide with IMU samples: p(t) is taken as p + v (t - t_state)
+(H gains a dt * I block on dv), which is exact for constant velocity over the few ms between
+the last IMU sample and the depth frame.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.stats import chi2
+
+from vio_graph.errors import EstimationError
+from vio_graph.filter.config import FilterConfig
+from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw
+from vio_graph.types import Displacement2D, EstimateStatus, ImuSample
+
+#: error-state dimension of the paper's filter: (dp, dv, da_b, dg), each 2D
+ERROR_STATE_DIM = 8
+_CLONE_TOL_S = 1e-3  # a displacement's t0 must match the clone time to 1 ms
+_I2 = np.eye(2)
+
+
+@dataclass(frozen=True)
+class FilterState:
+    """Snapshot of an estimator (the filter or a baseline); arrays are copies.
+
+    ``p_xz_m`` camera position (2,), ``v_xz_mps`` velocity (2,), ``accel_bias_xz_mps2`` a_b in
+    IMU x-z axes (2,), ``gravity_xz_mps2`` g (2,), ``P`` the 8x8 error-state covariance
+    (order dp, dv, da_b, dg; a clone block, if any, is not included).
+    """
+
+    timestamp_s: float
+    p_xz_m: NDArray[np.float64]
+    v_xz_mps: NDArray[np.float64]
+    accel_bias_xz_mps2: NDArray[np.float64]
+    gravity_xz_mps2: NDArray[np.float64]
+    P: NDArray[np.float64]
+    status: EstimateStatus
+    n_imu: int = 0
+    n_accepted: int = 0
+    n_rejected: int = 0  # failed the chi-square gate
+    n_stale: int = 0  # could not be related to the state (times too far apart)
+    n_fallback: int = 0  # cloning mode only: no clone at t0, used the paper's pseudo-measurement
+
+    @property
+    def cov_position_m2(self) -> NDArray[np.float64]:
+        """2x2 covariance of the position (m^2)."""
+        return self.P[:2, :2].copy()
+
+
+def sagittal_rotation(quat_wxyz: ArrayLike) -> NDArray[np.float64]:
+    """SO(2) rotation R of eq. 5: IMU (x, z) -> ground (x, z), from R_world_imu.
+
+    The heading is removed first (``geometry.remove_yaw``); R is rot_y(pitch) restricted to
+    the x-z plane, [[cos, sin], [-sin, cos]], with pitch = ``geometry.pitch_of``.
+    ``remove_yaw`` uses the ZYX decomposition, which for |pitch| > 90 deg returns the
+    equivalent (yaw + pi, roll + pi) solution and would flip the pitch; such a result is
+    recognised by its lateral axis pointing to world -y and turned back by pi about z, so a
+    shank rotating through the vertical keeps a continuous pitch.
+    """
+    R_w_i = remove_yaw(matrix_from_quat_wxyz(quat_wxyz))
+    if R_w_i[1, 1] < 0.0:  # body y (lateral) points to world -y: the flipped ZYX solution
+        R_w_i = np.diag([-1.0, -1.0, 1.0]) @ R_w_i
+    theta = float(pitch_of(R_w_i))
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, s], [-s, c]])
+
+
+@dataclass(frozen=True)
+class _ImuMemo:
+    """What propagation needs from the previous IMU sample."""
+
+    timestamp_s: float
+    R: NDArray[np.float64]  # (2, 2) sagittal rotation
+    f_xz_mps2: NDArray[np.float64]  # (2,) specific force at the camera, no tangential term
+    gyro_radps: NDArray[np.float64]  # (3,)
+
+
+class SagittalEskf:
+    """The paper's SP-ESKF, estimating the camera position in the sagittal plane.
+
+    Args:
+        config: filter parameters.
+        imu_T_cam: 4x4 transform camera -> IMU; its translation r (m, IMU frame) is the lever
+            arm used when ``config.lever_arm_compensation`` is on. ``None`` means r = 0.
+
+    Usage: :meth:`initialise`, then :meth:`propagate` on every IMU sample and
+    :meth:`update_displacement` whenever the front end yields a displacement; :attr:`state`
+    at any time. Without displacements the filter keeps propagating (status IMU_ONLY).
+    """
+
+    def __init__(self, config: FilterConfig | None = None, imu_T_cam: ArrayLike | None = None):
+        self.config = config if config is not None else FilterConfig()
+        if imu_T_cam is None:
+            self._r_imu_cam_m = np.zeros(3)
+        else:
+            T = np.asarray(imu_T_cam, dtype=float)
+            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+                raise EstimationError(f"imu_T_cam must be a finite 4x4 matrix, got {T.shape}")
+            self._r_imu_cam_m = T[:3, 3].copy()
+        p = self.config.gate_probability
+        self._gate_d2 = float(chi2.ppf(p, df=2)) if p is not None else np.inf
+        self._initialised = False
+        self._t_s = 0.0
+        self._x = np.zeros(ERROR_STATE_DIM)  # nominal (p, v, a_b, g)
+        self._P = np.zeros((ERROR_STATE_DIM, ERROR_STATE_DIM))
+        self._clone_xz_m: NDArray[np.float64] | None = None
+        self._clone_t_s = 0.0
+        self._prev: _ImuMemo | None = None
+        self._history: deque[tuple[float, NDArray[np.float64]]] = deque()
+        self._last_accept_s = -np.inf
+        self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0
+
+    # ------------------------------------------------------------------ set-up
+    def initialise(
+        self,
+        timestamp_s: float,
+        p_xz: ArrayLike,
+        v_xz: ArrayLike = (0.0, 0.0),
+        accel_bias_xz: ArrayLike = (0.0, 0.0),
+        gravity_xz: ArrayLike | None = None,
+        P0: ArrayLike | None = None,
+    ) -> None:
+        """Set the nominal state at ``timestamp_s`` (s) and the error covariance.
+
+        ``p_xz`` camera position (m), ``v_xz`` velocity (m/s), ``accel_bias_xz`` a_b (m/s^2,
+        IMU x-z), ``gravity_xz`` g (m/s^2, default from the config), ``P0`` 8x8 covariance
+        (default: diagonal from the config's initial sigmas).
+        """
+        c = self.config
+        g = c.gravity_xz_mps2 if gravity_xz is None else gravity_xz
+        x = np.concatenate([_vec2(p_xz), _vec2(v_xz), _vec2(accel_bias_xz), _vec2(g)])
+        if P0 is None:
+            sig = np.repeat(
+                [
+                    c.init_position_sigma_m,
+                    c.init_velocity_sigma_mps,
+                    c.init_accel_bias_sigma_mps2,
+                    c.init_gravity_sigma_mps2,
+                ],
+                2,
+            )
+            P = np.diag(sig**2)
+        else:
+            P = np.array(P0, dtype=float)
+            if P.shape != (ERROR_STATE_DIM, ERROR_STATE_DIM) or not np.all(np.isfinite(P)):
+                raise EstimationError(f"P0 must be a finite 8x8 matrix, got {P.shape}")
+        self._t_s = float(timestamp_s)
+        self._x = x
+        self._P = 0.5 * (P + P.T)
+        self._clone_xz_m = None
+        self._prev = None
+        self._history = deque([(self._t_s, x[:2].copy())])
+        self._last_accept_s = -np.inf
+        self._initialised = True
+
+    # ------------------------------------------------------------- propagation
+    def propagate(self, imu: ImuSample) -> None:
+        """Propagate nominal state (eq. 6) and covariance (eq. 7) to ``imu.timestamp_s``.
+
+        dt is the time since the previous IMU sample (or since :meth:`initialise`).
+        Raises EstimationError if not initialised or if time runs backwards.
+        """
+        if not self._initialised:
+            raise EstimationError("propagate() called before initialise()")
+        t = float(imu.timestamp_s)
+        dt = t - self._t_s
+        if dt < -1e-9 or not np.isfinite(t):
+            raise EstimationError(
+                f"IMU sample at {t:.6f} s is older than the state at {self._t_s:.6f} s"
+            )
+        accel = np.asarray(imu.accel_mps2, dtype=float)
+        gyro = np.asarray(imu.gyro_radps, dtype=float)
+        if not (np.all(np.isfinite(accel)) and np.all(np.isfinite(gyro))):
+            raise EstimationError(f"IMU sample at {t:.6f} s holds NaN or inf")
+        R = sagittal_rotation(imu.quat_wxyz)
+
+        # 1. specific force at the camera centre (lever arm r, IMU frame)
+        r = self._r_imu_cam_m
+        f3 = accel.copy()
+        alpha = np.zeros(3)
+        if self.config.lever_arm_compensation:
+            f3 += np.cross(gyro, np.cross(gyro, r))  # centripetal omega x (omega x r)
+            if self._prev is not None and t > self._prev.timestamp_s:
+                # angular acceleration by finite differences of the gyro, valid at mid-interval
+                alpha = (gyro - self._prev.gyro_radps) / (t - self._prev.timestamp_s)
+        f_xz = f3[[0, 2]]
+        tangential_xz = np.cross(alpha, r)[[0, 2]]  # alpha x r
+
+        # 2. ground-frame acceleration over [t - dt, t] (eq. 6: R (a_m - a_b) + g)
+        ab, g = self._x[4:6], self._x[6:8]
+        if self.config.integration == "trapezoid" and self._prev is not None:
+            R_bar = 0.5 * (self._prev.R + R)
+            a_w = 0.5 * (self._prev.R @ self._prev.f_xz_mps2 + R @ f_xz)
+        else:
+            R_bar = R
+            a_w = R @ f_xz
+        a_w = a_w + R_bar @ (tangential_xz - ab) + g
+        self._prev = _ImuMemo(t, R, f_xz, gyro.copy())
+        self._n_imu += 1
+        if dt <= 0.0:
+            return
+
+        # 3. nominal state, eq. 6
+        p, v = self._x[0:2], self._x[2:4]
+        self._x[0:2] = p + v * dt + 0.5 * a_w * dt**2
+        self._x[2:4] = v + a_w * dt
+
+        # 4. error state covariance, eq. 7: P <- F_x P F_x^T + F_i Q F_i^T
+        Fx = np.eye(ERROR_STATE_DIM)
+        Fx[0:2, 2:4] = _I2 * dt  # F_1
+        Fx[2:4, 4:6] = -R_bar * dt  # F_2
+        Fx[2:4, 6:8] = _I2 * dt  # F_1
+        c = self.config
+        var_v = (c.accel_noise_sigma_mps2 * dt) ** 2
+        if c.attitude_sigma_rad > 0:
+            var_v += (np.linalg.norm(f_xz) * c.attitude_sigma_rad * dt) ** 2
+        var_ab = c.accel_bias_rw_mps2_per_sqrt_s**2 * dt
+        n = ERROR_STATE_DIM
+        P = self._P
+        P[:n, :n] = Fx @ P[:n, :n] @ Fx.T
+        if P.shape[0] > n:  # clone block: cross terms move with F_x, the clone is static
+            P[:n, n:] = Fx @ P[:n, n:]
+            P[n:, :n] = P[:n, n:].T
+        P[2:4, 2:4] += var_v * _I2
+        P[4:6, 4:6] += var_ab * _I2
+        self._t_s = t
+        self._remember(t, self._x[0:2])
+
+    # ------------------------------------------------------------- corrections
+    def update_displacement(self, d: Displacement2D) -> bool:
+        """Fuse a camera displacement from ``d.t0_s`` to ``d.t1_s`` (eq. 8).
+
+        Returns True if accepted, False if rejected by the chi-square gate or as stale
+        (counted in :attr:`state`). ``d.t1_s`` should be within ``max_time_mismatch_s`` of the
+        last propagated IMU sample.
+        """
+        self._require_init()
+        delta = _vec2(d.delta_xz_m)
+        cov = _cov2(d.cov_m2)
+        t1, t0 = float(d.t1_s), float(d.t0_s)
+        tol = self.config.max_time_mismatch_s
+        if abs(t1 - self._t_s) > tol or t1 < t0:
+            self._n_stale += 1
+            return False
+        dt1 = t1 - self._t_s
+        n = ERROR_STATE_DIM
+        H1 = np.zeros((2, self._P.shape[0]))
+        H1[:, 0:2] = _I2
+        H1[:, 2:4] = dt1 * _I2
+        p_t1 = self._x[0:2] + dt1 * self._x[2:4]
+
+        cloning = self.config.measurement_model == "stochastic_cloning"
+        if cloning and self._clone_xz_m is not None and abs(self._clone_t_s - t0) <= _CLONE_TOL_S:
+            # relative measurement z = p(t1) - p_c, H = [I dt*I 0 0 -I]
+            H = H1
+            H[:, n : n + 2] = -_I2
+            innovation = delta - (p_t1 - self._clone_xz_m)
+        else:
+            # the paper: z = p_hat(t0) + delta is a position measurement, H = [I 0 0 0]
+            p_t0 = self._position_at(t0)
+            if p_t0 is None:
+                self._n_stale += 1
+                if cloning:
+                    self._set_clone(t1)
+                return False
+            if cloning:
+                self._n_fallback += 1
+            H = H1
+            innovation = p_t0 + delta - p_t1
+        V = self.config.measurement_cov_inflation * cov
+        V = V + self.config.measurement_noise_floor_m**2 * _I2
+        accepted = self._correct(innovation, H, V)
+        if accepted:
+            self._last_accept_s = t1
+            self._record_correction(t1)
+        if cloning:
+            self._set_clone(t1)
+        return accepted
+
+    def update_position(
+        self, z_xz: ArrayLike, cov: ArrayLike, timestamp_s: float | None = None
+    ) -> bool:
+        """Fuse an absolute camera-position measurement z (m) with covariance ``cov`` (m^2).
+
+        H = [I dt*I 0 0] with dt = ``timestamp_s`` - state time (0 if None). Gated like the
+        displacements; returns True if accepted.
+        """
+        self._require_init()
+        t = self._t_s if timestamp_s is None else float(timestamp_s)
+        dt = t - self._t_s
+        if abs(dt) > self.config.max_time_mismatch_s:
+            self._n_stale += 1
+            return False
+        H = np.zeros((2, self._P.shape[0]))
+        H[:, 0:2] = _I2
+        H[:, 2:4] = dt * _I2
+        innovation = _vec2(z_xz) - (self._x[0:2] + dt * self._x[2:4])
+        accepted = self._correct(innovation, H, _cov2(cov))
+        if accepted:
+            self._last_accept_s = t
+            self._record_correction(t)
+        return accepted
+
+    def clone_position(self, timestamp_s: float) -> None:
+        """Stochastic cloning: remember p(``timestamp_s``) as the start of the next displacement.
+
+        :meth:`update_displacement` clones at every t1 by itself; call this at depth frames
+        that yielded no displacement, so that the next displacement (starting there) can be
+        fused as a relative measurement. No-op in ``position_pseudo`` mode.
+        """
+        self._require_init()
+        if self.config.measurement_model == "stochastic_cloning":
+            self._set_clone(float(timestamp_s))
+
+    # ------------------------------------------------------------------- state
+    @property
+    def state(self) -> FilterState:
+        """Frozen snapshot of the current estimate."""
+        if not self._initialised:
+            status = EstimateStatus.INITIALISING
+        elif self._t_s - self._last_accept_s <= self.config.fused_timeout_s:
+            status = EstimateStatus.FUSED
+        else:
+            status = EstimateStatus.IMU_ONLY
+        n = ERROR_STATE_DIM
+        return FilterState(
+            timestamp_s=self._t_s,
+            p_xz_m=self._x[0:2].copy(),
+            v_xz_mps=self._x[2:4].copy(),
+            accel_bias_xz_mps2=self._x[4:6].copy(),
+            gravity_xz_mps2=self._x[6:8].copy(),
+            P=self._P[:n, :n].copy(),
+            status=status,
+            n_imu=self._n_imu,
+            n_accepted=self._n_acc,
+            n_rejected=self._n_rej,
+            n_stale=self._n_stale,
+            n_fallback=self._n_fallback,
+        )
+
+    # ----------------------------------------------------------------- helpers
+    def _correct(self, innovation: NDArray, H: NDArray, V: NDArray) -> bool:
+        """Gate, Kalman gain, injection and reset (eq. 8). Returns False if gated out."""
+        P = self._P
+        S = H @ P @ H.T + V
+        S = 0.5 * (S + S.T)
+        try:
+            S_inv_y = np.linalg.solve(S, innovation)
+        except np.linalg.LinAlgError as exc:
+            raise EstimationError(f"singular innovation covariance: {exc}") from None
+        if float(innovation @ S_inv_y) > self._gate_d2:
+            self._n_rej += 1
+            return False
+        K = np.linalg.solve(S, H @ P).T  # K = P H^T S^-1 (S, P symmetric)
+        dx = K @ innovation
+        # Joseph form of P <- (I - K H) P: same value, stays symmetric positive definite
+        IKH = np.eye(P.shape[0]) - K @ H
+        self._P = IKH @ P @ IKH.T + K @ V @ K.T
+        self._P = 0.5 * (self._P + self._P.T)
+        # inject the error state into the nominal state; all errors are additive, so the
+        # reset dx <- 0 leaves P unchanged (reset Jacobian G = I)
+        n = ERROR_STATE_DIM
+        self._x = self._x + dx[:n]
+        if self._clone_xz_m is not None and dx.shape[0] > n:
+            self._clone_xz_m = self._clone_xz_m + dx[n : n + 2]
+        self._n_acc += 1
+        return True
+
+    def _set_clone(self, t_s: float) -> None:
+        """Augment the state with p(t_s) = p + v (t_s - t), replacing any previous clone."""
+        n = ERROR_STATE_DIM
+        dt = t_s - self._t_s
+        J = np.zeros((n + 2, self._P.shape[0]))
+        J[:n, :n] = np.eye(n)
+        J[n:, 0:2] = _I2
+        J[n:, 2:4] = dt * _I2
+        self._P = J @ self._P @ J.T
+        self._clone_xz_m = self._x[0:2] + dt * self._x[2:4]
+        self._clone_t_s = t_s
+
+    def _remember(self, t_s: float, p_xz: NDArray) -> None:
+        """Append (t_s, p) to the history, dropping entries at or after t_s (keeps it sorted)."""
+        while self._history and self._history[-1][0] >= t_s:
+            self._history.pop()
+        self._history.append((t_s, p_xz.copy()))
+        while self._history and self._history[0][0] < t_s - self.config.history_s:
+            self._history.popleft()
+
+    def _record_correction(self, t_s: float) -> None:
+        """Replace history entries from ``t_s`` on with the corrected estimate."""
+        self._remember(t_s, self._x[0:2] + (t_s - self._t_s) * self._x[2:4])
+        if self._t_s > t_s:
+            self._remember(self._t_s, self._x[0:2])
+
+    def _position_at(self, t_s: float) -> NDArray[np.float64] | None:
+        """The filter's past position estimate at ``t_s`` (linear interpolation) or None."""
+        if not self._history:
+            return None
+        times = np.array([h[0] for h in self._history])
+        xz = np.array([h[1] for h in self._history])
+        tol = self.config.max_time_mismatch_s
+        if t_s < times[0] - tol or t_s > times[-1] + tol:
+            return None
+        return np.array([np.interp(t_s, times, xz[:, 0]), np.interp(t_s, times, xz[:, 1])])
+
+    def _require_init(self) -> None:
+        if not self._initialised:
+            raise EstimationError("the filter is not initialised; call initialise() first")
+
+
+def _vec2(v: ArrayLike) -> NDArray[np.float64]:
+    a = np.asarray(v, dtype=float).reshape(-1)
+    if a.shape != (2,) or not np.all(np.isfinite(a)):
+        raise EstimationError(f"expected a finite (x, z) vector, got {np.asarray(v)!r}")
+    return a.copy()
+
+
+def _cov2(c: ArrayLike) -> NDArray[np.float64]:
+    a = np.asarray(c, dtype=float)
+    if a.shape != (2, 2) or not np.all(np.isfinite(a)):
+        raise EstimationError(f"expected a finite 2x2 covariance, got shape {a.shape}")
+    return 0.5 * (a + a.T)

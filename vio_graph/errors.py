@@ -43,3 +43,7 @@ class MappingError(VioGraphError):
 
 class FrontendError(VioGraphError):
     """The visual front end was given inputs it cannot use (wrong shapes, non-finite values)."""
+
+
+class EvaluationError(VioGraphError):
+    """Trajectories cannot be compared as asked (no time overlap, too few poses, bad mask)."""

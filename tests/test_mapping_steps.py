@@ -1,0 +1,182 @@
+"""Step and obstacle geometry recovered from maps of known synthetic terrain."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.test_mapping_synth import camera_track, obstacle_profile, observe, stair_profile
+from vio_graph.mapping.config import StepConfig
+from vio_graph.mapping.local_map import TerrainMap2D
+from vio_graph.mapping.steps import (
+    TerrainGeometry,
+    compare_to_truth,
+    estimate_terrain_geometry,
+    find_levels,
+)
+from vio_graph.recording.metadata import TerrainInfo
+from vio_graph.types import TerrainKind
+
+NOISE_M = 0.0025  # per-point noise of the profiles (x and z)
+KEYFRAME_STEP_M = 0.015  # paper: keyframes every 0.01-0.05 m of camera motion
+
+
+def _map(terrain: TerrainInfo, x_end_m: float, seed: int, noise_m: float = NOISE_M):
+    cams = camera_track(terrain, -0.3, x_end_m, step_m=KEYFRAME_STEP_M)
+    profiles = observe(terrain, cams, noise_m, np.random.default_rng(seed))
+    terrain_map = TerrainMap2D()
+    for i, (cam, prof) in enumerate(zip(cams, profiles, strict=True)):
+        terrain_map.add_keyframe(0.1 * i, cam, prof)
+    return terrain_map
+
+
+def _geometry(terrain: TerrainInfo, x_end_m: float, seed: int, **kw) -> TerrainGeometry:
+    terrain_map = _map(terrain, x_end_m, seed, **kw)
+    return estimate_terrain_geometry(terrain_map.points_xz_m, terrain_map.point_counts)
+
+
+STAIRS = [
+    pytest.param(0.147, 0.28, True, 1.8, id="up-147x280"),
+    pytest.param(0.17, 0.25, True, 1.6, id="up-170x250"),
+    pytest.param(0.147, 0.28, False, 1.8, id="down-147x280"),
+    pytest.param(0.17, 0.25, False, 1.6, id="down-170x250"),
+]
+
+
+@pytest.mark.parametrize("rise_m, tread_m, up, x_end_m", STAIRS)
+@pytest.mark.parametrize("seed", [0, 1])
+def test_stairs_recovered_within_2mm_and_nosings_within_5mm(
+    rise_m: float, tread_m: float, up: bool, x_end_m: float, seed: int
+) -> None:
+    terrain = stair_profile(rise_m, tread_m, 5, up=up)
+    geometry = _geometry(terrain, x_end_m, seed)
+    assert geometry.kind is (TerrainKind.STAIR_UP if up else TerrainKind.STAIR_DOWN)
+    assert len(geometry.steps) == 5
+    assert [s.direction for s in geometry.steps] == ["up" if up else "down"] * 5
+    # every riser where an ascending camera sees it, none when descending (occluded)
+    assert all(s.riser_observed == up for s in geometry.steps)
+    rises = np.array([s.rise_m for s in geometry.steps])
+    treads = np.array([s.tread_m for s in geometry.steps[:-1]])
+    assert geometry.steps[-1].tread_m is None
+    np.testing.assert_allclose(rises, rise_m, atol=0.002)
+    np.testing.assert_allclose(treads, tread_m, atol=0.002)
+    nosings = np.array([s.nosing_xz_m for s in geometry.steps])
+    np.testing.assert_allclose(nosings, np.asarray(terrain.edges_xz_m), atol=0.005)
+    # stated uncertainties are positive and not wildly off (errors within 5 sigma + 0.5 mm)
+    stds = np.array([s.nosing_std_xz_m for s in geometry.steps])
+    assert np.all(stds > 0)
+    assert np.all(np.abs(nosings - np.asarray(terrain.edges_xz_m)) < 5 * stds + 5e-4)
+
+    report = compare_to_truth(geometry, terrain)
+    assert report["kind_correct"] is True
+    assert report["n_steps_matched"] == 5
+    assert report["matched_edge_index"] == [0, 1, 2, 3, 4]
+    assert report["rise_mae_mm"] < 2.0 and report["tread_mae_mm"] < 2.0
+    assert report["nosing_max_mm"] < 5.0
+    assert report["tread_error_mm"][-1] is None
+    np.testing.assert_allclose(report["rise_error_mm"], 1000 * (rises - rise_m), atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_obstacle_height_and_depth_within_5mm(seed: int) -> None:
+    terrain = obstacle_profile(0.14, 0.13)
+    geometry = _geometry(terrain, 1.0, seed)
+    assert geometry.kind is TerrainKind.OBSTACLE
+    assert geometry.steps == ()
+    (obstacle,) = geometry.obstacles
+    assert obstacle.height_m == pytest.approx(0.14, abs=0.005)
+    assert obstacle.depth_m == pytest.approx(0.13, abs=0.005)
+    np.testing.assert_allclose(obstacle.front_edge_xz_m, [0.5, 0.14], atol=0.005)
+    np.testing.assert_allclose(obstacle.back_edge_xz_m, [0.63, 0.14], atol=0.005)
+    report = compare_to_truth(geometry, terrain)
+    (ob_report,) = report["obstacles"]
+    assert abs(ob_report["height_error_mm"]) < 5 and abs(ob_report["depth_error_mm"]) < 5
+    assert ob_report["height_error_mm"] == pytest.approx(1000 * (obstacle.height_m - 0.14))
+
+
+def test_noiseless_ideal_profile_gives_exact_geometry() -> None:
+    # dense noiseless samples of the true polyline: every number is known exactly
+    terrain = stair_profile(0.15, 0.3, 3, up=True)
+    profile = np.asarray(terrain.profile_xz_m)
+    pieces = []
+    for a, b in zip(profile[:-1], profile[1:], strict=True):
+        n = max(2, int(np.linalg.norm(b - a) / 0.005))
+        pieces.append(a + (b - a) * (np.arange(n)[:, None] + 0.5) / n)
+    points = np.concatenate(pieces)
+    geometry = estimate_terrain_geometry(points)
+    assert geometry.kind is TerrainKind.STAIR_UP
+    assert [round(s.rise_m, 9) for s in geometry.steps] == [0.15, 0.15, 0.15]
+    assert [s.tread_m for s in geometry.steps[:2]] == pytest.approx([0.3, 0.3], abs=1e-6)
+    np.testing.assert_allclose(
+        [s.nosing_xz_m for s in geometry.steps], terrain.edges_xz_m, atol=1e-6
+    )
+
+
+def test_level_ground_has_no_steps() -> None:
+    rng = np.random.default_rng(3)
+    x = np.arange(0.0, 1.5, 0.005)
+    points = np.column_stack([x, rng.normal(0.0, 0.002, x.size)])
+    geometry = estimate_terrain_geometry(points)
+    assert geometry.kind is TerrainKind.LEVEL
+    assert geometry.steps == () and geometry.obstacles == ()
+    (level,) = geometry.levels
+    assert abs(level.z_m) < 0.001
+    assert level.x_start_edge_m == pytest.approx(0.0, abs=0.004)
+    assert level.x_end_edge_m == pytest.approx(1.5, abs=0.004)
+
+
+def test_spurious_points_do_not_create_steps() -> None:
+    terrain = stair_profile(0.147, 0.28, 5, up=True)
+    cams = camera_track(terrain, -0.3, 1.8, step_m=KEYFRAME_STEP_M)
+    rng = np.random.default_rng(7)
+    profiles = observe(terrain, cams, NOISE_M, rng)
+    terrain_map = TerrainMap2D()
+    for i, (cam, prof) in enumerate(zip(cams, profiles, strict=True)):
+        # a few flying pixels per frame, and every 10th frame a fake 6 cm "tread" in mid-air
+        junk = np.column_stack([rng.uniform(0.2, 1.2, 5), rng.uniform(-0.5, 0.2, 5)])
+        if i % 10 == 0:
+            junk = np.vstack([junk, np.column_stack([np.linspace(0.3, 0.36, 12), [-0.1] * 12])])
+        terrain_map.add_keyframe(0.1 * i, cam, np.vstack([prof, junk]))
+    geometry = estimate_terrain_geometry(terrain_map.points_xz_m, terrain_map.point_counts)
+    assert geometry.kind is TerrainKind.STAIR_UP
+    assert len(geometry.steps) == 5
+    np.testing.assert_allclose([s.rise_m for s in geometry.steps], 0.147, atol=0.002)
+
+    # even without the map's keyframe filter, a few isolated points make no level
+    points = terrain_map.points_xz_m
+    extra = np.column_stack([rng.uniform(0.0, 1.5, 8), rng.uniform(0.8, 1.0, 8)])
+    geometry2 = estimate_terrain_geometry(np.vstack([points, extra]))
+    assert len(geometry2.steps) == 5
+    assert len(find_levels(np.vstack([points, extra]))) == 6
+
+
+def test_partial_stair_gives_no_tread_for_the_last_step_and_empty_map_is_unknown() -> None:
+    geometry = estimate_terrain_geometry(np.zeros((0, 2)))
+    assert geometry.kind is TerrainKind.UNKNOWN and geometry.levels == ()
+    # floor and one tread only: one step, rise known, tread unknown
+    x1 = np.arange(0.0, 0.5, 0.005)
+    x2 = np.arange(0.5, 0.78, 0.005)
+    zr = np.arange(0.0, 0.147, 0.005)
+    points = np.concatenate(
+        [
+            np.column_stack([x1, np.zeros_like(x1)]),
+            np.column_stack([np.full_like(zr, 0.5), zr]),
+            np.column_stack([x2, np.full_like(x2, 0.147)]),
+        ]
+    )
+    geometry = estimate_terrain_geometry(points)
+    (step,) = geometry.steps
+    assert step.rise_m == pytest.approx(0.147, abs=1e-9)
+    assert step.tread_m is None
+    assert step.nosing_xz_m[0] == pytest.approx(0.5, abs=1e-9)
+    # with the obstacle hint, a raised last level is an obstacle seen from the front
+    hinted = estimate_terrain_geometry(points, kind_hint=TerrainKind.OBSTACLE)
+    assert hinted.kind is TerrainKind.OBSTACLE
+    assert hinted.obstacles[0].height_m == pytest.approx(0.147, abs=1e-9)
+
+
+def test_config_rejects_inconsistent_thresholds() -> None:
+    with pytest.raises(ValueError):
+        StepConfig(level_tolerance_m=0.05, min_rise_m=0.03)
+    with pytest.raises(ValueError):
+        StepConfig(unknown_field=1)  # type: ignore[call-arg]

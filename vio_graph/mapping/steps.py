@@ -1,0 +1,685 @@
+"""Step and obstacle geometry from the 2D terrain map.
+
+Method (all in the world x-z plane, x = walking direction):
+
+1. **Horizontal levels** (treads, floor, landing, obstacle top). Greedy z-window search, the
+   1D analogue of the paper's "horizontal line with most inliers" RANSAC (Sec. II.B, Fig. 2):
+   find the z window of half-height ``level_tolerance_m`` holding the most map cells, take its
+   cells out of the pool, split them along x at gaps wider than ``max_gap_m`` and keep the
+   pieces at least ``min_level_length_m`` long. Repeat until no window holds
+   ``min_level_cells`` cells. A vertical face only puts a few cells of one x column into any
+   window, so it never makes a level. Level heights are count-weighted means of the cells
+   within 2.5 robust sigma of the window median.
+2. **Steps.** Levels are sorted along x; neighbours closer than ``min_rise_m`` in z merge.
+   Each change of level between x-neighbours is a step; its rise is the level difference.
+   Its nosing (the convex corner) is at the height of the higher level and at
+
+   * up steps (face towards the camera, i.e. towards -x): the x of the riser, a robust mean
+     of the map cells between the two levels (``riser_margin_m`` away from both), when at
+     least ``min_riser_cells`` are seen; otherwise the start edge of the upper level;
+   * down steps (the face points away from a forward-looking camera and is not observed):
+     the end edge of the upper level.
+
+   Level edges use the 50 % rule, robust to noise blur: with ``rho`` the weight per metre in
+   a reference window (``edge_reference_m``) inside the level and ``W_beyond`` the weight of
+   the outermost ``edge_blur_m`` of cells, ``edge = window_end + W_beyond / rho``.
+   Tread depth of a step = x distance from its nosing to the nosing of the next step (same
+   direction, sharing a level); the last step of a run has none.
+3. **Obstacles**: a level higher (by ``min_rise_m``) than both x-neighbours and at most
+   ``max_obstacle_depth_m`` deep. Height = top minus the mean of the neighbouring ground
+   levels; depth = back edge x minus front edge x (front: riser rule, back: edge rule).
+
+Uncertainties are one standard deviation of the estimate: level height from the cell scatter
+over sqrt(cells); riser x likewise; an edge from the relative count error of ``rho`` and the
+cell spacing; rise and tread combine their two ends in quadrature.
+
+Pure module: no file I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vio_graph.errors import MappingError
+from vio_graph.mapping.config import StepConfig
+from vio_graph.recording.metadata import TerrainInfo
+from vio_graph.types import TerrainKind
+
+_ROBUST_SIGMA_PER_MAD = 1.4826
+
+
+# ---------------------------------------------------------------------------------------------
+# result types
+@dataclass(frozen=True)
+class LevelSegment:
+    """A horizontal piece of the map (tread, floor, landing, obstacle top).
+
+    ``z_m`` height and ``z_std_m`` its standard error; ``x_start_m``/``x_end_m`` the extent
+    of its cells; ``x_start_edge_m``/``x_end_edge_m`` the 50 %-rule edge estimates with
+    standard error ``edge_std_m``; all metres, world frame.
+    """
+
+    z_m: float
+    z_std_m: float
+    x_start_m: float
+    x_end_m: float
+    x_start_edge_m: float
+    x_end_edge_m: float
+    edge_std_m: float
+    n_cells: int
+    weight: float
+
+    @property
+    def length_m(self) -> float:
+        return self.x_end_edge_m - self.x_start_edge_m
+
+
+@dataclass(frozen=True)
+class RiserSegment:
+    """A vertical face seen between two levels: x position (m) and its standard error."""
+
+    x_m: float
+    x_std_m: float
+    z_bottom_m: float
+    z_top_m: float
+    n_cells: int
+
+
+@dataclass(frozen=True)
+class StepGeometry:
+    """One step, counted along +x (walking direction) from 0.
+
+    ``direction``: "up" when the terrain rises along +x. ``rise_m``: height difference of the
+    two levels. ``tread_m``: x distance from this nosing to the next step's nosing, None for
+    the last step of a run. ``nosing_xz_m`` (2,): convex corner, world frame;
+    ``nosing_std_xz_m`` (2,) its standard errors. All metres.
+    """
+
+    index: int
+    direction: Literal["up", "down"]
+    rise_m: float
+    rise_std_m: float
+    tread_m: float | None
+    tread_std_m: float | None
+    nosing_xz_m: NDArray[np.float64]
+    nosing_std_xz_m: NDArray[np.float64]
+    lower_z_m: float
+    upper_z_m: float
+    riser_observed: bool
+
+
+@dataclass(frozen=True)
+class ObstacleGeometry:
+    """A raised block: ``height_m`` above the surrounding ground, ``depth_m`` along x, and its
+    two top edges (``front_edge_xz_m`` at smaller x), all metres, world frame, with standard
+    errors (``*_std_*``)."""
+
+    height_m: float
+    height_std_m: float
+    depth_m: float
+    depth_std_m: float
+    front_edge_xz_m: NDArray[np.float64]
+    back_edge_xz_m: NDArray[np.float64]
+    front_edge_std_xz_m: NDArray[np.float64]
+    back_edge_std_xz_m: NDArray[np.float64]
+    ground_z_m: float
+    top_z_m: float
+
+
+@dataclass(frozen=True)
+class TerrainGeometry:
+    """Everything extracted from one map: the terrain kind, steps (x order), obstacles, and
+    the levels and risers they were built from."""
+
+    kind: TerrainKind
+    steps: tuple[StepGeometry, ...]
+    obstacles: tuple[ObstacleGeometry, ...]
+    levels: tuple[LevelSegment, ...]
+    risers: tuple[RiserSegment, ...]
+
+    @property
+    def mean_rise_m(self) -> float | None:
+        """Mean rise over the steps (m), None without steps."""
+        return float(np.mean([s.rise_m for s in self.steps])) if self.steps else None
+
+    @property
+    def mean_tread_m(self) -> float | None:
+        """Mean tread depth over steps that have one (m), None without."""
+        treads = [s.tread_m for s in self.steps if s.tread_m is not None]
+        return float(np.mean(treads)) if treads else None
+
+    @property
+    def edges_xz_m(self) -> NDArray[np.float64]:
+        """(K, 2) every convex corner (nosings and obstacle top edges), sorted by x."""
+        edges = [s.nosing_xz_m for s in self.steps]
+        for ob in self.obstacles:
+            edges += [ob.front_edge_xz_m, ob.back_edge_xz_m]
+        if not edges:
+            return np.zeros((0, 2))
+        arr = np.asarray(edges, dtype=np.float64)
+        return arr[np.argsort(arr[:, 0], kind="stable")]
+
+
+# ---------------------------------------------------------------------------------------------
+# helpers
+def _weighted_median(values: NDArray[np.float64], weights: NDArray[np.float64]) -> float:
+    order = np.argsort(values)
+    cum = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
+
+
+def _robust_mean(
+    values: NDArray[np.float64], weights: NDArray[np.float64], floor_m: float
+) -> tuple[float, float, NDArray[np.bool_]]:
+    """Weighted mean of the values within 2.5 robust sigma of the weighted median.
+
+    Returns (mean, standard error = scatter / sqrt(n kept), kept mask).
+    """
+    med = _weighted_median(values, weights)
+    sigma = _ROBUST_SIGMA_PER_MAD * float(np.median(np.abs(values - med)))
+    keep = np.abs(values - med) <= max(2.5 * sigma, floor_m)
+    v, w = values[keep], weights[keep]
+    mean = float(np.average(v, weights=w))
+    scatter = float(np.sqrt(np.average((v - mean) ** 2, weights=w)))
+    return mean, max(scatter, 1e-4) / np.sqrt(max(int(keep.sum()), 1)), keep
+
+
+def _edge(
+    x: NDArray[np.float64],
+    w: NDArray[np.float64],
+    column_m: float,
+    beyond_m: float,
+    reference_m: float,
+    at_end: bool,
+) -> tuple[float, float]:
+    """50 %-rule edge of a level's cells (x, weights): (edge x, standard error), metres.
+
+    Weights are summed per x column of width ``column_m`` (the map's cell size, so columns
+    never alias with the cells). The outermost ``beyond_m`` of columns hold the blurred edge,
+    with total weight ``W``; the ``reference_m`` of columns before them give the interior
+    weight per metre as a fitted line ``rho(x)`` (the density of a real scan drifts along a
+    tread). The edge is ``split + L`` with ``W = integral of rho over [split, split + L]``.
+    Its error is ``L`` times the relative error of ``rho`` (column scatter / sqrt(columns)).
+    """
+    if not at_end:
+        edge, std = _edge(-x, w, column_m, beyond_m, reference_m, at_end=True)
+        return -edge, std
+    column = np.floor(x / column_m).astype(np.int64)
+    last = int(column.max())
+    n_beyond = max(1, int(round(beyond_m / column_m)))
+    n_ref = int(round(reference_m / column_m))
+    n_span = last - int(column.min()) + 1
+    # keep at least two thirds of a short level as reference
+    n_beyond = min(n_beyond, max(1, n_span // 3))
+    n_ref = min(n_ref, n_span - n_beyond)
+    if n_ref < 2:
+        return float(x.max()), column_m * n_span
+    split = (last - n_beyond + 1) * column_m
+    mass = float(w[column > last - n_beyond].sum())
+    ref_cols = last - n_beyond - np.arange(n_ref)  # nearest first
+    in_ref = (column <= ref_cols[0]) & (column > ref_cols[0] - n_ref)
+    rho = np.bincount(ref_cols[0] - column[in_ref], weights=w[in_ref], minlength=n_ref)
+    rho = rho / column_m  # weight per metre in each reference column
+    centres = (ref_cols + 0.5) * column_m - split  # negative
+    mean_rho = float(np.mean(rho))
+    if mean_rho <= 0:
+        return float(x.max()), column_m * n_span
+    length = mass / mean_rho
+    if n_ref >= 4:
+        slope, rho0 = np.polyfit(centres, rho, 1)
+        # solve mass = rho0 L + slope L^2 / 2, trusting the line only where it stays positive
+        if rho0 > 0.5 * mean_rho:
+            disc = rho0**2 + 2.0 * slope * mass
+            if abs(slope) * length < 1e-9 * rho0:
+                length = mass / rho0
+            elif disc >= 0:
+                length = float((-rho0 + np.sqrt(disc)) / slope)
+    rel_err = float(np.std(rho) / mean_rho) / np.sqrt(n_ref)
+    std = float(np.hypot(length * rel_err, column_m / np.sqrt(12.0)))
+    return split + length, std
+
+
+def _as_points(
+    points_xz_m: ArrayLike, weights: ArrayLike | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    pts = np.asarray(points_xz_m, dtype=np.float64)
+    if pts.size == 0:
+        pts = pts.reshape(0, 2)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise MappingError(f"points_xz_m must have shape (M, 2), got {pts.shape}")
+    w = np.ones(pts.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (pts.shape[0],) or np.any(w < 0):
+        raise MappingError("weights must be (M,) and non-negative")
+    finite = np.all(np.isfinite(pts), axis=1) & np.isfinite(w) & (w > 0)
+    return pts[finite], w[finite]
+
+
+# ---------------------------------------------------------------------------------------------
+# step 1: horizontal levels
+def find_levels(
+    points_xz_m: ArrayLike, weights: ArrayLike | None = None, config: StepConfig | None = None
+) -> tuple[LevelSegment, ...]:
+    """Horizontal levels of a map, sorted by x start (method step 1 in the module docstring).
+
+    Args:
+        points_xz_m: (M, 2) map points, world frame, metres.
+        weights: (M,) non-negative weights (raw point counts per map cell), default ones.
+        config: thresholds.
+    """
+    cfg = config if config is not None else StepConfig()
+    pts, w = _as_points(points_xz_m, weights)
+    tol = cfg.level_tolerance_m
+    remaining = np.ones(pts.shape[0], dtype=bool)
+    levels: list[LevelSegment] = []
+    for _ in range(cfg.max_levels):
+        idx = np.flatnonzero(remaining)
+        if idx.size < cfg.min_level_cells:
+            break
+        # the z window with most cells (sliding window over sorted heights)
+        z_sorted = np.sort(pts[idx, 1])
+        counts = np.searchsorted(z_sorted, z_sorted + 2 * tol, side="right") - np.arange(
+            z_sorted.size
+        )
+        best = int(np.argmax(counts))
+        if counts[best] < cfg.min_level_cells:
+            break
+        z_centre = z_sorted[best] + tol
+        members = idx[np.abs(pts[idx, 1] - z_centre) <= tol]
+        remaining[members] = False
+        # split along x at gaps, keep long enough pieces
+        members = members[np.argsort(pts[members, 0], kind="stable")]
+        breaks = np.flatnonzero(np.diff(pts[members, 0]) > cfg.max_gap_m) + 1
+        for piece in np.split(members, breaks):
+            if piece.size < cfg.min_level_cells:
+                continue
+            x_piece = pts[piece, 0]
+            if x_piece[-1] - x_piece[0] < cfg.min_level_length_m:
+                continue
+            levels.append(_make_level(pts[piece], w[piece], cfg))
+    levels.sort(key=lambda lv: lv.x_start_m)
+    return tuple(levels)
+
+
+def _make_level(pts: NDArray[np.float64], w: NDArray[np.float64], cfg: StepConfig) -> LevelSegment:
+    z_m, z_std_m, keep = _robust_mean(pts[:, 1], w, floor_m=0.002)
+    x, wk = pts[keep, 0], w[keep]
+    args = (cfg.column_width_m, cfg.edge_blur_m, cfg.edge_reference_m)
+    start, std_start = _edge(x, wk, *args, at_end=False)
+    end, std_end = _edge(x, wk, *args, at_end=True)
+    return LevelSegment(
+        z_m=z_m,
+        z_std_m=z_std_m,
+        x_start_m=float(x.min()),
+        x_end_m=float(x.max()),
+        x_start_edge_m=start,
+        x_end_edge_m=end,
+        edge_std_m=max(std_start, std_end),
+        n_cells=int(keep.sum()),
+        weight=float(wk.sum()),
+    )
+
+
+def _merge_levels(levels: tuple[LevelSegment, ...], cfg: StepConfig) -> list[LevelSegment]:
+    """Merge x-neighbours closer than ``min_rise_m`` in height (e.g. split by an occlusion)."""
+    merged: list[LevelSegment] = []
+    for lv in levels:
+        if merged and abs(lv.z_m - merged[-1].z_m) < cfg.min_rise_m:
+            a = merged[-1]
+            total = a.weight + lv.weight
+            merged[-1] = LevelSegment(
+                z_m=(a.z_m * a.weight + lv.z_m * lv.weight) / total,
+                z_std_m=float(np.hypot(a.z_std_m * a.weight, lv.z_std_m * lv.weight) / total),
+                x_start_m=min(a.x_start_m, lv.x_start_m),
+                x_end_m=max(a.x_end_m, lv.x_end_m),
+                x_start_edge_m=min(a.x_start_edge_m, lv.x_start_edge_m),
+                x_end_edge_m=max(a.x_end_edge_m, lv.x_end_edge_m),
+                edge_std_m=max(a.edge_std_m, lv.edge_std_m),
+                n_cells=a.n_cells + lv.n_cells,
+                weight=total,
+            )
+        else:
+            merged.append(lv)
+    return merged
+
+
+# ---------------------------------------------------------------------------------------------
+# step 2: risers, nosings, steps
+def fit_riser(
+    points_xz_m: NDArray[np.float64],
+    weights: NDArray[np.float64],
+    before: LevelSegment,
+    after: LevelSegment,
+    config: StepConfig,
+) -> RiserSegment | None:
+    """Robust x of the vertical face between two x-neighbouring levels, or None if too few
+    map cells lie between them (``riser_margin_m`` away from both heights)."""
+    z_lo, z_hi = sorted((before.z_m, after.z_m))
+    x_lo = min(before.x_end_m, after.x_start_m) - config.riser_x_window_m
+    x_hi = max(before.x_end_m, after.x_start_m) + config.riser_x_window_m
+    box = (
+        (points_xz_m[:, 0] >= x_lo)
+        & (points_xz_m[:, 0] <= x_hi)
+        & (points_xz_m[:, 1] > z_lo + config.riser_margin_m)
+        & (points_xz_m[:, 1] < z_hi - config.riser_margin_m)
+    )
+    if int(box.sum()) < config.min_riser_cells:
+        return None
+    x_m, x_std_m, keep = _robust_mean(points_xz_m[box, 0], weights[box], floor_m=0.003)
+    if int(keep.sum()) < config.min_riser_cells:
+        return None
+    z_box = points_xz_m[box, 1][keep]
+    return RiserSegment(
+        x_m=x_m,
+        x_std_m=x_std_m,
+        z_bottom_m=float(z_box.min()),
+        z_top_m=float(z_box.max()),
+        n_cells=int(keep.sum()),
+    )
+
+
+@dataclass(frozen=True)
+class _Transition:
+    index: int  # transition between levels[index] and levels[index + 1]
+    up: bool
+    nosing_xz_m: NDArray[np.float64]
+    nosing_std_xz_m: NDArray[np.float64]
+    riser: RiserSegment | None
+
+
+def _transition(
+    i: int,
+    levels: list[LevelSegment],
+    pts: NDArray[np.float64],
+    w: NDArray[np.float64],
+    cfg: StepConfig,
+) -> _Transition:
+    a, b = levels[i], levels[i + 1]
+    up = b.z_m > a.z_m
+    riser = fit_riser(pts, w, a, b, cfg) if up else None
+    if up:
+        top = b
+        if riser is not None:
+            x, sx = riser.x_m, riser.x_std_m
+        else:
+            x, sx = b.x_start_edge_m, b.edge_std_m
+    else:
+        top = a
+        x, sx = a.x_end_edge_m, a.edge_std_m
+    return _Transition(
+        index=i,
+        up=up,
+        nosing_xz_m=np.array([x, top.z_m]),
+        nosing_std_xz_m=np.array([sx, top.z_std_m]),
+        riser=riser,
+    )
+
+
+def estimate_terrain_geometry(
+    points_xz_m: ArrayLike,
+    weights: ArrayLike | None = None,
+    config: StepConfig | None = None,
+    kind_hint: TerrainKind | None = None,
+) -> TerrainGeometry:
+    """Segment a 2D map into levels and risers and measure steps / obstacles.
+
+    Args:
+        points_xz_m: (M, 2) map points (e.g. ``TerrainMap2D.points_xz_m``), world, metres.
+        weights: (M,) weights (``TerrainMap2D.point_counts``), default ones.
+        config: thresholds (``StepConfig``).
+        kind_hint: with ``TerrainKind.OBSTACLE`` a raised last level also counts as an
+            obstacle top (its far side not yet seen); otherwise unused.
+
+    Returns:
+        ``TerrainGeometry`` with the detected kind: LEVEL (one level), STAIR_UP/STAIR_DOWN
+        (all steps one way, no obstacle), OBSTACLE (obstacles, no steps), else UNKNOWN.
+    """
+    cfg = config if config is not None else StepConfig()
+    pts, w = _as_points(points_xz_m, weights)
+    levels = _merge_levels(find_levels(pts, w, cfg), cfg)
+    if not levels:
+        return TerrainGeometry(TerrainKind.UNKNOWN, (), (), (), ())
+    transitions = [_transition(i, levels, pts, w, cfg) for i in range(len(levels) - 1)]
+    risers = tuple(t.riser for t in transitions if t.riser is not None)
+
+    # obstacles: a plateau higher than both neighbours and not too deep
+    consumed: set[int] = set()
+    obstacles: list[ObstacleGeometry] = []
+    for j in range(1, len(levels)):
+        up_into = transitions[j - 1]
+        has_back = j < len(levels) - 1
+        if not up_into.up or (has_back and transitions[j].up):
+            continue
+        if not has_back and kind_hint is not TerrainKind.OBSTACLE:
+            continue
+        if j - 1 in consumed:
+            continue
+        top = levels[j]
+        if has_back:
+            back_xz, back_std = transitions[j].nosing_xz_m, transitions[j].nosing_std_xz_m
+            grounds = [levels[j - 1], levels[j + 1]]
+        else:
+            back_xz = np.array([top.x_end_edge_m, top.z_m])
+            back_std = np.array([top.edge_std_m, top.z_std_m])
+            grounds = [levels[j - 1]]
+        depth = float(back_xz[0] - up_into.nosing_xz_m[0])
+        if depth > cfg.max_obstacle_depth_m:
+            continue
+        ground_z = float(np.mean([g.z_m for g in grounds]))
+        ground_std = float(np.sqrt(np.sum([g.z_std_m**2 for g in grounds])) / len(grounds))
+        obstacles.append(
+            ObstacleGeometry(
+                height_m=top.z_m - ground_z,
+                height_std_m=float(np.hypot(top.z_std_m, ground_std)),
+                depth_m=depth,
+                depth_std_m=float(np.hypot(back_std[0], up_into.nosing_std_xz_m[0])),
+                front_edge_xz_m=up_into.nosing_xz_m.copy(),
+                back_edge_xz_m=back_xz.copy(),
+                front_edge_std_xz_m=up_into.nosing_std_xz_m.copy(),
+                back_edge_std_xz_m=back_std.copy(),
+                ground_z_m=ground_z,
+                top_z_m=top.z_m,
+            )
+        )
+        consumed.update({j - 1, j} if has_back else {j - 1})
+
+    # steps: every other transition; tread = distance to the next nosing of the same run
+    free = [t for t in transitions if t.index not in consumed]
+    steps: list[StepGeometry] = []
+    for k, t in enumerate(free):
+        a, b = levels[t.index], levels[t.index + 1]
+        nxt = free[k + 1] if k + 1 < len(free) else None
+        tread_m: float | None = None
+        tread_std_m: float | None = None
+        if nxt is not None and nxt.index == t.index + 1 and nxt.up == t.up:
+            tread_m = float(abs(nxt.nosing_xz_m[0] - t.nosing_xz_m[0]))
+            tread_std_m = float(np.hypot(nxt.nosing_std_xz_m[0], t.nosing_std_xz_m[0]))
+        steps.append(
+            StepGeometry(
+                index=k,
+                direction="up" if t.up else "down",
+                rise_m=float(abs(b.z_m - a.z_m)),
+                rise_std_m=float(np.hypot(a.z_std_m, b.z_std_m)),
+                tread_m=tread_m,
+                tread_std_m=tread_std_m,
+                nosing_xz_m=t.nosing_xz_m,
+                nosing_std_xz_m=t.nosing_std_xz_m,
+                lower_z_m=min(a.z_m, b.z_m),
+                upper_z_m=max(a.z_m, b.z_m),
+                riser_observed=t.riser is not None,
+            )
+        )
+
+    if not transitions:
+        kind = TerrainKind.LEVEL
+    elif obstacles and not steps:
+        kind = TerrainKind.OBSTACLE
+    elif steps and not obstacles and all(s.direction == "up" for s in steps):
+        kind = TerrainKind.STAIR_UP
+    elif steps and not obstacles and all(s.direction == "down" for s in steps):
+        kind = TerrainKind.STAIR_DOWN
+    else:
+        kind = TerrainKind.UNKNOWN
+    return TerrainGeometry(kind, tuple(steps), tuple(obstacles), tuple(levels), risers)
+
+
+# ---------------------------------------------------------------------------------------------
+# comparison with the recording's ground truth
+def _true_rise_at_edges(terrain: TerrainInfo, edges: NDArray[np.float64]) -> list[float | None]:
+    """True rise at each true edge: height difference to the other end of the vertical
+    profile segment that starts at the edge (None when the profile does not show one)."""
+    profile = np.asarray(terrain.profile_xz_m, dtype=np.float64).reshape(-1, 2)
+    rises: list[float | None] = []
+    for edge in edges:
+        rise: float | None = None
+        if profile.shape[0] >= 2:
+            i = int(np.argmin(np.linalg.norm(profile - edge, axis=1)))
+            if np.linalg.norm(profile[i] - edge) < 1e-6:
+                for j in (i - 1, i + 1):
+                    if 0 <= j < profile.shape[0] and abs(profile[j, 0] - edge[0]) < 1e-6:
+                        rise = float(abs(edge[1] - profile[j, 1]))
+        if rise is None and "rise_m" in terrain.params:
+            rise = float(terrain.params["rise_m"])
+        rises.append(rise)
+    return rises
+
+
+def _match(
+    est: NDArray[np.float64], true: NDArray[np.float64], radius_m: float
+) -> list[int | None]:
+    """Greedy nearest matching of estimated to true points (each true point used once)."""
+    if est.shape[0] == 0 or true.shape[0] == 0:
+        return [None] * est.shape[0]
+    dist = np.linalg.norm(est[:, None, :] - true[None, :, :], axis=2)
+    match: list[int | None] = [None] * est.shape[0]
+    used: set[int] = set()
+    for flat in np.argsort(dist, axis=None):
+        i, j = np.unravel_index(flat, dist.shape)
+        if dist[i, j] > radius_m:
+            break
+        if match[i] is None and j not in used:
+            match[i] = int(j)
+            used.add(int(j))
+    return match
+
+
+def _mm(value: float | None) -> float | None:
+    return None if value is None else 1000.0 * float(value)
+
+
+def _mean_abs(values: list[float | None]) -> float | None:
+    vals = [abs(v) for v in values if v is not None]
+    return float(np.mean(vals)) if vals else None
+
+
+def compare_to_truth(
+    geometry: TerrainGeometry, terrain_info: TerrainInfo, match_radius_m: float = 0.07
+) -> dict[str, Any]:
+    """Errors of the estimated step / obstacle geometry against the recording's truth.
+
+    Estimated nosings are matched to the true convex edges (``terrain_info.edges_xz_m``,
+    greedy nearest, within ``match_radius_m``). Per step: rise error (estimate minus the true
+    riser height at the matched edge, from ``profile_xz_m``, else ``params['rise_m']``) and
+    tread error (estimate minus the x distance between the true edges matched to this and
+    the next nosing, else ``params['tread_m']``). Obstacles: height and depth against
+    ``params['height_m']``/``params['depth_m']`` (else from the edges and the lowest profile
+    point), edge errors against the matched true edges.
+
+    Returns a JSON-ready dict; lengths in millimetres (keys end in ``_mm``), None where no
+    truth is available: ``kind_true``, ``kind_estimated``, ``kind_correct``, ``n_edges_true``,
+    ``n_steps_estimated``, ``n_steps_matched``, per-step lists ``rise_error_mm``,
+    ``tread_error_mm``, ``nosing_error_mm`` (norm), ``nosing_dx_mm``, ``nosing_dz_mm``,
+    ``matched_edge_index``; summaries ``rise_mae_mm``, ``tread_mae_mm``, ``nosing_mae_mm``,
+    ``nosing_max_mm``; and ``obstacles``: a list of dicts with ``height_error_mm``,
+    ``depth_error_mm``, ``front_edge_error_mm``, ``back_edge_error_mm``.
+    """
+    true_edges = np.asarray(terrain_info.edges_xz_m, dtype=np.float64).reshape(-1, 2)
+    params = terrain_info.params
+    true_rises = _true_rise_at_edges(terrain_info, true_edges)
+    true_tread = float(params["tread_m"]) if "tread_m" in params else None
+
+    nosings = np.array([s.nosing_xz_m for s in geometry.steps]).reshape(-1, 2)
+    match = _match(nosings, true_edges, match_radius_m)
+    rise_err: list[float | None] = []
+    tread_err: list[float | None] = []
+    nosing_err: list[float | None] = []
+    nosing_dx: list[float | None] = []
+    nosing_dz: list[float | None] = []
+    for k, step in enumerate(geometry.steps):
+        j = match[k]
+        true_rise = true_rises[j] if j is not None else params.get("rise_m")
+        rise_err.append(_mm(step.rise_m - float(true_rise)) if true_rise is not None else None)
+        if step.tread_m is not None:
+            nxt = match[k + 1] if k + 1 < len(match) else None
+            if j is not None and nxt is not None:
+                truth = float(abs(true_edges[nxt, 0] - true_edges[j, 0]))
+            else:
+                truth = true_tread
+            tread_err.append(_mm(step.tread_m - truth) if truth is not None else None)
+        else:
+            tread_err.append(None)
+        if j is not None:
+            d = step.nosing_xz_m - true_edges[j]
+            nosing_err.append(_mm(float(np.linalg.norm(d))))
+            nosing_dx.append(_mm(float(d[0])))
+            nosing_dz.append(_mm(float(d[1])))
+        else:
+            nosing_err.append(None)
+            nosing_dx.append(None)
+            nosing_dz.append(None)
+
+    obstacle_reports: list[dict[str, Any]] = []
+    profile = np.asarray(terrain_info.profile_xz_m, dtype=np.float64).reshape(-1, 2)
+    for ob in geometry.obstacles:
+        edges = np.array([ob.front_edge_xz_m, ob.back_edge_xz_m])
+        m = _match(edges, true_edges, match_radius_m)
+        if "height_m" in params:
+            true_h: float | None = float(params["height_m"])
+        elif m[0] is not None and profile.shape[0]:
+            true_h = float(true_edges[m[0], 1] - profile[:, 1].min())
+        else:
+            true_h = None
+        if "depth_m" in params:
+            true_d: float | None = float(params["depth_m"])
+        elif m[0] is not None and m[1] is not None:
+            true_d = float(true_edges[m[1], 0] - true_edges[m[0], 0])
+        else:
+            true_d = None
+        obstacle_reports.append(
+            {
+                "height_m": ob.height_m,
+                "depth_m": ob.depth_m,
+                "height_error_mm": _mm(ob.height_m - true_h) if true_h is not None else None,
+                "depth_error_mm": _mm(ob.depth_m - true_d) if true_d is not None else None,
+                "front_edge_error_mm": _mm(float(np.linalg.norm(edges[0] - true_edges[m[0]])))
+                if m[0] is not None
+                else None,
+                "back_edge_error_mm": _mm(float(np.linalg.norm(edges[1] - true_edges[m[1]])))
+                if m[1] is not None
+                else None,
+            }
+        )
+
+    matched_norms = [v for v in nosing_err if v is not None]
+    return {
+        "kind_true": terrain_info.kind,
+        "kind_estimated": geometry.kind.value,
+        "kind_correct": geometry.kind.value == terrain_info.kind,
+        "n_edges_true": int(true_edges.shape[0]),
+        "n_steps_estimated": len(geometry.steps),
+        "n_steps_matched": sum(j is not None for j in match),
+        "matched_edge_index": match,
+        "rise_error_mm": rise_err,
+        "tread_error_mm": tread_err,
+        "nosing_error_mm": nosing_err,
+        "nosing_dx_mm": nosing_dx,
+        "nosing_dz_mm": nosing_dz,
+        "rise_mae_mm": _mean_abs(rise_err),
+        "tread_mae_mm": _mean_abs(tread_err),
+        "nosing_mae_mm": _mean_abs(nosing_err),
+        "nosing_max_mm": float(max(matched_norms)) if matched_norms else None,
+        "obstacles": obstacle_reports,
+    }

@@ -465,7 +465,9 @@ class KeyframeGraphBuilder:
                 [X(0)])
             add(gtsam.PriorFactorVector(V(0), v_guess, gtsam.noiseModel.Isotropic.Sigma(
                 3, cfg.first_velocity_sigma_mps)), [V(0)])
-            bsig = np.r_[[cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3]
+            bsig = np.r_[
+                [cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3
+            ]
             add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(),
                                               gtsam.noiseModel.Diagonal.Sigmas(bsig)), [B(0)])
         else:

@@ -81,7 +81,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         try:
             self._smoother.update(factors, u.values, stamps)
         except RuntimeError as exc:  # GTSAM's exceptions surface as RuntimeError
-            raise EstimationError(f"fixed-lag update at {u.timestamp_s:.3f} s failed: {exc}") from exc
+            msg = f"fixed-lag update at {u.timestamp_s:.3f} s failed: {exc}"
+            raise EstimationError(msg) from exc
 
         self._live = {k: s for k, s in merged.items() if s >= cutoff}
         dead_landmarks = [k for k in leaving if gtsam.Symbol(k).chr() == ord("l")]

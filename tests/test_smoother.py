@@ -270,3 +270,18 @@ def test_landmarks_bound_drift_of_biased_displacements(cls):
         res[lm] = rms(keyframe_errors_m(tr, s)[0])
     assert res[True] < 0.02  # corners in view all along: ~1 cm
     assert res[True] < 0.2 * res[False]
+
+
+def test_batch_fixed_lag_variant_agrees_with_incremental():
+    tr = make_swinging_shank_trial(3.0, displacement_sigma_m=0.002, seed=4)
+    out = {}
+    for batch_solver in (True, False):
+        cfg = SmootherConfig(window_s=0.5, fixed_lag_batch_solver=batch_solver)
+        s = SlidingWindowSmoother(cfg, tr.imu_T_cam)
+        feed(tr, s)
+        assert s.live_keys() == s.smoother_keys()
+        out[batch_solver] = s.keyframe_estimates()
+    xz_b = np.array([e.camera_xz_m for e in out[True]])
+    xz_i = np.array([e.camera_xz_m for e in out[False]])
+    np.testing.assert_allclose(xz_b, xz_i, atol=2e-3)
+    assert np.isnan(out[True][-1].cov_m2).all()  # no marginals from BatchFixedLagSmoother

@@ -1,0 +1,527 @@
+"""Files of the mapping subpackage: the 2D map as point clouds, the step geometry as JSON and
+CSV, and a PNG plot. The only module of vio_graph.mapping that does I/O; every file is
+written atomically (temporary name in the same folder, then rename).
+
+Point clouds (``map.ply``, ``map.pcd``)
+    The map points in the world frame as 3D points ``(x, 0, z)`` in metres (the sagittal
+    plane is y = 0), written by open3d (binary PLY with double coordinates; binary PCD).
+
+Step geometry JSON (``steps.json``)
+    ``{"format": "vio_graph.terrain_geometry", "version": 1, "kind": <TerrainKind value>,
+    "summary": {"n_steps", "n_obstacles", "mean_rise_m", "mean_tread_m"},
+    "steps": [...], "obstacles": [...], "levels": [...], "risers": [...],
+    "comparison": <compare_to_truth dict> | null}``. Each list entry holds the fields of
+    the dataclass of the same name in ``vio_graph.mapping.steps`` (arrays as lists, metres);
+    unknown values are ``null``.
+
+Step geometry CSV (``steps.csv``)
+    One row per step and per obstacle, comma separated, header line first, empty cell =
+    unknown. Columns (units in the names, world frame, metres):
+
+    ========================== ========================================================
+    ``feature``                ``step`` or ``obstacle``
+    ``index``                  step number along +x (obstacles counted separately)
+    ``direction``              ``up`` / ``down`` for steps, empty for obstacles
+    ``height_m``               step rise, or obstacle height above the ground
+    ``height_std_m``           its standard error
+    ``depth_m``                step tread (to the next nosing; empty for the last step),
+                               or obstacle depth along x
+    ``depth_std_m``            its standard error
+    ``edge_x_m``, ``edge_z_m``  step nosing, or obstacle front top edge
+    ``edge_x_std_m``, ``edge_z_std_m``  their standard errors
+    ``back_edge_x_m``, ``back_edge_z_m``, ``back_edge_x_std_m``, ``back_edge_z_std_m``
+                               obstacle back top edge (empty for steps)
+    ``lower_z_m``, ``upper_z_m``  the two levels of a step; ground and top of an obstacle
+    ``riser_observed``         1 if the step's riser was seen (nosing x from the riser),
+                               0 if not, empty for obstacles
+    ========================== ========================================================
+
+Plot (``map.png``)
+    Map points, detected levels (treads / floor) and risers, nosings and obstacle edges with
+    their uncertainty, and optionally the true profile and edges.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vio_graph.errors import OutputError
+from vio_graph.io_utils import atomic_path, atomic_write_text
+from vio_graph.mapping.steps import (
+    LevelSegment,
+    ObstacleGeometry,
+    RiserSegment,
+    StepGeometry,
+    TerrainGeometry,
+)
+from vio_graph.o3d import open3d
+from vio_graph.recording.metadata import TerrainInfo
+from vio_graph.types import TerrainKind
+
+GEOMETRY_FORMAT = "vio_graph.terrain_geometry"
+GEOMETRY_VERSION = 1
+CSV_COLUMNS = (
+    "feature",
+    "index",
+    "direction",
+    "height_m",
+    "height_std_m",
+    "depth_m",
+    "depth_std_m",
+    "edge_x_m",
+    "edge_z_m",
+    "edge_x_std_m",
+    "edge_z_std_m",
+    "back_edge_x_m",
+    "back_edge_z_m",
+    "back_edge_x_std_m",
+    "back_edge_z_std_m",
+    "lower_z_m",
+    "upper_z_m",
+    "riser_observed",
+)
+
+
+# ---------------------------------------------------------------------------------------------
+# point clouds
+def _points_3d(points_xz_m: ArrayLike) -> NDArray[np.float64]:
+    pts = np.asarray(points_xz_m, dtype=np.float64).reshape(-1, 2)
+    return np.column_stack([pts[:, 0], np.zeros(pts.shape[0]), pts[:, 1]])
+
+
+def write_point_cloud(path: Path, points_xz_m: ArrayLike) -> Path:
+    """Write (M, 2) map points as a PLY or PCD file (chosen by the suffix), y = 0.
+
+    Raises:
+        OutputError: unknown suffix or open3d failed to write.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in (".ply", ".pcd"):
+        raise OutputError(f"{path}: point cloud suffix must be .ply or .pcd")
+    o3d = open3d()
+    cloud = o3d.geometry.PointCloud()
+    cloud.points = o3d.utility.Vector3dVector(_points_3d(points_xz_m))
+    with atomic_path(path, suffix=path.suffix) as tmp:
+        if not o3d.io.write_point_cloud(str(tmp), cloud, write_ascii=False):
+            raise OutputError(f"{path}: open3d could not write the point cloud")
+    return path
+
+
+def read_point_cloud_xz(path: Path) -> NDArray[np.float64]:
+    """Read a PLY/PCD written by :func:`write_point_cloud`: (M, 2) x-z points, metres.
+
+    Raises:
+        OutputError: the file is missing, unreadable, or its points are not in y = 0.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise OutputError(f"{path}: no such file")
+    cloud = open3d().io.read_point_cloud(str(path))
+    pts = np.asarray(cloud.points, dtype=np.float64)
+    if pts.size and np.max(np.abs(pts[:, 1])) > 1e-6:
+        raise OutputError(f"{path}: points are not in the sagittal plane y = 0")
+    return pts[:, [0, 2]].copy()
+
+
+# ---------------------------------------------------------------------------------------------
+# JSON
+def _clean(value: Any) -> Any:
+    """JSON-ready copy: arrays to lists, numpy scalars to Python, non-finite floats to None."""
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _clean(value.tolist())
+    if isinstance(value, np.generic):
+        return _clean(value.item())
+    if isinstance(value, TerrainKind):
+        return value.value
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _fields(obj: Any) -> dict[str, Any]:
+    return {name: getattr(obj, name) for name in obj.__dataclass_fields__}
+
+
+def geometry_to_dict(
+    geometry: TerrainGeometry, comparison: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """The JSON document of ``steps.json`` (schema in the module docstring)."""
+    return _clean(
+        {
+            "format": GEOMETRY_FORMAT,
+            "version": GEOMETRY_VERSION,
+            "kind": geometry.kind.value,
+            "summary": {
+                "n_steps": len(geometry.steps),
+                "n_obstacles": len(geometry.obstacles),
+                "mean_rise_m": geometry.mean_rise_m,
+                "mean_tread_m": geometry.mean_tread_m,
+            },
+            "steps": [_fields(s) for s in geometry.steps],
+            "obstacles": [_fields(o) for o in geometry.obstacles],
+            "levels": [_fields(lv) for lv in geometry.levels],
+            "risers": [_fields(r) for r in geometry.risers],
+            "comparison": comparison,
+        }
+    )
+
+
+def _arr(value: Any) -> NDArray[np.float64]:
+    return np.asarray(value, dtype=np.float64)
+
+
+def geometry_from_dict(doc: dict[str, Any]) -> TerrainGeometry:
+    """Inverse of :func:`geometry_to_dict`.
+
+    Raises:
+        OutputError: not a vio_graph terrain-geometry document or a field is missing.
+    """
+    if doc.get("format") != GEOMETRY_FORMAT or doc.get("version") != GEOMETRY_VERSION:
+        raise OutputError(f"not a {GEOMETRY_FORMAT} v{GEOMETRY_VERSION} document")
+    try:
+        steps = tuple(
+            StepGeometry(
+                **{
+                    **s,
+                    "nosing_xz_m": _arr(s["nosing_xz_m"]),
+                    "nosing_std_xz_m": _arr(s["nosing_std_xz_m"]),
+                }
+            )
+            for s in doc["steps"]
+        )
+        obstacles = tuple(
+            ObstacleGeometry(
+                **{
+                    **o,
+                    **{
+                        k: _arr(o[k])
+                        for k in (
+                            "front_edge_xz_m",
+                            "back_edge_xz_m",
+                            "front_edge_std_xz_m",
+                            "back_edge_std_xz_m",
+                        )
+                    },
+                }
+            )
+            for o in doc["obstacles"]
+        )
+        levels = tuple(LevelSegment(**lv) for lv in doc["levels"])
+        risers = tuple(RiserSegment(**r) for r in doc["risers"])
+        kind = TerrainKind(doc["kind"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise OutputError(f"malformed terrain-geometry document: {exc}") from exc
+    return TerrainGeometry(kind, steps, obstacles, levels, risers)
+
+
+def write_geometry_json(
+    path: Path, geometry: TerrainGeometry, comparison: dict[str, Any] | None = None
+) -> Path:
+    """Write ``steps.json`` (schema in the module docstring), optionally with the
+    :func:`vio_graph.mapping.steps.compare_to_truth` result."""
+    doc = geometry_to_dict(geometry, comparison)
+    atomic_write_text(Path(path), json.dumps(doc, indent=2, allow_nan=False) + "\n")
+    return Path(path)
+
+
+def read_geometry_json(path: Path) -> TerrainGeometry:
+    """Read a ``steps.json`` written by :func:`write_geometry_json`.
+
+    Raises:
+        OutputError: missing file, invalid JSON or not a terrain-geometry document.
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise OutputError(f"{path}: cannot read terrain geometry JSON: {exc}") from exc
+    try:
+        return geometry_from_dict(doc)
+    except OutputError as exc:
+        raise OutputError(f"{path}: {exc}") from exc
+
+
+# ---------------------------------------------------------------------------------------------
+# CSV
+def _num(value: float | None) -> str:
+    return "" if value is None or not math.isfinite(float(value)) else repr(float(value))
+
+
+def geometry_csv_rows(geometry: TerrainGeometry) -> list[dict[str, str]]:
+    """Rows of ``steps.csv`` as strings keyed by :data:`CSV_COLUMNS`."""
+    rows: list[dict[str, str]] = []
+    for s in geometry.steps:
+        rows.append(
+            {
+                "feature": "step",
+                "index": str(s.index),
+                "direction": s.direction,
+                "height_m": _num(s.rise_m),
+                "height_std_m": _num(s.rise_std_m),
+                "depth_m": _num(s.tread_m),
+                "depth_std_m": _num(s.tread_std_m),
+                "edge_x_m": _num(s.nosing_xz_m[0]),
+                "edge_z_m": _num(s.nosing_xz_m[1]),
+                "edge_x_std_m": _num(s.nosing_std_xz_m[0]),
+                "edge_z_std_m": _num(s.nosing_std_xz_m[1]),
+                "back_edge_x_m": "",
+                "back_edge_z_m": "",
+                "back_edge_x_std_m": "",
+                "back_edge_z_std_m": "",
+                "lower_z_m": _num(s.lower_z_m),
+                "upper_z_m": _num(s.upper_z_m),
+                "riser_observed": "1" if s.riser_observed else "0",
+            }
+        )
+    for i, o in enumerate(geometry.obstacles):
+        rows.append(
+            {
+                "feature": "obstacle",
+                "index": str(i),
+                "direction": "",
+                "height_m": _num(o.height_m),
+                "height_std_m": _num(o.height_std_m),
+                "depth_m": _num(o.depth_m),
+                "depth_std_m": _num(o.depth_std_m),
+                "edge_x_m": _num(o.front_edge_xz_m[0]),
+                "edge_z_m": _num(o.front_edge_xz_m[1]),
+                "edge_x_std_m": _num(o.front_edge_std_xz_m[0]),
+                "edge_z_std_m": _num(o.front_edge_std_xz_m[1]),
+                "back_edge_x_m": _num(o.back_edge_xz_m[0]),
+                "back_edge_z_m": _num(o.back_edge_xz_m[1]),
+                "back_edge_x_std_m": _num(o.back_edge_std_xz_m[0]),
+                "back_edge_z_std_m": _num(o.back_edge_std_xz_m[1]),
+                "lower_z_m": _num(o.ground_z_m),
+                "upper_z_m": _num(o.top_z_m),
+                "riser_observed": "",
+            }
+        )
+    return rows
+
+
+def write_geometry_csv(path: Path, geometry: TerrainGeometry) -> Path:
+    """Write ``steps.csv`` (columns in the module docstring)."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(geometry_csv_rows(geometry))
+    atomic_write_text(Path(path), buffer.getvalue())
+    return Path(path)
+
+
+def read_geometry_csv(path: Path) -> tuple[tuple[StepGeometry, ...], tuple[ObstacleGeometry, ...]]:
+    """Read the steps and obstacles of a ``steps.csv`` written by :func:`write_geometry_csv`.
+
+    Raises:
+        OutputError: missing file, wrong header or a malformed row (the message names the
+            line).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot read: {exc}") from exc
+    reader = csv.DictReader(io.StringIO(text))
+    if tuple(reader.fieldnames or ()) != CSV_COLUMNS:
+        raise OutputError(f"{path}: header must be {','.join(CSV_COLUMNS)}")
+
+    def f(row: dict[str, str], key: str) -> float | None:
+        return float(row[key]) if row[key] != "" else None
+
+    def xz(row: dict[str, str], kx: str, kz: str) -> NDArray[np.float64]:
+        return np.array([float(row[kx]), float(row[kz])])
+
+    steps: list[StepGeometry] = []
+    obstacles: list[ObstacleGeometry] = []
+    for line, row in enumerate(reader, start=2):
+        try:
+            if row["feature"] == "step":
+                if row["direction"] not in ("up", "down"):
+                    raise ValueError(f"direction {row['direction']!r}")
+                steps.append(
+                    StepGeometry(
+                        index=int(row["index"]),
+                        direction=row["direction"],  # type: ignore[arg-type]
+                        rise_m=float(row["height_m"]),
+                        rise_std_m=float(row["height_std_m"]),
+                        tread_m=f(row, "depth_m"),
+                        tread_std_m=f(row, "depth_std_m"),
+                        nosing_xz_m=xz(row, "edge_x_m", "edge_z_m"),
+                        nosing_std_xz_m=xz(row, "edge_x_std_m", "edge_z_std_m"),
+                        lower_z_m=float(row["lower_z_m"]),
+                        upper_z_m=float(row["upper_z_m"]),
+                        riser_observed=row["riser_observed"] == "1",
+                    )
+                )
+            elif row["feature"] == "obstacle":
+                obstacles.append(
+                    ObstacleGeometry(
+                        height_m=float(row["height_m"]),
+                        height_std_m=float(row["height_std_m"]),
+                        depth_m=float(row["depth_m"]),
+                        depth_std_m=float(row["depth_std_m"]),
+                        front_edge_xz_m=xz(row, "edge_x_m", "edge_z_m"),
+                        back_edge_xz_m=xz(row, "back_edge_x_m", "back_edge_z_m"),
+                        front_edge_std_xz_m=xz(row, "edge_x_std_m", "edge_z_std_m"),
+                        back_edge_std_xz_m=xz(row, "back_edge_x_std_m", "back_edge_z_std_m"),
+                        ground_z_m=float(row["lower_z_m"]),
+                        top_z_m=float(row["upper_z_m"]),
+                    )
+                )
+            else:
+                raise ValueError(f"feature {row['feature']!r}")
+        except (TypeError, ValueError) as exc:
+            raise OutputError(f"{path}: line {line}: {exc}") from exc
+    return tuple(steps), tuple(obstacles)
+
+
+# ---------------------------------------------------------------------------------------------
+# plot
+def write_map_png(
+    path: Path,
+    points_xz_m: ArrayLike,
+    geometry: TerrainGeometry | None = None,
+    terrain_info: TerrainInfo | None = None,
+    camera_xz_m: ArrayLike | None = None,
+    title: str | None = None,
+) -> Path:
+    """Plot the map (x forward, z up, equal axes) with the detected levels, risers, nosings
+    and obstacle edges (error bars = 3 sigma), optionally the true profile and edges of
+    ``terrain_info`` and the keyframe camera positions (K, 2); write it as a PNG."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    pts = np.asarray(points_xz_m, dtype=np.float64).reshape(-1, 2)
+    fig = Figure(figsize=(10, 5), dpi=120)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.scatter(pts[:, 0], pts[:, 1], s=1.5, c="0.55", label=f"map ({pts.shape[0]} points)")
+    if terrain_info is not None and terrain_info.profile_xz_m:
+        true_profile = np.asarray(terrain_info.profile_xz_m)
+        ax.plot(true_profile[:, 0], true_profile[:, 1], "k--", lw=0.8, label="true profile")
+    if terrain_info is not None and terrain_info.edges_xz_m:
+        true_edges = np.asarray(terrain_info.edges_xz_m)
+        ax.plot(true_edges[:, 0], true_edges[:, 1], "kx", ms=8, label="true edges")
+    if camera_xz_m is not None:
+        cams = np.asarray(camera_xz_m, dtype=np.float64).reshape(-1, 2)
+        ax.plot(cams[:, 0], cams[:, 1], "-", color="tab:purple", lw=1, label="camera")
+    if geometry is not None:
+        _draw_geometry(ax, geometry)
+        ax.set_title(title or f"terrain map: {geometry.kind.value}")
+    elif title:
+        ax.set_title(title)
+    ax.set_xlabel("x forward [m]")
+    ax.set_ylabel("z up [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, lw=0.3)
+    ax.legend(loc="best", fontsize=7)
+    with atomic_path(Path(path), suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+    return Path(path)
+
+
+def _draw_geometry(ax: Any, geometry: TerrainGeometry) -> None:
+    for i, lv in enumerate(geometry.levels):
+        ax.plot(
+            [lv.x_start_edge_m, lv.x_end_edge_m],
+            [lv.z_m, lv.z_m],
+            "-",
+            color="tab:blue",
+            lw=2.5,
+            alpha=0.8,
+            label="levels (treads, floor)" if i == 0 else None,
+        )
+    for i, r in enumerate(geometry.risers):
+        ax.plot(
+            [r.x_m, r.x_m],
+            [r.z_bottom_m, r.z_top_m],
+            "-",
+            color="tab:green",
+            lw=2.5,
+            alpha=0.8,
+            label="risers" if i == 0 else None,
+        )
+    for i, s in enumerate(geometry.steps):
+        ax.errorbar(
+            s.nosing_xz_m[0],
+            s.nosing_xz_m[1],
+            xerr=3 * s.nosing_std_xz_m[0],
+            yerr=3 * s.nosing_std_xz_m[1],
+            fmt="o",
+            color="tab:red",
+            ms=5,
+            label="nosings (3 sigma)" if i == 0 else None,
+        )
+        tread = "" if s.tread_m is None else f" x {1000 * s.tread_m:.1f}"
+        ax.annotate(
+            f"{1000 * s.rise_m:.1f}{tread} mm",
+            s.nosing_xz_m,
+            textcoords="offset points",
+            xytext=(-10, 8),
+            fontsize=7,
+            color="tab:red",
+        )
+    for i, o in enumerate(geometry.obstacles):
+        edges = np.array([o.front_edge_xz_m, o.back_edge_xz_m])
+        ax.plot(
+            edges[:, 0],
+            edges[:, 1],
+            "s",
+            color="tab:orange",
+            ms=6,
+            label="obstacle edges" if i == 0 else None,
+        )
+        ax.annotate(
+            f"h {1000 * o.height_m:.1f} mm, d {1000 * o.depth_m:.1f} mm",
+            edges.mean(axis=0),
+            textcoords="offset points",
+            xytext=(-30, 10),
+            fontsize=7,
+            color="tab:orange",
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# everything at once
+def export_map(
+    out_dir: Path,
+    points_xz_m: ArrayLike,
+    geometry: TerrainGeometry,
+    terrain_info: TerrainInfo | None = None,
+    comparison: dict[str, Any] | None = None,
+    camera_xz_m: ArrayLike | None = None,
+    formats: Sequence[str] = ("ply", "pcd", "json", "csv", "png"),
+) -> dict[str, Path]:
+    """Write ``map.ply``, ``map.pcd``, ``steps.json``, ``steps.csv`` and ``map.png`` (those
+    listed in ``formats``) into ``out_dir``; return {format: path}."""
+    out_dir = Path(out_dir)
+    unknown = set(formats) - {"ply", "pcd", "json", "csv", "png"}
+    if unknown:
+        raise OutputError(f"unknown export formats: {sorted(unknown)}")
+    written: dict[str, Path] = {}
+    if "ply" in formats:
+        written["ply"] = write_point_cloud(out_dir / "map.ply", points_xz_m)
+    if "pcd" in formats:
+        written["pcd"] = write_point_cloud(out_dir / "map.pcd", points_xz_m)
+    if "json" in formats:
+        written["json"] = write_geometry_json(out_dir / "steps.json", geometry, comparison)
+    if "csv" in formats:
+        written["csv"] = write_geometry_csv(out_dir / "steps.csv", geometry)
+    if "png" in formats:
+        written["png"] = write_map_png(
+            out_dir / "map.png", points_xz_m, geometry, terrain_info, camera_xz_m
+        )
+    return written

@@ -1,0 +1,189 @@
+"""Configuration of the visual front end (paper Section II.A), one model per step.
+
+Every threshold the front end uses lives here, with its unit in the name and its default in
+code. Models are frozen pydantic v2 models that reject unknown keys, so a typo in a YAML file
+is an error, not a silently ignored setting.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+TerrainName = Literal["stair_up", "stair_down", "obstacle", "level", "unknown"]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ProjectionConfig(_Strict):
+    """Sagittal slice (eq. 1) and rotation into the ground frame (eq. 2)."""
+
+    half_width_m: float = Field(
+        0.05, gt=0, description="keep points with |x_C| < half_width_m (lateral camera axis), m"
+    )
+    min_depth_m: float = Field(0.1, ge=0, description="ignore pixels closer than this, m")
+    max_depth_m: float = Field(4.0, gt=0, description="ignore pixels farther than this, m")
+    min_confidence: int = Field(
+        1, ge=1, le=255, description="ignore pixels whose confidence is below this (0 = invalid)"
+    )
+
+
+class SmoothingConfig(_Strict):
+    """Grid thinning followed by kNN smoothing of the 2D profile (end of Section II.A.1)."""
+
+    grid_cell_m: float = Field(
+        0.005, ge=0, description="thinning cell size in x and z, m; 0 disables thinning"
+    )
+    k_neighbours: int = Field(
+        5, ge=1, description="each point is replaced by the mean of its k nearest neighbours"
+    )
+    min_points: int = Field(
+        10, ge=1, description="profiles with fewer points (after thinning) are not smoothed"
+    )
+
+
+class TerrainConfig(_Strict):
+    """Geometric terrain classifier on the smoothed profile (replaces the paper's CNN)."""
+
+    level_band_m: float = Field(
+        0.02, gt=0, description="half-height of the band that collects a horizontal level, m"
+    )
+    min_level_length_m: float = Field(
+        0.05, gt=0, description="a level must span at least this much in x (robust extent), m"
+    )
+    min_level_points: int = Field(8, ge=1, description="a level must hold at least this many")
+    level_gap_m: float = Field(
+        0.06, gt=0, description="a level band is split into separate levels at x gaps above this, m"
+    )
+    max_levels: int = Field(5, ge=1, description="at most this many levels are extracted")
+    min_step_m: float = Field(
+        0.04, gt=0, description="height differences below this are the same level, m"
+    )
+    max_step_m: float = Field(
+        0.30, gt=0, description="a height difference above this is not a step (wall/drop), m"
+    )
+    obstacle_max_depth_m: float = Field(
+        0.20,
+        gt=0,
+        description="a single raised level shorter than this (in x) is an obstacle top, m",
+    )
+    max_unexplained_fraction: float = Field(
+        0.35,
+        ge=0,
+        le=1,
+        description="profiles with more points outside every level are UNKNOWN",
+    )
+    min_points: int = Field(20, ge=1, description="fewer profile points than this -> UNKNOWN")
+
+
+class CornerConfig(_Strict):
+    """RANSAC corner extraction (paper Fig. 2)."""
+
+    inlier_distance_m: float = Field(
+        0.02, gt=0, description="paper's d: inlier distance to a horizontal line, m"
+    )
+    window_m: float = Field(
+        0.05, gt=0, description="paper's w: half-size of the square feature window at the edge, m"
+    )
+    n_hypotheses: int = Field(64, ge=1, description="RANSAC hypotheses per line")
+    min_line_inliers: int = Field(10, ge=2, description="a line needs at least this many inliers")
+    min_line_separation_m: float = Field(
+        0.04, gt=0, description="the second line must be at least this far from the first, m"
+    )
+    max_gap_m: float = Field(
+        0.04,
+        gt=0,
+        description="inliers of the higher line are split into runs at x gaps larger than this; "
+        "the run with most points is the surface whose end is the edge, m",
+    )
+    min_feature_points: int = Field(6, ge=3, description="fewer feature points -> no corner")
+    edge_sigma_m: float = Field(
+        0.01, gt=0, description="1-sigma of the edge point estimate for CornerObservation, m"
+    )
+
+
+class IcpConfig(_Strict):
+    """2D translation-only ICP (eq. 3-4)."""
+
+    metric: Literal["point_to_point", "point_to_line"] = Field(
+        "point_to_line",
+        description="'point_to_point' = eq. 4 (mean residual); 'point_to_line' uses normals",
+    )
+    max_iterations: int = Field(20, ge=1, description="paper: 20")
+    convergence_m: float = Field(1e-6, gt=0, description="paper: stop when |dT| <= 1e-6 m")
+    max_correspondence_m: float = Field(
+        0.08, gt=0, description="correspondences farther than this are ignored, m"
+    )
+    trim_fraction: float = Field(
+        0.1, ge=0, lt=1, description="drop this fraction of the worst correspondences per step"
+    )
+    normal_neighbours: int = Field(
+        6, ge=3, description="target neighbours used to estimate the local normal (covariance)"
+    )
+    sigma_floor_m: float = Field(
+        0.003, gt=0, description="lower bound of the point-to-line residual sigma, m"
+    )
+    cov_inflation: float = Field(
+        5.0,
+        ge=1,
+        description="variance inflation for correlated (kNN-smoothed) residuals; ~ k_neighbours",
+    )
+    max_variance_m2: float = Field(
+        1.0, gt=0, description="cap of the covariance eigenvalues (unobservable directions), m^2"
+    )
+
+
+class TrackerConfig(_Strict):
+    """Frame-to-frame association and gating (Section II.A.3 plus the IMU-seeded gate)."""
+
+    icp_target: Literal["profile", "features"] = Field(
+        "profile",
+        description="'features' = paper (previous feature points); 'profile' = the previous "
+        "smoothed profile, which also works when the tracked corner changes",
+    )
+    same_corner_gate_m: float = Field(
+        0.10,
+        gt=0,
+        description="paper's preset threshold: feature means (after compensating the motion) "
+        "closer than this belong to the same physical corner, m",
+    )
+    gate_chi2: float = Field(
+        13.8, gt=0, description="Mahalanobis^2 gate of ICP vs IMU prediction (2 dof, 99.9 %)"
+    )
+    gate_sigma_floor_m: float = Field(
+        0.01, ge=0, description="added in quadrature to the gate covariance, m"
+    )
+    default_prediction_sigma_m: float = Field(
+        0.03, gt=0, description="prediction 1-sigma per axis when no covariance is given, m"
+    )
+    max_rms_m: float = Field(0.01, gt=0, description="reject ICP results with larger RMS, m")
+    min_correspondences: int = Field(6, ge=1, description="reject ICP with fewer inliers")
+    max_frame_gap_s: float = Field(
+        0.2, gt=0, description="no displacement across larger gaps between frames, s"
+    )
+
+
+class FrontendConfig(_Strict):
+    """Everything the visual front end needs; defaults reproduce the paper where it is explicit."""
+
+    projection: ProjectionConfig = ProjectionConfig()
+    smoothing: SmoothingConfig = SmoothingConfig()
+    terrain: TerrainConfig = TerrainConfig()
+    corners: CornerConfig = CornerConfig()
+    icp: IcpConfig = IcpConfig()
+    tracker: TrackerConfig = TrackerConfig()
+    corner_terrains: tuple[TerrainName, ...] = Field(
+        ("stair_up", "stair_down", "obstacle"),
+        description="terrain classes on which corners are extracted (paper: stairs, obstacle)",
+    )
+    seed: int = Field(0, description="seed of the RANSAC random generator")
+
+    @model_validator(mode="after")
+    def _check_ranges(self) -> FrontendConfig:
+        if self.projection.max_depth_m <= self.projection.min_depth_m:
+            raise ValueError("projection.max_depth_m must exceed projection.min_depth_m")
+        return self

@@ -1,0 +1,192 @@
+"""Corner feature extraction with RANSAC (paper Section II.A.2, Fig. 2).
+
+Paper: fit the horizontal line with most inliers, remove its inliers, fit a second horizontal
+line, compare the two lines' median heights and take the feature points at the end of the
+higher line (thresholds d = 0.02 m, w = 0.05 m).
+
+vio_graph's reading of the parts the paper leaves open:
+
+- **Horizontal line RANSAC.** A horizontal line z = c has one parameter, so a hypothesis is one
+  sampled point's height. ``n_hypotheses`` heights are drawn with the caller's
+  ``np.random.Generator`` (deterministic given the seed); inliers are |z - c| <= d, counted for
+  all hypotheses at once with ``searchsorted`` on the sorted heights. The winner is refined to
+  the median height of its inliers (the paper's "median z coordinate") and its inliers recounted.
+- **Second line.** Fitted on the remaining points with hypotheses at least
+  ``min_line_separation_m`` from the first line, so that the noise fringe of the first surface
+  (points just outside the d band) cannot become the "second line".
+- **Which end.** The convex edge faces the lower line: for STAIR_UP and OBSTACLE it is the NEAR
+  end (smallest x) of the higher line (stair nosing / obstacle front-top edge, with the riser or
+  the obstacle face below it); for STAIR_DOWN it is the FAR end (largest x) of the higher line
+  (the nosing of the tread the user stands on; the riser below faces away and is not seen).
+  For other classes the end is the one on the side of the lower line's median x.
+- **Which part of the line.** The higher line's inliers are split into runs at x gaps larger
+  than ``max_gap_m`` and the run with most points is the surface; its extreme x at the chosen
+  end, with the line's height, is the edge point estimate. When at least 3 points lie just
+  below it (within d in x, between d and w below the line: the riser or obstacle face), the
+  edge's x is their median x instead, which is not rounded by the kNN smoothing.
+- **Window w.** Feature points are ALL profile points in the square window
+  |x - x_edge| <= w, |z - z_edge| <= w: the last w of the tread plus the top w of the riser
+  (or obstacle face) below the edge. The L shape constrains both x and z in ICP.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vio_graph.frontend.config import CornerConfig
+from vio_graph.types import TerrainKind
+
+
+@dataclass(frozen=True)
+class HorizontalLine:
+    """A RANSAC horizontal line z = height_m and the mask of its inliers in the input points."""
+
+    height_m: float
+    inliers: NDArray[np.bool_]
+
+    @property
+    def n_inliers(self) -> int:
+        return int(self.inliers.sum())
+
+
+@dataclass(frozen=True)
+class CornerFeature:
+    """Feature points at a terrain corner, relative to the camera, ground axes (metres).
+
+    ``feature_points_xz_m`` (K, 2); ``mean_xz_m`` (2,) their mean (the paper's association
+    quantity); ``edge_xz_m`` (2,) the edge point estimate; ``side`` which end of the higher
+    line the edge is at.
+    """
+
+    feature_points_xz_m: NDArray[np.float64]
+    mean_xz_m: NDArray[np.float64]
+    edge_xz_m: NDArray[np.float64]
+    upper_height_m: float
+    lower_height_m: float
+    upper_inliers: int
+    lower_inliers: int
+    side: Literal["near", "far"]
+
+
+def ransac_horizontal_line(
+    points_xz_m: NDArray[np.float64],
+    inlier_distance_m: float,
+    n_hypotheses: int,
+    rng: np.random.Generator,
+    exclude_heights_m: tuple[float, ...] = (),
+    min_separation_m: float = 0.0,
+    candidates: NDArray[np.bool_] | None = None,
+) -> HorizontalLine | None:
+    """Horizontal line with the most inliers (|z - c| <= d) among ``candidates`` points.
+
+    Args:
+        points_xz_m: (N, 2) points, metres.
+        inlier_distance_m: the paper's d.
+        n_hypotheses: sampled heights.
+        rng: random generator (the only source of randomness).
+        exclude_heights_m: hypotheses closer than ``min_separation_m`` to these are skipped.
+        candidates: (N,) mask of points that may vote and be inliers (default: all).
+
+    Returns:
+        The line refined to the median height of its inliers, or None if no point is left.
+    """
+    pts = np.asarray(points_xz_m, dtype=float)
+    mask = np.ones(pts.shape[0], bool) if candidates is None else np.asarray(candidates, bool)
+    z_all = pts[:, 1]
+    z = np.sort(z_all[mask])
+    if z.size == 0:
+        return None
+    hyp = z[rng.integers(0, z.size, size=n_hypotheses)]
+    for h in exclude_heights_m:
+        hyp = hyp[np.abs(hyp - h) >= min_separation_m]
+    if hyp.size == 0:
+        return None
+    d = inlier_distance_m
+    counts = np.searchsorted(z, hyp + d, "right") - np.searchsorted(z, hyp - d, "left")
+    best = hyp[np.argmax(counts)]
+    inl = z[np.abs(z - best) <= d]
+    height = float(np.median(inl))
+    return HorizontalLine(height_m=height, inliers=mask & (np.abs(z_all - height) <= d))
+
+
+def _largest_run(x: NDArray[np.float64], max_gap_m: float) -> NDArray[np.float64]:
+    """The longest (most points) run of sorted x values without a gap > max_gap_m."""
+    xs = np.sort(x)
+    breaks = np.flatnonzero(np.diff(xs) > max_gap_m) + 1
+    starts = np.r_[0, breaks]
+    ends = np.r_[breaks, xs.size]
+    i = int(np.argmax(ends - starts))
+    return xs[starts[i] : ends[i]]
+
+
+def extract_corner(
+    profile_xz_m: NDArray[np.float64],
+    rng: np.random.Generator,
+    config: CornerConfig | None = None,
+    terrain: TerrainKind = TerrainKind.UNKNOWN,
+) -> CornerFeature | None:
+    """Paper Fig. 2: two RANSAC horizontal lines, feature points at the higher line's edge.
+
+    Args:
+        profile_xz_m: (N, 2) smoothed profile relative to the camera, ground axes, metres.
+        rng: random generator for RANSAC (deterministic given its seed).
+        terrain: class of the profile; decides the end of the higher line (module docstring).
+
+    Returns:
+        The corner, or None when two lines or enough feature points are not found.
+    """
+    cfg = CornerConfig() if config is None else config
+    pts = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+    if pts.shape[0] < 2 * cfg.min_line_inliers:
+        return None
+    # 1. horizontal line with the most inliers
+    first = ransac_horizontal_line(pts, cfg.inlier_distance_m, cfg.n_hypotheses, rng)
+    if first is None or first.n_inliers < cfg.min_line_inliers:
+        return None
+    # 2. remove its inliers, fit the second horizontal line
+    second = ransac_horizontal_line(
+        pts, cfg.inlier_distance_m, cfg.n_hypotheses, rng,
+        exclude_heights_m=(first.height_m,), min_separation_m=cfg.min_line_separation_m,
+        candidates=~first.inliers,
+    )
+    if second is None or second.n_inliers < cfg.min_line_inliers:
+        return None
+    # 3. compare the median heights: the higher line carries the edge
+    upper, lower = (first, second) if first.height_m > second.height_m else (second, first)
+    upper_x = pts[upper.inliers, 0]
+    if terrain in (TerrainKind.STAIR_UP, TerrainKind.OBSTACLE):
+        side: Literal["near", "far"] = "near"
+    elif terrain == TerrainKind.STAIR_DOWN:
+        side = "far"
+    else:
+        side = "near" if np.median(pts[lower.inliers, 0]) < np.median(upper_x) else "far"
+    # 4. edge = end of the main run of the higher line, at the line's height
+    run = _largest_run(upper_x, cfg.max_gap_m)
+    edge = np.array([run[0] if side == "near" else run[-1], upper.height_m])
+    # 4b. a visible riser / face just below the edge fixes the edge's x better than the
+    #     (smoothing-rounded) end of the tread: use its median x
+    d, w = cfg.inlier_distance_m, cfg.window_m
+    below = (np.abs(pts[:, 0] - edge[0]) <= d) & (pts[:, 1] < edge[1] - d) & (
+        pts[:, 1] >= edge[1] - w
+    )
+    if below.sum() >= 3:
+        edge[0] = float(np.median(pts[below, 0]))
+    # 5. feature points: square window of half-size w at the edge (tread end + riser top)
+    in_window = np.all(np.abs(pts - edge) <= cfg.window_m, axis=1)
+    features = pts[in_window]
+    if features.shape[0] < cfg.min_feature_points:
+        return None
+    return CornerFeature(
+        feature_points_xz_m=features,
+        mean_xz_m=features.mean(axis=0),
+        edge_xz_m=edge,
+        upper_height_m=upper.height_m,
+        lower_height_m=lower.height_m,
+        upper_inliers=upper.n_inliers,
+        lower_inliers=lower.n_inliers,
+        side=side,
+    )

@@ -1,0 +1,124 @@
+"""The visual front end: one depth frame in, profile / terrain / corner / displacement out.
+
+``VisualFrontend.process`` is paper Section II.A step by step: sagittal slice (eq. 1) rotated
+into the ground frame (eq. 2), kNN smoothing, terrain classification, RANSAC corner features
+(Fig. 2), and frame-to-frame ICP (eq. 3-4) seeded and gated by the IMU prediction (see
+``vio_graph.frontend.tracker``). It keeps only the previous frame; it does no I/O.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vio_graph.errors import FrontendError
+from vio_graph.frontend.config import FrontendConfig
+from vio_graph.frontend.corners import CornerFeature, extract_corner
+from vio_graph.frontend.icp import IcpResult
+from vio_graph.frontend.projection import sagittal_slice_from_depth
+from vio_graph.frontend.smoothing import smooth_profile
+from vio_graph.frontend.terrain import classify_terrain
+from vio_graph.frontend.tracker import CornerTracker
+from vio_graph.types import CornerObservation, DepthFrame, Displacement2D, TerrainKind
+
+
+@dataclass(frozen=True)
+class FrontendResult:
+    """Everything the front end found in one frame.
+
+    ``profile_xz_m`` (N, 2): smoothed sagittal slice relative to the camera, ground axes, metres.
+    ``displacement``: camera displacement since the previous frame, or None with
+    ``rejection_reason``. ``observation``: the corner relative to the camera (track id kept for
+    the same physical corner). ``icp``: the ICP run (matched points for visualisation).
+    ``timings_ms``: "projection", "smoothing", "terrain", "corners", "icp", "total".
+    """
+
+    timestamp_s: float
+    profile_xz_m: NDArray[np.float64]
+    terrain: TerrainKind
+    corner: CornerFeature | None
+    displacement: Displacement2D | None
+    observation: CornerObservation | None
+    rejection_reason: str | None
+    icp: IcpResult | None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+class VisualFrontend:
+    """Section II.A of the paper as a stateful per-frame processor."""
+
+    def __init__(self, config: FrontendConfig | None = None) -> None:
+        self.config = FrontendConfig() if config is None else config
+        self._rng = np.random.default_rng(self.config.seed)
+        self._tracker = CornerTracker(
+            self.config.tracker, self.config.icp, self.config.corners.edge_sigma_m
+        )
+        self._corner_terrains = {TerrainKind(k) for k in self.config.corner_terrains}
+
+    def reset(self) -> None:
+        """Forget the previous frame (e.g. after a gap in the recording)."""
+        self._tracker.reset()
+
+    def process(
+        self,
+        frame: DepthFrame,
+        K: NDArray[np.float64],
+        R_ground_cam: NDArray[np.float64],
+        predicted_delta_xz_m: NDArray[np.float64] | None = None,
+        predicted_cov_m2: NDArray[np.float64] | None = None,
+    ) -> FrontendResult:
+        """Process one depth frame.
+
+        Args:
+            frame: the depth image (H, W) and confidence.
+            K: (3, 3) camera intrinsics, pixels.
+            R_ground_cam: (3, 3) camera -> gravity-aligned ground frame, heading removed.
+            predicted_delta_xz_m: (2,) IMU-predicted camera displacement since the previous
+                frame, ground axes, metres; None = paper's association without IMU.
+            predicted_cov_m2: (2, 2) covariance of the prediction, m^2.
+        """
+        if np.shape(R_ground_cam) != (3, 3):
+            raise FrontendError(f"R_ground_cam must be 3x3, got {np.shape(R_ground_cam)}")
+        cfg = self.config
+        t = [time.perf_counter()]
+        # eq. 1-2: sagittal slice |x_C| < w, rotated into the ground frame (camera-relative)
+        pc = cfg.projection
+        points_xz = sagittal_slice_from_depth(
+            frame.depth_m, frame.confidence, K, R_ground_cam, pc.half_width_m,
+            pc.min_depth_m, pc.max_depth_m, pc.min_confidence,
+        )
+        t.append(time.perf_counter())
+        # kNN smoothing (after grid thinning)
+        sc = cfg.smoothing
+        profile = smooth_profile(points_xz, sc.k_neighbours, sc.grid_cell_m, sc.min_points)
+        t.append(time.perf_counter())
+        # terrain class (replaces the paper's CNN)
+        terrain, _ = classify_terrain(profile, cfg.terrain)
+        t.append(time.perf_counter())
+        # Fig. 2: RANSAC lines, feature points at the higher line's edge (stairs / obstacles)
+        corner = None
+        if terrain in self._corner_terrains:
+            corner = extract_corner(profile, self._rng, cfg.corners, terrain)
+        t.append(time.perf_counter())
+        # eq. 3-4: ICP against the previous frame, seeded and gated by the IMU prediction
+        tracked = self._tracker.update(
+            frame.timestamp_s, profile, corner, predicted_delta_xz_m, predicted_cov_m2
+        )
+        t.append(time.perf_counter())
+        names = ("projection", "smoothing", "terrain", "corners", "icp")
+        timings = {n: (b - a) * 1e3 for n, a, b in zip(names, t[:-1], t[1:], strict=True)}
+        timings["total"] = (t[-1] - t[0]) * 1e3
+        return FrontendResult(
+            timestamp_s=frame.timestamp_s,
+            profile_xz_m=profile,
+            terrain=terrain,
+            corner=corner,
+            displacement=tracked.displacement,
+            observation=tracked.observation,
+            rejection_reason=tracked.reason,
+            icp=tracked.icp,
+            timings_ms=timings,
+        )

@@ -1,0 +1,128 @@
+"""Sagittal-plane projection of the ToF depth image (paper Section II.A.1, eq. 1-2).
+
+Eq. 1 keeps the points "directly in front of the prosthesis", |y| < 0.05 m in the paper's
+camera axes. In vio_graph's optical convention the lateral camera axis is ``x_C`` (x right,
+y down, z forward; docs/conventions.md), so the slice is |x_C| < half_width_m. Eq. 2 then
+rotates the slice into the gravity-aligned ground frame with the IMU attitude (heading removed),
+``p_G = R_ground_cam @ p_C``, and keeps its (x, z) components. The result is RELATIVE to the
+camera optical centre (the rotation has no translation), with world axes: x forward, z up.
+
+Speed: the lateral test needs only the pixel column and the depth, because
+``x_C = (u - c_x) * depth / f_x``. :func:`sagittal_slice_from_depth` applies it per pixel on
+the depth image and back-projects only the pixels that pass (a few thousand of the 38k).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vio_graph.errors import FrontendError
+
+
+def _check_image(depth_m: NDArray, confidence: NDArray, K: NDArray) -> None:
+    if depth_m.ndim != 2 or depth_m.shape != confidence.shape:
+        raise FrontendError(
+            f"depth {depth_m.shape} and confidence {confidence.shape} must be equal (H, W) images"
+        )
+    if np.shape(K) != (3, 3):
+        raise FrontendError(f"K must be 3x3, got {np.shape(K)}")
+
+
+def _valid_mask(
+    depth_m: NDArray[np.float32],
+    confidence: NDArray[np.uint8],
+    min_depth_m: float,
+    max_depth_m: float,
+    min_confidence: int,
+) -> NDArray[np.bool_]:
+    return (confidence >= min_confidence) & (depth_m > min_depth_m) & (depth_m < max_depth_m)
+
+
+def depth_to_points_cam(
+    depth_m: NDArray[np.float32],
+    confidence: NDArray[np.uint8],
+    K: NDArray[np.float64],
+    min_depth_m: float = 0.0,
+    max_depth_m: float = np.inf,
+    min_confidence: int = 1,
+) -> NDArray[np.float64]:
+    """Back-project every valid pixel into the camera optical frame.
+
+    Args:
+        depth_m: (H, W) depth along the optical axis, metres; 0 = invalid.
+        confidence: (H, W) uint8; pixels below ``min_confidence`` (default: 0) are invalid.
+        K: (3, 3) pinhole intrinsics (pixels).
+        min_depth_m, max_depth_m: valid depth range (exclusive), metres.
+
+    Returns:
+        (N, 3) points (x right, y down, z forward) in metres, row-major pixel order.
+    """
+    _check_image(depth_m, confidence, K)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    valid = _valid_mask(depth_m, confidence, min_depth_m, max_depth_m, min_confidence)
+    rows, cols = np.nonzero(valid)
+    z = depth_m[rows, cols].astype(np.float64)
+    return np.column_stack([z * ((cols - cx) / fx), z * ((rows - cy) / fy), z])
+
+
+def sagittal_slice(
+    points_cam: NDArray[np.float64],
+    R_ground_cam: NDArray[np.float64],
+    half_width_m: float = 0.05,
+) -> NDArray[np.float64]:
+    """Eq. 1 + eq. 2: keep |x_C| < half_width_m, rotate into the ground frame, return (x, z).
+
+    Args:
+        points_cam: (N, 3) points in the camera optical frame, metres.
+        R_ground_cam: (3, 3) rotation camera -> gravity-aligned ground frame (heading removed).
+        half_width_m: half-width of the sagittal slab along the lateral axis x_C, metres.
+
+    Returns:
+        (M, 2) ``points_xz_m`` relative to the camera centre, world axes (x forward, z up).
+    """
+    points_cam = np.asarray(points_cam, dtype=float)
+    if points_cam.ndim != 2 or points_cam.shape[1] != 3:
+        raise FrontendError(f"points_cam must be (N, 3), got {points_cam.shape}")
+    keep = np.abs(points_cam[:, 0]) < half_width_m  # eq. 1
+    R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
+    return points_cam[keep] @ R_xz.T  # eq. 2, rows x and z only
+
+
+def sagittal_slice_from_depth(
+    depth_m: NDArray[np.float32],
+    confidence: NDArray[np.uint8],
+    K: NDArray[np.float64],
+    R_ground_cam: NDArray[np.float64],
+    half_width_m: float = 0.05,
+    min_depth_m: float = 0.0,
+    max_depth_m: float = np.inf,
+    min_confidence: int = 1,
+) -> NDArray[np.float64]:
+    """Fast path of eq. 1-2 straight from the depth image; same result as
+    ``sagittal_slice(depth_to_points_cam(...), R_ground_cam, half_width_m)``.
+
+    The lateral test |x_C| = |u - c_x| * depth / f_x < half_width_m is evaluated per pixel
+    before any point is built, so only the slice (a few thousand pixels) is back-projected.
+
+    Returns:
+        (M, 2) ``points_xz_m`` relative to the camera centre, world axes, metres.
+    """
+    _check_image(depth_m, confidence, K)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    W = depth_m.shape[1]
+    # columns that can hold a slice point at all: |u - cx| / fx < half_width / min usable depth
+    x_per_m = (np.arange(W) - cx) / fx  # (W,) x_C per metre of depth
+    # columns that can hold a slice point at all: |x_C| at the smallest usable depth
+    cols_used = np.nonzero(np.abs(x_per_m) * max(min_depth_m, 1e-6) < half_width_m)[0]
+    if cols_used.size == 0:
+        return np.empty((0, 2))
+    c0, c1 = int(cols_used[0]), int(cols_used[-1]) + 1
+    depth = depth_m[:, c0:c1]
+    keep = _valid_mask(depth, confidence[:, c0:c1], min_depth_m, max_depth_m, min_confidence)
+    keep &= depth * np.abs(x_per_m[c0:c1]) < half_width_m  # eq. 1 per pixel
+    rows, cols = np.nonzero(keep)
+    z = depth[rows, cols].astype(np.float64)
+    points_cam = np.column_stack([z * x_per_m[cols + c0], z * ((rows - cy) / fy), z])
+    R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
+    return points_cam @ R_xz.T  # eq. 2

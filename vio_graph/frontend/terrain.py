@@ -1,0 +1,247 @@
+"""Geometric terrain classifier on the smoothed sagittal profile.
+
+The paper classifies the terrain with a CNN from its earlier work [9]; vio_graph uses a
+transparent geometric rule on the 2D profile instead, which needs no training data.
+
+Rule
+----
+1. **Levels.** Horizontal surfaces are found greedily: for every point, count the profile
+   points within +-``level_band_m`` of its height (vectorised with ``searchsorted`` on the
+   sorted heights); the best band whose points span at least ``min_level_length_m`` in x
+   (5th-95th percentile extent) and hold ``min_level_points`` is a level at the median height of
+   its points; its points are removed and the search repeats (at most ``max_levels``). A band
+   is split into separate levels at x gaps larger than ``level_gap_m`` (the floor in front of
+   and behind an obstacle are two levels at the same height).
+   Because the profile is grid-thinned, point counts are proportional to surface length, so a
+   riser seen head-on does not outvote a tread.
+2. **Sequence.** Levels are sorted by their median x (near to far). Consecutive height
+   differences smaller than ``min_step_m`` are "same height".
+3. **Class.**
+   - fewer than ``min_points`` points, no level, or any upward height difference larger than
+     ``max_step_m`` (a wall) -> UNKNOWN (large DOWNWARD differences are allowed: going down,
+     the intermediate treads are often hidden);
+   - all levels at the same height -> LEVEL if at most ``max_unexplained_fraction`` of the
+     points are outside every level, else UNKNOWN (something non-horizontal is in view);
+   - heights go up and come back to the first level's height (low-high-low) -> OBSTACLE;
+   - heights only go up -> STAIR_UP, except a single raised level shorter than
+     ``obstacle_max_depth_m`` that is the farthest level and has lower profile points beyond
+     it (the floor behind the box) -> OBSTACLE (a 13 cm box top vs a 28 cm tread; a tread cut
+     by the field of view has nothing lower beyond it);
+   - heights only go down -> STAIR_DOWN;
+   - anything else -> UNKNOWN.
+
+Known limits: a stair tread cut short by the field of view can look like an obstacle top; a
+box seen from above (camera past its near edge) looks like STAIR_DOWN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vio_graph.errors import FrontendError
+from vio_graph.frontend.config import TerrainConfig
+from vio_graph.types import TerrainKind
+
+
+@dataclass(frozen=True)
+class Level:
+    """A horizontal surface of the profile: median height, robust x extent, point count."""
+
+    height_m: float
+    x_min_m: float
+    x_max_m: float
+    x_median_m: float
+    n_points: int
+
+    @property
+    def length_m(self) -> float:
+        return self.x_max_m - self.x_min_m
+
+
+def _runs(x: NDArray[np.float64], max_gap_m: float) -> list[NDArray[np.float64]]:
+    """Sorted x values split at gaps larger than ``max_gap_m``."""
+    xs = np.sort(x)
+    return np.split(xs, np.flatnonzero(np.diff(xs) > max_gap_m) + 1)
+
+
+def _robust_extent(xs: NDArray[np.float64]) -> tuple[float, float, float]:
+    """5th, 50th and 95th percentile (nearest rank) of sorted values."""
+    n = xs.size - 1
+    return float(xs[int(0.05 * n)]), float(xs[n // 2]), float(xs[int(np.ceil(0.95 * n))])
+
+
+def find_levels(profile_xz_m: NDArray[np.float64], config: TerrainConfig) -> list[Level]:
+    """Greedy extraction of horizontal levels (rule step 1), sorted by median x.
+
+    Args:
+        profile_xz_m: (N, 2) smoothed profile, metres.
+
+    Returns:
+        Levels, near (small x) to far.
+    """
+    pts = np.asarray(profile_xz_m, dtype=float)
+    band = config.level_band_m
+    order = np.argsort(pts[:, 1])
+    z = pts[order, 1]
+    x = pts[order, 0]
+    alive = np.ones(z.size, dtype=bool)
+    levels: list[Level] = []
+    for _ in range(config.max_levels):
+        za, xa = z[alive], x[alive]  # still sorted by z
+        if za.size < config.min_level_points:
+            break
+        counts = np.searchsorted(za, za + band, "right") - np.searchsorted(za, za - band, "left")
+        found = False
+        tried: list[float] = []
+        # best few DISTINCT bands: a riser band can out-count a short tread; skip it then
+        for i in np.argsort(-counts, kind="stable"):
+            if counts[i] < config.min_level_points or len(tried) >= 3:
+                break
+            if any(abs(za[i] - h) <= band for h in tried):
+                continue
+            tried.append(float(za[i]))
+            lo, hi = np.searchsorted(za, [za[i] - band, za[i] + band], "left")
+            height = float(np.median(za[lo:hi]))
+            lo, hi = np.searchsorted(za, [height - band, height + band], "left")
+            for r in _runs(xa[lo:hi], config.level_gap_m):
+                if r.size < config.min_level_points:
+                    continue
+                x_lo, x_med, x_hi = _robust_extent(r)
+                if x_hi - x_lo >= config.min_level_length_m:
+                    levels.append(Level(height, x_lo, x_hi, x_med, int(r.size)))
+                    found = True
+            if found:
+                idx_alive = np.flatnonzero(alive)
+                alive[idx_alive[lo:hi]] = False
+                break
+        if not found:
+            break
+    return sorted(levels, key=lambda lv: lv.x_median_m)
+
+
+def classify_levels(
+    levels: Sequence[Level], n_points: int, config: TerrainConfig, lower_beyond: bool = False
+) -> TerrainKind:
+    """Rule steps 2-3 on levels sorted near to far (see the module docstring).
+
+    ``lower_beyond``: the profile has points beyond the farthest level that are lower than it
+    by at least ``min_step_m`` (the floor behind an obstacle).
+    """
+    if n_points < config.min_points or not levels:
+        return TerrainKind.UNKNOWN
+    heights = np.array([lv.height_m for lv in levels])
+    steps = np.diff(heights)
+    if np.any(steps > config.max_step_m):
+        return TerrainKind.UNKNOWN
+    significant = steps[np.abs(steps) >= config.min_step_m]
+    if significant.size == 0:
+        explained = sum(lv.n_points for lv in levels)
+        if n_points - explained <= config.max_unexplained_fraction * n_points:
+            return TerrainKind.LEVEL
+        return TerrainKind.UNKNOWN
+    if np.all(significant > 0):
+        raised = [lv for lv in levels if lv.height_m - heights[0] >= config.min_step_m]
+        if (
+            significant.size == 1
+            and len(raised) == 1
+            and raised[0] is levels[-1]
+            and raised[0].length_m < config.obstacle_max_depth_m
+            and lower_beyond
+        ):
+            return TerrainKind.OBSTACLE
+        return TerrainKind.STAIR_UP
+    if np.all(significant < 0):
+        return TerrainKind.STAIR_DOWN
+    # up then back down to the first level: low-high-low
+    first_up = significant[0] > 0
+    back_to_start = abs(heights[-1] - heights[0]) < config.min_step_m
+    if first_up and back_to_start and np.all(np.diff(np.sign(significant)) <= 0):
+        return TerrainKind.OBSTACLE
+    return TerrainKind.UNKNOWN
+
+
+def classify_terrain(
+    profile_xz_m: NDArray[np.float64], config: TerrainConfig | None = None
+) -> tuple[TerrainKind, list[Level]]:
+    """Terrain class of a smoothed sagittal profile and the levels it was decided from.
+
+    Args:
+        profile_xz_m: (N, 2) smoothed profile relative to the camera, ground axes, metres.
+
+    Returns:
+        (kind, levels sorted near to far).
+    """
+    config = TerrainConfig() if config is None else config
+    pts = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+    if pts.shape[0] < config.min_points:
+        return TerrainKind.UNKNOWN, []
+    levels = find_levels(pts, config)
+    lower_beyond = False
+    if levels:
+        last = levels[-1]
+        beyond = pts[:, 0] > last.x_max_m + config.level_gap_m
+        lower_beyond = bool(np.any(pts[beyond, 1] < last.height_m - config.min_step_m))
+    return classify_levels(levels, pts.shape[0], config, lower_beyond), levels
+
+
+@dataclass(frozen=True)
+class ConfusionTable:
+    """Counts of (true, predicted) terrain classes.
+
+    ``counts[i, j]`` = frames whose true class is ``labels[i]`` and predicted ``labels[j]``.
+    """
+
+    labels: tuple[TerrainKind, ...]
+    counts: NDArray[np.int64]
+
+    @property
+    def total(self) -> int:
+        return int(self.counts.sum())
+
+    @property
+    def accuracy(self) -> float:
+        """Fraction of frames on the diagonal (nan when empty)."""
+        return float(np.trace(self.counts) / self.total) if self.total else float("nan")
+
+    def recall(self) -> dict[TerrainKind, float]:
+        """Per true class: correct / frames of that class (nan when the class is absent)."""
+        rows = self.counts.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = np.diag(self.counts) / rows
+        return {lab: float(v) for lab, v in zip(self.labels, r, strict=True)}
+
+    def as_rows(self) -> list[list[str]]:
+        """Printable table: header row then one row per true class."""
+        head = ["true \\ predicted", *[lab.value for lab in self.labels]]
+        body = [
+            [lab.value, *[str(int(c)) for c in row]]
+            for lab, row in zip(self.labels, self.counts, strict=True)
+        ]
+        return [head, *body]
+
+
+def confusion_table(
+    true: Sequence[TerrainKind | str], predicted: Sequence[TerrainKind | str]
+) -> ConfusionTable:
+    """Confusion table over all TerrainKind labels from paired true/predicted classes.
+
+    Raises:
+        FrontendError: if the sequences differ in length or hold an unknown label.
+    """
+    if len(true) != len(predicted):
+        raise FrontendError(f"{len(true)} true labels but {len(predicted)} predictions")
+    labels = tuple(TerrainKind)
+    index = {lab: i for i, lab in enumerate(labels)}
+    counts = np.zeros((len(labels), len(labels)), dtype=np.int64)
+    if len(true):
+        try:
+            ti = np.array([index[TerrainKind(t)] for t in true])
+            pi = np.array([index[TerrainKind(p)] for p in predicted])
+        except ValueError as exc:
+            raise FrontendError(f"unknown terrain label: {exc}") from exc
+        np.add.at(counts, (ti, pi), 1)
+    return ConfusionTable(labels=labels, counts=counts)

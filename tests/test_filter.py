@@ -315,3 +315,18 @@ def test_depth_frames_between_imu_samples_are_extrapolated_exactly(model):
     assert s.n_accepted == t_frames.size
     if model == "stochastic_cloning":
         assert s.n_fallback == 0  # every displacement found its clone (the first: initialise)
+
+
+def test_dead_reckoning_ignores_displacements_and_attitude_noise_inflates_covariance():
+    m = swinging_motion()
+    dr = ImuDeadReckoning()
+    _, p_dr, _ = run(dr, m, 1.0, bias=np.array([0.1, 0.0]))
+    s = dr.state
+    assert s.status is EstimateStatus.IMU_ONLY and s.n_accepted == 0 and s.n_stale == 33
+    tight = dict(init_velocity_sigma_mps=1e-6, init_accel_bias_sigma_mps2=1e-6)
+    plain = SagittalEskf(FilterConfig(**tight))
+    tilted = SagittalEskf(FilterConfig(attitude_sigma_rad=np.deg2rad(1.0), **tight))
+    run(plain, m, 1.0, frame_every=None)
+    run(tilted, m, 1.0, frame_every=None)
+    # 1 deg of pitch error on ~9.8 m/s^2 dominates the 0.0118 m/s^2 accelerometer noise
+    assert tilted.state.P[2, 2] > 10 * plain.state.P[2, 2]

@@ -1,0 +1,224 @@
+"""Scenario configuration of the simulator (pydantic v2, defaults in code, YAML overrides).
+
+Numbers and their sources are in /work/shared/reference/sim-spec.md and docs/simulator.md.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+import vio_graph
+from vio_graph.errors import ConfigError
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class TerrainConfig(_Section):
+    """Sagittal terrain profile, extruded across ``width_m``. The first feature (first riser,
+    first edge down, obstacle front face) is at x = ``approach_length_m``; the floor at the
+    trial start is z = 0."""
+
+    kind: Literal["stair_up", "stair_down", "obstacle", "level"] = Field(
+        "stair_up", description="terrain class"
+    )
+    approach_length_m: float = Field(1.5, gt=0, description="level floor before the feature, m")
+    stair_rise_m: float = Field(0.147, gt=0, description="riser height, m (paper III.A)")
+    stair_tread_m: float = Field(0.28, gt=0, description="tread depth, m (paper III.A)")
+    n_steps: int = Field(12, ge=1, description="number of risers")
+    landing_length_m: float = Field(4.0, gt=0, description="level floor after the stairs, m")
+    obstacle_height_m: float = Field(0.14, gt=0, description="obstacle height, m (paper III.A)")
+    obstacle_depth_m: float = Field(0.13, gt=0, description="obstacle depth along x, m")
+    exit_length_m: float = Field(13.0, gt=0, description="level floor after the obstacle, m")
+    width_m: float = Field(1.2, gt=0, description="stair / walkway width, m")
+    side_walls: bool = Field(True, description="add vertical walls at y = +-width/2")
+    wall_height_m: float = Field(1.2, gt=0, description="wall height above the profile, m")
+
+
+class GaitConfig(_Section):
+    """Gait of the instrumented leg. Times are stride (gait-cycle) times."""
+
+    pattern: Literal["step_over_step", "step_to_step"] = Field(
+        "step_over_step", description="stair pattern; step_to_step: one tread per cycle"
+    )
+    level_stride_time_s: float = Field(1.15, gt=0, description="level stride time, s")
+    stair_stride_time_s: float = Field(1.35, gt=0, description="stair stride time, s [U]")
+    stride_time_jitter: float = Field(0.05, ge=0, description="per-trial relative sd")
+    level_stride_length_m: float = Field(1.25, gt=0, description="level stride length, m")
+    stride_length_jitter: float = Field(0.05, ge=0, description="per-trial relative sd")
+    step_jitter_m: float = Field(0.01, ge=0, description="per-foothold placement sd, m")
+    stance_fraction_level: float = Field(0.61, gt=0.4, lt=0.8, description="Beaulieu 2008")
+    stance_fraction_stair: float = Field(0.65, gt=0.4, lt=0.8, description="McFadyen 1988")
+    step_to_step_pause_s: float = Field(0.5, ge=0, description="double-support pause, s")
+    start_distance_m: float = Field(
+        0.45, gt=0, description="instrumented toe to the first feature at t = 0, m"
+    )
+    toe_clearance_level_m: float = Field(0.02, gt=0, description="Moosabhoy & Gard 2006")
+    toe_clearance_nosing_m: float = Field(0.045, gt=0, description="over stair nosings, m [U]")
+    toe_clearance_obstacle_m: float = Field(0.12, gt=0, description="Patla & Rietdyk 1993 [U]")
+    stair_toe_margin_m: float = Field(0.03, ge=0, description="ascent: toe to next riser, m")
+    stair_heel_margin_m: float = Field(0.03, ge=0, description="descent: heel to riser, m")
+    heel_strike_pitch_deg: float = Field(15.0, ge=0, description="foot toe-up at heel strike")
+    forefoot_landing_pitch_deg: float = Field(
+        14.0, ge=0, description="foot toe-down at stair contact (Riener 2002)"
+    )
+    toe_off_pitch_deg: float = Field(40.0, gt=0, description="foot toe-down at toe-off, level")
+    knee_contact_deg: dict[str, float] = Field(
+        default_factory=lambda: {"level": 18.0, "ascent": 60.0, "descent": 18.0},
+        description="knee flexion targets at foot contact, deg",
+    )
+    knee_midstance_deg: dict[str, float] = Field(
+        default_factory=lambda: {"level": 20.0, "ascent": 35.0, "descent": 40.0},
+        description="knee flexion targets at mid-stance (30 % of the stride), deg",
+    )
+    hip_ahead_midstance_m: dict[str, float] = Field(
+        default_factory=lambda: {"level": 0.05, "ascent": -0.06, "descent": 0.10},
+        description="hip x minus stance-ankle x at mid-stance, m",
+    )
+
+
+class RigConfig(_Section):
+    """Instrumented leg and sensor mounting. Positions are (x, z) in the shank frame (origin
+    at the knee joint centre, x anterior, z from ankle to knee)."""
+
+    rig: Literal["able_bodied", "prosthesis"] = "able_bodied"
+    body_height_m: float = Field(1.75, gt=0, description="subject height H, m (Winter 2009)")
+    shank_length_m: float | None = Field(
+        None, description="knee-ankle length, m; None: 0.246 H (able) or 0.42 (prosthesis pylon)"
+    )
+    heel_in_foot_xz_m: tuple[float, float] | None = Field(
+        None, description="heel in the foot frame, m; None: anthropometric default"
+    )
+    toe_in_foot_xz_m: tuple[float, float] | None = Field(
+        None, description="toe in the foot frame, m; None: anthropometric default"
+    )
+    camera_in_shank_xz_m: tuple[float, float] = Field(
+        (0.07, -0.12), description="camera optical centre in the shank frame, m"
+    )
+    camera_pitch_down_deg: float = Field(
+        10.0, description="optical axis below the shank x axis, deg"
+    )
+    imu_in_camera_xyz_m: tuple[float, float, float] = Field(
+        (0.0, 0.02, -0.015), description="IMU point in the camera frame, m (fixed together)"
+    )
+
+
+class CameraConfig(_Section):
+    """pmd pico flexx2 ToF camera (Cai 2024, royale). Noise switches allow noiseless tests."""
+
+    width_px: int = Field(224, gt=0)
+    height_px: int = Field(172, gt=0)
+    hfov_deg: float = Field(56.0, gt=0, lt=180, description="horizontal field of view, deg")
+    vfov_deg: float = Field(44.0, gt=0, lt=180, description="vertical field of view, deg")
+    min_range_m: float = Field(0.1, ge=0, description="Mode 5 near limit, m")
+    max_range_m: float = Field(2.4, gt=0, description="Mode 5 far limit, m")
+    frame_rate_hz: float = Field(30.0, gt=0, description="depth frame rate, Hz")
+    depth_unit_m: float = Field(0.001, gt=0, description="stored depth unit, m")
+    noise: bool = Field(True, description="master switch for all depth noise")
+    axial_coeffs: tuple[float, float, float, float] = Field(
+        (0.002362, -0.001041, 0.000753, 0.000185),
+        description="a, b, c, d of sigma_z(z, theta) in m (Cai 2024, Mode 5 @30 fps)",
+    )
+    lateral_noise_px: float = Field(0.86, ge=0, description="sample-position jitter sd, px")
+    mixed_pixel_probability: float = Field(0.6, ge=0, le=1, description="at depth jumps")
+    mixed_pixel_jump_m: float = Field(0.04, gt=0, description="neighbour jump that mixes, m")
+    flying_pixel_thresholds_m: tuple[float, float] = Field(
+        (0.018, 0.14), description="royale flying-pixel threshold at <=1 m and >=4.5 m"
+    )
+    max_incidence_deg: float = Field(75.0, gt=0, le=90, description="grazing cut-off [U]")
+    max_noise_m: float = Field(0.07, gt=0, description="royale: pixels noisier are invalid")
+    timestamp_jitter_s: float = Field(0.001, ge=0, description="frame time jitter sd, s")
+
+
+class ImuConfig(_Section):
+    """Xsens MTi-1 series (datasheet values, sim-spec.md)."""
+
+    rate_hz: float = Field(100.0, gt=0)
+    noise: bool = Field(True, description="switch for all IMU errors")
+    accel_noise_density: float = Field(1.18e-3, ge=0, description="m/s^2/sqrt(Hz)")
+    gyro_noise_density: float = Field(1.22e-4, ge=0, description="rad/s/sqrt(Hz)")
+    accel_bias_rw: float = Field(3e-5, ge=0, description="bias random walk, m/s^3/sqrt(Hz) [U]")
+    gyro_bias_rw: float = Field(5e-6, ge=0, description="bias random walk, rad/s^2/sqrt(Hz) [U]")
+    accel_turn_on_bias_mps2: float = Field(0.02, ge=0, description="turn-on bias sd [U]")
+    gyro_turn_on_bias_radps: float = Field(0.002, ge=0, description="turn-on bias sd [U]")
+    accel_range_mps2: float = Field(16 * 9.81, gt=0, description="+-16 g")
+    gyro_range_radps: float = Field(34.9, gt=0, description="+-2000 deg/s")
+    orientation_rms_deg: float = Field(1.0, ge=0, description="roll/pitch error RMS, deg")
+    heading_rms_deg: float = Field(2.0, ge=0, description="heading error RMS, deg")
+    orientation_error_tau_s: float = Field(2.0, gt=0, description="error correlation time [U]")
+    random_heading_offset: bool = Field(True, description="VRU heading is arbitrary")
+
+
+class JointSensorConfig(_Section):
+    """Thigh IMU pitch and knee/ankle encoders at the IMU rate."""
+
+    noise: bool = True
+    thigh_pitch_error_deg: float = Field(1.0, ge=0, description="correlated error RMS, deg")
+    thigh_error_tau_s: float = Field(1.0, gt=0, description="error correlation time, s")
+    encoder_bits: int = Field(14, ge=1, description="quantisation (0.022 deg at 14 bit)")
+    encoder_noise_deg: float = Field(0.05, ge=0, description="white noise sd, deg [U]")
+
+
+class MocapConfig(_Section):
+    """Motion capture (Raptor-12HS, 120 Hz)."""
+
+    rate_hz: float = Field(120.0, gt=0)
+    noise: bool = True
+    marker_noise_m: float = Field(0.001, ge=0, description="per-marker sd, m (Merriaux 2017)")
+    n_markers: int = Field(4, ge=3, description="markers per rigid-body cluster")
+    cluster_radius_m: float = Field(0.05, gt=0, description="cluster size for orientation, m")
+
+
+class FaultsConfig(_Section):
+    """Placeholder: blackouts, dropped frames and IMU spikes are added by a later issue."""
+
+
+class ScenarioConfig(_Section):
+    """Everything the simulator needs for one trial (given a seed)."""
+
+    name: str = Field("custom", description="scenario name recorded in provenance")
+    duration_s: float = Field(10.0, gt=0, description="trial duration, s")
+    terrain: TerrainConfig = TerrainConfig()
+    gait: GaitConfig = GaitConfig()
+    rig: RigConfig = RigConfig()
+    camera: CameraConfig = CameraConfig()
+    imu: ImuConfig = ImuConfig()
+    joints: JointSensorConfig = JointSensorConfig()
+    mocap: MocapConfig = MocapConfig()
+    faults: FaultsConfig = FaultsConfig()
+
+
+def configs_dir() -> Path:
+    """The repository's configs/ folder (beside the package)."""
+    return Path(vio_graph.__file__).resolve().parents[1] / "configs"
+
+
+def load_scenario(name_or_path: str | Path) -> ScenarioConfig:
+    """Load a scenario: a bare name -> configs/NAME.yaml, otherwise a YAML path.
+
+    The YAML holds overrides of the defaults in code; unknown keys raise ConfigError.
+    """
+    text = str(name_or_path)
+    is_path = text.endswith((".yaml", ".yml")) or "/" in text or "\\" in text
+    path = Path(text) if is_path else configs_dir() / f"{text}.yaml"
+    if not path.is_file():
+        raise ConfigError(f"{path}: scenario file not found")
+    try:
+        data: Any = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: invalid YAML: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: top level must be a mapping")
+    data.setdefault("name", path.stem)
+    try:
+        return ScenarioConfig.model_validate(data)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()
+        )
+        raise ConfigError(f"{path}: {problems}") from exc

@@ -1,0 +1,568 @@
+"""Sagittal gait of the instrumented leg, physically consistent by construction.
+
+Construction (see docs/simulator.md):
+1. plan footholds of both feet on the terrain (the contralateral foot is virtual: it only
+   shapes the hip path);
+2. foot pitch: one C2 piecewise-quintic (scipy BPoly) through per-stride key poses: landing
+   (heel strike toe-up on level ground, forefoot landing toe-down on stairs, Riener 2002),
+   flat, heel-off, toe-off, mid-swing;
+3. ankle: during contact it follows from the fixed pivot (heel, then whole foot, then toe:
+   no sliding, no penetration); in swing the toe follows a quintic spline through clearance
+   via-points (toe clearance over nosings / the obstacle / level ground);
+4. hip: C2 cubic splines through key positions chosen from published knee-flexion targets at
+   contact and mid-stance of both feet, repaired where the hip-ankle distance would exceed
+   0.97 of thigh + shank;
+5. knee from two-link inverse kinematics (knee flexes forward); joint angles from segment
+   angles with vio_graph.kinematics conventions.
+Dense samples (1 kHz) are then wrapped in quintic interpolating splines so derivatives (IMU)
+are analytic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import BPoly, CubicSpline, make_interp_spline
+from scipy.ndimage import gaussian_filter1d, maximum_filter1d
+
+from vio_graph.errors import SimulationError
+from vio_graph.kinematics import LegModel
+from vio_graph.sim.config import GaitConfig, RigConfig
+from vio_graph.sim.terrain import Terrain
+
+DENSE_RATE_HZ = 1000.0
+MAX_REACH_FRACTION = 0.99  # hip-ankle distance / (thigh + shank) must stay below this
+REPAIR_REACH_FRACTION = 0.985  # the hip is lowered to this where it would overstretch
+_STAIR_DZ_M = 0.05
+
+
+def leg_model_for(rig: RigConfig) -> LegModel:
+    """Link lengths and foot points: Winter (2009) fractions of H, or the prosthesis (Fig. 3)."""
+    H = rig.body_height_m
+    thigh = 0.245 * H
+    if rig.rig == "able_bodied":
+        shank = rig.shank_length_m or 0.246 * H
+        ankle_h, foot = 0.039 * H, 0.152 * H
+        heel = rig.heel_in_foot_xz_m or (-0.055, -ankle_h)
+        toe = rig.toe_in_foot_xz_m or (foot - 0.055, -ankle_h)
+    else:
+        shank = rig.shank_length_m or 0.42
+        heel = rig.heel_in_foot_xz_m or (-0.05, -0.075)
+        toe = rig.toe_in_foot_xz_m or (0.20, -0.075)
+    return LegModel(thigh, shank, tuple(heel), tuple(toe))
+
+
+def rot_xz(theta: NDArray | float, v: NDArray) -> NDArray[np.float64]:
+    """Rotate body (x, z) vectors (..., 2) by rot_y(theta) (broadcast): world (x, z)."""
+    th = np.asarray(theta, dtype=float)
+    v = np.asarray(v, dtype=float)
+    c, s = np.cos(th), np.sin(th)
+    return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1]], axis=-1)
+
+
+def drot_xz(theta: NDArray | float, v: NDArray) -> NDArray[np.float64]:
+    """d/dtheta of rot_xz(theta, v)."""
+    th = np.asarray(theta, dtype=float)
+    v = np.asarray(v, dtype=float)
+    c, s = np.cos(th), np.sin(th)
+    return np.stack([-s * v[..., 0] + c * v[..., 1], -c * v[..., 0] - s * v[..., 1]], axis=-1)
+
+
+@dataclass(frozen=True)
+class Stride:
+    """One stride of the instrumented leg: contact on ``toe_xz_m`` (flat-pose toe) at
+    ``t_contact_s``; pivots: landing (heel or toe) until ``t_flat_s``, flat until
+    ``t_heel_off_s``, toe until ``t_toe_off_s``; swing until ``t_next_s``."""
+
+    toe_xz_m: tuple[float, float]
+    next_toe_xz_m: tuple[float, float]
+    landing: str  # "heel" | "toe"
+    swing_kind: str  # "level" | "ascent" | "descent" | "obstacle" (the swing leaving here)
+    arrive_kind: str  # kind of the swing that arrived here
+    t_contact_s: float
+    t_flat_s: float
+    t_heel_off_s: float
+    t_toe_off_s: float
+    t_next_s: float
+    contra_toe_xz_m: tuple[float, float]
+    contra_landing: str
+    contra_kind: str
+    t_contra_contact_s: float
+    t_contra_mid_s: float
+    t_mid_s: float
+
+
+@dataclass(frozen=True)
+class LegMotion:
+    """True sagittal motion of the instrumented leg.
+
+    Dense arrays on ``t_s`` (N,) at 1 kHz: positions (N, 2) world (x, z) in metres, angles
+    (N,) in rad (hip flexion = ``thigh_pitch_rad``, ``knee_rad`` flexion, ``ankle_rad``
+    plantarflexion, segment pitches per docs/conventions.md). Splines give derivatives.
+    """
+
+    leg: LegModel
+    t_s: NDArray[np.float64]
+    hip_xz_m: NDArray[np.float64]
+    knee_xz_m: NDArray[np.float64]
+    ankle_xz_m: NDArray[np.float64]
+    heel_xz_m: NDArray[np.float64]
+    toe_xz_m: NDArray[np.float64]
+    thigh_pitch_rad: NDArray[np.float64]
+    knee_rad: NDArray[np.float64]
+    ankle_rad: NDArray[np.float64]
+    shank_pitch_rad: NDArray[np.float64]
+    foot_pitch_rad: NDArray[np.float64]
+    strides: tuple[Stride, ...]
+    _splines: dict = field(repr=False)
+
+    def shank_pitch(self, t_s: NDArray, deriv: int = 0) -> NDArray[np.float64]:
+        """Shank pitch (rad) or its ``deriv``-th time derivative at times (M,)."""
+        return self._splines["shank"](t_s, deriv)
+
+    def foot_pitch(self, t_s: NDArray, deriv: int = 0) -> NDArray[np.float64]:
+        return self._splines["foot"](t_s, deriv)
+
+    def ankle(self, t_s: NDArray, deriv: int = 0) -> NDArray[np.float64]:
+        """Ankle (M, 2) position / velocity / acceleration in the world x-z plane."""
+        return self._splines["ankle"](t_s, deriv)
+
+    def joint_angles(self, t_s: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+        """Hip flexion, knee flexion, ankle plantarflexion (rad) at times (M,)."""
+        return (
+            self._splines["hip_flex"](t_s), self._splines["knee"](t_s),
+            self._splines["ankle_angle"](t_s),
+        )
+
+    def shank_point(self, t_s: NDArray, r_shank_xz_m: NDArray, deriv: int = 0) -> NDArray:
+        """A point fixed in the shank frame (origin at the knee): position (deriv 0),
+        velocity (1) or acceleration (2), (M, 2), analytic from the splines."""
+        r = np.asarray(r_shank_xz_m, dtype=float) + np.array([0.0, self.leg.shank_length_m])
+        phi = self.shank_pitch(t_s)
+        if deriv == 0:
+            return self.ankle(t_s) + rot_xz(phi, r)
+        dphi = self.shank_pitch(t_s, 1)
+        if deriv == 1:
+            return self.ankle(t_s, 1) + dphi[:, None] * drot_xz(phi, r)
+        ddphi = self.shank_pitch(t_s, 2)
+        return (
+            self.ankle(t_s, 2) + ddphi[:, None] * drot_xz(phi, r)
+            - (dphi**2)[:, None] * rot_xz(phi, r)
+        )
+
+    def stance_mask(self, t_s: NDArray, point: str) -> NDArray[np.bool_]:
+        """True where ``point`` ("heel" or "toe") is a fixed contact point of the foot."""
+        t = np.asarray(t_s, dtype=float)
+        m = np.zeros(t.shape, dtype=bool)
+        for s in self.strides:
+            if point == "heel":
+                t0 = s.t_contact_s if s.landing == "heel" else s.t_flat_s
+                m |= (t >= t0) & (t <= s.t_heel_off_s)
+            else:
+                t0 = s.t_contact_s if s.landing == "toe" else s.t_flat_s
+                m |= (t >= t0) & (t <= s.t_toe_off_s)
+        return m
+
+
+# --------------------------------------------------------------------------- footholds
+
+
+def _plan_steps(
+    terrain: Terrain, gait: GaitConfig, leg: LegModel, rng: np.random.Generator, n_max: int
+) -> list[tuple[float, float]]:
+    """Alternating footholds (flat-pose toe x, z) of both feet: instrumented at even indices."""
+    foot_len = leg.toe_in_foot_xz_m[0] - leg.heel_in_foot_xz_m[0]
+    stride = gait.level_stride_length_m * (1 + gait.stride_length_jitter * rng.standard_normal())
+    step = 0.5 * stride
+    xf = terrain.feature_x_m
+    prm = terrain.params
+    x_end = terrain.profile_xz_m[-1, 0] - 0.4
+    toes: list[float] = [xf - gait.start_distance_m]
+    if terrain.kind == "stair_up":
+        t, n = float(prm["tread_m"]), int(prm["n_steps"])
+        toes.append(xf - gait.stair_toe_margin_m)
+        toes += [xf + (i + 1) * t - gait.stair_toe_margin_m for i in range(n - 1)]
+        toes.append(xf + (n - 1) * t + foot_len + 0.12)
+    elif terrain.kind == "stair_down":
+        t, n = float(prm["tread_m"]), int(prm["n_steps"])
+        toes.append(xf - 0.02)
+        toes += [xf + (i - 1) * t + gait.stair_heel_margin_m + foot_len for i in range(1, n)]
+        toes.append(xf + (n - 1) * t + 0.12 + foot_len)
+    elif terrain.kind == "obstacle":
+        d = float(prm["depth_m"])
+        trail = xf - 0.18  # contralateral (trailing) toe before the obstacle
+        k = max(1, int(np.ceil((trail - toes[0]) / step)))
+        k += 1 - k % 2  # odd: the instrumented leg leads over the obstacle
+        toes += list(toes[0] + (trail - toes[0]) * np.arange(1, k + 1) / k)
+        toes.append(xf + d + 0.20 + foot_len)
+        toes.append(toes[-1] + 0.8 * step)
+    while len(toes) < n_max and toes[-1] + step < x_end:
+        toes.append(toes[-1] + step)
+    x = np.asarray(toes[:n_max]) + gait.step_jitter_m * rng.standard_normal(min(len(toes), n_max))
+    if terrain.kind in ("stair_up", "stair_down"):  # keep stair footholds on their treads
+        x = np.asarray(toes[:n_max]) + np.clip(x - np.asarray(toes[:n_max]), -0.01, 0.01)
+    heel_x = x - foot_len
+    z = np.maximum(terrain.height_at(x), terrain.height_at(heel_x))
+    return list(zip(x.tolist(), z.tolist(), strict=True))
+
+
+def _swing_kind(terrain: Terrain, a: tuple[float, float], b: tuple[float, float]) -> str:
+    dz = b[1] - a[1]
+    if dz > _STAIR_DZ_M:
+        return "ascent"
+    if dz < -_STAIR_DZ_M:
+        return "descent"
+    e = terrain.edges_xz_m
+    if terrain.kind == "obstacle" and np.any((e[:, 0] > a[0]) & (e[:, 0] < b[0])):
+        return "obstacle"
+    return "level"
+
+
+def _kind_class(kind: str) -> str:
+    return "level" if kind == "obstacle" else kind
+
+
+def plan_strides(
+    terrain: Terrain, gait: GaitConfig, leg: LegModel, duration_s: float,
+    rng: np.random.Generator,
+) -> list[Stride]:
+    """Timed strides of the instrumented leg covering [0, duration_s] (+ margin)."""
+    sts = gait.pattern == "step_to_step" and terrain.kind in ("stair_up", "stair_down")
+    steps = _plan_steps(terrain, gait, leg, rng, 400)
+    if sts:  # both feet on each tread: instrumented i -> i+1, contralateral leads
+        inst = steps[:1] + steps[2:]
+        contra = inst[1:]
+    else:
+        inst, contra = steps[0::2], steps[1::2]
+    jit = 1 + gait.stride_time_jitter * rng.standard_normal()
+    strides: list[Stride] = []
+    t = 0.0
+    arrive = "level"
+    for j in range(min(len(inst) - 1, len(contra))):
+        a, b, c = inst[j], inst[j + 1], contra[j]
+        kind = _swing_kind(terrain, a, b)
+        c_prev = contra[j - 1] if j > 0 else (c[0] - (b[0] - a[0]), a[1])
+        c_kind = _swing_kind(terrain, c_prev, c) if j > 0 else kind
+        stair = kind in ("ascent", "descent") or c_kind in ("ascent", "descent")
+        landing = "toe" if arrive in ("ascent", "descent") else "heel"
+        c_landing = "toe" if c_kind in ("ascent", "descent") else "heel"
+        if sts:
+            move = gait.stair_stride_time_s * jit
+            p = gait.step_to_step_pause_s * jit
+            T = move + p
+            f = dict(flat=0.12 * move, ho=p + 0.45 * move, to=p + 0.62 * move,
+                     cc=p + 0.32 * move, cm=p + 0.6 * move, mid=0.5 * p)
+        else:
+            T = (gait.stair_stride_time_s if stair else gait.level_stride_time_s) * jit
+            T *= 1.25 if kind == "obstacle" else 1.0
+            beta = gait.stance_fraction_stair if stair else gait.stance_fraction_level
+            f = dict(flat=(0.12 if landing == "toe" else 0.09) * T,
+                     ho=(beta - 0.2 if stair else beta - 0.26) * T, to=beta * T,
+                     cc=0.5 * T, cm=0.8 * T, mid=0.3 * T)
+        strides.append(Stride(
+            toe_xz_m=a, next_toe_xz_m=b, landing=landing, swing_kind=kind, arrive_kind=arrive,
+            t_contact_s=t, t_flat_s=t + f["flat"], t_heel_off_s=t + f["ho"],
+            t_toe_off_s=t + f["to"], t_next_s=t + T, contra_toe_xz_m=c,
+            contra_landing=c_landing, contra_kind=c_kind, t_contra_contact_s=t + f["cc"],
+            t_contra_mid_s=t + f["cm"], t_mid_s=t + f["mid"],
+        ))
+        arrive = kind
+        t += T
+        if t > duration_s + 0.5:
+            break
+    if not strides or strides[-1].t_next_s < duration_s + 0.3:
+        raise SimulationError(
+            f"terrain too short for a {duration_s:.1f} s trial: lengthen landing/exit_length_m"
+        )
+    # the final stride needs the next foothold for its swing
+    return strides
+
+
+# --------------------------------------------------------------------------- foot motion
+
+
+def _landing_pitch(gait: GaitConfig, landing: str, kind: str) -> float:
+    if landing == "heel":
+        return -np.radians(gait.heel_strike_pitch_deg)
+    extra = 6.0 if kind == "descent" else 0.0
+    return np.radians(gait.forefoot_landing_pitch_deg + extra)
+
+
+def _toe_off_pitch(gait: GaitConfig, kind: str) -> float:
+    scale = {"level": 1.0, "obstacle": 1.0, "ascent": 0.7, "descent": 0.55}[kind]
+    return np.radians(gait.toe_off_pitch_deg) * scale
+
+
+def _pitch_function(strides: list[Stride], next_toes: list, gait: GaitConfig) -> BPoly:
+    """C2 foot pitch: quintic pieces through the key poses with rate and acceleration."""
+    knots: list[tuple[float, float, float]] = []
+    for s, nxt in zip(strides, next_toes, strict=True):
+        th_c = _landing_pitch(gait, s.landing, s.arrive_kind)
+        th_to = _toe_off_pitch(gait, s.swing_kind)
+        next_landing = "toe" if s.swing_kind in ("ascent", "descent") else "heel"
+        th_next = _landing_pitch(gait, next_landing, s.swing_kind)
+        t_ms = 0.5 * (s.t_toe_off_s + s.t_next_s)
+        th_ms = {"level": -0.05, "obstacle": -0.05, "ascent": -0.2, "descent": 0.25}[
+            s.swing_kind
+        ]
+        rate = 0.6 * (th_next - th_to) / (s.t_next_s - s.t_toe_off_s)
+        knots += [
+            (s.t_contact_s, th_c, 0.0), (s.t_flat_s, 0.0, 0.0), (s.t_heel_off_s, 0.0, 0.0),
+            (s.t_toe_off_s, th_to, 0.0), (t_ms, th_ms, rate),
+        ]
+    last = strides[-1]
+    next_landing = "toe" if last.swing_kind in ("ascent", "descent") else "heel"
+    knots.append((last.t_next_s, _landing_pitch(gait, next_landing, last.swing_kind), 0.0))
+    tk = np.array([k[0] for k in knots])
+    yk = [[k[1], k[2], 0.0] for k in knots]
+    return BPoly.from_derivatives(tk, yk)
+
+
+def _swing_via(
+    s: Stride, b: tuple[float, float], terrain: Terrain, gait: GaitConfig, leg: LegModel,
+    pitch: BPoly,
+) -> tuple[list[float], list[tuple[float, float]]]:
+    """Toe via-points (fractions of the swing, positions) from toe-off to the next landing."""
+    x0, z0 = s.toe_xz_m
+    x1, z1 = b
+    heel_to_toe = np.array(leg.toe_in_foot_xz_m) - np.array(leg.heel_in_foot_xz_m)
+
+    def toe_for_heel(frac: float, heel_x: float, heel_z: float) -> tuple[float, float]:
+        th = pitch(s.t_toe_off_s + frac * (s.t_next_s - s.t_toe_off_s))
+        v = rot_xz(th, heel_to_toe)
+        return (heel_x + float(v[0]), heel_z + float(v[1]))
+
+    e = terrain.edges_xz_m
+    between = e[(e[:, 0] > x0 - 0.05) & (e[:, 0] < x1 + 0.05)] if e.size else e.reshape(0, 2)
+    if s.swing_kind == "level":
+        c = gait.toe_clearance_level_m
+        d = x1 - x0
+        late = toe_for_heel(0.85, x1 - heel_to_toe[0] - 0.06, z1 + 0.02)
+        return [0.25, 0.55, 0.85], [(x0 + 0.18 * d, z0 + 0.06), (x0 + 0.55 * d, z0 + c + 0.005),
+                                    late]
+    if s.swing_kind == "obstacle":
+        c = gait.toe_clearance_obstacle_m
+        xa, xb = between[:, 0].min(), between[:, 0].max()
+        h = between[:, 1].max()
+        over = toe_for_heel(0.7, xb + 0.05, h + 0.06)
+        late = toe_for_heel(0.88, x1 - heel_to_toe[0] - 0.04, z1 + 0.03)
+        return [0.3, 0.5, 0.7, 0.88], [(xa - 0.06, h + 0.8 * c), (xb + 0.06, h + c), over, late]
+    c = gait.toe_clearance_nosing_m
+    if s.swing_kind == "ascent":
+        up = between[(between[:, 1] > z0 + 0.01) & (between[:, 1] <= z1 + 0.01)]
+        xs = up[:, 0]
+        first_x = xs.min()
+        fr = [0.28]
+        pts = [(max(x0 - 0.01, first_x - 0.08), up[:, 1].min() + c)]
+        if len(xs) > 1:
+            fr.append(0.58)
+            pts.append((xs.max() - 0.03, z1 + c))
+        fr.append(0.84)
+        pts.append((x1 - 0.04, z1 + 0.035))
+        return fr, pts
+    # descent: own tread edge first, then each lower edge
+    down = between[(between[:, 1] <= z0 + 0.01) & (between[:, 1] > z1 + 0.01)]
+    xs = np.sort(down[:, 0])
+    fr = [0.22]
+    pts = [(max(x0 + 0.03, xs.min() + 0.05), z0 + 0.03)]
+    if len(xs) > 1:
+        fr.append(0.52)
+        pts.append((xs.max() + 0.05, z1 + (z0 - z1) / len(xs) + c))
+    fr.append(0.8)
+    pts.append((x1 - 0.01, z1 + 0.05))
+    return fr, pts
+
+
+def _foot_motion(
+    t: NDArray, strides: list[Stride], next_toes: list, terrain: Terrain, gait: GaitConfig,
+    leg: LegModel, pitch: BPoly,
+) -> NDArray[np.float64]:
+    """Ankle (N, 2) on the dense grid from the pivots (contact) and toe splines (swing)."""
+    heel_f = np.array(leg.heel_in_foot_xz_m)
+    toe_f = np.array(leg.toe_in_foot_xz_m)
+    th = pitch(t)
+    ankle = np.full((t.size, 2), np.nan)
+    for s, b in zip(strides, next_toes, strict=True):
+        toe_p = np.array(s.toe_xz_m)
+        ankle_flat = toe_p - toe_f
+        heel_p = ankle_flat + heel_f
+        piv_land = heel_p if s.landing == "heel" else toe_p
+        r_land = heel_f if s.landing == "heel" else toe_f
+        m = (t >= s.t_contact_s) & (t < s.t_flat_s)
+        ankle[m] = piv_land - rot_xz(th[m], r_land)
+        m = (t >= s.t_flat_s) & (t < s.t_heel_off_s)
+        ankle[m] = ankle_flat
+        m = (t >= s.t_heel_off_s) & (t < s.t_toe_off_s)
+        ankle[m] = toe_p - rot_xz(th[m], toe_f)
+        fr, pts = _swing_via(s, b, terrain, gait, leg, pitch)
+        next_landing = "toe" if s.swing_kind in ("ascent", "descent") else "heel"
+        b_arr = np.array(b)
+        th_next = pitch(s.t_next_s)
+        if next_landing == "heel":
+            toe_land = (b_arr - toe_f + heel_f) + rot_xz(th_next, toe_f - heel_f)
+        else:
+            toe_land = b_arr
+        dur = s.t_next_s - s.t_toe_off_s
+        ts = np.concatenate([[s.t_toe_off_s], s.t_toe_off_s + dur * np.asarray(fr),
+                             [s.t_next_s]])
+        ps = np.vstack([toe_p, np.asarray(pts), toe_land])
+        zero = np.zeros(2)
+        spl = make_interp_spline(ts, ps, k=5, bc_type=([(1, zero), (2, zero)],
+                                                       [(1, zero), (2, zero)]))
+        m = (t >= s.t_toe_off_s) & (t <= s.t_next_s + 1e-12)
+        ankle[m] = spl(t[m]) - rot_xz(th[m], toe_f)
+    if np.any(np.isnan(ankle)):
+        raise SimulationError("foot motion does not cover the trial")
+    return ankle
+
+
+# --------------------------------------------------------------------------- hip and IK
+
+
+def _leg_distance(leg: LegModel, knee_rad: float) -> float:
+    """Hip-ankle distance for a knee flexion (law of cosines)."""
+    a, b = leg.thigh_length_m, leg.shank_length_m
+    return float(np.sqrt(a * a + b * b + 2 * a * b * np.cos(knee_rad)))
+
+
+def _hip_path(
+    t: NDArray, ankle: NDArray, strides: list[Stride], gait: GaitConfig, leg: LegModel,
+    pitch: BPoly,
+) -> NDArray[np.float64]:
+    """Hip (N, 2): C2 splines through key positions from knee-flexion targets."""
+    toe_f = np.array(leg.toe_in_foot_xz_m)
+    heel_f = np.array(leg.heel_in_foot_xz_m)
+
+    def landing_ankle(toe_xz, landing: str, kind: str) -> NDArray:
+        th = _landing_pitch(gait, landing, kind)
+        toe = np.array(toe_xz)
+        if landing == "heel":
+            return toe - toe_f + heel_f - rot_xz(th, heel_f)
+        return toe - rot_xz(th, toe_f)
+
+    kx_t, kx_v = [], []
+    for s in strides:
+        k_in = _kind_class(s.swing_kind)
+        k_c = _kind_class(s.contra_kind)
+        kx_t += [s.t_mid_s, s.t_contra_mid_s]
+        kx_v += [s.toe_xz_m[0] - toe_f[0] + gait.hip_ahead_midstance_m[k_in],
+                 s.contra_toe_xz_m[0] - toe_f[0] + gait.hip_ahead_midstance_m[k_c]]
+    # extrapolate one key before the start so the spline is well-behaved at t = 0
+    v0 = (kx_v[1] - kx_v[0]) / (kx_t[1] - kx_t[0])
+    kx_t = [kx_t[0] - 0.5, *kx_t]
+    kx_v = [kx_v[0] - 0.5 * v0, *kx_v]
+    hip_x = CubicSpline(kx_t, kx_v, bc_type="natural")
+
+    kz: dict[float, float] = {}
+    for s in strides:
+        k_in, k_c = _kind_class(s.swing_kind), _kind_class(s.contra_kind)
+        arr = _kind_class(s.arrive_kind)
+        items = [
+            (s.t_contact_s, landing_ankle(s.toe_xz_m, s.landing, s.arrive_kind),
+             gait.knee_contact_deg[arr]),
+            (s.t_mid_s, np.array(s.toe_xz_m) - toe_f, gait.knee_midstance_deg[k_in]),
+            (s.t_contra_contact_s,
+             landing_ankle(s.contra_toe_xz_m, s.contra_landing, s.contra_kind),
+             gait.knee_contact_deg[k_c]),
+            (s.t_contra_mid_s, np.array(s.contra_toe_xz_m) - toe_f,
+             gait.knee_midstance_deg[k_c]),
+        ]
+        for tk, a, knee_deg in items:
+            d = _leg_distance(leg, np.radians(knee_deg))
+            dx = float(hip_x(tk)) - a[0]
+            kz[tk] = a[1] + np.sqrt(max(d * d - dx * dx, (0.5 * d) ** 2))
+    L = leg.thigh_length_m + leg.shank_length_m
+    hx = hip_x(t)
+    keys = sorted(kz)
+    hz = CubicSpline(keys, [kz[k] for k in keys], bc_type="natural")(t)
+    # repair: lower the hip smoothly where the instrumented leg would overstretch. The drop is
+    # dilated over +-3 sigma and Gaussian-smoothed, so it still covers every violation.
+    sigma_n = int(0.04 * DENSE_RATE_HZ)
+    for _ in range(6):
+        target = REPAIR_REACH_FRACTION * L
+        dx = hx - ankle[:, 0]
+        z_ok = ankle[:, 1] + np.sqrt(np.maximum(target**2 - dx * dx, 0.0))
+        drop = np.maximum(hz - z_ok, 0.0)
+        if not np.any(drop > 0):
+            break
+        drop = maximum_filter1d(drop, size=6 * sigma_n + 1, mode="nearest")
+        hz = hz - gaussian_filter1d(drop, sigma_n, mode="nearest", truncate=3.0)
+    ratio = np.hypot(hx - ankle[:, 0], hz - ankle[:, 1]) / L
+    if ratio.max() >= MAX_REACH_FRACTION:
+        raise SimulationError(f"hip-ankle distance {ratio.max():.3f} of the leg length")
+    return np.stack([hx, hz], axis=1)
+
+
+def _two_link_ik(
+    hip: NDArray, ankle: NDArray, leg: LegModel
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Knee position (N, 2) with the knee ahead of the hip-ankle line, and the reach ratio."""
+    a, b = leg.thigh_length_m, leg.shank_length_m
+    v = ankle - hip
+    d = np.linalg.norm(v, axis=1)
+    ratio = d / (a + b)
+    if np.any(ratio >= 0.99) or np.any(d <= abs(a - b) + 1e-6):
+        raise SimulationError(f"unreachable pose: max hip-ankle/leg = {ratio.max():.3f}")
+    cos_al = np.clip((a * a + d * d - b * b) / (2 * a * d), -1.0, 1.0)
+    al = np.arccos(cos_al)
+    u = v / d[:, None]
+    # rotate the hip->ankle direction towards +x (knee forward): angle -al about +y in x-z
+    c, s = np.cos(al), np.sin(al)
+    # rotation that turns a downward vector forward: x' = c x - s z, z' = s x + c z
+    knee = hip + a * np.stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1]], axis=1)
+    return knee, ratio
+
+
+def _spline(t: NDArray, y: NDArray):
+    return make_interp_spline(t, y, k=5)
+
+
+class _Evaluator:
+    """Callable (t, deriv) -> values for a scipy BSpline."""
+
+    def __init__(self, spl) -> None:
+        self._spl = spl
+
+    def __call__(self, t_s: NDArray, deriv: int = 0) -> NDArray[np.float64]:
+        t = np.asarray(t_s, dtype=float)
+        return self._spl(t, nu=deriv) if deriv else self._spl(t)
+
+
+def simulate_gait(
+    terrain: Terrain, gait: GaitConfig, rig: RigConfig, duration_s: float,
+    rng: np.random.Generator,
+) -> LegMotion:
+    """Plan and generate the instrumented leg's motion over [0, duration_s + 0.2 s]."""
+    leg = leg_model_for(rig)
+    strides = plan_strides(terrain, gait, leg, duration_s, rng)
+    next_toes = [s.next_toe_xz_m for s in strides]
+    pitch = _pitch_function(strides, next_toes, gait)
+    t_end = min(strides[-1].t_next_s, duration_s + 0.25)
+    t = np.arange(0.0, t_end + 0.5 / DENSE_RATE_HZ, 1.0 / DENSE_RATE_HZ)
+    ankle = _foot_motion(t, strides, next_toes, terrain, gait, leg, pitch)
+    foot_pitch = pitch(t)
+    hip = _hip_path(t, ankle, strides, gait, leg, pitch)
+    knee, _ = _two_link_ik(hip, ankle, leg)
+    thigh_seg = np.arctan2(hip[:, 0] - knee[:, 0], hip[:, 1] - knee[:, 1])
+    shank = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])
+    hip_flex = -thigh_seg
+    knee_flex = shank - thigh_seg
+    ankle_pf = foot_pitch - shank
+    heel = ankle + rot_xz(foot_pitch, np.array(leg.heel_in_foot_xz_m))
+    toe = ankle + rot_xz(foot_pitch, np.array(leg.toe_in_foot_xz_m))
+    splines = {
+        "shank": _Evaluator(_spline(t, shank)),
+        "foot": _Evaluator(_spline(t, foot_pitch)),
+        "ankle": _Evaluator(_spline(t, ankle)),
+        "hip_flex": _Evaluator(_spline(t, hip_flex)),
+        "knee": _Evaluator(_spline(t, knee_flex)),
+        "ankle_angle": _Evaluator(_spline(t, ankle_pf)),
+    }
+    return LegMotion(
+        leg=leg, t_s=t, hip_xz_m=hip, knee_xz_m=knee, ankle_xz_m=ankle, heel_xz_m=heel,
+        toe_xz_m=toe, thigh_pitch_rad=hip_flex, knee_rad=knee_flex, ankle_rad=ankle_pf,
+        shank_pitch_rad=shank, foot_pitch_rad=foot_pitch, strides=tuple(strides),
+        _splines=splines,
+    )

@@ -1,0 +1,153 @@
+"""Terrain: a sagittal profile (polyline in the world x-z plane) extruded into a triangle mesh.
+
+Pure: builds arrays only. The ToF model turns the mesh into an open3d RaycastingScene.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vio_graph.errors import SimulationError
+from vio_graph.sim.config import TerrainConfig
+
+_BACK_MARGIN_M = 1.0  # floor behind the start so a camera looking down never sees a hole
+
+
+@dataclass(frozen=True)
+class Terrain:
+    """The true terrain.
+
+    ``profile_xz_m``: (P, 2) polyline, x non-decreasing (risers are vertical segments).
+    ``edges_xz_m``: (E, 2) convex corners (stair nosings, obstacle top edges).
+    ``vertices_m`` (V, 3) / ``triangles`` (T, 3) int32: the extruded mesh, world frame.
+    ``feature_x_m``: x of the first feature (first riser / edge / obstacle front face).
+    """
+
+    kind: str
+    profile_xz_m: NDArray[np.float64]
+    edges_xz_m: NDArray[np.float64]
+    vertices_m: NDArray[np.float64]
+    triangles: NDArray[np.int32]
+    feature_x_m: float
+    params: dict[str, float | int | str]
+
+    def height_at(self, x_m: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Terrain height (N,) under x (N,): the top of the profile (max over vertical risers)."""
+        x = np.atleast_1d(np.asarray(x_m, dtype=float))
+        p = self.profile_xz_m
+        x0, x1, z0, z1 = p[:-1, 0], p[1:, 0], p[:-1, 1], p[1:, 1]
+        inside = (x[:, None] >= x0[None] - 1e-12) & (x[:, None] <= x1[None] + 1e-12)
+        span = np.where(x1 - x0 > 0, x1 - x0, 1.0)
+        frac = np.clip((x[:, None] - x0[None]) / span[None], 0.0, 1.0)
+        z_seg = np.where(x1 - x0 > 0, z0 + frac * (z1 - z0), np.maximum(z0, z1))
+        z = np.where(inside, z_seg, -np.inf).max(axis=1)
+        z = np.where(x < p[0, 0], p[0, 1], z)
+        return np.where(x > p[-1, 0], p[-1, 1], z)
+
+    def tread_spans(self) -> NDArray[np.float64]:
+        """Horizontal segments (K, 3): x_start, x_end, z, in x order."""
+        p = self.profile_xz_m
+        flat = np.abs(p[1:, 1] - p[:-1, 1]) < 1e-9
+        keep = flat & (p[1:, 0] - p[:-1, 0] > 1e-9)
+        return np.stack([p[:-1, 0][keep], p[1:, 0][keep], p[:-1, 1][keep]], axis=1)
+
+
+def build_profile(cfg: TerrainConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The true sagittal profile (P, 2) and convex edges (E, 2) for ``cfg``."""
+    xf = cfg.approach_length_m
+    r, t, n = cfg.stair_rise_m, cfg.stair_tread_m, cfg.n_steps
+    pts: list[tuple[float, float]] = [(-_BACK_MARGIN_M, 0.0), (xf, 0.0)]
+    edges: list[tuple[float, float]] = []
+    if cfg.kind == "stair_up":
+        for i in range(n):
+            x = xf + i * t
+            pts += [(x, (i + 1) * r)] if i == 0 else [(x, i * r), (x, (i + 1) * r)]
+            edges.append((x, (i + 1) * r))
+        x_top = xf + (n - 1) * t
+        pts.append((x_top + cfg.landing_length_m, n * r))
+    elif cfg.kind == "stair_down":
+        for i in range(n):
+            x = xf + i * t
+            if i > 0:
+                pts.append((x, -i * r))
+            pts.append((x, -(i + 1) * r))
+            edges.append((x, -i * r))
+        x_bot = xf + (n - 1) * t
+        pts.append((x_bot + cfg.landing_length_m, -n * r))
+    elif cfg.kind == "obstacle":
+        h, d = cfg.obstacle_height_m, cfg.obstacle_depth_m
+        pts += [(xf, h), (xf + d, h), (xf + d, 0.0), (xf + d + cfg.exit_length_m, 0.0)]
+        edges += [(xf, h), (xf + d, h)]
+    elif cfg.kind == "level":
+        pts.append((xf + cfg.exit_length_m, 0.0))
+    else:  # pragma: no cover - pydantic restricts kind
+        raise SimulationError(f"unknown terrain kind {cfg.kind!r}")
+    profile = np.asarray(pts, dtype=float)
+    if np.any(np.diff(profile[:, 0]) < -1e-12):
+        raise SimulationError("terrain profile x must be non-decreasing")
+    return profile, np.asarray(edges, dtype=float).reshape(-1, 2)
+
+
+def extrude_profile(
+    profile_xz_m: NDArray[np.float64], width_m: float, side_walls: bool, wall_height_m: float
+) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    """Extrude a profile (P, 2) across y in [-width/2, width/2]: vertices (V, 3), triangles.
+
+    Each profile segment becomes a quad (two triangles); walls are vertical quads from the
+    profile up by ``wall_height_m`` at y = +-width/2.
+    """
+    p = np.asarray(profile_xz_m, dtype=float)
+    seg = np.linalg.norm(np.diff(p, axis=0), axis=1) > 1e-12
+    a, b = p[:-1][seg], p[1:][seg]
+    hw = 0.5 * width_m
+    quads = [_quads(a, b, -hw, hw)]
+    if side_walls:
+        for y in (-hw, hw):
+            quads.append(_wall_quads(a, b, y, wall_height_m))
+    q = np.concatenate(quads, axis=0)  # (Q, 4, 3)
+    vertices = q.reshape(-1, 3)
+    base = 4 * np.arange(q.shape[0])[:, None]
+    tris = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=0).astype(np.int32)
+    return vertices, tris
+
+
+def _quads(a: NDArray, b: NDArray, y0: float, y1: float) -> NDArray[np.float64]:
+    n = a.shape[0]
+    q = np.zeros((n, 4, 3))
+    q[:, 0] = np.stack([a[:, 0], np.full(n, y0), a[:, 1]], 1)
+    q[:, 1] = np.stack([b[:, 0], np.full(n, y0), b[:, 1]], 1)
+    q[:, 2] = np.stack([b[:, 0], np.full(n, y1), b[:, 1]], 1)
+    q[:, 3] = np.stack([a[:, 0], np.full(n, y1), a[:, 1]], 1)
+    return q
+
+
+def _wall_quads(a: NDArray, b: NDArray, y: float, height: float) -> NDArray[np.float64]:
+    n = a.shape[0]
+    top = max(a[:, 1].max(), b[:, 1].max()) + height
+    q = np.zeros((n, 4, 3))
+    q[:, 0] = np.stack([a[:, 0], np.full(n, y), a[:, 1]], 1)
+    q[:, 1] = np.stack([b[:, 0], np.full(n, y), b[:, 1]], 1)
+    q[:, 2] = np.stack([b[:, 0], np.full(n, y), np.full(n, top)], 1)
+    q[:, 3] = np.stack([a[:, 0], np.full(n, y), np.full(n, top)], 1)
+    return q
+
+
+def build_terrain(cfg: TerrainConfig) -> Terrain:
+    """Profile, edges and extruded mesh for a terrain configuration."""
+    profile, edges = build_profile(cfg)
+    vertices, tris = extrude_profile(profile, cfg.width_m, cfg.side_walls, cfg.wall_height_m)
+    params: dict[str, float | int | str] = {"approach_length_m": cfg.approach_length_m}
+    if cfg.kind in ("stair_up", "stair_down"):
+        params.update(
+            rise_m=cfg.stair_rise_m, tread_m=cfg.stair_tread_m, n_steps=cfg.n_steps,
+            landing_length_m=cfg.landing_length_m,
+        )
+    elif cfg.kind == "obstacle":
+        params.update(height_m=cfg.obstacle_height_m, depth_m=cfg.obstacle_depth_m)
+    return Terrain(
+        kind=cfg.kind, profile_xz_m=profile, edges_xz_m=edges, vertices_m=vertices,
+        triangles=tris, feature_x_m=cfg.approach_length_m, params=params,
+    )

@@ -1,0 +1,144 @@
+"""ToF depth camera (pmd pico flexx2, Mode 5) by ray casting the terrain mesh with open3d.
+
+Noise recipe (sim-spec.md, Cai et al. 2024; royale): lateral jitter of each pixel's sample
+position (~0.86 px), mixed depths at occlusion edges, axial noise
+sigma_z(z, theta) = a + b z + c z^2 + d z^2.7 theta^2 / (pi/2 - theta)^2, royale's
+flying-pixel rule, grazing incidence (> 75 deg) dropped, out-of-range pixels invalid,
+confidence from sigma. Depth is along the optical axis, 0 where invalid.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import maximum_filter, minimum_filter
+
+from vio_graph.o3d import open3d
+from vio_graph.recording.metadata import CameraModel
+from vio_graph.sim.config import CameraConfig
+from vio_graph.sim.terrain import Terrain
+
+
+def axial_sigma_m(
+    z_m: NDArray, incidence_rad: NDArray, coeffs: tuple[float, float, float, float]
+) -> NDArray[np.float64]:
+    """Axial depth noise sd (m) of the Cai (2024) model for depth z (m), incidence (rad)."""
+    a, b, c, d = coeffs
+    th = np.clip(incidence_rad, 0.0, np.pi / 2 - 1e-3)
+    return a + b * z_m + c * z_m**2 + d * z_m**2.7 * th**2 / (np.pi / 2 - th) ** 2
+
+
+class TofCamera:
+    """Pinhole ToF camera over a terrain. ``render`` is pure given its generator."""
+
+    def __init__(self, cfg: CameraConfig, terrain: Terrain) -> None:
+        self.cfg = cfg
+        self.fx = 0.5 * cfg.width_px / np.tan(np.radians(cfg.hfov_deg) / 2)
+        self.fy = 0.5 * cfg.height_px / np.tan(np.radians(cfg.vfov_deg) / 2)
+        self.cx = 0.5 * (cfg.width_px - 1)
+        self.cy = 0.5 * (cfg.height_px - 1)
+        o3d = open3d()
+        self._o3d = o3d
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(
+            o3d.core.Tensor(terrain.vertices_m.astype(np.float32)),
+            o3d.core.Tensor(terrain.triangles.astype(np.uint32)),
+        )
+        v, u = np.mgrid[0 : cfg.height_px, 0 : cfg.width_px]
+        self._u, self._v = u.astype(float), v.astype(float)
+
+    def camera_model(self) -> CameraModel:
+        c = self.cfg
+        return CameraModel(
+            width_px=c.width_px, height_px=c.height_px, fx_px=self.fx, fy_px=self.fy,
+            cx_px=self.cx, cy_px=self.cy, depth_unit_m=c.depth_unit_m,
+            min_range_m=c.min_range_m, max_range_m=c.max_range_m, frame_rate_hz=c.frame_rate_hz,
+        )
+
+    def cast(
+        self, position_m: NDArray, R_world_cam: NDArray, u_px: NDArray, v_px: NDArray
+    ) -> tuple[NDArray, NDArray, NDArray]:
+        """Depth along the optical axis (inf = miss), world normals and camera-frame ray
+        directions (z = 1) for pixel positions (H, W)."""
+        d_c = np.stack([(u_px - self.cx) / self.fx, (v_px - self.cy) / self.fy,
+                        np.ones_like(u_px)], axis=-1)
+        d_w = d_c @ np.asarray(R_world_cam).T
+        rays = np.concatenate([np.broadcast_to(position_m, d_w.shape), d_w], axis=-1)
+        ans = self.scene.cast_rays(self._o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
+        t_hit = ans["t_hit"].numpy().astype(np.float64)
+        normals = ans["primitive_normals"].numpy().astype(np.float64)
+        return t_hit, normals, d_c
+
+    def render(
+        self, position_m: NDArray, R_world_cam: NDArray, rng: np.random.Generator
+    ) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+        """One frame: depth_m (H, W) float32 (0 invalid) and confidence (H, W) uint8."""
+        c = self.cfg
+        u, v = self._u, self._v
+        if c.noise and c.lateral_noise_px > 0:
+            u = u + rng.normal(0, c.lateral_noise_px, u.shape)
+            v = v + rng.normal(0, c.lateral_noise_px, v.shape)
+        z, n_w, d_c = self.cast(np.asarray(position_m, float), R_world_cam, u, v)
+        hit = np.isfinite(z)
+        d_w = d_c @ np.asarray(R_world_cam).T
+        cos_inc = np.abs(np.sum(n_w * d_w, axis=-1)) / np.linalg.norm(d_w, axis=-1)
+        incidence = np.arccos(np.clip(cos_inc, 0.0, 1.0))
+        z = np.where(hit, z, 0.0)
+        if c.noise:
+            far = np.where(hit, z, 10.0)  # misses behave like a far background
+            zmax, zmin = maximum_filter(far, size=3), minimum_filter(far, size=3)
+            mixed = hit & (zmax - zmin > c.mixed_pixel_jump_m)
+            mixed &= rng.random(z.shape) < c.mixed_pixel_probability
+            w = rng.random(z.shape)
+            z = np.where(mixed, w * zmin + (1 - w) * zmax, z)
+        sigma = axial_sigma_m(z, incidence, c.axial_coeffs)
+        if c.noise:
+            z = z + sigma * rng.standard_normal(z.shape)
+        valid = hit & (incidence < np.radians(c.max_incidence_deg)) & (sigma < c.max_noise_m)
+        rng_m = z * np.linalg.norm(d_c, axis=-1)
+        valid &= (rng_m >= c.min_range_m) & (rng_m <= c.max_range_m)
+        if c.noise:
+            valid &= ~self._flying(np.where(valid, z, 0.0))
+        depth = np.where(valid, z, 0.0).astype(np.float32)
+        conf = np.where(valid, np.clip(np.round(255 * (1 - sigma / c.max_noise_m)), 1, 255), 0)
+        return depth, conf.astype(np.uint8)
+
+    def _flying(self, z: NDArray) -> NDArray[np.bool_]:
+        """royale's flying-pixel rule: jump to both horizontal (or both vertical) neighbours
+        above a threshold rising linearly from 0.018 m (<= 1 m) to 0.14 m (>= 4.5 m)."""
+        t0, t1 = self.cfg.flying_pixel_thresholds_m
+        thr = np.interp(z, [1.0, 4.5], [t0, t1])
+        p = np.pad(z, 1, mode="edge")
+        left, right = p[1:-1, :-2], p[1:-1, 2:]
+        up, down = p[:-2, 1:-1], p[2:, 1:-1]
+        horiz = (np.abs(z - left) > thr) & (np.abs(z - right) > thr)
+        vert = (np.abs(z - up) > thr) & (np.abs(z - down) > thr)
+        return (z > 0) & (horiz | vert)
+
+    def edges_visible(
+        self, positions_m: NDArray, R_world_cam: NDArray, edges_world_m: NDArray,
+        margin_px: float = 2.0,
+    ) -> NDArray[np.bool_]:
+        """(F, E): edge point e is inside the image, within range and not occluded in frame f.
+
+        positions_m (F, 3), R_world_cam (F, 3, 3), edges_world_m (E, 3).
+        """
+        F, E = positions_m.shape[0], edges_world_m.shape[0]
+        if E == 0:
+            return np.zeros((F, 0), dtype=bool)
+        rel = edges_world_m[None, :, :] - positions_m[:, None, :]  # (F, E, 3)
+        p_c = np.einsum("fji,fej->fei", R_world_cam, rel)
+        z = p_c[..., 2]
+        zs = np.where(z > 1e-6, z, 1.0)
+        u = self.fx * p_c[..., 0] / zs + self.cx
+        v = self.fy * p_c[..., 1] / zs + self.cy
+        rng_m = np.linalg.norm(rel, axis=-1)
+        c = self.cfg
+        inside = (z > 1e-6) & (u >= margin_px) & (u <= c.width_px - 1 - margin_px)
+        inside &= (v >= margin_px) & (v <= c.height_px - 1 - margin_px)
+        inside &= (rng_m >= c.min_range_m) & (rng_m <= c.max_range_m)
+        rays = np.concatenate([np.broadcast_to(positions_m[:, None, :], rel.shape), rel], -1)
+        ans = self.scene.cast_rays(self._o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
+        t_hit = ans["t_hit"].numpy()
+        unoccluded = t_hit >= 1.0 - 0.01 / np.maximum(rng_m, 1e-6)
+        return inside & unoccluded

@@ -1,0 +1,178 @@
+"""One simulated trial: terrain -> gait -> sensors -> recording (the only I/O is the writer)."""
+
+from __future__ import annotations
+
+import datetime as _dt
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+import vio_graph
+from vio_graph.geometry import invert_transform, make_transform
+from vio_graph.recording.metadata import (
+    FORMAT_VERSION, Extrinsics, ImuModel, LegGeometry, Provenance, RecordingMetadata,
+    TerrainInfo,
+)
+from vio_graph.recording.streams import GroundTruth, ImuStateTable, ImuTable, JointTable
+from vio_graph.sim.config import RigConfig, ScenarioConfig
+from vio_graph.sim.gait import LegMotion, simulate_gait
+from vio_graph.sim.imu import ImuTruth, simulate_imu
+from vio_graph.sim.joints import simulate_joints
+from vio_graph.sim.mocap import camera_poses, simulate_mocap
+from vio_graph.sim.terrain import Terrain, build_terrain
+from vio_graph.sim.tof import TofCamera
+
+_STREAMS = ("terrain", "gait", "imu", "joints", "mocap", "frames", "tof")
+
+
+def R_shank_cam(pitch_down_deg: float) -> NDArray[np.float64]:
+    """Camera (optical: x right, y down, z forward) in the shank frame, optical axis pitched
+    ``pitch_down_deg`` below the shank's anterior x axis."""
+    b = np.radians(pitch_down_deg)
+    z_c = np.array([np.cos(b), 0.0, -np.sin(b)])
+    x_c = np.array([0.0, -1.0, 0.0])
+    y_c = np.cross(z_c, x_c)
+    return np.stack([x_c, y_c, z_c], axis=1)
+
+
+def rig_transforms(rig: RigConfig) -> tuple[NDArray, NDArray, NDArray]:
+    """knee_T_cam, knee_T_imu (4x4) and the IMU point in the shank frame (x, z)."""
+    R_s_c = R_shank_cam(rig.camera_pitch_down_deg)
+    cam = np.array([rig.camera_in_shank_xz_m[0], 0.0, rig.camera_in_shank_xz_m[1]])
+    knee_T_cam = make_transform(R_s_c, cam)
+    imu_p = cam + R_s_c @ np.asarray(rig.imu_in_camera_xyz_m, dtype=float)
+    imu_p[1] = 0.0  # the leg model is planar: keep the IMU in the sagittal plane
+    knee_T_imu = make_transform(np.eye(3), imu_p)
+    return knee_T_cam, knee_T_imu, imu_p[[0, 2]]
+
+
+@dataclass(frozen=True)
+class SimulatedTrial:
+    """Everything about one simulated trial, in memory. Depth frames are rendered lazily."""
+
+    config: ScenarioConfig
+    seed: int
+    terrain: Terrain
+    motion: LegMotion
+    camera: TofCamera
+    metadata: RecordingMetadata
+    imu: ImuTable
+    imu_truth: ImuTruth
+    joints: JointTable
+    groundtruth: GroundTruth
+    frame_timestamps_s: NDArray[np.float64]
+    camera_position_m: NDArray[np.float64]  # (F, 3) true, at the frame timestamps
+    R_world_cam: NDArray[np.float64]  # (F, 3, 3)
+    camera_in_shank_xz_m: NDArray[np.float64]
+    imu_in_shank_xz_m: NDArray[np.float64]
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.frame_timestamps_s.size)
+
+    def render_frame(self, i: int) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+        """Depth (H, W) float32 m (0 invalid) and confidence uint8 of frame i (deterministic)."""
+        rng = np.random.default_rng([self.seed, _STREAMS.index("tof"), i])
+        return self.camera.render(self.camera_position_m[i], self.R_world_cam[i], rng)
+
+    def frames(self) -> Iterator[tuple[NDArray[np.float32], NDArray[np.uint8]]]:
+        """Lazy generator over all frames (for write_recording)."""
+        for i in range(self.n_frames):
+            yield self.render_frame(i)
+
+
+def _rng(seed: int, stream: str) -> np.random.Generator:
+    return np.random.default_rng([seed, _STREAMS.index(stream)])
+
+
+def simulate_trial(config: ScenarioConfig, seed: int) -> SimulatedTrial:
+    """Simulate one trial in memory (frames are rendered on demand)."""
+    terrain = build_terrain(config.terrain)
+    motion = simulate_gait(terrain, config.gait, config.rig, config.duration_s,
+                           _rng(seed, "gait"))
+    knee_T_cam, knee_T_imu, imu_xz = rig_transforms(config.rig)
+    cam_xz = np.asarray(config.rig.camera_in_shank_xz_m, dtype=float)
+    R_s_c = knee_T_cam[:3, :3]
+    imu, imu_state, truth = simulate_imu(motion, config.imu, config.duration_s, imu_xz,
+                                         _rng(seed, "imu"))
+    joints = simulate_joints(motion, config.joints, imu.timestamp_s, _rng(seed, "joints"))
+    traj = simulate_mocap(motion, config.mocap, config.duration_s, cam_xz, R_s_c,
+                          _rng(seed, "mocap"))
+    camera = TofCamera(config.camera, terrain)
+    fr = _rng(seed, "frames")
+    period = 1.0 / config.camera.frame_rate_hz
+    nominal = np.arange(0.5 * period, config.duration_s - 1e-9, period)
+    jitter = fr.normal(0, config.camera.timestamp_jitter_s, nominal.size)
+    frame_t = nominal + np.clip(jitter, -0.4 * period, 0.4 * period)
+    cam_pos, R_w_c = camera_poses(motion, frame_t, cam_xz, R_s_c)
+    edges = np.zeros((terrain.edges_xz_m.shape[0], 3))
+    edges[:, 0], edges[:, 2] = terrain.edges_xz_m[:, 0], terrain.edges_xz_m[:, 1]
+    visible = camera.edges_visible(cam_pos, R_w_c, edges).any(axis=1).astype(np.int8)
+    gt = GroundTruth(trajectories=traj, imu_state=imu_state, frame_edge_visible=visible)
+    metadata = _metadata(config, seed, terrain, motion, camera, knee_T_cam, knee_T_imu)
+    return SimulatedTrial(
+        config=config, seed=seed, terrain=terrain, motion=motion, camera=camera,
+        metadata=metadata, imu=imu, imu_truth=truth, joints=joints, groundtruth=gt,
+        frame_timestamps_s=frame_t, camera_position_m=cam_pos, R_world_cam=R_w_c,
+        camera_in_shank_xz_m=cam_xz, imu_in_shank_xz_m=imu_xz,
+    )
+
+
+def _metadata(
+    config: ScenarioConfig, seed: int, terrain: Terrain, motion: LegMotion, camera: TofCamera,
+    knee_T_cam: NDArray, knee_T_imu: NDArray,
+) -> RecordingMetadata:
+    ic = config.imu
+    leg = motion.leg
+    return RecordingMetadata(
+        format_version=FORMAT_VERSION,
+        duration_s=config.duration_s,
+        camera=camera.camera_model(),
+        imu=ImuModel(
+            rate_hz=ic.rate_hz, accel_noise_density_mps2_per_sqrt_hz=ic.accel_noise_density,
+            gyro_noise_density_radps_per_sqrt_hz=ic.gyro_noise_density,
+            accel_bias_random_walk_mps3_per_sqrt_hz=ic.accel_bias_rw,
+            gyro_bias_random_walk_radps2_per_sqrt_hz=ic.gyro_bias_rw,
+            orientation_rms_rad=float(np.radians(ic.orientation_rms_deg)),
+            accel_range_mps2=ic.accel_range_mps2, gyro_range_radps=ic.gyro_range_radps,
+        ),
+        joint_rate_hz=ic.rate_hz,
+        groundtruth_rate_hz=config.mocap.rate_hz,
+        extrinsics=Extrinsics(
+            imu_T_cam=(invert_transform(knee_T_imu) @ knee_T_cam).tolist(),
+            knee_T_cam=knee_T_cam.tolist(),
+        ),
+        leg=LegGeometry(
+            rig=config.rig.rig, thigh_length_m=leg.thigh_length_m,
+            shank_length_m=leg.shank_length_m, heel_in_foot_xz_m=leg.heel_in_foot_xz_m,
+            toe_in_foot_xz_m=leg.toe_in_foot_xz_m,
+        ),
+        terrain=TerrainInfo(
+            kind=terrain.kind, params=terrain.params,
+            profile_xz_m=[tuple(p) for p in terrain.profile_xz_m.tolist()],
+            edges_xz_m=[tuple(p) for p in terrain.edges_xz_m.tolist()],
+        ),
+        provenance=Provenance(
+            source="simulator", scenario=config.name, seed=seed,
+            config=config.model_dump(mode="json"),
+            software=f"vio_graph {vio_graph.__version__}",
+            created_utc=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        ),
+    )
+
+
+def simulate(
+    config: ScenarioConfig, seed: int, out_dir: Path,
+    progress: Callable[[int], None] | None = None, overwrite: bool = False,
+) -> Path:
+    """Simulate a trial and write it as a recording folder; returns the folder."""
+    from vio_graph.recording.writer import write_recording
+
+    trial = simulate_trial(config, seed)
+    return write_recording(
+        Path(out_dir), trial.metadata, trial.imu, trial.joints, trial.groundtruth,
+        trial.frame_timestamps_s, trial.frames(), progress=progress, overwrite=overwrite,
+    )

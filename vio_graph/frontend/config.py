@@ -145,6 +145,12 @@ class TrackerConfig(_Strict):
         description="'features' = paper (previous feature points); 'profile' = the previous "
         "smoothed profile, which also works when the tracked corner changes",
     )
+    source_margin_m: float = Field(
+        0.05,
+        ge=0,
+        description="ICP source = previous profile within the target's box (moved by T0) grown "
+        "by max_correspondence_m + this margin, m",
+    )
     same_corner_gate_m: float = Field(
         0.10,
         gt=0,

@@ -82,13 +82,11 @@ class CornerTracker:
         self._icp_cfg = IcpConfig() if icp_config is None else icp_config
         self._edge_cov_m2 = np.eye(2) * edge_sigma_m**2
         self._prev: _Frame | None = None
-        self._prev_tree: cKDTree | None = None
         self._next_id = 0
 
     def reset(self) -> None:
         """Forget the previous frame (track ids keep increasing)."""
         self._prev = None
-        self._prev_tree = None
 
     def _new_id(self) -> int:
         self._next_id += 1
@@ -119,17 +117,26 @@ class CornerTracker:
             timestamp_s, corner, self._prev, predicted_delta_xz_m, predicted_cov_m2
         )
         self._prev = _Frame(timestamp_s, np.asarray(profile_xz_m, float), corner, out.track_id)
-        self._prev_tree = None  # built lazily when the next frame needs it
         return out
 
-    def _source(self, prev: _Frame) -> tuple[NDArray[np.float64], cKDTree]:
+    def _source(
+        self, prev: _Frame, target: NDArray[np.float64], T0: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], cKDTree]:
+        """ICP source: previous features, or the part of the previous profile that the target
+        (moved back by T0) can reach: its bounding box grown by the correspondence distance
+        plus ``source_margin_m``. Cropping keeps the KD-tree small (tens of points)."""
         if self._cfg.icp_target == "features":
             assert prev.corner is not None
             pts = prev.corner.feature_points_xz_m
             return pts, cKDTree(pts)
-        if self._prev_tree is None:
-            self._prev_tree = cKDTree(prev.profile_xz_m)
-        return prev.profile_xz_m, self._prev_tree
+        moved = target - T0
+        grow = self._icp_cfg.max_correspondence_m + self._cfg.source_margin_m
+        lo, hi = moved.min(axis=0) - grow, moved.max(axis=0) + grow
+        prof = prev.profile_xz_m
+        pts = prof[np.all((prof >= lo) & (prof <= hi), axis=1)]
+        if pts.shape[0] == 0:
+            pts = prof[:1]  # ICP will find no correspondences and say so
+        return pts, cKDTree(pts)
 
     def _associate(
         self,
@@ -159,7 +166,7 @@ class CornerTracker:
                 return self._without_displacement(t, corner, None, "no corner in previous frame")
             if not self._is_same(corner, prev_corner, T0):
                 return self._without_displacement(t, corner, None, "corner changed (features)")
-        src, tree = self._source(prev)  # 2. previous profile (or features)
+        src, tree = self._source(prev, corner.feature_points_xz_m, T0)  # 2. previous profile
         icp = icp_translation_2d(src, corner.feature_points_xz_m, T0, self._icp_cfg, tree)
         bad = self._quality_problem(icp)  # 4. ICP quality
         v = -icp.translation_xz_m - pred  # 3. gate against the prediction
@@ -183,7 +190,7 @@ class CornerTracker:
         shift = corner.mean_xz_m - prev.corner.mean_xz_m
         if np.linalg.norm(shift) > self._cfg.same_corner_gate_m:
             return self._without_displacement(t, corner, None, "corner changed (mean gate)")
-        src, tree = self._source(prev)
+        src, tree = self._source(prev, corner.feature_points_xz_m, shift)
         icp = icp_translation_2d(src, corner.feature_points_xz_m, shift, self._icp_cfg, tree)
         track_id = prev.track_id if prev.track_id is not None else self._new_id()
         obs = CornerObservation(t, track_id, corner.edge_xz_m.copy(), self._edge_cov_m2.copy())

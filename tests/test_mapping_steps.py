@@ -180,3 +180,32 @@ def test_config_rejects_inconsistent_thresholds() -> None:
         StepConfig(level_tolerance_m=0.05, min_rise_m=0.03)
     with pytest.raises(ValueError):
         StepConfig(unknown_field=1)  # type: ignore[call-arg]
+
+
+@pytest.mark.parametrize("up", [True, False])
+def test_pose_noise_blurs_but_does_not_invent_levels(up: bool) -> None:
+    # keyframe positions off by 1 cm (1 sigma, independent): risers smear over several cm of
+    # x, which must not turn their middle into extra "treads"
+    terrain = stair_profile(0.147, 0.28, 5, up=up)
+    rng = np.random.default_rng(11)
+    cams = camera_track(terrain, -0.3, 1.8, step_m=KEYFRAME_STEP_M)
+    profiles = observe(terrain, cams, NOISE_M, rng)
+    terrain_map = TerrainMap2D()
+    for i, (cam, prof) in enumerate(zip(cams, profiles, strict=True)):
+        terrain_map.add_keyframe(0.1 * i, cam + rng.normal(0.0, 0.01, 2), prof)
+    geometry = estimate_terrain_geometry(terrain_map.points_xz_m, terrain_map.point_counts)
+    assert len(geometry.levels) == 6
+    assert geometry.kind is (TerrainKind.STAIR_UP if up else TerrainKind.STAIR_DOWN)
+    # rise errors are limited by the pose noise (~1 cm / sqrt(keyframes seeing a tread))
+    np.testing.assert_allclose([s.rise_m for s in geometry.steps], 0.147, atol=0.012)
+    report = compare_to_truth(geometry, terrain)
+    assert report["n_steps_matched"] == 5 and report["nosing_max_mm"] < 15
+    if not up:
+        return  # descending: the risers are occluded, nothing to smear
+    # ascending, without the flatness test the blurred risers do produce spurious levels
+    loose = estimate_terrain_geometry(
+        terrain_map.points_xz_m,
+        terrain_map.point_counts,
+        StepConfig(min_level_contrast=1.0),
+    )
+    assert len(loose.levels) > 6

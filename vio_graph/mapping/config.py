@@ -53,6 +53,12 @@ class StepConfig(_Frozen):
     min_level_cells: int = Field(
         default=6, ge=2, description="fewest map cells that make a horizontal segment (count)"
     )
+    min_level_contrast: float = Field(
+        default=2.0,
+        ge=1.0,
+        description="a level holds at least this many times the weight of the windows just "
+        "above and below its z spread over its x range (ratio)",
+    )
     max_gap_m: float = Field(
         default=0.03,
         gt=0,

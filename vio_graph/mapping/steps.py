@@ -8,7 +8,10 @@ Method (all in the world x-z plane, x = walking direction):
    cells out of the pool, split them along x at gaps wider than ``max_gap_m`` and keep the
    pieces at least ``min_level_length_m`` long. Repeat until no window holds
    ``min_level_cells`` cells. A vertical face only puts a few cells of one x column into any
-   window, so it never makes a level. Level heights are count-weighted means of the cells
+   window, so it never makes a level; a piece must also be a z peak: hold at least
+   ``min_level_contrast`` times the weight of the windows (``2 level_tolerance_m`` high)
+   just above and just below its own z spread (same x range); this rejects the middle of risers
+   blurred along x by pose noise. Level heights are count-weighted means of the cells
    within 2.5 robust sigma of the window median.
 2. **Steps.** Levels are sorted along x; neighbours closer than ``min_rise_m`` in z merge.
    Each change of level between x-neighbours is a step; its rise is the level difference.
@@ -298,6 +301,16 @@ def find_levels(
                 continue
             x_piece = pts[piece, 0]
             if x_piece[-1] - x_piece[0] < cfg.min_level_length_m:
+                continue
+            # flatness: a level is a z peak; a (blurred) vertical face continues above/below
+            z_piece = pts[piece, 1]
+            z_med = float(np.median(z_piece))
+            half = max(tol, 2.5 * _ROBUST_SIGMA_PER_MAD * float(np.median(np.abs(z_piece - z_med))))
+            in_x = (pts[:, 0] >= x_piece[0]) & (pts[:, 0] <= x_piece[-1])
+            dz, w_x = pts[in_x, 1] - z_med, w[in_x]
+            above = float(w_x[(dz > half) & (dz <= half + 2 * tol)].sum())
+            below = float(w_x[(dz < -half) & (dz >= -half - 2 * tol)].sum())
+            if float(w[piece].sum()) < cfg.min_level_contrast * max(above, below):
                 continue
             levels.append(_make_level(pts[piece], w[piece], cfg))
     levels.sort(key=lambda lv: lv.x_start_m)

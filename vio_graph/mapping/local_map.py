@@ -150,6 +150,7 @@ class TerrainMap2D:
         self.config = config if config is not None else MapConfig()
         self._keyframes: list[KeyframeProfile] = []
         self._cells: MapCells | None = None
+        self._times: NDArray[np.float64] | None = None  # sorted timestamps cache
 
     # -- building --------------------------------------------------------------------------
     def add_keyframe(
@@ -174,6 +175,7 @@ class TerrainMap2D:
         if self.config.max_keyframes is not None:
             del self._keyframes[: max(0, len(self._keyframes) - self.config.max_keyframes)]
         self._cells = None
+        self._times = None
 
     def update_poses(
         self,
@@ -210,13 +212,20 @@ class TerrainMap2D:
         """Forget every keyframe."""
         self._keyframes = []
         self._cells = None
+        self._times = None
 
     def _find(self, timestamp_s: float) -> int | None:
+        """Index of the stored keyframe at ``timestamp_s`` (keyframes are kept sorted)."""
         if not self._keyframes:
             return None
-        times = np.array([kf.timestamp_s for kf in self._keyframes])
-        i = int(np.argmin(np.abs(times - timestamp_s)))
-        return i if abs(times[i] - timestamp_s) <= self.config.timestamp_match_tol_s else None
+        if self._times is None or self._times.shape[0] != len(self._keyframes):
+            self._times = np.array([kf.timestamp_s for kf in self._keyframes])
+        j = int(np.searchsorted(self._times, timestamp_s))
+        for i in (j - 1, j):
+            if 0 <= i < self._times.shape[0]:
+                if abs(self._times[i] - timestamp_s) <= self.config.timestamp_match_tol_s:
+                    return i
+        return None
 
     # -- reading ---------------------------------------------------------------------------
     def __len__(self) -> int:

@@ -1,0 +1,68 @@
+"""Benchmark: time simulate() of a 10 s upstair trial to a temp dir (median of 3 runs).
+
+Writes benchmarks/results/simulator.json and prints a markdown table.
+Run: /work/venv/bin/python benchmarks/bench_simulator.py
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vio_graph.sim import load_scenario, simulate, simulate_trial
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def main(runs: int = 3) -> dict:
+    config = load_scenario("upstair").model_copy(update={"duration_s": 10.0})
+    times_s = []
+    for run in range(runs):
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            simulate(config, seed=run + 1, out_dir=Path(tmp) / "rec")
+            times_s.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    trial = simulate_trial(config, seed=1)
+    t_trial = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    valid = [int((trial.render_frame(i)[0] > 0).sum()) for i in range(trial.n_frames)]
+    t_render = (time.perf_counter() - t0) / trial.n_frames
+    result = {
+        "scenario": "upstair",
+        "duration_s": config.duration_s,
+        "frames": trial.n_frames,
+        "runs": runs,
+        "simulate_median_s": statistics.median(times_s),
+        "simulate_all_s": times_s,
+        "simulate_trial_in_memory_s": t_trial,
+        "render_ms_per_frame": 1e3 * t_render,
+        "mean_valid_pixels_per_frame": float(np.mean(valid)),
+        "edge_visible_fraction": float(trial.groundtruth.frame_edge_visible.mean()),
+        "machine": platform.platform(),
+        "python": platform.python_version(),
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "simulator.json").write_text(json.dumps(result, indent=2) + "\n")
+    return result
+
+
+def markdown(r: dict) -> str:
+    return "\n".join([
+        "| metric | value |", "|---|---|",
+        f"| simulate() 10 s upstair, median of {r['runs']} | {r['simulate_median_s']:.1f} s |",
+        f"| in-memory simulate_trial (no frames) | {r['simulate_trial_in_memory_s']:.2f} s |",
+        f"| render one 224x172 frame | {r['render_ms_per_frame']:.1f} ms |",
+        f"| mean valid pixels / frame | {r['mean_valid_pixels_per_frame']:.0f} of 38528 |",
+        f"| frames seeing a stair edge | {100 * r['edge_visible_fraction']:.0f} % |",
+    ])
+
+
+if __name__ == "__main__":
+    print(markdown(main()))  # noqa: T201 - benchmark script output

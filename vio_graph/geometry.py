@@ -103,15 +103,25 @@ def remove_yaw(R_w_b: ArrayLike) -> NDArray[np.float64]:
 
     Used to build the gravity-aligned "ground" frame of the paper's eq. 2 without trusting the
     AHRS heading (2 deg RMS on an MTi-1) and assuming walking along world +x.
+
+    A ZYX decomposition is ambiguous once the segment pitches past 90 deg ((yaw, pitch, roll)
+    and (yaw + pi, pi - pitch, roll + pi) are the same rotation). A shank or knee segment
+    moves in the sagittal plane with small roll, so of the two headings we remove the one that
+    leaves the smaller roll.
     """
     R = np.asarray(R_w_b, dtype=float)
-    # yaw of the body's x axis projected on the horizontal plane (ZYX convention)
     yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
-    c, s = np.cos(-yaw), np.sin(-yaw)
-    Rz = np.zeros(R.shape)
-    Rz[..., 0, 0], Rz[..., 0, 1], Rz[..., 1, 0], Rz[..., 1, 1] = c, -s, s, c
-    Rz[..., 2, 2] = 1.0
-    return Rz @ R
+
+    def _unyaw(angle: NDArray[np.float64]) -> NDArray[np.float64]:
+        c, s = np.cos(-angle), np.sin(-angle)
+        Rz = np.zeros(R.shape)
+        Rz[..., 0, 0], Rz[..., 0, 1], Rz[..., 1, 0], Rz[..., 1, 1] = c, -s, s, c
+        Rz[..., 2, 2] = 1.0
+        return Rz @ R
+
+    a, b = _unyaw(yaw), _unyaw(yaw + np.pi)
+    pick_b = (b[..., 1, 1] > a[..., 1, 1])[..., None, None]
+    return np.where(pick_b, b, a)
 
 
 def make_transform(R: ArrayLike, t: ArrayLike) -> NDArray[np.float64]:

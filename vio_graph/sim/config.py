@@ -98,10 +98,14 @@ class RigConfig(_Section):
         None, description="toe in the foot frame, m; None: anthropometric default"
     )
     camera_in_shank_xz_m: tuple[float, float] = Field(
-        (0.07, -0.12), description="camera optical centre in the shank frame, m"
+        (0.07, -0.05),
+        description="camera optical centre in the shank frame, m (just below the knee: from "
+        "there the camera looks down on the next two treads; lower mounts see mostly risers)",
     )
     camera_pitch_down_deg: float = Field(
-        10.0, description="optical axis below the shank x axis, deg"
+        20.0,
+        description="optical axis below the shank x axis, deg (shallower loses the tread "
+        "surfaces to grazing incidence, steeper sees one step only)",
     )
     imu_in_camera_xyz_m: tuple[float, float, float] = Field(
         (0.0, 0.02, -0.015), description="IMU point in the camera frame, m (fixed together)"

@@ -16,6 +16,6 @@ class _Bar(tqdm):
 
 @contextlib.contextmanager
 def progress_bar(total: int | None, desc: str, unit: str = "it", enabled: bool = True) -> Iterator[_Bar]:
-    with _Bar(total=total, desc=desc, unit=unit, disable=not enabled, leave=False,
+    with _Bar(total=total, desc=desc, unit=unit, disable=None if enabled else True, leave=False, mininterval=0.5,
               dynamic_ncols=True) as bar:
         yield bar

@@ -1,0 +1,95 @@
+"""Pipeline configuration: one pydantic model per section, defaults in code, YAML overrides.
+
+``configs/default.yaml`` holds the defaults a user edits; the used config is saved beside the
+results (``config.yaml``) so every run can be reproduced.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+import vio_graph
+from vio_graph.errors import ConfigError
+from vio_graph.filter.config import FilterConfig
+from vio_graph.frontend.config import FrontendConfig
+from vio_graph.keyframes import KeyframeConfig
+from vio_graph.mapping.config import MappingConfig
+from vio_graph.smoother.config import SmootherConfig
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class KinematicsConfig(_Section):
+    """Where the leg chain's angles come from (paper Section II.D, Fig. 3)."""
+
+    shank_pitch_source: Literal["encoders", "imu"] = Field(
+        default="encoders",
+        description="'encoders': thigh IMU pitch and knee encoder as in the paper; "
+        "'imu': the shank/knee IMU's own pitch",
+    )
+
+
+class OutputConfig(_Section):
+    rerun: bool = Field(default=True, description="write a rerun .rrd of the run")
+    plots: bool = Field(default=True, description="write PNG plots")
+    cloud_every_n_frames: int = Field(default=3, ge=1, description="3D cloud logging stride")
+    cloud_pixel_stride: int = Field(default=3, ge=1, description="pixel subsampling of the cloud")
+
+
+class PipelineConfig(_Section):
+    frontend: FrontendConfig = FrontendConfig()
+    filter: FilterConfig = FilterConfig()
+    keyframes: KeyframeConfig = KeyframeConfig()
+    kinematics: KinematicsConfig = KinematicsConfig()
+    smoother: SmootherConfig = SmootherConfig()
+    mapping: MappingConfig = MappingConfig()
+    output: OutputConfig = OutputConfig()
+
+
+def configs_dir() -> Path:
+    """The repository's ``configs/`` folder (next to the package)."""
+    return Path(vio_graph.__file__).resolve().parents[1] / "configs"
+
+
+def load_yaml_mapping(path: Path) -> dict[str, Any]:
+    """Read a YAML mapping safely; errors name the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: config file not found")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: top level must be a mapping")
+    return data
+
+
+def load_config(path: str | Path | None = None) -> PipelineConfig:
+    """Load a pipeline config: a YAML path, a name in configs/, or None for configs/default.yaml
+    (or the in-code defaults if that file is absent)."""
+    if path is None:
+        candidate = configs_dir() / "default.yaml"
+        if not candidate.is_file():
+            return PipelineConfig()
+        path = candidate
+    p = Path(path)
+    if not p.suffix and not p.exists():
+        p = configs_dir() / f"{p}.yaml"
+    data = load_yaml_mapping(p)
+    try:
+        return PipelineConfig.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(x) for x in err["loc"])
+        raise ConfigError(f"{p}: {loc}: {err['msg']}") from None
+
+
+def dump_config(config: PipelineConfig) -> str:
+    return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)

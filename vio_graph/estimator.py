@@ -1,0 +1,193 @@
+"""The online estimator: what a prosthesis controller runs, one estimate per depth frame.
+
+Feed it IMU samples, joint angles and depth frames in time order (no look-ahead); each depth
+frame returns a :class:`vio_graph.types.FrameEstimate` with the camera, knee, ankle, heel and
+toe positions, velocity, covariance, status and per-stage timings. The CLI's replay loop
+(``vio_graph.pipeline``) drives exactly this object.
+
+Per frame, in the paper's order (Section II):
+  1. attitude: the latest IMU orientation, heading removed -> R_ground_cam (eq. 2);
+  2. IMU prediction of the camera displacement since the previous frame (ICP's T_0);
+  3. front end: slice, smoothing, terrain, corners, ICP, gating (eq. 1-4);
+  4. SP-ESKF correction with the displacement (eq. 8) -- or IMU-only if none passed;
+  5. knee from the camera and the knee <- camera extrinsic; ankle, heel, toe by forward
+     kinematics from the thigh IMU and the joint encoders (Fig. 3);
+  6. keyframe decision and the local 2D map.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vio_graph.config import PipelineConfig
+from vio_graph.errors import EstimationError
+from vio_graph.filter.eskf import SagittalEskf
+from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
+from vio_graph.geometry import invert_transform, matrix_from_quat_wxyz, pitch_of, remove_yaw
+from vio_graph.keyframes import KeyframeSelector
+from vio_graph.kinematics import knee_from_camera, leg_points_from_knee, shank_pitch_rad
+from vio_graph.mapping.local_map import TerrainMap2D
+from vio_graph.recording.metadata import RecordingMetadata
+from vio_graph.types import (
+    DepthFrame,
+    EstimateStatus,
+    FrameEstimate,
+    ImuSample,
+    JointAngles,
+)
+
+
+@dataclass(frozen=True)
+class RigGeometry:
+    """What the estimator needs to know about the sensors and the leg (from metadata)."""
+
+    K: NDArray[np.float64]
+    imu_T_cam: NDArray[np.float64]
+    knee_T_cam: NDArray[np.float64]
+    leg: object  # vio_graph.kinematics.LegModel
+
+    @classmethod
+    def from_metadata(cls, meta: RecordingMetadata) -> RigGeometry:
+        return cls(
+            K=meta.camera.intrinsic_matrix(),
+            imu_T_cam=meta.extrinsics.imu_T_cam_matrix(),
+            knee_T_cam=meta.extrinsics.knee_T_cam_matrix(),
+            leg=meta.leg.leg_model(),
+        )
+
+    @property
+    def R_imu_cam(self) -> NDArray[np.float64]:
+        return self.imu_T_cam[:3, :3]
+
+    @property
+    def R_knee_imu(self) -> NDArray[np.float64]:
+        return (self.knee_T_cam @ invert_transform(self.imu_T_cam))[:3, :3]
+
+    @property
+    def camera_in_shank_xz_m(self) -> NDArray[np.float64]:
+        return self.knee_T_cam[[0, 2], 3].copy()
+
+
+class OnlineEstimator:
+    """SP-ESKF front end + fusion + kinematics + keyframes + local map, frame by frame."""
+
+    def __init__(self, config: PipelineConfig, rig: RigGeometry,
+                 initial_camera_xz_m: NDArray[np.float64] | None = None) -> None:
+        self.config = config
+        self.rig = rig
+        self.frontend = VisualFrontend(config.frontend)
+        self.filter = SagittalEskf(config.filter, rig.imu_T_cam)
+        self.keyframes = KeyframeSelector(config.keyframes)
+        self.local_map = TerrainMap2D(config.mapping.map)
+        self._p0 = np.zeros(2) if initial_camera_xz_m is None else np.asarray(initial_camera_xz_m, float)
+        self._last_imu: ImuSample | None = None
+        self._last_joints: JointAngles | None = None
+        self._prev_frame: tuple[float, NDArray[np.float64]] | None = None  # (t, camera xz)
+        self._imu_ms = 0.0
+
+    # ------------------------------------------------------------------ inputs
+    def add_imu(self, sample: ImuSample) -> None:
+        t0 = time.perf_counter()
+        if self._last_imu is None:
+            self.filter.initialise(sample.timestamp_s, self._p0)
+        elif sample.timestamp_s <= self._last_imu.timestamp_s:
+            raise EstimationError(
+                f"IMU sample at {sample.timestamp_s:.6f} s is not after {self._last_imu.timestamp_s:.6f} s")
+        else:
+            self.filter.propagate(sample)
+        self._last_imu = sample
+        self._imu_ms += (time.perf_counter() - t0) * 1e3
+
+    def add_joints(self, sample: JointAngles) -> None:
+        self._last_joints = sample
+
+    @property
+    def initialised(self) -> bool:
+        return self._last_imu is not None
+
+    def R_world_imu(self) -> NDArray[np.float64]:
+        """Latest vendor attitude with the heading removed (the paper's ground frame)."""
+        if self._last_imu is None:
+            raise EstimationError("no IMU sample yet")
+        return remove_yaw(matrix_from_quat_wxyz(self._last_imu.quat_wxyz))
+
+    def _position_at(self, t_s: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Filter camera position (m) and velocity extrapolated to ``t_s`` (few ms at most)."""
+        s = self.filter.state
+        return s.p_xz_m + s.v_xz_mps * (t_s - s.timestamp_s), s.v_xz_mps
+
+    # ------------------------------------------------------------------ per frame
+    def add_frame(self, frame: DepthFrame) -> tuple[FrameEstimate, FrontendResult | None]:
+        if not self.initialised:
+            raise EstimationError("a depth frame arrived before any IMU sample")
+        t = frame.timestamp_s
+        timings: dict[str, float] = {"imu_propagation": self._imu_ms}
+        self._imu_ms = 0.0
+        # 1. attitude -> ground frame of eq. 2
+        R_world_imu = self.R_world_imu()
+        R_ground_cam = R_world_imu @ self.rig.R_imu_cam
+        # 2. IMU-predicted camera displacement since the previous frame (ICP's T_0)
+        p_pred, _ = self._position_at(t)
+        pred_delta = pred_cov = None
+        if self._prev_frame is not None:
+            t_prev, p_prev = self._prev_frame
+            dt = t - t_prev
+            pred_delta = p_pred - p_prev
+            P = self.filter.state.P
+            pred_cov = P[2:4, 2:4] * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
+        # 3. front end (eq. 1-4)
+        result = self.frontend.process(frame, self.rig.K, R_ground_cam, pred_delta, pred_cov)
+        timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
+        # 4. fusion (eq. 8)
+        t0 = time.perf_counter()
+        if result.displacement is not None:
+            self.filter.update_displacement(result.displacement)
+        else:
+            self.filter.clone_position(t)
+        state = self.filter.state
+        camera_xz, velocity = self._position_at(t)
+        timings["fusion"] = (time.perf_counter() - t0) * 1e3
+        # 5. kinematics (Fig. 3)
+        t0 = time.perf_counter()
+        pts = self.leg_points(camera_xz, R_world_imu)
+        timings["kinematics"] = (time.perf_counter() - t0) * 1e3
+        # 6. keyframes and local map
+        is_kf = self.keyframes.is_keyframe(t, camera_xz)
+        if is_kf and result.profile_xz_m.shape[0] > 0:
+            self.local_map.add_keyframe(t, camera_xz, result.profile_xz_m)
+        self._prev_frame = (t, camera_xz)
+        status = state.status
+        if result.displacement is None and status is EstimateStatus.FUSED:
+            status = EstimateStatus.IMU_ONLY
+        estimate = FrameEstimate(
+            timestamp_s=t,
+            status=status,
+            camera_xz_m=camera_xz,
+            velocity_xz_mps=velocity,
+            cov_position_m2=state.cov_position_m2,
+            knee_xz_m=pts.knee_xz_m[0],
+            ankle_xz_m=pts.ankle_xz_m[0],
+            heel_xz_m=pts.heel_xz_m[0],
+            toe_xz_m=pts.toe_xz_m[0],
+            terrain=result.terrain,
+            is_keyframe=is_kf,
+            timings_ms=timings,
+        )
+        return estimate, result
+
+    def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
+        """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""
+        shank_pitch_imu = float(pitch_of(R_world_imu @ self.rig.R_knee_imu.T))
+        knee = knee_from_camera(camera_xz_m, shank_pitch_imu, self.rig.camera_in_shank_xz_m)
+        j = self._last_joints
+        if j is None:
+            return leg_points_from_knee(self.rig.leg, knee, shank_pitch_imu, 0.0)
+        if self.config.kinematics.shank_pitch_source == "encoders":
+            shank = shank_pitch_rad(j.thigh_pitch_rad, j.knee_rad)
+        else:
+            shank = shank_pitch_imu
+        return leg_points_from_knee(self.rig.leg, knee, shank, j.ankle_rad)

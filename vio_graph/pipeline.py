@@ -1,0 +1,478 @@
+"""The replay loop: a recording in, estimates, metrics, map, plots and a rerun view out.
+
+``run_recording`` is a table of contents: replay the streams in time order through the online
+estimator (filter mode) and, beside it, the baselines and the smoothers; finish the smoothers;
+derive every mode's leg trajectories by forward kinematics; evaluate against ground truth;
+build the map from the best available keyframe poses; write everything atomically.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+import vio_graph
+from vio_graph.config import PipelineConfig, dump_config
+from vio_graph.errors import OutputError
+from vio_graph.estimator import OnlineEstimator, RigGeometry
+from vio_graph.evaluation.association import associate
+from vio_graph.evaluation.metrics import ape, ate_per_axis, rpe
+from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
+from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw
+from vio_graph.io_utils import atomic_write_json, atomic_write_text
+from vio_graph.kinematics import knee_from_camera, leg_points_from_knee, shank_pitch_rad
+from vio_graph.mapping.local_map import TerrainMap2D
+from vio_graph.recording.reader import Recording
+from vio_graph.recording.streams import Trajectory
+from vio_graph.recording.tum import write_tum
+from vio_graph.types import EstimateStatus, TerrainKind
+
+log = logging.getLogger(__name__)
+
+MODES = ("filter", "smoother", "batch")
+BASELINES = ("imu_only", "icp_only")
+BODIES = ("camera", "knee", "ankle", "heel", "toe")
+
+
+@dataclass
+class FrameLog:
+    """Per-frame quantities collected during the replay (lists, one entry per depth frame)."""
+
+    t_s: list[float] = field(default_factory=list)
+    camera_xz: dict[str, list[NDArray[np.float64]]] = field(default_factory=dict)
+    shank_pitch_imu: list[float] = field(default_factory=list)
+    shank_pitch_chain: list[float] = field(default_factory=list)
+    ankle_rad: list[float] = field(default_factory=list)
+    status: list[str] = field(default_factory=list)
+    terrain: list[str] = field(default_factory=list)
+    displacement_ok: list[bool] = field(default_factory=list)
+    rejection: list[str] = field(default_factory=list)
+    is_keyframe: list[bool] = field(default_factory=list)
+    profiles: dict[int, NDArray[np.float64]] = field(default_factory=dict)  # keyframes only
+    timings_ms: list[dict[str, float]] = field(default_factory=list)
+    filter_rejected: int = 0
+
+
+@dataclass
+class RunResult:
+    out_dir: Path
+    metrics: dict[str, Any]
+    files: list[Path]
+
+
+def _stats_ms(values: list[float] | NDArray[np.float64]) -> dict[str, float]:
+    v = np.asarray(values, dtype=float)
+    if v.size == 0:
+        return {"median": float("nan"), "p95": float("nan"), "mean": float("nan"), "n": 0}
+    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)),
+            "mean": float(np.mean(v)), "n": int(v.size)}
+
+
+def replay_order(rec: Recording) -> tuple[NDArray[np.int8], NDArray[np.int64]]:
+    """Event order by time: (kind, index) with kind 0 = IMU, 1 = joints, 2 = depth frame.
+
+    On equal timestamps IMU comes first, then joints, then the frame (no look-ahead: a frame
+    only sees sensor data stamped at or before it).
+    """
+    times = [rec.imu.timestamp_s, rec.joints.timestamp_s, rec.frame_timestamps_s]
+    kinds = np.concatenate([np.full(t.shape[0], k, np.int8) for k, t in enumerate(times)])
+    idx = np.concatenate([np.arange(t.shape[0]) for t in times])
+    order = np.lexsort((kinds, np.concatenate(times)))
+    return kinds[order], idx[order]
+
+
+class Replay:
+    """Drives the online estimator, the baselines and the smoothers through one recording."""
+
+    def __init__(self, rec: Recording, config: PipelineConfig, modes: set[str], viz) -> None:
+        self.rec = rec
+        self.config = config
+        self.modes = modes
+        self.viz = viz
+        self.rig = RigGeometry.from_metadata(rec.metadata)
+        gt = rec.groundtruth
+        p0 = None
+        if gt is not None:  # place the estimate's origin at the true start (the paper's anchor)
+            cam = gt.trajectories["camera"]
+            p0 = np.array([np.interp(rec.frame_timestamps_s[0], cam.timestamp_s, cam.position_m[:, k])
+                           for k in (0, 2)])
+        self.p0 = np.zeros(2) if p0 is None else p0
+        self.online = OnlineEstimator(config, self.rig, p0)
+        self.baselines = {"imu_only": ImuDeadReckoning(config.filter, self.rig.imu_T_cam),
+                          "icp_only": IcpOdometry()}
+        self.smoothers: dict[str, Any] = {}
+        if "smoother" in modes:
+            from vio_graph.smoother.sliding_window import SlidingWindowSmoother
+
+            self.smoothers["smoother"] = SlidingWindowSmoother(config.smoother, self.rig.imu_T_cam)
+        if "batch" in modes:
+            from vio_graph.smoother.batch import BatchSmoother
+
+            self.smoothers["batch"] = BatchSmoother(config.smoother, self.rig.imu_T_cam)
+        self.log = FrameLog(camera_xz={m: [] for m in ("filter", *BASELINES)})
+        self.batch_solve_s = float("nan")
+
+    def run(self, progress=None) -> FrameLog:
+        rec, online, lg = self.rec, self.online, self.log
+        kinds, idx = replay_order(rec)
+        started = False
+        for kind, i in zip(kinds, idx, strict=True):
+            if kind == 0:
+                s = rec.imu.sample(int(i))
+                online.add_imu(s)
+                for name, b in self.baselines.items():
+                    if not started:
+                        b.initialise(s.timestamp_s, self.p0)
+                    else:
+                        b.propagate(s)
+                for sm in self.smoothers.values():
+                    sm.add_imu(s)
+                started = True
+            elif kind == 1:
+                online.add_joints(rec.joints.sample(int(i)))
+            else:
+                if not started:
+                    continue  # frames before the first IMU sample cannot be placed
+                self._frame(int(i))
+                if progress is not None:
+                    progress(int(i) + 1)
+        for sm in self.smoothers.values():
+            sm.flush()
+        if "batch" in self.smoothers:
+            t0 = time.perf_counter()
+            self.smoothers["batch"].solve()
+            self.batch_solve_s = time.perf_counter() - t0
+        return lg
+
+    def _frame(self, i: int) -> None:
+        frame = self.rec.frame(i)
+        est, res = self.online.add_frame(frame)
+        lg = self.log
+        lg.t_s.append(est.timestamp_s)
+        lg.camera_xz["filter"].append(est.camera_xz_m)
+        for name, b in self.baselines.items():
+            if res.displacement is not None:
+                b.update_displacement(res.displacement)
+            s = b.state
+            lg.camera_xz[name].append(s.p_xz_m + s.v_xz_mps * (est.timestamp_s - s.timestamp_s)
+                                      if name == "imu_only" else s.p_xz_m.copy())
+        for sm in self.smoothers.values():
+            sm.add_frame(est.timestamp_s, est.is_keyframe, est, res.displacement, res.observation)
+        R_world_imu = self.online.R_world_imu()
+        lg.shank_pitch_imu.append(float(pitch_of(R_world_imu @ self.rig.R_knee_imu.T)))
+        j = self.online._last_joints
+        lg.shank_pitch_chain.append(float(shank_pitch_rad(j.thigh_pitch_rad, j.knee_rad))
+                                    if j is not None else lg.shank_pitch_imu[-1])
+        lg.ankle_rad.append(j.ankle_rad if j is not None else 0.0)
+        lg.status.append(est.status.value)
+        lg.terrain.append(res.terrain.value)
+        lg.displacement_ok.append(res.displacement is not None)
+        lg.rejection.append(res.rejection_reason or "")
+        lg.is_keyframe.append(est.is_keyframe)
+        if est.is_keyframe:
+            lg.profiles[len(lg.t_s) - 1] = res.profile_xz_m
+        lg.timings_ms.append(est.timings_ms)
+        self._visualise(i, frame, est, res, R_world_imu)
+
+    def _visualise(self, i, frame, est, res, R_world_imu) -> None:
+        viz, out_cfg = self.viz, self.config.output
+        viz.set_time(est.timestamp_s)
+        cam_xyz = np.array([est.camera_xz_m[0], 0.0, est.camera_xz_m[1]])
+        R_world_cam = R_world_imu @ self.rig.R_imu_cam
+        viz.log_camera(cam_xyz, R_world_cam, self.rig.K, frame.depth_m.shape[1],
+                       frame.depth_m.shape[0], frame.depth_m)
+        if i % out_cfg.cloud_every_n_frames == 0:
+            viz.log_cloud(_cloud_world(frame.depth_m, self.rig.K, R_world_cam, cam_xyz,
+                                       out_cfg.cloud_pixel_stride))
+        viz.log_sagittal("slice", est.camera_xz_m + res.profile_xz_m, 0.002, (250, 200, 0))
+        if res.corner is not None:
+            viz.log_sagittal("features", est.camera_xz_m + res.corner.feature_points_xz_m, 0.005,
+                             (255, 40, 40))
+        if res.icp is not None and res.icp.target_points_xz_m.size:
+            viz.log_segments("icp", est.camera_xz_m + res.icp.matched_source_xz_m,
+                             est.camera_xz_m + res.icp.target_points_xz_m)
+        viz.log_leg("est", np.vstack([est.knee_xz_m, est.ankle_xz_m, est.heel_xz_m, est.toe_xz_m,
+                                      est.ankle_xz_m]))
+        viz.log_scalar("status/fused", float(est.status is EstimateStatus.FUSED))
+        gt = self.rec.groundtruth
+        if gt is not None:
+            pts = [_interp_xz(gt.trajectories[b], est.timestamp_s)
+                   for b in ("knee", "ankle", "heel", "toe", "ankle")]
+            viz.log_leg("gt", np.vstack(pts))
+            toe_err = est.toe_xz_m - pts[3]
+            viz.log_scalar("error_cm/toe_x", 100 * toe_err[0])
+            viz.log_scalar("error_cm/toe_z", 100 * toe_err[1])
+
+
+def _interp_xz(traj: Trajectory, t: float) -> NDArray[np.float64]:
+    return np.array([np.interp(t, traj.timestamp_s, traj.position_m[:, k]) for k in (0, 2)])
+
+
+def _cloud_world(depth_m, K, R_world_cam, cam_xyz, stride: int) -> NDArray[np.float64]:
+    d = depth_m[::stride, ::stride]
+    v, u = np.nonzero(d > 0)
+    z = d[v, u]
+    x = (u * stride - K[0, 2]) * z / K[0, 0]
+    y = (v * stride - K[1, 2]) * z / K[1, 1]
+    return np.column_stack([x, y, z]) @ R_world_cam.T + cam_xyz
+
+
+def leg_trajectories(
+    rig: RigGeometry, camera_xz: NDArray[np.float64], lg: FrameLog, use_encoders: bool
+) -> dict[str, NDArray[np.float64]]:
+    """Knee, ankle, heel and toe (N, 2) for a camera path, by forward kinematics (Fig. 3)."""
+    knee = knee_from_camera(camera_xz, np.asarray(lg.shank_pitch_imu), rig.camera_in_shank_xz_m)
+    shank = np.asarray(lg.shank_pitch_chain if use_encoders else lg.shank_pitch_imu)
+    pts = leg_points_from_knee(rig.leg, knee, shank, np.asarray(lg.ankle_rad))
+    return {"camera": camera_xz, "knee": pts.knee_xz_m, "ankle": pts.ankle_xz_m,
+            "heel": pts.heel_xz_m, "toe": pts.toe_xz_m}
+
+
+def evaluate_paths(
+    rec: Recording, t_s: NDArray[np.float64], paths: dict[str, dict[str, NDArray[np.float64]]],
+    visible: NDArray[np.bool_] | None,
+) -> dict[str, Any]:
+    """ATE (paper: first pose anchored, RMSE per axis), aligned APE and RPE per mode and body."""
+    gt = rec.groundtruth
+    out: dict[str, Any] = {"ate_cm": {}, "ate_cm_visible": {}, "ape_se3_cm": {},
+                           "rpe_cm": {"0.1s": {}, "1.0s": {}}}
+    for mode, bodies in paths.items():
+        for key in out:
+            (out[key] if key != "rpe_cm" else out[key]["0.1s"]).setdefault(mode, {})
+        out["rpe_cm"]["1.0s"].setdefault(mode, {})
+        for body, xz in bodies.items():
+            est = Trajectory.from_xz(t_s, xz)
+            pair = associate(est, gt.trajectories[body], max_diff_s=0.02)
+            e, r = pair.est, pair.ref
+            a = ate_per_axis(e, r, anchor="first")
+            out["ate_cm"][mode][body] = {"x": a.rmse_x_cm, "z": a.rmse_z_cm,
+                                         "total": a.rmse_total_cm}
+            if visible is not None:
+                keep = np.interp(e.timestamp_s, t_s, visible.astype(float)) > 0.5
+                if keep.any():
+                    av = ate_per_axis(e, r, anchor="first", mask=keep)
+                    out["ate_cm_visible"][mode][body] = {"x": av.rmse_x_cm, "z": av.rmse_z_cm,
+                                                         "total": av.rmse_total_cm,
+                                                         "fraction": float(keep.mean())}
+            ap = ape(e, r, alignment="translation")
+            out["ape_se3_cm"][mode][body] = {"x": 100 * ap.rmse_x_m, "z": 100 * ap.rmse_z_m}
+            for d in ("0.1s", "1.0s"):
+                rp = rpe(e, r, delta_s=float(d[:-1]))
+                out["rpe_cm"][d][mode][body] = 100 * rp.stats.rmse
+    out["ape_translation_aligned_cm"] = out.pop("ape_se3_cm")
+    return out
+
+
+def run_recording(
+    recording: Path | str,
+    out_dir: Path | str,
+    config: PipelineConfig,
+    modes: tuple[str, ...] = ("filter",),
+    overwrite: bool = False,
+    visualize: bool = True,
+    progress: bool = True,
+) -> RunResult:
+    """Run the estimator(s) on one recording and write the results folder.
+
+    Writes (each file atomically): ``config.yaml``, ``trajectories/<mode>_<body>.tum``,
+    ``frames.csv``, ``metrics.json``, ``plots/*.png``, ``map/*`` and ``run.rrd``.
+    """
+    from vio_graph.viz.progress import progress_bar
+    from vio_graph.viz.rerun_logger import NullVisualizer, Visualizer
+
+    out = Path(out_dir)
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        raise OutputError(f"{out}: results folder exists and is not empty (use --overwrite)")
+    rec = Recording.open(recording)
+    bad = set(modes) - set(MODES)
+    if bad:
+        raise OutputError(f"unknown modes {sorted(bad)}; choose from {MODES}")
+    out.mkdir(parents=True, exist_ok=True)
+    files: list[Path] = []
+    atomic_write_text(out / "config.yaml", dump_config(config))
+    files.append(out / "config.yaml")
+    viz = Visualizer(out / "run.rrd") if (visualize and config.output.rerun) else NullVisualizer()
+    _log_static_scene(viz, rec)
+    replay = Replay(rec, config, set(modes), viz)
+    t_start = time.perf_counter()
+    with progress_bar(rec.num_frames, f"estimating {Path(recording).name}", "frame",
+                      enabled=progress) as bar:
+        lg = replay.run(progress=bar.update_to)
+    wall_s = time.perf_counter() - t_start
+    t_s = np.asarray(lg.t_s)
+    camera = {m: np.asarray(v) for m, v in lg.camera_xz.items()}
+    filter_xz = camera["filter"]
+    for name, sm in replay.smoothers.items():
+        camera[name] = np.asarray(sm.frame_trajectory(t_s, filter_xz))
+    use_enc = config.kinematics.shank_pitch_source == "encoders"
+    paths = {m: leg_trajectories(replay.rig, xz, lg, use_enc) for m, xz in camera.items()}
+
+    # trajectories (TUM, evo-readable)
+    for mode, bodies in paths.items():
+        for body, xz in bodies.items():
+            p = out / "trajectories" / f"{mode}_{body}.tum"
+            p.parent.mkdir(exist_ok=True)
+            write_tum(p, Trajectory.from_xz(t_s, xz))
+            files.append(p)
+    files.append(_write_frames_csv(out / "frames.csv", lg))
+
+    metrics: dict[str, Any] = {
+        "recording": str(rec.root),
+        "scenario": rec.metadata.provenance.scenario,
+        "seed": rec.metadata.provenance.seed,
+        "terrain": rec.metadata.terrain.kind,
+        "rig": rec.metadata.leg.rig,
+        "modes": sorted(camera),
+        "software": f"vio_graph {vio_graph.__version__}",
+        "frames": len(lg.t_s),
+        "wall_time_s": wall_s,
+    }
+    gt = rec.groundtruth
+    visible = None
+    if gt is not None:
+        if gt.frame_edge_visible is not None:
+            visible = gt.frame_edge_visible[: len(t_s)].astype(bool)
+        metrics.update(evaluate_paths(rec, t_s, paths, visible))
+    metrics["latency_ms"] = _latencies(lg, replay)
+    metrics["frontend"] = {
+        "displacement_fraction": float(np.mean(lg.displacement_ok)) if lg.t_s else 0.0,
+        "rejections": _count(lg.rejection),
+        "terrain_counts": _count(lg.terrain),
+        "status_counts": _count(lg.status),
+        "keyframes": int(np.sum(lg.is_keyframe)),
+    }
+    fs = replay.online.filter.state
+    metrics["filter"] = {"accepted": fs.n_accepted, "rejected_chi2": fs.n_rejected,
+                         "stale": fs.n_stale}
+    if gt is not None:
+        metrics["terrain_classification"] = _terrain_accuracy(rec, lg)
+
+    # map from the best refined keyframe poses available
+    map_mode = "batch" if "batch" in camera else "smoother" if "smoother" in camera else "filter"
+    map_metrics, map_files = _build_and_export_map(rec, config, lg, camera[map_mode], out / "map",
+                                                   viz)
+    metrics["map"] = {"source_mode": map_mode, **map_metrics}
+    files += map_files
+    if config.output.plots:
+        from vio_graph.viz.plots import plot_run_overview
+
+        files.append(plot_run_overview(out / "plots" / "overview.png", rec, t_s, paths, metrics))
+    for mode, bodies in paths.items():
+        viz.log_path(f"{'est' if mode == 'filter' else mode}/camera", bodies["camera"])
+        viz.log_path(f"{'est' if mode == 'filter' else mode}/toe", bodies["toe"])
+    viz.close()
+    if visualize and config.output.rerun:
+        files.append(out / "run.rrd")
+    atomic_write_json(out / "metrics.json", metrics)
+    files.append(out / "metrics.json")
+    return RunResult(out_dir=out, metrics=metrics, files=files)
+
+
+def _count(values: list[str]) -> dict[str, int]:
+    keys, counts = np.unique(np.asarray(values, dtype=str), return_counts=True)
+    return {str(k): int(c) for k, c in zip(keys, counts, strict=True)}
+
+
+def _latencies(lg: FrameLog, replay: Replay) -> dict[str, Any]:
+    def col(name: str) -> list[float]:
+        return [t.get(name, np.nan) for t in lg.timings_ms]
+
+    fe = col("frontend_total")
+    fusion, kin, imu = col("fusion"), col("kinematics"), col("imu_propagation")
+    total = np.asarray(fe) + np.asarray(fusion) + np.asarray(kin) + np.asarray(imu)
+    out: dict[str, Any] = {"frontend": _stats_ms(fe), "fusion": _stats_ms(fusion),
+                           "kinematics": _stats_ms(kin), "imu_propagation_per_frame": _stats_ms(imu),
+                           "per_frame_total": _stats_ms(total)}
+    for stage in ("projection", "smoothing", "terrain", "corners", "icp"):
+        out[f"frontend_{stage}"] = _stats_ms(col(f"frontend_{stage}"))
+    if "smoother" in replay.smoothers:
+        sm = replay.smoothers["smoother"]
+        n = min(len(sm.update_times_ms), len(sm.build_times_ms))
+        per_kf = np.asarray(sm.update_times_ms[:n]) + np.asarray(sm.build_times_ms[:n])
+        out["smoother_update"] = _stats_ms(per_kf)
+    if "batch" in replay.smoothers:
+        out["batch_solve_s"] = replay.batch_solve_s
+    return out
+
+
+def _terrain_accuracy(rec: Recording, lg: FrameLog) -> dict[str, Any]:
+    """Fraction of frames whose terrain class matches the recording's terrain kind, among the
+    frames that saw a terrain edge (ground truth)."""
+    truth = rec.metadata.terrain.kind
+    pred = np.asarray(lg.terrain)
+    vis = rec.groundtruth.frame_edge_visible
+    mask = vis[: len(pred)].astype(bool) if vis is not None else np.ones(len(pred), bool)
+    return {"truth": truth, "accuracy_visible": float(np.mean(pred[mask] == truth)) if mask.any()
+            else float("nan"), "predicted_counts_visible": _count(list(pred[mask]))}
+
+
+def _write_frames_csv(path: Path, lg: FrameLog) -> Path:
+    rows = ["frame,timestamp_s,status,terrain,displacement,rejection,keyframe,frontend_ms"]
+    for k, t in enumerate(lg.t_s):
+        rows.append(f"{k},{t:.6f},{lg.status[k]},{lg.terrain[k]},{int(lg.displacement_ok[k])},"
+                    f"{lg.rejection[k].replace(',', ';')},{int(lg.is_keyframe[k])},"
+                    f"{lg.timings_ms[k].get('frontend_total', float('nan')):.4f}")
+    atomic_write_text(path, "\n".join(rows) + "\n")
+    return path
+
+
+def _log_static_scene(viz, rec: Recording) -> None:
+    prof = np.asarray(rec.metadata.terrain.profile_xz_m, dtype=float)
+    if prof.size == 0:
+        return
+    from vio_graph.viz.scene import extrude_profile
+
+    verts, tris = extrude_profile(prof, width_m=1.0)
+    viz.log_terrain(verts, tris, prof)
+    gt = rec.groundtruth
+    if gt is not None:
+        for body in ("camera", "toe", "knee"):
+            viz.log_path(f"gt/{body}", gt.trajectories[body].xz_m)
+
+
+def _build_and_export_map(rec, config, lg: FrameLog, camera_xz, out_dir: Path, viz):
+    from vio_graph.mapping.export import export_map
+    from vio_graph.mapping.steps import compare_to_truth, estimate_terrain_geometry
+
+    tmap = TerrainMap2D(config.mapping.map)
+    for k, prof in lg.profiles.items():
+        if prof.shape[0]:
+            tmap.add_keyframe(lg.t_s[k], camera_xz[k], prof)
+    pts = tmap.points_xz_m
+    metrics: dict[str, Any] = {"keyframes": len(lg.profiles), "points": int(pts.shape[0])}
+    if pts.shape[0] < 10:
+        return metrics, []
+    kind = TerrainKind(rec.metadata.terrain.kind) if rec.metadata.terrain.kind else None
+    geometry = estimate_terrain_geometry(pts, tmap.point_counts, config.mapping.steps, kind)
+    comparison = None
+    if rec.metadata.terrain.profile_xz_m:
+        comparison = compare_to_truth(geometry, rec.metadata.terrain)
+        metrics.update(_flatten_comparison(comparison))
+    written = export_map(out_dir, pts, geometry, rec.metadata.terrain, comparison,
+                         camera_xz_m=camera_xz)
+    viz.log_sagittal("map", pts, 0.003, (90, 90, 255))
+    metrics["detected_kind"] = geometry.kind.value if hasattr(geometry.kind, "value") else str(geometry.kind)
+    return metrics, list(written.values())
+
+
+def _flatten_comparison(cmp: dict[str, Any]) -> dict[str, Any]:
+    """Headline map errors (mean absolute, mm) plus the full comparison."""
+    out: dict[str, Any] = {
+        "rise_error_mm": cmp.get("rise_mae_mm"),
+        "tread_error_mm": cmp.get("tread_mae_mm"),
+        "nosing_error_mm": cmp.get("nosing_mae_mm"),
+        "n_steps_estimated": cmp.get("n_steps_estimated"),
+        "n_steps_matched": cmp.get("n_steps_matched"),
+    }
+    obstacles = cmp.get("obstacles") or []
+    if obstacles:
+        out["obstacle_height_error_mm"] = obstacles[0].get("height_error_mm")
+        out["obstacle_depth_error_mm"] = obstacles[0].get("depth_error_mm")
+    out["comparison"] = cmp
+    return out

@@ -179,7 +179,60 @@ class MocapConfig(_Section):
 
 
 class FaultsConfig(_Section):
-    """Placeholder: blackouts, dropped frames and IMU spikes are added by a later issue."""
+    """Sensor faults injected into the simulated data (all off by default; vio_graph.sim.faults).
+
+    Times are trial times (s, true clock). Every field is saved in
+    ``metadata.provenance.config["faults"]`` because the whole scenario config is.
+    """
+
+    camera_blackout_start_s: float | None = Field(
+        None, ge=0, description="start of a camera blackout (all pixels invalid), s; None: off"
+    )
+    camera_blackout_duration_s: float = Field(0.0, ge=0, description="blackout length, s")
+    dropped_frame_probability: float = Field(
+        0.0, ge=0, lt=0.5,
+        description="per-frame probability that a frame is missing from the recording "
+        "(its timestamp is skipped)",
+    )
+    spurious_point_fraction: float = Field(
+        0.0, ge=0, le=1,
+        description="fraction of pixels per frame replaced by a spurious valid depth, uniform "
+        "over the camera's range",
+    )
+    occluder_start_s: float | None = Field(
+        None, ge=0, description="start of a foot-like blob occluding the view, s; None: off"
+    )
+    occluder_duration_s: float = Field(0.0, ge=0, description="occluder time window, s")
+    occluder_center_uv_frac: tuple[float, float] = Field(
+        (0.5, 0.8), description="blob centre as fractions of image width and height"
+    )
+    occluder_size_frac: tuple[float, float] = Field(
+        (0.45, 0.3), description="blob semi-axes as fractions of image width and height"
+    )
+    occluder_depth_m: float = Field(
+        0.25, gt=0, description="depth of the blob's nearest point (a foot close to the lens), m"
+    )
+    imu_spike_rate_hz: float = Field(
+        0.0, ge=0, description="mean rate of IMU spikes (one sample, one random axis), 1/s"
+    )
+    imu_spike_accel_mps2: float = Field(30.0, ge=0, description="accel spike magnitude, m/s^2")
+    imu_spike_gyro_radps: float = Field(5.0, ge=0, description="gyro spike magnitude, rad/s")
+    imu_accel_saturation_mps2: float | None = Field(
+        None, gt=0, description="clip the accelerometer at this lower range, m/s^2; None: off"
+    )
+    imu_gyro_saturation_radps: float | None = Field(
+        None, gt=0, description="clip the gyroscope at this lower range, rad/s; None: off"
+    )
+    camera_time_offset_s: float = Field(
+        0.0,
+        description="constant camera-IMU clock offset: depth timestamps = true capture time + "
+        "offset (IMU and mocap keep true time), s",
+    )
+    clock_jitter_s: float = Field(
+        0.0, ge=0,
+        description="sd of white timestamp error on depth frames and IMU/joint samples (the "
+        "data stay at the true times), s; clipped at 0.4 sample periods",
+    )
 
 
 class ScenarioConfig(_Section):

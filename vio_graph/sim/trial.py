@@ -17,6 +17,7 @@ from vio_graph.recording.metadata import (
     TerrainInfo,
 )
 from vio_graph.recording.streams import GroundTruth, ImuStateTable, ImuTable, JointTable
+from vio_graph.sim import faults as _faults
 from vio_graph.sim.config import RigConfig, ScenarioConfig
 from vio_graph.sim.gait import LegMotion, simulate_gait
 from vio_graph.sim.imu import ImuTruth, simulate_imu
@@ -25,7 +26,7 @@ from vio_graph.sim.mocap import camera_poses, simulate_mocap
 from vio_graph.sim.terrain import Terrain, build_terrain
 from vio_graph.sim.tof import TofCamera
 
-_STREAMS = ("terrain", "gait", "imu", "joints", "mocap", "frames", "tof")
+_STREAMS = ("terrain", "gait", "imu", "joints", "mocap", "frames", "tof", "faults")
 
 
 def R_shank_cam(pitch_down_deg: float) -> NDArray[np.float64]:
@@ -63,11 +64,14 @@ class SimulatedTrial:
     imu_truth: ImuTruth
     joints: JointTable
     groundtruth: GroundTruth
-    frame_timestamps_s: NDArray[np.float64]
-    camera_position_m: NDArray[np.float64]  # (F, 3) true, at the frame timestamps
+    frame_timestamps_s: NDArray[np.float64]  # (F,) as recorded (offset / jitter faults)
+    camera_position_m: NDArray[np.float64]  # (F, 3) true, at the true capture times
     R_world_cam: NDArray[np.float64]  # (F, 3, 3)
     camera_in_shank_xz_m: NDArray[np.float64]
     imu_in_shank_xz_m: NDArray[np.float64]
+    frame_true_time_s: NDArray[np.float64]  # (F,) true capture times
+    frame_source_index: NDArray[np.int64]  # (F,) index before dropped frames were removed
+    imu_spike_index: NDArray[np.int64]  # IMU samples carrying an injected spike
 
     @property
     def n_frames(self) -> int:
@@ -75,8 +79,15 @@ class SimulatedTrial:
 
     def render_frame(self, i: int) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
         """Depth (H, W) float32 m (0 invalid) and confidence uint8 of frame i (deterministic)."""
-        rng = np.random.default_rng([self.seed, _STREAMS.index("tof"), i])
-        return self.camera.render(self.camera_position_m[i], self.R_world_cam[i], rng)
+        src = int(self.frame_source_index[i])
+        rng = np.random.default_rng([self.seed, _STREAMS.index("tof"), src])
+        depth, conf = self.camera.render(self.camera_position_m[i], self.R_world_cam[i], rng)
+        fc = self.config.faults
+        if _faults.has_depth_faults(fc):
+            rng_f = np.random.default_rng([self.seed, _STREAMS.index("faults"), src])
+            depth, conf = _faults.corrupt_depth(depth, conf, float(self.frame_true_time_s[i]),
+                                                fc, self.config.camera, rng_f)
+        return depth, conf
 
     def frames(self) -> Iterator[tuple[NDArray[np.float32], NDArray[np.uint8]]]:
         """Lazy generator over all frames (for write_recording)."""
@@ -99,6 +110,15 @@ def simulate_trial(config: ScenarioConfig, seed: int) -> SimulatedTrial:
     imu, imu_state, truth = simulate_imu(motion, config.imu, config.duration_s, imu_xz,
                                          _rng(seed, "imu"))
     joints = simulate_joints(motion, config.joints, imu.timestamp_s, _rng(seed, "joints"))
+    fc = config.faults
+    f_rng = _rng(seed, "faults")
+    accel, gyro, spikes = _faults.corrupt_imu(imu.accel_mps2, imu.gyro_radps, config.imu.rate_hz,
+                                              fc, f_rng)
+    imu_stamp = _faults.stamp_times(imu.timestamp_s, 0.0, fc.clock_jitter_s,
+                                    1.0 / config.imu.rate_hz, f_rng)
+    imu = ImuTable(imu_stamp, accel, gyro, imu.quat_wxyz)
+    joints = JointTable(imu_stamp.copy(), joints.thigh_pitch_rad, joints.knee_rad,
+                        joints.ankle_rad)
     traj = simulate_mocap(motion, config.mocap, config.duration_s, cam_xz, R_s_c,
                           _rng(seed, "mocap"))
     camera = TofCamera(config.camera, terrain)
@@ -107,23 +127,29 @@ def simulate_trial(config: ScenarioConfig, seed: int) -> SimulatedTrial:
     nominal = np.arange(0.5 * period, config.duration_s - 1e-9, period)
     jitter = fr.normal(0, config.camera.timestamp_jitter_s, nominal.size)
     frame_t = nominal + np.clip(jitter, -0.4 * period, 0.4 * period)
+    source = _faults.kept_frames(frame_t.size, fc, f_rng)
+    frame_t = frame_t[source]
+    frame_stamp = _faults.stamp_times(frame_t, fc.camera_time_offset_s, fc.clock_jitter_s,
+                                      period, f_rng)
     cam_pos, R_w_c = camera_poses(motion, frame_t, cam_xz, R_s_c)
     edges = np.zeros((terrain.edges_xz_m.shape[0], 3))
     edges[:, 0], edges[:, 2] = terrain.edges_xz_m[:, 0], terrain.edges_xz_m[:, 1]
     visible = camera.edges_visible(cam_pos, R_w_c, edges).any(axis=1).astype(np.int8)
     gt = GroundTruth(trajectories=traj, imu_state=imu_state, frame_edge_visible=visible)
-    metadata = _metadata(config, seed, terrain, motion, camera, knee_T_cam, knee_T_imu)
+    notes = _faults.summary(fc, nominal.size - source.size, spikes.size)
+    metadata = _metadata(config, seed, terrain, motion, camera, knee_T_cam, knee_T_imu, notes)
     return SimulatedTrial(
         config=config, seed=seed, terrain=terrain, motion=motion, camera=camera,
         metadata=metadata, imu=imu, imu_truth=truth, joints=joints, groundtruth=gt,
-        frame_timestamps_s=frame_t, camera_position_m=cam_pos, R_world_cam=R_w_c,
-        camera_in_shank_xz_m=cam_xz, imu_in_shank_xz_m=imu_xz,
+        frame_timestamps_s=frame_stamp, camera_position_m=cam_pos, R_world_cam=R_w_c,
+        camera_in_shank_xz_m=cam_xz, imu_in_shank_xz_m=imu_xz, frame_true_time_s=frame_t,
+        frame_source_index=source, imu_spike_index=spikes,
     )
 
 
 def _metadata(
     config: ScenarioConfig, seed: int, terrain: Terrain, motion: LegMotion, camera: TofCamera,
-    knee_T_cam: NDArray, knee_T_imu: NDArray,
+    knee_T_cam: NDArray, knee_T_imu: NDArray, notes: str = "",
 ) -> RecordingMetadata:
     ic = config.imu
     leg = motion.leg
@@ -160,6 +186,7 @@ def _metadata(
             config=config.model_dump(mode="json"),
             software=f"vio_graph {vio_graph.__version__}",
             created_utc=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            notes=notes,
         ),
     )
 

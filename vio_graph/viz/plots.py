@@ -78,3 +78,54 @@ def plot_run_overview(path: Path, rec, t_s: NDArray[np.float64],
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+def plot_toe_bands(path: Path, runs, modes: tuple[str, ...] = ("filter", "smoother")) -> Path:
+    """Fig. 5 style: per experiment, toe x and z against time since the trial start; mean +- sd
+    over trials of each mode's estimate (band) and of the ground truth (line)."""
+    from vio_graph.recording.tum import read_tum
+
+    plt = _plt()
+    exps = list(dict.fromkeys(r.experiment for r in runs))
+    fig, axes = plt.subplots(2, len(exps), figsize=(4.2 * len(exps), 6.5), squeeze=False,
+                             constrained_layout=True)
+    for col, exp in enumerate(exps):
+        rs = [r for r in runs if r.experiment == exp]
+        series: dict[str, list[NDArray[np.float64]]] = {m: [] for m in (*modes, "gt")}
+        grids = []
+        for r in rs:
+            gt = read_tum(Path(r.recording) / "groundtruth" / "toe.tum")
+            t0 = gt.timestamp_s[0]
+            grids.append(gt.timestamp_s[-1] - t0)
+        t = np.arange(0.0, min(grids), 1.0 / 30.0)
+        for r in rs:
+            gt = read_tum(Path(r.recording) / "groundtruth" / "toe.tum")
+            t0 = gt.timestamp_s[0]
+            series["gt"].append(np.column_stack(
+                [np.interp(t + t0, gt.timestamp_s, gt.position_m[:, k]) for k in (0, 2)]))
+            for m in modes:
+                f = Path(r.results) / "trajectories" / f"{m}_toe.tum"
+                if f.is_file():
+                    e = read_tum(f)
+                    series[m].append(np.column_stack(
+                        [np.interp(t + t0, e.timestamp_s, e.position_m[:, k]) for k in (0, 2)]))
+        for row, axis in enumerate(("x", "z")):
+            ax = axes[row, col]
+            for m in (*modes, "gt"):
+                if not series[m]:
+                    continue
+                arr = np.stack(series[m])[:, :, row]
+                mean, sd = arr.mean(axis=0), arr.std(axis=0)
+                color = "tab:green" if m == "gt" else MODE_STYLE[m][0]
+                label = "ground truth" if m == "gt" else m
+                ax.plot(t, mean, color=color, lw=2 if m == "gt" else 1.2, label=label)
+                ax.fill_between(t, mean - sd, mean + sd, color=color, alpha=0.2)
+            ax.set_xlabel("time since start (s)")
+            ax.set_ylabel(f"toe {axis} (m)")
+            if row == 0:
+                ax.set_title(f"{exp} (n={len(rs)})")
+            ax.legend(fontsize=7)
+    with atomic_path(Path(path), suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    return Path(path)

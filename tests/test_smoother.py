@@ -285,3 +285,15 @@ def test_batch_fixed_lag_variant_agrees_with_incremental():
     xz_i = np.array([e.camera_xz_m for e in out[False]])
     np.testing.assert_allclose(xz_b, xz_i, atol=2e-3)
     assert np.isnan(out[True][-1].cov_m2).all()  # no marginals from BatchFixedLagSmoother
+
+
+def test_held_samples_cover_interval_and_hold_values() -> None:
+    from vio_graph.smoother.graph import held_samples
+
+    t = np.arange(0.0, 0.5, 0.01)
+    a = np.column_stack([t, 2 * t, np.full_like(t, 9.81)])
+    g = np.column_stack([np.zeros_like(t), 3 * t, np.zeros_like(t)])
+    a_s, g_s, dt = held_samples(t, a, g, 0.105, 0.3)
+    assert abs(dt.sum() - 0.195) < 1e-12
+    np.testing.assert_allclose(a_s[0], a[10])  # the step starting at 0.105 holds the 0.10 sample
+    np.testing.assert_allclose(g_s[1], g[11])

@@ -191,6 +191,7 @@ def evaluate(
     config: Annotated[Path | None, typer.Option(help="Pipeline config YAML.")] = None,
     jobs: Annotated[int, typer.Option(help="Parallel processes.")] = 1,
     doc: Annotated[Path | None, typer.Option(help="Also write the report here (e.g. docs/results.md).")] = None,
+    ablation: Annotated[bool, typer.Option(help="Also run the smoother ablation (seeds 1-2).")] = False,
 ) -> None:
     """The paper's experiments x seeds on simulated trials: simulate (cached), run every mode,
     write summary.json, results.md and the Fig. 5-style plot.
@@ -211,6 +212,18 @@ def evaluate(
         runs = run_trials(recs, out, cfg, modes=_parse_modes(mode), jobs=jobs, progress=bar.update_to)
     command = "vio-graph evaluate " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "vio-graph evaluate"
     written = write_report(runs, out, command, cfg, doc)
+    if ablation:
+        from vio_graph.experiments import ABLATION_VARIANTS, ablation_markdown, run_ablation
+        from vio_graph.io_utils import atomic_write_text
+
+        sub = [r for r in recs if r[1] in (1, 2)]
+        with progress_bar(len(ABLATION_VARIANTS), "ablation", "variant") as bar:
+            table = run_ablation(sub, out, cfg, jobs=jobs, progress=bar.update_to)
+        md = ablation_markdown(table)
+        for path in [written["markdown"]] + ([written["doc"]] if "doc" in written else []):
+            text = path.read_text()
+            atomic_write_text(path, text.replace("![toe trajectories]", md + "\n![toe trajectories]"))
+        typer.echo(md)
     typer.echo(written["markdown"].read_text().split("## Smoother vs filter")[0])
     for k, p in written.items():
         typer.echo(f"{k:9} {p}")

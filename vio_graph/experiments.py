@@ -239,3 +239,57 @@ def write_report(runs: Sequence[TrialRun], out_dir: Path, command: str, config: 
 
 def load_trial_metrics(results_dir: Path) -> dict[str, Any]:
     return json.loads((Path(results_dir) / "metrics.json").read_text())
+
+
+# ----------------------------------------------------------------------------- ablation
+#: Smoother variants for the ablation: name -> (factor family switches, extra smoother settings).
+ABLATION_VARIANTS: dict[str, tuple[dict[str, bool], dict[str, Any]]] = {
+    "IMU + displacements": ({"landmarks": False}, {}),
+    "IMU + displacements + corner landmarks (default)": ({}, {}),
+    "IMU + corner landmarks (no displacements)": ({"displacement": False}, {}),
+    "default, raw IMU samples (no midpoint rule)": ({}, {"preintegration": "raw"}),
+    "default, no robust kernel": ({}, {"robust_kernel": "none"}),
+}
+
+
+def ablation_config(base: PipelineConfig, families: dict[str, bool],
+                    extra: dict[str, Any]) -> PipelineConfig:
+    sm = base.smoother
+    factors = sm.factors.model_copy(update=families)
+    smoother = sm.model_copy(update={"factors": factors, **extra})
+    return base.model_copy(update={"smoother": smoother})
+
+
+def run_ablation(recordings: Sequence[tuple[str, int | None, Path]], out_dir: Path,
+                 config: PipelineConfig, jobs: int = 1,
+                 progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+    """Smoother and batch toe ATE for each variant in ABLATION_VARIANTS (mean over trials)."""
+    table: dict[str, Any] = {}
+    done = 0
+    for name, (families, extra) in ABLATION_VARIANTS.items():
+        cfg = ablation_config(config, families, extra)
+        slug = "".join(c if c.isalnum() else "_" for c in name.lower())[:40]
+        runs = run_trials(recordings, Path(out_dir) / "ablation" / slug, cfg,
+                          modes=("smoother", "batch"), jobs=jobs)
+        summary = summarise_runs(runs)
+        table[name] = {exp: {m: e[m]["toe"] for m in ("smoother", "batch") if m in e}
+                       for exp, e in summary.items()}
+        done += 1
+        if progress:
+            progress(done)
+    return table
+
+
+def ablation_markdown(table: dict[str, Any]) -> str:
+    exps = list(dict.fromkeys(exp for v in table.values() for exp in v))
+    head = "| variant | mode | " + " | ".join(f"{e} x | {e} z" for e in exps) + " |"
+    lines = ["## Smoother ablation (toe ATE, cm, mean over seeds)", "", head,
+             "|---|---|" + "---|---|" * len(exps)]
+    for name, per_exp in table.items():
+        for mode in ("smoother", "batch"):
+            cells = []
+            for e in exps:
+                d = per_exp.get(e, {}).get(mode)
+                cells += [f"{d['x_mean']:.2f}", f"{d['z_mean']:.2f}"] if d else ["—", "—"]
+            lines.append(f"| {name} | {mode} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

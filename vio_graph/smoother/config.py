@@ -81,6 +81,12 @@ class SmootherConfig(BaseModel):
     )
 
     # --- displacement / landmark measurements ---
+    preintegration: Literal["midpoint_curvature", "raw"] = Field(
+        default="midpoint_curvature",
+        description="'midpoint_curvature': midpoint rule with the dt^2/12 curvature term "
+        "(graph.midpoint_samples); 'raw': each IMU sample held over its step, as GTSAM's "
+        "integrateMeasurement assumes (the ablation's baseline)",
+    )
     robust_kernel: Literal["huber", "cauchy", "none"] = Field(
         default="huber", description="M-estimator on displacement and landmark factors"
     )

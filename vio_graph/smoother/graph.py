@@ -171,6 +171,29 @@ def midpoint_samples(
     return a_mid, g_mid, dt[:, 0]
 
 
+def held_samples(
+    times_s: ArrayLike,
+    accel_mps2: ArrayLike,
+    gyro_radps: ArrayLike,
+    t0_s: float,
+    t1_s: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Raw IMU steps covering [t0_s, t1_s]: each step uses the last sample at or before its
+    start (what feeding samples straight into ``integrateMeasurement`` does). Same outputs
+    as :func:`midpoint_samples`; kept as the ablation's baseline."""
+    t = np.asarray(times_s, dtype=float)
+    a = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
+    g = np.asarray(gyro_radps, dtype=float).reshape(-1, 3)
+    if t.size == 0:
+        raise EstimationError("no IMU samples to preintegrate")
+    if t1_s <= t0_s:
+        raise EstimationError(f"empty preintegration interval [{t0_s}, {t1_s}]")
+    inner = t[(t > t0_s + TIME_TOL_S) & (t < t1_s - TIME_TOL_S)]
+    knots = np.concatenate([[t0_s], inner, [t1_s]])
+    idx = np.clip(np.searchsorted(t, knots[:-1] + TIME_TOL_S, side="right") - 1, 0, t.size - 1)
+    return a[idx], g[idx], np.diff(knots)
+
+
 def make_preintegration_params(config: SmootherConfig) -> gtsam.PreintegrationCombinedParams:
     """GTSAM combined preintegration parameters (z up, MTi-1 noise densities squared)."""
     p = gtsam.PreintegrationCombinedParams.MakeSharedU(config.gravity_mps2)
@@ -426,7 +449,9 @@ class KeyframeGraphBuilder:
         if i > 0:
             assert self._last_kf_time_s is not None
             ts = np.asarray(self._imu_t)
-            a_mid, g_mid, dt = midpoint_samples(
+            sampler = (midpoint_samples if self.config.preintegration == "midpoint_curvature"
+                       else held_samples)
+            a_mid, g_mid, dt = sampler(
                 ts, np.asarray(self._imu_a), np.asarray(self._imu_g), self._last_kf_time_s, t
             )
             pim = gtsam.PreintegratedCombinedMeasurements(self._params, self._latest_bias)

@@ -1,13 +1,15 @@
 """Benchmark: time simulate() of a 10 s upstair trial to a temp dir (median of 3 runs).
 
-Writes benchmarks/results/simulator.json and prints a markdown table.
-Run: /work/venv/bin/python benchmarks/bench_simulator.py
+Writes benchmarks/results/simulator.json (threads pinned to 1 by ``_common``) and prints a
+markdown table.
+Run: /work/venv/bin/python benchmarks/bench_simulator.py [--runs N]
 """
 
 from __future__ import annotations
 
-import json
-import platform
+import _common  # noqa: I001 - first: pins thread pools before numpy is imported
+
+import argparse
 import statistics
 import tempfile
 import time
@@ -17,10 +19,7 @@ import numpy as np
 
 from vio_graph.sim import load_scenario, simulate, simulate_trial
 
-RESULTS = Path(__file__).resolve().parent / "results"
-
-
-def main(runs: int = 3) -> dict:
+def run(runs: int = 3) -> dict:
     config = load_scenario("upstair").model_copy(update={"duration_s": 10.0})
     times_s = []
     for run in range(runs):
@@ -45,11 +44,7 @@ def main(runs: int = 3) -> dict:
         "render_ms_per_frame": 1e3 * t_render,
         "mean_valid_pixels_per_frame": float(np.mean(valid)),
         "edge_visible_fraction": float(trial.groundtruth.frame_edge_visible.mean()),
-        "machine": platform.platform(),
-        "python": platform.python_version(),
     }
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "simulator.json").write_text(json.dumps(result, indent=2) + "\n")
     return result
 
 
@@ -64,5 +59,13 @@ def markdown(r: dict) -> str:
     ])
 
 
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=3, help="simulate() runs (median reported)")
+    result = run(ap.parse_args().runs)
+    _common.write_result("simulator", result)
+    print(markdown(result))  # noqa: T201 - benchmark script output
+
+
 if __name__ == "__main__":
-    print(markdown(main()))  # noqa: T201 - benchmark script output
+    main()

@@ -1,21 +1,27 @@
-"""Benchmark of the GTSAM smoother on synthetic swinging-shank trials.
+"""Benchmark of the GTSAM smoother, on synthetic trials and on a simulated recording replayed
+through ``vio_graph.pipeline``.
 
-- fixed-lag: per-keyframe update time (median, p95) for windows of 0.5, 1, 2 and 4 s on a 30 s
-  trial (10 Hz keyframes, 5 mm displacement noise, corner landmarks while stairs are in view);
-- batch: solve time (and build time) for 10, 30 and 60 s trials.
+- fixed-lag (synthetic): per-keyframe update time (median, p95) for windows of 0.5, 1, 2 and
+  4 s on a 30 s swinging-shank trial (10 Hz keyframes, 5 mm displacement noise, corner
+  landmarks while stairs are in view);
+- batch (synthetic): solve time (and build time) for 10, 30 and 60 s trials;
+- replay: the same windows and the batch solve on the simulated upstair trial (seed 1, 10 s)
+  replayed by ``vio_graph.pipeline.Replay`` (front end, filter and smoother exactly as in
+  ``vio-graph run``; no visualisation), keyframe times from the smoother itself.
 
-Writes benchmarks/results/smoother.json and benchmarks/results/smoother.md.
+Writes benchmarks/results/smoother.json (threads pinned to 1 by ``_common``).
 
-    /work/venv/bin/python benchmarks/bench_smoother.py [--quick]
+    /work/venv/bin/python benchmarks/bench_smoother.py [--quick] [--recording DIR]
 """
 
 from __future__ import annotations
 
+import _common  # noqa: I001 - first: pins thread pools before numpy is imported
+
 import argparse
-import json
-import platform
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -24,8 +30,7 @@ from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.sliding_window import SlidingWindowSmoother
 from vio_graph.smoother.synthetic import SyntheticTrial, feed, make_swinging_shank_trial
 
-RESULTS = Path(__file__).resolve().parent / "results"
-
+WINDOWS_S = [0.5, 1.0, 2.0, 4.0]
 
 def trial(duration_s: float) -> SyntheticTrial:
     return make_swinging_shank_trial(
@@ -101,13 +106,11 @@ def bench_batch(durations_s: list[float]) -> list[dict]:
     return rows
 
 
-def markdown(fixed: list[dict], batch: list[dict], meta: dict) -> str:
+def markdown_synthetic(fixed: list[dict], batch: list[dict], meta: dict) -> str:
     lines = [
-        "# Smoother benchmark (synthetic swinging shank)",
+        f"Synthetic swinging shank. {meta['note']}",
         "",
-        f"Machine: {meta['machine']}, Python {meta['python']}; {meta['note']}",
-        "",
-        "## Fixed-lag (IncrementalFixedLagSmoother, Cholesky), per keyframe",
+        "Fixed-lag (IncrementalFixedLagSmoother, Cholesky), per keyframe:",
         "",
         "| window s | keyframes | update ms median | update ms p95 | build ms median "
         "| build ms p95 | ATE mm (smoother) | ATE mm (filter guess) |",
@@ -121,7 +124,7 @@ def markdown(fixed: list[dict], batch: list[dict], meta: dict) -> str:
         )
     lines += [
         "",
-        "## Batch (Levenberg-Marquardt, multifrontal QR)",
+        "Batch (Levenberg-Marquardt, multifrontal QR):",
         "",
         "| trial s | keyframes | factors | build s | solve s | LM iterations "
         "| ATE mm (smoother) | ATE mm (filter guess) |",
@@ -137,27 +140,89 @@ def markdown(fixed: list[dict], batch: list[dict], meta: dict) -> str:
     return "\n".join(lines)
 
 
+def bench_replay(recording: Path, windows_s: list[float]) -> dict[str, Any]:
+    """The smoother inside the real replay loop, one replay per window (batch on the first)."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.pipeline import Replay
+    from vio_graph.recording.reader import Recording
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    rec = Recording.open(recording)
+    rows, batch = [], {}
+    for n, w in enumerate(windows_s):
+        base = PipelineConfig()
+        config = base.model_copy(update={"smoother": base.smoother.model_copy(
+            update={"window_s": w})})
+        modes = {"smoother", "batch"} if n == 0 else {"smoother"}
+        replay = Replay(rec, config, modes, NullVisualizer())
+        t0 = time.perf_counter()
+        replay.run()
+        wall = time.perf_counter() - t0
+        sm = replay.smoothers["smoother"]
+        k = min(len(sm.update_times_ms), len(sm.build_times_ms))
+        upd, build = np.asarray(sm.update_times_ms[:k]), np.asarray(sm.build_times_ms[:k])
+        rows.append({"window_s": w, "keyframes": k, "update_ms": _common.stats_ms(upd),
+                     "build_ms": _common.stats_ms(build),
+                     "update_plus_build_ms": _common.stats_ms(upd + build),
+                     "replay_wall_s": wall})
+        if "batch" in replay.smoothers:
+            b = replay.smoothers["batch"]
+            batch = {"trial_s": float(rec.frame_timestamps_s[-1] - rec.frame_timestamps_s[0]),
+                     "keyframes": len(b.keyframe_estimates(with_covariance=False)),
+                     "factors": int(b.graph.nrFactors()), "solve_s": b.solve_time_ms / 1e3,
+                     "iterations": b.solve_iterations}
+    return {"recording": str(recording), "frames": rec.num_frames, "fixed_lag": rows,
+            "batch": batch}
+
+
+def run(quick: bool = False, recording: Path | None = None) -> dict[str, Any]:
+    fixed_trial = 10.0 if quick else 30.0
+    batch_trials = [10.0] if quick else [10.0, 30.0, 60.0]
+    fixed = bench_fixed_lag(fixed_trial, WINDOWS_S)
+    batch = bench_batch(batch_trials)
+    note = ("update = smoother update + bookkeeping (newest marginal included); "
+            "build = preintegration + factor construction. Corners exist only for x < 12.5 m "
+            "(the first ~14 s), after that only relative measurements constrain the drift.")
+    from bench_frontend import ensure_recording
+
+    replay = bench_replay(ensure_recording(recording), WINDOWS_S[:1] if quick else WINDOWS_S)
+    return {"meta": {"note": note}, "fixed_lag": fixed, "batch": batch, "replay": replay}
+
+
+def markdown(r: dict[str, Any]) -> str:
+    f = _common.fmt
+    rp = r["replay"]
+    rows = [[f(x["window_s"], 1), x["keyframes"], f(x["update_ms"]["median"]),
+             f(x["update_ms"]["p95"]), f(x["build_ms"]["median"]), f(x["build_ms"]["p95"]),
+             f(x["update_plus_build_ms"]["median"]), f(x["update_plus_build_ms"]["p95"])]
+            for x in rp["fixed_lag"]]
+    b = rp["batch"]
+    lines = [
+        f"Replay of the simulated upstair trial ({rp['frames']} frames) through "
+        "`vio_graph.pipeline.Replay` (the smoother as `vio-graph run` uses it), per keyframe:",
+        "",
+        _common.md_table(["window s", "keyframes", "update ms median", "update ms p95",
+                          "build ms median", "build ms p95", "total ms median",
+                          "total ms p95"], rows),
+        "",
+    ]
+    if b:
+        lines += [f"Batch solve on the same replay: {b['trial_s']:.0f} s trial, {b['keyframes']} "
+                  f"keyframes, {b['factors']} factors, {b['solve_s']:.2f} s "
+                  f"({b['iterations']} LM iterations).", ""]
+    lines.append(markdown_synthetic(r["fixed_lag"], r["batch"], r["meta"]))
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short trials (smoke run)")
+    ap.add_argument("--recording", type=Path, default=None,
+                    help="recording for the replay part (default: simulated upstair seed 1)")
     args = ap.parse_args()
-    fixed_trial = 10.0 if args.quick else 30.0
-    batch_trials = [10.0] if args.quick else [10.0, 30.0, 60.0]
-    fixed = bench_fixed_lag(fixed_trial, [0.5, 1.0, 2.0, 4.0])
-    batch = bench_batch(batch_trials)
-    meta = {
-        "machine": platform.processor() or platform.machine(),
-        "python": platform.python_version(),
-        "note": "update = smoother update + bookkeeping (newest marginal included); "
-        "build = preintegration + factor construction. Corners exist only for x < 12.5 m "
-        "(the first ~14 s), after that only relative measurements constrain the drift. "
-        "Shared 2-core machine: timings are indicative.",
-    }
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    out = {"meta": meta, "fixed_lag": fixed, "batch": batch}
-    (RESULTS / "smoother.json").write_text(json.dumps(out, indent=2))
-    (RESULTS / "smoother.md").write_text(markdown(fixed, batch, meta))
-    print(markdown(fixed, batch, meta))
+    result = run(args.quick, args.recording)
+    _common.write_result("smoother", result)
+    print(markdown(result))  # noqa: T201 - benchmark script output
 
 
 if __name__ == "__main__":

@@ -1,0 +1,128 @@
+"""Shared helpers of the benchmark scripts: single-thread setup, statistics, machine info,
+JSON results and markdown tables.
+
+Import this module BEFORE numpy (``import _common`` first in a script): it pins the BLAS /
+OpenMP thread pools to one thread, because thread pools are only read when numpy, scipy or
+open3d are first imported. Benchmarks only, never used by the library.
+"""
+
+from __future__ import annotations
+
+import os
+
+THREAD_VARIABLES = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "NUMEXPR_NUM_THREADS",
+    "VECLIB_MAXIMUM_THREADS",
+)
+for _name in THREAD_VARIABLES:
+    os.environ[_name] = "1"
+
+import datetime  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+BENCH_DIR = Path(__file__).resolve().parent
+RESULTS_DIR = BENCH_DIR / "results"
+SCRATCH_DIR = Path(os.environ.get("VIO_GRAPH_BENCH_SCRATCH", "/tmp/vio_graph_bench"))
+
+
+def stats_ms(values: Any) -> dict[str, float]:
+    """Median, p95, mean, min and count of a list of durations (any unit; name says ms)."""
+    v = np.asarray(values, dtype=float).reshape(-1)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        nan = float("nan")
+        return {"median": nan, "p95": nan, "mean": nan, "min": nan, "n": 0}
+    return {
+        "median": float(np.median(v)),
+        "p95": float(np.percentile(v, 95)),
+        "mean": float(np.mean(v)),
+        "min": float(np.min(v)),
+        "n": int(v.size),
+    }
+
+
+def cpu_model() -> str:
+    """CPU model name from /proc/cpuinfo (``platform.processor()`` elsewhere)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def source_revision() -> str:
+    """Git commit of the checkout, with ``+dirty`` if vio_graph/ or configs/ have uncommitted
+    changes (the benchmarks measure the working tree)."""
+    import subprocess
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=BENCH_DIR, capture_output=True, text=True,
+                              check=False).stdout.strip()
+
+    rev = git("rev-parse", "--short", "HEAD") or "unknown"
+    return rev + ("+dirty" if git("status", "--porcelain", "--", "../vio_graph", "../configs")
+                  else "")
+
+
+def machine_info() -> dict[str, Any]:
+    """What the numbers were measured on."""
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        usable = os.cpu_count() or 0
+    try:
+        load = os.getloadavg()
+    except OSError:
+        load = (float("nan"),) * 3
+    import scipy
+
+    return {
+        "cpu_model": cpu_model(),
+        "logical_cores": os.cpu_count(),
+        "usable_cores": usable,
+        "load_average_1_5_15min": [round(x, 2) for x in load],
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "threads": {name: os.environ.get(name) for name in THREAD_VARIABLES},
+        "source_revision": source_revision(),
+        "date_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+    }
+
+
+def write_result(name: str, result: dict[str, Any]) -> Path:
+    """Write ``benchmarks/results/<name>.json`` with the machine info under ``"machine"``."""
+    RESULTS_DIR.mkdir(parents=True, exist_ok=True)
+    path = RESULTS_DIR / f"{name}.json"
+    payload = {"benchmark": name, "machine": machine_info(), **result}
+    path.write_text(json.dumps(payload, indent=2) + "\n")
+    return path
+
+
+def read_result(name: str) -> dict[str, Any]:
+    return json.loads((RESULTS_DIR / f"{name}.json").read_text())
+
+
+def md_table(headers: list[str], rows: list[list[Any]]) -> str:
+    """A markdown table; floats are printed as given (format them before)."""
+    lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def fmt(x: float, digits: int = 2) -> str:
+    """Fixed-point number, 'n/a' for NaN / None."""
+    if x is None or not np.isfinite(x):
+        return "n/a"
+    return f"{x:.{digits}f}"

@@ -1,0 +1,329 @@
+"""Per-frame latency of the online estimator on a simulated upstair trial, single thread, and
+open3d's 3D point-to-point ICP on the same raw clouds (the paper's "direct ICP" baseline).
+
+1. Ours: the recording's IMU, joint and depth streams are replayed in time order
+   (``vio_graph.pipeline.replay_order``) through ``vio_graph.estimator.OnlineEstimator``, with
+   every depth frame already in memory (disk reads are not timed). Stage times come from the
+   estimator itself (``FrameEstimate.timings_ms``): projection (eq. 1-2), smoothing, terrain,
+   corners, the tracker stage (eq. 3-4) split into the ICP solver (``icp_translation_2d``,
+   timed by a thin wrapper) and the rest of the tracker (source crop, KD-tree, gate, track id),
+   fusion (SP-ESKF update, eq. 8), kinematics (Fig. 3) and the IMU propagation between frames.
+   The replay is repeated ``--repeats`` times; statistics pool all frames of all repeats.
+2. open3d: ``registration_icp`` point-to-point between the full valid clouds (all pixels, camera
+   frame) of frames k-1 (target) and k (source), max correspondence 5 cm, open3d's default
+   convergence criteria, from (a) identity and (b) the IMU relative rotation plus the filter's
+   displacement. Only the ``registration_icp`` call is timed (cloud conversion is not). Its
+   displacement error is measured against ground truth beside ours.
+
+Threads: OMP / OpenBLAS / MKL pinned to 1 (``_common``). Writes benchmarks/results/frontend.json.
+
+    /work/venv/bin/python benchmarks/bench_frontend.py [--recording DIR] [--quick]
+"""
+
+from __future__ import annotations
+
+import _common  # noqa: I001 - first: pins thread pools before numpy is imported
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import vio_graph.frontend.tracker as tracker_module
+from vio_graph.config import PipelineConfig
+from vio_graph.estimator import OnlineEstimator, RigGeometry
+from vio_graph.frontend.projection import depth_to_points_cam
+from vio_graph.geometry import matrix_from_quat_wxyz
+from vio_graph.o3d import open3d
+from vio_graph.pipeline import replay_order
+from vio_graph.recording.reader import Recording
+
+STAGES = (
+    "frontend_projection",
+    "frontend_smoothing",
+    "frontend_terrain",
+    "frontend_corners",
+    "icp_solver",
+    "tracker_other",
+    "frontend_total",
+    "fusion",
+    "kinematics",
+    "frontend_plus_fusion",
+    "imu_propagation",
+    "per_frame_total",
+)
+PAPER_MS = {"frontend": 6.0, "fusion": 19.4, "direct_icp": 150.0}
+
+
+def ensure_recording(path: Path | None, seed: int = 1) -> Path:
+    """The given recording, or the default upstair trial cached in SCRATCH_DIR (simulated on
+    first use, and again whenever the scenario config changes)."""
+    if path is not None:
+        return path
+    import hashlib
+
+    from vio_graph.sim import load_scenario, simulate
+
+    config = load_scenario("upstair")
+    digest = hashlib.sha1(config.model_dump_json().encode()).hexdigest()[:8]
+    rec = _common.SCRATCH_DIR / f"upstair_seed{seed}_{digest}"  # new folder if the config changes
+    if not (rec / "metadata.yaml").exists():
+        simulate(config, seed=seed, out_dir=rec)
+    return rec
+
+
+class _TimedIcp:
+    """Wraps the tracker's ``icp_translation_2d`` and records each call's duration (ms)."""
+
+    def __init__(self, fn) -> None:
+        self.fn = fn
+        self.last_ms = 0.0
+
+    def __call__(self, *args, **kwargs):
+        t0 = time.perf_counter()
+        out = self.fn(*args, **kwargs)
+        self.last_ms += (time.perf_counter() - t0) * 1e3
+        return out
+
+
+def replay_once(rec: Recording, frames: list, timed_icp: _TimedIcp) -> dict[str, Any]:
+    """One replay through a fresh OnlineEstimator; per-frame stage timings and outputs."""
+    rig = RigGeometry.from_metadata(rec.metadata)
+    gt = rec.groundtruth
+    cam = gt.trajectories["camera"]
+    p0 = np.array([np.interp(rec.frame_timestamps_s[0], cam.timestamp_s, cam.position_m[:, k])
+                   for k in (0, 2)])
+    est = OnlineEstimator(PipelineConfig(), rig, p0)
+    kinds, idx = replay_order(rec)
+    rows: list[dict[str, float]] = []
+    camera_xz, R_world_cam, disp, t_frames = [], [], [], []
+    for kind, i in zip(kinds, idx, strict=True):
+        if kind == 0:
+            est.add_imu(rec.imu.sample(int(i)))
+        elif kind == 1:
+            est.add_joints(rec.joints.sample(int(i)))
+        elif est.initialised:
+            timed_icp.last_ms = 0.0
+            e, res = est.add_frame(frames[int(i)])
+            tm = dict(e.timings_ms)
+            tm["icp_solver"] = timed_icp.last_ms
+            tm["tracker_other"] = tm["frontend_icp"] - timed_icp.last_ms
+            tm["frontend_plus_fusion"] = tm["frontend_total"] + tm["fusion"]
+            tm["per_frame_total"] = (tm["frontend_total"] + tm["fusion"] + tm["kinematics"]
+                                     + tm["imu_propagation"])
+            rows.append(tm)
+            t_frames.append(e.timestamp_s)
+            camera_xz.append(e.camera_xz_m)
+            R_world_cam.append(est.R_world_imu() @ rig.R_imu_cam)
+            disp.append(None if res.displacement is None else res.displacement.delta_xz_m)
+    return {"timings": rows, "t_s": np.asarray(t_frames), "camera_xz": np.asarray(camera_xz),
+            "R_world_cam": np.asarray(R_world_cam), "displacement": disp}
+
+
+def gt_camera(rec: Recording, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth camera position (N, 3, interpolated) and R_world_cam (N, 3, 3, nearest
+    sample) at the frame times."""
+    cam = rec.groundtruth.trajectories["camera"]
+    p = np.column_stack([np.interp(t_s, cam.timestamp_s, cam.position_m[:, a]) for a in range(3)])
+    k = np.clip(np.searchsorted(cam.timestamp_s, t_s), 1, len(cam) - 1)
+    k -= (t_s - cam.timestamp_s[k - 1]) < (cam.timestamp_s[k] - t_s)
+    R = np.stack([matrix_from_quat_wxyz(q) for q in cam.quat_wxyz[k]])
+    return p, R
+
+
+def bench_open3d(rec: Recording, frames: list, run: dict[str, Any], stride: int,
+                 max_corr_m: float) -> dict[str, Any]:
+    """Point-to-point ICP between consecutive full clouds (target k-1, source k)."""
+    o3d = open3d()
+    reg = o3d.pipelines.registration
+    K = rec.metadata.camera.intrinsic_matrix()
+    gt_p, gt_R = gt_camera(rec, run["t_s"])
+    Rw, pf = run["R_world_cam"], run["camera_xz"]
+    clouds: dict[int, Any] = {}
+
+    def cloud(k: int):
+        if k not in clouds:
+            f = frames[k]
+            pc = o3d.geometry.PointCloud()
+            pc.points = o3d.utility.Vector3dVector(depth_to_points_cam(f.depth_m, f.confidence, K))
+            clouds[k] = pc
+        return clouds[k]
+
+    out: dict[str, Any] = {"points": [], "identity": {"ms": [], "err_mm": [], "fitness": []},
+                           "imu": {"ms": [], "err_mm": [], "fitness": []}}
+    criteria = reg.ICPConvergenceCriteria()
+    for k in range(1, len(frames), stride):
+        src, tgt = cloud(k), cloud(k - 1)
+        out["points"].append(len(src.points))
+        # IMU init: relative rotation from the attitudes, filter displacement (camera k-1 axes)
+        init_imu = np.eye(4)
+        init_imu[:3, :3] = Rw[k - 1].T @ Rw[k]
+        d_world = np.array([pf[k, 0] - pf[k - 1, 0], 0.0, pf[k, 1] - pf[k - 1, 1]])
+        init_imu[:3, 3] = Rw[k - 1].T @ d_world
+        true_xz = (gt_p[k] - gt_p[k - 1])[[0, 2]]
+        for name, init in (("identity", np.eye(4)), ("imu", init_imu)):
+            t0 = time.perf_counter()
+            r = reg.registration_icp(src, tgt, max_corr_m, init,
+                                     reg.TransformationEstimationPointToPoint(), criteria)
+            out[name]["ms"].append((time.perf_counter() - t0) * 1e3)
+            # camera k's origin in camera k-1 = translation of k-1_T_k; to world with GT R
+            est_xz = (gt_R[k - 1] @ np.asarray(r.transformation)[:3, 3])[[0, 2]]
+            out[name]["err_mm"].append(1e3 * float(np.linalg.norm(est_xz - true_xz)))
+            out[name]["fitness"].append(float(r.fitness))
+        clouds = {k: clouds[k]}  # keep only what the next pair (stride 1) can reuse
+    return out
+
+
+def ours_displacement_error_mm(rec: Recording, run: dict[str, Any]) -> list[float]:
+    gt_p, _ = gt_camera(rec, run["t_s"])
+    errs = []
+    for k, d in enumerate(run["displacement"]):
+        if d is not None and k > 0:
+            errs.append(1e3 * float(np.linalg.norm(d - (gt_p[k] - gt_p[k - 1])[[0, 2]])))
+    return errs
+
+
+def run(recording: Path | None = None, repeats: int = 3, o3d_stride: int = 10,
+        max_corr_m: float = 0.05) -> dict[str, Any]:
+    rec_path = ensure_recording(recording)
+    rec = Recording.open(rec_path)
+    frames = [rec.frame(i) for i in range(rec.num_frames)]  # preload: no disk I/O in timing
+    timed_icp = _TimedIcp(tracker_module.icp_translation_2d)
+    tracker_module.icp_translation_2d = timed_icp
+    try:
+        runs = [replay_once(rec, frames, timed_icp) for _ in range(repeats)]
+    finally:
+        tracker_module.icp_translation_2d = timed_icp.fn
+    rows = [r for rp in runs for r in rp["timings"]]
+    ours = {s: _common.stats_ms([r[s] for r in rows]) for s in STAGES}
+    # per frame, the fastest of the replays: less sensitive to other processes on the machine
+    n = min(len(rp["timings"]) for rp in runs)
+    best = {s: _common.stats_ms(np.min([[rp["timings"][k][s] for k in range(n)] for rp in runs],
+                                       axis=0)) for s in STAGES}
+    slice_pts = [int(np.asarray(f.depth_m).size) for f in frames[:1]]
+    o3d = bench_open3d(rec, frames, runs[0], o3d_stride, max_corr_m)
+    o3d_stats = {name: {"ms": _common.stats_ms(o3d[name]["ms"]),
+                        "err_mm": _common.stats_ms(o3d[name]["err_mm"]),
+                        "fitness_median": float(np.median(o3d[name]["fitness"]))}
+                 for name in ("identity", "imu")}
+    ours_err = ours_displacement_error_mm(rec, runs[0])
+    ff = ours["frontend_plus_fusion"]["median"]
+    return {
+        "recording": str(rec_path),
+        "frames": len(frames),
+        "image_pixels": slice_pts[0],
+        "repeats": repeats,
+        "ours_ms": ours,
+        "ours_best_of_repeats_ms": best,
+        "ours_displacement": {
+            "accepted_fraction": len(ours_err) / max(len(frames) - 1, 1),
+            "err_mm": _common.stats_ms(ours_err),
+        },
+        "open3d": {
+            "pairs": len(o3d["points"]),
+            "stride": o3d_stride,
+            "max_correspondence_m": max_corr_m,
+            "points_per_cloud": _common.stats_ms(o3d["points"]),
+            **o3d_stats,
+        },
+        "ratios": {
+            "ours_frontend_plus_fusion_over_open3d_imu": ff / o3d_stats["imu"]["ms"]["median"],
+            "ours_frontend_plus_fusion_over_open3d_identity":
+                ff / o3d_stats["identity"]["ms"]["median"],
+            "ours_icp_stage_over_open3d_imu":
+                (ours["icp_solver"]["median"] + ours["tracker_other"]["median"])
+                / o3d_stats["imu"]["ms"]["median"],
+            "ours_frontend_plus_fusion_over_1ms_target": ff / 1.0,
+        },
+        "paper_ms": PAPER_MS,
+    }
+
+
+LABELS = {
+    "frontend_projection": "slice + ground frame (eq. 1-2)",
+    "frontend_smoothing": "grid thinning + kNN smoothing",
+    "frontend_terrain": "terrain class",
+    "frontend_corners": "RANSAC corners (Fig. 2)",
+    "icp_solver": "2D ICP solver (eq. 3-4)",
+    "tracker_other": "tracker rest (crop, KD-tree, gate, ids)",
+    "frontend_total": "**front end total**",
+    "fusion": "fusion: SP-ESKF update (eq. 8)",
+    "kinematics": "kinematics (Fig. 3)",
+    "frontend_plus_fusion": "**front end + fusion**",
+    "imu_propagation": "IMU propagation (~3.3 samples/frame)",
+    "per_frame_total": "**per frame, all of the above**",
+}
+
+
+def markdown(r: dict[str, Any]) -> str:
+    f = _common.fmt
+    ours = r["ours_ms"]
+    best = r["ours_best_of_repeats_ms"]
+    rows = [[LABELS[s], f(ours[s]["median"], 3), f(ours[s]["p95"], 3), f(best[s]["median"], 3),
+             f(best[s]["p95"], 3)] for s in STAGES]
+    o = r["open3d"]
+    rr = r["ratios"]
+    lines = [
+        f"Recording: {r['frames']} frames of a simulated upstair trial (224 x 172 = "
+        f"{r['image_pixels']} pixels per frame), replayed {r['repeats']} times through "
+        "`OnlineEstimator`; statistics over all frames of all replays, single thread.",
+        "",
+        _common.md_table(["stage", "median ms", "p95 ms", f"median ms, best of {r['repeats']}",
+                          f"p95 ms, best of {r['repeats']}"], rows),
+        "",
+        "Best of N: for every frame the fastest of the N replays (the replays are identical, so "
+        "the difference is interference from other processes), then median / p95 over frames.",
+        "",
+        f"Target: front end + fusion <= 1 ms per frame; measured median "
+        f"{f(ours['frontend_plus_fusion']['median'])} ms "
+        f"({f(rr['ours_frontend_plus_fusion_over_1ms_target'], 1)} x the target). "
+        f"Paper: {PAPER_MS['frontend']} ms front end + {PAPER_MS['fusion']} ms fusion.",
+        "",
+        f"Direct 3D ICP baseline (open3d `registration_icp`, point-to-point, max correspondence "
+        f"{100 * o['max_correspondence_m']:.0f} cm, default convergence criteria, full valid "
+        f"clouds of {f(o['points_per_cloud']['median'], 0)} points (median), every "
+        f"{o['stride']}th consecutive pair, {o['pairs']} pairs):",
+        "",
+        _common.md_table(
+            ["method", "median ms", "p95 ms", "displacement error mm (median)",
+             "ratio ours/this (front end + fusion)"],
+            [
+                ["open3d ICP, identity init", f(o["identity"]["ms"]["median"], 1),
+                 f(o["identity"]["ms"]["p95"], 1), f(o["identity"]["err_mm"]["median"], 1),
+                 f(rr["ours_frontend_plus_fusion_over_open3d_identity"], 3)],
+                ["open3d ICP, IMU init", f(o["imu"]["ms"]["median"], 1),
+                 f(o["imu"]["ms"]["p95"], 1), f(o["imu"]["err_mm"]["median"], 1),
+                 f(rr["ours_frontend_plus_fusion_over_open3d_imu"], 3)],
+                ["ours, front end + fusion", f(ours["frontend_plus_fusion"]["median"], 2),
+                 f(ours["frontend_plus_fusion"]["p95"], 2),
+                 f(r["ours_displacement"]["err_mm"]["median"], 1), "1"],
+            ],
+        ),
+        "",
+        f"Displacement error: |estimated - true| camera displacement between the two frames "
+        f"(x-z, mm). Ours only on frames whose ICP displacement passed the gate "
+        f"({100 * r['ours_displacement']['accepted_fraction']:.0f} % of frames); open3d on "
+        f"every timed pair. Paper's direct ICP: ~{PAPER_MS['direct_icp']:.0f} ms.",
+    ]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--recording", type=Path, default=None,
+                    help="recording folder (default: simulate upstair seed 1 into "
+                    f"{_common.SCRATCH_DIR})")
+    ap.add_argument("--repeats", type=int, default=3, help="replays of the recording")
+    ap.add_argument("--o3d-stride", type=int, default=10, help="time every n-th frame pair")
+    ap.add_argument("--quick", action="store_true", help="1 replay, every 30th pair")
+    args = ap.parse_args()
+    repeats, stride = (1, 30) if args.quick else (args.repeats, args.o3d_stride)
+    result = run(args.recording, repeats, stride)
+    _common.write_result("frontend", result)
+    print(markdown(result))  # noqa: T201 - benchmark script output
+
+
+if __name__ == "__main__":
+    main()

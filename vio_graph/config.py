@@ -42,6 +42,21 @@ class OutputConfig(_Section):
     cloud_pixel_stride: int = Field(default=3, ge=1, description="pixel subsampling of the cloud")
 
 
+class InjectedFaultsConfig(_Section):
+    """Front-end failures injected in the replay, to test robustness (off by default).
+
+    Sensor faults are simulated in the recording (``vio_graph.sim`` ``faults``); a wrong
+    corner association is a failure of our own front end, so it is injected here: with
+    probability ``wrong_association_rate`` an accepted displacement is shifted by one whole
+    stair step (``step_xz_m``, sign chosen at random), exactly what locking onto the
+    neighbouring nosing produces.
+    """
+
+    wrong_association_rate: float = Field(default=0.0, ge=0, le=1)
+    step_xz_m: tuple[float, float] = Field(default=(0.28, 0.147), description="tread, rise (m)")
+    seed: int = Field(default=0, description="random seed of the injection")
+
+
 class PipelineConfig(_Section):
     frontend: FrontendConfig = FrontendConfig()
     filter: FilterConfig = FilterConfig()
@@ -50,6 +65,7 @@ class PipelineConfig(_Section):
     smoother: SmootherConfig = SmootherConfig()
     mapping: MappingConfig = MappingConfig()
     output: OutputConfig = OutputConfig()
+    inject: InjectedFaultsConfig = InjectedFaultsConfig()
 
 
 def configs_dir() -> Path:

@@ -59,6 +59,9 @@ class GaitConfig(_Section):
         0.45, gt=0, description="instrumented toe to the first feature at t = 0, m"
     )
     toe_clearance_level_m: float = Field(0.02, gt=0, description="Moosabhoy & Gard 2006")
+    early_swing_toe_lift_m: float = Field(
+        0.03, gt=0, description="level: toe height above the floor at 25 % of the swing, m"
+    )
     toe_clearance_nosing_m: float = Field(0.045, gt=0, description="over stair nosings, m [U]")
     toe_clearance_obstacle_m: float = Field(0.12, gt=0, description="Patla & Rietdyk 1993 [U]")
     stair_toe_margin_m: float = Field(0.03, ge=0, description="ascent: toe to next riser, m")
@@ -67,7 +70,7 @@ class GaitConfig(_Section):
     forefoot_landing_pitch_deg: float = Field(
         14.0, ge=0, description="foot toe-down at stair contact (Riener 2002)"
     )
-    toe_off_pitch_deg: float = Field(40.0, gt=0, description="foot toe-down at toe-off, level")
+    toe_off_pitch_deg: float = Field(50.0, gt=0, description="foot toe-down at toe-off, level")
     knee_contact_deg: dict[str, float] = Field(
         default_factory=lambda: {"level": 18.0, "ascent": 60.0, "descent": 18.0},
         description="knee flexion targets at foot contact, deg",
@@ -75,6 +78,18 @@ class GaitConfig(_Section):
     knee_midstance_deg: dict[str, float] = Field(
         default_factory=lambda: {"level": 20.0, "ascent": 35.0, "descent": 40.0},
         description="knee flexion targets at mid-stance (30 % of the stride), deg",
+    )
+    swing_ankle_deg: dict[str, float | None] = Field(
+        default_factory=lambda: {"level": -10.0, "obstacle": -5.0, "ascent": -12.0,
+                                 "descent": None},
+        description="ankle plantarflexion (+) held in mid-swing by swing kind, deg (stairs "
+        "~10-16 dorsiflexion: McFadyen & Winter 1988); None: foot pitch from the key poses "
+        "only (descent: blending towards the shank drives the heel into the nosing)",
+    )
+    swing_ankle_blend_fraction: float = Field(
+        0.35, gt=0, le=0.5,
+        description="fraction of the swing over which the foot pitch blends from the toe-off "
+        "pose to shank + swing ankle (and back to the landing pose)",
     )
     hip_ahead_midstance_m: dict[str, float] = Field(
         default_factory=lambda: {"level": 0.05, "ascent": -0.06, "descent": 0.10},

@@ -36,6 +36,9 @@ DENSE_RATE_HZ = 1000.0
 MAX_REACH_FRACTION = 0.99  # hip-ankle distance / (thigh + shank) must stay below this
 REPAIR_REACH_FRACTION = 0.985  # the hip is lowered to this where it would overstretch
 _STAIR_DZ_M = 0.05
+SWING_PITCH_ITERATIONS = 3
+_EXIT_HEEL_MARGIN_M = 0.03  # first foothold after the stairs: heel this far past the edge
+_EXIT_STEP_M = 0.30  # then one short step before level steps (no 1 m stride off the stairs)
 
 
 def leg_model_for(rig: RigConfig) -> LegModel:
@@ -184,12 +187,14 @@ def _plan_steps(
         t, n = float(prm["tread_m"]), int(prm["n_steps"])
         toes.append(xf - gait.stair_toe_margin_m)
         toes += [xf + (i + 1) * t - gait.stair_toe_margin_m for i in range(n - 1)]
-        toes.append(xf + (n - 1) * t + foot_len + 0.12)
+        toes.append(xf + (n - 1) * t + foot_len + _EXIT_HEEL_MARGIN_M)  # heel past the edge
+        toes.append(toes[-1] + _EXIT_STEP_M)  # short transition step onto the landing
     elif terrain.kind == "stair_down":
         t, n = float(prm["tread_m"]), int(prm["n_steps"])
         toes.append(xf - 0.02)
         toes += [xf + (i - 1) * t + gait.stair_heel_margin_m + foot_len for i in range(1, n)]
-        toes.append(xf + (n - 1) * t + 0.12 + foot_len)
+        toes.append(xf + (n - 1) * t + _EXIT_HEEL_MARGIN_M + foot_len)
+        toes.append(toes[-1] + _EXIT_STEP_M)
     elif terrain.kind == "obstacle":
         d = float(prm["depth_m"])
         trail = xf - 0.18  # contralateral (trailing) toe before the obstacle
@@ -291,7 +296,7 @@ def _landing_pitch(gait: GaitConfig, landing: str, kind: str) -> float:
 
 
 def _toe_off_pitch(gait: GaitConfig, kind: str) -> float:
-    scale = {"level": 1.0, "obstacle": 1.0, "ascent": 0.7, "descent": 0.55}[kind]
+    scale = {"level": 1.0, "obstacle": 1.0, "ascent": 0.56, "descent": 0.44}[kind]
     return np.radians(gait.toe_off_pitch_deg) * scale
 
 
@@ -320,6 +325,53 @@ def _pitch_function(strides: list[Stride], next_toes: list, gait: GaitConfig) ->
     return BPoly.from_derivatives(tk, yk)
 
 
+def _smoothstep5(x: NDArray) -> NDArray[np.float64]:
+    """C2 ramp 0 -> 1 on [0, 1] (zero 1st and 2nd derivatives at both ends)."""
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * x * (10.0 + x * (-15.0 + 6.0 * x))
+
+
+class _SwingPitch:
+    """Foot pitch (rad) with an anatomical ankle in swing.
+
+    Outside swing it is the key-pose BPoly; inside swing it blends (C2 weight, zero at
+    toe-off and landing) towards shank pitch + ``swing_ankle_deg`` (plantarflexion +), so the
+    swing ankle follows the published ranges instead of a pitch chosen without the shank.
+    ``shank`` is the shank pitch of the previous iteration (a spline over [t0, t1]).
+    """
+
+    def __init__(self, base: BPoly, strides: list[Stride], shank, t_range: tuple, gait):
+        self._base = base
+        self._shank = shank
+        self._t0, self._t1 = t_range
+        self._swings = [
+            (s.t_toe_off_s, s.t_next_s, np.radians(gait.swing_ankle_deg[s.swing_kind]))
+            for s in strides if gait.swing_ankle_deg.get(s.swing_kind) is not None
+        ]
+        self._ramp = gait.swing_ankle_blend_fraction
+
+    def weight_and_target(self, t: NDArray) -> tuple[NDArray, NDArray]:
+        w = np.zeros(t.shape)
+        ankle = np.zeros(t.shape)
+        for t_to, t_nx, a in self._swings:
+            m = (t > t_to) & (t < t_nx)
+            if not np.any(m):
+                continue
+            f = (t[m] - t_to) / (t_nx - t_to)
+            w[m] = _smoothstep5(f / self._ramp) * _smoothstep5((1.0 - f) / self._ramp)
+            ankle[m] = a
+        w[(t < self._t0) | (t > self._t1)] = 0.0
+        return w, ankle
+
+    def __call__(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        base = self._base(t)
+        w, ankle = self.weight_and_target(np.atleast_1d(t))
+        w, ankle = w.reshape(t.shape), ankle.reshape(t.shape)
+        shank = self._shank(np.clip(t, self._t0, self._t1))
+        return base + w * (shank + ankle - base)
+
+
 def _swing_via(
     s: Stride, b: tuple[float, float], terrain: Terrain, gait: GaitConfig, leg: LegModel,
     pitch: BPoly,
@@ -340,7 +392,8 @@ def _swing_via(
         c = gait.toe_clearance_level_m
         d = x1 - x0
         late = toe_for_heel(0.85, x1 - heel_to_toe[0] - 0.06, z1 + 0.02)
-        return [0.25, 0.55, 0.85], [(x0 + 0.18 * d, z0 + 0.06), (x0 + 0.55 * d, z0 + c + 0.005),
+        lift = gait.early_swing_toe_lift_m
+        return [0.25, 0.55, 0.85], [(x0 + 0.18 * d, z0 + lift), (x0 + 0.55 * d, z0 + c + 0.005),
                                     late]
     if s.swing_kind == "obstacle":
         c = gait.toe_clearance_obstacle_m
@@ -538,13 +591,20 @@ def simulate_gait(
     leg = leg_model_for(rig)
     strides = plan_strides(terrain, gait, leg, duration_s, rng)
     next_toes = [s.next_toe_xz_m for s in strides]
-    pitch = _pitch_function(strides, next_toes, gait)
+    base_pitch = _pitch_function(strides, next_toes, gait)
     t_end = min(strides[-1].t_next_s, duration_s + 0.25)
     t = np.arange(0.0, t_end + 0.5 / DENSE_RATE_HZ, 1.0 / DENSE_RATE_HZ)
-    ankle = _foot_motion(t, strides, next_toes, terrain, gait, leg, pitch)
-    foot_pitch = pitch(t)
-    hip = _hip_path(t, ankle, strides, gait, leg, pitch)
-    knee, _ = _two_link_ik(hip, ankle, leg)
+    pitch = base_pitch
+    # fixed point: the swing foot pitch depends on the shank, the shank (through the ankle
+    # position and the hip) on the foot pitch; the coupling is weak, 3 passes converge
+    for _ in range(SWING_PITCH_ITERATIONS + 1):
+        ankle = _foot_motion(t, strides, next_toes, terrain, gait, leg, pitch)
+        hip = _hip_path(t, ankle, strides, gait, leg, pitch)
+        knee, _ = _two_link_ik(hip, ankle, leg)
+        shank_it = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])
+        foot_pitch = pitch(t)
+        pitch = _SwingPitch(base_pitch, strides, make_interp_spline(t, shank_it, k=5),
+                            (t[0], t[-1]), gait)
     thigh_seg = np.arctan2(hip[:, 0] - knee[:, 0], hip[:, 1] - knee[:, 1])
     shank = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])
     hip_flex = -thigh_seg

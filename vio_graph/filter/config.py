@@ -21,6 +21,25 @@ MTI1_ACCEL_NOISE_DENSITY_MPS2_PER_SQRT_HZ = 1.18e-3
 PAPER_IMU_RATE_HZ = 100.0
 
 
+class AttitudeConfig(BaseModel):
+    """Where the slice rotation of eq. 2 comes from (module docstring)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    source: Literal["vendor", "vendor_extrapolated", "complementary"] = Field(
+        default="complementary",
+        description="'vendor' = the paper (latest vendor orientation); 'vendor_extrapolated' "
+        "= rotated on by the gyro to the frame time; 'complementary' = gyro-integrated, "
+        "pulled towards the vendor orientation, extrapolated to the frame time",
+    )
+    time_constant_s: float = Field(
+        default=1.0,
+        gt=0,
+        description="complementary filter: time constant (s) of the pull towards the vendor "
+        "orientation",
+    )
+
+
 class FilterConfig(BaseModel):
     """Parameters of :class:`vio_graph.filter.eskf.SagittalEskf`.
 
@@ -123,6 +142,9 @@ class FilterConfig(BaseModel):
             "transfer the IMU specific force to the camera centre with the gyro: "
             "f_cam = f_imu + alpha x r + omega x (omega x r), r = camera in IMU frame (m)"
         ),
+    )
+    attitude: AttitudeConfig = Field(
+        default=AttitudeConfig(), description="slice rotation of eq. 2 (filter/attitude.py)"
     )
     fused_timeout_s: float = Field(
         default=0.1,

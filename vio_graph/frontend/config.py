@@ -135,6 +135,14 @@ class IcpConfig(_Strict):
     max_variance_m2: float = Field(
         1.0, gt=0, description="cap of the covariance eigenvalues (unobservable directions), m^2"
     )
+    degenerate_ratio: float = Field(
+        0.05,
+        ge=0,
+        lt=1,
+        description="point-to-line: directions whose information (sum n n^T) is below this "
+        "fraction of the strongest are degenerate (a floor along x): ICP does not move T along "
+        "them (it stays at T0) and their variance is max_variance_m2; 0 disables",
+    )
 
 
 class TrackerConfig(_Strict):
@@ -170,6 +178,27 @@ class TrackerConfig(_Strict):
     min_correspondences: int = Field(6, ge=1, description="reject ICP with fewer inliers")
     max_frame_gap_s: float = Field(
         0.2, gt=0, description="no displacement across larger gaps between frames, s"
+    )
+    profile_fallback: bool = Field(
+        True,
+        description="frames without a corner: ICP of the whole profile (treads, risers, floor) "
+        "against the previous profile, seeded and gated by the IMU prediction (needs one); "
+        "False = paper (no displacement without a corner)",
+    )
+    fallback_grid_m: float = Field(
+        0.01, ge=0, description="profile fallback: the target profile is thinned to this grid, m"
+    )
+    edge_x_without_face: bool = Field(
+        True,
+        description="corner windows without face points below the edge (stair descent: the "
+        "risers face away) constrain x only through the smoothed end of the tread, which biases "
+        "ICP; take x from the edge-point difference instead. False = ICP x as is",
+    )
+    edge_x_sigma_m: float = Field(
+        0.004, gt=0, description="1-sigma of one edge point's x for edge_x_without_face, m"
+    )
+    min_face_points: int = Field(
+        3, ge=1, description="a corner window has a face if this many points lie below the edge"
     )
 
 

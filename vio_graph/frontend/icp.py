@@ -125,8 +125,10 @@ def icp_translation_2d(
         else:
             # point-to-line: solve (sum n n^T) dT = sum n (n . r); needs the source normals
             n = normals.get(j[keep])
-            info = n.T @ n + np.eye(2) * 1e-9
-            dT = np.linalg.solve(info, n.T @ (n * residual).sum(axis=1))
+            w, V = np.linalg.eigh(n.T @ n)
+            ok = w > max(cfg.degenerate_ratio * w[-1], 1e-9)  # degenerate directions: no step
+            b = V.T @ (n.T @ (n * residual).sum(axis=1))
+            dT = V[:, ok] @ (b[ok] / w[ok])
         T = T + dT
         if np.linalg.norm(dT) <= cfg.convergence_m:
             converged = True
@@ -164,4 +166,6 @@ def _covariance(
     info = normals.T @ normals  # sum n n^T, (2, 2)
     w, V = np.linalg.eigh(info)
     var = np.minimum(sigma2 * cfg.cov_inflation / np.maximum(w, 1e-12), cfg.max_variance_m2)
+    if cfg.metric == "point_to_line":
+        var[w <= max(cfg.degenerate_ratio * w[-1], 1e-9)] = cfg.max_variance_m2
     return (V * var) @ V.T

@@ -39,6 +39,7 @@ from scipy.spatial import cKDTree
 from vio_graph.frontend.config import IcpConfig, TrackerConfig
 from vio_graph.frontend.corners import CornerFeature
 from vio_graph.frontend.icp import IcpResult, icp_translation_2d
+from vio_graph.frontend.smoothing import grid_thin
 from vio_graph.types import CornerObservation, Displacement2D
 
 
@@ -114,7 +115,8 @@ class CornerTracker:
             TrackerOutput; the frame becomes the previous frame for the next call.
         """
         out = self._associate(
-            timestamp_s, corner, self._prev, predicted_delta_xz_m, predicted_cov_m2
+            timestamp_s, corner, self._prev, predicted_delta_xz_m, predicted_cov_m2,
+            np.asarray(profile_xz_m, float),
         )
         self._prev = _Frame(timestamp_s, np.asarray(profile_xz_m, float), corner, out.track_id)
         return out
@@ -145,15 +147,20 @@ class CornerTracker:
         prev: _Frame | None,
         pred: NDArray[np.float64] | None,
         pred_cov: NDArray[np.float64] | None,
+        profile: NDArray[np.float64] | None = None,
     ) -> TrackerOutput:
         cfg = self._cfg
         if corner is None:
+            if cfg.profile_fallback and pred is not None and profile is not None:
+                return self._profile_icp(t, profile, prev, pred, pred_cov)
             return TrackerOutput(None, None, None, "no corner in this frame", None, False)
         prev_corner = None if prev is None else prev.corner
         if prev is None or not (0.0 < t - prev.timestamp_s <= cfg.max_frame_gap_s):
             reason = "no previous frame" if prev is None else "frame gap too large"
             return self._without_displacement(t, corner, None, reason)
 
+        if prev.profile_xz_m.shape[0] == 0:
+            return self._without_displacement(t, corner, None, "previous frame has no profile")
         if pred is None:
             return self._paper_association(t, corner, prev)
 
@@ -169,19 +176,67 @@ class CornerTracker:
         src, tree = self._source(prev, corner.feature_points_xz_m, T0)  # 2. previous profile
         icp = icp_translation_2d(src, corner.feature_points_xz_m, T0, self._icp_cfg, tree)
         bad = self._quality_problem(icp)  # 4. ICP quality
-        v = -icp.translation_xz_m - pred  # 3. gate against the prediction
-        S = P + icp.cov_m2 + np.eye(2) * cfg.gate_sigma_floor_m**2
+        T, C = icp.translation_xz_m, icp.cov_m2
+        same_icp = prev_corner is not None and self._is_same(corner, prev_corner, T)
+        if (cfg.edge_x_without_face and same_icp and not self._has_face(corner)
+                and not self._has_face(prev_corner)):
+            # 2b. no riser below the edge: x from the edge points, z from ICP
+            T = np.array([corner.edge_xz_m[0] - prev_corner.edge_xz_m[0], T[1]])
+            C = np.diag([2.0 * cfg.edge_x_sigma_m**2, C[1, 1]])
+        v = -T - pred  # 3. gate against the prediction
+        S = P + C + np.eye(2) * cfg.gate_sigma_floor_m**2
         d2 = float(v @ np.linalg.solve(S, v))
         if bad is None and d2 > cfg.gate_chi2:
             bad = f"ICP disagrees with the IMU prediction (Mahalanobis^2 {d2:.1f})"
-        T_assoc = T0 if bad is not None else icp.translation_xz_m
+        T_assoc = T0 if bad is not None else T
         same = prev_corner is not None and self._is_same(corner, prev_corner, T_assoc)  # 5.
         track_id = prev.track_id if same and prev.track_id is not None else self._new_id()
         obs = CornerObservation(t, track_id, corner.edge_xz_m.copy(), self._edge_cov_m2.copy())
         if bad is not None:
             return TrackerOutput(None, obs, icp, bad, track_id, same, d2)
-        disp = Displacement2D(prev.timestamp_s, t, -icp.translation_xz_m, icp.cov_m2)
+        disp = Displacement2D(prev.timestamp_s, t, -T, C)
         return TrackerOutput(disp, obs, icp, None, track_id, same, d2)
+
+    def _has_face(self, corner: CornerFeature) -> bool:
+        """True if the feature window holds a face (riser / obstacle side) below the edge."""
+        below = corner.feature_points_xz_m[:, 1] < corner.edge_xz_m[1] - 0.01
+        return int(below.sum()) >= self._cfg.min_face_points
+
+    def _profile_icp(
+        self,
+        t: float,
+        profile: NDArray[np.float64],
+        prev: _Frame | None,
+        pred: NDArray[np.float64],
+        pred_cov: NDArray[np.float64] | None,
+    ) -> TrackerOutput:
+        """No corner: ICP of the whole (thinned) profile against the previous profile, seeded
+        by the IMU prediction and gated like the corner ICP. Floors constrain z, risers x;
+        unobservable directions get the capped variance, so the filter ignores them."""
+        cfg = self._cfg
+        if prev is None or not (0.0 < t - prev.timestamp_s <= cfg.max_frame_gap_s):
+            reason = "no previous frame" if prev is None else "frame gap too large"
+            return TrackerOutput(None, None, None, f"no corner in this frame; {reason}", None, False)
+        target = grid_thin(profile, cfg.fallback_grid_m) if cfg.fallback_grid_m > 0 else profile
+        if target.shape[0] < cfg.min_correspondences or prev.profile_xz_m.shape[0] == 0:
+            return TrackerOutput(None, None, None, "no corner in this frame; profile too short",
+                                 None, False)
+        pred = np.asarray(pred, dtype=float)
+        P = (np.eye(2) * cfg.default_prediction_sigma_m**2 if pred_cov is None
+             else np.asarray(pred_cov, dtype=float))
+        T0 = -pred
+        src, tree = self._source(prev, target, T0)
+        icp = icp_translation_2d(src, target, T0, self._icp_cfg, tree)
+        bad = self._quality_problem(icp)
+        v = -icp.translation_xz_m - pred
+        S = P + icp.cov_m2 + np.eye(2) * cfg.gate_sigma_floor_m**2
+        d2 = float(v @ np.linalg.solve(S, v))
+        if bad is None and d2 > cfg.gate_chi2:
+            bad = f"ICP disagrees with the IMU prediction (Mahalanobis^2 {d2:.1f})"
+        if bad is not None:
+            return TrackerOutput(None, None, icp, f"profile ICP: {bad}", None, False, d2)
+        disp = Displacement2D(prev.timestamp_s, t, -icp.translation_xz_m, icp.cov_m2)
+        return TrackerOutput(disp, None, icp, None, None, False, d2)
 
     def _paper_association(self, t: float, corner: CornerFeature, prev: _Frame) -> TrackerOutput:
         """Paper: same corner if the feature means are close; ICP from the mean difference."""

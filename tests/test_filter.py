@@ -16,6 +16,7 @@ from vio_graph.filter import (
     SagittalEskf,
     sagittal_rotation,
 )
+from vio_graph.filter.config import MTI1_ACCEL_SIGMA_MPS2
 from vio_graph.geometry import GRAVITY_MPS2, make_transform, rot_y
 from vio_graph.types import Displacement2D, EstimateStatus, ImuSample
 
@@ -274,7 +275,10 @@ def test_icp_odometry_chains_displacements_and_holds_when_blind():
 def nees_and_rmse(model: str, seed: int) -> tuple[float, float]:
     """Final-position NEES and position RMSE (m) of one noisy 10 s run (numbers quoted in
     the vio_graph.filter.eskf docstring)."""
-    eskf = SagittalEskf(FilterConfig(measurement_model=model, measurement_noise_floor_m=0.0))
+    # the synthetic IMU has exactly the datasheet noise: use the matched (paper's) Q
+    eskf = SagittalEskf(FilterConfig(measurement_model=model, measurement_noise_floor_m=0.0,
+                                     accel_noise_sigma_mps2=MTI1_ACCEL_SIGMA_MPS2,
+                                     init_velocity_sigma_mps=0.05))
     _, p_est, p_true = run(eskf, swinging_motion(), 10.0, imu_noise=0.0118, disp_sigma_m=0.003,
                            bias=np.array([0.05, -0.03]), seed=seed)
     e = p_est[-1] - p_true[-1]
@@ -323,7 +327,8 @@ def test_dead_reckoning_ignores_displacements_and_attitude_noise_inflates_covari
     _, p_dr, _ = run(dr, m, 1.0, bias=np.array([0.1, 0.0]))
     s = dr.state
     assert s.status is EstimateStatus.IMU_ONLY and s.n_accepted == 0 and s.n_stale == 33
-    tight = dict(init_velocity_sigma_mps=1e-6, init_accel_bias_sigma_mps2=1e-6)
+    tight = dict(init_velocity_sigma_mps=1e-6, init_accel_bias_sigma_mps2=1e-6,
+                 accel_noise_sigma_mps2=MTI1_ACCEL_SIGMA_MPS2)
     plain = SagittalEskf(FilterConfig(**tight))
     tilted = SagittalEskf(FilterConfig(attitude_sigma_rad=np.deg2rad(1.0), **tight))
     run(plain, m, 1.0, frame_every=None)

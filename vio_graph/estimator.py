@@ -25,9 +25,10 @@ from numpy.typing import NDArray
 
 from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
+from vio_graph.filter.attitude import AttitudeTracker
 from vio_graph.filter.eskf import SagittalEskf
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
-from vio_graph.geometry import invert_transform, matrix_from_quat_wxyz, pitch_of, remove_yaw
+from vio_graph.geometry import invert_transform, pitch_of, remove_yaw
 from vio_graph.keyframes import KeyframeSelector
 from vio_graph.kinematics import knee_from_camera, leg_points_from_knee, shank_pitch_rad
 from vio_graph.mapping.local_map import TerrainMap2D
@@ -81,6 +82,7 @@ class OnlineEstimator:
         self.rig = rig
         self.frontend = VisualFrontend(config.frontend)
         self.filter = SagittalEskf(config.filter, rig.imu_T_cam)
+        self.attitude = AttitudeTracker(config.filter.attitude)
         self.keyframes = KeyframeSelector(config.keyframes)
         self.local_map = TerrainMap2D(config.mapping.map)
         self._p0 = np.zeros(2) if initial_camera_xz_m is None else np.asarray(initial_camera_xz_m, float)
@@ -99,6 +101,7 @@ class OnlineEstimator:
                 f"IMU sample at {sample.timestamp_s:.6f} s is not after {self._last_imu.timestamp_s:.6f} s")
         else:
             self.filter.propagate(sample)
+        self.attitude.add(sample)
         self._last_imu = sample
         self._imu_ms += (time.perf_counter() - t0) * 1e3
 
@@ -109,11 +112,13 @@ class OnlineEstimator:
     def initialised(self) -> bool:
         return self._last_imu is not None
 
-    def R_world_imu(self) -> NDArray[np.float64]:
-        """Latest vendor attitude with the heading removed (the paper's ground frame)."""
+    def R_world_imu(self, t_s: float | None = None) -> NDArray[np.float64]:
+        """Attitude at ``t_s`` (default: the latest IMU sample) with the heading removed (the
+        paper's ground frame); ``config.filter.attitude`` says how (filter/attitude.py)."""
         if self._last_imu is None:
             raise EstimationError("no IMU sample yet")
-        return remove_yaw(matrix_from_quat_wxyz(self._last_imu.quat_wxyz))
+        t = self._last_imu.timestamp_s if t_s is None else t_s
+        return remove_yaw(self.attitude.R_world_imu_at(t))
 
     def _position_at(self, t_s: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Filter camera position (m) and velocity extrapolated to ``t_s`` (few ms at most)."""
@@ -121,15 +126,24 @@ class OnlineEstimator:
         return s.p_xz_m + s.v_xz_mps * (t_s - s.timestamp_s), s.v_xz_mps
 
     # ------------------------------------------------------------------ per frame
-    def add_frame(self, frame: DepthFrame) -> tuple[FrameEstimate, FrontendResult | None]:
+    def add_frame(
+        self, frame: DepthFrame, R_ground_cam_override: NDArray[np.float64] | None = None
+    ) -> tuple[FrameEstimate, FrontendResult | None]:
+        """Process one depth frame (after every IMU / joint sample stamped at or before it).
+
+        ``R_ground_cam_override`` (3, 3) replaces the IMU attitude of eq. 2 (diagnostics only,
+        e.g. ``benchmarks/eval_frontend.py --attitude gt``).
+        """
         if not self.initialised:
             raise EstimationError("a depth frame arrived before any IMU sample")
         t = frame.timestamp_s
         timings: dict[str, float] = {"imu_propagation": self._imu_ms}
         self._imu_ms = 0.0
-        # 1. attitude -> ground frame of eq. 2
-        R_world_imu = self.R_world_imu()
+        # 1. attitude at the frame time -> ground frame of eq. 2
+        R_world_imu = self.R_world_imu(t)
         R_ground_cam = R_world_imu @ self.rig.R_imu_cam
+        if R_ground_cam_override is not None:
+            R_ground_cam = np.asarray(R_ground_cam_override, dtype=float)
         # 2. IMU-predicted camera displacement since the previous frame (ICP's T_0)
         p_pred, _ = self._position_at(t)
         pred_delta = pred_cov = None

@@ -122,7 +122,7 @@ class IcpConfig(_Strict):
         0.1, ge=0, lt=1, description="drop this fraction of the worst correspondences per step"
     )
     normal_neighbours: int = Field(
-        6, ge=3, description="target neighbours used to estimate the local normal (covariance)"
+        6, ge=3, description="source neighbours used to estimate the local normal (covariance)"
     )
     sigma_floor_m: float = Field(
         0.003, gt=0, description="lower bound of the point-to-line residual sigma, m"
@@ -184,6 +184,13 @@ class TrackerConfig(_Strict):
         description="frames without a corner: ICP of the whole profile (treads, risers, floor) "
         "against the previous profile, seeded and gated by the IMU prediction (needs one); "
         "False = paper (no displacement without a corner)",
+    )
+    fallback_normal_neighbours: int = Field(
+        15,
+        ge=3,
+        description="profile fallback: neighbours for the source normals. After 5 mm grid "
+        "thinning a noisy floor is a band 2-3 cells thick; with 6 neighbours many floor normals "
+        "come out horizontal and fake x information (obstacle s1: displacement NEES 56 -> 6)",
     )
     fallback_grid_m: float = Field(
         0.01, ge=0, description="profile fallback: the target profile is thinned to this grid, m"

@@ -81,6 +81,9 @@ class CornerTracker:
     ) -> None:
         self._cfg = TrackerConfig() if tracker_config is None else tracker_config
         self._icp_cfg = IcpConfig() if icp_config is None else icp_config
+        self._fallback_icp_cfg = self._icp_cfg.model_copy(
+            update={"normal_neighbours": self._cfg.fallback_normal_neighbours}
+        )
         self._edge_cov_m2 = np.eye(2) * edge_sigma_m**2
         self._prev: _Frame | None = None
         self._next_id = 0
@@ -226,7 +229,7 @@ class CornerTracker:
              else np.asarray(pred_cov, dtype=float))
         T0 = -pred
         src, tree = self._source(prev, target, T0)
-        icp = icp_translation_2d(src, target, T0, self._icp_cfg, tree)
+        icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree)
         bad = self._quality_problem(icp)
         v = -icp.translation_xz_m - pred
         S = P + icp.cov_m2 + np.eye(2) * cfg.gate_sigma_floor_m**2

@@ -1,0 +1,59 @@
+"""Whole-profile ICP fallback (no corner) and degenerate directions in point-to-line ICP."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vio_graph.frontend.config import IcpConfig, TrackerConfig
+from vio_graph.frontend.icp import icp_translation_2d
+from vio_graph.frontend.tracker import CornerTracker
+
+
+def _floor(camera_xz: np.ndarray, seed: int) -> np.ndarray:
+    """A flat floor at z = 0 seen from ``camera_xz``, points relative to the camera, 2 mm noise,
+    the visible stretch moving with the camera (field-of-view ends, not terrain ends)."""
+    rng = np.random.default_rng(seed)
+    x = np.linspace(0.2, 1.0, 400) + camera_xz[0]
+    pts = np.column_stack([x, rng.normal(0.0, 0.002, x.size)])
+    return pts - camera_xz
+
+
+def test_floor_icp_measures_z_and_leaves_x_at_the_prediction() -> None:
+    c0, delta = np.array([0.0, 0.5]), np.array([0.05, 0.01])
+    pred = delta + np.array([0.012, 0.004])  # IMU prediction 12 mm / 4 mm off
+    tracker = CornerTracker()
+    tracker.update(0.0, _floor(c0, 1), None)
+    out = tracker.update(1 / 30, _floor(c0 + delta, 2), None, pred, np.eye(2) * 0.01**2)
+    d = out.displacement
+    assert d is not None, out.reason
+    assert abs(d.delta_xz_m[1] - delta[1]) < 0.001  # z from the floor
+    assert abs(d.delta_xz_m[0] - pred[0]) < 1e-4  # x unobservable: stays at the prediction
+    assert d.cov_m2[0, 0] > 0.99 * IcpConfig().max_variance_m2  # ...and says so
+
+
+def test_no_displacement_without_corner_in_paper_mode_or_without_prediction() -> None:
+    c0, delta = np.array([0.0, 0.5]), np.array([0.05, 0.01])
+    for cfg, pred in ((TrackerConfig(profile_fallback=False), delta), (TrackerConfig(), None)):
+        tracker = CornerTracker(cfg)
+        tracker.update(0.0, _floor(c0, 1), None)
+        out = tracker.update(1 / 30, _floor(c0 + delta, 2), None, pred)
+        assert out.displacement is None and out.reason == "no corner in this frame"
+
+
+def test_empty_previous_profile_gives_no_displacement_instead_of_an_error() -> None:
+    tracker = CornerTracker()
+    tracker.update(0.0, np.empty((0, 2)), None)
+    out = tracker.update(1 / 30, _floor(np.zeros(2), 1), None, np.zeros(2))
+    assert out.displacement is None
+
+
+def test_degenerate_direction_stays_at_the_initial_guess() -> None:
+    """Point-to-line ICP on a floor: x is degenerate, so it stays at T0 with the capped
+    variance while z is solved."""
+    src = _floor(np.zeros(2), 3)
+    tgt = _floor(np.array([0.03, 0.0]), 4)
+    T0 = np.array([-0.02, 0.0])
+    on = icp_translation_2d(src, tgt, T0, IcpConfig(normal_neighbours=15))
+    assert abs(on.translation_xz_m[0] - T0[0]) < 1e-4
+    assert on.cov_m2[0, 0] > 0.99 * IcpConfig().max_variance_m2
+    assert abs(on.translation_xz_m[1]) < 0.001

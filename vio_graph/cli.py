@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import logging
+import signal
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -81,11 +82,11 @@ def simulate(
 
     Example: vio-graph simulate --scenario upstair --seed 1 --out runs/upstair_s1
     """
+    if out.exists() and not overwrite:  # before the (slow) simulator imports
+        raise VioGraphError(f"{out}: already exists (use --overwrite to replace it)")
     from vio_graph.sim import load_scenario, simulate as run_simulation
     from vio_graph.viz.progress import progress_bar
 
-    if out.exists() and not overwrite:
-        raise VioGraphError(f"{out}: already exists (use --overwrite to replace it)")
     config = load_scenario(scenario)
     with progress_bar(total=None, desc=f"simulating {scenario} seed {seed}", unit="frame") as bar:
         path = run_simulation(config, seed, out, progress=bar.update_to, overwrite=overwrite)
@@ -288,28 +289,62 @@ def map_command(
     typer.echo(f"map files in {out / 'map'}")
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that every ``finally`` (temporary files, the recording
+    writer's folder, the rerun stream) runs before the process exits."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _on_sigterm(signum: int, _frame: object) -> None:
+    signal.signal(signum, signal.SIG_IGN)  # a second SIGTERM must not cut the cleanup short
+    raise Terminated(signum)
+
+
+def _report_interrupt(exc: BaseException) -> int:
+    """Say what an interrupted command finished; return the exit code (128 + signal)."""
+    signum = getattr(exc, "signum", signal.SIGINT)
+    typer.echo(f"interrupted by {signal.Signals(signum).name}", err=True)
+    completed = getattr(exc, "completed", None)
+    out_dir = getattr(exc, "out_dir", None)
+    if completed is not None and out_dir is not None:
+        names = sorted(str(p.relative_to(out_dir)) for p in completed)
+        typer.echo(f"completed outputs in {out_dir} ({len(names)}, each file whole; the rest "
+                   f"was not written): {', '.join(names) if names else 'none'}", err=True)
+    else:
+        typer.echo("no partial output was left behind", err=True)
+    return 128 + int(signum)
+
+
 def main() -> None:
-    """Console-script entry point: known errors -> one line and exit code 1."""
+    """Console-script entry point: known errors -> one line and exit code 1; SIGINT/SIGTERM
+    -> cleanup, a note of the completed outputs, exit code 130/143."""
+    signal.signal(signal.SIGTERM, _on_sigterm)
+    # invoke the click command directly: typer's own main turns KeyboardInterrupt into a bare
+    # exit code 130, losing which signal it was and what the interrupted command completed
+    command = typer.main.get_command(app)
     try:
-        app(standalone_mode=False)
+        with command.make_context("vio-graph", sys.argv[1:]) as ctx:
+            command.invoke(ctx)
     except VioGraphError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(1)
-    except KeyboardInterrupt:
-        typer.echo("interrupted", err=True)
+    except KeyboardInterrupt as exc:
+        sys.exit(_report_interrupt(exc))
+    except typer.Exit as exc:  # --help, typer.Exit
+        sys.exit(exc.exit_code)
+    except typer.Abort:
+        typer.echo("aborted", err=True)
         sys.exit(130)
-    except Exception as exc:  # click's own usage errors
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
-        if isinstance(exc, click.exceptions.Exit):
-            sys.exit(exc.exit_code)
-        if isinstance(exc, click.exceptions.Abort):
-            typer.echo("aborted", err=True)
-            sys.exit(130)
-        raise
+    except typer.TyperException as exc:  # (typer's own click) usage errors: message, exit 2
+        show = getattr(exc, "show", None)
+        if show is not None:
+            show()
+        else:
+            typer.echo(f"error: {exc.format_message()}", err=True)
+        sys.exit(exc.exit_code)
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,14 +24,39 @@ def atomic_path(path: Path, suffix: str = ".tmp") -> Iterator[Path]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
     tmp_path = Path(tmp)
     try:
+        try:
+            os.fchmod(fd, 0o666 & ~_umask())  # mkstemp creates 0600; outputs get the usual mode
+        finally:
+            os.close(fd)
         yield tmp_path
         os.replace(tmp_path, path)
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+# Temporary names: atomic_path's ".<name>.<8 random chars><suffix>" and ".<name>.partial"
+# (the rerun logger, the recording writer's folder).
+_TEMPORARY_NAME = re.compile(r"\..+\.(?:[a-z0-9_]{8}(?:\.\w+)?|\w*partial)")
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def remove_temporaries(folder: Path) -> list[Path]:
+    """Delete the temporary files atomic writers leave behind if a process is interrupted
+    between creating and renaming them (in ``folder`` and below); returns what was removed."""
+    removed = []
+    for p in sorted(Path(folder).rglob(".*")):
+        if p.is_file() and not p.is_symlink() and _TEMPORARY_NAME.fullmatch(p.name):
+            p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed
 
 
 def atomic_write_text(path: Path, text: str) -> None:

@@ -9,6 +9,7 @@ build the map from the best available keyframe poses; write everything atomicall
 from __future__ import annotations
 
 import logging
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +26,7 @@ from vio_graph.evaluation.association import associate
 from vio_graph.evaluation.metrics import ape, ate_per_axis, rpe
 from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
 from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw
-from vio_graph.io_utils import atomic_write_json, atomic_write_text
+from vio_graph.io_utils import atomic_write_json, atomic_write_text, remove_temporaries
 from vio_graph.kinematics import knee_from_camera, leg_points_from_knee, shank_pitch_rad
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.recording.reader import Recording
@@ -64,6 +65,19 @@ class RunResult:
     out_dir: Path
     metrics: dict[str, Any]
     files: list[Path]
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """A run stopped by SIGINT/SIGTERM (a KeyboardInterrupt carrying ``signum``) after its
+    cleanup: ``completed`` lists the output files that were fully written (every file is
+    written under a temporary name and renamed, and the temporaries are removed), so the
+    results folder holds complete files only."""
+
+    def __init__(self, out_dir: Path, completed: list[Path], signum: int) -> None:
+        super().__init__(f"interrupted; {len(completed)} outputs completed in {out_dir}")
+        self.out_dir = out_dir
+        self.completed = completed
+        self.signum = signum
 
 
 def _stats_ms(values: list[float] | NDArray[np.float64]) -> dict[str, float]:
@@ -283,7 +297,6 @@ def run_recording(
     Writes (each file atomically): ``config.yaml``, ``trajectories/<mode>_<body>.tum``,
     ``frames.csv``, ``metrics.json``, ``plots/*.png``, ``map/*`` and ``run.rrd``.
     """
-    from vio_graph.viz.progress import progress_bar
     from vio_graph.viz.rerun_logger import NullVisualizer, Visualizer
 
     out = Path(out_dir)
@@ -295,9 +308,28 @@ def run_recording(
         raise OutputError(f"unknown modes {sorted(bad)}; choose from {MODES}")
     out.mkdir(parents=True, exist_ok=True)
     files: list[Path] = []
-    atomic_write_text(out / "config.yaml", dump_config(config))
-    files.append(out / "config.yaml")
-    viz = Visualizer(out / "run.rrd") if (visualize and config.output.rerun) else NullVisualizer()
+    viz = NullVisualizer()
+    try:
+        atomic_write_text(out / "config.yaml", dump_config(config))
+        files.append(out / "config.yaml")
+        if visualize and config.output.rerun:
+            viz = Visualizer(out / "run.rrd")
+        return _run_into(out, rec, recording, config, modes, progress, viz, files)
+    except BaseException as exc:  # errors, SIGINT, or SIGTERM turned into KeyboardInterrupt
+        viz.abort()  # no half-written run.rrd
+        remove_temporaries(out)
+        if isinstance(exc, KeyboardInterrupt):
+            signum = getattr(exc, "signum", signal.SIGINT)
+            raise RunInterrupted(out, [f for f in files if f.is_file()], signum) from exc
+        raise
+
+
+def _run_into(out: Path, rec: Recording, recording: Path | str, config: PipelineConfig,
+              modes: tuple[str, ...], progress: bool, viz, files: list[Path]) -> RunResult:
+    """The body of :func:`run_recording`; appends every completed output file to ``files``."""
+    from vio_graph.viz.progress import progress_bar
+    from vio_graph.viz.rerun_logger import Visualizer
+
     _log_static_scene(viz, rec)
     replay = Replay(rec, config, set(modes), viz)
     t_start = time.perf_counter()
@@ -367,7 +399,7 @@ def run_recording(
         viz.log_path(f"{'est' if mode == 'filter' else mode}/camera", bodies["camera"])
         viz.log_path(f"{'est' if mode == 'filter' else mode}/toe", bodies["toe"])
     viz.close()
-    if visualize and config.output.rerun:
+    if isinstance(viz, Visualizer):
         files.append(out / "run.rrd")
     atomic_write_json(out / "metrics.json", metrics)
     files.append(out / "metrics.json")

@@ -4,13 +4,19 @@ Opening a recording validates every small stream completely (metadata, IMU, join
 timestamps, ground truth) and the depth arrays' headers; depth frames themselves are memory
 mapped and converted one at a time, so a long trial never has to fit in memory. Every problem
 raises :class:`vio_graph.errors.RecordingError` naming the file and, where there is one, the field.
-Loading is safe: ``yaml.safe_load``, ``numpy.load(allow_pickle=False)``, fixed file names that
-must resolve inside the recording folder.
+Loading is safe: YAML through the safe loader only (``yaml.safe_load`` semantics, libyaml's
+``CSafeLoader`` when available), ``numpy.load(allow_pickle=False)``, fixed file names that must
+resolve inside the recording folder; ``metadata.yaml`` cannot name files (unknown keys are
+refused). No other exception type escapes :meth:`Recording.open`: the fuzz tests
+(tests/test_fuzz_recording.py) check that on thousands of mutated recordings.
 """
 
 from __future__ import annotations
 
+import math
 import os
+import tokenize
+import warnings
 from collections.abc import Iterator
 from functools import cached_property
 from pathlib import Path
@@ -34,6 +40,9 @@ from vio_graph.types import DepthFrame
 
 GRAVITY_MPS2 = 9.81
 RATE_TOLERANCE = 0.2  # relative difference allowed between declared and measured rates
+DURATION_TOLERANCE = 0.2  # relative difference allowed between duration_s and a stream's span
+START_TOLERANCE_S = 0.5  # plus DURATION_TOLERANCE * duration_s: allowed offset of stream starts
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # safe either way; C is 7x faster
 
 
 class Recording:
@@ -54,15 +63,25 @@ class Recording:
         rec._validate()
         return rec
 
+    @cached_property
+    def _root_resolved(self) -> Path:
+        try:
+            return self.root.resolve(strict=True)
+        except (OSError, RuntimeError) as exc:
+            raise RecordingError(self.root, f"cannot be opened ({_describe(exc)})") from None
+
     def _file(self, rel: str, required: bool = True) -> Path | None:
         p = self.root / rel
-        if p.is_symlink() or p.exists():
-            resolved = p.resolve()
-            if not resolved.is_relative_to(self.root.resolve()):
-                raise RecordingError(p, "points outside the recording folder")
-            if not p.is_file():
-                raise RecordingError(p, "is not a regular file")
-            return p
+        try:
+            if p.is_symlink() or p.exists():
+                resolved = p.resolve(strict=True)
+                if not resolved.is_relative_to(self._root_resolved):
+                    raise RecordingError(p, "points outside the recording folder")
+                if not p.is_file():
+                    raise RecordingError(p, "is not a regular file")
+                return p
+        except (OSError, RuntimeError) as exc:  # dangling link, symlink loop, permissions
+            raise RecordingError(p, f"cannot be opened ({_describe(exc)})") from None
         if required:
             raise RecordingError(p, "required file is missing")
         return None
@@ -74,44 +93,85 @@ class Recording:
         _ = self.frame_timestamps_s
         self._check_depth_arrays()
         _ = self.groundtruth
+        self._check_time_spans()
+
+    def _check_time_spans(self) -> None:
+        """Every stream covers the declared ``duration_s`` (a truncated stream, or a stream on
+        another clock or in other time units, is refused)."""
+        duration = self.metadata.duration_s
+        streams = [(layout.IMU_FILE, self.imu.timestamp_s),
+                   (layout.JOINTS_FILE, self.joints.timestamp_s),
+                   (layout.DEPTH_TIMESTAMPS_FILE, self.frame_timestamps_s)]
+        if self.groundtruth is not None:
+            streams += [(layout.gt_trajectory_file(b), t.timestamp_s)
+                        for b, t in self.groundtruth.trajectories.items()]
+        t0_imu = self.imu.timestamp_s[0]
+        slack = DURATION_TOLERANCE * duration
+        for rel, t in streams:
+            span = float(t[-1] - t[0])
+            period = float(np.median(np.diff(t)))
+            if abs(span - duration) > slack + 2 * period:
+                raise RecordingError(self.root / rel, f"covers {span:.3g} s but metadata.yaml "
+                                     f"declares duration_s {duration:g} s (truncated file or "
+                                     "wrong time unit?)", field="timestamp_s")
+            if abs(float(t[0] - t0_imu)) > slack + START_TOLERANCE_S:
+                raise RecordingError(self.root / rel, f"starts at {t[0]:.6g} s, {t[0] - t0_imu:.3g}"
+                                     f" s away from imu.csv (streams on different clocks?)",
+                                     field="timestamp_s")
 
     # ------------------------------------------------------------------ metadata
     @cached_property
     def metadata(self) -> RecordingMetadata:
         path = self._file(layout.METADATA_FILE)
         try:
-            raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raw = yaml.load(path.read_bytes().decode("utf-8"), Loader=_YAML_LOADER)  # noqa: S506
+        except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as exc:
             raise RecordingError(path, f"not valid YAML ({exc.__class__.__name__})") from None
+        except OSError as exc:
+            raise RecordingError(path, f"cannot be read ({_describe(exc)})") from None
         if not isinstance(raw, dict):
             raise RecordingError(path, "top level must be a mapping")
+        bad = _yaml_tree_problem(raw)
+        if bad is not None:
+            raise RecordingError(path, bad[1], field=_printable(bad[0])[:80])
         try:
-            return RecordingMetadata.model_validate(raw)
+            with np.errstate(all="ignore"):  # huge numbers overflow in the transform checks
+                return RecordingMetadata.model_validate(raw)
         except ValidationError as exc:
             err = exc.errors()[0]
-            field = ".".join(str(x) for x in err["loc"])
+            field = _printable(".".join(str(x) for x in err["loc"]))[:80]
             more = f" (and {len(exc.errors()) - 1} more problems)" if len(exc.errors()) > 1 else ""
-            raise RecordingError(path, err["msg"] + more, field=field or None) from None
+            msg = " ".join(str(err["msg"]).split())  # one line
+            raise RecordingError(path, msg + more, field=field or None) from None
 
     # ------------------------------------------------------------------ CSV streams
     def _read_csv(self, rel: str, columns: tuple[str, ...], required: bool = True):
+        """(rows, columns) float array of a CSV stream; the ``timestamp_s`` column must
+        increase strictly."""
         path = self._file(rel, required)
         if path is None:
             return None
         try:
-            with path.open(encoding="utf-8") as fh:
-                header = fh.readline().strip()
+            text = path.read_bytes().decode("utf-8-sig")  # tolerate a spreadsheet's BOM
         except UnicodeDecodeError:
             raise RecordingError(path, "not a UTF-8 text file") from None
+        except OSError as exc:
+            raise RecordingError(path, f"cannot be read ({_describe(exc)})") from None
+        if "\0" in text:
+            raise RecordingError(path, "contains NUL bytes (binary data or a corrupt file)")
+        lines = text.splitlines()
+        header = lines[0].strip() if lines else ""
         found = tuple(h.strip() for h in header.split(","))
         if found != columns:
             missing = [c for c in columns if c not in found]
             problem = f"missing columns {missing}" if missing else f"unexpected header {found}"
             raise RecordingError(path, problem + f"; expected {','.join(columns)}", field="header")
         try:
-            data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=float)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # "input contained no data": reported below
+                data = np.loadtxt(lines[1:], delimiter=",", ndmin=2, dtype=float, comments=None)
         except ValueError as exc:
-            raise RecordingError(path, f"malformed row ({exc})") from None
+            raise RecordingError(path, f"malformed row ({_describe(exc)})") from None
         if data.size == 0:
             raise RecordingError(path, "no data rows")
         if data.shape[1] != len(columns):
@@ -120,7 +180,7 @@ class Recording:
         if bad.any():
             row, col = np.argwhere(bad)[0]
             raise RecordingError(path, f"NaN or inf in row {row + 2}", field=columns[col])
-        _check_timestamps(path, data[:, 0])
+        _check_timestamps(path, data[:, columns.index("timestamp_s")])
         return data
 
     @cached_property
@@ -130,11 +190,9 @@ class Recording:
         imu = ImuTable(d[:, 0], d[:, 1:4], d[:, 4:7], d[:, 7:11])
         meta = self.metadata.imu
         _check_rate(path, imu.timestamp_s, meta.rate_hz, "imu.rate_hz")
-        qn = np.linalg.norm(imu.quat_wxyz, axis=1)
-        if np.any(np.abs(qn - 1.0) > 1e-3):
-            raise RecordingError(path, f"quaternion not unit length (row {np.argmax(np.abs(qn - 1)) + 2})",
-                                 field="q_w..q_z")
-        acc_norm = np.median(np.linalg.norm(imu.accel_mps2, axis=1))
+        _check_unit_quaternions(path, imu.quat_wxyz)
+        with np.errstate(over="ignore"):
+            acc_norm = np.median(np.linalg.norm(imu.accel_mps2, axis=1))
         if not 0.5 * GRAVITY_MPS2 < acc_norm < 2.0 * GRAVITY_MPS2:
             hint = " (looks like g units, expected m/s^2)" if 0.5 < acc_norm < 2.0 else ""
             raise RecordingError(path, f"median accelerometer norm {acc_norm:.3g} is not near "
@@ -163,6 +221,8 @@ class Recording:
         d = self._read_csv(layout.DEPTH_TIMESTAMPS_FILE, layout.DEPTH_TIMESTAMP_COLUMNS)
         if not np.array_equal(d[:, 0], np.arange(d.shape[0])):
             raise RecordingError(path, "frame column must count 0, 1, 2, ...", field="frame")
+        if d.shape[0] == 0:
+            raise RecordingError(path, "recording has no depth frames")
         _check_rate(path, d[:, 1], self.metadata.camera.frame_rate_hz, "camera.frame_rate_hz")
         return d[:, 1].copy()
 
@@ -179,6 +239,8 @@ class Recording:
         path, dtype, scale = (mm, np.uint16, cam.depth_unit_m) if mm else (m, np.float32, 1.0)
         depth = _load_npy(path)
         conf_path = self._file(layout.CONFIDENCE_FILE)
+        if conf_path is None:  # pragma: no cover - _file raises for required files
+            raise RecordingError(self.root / layout.CONFIDENCE_FILE, "required file is missing")
         conf = _load_npy(conf_path)
         n = self.frame_timestamps_s.shape[0]
         for p, arr, dt in ((path, depth, dtype), (conf_path, conf, np.uint8)):
@@ -190,16 +252,27 @@ class Recording:
         return depth, scale, conf
 
     def _check_depth_arrays(self) -> None:
+        """Convert the first, middle and last frames (catches unit mistakes and corrupt data
+        without reading the whole array) and refuse a recording whose sampled frames are all
+        empty (no valid pixel)."""
         depth, scale, _ = self._depth
         n = depth.shape[0]
         if n == 0:
-            raise RecordingError(self.root / layout.DEPTH_MM_FILE, "recording has no depth frames")
-        for i in sorted({0, n // 2, n - 1}):
-            self._convert(i, depth, scale)
+            raise RecordingError(self._depth_path(depth), "recording has no depth frames")
+        sampled = sorted({0, n // 2, n - 1})
+        if not any((self._convert(i, depth, scale) > 0).any() for i in sampled):
+            raise RecordingError(self._depth_path(depth), f"frames {sampled} have no valid depth "
+                                 "pixel (empty frames)")
+
+    def _depth_path(self, depth: np.ndarray) -> Path:
+        return self.root / (layout.DEPTH_MM_FILE if depth.dtype == np.uint16 else layout.DEPTH_M_FILE)
 
     def _convert(self, i: int, depth: np.ndarray, scale: float) -> np.ndarray:
-        path = self.root / (layout.DEPTH_MM_FILE if depth.dtype == np.uint16 else layout.DEPTH_M_FILE)
-        raw = np.asarray(depth[i])
+        path = self._depth_path(depth)
+        try:
+            raw = np.array(depth[i])
+        except (OSError, ValueError) as exc:  # the file changed or shrank after opening
+            raise RecordingError(path, f"frame {i} cannot be read ({_describe(exc)})") from None
         if raw.dtype == np.float32:
             if np.isinf(raw).any() or (raw < 0).any():
                 raise RecordingError(path, f"frame {i} has inf or negative depth")
@@ -213,6 +286,11 @@ class Recording:
             if too_far > 0.5:
                 raise RecordingError(path, f"frame {i}: most depths exceed 1.5x the camera's max "
                                      f"range {cam.max_range_m} m (wrong depth unit?)",
+                                     field="camera.depth_unit_m")
+            too_near = np.mean(d[valid] < 0.5 * cam.min_range_m)
+            if too_near > 0.5:
+                raise RecordingError(path, f"frame {i}: most depths are below half the camera's "
+                                     f"min range {cam.min_range_m} m (wrong depth unit?)",
                                      field="camera.depth_unit_m")
         return d
 
@@ -242,21 +320,36 @@ class Recording:
         trajs = {}
         for body in GROUNDTRUTH_BODIES:
             path = self._file(layout.gt_trajectory_file(body), required=True)
-            trajs[body] = read_tum(path)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # numpy's "no data": read_tum reports it
+                    trajs[body] = read_tum(path)
+            except OSError as exc:
+                raise RecordingError(path, f"cannot be read ({_describe(exc)})") from None
             if self.metadata.groundtruth_rate_hz:
                 _check_rate(path, trajs[body].timestamp_s, self.metadata.groundtruth_rate_hz,
                             "groundtruth_rate_hz")
+            elif len(trajs[body]) < 2:
+                raise RecordingError(path, f"only {len(trajs[body])} poses", field="timestamp")
         state = None
         d = self._read_csv(layout.GT_IMU_STATE_FILE, layout.GT_IMU_STATE_COLUMNS, required=False)
         if d is not None:
+            _check_unit_quaternions(self.root / layout.GT_IMU_STATE_FILE, d[:, 7:11])
             state = ImuStateTable(d[:, 0], d[:, 1:4], d[:, 4:7], d[:, 7:11], d[:, 11:14],
                                   d[:, 14:17])
         vis = None
         f = self._read_csv(layout.GT_FRAMES_FILE, layout.GT_FRAME_COLUMNS, required=False)
         if f is not None:
+            path = self.root / layout.GT_FRAMES_FILE
             if f.shape[0] != self.num_frames:
-                raise RecordingError(self.root / layout.GT_FRAMES_FILE,
-                                     f"{f.shape[0]} rows for {self.num_frames} depth frames")
+                raise RecordingError(path, f"{f.shape[0]} rows for {self.num_frames} depth frames")
+            if not np.array_equal(f[:, 0], np.arange(f.shape[0])):
+                raise RecordingError(path, "frame column must count 0, 1, 2, ...", field="frame")
+            if not np.allclose(f[:, 1], self.frame_timestamps_s, rtol=0.0, atol=1e-6):
+                raise RecordingError(path, "timestamps differ from depth/timestamps.csv",
+                                     field="timestamp_s")
+            if not np.all((f[:, 2] == 0) | (f[:, 2] == 1)):
+                raise RecordingError(path, "values must be 0 or 1", field="edge_visible")
             vis = f[:, 2].astype(np.int8)
         return GroundTruth(trajectories=trajs, imu_state=state, frame_edge_visible=vis)
 
@@ -314,8 +407,61 @@ def _check_rate(path: Path, t: np.ndarray, declared_hz: float, field: str) -> No
                              f"{declared_hz:g} Hz in metadata.yaml", field=field)
 
 
+def _check_unit_quaternions(path: Path, quat_wxyz: np.ndarray) -> None:
+    err = np.abs(np.linalg.norm(quat_wxyz, axis=1) - 1.0)
+    if np.any(err > 1e-3):
+        raise RecordingError(path, f"quaternion not unit length (row {int(np.argmax(err)) + 2})",
+                             field="q_w..q_z")
+
+
+# What numpy raises on a corrupt .npy: bad magic/version/header values (ValueError), short
+# files (EOFError, OSError from mmap), and header text its tokenizer cannot parse.
+_NPY_ERRORS = (ValueError, OSError, EOFError, SyntaxError, TypeError, KeyError, OverflowError,
+               MemoryError, tokenize.TokenError)
+
+
 def _load_npy(path: Path) -> np.ndarray:
     try:
-        return np.load(path, mmap_mode="r", allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
-        raise RecordingError(path, f"not a readable .npy array (truncated or corrupt: {exc})") from None
+        arr = np.load(path, mmap_mode="r", allow_pickle=False)
+    except _NPY_ERRORS as exc:
+        raise RecordingError(path, "not a readable .npy array (truncated or corrupt: "
+                             f"{_describe(exc)})") from None
+    if not isinstance(arr, np.ndarray):  # np.load opens a zip (.npz) whatever the name
+        if hasattr(arr, "close"):
+            arr.close()
+        raise RecordingError(path, f"not a .npy array (found {type(arr).__name__})")
+    return arr
+
+
+def _printable(text: str) -> str:
+    """``text`` with control characters escaped (YAML keys can hold newlines)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def _describe(exc: BaseException) -> str:
+    """An exception as one short line (messages from numpy or the OS can span lines)."""
+    text = " ".join(str(exc).split()) or exc.__class__.__name__
+    return text if len(text) <= 200 else text[:197] + "..."
+
+
+_MAX_YAML_DEPTH = 32  # metadata.yaml nests 4 levels; deeper is garbage or an alias cycle
+
+
+def _yaml_tree_problem(node: object, where: str = "", depth: int = 0) -> tuple[str, str] | None:
+    """(field, problem) for the first NaN/inf number, or for nesting deeper than any metadata
+    (which includes self-referencing YAML aliases, ``a: &x [*x]``), else None."""
+    if isinstance(node, float) and not math.isfinite(node):
+        return where or "(top level)", "NaN or inf is not allowed"
+    if isinstance(node, dict):
+        items = list(node.items())
+    elif isinstance(node, list):
+        items = list(enumerate(node))
+    else:
+        return None
+    if depth >= _MAX_YAML_DEPTH:
+        return where or "(top level)", "nested too deeply (recursive alias?)"
+    for k, v in items:
+        found = _yaml_tree_problem(v, f"{where}.{k}" if where else str(k), depth + 1)
+        if found is not None:
+            return found
+    return None

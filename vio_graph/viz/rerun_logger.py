@@ -51,6 +51,7 @@ class NullVisualizer:
     def log_path(self, name, xz_m, static: bool = True) -> None: ...
     def log_scalar(self, name, value: float) -> None: ...
     def close(self) -> None: ...
+    def abort(self) -> None: ...
 
 
 class Visualizer(NullVisualizer):
@@ -126,3 +127,10 @@ class Visualizer(NullVisualizer):
         self._rec.flush()
         self._rec.disconnect()
         os.replace(self._tmp_path, self.path)
+
+    def abort(self) -> None:
+        """Stop recording and delete the unfinished file (an interrupted or failed run)."""
+        try:
+            self._rec.disconnect()
+        finally:
+            self._tmp_path.unlink(missing_ok=True)

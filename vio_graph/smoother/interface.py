@@ -114,4 +114,8 @@ class KeyframeSmootherBase(ABC):
             raise EstimationError("no keyframe in the smoother yet")
         kt = np.array([e.timestamp_s for e in est])
         corr = np.array([e.camera_xz_m for e in est]) - np.asarray(self._kf_filter_xz)
+        ok = np.all(np.isfinite(corr), axis=1)  # keyframes a failed update never solved
+        if not ok.any():
+            raise EstimationError("no solved keyframe in the smoother")
+        kt, corr = kt[ok], corr[ok]
         return f + np.stack([np.interp(t, kt, corr[:, 0]), np.interp(t, kt, corr[:, 1])], -1)

@@ -113,13 +113,17 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
 
     # ---- outputs -------------------------------------------------------------------------------
     def keyframe_estimates(self, with_covariance: bool = True) -> list[KeyframeEstimate]:
-        """Every keyframe ever added: live ones freshly read, marginalised ones frozen."""
+        """Every keyframe ever added: live ones freshly read, marginalised ones frozen; NaN for
+        a keyframe whose update failed (it never entered the smoother)."""
         out = []
         for i, t in enumerate(self._kf_times_s):
             if i in self._frozen:
                 xz, cov = self._frozen[i]
             else:
-                xz, cov = self._camera_estimate(i, with_covariance)
+                try:
+                    xz, cov = self._camera_estimate(i, with_covariance)
+                except (IndexError, RuntimeError):
+                    xz, cov = np.full(2, np.nan), _NAN2
             out.append(KeyframeEstimate(t, xz.copy(), cov.copy()))
         return out
 

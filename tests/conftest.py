@@ -78,3 +78,12 @@ def tiny_recording(tmp_path: Path) -> Path:
     meta = tiny_metadata()
     imu, joints, gt, t_frames, frames = tiny_streams(meta)
     return write_recording(tmp_path / "rec", meta, imu, joints, gt, t_frames, iter(frames))
+
+
+@pytest.fixture(scope="session")
+def short_upstair(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 4 s simulated upstair trial (seed 3), shared by the end-to-end tests."""
+    from vio_graph.sim import load_scenario, simulate
+
+    cfg = load_scenario("upstair").model_copy(update={"duration_s": 4.0})
+    return simulate(cfg, seed=3, out_dir=tmp_path_factory.mktemp("rec") / "up")

@@ -12,13 +12,6 @@ from vio_graph.config import PipelineConfig
 from vio_graph.pipeline import run_recording
 from vio_graph.recording import Recording
 from vio_graph.recording.tum import read_tum
-from vio_graph.sim import load_scenario, simulate
-
-
-@pytest.fixture(scope="module")
-def short_upstair(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    cfg = load_scenario("upstair").model_copy(update={"duration_s": 4.0})
-    return simulate(cfg, seed=3, out_dir=tmp_path_factory.mktemp("rec") / "up")
 
 
 @pytest.fixture(scope="module")

@@ -127,12 +127,15 @@ class OnlineEstimator:
 
     # ------------------------------------------------------------------ per frame
     def add_frame(
-        self, frame: DepthFrame, R_ground_cam_override: NDArray[np.float64] | None = None
+        self, frame: DepthFrame, R_ground_cam_override: NDArray[np.float64] | None = None,
+        transform_result=None,
     ) -> tuple[FrameEstimate, FrontendResult | None]:
         """Process one depth frame (after every IMU / joint sample stamped at or before it).
 
         ``R_ground_cam_override`` (3, 3) replaces the IMU attitude of eq. 2 (diagnostics only,
-        e.g. ``benchmarks/eval_frontend.py --attitude gt``).
+        e.g. ``benchmarks/eval_frontend.py --attitude gt``). ``transform_result`` (testing
+        hook) may replace the front end's result before fusion, e.g. to inject wrong
+        associations (``PipelineConfig.inject``).
         """
         if not self.initialised:
             raise EstimationError("a depth frame arrived before any IMU sample")
@@ -156,6 +159,8 @@ class OnlineEstimator:
         # 3. front end (eq. 1-4)
         result = self.frontend.process(frame, self.rig.K, R_ground_cam, pred_delta, pred_cov)
         timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
+        if transform_result is not None:
+            result = transform_result(result)
         # 4. fusion (eq. 8)
         t0 = time.perf_counter()
         if result.displacement is not None:

@@ -8,6 +8,7 @@ build the map from the best available keyframe poses; write everything atomicall
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import signal
 import time
@@ -20,7 +21,7 @@ from numpy.typing import NDArray
 
 import vio_graph
 from vio_graph.config import PipelineConfig, dump_config
-from vio_graph.errors import OutputError
+from vio_graph.errors import EstimationError, OutputError
 from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.evaluation.association import associate
 from vio_graph.evaluation.metrics import ape, ate_per_axis, rpe
@@ -130,7 +131,11 @@ class Replay:
 
             self.smoothers["batch"] = BatchSmoother(config.smoother, self.rig.imu_T_cam)
         self.log = FrameLog(camera_xz={m: [] for m in ("filter", *BASELINES)})
+        self._inject_rng = np.random.default_rng(config.inject.seed)
+        self.injected_wrong_associations = 0
         self.batch_solve_s = float("nan")
+        self.failed: dict[str, dict[str, Any]] = {}
+        self.failed_smoothers: dict[str, Any] = {}
 
     def run(self, progress=None) -> FrameLog:
         rec, online, lg = self.rec, self.online, self.log
@@ -145,8 +150,8 @@ class Replay:
                         b.initialise(s.timestamp_s, self.p0)
                     else:
                         b.propagate(s)
-                for sm in self.smoothers.values():
-                    sm.add_imu(s)
+                for name, sm in list(self.smoothers.items()):
+                    self._guard(name, sm.add_imu, s)
                 started = True
             elif kind == 1:
                 online.add_joints(rec.joints.sample(int(i)))
@@ -156,17 +161,43 @@ class Replay:
                 self._frame(int(i))
                 if progress is not None:
                     progress(int(i) + 1)
-        for sm in self.smoothers.values():
-            sm.flush()
+        for name, sm in list(self.smoothers.items()):
+            self._guard(name, sm.flush)
         if "batch" in self.smoothers:
             t0 = time.perf_counter()
-            self.smoothers["batch"].solve()
+            self._guard("batch", self.smoothers["batch"].solve)
             self.batch_solve_s = time.perf_counter() - t0
         return lg
 
+    def _guard(self, name: str, fn, *args) -> None:
+        """Call a smoother; if it fails (e.g. GTSAM finds the system indeterminate), stop feeding
+        it, keep its last good keyframes, and record the failure instead of killing the run
+        (the filter's answer stands in for the frames after it)."""
+        try:
+            fn(*args)
+        except EstimationError as exc:
+            t = args[0].timestamp_s if args and hasattr(args[0], "timestamp_s") else (
+                args[0] if args and isinstance(args[0], float) else float("nan"))
+            log.warning("%s stopped at t=%.3f s: %s", name, t, str(exc).splitlines()[0])
+            self.failed[name] = {"t_s": t, "error": str(exc).splitlines()[0]}
+            self.failed_smoothers[name] = self.smoothers.pop(name)
+
+    def _inject(self, res):
+        """Shift a displacement by a whole stair step (config.inject), for robustness tests."""
+        inj = self.config.inject
+        if res.displacement is None or inj.wrong_association_rate <= 0:
+            return res
+        if self._inject_rng.random() >= inj.wrong_association_rate:
+            return res
+        sign = 1.0 if self._inject_rng.random() < 0.5 else -1.0
+        d = res.displacement
+        bad = dataclasses.replace(d, delta_xz_m=d.delta_xz_m + sign * np.asarray(inj.step_xz_m))
+        self.injected_wrong_associations += 1
+        return dataclasses.replace(res, displacement=bad)
+
     def _frame(self, i: int) -> None:
         frame = self.rec.frame(i)
-        est, res = self.online.add_frame(frame)
+        est, res = self.online.add_frame(frame, transform_result=self._inject)
         lg = self.log
         lg.t_s.append(est.timestamp_s)
         lg.camera_xz["filter"].append(est.camera_xz_m)
@@ -176,9 +207,10 @@ class Replay:
             s = b.state
             lg.camera_xz[name].append(s.p_xz_m + s.v_xz_mps * (est.timestamp_s - s.timestamp_s)
                                       if name == "imu_only" else s.p_xz_m.copy())
-        for sm in self.smoothers.values():
-            sm.add_frame(est.timestamp_s, est.is_keyframe, est, res.displacement, res.observation)
-        R_world_imu = self.online.R_world_imu()
+        for name, sm in list(self.smoothers.items()):
+            self._guard(name, sm.add_frame, est.timestamp_s, est.is_keyframe, est,
+                        res.displacement, res.observation)
+        R_world_imu = self.online.R_world_imu(est.timestamp_s)
         lg.shank_pitch_imu.append(float(pitch_of(R_world_imu @ self.rig.R_knee_imu.T)))
         j = self.online._last_joints
         lg.shank_pitch_chain.append(float(shank_pitch_rad(j.thigh_pitch_rad, j.knee_rad))
@@ -340,8 +372,12 @@ def _run_into(out: Path, rec: Recording, recording: Path | str, config: Pipeline
     t_s = np.asarray(lg.t_s)
     camera = {m: np.asarray(v) for m, v in lg.camera_xz.items()}
     filter_xz = camera["filter"]
-    for name, sm in replay.smoothers.items():
-        camera[name] = np.asarray(sm.frame_trajectory(t_s, filter_xz))
+    for name, sm in {**replay.smoothers, **replay.failed_smoothers}.items():
+        try:  # a failed smoother still reports the keyframes it solved before failing
+            camera[name] = np.asarray(sm.frame_trajectory(t_s, filter_xz))
+        except EstimationError as exc:
+            log.warning("%s has no usable estimate: %s", name, exc)
+            camera[name] = filter_xz.copy()
     use_enc = config.kinematics.shank_pitch_source == "encoders"
     paths = {m: leg_trajectories(replay.rig, xz, lg, use_enc) for m, xz in camera.items()}
 
@@ -372,6 +408,7 @@ def _run_into(out: Path, rec: Recording, recording: Path | str, config: Pipeline
             visible = gt.frame_edge_visible[: len(t_s)].astype(bool)
         metrics.update(evaluate_paths(rec, t_s, paths, visible))
     metrics["latency_ms"] = _latencies(lg, replay)
+    metrics["smoother_failures"] = replay.failed
     metrics["frontend"] = {
         "displacement_fraction": float(np.mean(lg.displacement_ok)) if lg.t_s else 0.0,
         "rejections": _count(lg.rejection),
@@ -381,7 +418,8 @@ def _run_into(out: Path, rec: Recording, recording: Path | str, config: Pipeline
     }
     fs = replay.online.filter.state
     metrics["filter"] = {"accepted": fs.n_accepted, "rejected_chi2": fs.n_rejected,
-                         "stale": fs.n_stale}
+                         "stale": fs.n_stale,
+                         "injected_wrong_associations": replay.injected_wrong_associations}
     if gt is not None:
         metrics["terrain_classification"] = _terrain_accuracy(rec, lg)
 
@@ -423,12 +461,13 @@ def _latencies(lg: FrameLog, replay: Replay) -> dict[str, Any]:
                            "per_frame_total": _stats_ms(total)}
     for stage in ("projection", "smoothing", "terrain", "corners", "icp"):
         out[f"frontend_{stage}"] = _stats_ms(col(f"frontend_{stage}"))
-    if "smoother" in replay.smoothers:
-        sm = replay.smoothers["smoother"]
+    smoothers = {**replay.smoothers, **replay.failed_smoothers}
+    if "smoother" in smoothers:
+        sm = smoothers["smoother"]
         n = min(len(sm.update_times_ms), len(sm.build_times_ms))
         per_kf = np.asarray(sm.update_times_ms[:n]) + np.asarray(sm.build_times_ms[:n])
         out["smoother_update"] = _stats_ms(per_kf)
-    if "batch" in replay.smoothers:
+    if "batch" in smoothers:
         out["batch_solve_s"] = replay.batch_solve_s
     return out
 

@@ -7,13 +7,17 @@ results (``config.yaml``) so every run can be reproduced.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-import vio_graph
-from vio_graph.errors import ConfigError
+from vio_graph.config_files import (
+    configs_dir,
+    load_yaml_mapping,
+    resolve_config_path,
+    validate_model,
+)
 from vio_graph.filter.config import FilterConfig
 from vio_graph.frontend.config import FrontendConfig
 from vio_graph.keyframes import KeyframeConfig
@@ -68,25 +72,6 @@ class PipelineConfig(_Section):
     inject: InjectedFaultsConfig = InjectedFaultsConfig()
 
 
-def configs_dir() -> Path:
-    """The repository's ``configs/`` folder (next to the package)."""
-    return Path(vio_graph.__file__).resolve().parents[1] / "configs"
-
-
-def load_yaml_mapping(path: Path) -> dict[str, Any]:
-    """Read a YAML mapping safely; errors name the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: config file not found")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: top level must be a mapping")
-    return data
-
-
 def load_config(path: str | Path | None = None) -> PipelineConfig:
     """Load a pipeline config: a YAML path, a name in configs/, or None for configs/default.yaml
     (or the in-code defaults if that file is absent)."""
@@ -95,16 +80,8 @@ def load_config(path: str | Path | None = None) -> PipelineConfig:
         if not candidate.is_file():
             return PipelineConfig()
         path = candidate
-    p = Path(path)
-    if not p.suffix and not p.exists():
-        p = configs_dir() / f"{p}.yaml"
-    data = load_yaml_mapping(p)
-    try:
-        return PipelineConfig.model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(x) for x in err["loc"])
-        raise ConfigError(f"{p}: {loc}: {err['msg']}") from None
+    p = resolve_config_path(path)
+    return validate_model(PipelineConfig, load_yaml_mapping(p), p)
 
 
 def dump_config(config: PipelineConfig) -> str:

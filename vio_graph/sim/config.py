@@ -6,12 +6,11 @@ Numbers and their sources are in /work/shared/reference/sim-spec.md and docs/sim
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-import vio_graph
+from vio_graph.config_files import load_yaml_mapping, resolve_config_path, validate_model
 from vio_graph.errors import ConfigError
 
 
@@ -265,32 +264,14 @@ class ScenarioConfig(_Section):
     faults: FaultsConfig = FaultsConfig()
 
 
-def configs_dir() -> Path:
-    """The repository's configs/ folder (beside the package)."""
-    return Path(vio_graph.__file__).resolve().parents[1] / "configs"
-
-
 def load_scenario(name_or_path: str | Path) -> ScenarioConfig:
     """Load a scenario: a bare name -> configs/NAME.yaml, otherwise a YAML path.
 
     The YAML holds overrides of the defaults in code; unknown keys raise ConfigError.
     """
-    text = str(name_or_path)
-    is_path = text.endswith((".yaml", ".yml")) or "/" in text or "\\" in text
-    path = Path(text) if is_path else configs_dir() / f"{text}.yaml"
+    path = resolve_config_path(name_or_path)
     if not path.is_file():
         raise ConfigError(f"{path}: scenario file not found")
-    try:
-        data: Any = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: invalid YAML: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: top level must be a mapping")
+    data = load_yaml_mapping(path)
     data.setdefault("name", path.stem)
-    try:
-        return ScenarioConfig.model_validate(data)
-    except ValidationError as exc:
-        problems = "; ".join(
-            f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()
-        )
-        raise ConfigError(f"{path}: {problems}") from exc
+    return validate_model(ScenarioConfig, data, path)

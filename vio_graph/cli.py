@@ -345,6 +345,37 @@ def robustness(
     typer.echo(written["markdown"].read_text())
 
 
+@app.command("import-bag")
+def import_bag_command(
+    bag: Annotated[Path, typer.Argument(help="ROS 1 .bag, ROS 2 bag folder, or .mcap/.db3 file.")],
+    rig: Annotated[Path, typer.Option(help="Rig YAML (see configs/rig_example.yaml).")],
+    out: Annotated[Path, typer.Option(help="Output recording folder.")],
+    depth_topic: Annotated[str, typer.Option(help="sensor_msgs/Image, 32FC1 m or 16UC1 mm.")] = "/pico_flexx/image_depth",
+    camera_info_topic: Annotated[str, typer.Option(help="sensor_msgs/CameraInfo.")] = "/pico_flexx/camera_info",
+    imu_topic: Annotated[str, typer.Option(help="sensor_msgs/Imu.")] = "/imu/data",
+    joints_topic: Annotated[str, typer.Option(help="sensor_msgs/JointState.")] = "/joint_states",
+    receive_time: Annotated[bool, typer.Option("--receive-time", help="Use the bag's receive time instead of header.stamp.")] = False,
+    groundtruth_dir: Annotated[Path | None, typer.Option(help="Folder with camera/knee/ankle/heel/toe.tum on the bag clock.")] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing folder.")] = False,
+) -> None:
+    """Convert a ROS bag (pico flexx depth, Xsens IMU, joint states) into a recording.
+
+    Example: vio-graph import-bag trial.bag --rig configs/rig_example.yaml --out runs/trial1
+    """
+    if out.exists() and not overwrite:
+        raise VioGraphError(f"{out}: already exists (use --overwrite to replace it)")
+    from vio_graph.recording.rosbag_import import BagTopics, import_bag
+    from vio_graph.viz.progress import progress_bar
+
+    topics = BagTopics(depth=depth_topic, camera_info=camera_info_topic, imu=imu_topic,
+                       joints=joints_topic)
+    with progress_bar(total=None, desc=f"importing {bag.name}", unit="frame") as bar:
+        path = import_bag(bag, rig, out, topics=topics, use_receive_time=receive_time,
+                          groundtruth_dir=groundtruth_dir, progress=bar.update_to,
+                          overwrite=overwrite)
+    typer.echo(f"wrote {path}")
+
+
 def main() -> None:
     """Console-script entry point: known errors -> one line and exit code 1; SIGINT/SIGTERM
     -> cleanup, a note of the completed outputs, exit code 130/143."""

@@ -47,3 +47,10 @@ class FrontendError(VioGraphError):
 
 class EvaluationError(VioGraphError):
     """Trajectories cannot be compared as asked (no time overlap, too few poses, bad mask)."""
+
+
+class BagImportError(RecordingError):
+    """A ROS bag cannot be imported as asked (missing topic, wrong encoding, empty bag, ...).
+
+    The message names the bag and, where there is one, the topic.
+    """

@@ -1,0 +1,497 @@
+"""Import a ROS bag (ROS 1 ``.bag``, ROS 2 ``.db3`` / ``.mcap`` folder or file) as a recording.
+
+Reads with the pure-Python ``rosbags`` package, so no ROS installation is needed:
+
+- depth: ``sensor_msgs/Image`` from the pico flexx driver (``32FC1`` metres, NaN or 0 invalid;
+  ``16UC1`` millimetres is accepted too), streamed frame by frame into the writer;
+- intrinsics: the first ``sensor_msgs/CameraInfo`` (or the rig file's, which take precedence);
+- IMU: ``sensor_msgs/Imu`` (vendor orientation, angular velocity, linear acceleration), raw
+  samples, no resampling;
+- joints: ``sensor_msgs/JointState``, three named joints mapped by the rig file.
+
+Two passes over the bag: the first collects timestamps, the IMU and joint samples (small) and
+checks topics, encodings, sizes and rates; the second streams the depth frames through a
+generator into :func:`vio_graph.recording.write_recording`, so a bag's frames never all sit in
+memory. All streams are cropped to the time span they share and put on a clock starting at the
+earliest kept sample (``provenance.config.time_origin_ns`` keeps the bag-clock origin).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+import vio_graph
+from vio_graph.errors import BagImportError, ConfigError
+from vio_graph.recording.metadata import (
+    FORMAT_VERSION,
+    CameraModel,
+    Extrinsics,
+    ImuModel,
+    LegGeometry,
+    Provenance,
+    RecordingMetadata,
+    TerrainInfo,
+)
+from vio_graph.recording.streams import GROUNDTRUTH_BODIES, GroundTruth, ImuTable, JointTable
+from vio_graph.recording.tum import read_tum
+from vio_graph.recording.writer import write_recording
+
+log = logging.getLogger(__name__)
+
+RATE_TOLERANCE = 0.2  # relative difference allowed between the rig's and the measured rates
+QUAT_NORM_TOLERANCE = 1e-3  # as the reader's check
+MSGTYPES = {
+    "depth": "sensor_msgs/msg/Image",
+    "camera_info": "sensor_msgs/msg/CameraInfo",
+    "imu": "sensor_msgs/msg/Imu",
+    "joints": "sensor_msgs/msg/JointState",
+}
+# depth encodings: numpy little-endian dtype and metres per stored unit
+DEPTH_ENCODINGS = {"32FC1": ("<f4", 1.0), "16UC1": ("<u2", 0.001), "mono16": ("<u2", 0.001)}
+
+
+# ---------------------------------------------------------------------------- configuration
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class BagTopics(_Strict):
+    """Topic names; the defaults are those of pico_flexx_driver, xsens_mti_driver and a
+    ``joint_state_publisher``-style encoder node."""
+
+    depth: str = Field("/pico_flexx/image_depth", description="sensor_msgs/Image, 32FC1 m")
+    camera_info: str = Field("/pico_flexx/camera_info", description="sensor_msgs/CameraInfo")
+    imu: str = Field("/imu/data", description="sensor_msgs/Imu")
+    joints: str = Field("/joint_states", description="sensor_msgs/JointState")
+
+
+class RigCamera(_Strict):
+    """Depth camera facts a bag does not carry. Intrinsics given here override camera_info."""
+
+    fx_px: float | None = Field(None, gt=0, description="focal length x, px (None: camera_info)")
+    fy_px: float | None = Field(None, gt=0, description="focal length y, px (None: camera_info)")
+    cx_px: float | None = Field(None, description="principal point x, px (None: camera_info)")
+    cy_px: float | None = Field(None, description="principal point y, px (None: camera_info)")
+    frame_rate_hz: float = Field(gt=0, description="nominal depth frame rate, Hz (checked)")
+    min_range_m: float = Field(ge=0, description="nearest valid depth, m")
+    max_range_m: float = Field(gt=0, description="farthest valid depth, m")
+    depth_unit_m: float = Field(0.001, gt=0, description="metres per stored uint16 unit")
+    model: str = Field("pmd CamBoard pico flexx", description="free text")
+
+    @model_validator(mode="after")
+    def _all_or_none(self) -> RigCamera:
+        given = [v is not None for v in (self.fx_px, self.fy_px, self.cx_px, self.cy_px)]
+        if any(given) and not all(given):
+            raise ValueError("give all of fx_px, fy_px, cx_px, cy_px or none (camera_info)")
+        return self
+
+    @property
+    def has_intrinsics(self) -> bool:
+        return self.fx_px is not None
+
+
+class JointSource(_Strict):
+    """One joint of the JointState message: value_rad = sign * position + offset_rad."""
+
+    name: str = Field(min_length=1, description="name in JointState.name")
+    sign: Literal[1, -1] = Field(1, description="-1 if the encoder counts the other way")
+    offset_rad: float = Field(0.0, description="added after the sign, rad")
+
+
+class RigJoints(_Strict):
+    rate_hz: float = Field(gt=0, description="nominal JointState rate, Hz (checked)")
+    thigh_pitch: JointSource = Field(description="hip flexion, + knee ahead of the hip")
+    knee: JointSource = Field(description="knee flexion, +")
+    ankle: JointSource = Field(description="ankle plantarflexion, +")
+
+
+class RigConfig(_Strict):
+    """The rig file (see configs/rig_example.yaml): what the bag does not say."""
+
+    camera: RigCamera
+    imu: ImuModel
+    joints: RigJoints
+    extrinsics: Extrinsics
+    leg: LegGeometry
+    terrain: TerrainInfo = TerrainInfo(kind="unknown")
+    groundtruth_rate_hz: float | None = Field(None, gt=0, description="mocap rate, Hz")
+    notes: str = ""
+
+
+def load_rig(path: str | Path) -> RigConfig:
+    """Read and validate a rig YAML file; errors name the file and the field."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc.__class__.__name__})") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path}: top level must be a mapping")
+    try:
+        return RigConfig.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = ".".join(str(x) for x in err["loc"]) or "(top level)"
+        more = f" (and {len(exc.errors()) - 1} more problems)" if len(exc.errors()) > 1 else ""
+        raise ConfigError(f"{path} [{field}]: {' '.join(str(err['msg']).split())}{more}") from None
+
+
+# ---------------------------------------------------------------------------- decoding
+def stamp_ns(msg: Any) -> int:
+    """header.stamp of a message, integer nanoseconds."""
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def decode_depth_image(msg: Any) -> np.ndarray:
+    """float32 (H, W) depth in metres, 0 = invalid, from a sensor_msgs/Image.
+
+    Raises ValueError for an unsupported encoding or a short buffer (the caller names the bag).
+    """
+    if msg.encoding not in DEPTH_ENCODINGS:
+        raise ValueError(f"encoding {msg.encoding!r} not supported (expected one of "
+                         f"{sorted(DEPTH_ENCODINGS)})")
+    dtype_le, scale = DEPTH_ENCODINGS[msg.encoding]
+    dtype = np.dtype(dtype_le).newbyteorder(">" if msg.is_bigendian else "<")
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    row_bytes = w * dtype.itemsize
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if step < row_bytes or data.size < step * h:
+        raise ValueError(f"{data.size} bytes with step {step} do not hold a {w}x{h} "
+                         f"{msg.encoding} image")
+    rows = data[: step * h].reshape(h, step)[:, :row_bytes]
+    values = np.ascontiguousarray(rows).view(dtype).reshape(h, w)
+    depth_m = values.astype(np.float32) * np.float32(scale)
+    depth_m[~np.isfinite(depth_m) | (depth_m < 0)] = 0.0
+    return depth_m
+
+
+@dataclass(frozen=True)
+class _Scan:
+    """What the first pass learns: times (bag clock, ns), small streams, image facts."""
+
+    depth_ns: np.ndarray  # (M,) every depth message, bag order
+    depth_size_wh: tuple[int, int]
+    camera_info: Any | None
+    imu_ns: np.ndarray
+    imu_rows: np.ndarray  # (N, 10): acc xyz, gyr xyz, q wxyz
+    joint_ns: np.ndarray
+    joint_rows: np.ndarray  # (K, 3): thigh, knee, ankle (rad, sign/offset applied)
+
+
+def _open_reader(bag: Path):  # noqa: ANN202 - rosbags imported lazily
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    try:
+        reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except FileNotFoundError:
+        raise BagImportError(bag, "bag not found") from None
+    except Exception as exc:  # rosbags raises its own error classes per format
+        raise BagImportError(bag, f"cannot be read as a ROS bag ({exc})") from None
+    return reader
+
+
+def _connections(reader: Any, bag: Path, topic: str, kind: str, required: bool) -> list:
+    topics = reader.topics
+    if topic not in topics:
+        if not required:
+            return []
+        have = ", ".join(f"{t} ({i.msgtype})" for t, i in sorted(topics.items())) or "none"
+        raise BagImportError(bag, f"{kind} topic not in the bag; the bag has: {have}",
+                             field=topic)
+    info = topics[topic]
+    if info.msgtype != MSGTYPES[kind]:
+        raise BagImportError(bag, f"{kind} topic has type {info.msgtype}, expected "
+                             f"{MSGTYPES[kind]}", field=topic)
+    if info.msgcount == 0 and required:
+        raise BagImportError(bag, f"no messages on the {kind} topic", field=topic)
+    return list(info.connections)
+
+
+def _time_ns(msg: Any, receive_ns: int, use_receive_time: bool) -> int:
+    return receive_ns if use_receive_time else stamp_ns(msg)
+
+
+def _scan(bag: Path, topics: BagTopics, rig: RigConfig, use_receive_time: bool) -> _Scan:
+    reader = _open_reader(bag)
+    try:
+        if reader.message_count == 0:
+            raise BagImportError(bag, "the bag is empty (no messages)")
+        conns = {
+            "depth": _connections(reader, bag, topics.depth, "depth", True),
+            "camera_info": _connections(reader, bag, topics.camera_info, "camera_info",
+                                        not rig.camera.has_intrinsics),
+            "imu": _connections(reader, bag, topics.imu, "imu", True),
+            "joints": _connections(reader, bag, topics.joints, "joints", True),
+        }
+        kind_of = {c.id: kind for kind, cs in conns.items() for c in cs}
+        wanted = [c for cs in conns.values() for c in cs]
+        depth_ns, imu_ns, imu_rows, joint_ns, joint_rows = [], [], [], [], []
+        size_wh: tuple[int, int] | None = None
+        camera_info = None
+        joint_index: dict[tuple[str, ...], list[int]] = {}
+        sources = (rig.joints.thigh_pitch, rig.joints.knee, rig.joints.ankle)
+        for conn, receive_ns, raw in reader.messages(connections=wanted):
+            kind = kind_of[conn.id]
+            msg = reader.deserialize(raw, conn.msgtype)
+            t_ns = _time_ns(msg, receive_ns, use_receive_time)
+            if kind == "depth":
+                if msg.encoding not in DEPTH_ENCODINGS:
+                    raise BagImportError(bag, f"depth encoding {msg.encoding!r} not supported "
+                                         f"(expected one of {sorted(DEPTH_ENCODINGS)})",
+                                         field=conn.topic)
+                wh = (int(msg.width), int(msg.height))
+                if size_wh is None:
+                    size_wh = wh
+                elif wh != size_wh:
+                    raise BagImportError(bag, f"depth frame {len(depth_ns)} is {wh[0]}x{wh[1]} "
+                                         f"px, earlier frames {size_wh[0]}x{size_wh[1]} px",
+                                         field=conn.topic)
+                depth_ns.append(t_ns)
+            elif kind == "camera_info":
+                camera_info = camera_info if camera_info is not None else msg
+            elif kind == "imu":
+                o, g, a = msg.orientation, msg.angular_velocity, msg.linear_acceleration
+                imu_ns.append(t_ns)
+                imu_rows.append((a.x, a.y, a.z, g.x, g.y, g.z, o.w, o.x, o.y, o.z))
+            else:
+                names = tuple(msg.name)
+                if names not in joint_index:
+                    missing = [s.name for s in sources if s.name not in names]
+                    if missing:
+                        raise BagImportError(bag, f"JointState without joints {missing}; it "
+                                             f"names {list(names)} (set joints.*.name in the "
+                                             "rig file)", field=conn.topic)
+                    joint_index[names] = [names.index(s.name) for s in sources]
+                pos = np.asarray(msg.position, dtype=float)
+                idx = joint_index[names]
+                if pos.shape[0] <= max(idx):
+                    raise BagImportError(bag, f"JointState with {pos.shape[0]} positions for "
+                                         f"{len(names)} names", field=conn.topic)
+                joint_ns.append(t_ns)
+                joint_rows.append([s.sign * pos[i] + s.offset_rad for s, i in zip(sources, idx)])
+    except BagImportError:
+        raise
+    except Exception as exc:  # corrupt chunks, undecodable messages
+        raise BagImportError(bag, f"cannot be read ({exc.__class__.__name__}: {exc})") from None
+    finally:
+        reader.close()
+    assert size_wh is not None  # the depth topic has messages
+    return _Scan(
+        depth_ns=np.asarray(depth_ns, dtype=np.int64),
+        depth_size_wh=size_wh,
+        camera_info=camera_info,
+        imu_ns=np.asarray(imu_ns, dtype=np.int64),
+        imu_rows=np.asarray(imu_rows, dtype=float).reshape(-1, 10),
+        joint_ns=np.asarray(joint_ns, dtype=np.int64),
+        joint_rows=np.asarray(joint_rows, dtype=float).reshape(-1, 3),
+    )
+
+
+# ---------------------------------------------------------------------------- checks
+def _sorted_unique(t_ns: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Samples sorted by time with repeated timestamps dropped (first kept); count dropped."""
+    order = np.argsort(t_ns, kind="stable")
+    t, r = t_ns[order], rows[order]
+    keep = np.concatenate([[True], np.diff(t) > 0])
+    return t[keep], r[keep], int((~keep).sum())
+
+
+def _increasing_mask(t_ns: np.ndarray) -> np.ndarray:
+    """Keep a depth frame only if it is later than every frame kept before it (bag order)."""
+    keep = np.zeros(t_ns.shape[0], dtype=bool)
+    last = np.iinfo(np.int64).min
+    for i, t in enumerate(t_ns):
+        if t > last:
+            keep[i], last = True, t
+    return keep
+
+
+def _check_rate(bag: Path, topic: str, t_ns: np.ndarray, declared_hz: float, field: str) -> float:
+    if t_ns.shape[0] < 3:
+        raise BagImportError(bag, f"only {t_ns.shape[0]} samples in the shared time span",
+                             field=topic)
+    measured = 1e9 / float(np.median(np.diff(t_ns)))
+    if abs(measured - declared_hz) > RATE_TOLERANCE * declared_hz:
+        raise BagImportError(bag, f"measured rate {measured:.2f} Hz, the rig file declares "
+                             f"{field} = {declared_hz:g} Hz", field=topic)
+    return measured
+
+
+def _field(msg: Any, ros1_name: str, ros2_name: str) -> Any:
+    """A field spelled differently in ROS 1 and ROS 2 message definitions (CameraInfo K / k)."""
+    return getattr(msg, ros1_name) if hasattr(msg, ros1_name) else getattr(msg, ros2_name)
+
+
+def _camera_model(
+    bag: Path, topics: BagTopics, rig: RigConfig, scan: _Scan
+) -> tuple[CameraModel, str]:
+    """Camera model and a note on its source (and on lens distortion the format cannot hold)."""
+    w, h = scan.depth_size_wh
+    cam = rig.camera
+    note = ""
+    if cam.has_intrinsics:
+        fx, fy, cx, cy = cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px
+        note = "intrinsics from the rig file"
+    else:
+        info = scan.camera_info
+        if info is None:
+            raise BagImportError(bag, "no camera_info message and no intrinsics in the rig file",
+                                 field=topics.camera_info)
+        if (int(info.width), int(info.height)) != (w, h):
+            raise BagImportError(bag, f"camera_info is {info.width}x{info.height} px but depth "
+                                 f"frames are {w}x{h} px", field=topics.camera_info)
+        k = np.asarray(_field(info, "K", "k"), dtype=float)
+        fx, fy, cx, cy = k[0], k[4], k[2], k[5]
+        if not (fx > 0 and fy > 0):
+            raise BagImportError(bag, f"camera_info K has fx={fx}, fy={fy}",
+                                 field=topics.camera_info)
+        note = "intrinsics from camera_info"
+        d = np.asarray(_field(info, "D", "d"), dtype=float)
+        if d.size and np.any(d != 0):
+            log.warning("%s: camera_info has distortion %s; stored as a pinhole model", bag, d)
+            note += f" (distortion {np.round(d, 6).tolist()} not applied: pinhole model)"
+    model = CameraModel(width_px=w, height_px=h, fx_px=float(fx), fy_px=float(fy),
+                        cx_px=float(cx), cy_px=float(cy), depth_unit_m=cam.depth_unit_m,
+                        min_range_m=cam.min_range_m, max_range_m=cam.max_range_m,
+                        frame_rate_hz=cam.frame_rate_hz, model=cam.model)
+    return model, note
+
+
+def _load_groundtruth(gt_dir: Path, t0_ns: int) -> GroundTruth:
+    """TUM files camera/knee/ankle/heel/toe.tum, timestamps on the bag clock (s)."""
+    trajs = {}
+    for body in GROUNDTRUTH_BODIES:
+        path = gt_dir / f"{body}.tum"
+        if not path.is_file():
+            raise BagImportError(path, f"ground truth needs {', '.join(GROUNDTRUTH_BODIES)} .tum")
+        traj = read_tum(path)
+        rel = traj.timestamp_s - t0_ns * 1e-9
+        trajs[body] = type(traj)(rel, traj.position_m, traj.quat_wxyz)
+    return GroundTruth(trajectories=trajs)
+
+
+# ---------------------------------------------------------------------------- import
+def _depth_frames(bag: Path, topic: str, keep: np.ndarray, scanned_ns: np.ndarray,
+                  use_receive_time: bool) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Second pass: the kept depth frames, one at a time (metres, confidence 255 if valid)."""
+    reader = _open_reader(bag)
+    try:
+        conns = list(reader.topics[topic].connections)
+        for i, (conn, receive_ns, raw) in enumerate(reader.messages(connections=conns)):
+            if i < keep.shape[0] and keep[i]:
+                msg = reader.deserialize(raw, conn.msgtype)
+                if _time_ns(msg, receive_ns, use_receive_time) != scanned_ns[i]:
+                    raise BagImportError(bag, f"depth message {i} changed between the two "
+                                         "passes (bag modified while importing?)", field=topic)
+                try:
+                    depth_m = decode_depth_image(msg)
+                except ValueError as exc:
+                    raise BagImportError(bag, f"depth message {i}: {exc}", field=topic) from None
+                yield depth_m, np.where(depth_m > 0, 255, 0).astype(np.uint8)
+    finally:
+        reader.close()
+
+
+def import_bag(
+    bag_path: str | Path,
+    rig_yaml: str | Path,
+    out_dir: str | Path,
+    topics: BagTopics | None = None,
+    use_receive_time: bool = False,
+    groundtruth_dir: str | Path | None = None,
+    progress: Callable[[int], None] | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Convert one bag into a recording folder; returns ``out_dir``.
+
+    Args:
+        bag_path: ROS 1 ``.bag``, ROS 2 bag folder (``.db3`` or ``.mcap`` inside) or a bare
+            ``.mcap`` / ``.db3`` file.
+        rig_yaml: rig file (configs/rig_example.yaml documents every field).
+        topics: topic names (defaults: :class:`BagTopics`).
+        use_receive_time: time samples by the bag's receive time instead of header.stamp.
+        groundtruth_dir: optional folder with camera/knee/ankle/heel/toe.tum on the bag clock.
+        progress: called with the number of depth frames written so far.
+    """
+    bag, topics = Path(bag_path), topics or BagTopics()
+    rig = load_rig(rig_yaml)
+    scan = _scan(bag, topics, rig, use_receive_time)
+
+    # the time span all three streams share, widened by half a depth frame period so that
+    # streams starting a few ms apart do not cost the first or last frame
+    start_ns = max(int(scan.depth_ns.min()), int(scan.imu_ns.min()), int(scan.joint_ns.min()))
+    end_ns = min(int(scan.depth_ns.max()), int(scan.imu_ns.max()), int(scan.joint_ns.max()))
+    if end_ns <= start_ns:
+        raise BagImportError(bag, "depth, IMU and joint streams do not overlap in time")
+    slack_ns = int(0.5e9 / rig.camera.frame_rate_hz)
+    start_ns, end_ns = start_ns - slack_ns, end_ns + slack_ns
+    imu_ns, imu_rows, imu_dups = _sorted_unique(scan.imu_ns, scan.imu_rows)
+    joint_ns, joint_rows, joint_dups = _sorted_unique(scan.joint_ns, scan.joint_rows)
+    in_span = lambda t: (t >= start_ns) & (t <= end_ns)  # noqa: E731
+    imu_ns, imu_rows = imu_ns[in_span(imu_ns)], imu_rows[in_span(imu_ns)]
+    joint_ns, joint_rows = joint_ns[in_span(joint_ns)], joint_rows[in_span(joint_ns)]
+    keep = _increasing_mask(scan.depth_ns) & in_span(scan.depth_ns)
+    depth_ns = scan.depth_ns[keep]
+
+    _check_rate(bag, topics.depth, depth_ns, rig.camera.frame_rate_hz, "camera.frame_rate_hz")
+    _check_rate(bag, topics.imu, imu_ns, rig.imu.rate_hz, "imu.rate_hz")
+    _check_rate(bag, topics.joints, joint_ns, rig.joints.rate_hz, "joints.rate_hz")
+    q_norm = np.linalg.norm(imu_rows[:, 6:10], axis=1)
+    if np.any(np.abs(q_norm - 1.0) > QUAT_NORM_TOLERANCE):
+        row = int(np.argmax(np.abs(q_norm - 1.0)))
+        raise BagImportError(bag, f"IMU orientation not a unit quaternion (sample {row}, norm "
+                             f"{q_norm[row]:.4g}); the recording needs the vendor orientation",
+                             field=topics.imu)
+
+    camera, camera_note = _camera_model(bag, topics, rig, scan)
+    t0_ns = min(int(depth_ns[0]), int(imu_ns[0]), int(joint_ns[0]))  # earliest kept sample
+    t1_ns = max(int(depth_ns[-1]), int(imu_ns[-1]), int(joint_ns[-1]))
+    rel = lambda t: (t - t0_ns).astype(float) * 1e-9  # noqa: E731
+    dropped = {"imu_repeated_stamps": imu_dups, "joint_repeated_stamps": joint_dups,
+               "depth_out_of_order_or_repeated": int((~_increasing_mask(scan.depth_ns)).sum()),
+               "depth_outside_shared_span": int((~in_span(scan.depth_ns)).sum())}
+    metadata = RecordingMetadata(
+        format_version=FORMAT_VERSION,
+        duration_s=(t1_ns - t0_ns) * 1e-9,
+        camera=camera,
+        imu=rig.imu,
+        joint_rate_hz=rig.joints.rate_hz,
+        groundtruth_rate_hz=rig.groundtruth_rate_hz if groundtruth_dir else None,
+        extrinsics=rig.extrinsics,
+        leg=rig.leg,
+        terrain=rig.terrain,
+        provenance=Provenance(
+            source="device",
+            config={"bag": str(bag), "rig_file": str(rig_yaml), "topics": topics.model_dump(),
+                    "time_source": "receive" if use_receive_time else "header.stamp",
+                    "time_origin_ns": t0_ns, "dropped": dropped},
+            software=f"vio_graph {vio_graph.__version__} rosbag_import",
+            created_utc=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            notes="; ".join(x for x in (rig.notes, camera_note) if x),
+        ),
+    )
+    imu = ImuTable(rel(imu_ns), imu_rows[:, 0:3], imu_rows[:, 3:6], imu_rows[:, 6:10])
+    joints = JointTable(rel(joint_ns), joint_rows[:, 0], joint_rows[:, 1], joint_rows[:, 2])
+    gt = _load_groundtruth(Path(groundtruth_dir), t0_ns) if groundtruth_dir else None
+    log.info("%s: %d depth frames, %d IMU, %d joint samples over %.2f s; dropped %s", bag,
+             depth_ns.shape[0], len(imu), len(joints), metadata.duration_s, dropped)
+    return write_recording(Path(out_dir), metadata, imu, joints, gt, rel(depth_ns),
+                           _depth_frames(bag, topics.depth, keep, scan.depth_ns,
+                                         use_receive_time), progress=progress,
+                           overwrite=overwrite)
+
+
+__all__: Sequence[str] = ["BagTopics", "RigConfig", "decode_depth_image", "import_bag", "load_rig"]

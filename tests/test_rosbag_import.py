@@ -137,7 +137,8 @@ def ros2_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _check_round_trip(rec: Recording) -> None:
     # shared span: 3 ms (first joint sample) .. 0.9 s (last depth frame), widened by half a
-    # frame period (50 ms): all frames, IMU samples 0 .. 0.95 s, joints 0.003 .. 0.943 s
+    # frame period (50 ms): all frames; IMU 0 .. 0.95 s and joints 0.003 .. 0.943 s, each plus
+    # one sample after the span
     assert rec.num_frames == N_FRAMES
     np.testing.assert_allclose(rec.frame_timestamps_s, np.arange(N_FRAMES) * 0.1, atol=1e-9)
     for i in (0, 5, 9):
@@ -149,7 +150,7 @@ def _check_round_trip(rec: Recording) -> None:
     cam = rec.metadata.camera
     assert (cam.width_px, cam.height_px, cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px) == (
         W, H, FX, FY, CX, CY)
-    n_imu = 96
+    n_imu = 97
     rows = _imu_rows()[:n_imu]
     imu = rec.imu
     np.testing.assert_allclose(imu.timestamp_s, np.arange(n_imu) * 0.01, atol=1e-9)
@@ -157,14 +158,14 @@ def _check_round_trip(rec: Recording) -> None:
     np.testing.assert_allclose(imu.gyro_radps, rows[:, 3:6], atol=1e-6, rtol=0)
     np.testing.assert_allclose(imu.quat_wxyz, rows[:, 6:10], atol=1e-6, rtol=0)
     j = rec.joints  # stamped 3 ms after the IMU, JointState order ankle, knee, thigh, hip_yaw
-    n_joint = 95
+    n_joint = 96
     np.testing.assert_allclose(j.timestamp_s, np.arange(n_joint) * 0.01 + 0.003, atol=1e-9)
     np.testing.assert_allclose(np.column_stack([j.thigh_pitch_rad, j.knee_rad, j.ankle_rad]),
                                _joint_rows()[:n_joint], atol=1e-6, rtol=0)
     prov = rec.metadata.provenance
     assert prov.source == "device"
     assert prov.config["time_origin_ns"] == T0_NS
-    assert rec.metadata.duration_s == pytest.approx(0.95)
+    assert rec.metadata.duration_s == pytest.approx(0.96)
 
 
 def test_ros1_bag_round_trip(ros1_bag: Path, rig_10hz: Path, tmp_path: Path) -> None:

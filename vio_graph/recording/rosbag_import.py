@@ -12,8 +12,10 @@ Reads with the pure-Python ``rosbags`` package, so no ROS installation is needed
 Two passes over the bag: the first collects timestamps, the IMU and joint samples (small) and
 checks topics, encodings, sizes and rates; the second streams the depth frames through a
 generator into :func:`vio_graph.recording.write_recording`, so a bag's frames never all sit in
-memory. All streams are cropped to the time span they share and put on a clock starting at the
-earliest kept sample (``provenance.config.time_origin_ns`` keeps the bag-clock origin).
+memory. Depth frames are cropped to the time span all streams share (widened by half a frame
+period); IMU and joint samples to that span plus one sample on each side, so every frame time
+lies between two samples. Times are put on a clock starting at the earliest kept sample
+(``provenance.config.time_origin_ns`` keeps the bag-clock origin, integer ns).
 """
 
 from __future__ import annotations
@@ -309,6 +311,14 @@ def _sorted_unique(t_ns: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.n
     return t[keep], r[keep], int((~keep).sum())
 
 
+def _bracketing(t_ns: np.ndarray, start_ns: int, end_ns: int) -> slice:
+    """Samples inside [start, end] plus one on each side, so that every depth frame time can be
+    interpolated between two samples (``t_ns`` sorted)."""
+    first = max(int(np.searchsorted(t_ns, start_ns, side="left")) - 1, 0)
+    stop = min(int(np.searchsorted(t_ns, end_ns, side="right")) + 1, t_ns.shape[0])
+    return slice(first, stop)
+
+
 def _increasing_mask(t_ns: np.ndarray) -> np.ndarray:
     """Keep a depth frame only if it is later than every frame kept before it (bag order)."""
     keep = np.zeros(t_ns.shape[0], dtype=bool)
@@ -441,8 +451,10 @@ def import_bag(
     imu_ns, imu_rows, imu_dups = _sorted_unique(scan.imu_ns, scan.imu_rows)
     joint_ns, joint_rows, joint_dups = _sorted_unique(scan.joint_ns, scan.joint_rows)
     in_span = lambda t: (t >= start_ns) & (t <= end_ns)  # noqa: E731
-    imu_ns, imu_rows = imu_ns[in_span(imu_ns)], imu_rows[in_span(imu_ns)]
-    joint_ns, joint_rows = joint_ns[in_span(joint_ns)], joint_rows[in_span(joint_ns)]
+    imu_sel, joint_sel = _bracketing(imu_ns, start_ns, end_ns), _bracketing(joint_ns, start_ns,
+                                                                          end_ns)
+    imu_ns, imu_rows = imu_ns[imu_sel], imu_rows[imu_sel]
+    joint_ns, joint_rows = joint_ns[joint_sel], joint_rows[joint_sel]
     keep = _increasing_mask(scan.depth_ns) & in_span(scan.depth_ns)
     depth_ns = scan.depth_ns[keep]
 

@@ -47,7 +47,8 @@ def _joint_rows() -> np.ndarray:
     return np.column_stack([0.3 * np.sin(k / 20), 0.5 + 0.2 * np.cos(k / 15), -0.1 * np.sin(k / 8)])
 
 
-def _write_bag(path: Path, ros2: bool, skip: tuple[str, ...] = (), encoding: str = "32FC1") -> Path:
+def _write_bag(path: Path, ros2: bool, skip: tuple[str, ...] = (), encoding: str = "32FC1",
+               storage: StoragePlugin = StoragePlugin.MCAP) -> Path:
     """A synthetic bag: depth, camera_info, IMU and joint states on the default topics."""
     ts = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
     T = ts.types
@@ -101,7 +102,7 @@ def _write_bag(path: Path, ros2: bool, skip: tuple[str, ...] = (), encoding: str
     msgs.sort(key=lambda m: m[2])
 
     if ros2:
-        writer = Writer2(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer = Writer2(path, version=9, storage_plugin=storage)
         serialize = ts.serialize_cdr
     else:
         writer = Writer1(path)
@@ -181,6 +182,12 @@ def test_ros2_mcap_round_trip(ros2_bag: Path, rig_10hz: Path, tmp_path: Path) ->
     # a bare .mcap file (no metadata.yaml beside it) reads the same
     mcap = next(ros2_bag.glob("*.mcap"))
     _check_round_trip(Recording.open(import_bag(mcap, rig_10hz, tmp_path / "rec_file")))
+
+
+def test_ros2_db3_folder(tmp_path: Path, rig_10hz: Path) -> None:
+    bag = _write_bag(tmp_path / "trial_db3", ros2=True, storage=StoragePlugin.SQLITE3)
+    assert list(bag.glob("*.db3"))
+    _check_round_trip(Recording.open(import_bag(bag, rig_10hz, tmp_path / "rec")))
 
 
 def test_receive_time_option(ros1_bag: Path, rig_10hz: Path, tmp_path: Path) -> None:

@@ -391,6 +391,11 @@ def main() -> None:
         sys.exit(1)
     except KeyboardInterrupt as exc:
         sys.exit(_report_interrupt(exc))
+    except BrokenPipeError:  # output piped into e.g. `head`, which closed early
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        sys.exit(1)
     except typer.Exit as exc:  # --help, typer.Exit
         sys.exit(exc.exit_code)
     except typer.Abort:

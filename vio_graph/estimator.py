@@ -26,7 +26,8 @@ from numpy.typing import NDArray
 from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
 from vio_graph.filter.attitude import AttitudeTracker
-from vio_graph.filter.eskf import SagittalEskf
+from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
+from vio_graph.filter.stance import StanceDetector
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
 from vio_graph.geometry import invert_transform, pitch_of, remove_yaw
 from vio_graph.keyframes import KeyframeSelector
@@ -90,6 +91,14 @@ class OnlineEstimator:
         self._last_joints: JointAngles | None = None
         self._prev_frame: tuple[float, NDArray[np.float64]] | None = None  # (t, camera xz)
         self._imu_ms = 0.0
+        fc = config.filter
+        # ankle (knee frame (0, 0, -L_shank)) in the IMU frame, for the stance detector
+        imu_T_knee = invert_transform(rig.knee_T_cam @ invert_transform(rig.imu_T_cam))
+        ankle_in_imu = (imu_T_knee @ np.array([0.0, 0.0, -rig.leg.shank_length_m, 1.0]))[:3]
+        self._stance = StanceDetector(ankle_in_imu, fc.stance_accel_threshold_mps2,
+                                      fc.stance_window_s)
+        self._stance_n = 0  # id of the current / next stance anchor
+        self._in_stance = False
 
     # ------------------------------------------------------------------ inputs
     def add_imu(self, sample: ImuSample) -> None:
@@ -102,6 +111,10 @@ class OnlineEstimator:
         else:
             self.filter.propagate(sample)
         self.attitude.add(sample)
+        if self.config.filter.stance_anchor:
+            self._stance.add_imu(sample.timestamp_s, sample.accel_mps2, sample.gyro_radps,
+                                 sagittal_rotation(sample.quat_wxyz),
+                                 self.config.filter.gravity_xz_mps2)
         self._last_imu = sample
         self._imu_ms += (time.perf_counter() - t0) * 1e3
 
@@ -167,6 +180,7 @@ class OnlineEstimator:
             self.filter.update_displacement(result.displacement)
         else:
             self.filter.clone_position(t)
+        self._fuse_landmarks(t, result, R_world_imu)
         state = self.filter.state
         camera_xz, velocity = self._position_at(t)
         timings["fusion"] = (time.perf_counter() - t0) * 1e3
@@ -197,6 +211,43 @@ class OnlineEstimator:
             timings_ms=timings,
         )
         return estimate, result
+
+    def _fuse_landmarks(self, t: float, result: FrontendResult,
+                        R_world_imu: NDArray[np.float64]) -> None:
+        """Corner landmarks and the stance ankle anchor (FilterConfig.corner_landmarks /
+        stance_anchor; SagittalEskf.update_landmark)."""
+        fc = self.config.filter
+        if fc.corner_landmarks:
+            obs = result.observation
+            key = None if obs is None else ("corner", obs.track_id)
+            for k in self.filter.landmark_keys:  # a track that ended is marginalised
+                if k[0] == "corner" and k != key:
+                    self.filter.drop_landmark(k)
+            if obs is not None:
+                cov = np.asarray(obs.cov_m2, float) + np.eye(2) * fc.corner_landmark_sigma_m**2
+                self.filter.update_landmark(key, obs.corner_rel_xz_m, cov, t)
+        if fc.stance_anchor:
+            # ankle - camera through the shank: R_shank (ankle_in_shank - camera_in_shank)
+            theta = float(pitch_of(R_world_imu @ self.rig.R_knee_imu.T))
+            u = np.array([0.0, -self.rig.leg.shank_length_m]) - self.rig.camera_in_shank_xz_m
+            c, sn = np.cos(theta), np.sin(theta)
+            lever = np.array([c * u[0] + sn * u[1], -sn * u[0] + c * u[1]])
+            dlever = np.array([-sn * u[0] + c * u[1], -c * u[0] - sn * u[1]])  # d lever/d theta
+            rate = float((R_world_imu @ np.asarray(self._last_imu.gyro_radps, float))[1])
+            _, v_cam = self._position_at(t)
+            v_ankle = v_cam + rate * dlever
+            stance = self._stance.quiet() and (
+                fc.stance_speed_threshold_mps is None
+                or float(np.hypot(*v_ankle)) < fc.stance_speed_threshold_mps)
+            key = ("ankle", self._stance_n)
+            if stance:
+                sig2 = (fc.stance_pitch_sigma_rad * float(np.hypot(*u))) ** 2 \
+                    + fc.stance_slip_sigma_m**2
+                self.filter.update_landmark(key, lever, np.eye(2) * sig2, t)
+            elif self._in_stance:
+                self.filter.drop_landmark(key)
+                self._stance_n += 1
+            self._in_stance = stance
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
         """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""

@@ -164,3 +164,58 @@ class FilterConfig(BaseModel):
         gt=0,
         description="status stays FUSED this long (s) after the last accepted displacement",
     )
+
+    # --- landmarks (SagittalEskf.update_landmark; vio_graph/estimator.py) ---
+    corner_landmarks: bool = Field(
+        default=True,
+        description=(
+            "fuse the front end's corner observations (corner minus camera, one track id per "
+            "physical corner) as landmarks in the state: the first sight of a track adds the "
+            "corner with the current position uncertainty, later sights are relative "
+            "measurements; the landmark is dropped when its track ends. False = the paper "
+            "(displacements only)"
+        ),
+    )
+    corner_landmark_sigma_m: float = Field(
+        default=0.01,
+        ge=0,
+        description="sigma (m) added in quadrature per axis to a corner observation covariance",
+    )
+    stance_anchor: bool = Field(
+        default=True,
+        description=(
+            "while the instrumented foot is in stance (filter/stance.py), the ankle position "
+            "fixed at stance onset is a landmark seen from the camera through the leg "
+            "kinematics: ankle - camera = R_shank (ankle_in_shank - camera_in_shank)"
+        ),
+    )
+    stance_accel_threshold_mps2: float = Field(
+        default=1.0,
+        gt=0,
+        description="stance if the ankle acceleration (gravity removed, from the shank IMU "
+        "with the lever arm to the ankle) stays below this (m/s^2) over the window",
+    )
+    stance_speed_threshold_mps: float | None = Field(
+        default=None,
+        gt=0,
+        description="if set: stance also needs the filter's ankle speed (camera velocity + "
+        "pitch rate x lever) below this (m/s). Off by default: on level ground the filter "
+        "velocity has drifted by the first stance (level s1: never detected with 0.3 m/s), "
+        "while the acceleration window alone separates stance (median 0.26 m/s^2) from swing "
+        "(10th percentile 6 m/s^2) on the simulated gaits",
+    )
+    stance_window_s: float = Field(
+        default=0.1, gt=0, description="length (s) of the acceleration window of the detector"
+    )
+    stance_pitch_sigma_rad: float = Field(
+        default=0.0175,
+        ge=0,
+        description="shank pitch error (rad) of the kinematic chain; times the camera-ankle "
+        "distance it is the sigma of the ankle-from-camera observation",
+    )
+    stance_slip_sigma_m: float = Field(
+        default=0.005,
+        ge=0,
+        description="sigma (m) per axis for ankle motion during detected stance (roll-over, "
+        "soft contact), added to each ankle observation",
+    )

@@ -1,0 +1,105 @@
+"""Landmarks in the SP-ESKF (corners, stance ankle) and the stance detector: known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vio_graph.errors import EstimationError
+from vio_graph.filter import FilterConfig, SagittalEskf
+from vio_graph.filter.eskf import _cross3
+from vio_graph.filter.stance import StanceDetector
+from vio_graph.geometry import GRAVITY_MPS2
+from vio_graph.types import Displacement2D, ImuSample
+
+UPRIGHT = np.array([1.0, 0.0, 0.0, 0.0])
+LANDMARK_XZ_M = np.array([0.8, -0.3])
+
+
+def _static_imu(t: float, bias_x_mps2: float = 0.0) -> ImuSample:
+    """An upright IMU at rest (true camera fixed at the origin), with an x bias."""
+    return ImuSample(t, np.array([bias_x_mps2, 0.0, GRAVITY_MPS2]), np.zeros(3), UPRIGHT)
+
+
+def _run(with_landmark: bool, duration_s: float = 3.0) -> tuple[SagittalEskf, float]:
+    """Camera at rest, biased accelerometer (0.2 m/s^2 in x), a corner seen every 1/30 s."""
+    f = SagittalEskf(FilterConfig(init_accel_bias_sigma_mps2=1e-3))
+    f.initialise(0.0, (0.0, 0.0), P0=np.diag([1e-4, 1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6, 1e-6]))
+    max_err = 0.0
+    for k in range(1, int(duration_s * 100) + 1):
+        t = k / 100.0
+        f.propagate(_static_imu(t, 0.2))
+        if with_landmark and k % 3 == 0:
+            f.update_landmark(("corner", 0), LANDMARK_XZ_M, np.eye(2) * 1e-6, t)
+        max_err = max(max_err, float(np.linalg.norm(f.state.p_xz_m)))
+    return f, max_err
+
+
+def test_landmark_bounds_drift_of_a_biased_imu() -> None:
+    _, err_free = _run(with_landmark=False)
+    f, err_lm = _run(with_landmark=True)
+    # dead reckoning: 0.5 * 0.2 * 3^2 = 0.9 m; with the corner in view a few mm at most
+    assert err_free == pytest.approx(0.9, rel=0.05)
+    assert err_lm < 0.01
+    assert np.allclose(f.landmark_xz(("corner", 0)), LANDMARK_XZ_M, atol=0.01)
+
+
+def test_first_sight_augments_with_position_uncertainty_and_drop_marginalises() -> None:
+    f = SagittalEskf()
+    f.initialise(0.0, (1.0, 2.0))
+    n0 = f._P.shape[0]
+    P_pp = f.state.cov_position_m2
+    V = np.diag([4e-4, 1e-4])
+    assert f.update_landmark("L", (0.5, -0.2), V) is False  # first sight: no information
+    assert np.allclose(f.landmark_xz("L"), [1.5, 1.8])
+    i = n0
+    assert np.allclose(f._P[i : i + 2, i : i + 2], P_pp + V)
+    assert np.allclose(f._P[0:2, i : i + 2], P_pp)  # correlated with the position error
+    assert f.landmark_keys == ("L",)
+    # a second, consistent sight does not move the state
+    assert f.update_landmark("L", (0.5, -0.2), V) is True
+    assert np.allclose(f.state.p_xz_m, [1.0, 2.0])
+    f.drop_landmark("L")
+    assert f._P.shape[0] == n0 and f.landmark_keys == ()
+    with pytest.raises(EstimationError):
+        f.landmark_xz("L")
+
+
+def test_landmark_and_clone_coexist_with_displacements() -> None:
+    """A displacement after a landmark is still fused against the clone (block order)."""
+    f = SagittalEskf()
+    f.initialise(0.0, (0.0, 0.0))
+    f.update_landmark("L", (1.0, 0.0), np.eye(2) * 1e-4)
+    for k in range(1, 4):
+        f.propagate(_static_imu(k / 100.0))
+    assert f.update_displacement(Displacement2D(0.0, 0.03, np.zeros(2), np.eye(2) * 1e-6))
+    assert f.update_landmark("L", (1.0, 0.0), np.eye(2) * 1e-4, 0.03)
+    assert np.allclose(f.state.p_xz_m, 0.0, atol=1e-3)
+
+
+def test_stance_detector_quiet_at_rest_and_not_in_swing() -> None:
+    ankle_in_imu = np.array([0.0, 0.0, -0.3])
+    d = StanceDetector(ankle_in_imu, accel_threshold_mps2=1.0, window_s=0.1)
+    R = np.eye(2)
+    g = (0.0, -GRAVITY_MPS2)
+    for k in range(20):  # at rest
+        d.add_imu(k / 100.0, (0.0, 0.0, GRAVITY_MPS2), np.zeros(3), R, g)
+    assert d.quiet()
+    # shank rotating about the ANKLE at a constant 2 rad/s (stance roll-over): the ankle
+    # does not accelerate, so the IMU's centripetal term is exactly cancelled by the lever arm
+    w = np.array([0.0, 2.0, 0.0])
+    f_imu = np.array([0.0, 0.0, GRAVITY_MPS2]) - _cross3(w, _cross3(w, ankle_in_imu))
+    for k in range(20, 40):
+        d.add_imu(k / 100.0, f_imu, w, R, g)
+    assert d.quiet()
+    # swing: 3 m/s^2 forward acceleration
+    for k in range(40, 45):
+        d.add_imu(k / 100.0, (3.0, 0.0, GRAVITY_MPS2), np.zeros(3), R, g)
+    assert not d.quiet()
+
+
+def test_cross3_matches_numpy() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        a, b = rng.normal(size=3), rng.normal(size=3)
+        assert np.array_equal(_cross3(a, b), np.cross(a, b))

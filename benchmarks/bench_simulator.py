@@ -7,17 +7,17 @@ Run: /work/venv/bin/python benchmarks/bench_simulator.py [--runs N]
 
 from __future__ import annotations
 
-import _common  # noqa: I001 - first: pins thread pools before numpy is imported
-
 import argparse
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
+import _common  # noqa: I001 - first: pins thread pools before numpy is imported
 import numpy as np
 
 from vio_graph.sim import load_scenario, simulate, simulate_trial
+
 
 def run(runs: int = 3) -> dict:
     config = load_scenario("upstair").model_copy(update={"duration_s": 10.0})

@@ -16,13 +16,12 @@ Writes benchmarks/results/smoother.json (threads pinned to 1 by ``_common``).
 
 from __future__ import annotations
 
-import _common  # noqa: I001 - first: pins thread pools before numpy is imported
-
 import argparse
 import time
 from pathlib import Path
 from typing import Any
 
+import _common  # noqa: I001 - first: pins thread pools before numpy is imported
 import numpy as np
 
 from vio_graph.smoother.batch import BatchSmoother

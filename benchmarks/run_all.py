@@ -10,17 +10,15 @@ first run also simulates the upstair trial into /tmp/vio_graph_bench, ~20 s).
 
 from __future__ import annotations
 
-import _common  # noqa: I001 - first: pins thread pools before numpy is imported
-
 import argparse
 import json
 import os
 import subprocess
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
+import _common  # noqa: I001 - first: pins thread pools before numpy is imported
 import bench_frontend
 import bench_simulator
 import bench_smoother

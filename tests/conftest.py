@@ -22,28 +22,54 @@ from vio_graph.recording.streams import GroundTruth, ImuTable, JointTable, Traje
 from vio_graph.recording.writer import write_recording
 
 
-def tiny_metadata(width: int = 16, height: int = 12, frame_rate_hz: float = 30.0) -> RecordingMetadata:
+def tiny_metadata(
+    width: int = 16, height: int = 12, frame_rate_hz: float = 30.0
+) -> RecordingMetadata:
     R_s_c = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
     return RecordingMetadata(
         format_version=FORMAT_VERSION,
         duration_s=1.0,
-        camera=CameraModel(width_px=width, height_px=height, fx_px=15.0, fy_px=15.0,
-                           cx_px=width / 2, cy_px=height / 2, depth_unit_m=0.001,
-                           min_range_m=0.1, max_range_m=2.4, frame_rate_hz=frame_rate_hz),
-        imu=ImuModel(rate_hz=100.0, accel_noise_density_mps2_per_sqrt_hz=1.18e-3,
-                     gyro_noise_density_radps_per_sqrt_hz=1.22e-4,
-                     accel_bias_random_walk_mps3_per_sqrt_hz=1e-4,
-                     gyro_bias_random_walk_radps2_per_sqrt_hz=1e-5,
-                     orientation_rms_rad=0.017, accel_range_mps2=156.9, gyro_range_radps=34.9),
+        camera=CameraModel(
+            width_px=width,
+            height_px=height,
+            fx_px=15.0,
+            fy_px=15.0,
+            cx_px=width / 2,
+            cy_px=height / 2,
+            depth_unit_m=0.001,
+            min_range_m=0.1,
+            max_range_m=2.4,
+            frame_rate_hz=frame_rate_hz,
+        ),
+        imu=ImuModel(
+            rate_hz=100.0,
+            accel_noise_density_mps2_per_sqrt_hz=1.18e-3,
+            gyro_noise_density_radps_per_sqrt_hz=1.22e-4,
+            accel_bias_random_walk_mps3_per_sqrt_hz=1e-4,
+            gyro_bias_random_walk_radps2_per_sqrt_hz=1e-5,
+            orientation_rms_rad=0.017,
+            accel_range_mps2=156.9,
+            gyro_range_radps=34.9,
+        ),
         joint_rate_hz=100.0,
         groundtruth_rate_hz=120.0,
-        extrinsics=Extrinsics(imu_T_cam=make_transform(np.eye(3) @ R_s_c, [0.02, 0, 0]).tolist(),
-                              knee_T_cam=make_transform(R_s_c, [0.06, 0, -0.1]).tolist()),
-        leg=LegGeometry(rig="able_bodied", thigh_length_m=0.43, shank_length_m=0.43,
-                        heel_in_foot_xz_m=(-0.05, -0.07), toe_in_foot_xz_m=(0.2, -0.07)),
-        terrain=TerrainInfo(kind="stair_up", params={"rise_m": 0.147, "tread_m": 0.28},
-                            profile_xz_m=[(0.0, 0.0), (0.5, 0.0), (0.5, 0.147), (0.78, 0.147)],
-                            edges_xz_m=[(0.5, 0.147)]),
+        extrinsics=Extrinsics(
+            imu_T_cam=make_transform(np.eye(3) @ R_s_c, [0.02, 0, 0]).tolist(),
+            knee_T_cam=make_transform(R_s_c, [0.06, 0, -0.1]).tolist(),
+        ),
+        leg=LegGeometry(
+            rig="able_bodied",
+            thigh_length_m=0.43,
+            shank_length_m=0.43,
+            heel_in_foot_xz_m=(-0.05, -0.07),
+            toe_in_foot_xz_m=(0.2, -0.07),
+        ),
+        terrain=TerrainInfo(
+            kind="stair_up",
+            params={"rise_m": 0.147, "tread_m": 0.28},
+            profile_xz_m=[(0.0, 0.0), (0.5, 0.0), (0.5, 0.147), (0.78, 0.147)],
+            edges_xz_m=[(0.5, 0.147)],
+        ),
         provenance=Provenance(source="device", notes="hand-made test recording"),
     )
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.test_mapping_synth import camera_track, obstacle_profile, observe, stair_profile
+from tests.test_mapping_synth import camera_track, observe, obstacle_profile, stair_profile
 from vio_graph.errors import OutputError
 from vio_graph.mapping.export import (
     CSV_COLUMNS,

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tests.test_mapping_synth import camera_track, observe, stair_profile
 
+from tests.test_mapping_synth import camera_track, observe, stair_profile
 from vio_graph.errors import MappingError
 from vio_graph.mapping.config import MapConfig
 from vio_graph.mapping.local_map import TerrainMap2D, merge_points

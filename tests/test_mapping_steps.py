@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.test_mapping_synth import camera_track, obstacle_profile, observe, stair_profile
+from tests.test_mapping_synth import camera_track, observe, obstacle_profile, stair_profile
 from vio_graph.mapping.config import StepConfig
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.mapping.steps import (

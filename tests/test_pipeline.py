@@ -17,8 +17,9 @@ from vio_graph.recording.tum import read_tum
 @pytest.fixture(scope="module")
 def run_all(short_upstair: Path, tmp_path_factory: pytest.TempPathFactory):
     out = tmp_path_factory.mktemp("res") / "run"
-    return run_recording(short_upstair, out, PipelineConfig(), modes=("filter", "smoother", "batch"),
-                         progress=False)
+    return run_recording(
+        short_upstair, out, PipelineConfig(), modes=("filter", "smoother", "batch"), progress=False
+    )
 
 
 def test_outputs_written(run_all) -> None:
@@ -27,8 +28,17 @@ def test_outputs_written(run_all) -> None:
         for body in ("camera", "knee", "ankle", "heel", "toe"):
             traj = read_tum(out / "trajectories" / f"{mode}_{body}.tum")
             assert len(traj) > 50
-    for name in ("metrics.json", "config.yaml", "frames.csv", "run.rrd", "plots/overview.png",
-                 "map/map.ply", "map/map.pcd", "map/steps.json", "map/steps.csv"):
+    for name in (
+        "metrics.json",
+        "config.yaml",
+        "frames.csv",
+        "run.rrd",
+        "plots/overview.png",
+        "map/map.ply",
+        "map/map.pcd",
+        "map/steps.json",
+        "map/steps.csv",
+    ):
         assert (out / name).is_file(), name
     assert not list(out.rglob("*.partial")) and not list(out.rglob(".*.tmp"))
 
@@ -59,10 +69,18 @@ def test_kinematics_match_ground_truth_joints(short_upstair: Path, run_all) -> N
     for body, tol_m in (("knee", 0.01), ("ankle", 0.02), ("toe", 0.03)):
         est = read_tum(out / f"batch_{body}.tum")
         rel_est = est.xz_m - cam.xz_m
-        ref = np.column_stack([np.interp(cam.timestamp_s, gt[b].timestamp_s, gt[b].position_m[:, k])
-                               for b, k in ((body, 0), (body, 2))])
-        ref_cam = np.column_stack([np.interp(cam.timestamp_s, gt["camera"].timestamp_s,
-                                             gt["camera"].position_m[:, k]) for k in (0, 2)])
+        ref = np.column_stack(
+            [
+                np.interp(cam.timestamp_s, gt[b].timestamp_s, gt[b].position_m[:, k])
+                for b, k in ((body, 0), (body, 2))
+            ]
+        )
+        ref_cam = np.column_stack(
+            [
+                np.interp(cam.timestamp_s, gt["camera"].timestamp_s, gt["camera"].position_m[:, k])
+                for k in (0, 2)
+            ]
+        )
         err = np.linalg.norm(rel_est - (ref - ref_cam), axis=1)
         assert np.median(err) < tol_m, (body, np.median(err))
 
@@ -78,8 +96,11 @@ def test_input_recording_unchanged(short_upstair: Path, tmp_path: Path) -> None:
     import hashlib
 
     def digest() -> dict[str, str]:
-        return {str(p): hashlib.sha256(p.read_bytes()).hexdigest()
-                for p in sorted(short_upstair.rglob("*")) if p.is_file()}
+        return {
+            str(p): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(short_upstair.rglob("*"))
+            if p.is_file()
+        }
 
     before = digest()
     run_recording(short_upstair, tmp_path / "r", PipelineConfig(), visualize=False, progress=False)

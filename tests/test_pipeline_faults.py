@@ -11,8 +11,9 @@ from vio_graph.errors import EstimationError
 from vio_graph.pipeline import run_recording
 
 
-def test_failing_smoother_is_recorded_not_fatal(short_upstair: Path, tmp_path: Path,
-                                                monkeypatch) -> None:
+def test_failing_smoother_is_recorded_not_fatal(
+    short_upstair: Path, tmp_path: Path, monkeypatch
+) -> None:
     from vio_graph.smoother import sliding_window
 
     calls = {"n": 0}
@@ -25,8 +26,14 @@ def test_failing_smoother_is_recorded_not_fatal(short_upstair: Path, tmp_path: P
         return original(self, u)
 
     monkeypatch.setattr(sliding_window.SlidingWindowSmoother, "_consume", flaky)
-    res = run_recording(short_upstair, tmp_path / "r", PipelineConfig(), modes=("filter", "smoother"),
-                        visualize=False, progress=False)
+    res = run_recording(
+        short_upstair,
+        tmp_path / "r",
+        PipelineConfig(),
+        modes=("filter", "smoother"),
+        visualize=False,
+        progress=False,
+    )
     m = res.metrics
     assert "smoother" in m["smoother_failures"]
     assert np.isfinite(m["ate_cm"]["smoother"]["toe"]["x"])

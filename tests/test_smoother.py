@@ -29,7 +29,7 @@ from vio_graph.smoother.synthetic import (
     feed,
     make_swinging_shank_trial,
 )
-from vio_graph.types import Displacement2D, ImuSample
+from vio_graph.types import ImuSample
 
 
 def keyframe_errors_m(trial: SyntheticTrial, smoother) -> tuple[np.ndarray, np.ndarray]:

@@ -33,7 +33,9 @@ def _setup_logging(verbose: bool) -> None:
 
 
 @app.callback()
-def _main(verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")] = False) -> None:
+def _main(
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")] = False,
+) -> None:
     _setup_logging(verbose)
 
 
@@ -54,13 +56,18 @@ def info(
         return
     typer.echo(f"recording      {summary['path']}  (format v{summary['format_version']}, valid)")
     typer.echo(f"duration       {summary['duration_s']:.2f} s")
-    typer.echo(f"depth frames   {summary['frames']} at {summary['frame_rate_hz']:.2f} Hz, "
-               f"{summary['image_size'][0]} x {summary['image_size'][1]} px")
-    typer.echo(f"IMU            {summary['imu_samples']} samples at {summary['imu_rate_hz']:.2f} Hz")
+    typer.echo(
+        f"depth frames   {summary['frames']} at {summary['frame_rate_hz']:.2f} Hz, "
+        f"{summary['image_size'][0]} x {summary['image_size'][1]} px"
+    )
+    typer.echo(
+        f"IMU            {summary['imu_samples']} samples at {summary['imu_rate_hz']:.2f} Hz"
+    )
     typer.echo(f"joint angles   {summary['joint_samples']} at {summary['joint_rate_hz']:.2f} Hz")
     if summary["gt_rate_hz"]:
-        typer.echo(f"ground truth   {', '.join(summary['gt_bodies'])} at "
-                   f"{summary['gt_rate_hz']:.2f} Hz")
+        typer.echo(
+            f"ground truth   {', '.join(summary['gt_bodies'])} at {summary['gt_rate_hz']:.2f} Hz"
+        )
     else:
         typer.echo("ground truth   none")
     if "edge_visible_fraction" in summary:
@@ -68,7 +75,9 @@ def info(
     terrain = ", ".join(f"{k}={v}" for k, v in summary["terrain"].items())
     typer.echo(f"rig / terrain  {summary['rig']} / {terrain}")
     p = summary["provenance"]
-    typer.echo(f"provenance     {p['source']} scenario={p['scenario']} seed={p['seed']} {p['software']}")
+    typer.echo(
+        f"provenance     {p['source']} scenario={p['scenario']} seed={p['seed']} {p['software']}"
+    )
 
 
 @app.command()
@@ -84,7 +93,8 @@ def simulate(
     """
     if out.exists() and not overwrite:  # before the (slow) simulator imports
         raise VioGraphError(f"{out}: already exists (use --overwrite to replace it)")
-    from vio_graph.sim import load_scenario, simulate as run_simulation
+    from vio_graph.sim import load_scenario
+    from vio_graph.sim import simulate as run_simulation
     from vio_graph.viz.progress import progress_bar
 
     config = load_scenario(scenario)
@@ -100,19 +110,25 @@ def _print_ate_table(metrics: dict) -> None:
         typer.echo("no ground truth: no ATE")
         return
     key = "ate_cm_visible" if metrics.get("terrain") == "obstacle" else "ate_cm"
-    typer.echo(f"ATE (cm, first pose anchored{', obstacle-visible frames' if key != 'ate_cm' else ''}):")
+    typer.echo(
+        f"ATE (cm, first pose anchored{', obstacle-visible frames' if key != 'ate_cm' else ''}):"
+    )
     typer.echo(f"  {'mode':<10} {'toe x':>7} {'toe z':>7} {'camera x':>9} {'camera z':>9}")
     for mode, bodies in metrics[key].items():
         toe, cam = bodies["toe"], bodies["camera"]
         typer.echo(f"  {mode:<10} {toe['x']:7.2f} {toe['z']:7.2f} {cam['x']:9.2f} {cam['z']:9.2f}")
     lat = metrics.get("latency_ms", {})
     if "frontend" in lat:
-        typer.echo(f"front end per frame: median {lat['frontend']['median']:.2f} ms, "
-                   f"p95 {lat['frontend']['p95']:.2f} ms")
+        typer.echo(
+            f"front end per frame: median {lat['frontend']['median']:.2f} ms, "
+            f"p95 {lat['frontend']['p95']:.2f} ms"
+        )
     m = metrics.get("map", {})
     if m.get("rise_error_mm") is not None:
-        typer.echo(f"map ({m['source_mode']} poses): rise error {m['rise_error_mm']:.1f} mm, "
-                   f"tread error {m.get('tread_error_mm') or float('nan'):.1f} mm")
+        typer.echo(
+            f"map ({m['source_mode']} poses): rise error {m['rise_error_mm']:.1f} mm, "
+            f"tread error {m.get('tread_error_mm') or float('nan'):.1f} mm"
+        )
 
 
 def _parse_modes(mode: str) -> tuple[str, ...]:
@@ -131,9 +147,15 @@ def _parse_modes(mode: str) -> tuple[str, ...]:
 def run(
     recording: Annotated[Path, typer.Argument(help="Recording folder.")],
     out: Annotated[Path, typer.Option(help="Results folder.")],
-    mode: Annotated[str, typer.Option(help="filter | smoother | batch | all (comma list ok).")] = "filter",
-    config: Annotated[Path | None, typer.Option(help="Pipeline config YAML (default configs/default.yaml).")] = None,
-    overwrite: Annotated[bool, typer.Option(help="Write into an existing, non-empty folder.")] = False,
+    mode: Annotated[
+        str, typer.Option(help="filter | smoother | batch | all (comma list ok).")
+    ] = "filter",
+    config: Annotated[
+        Path | None, typer.Option(help="Pipeline config YAML (default configs/default.yaml).")
+    ] = None,
+    overwrite: Annotated[
+        bool, typer.Option(help="Write into an existing, non-empty folder.")
+    ] = False,
     no_rerun: Annotated[bool, typer.Option("--no-rerun", help="Skip the .rrd recording.")] = False,
 ) -> None:
     """Estimate the knee/ankle/heel/toe motion of one recording and write results.
@@ -145,15 +167,18 @@ def run(
     from vio_graph.pipeline import run_recording
 
     cfg = load_config(config)
-    result = run_recording(recording, out, cfg, modes=_parse_modes(mode), overwrite=overwrite,
-                           visualize=not no_rerun)
+    result = run_recording(
+        recording, out, cfg, modes=_parse_modes(mode), overwrite=overwrite, visualize=not no_rerun
+    )
     _print_ate_table(result.metrics)
     typer.echo(f"results in {result.out_dir}")
 
 
 @app.command()
 def demo(
-    out: Annotated[Path, typer.Option(help="Folder for the demo recording and results.")] = Path("results/demo"),
+    out: Annotated[Path, typer.Option(help="Folder for the demo recording and results.")] = Path(
+        "results/demo"
+    ),
     scenario: Annotated[str, typer.Option(help="Scenario to simulate.")] = "upstair",
     seed: Annotated[int, typer.Option(help="Simulation seed.")] = 1,
     mode: Annotated[str, typer.Option(help="filter | smoother | batch | all.")] = "all",
@@ -163,19 +188,24 @@ def demo(
     from vio_graph.config import load_config
     from vio_graph.pipeline import run_recording
     from vio_graph.recording import Recording
-    from vio_graph.sim import load_scenario, simulate as run_simulation
+    from vio_graph.sim import load_scenario
+    from vio_graph.sim import simulate as run_simulation
     from vio_graph.viz.progress import progress_bar
 
     rec_dir = out / f"recording_{scenario}_s{seed}"
     if not rec_dir.exists():
         config = load_scenario(scenario)
-        with progress_bar(total=None, desc=f"simulating {scenario} seed {seed}", unit="frame") as bar:
+        with progress_bar(
+            total=None, desc=f"simulating {scenario} seed {seed}", unit="frame"
+        ) as bar:
             run_simulation(config, seed, rec_dir, progress=bar.update_to)
     else:
         Recording.open(rec_dir)  # validate the cached recording
     typer.echo(f"recording   {rec_dir}")
     res_dir = out / "results"
-    result = run_recording(rec_dir, res_dir, load_config(), modes=_parse_modes(mode), overwrite=True)
+    result = run_recording(
+        rec_dir, res_dir, load_config(), modes=_parse_modes(mode), overwrite=True
+    )
     _print_ate_table(result.metrics)
     typer.echo(f"results     {res_dir}")
     typer.echo(f"rerun view  {res_dir / 'run.rrd'}   (open with: rerun {res_dir / 'run.rrd'})")
@@ -185,14 +215,22 @@ def demo(
 
 @app.command()
 def evaluate(
-    out: Annotated[Path, typer.Option(help="Folder for recordings, runs and the report.")] = Path("results/evaluate"),
+    out: Annotated[Path, typer.Option(help="Folder for recordings, runs and the report.")] = Path(
+        "results/evaluate"
+    ),
     seeds: Annotated[int, typer.Option(help="Seeds 1..N per experiment.")] = 5,
-    scenario: Annotated[list[str] | None, typer.Option(help="Experiments (default: the paper's four).")] = None,
+    scenario: Annotated[
+        list[str] | None, typer.Option(help="Experiments (default: the paper's four).")
+    ] = None,
     mode: Annotated[str, typer.Option(help="Modes to run.")] = "all",
     config: Annotated[Path | None, typer.Option(help="Pipeline config YAML.")] = None,
     jobs: Annotated[int, typer.Option(help="Parallel processes.")] = 1,
-    doc: Annotated[Path | None, typer.Option(help="Also write the report here (e.g. docs/results.md).")] = None,
-    ablation: Annotated[bool, typer.Option(help="Also run the smoother ablation (seeds 1-2).")] = False,
+    doc: Annotated[
+        Path | None, typer.Option(help="Also write the report here (e.g. docs/results.md).")
+    ] = None,
+    ablation: Annotated[
+        bool, typer.Option(help="Also run the smoother ablation (seeds 1-2).")
+    ] = False,
 ) -> None:
     """The paper's experiments x seeds on simulated trials: simulate (cached), run every mode,
     write summary.json, results.md and the Fig. 5-style plot.
@@ -210,8 +248,14 @@ def evaluate(
     with progress_bar(n, "simulating", "trial") as bar:
         recs = simulate_trials(out, scenarios, seed_list, jobs=jobs, progress=bar.update_to)
     with progress_bar(n, "estimating", "trial") as bar:
-        runs = run_trials(recs, out, cfg, modes=_parse_modes(mode), jobs=jobs, progress=bar.update_to)
-    command = "vio-graph evaluate " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "vio-graph evaluate"
+        runs = run_trials(
+            recs, out, cfg, modes=_parse_modes(mode), jobs=jobs, progress=bar.update_to
+        )
+    command = (
+        "vio-graph evaluate " + " ".join(sys.argv[2:])
+        if len(sys.argv) > 2
+        else "vio-graph evaluate"
+    )
     written = write_report(runs, out, command, cfg, doc)
     if ablation:
         from vio_graph.experiments import ABLATION_VARIANTS, ablation_markdown, run_ablation
@@ -223,7 +267,9 @@ def evaluate(
         md = ablation_markdown(table)
         for path in [written["markdown"]] + ([written["doc"]] if "doc" in written else []):
             text = path.read_text()
-            atomic_write_text(path, text.replace("![toe trajectories]", md + "\n![toe trajectories]"))
+            atomic_write_text(
+                path, text.replace("![toe trajectories]", md + "\n![toe trajectories]")
+            )
         typer.echo(md)
     typer.echo(written["markdown"].read_text().split("## Smoother vs filter")[0])
     for k, p in written.items():
@@ -254,7 +300,9 @@ def compare(
         meta = Recording.open(r).metadata
         recs.append((meta.provenance.scenario or meta.terrain.kind, meta.provenance.seed, Path(r)))
     with progress_bar(len(recs), "estimating", "trial") as bar:
-        runs = run_trials(recs, out, cfg, modes=_parse_modes(mode), jobs=jobs, progress=bar.update_to)
+        runs = run_trials(
+            recs, out, cfg, modes=_parse_modes(mode), jobs=jobs, progress=bar.update_to
+        )
     written = write_report(runs, out, "vio-graph compare " + " ".join(sys.argv[2:]), cfg, doc)
     typer.echo(written["markdown"].read_text().split("## Smoother vs filter")[0])
     for k, p in written.items():
@@ -265,9 +313,13 @@ def compare(
 def map_command(
     recording: Annotated[Path, typer.Argument(help="Recording folder.")],
     out: Annotated[Path, typer.Option(help="Output folder for the map.")],
-    mode: Annotated[str, typer.Option(help="Poses to build the map from: filter | smoother | batch.")] = "batch",
+    mode: Annotated[
+        str, typer.Option(help="Poses to build the map from: filter | smoother | batch.")
+    ] = "batch",
     config: Annotated[Path | None, typer.Option(help="Pipeline config YAML.")] = None,
-    overwrite: Annotated[bool, typer.Option(help="Write into an existing, non-empty folder.")] = False,
+    overwrite: Annotated[
+        bool, typer.Option(help="Write into an existing, non-empty folder.")
+    ] = False,
 ) -> None:
     """Build the 2D stair map from refined keyframes and export it: map.ply, map.pcd (open3d),
     steps.json, steps.csv (rise, tread, nosing per step) and map.png.
@@ -278,14 +330,19 @@ def map_command(
     from vio_graph.pipeline import run_recording
 
     modes = _parse_modes(mode)
-    result = run_recording(recording, out, load_config(config), modes=modes, overwrite=overwrite,
-                           visualize=False)
+    result = run_recording(
+        recording, out, load_config(config), modes=modes, overwrite=overwrite, visualize=False
+    )
     m = result.metrics.get("map", {})
-    typer.echo(f"map from {m.get('source_mode')} poses: {m.get('points', 0)} points, "
-               f"{m.get('n_steps_estimated')} steps")
+    typer.echo(
+        f"map from {m.get('source_mode')} poses: {m.get('points', 0)} points, "
+        f"{m.get('n_steps_estimated')} steps"
+    )
     if m.get("rise_error_mm") is not None:
-        typer.echo(f"rise error {m['rise_error_mm']:.1f} mm, tread error "
-                   f"{m.get('tread_error_mm') or float('nan'):.1f} mm (vs the recording's truth)")
+        typer.echo(
+            f"rise error {m['rise_error_mm']:.1f} mm, tread error "
+            f"{m.get('tread_error_mm') or float('nan'):.1f} mm (vs the recording's truth)"
+        )
     typer.echo(f"map files in {out / 'map'}")
 
 
@@ -311,8 +368,11 @@ def _report_interrupt(exc: BaseException) -> int:
     out_dir = getattr(exc, "out_dir", None)
     if completed is not None and out_dir is not None:
         names = sorted(str(p.relative_to(out_dir)) for p in completed)
-        typer.echo(f"completed outputs in {out_dir} ({len(names)}, each file whole; the rest "
-                   f"was not written): {', '.join(names) if names else 'none'}", err=True)
+        typer.echo(
+            f"completed outputs in {out_dir} ({len(names)}, each file whole; the rest "
+            f"was not written): {', '.join(names) if names else 'none'}",
+            err=True,
+        )
     else:
         typer.echo("no partial output was left behind", err=True)
     return 128 + int(signum)
@@ -320,12 +380,16 @@ def _report_interrupt(exc: BaseException) -> int:
 
 @app.command()
 def robustness(
-    out: Annotated[Path, typer.Option(help="Folder for recordings, runs and the report.")] = Path("results/robustness"),
+    out: Annotated[Path, typer.Option(help="Folder for recordings, runs and the report.")] = Path(
+        "results/robustness"
+    ),
     scenario: Annotated[str, typer.Option(help="Scenario to perturb.")] = "upstair",
     seeds: Annotated[int, typer.Option(help="Seeds 1..N.")] = 2,
     config: Annotated[Path | None, typer.Option(help="Pipeline config YAML.")] = None,
     jobs: Annotated[int, typer.Option(help="Parallel processes.")] = 1,
-    doc: Annotated[Path | None, typer.Option(help="Also write the report here (e.g. docs/robustness.md).")] = None,
+    doc: Annotated[
+        Path | None, typer.Option(help="Also write the report here (e.g. docs/robustness.md).")
+    ] = None,
 ) -> None:
     """Fault sweep: toe ATE of filter, smoother and batch for camera blackouts, dropped frames,
     wrong corner associations, depth corruption, IMU spikes/saturation, time offset and jitter.
@@ -350,12 +414,22 @@ def import_bag_command(
     bag: Annotated[Path, typer.Argument(help="ROS 1 .bag, ROS 2 bag folder, or .mcap/.db3 file.")],
     rig: Annotated[Path, typer.Option(help="Rig YAML (see configs/rig_example.yaml).")],
     out: Annotated[Path, typer.Option(help="Output recording folder.")],
-    depth_topic: Annotated[str, typer.Option(help="sensor_msgs/Image, 32FC1 m or 16UC1 mm.")] = "/pico_flexx/image_depth",
-    camera_info_topic: Annotated[str, typer.Option(help="sensor_msgs/CameraInfo.")] = "/pico_flexx/camera_info",
+    depth_topic: Annotated[
+        str, typer.Option(help="sensor_msgs/Image, 32FC1 m or 16UC1 mm.")
+    ] = "/pico_flexx/image_depth",
+    camera_info_topic: Annotated[
+        str, typer.Option(help="sensor_msgs/CameraInfo.")
+    ] = "/pico_flexx/camera_info",
     imu_topic: Annotated[str, typer.Option(help="sensor_msgs/Imu.")] = "/imu/data",
     joints_topic: Annotated[str, typer.Option(help="sensor_msgs/JointState.")] = "/joint_states",
-    receive_time: Annotated[bool, typer.Option("--receive-time", help="Use the bag's receive time instead of header.stamp.")] = False,
-    groundtruth_dir: Annotated[Path | None, typer.Option(help="Folder with camera/knee/ankle/heel/toe.tum on the bag clock.")] = None,
+    receive_time: Annotated[
+        bool,
+        typer.Option("--receive-time", help="Use the bag's receive time instead of header.stamp."),
+    ] = False,
+    groundtruth_dir: Annotated[
+        Path | None,
+        typer.Option(help="Folder with camera/knee/ankle/heel/toe.tum on the bag clock."),
+    ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing folder.")] = False,
 ) -> None:
     """Convert a ROS bag (pico flexx depth, Xsens IMU, joint states) into a recording.
@@ -367,12 +441,20 @@ def import_bag_command(
     from vio_graph.recording.rosbag_import import BagTopics, import_bag
     from vio_graph.viz.progress import progress_bar
 
-    topics = BagTopics(depth=depth_topic, camera_info=camera_info_topic, imu=imu_topic,
-                       joints=joints_topic)
+    topics = BagTopics(
+        depth=depth_topic, camera_info=camera_info_topic, imu=imu_topic, joints=joints_topic
+    )
     with progress_bar(total=None, desc=f"importing {bag.name}", unit="frame") as bar:
-        path = import_bag(bag, rig, out, topics=topics, use_receive_time=receive_time,
-                          groundtruth_dir=groundtruth_dir, progress=bar.update_to,
-                          overwrite=overwrite)
+        path = import_bag(
+            bag,
+            rig,
+            out,
+            topics=topics,
+            use_receive_time=receive_time,
+            groundtruth_dir=groundtruth_dir,
+            progress=bar.update_to,
+            overwrite=overwrite,
+        )
     typer.echo(f"wrote {path}")
 
 

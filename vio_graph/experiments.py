@@ -60,8 +60,9 @@ def _run_one(args: tuple[Path, Path, str, tuple[str, ...]]) -> dict[str, Any]:
 
     rec_dir, out_dir, config_json, modes = args
     cfg = PipelineConfig.model_validate_json(config_json)
-    return run_recording(rec_dir, out_dir, cfg, modes=modes, overwrite=True, visualize=False,
-                         progress=False).metrics
+    return run_recording(
+        rec_dir, out_dir, cfg, modes=modes, overwrite=True, visualize=False, progress=False
+    ).metrics
 
 
 def _map(fn: Callable, items: list, jobs: int, progress: Callable[[int], None] | None) -> list:
@@ -81,24 +82,41 @@ def _map(fn: Callable, items: list, jobs: int, progress: Callable[[int], None] |
         return out
 
 
-def simulate_trials(out_dir: Path, scenarios: Sequence[str], seeds: Sequence[int], jobs: int = 1,
-                    progress: Callable[[int], None] | None = None) -> list[tuple[str, int, Path]]:
+def simulate_trials(
+    out_dir: Path,
+    scenarios: Sequence[str],
+    seeds: Sequence[int],
+    jobs: int = 1,
+    progress: Callable[[int], None] | None = None,
+) -> list[tuple[str, int, Path]]:
     """Simulate (scenario, seed) recordings into ``out_dir/recordings`` (reused if present)."""
-    items = [(s, seed, Path(out_dir) / "recordings" / f"{s}_s{seed}") for s in scenarios
-             for seed in seeds]
+    items = [
+        (s, seed, Path(out_dir) / "recordings" / f"{s}_s{seed}")
+        for s in scenarios
+        for seed in seeds
+    ]
     _map(_simulate_one, items, jobs, progress)
     return items
 
 
-def run_trials(recordings: Sequence[tuple[str, int | None, Path]], out_dir: Path,
-               config: PipelineConfig, modes: tuple[str, ...] = ("filter", "smoother", "batch"),
-               jobs: int = 1, progress: Callable[[int], None] | None = None) -> list[TrialRun]:
+def run_trials(
+    recordings: Sequence[tuple[str, int | None, Path]],
+    out_dir: Path,
+    config: PipelineConfig,
+    modes: tuple[str, ...] = ("filter", "smoother", "batch"),
+    jobs: int = 1,
+    progress: Callable[[int], None] | None = None,
+) -> list[TrialRun]:
     """Run every recording through the pipeline (results in ``out_dir/runs/<name>``)."""
-    items = [(rec, Path(out_dir) / "runs" / rec.name, config.model_dump_json(), modes)
-             for _, _, rec in recordings]
+    items = [
+        (rec, Path(out_dir) / "runs" / rec.name, config.model_dump_json(), modes)
+        for _, _, rec in recordings
+    ]
     metrics = _map(_run_one, items, jobs, progress)
-    return [TrialRun(exp, seed, rec, item[1], m)
-            for (exp, seed, rec), item, m in zip(recordings, items, metrics, strict=True)]
+    return [
+        TrialRun(exp, seed, rec, item[1], m)
+        for (exp, seed, rec), item, m in zip(recordings, items, metrics, strict=True)
+    ]
 
 
 # ----------------------------------------------------------------------------- summaries
@@ -122,21 +140,33 @@ def summarise_runs(runs: Sequence[TrialRun]) -> dict[str, Any]:
                     continue
                 sd = np.nanstd(vals, axis=0, ddof=1) if len(rs) > 1 else np.full(2, np.nan)
                 e.setdefault(mode, {})[body] = {
-                    "x_mean": float(np.nanmean(vals[:, 0])), "x_sd": float(sd[0]),
-                    "z_mean": float(np.nanmean(vals[:, 1])), "z_sd": float(sd[1]),
-                    "per_trial_x": vals[:, 0].tolist(), "per_trial_z": vals[:, 1].tolist(),
+                    "x_mean": float(np.nanmean(vals[:, 0])),
+                    "x_sd": float(sd[0]),
+                    "z_mean": float(np.nanmean(vals[:, 1])),
+                    "z_sd": float(sd[1]),
+                    "per_trial_x": vals[:, 0].tolist(),
+                    "per_trial_z": vals[:, 1].tolist(),
                 }
         maps = [r.metrics.get("map", {}) for r in rs]
-        for key in ("rise_error_mm", "tread_error_mm", "nosing_error_mm",
-                    "obstacle_height_error_mm", "obstacle_depth_error_mm"):
+        for key in (
+            "rise_error_mm",
+            "tread_error_mm",
+            "nosing_error_mm",
+            "obstacle_height_error_mm",
+            "obstacle_depth_error_mm",
+        ):
             vals = [mp.get(key) for mp in maps if mp.get(key) is not None]
             if vals:
-                e.setdefault("map", {})[key] = {"mean": float(np.mean(vals)),
-                                                "max": float(np.max(vals)), "n": len(vals)}
+                e.setdefault("map", {})[key] = {
+                    "mean": float(np.mean(vals)),
+                    "max": float(np.max(vals)),
+                    "n": len(vals),
+                }
         lat = [r.metrics.get("latency_ms", {}) for r in rs]
         e["latency_ms"] = {
             k: float(np.median([x[k]["median"] for x in lat if k in x]))
-            for k in ("frontend", "per_frame_total", "smoother_update") if any(k in x for x in lat)
+            for k in ("frontend", "per_frame_total", "smoother_update")
+            if any(k in x for x in lat)
         }
         out[exp] = e
     return out
@@ -149,24 +179,40 @@ def _pm(d: dict[str, float], axis: str) -> str:
 
 def markdown_report(summary: dict[str, Any], command: str, config: PipelineConfig) -> str:
     """The results page: toe ATE beside the paper, ratios, camera ATE, map errors."""
-    lines = ["# Results on simulated trials", "",
-             "Reproduce with:", "", "```bash", command, "```", "",
-             "Toe ATE in cm, mean ± sd over seeds, first pose anchored to ground truth, RMSE per "
-             "axis (the paper's definition, Section III.A). Obstacle: only frames in which the "
-             "obstacle edge is visible, as in the paper. Paper: Chen et al., Section III.B-C "
-             "(real trials, not our simulator: the comparison is of magnitude, not a replication).",
-             "", "## Toe ATE (cm)", "",
-             "| experiment | n | axis | paper | filter | smoother | batch | IMU only | ICP only |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Results on simulated trials",
+        "",
+        "Reproduce with:",
+        "",
+        "```bash",
+        command,
+        "```",
+        "",
+        "Toe ATE in cm, mean ± sd over seeds, first pose anchored to ground truth, RMSE per "
+        "axis (the paper's definition, Section III.A). Obstacle: only frames in which the "
+        "obstacle edge is visible, as in the paper. Paper: Chen et al., Section III.B-C "
+        "(real trials, not our simulator: the comparison is of magnitude, not a replication).",
+        "",
+        "## Toe ATE (cm)",
+        "",
+        "| experiment | n | axis | paper | filter | smoother | batch | IMU only | ICP only |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for exp, e in summary.items():
         for axis in ("x", "z"):
             paper = PAPER_TOE_ATE_CM.get(exp, {}).get(axis)
             ptxt = f"{paper[0]:.2f} ± {paper[1]:.2f}" if paper else "—"
             cells = [_pm(e[m]["toe"], axis) if m in e else "—" for m in REPORT_MODES]
-            lines.append(f"| {exp} | {e['n_trials']} | {axis} | {ptxt} | " + " | ".join(cells) + " |")
-    lines += ["", "## Smoother vs filter (toe ATE ratio, lower is better)", "",
-              "| experiment | smoother/filter x | smoother/filter z | batch/filter x | batch/filter z |",
-              "|---|---|---|---|---|"]
+            lines.append(
+                f"| {exp} | {e['n_trials']} | {axis} | {ptxt} | " + " | ".join(cells) + " |"
+            )
+    lines += [
+        "",
+        "## Smoother vs filter (toe ATE ratio, lower is better)",
+        "",
+        "| experiment | smoother/filter x | smoother/filter z | batch/filter x | batch/filter z |",
+        "|---|---|---|---|---|",
+    ]
     for exp, e in summary.items():
         if "filter" not in e:
             continue
@@ -174,57 +220,103 @@ def markdown_report(summary: dict[str, Any], command: str, config: PipelineConfi
         cells = []
         for m in ("smoother", "batch"):
             for axis in ("x", "z"):
-                cells.append(f"{e[m]['toe'][f'{axis}_mean'] / f[f'{axis}_mean']:.2f}"
-                             if m in e else "—")
+                cells.append(
+                    f"{e[m]['toe'][f'{axis}_mean'] / f[f'{axis}_mean']:.2f}" if m in e else "—"
+                )
         lines.append(f"| {exp} | " + " | ".join(cells) + " |")
-    lines += ["", "## Camera ATE (cm)", "",
-              "| experiment | axis | filter | smoother | batch | IMU only | ICP only |",
-              "|---|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "## Camera ATE (cm)",
+        "",
+        "| experiment | axis | filter | smoother | batch | IMU only | ICP only |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for exp, e in summary.items():
         for axis in ("x", "z"):
             cells = [_pm(e[m]["camera"], axis) if m in e else "—" for m in REPORT_MODES]
             lines.append(f"| {exp} | {axis} | " + " | ".join(cells) + " |")
-    lines += ["", "## Stair map from refined keyframes", "",
-              "Mean absolute error against the simulator's true geometry (mm; mean over trials "
-              "and, in brackets, the worst trial).", "",
-              "| experiment | rise | tread | nosing position | obstacle height | obstacle depth |",
-              "|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "## Stair map from refined keyframes",
+        "",
+        "Mean absolute error against the simulator's true geometry (mm; mean over trials "
+        "and, in brackets, the worst trial).",
+        "",
+        "| experiment | rise | tread | nosing position | obstacle height | obstacle depth |",
+        "|---|---|---|---|---|---|",
+    ]
     for exp, e in summary.items():
         mp = e.get("map", {})
 
         def cell(k: str, mp: dict = mp) -> str:
             return f"{mp[k]['mean']:.1f} ({mp[k]['max']:.1f})" if k in mp else "—"
 
-        lines.append(f"| {exp} | {cell('rise_error_mm')} | {cell('tread_error_mm')} | "
-                     f"{cell('nosing_error_mm')} | {cell('obstacle_height_error_mm')} | "
-                     f"{cell('obstacle_depth_error_mm')} |")
-    lines += ["", "## Latency (ms, median over trials of the per-trial median)", "",
-              "| experiment | front end per frame | front end + fusion + kinematics | smoother update per keyframe |",
-              "|---|---|---|---|"]
+        lines.append(
+            f"| {exp} | {cell('rise_error_mm')} | {cell('tread_error_mm')} | "
+            f"{cell('nosing_error_mm')} | {cell('obstacle_height_error_mm')} | "
+            f"{cell('obstacle_depth_error_mm')} |"
+        )
+    lines += [
+        "",
+        "## Latency (ms, median over trials of the per-trial median)",
+        "",
+        "| experiment | front end per frame | front end + fusion + kinematics "
+        "| smoother update per keyframe |",
+        "|---|---|---|---|",
+    ]
     for exp, e in summary.items():
         lat = e["latency_ms"]
-        lines.append(f"| {exp} | {lat.get('frontend', float('nan')):.2f} | "
-                     f"{lat.get('per_frame_total', float('nan')):.2f} | "
-                     f"{lat.get('smoother_update', float('nan')):.2f} |")
-    lines += ["", "![toe trajectories](figures/results_toe.png)", "",
-              "Per-trial numbers: `summary.json` in the output folder. Configuration used:", "",
-              "```yaml", dump_config(config).rstrip(), "```", ""]
+        lines.append(
+            f"| {exp} | {lat.get('frontend', float('nan')):.2f} | "
+            f"{lat.get('per_frame_total', float('nan')):.2f} | "
+            f"{lat.get('smoother_update', float('nan')):.2f} |"
+        )
+    lines += [
+        "",
+        "![toe trajectories](figures/results_toe.png)",
+        "",
+        "Per-trial numbers: `summary.json` in the output folder. Configuration used:",
+        "",
+        "```yaml",
+        dump_config(config).rstrip(),
+        "```",
+        "",
+    ]
     return "\n".join(lines)
 
 
-def write_report(runs: Sequence[TrialRun], out_dir: Path, command: str, config: PipelineConfig,
-                 doc_path: Path | None = None) -> dict[str, Path]:
+def write_report(
+    runs: Sequence[TrialRun],
+    out_dir: Path,
+    command: str,
+    config: PipelineConfig,
+    doc_path: Path | None = None,
+) -> dict[str, Path]:
     """Write summary.json, results.md and the Fig. 5-style plot (and optionally the doc)."""
     from vio_graph.viz.plots import plot_toe_bands
 
     out_dir = Path(out_dir)
     summary = summarise_runs(runs)
-    written = {"summary": out_dir / "summary.json", "markdown": out_dir / "results.md",
-               "figure": out_dir / "figures" / "results_toe.png"}
-    atomic_write_json(written["summary"], {
-        "summary": summary,
-        "trials": [{"experiment": r.experiment, "seed": r.seed, "recording": str(r.recording),
-                    "results": str(r.results)} for r in runs]})
+    written = {
+        "summary": out_dir / "summary.json",
+        "markdown": out_dir / "results.md",
+        "figure": out_dir / "figures" / "results_toe.png",
+    }
+    atomic_write_json(
+        written["summary"],
+        {
+            "summary": summary,
+            "trials": [
+                {
+                    "experiment": r.experiment,
+                    "seed": r.seed,
+                    "recording": str(r.recording),
+                    "results": str(r.results),
+                }
+                for r in runs
+            ],
+        },
+    )
     md = markdown_report(summary, command, config)
     atomic_write_text(written["markdown"], md)
     plot_toe_bands(written["figure"], runs)
@@ -252,28 +344,40 @@ ABLATION_VARIANTS: dict[str, tuple[dict[str, bool], dict[str, Any]]] = {
 }
 
 
-def ablation_config(base: PipelineConfig, families: dict[str, bool],
-                    extra: dict[str, Any]) -> PipelineConfig:
+def ablation_config(
+    base: PipelineConfig, families: dict[str, bool], extra: dict[str, Any]
+) -> PipelineConfig:
     sm = base.smoother
     factors = sm.factors.model_copy(update=families)
     smoother = sm.model_copy(update={"factors": factors, **extra})
     return base.model_copy(update={"smoother": smoother})
 
 
-def run_ablation(recordings: Sequence[tuple[str, int | None, Path]], out_dir: Path,
-                 config: PipelineConfig, jobs: int = 1,
-                 progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+def run_ablation(
+    recordings: Sequence[tuple[str, int | None, Path]],
+    out_dir: Path,
+    config: PipelineConfig,
+    jobs: int = 1,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
     """Smoother and batch toe ATE for each variant in ABLATION_VARIANTS (mean over trials)."""
     table: dict[str, Any] = {}
     done = 0
     for name, (families, extra) in ABLATION_VARIANTS.items():
         cfg = ablation_config(config, families, extra)
         slug = "".join(c if c.isalnum() else "_" for c in name.lower())[:40]
-        runs = run_trials(recordings, Path(out_dir) / "ablation" / slug, cfg,
-                          modes=("smoother", "batch"), jobs=jobs)
+        runs = run_trials(
+            recordings,
+            Path(out_dir) / "ablation" / slug,
+            cfg,
+            modes=("smoother", "batch"),
+            jobs=jobs,
+        )
         summary = summarise_runs(runs)
-        table[name] = {exp: {m: e[m]["toe"] for m in ("smoother", "batch") if m in e}
-                       for exp, e in summary.items()}
+        table[name] = {
+            exp: {m: e[m]["toe"] for m in ("smoother", "batch") if m in e}
+            for exp, e in summary.items()
+        }
         done += 1
         if progress:
             progress(done)
@@ -283,8 +387,12 @@ def run_ablation(recordings: Sequence[tuple[str, int | None, Path]], out_dir: Pa
 def ablation_markdown(table: dict[str, Any]) -> str:
     exps = list(dict.fromkeys(exp for v in table.values() for exp in v))
     head = "| variant | mode | " + " | ".join(f"{e} x | {e} z" for e in exps) + " |"
-    lines = ["## Smoother ablation (toe ATE, cm, mean over seeds)", "", head,
-             "|---|---|" + "---|---|" * len(exps)]
+    lines = [
+        "## Smoother ablation (toe ATE, cm, mean over seeds)",
+        "",
+        head,
+        "|---|---|" + "---|---|" * len(exps),
+    ]
     for name, per_exp in table.items():
         for mode in ("smoother", "batch"):
             cells = []

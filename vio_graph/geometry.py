@@ -64,20 +64,36 @@ def quat_wxyz_from_matrix(R: ArrayLike) -> NDArray[np.float64]:
     for i, m in enumerate(flat):  # small arrays only (trajectories); clarity over speed
         if tr[i] > 0:
             s = 2.0 * np.sqrt(tr[i] + 1.0)
-            q[i] = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s,
-                    (m[1, 0] - m[0, 1]) / s]
+            q[i] = [
+                0.25 * s,
+                (m[2, 1] - m[1, 2]) / s,
+                (m[0, 2] - m[2, 0]) / s,
+                (m[1, 0] - m[0, 1]) / s,
+            ]
         elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
             s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-            q[i] = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s,
-                    (m[0, 2] + m[2, 0]) / s]
+            q[i] = [
+                (m[2, 1] - m[1, 2]) / s,
+                0.25 * s,
+                (m[0, 1] + m[1, 0]) / s,
+                (m[0, 2] + m[2, 0]) / s,
+            ]
         elif m[1, 1] > m[2, 2]:
             s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-            q[i] = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s,
-                    (m[1, 2] + m[2, 1]) / s]
+            q[i] = [
+                (m[0, 2] - m[2, 0]) / s,
+                (m[0, 1] + m[1, 0]) / s,
+                0.25 * s,
+                (m[1, 2] + m[2, 1]) / s,
+            ]
         else:
             s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-            q[i] = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s,
-                    (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+            q[i] = [
+                (m[1, 0] - m[0, 1]) / s,
+                (m[0, 2] + m[2, 0]) / s,
+                (m[1, 2] + m[2, 1]) / s,
+                0.25 * s,
+            ]
     q[q[:, 0] < 0] *= -1.0
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     return q.reshape(R.shape[:-2] + (4,))

@@ -26,7 +26,7 @@ from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.evaluation.association import associate
 from vio_graph.evaluation.metrics import ape, ate_per_axis, rpe
 from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
-from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw
+from vio_graph.geometry import pitch_of
 from vio_graph.io_utils import atomic_write_json, atomic_write_text, remove_temporaries
 from vio_graph.kinematics import knee_from_camera, leg_points_from_knee, shank_pitch_rad
 from vio_graph.mapping.local_map import TerrainMap2D
@@ -85,8 +85,12 @@ def _stats_ms(values: list[float] | NDArray[np.float64]) -> dict[str, float]:
     v = np.asarray(values, dtype=float)
     if v.size == 0:
         return {"median": float("nan"), "p95": float("nan"), "mean": float("nan"), "n": 0}
-    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)),
-            "mean": float(np.mean(v)), "n": int(v.size)}
+    return {
+        "median": float(np.median(v)),
+        "p95": float(np.percentile(v, 95)),
+        "mean": float(np.mean(v)),
+        "n": int(v.size),
+    }
 
 
 def replay_order(rec: Recording) -> tuple[NDArray[np.int8], NDArray[np.int64]]:
@@ -115,12 +119,18 @@ class Replay:
         p0 = None
         if gt is not None:  # place the estimate's origin at the true start (the paper's anchor)
             cam = gt.trajectories["camera"]
-            p0 = np.array([np.interp(rec.frame_timestamps_s[0], cam.timestamp_s, cam.position_m[:, k])
-                           for k in (0, 2)])
+            p0 = np.array(
+                [
+                    np.interp(rec.frame_timestamps_s[0], cam.timestamp_s, cam.position_m[:, k])
+                    for k in (0, 2)
+                ]
+            )
         self.p0 = np.zeros(2) if p0 is None else p0
         self.online = OnlineEstimator(config, self.rig, p0)
-        self.baselines = {"imu_only": ImuDeadReckoning(config.filter, self.rig.imu_T_cam),
-                          "icp_only": IcpOdometry()}
+        self.baselines = {
+            "imu_only": ImuDeadReckoning(config.filter, self.rig.imu_T_cam),
+            "icp_only": IcpOdometry(),
+        }
         self.smoothers: dict[str, Any] = {}
         if "smoother" in modes:
             from vio_graph.smoother.sliding_window import SlidingWindowSmoother
@@ -145,7 +155,7 @@ class Replay:
             if kind == 0:
                 s = rec.imu.sample(int(i))
                 online.add_imu(s)
-                for name, b in self.baselines.items():
+                for b in self.baselines.values():
                     if not started:
                         b.initialise(s.timestamp_s, self.p0)
                     else:
@@ -176,8 +186,11 @@ class Replay:
         try:
             fn(*args)
         except EstimationError as exc:
-            t = args[0].timestamp_s if args and hasattr(args[0], "timestamp_s") else (
-                args[0] if args and isinstance(args[0], float) else float("nan"))
+            t = (
+                args[0].timestamp_s
+                if args and hasattr(args[0], "timestamp_s")
+                else (args[0] if args and isinstance(args[0], float) else float("nan"))
+            )
             log.warning("%s stopped at t=%.3f s: %s", name, t, str(exc).splitlines()[0])
             self.failed[name] = {"t_s": t, "error": str(exc).splitlines()[0]}
             self.failed_smoothers[name] = self.smoothers.pop(name)
@@ -205,16 +218,29 @@ class Replay:
             if res.displacement is not None:
                 b.update_displacement(res.displacement)
             s = b.state
-            lg.camera_xz[name].append(s.p_xz_m + s.v_xz_mps * (est.timestamp_s - s.timestamp_s)
-                                      if name == "imu_only" else s.p_xz_m.copy())
+            lg.camera_xz[name].append(
+                s.p_xz_m + s.v_xz_mps * (est.timestamp_s - s.timestamp_s)
+                if name == "imu_only"
+                else s.p_xz_m.copy()
+            )
         for name, sm in list(self.smoothers.items()):
-            self._guard(name, sm.add_frame, est.timestamp_s, est.is_keyframe, est,
-                        res.displacement, res.observation)
+            self._guard(
+                name,
+                sm.add_frame,
+                est.timestamp_s,
+                est.is_keyframe,
+                est,
+                res.displacement,
+                res.observation,
+            )
         R_world_imu = self.online.R_world_imu(est.timestamp_s)
         lg.shank_pitch_imu.append(float(pitch_of(R_world_imu @ self.rig.R_knee_imu.T)))
         j = self.online._last_joints
-        lg.shank_pitch_chain.append(float(shank_pitch_rad(j.thigh_pitch_rad, j.knee_rad))
-                                    if j is not None else lg.shank_pitch_imu[-1])
+        lg.shank_pitch_chain.append(
+            float(shank_pitch_rad(j.thigh_pitch_rad, j.knee_rad))
+            if j is not None
+            else lg.shank_pitch_imu[-1]
+        )
         lg.ankle_rad.append(j.ankle_rad if j is not None else 0.0)
         lg.status.append(est.status.value)
         lg.terrain.append(res.terrain.value)
@@ -231,25 +257,42 @@ class Replay:
         viz.set_time(est.timestamp_s)
         cam_xyz = np.array([est.camera_xz_m[0], 0.0, est.camera_xz_m[1]])
         R_world_cam = R_world_imu @ self.rig.R_imu_cam
-        viz.log_camera(cam_xyz, R_world_cam, self.rig.K, frame.depth_m.shape[1],
-                       frame.depth_m.shape[0], frame.depth_m)
+        viz.log_camera(
+            cam_xyz,
+            R_world_cam,
+            self.rig.K,
+            frame.depth_m.shape[1],
+            frame.depth_m.shape[0],
+            frame.depth_m,
+        )
         if i % out_cfg.cloud_every_n_frames == 0:
-            viz.log_cloud(_cloud_world(frame.depth_m, self.rig.K, R_world_cam, cam_xyz,
-                                       out_cfg.cloud_pixel_stride))
+            viz.log_cloud(
+                _cloud_world(
+                    frame.depth_m, self.rig.K, R_world_cam, cam_xyz, out_cfg.cloud_pixel_stride
+                )
+            )
         viz.log_sagittal("slice", est.camera_xz_m + res.profile_xz_m, 0.002, (250, 200, 0))
         if res.corner is not None:
-            viz.log_sagittal("features", est.camera_xz_m + res.corner.feature_points_xz_m, 0.005,
-                             (255, 40, 40))
+            viz.log_sagittal(
+                "features", est.camera_xz_m + res.corner.feature_points_xz_m, 0.005, (255, 40, 40)
+            )
         if res.icp is not None and res.icp.target_points_xz_m.size:
-            viz.log_segments("icp", est.camera_xz_m + res.icp.matched_source_xz_m,
-                             est.camera_xz_m + res.icp.target_points_xz_m)
-        viz.log_leg("est", np.vstack([est.knee_xz_m, est.ankle_xz_m, est.heel_xz_m, est.toe_xz_m,
-                                      est.ankle_xz_m]))
+            viz.log_segments(
+                "icp",
+                est.camera_xz_m + res.icp.matched_source_xz_m,
+                est.camera_xz_m + res.icp.target_points_xz_m,
+            )
+        viz.log_leg(
+            "est",
+            np.vstack([est.knee_xz_m, est.ankle_xz_m, est.heel_xz_m, est.toe_xz_m, est.ankle_xz_m]),
+        )
         viz.log_scalar("status/fused", float(est.status is EstimateStatus.FUSED))
         gt = self.rec.groundtruth
         if gt is not None:
-            pts = [_interp_xz(gt.trajectories[b], est.timestamp_s)
-                   for b in ("knee", "ankle", "heel", "toe", "ankle")]
+            pts = [
+                _interp_xz(gt.trajectories[b], est.timestamp_s)
+                for b in ("knee", "ankle", "heel", "toe", "ankle")
+            ]
             viz.log_leg("gt", np.vstack(pts))
             toe_err = est.toe_xz_m - pts[3]
             viz.log_scalar("error_cm/toe_x", 100 * toe_err[0])
@@ -276,18 +319,29 @@ def leg_trajectories(
     knee = knee_from_camera(camera_xz, np.asarray(lg.shank_pitch_imu), rig.camera_in_shank_xz_m)
     shank = np.asarray(lg.shank_pitch_chain if use_encoders else lg.shank_pitch_imu)
     pts = leg_points_from_knee(rig.leg, knee, shank, np.asarray(lg.ankle_rad))
-    return {"camera": camera_xz, "knee": pts.knee_xz_m, "ankle": pts.ankle_xz_m,
-            "heel": pts.heel_xz_m, "toe": pts.toe_xz_m}
+    return {
+        "camera": camera_xz,
+        "knee": pts.knee_xz_m,
+        "ankle": pts.ankle_xz_m,
+        "heel": pts.heel_xz_m,
+        "toe": pts.toe_xz_m,
+    }
 
 
 def evaluate_paths(
-    rec: Recording, t_s: NDArray[np.float64], paths: dict[str, dict[str, NDArray[np.float64]]],
+    rec: Recording,
+    t_s: NDArray[np.float64],
+    paths: dict[str, dict[str, NDArray[np.float64]]],
     visible: NDArray[np.bool_] | None,
 ) -> dict[str, Any]:
     """ATE (paper: first pose anchored, RMSE per axis), aligned APE and RPE per mode and body."""
     gt = rec.groundtruth
-    out: dict[str, Any] = {"ate_cm": {}, "ate_cm_visible": {}, "ape_se3_cm": {},
-                           "rpe_cm": {"0.1s": {}, "1.0s": {}}}
+    out: dict[str, Any] = {
+        "ate_cm": {},
+        "ate_cm_visible": {},
+        "ape_se3_cm": {},
+        "rpe_cm": {"0.1s": {}, "1.0s": {}},
+    }
     for mode, bodies in paths.items():
         for key in out:
             (out[key] if key != "rpe_cm" else out[key]["0.1s"]).setdefault(mode, {})
@@ -297,15 +351,21 @@ def evaluate_paths(
             pair = associate(est, gt.trajectories[body], max_diff_s=0.02)
             e, r = pair.est, pair.ref
             a = ate_per_axis(e, r, anchor="first")
-            out["ate_cm"][mode][body] = {"x": a.rmse_x_cm, "z": a.rmse_z_cm,
-                                         "total": a.rmse_total_cm}
+            out["ate_cm"][mode][body] = {
+                "x": a.rmse_x_cm,
+                "z": a.rmse_z_cm,
+                "total": a.rmse_total_cm,
+            }
             if visible is not None:
                 keep = np.interp(e.timestamp_s, t_s, visible.astype(float)) > 0.5
                 if keep.any():
                     av = ate_per_axis(e, r, anchor="first", mask=keep)
-                    out["ate_cm_visible"][mode][body] = {"x": av.rmse_x_cm, "z": av.rmse_z_cm,
-                                                         "total": av.rmse_total_cm,
-                                                         "fraction": float(keep.mean())}
+                    out["ate_cm_visible"][mode][body] = {
+                        "x": av.rmse_x_cm,
+                        "z": av.rmse_z_cm,
+                        "total": av.rmse_total_cm,
+                        "fraction": float(keep.mean()),
+                    }
             ap = ape(e, r, alignment="translation")
             out["ape_se3_cm"][mode][body] = {"x": 100 * ap.rmse_x_m, "z": 100 * ap.rmse_z_m}
             for d in ("0.1s", "1.0s"):
@@ -356,8 +416,16 @@ def run_recording(
         raise
 
 
-def _run_into(out: Path, rec: Recording, recording: Path | str, config: PipelineConfig,
-              modes: tuple[str, ...], progress: bool, viz, files: list[Path]) -> RunResult:
+def _run_into(
+    out: Path,
+    rec: Recording,
+    recording: Path | str,
+    config: PipelineConfig,
+    modes: tuple[str, ...],
+    progress: bool,
+    viz,
+    files: list[Path],
+) -> RunResult:
     """The body of :func:`run_recording`; appends every completed output file to ``files``."""
     from vio_graph.viz.progress import progress_bar
     from vio_graph.viz.rerun_logger import Visualizer
@@ -365,8 +433,9 @@ def _run_into(out: Path, rec: Recording, recording: Path | str, config: Pipeline
     _log_static_scene(viz, rec)
     replay = Replay(rec, config, set(modes), viz)
     t_start = time.perf_counter()
-    with progress_bar(rec.num_frames, f"estimating {Path(recording).name}", "frame",
-                      enabled=progress) as bar:
+    with progress_bar(
+        rec.num_frames, f"estimating {Path(recording).name}", "frame", enabled=progress
+    ) as bar:
         lg = replay.run(progress=bar.update_to)
     wall_s = time.perf_counter() - t_start
     t_s = np.asarray(lg.t_s)
@@ -417,16 +486,20 @@ def _run_into(out: Path, rec: Recording, recording: Path | str, config: Pipeline
         "keyframes": int(np.sum(lg.is_keyframe)),
     }
     fs = replay.online.filter.state
-    metrics["filter"] = {"accepted": fs.n_accepted, "rejected_chi2": fs.n_rejected,
-                         "stale": fs.n_stale,
-                         "injected_wrong_associations": replay.injected_wrong_associations}
+    metrics["filter"] = {
+        "accepted": fs.n_accepted,
+        "rejected_chi2": fs.n_rejected,
+        "stale": fs.n_stale,
+        "injected_wrong_associations": replay.injected_wrong_associations,
+    }
     if gt is not None:
         metrics["terrain_classification"] = _terrain_accuracy(rec, lg)
 
     # map from the best refined keyframe poses available
     map_mode = "batch" if "batch" in camera else "smoother" if "smoother" in camera else "filter"
-    map_metrics, map_files = _build_and_export_map(rec, config, lg, camera[map_mode], out / "map",
-                                                   viz)
+    map_metrics, map_files = _build_and_export_map(
+        rec, config, lg, camera[map_mode], out / "map", viz
+    )
     metrics["map"] = {"source_mode": map_mode, **map_metrics}
     files += map_files
     if config.output.plots:
@@ -456,9 +529,13 @@ def _latencies(lg: FrameLog, replay: Replay) -> dict[str, Any]:
     fe = col("frontend_total")
     fusion, kin, imu = col("fusion"), col("kinematics"), col("imu_propagation")
     total = np.asarray(fe) + np.asarray(fusion) + np.asarray(kin) + np.asarray(imu)
-    out: dict[str, Any] = {"frontend": _stats_ms(fe), "fusion": _stats_ms(fusion),
-                           "kinematics": _stats_ms(kin), "imu_propagation_per_frame": _stats_ms(imu),
-                           "per_frame_total": _stats_ms(total)}
+    out: dict[str, Any] = {
+        "frontend": _stats_ms(fe),
+        "fusion": _stats_ms(fusion),
+        "kinematics": _stats_ms(kin),
+        "imu_propagation_per_frame": _stats_ms(imu),
+        "per_frame_total": _stats_ms(total),
+    }
     for stage in ("projection", "smoothing", "terrain", "corners", "icp"):
         out[f"frontend_{stage}"] = _stats_ms(col(f"frontend_{stage}"))
     smoothers = {**replay.smoothers, **replay.failed_smoothers}
@@ -479,16 +556,21 @@ def _terrain_accuracy(rec: Recording, lg: FrameLog) -> dict[str, Any]:
     pred = np.asarray(lg.terrain)
     vis = rec.groundtruth.frame_edge_visible
     mask = vis[: len(pred)].astype(bool) if vis is not None else np.ones(len(pred), bool)
-    return {"truth": truth, "accuracy_visible": float(np.mean(pred[mask] == truth)) if mask.any()
-            else float("nan"), "predicted_counts_visible": _count(list(pred[mask]))}
+    return {
+        "truth": truth,
+        "accuracy_visible": float(np.mean(pred[mask] == truth)) if mask.any() else float("nan"),
+        "predicted_counts_visible": _count(list(pred[mask])),
+    }
 
 
 def _write_frames_csv(path: Path, lg: FrameLog) -> Path:
     rows = ["frame,timestamp_s,status,terrain,displacement,rejection,keyframe,frontend_ms"]
     for k, t in enumerate(lg.t_s):
-        rows.append(f"{k},{t:.6f},{lg.status[k]},{lg.terrain[k]},{int(lg.displacement_ok[k])},"
-                    f"{lg.rejection[k].replace(',', ';')},{int(lg.is_keyframe[k])},"
-                    f"{lg.timings_ms[k].get('frontend_total', float('nan')):.4f}")
+        rows.append(
+            f"{k},{t:.6f},{lg.status[k]},{lg.terrain[k]},{int(lg.displacement_ok[k])},"
+            f"{lg.rejection[k].replace(',', ';')},{int(lg.is_keyframe[k])},"
+            f"{lg.timings_ms[k].get('frontend_total', float('nan')):.4f}"
+        )
     atomic_write_text(path, "\n".join(rows) + "\n")
     return path
 
@@ -525,10 +607,13 @@ def _build_and_export_map(rec, config, lg: FrameLog, camera_xz, out_dir: Path, v
     if rec.metadata.terrain.profile_xz_m:
         comparison = compare_to_truth(geometry, rec.metadata.terrain)
         metrics.update(_flatten_comparison(comparison))
-    written = export_map(out_dir, pts, geometry, rec.metadata.terrain, comparison,
-                         camera_xz_m=camera_xz)
+    written = export_map(
+        out_dir, pts, geometry, rec.metadata.terrain, comparison, camera_xz_m=camera_xz
+    )
     viz.log_sagittal("map", pts, 0.003, (90, 90, 255))
-    metrics["detected_kind"] = geometry.kind.value if hasattr(geometry.kind, "value") else str(geometry.kind)
+    metrics["detected_kind"] = (
+        geometry.kind.value if hasattr(geometry.kind, "value") else str(geometry.kind)
+    )
     return metrics, list(written.values())
 
 

@@ -40,16 +40,25 @@ BLACKOUT_START_S = 4.0
 
 FAULT_CASES: tuple[FaultCase, ...] = (
     FaultCase("clean", "-", {}, {}),
-    FaultCase("camera blackout", "1 s", {"camera_blackout_start_s": BLACKOUT_START_S,
-                                         "camera_blackout_duration_s": 1.0}, {}),
-    FaultCase("camera blackout", "2 s", {"camera_blackout_start_s": BLACKOUT_START_S,
-                                         "camera_blackout_duration_s": 2.0}, {}),
+    FaultCase(
+        "camera blackout",
+        "1 s",
+        {"camera_blackout_start_s": BLACKOUT_START_S, "camera_blackout_duration_s": 1.0},
+        {},
+    ),
+    FaultCase(
+        "camera blackout",
+        "2 s",
+        {"camera_blackout_start_s": BLACKOUT_START_S, "camera_blackout_duration_s": 2.0},
+        {},
+    ),
     FaultCase("dropped frames", "20 %", {"dropped_frame_probability": 0.2}, {}),
     FaultCase("wrong corner associations", "10 %", {}, {"wrong_association_rate": 0.1}),
     FaultCase("wrong corner associations", "25 %", {}, {"wrong_association_rate": 0.25}),
     FaultCase("spurious depth points", "5 %", {"spurious_point_fraction": 0.05}, {}),
-    FaultCase("occluding foot in view", "1 s", {"occluder_start_s": 3.0,
-                                                "occluder_duration_s": 1.0}, {}),
+    FaultCase(
+        "occluding foot in view", "1 s", {"occluder_start_s": 3.0, "occluder_duration_s": 1.0}, {}
+    ),
     FaultCase("IMU spikes", "2 Hz", {"imu_spike_rate_hz": 2.0}, {}),
     FaultCase("IMU accel saturation", "4 g", {"imu_accel_saturation_mps2": 39.2}, {}),
     FaultCase("camera-IMU time offset", "10 ms", {"camera_time_offset_s": 0.01}, {}),
@@ -74,38 +83,51 @@ def _simulate_case(args: tuple[str, dict[str, Any], int, Path]) -> Path:
     return simulate(cfg, seed, out)
 
 
-def run_sweep(out_dir: Path, scenario: str, seeds: Sequence[int], config: PipelineConfig,
-              cases: Sequence[FaultCase] = FAULT_CASES, jobs: int = 1,
-              progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+def run_sweep(
+    out_dir: Path,
+    scenario: str,
+    seeds: Sequence[int],
+    config: PipelineConfig,
+    cases: Sequence[FaultCase] = FAULT_CASES,
+    jobs: int = 1,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
     """Simulate and run every (case, seed); return per-case mean toe ATE and recovery times."""
     out_dir = Path(out_dir)
-    sims = [(scenario, c.sim_faults, s, out_dir / "recordings" / f"{_slug(c)}_s{s}")
-            for c in cases for s in seeds]
+    sims = [
+        (scenario, c.sim_faults, s, out_dir / "recordings" / f"{_slug(c)}_s{s}")
+        for c in cases
+        for s in seeds
+    ]
     _map(_simulate_case, sims, jobs, None)
     items = []
     for c in cases:
         cfg = config.model_copy(update={"inject": config.inject.model_copy(update=c.inject)})
         for s in seeds:
             rec = out_dir / "recordings" / f"{_slug(c)}_s{s}"
-            items.append((rec, out_dir / "runs" / f"{_slug(c)}_s{s}", cfg.model_dump_json(),
-                          MODES))
+            items.append((rec, out_dir / "runs" / f"{_slug(c)}_s{s}", cfg.model_dump_json(), MODES))
     metrics = _map(_run_one, items, jobs, progress)
     results: dict[str, Any] = {"scenario": scenario, "seeds": list(seeds), "cases": []}
     clean_err = {}
     k = 0
     for c in cases:
-        rows = metrics[k:k + len(seeds)]
-        runs = items[k:k + len(seeds)]
+        rows = metrics[k : k + len(seeds)]
+        runs = items[k : k + len(seeds)]
         k += len(seeds)
-        entry: dict[str, Any] = {"name": c.name, "severity": c.severity, "faults": c.sim_faults,
-                                 "inject": c.inject}
+        entry: dict[str, Any] = {
+            "name": c.name,
+            "severity": c.severity,
+            "faults": c.sim_faults,
+            "inject": c.inject,
+        }
         for mode in MODES:
-            vals = np.array([[m["ate_cm"][mode]["toe"]["x"], m["ate_cm"][mode]["toe"]["z"]]
-                             for m in rows])
+            vals = np.array(
+                [[m["ate_cm"][mode]["toe"]["x"], m["ate_cm"][mode]["toe"]["z"]] for m in rows]
+            )
             entry[mode] = {"x": float(vals[:, 0].mean()), "z": float(vals[:, 1].mean())}
         entry["filter_rejected_chi2"] = int(sum(m["filter"]["rejected_chi2"] for m in rows))
         if c.name == "clean":
-            for (rec, res, _, _) in runs:
+            for rec, res, _, _ in runs:
                 clean_err[rec.name.split("_s")[-1]] = _toe_error(rec, res)
         if "camera_blackout_duration_s" in c.sim_faults:
             rec_times = []
@@ -131,14 +153,16 @@ def _toe_error(rec: Path, res: Path) -> tuple[np.ndarray, np.ndarray]:
 
     est = read_tum(res / "trajectories" / "filter_toe.tum")
     gt = read_tum(rec / "groundtruth" / "toe.tum")
-    ref = np.column_stack([np.interp(est.timestamp_s, gt.timestamp_s, gt.position_m[:, k])
-                           for k in range(3)])
+    ref = np.column_stack(
+        [np.interp(est.timestamp_s, gt.timestamp_s, gt.position_m[:, k]) for k in range(3)]
+    )
     err = est.position_m - est.position_m[0] + ref[0] - ref
     return est.timestamp_s, np.linalg.norm(err, axis=1)
 
 
-def _recovery_time(t: np.ndarray, err: np.ndarray, t_end: float, level: float,
-                   hold_s: float = 0.2) -> float:
+def _recovery_time(
+    t: np.ndarray, err: np.ndarray, t_end: float, level: float, hold_s: float = 0.2
+) -> float:
     after = t >= t_end
     ok = err <= level
     for i in np.flatnonzero(after):
@@ -149,24 +173,36 @@ def _recovery_time(t: np.ndarray, err: np.ndarray, t_end: float, level: float,
 
 
 def markdown(results: dict[str, Any], command: str) -> str:
-    lines = ["# Robustness: toe ATE against sensor faults", "",
-             "Reproduce with:", "", "```bash", command, "```", "",
-             f"Scenario `{results['scenario']}`, seeds {results['seeds']} (the same walks with and "
-             "without each fault). Toe ATE in cm (paper's definition, mean over seeds) and, in "
-             "brackets, the ratio to the clean run. `chi2 rej.` counts displacements the filter's "
-             "gate refused (all seeds). Recovery: seconds after a blackout ends until the filter's "
-             "toe error is back within 1.5x its clean-run median and stays there for 0.2 s.", "",
-             "| fault | severity | filter x | filter z | smoother x | smoother z | batch x | "
-             "batch z | chi2 rej. | recovery (s) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Robustness: toe ATE against sensor faults",
+        "",
+        "Reproduce with:",
+        "",
+        "```bash",
+        command,
+        "```",
+        "",
+        f"Scenario `{results['scenario']}`, seeds {results['seeds']} (the same walks with and "
+        "without each fault). Toe ATE in cm (paper's definition, mean over seeds) and, in "
+        "brackets, the ratio to the clean run. `chi2 rej.` counts displacements the filter's "
+        "gate refused (all seeds). Recovery: seconds after a blackout ends until the filter's "
+        "toe error is back within 1.5x its clean-run median and stays there for 0.2 s.",
+        "",
+        "| fault | severity | filter x | filter z | smoother x | smoother z | batch x | "
+        "batch z | chi2 rej. | recovery (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for e in results["cases"]:
         cells = []
         for mode in MODES:
             for ax in ("x", "z"):
                 cells.append(f"{e[mode][ax]:.2f} ({e[mode][f'{ax}_ratio']:.2f}x)")
         rec = f"{e['recovery_s']:.2f}" if "recovery_s" in e else "—"
-        lines.append(f"| {e['name']} | {e['severity']} | " + " | ".join(cells)
-                     + f" | {e['filter_rejected_chi2']} | {rec} |")
+        lines.append(
+            f"| {e['name']} | {e['severity']} | "
+            + " | ".join(cells)
+            + f" | {e['filter_rejected_chi2']} | {rec} |"
+        )
     lines += ["", "![fault sweep](figures/robustness.png)", ""]
     return "\n".join(lines)
 
@@ -182,8 +218,9 @@ def plot(results: dict[str, Any], path: Path) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(14, 5), constrained_layout=True, sharey=True)
     width = 0.27
     for ax, axis in zip(axes, ("x", "z"), strict=True):
-        for k, (mode, color) in enumerate((("filter", "tab:orange"), ("smoother", "tab:blue"),
-                                           ("batch", "tab:purple"))):
+        for k, (mode, color) in enumerate(
+            (("filter", "tab:orange"), ("smoother", "tab:blue"), ("batch", "tab:purple"))
+        ):
             vals = [c[mode][axis] for c in cases]
             ax.bar(np.arange(len(cases)) + (k - 1) * width, vals, width, color=color, label=mode)
         ax.set_xticks(np.arange(len(cases)), labels, rotation=60, ha="right", fontsize=7)
@@ -196,11 +233,15 @@ def plot(results: dict[str, Any], path: Path) -> Path:
     return Path(path)
 
 
-def write_outputs(results: dict[str, Any], out_dir: Path, command: str,
-                  doc_path: Path | None) -> dict[str, Path]:
+def write_outputs(
+    results: dict[str, Any], out_dir: Path, command: str, doc_path: Path | None
+) -> dict[str, Path]:
     out_dir = Path(out_dir)
-    written = {"json": out_dir / "robustness.json", "markdown": out_dir / "robustness.md",
-               "figure": plot(results, out_dir / "figures" / "robustness.png")}
+    written = {
+        "json": out_dir / "robustness.json",
+        "markdown": out_dir / "robustness.md",
+        "figure": plot(results, out_dir / "figures" / "robustness.png"),
+    }
     atomic_write_json(written["json"], results)
     md = markdown(results, command)
     atomic_write_text(written["markdown"], md)

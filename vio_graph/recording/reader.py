@@ -99,25 +99,36 @@ class Recording:
         """Every stream covers the declared ``duration_s`` (a truncated stream, or a stream on
         another clock or in other time units, is refused)."""
         duration = self.metadata.duration_s
-        streams = [(layout.IMU_FILE, self.imu.timestamp_s),
-                   (layout.JOINTS_FILE, self.joints.timestamp_s),
-                   (layout.DEPTH_TIMESTAMPS_FILE, self.frame_timestamps_s)]
+        streams = [
+            (layout.IMU_FILE, self.imu.timestamp_s),
+            (layout.JOINTS_FILE, self.joints.timestamp_s),
+            (layout.DEPTH_TIMESTAMPS_FILE, self.frame_timestamps_s),
+        ]
         if self.groundtruth is not None:
-            streams += [(layout.gt_trajectory_file(b), t.timestamp_s)
-                        for b, t in self.groundtruth.trajectories.items()]
+            streams += [
+                (layout.gt_trajectory_file(b), t.timestamp_s)
+                for b, t in self.groundtruth.trajectories.items()
+            ]
         t0_imu = self.imu.timestamp_s[0]
         slack = DURATION_TOLERANCE * duration
         for rel, t in streams:
             span = float(t[-1] - t[0])
             period = float(np.median(np.diff(t)))
             if abs(span - duration) > slack + 2 * period:
-                raise RecordingError(self.root / rel, f"covers {span:.3g} s but metadata.yaml "
-                                     f"declares duration_s {duration:g} s (truncated file or "
-                                     "wrong time unit?)", field="timestamp_s")
+                raise RecordingError(
+                    self.root / rel,
+                    f"covers {span:.3g} s but metadata.yaml "
+                    f"declares duration_s {duration:g} s (truncated file or "
+                    "wrong time unit?)",
+                    field="timestamp_s",
+                )
             if abs(float(t[0] - t0_imu)) > slack + START_TOLERANCE_S:
-                raise RecordingError(self.root / rel, f"starts at {t[0]:.6g} s, {t[0] - t0_imu:.3g}"
-                                     f" s away from imu.csv (streams on different clocks?)",
-                                     field="timestamp_s")
+                raise RecordingError(
+                    self.root / rel,
+                    f"starts at {t[0]:.6g} s, {t[0] - t0_imu:.3g}"
+                    f" s away from imu.csv (streams on different clocks?)",
+                    field="timestamp_s",
+                )
 
     # ------------------------------------------------------------------ metadata
     @cached_property
@@ -195,13 +206,21 @@ class Recording:
             acc_norm = np.median(np.linalg.norm(imu.accel_mps2, axis=1))
         if not 0.5 * GRAVITY_MPS2 < acc_norm < 2.0 * GRAVITY_MPS2:
             hint = " (looks like g units, expected m/s^2)" if 0.5 < acc_norm < 2.0 else ""
-            raise RecordingError(path, f"median accelerometer norm {acc_norm:.3g} is not near "
-                                 f"gravity{hint}", field="acc_*_mps2")
+            raise RecordingError(
+                path,
+                f"median accelerometer norm {acc_norm:.3g} is not near gravity{hint}",
+                field="acc_*_mps2",
+            )
         if np.max(np.abs(imu.accel_mps2)) > 1.01 * meta.accel_range_mps2:
-            raise RecordingError(path, "accelerometer beyond the declared range", field="acc_*_mps2")
+            raise RecordingError(
+                path, "accelerometer beyond the declared range", field="acc_*_mps2"
+            )
         if np.max(np.abs(imu.gyro_radps)) > 1.01 * meta.gyro_range_radps:
-            raise RecordingError(path, "gyroscope beyond the declared range (degrees instead of "
-                                 "radians?)", field="gyr_*_radps")
+            raise RecordingError(
+                path,
+                "gyroscope beyond the declared range (degrees instead of radians?)",
+                field="gyr_*_radps",
+            )
         return imu
 
     @cached_property
@@ -211,8 +230,9 @@ class Recording:
         _check_rate(path, d[:, 0], self.metadata.joint_rate_hz, "joint_rate_hz")
         if np.max(np.abs(d[:, 1:])) > np.pi:
             col = layout.JOINT_COLUMNS[1 + int(np.argmax(np.max(np.abs(d[:, 1:]), axis=0)))]
-            raise RecordingError(path, "joint angle beyond +-pi rad (degrees instead of radians?)",
-                                 field=col)
+            raise RecordingError(
+                path, "joint angle beyond +-pi rad (degrees instead of radians?)", field=col
+            )
         return JointTable(d[:, 0], d[:, 1], d[:, 2], d[:, 3])
 
     @cached_property
@@ -234,8 +254,10 @@ class Recording:
         mm = self._file(layout.DEPTH_MM_FILE, required=False)
         m = self._file(layout.DEPTH_M_FILE, required=False)
         if mm is None and m is None:
-            raise RecordingError(self.root / layout.DEPTH_MM_FILE,
-                                 f"required file is missing (or {layout.DEPTH_M_FILE})")
+            raise RecordingError(
+                self.root / layout.DEPTH_MM_FILE,
+                f"required file is missing (or {layout.DEPTH_M_FILE})",
+            )
         path, dtype, scale = (mm, np.uint16, cam.depth_unit_m) if mm else (m, np.float32, 1.0)
         depth = _load_npy(path)
         conf_path = self._file(layout.CONFIDENCE_FILE)
@@ -247,8 +269,11 @@ class Recording:
             if arr.dtype != dt:
                 raise RecordingError(p, f"dtype {arr.dtype}, expected {np.dtype(dt)}")
             if arr.shape != (n, cam.height_px, cam.width_px):
-                raise RecordingError(p, f"shape {arr.shape}, expected (frames={n}, "
-                                     f"height={cam.height_px}, width={cam.width_px})")
+                raise RecordingError(
+                    p,
+                    f"shape {arr.shape}, expected (frames={n}, "
+                    f"height={cam.height_px}, width={cam.width_px})",
+                )
         return depth, scale, conf
 
     def _check_depth_arrays(self) -> None:
@@ -261,11 +286,15 @@ class Recording:
             raise RecordingError(self._depth_path(depth), "recording has no depth frames")
         sampled = sorted({0, n // 2, n - 1})
         if not any((self._convert(i, depth, scale) > 0).any() for i in sampled):
-            raise RecordingError(self._depth_path(depth), f"frames {sampled} have no valid depth "
-                                 "pixel (empty frames)")
+            raise RecordingError(
+                self._depth_path(depth),
+                f"frames {sampled} have no valid depth pixel (empty frames)",
+            )
 
     def _depth_path(self, depth: np.ndarray) -> Path:
-        return self.root / (layout.DEPTH_MM_FILE if depth.dtype == np.uint16 else layout.DEPTH_M_FILE)
+        return self.root / (
+            layout.DEPTH_MM_FILE if depth.dtype == np.uint16 else layout.DEPTH_M_FILE
+        )
 
     def _convert(self, i: int, depth: np.ndarray, scale: float) -> np.ndarray:
         path = self._depth_path(depth)
@@ -284,14 +313,20 @@ class Recording:
         if valid.any():
             too_far = np.mean(d[valid] > 1.5 * cam.max_range_m)
             if too_far > 0.5:
-                raise RecordingError(path, f"frame {i}: most depths exceed 1.5x the camera's max "
-                                     f"range {cam.max_range_m} m (wrong depth unit?)",
-                                     field="camera.depth_unit_m")
+                raise RecordingError(
+                    path,
+                    f"frame {i}: most depths exceed 1.5x the camera's max "
+                    f"range {cam.max_range_m} m (wrong depth unit?)",
+                    field="camera.depth_unit_m",
+                )
             too_near = np.mean(d[valid] < 0.5 * cam.min_range_m)
             if too_near > 0.5:
-                raise RecordingError(path, f"frame {i}: most depths are below half the camera's "
-                                     f"min range {cam.min_range_m} m (wrong depth unit?)",
-                                     field="camera.depth_unit_m")
+                raise RecordingError(
+                    path,
+                    f"frame {i}: most depths are below half the camera's "
+                    f"min range {cam.min_range_m} m (wrong depth unit?)",
+                    field="camera.depth_unit_m",
+                )
         return d
 
     @property
@@ -304,8 +339,9 @@ class Recording:
         d = self._convert(i, depth, scale)
         c = np.array(conf[i])
         c[d <= 0] = 0
-        return DepthFrame(index=i, timestamp_s=float(self.frame_timestamps_s[i]), depth_m=d,
-                          confidence=c)
+        return DepthFrame(
+            index=i, timestamp_s=float(self.frame_timestamps_s[i]), depth_m=d, confidence=c
+        )
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[DepthFrame]:
         for i in range(start, self.num_frames if stop is None else min(stop, self.num_frames)):
@@ -327,16 +363,21 @@ class Recording:
             except OSError as exc:
                 raise RecordingError(path, f"cannot be read ({_describe(exc)})") from None
             if self.metadata.groundtruth_rate_hz:
-                _check_rate(path, trajs[body].timestamp_s, self.metadata.groundtruth_rate_hz,
-                            "groundtruth_rate_hz")
+                _check_rate(
+                    path,
+                    trajs[body].timestamp_s,
+                    self.metadata.groundtruth_rate_hz,
+                    "groundtruth_rate_hz",
+                )
             elif len(trajs[body]) < 2:
                 raise RecordingError(path, f"only {len(trajs[body])} poses", field="timestamp")
         state = None
         d = self._read_csv(layout.GT_IMU_STATE_FILE, layout.GT_IMU_STATE_COLUMNS, required=False)
         if d is not None:
             _check_unit_quaternions(self.root / layout.GT_IMU_STATE_FILE, d[:, 7:11])
-            state = ImuStateTable(d[:, 0], d[:, 1:4], d[:, 4:7], d[:, 7:11], d[:, 11:14],
-                                  d[:, 14:17])
+            state = ImuStateTable(
+                d[:, 0], d[:, 1:4], d[:, 4:7], d[:, 7:11], d[:, 11:14], d[:, 14:17]
+            )
         vis = None
         f = self._read_csv(layout.GT_FRAMES_FILE, layout.GT_FRAME_COLUMNS, required=False)
         if f is not None:
@@ -346,8 +387,9 @@ class Recording:
             if not np.array_equal(f[:, 0], np.arange(f.shape[0])):
                 raise RecordingError(path, "frame column must count 0, 1, 2, ...", field="frame")
             if not np.allclose(f[:, 1], self.frame_timestamps_s, rtol=0.0, atol=1e-6):
-                raise RecordingError(path, "timestamps differ from depth/timestamps.csv",
-                                     field="timestamp_s")
+                raise RecordingError(
+                    path, "timestamps differ from depth/timestamps.csv", field="timestamp_s"
+                )
             if not np.all((f[:, 2] == 0) | (f[:, 2] == 1)):
                 raise RecordingError(path, "values must be 0 or 1", field="edge_visible")
             vis = f[:, 2].astype(np.int8)
@@ -376,8 +418,12 @@ class Recording:
             "image_size": [meta.camera.width_px, meta.camera.height_px],
             "rig": meta.leg.rig,
             "terrain": {"kind": meta.terrain.kind, **meta.terrain.params},
-            "provenance": {"source": meta.provenance.source, "scenario": meta.provenance.scenario,
-                           "seed": meta.provenance.seed, "software": meta.provenance.software},
+            "provenance": {
+                "source": meta.provenance.source,
+                "scenario": meta.provenance.scenario,
+                "seed": meta.provenance.seed,
+                "software": meta.provenance.software,
+            },
         }
         if gt is not None and gt.frame_edge_visible is not None:
             out["edge_visible_fraction"] = round(float(np.mean(gt.frame_edge_visible)), 4)
@@ -391,11 +437,15 @@ def _rate(t: np.ndarray) -> float:
 def _check_timestamps(path: Path, t: np.ndarray) -> None:
     dt = np.diff(t)
     if np.any(dt == 0):
-        raise RecordingError(path, f"duplicated timestamp at row {int(np.argmax(dt == 0)) + 3}",
-                             field="timestamp_s")
+        raise RecordingError(
+            path, f"duplicated timestamp at row {int(np.argmax(dt == 0)) + 3}", field="timestamp_s"
+        )
     if np.any(dt < 0):
-        raise RecordingError(path, f"timestamps go backwards at row {int(np.argmax(dt < 0)) + 3}",
-                             field="timestamp_s")
+        raise RecordingError(
+            path,
+            f"timestamps go backwards at row {int(np.argmax(dt < 0)) + 3}",
+            field="timestamp_s",
+        )
 
 
 def _check_rate(path: Path, t: np.ndarray, declared_hz: float, field: str) -> None:
@@ -403,29 +453,44 @@ def _check_rate(path: Path, t: np.ndarray, declared_hz: float, field: str) -> No
         raise RecordingError(path, f"only {t.shape[0]} samples", field="timestamp_s")
     measured = _rate(t)
     if abs(measured - declared_hz) > RATE_TOLERANCE * declared_hz:
-        raise RecordingError(path, f"measured rate {measured:.2f} Hz does not match the declared "
-                             f"{declared_hz:g} Hz in metadata.yaml", field=field)
+        raise RecordingError(
+            path,
+            f"measured rate {measured:.2f} Hz does not match the declared "
+            f"{declared_hz:g} Hz in metadata.yaml",
+            field=field,
+        )
 
 
 def _check_unit_quaternions(path: Path, quat_wxyz: np.ndarray) -> None:
     err = np.abs(np.linalg.norm(quat_wxyz, axis=1) - 1.0)
     if np.any(err > 1e-3):
-        raise RecordingError(path, f"quaternion not unit length (row {int(np.argmax(err)) + 2})",
-                             field="q_w..q_z")
+        raise RecordingError(
+            path, f"quaternion not unit length (row {int(np.argmax(err)) + 2})", field="q_w..q_z"
+        )
 
 
 # What numpy raises on a corrupt .npy: bad magic/version/header values (ValueError), short
 # files (EOFError, OSError from mmap), and header text its tokenizer cannot parse.
-_NPY_ERRORS = (ValueError, OSError, EOFError, SyntaxError, TypeError, KeyError, OverflowError,
-               MemoryError, tokenize.TokenError)
+_NPY_ERRORS = (
+    ValueError,
+    OSError,
+    EOFError,
+    SyntaxError,
+    TypeError,
+    KeyError,
+    OverflowError,
+    MemoryError,
+    tokenize.TokenError,
+)
 
 
 def _load_npy(path: Path) -> np.ndarray:
     try:
         arr = np.load(path, mmap_mode="r", allow_pickle=False)
     except _NPY_ERRORS as exc:
-        raise RecordingError(path, "not a readable .npy array (truncated or corrupt: "
-                             f"{_describe(exc)})") from None
+        raise RecordingError(
+            path, f"not a readable .npy array (truncated or corrupt: {_describe(exc)})"
+        ) from None
     if not isinstance(arr, np.ndarray):  # np.load opens a zip (.npz) whatever the name
         if hasattr(arr, "close"):
             arr.close()

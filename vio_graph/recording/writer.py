@@ -57,8 +57,9 @@ def write_recording(
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".partial", dir=out_dir.parent))
     try:
-        _write_into(tmp, metadata, imu, joints, groundtruth, frame_timestamps_s, depth_frames,
-                    progress)
+        _write_into(
+            tmp, metadata, imu, joints, groundtruth, frame_timestamps_s, depth_frames, progress
+        )
         if out_dir.exists():
             shutil.rmtree(out_dir)
         os.replace(tmp, out_dir)
@@ -141,15 +142,29 @@ def _write_groundtruth(root: Path, gt: GroundTruth) -> None:
         _write_csv(
             root / layout.GT_IMU_STATE_FILE,
             layout.GT_IMU_STATE_COLUMNS,
-            np.column_stack([s.timestamp_s, s.position_m, s.velocity_mps, s.quat_wxyz,
-                             s.accel_bias_mps2, s.gyro_bias_radps]),
+            np.column_stack(
+                [
+                    s.timestamp_s,
+                    s.position_m,
+                    s.velocity_mps,
+                    s.quat_wxyz,
+                    s.accel_bias_mps2,
+                    s.gyro_bias_radps,
+                ]
+            ),
             fmt="%.9g",
         )
     if gt.frame_edge_visible is not None:
         vis = np.asarray(gt.frame_edge_visible)
         ts = np.loadtxt(root / layout.DEPTH_TIMESTAMPS_FILE, delimiter=",", skiprows=1, ndmin=2)
         if vis.shape[0] != ts.shape[0]:
-            raise RecordingError(root / layout.GT_FRAMES_FILE,
-                                 f"{vis.shape[0]} visibility flags for {ts.shape[0]} frames")
-        _write_csv(root / layout.GT_FRAMES_FILE, layout.GT_FRAME_COLUMNS,
-                   np.column_stack([ts[:, 0], ts[:, 1], vis]), fmt="%.9g")
+            raise RecordingError(
+                root / layout.GT_FRAMES_FILE,
+                f"{vis.shape[0]} visibility flags for {ts.shape[0]} frames",
+            )
+        _write_csv(
+            root / layout.GT_FRAMES_FILE,
+            layout.GT_FRAME_COLUMNS,
+            np.column_stack([ts[:, 0], ts[:, 1], vis]),
+            fmt="%.9g",
+        )

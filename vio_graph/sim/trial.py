@@ -13,10 +13,15 @@ from numpy.typing import NDArray
 import vio_graph
 from vio_graph.geometry import invert_transform, make_transform
 from vio_graph.recording.metadata import (
-    FORMAT_VERSION, Extrinsics, ImuModel, LegGeometry, Provenance, RecordingMetadata,
+    FORMAT_VERSION,
+    Extrinsics,
+    ImuModel,
+    LegGeometry,
+    Provenance,
+    RecordingMetadata,
     TerrainInfo,
 )
-from vio_graph.recording.streams import GroundTruth, ImuStateTable, ImuTable, JointTable
+from vio_graph.recording.streams import GroundTruth, ImuTable, JointTable
 from vio_graph.sim import faults as _faults
 from vio_graph.sim.config import RigConfig, ScenarioConfig
 from vio_graph.sim.gait import LegMotion, simulate_gait

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
 from vio_graph.smoother.config import SmootherConfig
-from vio_graph.smoother.graph import X, KeyframeUpdate, camera_xz_cov_from_pose_cov
+from vio_graph.smoother.graph import KeyframeUpdate, X, camera_xz_cov_from_pose_cov
 from vio_graph.smoother.interface import KeyframeEstimate, KeyframeSmootherBase
 
 

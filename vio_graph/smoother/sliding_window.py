@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
 from vio_graph.smoother.config import SmootherConfig
-from vio_graph.smoother.graph import B, V, X, KeyframeUpdate, camera_xz_cov_from_pose_cov
+from vio_graph.smoother.graph import B, KeyframeUpdate, V, X, camera_xz_cov_from_pose_cov
 from vio_graph.smoother.interface import KeyframeEstimate, KeyframeSmootherBase
 
 _NAN2 = np.full((2, 2), np.nan)

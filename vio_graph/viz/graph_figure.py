@@ -43,21 +43,46 @@ def draw_factor_graph(path: Path, n_keyframes: int = 4) -> Path:
     for i in range(n_keyframes - 1):
         a, b = xs[i], xs[i + 1]
         m = 0.5 * (a + b)
-        factor(m, 0.0, "#31a354", [(a, rows["X"]), (b, rows["X"]), (a, rows["V"]), (b, rows["V"]),
-                                   (a, rows["B"]), (b, rows["B"])], "CombinedImuFactor")
+        factor(
+            m,
+            0.0,
+            "#31a354",
+            [
+                (a, rows["X"]),
+                (b, rows["X"]),
+                (a, rows["V"]),
+                (b, rows["V"]),
+                (a, rows["B"]),
+                (b, rows["B"]),
+            ],
+            "CombinedImuFactor",
+        )
         factor(m, 1.75, "#e6550d", [(a, rows["X"]), (b, rows["X"])], "ICP displacement (robust)")
-    factor(xs[0] - 0.55, -1.6, "0.2", [(xs[0], rows["X"]), (xs[0], rows["V"]), (xs[0], rows["B"])],
-           "first-keyframe prior")
+    factor(
+        xs[0] - 0.55,
+        -1.6,
+        "0.2",
+        [(xs[0], rows["X"]), (xs[0], rows["V"]), (xs[0], rows["B"])],
+        "first-keyframe prior",
+    )
     # corner landmarks seen from several keyframes
     for j, (seen, lx) in enumerate(((range(0, 3), 3.0), (range(2, n_keyframes), 7.5))):
         node(lx, -2.35, f"L{j}", "#fcbba1")
         for i in seen:
             fx = 0.5 * (xs[i] + lx)
             factor(fx, -1.65 if j == 0 else -1.45, "#a50f15", [(xs[i], rows["X"]), (lx, -2.35)])
-    ax.text(xs[-1] + 0.5, -2.35, "corner landmarks: same nosing\nseen from many keyframes (robust)",
-            fontsize=8, va="center")
-    ax.set_title("vio_graph smoother: keyframe nodes X (IMU pose), V (velocity), B (IMU bias), "
-                 "L (stair corners)", fontsize=10)
+    ax.text(
+        xs[-1] + 0.5,
+        -2.35,
+        "corner landmarks: same nosing\nseen from many keyframes (robust)",
+        fontsize=8,
+        va="center",
+    )
+    ax.set_title(
+        "vio_graph smoother: keyframe nodes X (IMU pose), V (velocity), B (IMU bias), "
+        "L (stair corners)",
+        fontsize=10,
+    )
     with atomic_path(Path(path), suffix=".png") as tmp:
         fig.savefig(tmp, dpi=90, bbox_inches="tight")
     plt.close(fig)

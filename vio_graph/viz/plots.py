@@ -28,9 +28,13 @@ def _plt():
     return plt
 
 
-def plot_run_overview(path: Path, rec, t_s: NDArray[np.float64],
-                      paths: dict[str, dict[str, NDArray[np.float64]]],
-                      metrics: dict[str, Any]) -> Path:
+def plot_run_overview(
+    path: Path,
+    rec,
+    t_s: NDArray[np.float64],
+    paths: dict[str, dict[str, NDArray[np.float64]]],
+    metrics: dict[str, Any],
+) -> Path:
     """Sagittal view (terrain, camera and toe paths) and toe x / z against time."""
     plt = _plt()
     fig = plt.figure(figsize=(13, 8), constrained_layout=True)
@@ -44,15 +48,23 @@ def plot_run_overview(path: Path, rec, t_s: NDArray[np.float64],
     if gt is not None:
         for body in ("camera", "toe"):
             g = gt.trajectories[body]
-            ax.plot(g.position_m[:, 0], g.position_m[:, 2], color="tab:green", lw=2, alpha=0.7,
-                    label=f"ground truth {body}" if body == "toe" else None)
+            ax.plot(
+                g.position_m[:, 0],
+                g.position_m[:, 2],
+                color="tab:green",
+                lw=2,
+                alpha=0.7,
+                label=f"ground truth {body}" if body == "toe" else None,
+            )
     for mode, bodies in paths.items():
         if mode not in MODE_STYLE:
             continue
         c, ls = MODE_STYLE[mode]
         if mode in ("imu_only",):
             continue  # diverges off the plot
-        ax.plot(bodies["toe"][:, 0], bodies["toe"][:, 1], color=c, ls=ls, lw=1.2, label=f"{mode} toe")
+        ax.plot(
+            bodies["toe"][:, 0], bodies["toe"][:, 1], color=c, ls=ls, lw=1.2, label=f"{mode} toe"
+        )
         ax.plot(bodies["camera"][:, 0], bodies["camera"][:, 1], color=c, ls=ls, lw=0.8, alpha=0.6)
     ax.set_aspect("equal")
     ax.set_xlabel("x forward (m)")
@@ -63,8 +75,13 @@ def plot_run_overview(path: Path, rec, t_s: NDArray[np.float64],
         a = fig.add_subplot(gs[row, 1])
         if gt is not None:
             g = gt.trajectories["toe"]
-            a.plot(g.timestamp_s, g.position_m[:, 0 if k == 0 else 2], color="tab:green", lw=2,
-                   label="ground truth")
+            a.plot(
+                g.timestamp_s,
+                g.position_m[:, 0 if k == 0 else 2],
+                color="tab:green",
+                lw=2,
+                label="ground truth",
+            )
         for mode, bodies in paths.items():
             if mode in MODE_STYLE and mode != "imu_only":
                 c, ls = MODE_STYLE[mode]
@@ -87,8 +104,9 @@ def plot_toe_bands(path: Path, runs, modes: tuple[str, ...] = ("filter", "smooth
 
     plt = _plt()
     exps = list(dict.fromkeys(r.experiment for r in runs))
-    fig, axes = plt.subplots(2, len(exps), figsize=(4.2 * len(exps), 6.5), squeeze=False,
-                             constrained_layout=True)
+    fig, axes = plt.subplots(
+        2, len(exps), figsize=(4.2 * len(exps), 6.5), squeeze=False, constrained_layout=True
+    )
     for col, exp in enumerate(exps):
         rs = [r for r in runs if r.experiment == exp]
         series: dict[str, list[NDArray[np.float64]]] = {m: [] for m in (*modes, "gt")}
@@ -101,14 +119,20 @@ def plot_toe_bands(path: Path, runs, modes: tuple[str, ...] = ("filter", "smooth
         for r in rs:
             gt = read_tum(Path(r.recording) / "groundtruth" / "toe.tum")
             t0 = gt.timestamp_s[0]
-            series["gt"].append(np.column_stack(
-                [np.interp(t + t0, gt.timestamp_s, gt.position_m[:, k]) for k in (0, 2)]))
+            series["gt"].append(
+                np.column_stack(
+                    [np.interp(t + t0, gt.timestamp_s, gt.position_m[:, k]) for k in (0, 2)]
+                )
+            )
             for m in modes:
                 f = Path(r.results) / "trajectories" / f"{m}_toe.tum"
                 if f.is_file():
                     e = read_tum(f)
-                    series[m].append(np.column_stack(
-                        [np.interp(t + t0, e.timestamp_s, e.position_m[:, k]) for k in (0, 2)]))
+                    series[m].append(
+                        np.column_stack(
+                            [np.interp(t + t0, e.timestamp_s, e.position_m[:, k]) for k in (0, 2)]
+                        )
+                    )
         for row, axis in enumerate(("x", "z")):
             ax = axes[row, col]
             for m in (*modes, "gt"):

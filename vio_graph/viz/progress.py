@@ -15,7 +15,16 @@ class _Bar(tqdm):
 
 
 @contextlib.contextmanager
-def progress_bar(total: int | None, desc: str, unit: str = "it", enabled: bool = True) -> Iterator[_Bar]:
-    with _Bar(total=total, desc=desc, unit=unit, disable=None if enabled else True, leave=False, mininterval=0.5,
-              dynamic_ncols=True) as bar:
+def progress_bar(
+    total: int | None, desc: str, unit: str = "it", enabled: bool = True
+) -> Iterator[_Bar]:
+    with _Bar(
+        total=total,
+        desc=desc,
+        unit=unit,
+        disable=None if enabled else True,
+        leave=False,
+        mininterval=0.5,
+        dynamic_ncols=True,
+    ) as bar:
         yield bar

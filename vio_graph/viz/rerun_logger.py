@@ -75,48 +75,82 @@ class Visualizer(NullVisualizer):
     def log_terrain(self, vertices_m, triangles, profile_xz_m) -> None:
         rr = self._rr
         if vertices_m is not None and len(vertices_m):
-            self._rec.log("world/terrain/mesh", rr.Mesh3D(
-                vertex_positions=np.asarray(vertices_m, dtype=np.float32),
-                triangle_indices=np.asarray(triangles, dtype=np.uint32),
-                albedo_factor=[0.75, 0.75, 0.78, 0.6]), static=True)
+            self._rec.log(
+                "world/terrain/mesh",
+                rr.Mesh3D(
+                    vertex_positions=np.asarray(vertices_m, dtype=np.float32),
+                    triangle_indices=np.asarray(triangles, dtype=np.uint32),
+                    albedo_factor=[0.75, 0.75, 0.78, 0.6],
+                ),
+                static=True,
+            )
         if profile_xz_m is not None and len(profile_xz_m):
-            self._rec.log("world/terrain/profile", rr.LineStrips3D(
-                [_xz_to_xyz(profile_xz_m)], colors=[(60, 60, 60)]), static=True)
+            self._rec.log(
+                "world/terrain/profile",
+                rr.LineStrips3D([_xz_to_xyz(profile_xz_m)], colors=[(60, 60, 60)]),
+                static=True,
+            )
 
     def log_camera(self, position_m, R_world_cam, K, width_px, height_px, depth_m=None) -> None:
         rr = self._rr
-        self._rec.log("world/camera", rr.Transform3D(
-            translation=np.asarray(position_m, dtype=float), mat3x3=np.asarray(R_world_cam)))
-        self._rec.log("world/camera/image", rr.Pinhole(
-            image_from_camera=np.asarray(K, dtype=float), width=width_px, height=height_px,
-            image_plane_distance=0.1))
+        self._rec.log(
+            "world/camera",
+            rr.Transform3D(
+                translation=np.asarray(position_m, dtype=float), mat3x3=np.asarray(R_world_cam)
+            ),
+        )
+        self._rec.log(
+            "world/camera/image",
+            rr.Pinhole(
+                image_from_camera=np.asarray(K, dtype=float),
+                width=width_px,
+                height=height_px,
+                image_plane_distance=0.1,
+            ),
+        )
         if depth_m is not None:
-            self._rec.log("world/camera/image/depth", rr.DepthImage(
-                np.asarray(depth_m, dtype=np.float32), meter=1.0))
+            self._rec.log(
+                "world/camera/image/depth",
+                rr.DepthImage(np.asarray(depth_m, dtype=np.float32), meter=1.0),
+            )
 
     def log_cloud(self, points_world_m) -> None:
         pts = np.asarray(points_world_m, dtype=np.float32)
         self._rec.log("world/cloud", self._rr.Points3D(pts, radii=0.002, colors=[(120, 140, 200)]))
 
     def log_sagittal(self, name, points_xz_m, radius_m: float = 0.004, color=None) -> None:
-        self._rec.log(f"world/{name}", self._rr.Points3D(
-            _xz_to_xyz(points_xz_m), radii=radius_m, colors=[color or (250, 200, 0)]))
+        self._rec.log(
+            f"world/{name}",
+            self._rr.Points3D(
+                _xz_to_xyz(points_xz_m), radii=radius_m, colors=[color or (250, 200, 0)]
+            ),
+        )
 
     def log_segments(self, name, starts_xz_m, ends_xz_m, color=None) -> None:
         a, b = _xz_to_xyz(starts_xz_m), _xz_to_xyz(ends_xz_m)
-        self._rec.log(f"world/{name}", self._rr.LineStrips3D(
-            np.stack([a, b], axis=1), colors=[color or (255, 0, 255)], radii=0.001))
+        self._rec.log(
+            f"world/{name}",
+            self._rr.LineStrips3D(
+                np.stack([a, b], axis=1), colors=[color or (255, 0, 255)], radii=0.001
+            ),
+        )
 
     def log_leg(self, name, points_xz_m) -> None:
         color = _COLORS["gt"] if name.endswith("gt") else _COLORS["est"]
-        self._rec.log(f"world/leg/{name}", self._rr.LineStrips3D(
-            [_xz_to_xyz(points_xz_m)], colors=[color], radii=0.006))
+        self._rec.log(
+            f"world/leg/{name}",
+            self._rr.LineStrips3D([_xz_to_xyz(points_xz_m)], colors=[color], radii=0.006),
+        )
 
     def log_path(self, name, xz_m, static: bool = True) -> None:
         kind = name.split("/")[0]
-        self._rec.log(f"world/{name}", self._rr.LineStrips3D(
-            [_xz_to_xyz(xz_m)], colors=[_COLORS.get(kind, (0, 0, 0))], radii=0.0015),
-            static=static)
+        self._rec.log(
+            f"world/{name}",
+            self._rr.LineStrips3D(
+                [_xz_to_xyz(xz_m)], colors=[_COLORS.get(kind, (0, 0, 0))], radii=0.0015
+            ),
+            static=static,
+        )
 
     def log_scalar(self, name, value: float) -> None:
         self._rec.log(f"plots/{name}", self._rr.Scalars(float(value)))

@@ -33,6 +33,8 @@ PAPER_EXPERIMENTS: dict[str, str] = {
     "obstacle": "ate_cm_visible",
     "prosthesis_upstair": "ate_cm",
 }
+_TRUE_KIND = {"upstair": "stair_up", "downstair": "stair_down", "obstacle": "obstacle",
+              "prosthesis_upstair": "stair_up", "level": "level"}
 REPORT_MODES = ("filter", "smoother", "batch", "imu_only", "icp_only")
 
 
@@ -162,6 +164,12 @@ def summarise_runs(runs: Sequence[TrialRun]) -> dict[str, Any]:
                     "max": float(np.max(vals)),
                     "n": len(vals),
                 }
+        counts: dict[str, int] = {}
+        for r in rs:
+            tc = r.metrics.get("terrain_classification", {})
+            for k, v in tc.get("predicted_counts_visible", {}).items():
+                counts[k] = counts.get(k, 0) + int(v)
+        e["terrain_confusion"] = counts
         lat = [r.metrics.get("latency_ms", {}) for r in rs]
         e["latency_ms"] = {
             k: float(np.median([x[k]["median"] for x in lat if k in x]))
@@ -256,6 +264,24 @@ def markdown_report(summary: dict[str, Any], command: str, config: PipelineConfi
             f"{cell('nosing_error_mm')} | {cell('obstacle_height_error_mm')} | "
             f"{cell('obstacle_depth_error_mm')} |"
         )
+    kinds = ["stair_up", "stair_down", "obstacle", "level", "unknown"]
+    lines += [
+        "",
+        "## Terrain classifier (geometric rule replacing the paper's CNN)",
+        "",
+        "Frames with a terrain edge in view (level trials: all frames), counted over all "
+        "trials; rows are the trial's true terrain, columns the front end's class.",
+        "",
+        "| true \\ predicted | " + " | ".join(kinds) + " | accuracy |",
+        "|---|" + "---|" * (len(kinds) + 1),
+    ]
+    for exp, e in summary.items():
+        c = e.get("terrain_confusion", {})
+        total = sum(c.values())
+        truth = _TRUE_KIND.get(exp, exp)
+        acc = f"{100 * c.get(truth, 0) / total:.1f} %" if total else "—"
+        lines.append(f"| {exp} ({truth}) | " + " | ".join(str(c.get(k, 0)) for k in kinds)
+                     + f" | {acc} |")
     lines += [
         "",
         "## Latency (ms, median over trials of the per-trial median)",

@@ -556,6 +556,8 @@ def _terrain_accuracy(rec: Recording, lg: FrameLog) -> dict[str, Any]:
     pred = np.asarray(lg.terrain)
     vis = rec.groundtruth.frame_edge_visible
     mask = vis[: len(pred)].astype(bool) if vis is not None else np.ones(len(pred), bool)
+    if truth == "level" or not mask.any():  # level ground has no edge: judge every frame
+        mask = np.ones(len(pred), bool)
     return {
         "truth": truth,
         "accuracy_visible": float(np.mean(pred[mask] == truth)) if mask.any() else float("nan"),

@@ -103,3 +103,13 @@ def test_cross3_matches_numpy() -> None:
     for _ in range(100):
         a, b = rng.normal(size=3), rng.normal(size=3)
         assert np.array_equal(_cross3(a, b), np.cross(a, b))
+
+
+def test_ungated_landmark_accepts_what_the_gate_rejects() -> None:
+    """Stance anchors are fused without the gate (FilterConfig.stance_gate=False)."""
+    for gate, expected in ((True, False), (False, True)):
+        f = SagittalEskf()
+        f.initialise(0.0, (0.0, 0.0))
+        f.update_landmark("A", (0.0, -0.4), np.eye(2) * 1e-6)
+        # 20 cm inconsistent with a 1 mm state: far outside the 99.9 % gate
+        assert f.update_landmark("A", (-0.2, -0.4), np.eye(2) * 1e-6, gate=gate) is expected

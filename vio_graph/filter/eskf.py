@@ -45,6 +45,17 @@ does not fix it (RMSE 0.30-0.76 m). With white per-frame ICP noise the absolute 
 estimator is bounded below by the accumulated displacement noise, so cloning is only
 marginally better than ICP alone there; its gains are consistency, gating and bridging gaps.
 
+Landmarks (:meth:`SagittalEskf.update_landmark`): static 2D points augmented to the state
+after the clone, SLAM-style, rather than fixed with an inflated noise: the landmark added at
+first sight, L = p(t) + r, carries dp + dt dv + e with e the observation noise, so it is
+correlated with the state, and later observations z = L - p(t) are relative measurements
+that cannot shrink the position covariance below what it was at first sight (a fixed
+landmark with noise "observation + own covariance", re-used every frame, would count that
+uncertainty as independent each time and become overconfident). The estimator uses them for
+tracked terrain corners and for the ankle during stance (vio_graph/estimator.py); the caller
+marginalises a landmark (:meth:`drop_landmark`) when its track ends, so the state stays at
+8 + 2 (clone) + 2 per landmark in view (at most 14).
+
 Measurement times need not coincide with IMU samples: p(t) is taken as
 p + v dt + a dt^2 / 2 with dt = t - t_state and a the last ground-frame acceleration (H gains
 a dt * I block on dv), exact for constant acceleration over the few ms between the last IMU
@@ -375,7 +386,12 @@ class SagittalEskf:
 
     # --------------------------------------------------------------- landmarks
     def update_landmark(
-        self, key: object, rel_xz: ArrayLike, cov: ArrayLike, timestamp_s: float | None = None
+        self,
+        key: object,
+        rel_xz: ArrayLike,
+        cov: ArrayLike,
+        timestamp_s: float | None = None,
+        gate: bool = True,
     ) -> bool:
         """Fuse an observation of a static point (landmark) relative to the camera.
 
@@ -388,7 +404,9 @@ class SagittalEskf:
         z = L - p(t), H = [-I -dt*I 0 0 .. I ..], gated like the displacements. While a
         landmark stays in view the position error therefore cannot grow beyond what it was
         when the landmark was first seen (plus observation noise). Returns True if the
-        observation was fused (False: first sight, gated out, or stale).
+        observation was fused (False: first sight, gated out, or stale). ``gate=False``
+        skips the chi-square gate (for observations whose association cannot be wrong, e.g.
+        the stance ankle, where a drifted velocity must not lock the anchor out).
         """
         self._require_init()
         t = self._t_s if timestamp_s is None else float(timestamp_s)
@@ -407,7 +425,7 @@ class SagittalEskf:
         H[:, 2:4] = -dt * _I2
         H[:, i : i + 2] = _I2
         innovation = rel - (self._aug_xz[key] - self._position_ahead(dt))
-        accepted = self._correct(innovation, H, V)
+        accepted = self._correct(innovation, H, V, gate)
         if accepted:
             self._last_accept_s = max(self._last_accept_s, t)
             self._record_correction(t)
@@ -457,7 +475,7 @@ class SagittalEskf:
         )
 
     # ----------------------------------------------------------------- helpers
-    def _correct(self, innovation: NDArray, H: NDArray, V: NDArray) -> bool:
+    def _correct(self, innovation: NDArray, H: NDArray, V: NDArray, gate: bool = True) -> bool:
         """Gate, Kalman gain, injection and reset (eq. 8). Returns False if gated out."""
         P = self._P
         S = H @ P @ H.T + V
@@ -466,7 +484,7 @@ class SagittalEskf:
             S_inv_y = np.linalg.solve(S, innovation)
         except np.linalg.LinAlgError as exc:
             raise EstimationError(f"singular innovation covariance: {exc}") from None
-        if float(innovation @ S_inv_y) > self._gate_d2:
+        if gate and float(innovation @ S_inv_y) > self._gate_d2:
             self._n_rej += 1
             return False
         K = np.linalg.solve(S, H @ P).T  # K = P H^T S^-1 (S, P symmetric)

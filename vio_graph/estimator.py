@@ -51,12 +51,17 @@ from vio_graph.kinematics import knee_from_camera, leg_points_from_knee, shank_p
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.recording.metadata import RecordingMetadata
 from vio_graph.types import (
+    CornerObservation,
     DepthFrame,
     EstimateStatus,
     FrameEstimate,
     ImuSample,
     JointAngles,
 )
+
+
+#: Track ids of stance anchors handed to the smoother (corner track ids stay far below this).
+STANCE_TRACK_ID_BASE = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -114,6 +119,8 @@ class OnlineEstimator:
         self._stance = StanceDetector(ankle_in_imu, fc.stance_accel_threshold_mps2,
                                       fc.stance_window_s)
         self._stance_n = 0  # id of the current / next stance anchor
+        #: this frame's stance anchor (ankle - camera) as an observation, None outside stance
+        self.stance_observation: CornerObservation | None = None
         self._in_stance = False
 
     # ------------------------------------------------------------------ inputs
@@ -256,10 +263,15 @@ class OnlineEstimator:
                 fc.stance_speed_threshold_mps is None
                 or float(np.hypot(*v_ankle)) < fc.stance_speed_threshold_mps)
             key = ("ankle", self._stance_n)
+            self.stance_observation = None
             if stance:
                 sig2 = (fc.stance_pitch_sigma_rad * float(np.hypot(*u))) ** 2 \
                     + fc.stance_slip_sigma_m**2
                 self.filter.update_landmark(key, lever, np.eye(2) * sig2, t, fc.stance_gate)
+                # the same anchor, as a landmark observation the smoother can use
+                self.stance_observation = CornerObservation(
+                    timestamp_s=t, track_id=STANCE_TRACK_ID_BASE + self._stance_n,
+                    corner_rel_xz_m=lever.copy(), cov_m2=np.eye(2) * sig2)
             elif self._in_stance:
                 self.filter.drop_landmark(key)
                 self._stance_n += 1

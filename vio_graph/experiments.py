@@ -362,9 +362,10 @@ def load_trial_metrics(results_dir: Path) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- ablation
 #: Smoother variants for the ablation: name -> (factor family switches, extra smoother settings).
 ABLATION_VARIANTS: dict[str, tuple[dict[str, bool], dict[str, Any]]] = {
-    "IMU + displacements": ({"landmarks": False}, {}),
-    "IMU + displacements + corner landmarks (default)": ({}, {}),
-    "IMU + corner landmarks (no displacements)": ({"displacement": False}, {}),
+    "IMU + displacements": ({"landmarks": False, "stance_anchors": False}, {}),
+    "IMU + displacements + corner landmarks": ({"stance_anchors": False}, {}),
+    "IMU + displacements + corner landmarks + stance anchors (default)": ({}, {}),
+    "IMU + landmarks + stance anchors (no displacements)": ({"displacement": False}, {}),
     "default, raw IMU samples (no midpoint rule)": ({}, {"preintegration": "raw"}),
     "default, no robust kernel": ({}, {"robust_kernel": "none"}),
 }

@@ -179,6 +179,15 @@ class Replay:
             self.batch_solve_s = time.perf_counter() - t0
         return lg
 
+    def _smoother_observations(self, res) -> list:
+        """Landmark observations for the smoothers: the corner and, if enabled, the stance
+        anchor (the planted ankle, a landmark seen through the leg)."""
+        obs = [res.observation] if res.observation is not None else []
+        stance = self.online.stance_observation
+        if stance is not None and self.config.smoother.factors.stance_anchors:
+            obs.append(stance)
+        return obs
+
     def _guard(self, name: str, fn, *args) -> None:
         """Call a smoother; if it fails (e.g. GTSAM finds the system indeterminate), stop feeding
         it, keep its last good keyframes, and record the failure instead of killing the run
@@ -231,7 +240,7 @@ class Replay:
                 est.is_keyframe,
                 est,
                 res.displacement,
-                res.observation,
+                self._smoother_observations(res),
             )
         R_world_imu = self.online.R_world_imu(est.timestamp_s)
         lg.shank_pitch_imu.append(float(pitch_of(R_world_imu @ self.rig.R_knee_imu.T)))

@@ -33,6 +33,11 @@ class FactorFamilies(BaseModel):
     landmarks: bool = Field(
         default=True, description="corner tracks as landmarks L(j) observed from keyframes"
     )
+    stance_anchors: bool = Field(
+        default=True,
+        description="the planted ankle during each stance as a landmark seen through the leg "
+        "(the filter's stance anchor, vio_graph/filter/stance.py)",
+    )
     attitude: bool = Field(default=True, description="vendor AHRS attitude prior per keyframe")
     planar: bool = Field(
         default=True, description="sagittal-plane priors: lateral position and velocity = 0"

@@ -297,3 +297,19 @@ def test_held_samples_cover_interval_and_hold_values() -> None:
     assert abs(dt.sum() - 0.195) < 1e-12
     np.testing.assert_allclose(a_s[0], a[10])  # the step starting at 0.105 holds the 0.10 sample
     np.testing.assert_allclose(g_s[1], g[11])
+
+
+def test_batch_counts_downweighted_outliers() -> None:
+    """The batch smoother reports the robust factors it down-weights: a one-step-off
+    displacement is among them, and a clean run has (almost) none."""
+    from vio_graph.smoother.batch import BatchSmoother
+    from vio_graph.smoother.config import SmootherConfig
+    from vio_graph.smoother.synthetic import feed, make_swinging_shank_trial
+
+    clean = BatchSmoother(SmootherConfig(), np.eye(4))
+    feed(make_swinging_shank_trial(duration_s=3.0, seed=1), clean)
+    bad = BatchSmoother(SmootherConfig(), np.eye(4))
+    feed(make_swinging_shank_trial(duration_s=3.0, seed=1, outlier_frames=(40,)), bad)
+    c, b = clean.robust_outliers(), bad.robust_outliers()
+    assert c["robust_factors"] > 10
+    assert b["downweighted"] >= c["downweighted"] + 1

@@ -487,6 +487,11 @@ def _run_into(
         metrics.update(evaluate_paths(rec, t_s, paths, visible))
     metrics["latency_ms"] = _latencies(lg, replay)
     metrics["smoother_failures"] = replay.failed
+    if "batch" in replay.smoothers:  # measurements the robust kernels down-weighted
+        try:
+            metrics["batch_robust"] = replay.smoothers["batch"].robust_outliers()
+        except EstimationError as exc:
+            log.warning("batch robust statistics unavailable: %s", exc)
     metrics["frontend"] = {
         "displacement_fraction": float(np.mean(lg.displacement_ok)) if lg.t_s else 0.0,
         "rejections": _count(lg.rejection),

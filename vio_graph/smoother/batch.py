@@ -63,6 +63,14 @@ class BatchSmoother(KeyframeSmootherBase):
         self.solve_iterations = int(opt.iterations())
         return self._result
 
+    def robust_outliers(self) -> dict[str, int]:
+        """How many robust (Huber/Cauchy) factors the solution down-weights: whitened error
+        beyond the kernel threshold, i.e. measurements the smoother effectively rejected.
+        Returns {"robust_factors": n, "downweighted": k}."""
+        if self._result is None:
+            self.solve()
+        return count_downweighted(self.graph, self._result, self.config.robust_threshold)
+
     def keyframe_estimates(self, with_covariance: bool = True) -> list[KeyframeEstimate]:
         """Refined camera x-z of every keyframe (solves first if needed)."""
         if self._result is None:
@@ -85,3 +93,22 @@ class BatchSmoother(KeyframeSmootherBase):
                 )
             out.append(KeyframeEstimate(t, cam[[0, 2]], cov))
         return out
+
+
+def count_downweighted(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, threshold: float
+) -> dict[str, int]:
+    """Count robust factors whose whitened error norm exceeds ``threshold`` at ``values``."""
+    n_robust = n_down = 0
+    for k in range(graph.size()):
+        f = graph.at(k)
+        if f is None or not hasattr(f, "noiseModel"):
+            continue
+        nm = f.noiseModel()
+        if not isinstance(nm, gtsam.noiseModel.Robust):
+            continue
+        n_robust += 1
+        err = nm.noise().whiten(f.unwhitenedError(values))
+        if float(np.linalg.norm(err)) > threshold:
+            n_down += 1
+    return {"robust_factors": n_robust, "downweighted": n_down}

@@ -109,7 +109,8 @@ def markdown_synthetic(fixed: list[dict], batch: list[dict], meta: dict) -> str:
     lines = [
         f"Synthetic swinging shank. {meta['note']}",
         "",
-        "Fixed-lag (IncrementalFixedLagSmoother, Cholesky), per keyframe:",
+        "Fixed-lag (IncrementalFixedLagSmoother, "
+        f"{SmootherConfig().fixed_lag_factorization} factorisation), per keyframe:",
         "",
         "| window s | keyframes | update ms median | update ms p95 | build ms median "
         "| build ms p95 | ATE mm (smoother) | ATE mm (filter guess) |",

@@ -118,6 +118,22 @@ def _second_derivative(t: NDArray[np.float64], y: NDArray[np.float64]) -> NDArra
     return ypp
 
 
+def _imu_knots(
+    times_s: ArrayLike, accel_mps2: ArrayLike, gyro_radps: ArrayLike, t0_s: float, t1_s: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Checked IMU arrays and the step knots over [t0_s, t1_s]: t0, the samples strictly
+    inside, t1."""
+    t = np.asarray(times_s, dtype=float)
+    a = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
+    g = np.asarray(gyro_radps, dtype=float).reshape(-1, 3)
+    if t.size == 0:
+        raise EstimationError("no IMU samples to preintegrate")
+    if t1_s <= t0_s:
+        raise EstimationError(f"empty preintegration interval [{t0_s}, {t1_s}]")
+    inner = t[(t > t0_s + TIME_TOL_S) & (t < t1_s - TIME_TOL_S)]
+    return t, a, g, np.concatenate([[t0_s], inner, [t1_s]])
+
+
 def midpoint_samples(
     times_s: ArrayLike,
     accel_mps2: ArrayLike,
@@ -143,15 +159,7 @@ def midpoint_samples(
     Returns:
         ``accel_mid (K, 3)``, ``gyro_mid (K, 3)``, ``dt_s (K,)`` with sum(dt) = t1 - t0.
     """
-    t = np.asarray(times_s, dtype=float)
-    a = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
-    g = np.asarray(gyro_radps, dtype=float).reshape(-1, 3)
-    if t.size == 0:
-        raise EstimationError("no IMU samples to preintegrate")
-    if t1_s <= t0_s:
-        raise EstimationError(f"empty preintegration interval [{t0_s}, {t1_s}]")
-    inner = t[(t > t0_s + TIME_TOL_S) & (t < t1_s - TIME_TOL_S)]
-    knots = np.concatenate([[t0_s], inner, [t1_s]])
+    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
     lo = np.clip(np.searchsorted(t, knots, side="right") - 1, 0, t.size - 1)
     hi = np.clip(lo + 1, 0, t.size - 1)
     inside = (knots > t[0]) & (knots < t[-1])
@@ -181,15 +189,7 @@ def held_samples(
     """Raw IMU steps covering [t0_s, t1_s]: each step uses the last sample at or before its
     start (what feeding samples straight into ``integrateMeasurement`` does). Same outputs
     as :func:`midpoint_samples`; kept as the ablation's baseline."""
-    t = np.asarray(times_s, dtype=float)
-    a = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
-    g = np.asarray(gyro_radps, dtype=float).reshape(-1, 3)
-    if t.size == 0:
-        raise EstimationError("no IMU samples to preintegrate")
-    if t1_s <= t0_s:
-        raise EstimationError(f"empty preintegration interval [{t0_s}, {t1_s}]")
-    inner = t[(t > t0_s + TIME_TOL_S) & (t < t1_s - TIME_TOL_S)]
-    knots = np.concatenate([[t0_s], inner, [t1_s]])
+    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
     idx = np.clip(np.searchsorted(t, knots[:-1] + TIME_TOL_S, side="right") - 1, 0, t.size - 1)
     return a[idx], g[idx], np.diff(knots)
 

@@ -33,9 +33,11 @@ class KinematicsConfig(_Section):
     """Where the leg chain's angles come from (paper Section II.D, Fig. 3)."""
 
     shank_pitch_source: Literal["encoders", "imu"] = Field(
-        default="encoders",
-        description="'encoders': thigh IMU pitch and knee encoder as in the paper; "
-        "'imu': the shank/knee IMU's own pitch",
+        default="imu",
+        description="'imu': the shank/knee IMU's attitude at the frame time (gyro-integrated, "
+        "filter/attitude.py); 'encoders': thigh IMU pitch minus the knee encoder, as in the "
+        "paper (Fig. 3). The IMU default halved the toe error on simulated trials whose thigh "
+        "IMU has the MTi's 1 deg pitch error (docs/method.md)",
     )
 
 

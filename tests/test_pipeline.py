@@ -125,3 +125,16 @@ def test_rerun_recording_verifies_and_has_the_scene(run_all) -> None:
                    "/world/leg/est", "/world/leg/gt", "/world/terrain/mesh", "/world/map",
                    "/world/gt/toe", "/world/est/toe", "/world/smoother/toe"):
         assert entity in dump, entity
+
+
+def test_recording_without_ground_truth(short_upstair: Path, tmp_path: Path) -> None:
+    """A real trial has no motion capture: the run still writes trajectories and a map."""
+    import shutil
+
+    rec = tmp_path / "nogt"
+    shutil.copytree(short_upstair, rec)
+    shutil.rmtree(rec / "groundtruth")
+    res = run_recording(rec, tmp_path / "r", PipelineConfig(), visualize=False, progress=False)
+    assert "ate_cm" not in res.metrics
+    assert read_tum(res.out_dir / "trajectories" / "filter_toe.tum").timestamp_s.size > 50
+    assert (res.out_dir / "map" / "map.ply").is_file()

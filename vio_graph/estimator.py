@@ -35,9 +35,10 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
@@ -47,7 +48,7 @@ from vio_graph.filter.stance import StanceDetector
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
 from vio_graph.geometry import invert_transform, pitch_of, remove_yaw
 from vio_graph.keyframes import KeyframeSelector
-from vio_graph.kinematics import knee_from_camera, leg_points_from_knee, shank_pitch_rad
+from vio_graph.kinematics import LegPoints, knee_from_camera, leg_points_from_knee, shank_pitch_rad
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.recording.metadata import RecordingMetadata
 from vio_graph.types import (
@@ -58,7 +59,6 @@ from vio_graph.types import (
     ImuSample,
     JointAngles,
 )
-
 
 #: Track ids of stance anchors handed to the smoother (corner track ids stay far below this).
 STANCE_TRACK_ID_BASE = 1_000_000
@@ -86,13 +86,32 @@ class RigGeometry:
     def R_imu_cam(self) -> NDArray[np.float64]:
         return self.imu_T_cam[:3, :3]
 
-    @property
+    @cached_property
     def R_knee_imu(self) -> NDArray[np.float64]:
         return (self.knee_T_cam @ invert_transform(self.imu_T_cam))[:3, :3]
 
     @property
     def camera_in_shank_xz_m(self) -> NDArray[np.float64]:
         return self.knee_T_cam[[0, 2], 3].copy()
+
+    def shank_pitch_rad(self, R_world_imu: NDArray[np.float64]) -> float:
+        """Shank segment pitch (rad) from the IMU attitude (heading removed)."""
+        return float(pitch_of(R_world_imu @ self.R_knee_imu.T))
+
+    def leg_points(
+        self,
+        camera_xz_m: ArrayLike,
+        shank_pitch_imu_rad: ArrayLike,
+        shank_pitch_chain_rad: ArrayLike,
+        ankle_rad: ArrayLike,
+        use_encoders: bool,
+    ) -> LegPoints:
+        """Knee, ankle, heel and toe (N, 2) by forward kinematics (Fig. 3): the knee from the
+        camera through knee_T_cam with the IMU shank pitch; the rest of the chain with the IMU
+        pitch or, ``use_encoders``, with thigh IMU pitch minus knee encoder (the paper's)."""
+        knee = knee_from_camera(camera_xz_m, shank_pitch_imu_rad, self.camera_in_shank_xz_m)
+        shank = shank_pitch_chain_rad if use_encoders else shank_pitch_imu_rad
+        return leg_points_from_knee(self.leg, knee, shank, ankle_rad)
 
 
 class OnlineEstimator:
@@ -251,7 +270,7 @@ class OnlineEstimator:
                 self.filter.update_landmark(key, obs.corner_rel_xz_m, cov, t)
         if fc.stance_anchor:
             # ankle - camera through the shank: R_shank (ankle_in_shank - camera_in_shank)
-            theta = float(pitch_of(R_world_imu @ self.rig.R_knee_imu.T))
+            theta = self.rig.shank_pitch_rad(R_world_imu)
             u = np.array([0.0, -self.rig.leg.shank_length_m]) - self.rig.camera_in_shank_xz_m
             c, sn = np.cos(theta), np.sin(theta)
             lever = np.array([c * u[0] + sn * u[1], -sn * u[0] + c * u[1]])
@@ -279,13 +298,15 @@ class OnlineEstimator:
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
         """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""
-        shank_pitch_imu = float(pitch_of(R_world_imu @ self.rig.R_knee_imu.T))
-        knee = knee_from_camera(camera_xz_m, shank_pitch_imu, self.rig.camera_in_shank_xz_m)
+        imu_pitch, chain_pitch, ankle = self.leg_angles(R_world_imu)
+        use_enc = self.config.kinematics.shank_pitch_source == "encoders"
+        return self.rig.leg_points(camera_xz_m, imu_pitch, chain_pitch, ankle, use_enc)
+
+    def leg_angles(self, R_world_imu: NDArray[np.float64]) -> tuple[float, float, float]:
+        """(IMU shank pitch, thigh-IMU-minus-knee-encoder shank pitch, ankle) in rad, from the
+        latest joint sample (without one: the IMU pitch and a neutral ankle)."""
+        imu_pitch = self.rig.shank_pitch_rad(R_world_imu)
         j = self._last_joints
         if j is None:
-            return leg_points_from_knee(self.rig.leg, knee, shank_pitch_imu, 0.0)
-        if self.config.kinematics.shank_pitch_source == "encoders":
-            shank = shank_pitch_rad(j.thigh_pitch_rad, j.knee_rad)
-        else:
-            shank = shank_pitch_imu
-        return leg_points_from_knee(self.rig.leg, knee, shank, j.ankle_rad)
+            return imu_pitch, imu_pitch, 0.0
+        return imu_pitch, float(shank_pitch_rad(j.thigh_pitch_rad, j.knee_rad)), j.ankle_rad

@@ -26,9 +26,7 @@ from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.evaluation.association import associate
 from vio_graph.evaluation.metrics import ape, ate_per_axis, rpe
 from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
-from vio_graph.geometry import pitch_of
 from vio_graph.io_utils import atomic_write_json, atomic_write_text, remove_temporaries
-from vio_graph.kinematics import knee_from_camera, leg_points_from_knee, shank_pitch_rad
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.recording.reader import Recording
 from vio_graph.recording.streams import Trajectory
@@ -118,13 +116,7 @@ class Replay:
         gt = rec.groundtruth
         p0 = None
         if gt is not None:  # place the estimate's origin at the true start (the paper's anchor)
-            cam = gt.trajectories["camera"]
-            p0 = np.array(
-                [
-                    np.interp(rec.frame_timestamps_s[0], cam.timestamp_s, cam.position_m[:, k])
-                    for k in (0, 2)
-                ]
-            )
+            p0 = _interp_xz(gt.trajectories["camera"], rec.frame_timestamps_s[0])
         self.p0 = np.zeros(2) if p0 is None else p0
         self.online = OnlineEstimator(config, self.rig, p0)
         self.baselines = {
@@ -243,14 +235,10 @@ class Replay:
                 self._smoother_observations(res),
             )
         R_world_imu = self.online.R_world_imu(est.timestamp_s)
-        lg.shank_pitch_imu.append(float(pitch_of(R_world_imu @ self.rig.R_knee_imu.T)))
-        j = self.online._last_joints
-        lg.shank_pitch_chain.append(
-            float(shank_pitch_rad(j.thigh_pitch_rad, j.knee_rad))
-            if j is not None
-            else lg.shank_pitch_imu[-1]
-        )
-        lg.ankle_rad.append(j.ankle_rad if j is not None else 0.0)
+        imu_pitch, chain_pitch, ankle = self.online.leg_angles(R_world_imu)
+        lg.shank_pitch_imu.append(imu_pitch)
+        lg.shank_pitch_chain.append(chain_pitch)
+        lg.ankle_rad.append(ankle)
         lg.status.append(est.status.value)
         lg.terrain.append(res.terrain.value)
         lg.displacement_ok.append(res.displacement is not None)
@@ -325,9 +313,8 @@ def leg_trajectories(
     rig: RigGeometry, camera_xz: NDArray[np.float64], lg: FrameLog, use_encoders: bool
 ) -> dict[str, NDArray[np.float64]]:
     """Knee, ankle, heel and toe (N, 2) for a camera path, by forward kinematics (Fig. 3)."""
-    knee = knee_from_camera(camera_xz, np.asarray(lg.shank_pitch_imu), rig.camera_in_shank_xz_m)
-    shank = np.asarray(lg.shank_pitch_chain if use_encoders else lg.shank_pitch_imu)
-    pts = leg_points_from_knee(rig.leg, knee, shank, np.asarray(lg.ankle_rad))
+    pts = rig.leg_points(camera_xz, np.asarray(lg.shank_pitch_imu),
+                         np.asarray(lg.shank_pitch_chain), np.asarray(lg.ankle_rad), use_encoders)
     return {
         "camera": camera_xz,
         "knee": pts.knee_xz_m,

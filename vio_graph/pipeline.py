@@ -26,6 +26,7 @@ from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.evaluation.association import associate
 from vio_graph.evaluation.metrics import ape, ate_per_axis, rpe
 from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
+from vio_graph.frontend.projection import depth_to_points_cam
 from vio_graph.io_utils import atomic_write_json, atomic_write_text, remove_temporaries
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.recording.reader import Recording
@@ -264,9 +265,7 @@ class Replay:
         )
         if i % out_cfg.cloud_every_n_frames == 0:
             viz.log_cloud(
-                _cloud_world(
-                    frame.depth_m, self.rig.K, R_world_cam, cam_xyz, out_cfg.cloud_pixel_stride
-                )
+                _cloud_world(frame, self.rig.K, R_world_cam, cam_xyz, out_cfg.cloud_pixel_stride)
             )
         viz.log_sagittal("slice", est.camera_xz_m + res.profile_xz_m, 0.002, (250, 200, 0))
         if res.corner is not None:
@@ -300,13 +299,14 @@ def _interp_xz(traj: Trajectory, t: float) -> NDArray[np.float64]:
     return np.array([np.interp(t, traj.timestamp_s, traj.position_m[:, k]) for k in (0, 2)])
 
 
-def _cloud_world(depth_m, K, R_world_cam, cam_xyz, stride: int) -> NDArray[np.float64]:
-    d = depth_m[::stride, ::stride]
-    v, u = np.nonzero(d > 0)
-    z = d[v, u]
-    x = (u * stride - K[0, 2]) * z / K[0, 0]
-    y = (v * stride - K[1, 2]) * z / K[1, 1]
-    return np.column_stack([x, y, z]) @ R_world_cam.T + cam_xyz
+def _cloud_world(frame, K, R_world_cam, cam_xyz, stride: int) -> NDArray[np.float64]:
+    """The frame's valid points in the world frame, every ``stride``-th pixel (for viewing):
+    the front end's back-projection on the subsampled image with its scaled intrinsics."""
+    K_sub = np.array(K, dtype=float)
+    K_sub[:2] /= stride
+    pts = depth_to_points_cam(frame.depth_m[::stride, ::stride],
+                              frame.confidence[::stride, ::stride], K_sub)
+    return pts @ R_world_cam.T + cam_xyz
 
 
 def leg_trajectories(

@@ -149,15 +149,14 @@ def run_sweep(
 
 def _toe_error(rec: Path, res: Path) -> tuple[np.ndarray, np.ndarray]:
     """Filter toe error norm (m) per frame, after anchoring the first pose (paper's ATE)."""
+    from vio_graph.evaluation.association import associate
+    from vio_graph.evaluation.metrics import ate_per_axis
     from vio_graph.recording.tum import read_tum
 
-    est = read_tum(res / "trajectories" / "filter_toe.tum")
-    gt = read_tum(rec / "groundtruth" / "toe.tum")
-    ref = np.column_stack(
-        [np.interp(est.timestamp_s, gt.timestamp_s, gt.position_m[:, k]) for k in range(3)]
-    )
-    err = est.position_m - est.position_m[0] + ref[0] - ref
-    return est.timestamp_s, np.linalg.norm(err, axis=1)
+    pair = associate(read_tum(res / "trajectories" / "filter_toe.tum"),
+                     read_tum(rec / "groundtruth" / "toe.tum"), max_diff_s=0.02)
+    ate = ate_per_axis(pair.est, pair.ref, anchor="first")
+    return ate.timestamp_s, np.linalg.norm(ate.errors_xyz_m, axis=1)
 
 
 def _recovery_time(

@@ -33,6 +33,7 @@ Per frame, in the paper's order (Section II):
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from functools import cached_property
@@ -42,11 +43,18 @@ from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
-from vio_graph.filter.attitude import AttitudeTracker
+from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, rot_y, with_pitch_offset
 from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
 from vio_graph.filter.stance import StanceDetector
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
-from vio_graph.geometry import invert_transform, pitch_of, remove_yaw
+from vio_graph.frontend.level import SurfaceTilt, measure_surface_tilt
+from vio_graph.geometry import (
+    invert_transform,
+    matrix_from_quat_wxyz,
+    pitch_of,
+    quat_wxyz_from_matrix,
+    remove_yaw,
+)
 from vio_graph.keyframes import KeyframeSelector
 from vio_graph.kinematics import LegPoints, knee_from_camera, leg_points_from_knee, shank_pitch_rad
 from vio_graph.mapping.local_map import TerrainMap2D
@@ -124,6 +132,10 @@ class OnlineEstimator:
         self.frontend = VisualFrontend(config.frontend)
         self.filter = SagittalEskf(config.filter, rig.imu_T_cam)
         self.attitude = AttitudeTracker(config.filter.attitude)
+        self.pitch_offset = PitchOffsetFilter(config.filter.level_aiding)
+        self._level_rng = np.random.default_rng(config.frontend.seed)
+        #: this frame's level-surface tilt measurement (None if no level surface was found)
+        self.surface_tilt: SurfaceTilt | None = None
         self.keyframes = KeyframeSelector(config.keyframes)
         self.local_map = TerrainMap2D(config.mapping.map)
         self._p0 = np.zeros(2) if initial_camera_xz_m is None else np.asarray(initial_camera_xz_m, float)
@@ -145,6 +157,7 @@ class OnlineEstimator:
     # ------------------------------------------------------------------ inputs
     def add_imu(self, sample: ImuSample) -> None:
         t0 = time.perf_counter()
+        sample = self.corrected_imu(sample)
         if self._last_imu is None:
             self.filter.initialise(sample.timestamp_s, self._p0)
         elif sample.timestamp_s <= self._last_imu.timestamp_s:
@@ -167,13 +180,24 @@ class OnlineEstimator:
     def initialised(self) -> bool:
         return self._last_imu is not None
 
+    def corrected_imu(self, sample: ImuSample) -> ImuSample:
+        """``sample`` with its vendor orientation turned by the level-surface pitch offset
+        (FilterConfig.level_aiding); the sample itself when the offset is not set yet."""
+        b = self.pitch_offset.offset_rad
+        if not self.pitch_offset.initialised or b == 0.0:
+            return sample
+        R = with_pitch_offset(matrix_from_quat_wxyz(sample.quat_wxyz), b)
+        return dataclasses.replace(sample, quat_wxyz=quat_wxyz_from_matrix(R))
+
     def R_world_imu(self, t_s: float | None = None) -> NDArray[np.float64]:
         """Attitude at ``t_s`` (default: the latest IMU sample) with the heading removed (the
         paper's ground frame); ``config.filter.attitude`` says how (filter/attitude.py)."""
         if self._last_imu is None:
             raise EstimationError("no IMU sample yet")
         t = self._last_imu.timestamp_s if t_s is None else t_s
-        return remove_yaw(self.attitude.R_world_imu_at(t))
+        R = remove_yaw(self.attitude.R_world_imu_at(t))
+        b = self.pitch_offset.offset_rad
+        return rot_y(b) @ R if b != 0.0 else R
 
     def _position_at(self, t_s: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Filter camera position (m) and velocity extrapolated to ``t_s`` (few ms at most)."""
@@ -213,6 +237,17 @@ class OnlineEstimator:
             pred_cov = P[2:4, 2:4] * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
         # 3. front end (eq. 1-4)
         result = self.frontend.process(frame, self.rig.K, R_ground_cam, pred_delta, pred_cov)
+        # 3b. level surfaces in the slice -> pitch correction of the attitude
+        if self.config.filter.level_aiding.enabled and R_ground_cam_override is None:
+            first = not self.pitch_offset.initialised
+            if self._level_aiding(t, result.profile_xz_m) and first:
+                # the first offset can be degrees: redo this frame with it, so that the next
+                # frame's ICP compares two slices rotated alike
+                R_world_imu = self.R_world_imu(t)
+                R_ground_cam = R_world_imu @ self.rig.R_imu_cam
+                self.frontend.reset()
+                result = self.frontend.process(frame, self.rig.K, R_ground_cam, None, None)
+            R_world_imu = self.R_world_imu(t)
         timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
         if transform_result is not None:
             result = transform_result(result)
@@ -253,6 +288,20 @@ class OnlineEstimator:
             timings_ms=timings,
         )
         return estimate, result
+
+    def _level_aiding(self, t: float, profile_xz_m: NDArray[np.float64]) -> bool:
+        """Measure the tilt of the level surfaces in this frame's profile and update the
+        pitch offset (frontend/level.py, filter/attitude.PitchOffsetFilter); True if the
+        offset changed."""
+        cfg = self.config.filter.level_aiding
+        self.pitch_offset.predict(t)
+        self.surface_tilt = measure_surface_tilt(
+            profile_xz_m, self._level_rng, np.radians(cfg.max_tilt_deg), cfg.inlier_m,
+            cfg.min_points, cfg.min_extent_m)
+        if self.surface_tilt is None:
+            return False
+        step = self.pitch_offset.update(self.surface_tilt.tilt_rad, self.surface_tilt.sigma_rad)
+        return step != 0.0
 
     def _fuse_landmarks(self, t: float, result: FrontendResult,
                         R_world_imu: NDArray[np.float64]) -> None:

@@ -153,8 +153,9 @@ class Replay:
                         b.initialise(s.timestamp_s, self.p0)
                     else:
                         b.propagate(s)
+                s_level = online.corrected_imu(s)  # attitude with the level-surface pitch
                 for name, sm in list(self.smoothers.items()):
-                    self._guard(name, sm.add_imu, s)
+                    self._guard(name, sm.add_imu, s_level)
                 started = True
             elif kind == 1:
                 online.add_joints(rec.joints.sample(int(i)))

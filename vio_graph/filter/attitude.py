@@ -34,8 +34,8 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from vio_graph.errors import EstimationError
-from vio_graph.filter.config import AttitudeConfig
-from vio_graph.geometry import matrix_from_quat_wxyz
+from vio_graph.filter.config import AttitudeConfig, LevelAidingConfig
+from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw
 from vio_graph.types import ImuSample
 
 
@@ -86,3 +86,67 @@ class AttitudeTracker:
             return self._R.copy()
         dt = max(0.0, float(t_s) - self._t_s)
         return self._R @ _rotvec_matrix(self._gyro_radps * dt)
+
+
+def rot_y(angle_rad: float) -> NDArray[np.float64]:
+    """Rotation about the ground y axis (lateral): (x, z) -> (c x + s z, -s x + c z)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def with_pitch_offset(R_world_imu: NDArray[np.float64], offset_rad: float) -> NDArray[np.float64]:
+    """R_world_imu turned by ``offset_rad`` about the lateral axis of its own ground frame:
+    ``remove_yaw(result) == rot_y(offset_rad) @ remove_yaw(R_world_imu)`` (heading kept)."""
+    R = np.asarray(R_world_imu, dtype=float)
+    G = remove_yaw(R)
+    Rz = G @ R.T  # the heading removal, a rotation about world z
+    return Rz.T @ rot_y(offset_rad) @ G
+
+
+class PitchOffsetFilter:
+    """Pitch correction of the IMU attitude from level surfaces (frontend/level.py).
+
+    One-state Kalman filter on the offset b (rad) such that rot_y(b) @ R_ground_imu is the
+    true attitude. ``predict`` adds random-walk noise (the vendor error drifts: MTi-1 ~1 deg
+    RMS, correlation time of seconds); ``update`` takes the residual tilt measured on a slice
+    that was already rotated with the current b, so the innovation is the measurement itself.
+    Measurements outside ``gate_sigmas`` of the predicted spread are refused (a ramp, a
+    wrongly fitted line). The first accepted measurement sets b directly.
+    """
+
+    def __init__(self, config: LevelAidingConfig | None = None) -> None:
+        self.config = LevelAidingConfig() if config is None else config
+        self.offset_rad = 0.0
+        self.var_rad2 = np.radians(self.config.initial_sigma_deg) ** 2
+        self.initialised = False
+        self._t_s: float | None = None
+        self.n_accepted = 0
+        self.n_rejected = 0
+
+    def predict(self, t_s: float) -> None:
+        if self._t_s is not None and t_s > self._t_s:
+            q = np.radians(self.config.drift_deg_per_sqrt_s) ** 2
+            self.var_rad2 += q * (t_s - self._t_s)
+        self._t_s = t_s if self._t_s is None else max(self._t_s, t_s)
+
+    def update(self, tilt_rad: float, sigma_rad: float) -> float:
+        """Fuse a residual tilt (rad) with its sigma; returns the change of b (rad)."""
+        cfg = self.config
+        r = sigma_rad**2 + np.radians(cfg.measurement_floor_deg) ** 2
+        if not self.initialised:
+            self.offset_rad = float(tilt_rad)
+            self.var_rad2 = r
+            self.initialised = True
+            self.n_accepted += 1
+            return float(tilt_rad)
+        s = self.var_rad2 + r
+        if tilt_rad**2 > cfg.gate_sigmas**2 * s:
+            self.n_rejected += 1
+            return 0.0
+        k = self.var_rad2 / s
+        step = float(np.clip(k * tilt_rad, -np.radians(cfg.max_step_deg),
+                             np.radians(cfg.max_step_deg)))
+        self.offset_rad += step
+        self.var_rad2 *= 1.0 - k
+        self.n_accepted += 1
+        return step

@@ -42,6 +42,46 @@ class AttitudeConfig(BaseModel):
     )
 
 
+class LevelAidingConfig(BaseModel):
+    """Pitch aiding from level surfaces (frontend/level.py, filter/attitude.PitchOffsetFilter).
+
+    Floors, treads and obstacle tops are horizontal; their tilt in the ground-frame slice is
+    the pitch error of the attitude. Defaults: the vendor error drifts ~1 deg RMS with a
+    correlation time of ~2 s (MTi-1 datasheet, sim-spec.md), a line fit over >= 12 cm of
+    floor has a slope error of ~0.1 deg.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    enabled: bool = Field(default=True, description="False = the IMU attitude as is (the paper)")
+    max_tilt_deg: float = Field(
+        default=5.0, gt=0, le=20, description="only lines within this angle of horizontal (deg)"
+    )
+    inlier_m: float = Field(default=0.004, gt=0, description="line inlier distance (m)")
+    min_points: int = Field(default=25, ge=3, description="inliers a line needs")
+    min_extent_m: float = Field(default=0.12, gt=0, description="x extent a line needs (m)")
+    initial_sigma_deg: float = Field(
+        default=3.0, gt=0, description="sigma (deg) of the offset before any measurement"
+    )
+    drift_deg_per_sqrt_s: float = Field(
+        default=0.5, ge=0, description="random-walk sigma (deg/sqrt(s)) of the offset"
+    )
+    measurement_floor_deg: float = Field(
+        default=0.15, ge=0,
+        description="sigma (deg) added in quadrature to each tilt measurement (smoothing, "
+        "depth noise correlated along the line)",
+    )
+    gate_sigmas: float = Field(
+        default=4.0, gt=0, description="refuse a tilt further than this many sigmas"
+    )
+    max_step_deg: float = Field(
+        default=0.2, gt=0,
+        description="largest change (deg) of the offset per frame: the previous slice was "
+        "rotated with the old offset, and a change of d turns the next ICP by d (0.2 deg at "
+        "0.6 m: 2 mm)",
+    )
+
+
 class FilterConfig(BaseModel):
     """Parameters of :class:`vio_graph.filter.eskf.SagittalEskf`.
 
@@ -158,6 +198,10 @@ class FilterConfig(BaseModel):
     )
     attitude: AttitudeConfig = Field(
         default=AttitudeConfig(), description="slice rotation of eq. 2 (filter/attitude.py)"
+    )
+    level_aiding: LevelAidingConfig = Field(
+        default=LevelAidingConfig(),
+        description="pitch correction from level surfaces in the slice (frontend/level.py)",
     )
     fused_timeout_s: float = Field(
         default=0.1,

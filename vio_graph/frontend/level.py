@@ -1,0 +1,142 @@
+"""Tilt of the level surfaces in a sagittal profile: a pitch measurement for the attitude.
+
+Floors, stair treads and obstacle tops are horizontal. In the paper's ground frame (eq. 2)
+they should appear as horizontal lines; if they appear tilted by an angle alpha, the attitude
+used to rotate the slice has a pitch error of alpha. The vendor orientation of an MTi-1 is
+off by ~1 deg RMS (slowly varying), which costs twice:
+
+* ICP on a floor only constrains the direction normal to the floor, so with the floor tilted
+  by alpha a forward motion dx reads as a height change alpha * dx (2 deg over 0.6 m: 2 cm);
+* the toe is ~0.45 m from the knee along the leg, so 1 deg of shank pitch moves it ~8 mm.
+
+:func:`measure_surface_tilt` fits up to two near-horizontal lines with a shared slope
+(RANSAC among pairs whose slope is within ``max_tilt_rad``, then least squares on the
+inliers) and returns the tilt with its standard error. ``vio_graph.filter.attitude.
+PitchOffsetFilter`` turns successive measurements into a pitch correction. Pure numpy, no
+I/O.
+
+Limitation: a ramp steeper than the gate of ``PitchOffsetFilter`` is rejected, a gentler one
+(< ~1 deg) biases the attitude by its slope while it is the dominant surface in view.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: RANSAC hypotheses (pairs of points) per line search
+_N_HYPOTHESES = 48
+
+
+@dataclass(frozen=True)
+class SurfaceTilt:
+    """Tilt (rad) of the level surfaces in a profile: positive = they rise with x, i.e. the
+    slice must be rotated by rot_y(+tilt_rad) to level them. ``sigma_rad`` is the standard
+    error of the least-squares slope; ``n_inliers`` and ``extent_m`` (summed x extent of the
+    lines) describe the support; ``n_lines`` is 1 or 2."""
+
+    tilt_rad: float
+    sigma_rad: float
+    n_inliers: int
+    extent_m: float
+    n_lines: int
+
+
+def _best_line(
+    x: NDArray[np.float64], z: NDArray[np.float64], max_slope: float, inlier_m: float,
+    rng: np.random.Generator,
+) -> NDArray[np.bool_] | None:
+    """Inlier mask of the near-horizontal line with the most inliers (None if none)."""
+    n = x.shape[0]
+    i = rng.integers(0, n, _N_HYPOTHESES)
+    j = rng.integers(0, n, _N_HYPOTHESES)
+    dx = x[j] - x[i]
+    ok = np.abs(dx) > 0.03
+    slope = np.where(ok, (z[j] - z[i]) / np.where(ok, dx, 1.0), np.inf)
+    ok &= np.abs(slope) <= max_slope
+    if not ok.any():
+        return None
+    i, s = i[ok], slope[ok]
+    resid = np.abs(z[None, :] - z[i, None] - s[:, None] * (x[None, :] - x[i, None]))
+    inl = resid < inlier_m
+    return inl[int(np.argmax(inl.sum(axis=1)))]
+
+
+def _refine(
+    x: NDArray[np.float64], z: NDArray[np.float64], mask: NDArray[np.bool_], inlier_m: float
+) -> NDArray[np.bool_]:
+    """Least-squares line on the inliers, then re-select inliers once against it."""
+    if mask.sum() < 3:
+        return mask
+    A = np.stack([x[mask], np.ones(int(mask.sum()))], axis=1)
+    (s, c), *_ = np.linalg.lstsq(A, z[mask], rcond=None)
+    return np.abs(z - (s * x + c)) < inlier_m
+
+
+def measure_surface_tilt(
+    profile_xz_m: NDArray[np.float64],
+    rng: np.random.Generator,
+    max_tilt_rad: float = np.radians(5.0),
+    inlier_m: float = 0.004,
+    min_points: int = 25,
+    min_extent_m: float = 0.12,
+) -> SurfaceTilt | None:
+    """Common tilt of the one or two longest near-horizontal lines of a profile.
+
+    Args:
+        profile_xz_m: (N, 2) smoothed sagittal profile in the ground frame, metres.
+        rng: random generator for the RANSAC hypotheses.
+        max_tilt_rad: only lines within this angle of horizontal are considered.
+        inlier_m: vertical inlier distance (m).
+        min_points, min_extent_m: support a line needs (inliers, x extent in metres).
+
+    Returns:
+        The tilt, or None when no line has the support (e.g. only a riser in view).
+    """
+    p = np.asarray(profile_xz_m, dtype=float)
+    if p.ndim != 2 or p.shape[0] < min_points or p.shape[1] != 2:
+        return None
+    x, z = p[:, 0], p[:, 1]
+    max_slope = float(np.tan(max_tilt_rad))
+    remaining = np.ones(x.shape[0], dtype=bool)
+    lines: list[NDArray[np.int64]] = []
+    for _ in range(2):
+        idx = np.flatnonzero(remaining)
+        if idx.size < min_points:
+            break
+        m = _best_line(x[idx], z[idx], max_slope, inlier_m, rng)
+        if m is None:
+            break
+        m = _refine(x[idx], z[idx], m, inlier_m)
+        sel = idx[m]
+        if sel.size < min_points or np.ptp(x[sel]) < min_extent_m:
+            break
+        lines.append(sel)
+        remaining[sel] = False
+    if not lines:
+        return None
+    # shared slope, one intercept per line: z = s x + c_k
+    rows = np.concatenate(lines)
+    A = np.zeros((rows.size, 1 + len(lines)))
+    A[:, 0] = x[rows]
+    start = 0
+    for k, sel in enumerate(lines):
+        A[start:start + sel.size, 1 + k] = 1.0
+        start += sel.size
+    coef, *_ = np.linalg.lstsq(A, z[rows], rcond=None)
+    resid = z[rows] - A @ coef
+    dof = max(1, rows.size - A.shape[1])
+    sxx = sum(float(np.sum((x[sel] - x[sel].mean()) ** 2)) for sel in lines)
+    sigma_slope = float(np.sqrt(np.sum(resid**2) / dof / max(sxx, 1e-12)))
+    s = float(coef[0])
+    if abs(s) > max_slope:
+        return None
+    return SurfaceTilt(
+        tilt_rad=float(np.arctan(s)),
+        sigma_rad=sigma_slope / (1.0 + s * s),
+        n_inliers=int(rows.size),
+        extent_m=float(sum(np.ptp(x[sel]) for sel in lines)),
+        n_lines=len(lines),
+    )

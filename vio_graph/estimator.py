@@ -43,7 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
-from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, rot_y, with_pitch_offset
+from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_pitch_offset
 from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
 from vio_graph.filter.stance import StanceDetector
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
@@ -54,6 +54,7 @@ from vio_graph.geometry import (
     pitch_of,
     quat_wxyz_from_matrix,
     remove_yaw,
+    rot_y,
 )
 from vio_graph.keyframes import KeyframeSelector
 from vio_graph.kinematics import LegPoints, knee_from_camera, leg_points_from_knee, shank_pitch_rad

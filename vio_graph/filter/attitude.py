@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import AttitudeConfig, LevelAidingConfig
-from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw
+from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw, rot_y
 from vio_graph.types import ImuSample
 
 
@@ -86,12 +86,6 @@ class AttitudeTracker:
             return self._R.copy()
         dt = max(0.0, float(t_s) - self._t_s)
         return self._R @ _rotvec_matrix(self._gyro_radps * dt)
-
-
-def rot_y(angle_rad: float) -> NDArray[np.float64]:
-    """Rotation about the ground y axis (lateral): (x, z) -> (c x + s z, -s x + c z)."""
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 def with_pitch_offset(R_world_imu: NDArray[np.float64], offset_rad: float) -> NDArray[np.float64]:

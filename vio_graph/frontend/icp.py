@@ -29,6 +29,7 @@ capped at ``max_variance_m2`` instead of infinity.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,14 +65,110 @@ def _source_normals(
     """Unit normals (M, 2) of the source curve at source points ``idx`` (PCA of k neighbours)."""
     k = min(k, source.shape[0])
     _, nb = tree.query(source[idx], k=k)
-    nb_pts = source[nb]  # (M, k, 2)
-    d = nb_pts - nb_pts.mean(axis=1, keepdims=True)
-    sxx = (d[..., 0] ** 2).mean(axis=1)
-    szz = (d[..., 1] ** 2).mean(axis=1)
-    sxz = (d[..., 0] * d[..., 1]).mean(axis=1)
+    nb = nb.reshape(idx.size, k).T  # (k, M): one row per neighbour rank, contiguous gathers
+    x = source[:, 0][nb]
+    z = source[:, 1][nb]
+    add = np.add.reduce  # the sum inside np.mean, without its Python overhead
+    dx = x - add(x, axis=0) / k
+    dz = z - add(z, axis=0) / k
+    sxx = add(dx * dx, axis=0) / k
+    szz = add(dz * dz, axis=0) / k
+    sxz = add(dx * dz, axis=0) / k
     # direction of largest spread (tangent) has angle 0.5 * atan2(2 sxz, sxx - szz)
     theta = 0.5 * np.arctan2(2.0 * sxz, sxx - szz)
-    return np.column_stack([-np.sin(theta), np.cos(theta)])
+    normals = np.empty((theta.size, 2))
+    normals[:, 0] = -np.sin(theta)
+    normals[:, 1] = np.cos(theta)
+    return normals
+
+
+_Vec2 = tuple[float, float]
+
+
+def _eig_sym2(a: float, b: float, c: float) -> tuple[_Vec2, tuple[_Vec2, _Vec2]]:
+    """Eigen-decomposition of the symmetric 2x2 matrix [[a, b], [b, c]] in plain floats (what
+    ``np.linalg.eigh`` returns, up to rounding and eigenvector signs, at a fraction of its call
+    overhead): eigenvalues ascending and their unit eigenvectors."""
+    half_trace = 0.5 * (a + c)
+    radius = math.hypot(0.5 * (a - c), b)
+    theta = 0.5 * math.atan2(2.0 * b, a - c)  # direction of the larger eigenvalue
+    cos_t, sin_t = math.cos(theta), math.sin(theta)
+    return (half_trace - radius, half_trace + radius), ((-sin_t, cos_t), (cos_t, sin_t))
+
+
+class _NearestSource:
+    """Nearest source point of every target point moved back by T: the same distances and
+    matched coordinates as ``tree.query(target - T, k=1, distance_upper_bound=max_distance_m)``,
+    cheaper over the ICP iterations, where T moves by millimetres.
+
+    A k-nearest query at a translation T_c stores ``n_candidates`` candidates per target point
+    and a radius r that no other source point is closer than (the last candidate's distance,
+    or the search bound). At T, with shift s = |T - T_c|, every other source point is at least
+    r - s away, so the nearest candidate is THE nearest source point when its distance is
+    below r - s (and "nothing within max_distance_m" holds when r - s >= max_distance_m).
+    Rows where that does not hold trigger a new k-nearest query at T. Distances are computed
+    exactly as the KD-tree computes them (bit-identical). Two candidates at exactly the same
+    distance are resolved by the KD-tree itself (a k = 1 query of those rows), unless they are
+    the same point twice (kNN smoothing produces exact duplicates): any of those gives the same
+    coordinates, distance and normal.
+    """
+
+    def __init__(self, src: NDArray[np.float64], tree: cKDTree, tgt: NDArray[np.float64],
+                 max_distance_m: float, n_candidates: int = 8, margin_m: float = 0.02) -> None:
+        self._tree, self._tgt = tree, tgt
+        self._n_src = src.shape[0]
+        self._k = min(n_candidates, self._n_src)
+        self._max = max_distance_m
+        self._max2 = max_distance_m * max_distance_m
+        self._bound = max_distance_m + margin_m
+        self._sx = np.append(src[:, 0], np.inf)  # index n_src = "no neighbour" (the tree's)
+        self._sz = np.append(src[:, 1], np.inf)
+        self._cols = np.arange(tgt.shape[0])
+        self._T_c = (math.nan, math.nan)
+        self.candidates = np.zeros((0, tgt.shape[0]), dtype=np.intp)
+
+    def _query_candidates(self, q: NDArray[np.float64], T: NDArray[np.float64]) -> None:
+        d, c = self._tree.query(q, k=self._k, distance_upper_bound=self._bound)
+        d, c = d.reshape(q.shape[0], -1), c.reshape(q.shape[0], -1)
+        self.candidates = np.ascontiguousarray(c.T)  # (k, Nt): rows are candidate ranks
+        self._cx, self._cz = self._sx[self.candidates], self._sz[self.candidates]
+        self._radius = np.minimum(d[:, -1], self._bound)
+        if self._k == self._n_src:  # rows that hold every source point: no other point
+            self._radius[np.isfinite(d[:, -1])] = np.inf
+        self._T_c = (float(T[0]), float(T[1]))
+
+    def query(self, T: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+        """Distances (inf: none within max_distance_m) and source indices (n_src: none)."""
+        q = self._tgt - T
+        qx, qz = q[:, 0], q[:, 1]
+        for attempt in range(2):
+            shift = math.hypot(T[0] - self._T_c[0], T[1] - self._T_c[1])  # nan before any
+            if attempt == 0 and not shift < 1.0:
+                self._query_candidates(q, T)
+                continue
+            dx = qx - self._cx
+            dz = qz - self._cz
+            d2 = dx * dx + dz * dz  # (k, Nt), the KD-tree's arithmetic
+            rank = d2.argmin(axis=0)
+            best2 = d2[rank, self._cols]
+            found = best2 < self._max2
+            best = np.sqrt(best2)
+            # lower bound of the distance of any non-candidate point, with a rounding margin
+            clear = self._radius - (shift * (1.0 + 1e-9) + 1e-12)
+            exact = np.where(found, best < clear, clear >= self._max)
+            if attempt == 0 and not exact.all():
+                self._query_candidates(q, T)
+                continue
+            break
+        bx, bz = self._cx[rank, self._cols], self._cz[rank, self._cols]
+        other = (self._cx != bx) | (self._cz != bz)  # candidates that are not the best point
+        tie = found & (np.where(other, d2, np.inf).min(axis=0) == best2)
+        j = np.where(found, self.candidates[rank, self._cols], self._n_src)
+        dist = np.where(found, best, np.inf)
+        redo = np.flatnonzero(tie | ~exact)
+        if redo.size:
+            dist[redo], j[redo] = self._tree.query(q[redo], k=1, distance_upper_bound=self._max)
+        return dist, j
 
 
 def icp_translation_2d(
@@ -105,32 +202,32 @@ def icp_translation_2d(
     )
     tree = cKDTree(src) if source_tree is None else source_tree
     normals = _NormalCache(src, tree, cfg.normal_neighbours)
+    nearest = _NearestSource(src, tree, tgt, cfg.max_correspondence_m)
+    point_to_line = cfg.metric != "point_to_point"
     converged = False
     keep = np.zeros(0, dtype=np.intp)
     j = np.zeros(0, dtype=np.intp)
     iterations = 0
     for iterations in range(1, cfg.max_iterations + 1):
         # eq. 3: nearest source point of T + P_s for every target point
-        dist, j = tree.query(tgt - T, k=1, distance_upper_bound=cfg.max_correspondence_m)
-        keep = np.flatnonzero(np.isfinite(dist))
+        dist, j = nearest.query(T)
+        if iterations == 1 and point_to_line:  # the points later iterations may match, at once
+            normals.prefetch(nearest.candidates[:PREFETCH].ravel())
+        keep = np.flatnonzero(dist < np.inf)
         if keep.size == 0:
             break
         if cfg.trim_fraction > 0 and keep.size >= 4:
-            n_keep = max(3, int(np.ceil((1.0 - cfg.trim_fraction) * keep.size)))
+            n_keep = max(3, math.ceil((1.0 - cfg.trim_fraction) * keep.size))
             keep = keep[np.argsort(dist[keep])[:n_keep]]
         residual = tgt[keep] - T - src[j[keep]]
-        if cfg.metric == "point_to_point":
+        if not point_to_line:
             # eq. 4: translation step = mean residual of the pairs
             dT = residual.mean(axis=0)
         else:
             # point-to-line: solve (sum n n^T) dT = sum n (n . r); needs the source normals
-            n = normals.get(j[keep])
-            w, V = np.linalg.eigh(n.T @ n)
-            ok = w > max(cfg.degenerate_ratio * w[-1], 1e-9)  # degenerate directions: no step
-            b = V.T @ (n.T @ (n * residual).sum(axis=1))
-            dT = V[:, ok] @ (b[ok] / w[ok])
+            dT = _point_to_line_step(normals.get(j[keep]), residual, cfg.degenerate_ratio)
         T = T + dT
-        if np.linalg.norm(dT) <= cfg.convergence_m:
+        if math.hypot(dT[0], dT[1]) <= cfg.convergence_m:
             converged = True
             break
     if keep.size == 0:
@@ -143,17 +240,47 @@ def icp_translation_2d(
     return IcpResult(T, cov, iterations, converged, rms, int(keep.size), pairs_t, pairs_s)
 
 
+def _point_to_line_step(
+    n: NDArray[np.float64], residual: NDArray[np.float64], degenerate_ratio: float
+) -> NDArray[np.float64]:
+    """dT solving (sum n n^T) dT = sum n (n . r) in the non-degenerate eigen-directions."""
+    nx, nz = n[:, 0], n[:, 1]
+    r_n = nx * residual[:, 0] + nz * residual[:, 1]
+    (w0, w1), (v0, v1) = _eig_sym2(float(nx @ nx), float(nx @ nz), float(nz @ nz))
+    gx, gz = float(nx @ r_n), float(nz @ r_n)
+    floor = max(degenerate_ratio * w1, 1e-9)  # degenerate directions: no step
+    dx = dz = 0.0
+    for w, (vx, vz) in ((w0, v0), (w1, v1)):
+        if w > floor:
+            step = (vx * gx + vz * gz) / w
+            dx += vx * step
+            dz += vz * step
+    return np.array([dx, dz])
+
+
+PREFETCH = 8
+
+
 class _NormalCache:
     """Source normals computed on demand (only for matched points) and kept."""
 
     def __init__(self, src: NDArray[np.float64], tree: cKDTree, k: int) -> None:
         self._src, self._tree, self._k = src, tree, k
-        self._normals = np.full(src.shape, np.nan)
+        self._normals = np.empty(src.shape)
+        self._have = np.zeros(src.shape[0], dtype=bool)
+
+    def prefetch(self, idx: NDArray[np.intp]) -> None:
+        """Compute the normals of source points ``idx`` now, in one KD-tree query (entries
+        >= the number of source points, the tree's "no neighbour", are skipped)."""
+        idx = np.unique(idx)
+        idx = idx[idx < self._have.size]
+        self.get(idx)
 
     def get(self, idx: NDArray[np.intp]) -> NDArray[np.float64]:
-        missing = np.unique(idx[np.isnan(self._normals[idx, 0])])
+        missing = idx[~self._have[idx]]
         if missing.size:
             self._normals[missing] = _source_normals(self._src, self._tree, missing, self._k)
+            self._have[missing] = True
         return self._normals[idx]
 
 
@@ -161,11 +288,15 @@ def _covariance(
     normals: NDArray[np.float64], residual: NDArray[np.float64], cfg: IcpConfig
 ) -> NDArray[np.float64]:
     """Point-to-line covariance of T (module docstring), eigenvalues capped."""
-    r_n = (residual * normals).sum(axis=1)
-    sigma2 = max(float((r_n**2).mean()), cfg.sigma_floor_m**2)
-    info = normals.T @ normals  # sum n n^T, (2, 2)
-    w, V = np.linalg.eigh(info)
-    var = np.minimum(sigma2 * cfg.cov_inflation / np.maximum(w, 1e-12), cfg.max_variance_m2)
-    if cfg.metric == "point_to_line":
-        var[w <= max(cfg.degenerate_ratio * w[-1], 1e-9)] = cfg.max_variance_m2
-    return (V * var) @ V.T
+    nx, nz = normals[:, 0], normals[:, 1]
+    r_n = nx * residual[:, 0] + nz * residual[:, 1]
+    sigma2 = max(float(r_n @ r_n) / r_n.size, cfg.sigma_floor_m**2)
+    (w0, w1), (v0, v1) = _eig_sym2(float(nx @ nx), float(nx @ nz), float(nz @ nz))
+    floor = max(cfg.degenerate_ratio * w1, 1e-9)
+    cov = np.zeros((2, 2))
+    for w, (vx, vz) in ((w0, v0), (w1, v1)):
+        var = min(sigma2 * cfg.cov_inflation / max(w, 1e-12), cfg.max_variance_m2)
+        if cfg.metric == "point_to_line" and w <= floor:
+            var = cfg.max_variance_m2
+        cov += var * np.array([[vx * vx, vx * vz], [vx * vz, vz * vz]])
+    return cov

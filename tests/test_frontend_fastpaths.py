@@ -1,0 +1,156 @@
+"""The front end's fast paths give the results of the straightforward formulations they replace
+(KD-tree query per ICP iteration, np.linalg.eigh, (N, k, 2) means, np.median, ...)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from vio_graph.frontend import icp as icp_module
+from vio_graph.frontend.config import IcpConfig
+from vio_graph.frontend.icp import icp_translation_2d
+from vio_graph.frontend.smoothing import grid_thin, knn_smooth
+
+
+def _stairs(rng: np.random.Generator, n: int = 400, noise_m: float = 0.002) -> np.ndarray:
+    """Noisy two-step stair profile (treads and risers), metres."""
+    s = rng.uniform(0.0, 1.0, n)
+    x = np.where(s < 0.3, s, np.where(s < 0.45, 0.3, np.where(s < 0.75, s - 0.15, 0.6)))
+    z = np.where(s < 0.3, 0.0, np.where(s < 0.45, s - 0.3, np.where(s < 0.75, 0.15,
+                                                                   s - 0.6)))
+    return np.column_stack([x, z]) + rng.normal(0, noise_m, (n, 2))
+
+
+def _smoothed(rng: np.random.Generator) -> np.ndarray:
+    """A profile as the front end makes it: thinned, kNN-smoothed (with exact duplicates)."""
+    return knn_smooth(grid_thin(_stairs(rng, 3000), 0.005), 5)
+
+
+@pytest.mark.parametrize("k", [2, 5, 9, 15])
+def test_knn_smooth_equals_the_mean_over_the_neighbours(k: int) -> None:
+    pts = _stairs(np.random.default_rng(k), 500)
+    _, idx = cKDTree(pts).query(pts, k=k)
+    assert np.array_equal(knn_smooth(pts, k), pts[idx].mean(axis=1))
+
+
+def _check_nearest(src: np.ndarray, tgt: np.ndarray, translations: list[np.ndarray]) -> None:
+    tree = cKDTree(src)
+    nearest = icp_module._NearestSource(src, tree, tgt, 0.08)
+    for T in translations:
+        dist, j = nearest.query(T)
+        d_ref, j_ref = tree.query(tgt - T, k=1, distance_upper_bound=0.08)
+        assert np.array_equal(dist, d_ref)
+        found = np.isfinite(d_ref)
+        assert np.array_equal(j[~found], j_ref[~found])  # n_src: no neighbour
+        # the same point; among exact duplicates any index is the same point
+        assert np.array_equal(src[j[found]], src[j_ref[found]])
+
+
+def test_nearest_source_equals_the_kdtree_query_over_icp_like_steps() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        src = _smoothed(rng)
+        assert np.unique(src, axis=0).shape[0] < src.shape[0]  # has exact duplicates
+        tgt = src[rng.choice(src.shape[0], 60, replace=False)] + rng.normal(0, 0.01, (60, 2))
+        T = rng.normal(0, 0.02, 2)
+        steps = [T]
+        for _ in range(8):  # converging steps, then a jump and a far translation
+            T = T + rng.normal(0, 0.003, 2)
+            steps.append(T)
+        steps += [T + np.array([0.05, -0.04]), T + np.array([2.0, 0.0]), T]
+        _check_nearest(src, tgt, steps)
+
+
+def test_nearest_source_resolves_exact_ties_like_the_kdtree() -> None:
+    # a lattice: many targets are exactly equidistant from two different source points
+    g = np.arange(0.0, 0.2, 0.01)
+    src = np.array([[x, z] for x in g for z in g])
+    tgt = src[::7] + 0.005
+    _check_nearest(src, tgt, [np.zeros(2), np.array([0.005, 0.0]), np.array([0.0, 0.005])])
+    _check_nearest(src[:5], tgt, [np.zeros(2), np.array([0.1, 0.1])])  # fewer than 8 points
+
+
+def test_eig_sym2_matches_eigh() -> None:
+    rng = np.random.default_rng(5)
+    cases = [rng.normal(size=(30, 2)) for _ in range(50)]
+    cases += [np.column_stack([np.full(20, 1e-4), np.ones(20)]), np.eye(2), np.zeros((3, 2))]
+    for n in cases:
+        A = n.T @ n
+        (w0, w1), (v0, v1) = icp_module._eig_sym2(A[0, 0], A[0, 1], A[1, 1])
+        w, V = np.linalg.eigh(A)
+        scale = max(w[-1], 1e-300)
+        assert abs(w0 - w[0]) <= 1e-12 * scale and abs(w1 - w[1]) <= 1e-12 * scale
+        V2 = np.column_stack([v0, v1])
+        assert np.allclose(V2 @ np.diag([w0, w1]) @ V2.T, A, atol=1e-12 * scale)
+        assert np.allclose(V2.T @ V2, np.eye(2), atol=1e-14)
+
+
+def _reference_icp(src, tgt, T0, cfg: IcpConfig):
+    """The straightforward ICP (KD-tree query and eigh every iteration, normals as (M, k, 2))."""
+    tree = cKDTree(src)
+    T = np.array(T0, float)
+
+    def normals(idx):
+        _, nb = tree.query(src[idx], k=min(cfg.normal_neighbours, src.shape[0]))
+        p = src[nb]
+        d = p - p.mean(axis=1, keepdims=True)
+        th = 0.5 * np.arctan2(2.0 * (d[..., 0] * d[..., 1]).mean(axis=1),
+                              (d[..., 0] ** 2).mean(axis=1) - (d[..., 1] ** 2).mean(axis=1))
+        return np.column_stack([-np.sin(th), np.cos(th)])
+
+    it = 0
+    while it < cfg.max_iterations:
+        it += 1
+        dist, j = tree.query(tgt - T, k=1, distance_upper_bound=cfg.max_correspondence_m)
+        keep = np.flatnonzero(np.isfinite(dist))
+        n_keep = max(3, int(np.ceil((1.0 - cfg.trim_fraction) * keep.size)))
+        keep = keep[np.argsort(dist[keep])[:n_keep]]
+        r = tgt[keep] - T - src[j[keep]]
+        n = normals(j[keep])
+        w, V = np.linalg.eigh(n.T @ n)
+        ok = w > max(cfg.degenerate_ratio * w[-1], 1e-9)
+        b = V.T @ (n.T @ (n * r).sum(axis=1))
+        dT = V[:, ok] @ (b[ok] / w[ok])
+        T = T + dT
+        if np.linalg.norm(dT) <= cfg.convergence_m:
+            break
+    r = tgt[keep] - T - src[j[keep]]
+    n = normals(j[keep])
+    sigma2 = max(float(((r * n).sum(axis=1) ** 2).mean()), cfg.sigma_floor_m**2)
+    w, V = np.linalg.eigh(n.T @ n)
+    var = np.minimum(sigma2 * cfg.cov_inflation / np.maximum(w, 1e-12), cfg.max_variance_m2)
+    var[w <= max(cfg.degenerate_ratio * w[-1], 1e-9)] = cfg.max_variance_m2
+    return T, (V * var) @ V.T, it, keep.size
+
+
+@pytest.mark.parametrize("normal_neighbours", [6, 15])
+def test_icp_equals_the_straightforward_implementation(normal_neighbours: int) -> None:
+    cfg = IcpConfig(normal_neighbours=normal_neighbours)
+    rng = np.random.default_rng(normal_neighbours)
+    for case in range(12):
+        src = _smoothed(rng)
+        true_T = rng.normal(0, 0.03, 2)
+        # noise per point: an exact translated copy ties many pair distances, and the trimming
+        # of tied distances then depends on the last bits of T
+        box = (src[:, 0] > 0.2) & (src[:, 0] < 0.45)
+        if case % 3 == 0:  # a flat tread only: the degenerate direction
+            box = (src[:, 0] > 0.35) & (src[:, 0] < 0.55) & (src[:, 1] > 0.1)
+        tgt = src[box] + true_T + rng.normal(0, 0.002, (int(box.sum()), 2))
+        T0 = true_T + rng.normal(0, 0.005, 2)
+        res = icp_translation_2d(src, tgt, T0, cfg)
+        T, cov, iterations, n_pairs = _reference_icp(src, tgt, T0, cfg)
+        assert np.allclose(res.translation_xz_m, T, rtol=0, atol=1e-12)
+        assert np.allclose(res.cov_m2, cov, rtol=1e-9, atol=1e-15)
+        assert (res.iterations, res.n_correspondences) == (iterations, n_pairs)
+
+
+def test_nearest_source_on_small_and_sparse_sets() -> None:
+    rng = np.random.default_rng(11)
+    for _ in range(100):
+        n_src = int(rng.integers(1, 30))
+        src = np.round(rng.uniform(0, 0.3, (n_src, 2)), 2)  # coarse grid: duplicates and ties
+        tgt = np.round(rng.uniform(-0.05, 0.35, (int(rng.integers(1, 40)), 2)), 2)
+        T = np.round(rng.normal(0, 0.05, 2), 3)
+        steps = [T + np.round(rng.normal(0, s, 2), 3) for s in (0.0, 0.005, 0.02, 0.1, 0.005)]
+        _check_nearest(src, tgt, steps)

@@ -154,3 +154,32 @@ def test_nearest_source_on_small_and_sparse_sets() -> None:
         T = np.round(rng.normal(0, 0.05, 2), 3)
         steps = [T + np.round(rng.normal(0, s, 2), 3) for s in (0.0, 0.005, 0.02, 0.1, 0.005)]
         _check_nearest(src, tgt, steps)
+
+
+def test_sagittal_slice_tables_equal_the_per_pixel_tests() -> None:
+    from vio_graph.frontend import projection
+
+    K = np.array([[210.6, 0.0, 111.5], [0.0, 212.9, 85.5], [0.0, 0.0, 1.0]])
+    rng = np.random.default_rng(2)
+    values = np.array([0, 0.1, 0.1000001, 4.0, 3.9999998, np.nan, np.inf, -1.0, 0.25])
+    cols = np.arange(224)
+    for trial in range(40):
+        dtype = np.float32 if trial % 4 else np.float64
+        depth = rng.choice(values, size=(172, 224)).astype(dtype)
+        depth = np.where(rng.random(depth.shape) < 0.5, rng.uniform(0, 5, depth.shape), depth)
+        depth = depth.astype(dtype)
+        # pixels exactly at the lateral boundary |x_C| = half_width of their column
+        half_width = float(rng.choice([0.05, 0.03]))
+        ax = np.abs((cols - K[0, 2]) / K[0, 0])
+        depth[rng.integers(0, 172, 224), cols] = (half_width / np.maximum(ax, 1e-3)).astype(dtype)
+        conf = rng.integers(0, 3, depth.shape).astype(np.uint8)
+        R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        args = (half_width, float(rng.choice([0.0, 0.1, 0.25])),
+                float(rng.choice([4.0, 1.5, np.inf])), int(rng.integers(1, 3)))
+        fast = projection.sagittal_slice_from_depth(depth, conf, K, R, *args)
+        reference = projection._sagittal_slice_reference(depth, conf, K, R, *args)
+        assert fast.shape[0] > 0
+        assert np.array_equal(fast, reference)
+        full = projection.sagittal_slice(projection.depth_to_points_cam(
+            depth, conf, K, args[1], args[2], args[3]), R, half_width)
+        assert np.allclose(fast, full, rtol=0, atol=1e-12)

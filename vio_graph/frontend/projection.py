@@ -14,6 +14,8 @@ the depth image and back-projects only the pixels that pass (a few thousand of t
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -89,6 +91,68 @@ def sagittal_slice(
     return points_cam[keep] @ R_xz.T  # eq. 2, rows x and z only
 
 
+_MAX_STEPS = 64
+
+
+@functools.lru_cache(maxsize=8)
+def _slice_tables(
+    K_bytes: bytes, shape: tuple[int, int], dtype: np.dtype, half_width_m: float,
+    min_depth_m: float, max_depth_m: float,
+) -> tuple[int, int, NDArray, NDArray, NDArray[np.float64], NDArray[np.float64]] | None:
+    """Per-camera tables of :func:`sagittal_slice_from_depth` (cached: K and the thresholds
+    are the same for every frame).
+
+    The per-pixel tests ``min < depth < max`` and ``depth * |x_per_m(column)| < half_width``
+    are monotone in the depth, so per column they hold exactly for depth values in
+    [lower, upper[column]], two numbers of the image's dtype. They are found by evaluating the
+    original expressions (same operands, same numpy promotion) on candidate values and stepping
+    to the neighbouring representable value until the boundary: bit-exact, no rounding
+    argument needed.
+
+    Returns:
+        c0, c1 (the column band that can hold a slice point), lower (scalar), upper (c1 - c0,),
+        x_per_m and y_per_m grids (H, c1 - c0) of the band (x_C, y_C per metre of depth);
+        None if the boundaries are not found within a few steps (degenerate thresholds).
+    """
+    K = np.frombuffer(K_bytes).reshape(3, 3)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    H, W = shape
+    x_per_m = (np.arange(W) - cx) / fx
+    ax = np.abs(x_per_m)
+
+    def passes_upper(d: NDArray) -> NDArray[np.bool_]:  # the original tests, per column
+        return (d < max_depth_m) & (d * ax < half_width_m)
+
+    down, up = dtype.type(-np.inf), dtype.type(np.inf)
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        upper = np.minimum(max_depth_m, half_width_m / ax).astype(dtype)
+        lower = np.array([min_depth_m], dtype=dtype)
+        for _ in range(_MAX_STEPS):  # the first guesses are within an ulp or two
+            ok = passes_upper(upper)
+            nxt = np.nextafter(upper, up)
+            ok_next = passes_upper(nxt)
+            if ok.all() and not ok_next.any():
+                break
+            upper = np.where(ok, np.where(ok_next, nxt, upper), np.nextafter(upper, down))
+        else:
+            return None
+        for _ in range(_MAX_STEPS):
+            prev = np.nextafter(lower, down)
+            if (lower > min_depth_m)[0] and not (prev > min_depth_m)[0]:
+                break
+            lower = prev if (lower > min_depth_m)[0] else np.nextafter(lower, up)
+        else:
+            return None
+    band = np.flatnonzero(upper >= lower[0])
+    if band.size == 0:
+        return 0, 0, lower[0], upper[:0], np.empty((H, 0)), np.empty((H, 0))
+    c0, c1 = int(band[0]), int(band[-1]) + 1
+    y_per_m = (np.arange(H) - cy) / fy
+    x_grid = np.ascontiguousarray(np.broadcast_to(x_per_m[c0:c1], (H, c1 - c0)))
+    y_grid = np.ascontiguousarray(np.broadcast_to(y_per_m[:, None], (H, c1 - c0)))
+    return c0, c1, lower[0], upper[c0:c1], x_grid, y_grid
+
+
 def sagittal_slice_from_depth(
     depth_m: NDArray[np.float32],
     confidence: NDArray[np.uint8],
@@ -104,14 +168,53 @@ def sagittal_slice_from_depth(
 
     The lateral test |x_C| = |u - c_x| * depth / f_x < half_width_m is evaluated per pixel
     before any point is built, so only the slice (a few thousand pixels) is back-projected.
+    With it, the depth range is one per-column interval of depth values (cached per camera,
+    ``_slice_tables``): two comparisons per pixel of the column band.
 
     Returns:
         (M, 2) ``points_xz_m`` relative to the camera centre, world axes, metres.
     """
     _check_image(depth_m, confidence, K)
+    K = np.asarray(K, dtype=float)
+    if depth_m.dtype.kind != "f" or not np.ndim(min_depth_m) == np.ndim(max_depth_m) == 0:
+        return _sagittal_slice_reference(depth_m, confidence, K, R_ground_cam, half_width_m,
+                                         min_depth_m, max_depth_m, min_confidence)
+    tables = _slice_tables(
+        K.tobytes(), depth_m.shape, depth_m.dtype, half_width_m, min_depth_m, max_depth_m
+    )
+    if tables is None:
+        return _sagittal_slice_reference(depth_m, confidence, K, R_ground_cam, half_width_m,
+                                         min_depth_m, max_depth_m, min_confidence)
+    c0, c1, lower, upper, x_grid, y_grid = tables
+    if c1 == c0:
+        return np.empty((0, 2))
+    depth = depth_m[:, c0:c1]
+    keep = depth <= upper  # max depth and eq. 1 per pixel (NaN fails)
+    keep &= depth >= lower
+    keep &= confidence[:, c0:c1] >= min_confidence
+    z = depth[keep].astype(np.float64)
+    points_cam = np.empty((z.size, 3))
+    np.multiply(z, x_grid[keep], out=points_cam[:, 0])
+    np.multiply(z, y_grid[keep], out=points_cam[:, 1])
+    points_cam[:, 2] = z
+    R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
+    return points_cam @ R_xz.T  # eq. 2
+
+
+def _sagittal_slice_reference(
+    depth_m: NDArray,
+    confidence: NDArray[np.uint8],
+    K: NDArray[np.float64],
+    R_ground_cam: NDArray[np.float64],
+    half_width_m: float,
+    min_depth_m: float,
+    max_depth_m: float,
+    min_confidence: int,
+) -> NDArray[np.float64]:
+    """Eq. 1-2 with the per-pixel tests written out (any depth dtype); the reference of the
+    table-driven :func:`sagittal_slice_from_depth`."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     W = depth_m.shape[1]
-    # columns that can hold a slice point at all: |u - cx| / fx < half_width / min usable depth
     x_per_m = (np.arange(W) - cx) / fx  # (W,) x_C per metre of depth
     # columns that can hold a slice point at all: |x_C| at the smallest usable depth
     cols_used = np.nonzero(np.abs(x_per_m) * max(min_depth_m, 1e-6) < half_width_m)[0]

@@ -183,3 +183,63 @@ def test_sagittal_slice_tables_equal_the_per_pixel_tests() -> None:
         full = projection.sagittal_slice(projection.depth_to_points_cam(
             depth, conf, K, args[1], args[2], args[3]), R, half_width)
         assert np.allclose(fast, full, rtol=0, atol=1e-12)
+
+
+def _reference_find_levels(pts: np.ndarray, config) -> list:
+    """find_levels with numpy medians, np.split runs and array searchsorted (the original)."""
+    from vio_graph.frontend.terrain import Level, _robust_extent
+
+    band = config.level_band_m
+    order = np.argsort(pts[:, 1])
+    z, x = pts[order, 1], pts[order, 0]
+    alive = np.ones(z.size, dtype=bool)
+    levels = []
+    for _ in range(config.max_levels):
+        za, xa = z[alive], x[alive]
+        if za.size < config.min_level_points:
+            break
+        counts = np.searchsorted(za, za + band, "right") - np.searchsorted(za, za - band, "left")
+        found, tried = False, []
+        for i in np.argsort(-counts, kind="stable"):
+            if counts[i] < config.min_level_points or len(tried) >= 3:
+                break
+            if any(abs(za[i] - h) <= band for h in tried):
+                continue
+            tried.append(float(za[i]))
+            lo, hi = np.searchsorted(za, [za[i] - band, za[i] + band], "left")
+            height = float(np.median(za[lo:hi]))
+            lo, hi = np.searchsorted(za, [height - band, height + band], "left")
+            xs = np.sort(xa[lo:hi])
+            for r in np.split(xs, np.flatnonzero(np.diff(xs) > config.level_gap_m) + 1):
+                if r.size < config.min_level_points:
+                    continue
+                x_lo, x_med, x_hi = _robust_extent(r)
+                if x_hi - x_lo >= config.min_level_length_m:
+                    levels.append(Level(height, x_lo, x_hi, x_med, int(r.size)))
+                    found = True
+            if found:
+                alive[np.flatnonzero(alive)[lo:hi]] = False
+                break
+        if not found:
+            break
+    return sorted(levels, key=lambda lv: lv.x_median_m)
+
+
+def test_find_levels_equals_the_numpy_formulation() -> None:
+    from vio_graph.frontend.config import TerrainConfig
+    from vio_graph.frontend.terrain import find_levels
+
+    rng = np.random.default_rng(4)
+    configs = [TerrainConfig(), TerrainConfig(min_level_points=3, level_gap_m=0.02)]
+    n_levels = 0
+    for _ in range(150):
+        n = int(rng.integers(5, 400))
+        heights = rng.choice([0.0, 0.147, 0.294, -0.147], n)
+        pts = np.column_stack([rng.uniform(0, 1, n), heights + rng.normal(0, 0.006, n)])
+        if rng.random() < 0.3:
+            pts = np.round(pts, 3)  # ties in z and x
+        for cfg in configs:
+            levels = find_levels(pts, cfg)
+            assert levels == _reference_find_levels(pts, cfg)
+            n_levels += len(levels)
+    assert n_levels > 300

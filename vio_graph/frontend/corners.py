@@ -108,9 +108,15 @@ def ransac_horizontal_line(
     d = inlier_distance_m
     counts = np.searchsorted(z, hyp + d, "right") - np.searchsorted(z, hyp - d, "left")
     best = hyp[np.argmax(counts)]
-    inl = z[np.abs(z - best) <= d]
-    height = float(np.median(inl))
+    inl = z[np.abs(z - best) <= d]  # sorted: its median is the middle (np.median's value)
+    height = _median_of_sorted(inl)
     return HorizontalLine(height_m=height, inliers=mask & (np.abs(z_all - height) <= d))
+
+
+def _median_of_sorted(values: NDArray[np.float64]) -> float:
+    """np.median of sorted values: the middle one, or (a + b) / 2 of the middle two."""
+    n = values.size
+    return float(values[n // 2]) if n % 2 else float((values[n // 2 - 1] + values[n // 2]) / 2)
 
 
 def _largest_run(x: NDArray[np.float64], max_gap_m: float) -> NDArray[np.float64]:
@@ -173,10 +179,12 @@ def extract_corner(
     below = (np.abs(pts[:, 0] - edge[0]) <= d) & (pts[:, 1] < edge[1] - d) & (
         pts[:, 1] >= edge[1] - w
     )
-    if below.sum() >= 3:
-        edge[0] = float(np.median(pts[below, 0]))
+    if np.count_nonzero(below) >= 3:
+        edge[0] = _median_of_sorted(np.sort(pts[below, 0]))
     # 5. feature points: square window of half-size w at the edge (tread end + riser top)
-    in_window = np.all(np.abs(pts - edge) <= cfg.window_m, axis=1)
+    in_window = (np.abs(pts[:, 0] - edge[0]) <= cfg.window_m) & (
+        np.abs(pts[:, 1] - edge[1]) <= cfg.window_m
+    )
     features = pts[in_window]
     if features.shape[0] < cfg.min_feature_points:
         return None

@@ -36,6 +36,7 @@ box seen from above (camera past its near edge) looks like STAIR_DOWN.
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -62,10 +63,12 @@ class Level:
         return self.x_max_m - self.x_min_m
 
 
-def _runs(x: NDArray[np.float64], max_gap_m: float) -> list[NDArray[np.float64]]:
-    """Sorted x values split at gaps larger than ``max_gap_m``."""
-    xs = np.sort(x)
-    return np.split(xs, np.flatnonzero(np.diff(xs) > max_gap_m) + 1)
+def _median_sorted(values: list[float], lo: int, hi: int) -> float:
+    """np.median of the sorted values[lo:hi] (hi > lo): the middle value or the mean of the
+    middle two, computed as np.median does ((a + b) / 2)."""
+    n = hi - lo
+    mid = lo + n // 2
+    return values[mid] if n % 2 else (values[mid - 1] + values[mid]) / 2
 
 
 def _robust_extent(xs: NDArray[np.float64]) -> tuple[float, float, float]:
@@ -95,25 +98,31 @@ def find_levels(profile_xz_m: NDArray[np.float64], config: TerrainConfig) -> lis
         if za.size < config.min_level_points:
             break
         counts = np.searchsorted(za, za + band, "right") - np.searchsorted(za, za - band, "left")
+        zl = za.tolist()  # scalar work below on Python floats (same values, same arithmetic)
         found = False
         tried: list[float] = []
         # best few DISTINCT bands: a riser band can out-count a short tread; skip it then
-        for i in np.argsort(-counts, kind="stable"):
+        for i in np.argsort(-counts, kind="stable").tolist():
             if counts[i] < config.min_level_points or len(tried) >= 3:
                 break
-            if any(abs(za[i] - h) <= band for h in tried):
+            zi = zl[i]
+            if any(abs(zi - h) <= band for h in tried):
                 continue
-            tried.append(float(za[i]))
-            lo, hi = np.searchsorted(za, [za[i] - band, za[i] + band], "left")
-            height = float(np.median(za[lo:hi]))
-            lo, hi = np.searchsorted(za, [height - band, height + band], "left")
-            for r in _runs(xa[lo:hi], config.level_gap_m):
-                if r.size < config.min_level_points:
-                    continue
-                x_lo, x_med, x_hi = _robust_extent(r)
-                if x_hi - x_lo >= config.min_level_length_m:
-                    levels.append(Level(height, x_lo, x_hi, x_med, int(r.size)))
-                    found = True
+            tried.append(zi)
+            # bisect_left == np.searchsorted(..., "left") on the sorted heights
+            height = _median_sorted(zl, bisect_left(zl, zi - band), bisect_left(zl, zi + band))
+            lo, hi = bisect_left(zl, height - band), bisect_left(zl, height + band)
+            xs = np.sort(xa[lo:hi])
+            # runs of x split at gaps larger than level_gap_m
+            ends = [*(np.flatnonzero(np.diff(xs) > config.level_gap_m) + 1).tolist(), xs.size]
+            start = 0
+            for end in ends:
+                if end - start >= config.min_level_points:
+                    x_lo, x_med, x_hi = _robust_extent(xs[start:end])
+                    if x_hi - x_lo >= config.min_level_length_m:
+                        levels.append(Level(height, x_lo, x_hi, x_med, end - start))
+                        found = True
+                start = end
             if found:
                 idx_alive = np.flatnonzero(alive)
                 alive[idx_alive[lo:hi]] = False
@@ -133,20 +142,21 @@ def classify_levels(
     """
     if n_points < config.min_points or not levels:
         return TerrainKind.UNKNOWN
-    heights = np.array([lv.height_m for lv in levels])
-    steps = np.diff(heights)
-    if np.any(steps > config.max_step_m):
+    # plain floats: a handful of levels (same arithmetic as the numpy form, less overhead)
+    heights = [lv.height_m for lv in levels]
+    steps = [b - a for a, b in zip(heights[:-1], heights[1:], strict=True)]
+    if any(s > config.max_step_m for s in steps):
         return TerrainKind.UNKNOWN
-    significant = steps[np.abs(steps) >= config.min_step_m]
-    if significant.size == 0:
+    significant = [s for s in steps if abs(s) >= config.min_step_m]
+    if not significant:
         explained = sum(lv.n_points for lv in levels)
         if n_points - explained <= config.max_unexplained_fraction * n_points:
             return TerrainKind.LEVEL
         return TerrainKind.UNKNOWN
-    if np.all(significant > 0):
+    if all(s > 0 for s in significant):
         raised = [lv for lv in levels if lv.height_m - heights[0] >= config.min_step_m]
         if (
-            significant.size == 1
+            len(significant) == 1
             and len(raised) == 1
             and raised[0] is levels[-1]
             and raised[0].length_m < config.obstacle_max_depth_m
@@ -154,12 +164,13 @@ def classify_levels(
         ):
             return TerrainKind.OBSTACLE
         return TerrainKind.STAIR_UP
-    if np.all(significant < 0):
+    if all(s < 0 for s in significant):
         return TerrainKind.STAIR_DOWN
-    # up then back down to the first level: low-high-low
+    # up then back down to the first level: low-high-low (the signs never go up again)
     first_up = significant[0] > 0
     back_to_start = abs(heights[-1] - heights[0]) < config.min_step_m
-    if first_up and back_to_start and np.all(np.diff(np.sign(significant)) <= 0):
+    ups = [s > 0 for s in significant]
+    if first_up and back_to_start and all(a >= b for a, b in zip(ups[:-1], ups[1:], strict=True)):
         return TerrainKind.OBSTACLE
     return TerrainKind.UNKNOWN
 

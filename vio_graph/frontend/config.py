@@ -11,7 +11,6 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-
 TerrainName = Literal["stair_up", "stair_down", "obstacle", "level", "unknown"]
 
 

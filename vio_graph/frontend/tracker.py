@@ -42,6 +42,8 @@ IMU-seeded mode (the default whenever the caller passes a prediction):
 
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,6 +55,18 @@ from vio_graph.frontend.corners import CornerFeature
 from vio_graph.frontend.icp import IcpResult, icp_translation_2d
 from vio_graph.frontend.smoothing import grid_thin
 from vio_graph.types import CornerObservation, Displacement2D
+
+
+def _mahalanobis2(v: NDArray[np.float64], cov: NDArray[np.float64], floor_m2: float) -> float:
+    """v^T (cov + floor I)^-1 v for a 2-vector, written out (np.linalg.solve's value up to
+    rounding, without its call overhead)."""
+    a, b, c = float(cov[0, 0]) + floor_m2, float(cov[0, 1]), float(cov[1, 1]) + floor_m2
+    b2 = float(cov[1, 0])
+    x, z = float(v[0]), float(v[1])
+    det = a * c - b * b2
+    if det == 0.0:
+        return float(v @ np.linalg.solve(cov + np.eye(2) * floor_m2, v))  # raises LinAlgError
+    return (x * (c * x - b * z) + z * (a * z - b2 * x)) / det
 
 
 @dataclass(frozen=True)
@@ -104,6 +118,30 @@ class CornerTracker:
         """Forget the previous frame (track ids keep increasing)."""
         self._prev = None
 
+    def rotate_previous(self, angle_rad: float) -> None:
+        """Re-express the previous frame in a ground frame turned by rot_y(``angle_rad``)
+        about the camera (the estimator corrected its pitch since that frame), so that the
+        next ICP compares two slices rotated alike."""
+        if self._prev is None or angle_rad == 0.0:
+            return
+        c, s = np.cos(angle_rad), np.sin(angle_rad)
+        R = np.array([[c, s], [-s, c]])  # (x, z) -> (c x + s z, -s x + c z)
+        prev = self._prev
+        corner = prev.corner
+        if corner is not None:
+            edge = corner.edge_xz_m @ R.T
+            dz = float(edge[1] - corner.edge_xz_m[1])
+            corner = dataclasses.replace(
+                corner,
+                feature_points_xz_m=corner.feature_points_xz_m @ R.T,
+                mean_xz_m=corner.mean_xz_m @ R.T,
+                edge_xz_m=edge,
+                upper_height_m=corner.upper_height_m + dz,
+                lower_height_m=corner.lower_height_m + dz,
+            )
+        self._prev = dataclasses.replace(
+            prev, profile_xz_m=prev.profile_xz_m @ R.T, corner=corner)
+
     def _new_id(self) -> int:
         self._next_id += 1
         return self._next_id - 1
@@ -148,9 +186,12 @@ class CornerTracker:
             return pts, cKDTree(pts)
         moved = target - T0
         grow = self._icp_cfg.max_correspondence_m + self._cfg.source_margin_m
-        lo, hi = moved.min(axis=0) - grow, moved.max(axis=0) + grow
+        mx, mz = moved[:, 0], moved[:, 1]
         prof = prev.profile_xz_m
-        pts = prof[np.all((prof >= lo) & (prof <= hi), axis=1)]
+        px, pz = prof[:, 0], prof[:, 1]
+        inside = (px >= mx.min() - grow) & (px <= mx.max() + grow)
+        inside &= (pz >= mz.min() - grow) & (pz <= mz.max() + grow)
+        pts = prof[inside]
         if pts.shape[0] == 0:
             pts = prof[:1]  # ICP will find no correspondences and say so
         return pts, cKDTree(pts)
@@ -198,9 +239,7 @@ class CornerTracker:
             # 2b. no riser below the edge: x from the edge points, z from ICP
             T = np.array([corner.edge_xz_m[0] - prev_corner.edge_xz_m[0], T[1]])
             C = np.diag([2.0 * cfg.edge_x_sigma_m**2, C[1, 1]])
-        v = -T - pred  # 3. gate against the prediction
-        S = P + C + np.eye(2) * cfg.gate_sigma_floor_m**2
-        d2 = float(v @ np.linalg.solve(S, v))
+        d2 = _mahalanobis2(-T - pred, P + C, cfg.gate_sigma_floor_m**2)  # 3. gate
         if bad is None and d2 > cfg.gate_chi2:
             bad = f"ICP disagrees with the IMU prediction (Mahalanobis^2 {d2:.1f})"
         T_assoc = T0 if bad is not None else T
@@ -231,7 +270,8 @@ class CornerTracker:
         cfg = self._cfg
         if prev is None or not (0.0 < t - prev.timestamp_s <= cfg.max_frame_gap_s):
             reason = "no previous frame" if prev is None else "frame gap too large"
-            return TrackerOutput(None, None, None, f"no corner in this frame; {reason}", None, False)
+            return TrackerOutput(None, None, None, f"no corner in this frame; {reason}", None,
+                                 False)
         target = grid_thin(profile, cfg.fallback_grid_m) if cfg.fallback_grid_m > 0 else profile
         if target.shape[0] < cfg.min_correspondences or prev.profile_xz_m.shape[0] == 0:
             return TrackerOutput(None, None, None, "no corner in this frame; profile too short",
@@ -243,9 +283,8 @@ class CornerTracker:
         src, tree = self._source(prev, target, T0)
         icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree)
         bad = self._quality_problem(icp)
-        v = -icp.translation_xz_m - pred
-        S = P + icp.cov_m2 + np.eye(2) * cfg.gate_sigma_floor_m**2
-        d2 = float(v @ np.linalg.solve(S, v))
+        d2 = _mahalanobis2(-icp.translation_xz_m - pred, P + icp.cov_m2,
+                           cfg.gate_sigma_floor_m**2)
         if bad is None and d2 > cfg.gate_chi2:
             bad = f"ICP disagrees with the IMU prediction (Mahalanobis^2 {d2:.1f})"
         if bad is not None:

@@ -131,7 +131,14 @@ class _NearestSource:
         d, c = self._tree.query(q, k=self._k, distance_upper_bound=self._bound)
         d, c = d.reshape(q.shape[0], -1), c.reshape(q.shape[0], -1)
         self.candidates = np.ascontiguousarray(c.T)  # (k, Nt): rows are candidate ranks
-        self._cx, self._cz = self._sx[self.candidates], self._sz[self.candidates]
+        self.candidate_dist = np.ascontiguousarray(d.T)
+        cx, cz = self._sx[self.candidates], self._sz[self.candidates]
+        # a point listed twice (exact duplicates sit at adjacent ranks) is hidden behind its
+        # first listing: the same coordinates, distance and normal
+        again = (cx[1:] == cx[:-1]) & (cz[1:] == cz[:-1])
+        cx[1:][again] = np.inf
+        cz[1:][again] = np.inf
+        self._cx, self._cz = cx, cz
         self._radius = np.minimum(d[:, -1], self._bound)
         if self._k == self._n_src:  # rows that hold every source point: no other point
             self._radius[np.isfinite(d[:, -1])] = np.inf
@@ -146,26 +153,27 @@ class _NearestSource:
             if attempt == 0 and not shift < 1.0:
                 self._query_candidates(q, T)
                 continue
-            dx = qx - self._cx
+            d2 = qx - self._cx
+            d2 *= d2
             dz = qz - self._cz
-            d2 = dx * dx + dz * dz  # (k, Nt), the KD-tree's arithmetic
-            rank = d2.argmin(axis=0)
-            best2 = d2[rank, self._cols]
-            found = best2 < self._max2
+            dz *= dz
+            d2 += dz  # (k, Nt): (x - x')^2 + (z - z')^2, the KD-tree's arithmetic
+            flat = d2.argmin(axis=0) * self._cols.size + self._cols
+            best2 = d2.ravel()[flat]
             best = np.sqrt(best2)
-            # lower bound of the distance of any non-candidate point, with a rounding margin
+            # lower bound of the distance of any non-candidate point, with a rounding margin;
+            # rows without a neighbour need it >= max_distance_m (conservatively: >)
             clear = self._radius - (shift * (1.0 + 1e-9) + 1e-12)
-            exact = np.where(found, best < clear, clear >= self._max)
+            exact = np.minimum(best, self._max) < clear
             if attempt == 0 and not exact.all():
                 self._query_candidates(q, T)
                 continue
             break
-        bx, bz = self._cx[rank, self._cols], self._cz[rank, self._cols]
-        other = (self._cx != bx) | (self._cz != bz)  # candidates that are not the best point
-        tie = found & (np.where(other, d2, np.inf).min(axis=0) == best2)
-        j = np.where(found, self.candidates[rank, self._cols], self._n_src)
+        found = best2 < self._max2
+        tie = np.count_nonzero(d2 == best2, axis=0) > 1  # two distinct points, same distance
+        j = np.where(found, self.candidates.ravel()[flat], self._n_src)
         dist = np.where(found, best, np.inf)
-        redo = np.flatnonzero(tie | ~exact)
+        redo = np.flatnonzero((tie & found) | ~exact)
         if redo.size:
             dist[redo], j[redo] = self._tree.query(q[redo], k=1, distance_upper_bound=self._max)
         return dist, j
@@ -212,7 +220,9 @@ def icp_translation_2d(
         # eq. 3: nearest source point of T + P_s for every target point
         dist, j = nearest.query(T)
         if iterations == 1 and point_to_line:  # the points later iterations may match, at once
-            normals.prefetch(nearest.candidates[:PREFETCH].ravel())
+            d = nearest.candidate_dist
+            likely = (d <= d[0] + PREFETCH_M) & (d < cfg.max_correspondence_m)
+            normals.prefetch(nearest.candidates[likely])
         keep = np.flatnonzero(dist < np.inf)
         if keep.size == 0:
             break
@@ -258,7 +268,7 @@ def _point_to_line_step(
     return np.array([dx, dz])
 
 
-PREFETCH = 8
+PREFETCH_M = 0.005
 
 
 class _NormalCache:

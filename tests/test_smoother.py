@@ -17,6 +17,7 @@ from vio_graph.smoother.graph import (
     V,
     X,
     camera_xz_cov_from_pose_cov,
+    discretization_velocity_var,
     make_preintegration_params,
     midpoint_samples,
     so3_exp,
@@ -313,3 +314,46 @@ def test_batch_counts_downweighted_outliers() -> None:
     c, b = clean.robust_outliers(), bad.robust_outliers()
     assert c["robust_factors"] > 10
     assert b["downweighted"] >= c["downweighted"] + 1
+
+
+def test_discretization_variance_zero_for_cubic_and_sized_by_a_kink() -> None:
+    t = np.arange(0.0, 0.3, 0.01)
+    cubic = np.stack([1.0 + 2 * t - 3 * t**2 + 4 * t**3] * 3, axis=-1)
+    assert discretization_velocity_var(t, cubic, 0.1, 0.2) == pytest.approx(0.0, abs=1e-20)
+    # a step of 1 m/s^2 at one sample: fourth differences 1, -4, 6, -4, 1 in the five
+    # windows that contain it, all touching [0.1, 0.2]; one axis only
+    a = np.zeros((t.size, 3))
+    a[15, 0] = 1.0
+    expected = 0.01**2 * (1 + 16 + 36 + 16 + 1)
+    assert discretization_velocity_var(t, a, 0.1, 0.2) == pytest.approx(expected)
+    # windows wholly after the interval do not count
+    assert discretization_velocity_var(t, a, 0.0, 0.1) == pytest.approx(0.0)
+
+
+def test_discretization_term_inflates_only_the_imu_noise() -> None:
+    cfg = SmootherConfig()
+    base = make_preintegration_params(cfg)
+    p = make_preintegration_params(cfg, extra_velocity_var_m2ps2=1e-4, duration_s=0.1)
+    acc0 = cfg.accel_noise_density_mps2_per_sqrt_hz**2
+    assert np.diag(p.getAccelerometerCovariance()) == pytest.approx([acc0 + 1e-3] * 3)
+    assert np.allclose(p.getGyroscopeCovariance(), base.getGyroscopeCovariance())
+
+
+def test_builder_maps_measurements_with_the_given_attitude() -> None:
+    """A frame attitude passed by the caller (the filter's) is the keyframe's rotation, not the
+    IMU stream's AHRS."""
+    tr = make_swinging_shank_trial(0.5)
+    b = KeyframeGraphBuilder(SmootherConfig(), tr.imu_T_cam)
+    from vio_graph.smoother.synthetic import replay_events
+
+    R_given = rot_y(0.3)
+    rots = []
+    for kind, i in replay_events(tr):
+        if kind == "imu":
+            ups = b.add_imu(tr.imu[i])
+        else:
+            ups = b.add_frame(tr.frame_times_s[i], bool(tr.is_keyframe[i]),
+                              tr.filter_estimates[i], tr.displacements[i], None, R_given)
+        rots += [u.values.atPose3(X(u.index)).rotation().matrix() for u in ups]
+    assert len(rots) >= 2
+    assert all(np.allclose(R, R_given, atol=1e-9) for R in rots)

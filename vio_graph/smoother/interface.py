@@ -61,8 +61,15 @@ class KeyframeSmootherBase(ABC):
         filter_estimate: FrameEstimate | None,
         displacement: Displacement2D | None,
         observation: CornerObservation | Sequence[CornerObservation] | None,
+        R_world_imu: ArrayLike | None = None,
     ) -> None:
         """Feed one depth frame's outputs.
+
+        ``R_world_imu`` (3, 3): the attitude (heading removed) the front end and the filter
+        used for this frame; pass it so that the graph maps the world-frame displacement and
+        observations with the rotation they were built with (None: the IMU stream's AHRS,
+        which differs from it by the filter's attitude processing, see
+        ``KeyframeGraphBuilder.add_frame``).
 
         Non-keyframes only extend the displacement chain (their corner observations are not
         used). A keyframe becomes a node once IMU data reaches its time; ``filter_estimate`` is
@@ -70,7 +77,7 @@ class KeyframeSmootherBase(ABC):
         """
         t0 = time.perf_counter()
         updates = self._builder.add_frame(
-            timestamp_s, is_keyframe, filter_estimate, displacement, observation
+            timestamp_s, is_keyframe, filter_estimate, displacement, observation, R_world_imu
         )
         self._dispatch(updates, t0)
 

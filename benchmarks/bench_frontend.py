@@ -22,13 +22,12 @@ Threads: OMP / OpenBLAS / MKL pinned to 1 (``_common``). Writes benchmarks/resul
 
 from __future__ import annotations
 
-import _common  # noqa: I001 - first: pins thread pools before numpy is imported
-
 import argparse
 import time
 from pathlib import Path
 from typing import Any
 
+import _common  # noqa: I001 - before numpy: pins the thread pools numpy reads on import
 import numpy as np
 
 import vio_graph.frontend.tracker as tracker_module

@@ -158,7 +158,8 @@ class OnlineEstimator:
     # ------------------------------------------------------------------ inputs
     def add_imu(self, sample: ImuSample) -> None:
         t0 = time.perf_counter()
-        sample = self.corrected_imu(sample)
+        self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
+        sample = self.corrected_imu(sample)  # the offset applied once, for the strapdown
         if self._last_imu is None:
             self.filter.initialise(sample.timestamp_s, self._p0)
         elif sample.timestamp_s <= self._last_imu.timestamp_s:
@@ -166,7 +167,6 @@ class OnlineEstimator:
                 f"IMU sample at {sample.timestamp_s:.6f} s is not after {self._last_imu.timestamp_s:.6f} s")
         else:
             self.filter.propagate(sample)
-        self.attitude.add(sample)
         if self.config.filter.stance_anchor:
             self._stance.add_imu(sample.timestamp_s, sample.accel_mps2, sample.gyro_radps,
                                  sagittal_rotation(sample.quat_wxyz),
@@ -238,17 +238,12 @@ class OnlineEstimator:
             pred_cov = P[2:4, 2:4] * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
         # 3. front end (eq. 1-4)
         result = self.frontend.process(frame, self.rig.K, R_ground_cam, pred_delta, pred_cov)
-        # 3b. level surfaces in the slice -> pitch correction of the attitude
+        # 3b. level surfaces in the slice -> pitch correction of the attitude (next frames)
         if self.config.filter.level_aiding.enabled and R_ground_cam_override is None:
-            first = not self.pitch_offset.initialised
-            if self._level_aiding(t, result.profile_xz_m) and first:
-                # the first offset can be degrees: redo this frame with it, so that the next
-                # frame's ICP compares two slices rotated alike
+            step = self._level_aiding(t, result.profile_xz_m)
+            if step != 0.0:
+                self.frontend.rotate_previous(step)  # this frame, in the corrected frame
                 R_world_imu = self.R_world_imu(t)
-                R_ground_cam = R_world_imu @ self.rig.R_imu_cam
-                self.frontend.reset()
-                result = self.frontend.process(frame, self.rig.K, R_ground_cam, None, None)
-            R_world_imu = self.R_world_imu(t)
         timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
         if transform_result is not None:
             result = transform_result(result)
@@ -290,19 +285,18 @@ class OnlineEstimator:
         )
         return estimate, result
 
-    def _level_aiding(self, t: float, profile_xz_m: NDArray[np.float64]) -> bool:
+    def _level_aiding(self, t: float, profile_xz_m: NDArray[np.float64]) -> float:
         """Measure the tilt of the level surfaces in this frame's profile and update the
-        pitch offset (frontend/level.py, filter/attitude.PitchOffsetFilter); True if the
-        offset changed."""
+        pitch offset (frontend/level.py, filter/attitude.PitchOffsetFilter); returns the
+        change of the offset (rad)."""
         cfg = self.config.filter.level_aiding
         self.pitch_offset.predict(t)
         self.surface_tilt = measure_surface_tilt(
             profile_xz_m, self._level_rng, np.radians(cfg.max_tilt_deg), cfg.inlier_m,
-            cfg.min_points, cfg.min_extent_m)
+            cfg.min_points, cfg.min_extent_m, cfg.max_lines, cfg.correlated_points)
         if self.surface_tilt is None:
-            return False
-        step = self.pitch_offset.update(self.surface_tilt.tilt_rad, self.surface_tilt.sigma_rad)
-        return step != 0.0
+            return 0.0
+        return self.pitch_offset.update(self.surface_tilt.tilt_rad, self.surface_tilt.sigma_rad)
 
     def _fuse_landmarks(self, t: float, result: FrontendResult,
                         R_world_imu: NDArray[np.float64]) -> None:

@@ -226,6 +226,8 @@ class Replay:
                 if name == "imu_only"
                 else s.p_xz_m.copy()
             )
+        # the attitude the displacement and observations were built with (level-aided)
+        R_world_imu = self.online.R_world_imu(est.timestamp_s)
         for name, sm in list(self.smoothers.items()):
             self._guard(
                 name,
@@ -235,8 +237,8 @@ class Replay:
                 est,
                 res.displacement,
                 self._smoother_observations(res),
+                R_world_imu,
             )
-        R_world_imu = self.online.R_world_imu(est.timestamp_s)
         imu_pitch, chain_pitch, ankle = self.online.leg_angles(R_world_imu)
         lg.shank_pitch_imu.append(imu_pitch)
         lg.shank_pitch_chain.append(chain_pitch)

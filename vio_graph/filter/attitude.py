@@ -104,18 +104,22 @@ class PitchOffsetFilter:
     true attitude. ``predict`` adds random-walk noise (the vendor error drifts: MTi-1 ~1 deg
     RMS, correlation time of seconds); ``update`` takes the residual tilt measured on a slice
     that was already rotated with the current b, so the innovation is the measurement itself.
-    Measurements outside ``gate_sigmas`` of the predicted spread are refused (a ramp, a
-    wrongly fitted line). The first accepted measurement sets b directly.
+    Once the offset is known to better than ``initial_sigma_deg``, measurements outside
+    ``gate_sigmas`` of the predicted spread are refused (a ramp, a wrongly fitted line).
     """
 
     def __init__(self, config: LevelAidingConfig | None = None) -> None:
         self.config = LevelAidingConfig() if config is None else config
         self.offset_rad = 0.0
         self.var_rad2 = np.radians(self.config.initial_sigma_deg) ** 2
-        self.initialised = False
         self._t_s: float | None = None
         self.n_accepted = 0
         self.n_rejected = 0
+
+    @property
+    def initialised(self) -> bool:
+        """True once a measurement was accepted."""
+        return self.n_accepted > 0
 
     def predict(self, t_s: float) -> None:
         if self._t_s is not None and t_s > self._t_s:
@@ -127,19 +131,12 @@ class PitchOffsetFilter:
         """Fuse a residual tilt (rad) with its sigma; returns the change of b (rad)."""
         cfg = self.config
         r = sigma_rad**2 + np.radians(cfg.measurement_floor_deg) ** 2
-        if not self.initialised:
-            self.offset_rad = float(tilt_rad)
-            self.var_rad2 = r
-            self.initialised = True
-            self.n_accepted += 1
-            return float(tilt_rad)
         s = self.var_rad2 + r
-        if tilt_rad**2 > cfg.gate_sigmas**2 * s:
+        if self.initialised and tilt_rad**2 > cfg.gate_sigmas**2 * s:
             self.n_rejected += 1
             return 0.0
         k = self.var_rad2 / s
-        step = float(np.clip(k * tilt_rad, -np.radians(cfg.max_step_deg),
-                             np.radians(cfg.max_step_deg)))
+        step = float(k * tilt_rad)
         self.offset_rad += step
         self.var_rad2 *= 1.0 - k
         self.n_accepted += 1

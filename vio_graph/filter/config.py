@@ -60,6 +60,12 @@ class LevelAidingConfig(BaseModel):
     inlier_m: float = Field(default=0.004, gt=0, description="line inlier distance (m)")
     min_points: int = Field(default=25, ge=3, description="inliers a line needs")
     min_extent_m: float = Field(default=0.12, gt=0, description="x extent a line needs (m)")
+    max_lines: int = Field(default=4, ge=1, description="most level lines used per frame")
+    correlated_points: float = Field(
+        default=5.0, ge=1,
+        description="slope variance multiplier: kNN smoothing (k = 5) correlates neighbouring "
+        "profile points",
+    )
     initial_sigma_deg: float = Field(
         default=3.0, gt=0, description="sigma (deg) of the offset before any measurement"
     )
@@ -67,18 +73,12 @@ class LevelAidingConfig(BaseModel):
         default=0.5, ge=0, description="random-walk sigma (deg/sqrt(s)) of the offset"
     )
     measurement_floor_deg: float = Field(
-        default=0.15, ge=0,
-        description="sigma (deg) added in quadrature to each tilt measurement (smoothing, "
-        "depth noise correlated along the line)",
+        default=0.3, ge=0,
+        description="sigma (deg) added in quadrature to each tilt measurement (what the line "
+        "fit does not see: smoothing at the line ends, mixed pixels)",
     )
     gate_sigmas: float = Field(
         default=4.0, gt=0, description="refuse a tilt further than this many sigmas"
-    )
-    max_step_deg: float = Field(
-        default=0.2, gt=0,
-        description="largest change (deg) of the offset per frame: the previous slice was "
-        "rotated with the old offset, and a change of d turns the next ICP by d (0.2 deg at "
-        "0.6 m: 2 mm)",
     )
 
 

@@ -62,6 +62,11 @@ class VisualFrontend:
         """Forget the previous frame (e.g. after a gap in the recording)."""
         self._tracker.reset()
 
+    def rotate_previous(self, angle_rad: float) -> None:
+        """The caller turned its ground frame by rot_y(``angle_rad``) since the previous frame
+        (a pitch correction): re-express the previous frame in it."""
+        self._tracker.rotate_previous(angle_rad)
+
     def process(
         self,
         frame: DepthFrame,

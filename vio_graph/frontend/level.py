@@ -9,9 +9,9 @@ off by ~1 deg RMS (slowly varying), which costs twice:
   by alpha a forward motion dx reads as a height change alpha * dx (2 deg over 0.6 m: 2 cm);
 * the toe is ~0.45 m from the knee along the leg, so 1 deg of shank pitch moves it ~8 mm.
 
-:func:`measure_surface_tilt` fits up to two near-horizontal lines with a shared slope
-(RANSAC among pairs whose slope is within ``max_tilt_rad``, then least squares on the
-inliers) and returns the tilt with its standard error. ``vio_graph.filter.attitude.
+:func:`measure_surface_tilt` fits up to four near-horizontal lines with a shared slope
+(RANSAC among pairs whose slope is within ``max_tilt_rad``, then weighted least squares on
+the inliers) and returns the tilt with its standard error. ``vio_graph.filter.attitude.
 PitchOffsetFilter`` turns successive measurements into a pitch correction. Pure numpy, no
 I/O.
 
@@ -35,7 +35,7 @@ class SurfaceTilt:
     """Tilt (rad) of the level surfaces in a profile: positive = they rise with x, i.e. the
     slice must be rotated by rot_y(+tilt_rad) to level them. ``sigma_rad`` is the standard
     error of the least-squares slope; ``n_inliers`` and ``extent_m`` (summed x extent of the
-    lines) describe the support; ``n_lines`` is 1 or 2."""
+    lines) describe the support; ``n_lines`` is how many lines were used."""
 
     tilt_rad: float
     sigma_rad: float
@@ -82,8 +82,15 @@ def measure_surface_tilt(
     inlier_m: float = 0.004,
     min_points: int = 25,
     min_extent_m: float = 0.12,
+    max_lines: int = 4,
+    correlated_points: float = 5.0,
 ) -> SurfaceTilt | None:
-    """Common tilt of the one or two longest near-horizontal lines of a profile.
+    """Common tilt of the near-horizontal lines of a profile (floor, treads, obstacle top).
+
+    Up to ``max_lines`` lines are found one after the other (RANSAC, then least squares on the
+    inliers, then their inliers are removed). The tilt is the weighted least-squares slope
+    shared by all of them, each line with its own height and its own noise (from its
+    residuals: ToF noise grows with range and incidence, so far treads count less).
 
     Args:
         profile_xz_m: (N, 2) smoothed sagittal profile in the ground frame, metres.
@@ -91,6 +98,9 @@ def measure_surface_tilt(
         max_tilt_rad: only lines within this angle of horizontal are considered.
         inlier_m: vertical inlier distance (m).
         min_points, min_extent_m: support a line needs (inliers, x extent in metres).
+        max_lines: most lines used.
+        correlated_points: kNN smoothing averages ~k raw points into each profile point, so
+            neighbouring points are correlated; the slope variance is multiplied by this.
 
     Returns:
         The tilt, or None when no line has the support (e.g. only a riser in view).
@@ -102,7 +112,7 @@ def measure_surface_tilt(
     max_slope = float(np.tan(max_tilt_rad))
     remaining = np.ones(x.shape[0], dtype=bool)
     lines: list[NDArray[np.int64]] = []
-    for _ in range(2):
+    for _ in range(max_lines):
         idx = np.flatnonzero(remaining)
         if idx.size < min_points:
             break
@@ -117,26 +127,24 @@ def measure_surface_tilt(
         remaining[sel] = False
     if not lines:
         return None
-    # shared slope, one intercept per line: z = s x + c_k
-    rows = np.concatenate(lines)
-    A = np.zeros((rows.size, 1 + len(lines)))
-    A[:, 0] = x[rows]
-    start = 0
-    for k, sel in enumerate(lines):
-        A[start:start + sel.size, 1 + k] = 1.0
-        start += sel.size
-    coef, *_ = np.linalg.lstsq(A, z[rows], rcond=None)
-    resid = z[rows] - A @ coef
-    dof = max(1, rows.size - A.shape[1])
-    sxx = sum(float(np.sum((x[sel] - x[sel].mean()) ** 2)) for sel in lines)
-    sigma_slope = float(np.sqrt(np.sum(resid**2) / dof / max(sxx, 1e-12)))
-    s = float(coef[0])
+    # per line: centred x, z and its own noise variance (residuals of its own fit)
+    szx = info = 0.0
+    for sel in lines:
+        xc = x[sel] - x[sel].mean()
+        zc = z[sel] - z[sel].mean()
+        Sxx = float(xc @ xc)
+        s_k = float(xc @ zc) / max(Sxx, 1e-12)
+        var_k = max(float(np.sum((zc - s_k * xc) ** 2)) / max(1, sel.size - 2), 1e-8)
+        szx += float(xc @ zc) / var_k
+        info += Sxx / var_k
+    s = szx / info
     if abs(s) > max_slope:
         return None
+    sigma_slope = float(np.sqrt(correlated_points / info))
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),
         sigma_rad=sigma_slope / (1.0 + s * s),
-        n_inliers=int(rows.size),
+        n_inliers=int(sum(sel.size for sel in lines)),
         extent_m=float(sum(np.ptp(x[sel]) for sel in lines)),
         n_lines=len(lines),
     )

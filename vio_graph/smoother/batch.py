@@ -66,7 +66,7 @@ class BatchSmoother(KeyframeSmootherBase):
     def robust_outliers(self) -> dict[str, int]:
         """How many robust (Huber/Cauchy) factors the solution down-weights: whitened error
         beyond the kernel threshold, i.e. measurements the smoother effectively rejected.
-        Returns {"robust_factors": n, "downweighted": k}."""
+        Returns {"robust_factors": n, "downweighted": k, "max_whitened_error": e}."""
         if self._result is None:
             self.solve()
         return count_downweighted(self.graph, self._result, self.config.robust_threshold)
@@ -98,8 +98,10 @@ class BatchSmoother(KeyframeSmootherBase):
 def count_downweighted(
     graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, threshold: float
 ) -> dict[str, int]:
-    """Count robust factors whose whitened error norm exceeds ``threshold`` at ``values``."""
+    """Count robust factors whose whitened error norm exceeds ``threshold`` at ``values``;
+    also the largest whitened error norm (``max_whitened_error``, sigmas)."""
     n_robust = n_down = 0
+    worst = 0.0
     for k in range(graph.size()):
         f = graph.at(k)
         if f is None or not hasattr(f, "noiseModel"):
@@ -108,7 +110,8 @@ def count_downweighted(
         if not isinstance(nm, gtsam.noiseModel.Robust):
             continue
         n_robust += 1
-        err = nm.noise().whiten(f.unwhitenedError(values))
-        if float(np.linalg.norm(err)) > threshold:
+        err = float(np.linalg.norm(nm.noise().whiten(f.unwhitenedError(values))))
+        worst = max(worst, err)
+        if err > threshold:
             n_down += 1
-    return {"robust_factors": n_robust, "downweighted": n_down}
+    return {"robust_factors": n_robust, "downweighted": n_down, "max_whitened_error": worst}

@@ -229,7 +229,8 @@ def evaluate(
         Path | None, typer.Option(help="Also write the report here (e.g. docs/results.md).")
     ] = None,
     ablation: Annotated[
-        bool, typer.Option(help="Also run the smoother ablation (seeds 1-2).")
+        bool, typer.Option(help="Also run the smoother ablation (seeds 1-2) and the filter "
+                           "ablation (all seeds, filter only).")
     ] = False,
 ) -> None:
     """The paper's experiments x seeds on simulated trials: simulate (cached), run every mode,
@@ -258,13 +259,20 @@ def evaluate(
     )
     written = write_report(runs, out, command, cfg, doc)
     if ablation:
-        from vio_graph.experiments import ABLATION_VARIANTS, ablation_markdown, run_ablation
+        from vio_graph.experiments import (
+            ABLATION_VARIANTS,
+            ablation_markdown,
+            run_ablation,
+            run_filter_ablation,
+        )
         from vio_graph.io_utils import atomic_write_text
 
         sub = [r for r in recs if r[1] in (1, 2)]
         with progress_bar(len(ABLATION_VARIANTS), "ablation", "variant") as bar:
             table = run_ablation(sub, out, cfg, jobs=jobs, progress=bar.update_to)
-        md = ablation_markdown(table)
+        ftable = run_filter_ablation(recs, out, cfg, jobs=jobs)
+        md = (ablation_markdown(ftable, "Filter ablation, all seeds", ("filter",)) + "\n"
+              + ablation_markdown(table, "Smoother ablation, seeds 1-2"))
         for path in [written["markdown"]] + ([written["doc"]] if "doc" in written else []):
             text = path.read_text()
             atomic_write_text(

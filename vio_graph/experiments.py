@@ -366,9 +366,58 @@ ABLATION_VARIANTS: dict[str, tuple[dict[str, bool], dict[str, Any]]] = {
     "IMU + displacements + corner landmarks": ({"stance_anchors": False}, {}),
     "IMU + displacements + corner landmarks + stance anchors (default)": ({}, {}),
     "IMU + landmarks + stance anchors (no displacements)": ({"displacement": False}, {}),
-    "default, raw IMU samples (no midpoint rule)": ({}, {"preintegration": "raw"}),
+    "default, specific force averaged in the moving IMU frame (midpoint rule)": (
+        {}, {"preintegration": "midpoint_curvature"}),
+    "default, raw IMU samples (no step means)": ({}, {"preintegration": "raw"}),
     "default, no robust kernel": ({}, {"robust_kernel": "none"}),
 }
+
+
+_NO_LANDMARKS = {"corner_landmarks": False, "stance_anchor": False}
+_NO_LEVEL = {"level_aiding": {"enabled": False}}
+#: Filter variants for the ablation: name -> overrides of PipelineConfig.filter (nested dicts).
+FILTER_ABLATION_VARIANTS: dict[str, dict[str, Any]] = {
+    "paper: displacements, pseudo-position update, latest vendor attitude": {
+        **_NO_LANDMARKS, **_NO_LEVEL, "measurement_model": "position_pseudo",
+        "attitude": {"source": "vendor"}},
+    "displacements (stochastic cloning, attitude at the frame time)": {
+        **_NO_LANDMARKS, **_NO_LEVEL},
+    "+ corner landmarks": {"stance_anchor": False, **_NO_LEVEL},
+    "+ corner landmarks + stance anchors": {**_NO_LEVEL},
+    "+ corner landmarks + stance anchors + level-surface pitch (default)": {},
+}
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def filter_ablation_config(base: PipelineConfig, overrides: dict[str, Any]) -> PipelineConfig:
+    """``base`` with ``overrides`` merged into its filter section (validated)."""
+    data = base.model_dump()
+    data["filter"] = _merge(data["filter"], overrides)
+    return PipelineConfig.model_validate(data)
+
+
+def run_filter_ablation(
+    recordings: Sequence[tuple[str, int | None, Path]],
+    out_dir: Path,
+    config: PipelineConfig,
+    jobs: int = 1,
+) -> dict[str, Any]:
+    """Filter toe ATE for each variant in FILTER_ABLATION_VARIANTS (mean over trials)."""
+    table: dict[str, Any] = {}
+    for name, overrides in FILTER_ABLATION_VARIANTS.items():
+        cfg = filter_ablation_config(config, overrides)
+        slug = "".join(c if c.isalnum() else "_" for c in name.lower())[:40]
+        runs = run_trials(recordings, Path(out_dir) / "ablation_filter" / slug, cfg,
+                          modes=("filter",), jobs=jobs)
+        table[name] = {exp: {"filter": e["filter"]["toe"]}
+                       for exp, e in summarise_runs(runs).items() if "filter" in e}
+    return table
 
 
 def ablation_config(
@@ -411,17 +460,20 @@ def run_ablation(
     return table
 
 
-def ablation_markdown(table: dict[str, Any]) -> str:
+def ablation_markdown(
+    table: dict[str, Any], title: str = "Smoother ablation",
+    modes: tuple[str, ...] = ("smoother", "batch"),
+) -> str:
     exps = list(dict.fromkeys(exp for v in table.values() for exp in v))
     head = "| variant | mode | " + " | ".join(f"{e} x | {e} z" for e in exps) + " |"
     lines = [
-        "## Smoother ablation (toe ATE, cm, mean over seeds)",
+        f"## {title} (toe ATE, cm, mean over seeds)",
         "",
         head,
         "|---|---|" + "---|---|" * len(exps),
     ]
     for name, per_exp in table.items():
-        for mode in ("smoother", "batch"):
+        for mode in modes:
             cells = []
             for e in exps:
                 d = per_exp.get(e, {}).get(mode)

@@ -52,7 +52,7 @@ All factors are GTSAM built-ins (no Python CustomFactor on the hot path).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import gtsam
@@ -138,6 +138,29 @@ def _imu_knots(
     return t, a, g, np.concatenate([[t0_s], inner, [t1_s]])
 
 
+def _quadratic_step_means(
+    t: NDArray[np.float64], knots: NDArray[np.float64]
+) -> tuple[Callable[[NDArray[np.float64]], NDArray[np.float64]], NDArray[np.float64]]:
+    """Step means over the knot intervals of a signal sampled at ``t``, treated as locally
+    quadratic: the trapezoid minus ``dt^2/12 y''``, with knot values between samples
+    interpolated with the same curvature term (y'' from central differences). Returns the
+    function (N, 3) -> (K, 3) and the step lengths dt (K, 1)."""
+    lo = np.clip(np.searchsorted(t, knots, side="right") - 1, 0, t.size - 1)
+    hi = np.clip(lo + 1, 0, t.size - 1)
+    inside = (knots > t[0]) & (knots < t[-1])
+    curv = np.where(inside, 0.5 * (knots - t[lo]) * (knots - t[hi]), 0.0)[:, None]
+    dt = np.diff(knots)[:, None]
+
+    def step_means(y: NDArray[np.float64]) -> NDArray[np.float64]:
+        ypp = _second_derivative(t, y)
+        ypp_k = np.stack([np.interp(knots, t, ypp[:, i]) for i in range(3)], axis=-1)
+        y_k = np.stack([np.interp(knots, t, y[:, i]) for i in range(3)], axis=-1)
+        y_k = y_k + curv * ypp_k
+        return 0.5 * (y_k[1:] + y_k[:-1]) - dt**2 / 12.0 * 0.5 * (ypp_k[1:] + ypp_k[:-1])
+
+    return step_means, dt
+
+
 def midpoint_samples(
     times_s: ArrayLike,
     accel_mps2: ArrayLike,
@@ -164,18 +187,7 @@ def midpoint_samples(
         ``accel_mid (K, 3)``, ``gyro_mid (K, 3)``, ``dt_s (K,)`` with sum(dt) = t1 - t0.
     """
     t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
-    lo = np.clip(np.searchsorted(t, knots, side="right") - 1, 0, t.size - 1)
-    hi = np.clip(lo + 1, 0, t.size - 1)
-    inside = (knots > t[0]) & (knots < t[-1])
-    curv = np.where(inside, 0.5 * (knots - t[lo]) * (knots - t[hi]), 0.0)[:, None]
-    dt = np.diff(knots)[:, None]
-
-    def step_means(y: NDArray[np.float64]) -> NDArray[np.float64]:
-        ypp = _second_derivative(t, y)
-        ypp_k = np.stack([np.interp(knots, t, ypp[:, i]) for i in range(3)], axis=-1)
-        y_k = np.stack([np.interp(knots, t, y[:, i]) for i in range(3)], axis=-1)
-        y_k = y_k + curv * ypp_k
-        return 0.5 * (y_k[1:] + y_k[:-1]) - dt**2 / 12.0 * 0.5 * (ypp_k[1:] + ypp_k[:-1])
+    step_means, dt = _quadratic_step_means(t, knots)
 
     g_mid = step_means(g)
     a_mean = step_means(a)
@@ -203,18 +215,7 @@ def common_frame_samples(
     back in the step-start frame, where GTSAM applies it.
     """
     t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
-    lo = np.clip(np.searchsorted(t, knots, side="right") - 1, 0, t.size - 1)
-    hi = np.clip(lo + 1, 0, t.size - 1)
-    inside = (knots > t[0]) & (knots < t[-1])
-    curv = np.where(inside, 0.5 * (knots - t[lo]) * (knots - t[hi]), 0.0)[:, None]
-    dt = np.diff(knots)[:, None]
-
-    def step_means(y: NDArray[np.float64]) -> NDArray[np.float64]:
-        ypp = _second_derivative(t, y)
-        ypp_k = np.stack([np.interp(knots, t, ypp[:, i]) for i in range(3)], axis=-1)
-        y_k = np.stack([np.interp(knots, t, y[:, i]) for i in range(3)], axis=-1)
-        y_k = y_k + curv * ypp_k
-        return 0.5 * (y_k[1:] + y_k[:-1]) - dt**2 / 12.0 * 0.5 * (ypp_k[1:] + ypp_k[:-1])
+    step_means, dt = _quadratic_step_means(t, knots)
 
     g_mid = step_means(g)
     steps = so3_exp(g_mid * dt)  # (K, 3, 3) step rotations, as GTSAM integrates them

@@ -234,3 +234,16 @@ def test_summary_table_has_mean_sd_and_paper_numbers():
     assert PAPER_TOE_ATE_CM["prosthesis_upstair"]["x"] == (4.14, 0.85)
     with pytest.raises(EvaluationError):
         summarise([])
+
+
+def test_generated_doc_keeps_its_hand_written_tail(tmp_path) -> None:
+    from vio_graph.io_utils import write_generated_doc
+
+    doc = tmp_path / "results.md"
+    write_generated_doc(doc, "# Results\n\n| a |\n")  # new file: generated part only
+    assert doc.read_text() == "# Results\n\n| a |\n"
+    doc.write_text(doc.read_text() + "\n## Reading (written by hand)\n- note 1\n")
+    write_generated_doc(doc, "# Results\n\n| b |\n")
+    text = doc.read_text()
+    assert "| b |" in text and "| a |" not in text
+    assert text.endswith("## Reading (written by hand)\n- note 1\n")

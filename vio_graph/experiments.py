@@ -22,7 +22,7 @@ import numpy as np
 
 from vio_graph.config import PipelineConfig, dump_config
 from vio_graph.evaluation.tables import PAPER_TOE_ATE_CM
-from vio_graph.io_utils import atomic_write_json, atomic_write_text
+from vio_graph.io_utils import atomic_write_json, atomic_write_text, write_generated_doc
 
 log = logging.getLogger(__name__)
 
@@ -348,7 +348,7 @@ def write_report(
     plot_toe_bands(written["figure"], runs)
     if doc_path is not None:
         doc_path = Path(doc_path)
-        atomic_write_text(doc_path, md)
+        write_generated_doc(doc_path, md)
         fig = doc_path.parent / "figures" / "results_toe.png"
         plot_toe_bands(fig, runs)
         written["doc"] = doc_path

@@ -64,6 +64,25 @@ def atomic_write_text(path: Path, text: str) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
+#: a heading containing this starts the hand-written part of a generated document
+HAND_WRITTEN_MARK = "(written by hand"
+
+
+def write_generated_doc(path: Path, generated: str) -> None:
+    """Write a generated Markdown document, keeping the hand-written tail of the existing
+    file: everything from the first heading that contains ``HAND_WRITTEN_MARK``."""
+    path = Path(path)
+    tail = ""
+    if path.is_file():
+        lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
+        for i, line in enumerate(lines):
+            if line.startswith("#") and HAND_WRITTEN_MARK in line:
+                tail = "".join(lines[i:])
+                break
+    text = generated if not tail else generated.rstrip("\n") + "\n\n" + tail
+    atomic_write_text(path, text)
+
+
 def atomic_write_json(path: Path, obj: Any) -> None:
     atomic_write_text(
         path, json.dumps(obj, indent=2, sort_keys=False, default=_json_default) + "\n"

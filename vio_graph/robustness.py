@@ -23,7 +23,12 @@ import numpy as np
 
 from vio_graph.config import PipelineConfig
 from vio_graph.experiments import _map, _run_one
-from vio_graph.io_utils import atomic_path, atomic_write_json, atomic_write_text
+from vio_graph.io_utils import (
+    atomic_path,
+    atomic_write_json,
+    atomic_write_text,
+    write_generated_doc,
+)
 
 MODES = ("filter", "smoother", "batch")
 
@@ -245,7 +250,7 @@ def write_outputs(
     md = markdown(results, command)
     atomic_write_text(written["markdown"], md)
     if doc_path is not None:
-        atomic_write_text(Path(doc_path), md)
+        write_generated_doc(Path(doc_path), md)
         plot(results, Path(doc_path).parent / "figures" / "robustness.png")
         written["doc"] = Path(doc_path)
     return written

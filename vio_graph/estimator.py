@@ -153,6 +153,10 @@ class OnlineEstimator:
         self._stance_n = 0  # id of the current / next stance anchor
         #: this frame's stance anchor (ankle - camera) as an observation, None outside stance
         self.stance_observation: CornerObservation | None = None
+        #: this frame's corner observation, track id replaced by its landmark's (re-identified)
+        self.corner_observation: CornerObservation | None = None
+        self._corner_alias: dict[int, tuple[str, int]] = {}  # track id -> landmark key
+        self._corner_seen: dict[tuple[str, int], float] = {}  # landmark key -> last seen, s
         self._in_stance = False
 
     # ------------------------------------------------------------------ inputs
@@ -303,12 +307,15 @@ class OnlineEstimator:
         """Corner landmarks and the stance ankle anchor (FilterConfig.corner_landmarks /
         stance_anchor; SagittalEskf.update_landmark)."""
         fc = self.config.filter
+        obs = result.observation
+        self.corner_observation = obs
         if fc.corner_landmarks:
-            obs = result.observation
-            key = None if obs is None else ("corner", obs.track_id)
-            for k in self.filter.landmark_keys:  # a track that ended is marginalised
-                if k[0] == "corner" and k != key:
-                    self.filter.drop_landmark(k)
+            key = None if obs is None else self._corner_key(t, obs)
+            if obs is not None:
+                # the smoothers see the re-identified corner under one track id too
+                self.corner_observation = dataclasses.replace(obs, track_id=key[1])
+                self._corner_seen[key] = t
+            self._forget_corners(t, key)
             if obs is not None:
                 cov = np.asarray(obs.cov_m2, float) + np.eye(2) * fc.corner_landmark_sigma_m**2
                 self.filter.update_landmark(key, obs.corner_rel_xz_m, cov, t)
@@ -339,6 +346,42 @@ class OnlineEstimator:
                 self.filter.drop_landmark(key)
                 self._stance_n += 1
             self._in_stance = stance
+
+    def _corner_key(self, t: float, obs: CornerObservation) -> tuple[str, int]:
+        """Landmark key of a corner observation: its track's, or, for a new track, a
+        remembered corner it matches (FilterConfig.corner_reidentify_radius_m)."""
+        tid = obs.track_id
+        if tid in self._corner_alias:
+            return self._corner_alias[tid]
+        key = ("corner", tid)
+        radius = self.config.filter.corner_reidentify_radius_m
+        if radius is not None:
+            p, _ = self._position_at(t)
+            seen = p + np.asarray(obs.corner_rel_xz_m, float)
+            known = [k for k in self.filter.landmark_keys if k[0] == "corner"]
+            if known:
+                d = np.array([np.linalg.norm(self.filter.landmark_xz(k) - seen) for k in known])
+                order = np.argsort(d)
+                if d[order[0]] < radius and (d.size == 1 or d[order[1]] > 2 * d[order[0]]):
+                    key = known[int(order[0])]
+        self._corner_alias[tid] = key
+        return key
+
+    def _forget_corners(self, t: float, current: tuple[str, int] | None) -> None:
+        """Marginalise corner landmarks unseen for corner_memory_s, and the oldest beyond
+        max_corner_landmarks."""
+        fc = self.config.filter
+        corners = [k for k in self.filter.landmark_keys if k[0] == "corner"]
+        for k in corners:
+            if k != current and t - self._corner_seen.get(k, t) > fc.corner_memory_s:
+                self.filter.drop_landmark(k)
+        corners = sorted((k for k in self.filter.landmark_keys if k[0] == "corner"),
+                         key=lambda k: self._corner_seen.get(k, t))
+        for k in corners[: max(0, len(corners) - fc.max_corner_landmarks)]:
+            if k != current:
+                self.filter.drop_landmark(k)
+        self._corner_seen = {k: v for k, v in self._corner_seen.items()
+                             if k in self.filter.landmark_keys or k == current}
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
         """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""

@@ -176,7 +176,8 @@ class Replay:
     def _smoother_observations(self, res) -> list:
         """Landmark observations for the smoothers: the corner and, if enabled, the stance
         anchor (the planted ankle, a landmark seen through the leg)."""
-        obs = [res.observation] if res.observation is not None else []
+        corner = self.online.corner_observation  # re-identified corners share a track id
+        obs = [corner] if corner is not None else []
         stance = self.online.stance_observation
         if stance is not None and self.config.smoother.factors.stance_anchors:
             obs.append(stance)

@@ -225,6 +225,24 @@ class FilterConfig(BaseModel):
         ge=0,
         description="sigma (m) added in quadrature per axis to a corner observation covariance",
     )
+    corner_reidentify_radius_m: float | None = Field(
+        default=0.08,
+        gt=0,
+        description="a new corner track whose observed position (filter camera + corner) lies "
+        "within this distance (m) of a remembered corner landmark, and clearly nearest to it "
+        "(the next one at least twice as far), is that landmark seen again: the swinging "
+        "shank looks at one nosing, then another, then back, and the front end gives every "
+        "reappearance a new track. Stair corners are >= 0.31 m apart (tread 0.28, rise "
+        "0.147). None = every track is a new landmark",
+    )
+    corner_memory_s: float = Field(
+        default=3.0,
+        gt=0,
+        description="a corner landmark not seen for this long (s) is marginalised",
+    )
+    max_corner_landmarks: int = Field(
+        default=8, ge=1, description="most corner landmarks kept in the state (oldest go)"
+    )
     stance_anchor: bool = Field(
         default=True,
         description=(

@@ -54,6 +54,9 @@ def test_metrics_schema_and_accuracy(run_all) -> None:
     assert m["latency_ms"]["smoother_update"]["n"] > 0
     # the fused estimates beat IMU dead reckoning; the smoothers stay within a few cm
     assert m["ate_cm"]["filter"]["toe"]["x"] < m["ate_cm"]["imu_only"]["toe"]["x"]
+    # floors and treads were in view: the level-surface pitch correction was used
+    la = m["filter"]["level_aiding"]
+    assert la["accepted"] > 50 and abs(la["final_offset_deg"]) < 5.0
     for mode in ("smoother", "batch"):
         assert m["ate_cm"][mode]["toe"]["x"] < 6.0 and m["ate_cm"][mode]["toe"]["z"] < 6.0
     assert m["map"]["rise_error_mm"] is not None and m["map"]["rise_error_mm"] < 15.0

@@ -496,6 +496,11 @@ def _run_into(
         "rejected_chi2": fs.n_rejected,
         "stale": fs.n_stale,
         "injected_wrong_associations": replay.injected_wrong_associations,
+        "level_aiding": {
+            "accepted": replay.online.pitch_offset.n_accepted,
+            "rejected": replay.online.pitch_offset.n_rejected,
+            "final_offset_deg": float(np.degrees(replay.online.pitch_offset.offset_rad)),
+        },
     }
     if gt is not None:
         metrics["terrain_classification"] = _terrain_accuracy(rec, lg)

@@ -104,9 +104,10 @@ def render(walls_s: dict[str, float], quick: bool) -> str:
         "",
         f"Machine: {m['cpu_model']}, {m['logical_cores']} logical cores "
         f"({m['usable_cores']} usable), {m['platform']}; Python {m['python']}, numpy "
-        f"{m['numpy']}, scipy {m['scipy']}; vio_graph at `{m['source_revision']}` (`+dirty`: "
-        "the working tree had uncommitted changes in vio_graph/ or configs/). Every benchmark "
-        "runs single-threaded "
+        f"{m['numpy']}, scipy {m['scipy']}; vio_graph at `{m['source_revision']}`"
+        + (" (`+dirty`: the working tree had uncommitted changes in vio_graph/ or configs/)"
+           if "+dirty" in m["source_revision"] else "")
+        + ". Every benchmark runs single-threaded "
         "(OMP / OpenBLAS / MKL threads = 1). Load average (1 min) when each benchmark "
         f"finished: {loads}. The machine is shared, so medians and p95 are reported, "
         "comparisons are ratios measured in the same run, and a load above the core count "

@@ -255,7 +255,7 @@ LABELS = {
     "icp_solver": "2D ICP solver (eq. 3-4)",
     "tracker_other": "tracker rest (crop, KD-tree, gate, ids)",
     "frontend_total": "**front end total**",
-    "fusion": "fusion: SP-ESKF update (eq. 8)",
+    "fusion": "fusion: level-surface pitch + SP-ESKF update (eq. 8)",
     "kinematics": "kinematics (Fig. 3)",
     "frontend_plus_fusion": "**front end + fusion**",
     "imu_propagation": "IMU propagation (~3.3 samples/frame)",

@@ -9,7 +9,9 @@ Per frame, in the paper's order (Section II):
   1. attitude: the latest IMU orientation, heading removed -> R_ground_cam (eq. 2);
   2. IMU prediction of the camera displacement since the previous frame (ICP's T_0);
   3. front end: slice, smoothing, terrain, corners, ICP, gating (eq. 1-4);
-  4. SP-ESKF correction with the displacement (eq. 8) -- or IMU-only if none passed;
+  4. pitch correction from the level surfaces in the slice (frontend/level.py; used by
+     everything after it, and the previous slice is re-expressed with it), then the
+     SP-ESKF correction with the displacement (eq. 8) -- or IMU-only if none passed;
      then landmarks (``_fuse_landmarks``, both switchable in FilterConfig):
      a. corner landmarks (``corner_landmarks``): the front end's corner observation (corner
         minus camera, track id kept for the same physical corner) is a landmark in the
@@ -242,17 +244,16 @@ class OnlineEstimator:
             pred_cov = P[2:4, 2:4] * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
         # 3. front end (eq. 1-4)
         result = self.frontend.process(frame, self.rig.K, R_ground_cam, pred_delta, pred_cov)
-        # 3b. level surfaces in the slice -> pitch correction of the attitude (next frames)
+        timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
+        # 4. fusion: level surfaces -> pitch of the attitude (used from here on), then eq. 8
+        t0 = time.perf_counter()
         if self.config.filter.level_aiding.enabled and R_ground_cam_override is None:
             step = self._level_aiding(t, result.profile_xz_m)
             if step != 0.0:
                 self.frontend.rotate_previous(step)  # this frame, in the corrected frame
                 R_world_imu = self.R_world_imu(t)
-        timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
         if transform_result is not None:
             result = transform_result(result)
-        # 4. fusion (eq. 8)
-        t0 = time.perf_counter()
         if result.displacement is not None:
             self.filter.update_displacement(result.displacement)
         else:

@@ -385,3 +385,19 @@ def test_common_frame_preintegration_is_exact_for_gravity_on_a_spinning_shank() 
     assert np.linalg.norm(integrate(common_frame_samples) - true_dv) < 1e-9
     short = np.linalg.norm(integrate(midpoint_samples) - true_dv)
     assert 1e-4 < short < 1e-3  # 0.26 mm/s: (0.08)^2 / 24 * 9.81 * 0.1
+
+
+def test_chained_displacements_add_the_per_frame_floor() -> None:
+    """Two frame-to-frame displacements chain into one: deltas add, covariances add, and
+    each frame contributes frame_displacement_sigma_m^2 per axis."""
+    from vio_graph.types import Displacement2D
+
+    cfg = SmootherConfig(frame_displacement_sigma_m=0.002)
+    b = KeyframeGraphBuilder(cfg, np.eye(4))
+    c = np.diag([1e-6, 4e-6])
+    b._chain_displacement(Displacement2D(0.0, 0.1, np.array([0.01, 0.02]), c))
+    b._chain_displacement(Displacement2D(0.1, 0.2, np.array([0.03, -0.01]), c))
+    t0, t1, delta, cov = b._chain
+    assert (t0, t1) == (0.0, 0.2)
+    np.testing.assert_allclose(delta, [0.04, 0.01])
+    np.testing.assert_allclose(cov, 2 * c + 2 * np.eye(2) * 0.002**2)

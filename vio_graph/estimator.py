@@ -187,6 +187,11 @@ class OnlineEstimator:
     def initialised(self) -> bool:
         return self._last_imu is not None
 
+    @property
+    def latest_imu(self) -> ImuSample | None:
+        """The latest IMU sample as the filter used it (pitch offset applied)."""
+        return self._last_imu
+
     def corrected_imu(self, sample: ImuSample) -> ImuSample:
         """``sample`` with its vendor orientation turned by the level-surface pitch offset
         (FilterConfig.level_aiding); the sample itself when the offset is not set yet."""

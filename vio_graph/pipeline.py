@@ -153,7 +153,7 @@ class Replay:
                         b.initialise(s.timestamp_s, self.p0)
                     else:
                         b.propagate(s)
-                s_level = online.corrected_imu(s)  # attitude with the level-surface pitch
+                s_level = online.latest_imu  # s with the level-surface pitch applied
                 for name, sm in list(self.smoothers.items()):
                     self._guard(name, sm.add_imu, s_level)
                 started = True

@@ -70,9 +70,11 @@ def _refine(
     """Least-squares line on the inliers, then re-select inliers once against it."""
     if mask.sum() < 3:
         return mask
-    A = np.stack([x[mask], np.ones(int(mask.sum()))], axis=1)
-    (s, c), *_ = np.linalg.lstsq(A, z[mask], rcond=None)
-    return np.abs(z - (s * x + c)) < inlier_m
+    xm, zm = x[mask], z[mask]
+    x0, z0 = xm.mean(), zm.mean()
+    xc = xm - x0
+    s = float(xc @ (zm - z0)) / max(float(xc @ xc), 1e-12)
+    return np.abs(z - z0 - s * (x - x0)) < inlier_m
 
 
 def measure_surface_tilt(

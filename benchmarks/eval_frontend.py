@@ -143,10 +143,11 @@ def summarise(rec: Recording, out: dict[str, Any]) -> dict[str, Any]:
     speed = _true_speed(rec, t)
     with_d = [r for r in rows if r["disp"] is not None]
     err = np.array([r["disp"][2] - r["disp"][4] for r in with_d]).reshape(-1, 2)
-    nees = np.array([float(e @ np.linalg.solve(r["disp"][3], e)) for e, r in zip(err, with_d)])
+    nees = np.array([float(e @ np.linalg.solve(r["disp"][3], e))
+                     for e, r in zip(err, with_d, strict=True)])
     d_speed = speed[has]
     by_speed = []
-    for lo, hi in zip(SPEED_BINS_MPS[:-1], SPEED_BINS_MPS[1:]):
+    for lo, hi in zip(SPEED_BINS_MPS[:-1], SPEED_BINS_MPS[1:], strict=True):
         in_bin = (speed >= lo) & (speed < hi)
         if not in_bin.any():
             continue
@@ -162,7 +163,7 @@ def summarise(rec: Recording, out: dict[str, Any]) -> dict[str, Any]:
     reasons = Counter(re.sub(r"\s*\([^)]*\)", "", r["reason"]) for r in rows if r["reason"])
     truth_kind = rec.metadata.terrain.kind or "unknown"
     confusion: dict[str, Counter] = {}
-    for r, v in zip(rows, visible):
+    for r, v in zip(rows, visible, strict=False):
         confusion.setdefault(truth_kind if v else "no_edge", Counter())[r["terrain"]] += 1
     # ICP-only progress: sum of accepted displacements vs the true sum over the same intervals
     sum_meas = np.array([r["disp"][2] for r in with_d]).sum(axis=0) if with_d else np.zeros(2)
@@ -207,8 +208,8 @@ def _markdown(results: list[dict[str, Any]], attitude: str) -> str:
     for r in results:
         e = r["error"]
         if e["n"]:
-            ex = f"{e['median_abs_mm']['x']:.1f}/{e['p95_abs_mm']['x']:.1f}/{e['mean_mm']['x']:+.1f}"
-            ez = f"{e['median_abs_mm']['z']:.1f}/{e['p95_abs_mm']['z']:.1f}/{e['mean_mm']['z']:+.1f}"
+            ex, ez = (f"{e['median_abs_mm'][a]:.1f}/{e['p95_abs_mm'][a]:.1f}/"
+                      f"{e['mean_mm'][a]:+.1f}" for a in ("x", "z"))
         else:
             ex = ez = "-"
         f = r["filter"]

@@ -141,7 +141,8 @@ class OnlineEstimator:
         self.surface_tilt: SurfaceTilt | None = None
         self.keyframes = KeyframeSelector(config.keyframes)
         self.local_map = TerrainMap2D(config.mapping.map)
-        self._p0 = np.zeros(2) if initial_camera_xz_m is None else np.asarray(initial_camera_xz_m, float)
+        self._p0 = (np.zeros(2) if initial_camera_xz_m is None
+                    else np.asarray(initial_camera_xz_m, float))
         self._last_imu: ImuSample | None = None
         self._last_joints: JointAngles | None = None
         self._prev_frame: tuple[float, NDArray[np.float64]] | None = None  # (t, camera xz)
@@ -169,8 +170,8 @@ class OnlineEstimator:
         if self._last_imu is None:
             self.filter.initialise(sample.timestamp_s, self._p0)
         elif sample.timestamp_s <= self._last_imu.timestamp_s:
-            raise EstimationError(
-                f"IMU sample at {sample.timestamp_s:.6f} s is not after {self._last_imu.timestamp_s:.6f} s")
+            raise EstimationError(f"IMU sample at {sample.timestamp_s:.6f} s is not after "
+                                  f"{self._last_imu.timestamp_s:.6f} s")
         else:
             self.filter.propagate(sample)
         if self.config.filter.stance_anchor:

@@ -50,7 +50,7 @@ class DepthFrame:
     confidence: NDArray[np.uint8]
 
 
-class TerrainKind(str, enum.Enum):
+class TerrainKind(str, enum.Enum):  # noqa: UP042 - str(member) stays 'TerrainKind.X'
     """Terrain class of the sagittal profile in front of the camera."""
 
     STAIR_UP = "stair_up"
@@ -60,7 +60,7 @@ class TerrainKind(str, enum.Enum):
     UNKNOWN = "unknown"
 
 
-class EstimateStatus(str, enum.Enum):
+class EstimateStatus(str, enum.Enum):  # noqa: UP042 - as TerrainKind
     """How an estimate was obtained."""
 
     FUSED = "fused"  # IMU propagation corrected by an ICP displacement

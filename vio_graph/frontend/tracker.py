@@ -43,7 +43,6 @@ IMU-seeded mode (the default whenever the caller passes a prediction):
 from __future__ import annotations
 
 import dataclasses
-
 from dataclasses import dataclass
 
 import numpy as np

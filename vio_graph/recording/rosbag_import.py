@@ -283,7 +283,8 @@ def _scan(bag: Path, topics: BagTopics, rig: RigConfig, use_receive_time: bool) 
                     raise BagImportError(bag, f"JointState with {pos.shape[0]} positions for "
                                          f"{len(names)} names", field=conn.topic)
                 joint_ns.append(t_ns)
-                joint_rows.append([s.sign * pos[i] + s.offset_rad for s, i in zip(sources, idx)])
+                joint_rows.append([s.sign * pos[i] + s.offset_rad
+                                   for s, i in zip(sources, idx, strict=True)])
     except BagImportError:
         raise
     except Exception as exc:  # corrupt chunks, undecodable messages

@@ -303,7 +303,7 @@ def _toe_off_pitch(gait: GaitConfig, kind: str) -> float:
 def _pitch_function(strides: list[Stride], next_toes: list, gait: GaitConfig) -> BPoly:
     """C2 foot pitch: quintic pieces through the key poses with rate and acceleration."""
     knots: list[tuple[float, float, float]] = []
-    for s, nxt in zip(strides, next_toes, strict=True):
+    for s, _next_toe in zip(strides, next_toes, strict=True):
         th_c = _landing_pitch(gait, s.landing, s.arrive_kind)
         th_to = _toe_off_pitch(gait, s.swing_kind)
         next_landing = "toe" if s.swing_kind in ("ascent", "descent") else "heel"

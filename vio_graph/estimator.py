@@ -16,8 +16,10 @@ Per frame, in the paper's order (Section II):
      a. corner landmarks (``corner_landmarks``): the front end's corner observation (corner
         minus camera, track id kept for the same physical corner) is a landmark in the
         filter state (SagittalEskf.update_landmark: augmented at first sight with the
-        current position uncertainty, relative measurement afterwards, marginalised when its
-        track ends). It bounds drift while the corner is in view.
+        current position uncertainty, relative measurement afterwards). A landmark is kept
+        for ``corner_memory_s`` after its last sight, and a new track that lands on a
+        remembered corner is re-identified as it (``corner_reidentify_radius_m``). It bounds
+        drift while the corner is in view and when the shank looks back at it.
      b. stance anchoring (``stance_anchor``): filter/stance.py flags the foot's stance from
         the ankle acceleration seen by the shank IMU (lever arm to the ankle, no
         look-ahead); during a stance the ankle fixed at its onset is a landmark observed

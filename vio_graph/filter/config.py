@@ -216,7 +216,8 @@ class FilterConfig(BaseModel):
             "fuse the front end's corner observations (corner minus camera, one track id per "
             "physical corner) as landmarks in the state: the first sight of a track adds the "
             "corner with the current position uncertainty, later sights are relative "
-            "measurements; the landmark is dropped when its track ends. False = the paper "
+            "measurements; see corner_memory_s and corner_reidentify_radius_m for when it "
+            "leaves the state and when a new track is the same corner. False = the paper "
             "(displacements only)"
         ),
     )

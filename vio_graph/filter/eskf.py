@@ -53,8 +53,9 @@ that cannot shrink the position covariance below what it was at first sight (a f
 landmark with noise "observation + own covariance", re-used every frame, would count that
 uncertainty as independent each time and become overconfident). The estimator uses them for
 tracked terrain corners and for the ankle during stance (vio_graph/estimator.py); the caller
-marginalises a landmark (:meth:`drop_landmark`) when its track ends, so the state stays at
-8 + 2 (clone) + 2 per landmark in view (at most 14).
+marginalises a landmark (:meth:`drop_landmark`) when it is no longer needed (corners: a few
+seconds after their last sight, at most 8; the ankle: when the stance ends), so the state
+stays at 8 + 2 (clone) + 2 per landmark kept.
 
 Measurement times need not coincide with IMU samples: p(t) is taken as
 p + v dt + a dt^2 / 2 with dt = t - t_state and a the last ground-frame acceleration (H gains

@@ -26,9 +26,11 @@ Factors::
                     (prior y=0)                                 (robust)
 
 - IMU: GTSAM's own preintegration (``PreintegrationCombinedParams.MakeSharedU(g)``, z up) fed
-  with midpoint-rule samples: consecutive samples (and samples interpolated at the keyframe
-  times) are averaged and the averaged specific force is rotated by half the step's rotation,
-  see :func:`midpoint_samples`. Noise: MTi-1 datasheet densities, bias random walks.
+  with step means: curvature-corrected means of consecutive samples (and samples interpolated
+  at the keyframe times), the specific force averaged in the frame of the interval's start
+  (:func:`common_frame_samples`, default; :func:`midpoint_samples` averages in the moving
+  frame and loses (omega dt)^2/24 of gravity). Noise: MTi-1 datasheet densities, bias random
+  walks, plus the sampled-signal model error (:func:`discretization_velocity_var`).
 - Displacement (paper's ICP output, eq. 3-4, chained frame to frame between keyframes with
   summed covariance): the camera moves by d (world x-z), the camera sits at
   ``c = t + R imu_p_cam``, so the IMU moves by ``t_j - t_i = d - (R_j - R_i) imu_p_cam``

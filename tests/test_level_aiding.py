@@ -128,7 +128,7 @@ def test_rotating_the_previous_frame_keeps_icp_consistent() -> None:
 
 
 def _shank_pitch_error_deg(rec_path: Path, enabled: bool) -> float:
-    from vio_graph.pipeline import Replay
+    from vio_graph.pipeline import Replay, shank_pitch_error_deg
     from vio_graph.viz.rerun_logger import NullVisualizer
 
     cfg = PipelineConfig()
@@ -136,13 +136,7 @@ def _shank_pitch_error_deg(rec_path: Path, enabled: bool) -> float:
     cfg = cfg.model_copy(update={"filter": cfg.filter.model_copy(update={"level_aiding": la})})
     rec = Recording.open(rec_path)
     lg = Replay(rec, cfg, {"filter"}, NullVisualizer()).run()
-    t = np.asarray(lg.t_s)
-    gt = rec.groundtruth.trajectories
-    knee, ankle = (np.stack([np.interp(t, gt[b].timestamp_s, gt[b].position_m[:, k])
-                             for k in (0, 2)], -1) for b in ("knee", "ankle"))
-    d = knee - ankle
-    err = np.angle(np.exp(1j * (np.asarray(lg.shank_pitch_imu) - np.arctan2(d[:, 0], d[:, 1]))))
-    return float(np.degrees(np.sqrt(np.mean(err**2))))
+    return shank_pitch_error_deg(rec, np.asarray(lg.t_s), np.asarray(lg.shank_pitch_imu))["rms"]
 
 
 def test_level_aiding_cuts_the_shank_pitch_error_on_a_simulated_trial(short_upstair) -> None:

@@ -57,6 +57,9 @@ def test_metrics_schema_and_accuracy(run_all) -> None:
     # floors and treads were in view: the level-surface pitch correction was used
     la = m["filter"]["level_aiding"]
     assert la["accepted"] > 50 and abs(la["final_offset_deg"]) < 5.0
+    # the level-aided shank pitch against the true knee-ankle segment (MTi-1 alone: ~1 deg)
+    sp = m["shank_pitch_error_deg"]
+    assert 0.0 < sp["rms"] < 0.6 and sp["max_abs"] >= sp["rms"]
     for mode in ("smoother", "batch"):
         assert m["ate_cm"][mode]["toe"]["x"] < 6.0 and m["ate_cm"][mode]["toe"]["z"] < 6.0
     assert m["map"]["rise_error_mm"] is not None and m["map"]["rise_error_mm"] < 15.0

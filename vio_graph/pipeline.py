@@ -328,6 +328,19 @@ def leg_trajectories(
     }
 
 
+def shank_pitch_error_deg(
+    rec: Recording, t_s: NDArray[np.float64], shank_pitch_rad: NDArray[np.float64]
+) -> dict[str, float]:
+    """Error (deg) of the shank pitch the kinematics used, against the pitch of the true
+    knee - ankle segment (ground truth at the frame times): rms, mean and max |error|."""
+    gt = rec.groundtruth.trajectories
+    seg = (_interp_xz(gt["knee"], t_s) - _interp_xz(gt["ankle"], t_s)).T  # (N, 2)
+    true = np.arctan2(seg[:, 0], seg[:, 1])  # rot_y(pitch) (0, L) = (L sin, L cos)
+    err = np.degrees(np.angle(np.exp(1j * (np.asarray(shank_pitch_rad) - true))))
+    return {"rms": float(np.sqrt(np.mean(err**2))), "mean": float(np.mean(err)),
+            "max_abs": float(np.max(np.abs(err)))}
+
+
 def evaluate_paths(
     rec: Recording,
     t_s: NDArray[np.float64],
@@ -476,6 +489,8 @@ def _run_into(
         if gt.frame_edge_visible is not None:
             visible = gt.frame_edge_visible[: len(t_s)].astype(bool)
         metrics.update(evaluate_paths(rec, t_s, paths, visible))
+        metrics["shank_pitch_error_deg"] = shank_pitch_error_deg(
+            rec, t_s, np.asarray(lg.shank_pitch_chain if use_enc else lg.shank_pitch_imu))
     metrics["latency_ms"] = _latencies(lg, replay)
     metrics["smoother_failures"] = replay.failed
     if "batch" in replay.smoothers:  # measurements the robust kernels down-weighted

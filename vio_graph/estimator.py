@@ -389,8 +389,10 @@ class OnlineEstimator:
         for k in corners[: max(0, len(corners) - fc.max_corner_landmarks)]:
             if k != current:
                 self.filter.drop_landmark(k)
-        self._corner_seen = {k: v for k, v in self._corner_seen.items()
-                             if k in self.filter.landmark_keys or k == current}
+        kept = set(self.filter.landmark_keys) | {current}
+        self._corner_seen = {k: v for k, v in self._corner_seen.items() if k in kept}
+        # ended tracks whose landmark is gone are never looked up again (ids only increase)
+        self._corner_alias = {tid: k for tid, k in self._corner_alias.items() if k in kept}
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
         """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""

@@ -406,6 +406,11 @@ FILTER_ABLATION_VARIANTS: dict[str, dict[str, Any]] = {
 }
 
 
+def _slug(name: str) -> str:
+    """Folder name of an ablation variant."""
+    return "".join(c if c.isalnum() else "_" for c in name.lower())[:40]
+
+
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     out = dict(base)
     for k, v in over.items():
@@ -430,7 +435,7 @@ def run_filter_ablation(
     table: dict[str, Any] = {}
     for name, overrides in FILTER_ABLATION_VARIANTS.items():
         cfg = filter_ablation_config(config, overrides)
-        slug = "".join(c if c.isalnum() else "_" for c in name.lower())[:40]
+        slug = _slug(name)
         runs = run_trials(recordings, Path(out_dir) / "ablation_filter" / slug, cfg,
                           modes=("filter",), jobs=jobs)
         table[name] = {exp: {"filter": e["filter"]["toe"]}
@@ -459,7 +464,7 @@ def run_ablation(
     done = 0
     for name, (families, extra) in ABLATION_VARIANTS.items():
         cfg = ablation_config(config, families, extra)
-        slug = "".join(c if c.isalnum() else "_" for c in name.lower())[:40]
+        slug = _slug(name)
         runs = run_trials(
             recordings,
             Path(out_dir) / "ablation" / slug,

@@ -65,6 +65,7 @@ from vio_graph.kinematics import LegPoints, knee_from_camera, leg_points_from_kn
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.recording.metadata import RecordingMetadata
 from vio_graph.types import (
+    STANCE_TRACK_ID_BASE,
     CornerObservation,
     DepthFrame,
     EstimateStatus,
@@ -72,9 +73,6 @@ from vio_graph.types import (
     ImuSample,
     JointAngles,
 )
-
-#: Track ids of stance anchors handed to the smoother (corner track ids stay far below this).
-STANCE_TRACK_ID_BASE = 1_000_000
 
 
 @dataclass(frozen=True)

@@ -82,6 +82,11 @@ class Displacement2D:
     cov_m2: NDArray[np.float64]
 
 
+#: Track ids of stance anchors (the planted ankle as a landmark, vio_graph/estimator.py) start
+#: here; corner track ids stay far below.
+STANCE_TRACK_ID_BASE = 1_000_000
+
+
 @dataclass(frozen=True)
 class CornerObservation:
     """A terrain corner (stair nosing / obstacle top edge) seen from the camera.

@@ -65,12 +65,16 @@ from numpy.typing import ArrayLike, NDArray
 from vio_graph.errors import EstimationError
 from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw
 from vio_graph.smoother.config import SmootherConfig
-from vio_graph.types import CornerObservation, Displacement2D, FrameEstimate, ImuSample
+from vio_graph.types import (
+    STANCE_TRACK_ID_BASE,
+    CornerObservation,
+    Displacement2D,
+    FrameEstimate,
+    ImuSample,
+)
 
 #: Sigma used for "unconstrained" axes of a prior (tangent units).
 LOOSE_SIGMA = 1e4
-#: Track ids from here on are stance anchors (estimator.STANCE_TRACK_ID_BASE), below are corners.
-STANCE_TRACK_ID_BASE = 1_000_000
 #: Two timestamps closer than this are the same instant (s).
 TIME_TOL_S = 1e-6
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from vio_graph.config_files import load_yaml_mapping, resolve_config_path, validate_model
 from vio_graph.errors import ConfigError
@@ -16,6 +16,13 @@ from vio_graph.errors import ConfigError
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _check_range(v: tuple[float, float] | None, lo_min: float) -> tuple[float, float] | None:
+    """A (lo, hi) range with lo_min <= lo <= hi."""
+    if v is not None and not (lo_min <= v[0] <= v[1]):
+        raise ValueError(f"expected {lo_min} <= lo <= hi, got {tuple(v)}")
+    return v
 
 
 class TerrainConfig(_Section):
@@ -37,6 +44,27 @@ class TerrainConfig(_Section):
     width_m: float = Field(1.2, gt=0, description="stair / walkway width, m")
     side_walls: bool = Field(True, description="add vertical walls at y = +-width/2")
     wall_height_m: float = Field(1.2, gt=0, description="wall height above the profile, m")
+    nosing_overhang_m: float = Field(
+        0.0, ge=0, le=0.05,
+        description="stairs: horizontal protrusion of each tread's nosing past the riser "
+        "below it, m (typical 0-0.03; building codes allow up to ~0.03-0.04). The nosing tip "
+        "stays at the same place as without overhang; the riser is set back under it",
+    )
+    nosing_thickness_m: float = Field(
+        0.03, gt=0,
+        description="stairs with overhang: thickness of the protruding tread slab, m (its "
+        "underside is visible to a camera below the nosing)",
+    )
+    n_flights: int = Field(
+        1, ge=1,
+        description="stairs: number of flights of n_steps risers each, joined by level landings",
+    )
+    flight_landing_m: float = Field(
+        1.2, gt=0,
+        description="stairs with n_flights > 1: level landing between flights, measured from "
+        "the top (ascent) / last (descent) nosing of one flight to the first nosing of the "
+        "next, m (must hold a foot: >= ~0.35 m)",
+    )
 
 
 class GaitConfig(_Section):
@@ -54,6 +82,44 @@ class GaitConfig(_Section):
     stance_fraction_level: float = Field(0.61, gt=0.4, lt=0.8, description="Beaulieu 2008")
     stance_fraction_stair: float = Field(0.65, gt=0.4, lt=0.8, description="McFadyen 1988")
     step_to_step_pause_s: float = Field(0.5, ge=0, description="double-support pause, s")
+    leading_leg: Literal["contralateral", "instrumented"] = Field(
+        "contralateral",
+        description="step_to_step: the leg that steps onto the next tread first; the other "
+        "joins it on the same tread (contralateral: the instrumented leg trails)",
+    )
+    cadence_scale: float = Field(
+        1.0, ge=0.25, le=2.0,
+        description="multiplies the step frequency: every stride time (and the step_to_step "
+        "movement time) is divided by it; 0.5 = twice the stride time (typical 0.5-1.5)",
+    )
+    pause_range_s: tuple[float, float] | None = Field(
+        None,
+        description="standing pause inserted once per stride with the instrumented foot flat "
+        "(step_to_step: with both feet on the same tread), drawn uniformly in [lo, hi] s per "
+        "stride; the motion decelerates into and accelerates out of it over pause_ramp_s; "
+        "None: no pauses",
+    )
+    pause_ramp_s: float = Field(
+        0.4, gt=0, description="deceleration / acceleration time around each pause, s"
+    )
+    pause_sway_deg: tuple[float, float] = Field(
+        (1.0, 3.0),
+        description="weight shift during a pause: amplitude range of the sagittal shank sway "
+        "about the fixed ankle (foot flat), deg, drawn per pause",
+    )
+    pause_sway_hz: tuple[float, float] = Field(
+        (0.3, 0.5), description="weight-shift sway frequency range, Hz, drawn per pause"
+    )
+
+    @field_validator("pause_range_s", "pause_sway_deg")
+    @classmethod
+    def _nonneg_range(cls, v):
+        return _check_range(v, 0.0)
+
+    @field_validator("pause_sway_hz")
+    @classmethod
+    def _positive_range(cls, v):
+        return _check_range(v, 1e-6)
     start_distance_m: float = Field(
         0.45, gt=0, description="instrumented toe to the first feature at t = 0, m"
     )
@@ -124,6 +190,17 @@ class RigConfig(_Section):
     imu_in_camera_xyz_m: tuple[float, float, float] = Field(
         (0.0, 0.02, -0.015), description="IMU point in the camera frame, m (fixed together)"
     )
+    imu_axes: Literal["shank", "camera"] = Field(
+        "shank",
+        description="base orientation of the IMU axes: shank (x anterior, y lateral, z along "
+        "the shank to the knee) or camera (the camera's optical axes: imu_T_cam rotation = "
+        "identity); imu_rotation_rpy_deg is applied on top",
+    )
+    imu_rotation_rpy_deg: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0),
+        description="roll, pitch, yaw of the IMU axes relative to the base axes (imu_axes), "
+        "deg: R_base_imu = Rz(yaw) Ry(pitch) Rx(roll)",
+    )
 
 
 class CameraConfig(_Section):
@@ -151,6 +228,19 @@ class CameraConfig(_Section):
     max_incidence_deg: float = Field(75.0, gt=0, le=90, description="grazing cut-off [U]")
     max_noise_m: float = Field(0.07, gt=0, description="royale: pixels noisier are invalid")
     timestamp_jitter_s: float = Field(0.001, ge=0, description="frame time jitter sd, s")
+    edge_gap_m: tuple[float, float] | None = Field(
+        None,
+        description="missing band behind depth discontinuities (flying-pixel filter of the "
+        "driver at stair nosings): per frame and per edge a band length is drawn uniformly in "
+        "[lo, hi] m and the surface seen right behind each convex edge (the tread behind an "
+        "ascending nosing, the lower tread past a descending one) is invalid over that length; "
+        "real pico flexx2 stair profiles show 0.03-0.06 m; None: off",
+    )
+
+    @field_validator("edge_gap_m")
+    @classmethod
+    def _gap_range(cls, v):
+        return _check_range(v, 0.0)
 
 
 class ImuConfig(_Section):

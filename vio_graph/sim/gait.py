@@ -20,14 +20,14 @@ are analytic.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import BPoly, CubicSpline, make_interp_spline
 from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 
-from vio_graph.errors import SimulationError
+from vio_graph.errors import ConfigError, SimulationError
 from vio_graph.kinematics import LegModel
 from vio_graph.sim.config import GaitConfig, RigConfig
 from vio_graph.sim.terrain import Terrain
@@ -95,6 +95,8 @@ class Stride:
     t_contra_contact_s: float
     t_contra_mid_s: float
     t_mid_s: float
+    t_rest_s: float = float("nan")  # where a standing pause may go (foot flat, double support)
+    contra_joins: bool = False  # step_to_step, instrumented leading: contralateral joins here
 
 
 @dataclass(frozen=True)
@@ -183,18 +185,26 @@ def _plan_steps(
     prm = terrain.params
     x_end = terrain.profile_xz_m[-1, 0] - 0.4
     toes: list[float] = [xf - gait.start_distance_m]
-    if terrain.kind == "stair_up":
+    if terrain.kind in ("stair_up", "stair_down"):
         t, n = float(prm["tread_m"]), int(prm["n_steps"])
-        toes.append(xf - gait.stair_toe_margin_m)
-        toes += [xf + (i + 1) * t - gait.stair_toe_margin_m for i in range(n - 1)]
-        toes.append(xf + (n - 1) * t + foot_len + _EXIT_HEEL_MARGIN_M)  # heel past the edge
+        n_fl = int(prm.get("n_flights", 1))
+        span = (n - 1) * t + float(prm.get("flight_landing_m", 0.0))
+        up = terrain.kind == "stair_up"
+        for f in range(n_fl):
+            x0 = xf + f * span
+            if f > 0:  # landing between flights: level steps up to the next flight
+                _landing_steps(toes, x0 - (gait.stair_toe_margin_m if up else 0.02),
+                               x0 - span + (n - 1) * t, foot_len, step)
+            if up:
+                toes.append(x0 - gait.stair_toe_margin_m)
+                toes += [x0 + (i + 1) * t - gait.stair_toe_margin_m for i in range(n - 1)]
+                toes.append(x0 + (n - 1) * t + foot_len + _EXIT_HEEL_MARGIN_M)  # heel past edge
+            else:
+                toes.append(x0 - 0.02)
+                toes += [x0 + (i - 1) * t + gait.stair_heel_margin_m + foot_len
+                         for i in range(1, n)]
+                toes.append(x0 + (n - 1) * t + _EXIT_HEEL_MARGIN_M + foot_len)
         toes.append(toes[-1] + _EXIT_STEP_M)  # short transition step onto the landing
-    elif terrain.kind == "stair_down":
-        t, n = float(prm["tread_m"]), int(prm["n_steps"])
-        toes.append(xf - 0.02)
-        toes += [xf + (i - 1) * t + gait.stair_heel_margin_m + foot_len for i in range(1, n)]
-        toes.append(xf + (n - 1) * t + _EXIT_HEEL_MARGIN_M + foot_len)
-        toes.append(toes[-1] + _EXIT_STEP_M)
     elif terrain.kind == "obstacle":
         d = float(prm["depth_m"])
         trail = xf - 0.18  # contralateral (trailing) toe before the obstacle
@@ -211,6 +221,25 @@ def _plan_steps(
     heel_x = x - foot_len
     z = np.maximum(terrain.height_at(x), terrain.height_at(heel_x))
     return list(zip(x.tolist(), z.tolist(), strict=True))
+
+
+def _landing_steps(
+    toes: list[float], x_approach: float, x_edge: float, foot_len: float, step: float
+) -> None:
+    """Footholds on a landing between flights (appended to ``toes``, which ends with the
+    exit foothold past the last edge ``x_edge``): level steps no longer than ``step`` towards
+    the approach foothold ``x_approach`` before the next flight (appended by the caller)."""
+    if x_approach - foot_len < x_edge + 0.005:
+        raise ConfigError(
+            f"terrain.flight_landing_m is too short for a {foot_len:.2f} m foot: the foot "
+            "before the next flight would hang over the previous nosing"
+        )
+    x_exit = toes[-1]
+    if x_approach - x_exit < 0.08:  # no room for the exit foothold: go straight to approach
+        toes.pop()
+        x_exit = toes[-1]
+    k = max(1, int(np.ceil((x_approach - x_exit) / step)))
+    toes += list(x_exit + (x_approach - x_exit) * np.arange(1, k) / k)
 
 
 def _swing_kind(terrain: Terrain, a: tuple[float, float], b: tuple[float, float]) -> str:
@@ -231,12 +260,19 @@ def _kind_class(kind: str) -> str:
 
 def plan_strides(
     terrain: Terrain, gait: GaitConfig, leg: LegModel, duration_s: float,
-    rng: np.random.Generator,
+    rng: np.random.Generator, allow_short: bool = False,
 ) -> list[Stride]:
-    """Timed strides of the instrumented leg covering [0, duration_s] (+ margin)."""
+    """Timed strides of the instrumented leg covering [0, duration_s] (+ margin).
+
+    ``allow_short``: return what the terrain allows instead of raising (the caller checks
+    coverage, e.g. after inserting pauses)."""
     sts = gait.pattern == "step_to_step" and terrain.kind in ("stair_up", "stair_down")
-    steps = _plan_steps(terrain, gait, leg, rng, 400)
-    if sts:  # both feet on each tread: instrumented i -> i+1, contralateral leads
+    lead = sts and gait.leading_leg == "instrumented"
+    steps = _plan_steps(terrain, gait, leg, rng, 4000)
+    if lead:  # both feet on each tread: instrumented steps up first, contralateral joins
+        inst = steps[:1] + steps[2:]
+        contra = list(inst)
+    elif sts:  # both feet on each tread: instrumented i -> i+1, contralateral leads
         inst = steps[:1] + steps[2:]
         contra = inst[1:]
     else:
@@ -253,31 +289,43 @@ def plan_strides(
         stair = kind in ("ascent", "descent") or c_kind in ("ascent", "descent")
         landing = "toe" if arrive in ("ascent", "descent") else "heel"
         c_landing = "toe" if c_kind in ("ascent", "descent") else "heel"
-        if sts:
-            move = gait.stair_stride_time_s * jit
+        if lead:  # land on the next tread, the other foot joins, pause, swing on
+            move = gait.stair_stride_time_s * jit / gait.cadence_scale
+            p = gait.step_to_step_pause_s * jit
+            T = move + p
+            f = dict(flat=0.12 * move, ho=p + 0.45 * move, to=p + 0.62 * move,
+                     cc=0.42 * move, cm=0.42 * move + 0.5 * p, mid=0.2 * move)
+            f["rest"] = f["cm"]
+        elif sts:
+            move = gait.stair_stride_time_s * jit / gait.cadence_scale
             p = gait.step_to_step_pause_s * jit
             T = move + p
             f = dict(flat=0.12 * move, ho=p + 0.45 * move, to=p + 0.62 * move,
                      cc=p + 0.32 * move, cm=p + 0.6 * move, mid=0.5 * p)
+            # both feet on the tread, foot flat: from flat to the other foot's toe-off
+            f["rest"] = 0.5 * (f["flat"] + max(f["flat"], p + 0.05 * move))
         else:
             T = (gait.stair_stride_time_s if stair else gait.level_stride_time_s) * jit
             T *= 1.25 if kind == "obstacle" else 1.0
+            T /= gait.cadence_scale
             beta = gait.stance_fraction_stair if stair else gait.stance_fraction_level
             f = dict(flat=(0.12 if landing == "toe" else 0.09) * T,
                      ho=(beta - 0.2 if stair else beta - 0.26) * T, to=beta * T,
                      cc=0.5 * T, cm=0.8 * T, mid=0.3 * T)
+            f["rest"] = f["flat"] + 0.02 * T  # foot just flat, other foot about to leave
         strides.append(Stride(
             toe_xz_m=a, next_toe_xz_m=b, landing=landing, swing_kind=kind, arrive_kind=arrive,
             t_contact_s=t, t_flat_s=t + f["flat"], t_heel_off_s=t + f["ho"],
             t_toe_off_s=t + f["to"], t_next_s=t + T, contra_toe_xz_m=c,
             contra_landing=c_landing, contra_kind=c_kind, t_contra_contact_s=t + f["cc"],
-            t_contra_mid_s=t + f["cm"], t_mid_s=t + f["mid"],
+            t_contra_mid_s=t + f["cm"], t_mid_s=t + f["mid"], t_rest_s=t + f["rest"],
+            contra_joins=lead,
         ))
         arrive = kind
         t += T
         if t > duration_s + 0.5:
             break
-    if not strides or strides[-1].t_next_s < duration_s + 0.3:
+    if not strides or (strides[-1].t_next_s < duration_s + 0.3 and not allow_short):
         raise SimulationError(
             f"terrain too short for a {duration_s:.1f} s trial: lengthen landing/exit_length_m"
         )
@@ -518,7 +566,7 @@ def _hip_path(
             (s.t_mid_s, np.array(s.toe_xz_m) - toe_f, gait.knee_midstance_deg[k_in]),
             (s.t_contra_contact_s,
              landing_ankle(s.contra_toe_xz_m, s.contra_landing, s.contra_kind),
-             gait.knee_contact_deg[k_c]),
+             gait.knee_midstance_deg[k_c] if s.contra_joins else gait.knee_contact_deg[k_c]),
             (s.t_contra_mid_s, np.array(s.contra_toe_xz_m) - toe_f,
              gait.knee_midstance_deg[k_c]),
         ]
@@ -583,16 +631,100 @@ class _Evaluator:
         return self._spl(t, nu=deriv) if deriv else self._spl(t)
 
 
+# --------------------------------------------------------------------------- pauses
+
+
+def _ramp_integral(x: NDArray) -> NDArray[np.float64]:
+    """Integral of _smoothstep5 from 0 to x (x clipped to [0, 1]; 0.5 at x = 1)."""
+    x = np.clip(x, 0.0, 1.0)
+    return x**4 * (2.5 + x * (-3.0 + x))
+
+
+@dataclass(frozen=True)
+class _Pauses:
+    """Standing pauses as a time warp: the motion planned in "motion time" tau is replayed in
+    real time t with tau(t) = t - sum_k B_k(t), where each pause k slows the motion to rest over
+    ``ramp_s`` (C2 smoothstep of the speed), holds it for ``hold_s[k]`` and speeds it up again.
+    During a hold the shank sways about the fixed ankle (weight shift)."""
+
+    start_s: NDArray[np.float64]  # real time where pause k starts to decelerate
+    hold_s: NDArray[np.float64]
+    ramp_s: float
+    sway_rad: NDArray[np.float64]
+    sway_hz: NDArray[np.float64]
+
+    def tau(self, t_s: NDArray) -> NDArray[np.float64]:
+        t = np.asarray(t_s, dtype=float)
+        out = t.copy()
+        r = self.ramp_s
+        for s0, h in zip(self.start_s, self.hold_s, strict=True):
+            down = r * _ramp_integral((t - s0) / r)
+            hold = np.clip(t - s0 - r, 0.0, h)
+            up = r * (0.5 - _ramp_integral((s0 + 2 * r + h - t) / r))
+            up = np.where(t > s0 + r + h, up, 0.0)
+            out -= down + hold + up
+        return out
+
+    def sway(self, t_s: NDArray) -> NDArray[np.float64]:
+        """Shank pitch offset (rad) during the holds: a windowed sine (C2, zero outside)."""
+        t = np.asarray(t_s, dtype=float)
+        out = np.zeros(t.shape)
+        for s0, h, a, f in zip(self.start_s, self.hold_s, self.sway_rad, self.sway_hz,
+                               strict=True):
+            t0 = s0 + self.ramp_s
+            m = (t > t0) & (t < t0 + h)
+            if h <= 0 or not np.any(m):
+                continue
+            edge = min(1.0, h / 3.0)
+            x = t[m] - t0
+            w = _smoothstep5(x / edge) * _smoothstep5((h - x) / edge)
+            out[m] += a * w * np.sin(2 * np.pi * f * x)
+        return out
+
+
+def _draw_pauses(strides: list[Stride], gait: GaitConfig, rng: np.random.Generator) -> _Pauses:
+    """One pause per stride at its rest instant, lengths uniform in gait.pause_range_s."""
+    lo, hi = gait.pause_range_s  # type: ignore[misc]
+    rest = np.array([s.t_rest_s for s in strides])
+    gaps = np.diff(rest)
+    r = min(gait.pause_ramp_s, 0.45 * float(gaps.min())) if gaps.size else gait.pause_ramp_s
+    n = rest.size
+    hold = rng.uniform(lo, hi, n)
+    amp = np.radians(rng.uniform(*gait.pause_sway_deg, n)) * rng.choice([-1.0, 1.0], n)
+    hz = rng.uniform(*gait.pause_sway_hz, n)
+    keep = rest - 0.5 * r >= 0.0  # no pause before the motion has started
+    rest, hold, amp, hz = rest[keep], hold[keep], amp[keep], hz[keep]
+    # the hold is centred in tau on the rest instant: it starts decelerating at tau - r / 2
+    shift = np.concatenate([[0.0], np.cumsum(hold + r)[:-1]])
+    return _Pauses(rest - 0.5 * r + shift, hold, r, amp, hz)
+
+
+def _retime(s: Stride, to_real) -> Stride:
+    names = ("t_contact_s", "t_flat_s", "t_heel_off_s", "t_toe_off_s", "t_next_s",
+             "t_contra_contact_s", "t_contra_mid_s", "t_mid_s", "t_rest_s")
+    return replace(s, **{k: float(to_real(getattr(s, k))) for k in names})
+
+
 def simulate_gait(
     terrain: Terrain, gait: GaitConfig, rig: RigConfig, duration_s: float,
     rng: np.random.Generator,
 ) -> LegMotion:
     """Plan and generate the instrumented leg's motion over [0, duration_s + 0.2 s]."""
     leg = leg_model_for(rig)
-    strides = plan_strides(terrain, gait, leg, duration_s, rng)
+    pausing = gait.pause_range_s is not None
+    strides = plan_strides(terrain, gait, leg, duration_s, rng, allow_short=pausing)
+    pauses = _draw_pauses(strides, gait, rng) if pausing else None
     next_toes = [s.next_toe_xz_m for s in strides]
     base_pitch = _pitch_function(strides, next_toes, gait)
-    t_end = min(strides[-1].t_next_s, duration_s + 0.25)
+    if pauses is None:
+        t_end = min(strides[-1].t_next_s, duration_s + 0.25)
+    else:
+        t_end = float(pauses.tau(np.array([duration_s + 0.25]))[0]) + 0.01
+        if strides[-1].t_next_s < t_end + 0.05:
+            raise SimulationError(
+                f"terrain too short for a {duration_s:.1f} s trial: lengthen "
+                "landing/exit_length_m or add steps / flights"
+            )
     t = np.arange(0.0, t_end + 0.5 / DENSE_RATE_HZ, 1.0 / DENSE_RATE_HZ)
     pitch = base_pitch
     # fixed point: the swing foot pitch depends on the shank, the shank (through the ankle
@@ -603,8 +735,33 @@ def simulate_gait(
         knee, _ = _two_link_ik(hip, ankle, leg)
         shank_it = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])
         foot_pitch = pitch(t)
+        pitch_used = pitch
         pitch = _SwingPitch(base_pitch, strides, make_interp_spline(t, shank_it, k=5),
                             (t[0], t[-1]), gait)
+    if pauses is not None:  # replay in real time with the pauses, sway during the holds
+        tau = t
+        t = np.arange(0.0, duration_s + 0.25 + 0.5 / DENSE_RATE_HZ, 1.0 / DENSE_RATE_HZ)
+        tau_t = np.minimum(pauses.tau(t), tau[-1])
+        # the same construction evaluated at tau(t): contact pivots stay exact
+        ankle = _foot_motion(tau_t, strides, next_toes, terrain, gait, leg, pitch_used)
+        hip = _hip_path(tau_t, ankle, strides, gait, leg, pitch_used)
+        foot_pitch = pitch_used(tau_t)
+        knee, _ = _two_link_ik(hip, ankle, leg)
+        shank_sway = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])
+        shank_sway = shank_sway + pauses.sway(t)
+        knee_sway = ankle + rot_xz(shank_sway, np.array([0.0, leg.shank_length_m]))
+        hip = hip + (knee_sway - knee)  # the thigh keeps its pitch: the hip shifts with it
+        knee = knee_sway
+        reach = np.linalg.norm(hip - ankle, axis=1) / (leg.thigh_length_m + leg.shank_length_m)
+        if reach.max() >= MAX_REACH_FRACTION:
+            raise SimulationError(f"pause sway overstretches the leg ({reach.max():.3f})")
+
+        def to_real(tau_ev: float) -> float:
+            if tau_ev >= tau_t[-1]:
+                return float(t[-1] + tau_ev - tau_t[-1])
+            return float(np.interp(tau_ev, tau_t, t))
+
+        strides = [_retime(s, to_real) for s in strides]
     thigh_seg = np.arctan2(hip[:, 0] - knee[:, 0], hip[:, 1] - knee[:, 1])
     shank = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])
     hip_flex = -thigh_seg

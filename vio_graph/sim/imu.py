@@ -74,12 +74,15 @@ def _gauss_markov(
 
 def simulate_imu(
     motion: LegMotion, cfg: ImuConfig, duration_s: float, imu_in_shank_xz_m: NDArray,
-    rng: np.random.Generator,
+    rng: np.random.Generator, R_shank_imu: NDArray | None = None,
 ) -> tuple[ImuTable, ImuStateTable, ImuTruth]:
-    """IMU samples at ``cfg.rate_hz`` over [0, duration_s] and the true IMU state table."""
+    """IMU samples at ``cfg.rate_hz`` over [0, duration_s] and the true IMU state table.
+
+    ``R_shank_imu``: IMU axes in the shank frame (None: aligned with the shank). Specific
+    force, rate, biases, noise and the vendor orientation are all in the IMU axes."""
     dt = 1.0 / cfg.rate_hz
     t = np.arange(0.0, duration_s + 0.5 * dt, dt)
-    truth = imu_truth(motion, t, imu_in_shank_xz_m)
+    truth = imu_truth(motion, t, imu_in_shank_xz_m, R_shank_imu)
     n = t.size
     accel = truth.specific_force_mps2.copy()
     gyro = truth.gyro_radps.copy()

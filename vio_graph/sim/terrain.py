@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from vio_graph.errors import SimulationError
+from vio_graph.errors import ConfigError, SimulationError
 from vio_graph.sim.config import TerrainConfig
 
 _BACK_MARGIN_M = 1.0  # floor behind the start so a camera looking down never sees a hole
@@ -24,6 +24,8 @@ class Terrain:
     ``edges_xz_m``: (E, 2) convex corners (stair nosings, obstacle top edges).
     ``vertices_m`` (V, 3) / ``triangles`` (T, 3) int32: the extruded mesh, world frame.
     ``feature_x_m``: x of the first feature (first riser / edge / obstacle front face).
+    ``mesh_profile_xz_m``: the profile that was extruded when it differs from
+    ``profile_xz_m`` (nosing overhang: risers set back under the treads), else None.
     """
 
     kind: str
@@ -33,6 +35,7 @@ class Terrain:
     triangles: NDArray[np.int32]
     feature_x_m: float
     params: dict[str, float | int | str]
+    mesh_profile_xz_m: NDArray[np.float64] | None = None  # extruded profile (nosing undercut)
 
     def height_at(self, x_m: NDArray[np.float64]) -> NDArray[np.float64]:
         """Terrain height (N,) under x (N,): the top of the profile (max over vertical risers)."""
@@ -56,27 +59,70 @@ class Terrain:
 
 
 def build_profile(cfg: TerrainConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The true sagittal profile (P, 2) and convex edges (E, 2) for ``cfg``."""
+    """The true sagittal profile (P, 2) and convex edges (E, 2) for ``cfg``.
+
+    The profile is the walking surface seen from above (x non-decreasing): with a nosing
+    overhang the riser is drawn at the nosing tip, i.e. the space under the nosing counts as
+    solid (what the feet and the map see). ``build_mesh_profile`` gives the undercut.
+    """
+    return _profiles(cfg)[:2]
+
+
+def build_mesh_profile(cfg: TerrainConfig) -> NDArray[np.float64]:
+    """The profile that is extruded into the mesh (P', 2): equal to ``build_profile`` without
+    overhang; with ``nosing_overhang_m`` > 0 each riser is set back under a protruding tread
+    slab of ``nosing_thickness_m`` (x then steps back, so it is not monotonic)."""
+    return _profiles(cfg)[2]
+
+
+def _profiles(
+    cfg: TerrainConfig,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     xf = cfg.approach_length_m
     r, t, n = cfg.stair_rise_m, cfg.stair_tread_m, cfg.n_steps
     pts: list[tuple[float, float]] = [(-_BACK_MARGIN_M, 0.0), (xf, 0.0)]
+    mesh: list[tuple[float, float]] = [(-_BACK_MARGIN_M, 0.0)]
     edges: list[tuple[float, float]] = []
+    o = cfg.nosing_overhang_m
+    stair = cfg.kind in ("stair_up", "stair_down")
+    if stair and o > 0 and cfg.nosing_thickness_m >= r:
+        raise ConfigError(
+            f"terrain.nosing_thickness_m ({cfg.nosing_thickness_m} m) must be below "
+            f"terrain.stair_rise_m ({r} m)"
+        )
+    th = cfg.nosing_thickness_m
+    span = (n - 1) * t + cfg.flight_landing_m  # first nosing to first nosing of the next flight
     if cfg.kind == "stair_up":
-        for i in range(n):
-            x = xf + i * t
-            pts += [(x, (i + 1) * r)] if i == 0 else [(x, i * r), (x, (i + 1) * r)]
-            edges.append((x, (i + 1) * r))
-        x_top = xf + (n - 1) * t
-        pts.append((x_top + cfg.landing_length_m, n * r))
+        for f in range(cfg.n_flights):
+            x0, z0 = xf + f * span, f * n * r
+            for i in range(n):
+                x, zl, ze = x0 + i * t, z0 + i * r, z0 + (i + 1) * r
+                pts += [(x, ze)] if (i == 0 and f == 0) else [(x, zl), (x, ze)]
+                edges.append((x, ze))
+                if o > 0:  # riser set back by o under the nosing
+                    mesh += [(x + o, zl), (x + o, ze - th), (x, ze - th), (x, ze)]
+                else:
+                    mesh += [(x, zl), (x, ze)]
+        x_top, z_top = edges[-1]
+        pts.append((x_top + cfg.landing_length_m, z_top))
+        mesh.append((x_top + cfg.landing_length_m, z_top))
     elif cfg.kind == "stair_down":
-        for i in range(n):
-            x = xf + i * t
-            if i > 0:
-                pts.append((x, -i * r))
-            pts.append((x, -(i + 1) * r))
-            edges.append((x, -i * r))
-        x_bot = xf + (n - 1) * t
-        pts.append((x_bot + cfg.landing_length_m, -n * r))
+        for f in range(cfg.n_flights):
+            x0, z0 = xf + f * span, -f * n * r
+            for i in range(n):
+                x, ze, zl = x0 + i * t, z0 - i * r, z0 - (i + 1) * r
+                if i > 0 or f > 0:
+                    pts.append((x, ze))
+                pts.append((x, zl))
+                edges.append((x, ze))
+                if o > 0:  # riser set back by o under the nosing (towards -x)
+                    mesh += [(x, ze), (x, ze - th), (x - o, ze - th), (x - o, zl)]
+                else:
+                    mesh += [(x, ze), (x, zl)]
+        x_bot = edges[-1][0]
+        z_bot = pts[-1][1]
+        pts.append((x_bot + cfg.landing_length_m, z_bot))
+        mesh.append((x_bot + cfg.landing_length_m, z_bot))
     elif cfg.kind == "obstacle":
         h, d = cfg.obstacle_height_m, cfg.obstacle_depth_m
         pts += [(xf, h), (xf + d, h), (xf + d, 0.0), (xf + d + cfg.exit_length_m, 0.0)]
@@ -88,7 +134,8 @@ def build_profile(cfg: TerrainConfig) -> tuple[NDArray[np.float64], NDArray[np.f
     profile = np.asarray(pts, dtype=float)
     if np.any(np.diff(profile[:, 0]) < -1e-12):
         raise SimulationError("terrain profile x must be non-decreasing")
-    return profile, np.asarray(edges, dtype=float).reshape(-1, 2)
+    mesh_profile = np.asarray(mesh, dtype=float) if (stair and o > 0) else profile
+    return profile, np.asarray(edges, dtype=float).reshape(-1, 2), mesh_profile
 
 
 def extrude_profile(
@@ -137,17 +184,24 @@ def _wall_quads(a: NDArray, b: NDArray, y: float, height: float) -> NDArray[np.f
 
 def build_terrain(cfg: TerrainConfig) -> Terrain:
     """Profile, edges and extruded mesh for a terrain configuration."""
-    profile, edges = build_profile(cfg)
-    vertices, tris = extrude_profile(profile, cfg.width_m, cfg.side_walls, cfg.wall_height_m)
+    profile, edges, mesh_profile = _profiles(cfg)
+    vertices, tris = extrude_profile(mesh_profile, cfg.width_m, cfg.side_walls,
+                                     cfg.wall_height_m)
     params: dict[str, float | int | str] = {"approach_length_m": cfg.approach_length_m}
     if cfg.kind in ("stair_up", "stair_down"):
         params.update(
             rise_m=cfg.stair_rise_m, tread_m=cfg.stair_tread_m, n_steps=cfg.n_steps,
             landing_length_m=cfg.landing_length_m,
         )
+        if cfg.n_flights > 1:
+            params.update(n_flights=cfg.n_flights, flight_landing_m=cfg.flight_landing_m)
+        if cfg.nosing_overhang_m > 0:
+            params.update(nosing_overhang_m=cfg.nosing_overhang_m,
+                          nosing_thickness_m=cfg.nosing_thickness_m)
     elif cfg.kind == "obstacle":
         params.update(height_m=cfg.obstacle_height_m, depth_m=cfg.obstacle_depth_m)
     return Terrain(
         kind=cfg.kind, profile_xz_m=profile, edges_xz_m=edges, vertices_m=vertices,
         triangles=tris, feature_x_m=cfg.approach_length_m, params=params,
+        mesh_profile_xz_m=None if mesh_profile is profile else mesh_profile,
     )

@@ -46,6 +46,9 @@ class TofCamera:
         )
         v, u = np.mgrid[0 : cfg.height_px, 0 : cfg.width_px]
         self._u, self._v = u.astype(float), v.astype(float)
+        self._terrain = terrain
+        mesh = terrain.mesh_profile_xz_m
+        self._surface_xz = terrain.profile_xz_m if mesh is None else mesh
 
     def camera_model(self) -> CameraModel:
         c = self.cfg
@@ -80,6 +83,7 @@ class TofCamera:
             v = v + rng.normal(0, c.lateral_noise_px, v.shape)
         z, n_w, d_c = self.cast(np.asarray(position_m, float), R_world_cam, u, v)
         hit = np.isfinite(z)
+        z_true = np.where(hit, z, 0.0)
         d_w = d_c @ np.asarray(R_world_cam).T
         cos_inc = np.abs(np.sum(n_w * d_w, axis=-1)) / np.linalg.norm(d_w, axis=-1)
         incidence = np.arccos(np.clip(cos_inc, 0.0, 1.0))
@@ -99,9 +103,91 @@ class TofCamera:
         valid &= (rng_m >= c.min_range_m) & (rng_m <= c.max_range_m)
         if c.noise:
             valid &= ~self._flying(np.where(valid, z, 0.0))
+        if c.edge_gap_m is not None:  # drawn last: the rest of the frame is unchanged
+            band = self.edge_gap_mask(np.asarray(position_m, float), R_world_cam, d_c,
+                                      z_true, n_w, rng.uniform(*c.edge_gap_m,
+                                                               self._terrain.edges_xz_m.shape[0]))
+            valid &= ~band
         depth = np.where(valid, z, 0.0).astype(np.float32)
         conf = np.where(valid, np.clip(np.round(255 * (1 - sigma / c.max_noise_m)), 1, 255), 0)
         return depth, conf.astype(np.uint8)
+
+    def edge_gap_bands(
+        self, position_m: NDArray, band_m: NDArray
+    ) -> list[tuple[NDArray, NDArray, float]]:
+        """Missing bands behind the convex edges as seen from ``position_m`` (3,): per edge
+        within range, (start point S (2,), unit direction w (2,) along the surface, length m)
+        in the world x-z plane. The plane through the camera centre and an edge (a line along
+        y) is the same in every y slice, so the construction is 2-D: the ray C -> E either
+        enters the solid right after E (the camera sees the tread behind the nosing: the band
+        starts at E on that tread) or passes E and lands on a farther surface at S (the band
+        starts there, on the side not hidden by the edge)."""
+        C = np.array([position_m[0], position_m[2]])
+        edges = self._terrain.edges_xz_m
+        prof = self._surface_xz
+        A, B = prof[:-1], prof[1:]
+        out: list[tuple[NDArray, NDArray, float]] = []
+        for E, b in zip(edges, band_m, strict=True):
+            d = E - C
+            dist = float(np.hypot(*d))
+            if dist < 1e-6 or dist > self.cfg.max_range_m + 0.1:
+                continue
+            u = d / dist
+            sgn = 1.0 if d[0] >= 0 else -1.0
+            q = E + 1e-4 * u
+            if q[1] < self._terrain.height_at(np.array([q[0]]))[0] - 1e-9:
+                out.append((E.copy(), np.array([sgn, 0.0]), float(b)))
+                continue
+            # first surface hit beyond E: C + s d = A + r (B - A), s > 1, 0 <= r <= 1
+            seg = B - A
+            den = d[0] * (-seg[:, 1]) - d[1] * (-seg[:, 0])
+            ok = np.abs(den) > 1e-12
+            den = np.where(ok, den, 1.0)
+            rel = A - C
+            s_par = (rel[:, 0] * (-seg[:, 1]) - rel[:, 1] * (-seg[:, 0])) / den
+            r_par = (d[0] * rel[:, 1] - d[1] * rel[:, 0]) / den
+            cand = ok & (s_par > 1.0 + 1e-6) & (r_par >= -1e-9) & (r_par <= 1 + 1e-9)
+            if not np.any(cand):
+                continue
+            k = int(np.argmin(np.where(cand, s_par, np.inf)))
+            S = C + s_par[k] * d
+            w = seg[k] / np.hypot(*seg[k])
+
+            def side(p: NDArray) -> float:
+                return float(d[0] * (p[1] - C[1]) - d[1] * (p[0] - C[0]))
+
+            solid = [E + np.array([dx, -1e-3]) for dx in (-1e-3, 1e-3)]
+            inside = [p for p in solid
+                      if p[1] < self._terrain.height_at(np.array([p[0]]))[0]]
+            if not inside:
+                continue
+            if np.sign(side(S + 1e-3 * w)) == np.sign(side(inside[0])):
+                w = -w
+            out.append((S, w, float(b)))
+        return out
+
+    def edge_gap_mask(
+        self, position_m: NDArray, R_world_cam: NDArray, d_c: NDArray, z_m: NDArray,
+        normals_w: NDArray, band_m: NDArray,
+    ) -> NDArray[np.bool_]:
+        """Pixels (H, W) whose true surface point lies in one of the bands of
+        ``edge_gap_bands`` (within 2 mm of the surface, on a face parallel to it)."""
+        mask = np.zeros(z_m.shape, dtype=bool)
+        bands = self.edge_gap_bands(position_m, band_m)
+        if not bands:
+            return mask
+        d_w = d_c @ np.asarray(R_world_cam).T
+        P = np.asarray(position_m)[[0, 2]] + z_m[..., None] * d_w[..., [0, 2]]
+        n_xz = normals_w[..., [0, 2]]
+        hit = z_m > 0
+        for S, w, b in bands:
+            nrm = np.array([-w[1], w[0]])
+            rel = P - S
+            along = rel @ w
+            m = hit & (np.abs(rel @ nrm) < 0.002) & (along >= -1e-4) & (along <= b)
+            m &= np.abs(n_xz @ nrm) > 0.9
+            mask |= m
+        return mask
 
     def _flying(self, z: NDArray) -> NDArray[np.bool_]:
         """royale's flying-pixel rule: jump to both horizontal (or both vertical) neighbours

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import vio_graph
-from vio_graph.geometry import invert_transform, make_transform
+from vio_graph.geometry import invert_transform, make_transform, rot_x, rot_y, rot_z
 from vio_graph.recording.metadata import (
     FORMAT_VERSION,
     Extrinsics,
@@ -44,6 +44,16 @@ def R_shank_cam(pitch_down_deg: float) -> NDArray[np.float64]:
     return np.stack([x_c, y_c, z_c], axis=1)
 
 
+def R_shank_imu(rig: RigConfig) -> NDArray[np.float64]:
+    """IMU axes in the shank frame: the base axes (``rig.imu_axes``: shank or camera) rotated
+    by ``rig.imu_rotation_rpy_deg`` = Rz(yaw) Ry(pitch) Rx(roll)."""
+    base = np.eye(3) if rig.imu_axes == "shank" else R_shank_cam(rig.camera_pitch_down_deg)
+    if not any(rig.imu_rotation_rpy_deg):
+        return base
+    roll, pitch, yaw = np.radians(rig.imu_rotation_rpy_deg)
+    return base @ rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
+
+
 def rig_transforms(rig: RigConfig) -> tuple[NDArray, NDArray, NDArray]:
     """knee_T_cam, knee_T_imu (4x4) and the IMU point in the shank frame (x, z)."""
     R_s_c = R_shank_cam(rig.camera_pitch_down_deg)
@@ -51,7 +61,7 @@ def rig_transforms(rig: RigConfig) -> tuple[NDArray, NDArray, NDArray]:
     knee_T_cam = make_transform(R_s_c, cam)
     imu_p = cam + R_s_c @ np.asarray(rig.imu_in_camera_xyz_m, dtype=float)
     imu_p[1] = 0.0  # the leg model is planar: keep the IMU in the sagittal plane
-    knee_T_imu = make_transform(np.eye(3), imu_p)
+    knee_T_imu = make_transform(R_shank_imu(rig), imu_p)
     return knee_T_cam, knee_T_imu, imu_p[[0, 2]]
 
 
@@ -113,7 +123,7 @@ def simulate_trial(config: ScenarioConfig, seed: int) -> SimulatedTrial:
     cam_xz = np.asarray(config.rig.camera_in_shank_xz_m, dtype=float)
     R_s_c = knee_T_cam[:3, :3]
     imu, imu_state, truth = simulate_imu(motion, config.imu, config.duration_s, imu_xz,
-                                         _rng(seed, "imu"))
+                                         _rng(seed, "imu"), R_shank_imu=knee_T_imu[:3, :3])
     joints = simulate_joints(motion, config.joints, imu.timestamp_s, _rng(seed, "joints"))
     fc = config.faults
     f_rng = _rng(seed, "faults")

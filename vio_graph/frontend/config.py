@@ -77,6 +77,21 @@ class TerrainConfig(_Strict):
         description="profiles with more points outside every level are UNKNOWN",
     )
     min_points: int = Field(20, ge=1, description="fewer profile points than this -> UNKNOWN")
+    use_faces: bool = Field(
+        True,
+        description="when the levels alone give LEVEL or UNKNOWN, let vertical segments (risers, "
+        "obstacle faces) decide; False = levels only",
+    )
+    face_gap_m: float = Field(
+        0.02, gt=0, description="points outside the levels are grouped at x gaps above this, m"
+    )
+    face_max_width_m: float = Field(
+        0.03, gt=0, description="a face is the points within half this of its group's median x, m"
+    )
+    face_context_m: float = Field(
+        0.06, gt=0, description="surface points this close before / after a face orient it, m"
+    )
+    min_face_points: int = Field(5, ge=2, description="a face needs at least this many points")
 
 
 class CornerConfig(_Strict):
@@ -93,6 +108,12 @@ class CornerConfig(_Strict):
     min_line_separation_m: float = Field(
         0.04, gt=0, description="the second line must be at least this far from the first, m"
     )
+    min_line_length_m: float = Field(
+        0.03,
+        gt=0,
+        description="a horizontal line whose main run spans less than this in x is a band "
+        "across a vertical face, not a surface; RANSAC is run again without its points, m",
+    )
     max_gap_m: float = Field(
         0.04,
         gt=0,
@@ -100,6 +121,32 @@ class CornerConfig(_Strict):
         "the run with most points is the surface whose end is the edge, m",
     )
     min_feature_points: int = Field(6, ge=3, description="fewer feature points -> no corner")
+    face_top_margin_m: float = Field(
+        0.008,
+        ge=0,
+        description="face (riser / nosing block) candidates start this far below the tread "
+        "line: the corner itself is rounded by the kNN smoothing, m",
+    )
+    max_nosing_gap_m: float = Field(
+        0.09,
+        gt=0,
+        description="the face may lie up to this far in front of the tread end (a band of "
+        "tread behind the nosing missing, 3-6 cm on a pico flexx2, plus the smoothing), m",
+    )
+    face_band_m: float = Field(
+        0.025,
+        gt=0,
+        description="face candidates are taken down to this far below the tread line (down to "
+        "window_m if too few): an overhanging nosing block is 2-4 cm tall, and below it the "
+        "riser lies farther back, m",
+    )
+    face_cluster_m: float = Field(
+        0.006, gt=0, description="face candidates are split into vertical lines at x steps "
+        "larger than this, m",
+    )
+    min_face_points: int = Field(
+        3, ge=1, description="a face line needs at least this many points (5 mm grid: 1.5 cm)"
+    )
     edge_sigma_m: float = Field(
         0.01, gt=0, description="1-sigma of the edge point estimate for CornerObservation, m"
     )

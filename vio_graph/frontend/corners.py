@@ -11,6 +11,10 @@ vio_graph's reading of the parts the paper leaves open:
   ``np.random.Generator`` (deterministic given the seed); inliers are |z - c| <= d, counted for
   all hypotheses at once with ``searchsorted`` on the sorted heights. The winner is refined to
   the median height of its inliers (the paper's "median z coordinate") and its inliers recounted.
+- **Lines are surfaces.** A line whose main run of inliers spans less than
+  ``min_line_length_m`` in x is a band across a riser seen head-on (it can out-count a tread
+  cut short by the field of view or by a missing band); its points are set aside and RANSAC
+  runs again.
 - **Second line.** Fitted on the remaining points with hypotheses at least
   ``min_line_separation_m`` from the first line, so that the noise fringe of the first surface
   (points just outside the d band) cannot become the "second line".
@@ -20,10 +24,27 @@ vio_graph's reading of the parts the paper leaves open:
   (the nosing of the tread the user stands on; the riser below faces away and is not seen).
   For other classes the end is the one on the side of the lower line's median x.
 - **Which part of the line.** The higher line's inliers are split into runs at x gaps larger
-  than ``max_gap_m`` and the run with most points is the surface; its extreme x at the chosen
-  end, with the line's height, is the edge point estimate. When at least 3 points lie just
-  below it (within d in x, between d and w below the line: the riser or obstacle face), the
-  edge's x is their median x instead, which is not rounded by the kNN smoothing.
+  than ``max_gap_m`` and the run with most points is the tread; its extreme x at the chosen
+  end, with the line's height, is the first edge estimate.
+- **Nosing = riser line meets tread line.** Real ToF profiles (pico flexx2) lose a band of
+  3-6 cm of tread right behind the nosing: the driver's flying-pixel filter removes the mixed
+  pixels at the depth discontinuity. The end of the tread run is then 3-8 cm behind the
+  nosing. So the edge is placed where the face below it (riser, nosing block, obstacle side)
+  meets the tread: the face candidates are the points between ``face_top_margin_m`` and
+  ``face_band_m`` (or, if too few, w) below the tread line (the top margin skips the corner that kNN smoothing rounds) within
+  ``max_nosing_gap_m`` in front of the tread end; they are grouped into vertical lines
+  (x clusters ``face_cluster_m`` wide) and the face is the line nearest the tread's edge side
+  (the camera side for stairs up) with at least ``min_face_points`` points. With a nosing
+  overhang the face just below the tread is the nosing block, which sits in front of the
+  riser; choosing the foremost supported line puts the corner at the nosing tip, not at the
+  riser. In the gravity-aligned ground frame the tread line is horizontal and the face line
+  vertical, so the intersection is (face x, tread height). When no face is supported the
+  edge stays at the tread end and the corner says so (``has_face`` False): its x is then
+  only as good as the end of the tread (the tracker treats such corners separately).
+  At the far end (stairs down) the riser faces away and no face can be seen: the edge x is
+  the median x of the points just below the end of the run (within d in x, d to w below),
+  when there are 3, else the run end. A missing band there shortens the tread and the edge
+  moves with it (a known limit: nothing in one frame shows where the tread really ended).
 - **Window w.** Feature points are ALL profile points in the square window
   |x - x_edge| <= w, |z - z_edge| <= w: the last w of the tread plus the top w of the riser
   (or obstacle face) below the edge. The L shape constrains both x and z in ICP.
@@ -70,6 +91,9 @@ class CornerFeature:
     upper_inliers: int
     lower_inliers: int
     side: Literal["near", "far"]
+    has_face: bool = False
+    """True when the edge x comes from a supported face line below the tread (riser / nosing
+    block / obstacle side), False when it is the end of the tread run."""
 
 
 def ransac_horizontal_line(
@@ -129,6 +153,35 @@ def _largest_run(x: NDArray[np.float64], max_gap_m: float) -> NDArray[np.float64
     return xs[starts[i] : ends[i]]
 
 
+def _surface_line(
+    pts: NDArray[np.float64],
+    cfg: CornerConfig,
+    rng: np.random.Generator,
+    exclude_heights_m: tuple[float, ...] = (),
+    candidates: NDArray[np.bool_] | None = None,
+    attempts: int = 3,
+) -> HorizontalLine | None:
+    """RANSAC horizontal line that is a surface, not a band across a vertical face.
+
+    A riser seen head-on can hold more points in a 2d-tall band than a tread that the field of
+    view or a missing band cut short. A line whose main run of inliers spans less than
+    ``min_line_length_m`` in x is such a band: its points are removed from the candidates and
+    RANSAC runs again (at most ``attempts`` times). The first attempt is the paper's line.
+    """
+    mask = np.ones(pts.shape[0], bool) if candidates is None else candidates.copy()
+    for _ in range(attempts):
+        line = ransac_horizontal_line(
+            pts, cfg.inlier_distance_m, cfg.n_hypotheses, rng, exclude_heights_m,
+            cfg.min_line_separation_m, mask)
+        if line is None or line.n_inliers < cfg.min_line_inliers:
+            return line
+        run = _largest_run(pts[line.inliers, 0], cfg.max_gap_m)
+        if run[-1] - run[0] >= cfg.min_line_length_m:
+            return line
+        mask &= ~line.inliers
+    return None
+
+
 def extract_corner(
     profile_xz_m: NDArray[np.float64],
     rng: np.random.Generator,
@@ -150,15 +203,11 @@ def extract_corner(
     if pts.shape[0] < 2 * cfg.min_line_inliers:
         return None
     # 1. horizontal line with the most inliers
-    first = ransac_horizontal_line(pts, cfg.inlier_distance_m, cfg.n_hypotheses, rng)
+    first = _surface_line(pts, cfg, rng)
     if first is None or first.n_inliers < cfg.min_line_inliers:
         return None
     # 2. remove its inliers, fit the second horizontal line
-    second = ransac_horizontal_line(
-        pts, cfg.inlier_distance_m, cfg.n_hypotheses, rng,
-        exclude_heights_m=(first.height_m,), min_separation_m=cfg.min_line_separation_m,
-        candidates=~first.inliers,
-    )
+    second = _surface_line(pts, cfg, rng, (first.height_m,), ~first.inliers)
     if second is None or second.n_inliers < cfg.min_line_inliers:
         return None
     # 3. compare the median heights: the higher line carries the edge
@@ -173,14 +222,23 @@ def extract_corner(
     # 4. edge = end of the main run of the higher line, at the line's height
     run = _largest_run(upper_x, cfg.max_gap_m)
     edge = np.array([run[0] if side == "near" else run[-1], upper.height_m])
-    # 4b. a visible riser / face just below the edge fixes the edge's x better than the
-    #     (smoothing-rounded) end of the tread: use its median x
-    d, w = cfg.inlier_distance_m, cfg.window_m
-    below = (np.abs(pts[:, 0] - edge[0]) <= d) & (pts[:, 1] < edge[1] - d) & (
-        pts[:, 1] >= edge[1] - w
-    )
-    if np.count_nonzero(below) >= 3:
-        edge[0] = _median_of_sorted(np.sort(pts[below, 0]))
+    # 4b. nosing = where the face line below the tread meets the tread line (module docstring)
+    face_x = _face_line_x(pts, edge, cfg) if side == "near" else None
+    if face_x is not None:
+        edge[0] = face_x
+        # tread height from the tread side only: riser points within d below the tread pull
+        # the median of the band down when a gap leaves few tread points
+        tread = upper.inliers & (pts[:, 0] - face_x > cfg.face_top_margin_m)
+        if np.count_nonzero(tread) >= cfg.min_face_points:
+            edge[1] = _median_of_sorted(np.sort(pts[tread, 1]))
+    elif side == "far":
+        # the far end (stairs down): the riser faces away; points just below the end (mixed
+        # pixels, the rounded end) fix x better than the smoothing-rounded end of the tread
+        d, w = cfg.inlier_distance_m, cfg.window_m
+        below = (np.abs(pts[:, 0] - edge[0]) <= d) & (pts[:, 1] < edge[1] - d) & (
+            pts[:, 1] >= edge[1] - w)
+        if np.count_nonzero(below) >= 3:
+            edge[0] = _median_of_sorted(np.sort(pts[below, 0]))
     # 5. feature points: square window of half-size w at the edge (tread end + riser top)
     in_window = (np.abs(pts[:, 0] - edge[0]) <= cfg.window_m) & (
         np.abs(pts[:, 1] - edge[1]) <= cfg.window_m
@@ -197,4 +255,36 @@ def extract_corner(
         upper_inliers=upper.n_inliers,
         lower_inliers=lower.n_inliers,
         side=side,
+        has_face=face_x is not None,
     )
+
+
+def _face_line_x(
+    pts: NDArray[np.float64], tread_end_xz_m: NDArray[np.float64], cfg: CornerConfig
+) -> float | None:
+    """x of the vertical face line that meets the tread at its edge, or None if unsupported.
+
+    The tread lies at x > the edge (the near end of the higher line). Candidates: points
+    between ``face_top_margin_m`` and ``face_band_m`` below the tread
+    height (between ``face_top_margin_m`` and ``window_m`` when that band holds too few),
+    from ``max_nosing_gap_m`` before the tread end (the side away from the tread) to
+    ``inlier_distance_m`` past it. Sorted by x towards the tread's edge side, they are cut into
+    clusters at x steps larger than ``face_cluster_m``; the foremost cluster with at least
+    ``min_face_points`` points is the face, its median x the line.
+    """
+    x_end, h = float(tread_end_xz_m[0]), float(tread_end_xz_m[1])
+    ahead = x_end - pts[:, 0]  # > 0: in front of the tread end, away from the tread
+    depth = h - pts[:, 1]
+    near = (ahead <= cfg.max_nosing_gap_m) & (ahead >= -cfg.inlier_distance_m) & (
+        depth >= cfg.face_top_margin_m)
+    cand = near & (depth <= cfg.face_band_m)  # the face right below the tread first
+    if np.count_nonzero(cand) < cfg.min_face_points:
+        cand = near & (depth <= cfg.window_m)
+        if np.count_nonzero(cand) < cfg.min_face_points:
+            return None
+    a = np.sort(ahead[cand])[::-1]  # foremost (farthest from the tread) first
+    breaks = np.flatnonzero(-np.diff(a) > cfg.face_cluster_m) + 1
+    for lo, hi in zip(np.r_[0, breaks], np.r_[breaks, a.size], strict=True):
+        if hi - lo >= cfg.min_face_points:
+            return float(x_end - _median_of_sorted(a[lo:hi][::-1]))
+    return None

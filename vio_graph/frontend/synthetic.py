@@ -21,12 +21,18 @@ def stair_polyline(
     floor_after_m: float = 2.0,
     obstacle_height_m: float = 0.14,
     obstacle_depth_m: float = 0.13,
+    nosing_overhang_m: float = 0.0,
+    nosing_thickness_m: float = 0.025,
 ) -> NDArray[np.float64]:
     """Vertices (V, 2) of a sagittal terrain profile, x increasing, floor at z = 0.
 
     ``kind``: "stair_up" (first riser at ``start_x_m``), "stair_down" (top landing at
     z = n_steps * rise_m until ``start_x_m``, then steps down), "obstacle" (a box of
     ``obstacle_height_m`` x ``obstacle_depth_m`` starting at ``start_x_m``) or "level".
+    ``nosing_overhang_m`` (stairs only): each tread protrudes this far past its riser, as a
+    nosing block ``nosing_thickness_m`` tall (a vertical face, then the underside back to the
+    riser). Riser positions stay at ``start_x_m + i * run_m``; the nosing tip moves by the
+    overhang towards the lower side.
     """
     x0 = start_x_m
     if kind == "level":
@@ -41,20 +47,74 @@ def stair_polyline(
     z = 0.0 if sign > 0 else n_steps * rise_m
     verts = [[x0 - floor_before_m, z]]
     x = x0
+    o, t = nosing_overhang_m, min(nosing_thickness_m, rise_m / 2)
     for _ in range(n_steps):
-        verts += [[x, z], [x, z + sign * rise_m]]
+        if o <= 0:
+            verts += [[x, z], [x, z + sign * rise_m]]
+        elif sign > 0:  # riser up to the underside, back towards the camera, nosing face up
+            verts += [[x, z], [x, z + rise_m - t], [x - o, z + rise_m - t], [x - o, z + rise_m]]
+        else:  # tread out to the nosing tip, face down, underside back, riser down
+            verts += [[x + o, z], [x + o, z - t], [x, z - t], [x, z - rise_m]]
         z += sign * rise_m
         x += run_m
     verts.append([x - run_m + floor_after_m, z])
     return np.asarray(verts, dtype=float)
 
 
-def stair_edges(polyline_xz_m: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Convex corners (nosings / obstacle top edges) of a rectilinear profile, (E, 2)."""
+def stair_edges(
+    polyline_xz_m: NDArray[np.float64], min_surface_m: float = 0.05
+) -> NDArray[np.float64]:
+    """Convex corners (nosings / obstacle top edges) of a rectilinear profile, (E, 2).
+
+    Only corners that bound a horizontal surface (tread, landing, obstacle top) at least
+    ``min_surface_m`` long count: the underside corner of an overhanging nosing does not.
+    """
     v = np.asarray(polyline_xz_m, dtype=float)
     d_in, d_out = v[1:-1] - v[:-2], v[2:] - v[1:-1]
     cross = d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0]
-    return v[1:-1][cross < -1e-12]  # right turn when walking along +x = convex corner
+    convex = cross < -1e-12  # right turn when walking along +x = convex corner
+
+    def long_flat(d: NDArray[np.float64]) -> NDArray[np.bool_]:
+        return (np.abs(d[:, 1]) < 1e-12) & (np.abs(d[:, 0]) >= min_surface_m)
+
+    return v[1:-1][convex & (long_flat(d_in) | long_flat(d_out))]
+
+
+def tread_side(polyline_xz_m: NDArray[np.float64], min_surface_m: float = 0.05) -> NDArray:
+    """For each corner of :func:`stair_edges`: +1 if its horizontal surface (the tread) lies
+    towards +x from the corner, -1 if towards -x."""
+    v = np.asarray(polyline_xz_m, dtype=float)
+    d_in, d_out = v[1:-1] - v[:-2], v[2:] - v[1:-1]
+    cross = d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0]
+    flat_out = (np.abs(d_out[:, 1]) < 1e-12) & (np.abs(d_out[:, 0]) >= min_surface_m)
+    flat_in = (np.abs(d_in[:, 1]) < 1e-12) & (np.abs(d_in[:, 0]) >= min_surface_m)
+    keep = (cross < -1e-12) & (flat_in | flat_out)
+    return np.where(flat_out[keep], 1.0, -1.0)
+
+
+def drop_tread_band(
+    points_rel_xz_m: NDArray[np.float64],
+    camera_xz_m: NDArray[np.float64],
+    polyline_xz_m: NDArray[np.float64],
+    length_m: float,
+    start_m: float = 0.0,
+    height_tol_m: float = 0.015,
+) -> NDArray[np.float64]:
+    """Remove the band of a ToF profile that a flying-pixel filter removes at a nosing.
+
+    Points on the tread (within ``height_tol_m`` of the nosing height) between ``start_m`` and
+    ``start_m + length_m`` behind every nosing of ``polyline_xz_m`` (behind = along the tread,
+    away from the riser) are dropped. ``points_rel_xz_m`` (N, 2) are relative to the camera at
+    ``camera_xz_m`` (world); returns the kept points, still camera-relative.
+    """
+    pts = np.asarray(points_rel_xz_m, dtype=float)
+    world = pts + np.asarray(camera_xz_m, dtype=float)
+    drop = np.zeros(pts.shape[0], dtype=bool)
+    for edge, side in zip(stair_edges(polyline_xz_m), tread_side(polyline_xz_m), strict=True):
+        behind = side * (world[:, 0] - edge[0])
+        drop |= (behind > start_m) & (behind < start_m + length_m) & (
+            np.abs(world[:, 1] - edge[1]) <= height_tol_m)
+    return pts[~drop]
 
 
 def intersect_rays_polyline(

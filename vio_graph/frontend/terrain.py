@@ -30,7 +30,24 @@ Rule
    - heights only go down -> STAIR_DOWN;
    - anything else -> UNKNOWN.
 
-Known limits: a stair tread cut short by the field of view can look like an obstacle top; a
+4. **Faces (vertical segments).** A single frame often holds only one level and a riser: a
+   tread with the next riser rising at its far end (the tread above is out of view), a riser
+   dropping at the near end of a tread, or, from a low camera, the floor and a row of risers
+   whose treads are seen too obliquely to return. Rule 3 would call those LEVEL or UNKNOWN.
+   Points outside every level are grouped along x (split at gaps above ``face_gap_m``); the
+   points of a group within ``face_max_width_m`` / 2 of its median x are its core (a short
+   piece of tread attached to a riser is left out), and a core of at least
+   ``min_face_points`` points spanning at least ``min_step_m`` in height is a face. A face rises (going
+   away from the camera) when the surface just before it (within ``face_context_m``) is nearer
+   its bottom than its top, or, without one, the surface just after it is nearer its top, or,
+   without either, the previous face is lower; otherwise it drops. A face taller than
+   ``max_step_m`` is a wall and leaves the class UNKNOWN. When the levels alone give
+   LEVEL or UNKNOWN (not a wall), the faces decide: only rising -> STAIR_UP, only dropping ->
+   STAIR_DOWN, rising then dropping -> OBSTACLE. The decision uses only the geometry of the
+   frame (levels separated by a rise, a vertical segment between them), no proportions.
+
+Known limits: a floor and one rising face (an obstacle whose top is out of view) is called
+STAIR_UP; a stair tread cut short by the field of view can look like an obstacle top; a
 box seen from above (camera past its near edge) looks like STAIR_DOWN.
 """
 
@@ -175,6 +192,81 @@ def classify_levels(
     return TerrainKind.UNKNOWN
 
 
+@dataclass(frozen=True)
+class Face:
+    """A vertical segment of the profile: x (median), z range, and whether it rises away from
+    the camera (+1) or drops (-1); 0 for a wall (taller than ``max_step_m``)."""
+
+    x_m: float
+    z_lo_m: float
+    z_hi_m: float
+    direction: int
+
+
+def find_faces(
+    pts: NDArray[np.float64], levels: Sequence[Level], config: TerrainConfig
+) -> list[Face]:
+    """Vertical segments among the points outside every level (rule step 4), near to far."""
+    band = config.level_band_m
+    in_level = np.zeros(pts.shape[0], dtype=bool)
+    for lv in levels:
+        in_level |= (np.abs(pts[:, 1] - lv.height_m) <= band) & (
+            pts[:, 0] >= lv.x_min_m - config.level_gap_m) & (
+            pts[:, 0] <= lv.x_max_m + config.level_gap_m)
+    rest = pts[~in_level]
+    if rest.shape[0] < config.min_face_points:
+        return []
+    rest = rest[np.argsort(rest[:, 0], kind="stable")]
+    breaks = np.flatnonzero(np.diff(rest[:, 0]) > config.face_gap_m) + 1
+    faces: list[Face] = []
+    for lo, hi in zip(np.r_[0, breaks], np.r_[breaks, rest.shape[0]], strict=True):
+        grp = rest[lo:hi]
+        if grp.shape[0] < config.min_face_points:
+            continue
+        x_med = float(np.median(grp[:, 0]))
+        core = grp[np.abs(grp[:, 0] - x_med) <= 0.5 * config.face_max_width_m]
+        if core.shape[0] < config.min_face_points:
+            continue
+        z_lo, z_hi = np.percentile(core[:, 1], [5, 95])
+        if z_hi - z_lo < config.min_step_m:
+            continue
+        x_lo_g, x_hi_g = float(core[:, 0].min()), float(core[:, 0].max())
+        ctx = config.face_context_m
+        before = pts[(pts[:, 0] < x_lo_g - 0.5 * config.face_gap_m)
+                     & (pts[:, 0] >= x_lo_g - ctx), 1]
+        after = pts[(pts[:, 0] > x_hi_g + 0.5 * config.face_gap_m)
+                    & (pts[:, 0] <= x_hi_g + ctx), 1]
+        mid = 0.5 * (z_lo + z_hi)
+        if z_hi - z_lo > config.max_step_m:
+            direction = 0  # a wall, not a step
+        elif before.size >= config.min_face_points:
+            direction = 1 if np.median(before) < mid else -1
+        elif after.size >= config.min_face_points:
+            direction = 1 if np.median(after) > mid else -1
+        elif faces:
+            prev_mid = 0.5 * (faces[-1].z_lo_m + faces[-1].z_hi_m)
+            direction = 1 if prev_mid < mid else -1
+        else:
+            continue  # an isolated segment: no direction
+        faces.append(Face(float(x_med), float(z_lo), float(z_hi), direction))
+    return faces
+
+
+def classify_faces(faces: Sequence[Face]) -> TerrainKind:
+    """Rule step 4: the class the faces give (UNKNOWN when they give none)."""
+    dirs = [f.direction for f in faces]
+    if not dirs or 0 in dirs:
+        return TerrainKind.UNKNOWN
+    if all(d > 0 for d in dirs):
+        return TerrainKind.STAIR_UP
+    if all(d < 0 for d in dirs):
+        return TerrainKind.STAIR_DOWN
+    first_down = dirs.index(-1)
+    if dirs[0] > 0 and all(d < 0 for d in dirs[first_down:]):
+        return TerrainKind.OBSTACLE
+    return TerrainKind.UNKNOWN
+
+
 def classify_terrain(
     profile_xz_m: NDArray[np.float64], config: TerrainConfig | None = None
 ) -> tuple[TerrainKind, list[Level]]:
@@ -196,7 +288,20 @@ def classify_terrain(
         last = levels[-1]
         beyond = pts[:, 0] > last.x_max_m + config.level_gap_m
         lower_beyond = bool(np.any(pts[beyond, 1] < last.height_m - config.min_step_m))
-    return classify_levels(levels, pts.shape[0], config, lower_beyond), levels
+    kind = classify_levels(levels, pts.shape[0], config, lower_beyond)
+    if kind in (TerrainKind.LEVEL, TerrainKind.UNKNOWN) and config.use_faces and not (
+        _has_wall(levels, config)
+    ):
+        by_faces = classify_faces(find_faces(pts, levels, config))
+        if by_faces != TerrainKind.UNKNOWN:
+            kind = by_faces
+    return kind, levels
+
+
+def _has_wall(levels: Sequence[Level], config: TerrainConfig) -> bool:
+    """An upward height difference between consecutive levels above ``max_step_m``."""
+    h = [lv.height_m for lv in levels]
+    return any(b - a > config.max_step_m for a, b in zip(h[:-1], h[1:], strict=True))
 
 
 @dataclass(frozen=True)

@@ -131,6 +131,21 @@ def _print_ate_table(metrics: dict) -> None:
         )
 
 
+def _print_health(metrics: dict) -> None:
+    """One line of health figures, then one warning line per likely cause (if any)."""
+    h = metrics.get("health")
+    if not h:
+        return
+    typer.echo(
+        f"health: {100 * h['displacements_rejected_share']:.0f} % of visual displacements "
+        f"refused, stance on {100 * h['stance_share']:.0f} % of frames, fused path off visual "
+        f"odometry in {100 * h['fused_vs_visual']['departure_share']:.0f} % of "
+        f"{h['fused_vs_visual']['window_s']:g} s windows"
+    )
+    for line in h["warnings"]:
+        typer.secho(line, fg=typer.colors.YELLOW, err=True)
+
+
 def _parse_modes(mode: str) -> tuple[str, ...]:
     from vio_graph.pipeline import MODES
 
@@ -171,6 +186,7 @@ def run(
         recording, out, cfg, modes=_parse_modes(mode), overwrite=overwrite, visualize=not no_rerun
     )
     _print_ate_table(result.metrics)
+    _print_health(result.metrics)
     typer.echo(f"results in {result.out_dir}")
 
 
@@ -207,6 +223,7 @@ def demo(
         rec_dir, res_dir, load_config(), modes=_parse_modes(mode), overwrite=True
     )
     _print_ate_table(result.metrics)
+    _print_health(result.metrics)
     typer.echo(f"results     {res_dir}")
     typer.echo(f"rerun view  {res_dir / 'run.rrd'}   (open with: rerun {res_dir / 'run.rrd'})")
     typer.echo(f"overview    {res_dir / 'plots' / 'overview.png'}")

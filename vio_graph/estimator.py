@@ -49,7 +49,7 @@ from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
 from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_pitch_offset
 from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
-from vio_graph.filter.stance import StanceDetector
+from vio_graph.filter.stance import StanceConsistencyTest, StanceDetector, chi2_2dof_quantile
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
 from vio_graph.frontend.level import SurfaceTilt, measure_surface_tilt
 from vio_graph.geometry import (
@@ -60,6 +60,7 @@ from vio_graph.geometry import (
     remove_yaw,
     rot_y,
 )
+from vio_graph.health import HealthLimits, HealthMonitor
 from vio_graph.keyframes import KeyframeSelector
 from vio_graph.kinematics import LegPoints, knee_from_camera, leg_points_from_knee, shank_pitch_rad
 from vio_graph.mapping.local_map import TerrainMap2D
@@ -77,7 +78,15 @@ from vio_graph.types import (
 
 @dataclass(frozen=True)
 class RigGeometry:
-    """What the estimator needs to know about the sensors and the leg (from metadata)."""
+    """What the estimator needs to know about the sensors and the leg (from metadata).
+
+    The IMU may be mounted with any rotation (``imu_T_cam`` as measured). Everything inside
+    the estimator works with a *shank-aligned IMU*: the IMU's origin with the shank's axes
+    (x anterior, z knee-ward, y lateral). :meth:`imu_in_shank_axes` turns each sample into
+    it (accelerometer, gyro and vendor orientation rotated by ``R_shank_imu``) and
+    ``shank_imu_T_cam`` is the camera in it, so the sagittal strapdown, the stance detector,
+    the slice's ground frame and the smoothers' preintegration never depend on the mount.
+    """
 
     K: NDArray[np.float64]
     imu_T_cam: NDArray[np.float64]
@@ -93,13 +102,47 @@ class RigGeometry:
             leg=meta.leg.leg_model(),
         )
 
+    @cached_property
+    def R_shank_imu(self) -> NDArray[np.float64]:
+        """Rotation from the mounted IMU's axes to the shank's (exactly I when they agree
+        within 1e-9, so a shank-aligned mount is used bit for bit as recorded)."""
+        R = (self.knee_T_cam @ invert_transform(self.imu_T_cam))[:3, :3]
+        return np.eye(3) if np.allclose(R, np.eye(3), atol=1e-9) else R
+
+    @cached_property
+    def imu_is_shank_aligned(self) -> bool:
+        return bool(np.array_equal(self.R_shank_imu, np.eye(3)))
+
+    @cached_property
+    def shank_imu_T_cam(self) -> NDArray[np.float64]:
+        """Camera pose in the shank-aligned IMU frame (IMU origin, shank axes), 4x4."""
+        if self.imu_is_shank_aligned:
+            return np.asarray(self.imu_T_cam, dtype=float)
+        T = np.eye(4)
+        T[:3, :3] = self.R_shank_imu @ self.imu_T_cam[:3, :3]
+        T[:3, 3] = self.R_shank_imu @ self.imu_T_cam[:3, 3]
+        return T
+
+    def imu_in_shank_axes(self, sample: ImuSample) -> ImuSample:
+        """``sample`` expressed in the shank-aligned IMU frame (the sample itself if the
+        mount is shank-aligned): f' = R f, w' = R w, R_world_imu' = R_world_imu R^T."""
+        if self.imu_is_shank_aligned:
+            return sample
+        R = self.R_shank_imu
+        q = quat_wxyz_from_matrix(matrix_from_quat_wxyz(sample.quat_wxyz) @ R.T)
+        return dataclasses.replace(
+            sample, accel_mps2=R @ np.asarray(sample.accel_mps2, dtype=float),
+            gyro_radps=R @ np.asarray(sample.gyro_radps, dtype=float), quat_wxyz=q)
+
     @property
     def R_imu_cam(self) -> NDArray[np.float64]:
-        return self.imu_T_cam[:3, :3]
+        """Camera axes in the shank-aligned IMU frame."""
+        return self.shank_imu_T_cam[:3, :3]
 
     @cached_property
     def R_knee_imu(self) -> NDArray[np.float64]:
-        return (self.knee_T_cam @ invert_transform(self.imu_T_cam))[:3, :3]
+        """Shank-aligned IMU axes in the knee frame (the identity up to rounding)."""
+        return (self.knee_T_cam @ invert_transform(self.shank_imu_T_cam))[:3, :3]
 
     @property
     def camera_in_shank_xz_m(self) -> NDArray[np.float64]:
@@ -133,7 +176,7 @@ class OnlineEstimator:
         self.config = config
         self.rig = rig
         self.frontend = VisualFrontend(config.frontend)
-        self.filter = SagittalEskf(config.filter, rig.imu_T_cam)
+        self.filter = SagittalEskf(config.filter, rig.shank_imu_T_cam)
         self.attitude = AttitudeTracker(config.filter.attitude)
         self.pitch_offset = PitchOffsetFilter(config.filter.level_aiding)
         self._level_rng = np.random.default_rng(config.frontend.seed)
@@ -149,7 +192,7 @@ class OnlineEstimator:
         self._imu_ms = 0.0
         fc = config.filter
         # ankle (knee frame (0, 0, -L_shank)) in the IMU frame, for the stance detector
-        imu_T_knee = invert_transform(rig.knee_T_cam @ invert_transform(rig.imu_T_cam))
+        imu_T_knee = invert_transform(rig.knee_T_cam @ invert_transform(rig.shank_imu_T_cam))
         ankle_in_imu = (imu_T_knee @ np.array([0.0, 0.0, -rig.leg.shank_length_m, 1.0]))[:3]
         self._stance = StanceDetector(ankle_in_imu, fc.stance_accel_threshold_mps2,
                                       fc.stance_window_s)
@@ -161,10 +204,33 @@ class OnlineEstimator:
         self._corner_alias: dict[int, tuple[str, int]] = {}  # track id -> landmark key
         self._corner_seen: dict[tuple[str, int], float] = {}  # landmark key -> last seen, s
         self._in_stance = False
+        #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
+        self.health = HealthMonitor(HealthLimits(floor_m=fc.measurement_noise_floor_m))
+        self._stance_test = StanceConsistencyTest(
+            chi2_2dof_quantile(fc.stance_test_probability) if fc.stance_test else np.inf,
+            fc.stance_pitch_sigma_rad * float(np.hypot(*(
+                np.array([0.0, -rig.leg.shank_length_m]) - rig.camera_in_shank_xz_m))),
+            fc.measurement_noise_floor_m)
+        #: stance bookkeeping for the health report: frames the detector proposed, refused by
+        #: vision, refused by the anchor gate, and anchored
+        self.stance_stats = {"candidate_frames": 0, "vision_refused": 0, "gate_refused": 0,
+                             "anchored_frames": 0}
+
+    def health_report(self) -> dict:
+        """Is the estimate in trouble? Shares of refused displacements and of stance frames,
+        departure of the fused path from visual odometry, and warning lines naming the
+        likely cause (vio_graph/health.py)."""
+        rep = self.health.report(float(np.degrees(self.pitch_offset.offset_rad)))
+        rep["stance"] = dict(self.stance_stats)
+        fs = self.filter.state
+        rep["landmarks"] = {"accepted": fs.n_landmark_accepted,
+                            "rejected": fs.n_landmark_rejected}
+        return rep
 
     # ------------------------------------------------------------------ inputs
     def add_imu(self, sample: ImuSample) -> None:
         t0 = time.perf_counter()
+        sample = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
         sample = self.corrected_imu(sample)  # the offset applied once, for the strapdown
         if self._last_imu is None:
@@ -260,13 +326,15 @@ class OnlineEstimator:
                 R_world_imu = self.R_world_imu(t)
         if transform_result is not None:
             result = transform_result(result)
+        accepted = False
         if result.displacement is not None:
-            self.filter.update_displacement(result.displacement)
+            accepted = self.filter.update_displacement(result.displacement)
         else:
             self.filter.clone_position(t)
         self._fuse_landmarks(t, result, R_world_imu)
         state = self.filter.state
         camera_xz, velocity = self._position_at(t)
+        self.health.add_frame(t, camera_xz, result.displacement, accepted, self._in_stance)
         timings["fusion"] = (time.perf_counter() - t0) * 1e3
         # 5. kinematics (Fig. 3)
         t0 = time.perf_counter()
@@ -327,32 +395,64 @@ class OnlineEstimator:
                 cov = np.asarray(obs.cov_m2, float) + np.eye(2) * fc.corner_landmark_sigma_m**2
                 self.filter.update_landmark(key, obs.corner_rel_xz_m, cov, t)
         if fc.stance_anchor:
-            # ankle - camera through the shank: R_shank (ankle_in_shank - camera_in_shank)
-            theta = self.rig.shank_pitch_rad(R_world_imu)
-            u = np.array([0.0, -self.rig.leg.shank_length_m]) - self.rig.camera_in_shank_xz_m
-            c, sn = np.cos(theta), np.sin(theta)
-            lever = np.array([c * u[0] + sn * u[1], -sn * u[0] + c * u[1]])
-            dlever = np.array([-sn * u[0] + c * u[1], -c * u[0] - sn * u[1]])  # d lever/d theta
+            self._fuse_stance(t, result, R_world_imu)
+
+    def _stance_lever(self, R_world_imu: NDArray[np.float64]):
+        """ankle - camera through the shank (m, ground axes): R_shank (ankle_in_shank -
+        camera_in_shank), its derivative by the shank pitch, and the shank-frame vector."""
+        theta = self.rig.shank_pitch_rad(R_world_imu)
+        u = np.array([0.0, -self.rig.leg.shank_length_m]) - self.rig.camera_in_shank_xz_m
+        c, sn = np.cos(theta), np.sin(theta)
+        lever = np.array([c * u[0] + sn * u[1], -sn * u[0] + c * u[1]])
+        dlever = np.array([-sn * u[0] + c * u[1], -c * u[0] - sn * u[1]])  # d lever/d theta
+        return lever, dlever, u
+
+    def _fuse_stance(self, t: float, result: FrontendResult,
+                     R_world_imu: NDArray[np.float64]) -> None:
+        """Stance anchor: the ankle fixed at stance onset is a landmark seen through the leg.
+
+        The acceleration detector proposes a stance; the visual displacement of this frame
+        (and the chain of them since onset) must agree with a still ankle
+        (StanceConsistencyTest), and the anchor observation itself is chi-square gated when
+        ``stance_gate``. Either refusal ends the stance: its anchor is marginalised and a new
+        one may start at the next frame, so a wrong stance cannot pin the estimate and a
+        drifted velocity cannot lock the anchor out for a whole stance.
+        """
+        fc = self.config.filter
+        lever, dlever, u = self._stance_lever(R_world_imu)
+        agrees = self._stance_test.test(t, lever, result.displacement)
+        candidate = self._stance.quiet()
+        if candidate and fc.stance_speed_threshold_mps is not None:
             rate = float((R_world_imu @ np.asarray(self._last_imu.gyro_radps, float))[1])
             _, v_cam = self._position_at(t)
-            v_ankle = v_cam + rate * dlever
-            stance = self._stance.quiet() and (
-                fc.stance_speed_threshold_mps is None
-                or float(np.hypot(*v_ankle)) < fc.stance_speed_threshold_mps)
-            key = ("ankle", self._stance_n)
-            self.stance_observation = None
-            if stance:
-                sig2 = (fc.stance_pitch_sigma_rad * float(np.hypot(*u))) ** 2 \
-                    + fc.stance_slip_sigma_m**2
-                self.filter.update_landmark(key, lever, np.eye(2) * sig2, t, fc.stance_gate)
+            candidate = float(np.hypot(*(v_cam + rate * dlever))) < fc.stance_speed_threshold_mps
+        stats = self.stance_stats
+        stats["candidate_frames"] += int(candidate)
+        stats["vision_refused"] += int(candidate and not agrees)
+        stance = candidate and agrees
+        key = ("ankle", self._stance_n)
+        self.stance_observation = None
+        if stance:
+            sig2 = ((fc.stance_pitch_sigma_rad * float(np.hypot(*u))) ** 2
+                    + fc.stance_slip_sigma_m**2)
+            first = key not in self.filter.landmark_keys
+            fused = self.filter.update_landmark(key, lever, np.eye(2) * sig2, t, fc.stance_gate)
+            if first or fused:
+                stats["anchored_frames"] += 1
                 # the same anchor, as a landmark observation the smoother can use
                 self.stance_observation = CornerObservation(
                     timestamp_s=t, track_id=STANCE_TRACK_ID_BASE + self._stance_n,
                     corner_rel_xz_m=lever.copy(), cov_m2=np.eye(2) * sig2)
-            elif self._in_stance:
-                self.filter.drop_landmark(key)
-                self._stance_n += 1
-            self._in_stance = stance
+            else:
+                stats["gate_refused"] += 1
+                stance = False
+        if not stance and self._in_stance:
+            self.filter.drop_landmark(key)
+            self._stance_n += 1
+            self._stance_test.reset()
+        elif not stance:
+            self._stance_test.reset()
+        self._in_stance = stance
 
     def _corner_key(self, t: float, obs: CornerObservation) -> tuple[str, int]:
         """Landmark key of a corner observation: its track's, or, for a new track, a

@@ -121,18 +121,19 @@ class Replay:
         self.p0 = np.zeros(2) if p0 is None else p0
         self.online = OnlineEstimator(config, self.rig, p0)
         self.baselines = {
-            "imu_only": ImuDeadReckoning(config.filter, self.rig.imu_T_cam),
+            "imu_only": ImuDeadReckoning(config.filter, self.rig.shank_imu_T_cam),
             "icp_only": IcpOdometry(),
         }
         self.smoothers: dict[str, Any] = {}
         if "smoother" in modes:
             from vio_graph.smoother.sliding_window import SlidingWindowSmoother
 
-            self.smoothers["smoother"] = SlidingWindowSmoother(config.smoother, self.rig.imu_T_cam)
+            self.smoothers["smoother"] = SlidingWindowSmoother(
+                config.smoother, self.rig.shank_imu_T_cam)
         if "batch" in modes:
             from vio_graph.smoother.batch import BatchSmoother
 
-            self.smoothers["batch"] = BatchSmoother(config.smoother, self.rig.imu_T_cam)
+            self.smoothers["batch"] = BatchSmoother(config.smoother, self.rig.shank_imu_T_cam)
         self.log = FrameLog(camera_xz={m: [] for m in ("filter", *BASELINES)})
         self._inject_rng = np.random.default_rng(config.inject.seed)
         self.injected_wrong_associations = 0
@@ -148,6 +149,7 @@ class Replay:
             if kind == 0:
                 s = rec.imu.sample(int(i))
                 online.add_imu(s)
+                s = self.rig.imu_in_shank_axes(s)  # what the estimator used, for the peers
                 for b in self.baselines.values():
                     if not started:
                         b.initialise(s.timestamp_s, self.p0)
@@ -517,6 +519,7 @@ def _run_into(
             "final_offset_deg": float(np.degrees(replay.online.pitch_offset.offset_rad)),
         },
     }
+    metrics["health"] = replay.online.health_report()
     if gt is not None:
         metrics["terrain_classification"] = _terrain_accuracy(rec, lg)
 

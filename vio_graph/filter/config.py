@@ -283,10 +283,22 @@ class FilterConfig(BaseModel):
         "(2 mm, 0.01) 6.2/6.6; (1 mm, 0.005) 5.5/4.7; (0.5 mm, 0.002) 4.9/4.0",
     )
     stance_gate: bool = Field(
-        default=False,
-        description="chi-square gate the ankle observations like the displacements; off by "
-        "default: after a swing without vision the velocity error makes the first ankle "
-        "innovations large and a gate then rejects the whole stance (upstair s4, level end)",
+        default=True,
+        description="chi-square gate each ankle observation (gate_probability); a refused "
+        "observation ends the stance and a new anchor may start at the next frame, so a "
+        "velocity that drifted during a blind swing re-anchors instead of locking the "
+        "anchor out for the whole stance",
+    )
+    stance_test: bool = Field(
+        default=True,
+        description="test every proposed stance frame against vision "
+        "(filter/stance.StanceConsistencyTest): the camera displacement must be what the "
+        "shank turning about a still ankle explains, frame to frame and summed since onset. "
+        "False = trust the acceleration detector alone (a slow swing then pins the ankle)",
+    )
+    stance_test_probability: float = Field(
+        default=0.999, gt=0, lt=1,
+        description="chi-square (2 dof) probability of the stance consistency test",
     )
     stance_slip_sigma_m: float = Field(
         default=0.0005,

@@ -101,8 +101,10 @@ class FilterState:
     P: NDArray[np.float64]
     status: EstimateStatus
     n_imu: int = 0
-    n_accepted: int = 0
-    n_rejected: int = 0  # failed the chi-square gate
+    n_accepted: int = 0  # displacements (and position measurements) fused
+    n_rejected: int = 0  # displacements that failed the chi-square gate
+    n_landmark_accepted: int = 0  # landmark (corner, stance anchor) observations fused
+    n_landmark_rejected: int = 0  # landmark observations that failed the gate
     n_stale: int = 0  # could not be related to the state (times too far apart)
     n_fallback: int = 0  # cloning mode only: no clone at t0, used the paper's pseudo-measurement
 
@@ -178,6 +180,7 @@ class SagittalEskf:
         self._history: deque[tuple[float, NDArray[np.float64]]] = deque()
         self._last_accept_s = -np.inf
         self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0
+        self._n_lm_acc = self._n_lm_rej = 0
 
     # ------------------------------------------------------------------ set-up
     def initialise(
@@ -426,7 +429,7 @@ class SagittalEskf:
         H[:, 2:4] = -dt * _I2
         H[:, i : i + 2] = _I2
         innovation = rel - (self._aug_xz[key] - self._position_ahead(dt))
-        accepted = self._correct(innovation, H, V, gate)
+        accepted = self._correct(innovation, H, V, gate, landmark=True)
         if accepted:
             self._last_accept_s = max(self._last_accept_s, t)
             self._record_correction(t)
@@ -471,13 +474,17 @@ class SagittalEskf:
             n_imu=self._n_imu,
             n_accepted=self._n_acc,
             n_rejected=self._n_rej,
+            n_landmark_accepted=self._n_lm_acc,
+            n_landmark_rejected=self._n_lm_rej,
             n_stale=self._n_stale,
             n_fallback=self._n_fallback,
         )
 
     # ----------------------------------------------------------------- helpers
-    def _correct(self, innovation: NDArray, H: NDArray, V: NDArray, gate: bool = True) -> bool:
-        """Gate, Kalman gain, injection and reset (eq. 8). Returns False if gated out."""
+    def _correct(self, innovation: NDArray, H: NDArray, V: NDArray, gate: bool = True,
+                 landmark: bool = False) -> bool:
+        """Gate, Kalman gain, injection and reset (eq. 8). Returns False if gated out.
+        ``landmark`` says which counters the outcome goes to."""
         P = self._P
         S = H @ P @ H.T + V
         S = 0.5 * (S + S.T)
@@ -486,7 +493,10 @@ class SagittalEskf:
         except np.linalg.LinAlgError as exc:
             raise EstimationError(f"singular innovation covariance: {exc}") from None
         if gate and float(innovation @ S_inv_y) > self._gate_d2:
-            self._n_rej += 1
+            if landmark:
+                self._n_lm_rej += 1
+            else:
+                self._n_rej += 1
             return False
         K = np.linalg.solve(S, H @ P).T  # K = P H^T S^-1 (S, P symmetric)
         dx = K @ innovation
@@ -501,7 +511,10 @@ class SagittalEskf:
         for j, key in enumerate(self._aug_keys):
             i = n + 2 * j
             self._aug_xz[key] = self._aug_xz[key] + dx[i : i + 2]
-        self._n_acc += 1
+        if landmark:
+            self._n_lm_acc += 1
+        else:
+            self._n_acc += 1
         return True
 
     def _set_clone(self, t_s: float) -> None:

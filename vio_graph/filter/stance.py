@@ -22,6 +22,8 @@ from collections import deque
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.types import Displacement2D
+
 
 class StanceDetector:
     """Ankle-acceleration window detector; see the module docstring."""
@@ -75,3 +77,72 @@ def _cross3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float6
     return np.array(
         [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
     )
+
+
+def chi2_2dof_quantile(probability: float) -> float:
+    """Quantile of the chi-square distribution with 2 degrees of freedom (closed form:
+    -2 ln(1 - p)), e.g. 13.82 for p = 0.999."""
+    return float(-2.0 * np.log1p(-probability))
+
+
+class StanceConsistencyTest:
+    """Tests the stance hypothesis "the ankle has not moved since onset" against vision.
+
+    The acceleration detector above only proposes a stance; a slow swing (ankle accelerations
+    of 1-6 m/s^2, as in step-to-step stair gaits) looks quiet to it. If the ankle is still,
+    the camera moves only because the shank turns about it:
+
+        camera(t1) - camera(t0) = lever(t0) - lever(t1),   lever = ankle - camera (ground axes)
+
+    so every visual displacement of the camera is a test of the hypothesis. Two chi-square
+    tests (2 dof) decide, with the displacement's own covariance plus the lever's:
+
+    - frame to frame: the displacement of this frame against the lever change of this frame;
+    - since onset: the sum of the displacements since the stance began (a chain, restarted
+      when a frame has no displacement) against the lever change over the same interval, so a
+      slow drift that passes frame by frame is still caught.
+
+    When vision disagrees the hypothesis is rejected and the caller ends the stance (a new
+    anchor may start at the next frame). Without a displacement there is nothing to test and
+    the hypothesis stands. Pure algorithm: no I/O.
+    """
+
+    def __init__(self, gate_d2: float, lever_sigma_m: float, floor_m: float) -> None:
+        self._gate_d2 = float(gate_d2)
+        self._lever_var = 2.0 * float(lever_sigma_m) ** 2  # two lever evaluations per test
+        self._floor_var = float(floor_m) ** 2
+        self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, lever) last frame
+        self._chain: tuple[NDArray, NDArray, NDArray] | None = None  # (lever0, sum d, sum C)
+        self.last_d2: float = 0.0  #: largest Mahalanobis^2 of the last test (diagnostics)
+
+    def reset(self) -> None:
+        """Forget the chain (the stance ended or was rejected)."""
+        self._chain = None
+
+    def test(self, t_s: float, lever_xz_m: NDArray[np.float64],
+             displacement: Displacement2D | None) -> bool:
+        """True if this frame's visual displacement (None: none) agrees with a still ankle.
+
+        ``lever_xz_m`` is ankle - camera (m, ground axes) at this frame (time ``t_s``); the
+        lever of the previous call is used when the displacement starts at that frame (else
+        nothing can be tested). Call once per frame, in or out of stance.
+        """
+        lever = np.asarray(lever_xz_m, dtype=float)
+        prev, self._prev = self._prev, (float(t_s), lever)
+        self.last_d2 = 0.0
+        if displacement is None or prev is None or abs(displacement.t0_s - prev[0]) > 1e-6:
+            self._chain = None
+            return True
+        prev = prev[1]
+        d = np.asarray(displacement.delta_xz_m, dtype=float)
+        C = np.asarray(displacement.cov_m2, dtype=float) + np.eye(2) * self._floor_var
+        S1 = C + np.eye(2) * self._lever_var
+        r1 = d - (prev - lever)
+        d2_frame = float(r1 @ np.linalg.solve(S1, r1))
+        lever0, sum_d, sum_C = (prev, d, C) if self._chain is None else (
+            self._chain[0], self._chain[1] + d, self._chain[2] + C)
+        self._chain = (lever0, sum_d, sum_C)
+        r = sum_d - (lever0 - lever)
+        d2_chain = float(r @ np.linalg.solve(sum_C + np.eye(2) * self._lever_var, r))
+        self.last_d2 = max(d2_frame, d2_chain)
+        return self.last_d2 <= self._gate_d2

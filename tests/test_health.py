@@ -1,0 +1,67 @@
+"""Self-diagnosis: the estimator says when it is in trouble, and why."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from vio_graph.cli import app
+from vio_graph.health import HealthMonitor
+from vio_graph.types import Displacement2D
+
+from .test_imu_mounting import remount_imu
+
+DT = 1 / 30
+
+
+def _feed(monitor: HealthMonitor, fused_step_m: float, accept: bool, n: int = 150) -> None:
+    """Vision says the camera moves 1 cm per frame along x; the fused path moves
+    ``fused_step_m`` per frame."""
+    cov = np.eye(2) * 1e-6
+    for k in range(n):
+        d = None if k == 0 else Displacement2D((k - 1) * DT, k * DT, np.array([0.01, 0.0]), cov)
+        monitor.add_frame(k * DT, np.array([k * fused_step_m, 0.0]), d, accept, in_stance=False)
+
+
+def test_a_consistent_filter_is_healthy() -> None:
+    m = HealthMonitor()
+    _feed(m, 0.01, accept=True)
+    rep = m.report()
+    assert rep["ok"] and not rep["warnings"]
+    assert rep["fused_vs_visual"]["windows"] == 4 and rep["fused_vs_visual"]["departure_share"] == 0
+
+
+def test_a_pinned_filter_is_reported_with_a_cause() -> None:
+    m = HealthMonitor()
+    _feed(m, 0.0, accept=False)  # the position stops advancing, the gate refuses vision
+    rep = m.report(pitch_offset_deg=0.5)
+    assert not rep["ok"] and rep["displacements_rejected_share"] == 1.0
+    assert rep["fused_vs_visual"]["departure_share"] == 1.0
+    assert rep["fused_vs_visual"]["max_departure_cm"] > 25
+    assert len(rep["warnings"]) == 1 and "Likely cause" in rep["warnings"][0]
+    m2 = HealthMonitor()
+    _feed(m2, 0.0, accept=False)
+    assert "imu_T_cam" in m2.report(pitch_offset_deg=8.0)["warnings"][0]
+
+
+@pytest.mark.slow
+def test_run_warns_on_a_recording_whose_imu_mount_is_misdeclared(
+    short_upstair: Path, tmp_path: Path
+) -> None:
+    """The IMU is turned to the camera's axes but metadata.yaml still declares the shank-aligned
+    mount: `vio-graph run` must print a warning line (the healthy recording must not)."""
+    from vio_graph.recording import Recording
+
+    R = Recording.open(short_upstair).metadata.extrinsics.imu_T_cam_matrix()[:3, :3].T
+    bad = remount_imu(short_upstair, tmp_path / "bad", R, declare=False)
+    runner = CliRunner()
+    for rec, expect_warning in ((bad, True), (short_upstair, False)):
+        res = runner.invoke(app, ["run", str(rec), "--out", str(tmp_path / f"res_{rec.name}"),
+                                  "--no-rerun"])
+        assert res.exit_code == 0, res.output
+        assert "health:" in res.output
+        assert ("WARNING: the fused estimate is inconsistent" in res.output) == expect_warning, \
+            res.output

@@ -1,0 +1,97 @@
+"""Stance that cannot pin the estimate: vision arbitrates the stance hypothesis."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vio_graph.config import PipelineConfig
+from vio_graph.filter.stance import StanceConsistencyTest, chi2_2dof_quantile
+from vio_graph.pipeline import run_recording
+from vio_graph.types import Displacement2D
+
+FPS = 30.0
+U_SHANK_M = np.array([-0.07, -0.38])  # ankle minus camera in the shank frame
+
+
+def _lever(theta_rad: float) -> np.ndarray:
+    c, s = np.cos(theta_rad), np.sin(theta_rad)
+    return np.array([c * U_SHANK_M[0] + s * U_SHANK_M[1], -s * U_SHANK_M[0] + c * U_SHANK_M[1]])
+
+
+def _run_test(ankle_xz_m, theta_rad, noise_m=0.001, seed=0) -> list[bool]:
+    """Feed a StanceConsistencyTest the displacements a camera on this shank would see."""
+    rng = np.random.default_rng(seed)
+    test = StanceConsistencyTest(chi2_2dof_quantile(0.999), 0.002 * 0.39, 0.002)
+    cov = np.eye(2) * noise_m**2
+    out = []
+    cam_prev = None
+    for k, (ankle, th) in enumerate(zip(ankle_xz_m, theta_rad, strict=True)):
+        lever = _lever(th)
+        cam = np.asarray(ankle) - lever
+        d = None
+        if cam_prev is not None:
+            delta = cam - cam_prev + rng.normal(0, noise_m, 2)
+            d = Displacement2D((k - 1) / FPS, k / FPS, delta, cov)
+        out.append(test.test(k / FPS, lever, d))
+        cam_prev = cam
+    return out
+
+
+def test_a_still_ankle_passes_while_the_shank_turns() -> None:
+    n = 90  # 3 s of stance with the shank rolling over the ankle by 30 deg
+    theta = np.radians(np.linspace(-10, 20, n))
+    ok = _run_test(np.zeros((n, 2)), theta)
+    assert np.mean(ok) > 0.98
+
+
+def test_a_slow_swing_is_refused_within_a_few_centimetres() -> None:
+    """A swing at 0.1-0.3 m/s, slow enough that an acceleration detector calls it stance."""
+    n = 45
+    speed = np.linspace(0.1, 0.3, n)  # m/s along x, with a 1:3 rise
+    ankle = np.cumsum(np.outer(speed / FPS, [0.95, 0.3]), axis=0)
+    ok = _run_test(ankle, np.radians(np.linspace(0, 8, n)))
+    first_refusal = ok.index(False)
+    moved_cm = 100 * np.hypot(*(ankle[first_refusal] - ankle[0]))
+    assert moved_cm < 3.0, moved_cm
+
+
+def test_no_displacement_leaves_the_hypothesis_standing() -> None:
+    test = StanceConsistencyTest(13.8, 0.001, 0.002)
+    assert test.test(0.0, _lever(0.0), None)
+    # a displacement that does not start at the previous frame cannot be tested either
+    d = Displacement2D(0.5, 0.533, np.array([0.3, 0.0]), np.eye(2) * 1e-6)
+    assert test.test(0.533, _lever(0.0), d)
+
+
+def _config(**filter_fields) -> PipelineConfig:
+    base = PipelineConfig()
+    f = base.filter.model_copy(update=filter_fields)
+    out = base.output.model_copy(update={"rerun": False, "plots": False})
+    return base.model_copy(update={"filter": f, "output": out})
+
+
+@pytest.mark.slow
+def test_a_detector_that_flags_every_frame_cannot_pin_the_filter(
+    short_upstair: Path, tmp_path: Path
+) -> None:
+    """The acceleration detector is made to call every frame a stance (threshold 100 m/s^2):
+    without the vision test the anchor pins the ankle and the filter loses the trial; with it
+    the estimate stays close to the default run's."""
+    ate = {}
+    for name, cfg in {
+        "default": _config(),
+        "always": _config(stance_accel_threshold_mps2=100.0),
+        "always_untested": _config(stance_accel_threshold_mps2=100.0, stance_test=False,
+                                   stance_gate=False),
+    }.items():
+        res = run_recording(short_upstair, tmp_path / name, cfg, progress=False, visualize=False)
+        toe = res.metrics["ate_cm"]["filter"]["toe"]
+        ate[name] = max(toe["x"], toe["z"])
+        if name == "always":
+            h = res.metrics["health"]
+            assert h["stance"]["vision_refused"] > 0
+    assert ate["always"] < max(2.0 * ate["default"], 2.0), ate
+    assert ate["always_untested"] > 2.0 * ate["always"], ate

@@ -1,0 +1,142 @@
+"""Self-diagnosis of the online estimate: is the estimator in trouble, and why?
+
+A fused estimate can fail silently: a stance detector that flags swings pins the ankle, the
+gate then refuses the correct visual displacements, and the position stops advancing while
+every number still looks finite. :class:`HealthMonitor` watches three things, frame by frame,
+with no look-ahead (pure algorithm, no I/O):
+
+- the share of visual displacements the filter's chi-square gate refused;
+- the share of frames anchored in stance;
+- the departure of the fused path from visual odometry: over windows of ``window_s`` the
+  filter's camera displacement is compared with the sum of the visual displacements over the
+  same frames, as a chi-square test (2 dof) with the displacements' own covariances. A
+  healthy filter fails it in ~0.1 % of windows (at p = 0.999); a pinned or diverged one in
+  most.
+
+:meth:`HealthMonitor.report` returns the figures and at most one warning line per cause.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vio_graph.filter.stance import chi2_2dof_quantile
+from vio_graph.types import Displacement2D
+
+
+@dataclass(frozen=True)
+class HealthLimits:
+    """When the monitor warns. Not fitted to a gait: shares and chi-square probabilities."""
+
+    window_s: float = 1.0  #: length (s) of the fused-vs-visual comparison windows
+    probability: float = 0.999  #: chi-square probability of one window's test
+    floor_m: float = 0.002  #: sigma (m) per axis added to each frame's displacement
+    max_rejected_share: float = 0.2  #: warn above this share of refused displacements
+    max_departure_share: float = 0.1  #: warn above this share of windows failing the test
+    max_stance_share: float = 0.8  #: stance on more frames than this is suspicious
+    max_pitch_offset_deg: float = 3.0  #: level surfaces disagree with the IMU by more
+
+
+@dataclass
+class _Window:
+    t0_s: float
+    p0_xz_m: NDArray[np.float64]
+    sum_delta_xz_m: NDArray[np.float64] = field(default_factory=lambda: np.zeros(2))
+    sum_cov_m2: NDArray[np.float64] = field(default_factory=lambda: np.zeros((2, 2)))
+
+
+class HealthMonitor:
+    """Per-frame bookkeeping of the estimator's consistency; see the module docstring."""
+
+    def __init__(self, limits: HealthLimits | None = None) -> None:
+        self.limits = limits or HealthLimits()
+        self._gate_d2 = chi2_2dof_quantile(self.limits.probability)
+        self.n_frames = 0
+        self.n_displacements = 0  # frames with a visual displacement from the front end
+        self.n_refused = 0  # ... that the filter's gate refused
+        self.n_stance = 0  # frames anchored in stance
+        self.n_windows = 0
+        self.n_departures = 0
+        self.max_departure_m = 0.0
+        self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, fused camera xz)
+        self._window: _Window | None = None
+
+    def add_frame(self, t_s: float, fused_camera_xz_m: NDArray[np.float64],
+                  displacement: Displacement2D | None, accepted: bool, in_stance: bool) -> None:
+        """One depth frame: the fused camera position after the update, the front end's
+        displacement (None: none), whether the filter accepted it, whether it was anchored."""
+        p = np.asarray(fused_camera_xz_m, dtype=float)
+        self.n_frames += 1
+        self.n_stance += int(in_stance)
+        prev, self._prev = self._prev, (float(t_s), p.copy())
+        if displacement is None:
+            self._window = None  # the visual chain is broken
+            return
+        self.n_displacements += 1
+        self.n_refused += int(not accepted)
+        if prev is None or abs(displacement.t0_s - prev[0]) > 1e-6:
+            self._window = None
+            return
+        w = self._window
+        if w is None:
+            w = self._window = _Window(prev[0], prev[1])
+        w.sum_delta_xz_m = w.sum_delta_xz_m + np.asarray(displacement.delta_xz_m, dtype=float)
+        w.sum_cov_m2 = (w.sum_cov_m2 + np.asarray(displacement.cov_m2, dtype=float)
+                        + np.eye(2) * self.limits.floor_m**2)
+        if t_s - w.t0_s >= self.limits.window_s:
+            r = (p - w.p0_xz_m) - w.sum_delta_xz_m
+            d2 = float(r @ np.linalg.solve(w.sum_cov_m2, r))
+            self.n_windows += 1
+            self.n_departures += int(d2 > self._gate_d2)
+            self.max_departure_m = max(self.max_departure_m, float(np.hypot(*r)))
+            self._window = _Window(float(t_s), p.copy())
+
+    def report(self, pitch_offset_deg: float = 0.0) -> dict:
+        """Figures and warnings so far. ``pitch_offset_deg``: the level-surface correction
+        of the IMU pitch (filter/attitude.PitchOffsetFilter), a hint for mounting errors."""
+        lim = self.limits
+        rejected = _share(self.n_refused, self.n_displacements)
+        departure = _share(self.n_departures, self.n_windows)
+        stance = _share(self.n_stance, self.n_frames)
+        warnings: list[str] = []
+        trouble = rejected > lim.max_rejected_share or departure > lim.max_departure_share
+        if trouble:
+            what = (f"{100 * rejected:.0f} % of visual displacements were refused by the "
+                    f"filter's gate and the fused path left visual odometry in "
+                    f"{100 * departure:.0f} % of {lim.window_s:g} s windows (up to "
+                    f"{100 * self.max_departure_m:.1f} cm)")
+            if abs(pitch_offset_deg) > lim.max_pitch_offset_deg:
+                cause = (f"the IMU attitude disagrees with the level surfaces by "
+                         f"{pitch_offset_deg:.1f} deg: check imu_T_cam / knee_T_cam (the IMU "
+                         f"and camera mounting) in metadata.yaml")
+            elif stance > lim.max_stance_share:
+                cause = (f"the foot was anchored in stance on {100 * stance:.0f} % of frames: "
+                         f"the stance detector may be flagging swings (slow gait?); try "
+                         f"filter.stance_anchor: false")
+            else:
+                cause = ("vision and the IMU disagree: check the camera-IMU time offset, "
+                         "imu_T_cam and the IMU noise settings")
+            warnings.append(f"WARNING: the fused estimate is inconsistent: {what}. Likely "
+                            f"cause: {cause}.")
+        return {
+            "frames": self.n_frames,
+            "visual_displacements": self.n_displacements,
+            "displacements_rejected_share": rejected,
+            "stance_share": stance,
+            "fused_vs_visual": {
+                "windows": self.n_windows,
+                "window_s": lim.window_s,
+                "departure_share": departure,
+                "max_departure_cm": 100.0 * self.max_departure_m,
+            },
+            "pitch_offset_deg": float(pitch_offset_deg),
+            "ok": not trouble,
+            "warnings": warnings,
+        }
+
+
+def _share(part: int, whole: int) -> float:
+    return float(part) / whole if whole else 0.0

@@ -251,6 +251,11 @@ class OnlineEstimator:
         self._last_joints = sample
 
     @property
+    def in_stance(self) -> bool:
+        """True if the latest frame was anchored in stance (detector and vision agreed)."""
+        return self._in_stance
+
+    @property
     def initialised(self) -> bool:
         return self._last_imu is not None
 

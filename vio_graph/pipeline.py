@@ -24,6 +24,7 @@ from vio_graph.config import PipelineConfig, dump_config
 from vio_graph.errors import EstimationError, OutputError
 from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.evaluation.association import associate
+from vio_graph.evaluation.diagnostics import displacement_nees, stance_scores, true_stance
 from vio_graph.evaluation.metrics import ape, ate_per_axis, rpe
 from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
 from vio_graph.frontend.projection import depth_to_points_cam
@@ -32,7 +33,7 @@ from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.recording.reader import Recording
 from vio_graph.recording.streams import Trajectory
 from vio_graph.recording.tum import write_tum
-from vio_graph.types import EstimateStatus, TerrainKind
+from vio_graph.types import Displacement2D, EstimateStatus, TerrainKind
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +59,8 @@ class FrameLog:
     profiles: dict[int, NDArray[np.float64]] = field(default_factory=dict)  # keyframes only
     timings_ms: list[dict[str, float]] = field(default_factory=list)
     filter_rejected: int = 0
+    in_stance: list[bool] = field(default_factory=list)  # stance anchor used at this frame
+    displacements: list[Displacement2D] = field(default_factory=list)  # the front end's
 
 
 @dataclass
@@ -249,6 +252,9 @@ class Replay:
         lg.status.append(est.status.value)
         lg.terrain.append(res.terrain.value)
         lg.displacement_ok.append(res.displacement is not None)
+        if res.displacement is not None:
+            lg.displacements.append(res.displacement)
+        lg.in_stance.append(self.online.in_stance)
         lg.rejection.append(res.rejection_reason or "")
         lg.is_keyframe.append(est.is_keyframe)
         if est.is_keyframe:
@@ -522,6 +528,10 @@ def _run_into(
     metrics["health"] = replay.online.health_report()
     if gt is not None:
         metrics["terrain_classification"] = _terrain_accuracy(rec, lg)
+        metrics["stance_detection"] = stance_scores(
+            np.asarray(lg.in_stance, bool), true_stance(gt.trajectories["ankle"], t_s))
+        metrics["frontend"]["displacement_nees"] = displacement_nees(
+            lg.displacements, gt.trajectories["camera"], config.filter.measurement_noise_floor_m)
 
     # map from the best refined keyframe poses available
     map_mode = "batch" if "batch" in camera else "smoother" if "smoother" in camera else "filter"
@@ -594,12 +604,13 @@ def _terrain_accuracy(rec: Recording, lg: FrameLog) -> dict[str, Any]:
 
 
 def _write_frames_csv(path: Path, lg: FrameLog) -> Path:
-    rows = ["frame,timestamp_s,status,terrain,displacement,rejection,keyframe,frontend_ms"]
+    rows = ["frame,timestamp_s,status,terrain,displacement,rejection,keyframe,frontend_ms,"
+            "stance"]
     for k, t in enumerate(lg.t_s):
         rows.append(
             f"{k},{t:.6f},{lg.status[k]},{lg.terrain[k]},{int(lg.displacement_ok[k])},"
             f"{lg.rejection[k].replace(',', ';')},{int(lg.is_keyframe[k])},"
-            f"{lg.timings_ms[k].get('frontend_total', float('nan')):.4f}"
+            f"{lg.timings_ms[k].get('frontend_total', float('nan')):.4f},{int(lg.in_stance[k])}"
         )
     atomic_write_text(path, "\n".join(rows) + "\n")
     return path

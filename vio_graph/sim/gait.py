@@ -39,6 +39,7 @@ _STAIR_DZ_M = 0.05
 SWING_PITCH_ITERATIONS = 3
 _EXIT_HEEL_MARGIN_M = 0.03  # first foothold after the stairs: heel this far past the edge
 _EXIT_STEP_M = 0.30  # then one short step before level steps (no 1 m stride off the stairs)
+_MAX_TOE_OVERHANG_M = 0.05  # descent on treads shorter than the foot: toe past the nosing
 
 
 def leg_model_for(rig: RigConfig) -> LegModel:
@@ -122,6 +123,7 @@ class LegMotion:
     foot_pitch_rad: NDArray[np.float64]
     strides: tuple[Stride, ...]
     _splines: dict = field(repr=False)
+    holds_s: tuple[tuple[float, float], ...] = ()  # standing pauses (start, end), real time
 
     def shank_pitch(self, t_s: NDArray, deriv: int = 0) -> NDArray[np.float64]:
         """Shank pitch (rad) or its ``deriv``-th time derivative at times (M,)."""
@@ -201,8 +203,9 @@ def _plan_steps(
                 toes.append(x0 + (n - 1) * t + foot_len + _EXIT_HEEL_MARGIN_M)  # heel past edge
             else:
                 toes.append(x0 - 0.02)
-                toes += [x0 + (i - 1) * t + gait.stair_heel_margin_m + foot_len
-                         for i in range(1, n)]
+                # treads shorter than the foot: heel closer to the riser, toe over the nosing
+                m = min(gait.stair_heel_margin_m, max(0.005, t + _MAX_TOE_OVERHANG_M - foot_len))
+                toes += [x0 + (i - 1) * t + m + foot_len for i in range(1, n)]
                 toes.append(x0 + (n - 1) * t + _EXIT_HEEL_MARGIN_M + foot_len)
         toes.append(toes[-1] + _EXIT_STEP_M)  # short transition step onto the landing
     elif terrain.kind == "obstacle":
@@ -464,7 +467,9 @@ def _swing_via(
         pts.append((x1 - 0.04, z1 + 0.035))
         return fr, pts
     # descent: own tread edge first, then each lower edge
-    down = between[(between[:, 1] <= z0 + 0.01) & (between[:, 1] > z1 + 0.01)]
+    # window wider behind the toe: on short treads the toe overhangs its own nosing
+    near = e[(e[:, 0] > x0 - 0.1) & (e[:, 0] < x1 + 0.05)] if e.size else e.reshape(0, 2)
+    down = near[(near[:, 1] <= z0 + 0.01) & (near[:, 1] > z1 + 0.01)]
     xs = np.sort(down[:, 0])
     fr = [0.22]
     pts = [(max(x0 + 0.03, xs.min() + 0.05), z0 + 0.03)]
@@ -474,6 +479,33 @@ def _swing_via(
     fr.append(0.8)
     pts.append((x1 - 0.01, z1 + 0.05))
     return fr, pts
+
+
+def _swing_lift(spl, pitch, s: Stride, terrain: Terrain, heel_f: NDArray, toe_f: NDArray):
+    """Vertical lift (callable of t) of a swing whose sole would cut the terrain (high risers,
+    short treads: the heel clips a nosing), else None. The lift is a C2 bump (zero rate and
+    acceleration at toe-off and landing) scaled so the sole clears the terrain by 1 cm; it is
+    computed on a fixed sampling of the swing, so it does not depend on the caller's grid."""
+    t0, t1 = s.t_toe_off_s, s.t_next_s
+    f = np.linspace(0.0, 1.0, 201)
+    ts = t0 + f * (t1 - t0)
+    th = pitch(ts)
+    toe = spl(ts)
+    heel = toe + rot_xz(th, heel_f - toe_f)
+    w_sole = np.linspace(0.0, 1.0, 12)
+    sole = heel[:, None, :] * (1 - w_sole[None, :, None]) + toe[:, None, :] * w_sole[None, :, None]
+    gap = (sole[..., 1] - terrain.height_at(sole[..., 0].ravel()).reshape(sole.shape[:2])).min(1)
+    if gap.min() > -1e-4:
+        return None
+    ramp = 0.3
+
+    def bump(x: NDArray) -> NDArray:
+        return _smoothstep5(x / ramp) * _smoothstep5((1.0 - x) / ramp)
+
+    bad = gap < 0.0
+    need = (0.01 - gap[bad]) / np.maximum(bump(f[bad]), 0.25)
+    height = float(need.max())
+    return lambda tt: height * bump((np.asarray(tt) - t0) / (t1 - t0))
 
 
 def _foot_motion(
@@ -513,7 +545,10 @@ def _foot_motion(
         spl = make_interp_spline(ts, ps, k=5, bc_type=([(1, zero), (2, zero)],
                                                        [(1, zero), (2, zero)]))
         m = (t >= s.t_toe_off_s) & (t <= s.t_next_s + 1e-12)
+        lift = _swing_lift(spl, pitch, s, terrain, heel_f, toe_f)
         ankle[m] = spl(t[m]) - rot_xz(th[m], toe_f)
+        if lift is not None:
+            ankle[m, 1] += lift(t[m])
     if np.any(np.isnan(ankle)):
         raise SimulationError("foot motion does not cover the trial")
     return ankle
@@ -749,6 +784,9 @@ def simulate_gait(
         knee, _ = _two_link_ik(hip, ankle, leg)
         shank_sway = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])
         shank_sway = shank_sway + pauses.sway(t)
+        holds = tuple((float(s0 + pauses.ramp_s), float(s0 + pauses.ramp_s + h))
+                      for s0, h in zip(pauses.start_s, pauses.hold_s, strict=True)
+                      if s0 + pauses.ramp_s < t[-1])
         knee_sway = ankle + rot_xz(shank_sway, np.array([0.0, leg.shank_length_m]))
         hip = hip + (knee_sway - knee)  # the thigh keeps its pitch: the hip shifts with it
         knee = knee_sway
@@ -781,5 +819,5 @@ def simulate_gait(
         leg=leg, t_s=t, hip_xz_m=hip, knee_xz_m=knee, ankle_xz_m=ankle, heel_xz_m=heel,
         toe_xz_m=toe, thigh_pitch_rad=hip_flex, knee_rad=knee_flex, ankle_rad=ankle_pf,
         shank_pitch_rad=shank, foot_pitch_rad=foot_pitch, strides=tuple(strides),
-        _splines=splines,
+        _splines=splines, holds_s=holds if pauses is not None else (),
     )

@@ -20,8 +20,8 @@ which separates attitude errors from ICP errors.
 
 Usage::
 
-    /work/venv/bin/python benchmarks/eval_frontend.py /tmp/acc/upstair_1 [REC ...] \\
-        --out /tmp/acc/eval [--attitude imu|gt] [--config CONFIG.yaml]
+    .venv/bin/python benchmarks/eval_frontend.py runs/upstair_1 [REC ...] \\
+        --out results/eval_frontend [--attitude imu|gt] [--config CONFIG.yaml]
 
 Writes ``OUT/eval_frontend.json`` and ``OUT/eval_frontend.md``.
 """
@@ -185,6 +185,8 @@ def summarise(rec: Recording, out: dict[str, Any]) -> dict[str, Any]:
         "error": _err_stats(err),
         "nees": {"mean": float(nees.mean()) if nees.size else float("nan"),
                  "median": float(np.median(nees)) if nees.size else float("nan"),
+                 "p95": float(np.percentile(nees, 95)) if nees.size else float("nan"),
+                 "max_abs_err_mm": float(np.abs(err).max() * 1e3) if nees.size else float("nan"),
                  "frac_above_13.8": float((nees > 13.8).mean()) if nees.size else float("nan")},
         "error_by_speed": by_speed,
         "rejections": dict(reasons.most_common()),
@@ -197,13 +199,14 @@ def summarise(rec: Recording, out: dict[str, Any]) -> dict[str, Any]:
         "frontend_ms": {"median": float(np.nanmedian([r["ms"] for r in rows])),
                         "p95": float(np.nanpercentile([r["ms"] for r in rows], 95))},
         "_err": err,
+        "_nees": nees,
     }
 
 
 def _markdown(results: list[dict[str, Any]], attitude: str) -> str:
     L = [f"# Front-end displacement accuracy (attitude: {attitude})", ""]
     L += ["| recording | avail | avail (edge visible) | err x med/p95/mean mm | "
-          "err z med/p95/mean mm | NEES mean | filter acc/rej | cam RMSE x/z cm | fe ms |",
+          "err z med/p95/mean mm | NEES mean/p95 | filter acc/rej | cam RMSE x/z cm | fe ms |",
           "|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         e = r["error"]
@@ -215,7 +218,8 @@ def _markdown(results: list[dict[str, Any]], attitude: str) -> str:
         f = r["filter"]
         c = r["filter_camera_rmse_cm"]
         L.append(f"| {r['scenario']} s{r['seed']} | {r['availability']:.2f} | "
-                 f"{r['availability_visible']:.2f} | {ex} | {ez} | {r['nees']['mean']:.1f} | "
+                 f"{r['availability_visible']:.2f} | {ex} | {ez} | {r['nees']['mean']:.1f}/"
+                 f"{r['nees']['p95']:.1f} | "
                  f"{f['accepted']}/{f['rejected_chi2']} | {c['x']:.1f}/{c['z']:.1f} | "
                  f"{r['frontend_ms']['median']:.1f} |")
     for r in results:
@@ -254,11 +258,20 @@ def main() -> None:
         rec = Recording.open(path)
         results.append(summarise(rec, replay(rec, config, args.attitude)))
     pooled_err = np.vstack([r.pop("_err") for r in results])
+    pooled_nees = np.concatenate([r.pop("_nees") for r in results])
     report = {"attitude": args.attitude, "recordings": results,
-              "pooled_error": _err_stats(pooled_err)}
+              "pooled_error": _err_stats(pooled_err),
+              "pooled_nees": {"n": int(pooled_nees.size),
+                              "mean": float(pooled_nees.mean()) if pooled_nees.size else None,
+                              "p95": float(np.percentile(pooled_nees, 95))
+                              if pooled_nees.size else None}}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "eval_frontend.json").write_text(json.dumps(report, indent=1))
     md = _markdown(results, args.attitude)
+    pn = report["pooled_nees"]
+    if pn["n"]:
+        md += f"\nPooled NEES over {pn['n']} displacements: mean {pn['mean']:.2f}, "
+        md += f"p95 {pn['p95']:.2f} (consistent, 2 dof: 2 and 6.0)\n"
     (args.out / "eval_frontend.md").write_text(md)
     print(md)
 

@@ -156,3 +156,64 @@ def test_a_wall_stays_unknown() -> None:
     faces = find_faces(profile, find_levels(profile, cfg), cfg)
     assert len(faces) == 1 and faces[0].direction == 0
     assert classify_terrain(profile)[0] == TerrainKind.UNKNOWN
+
+
+# --- tracker: a displacement dominated by the missing band -------------------------------------
+
+
+def _gap_view(camera_xz: np.ndarray, gap_m: float, skirt_m: float, seed: int):
+    """Stair-up profile with a band of ``gap_m`` missing behind every nosing and, at the far
+    border of the first nosing's band, a skirt of ``skirt_m`` of leftover mixed pixels on the
+    line of sight (they move with the camera, not with the stair). Returns the profile and its
+    corner."""
+    poly = stair_polyline("stair_up", start_x_m=0.6, n_steps=6)
+    tip = stair_edges(poly)[0]
+    raw = raycast_profile(poly, camera_xz, pitch_down_rad=0.7, noise_m=0.002,
+                          rng=np.random.default_rng(seed), n_rays=800)
+    raw = drop_tread_band(raw, camera_xz, poly, gap_m)
+    if skirt_m > 0:
+        border = tip + [gap_m, 0.0] - camera_xz
+        ray = border / np.linalg.norm(border)
+        raw = np.vstack([raw, border - np.outer(np.linspace(0.0, skirt_m, 25), ray)])
+    profile = smooth_profile(raw)
+    return profile, extract_corner(profile, np.random.default_rng(0),
+                                   terrain=TerrainKind.STAIR_UP)
+
+
+@pytest.mark.parametrize("skirt_m", [0.0, 0.05])
+def test_tracker_with_bands_at_different_places_claims_an_honest_covariance(
+    skirt_m: float,
+) -> None:
+    """Two views of the same stair, bands of 3 and 6 cm (so the band's borders are at
+    different places on the stair), known displacement. Without leftovers the displacement is
+    right to 3 mm; with a skirt on the line of sight ICP is pulled in z by ~2 cm while its own
+    covariance claims ~3 mm: the nosing check must make the claim cover the error
+    (NEES below the chi-square 99 % point) or reject the displacement."""
+    from vio_graph.frontend.config import TrackerConfig
+    from vio_graph.frontend.tracker import CornerTracker
+
+    c0, delta = np.array([0.1, 0.45]), np.array([0.05, 0.02])
+    p0, f0 = _gap_view(c0, 0.03, skirt_m, seed=1)
+    p1, f1 = _gap_view(c0 + delta, 0.06, skirt_m, seed=2)
+    assert f0 is not None and f1 is not None and f0.has_face and f1.has_face
+    outs = {}
+    for check in (False, True):
+        tracker = CornerTracker(TrackerConfig(corner_check=check))
+        tracker.update(0.0, p0, f0)
+        outs[check] = tracker.update(1 / 30, p1, f1, delta + [0.01, -0.005], np.eye(2) * 0.02**2)
+    unchecked, checked = outs[False], outs[True]
+    assert unchecked.displacement is not None
+    err = unchecked.displacement.delta_xz_m - delta
+    nees_unchecked = float(err @ np.linalg.solve(unchecked.displacement.cov_m2, err))
+    if skirt_m == 0.0:
+        assert np.linalg.norm(err) < 0.003 and nees_unchecked < 9.21
+        assert checked.displacement is not None
+        np.testing.assert_allclose(checked.displacement.delta_xz_m,
+                                   unchecked.displacement.delta_xz_m)
+        return
+    assert abs(err[1]) > 0.01 and nees_unchecked > 20.0  # premise: wrong and over-confident
+    if checked.displacement is not None:
+        e = checked.displacement.delta_xz_m - delta
+        assert float(e @ np.linalg.solve(checked.displacement.cov_m2, e)) < 9.21
+    else:
+        assert "nosing displacement" in (checked.reason or "")

@@ -253,6 +253,24 @@ class TrackerConfig(_Strict):
     min_face_points: int = Field(
         3, ge=1, description="a corner window has a face if this many points lie below the edge"
     )
+    corner_check: bool = Field(
+        True,
+        description="reject corner ICP that disagrees with the difference of the two nosings "
+        "when both were placed from their face lines (ICP locked on the borders of a missing "
+        "band); False = no check",
+    )
+    corner_check_sigma_m: float = Field(
+        0.003,
+        gt=0,
+        description="1-sigma of one nosing position placed from its face line, per axis, for "
+        "corner_check (synthetic noisy stairs with 0-6 cm bands: median 1 mm, p90 2-3 mm), m",
+    )
+    corner_inflate_chi2: float = Field(
+        5.99,
+        gt=0,
+        description="corner_check: above this Mahalanobis^2 (2 dof, 95 %) and below gate_chi2 "
+        "the ICP covariance is inflated by the disagreement with the nosing difference",
+    )
 
 
 class FrontendConfig(_Strict):

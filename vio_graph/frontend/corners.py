@@ -47,7 +47,8 @@ vio_graph's reading of the parts the paper leaves open:
   moves with it (a known limit: nothing in one frame shows where the tread really ended).
 - **Window w.** Feature points are ALL profile points in the square window
   |x - x_edge| <= w, |z - z_edge| <= w: the last w of the tread plus the top w of the riser
-  (or obstacle face) below the edge. The L shape constrains both x and z in ICP.
+  (or obstacle face) below the edge. When the tread run starts behind the nosing (a missing
+  band), the window reaches that much farther along the tread, so it still holds w of tread. The L shape constrains both x and z in ICP.
 """
 
 from __future__ import annotations
@@ -240,7 +241,11 @@ def extract_corner(
         if np.count_nonzero(below) >= 3:
             edge[0] = _median_of_sorted(np.sort(pts[below, 0]))
     # 5. feature points: square window of half-size w at the edge (tread end + riser top)
-    in_window = (np.abs(pts[:, 0] - edge[0]) <= cfg.window_m) & (
+    #    (with a missing band behind the nosing the window reaches past the band on the tread
+    #    side by the band's length, so that it still holds w of tread to fix z)
+    dx = pts[:, 0] - edge[0]
+    band = max(0.0, float(run[0]) - edge[0]) if face_x is not None else 0.0
+    in_window = (dx >= -cfg.window_m) & (dx <= cfg.window_m + band) & (
         np.abs(pts[:, 1] - edge[1]) <= cfg.window_m
     )
     features = pts[in_window]

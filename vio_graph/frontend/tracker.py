@@ -31,6 +31,13 @@ IMU-seeded mode (the default whenever the caller passes a prediction):
    centimetres per frame (downstair s1: -46 mm mean x error, with a 3 mm claimed sigma). When
    neither this nor the previous corner of the same track has a face, x comes from the edge
    points, ``-(edge_k - edge_{k-1})`` with variance ``2 edge_x_sigma_m^2``, z from ICP.
+6b. Nosing check (``corner_check``): when this and the previous corner are the same track and
+   both nosings were placed from a face line (``CornerFeature.has_face``), the difference of
+   the two nosings is an independent displacement. Between two frames a band of missing tread
+   behind the nosing moves with the camera, and ICP can lock onto the band's borders; such a
+   result disagrees with the nosing difference v (Mahalanobis^2 above ``gate_chi2`` with
+   ``C_icp + 2 corner_check_sigma_m^2 I``: rejected; above ``corner_inflate_chi2``: accepted
+   with ``C_icp + v v^T``, so the covariance it claims covers the disagreement it shows).
 7. No corner at all (``profile_fallback``, needs a prediction): the whole profile, thinned to
    ``fallback_grid_m``, is registered against the previous profile from the IMU seed and gated
    the same way. Floors give z, risers x, and the degenerate direction of a floor (x) is
@@ -241,6 +248,17 @@ class CornerTracker:
         d2 = _mahalanobis2(-T - pred, P + C, cfg.gate_sigma_floor_m**2)  # 3. gate
         if bad is None and d2 > cfg.gate_chi2:
             bad = f"ICP disagrees with the IMU prediction (Mahalanobis^2 {d2:.1f})"
+        if bad is None and cfg.corner_check and same_icp and corner.has_face and (
+                prev_corner.has_face):
+            # 3b. both nosings placed from their faces: their difference is a second,
+            #     independent displacement; ICP pulled elsewhere (by the borders of a missing
+            #     band that moves with the camera) disagrees with it
+            v = T - corner.edge_xz_m + prev_corner.edge_xz_m
+            d2c = _mahalanobis2(v, C, 2.0 * cfg.corner_check_sigma_m**2)
+            if d2c > cfg.gate_chi2:
+                bad = f"ICP disagrees with the nosing displacement (Mahalanobis^2 {d2c:.1f})"
+            elif d2c > cfg.corner_inflate_chi2:
+                C = C + np.outer(v, v)  # the claim covers the disagreement it shows
         T_assoc = T0 if bad is not None else T
         same = prev_corner is not None and self._is_same(corner, prev_corner, T_assoc)  # 5.
         track_id = prev.track_id if same and prev.track_id is not None else self._new_id()

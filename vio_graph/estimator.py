@@ -67,6 +67,7 @@ from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.recording.metadata import RecordingMetadata
 from vio_graph.types import (
     STANCE_TRACK_ID_BASE,
+    ContactSample,
     CornerObservation,
     DepthFrame,
     EstimateStatus,
@@ -188,6 +189,7 @@ class OnlineEstimator:
                     else np.asarray(initial_camera_xz_m, float))
         self._last_imu: ImuSample | None = None
         self._last_joints: JointAngles | None = None
+        self._last_contact: ContactSample | None = None
         self._prev_frame: tuple[float, NDArray[np.float64]] | None = None  # (t, camera xz)
         self._imu_ms = 0.0
         fc = config.filter
@@ -249,6 +251,12 @@ class OnlineEstimator:
 
     def add_joints(self, sample: JointAngles) -> None:
         self._last_joints = sample
+
+    def add_contact(self, sample: ContactSample) -> None:
+        """Foot contact from a sensor (load cell, heel switch). Once any sample has arrived,
+        the latest one proposes the stance instead of the acceleration detector; vision
+        still tests it (StanceConsistencyTest) and the anchor gate still applies."""
+        self._last_contact = sample
 
     @property
     def in_stance(self) -> bool:
@@ -426,7 +434,8 @@ class OnlineEstimator:
         fc = self.config.filter
         lever, dlever, u = self._stance_lever(R_world_imu)
         agrees = self._stance_test.test(t, lever, result.displacement)
-        candidate = self._stance.quiet()
+        candidate = (self._stance.quiet() if self._last_contact is None
+                     else self._last_contact.loaded)
         if candidate and fc.stance_speed_threshold_mps is not None:
             rate = float((R_world_imu @ np.asarray(self._last_imu.gyro_radps, float))[1])
             _, v_cam = self._position_at(t)

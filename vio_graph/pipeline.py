@@ -96,15 +96,19 @@ def _stats_ms(values: list[float] | NDArray[np.float64]) -> dict[str, float]:
 
 
 def replay_order(rec: Recording) -> tuple[NDArray[np.int8], NDArray[np.int64]]:
-    """Event order by time: (kind, index) with kind 0 = IMU, 1 = joints, 2 = depth frame.
+    """Event order by time: (kind, index) with kind 0 = IMU, 1 = joints, 2 = depth frame,
+    3 = contact sample (recordings with ``contact.csv``).
 
-    On equal timestamps IMU comes first, then joints, then the frame (no look-ahead: a frame
-    only sees sensor data stamped at or before it).
+    On equal timestamps IMU comes first, then joints, then contact, then the frame (no
+    look-ahead: a frame only sees sensor data stamped at or before it).
     """
     times = [rec.imu.timestamp_s, rec.joints.timestamp_s, rec.frame_timestamps_s]
+    if rec.contact is not None:
+        times.append(rec.contact.timestamp_s)
     kinds = np.concatenate([np.full(t.shape[0], k, np.int8) for k, t in enumerate(times)])
     idx = np.concatenate([np.arange(t.shape[0]) for t in times])
-    order = np.lexsort((kinds, np.concatenate(times)))
+    priority = np.array([0, 1, 3, 2], np.int8)[kinds]  # contact before the frame
+    order = np.lexsort((priority, np.concatenate(times)))
     return kinds[order], idx[order]
 
 
@@ -164,6 +168,8 @@ class Replay:
                 started = True
             elif kind == 1:
                 online.add_joints(rec.joints.sample(int(i)))
+            elif kind == 3:
+                online.add_contact(rec.contact.sample(int(i)))
             else:
                 if not started:
                     continue  # frames before the first IMU sample cannot be placed

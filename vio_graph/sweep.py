@@ -106,9 +106,9 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
                    overrides={"rig": {"imu_rotation_rpy_deg": (0.0, 0.0, 90.0)}}),
     SweepCondition("tof_gaps", "depth", "missing bands of 2-6 cm behind every nosing "
                    "(flying-pixel filter)", overrides={"camera": {"edge_gap_m": (0.02, 0.06)}}),
-    SweepCondition("long_2min", "length", "2-minute ascent over 8 flights of 12 steps "
+    SweepCondition("long_2min", "length", "2-minute ascent over 16 flights of 12 steps "
                    "with landings", overrides={"duration_s": 120.0, "terrain": {
-                       "n_flights": 8, "n_steps": 12, "flight_landing_m": 1.2}}),
+                       "n_flights": 16, "n_steps": 12, "flight_landing_m": 1.2}}),
 )
 
 

@@ -37,6 +37,20 @@ class JointAngles:
 
 
 @dataclass(frozen=True)
+class ContactSample:
+    """Foot contact of the instrumented leg from a contact sensor (optional stream).
+
+    ``loaded``: the sensor says the foot bears weight (a pylon load cell above its threshold,
+    a heel / foot switch closed). ``force_n``: the load-cell axial force (N), or 1.0 / 0.0 for
+    a switch.
+    """
+
+    timestamp_s: float
+    loaded: bool
+    force_n: float
+
+
+@dataclass(frozen=True)
 class DepthFrame:
     """One organised ToF depth image.
 

@@ -13,6 +13,7 @@ DEPTH_TIMESTAMPS_FILE = "depth/timestamps.csv"
 DEPTH_MM_FILE = "depth/depth_mm.npy"  # uint16, (N, H, W), units of camera.depth_unit_m
 DEPTH_M_FILE = "depth/depth_m.npy"  # alternative: float32 metres, (N, H, W)
 CONFIDENCE_FILE = "depth/confidence.npy"  # uint8, (N, H, W)
+CONTACT_FILE = "contact.csv"  # optional: foot contact (load cell / heel switch)
 GT_DIR = "groundtruth"
 GT_IMU_STATE_FILE = "groundtruth/imu_state.csv"
 GT_FRAMES_FILE = "groundtruth/frames.csv"
@@ -25,6 +26,7 @@ IMU_COLUMNS = (
 )
 JOINT_COLUMNS = ("timestamp_s", "thigh_pitch_rad", "knee_rad", "ankle_rad")
 DEPTH_TIMESTAMP_COLUMNS = ("frame", "timestamp_s")
+CONTACT_COLUMNS = ("timestamp_s", "force_n")
 GT_IMU_STATE_COLUMNS = (
     "timestamp_s",
     "p_x_m", "p_y_m", "p_z_m",

@@ -116,6 +116,18 @@ class TerrainInfo(_Strict):
     edges_xz_m: list[tuple[float, float]] = Field(default_factory=list)
 
 
+class ContactModel(_Strict):
+    """The optional foot-contact channel (``contact.csv``)."""
+
+    kind: Literal["load_cell", "switch"] = Field(
+        description="load_cell: pylon axial force in N (e.g. the Open Source Leg's); switch: "
+        "heel / foot switch, force_n 1 closed and 0 open"
+    )
+    threshold_n: float = Field(
+        gt=0, description="the foot is loaded at or above this force_n (a switch: 0.5)"
+    )
+
+
 class Provenance(_Strict):
     source: Literal["simulator", "device"]
     scenario: str | None = None
@@ -139,6 +151,9 @@ class RecordingMetadata(_Strict):
     leg: LegGeometry
     terrain: TerrainInfo
     provenance: Provenance
+    contact: ContactModel | None = Field(
+        default=None, description="the contact channel, if the recording has contact.csv"
+    )
 
     @field_validator("format_version")
     @classmethod

@@ -30,6 +30,7 @@ from vio_graph.recording import layout
 from vio_graph.recording.metadata import RecordingMetadata
 from vio_graph.recording.streams import (
     GROUNDTRUTH_BODIES,
+    ContactTable,
     GroundTruth,
     ImuStateTable,
     ImuTable,
@@ -90,6 +91,7 @@ class Recording:
         _ = self.metadata
         _ = self.imu
         _ = self.joints
+        _ = self.contact
         _ = self.frame_timestamps_s
         self._check_depth_arrays()
         _ = self.groundtruth
@@ -104,6 +106,8 @@ class Recording:
             (layout.JOINTS_FILE, self.joints.timestamp_s),
             (layout.DEPTH_TIMESTAMPS_FILE, self.frame_timestamps_s),
         ]
+        if self.contact is not None:
+            streams.append((layout.CONTACT_FILE, self.contact.timestamp_s))
         if self.groundtruth is not None:
             streams += [
                 (layout.gt_trajectory_file(b), t.timestamp_s)
@@ -234,6 +238,24 @@ class Recording:
                 path, "joint angle beyond +-pi rad (degrees instead of radians?)", field=col
             )
         return JointTable(d[:, 0], d[:, 1], d[:, 2], d[:, 3])
+
+    @cached_property
+    def contact(self) -> ContactTable | None:
+        """The optional foot-contact channel; None without ``contact.csv``."""
+        path = self.root / layout.CONTACT_FILE
+        d = self._read_csv(layout.CONTACT_FILE, layout.CONTACT_COLUMNS, required=False)
+        model = self.metadata.contact
+        if d is None:
+            if model is not None:
+                raise RecordingError(path, "metadata.yaml declares a contact channel but the "
+                                     "file is missing")
+            return None
+        if model is None:
+            raise RecordingError(path, "contact.csv is present but metadata.yaml has no "
+                                 "'contact' section (kind, threshold_n)", field="contact")
+        if model.kind == "switch" and not np.all(np.isin(d[:, 1], (0.0, 1.0))):
+            raise RecordingError(path, "a switch channel must hold 0 or 1", field="force_n")
+        return ContactTable(d[:, 0], d[:, 1], d[:, 1] >= model.threshold_n)
 
     @cached_property
     def frame_timestamps_s(self) -> np.ndarray:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from vio_graph.types import ImuSample, JointAngles
+from vio_graph.types import ContactSample, ImuSample, JointAngles
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,24 @@ class JointTable:
     def samples(self) -> Iterator[JointAngles]:
         for i in range(len(self)):
             yield self.sample(i)
+
+
+@dataclass(frozen=True)
+class ContactTable:
+    """Optional foot-contact stream (contact.csv): ``timestamp_s`` (N,), ``force_n`` (N,)
+    load-cell force in N (a switch: 1 closed, 0 open) and ``loaded`` (N,) bool, the force
+    at or above the recording's contact threshold."""
+
+    timestamp_s: NDArray[np.float64]
+    force_n: NDArray[np.float64]
+    loaded: NDArray[np.bool_]
+
+    def __len__(self) -> int:
+        return int(self.timestamp_s.shape[0])
+
+    def sample(self, i: int) -> ContactSample:
+        return ContactSample(float(self.timestamp_s[i]), bool(self.loaded[i]),
+                             float(self.force_n[i]))
 
 
 @dataclass(frozen=True)

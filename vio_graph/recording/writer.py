@@ -18,7 +18,7 @@ import yaml
 from vio_graph.errors import OutputError, RecordingError
 from vio_graph.recording import layout
 from vio_graph.recording.metadata import RecordingMetadata
-from vio_graph.recording.streams import GroundTruth, ImuTable, JointTable
+from vio_graph.recording.streams import ContactTable, GroundTruth, ImuTable, JointTable
 from vio_graph.recording.tum import format_tum
 
 
@@ -41,6 +41,7 @@ def write_recording(
     depth_frames: Iterable[tuple[np.ndarray, np.ndarray]],
     progress: Callable[[int], None] | None = None,
     overwrite: bool = False,
+    contact: ContactTable | None = None,
 ) -> Path:
     """Write one recording.
 
@@ -50,6 +51,7 @@ def write_recording(
         depth_frames: N pairs (depth_m float32 (H, W) with 0 = invalid, confidence uint8 (H, W)),
             possibly a generator; depth is stored as uint16 in ``camera.depth_unit_m`` units.
         progress: called with the number of frames written so far.
+        contact: optional foot-contact channel (``metadata.contact`` must describe it).
     """
     out_dir = Path(out_dir)
     if out_dir.exists() and not overwrite:
@@ -57,9 +59,15 @@ def write_recording(
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".partial", dir=out_dir.parent))
     try:
+        if (contact is None) != (metadata.contact is None):
+            raise OutputError(f"{out_dir}: a contact channel needs both the table and the "
+                              "metadata 'contact' section")
         _write_into(
             tmp, metadata, imu, joints, groundtruth, frame_timestamps_s, depth_frames, progress
         )
+        if contact is not None:
+            _write_csv(tmp / layout.CONTACT_FILE, layout.CONTACT_COLUMNS,
+                       np.column_stack([contact.timestamp_s, contact.force_n]), fmt="%.9g")
         if out_dir.exists():
             shutil.rmtree(out_dir)
         os.replace(tmp, out_dir)

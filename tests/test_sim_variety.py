@@ -1,7 +1,7 @@
 """Simulator variety (issue 9, item 4 and item 3's ToF artefact): gait families, stairs with
 flights and nosing overhang, rotated IMU mounts, camera mounts, missing bands behind edges.
 
-Short trials and small images only (shared 2-core machine)."""
+Short trials and small images only (the test machine is small)."""
 
 from __future__ import annotations
 

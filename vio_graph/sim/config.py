@@ -1,6 +1,6 @@
 """Scenario configuration of the simulator (pydantic v2, defaults in code, YAML overrides).
 
-Numbers and their sources are in /work/shared/reference/sim-spec.md and docs/simulator.md.
+Numbers and their sources are in docs/simulator.md.
 """
 
 from __future__ import annotations

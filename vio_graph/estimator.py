@@ -206,6 +206,7 @@ class OnlineEstimator:
         self._corner_alias: dict[int, tuple[str, int]] = {}  # track id -> landmark key
         self._corner_seen: dict[tuple[str, int], float] = {}  # landmark key -> last seen, s
         self._in_stance = False
+        self._refused_in_row = 0  # displacements refused by the gate in a row
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
         self.health = HealthMonitor(HealthLimits(floor_m=fc.measurement_noise_floor_m))
         self._stance_test = StanceConsistencyTest(
@@ -341,7 +342,9 @@ class OnlineEstimator:
             result = transform_result(result)
         accepted = False
         if result.displacement is not None:
+            n_refused = self.filter.n_gate_refusals
             accepted = self.filter.update_displacement(result.displacement)
+            self._recover_if_locked_out(self.filter.n_gate_refusals > n_refused)
         else:
             self.filter.clone_position(t)
         self._fuse_landmarks(t, result, R_world_imu)
@@ -376,6 +379,20 @@ class OnlineEstimator:
             timings_ms=timings,
         )
         return estimate, result
+
+    def _recover_if_locked_out(self, refused: bool) -> None:
+        """Gate lock-out recovery. A chi-square gate at p = 0.999 refuses a correct
+        displacement by chance once in a thousand; ``lockout_refusals`` refusals in a row
+        mean the filter's own state (a velocity gone wrong) is what disagrees with vision,
+        and every later measurement would be refused too. The velocity covariance is then
+        widened to its initial sigma so that the next displacement re-anchors it (counted in
+        ``health.recoveries``)."""
+        self._refused_in_row = self._refused_in_row + 1 if refused else 0
+        n = self.config.filter.lockout_refusals
+        if n is not None and self._refused_in_row >= n:
+            self.filter.inflate_velocity(self.config.filter.init_velocity_sigma_mps)
+            self.health.n_recoveries += 1
+            self._refused_in_row = 0
 
     def _level_aiding(self, t: float, profile_xz_m: NDArray[np.float64]) -> float:
         """Measure the tilt of the level surfaces in this frame's profile and update the

@@ -38,6 +38,9 @@ class HealthLimits:
     max_departure_share: float = 0.1  #: warn above this share of windows failing the test
     max_stance_share: float = 0.8  #: stance on more frames than this is suspicious
     max_pitch_offset_deg: float = 3.0  #: level surfaces disagree with the IMU by more
+    #: one window this far off is a jump, whatever the share (chi-square p = 1 - 1e-6: a
+    #: healthy filter reaches it once in a million windows)
+    jump_probability: float = 1.0 - 1e-6
 
 
 @dataclass
@@ -54,6 +57,7 @@ class HealthMonitor:
     def __init__(self, limits: HealthLimits | None = None) -> None:
         self.limits = limits or HealthLimits()
         self._gate_d2 = chi2_2dof_quantile(self.limits.probability)
+        self._jump_d2 = chi2_2dof_quantile(self.limits.jump_probability)
         self.n_frames = 0
         self.n_displacements = 0  # frames with a visual displacement from the front end
         self.n_refused = 0  # ... that the filter's gate refused
@@ -61,6 +65,8 @@ class HealthMonitor:
         self.n_windows = 0
         self.n_departures = 0
         self.max_departure_m = 0.0
+        self.max_departure_d2 = 0.0  # largest Mahalanobis^2 of a window
+        self.n_recoveries = 0  # gate lock-out recoveries of the filter (estimator sets it)
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, fused camera xz)
         self._window: _Window | None = None
 
@@ -92,6 +98,7 @@ class HealthMonitor:
             self.n_windows += 1
             self.n_departures += int(d2 > self._gate_d2)
             self.max_departure_m = max(self.max_departure_m, float(np.hypot(*r)))
+            self.max_departure_d2 = max(self.max_departure_d2, d2)
             self._window = _Window(float(t_s), p.copy())
 
     def report(self, pitch_offset_deg: float = 0.0) -> dict:
@@ -102,12 +109,16 @@ class HealthMonitor:
         departure = _share(self.n_departures, self.n_windows)
         stance = _share(self.n_stance, self.n_frames)
         warnings: list[str] = []
-        trouble = rejected > lim.max_rejected_share or departure > lim.max_departure_share
+        jump = self.max_departure_d2 > self._jump_d2
+        trouble = (rejected > lim.max_rejected_share or departure > lim.max_departure_share
+                   or jump)
         if trouble:
             what = (f"{100 * rejected:.0f} % of visual displacements were refused by the "
                     f"filter's gate and the fused path left visual odometry in "
                     f"{100 * departure:.0f} % of {lim.window_s:g} s windows (up to "
-                    f"{100 * self.max_departure_m:.1f} cm)")
+                    f"{100 * self.max_departure_m:.1f} cm"
+                    + (f", {self.n_recoveries} gate lock-out recoveries" if self.n_recoveries
+                       else "") + ")")
             if abs(pitch_offset_deg) > lim.max_pitch_offset_deg:
                 cause = (f"the IMU attitude disagrees with the level surfaces by "
                          f"{pitch_offset_deg:.1f} deg: check imu_T_cam / knee_T_cam (the IMU "
@@ -131,7 +142,10 @@ class HealthMonitor:
                 "window_s": lim.window_s,
                 "departure_share": departure,
                 "max_departure_cm": 100.0 * self.max_departure_m,
+                "max_mahalanobis2": self.max_departure_d2,
+                "jump": jump,
             },
+            "recoveries": self.n_recoveries,
             "pitch_offset_deg": float(pitch_offset_deg),
             "ok": not trouble,
             "warnings": warnings,

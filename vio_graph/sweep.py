@@ -77,7 +77,8 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
     SweepCondition("cadence_0.5", "gait", "step over step at half the cadence",
                    overrides={"duration_s": 20.0, "gait": {"cadence_scale": 0.5}}),
     SweepCondition("cadence_1.5", "gait", "step over step at 1.5x the cadence",
-                   overrides={"gait": {"cadence_scale": 1.5}}),
+                   overrides={"gait": {"cadence_scale": 1.5},
+                              "terrain": {"landing_length_m": 10.0}}),
     SweepCondition("pauses_0-8s", "gait", "step over step, standing 0-8 s once per stride "
                    "with weight shifts", overrides={"duration_s": 30.0, "gait": {
                        "pause_range_s": (0.0, 8.0)}}),
@@ -89,7 +90,8 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
                    overrides={"terrain": {"nosing_overhang_m": 0.03}}),
     SweepCondition("two_flights_down", "stairs", "descent over two flights of 6 steps and a "
                    "landing", scenario="downstair", overrides={
-                       "duration_s": 15.0, "terrain": {"n_steps": 6, "n_flights": 2}}),
+                       "duration_s": 12.0, "terrain": {"n_steps": 6, "n_flights": 2,
+                                                          "landing_length_m": 8.0}}),
     SweepCondition("camera_8cm_0deg", "camera", "camera 8 cm below the knee, optical axis "
                    "along the shank's x", overrides={"rig": {
                        "camera_in_shank_xz_m": (0.07, -0.08), "camera_pitch_down_deg": 0.0}}),
@@ -106,9 +108,8 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
                    overrides={"rig": {"imu_rotation_rpy_deg": (0.0, 0.0, 90.0)}}),
     SweepCondition("tof_gaps", "depth", "missing bands of 2-6 cm behind every nosing "
                    "(flying-pixel filter)", overrides={"camera": {"edge_gap_m": (0.02, 0.06)}}),
-    SweepCondition("long_2min", "length", "2-minute ascent over 16 flights of 12 steps "
-                   "with landings", overrides={"duration_s": 120.0, "terrain": {
-                       "n_flights": 16, "n_steps": 12, "flight_landing_m": 1.2}}),
+    SweepCondition("long_2min", "length", "2-minute ascent over 14 flights of 12 steps with "
+                   "landings (configs/upstair_long.yaml)", scenario="upstair_long"),
 )
 
 

@@ -177,6 +177,12 @@ class FilterConfig(BaseModel):
             "history times; beyond it the displacement is rejected as stale"
         ),
     )
+    lockout_refusals: int | None = Field(
+        default=3, ge=1,
+        description="this many displacements refused by the gate in a row widen the velocity "
+        "covariance to init_velocity_sigma_mps (gate lock-out recovery; at gate_probability "
+        "0.999 three chance refusals in a row happen once in 1e9). None = never",
+    )
     history_s: float = Field(
         default=2.0, gt=0, description="how long (s) past position estimates are kept for t0"
     )

@@ -388,6 +388,17 @@ class SagittalEskf:
         if self.config.measurement_model == "stochastic_cloning":
             self._set_clone(float(timestamp_s))
 
+    @property
+    def n_gate_refusals(self) -> int:
+        """Displacements refused by the chi-square gate so far."""
+        return self._n_rej
+
+    def inflate_velocity(self, sigma_mps: float) -> None:
+        """Add ``sigma_mps``^2 to the velocity variance (both axes): the filter no longer
+        trusts its velocity, so the next measurements can correct it."""
+        self._require_init()
+        self._P[2:4, 2:4] += float(sigma_mps) ** 2 * _I2
+
     # --------------------------------------------------------------- landmarks
     def update_landmark(
         self,

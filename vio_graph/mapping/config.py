@@ -107,7 +107,14 @@ class StepConfig(_Frozen):
         description="a raised plateau with lower ground on both sides and at most this depth "
         "is an obstacle, metres",
     )
-    max_levels: int = Field(default=40, ge=1, description="at most this many level searches")
+    max_levels: int | None = Field(
+        default=None,
+        ge=1,
+        description="at most this many level searches (count); None: search until no z window "
+        "holds min_level_cells cells. A cap must exceed the number of treads in the map: a "
+        "cap of 40 silently dropped most treads of a 150-step trial, so that neighbouring "
+        "detected levels were several steps apart",
+    )
 
     @model_validator(mode="after")
     def _check(self) -> StepConfig:

@@ -278,7 +278,10 @@ def find_levels(
     tol = cfg.level_tolerance_m
     remaining = np.ones(pts.shape[0], dtype=bool)
     levels: list[LevelSegment] = []
-    for _ in range(cfg.max_levels):
+    n_searches = 0
+    # each search removes at least min_level_cells cells, so the loop ends without a cap
+    while cfg.max_levels is None or n_searches < cfg.max_levels:
+        n_searches += 1
         idx = np.flatnonzero(remaining)
         if idx.size < cfg.min_level_cells:
             break

@@ -43,7 +43,13 @@ class FactorFamilies(BaseModel):
         default=True, description="sagittal-plane priors: lateral position and velocity = 0"
     )
     weak_position: bool = Field(
-        default=True, description="weak absolute position prior per keyframe (conditioning)"
+        default=False,
+        description="weak absolute position prior per keyframe at its initial guess (the "
+        "filter's position), for conditioning. Off by default: both solvers factorise with "
+        "QR and need no such prior, and the priors add up over a trial (N keyframes at "
+        "sigma s act on the slow, trial-long error modes like one prior of sigma s/sqrt(N)), "
+        "so the smoothed path followed the filter's drift: 2-minute upstair trial, camera x "
+        "ATE fixed-lag 9.4 -> 2.8 cm, batch 12.1 -> 2.1 cm without it",
     )
 
 

@@ -43,9 +43,10 @@ Factors::
   the translation error is in world axes, so the front end's covariance enters unrotated.
 - Attitude: PriorFactorPose3 on the rotation only (AHRS with heading removed, inflated sigma,
   huge translation sigma).
-- Sagittal-plane priors: world-y of every keyframe position (PoseTranslationPrior3D, which also
-  carries the weak absolute x-z prior at the initial guess used for conditioning) and world-y
-  of every velocity (PriorFactorVector, loose on x and z). Landmarks get y = 0 and a weak x-z
+- Sagittal-plane priors: world-y of every keyframe position (PoseTranslationPrior3D; with
+  ``factors.weak_position`` it also carries a weak absolute x-z prior at the initial guess,
+  off by default because over a long trial those priors add up and pull the path towards
+  the filter's drift) and world-y of every velocity (PriorFactorVector, loose on x and z). Landmarks get y = 0 and a weak x-z
   prior.
 - First keyframe: tight pose prior, velocity prior at the filter's estimate, zero-bias prior.
 

@@ -85,6 +85,7 @@ def make_swinging_shank_trial(
     outlier_xz_m: tuple[float, float] = (0.28, 0.147),
     corners: bool = True,
     filter_velocity_sigma_mps: float = 0.02,
+    filter_drift_mps: tuple[float, float] = (0.0, 0.0),
     seed: int = 0,
 ) -> SyntheticTrial:
     """Generate a trial (see module docstring).
@@ -96,6 +97,8 @@ def make_swinging_shank_trial(
         outlier_frames: frame indices whose displacement is off by ``outlier_xz_m`` (a corner
             associated with the next stair step).
         heading_rad: vendor AHRS heading (the smoother must remove it).
+        filter_drift_mps: constant velocity (x, z, m/s) added to the "filter" positions, the
+            initial guesses: a filter that drifts over a long trial.
     """
     rng = np.random.default_rng(seed)
     imu_T_cam = make_transform(R_IMU_CAM, IMU_P_CAM_M)
@@ -142,8 +145,9 @@ def make_swinging_shank_trial(
         else:
             disps.append(Displacement2D(float(t_f[k - 1]), float(t_f[k]), d_meas[k - 1], cov_d))
 
-    # --- corners: stair nosings ahead of the start ---
-    corner_xz = np.array([[1.2 + 0.28 * k, 0.147 * (k + 1)] for k in range(40)])
+    # --- corners: stair nosings ahead of the start, at least 40, enough for the whole trial ---
+    n_corners = max(40, int(np.ceil((cam_xz[-1, 0] + 1.2) / 0.28)))
+    corner_xz = np.array([[1.2 + 0.28 * k, 0.147 * (k + 1)] for k in range(n_corners)])
     obs: list[list[CornerObservation]] = []
     cov_o = np.eye(2) * max(observation_sigma_m, 1e-3) ** 2
     for k in range(n):
@@ -162,6 +166,7 @@ def make_swinging_shank_trial(
     for k in range(1, n):
         step = d_meas[k - 1] if disps[k] is not None else cam_vel_xz[k] * dt_f[k - 1]
         est[k] = est[k - 1] + step
+    est += np.outer(t_f - t_f[0], filter_drift_mps)
     vel_est = cam_vel_xz + rng.normal(0.0, filter_velocity_sigma_mps, cam_vel_xz.shape)
     zero2 = np.zeros(2)
     filt = [

@@ -47,9 +47,22 @@ def _joint_rows() -> np.ndarray:
     return np.column_stack([0.3 * np.sin(k / 20), 0.5 + 0.2 * np.cos(k / 15), -0.1 * np.sin(k / 8)])
 
 
+def _contact_force_n() -> np.ndarray:
+    """Load-cell force per IMU tick, N: stance ~700 N, swing ~10 N."""
+    k = np.arange(N_IMU)
+    return 355.0 + 345.0 * np.sin(k / 8)
+
+
+def _switch_closed() -> np.ndarray:
+    return (np.arange(N_IMU) // 20) % 2 == 0
+
+
 def _write_bag(path: Path, ros2: bool, skip: tuple[str, ...] = (), encoding: str = "32FC1",
-               storage: StoragePlugin = StoragePlugin.MCAP) -> Path:
-    """A synthetic bag: depth, camera_info, IMU and joint states on the default topics."""
+               storage: StoragePlugin = StoragePlugin.MCAP, contact: str | None = None) -> Path:
+    """A synthetic bag: depth, camera_info, IMU and joint states on the default topics;
+    ``contact`` adds a foot-contact topic ``/contact`` of that type (std_msgs/msg/Float64 as
+    -force / 2, std_msgs/msg/Bool, geometry_msgs/msg/WrenchStamped with force.z = force),
+    sampled at the IMU rate; header-less types are timed by their receive time."""
     ts = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
     T = ts.types
     topics = BagTopics()
@@ -98,6 +111,20 @@ def _write_bag(path: Path, ros2: bool, skip: tuple[str, ...] = (), encoding: str
             header=header(t), name=["ankle", "knee", "thigh_pitch", "hip_yaw"],
             position=np.array([r[2], r[1], r[0], 9.0]), velocity=np.zeros(4), effort=np.zeros(4))
         msgs.append((topics.joints, "sensor_msgs/msg/JointState", t + 1_000_000, js))
+    for i, (f, closed) in enumerate(zip(_contact_force_n(), _switch_closed(), strict=True)):
+        t = T0_NS + i * IMU_DT_NS + 1_000_000  # receive time (= stamp of a WrenchStamped)
+        if contact == "std_msgs/msg/Float64":
+            msg = T[contact](data=-0.5 * f)
+        elif contact == "std_msgs/msg/Bool":
+            msg = T[contact](data=bool(closed))
+        elif contact == "geometry_msgs/msg/WrenchStamped":
+            w = T["geometry_msgs/msg/Wrench"](force=vec(x=3.0, y=-2.0, z=f),
+                                              torque=vec(x=0.0, y=0.0, z=0.0))
+            msg = T[contact](header=header(t), wrench=w)
+            t += 1_000_000  # received 1 ms after its stamp
+        else:
+            break
+        msgs.append(("/contact", contact, t, msg))
     msgs = [m for m in msgs if m[0] not in skip]
     msgs.sort(key=lambda m: m[2])
 
@@ -275,3 +302,89 @@ def test_cli_import_bag(ros1_bag: Path, rig_10hz: Path, tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["import-bag", str(ros1_bag), "--rig", str(rig_10hz),
                                    "--out", str(tmp_path / "rec2"), "--imu-topic", "/xsens/imu"])
     assert isinstance(res.exception, BagImportError) and "/xsens/imu" in str(res.exception)
+
+
+# ------------------------------------------------------------------ foot contact
+
+
+def _rig_with_contact(rig_10hz: Path, tmp_path: Path, **contact) -> Path:
+    raw = yaml.safe_load(rig_10hz.read_text())
+    raw["contact"] = contact
+    path = tmp_path / "rig_contact.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("ros2", "msgtype", "mapping"),
+    [
+        (False, "std_msgs/msg/Float64",
+         dict(kind="load_cell", msgtype="std_msgs/Float64", threshold_n=100.0, scale=2.0,
+              sign=-1)),
+        (True, "geometry_msgs/msg/WrenchStamped", dict(kind="load_cell", threshold_n=100.0)),
+        (False, "std_msgs/msg/Bool", dict(kind="switch", msgtype="std_msgs/Bool")),
+    ],
+)
+def test_contact_topic_becomes_contact_csv(tmp_path: Path, rig_10hz: Path, ros2: bool,
+                                           msgtype: str, mapping: dict) -> None:
+    bag = _write_bag(tmp_path / ("c_mcap" if ros2 else "c.bag"), ros2=ros2, contact=msgtype)
+    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/contact", **mapping)
+    rec = Recording.open(import_bag(bag, rig, tmp_path / "rec"))
+    _check_round_trip(rec)  # the other streams are unchanged by the contact topic
+    c = rec.contact
+    assert c is not None and rec.metadata.contact is not None
+    # received (or stamped) 1 ms after each IMU tick; the shared span ends 50 ms after the last
+    # depth frame (0.95 s): samples 0 .. 94 plus one after
+    n = 96
+    np.testing.assert_allclose(c.timestamp_s, np.arange(n) * 0.01 + 0.001, atol=1e-9)
+    if mapping["kind"] == "switch":
+        assert rec.metadata.contact.kind == "switch" and rec.metadata.contact.threshold_n == 0.5
+        assert np.array_equal(c.force_n, _switch_closed()[:n].astype(float))
+        assert np.array_equal(c.loaded, _switch_closed()[:n])
+    else:
+        assert rec.metadata.contact.kind == "load_cell"
+        assert rec.metadata.contact.threshold_n == 100.0
+        np.testing.assert_allclose(c.force_n, _contact_force_n()[:n], rtol=1e-8, atol=1e-6)
+        assert np.array_equal(c.loaded, _contact_force_n()[:n] >= 100.0)
+    assert rec.metadata.provenance.config["topics"]["contact"] == "/contact"
+
+
+def test_contact_topic_missing_or_mismatched_names_it(tmp_path: Path, rig_10hz: Path,
+                                                      ros1_bag: Path) -> None:
+    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/prosthesis/load_cell",
+                            kind="load_cell", threshold_n=80.0)
+    with pytest.raises(BagImportError) as err:
+        import_bag(ros1_bag, rig, tmp_path / "rec")
+    msg = str(err.value)
+    assert "/prosthesis/load_cell" in msg and "contact" in msg and str(ros1_bag) in msg
+    assert "/imu/data (sensor_msgs/msg/Imu)" in msg  # lists what the bag has
+    assert not (tmp_path / "rec").exists()
+    # the rig's msgtype must match the bag's
+    bag = _write_bag(tmp_path / "b.bag", ros2=False, contact="std_msgs/msg/Bool")
+    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/contact", kind="switch",
+                            msgtype="std_msgs/Float32")
+    with pytest.raises(BagImportError, match=r"/contact.*std_msgs/msg/Bool.*std_msgs/Float32"):
+        import_bag(bag, rig, tmp_path / "rec")
+    # a Bool is a switch, not a load cell
+    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/contact", kind="load_cell",
+                            threshold_n=50.0)
+    with pytest.raises(BagImportError, match="contact.kind = load_cell"):
+        import_bag(bag, rig, tmp_path / "rec")
+    # a numeric switch topic that is not 0 / 1
+    bag = _write_bag(tmp_path / "f.bag", ros2=False, contact="std_msgs/msg/Float64")
+    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/contact", kind="switch")
+    with pytest.raises(BagImportError, match="switch must read 0 or 1"):
+        import_bag(bag, rig, tmp_path / "rec")
+
+
+def test_rig_contact_section_is_validated(tmp_path: Path, rig_10hz: Path) -> None:
+    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/lc", kind="load_cell")
+    with pytest.raises(ConfigError, match=r"\[contact\].*threshold_n"):
+        load_rig(rig)
+    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/lc", kind="switch",
+                            msgtype="std_msgs/String")
+    with pytest.raises(ConfigError, match=r"\[contact\].*not supported"):
+        load_rig(rig)
+    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/lc", kind="load_cell",
+                            threshold_n=80.0, msgtype="geometry_msgs/WrenchStamped")
+    assert load_rig(rig).contact.threshold == 80.0

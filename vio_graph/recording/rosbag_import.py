@@ -7,7 +7,10 @@ Reads with the pure-Python ``rosbags`` package, so no ROS installation is needed
 - intrinsics: the first ``sensor_msgs/CameraInfo`` (or the rig file's, which take precedence);
 - IMU: ``sensor_msgs/Imu`` (vendor orientation, angular velocity, linear acceleration), raw
   samples, no resampling;
-- joints: ``sensor_msgs/JointState``, three named joints mapped by the rig file.
+- joints: ``sensor_msgs/JointState``, three named joints mapped by the rig file;
+- foot contact (optional, named in the rig file's ``contact`` section): a load-cell force
+  (``std_msgs/Float64`` / ``Float32``, or ``geometry_msgs/WrenchStamped`` force.z) or a
+  heel / foot switch (``std_msgs/Bool``), written as ``contact.csv``.
 
 Two passes over the bag: the first collects timestamps, the IMU and joint samples (small) and
 checks topics, encodings, sizes and rates; the second streams the depth frames through a
@@ -36,6 +39,7 @@ from vio_graph.errors import BagImportError, ConfigError
 from vio_graph.recording.metadata import (
     FORMAT_VERSION,
     CameraModel,
+    ContactModel,
     Extrinsics,
     ImuModel,
     LegGeometry,
@@ -43,7 +47,13 @@ from vio_graph.recording.metadata import (
     RecordingMetadata,
     TerrainInfo,
 )
-from vio_graph.recording.streams import GROUNDTRUTH_BODIES, GroundTruth, ImuTable, JointTable
+from vio_graph.recording.streams import (
+    GROUNDTRUTH_BODIES,
+    ContactTable,
+    GroundTruth,
+    ImuTable,
+    JointTable,
+)
 from vio_graph.recording.tum import read_tum
 from vio_graph.recording.writer import write_recording
 
@@ -57,6 +67,10 @@ MSGTYPES = {
     "imu": "sensor_msgs/msg/Imu",
     "joints": "sensor_msgs/msg/JointState",
 }
+# foot-contact message types; the std_msgs ones have no header (timed by receive time)
+CONTACT_MSGTYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Bool",
+                    "geometry_msgs/msg/WrenchStamped")
+SWITCH_THRESHOLD_N = 0.5  # a switch channel holds 0 / 1
 # depth encodings: numpy little-endian dtype and metres per stored unit
 DEPTH_ENCODINGS = {"32FC1": ("<f4", 1.0), "16UC1": ("<u2", 0.001), "mono16": ("<u2", 0.001)}
 
@@ -116,6 +130,59 @@ class RigJoints(_Strict):
     ankle: JointSource = Field(description="ankle plantarflexion, +")
 
 
+def _full_msgtype(name: str) -> str:
+    """``std_msgs/Float64`` -> ``std_msgs/msg/Float64`` (rosbags' spelling for ROS 1 and 2)."""
+    parts = name.strip("/").split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else "/".join(parts)
+
+
+class RigContact(_Strict):
+    """Optional foot-contact topic: a load cell's force or a heel / foot switch.
+
+    force_n = sign * scale * value + offset_n (value: ``data`` of a Float64 / Float32, the
+    ``wrench.force.<wrench_axis>`` of a WrenchStamped); a Bool switch gives 1 (closed) / 0."""
+
+    topic: str = Field(min_length=1, description="topic name in the bag")
+    msgtype: str | None = Field(
+        None,
+        description="std_msgs/Float64, std_msgs/Float32, std_msgs/Bool or "
+        "geometry_msgs/WrenchStamped (checked against the bag); None: the bag's type",
+    )
+    kind: Literal["load_cell", "switch"] = Field(
+        description="load_cell: axial force in N; switch: 1 closed, 0 open"
+    )
+    threshold_n: float | None = Field(
+        None, gt=0,
+        description="load_cell: loaded at or above this force, N (required); switch: 0.5",
+    )
+    scale: float = Field(1.0, description="newtons per published unit (load_cell)")
+    sign: Literal[1, -1] = Field(1, description="-1 if the cell reports compression negative")
+    offset_n: float = Field(0.0, description="added after sign and scale, N (tare)")
+    wrench_axis: Literal["x", "y", "z"] = Field(
+        "z", description="WrenchStamped: the force component along the pylon axis"
+    )
+    rate_hz: float | None = Field(None, gt=0, description="nominal rate, Hz (checked if given)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> RigContact:
+        if self.msgtype is not None and _full_msgtype(self.msgtype) not in CONTACT_MSGTYPES:
+            raise ValueError(f"msgtype {self.msgtype!r} not supported (one of "
+                             f"{', '.join(CONTACT_MSGTYPES)})")
+        if self.kind == "load_cell" and self.threshold_n is None:
+            raise ValueError("a load_cell needs threshold_n (the force at which the foot "
+                             "counts as loaded, N)")
+        if self.kind == "switch" and self.threshold_n not in (None, SWITCH_THRESHOLD_N):
+            raise ValueError("a switch channel holds 0 / 1: leave threshold_n out (0.5)")
+        if (self.kind == "load_cell" and self.msgtype is not None
+                and _full_msgtype(self.msgtype) == "std_msgs/msg/Bool"):
+            raise ValueError("std_msgs/Bool carries a switch: set kind: switch")
+        return self
+
+    @property
+    def threshold(self) -> float:
+        return SWITCH_THRESHOLD_N if self.threshold_n is None else self.threshold_n
+
+
 class RigConfig(_Strict):
     """The rig file (see configs/rig_example.yaml): what the bag does not say."""
 
@@ -126,6 +193,7 @@ class RigConfig(_Strict):
     leg: LegGeometry
     terrain: TerrainInfo = TerrainInfo(kind="unknown")
     groundtruth_rate_hz: float | None = Field(None, gt=0, description="mocap rate, Hz")
+    contact: RigContact | None = Field(None, description="optional foot-contact topic")
     notes: str = ""
 
 
@@ -189,6 +257,8 @@ class _Scan:
     imu_rows: np.ndarray  # (N, 10): acc xyz, gyr xyz, q wxyz
     joint_ns: np.ndarray
     joint_rows: np.ndarray  # (K, 3): thigh, knee, ankle (rad, sign/offset applied)
+    contact_ns: np.ndarray  # (C,) empty without a contact topic
+    contact_rows: np.ndarray  # (C, 1): force_n (sign, scale, offset applied; switch 0 / 1)
 
 
 def _open_reader(bag: Path):  # noqa: ANN202 - rosbags imported lazily
@@ -223,7 +293,38 @@ def _connections(reader: Any, bag: Path, topic: str, kind: str, required: bool) 
 
 
 def _time_ns(msg: Any, receive_ns: int, use_receive_time: bool) -> int:
-    return receive_ns if use_receive_time else stamp_ns(msg)
+    return receive_ns if use_receive_time or not hasattr(msg, "header") else stamp_ns(msg)
+
+
+def _contact_connections(reader: Any, bag: Path, rc: RigContact) -> list:
+    """Connections of the rig's contact topic, checked: present, a supported type (the rig's
+    msgtype if given), a type that fits the kind, not empty."""
+    topics = reader.topics
+    if rc.topic not in topics:
+        have = ", ".join(f"{t} ({i.msgtype})" for t, i in sorted(topics.items())) or "none"
+        raise BagImportError(bag, "contact topic (rig file contact.topic) not in the bag; the "
+                             f"bag has: {have}", field=rc.topic)
+    info = topics[rc.topic]
+    if rc.msgtype is not None and info.msgtype != _full_msgtype(rc.msgtype):
+        raise BagImportError(bag, f"contact topic has type {info.msgtype}, the rig file says "
+                             f"contact.msgtype = {rc.msgtype}", field=rc.topic)
+    if info.msgtype not in CONTACT_MSGTYPES:
+        raise BagImportError(bag, f"contact topic has type {info.msgtype}, expected one of "
+                             f"{', '.join(CONTACT_MSGTYPES)}", field=rc.topic)
+    if info.msgtype == "std_msgs/msg/Bool" and rc.kind != "switch":
+        raise BagImportError(bag, "contact topic is std_msgs/Bool (a switch) but the rig file "
+                             f"says contact.kind = {rc.kind}", field=rc.topic)
+    if info.msgcount == 0:
+        raise BagImportError(bag, "no messages on the contact topic", field=rc.topic)
+    return list(info.connections)
+
+
+def _contact_value(msg: Any, rc: RigContact) -> float:
+    """force_n of one contact message (see RigContact)."""
+    if isinstance(getattr(msg, "data", None), (bool, np.bool_)):
+        return 1.0 if msg.data else 0.0
+    raw = getattr(msg.wrench.force, rc.wrench_axis) if hasattr(msg, "wrench") else msg.data
+    return rc.sign * rc.scale * float(raw) + rc.offset_n
 
 
 def _scan(bag: Path, topics: BagTopics, rig: RigConfig, use_receive_time: bool) -> _Scan:
@@ -238,9 +339,13 @@ def _scan(bag: Path, topics: BagTopics, rig: RigConfig, use_receive_time: bool) 
             "imu": _connections(reader, bag, topics.imu, "imu", True),
             "joints": _connections(reader, bag, topics.joints, "joints", True),
         }
+        if rig.contact is not None:
+            conns["contact"] = _contact_connections(reader, bag, rig.contact)
         kind_of = {c.id: kind for kind, cs in conns.items() for c in cs}
         wanted = [c for cs in conns.values() for c in cs]
         depth_ns, imu_ns, imu_rows, joint_ns, joint_rows = [], [], [], [], []
+        contact_ns: list[int] = []
+        contact_rows: list[float] = []
         size_wh: tuple[int, int] | None = None
         camera_info = None
         joint_index: dict[tuple[str, ...], list[int]] = {}
@@ -268,6 +373,10 @@ def _scan(bag: Path, topics: BagTopics, rig: RigConfig, use_receive_time: bool) 
                 o, g, a = msg.orientation, msg.angular_velocity, msg.linear_acceleration
                 imu_ns.append(t_ns)
                 imu_rows.append((a.x, a.y, a.z, g.x, g.y, g.z, o.w, o.x, o.y, o.z))
+            elif kind == "contact":
+                assert rig.contact is not None
+                contact_ns.append(t_ns)
+                contact_rows.append(_contact_value(msg, rig.contact))
             else:
                 names = tuple(msg.name)
                 if names not in joint_index:
@@ -300,6 +409,8 @@ def _scan(bag: Path, topics: BagTopics, rig: RigConfig, use_receive_time: bool) 
         imu_rows=np.asarray(imu_rows, dtype=float).reshape(-1, 10),
         joint_ns=np.asarray(joint_ns, dtype=np.int64),
         joint_rows=np.asarray(joint_rows, dtype=float).reshape(-1, 3),
+        contact_ns=np.asarray(contact_ns, dtype=np.int64),
+        contact_rows=np.asarray(contact_rows, dtype=float).reshape(-1, 1),
     )
 
 
@@ -441,12 +552,15 @@ def import_bag(
     rig = load_rig(rig_yaml)
     scan = _scan(bag, topics, rig, use_receive_time)
 
-    # the time span all three streams share, widened by half a depth frame period so that
-    # streams starting a few ms apart do not cost the first or last frame
-    start_ns = max(int(scan.depth_ns.min()), int(scan.imu_ns.min()), int(scan.joint_ns.min()))
-    end_ns = min(int(scan.depth_ns.max()), int(scan.imu_ns.max()), int(scan.joint_ns.max()))
+    # the time span all streams share (depth, IMU, joints and contact if any), widened by half
+    # a depth frame period so that streams starting a few ms apart do not cost a frame
+    rc = rig.contact
+    streams = [scan.depth_ns, scan.imu_ns, scan.joint_ns] + ([scan.contact_ns] if rc else [])
+    start_ns = max(int(t.min()) for t in streams)
+    end_ns = min(int(t.max()) for t in streams)
     if end_ns <= start_ns:
-        raise BagImportError(bag, "depth, IMU and joint streams do not overlap in time")
+        raise BagImportError(bag, "depth, IMU, joint" + (" and contact" if rc else "")
+                             + " streams do not overlap in time")
     slack_ns = int(0.5e9 / rig.camera.frame_rate_hz)
     start_ns, end_ns = start_ns - slack_ns, end_ns + slack_ns
     imu_ns, imu_rows, imu_dups = _sorted_unique(scan.imu_ns, scan.imu_rows)
@@ -456,12 +570,30 @@ def import_bag(
                                                                           end_ns)
     imu_ns, imu_rows = imu_ns[imu_sel], imu_rows[imu_sel]
     joint_ns, joint_rows = joint_ns[joint_sel], joint_rows[joint_sel]
+    contact_ns, contact_rows, contact_dups = scan.contact_ns, scan.contact_rows, 0
+    if rc is not None:
+        contact_ns, contact_rows, contact_dups = _sorted_unique(contact_ns, contact_rows)
+        contact_sel = _bracketing(contact_ns, start_ns, end_ns)
+        contact_ns, contact_rows = contact_ns[contact_sel], contact_rows[contact_sel]
     keep = _increasing_mask(scan.depth_ns) & in_span(scan.depth_ns)
     depth_ns = scan.depth_ns[keep]
 
     _check_rate(bag, topics.depth, depth_ns, rig.camera.frame_rate_hz, "camera.frame_rate_hz")
     _check_rate(bag, topics.imu, imu_ns, rig.imu.rate_hz, "imu.rate_hz")
     _check_rate(bag, topics.joints, joint_ns, rig.joints.rate_hz, "joints.rate_hz")
+    contact, contact_model = None, None
+    if rc is not None:
+        if rc.rate_hz is not None:
+            _check_rate(bag, rc.topic, contact_ns, rc.rate_hz, "contact.rate_hz")
+        force = contact_rows[:, 0]
+        if rc.kind == "switch" and not np.all(np.isin(force, (0.0, 1.0))):
+            bad = force[~np.isin(force, (0.0, 1.0))][0]
+            raise BagImportError(bag, f"a switch must read 0 or 1 after sign and scale, got "
+                                 f"{bad:g} (use std_msgs/Bool, or kind: load_cell)",
+                                 field=rc.topic)
+        if not np.all(np.isfinite(force)):
+            raise BagImportError(bag, "contact force is NaN or inf", field=rc.topic)
+        contact_model = ContactModel(kind=rc.kind, threshold_n=rc.threshold)
     q_norm = np.linalg.norm(imu_rows[:, 6:10], axis=1)
     if np.any(np.abs(q_norm - 1.0) > QUAT_NORM_TOLERANCE):
         row = int(np.argmax(np.abs(q_norm - 1.0)))
@@ -470,12 +602,15 @@ def import_bag(
                              field=topics.imu)
 
     camera, camera_note = _camera_model(bag, topics, rig, scan)
-    t0_ns = min(int(depth_ns[0]), int(imu_ns[0]), int(joint_ns[0]))  # earliest kept sample
-    t1_ns = max(int(depth_ns[-1]), int(imu_ns[-1]), int(joint_ns[-1]))
+    kept = [depth_ns, imu_ns, joint_ns] + ([contact_ns] if rc else [])
+    t0_ns = min(int(t[0]) for t in kept)  # earliest kept sample
+    t1_ns = max(int(t[-1]) for t in kept)
     rel = lambda t: (t - t0_ns).astype(float) * 1e-9  # noqa: E731
     dropped = {"imu_repeated_stamps": imu_dups, "joint_repeated_stamps": joint_dups,
                "depth_out_of_order_or_repeated": int((~_increasing_mask(scan.depth_ns)).sum()),
                "depth_outside_shared_span": int((~in_span(scan.depth_ns)).sum())}
+    if rc is not None:
+        dropped["contact_repeated_stamps"] = contact_dups
     metadata = RecordingMetadata(
         format_version=FORMAT_VERSION,
         duration_s=(t1_ns - t0_ns) * 1e-9,
@@ -488,23 +623,29 @@ def import_bag(
         terrain=rig.terrain,
         provenance=Provenance(
             source="device",
-            config={"bag": str(bag), "rig_file": str(rig_yaml), "topics": topics.model_dump(),
+            config={"bag": str(bag), "rig_file": str(rig_yaml),
+                    "topics": topics.model_dump() | ({"contact": rc.topic} if rc else {}),
                     "time_source": "receive" if use_receive_time else "header.stamp",
                     "time_origin_ns": t0_ns, "dropped": dropped},
             software=f"vio_graph {vio_graph.__version__} rosbag_import",
             created_utc=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             notes="; ".join(x for x in (rig.notes, camera_note) if x),
         ),
+        contact=contact_model,
     )
     imu = ImuTable(rel(imu_ns), imu_rows[:, 0:3], imu_rows[:, 3:6], imu_rows[:, 6:10])
     joints = JointTable(rel(joint_ns), joint_rows[:, 0], joint_rows[:, 1], joint_rows[:, 2])
+    if contact_model is not None:
+        force = contact_rows[:, 0]
+        contact = ContactTable(rel(contact_ns), force, force >= contact_model.threshold_n)
     gt = _load_groundtruth(Path(groundtruth_dir), t0_ns) if groundtruth_dir else None
     log.info("%s: %d depth frames, %d IMU, %d joint samples over %.2f s; dropped %s", bag,
              depth_ns.shape[0], len(imu), len(joints), metadata.duration_s, dropped)
     return write_recording(Path(out_dir), metadata, imu, joints, gt, rel(depth_ns),
                            _depth_frames(bag, topics.depth, keep, scan.depth_ns,
                                          use_receive_time), progress=progress,
-                           overwrite=overwrite)
+                           overwrite=overwrite, contact=contact)
 
 
-__all__: Sequence[str] = ["BagTopics", "RigConfig", "decode_depth_image", "import_bag", "load_rig"]
+__all__: Sequence[str] = ["BagTopics", "RigConfig", "RigContact", "decode_depth_image",
+                          "import_bag", "load_rig"]

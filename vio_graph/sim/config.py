@@ -339,6 +339,56 @@ class FaultsConfig(_Section):
     )
 
 
+class ContactConfig(_Section):
+    """Foot-contact sensor of the instrumented leg (vio_graph.sim.contact), written as
+    ``contact.csv`` with the metadata ``contact`` section. Off by default (``kind: none``:
+    no contact channel, the recording is the same as without this section)."""
+
+    kind: Literal["none", "load_cell", "switch"] = Field(
+        "none",
+        description="none; load_cell: pylon axial force in N (e.g. the Open Source Leg's "
+        "6-axis cell); switch: heel / foot switch, 1 closed, 0 open",
+    )
+    rate_hz: float = Field(100.0, gt=0, description="sample rate of contact.csv, Hz")
+    body_mass_kg: float = Field(75.0, gt=0, description="subject mass (with the device), kg")
+    grf_dip_fraction: float = Field(
+        0.15, ge=0, lt=0.5,
+        description="vertical force shape over the stance: humps of (1 + f) body weight after "
+        "loading and before push-off, (1 - f) at mid-stance (walking: ~0.1-0.2)",
+    )
+    threshold_n: float = Field(
+        80.0, gt=0,
+        description="load_cell: the foot counts as loaded at or above this force, N (written "
+        "to metadata contact.threshold_n; a switch always writes 0.5)",
+    )
+    load_cell_noise_sd_n: float = Field(3.0, ge=0, description="white noise sd, N [U]")
+    load_cell_offset_sd_n: float = Field(
+        5.0, ge=0, description="zero-offset (drift since taring) sd, drawn per trial, N [U]"
+    )
+    load_cell_filter_tau_s: float = Field(
+        0.01, ge=0, description="first-order low-pass time constant of the amplifier, s [U]"
+    )
+    load_cell_delay_s: float = Field(
+        0.005, ge=0, description="transport delay (ADC, bus, logging), s [U]"
+    )
+    switch_region: Literal["foot", "heel"] = Field(
+        "foot",
+        description="foot: switch under the whole sole (closed through the stance); heel: "
+        "heel switch (closed from heel contact to heel-off; forefoot landings close it only at "
+        "foot flat)",
+    )
+    switch_actuation_n: float = Field(
+        30.0, gt=0, description="force under the switch that closes it, N [U]"
+    )
+    switch_delay_s: float = Field(0.01, ge=0, description="switch to logged sample delay, s [U]")
+    switch_bounce_s: float = Field(
+        0.008, ge=0, description="contact bounce window after each transition, s [U]"
+    )
+    switch_max_bounces: int = Field(
+        3, ge=0, description="up to this many opposite pulses per transition (uniform 0..n)"
+    )
+
+
 class ScenarioConfig(_Section):
     """Everything the simulator needs for one trial (given a seed)."""
 
@@ -352,6 +402,7 @@ class ScenarioConfig(_Section):
     joints: JointSensorConfig = JointSensorConfig()
     mocap: MocapConfig = MocapConfig()
     faults: FaultsConfig = FaultsConfig()
+    contact: ContactConfig = ContactConfig()
 
 
 def load_scenario(name_or_path: str | Path) -> ScenarioConfig:

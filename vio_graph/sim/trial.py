@@ -14,6 +14,7 @@ import vio_graph
 from vio_graph.geometry import invert_transform, make_transform, rot_x, rot_y, rot_z
 from vio_graph.recording.metadata import (
     FORMAT_VERSION,
+    ContactModel,
     Extrinsics,
     ImuModel,
     LegGeometry,
@@ -21,9 +22,10 @@ from vio_graph.recording.metadata import (
     RecordingMetadata,
     TerrainInfo,
 )
-from vio_graph.recording.streams import GroundTruth, ImuTable, JointTable
+from vio_graph.recording.streams import ContactTable, GroundTruth, ImuTable, JointTable
 from vio_graph.sim import faults as _faults
 from vio_graph.sim.config import RigConfig, ScenarioConfig
+from vio_graph.sim.contact import simulate_contact
 from vio_graph.sim.gait import LegMotion, simulate_gait
 from vio_graph.sim.imu import ImuTruth, simulate_imu
 from vio_graph.sim.joints import simulate_joints
@@ -31,7 +33,8 @@ from vio_graph.sim.mocap import camera_poses, simulate_mocap
 from vio_graph.sim.terrain import Terrain, build_terrain
 from vio_graph.sim.tof import TofCamera
 
-_STREAMS = ("terrain", "gait", "imu", "joints", "mocap", "frames", "tof", "faults")
+# random streams by name; append only (the index seeds each stream)
+_STREAMS = ("terrain", "gait", "imu", "joints", "mocap", "frames", "tof", "faults", "contact")
 
 
 def R_shank_cam(pitch_down_deg: float) -> NDArray[np.float64]:
@@ -87,6 +90,7 @@ class SimulatedTrial:
     frame_true_time_s: NDArray[np.float64]  # (F,) true capture times
     frame_source_index: NDArray[np.int64]  # (F,) index before dropped frames were removed
     imu_spike_index: NDArray[np.int64]  # IMU samples carrying an injected spike
+    contact: ContactTable | None = None  # contact.csv (config.contact.kind != none)
 
     @property
     def n_frames(self) -> int:
@@ -152,19 +156,26 @@ def simulate_trial(config: ScenarioConfig, seed: int) -> SimulatedTrial:
     visible = camera.edges_visible(cam_pos, R_w_c, edges).any(axis=1).astype(np.int8)
     gt = GroundTruth(trajectories=traj, imu_state=imu_state, frame_edge_visible=visible)
     notes = _faults.summary(fc, nominal.size - source.size, spikes.size)
-    metadata = _metadata(config, seed, terrain, motion, camera, knee_T_cam, knee_T_imu, notes)
+    contact, contact_model = None, None
+    if config.contact.kind != "none":
+        contact, contact_model = simulate_contact(
+            motion, config.contact, config.duration_s, _rng(seed, "contact"),
+            pause_ramp_s=config.gait.pause_ramp_s)
+    metadata = _metadata(config, seed, terrain, motion, camera, knee_T_cam, knee_T_imu, notes,
+                         contact_model)
     return SimulatedTrial(
         config=config, seed=seed, terrain=terrain, motion=motion, camera=camera,
         metadata=metadata, imu=imu, imu_truth=truth, joints=joints, groundtruth=gt,
         frame_timestamps_s=frame_stamp, camera_position_m=cam_pos, R_world_cam=R_w_c,
         camera_in_shank_xz_m=cam_xz, imu_in_shank_xz_m=imu_xz, frame_true_time_s=frame_t,
-        frame_source_index=source, imu_spike_index=spikes,
+        frame_source_index=source, imu_spike_index=spikes, contact=contact,
     )
 
 
 def _metadata(
     config: ScenarioConfig, seed: int, terrain: Terrain, motion: LegMotion, camera: TofCamera,
     knee_T_cam: NDArray, knee_T_imu: NDArray, notes: str = "",
+    contact: ContactModel | None = None,
 ) -> RecordingMetadata:
     ic = config.imu
     leg = motion.leg
@@ -198,11 +209,14 @@ def _metadata(
         ),
         provenance=Provenance(
             source="simulator", scenario=config.name, seed=seed,
-            config=config.model_dump(mode="json"),
+            # without a contact sensor the saved config is the same as before the section
+            config=config.model_dump(mode="json",
+                                     exclude={"contact"} if contact is None else None),
             software=f"vio_graph {vio_graph.__version__}",
             created_utc=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             notes=notes,
         ),
+        contact=contact,
     )
 
 
@@ -217,4 +231,5 @@ def simulate(
     return write_recording(
         Path(out_dir), trial.metadata, trial.imu, trial.joints, trial.groundtruth,
         trial.frame_timestamps_s, trial.frames(), progress=progress, overwrite=overwrite,
+        contact=trial.contact,
     )

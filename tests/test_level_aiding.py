@@ -145,3 +145,33 @@ def test_level_aiding_cuts_the_shank_pitch_error_on_a_simulated_trial(short_upst
     raw = _shank_pitch_error_deg(short_upstair, enabled=False)
     aided = _shank_pitch_error_deg(short_upstair, enabled=True)
     assert aided < 0.5 and aided < 0.5 * raw, (raw, aided)
+
+
+def _densely_sampled_stairs(spacing_m: float = 0.002) -> np.ndarray:
+    """Points every ``spacing_m`` along three treads and their risers (stair up, level)."""
+    from vio_graph.frontend.synthetic import stair_polyline
+
+    v = stair_polyline("stair_up", n_steps=3, start_x_m=0.3, floor_before_m=0.3,
+                       floor_after_m=0.05)
+    pts = []
+    for a, b in zip(v[:-1], v[1:], strict=True):
+        n = max(2, int(np.hypot(*(b - a)) / spacing_m))
+        pts.append(a + np.linspace(0.0, 1.0, n, endpoint=False)[:, None] * (b - a))
+    return np.concatenate(pts)
+
+
+def test_end_trim_removes_the_corner_rounding_bias() -> None:
+    """kNN smoothing rounds every nosing down and fills every tread-riser corner up, the same
+    way on each tread: untrimmed, perfectly level stairs read as tilted; with the line ends
+    left out of the fit the tilt is zero within 0.05 deg."""
+    from vio_graph.frontend.smoothing import smooth_profile
+
+    prof = smooth_profile(_densely_sampled_stairs(), k=5, cell_m=0.005)
+    tilt = {}
+    for trim in (0.0, 0.025):
+        t = measure_surface_tilt(prof, np.random.default_rng(0), end_trim_m=trim,
+                                 correlated_points=1.0)
+        assert t is not None
+        tilt[trim] = np.degrees(t.tilt_rad)
+    assert abs(tilt[0.025]) < 0.05, tilt
+    assert abs(tilt[0.0]) > 2 * abs(tilt[0.025]) + 0.02, tilt

@@ -402,7 +402,8 @@ class OnlineEstimator:
         self.pitch_offset.predict(t)
         self.surface_tilt = measure_surface_tilt(
             profile_xz_m, self._level_rng, np.radians(cfg.max_tilt_deg), cfg.inlier_m,
-            cfg.min_points, cfg.min_extent_m, cfg.max_lines, cfg.correlated_points)
+            cfg.min_points, cfg.min_extent_m, cfg.max_lines, cfg.correlated_points,
+            cfg.end_trim_m)
         if self.surface_tilt is None:
             return 0.0
         return self.pitch_offset.update(self.surface_tilt.tilt_rad, self.surface_tilt.sigma_rad)

@@ -61,6 +61,12 @@ class LevelAidingConfig(BaseModel):
     min_points: int = Field(default=25, ge=3, description="inliers a line needs")
     min_extent_m: float = Field(default=0.12, gt=0, description="x extent a line needs (m)")
     max_lines: int = Field(default=4, ge=1, description="most level lines used per frame")
+    end_trim_m: float = Field(
+        default=0.025, ge=0,
+        description="points within this x distance (m) of either end of a level line are left "
+        "out of the slope fit: the kNN smoothing rounds the corners at both ends of a tread "
+        "the same way on every tread (about k grid cells, 2-3 cm), which biases the tilt",
+    )
     correlated_points: float = Field(
         default=5.0, ge=1,
         description="slope variance multiplier: kNN smoothing (k = 5) correlates neighbouring "

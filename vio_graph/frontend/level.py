@@ -86,6 +86,7 @@ def measure_surface_tilt(
     min_extent_m: float = 0.12,
     max_lines: int = 4,
     correlated_points: float = 5.0,
+    end_trim_m: float = 0.0,
 ) -> SurfaceTilt | None:
     """Common tilt of the near-horizontal lines of a profile (floor, treads, obstacle top).
 
@@ -103,6 +104,11 @@ def measure_surface_tilt(
         max_lines: most lines used.
         correlated_points: kNN smoothing averages ~k raw points into each profile point, so
             neighbouring points are correlated; the slope variance is multiplied by this.
+        end_trim_m: the slope is fitted without the inliers this close (m, along x) to
+            either end of their line. kNN smoothing rounds a convex nosing down and fills a
+            concave tread-riser corner up; both ends of a stair tread are such corners, on
+            the same sides on every tread, so untrimmed they tilt every tread the same way
+            (a bias, not noise: it drifts the attitude, then x, on a long stair).
 
     Returns:
         The tilt, or None when no line has the support (e.g. only a riser in view).
@@ -125,8 +131,13 @@ def measure_surface_tilt(
         sel = idx[m]
         if sel.size < min_points or np.ptp(x[sel]) < min_extent_m:
             break
-        lines.append(sel)
         remaining[sel] = False
+        if end_trim_m > 0.0:
+            xs = x[sel]
+            sel = sel[(xs > xs.min() + end_trim_m) & (xs < xs.max() - end_trim_m)]
+            if sel.size < 3:
+                continue
+        lines.append(sel)
     if not lines:
         return None
     # per line: centred x, z and its own noise variance (residuals of its own fit)

@@ -10,7 +10,7 @@ from vio_graph.filter import FilterConfig, SagittalEskf
 from vio_graph.filter.eskf import _cross3
 from vio_graph.filter.stance import StanceDetector
 from vio_graph.geometry import GRAVITY_MPS2
-from vio_graph.types import Displacement2D, ImuSample
+from vio_graph.types import Displacement2D, ImuSample, LandmarkKey
 
 UPRIGHT = np.array([1.0, 0.0, 0.0, 0.0])
 LANDMARK_XZ_M = np.array([0.8, -0.3])
@@ -30,7 +30,7 @@ def _run(with_landmark: bool, duration_s: float = 3.0) -> tuple[SagittalEskf, fl
         t = k / 100.0
         f.propagate(_static_imu(t, 0.2))
         if with_landmark and k % 3 == 0:
-            f.update_landmark(("corner", 0), LANDMARK_XZ_M, np.eye(2) * 1e-6, t)
+            f.update_landmark(LandmarkKey("corner", 0), LANDMARK_XZ_M, np.eye(2) * 1e-6, t)
         max_err = max(max_err, float(np.linalg.norm(f.state.p_xz_m)))
     return f, max_err
 
@@ -41,7 +41,7 @@ def test_landmark_bounds_drift_of_a_biased_imu() -> None:
     # dead reckoning: 0.5 * 0.2 * 3^2 = 0.9 m; with the corner in view a few mm at most
     assert err_free == pytest.approx(0.9, rel=0.05)
     assert err_lm < 0.01
-    assert np.allclose(f.landmark_xz(("corner", 0)), LANDMARK_XZ_M, atol=0.01)
+    assert np.allclose(f.landmark_xz(LandmarkKey("corner", 0)), LANDMARK_XZ_M, atol=0.01)
 
 
 def test_first_sight_augments_with_position_uncertainty_and_drop_marginalises() -> None:
@@ -133,16 +133,16 @@ def test_a_corner_seen_again_under_a_new_track_is_the_same_landmark() -> None:
         return CornerObservation(0.0, track, np.asarray(rel, float), cov)
 
     # two remembered nosings one stair step apart (0.28 m, 0.147 m)
-    assert est._corner_key(0.0, obs(1, [0.50, -0.40])) == ("corner", 1)
-    est.filter.update_landmark(("corner", 1), [0.50, -0.40], cov, 0.0)
-    assert est._corner_key(0.0, obs(2, [0.78, -0.253])) == ("corner", 2)
-    est.filter.update_landmark(("corner", 2), [0.78, -0.253], cov, 0.0)
+    assert est._corner_key(0.0, obs(1, [0.50, -0.40])) == LandmarkKey("corner", 1)
+    est.filter.update_landmark(LandmarkKey("corner", 1), [0.50, -0.40], cov, 0.0)
+    assert est._corner_key(0.0, obs(2, [0.78, -0.253])) == LandmarkKey("corner", 2)
+    est.filter.update_landmark(LandmarkKey("corner", 2), [0.78, -0.253], cov, 0.0)
     # track 3 sees nosing 1 again, 3 cm off: re-identified, and stays so for the track
-    assert est._corner_key(0.0, obs(3, [0.53, -0.40])) == ("corner", 1)
-    assert est._corner_key(0.0, obs(3, [0.70, -0.30])) == ("corner", 1)
+    assert est._corner_key(0.0, obs(3, [0.53, -0.40])) == LandmarkKey("corner", 1)
+    assert est._corner_key(0.0, obs(3, [0.70, -0.30])) == LandmarkKey("corner", 1)
     # a corner 20 cm from both: new
-    assert est._corner_key(0.0, obs(4, [0.64, -0.20])) == ("corner", 4)
+    assert est._corner_key(0.0, obs(4, [0.64, -0.20])) == LandmarkKey("corner", 4)
     # switched off: every track is new
     est.config = PipelineConfig.model_validate(
         {"filter": {"corner_reidentify_radius_m": None}})
-    assert est._corner_key(0.0, obs(5, [0.50, -0.40])) == ("corner", 5)
+    assert est._corner_key(0.0, obs(5, [0.50, -0.40])) == LandmarkKey("corner", 5)

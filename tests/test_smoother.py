@@ -30,7 +30,7 @@ from vio_graph.smoother.synthetic import (
     feed,
     make_swinging_shank_trial,
 )
-from vio_graph.types import ImuSample
+from vio_graph.types import CornerObservation, ImuSample, StanceObservation
 
 
 def keyframe_errors_m(trial: SyntheticTrial, smoother) -> tuple[np.ndarray, np.ndarray]:
@@ -145,6 +145,40 @@ def test_builder_chains_displacements_and_breaks_on_gaps():
     # keyframe 0 has none, keyframe 2 (frames 3..6) lost its chain, all others have one
     assert n_between[0] == 0 and n_between[2] == 0
     assert all(n == 1 for k, n in enumerate(n_between) if k not in (0, 2))
+
+
+def test_builder_keeps_corners_and_stance_anchors_apart():
+    """A corner and a stance anchor with the same number are two landmarks; the stance keeps
+    its landmark over its frames and gets no corner sigma (types, not id ranges, tell them
+    apart)."""
+    tr = make_swinging_shank_trial(0.5)
+    cfg = SmootherConfig(corner_landmark_sigma_m=0.05)
+    b = KeyframeGraphBuilder(cfg, tr.imu_T_cam)
+    from vio_graph.smoother.synthetic import replay_events
+
+    cov = np.eye(2) * 1e-4
+    landmark_factors = []  # per keyframe: (landmark key, 2x2 translation covariance) per factor
+    for kind, i in replay_events(tr):
+        if kind == "imu":
+            ups = b.add_imu(tr.imu[i])
+        else:
+            t, kf = float(tr.frame_times_s[i]), bool(tr.is_keyframe[i])
+            obs = [CornerObservation(t, 0, np.array([0.5, -0.3]), cov),
+                   StanceObservation(t, 0, np.array([-0.1, -0.4]), cov)]
+            ups = b.add_frame(t, kf, tr.filter_estimates[i], tr.displacements[i], obs)
+        for u in ups:
+            kf_factors = []
+            for n, ks in enumerate(u.factor_keys):
+                if [gtsam.Symbol(k).chr() for k in ks] == [ord("x"), ord("l")]:
+                    noise = u.factors.at(n).noiseModel().noise()
+                    kf_factors.append((ks[1], np.asarray(noise.covariance())[3:, 3:]))
+            landmark_factors.append(kf_factors)
+    assert len(landmark_factors) > 2
+    for kf_factors in landmark_factors:
+        (corner_key, corner_cov), (anchor_key, anchor_cov) = kf_factors
+        assert (corner_key, anchor_key) == (L(0), L(1))
+        assert corner_cov[0, 0] == pytest.approx(1e-4 + 0.05**2)
+        assert anchor_cov[0, 0] == pytest.approx(1e-4)
 
 
 def test_ingestion_errors():

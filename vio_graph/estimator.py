@@ -66,7 +66,6 @@ from vio_graph.kinematics import LegPoints, knee_from_camera, leg_points_from_kn
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.recording.metadata import RecordingMetadata
 from vio_graph.types import (
-    STANCE_TRACK_ID_BASE,
     ContactSample,
     CornerObservation,
     DepthFrame,
@@ -74,6 +73,8 @@ from vio_graph.types import (
     FrameEstimate,
     ImuSample,
     JointAngles,
+    LandmarkKey,
+    StanceObservation,
 )
 
 
@@ -200,11 +201,11 @@ class OnlineEstimator:
                                       fc.stance_window_s)
         self._stance_n = 0  # id of the current / next stance anchor
         #: this frame's stance anchor (ankle - camera) as an observation, None outside stance
-        self.stance_observation: CornerObservation | None = None
+        self.stance_observation: StanceObservation | None = None
         #: this frame's corner observation, track id replaced by its landmark's (re-identified)
         self.corner_observation: CornerObservation | None = None
-        self._corner_alias: dict[int, tuple[str, int]] = {}  # track id -> landmark key
-        self._corner_seen: dict[tuple[str, int], float] = {}  # landmark key -> last seen, s
+        self._corner_alias: dict[int, LandmarkKey] = {}  # track id -> landmark key
+        self._corner_seen: dict[LandmarkKey, float] = {}  # landmark key -> last seen, s
         self._in_stance = False
         self._refused_in_row = 0  # displacements refused by the gate in a row
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
@@ -419,7 +420,7 @@ class OnlineEstimator:
             key = None if obs is None else self._corner_key(t, obs)
             if obs is not None:
                 # the smoothers see the re-identified corner under one track id too
-                self.corner_observation = dataclasses.replace(obs, track_id=key[1])
+                self.corner_observation = dataclasses.replace(obs, track_id=key.id)
                 self._corner_seen[key] = t
             self._forget_corners(t, key)
             if obs is not None:
@@ -462,7 +463,7 @@ class OnlineEstimator:
         stats["candidate_frames"] += int(candidate)
         stats["vision_refused"] += int(candidate and not agrees)
         stance = candidate and agrees
-        key = ("ankle", self._stance_n)
+        key = LandmarkKey("ankle", self._stance_n)
         self.stance_observation = None
         if stance:
             sig2 = ((fc.stance_pitch_sigma_rad * float(np.hypot(*u))) ** 2
@@ -472,9 +473,9 @@ class OnlineEstimator:
             if first or fused:
                 stats["anchored_frames"] += 1
                 # the same anchor, as a landmark observation the smoother can use
-                self.stance_observation = CornerObservation(
-                    timestamp_s=t, track_id=STANCE_TRACK_ID_BASE + self._stance_n,
-                    corner_rel_xz_m=lever.copy(), cov_m2=np.eye(2) * sig2)
+                self.stance_observation = StanceObservation(
+                    timestamp_s=t, stance_id=self._stance_n,
+                    ankle_rel_xz_m=lever.copy(), cov_m2=np.eye(2) * sig2)
             else:
                 stats["gate_refused"] += 1
                 stance = False
@@ -486,18 +487,18 @@ class OnlineEstimator:
             self._stance_test.reset()
         self._in_stance = stance
 
-    def _corner_key(self, t: float, obs: CornerObservation) -> tuple[str, int]:
+    def _corner_key(self, t: float, obs: CornerObservation) -> LandmarkKey:
         """Landmark key of a corner observation: its track's, or, for a new track, a
         remembered corner it matches (FilterConfig.corner_reidentify_radius_m)."""
         tid = obs.track_id
         if tid in self._corner_alias:
             return self._corner_alias[tid]
-        key = ("corner", tid)
+        key = LandmarkKey("corner", tid)
         radius = self.config.filter.corner_reidentify_radius_m
         if radius is not None:
             p, _ = self._position_at(t)
             seen = p + np.asarray(obs.corner_rel_xz_m, float)
-            known = [k for k in self.filter.landmark_keys if k[0] == "corner"]
+            known = self._corner_keys()
             if known:
                 d = np.array([np.linalg.norm(self.filter.landmark_xz(k) - seen) for k in known])
                 order = np.argsort(d)
@@ -506,16 +507,18 @@ class OnlineEstimator:
         self._corner_alias[tid] = key
         return key
 
-    def _forget_corners(self, t: float, current: tuple[str, int] | None) -> None:
+    def _corner_keys(self) -> list[LandmarkKey]:
+        """The corner landmarks in the filter state, in its order."""
+        return [k for k in self.filter.landmark_keys if k.kind == "corner"]
+
+    def _forget_corners(self, t: float, current: LandmarkKey | None) -> None:
         """Marginalise corner landmarks unseen for corner_memory_s, and the oldest beyond
         max_corner_landmarks."""
         fc = self.config.filter
-        corners = [k for k in self.filter.landmark_keys if k[0] == "corner"]
-        for k in corners:
+        for k in self._corner_keys():
             if k != current and t - self._corner_seen.get(k, t) > fc.corner_memory_s:
                 self.filter.drop_landmark(k)
-        corners = sorted((k for k in self.filter.landmark_keys if k[0] == "corner"),
-                         key=lambda k: self._corner_seen.get(k, t))
+        corners = sorted(self._corner_keys(), key=lambda k: self._corner_seen.get(k, t))
         for k in corners[: max(0, len(corners) - fc.max_corner_landmarks)]:
             if k != current:
                 self.filter.drop_landmark(k)

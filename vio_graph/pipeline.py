@@ -33,7 +33,7 @@ from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.recording.reader import Recording
 from vio_graph.recording.streams import Trajectory
 from vio_graph.recording.tum import write_tum
-from vio_graph.types import Displacement2D, EstimateStatus, TerrainKind
+from vio_graph.types import Displacement2D, EstimateStatus, LandmarkObservation, TerrainKind
 
 log = logging.getLogger(__name__)
 
@@ -184,11 +184,11 @@ class Replay:
             self.batch_solve_s = time.perf_counter() - t0
         return lg
 
-    def _smoother_observations(self, res) -> list:
+    def _smoother_observations(self, res) -> list[LandmarkObservation]:
         """Landmark observations for the smoothers: the corner and, if enabled, the stance
         anchor (the planted ankle, a landmark seen through the leg)."""
         corner = self.online.corner_observation  # re-identified corners share a track id
-        obs = [corner] if corner is not None else []
+        obs: list[LandmarkObservation] = [corner] if corner is not None else []
         stance = self.online.stance_observation
         if stance is not None and self.config.smoother.factors.stance_anchors:
             obs.append(stance)

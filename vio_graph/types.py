@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from typing import Literal, NamedTuple, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
@@ -96,11 +97,6 @@ class Displacement2D:
     cov_m2: NDArray[np.float64]
 
 
-#: Track ids of stance anchors (the planted ankle as a landmark, vio_graph/estimator.py) start
-#: here; corner track ids stay far below.
-STANCE_TRACK_ID_BASE = 1_000_000
-
-
 @dataclass(frozen=True)
 class CornerObservation:
     """A terrain corner (stair nosing / obstacle top edge) seen from the camera.
@@ -113,6 +109,33 @@ class CornerObservation:
     track_id: int
     corner_rel_xz_m: NDArray[np.float64]
     cov_m2: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class StanceObservation:
+    """The stance anchor: the ankle, fixed at stance onset, seen from the camera through the
+    leg kinematics (vio_graph/estimator.py).
+
+    ``ankle_rel_xz_m``: ankle minus camera position, ground-aligned axes, metres.
+    ``stance_id``: one id per stance (the same anchor keeps it over the stance's frames).
+    """
+
+    timestamp_s: float
+    stance_id: int
+    ankle_rel_xz_m: NDArray[np.float64]
+    cov_m2: NDArray[np.float64]
+
+
+#: A landmark seen from the camera: a terrain corner or the stance ankle.
+LandmarkObservation: TypeAlias = CornerObservation | StanceObservation
+
+
+class LandmarkKey(NamedTuple):
+    """Key of a landmark in the filter state: a corner (``id`` = its landmark's track id) or
+    the stance ankle (``id`` = the stance id)."""
+
+    kind: Literal["corner", "ankle"]
+    id: int
 
 
 @dataclass(frozen=True)

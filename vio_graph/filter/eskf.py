@@ -75,12 +75,12 @@ from scipy.stats import chi2
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
 from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw
-from vio_graph.types import Displacement2D, EstimateStatus, ImuSample
+from vio_graph.types import Displacement2D, EstimateStatus, ImuSample, LandmarkKey
 
 #: error-state dimension of the paper's filter: (dp, dv, da_b, dg), each 2D
 ERROR_STATE_DIM = 8
 _CLONE_TOL_S = 1e-3  # a displacement's t0 must match the clone time to 1 ms
-_CLONE = "clone"  # key of the stochastic clone among the augmented blocks
+_CLONE = "clone"  # key of the stochastic clone among the augmented blocks (else LandmarkKey)
 _I2 = np.eye(2)
 
 
@@ -171,9 +171,9 @@ class SagittalEskf:
         self._x = np.zeros(ERROR_STATE_DIM)  # nominal (p, v, a_b, g)
         self._P = np.zeros((ERROR_STATE_DIM, ERROR_STATE_DIM))
         # augmented static 2D blocks after the 8 core errors: the clone (key "clone") and
-        # landmarks (any other hashable key), in the order of ``_aug_keys``
-        self._aug_keys: list[object] = []
-        self._aug_xz: dict[object, NDArray[np.float64]] = {}
+        # landmarks (LandmarkKey), in the order of ``_aug_keys``
+        self._aug_keys: list[LandmarkKey | str] = []
+        self._aug_xz: dict[LandmarkKey | str, NDArray[np.float64]] = {}
         self._clone_t_s = 0.0
         self._prev: _ImuMemo | None = None
         self._accel_w_mps2 = np.zeros(2)  # last ground-frame acceleration, for p(t)
@@ -402,7 +402,7 @@ class SagittalEskf:
     # --------------------------------------------------------------- landmarks
     def update_landmark(
         self,
-        key: object,
+        key: LandmarkKey,
         rel_xz: ArrayLike,
         cov: ArrayLike,
         timestamp_s: float | None = None,
@@ -411,17 +411,18 @@ class SagittalEskf:
         """Fuse an observation of a static point (landmark) relative to the camera.
 
         ``rel_xz`` (m) is landmark minus camera at ``timestamp_s`` (ground axes), ``cov`` (m^2)
-        its covariance, ``key`` any hashable id (e.g. ``("corner", track_id)`` or
-        ``("ankle", n)``). The landmark is part of the state (SLAM-style augmentation, like
-        the clone): the first observation of a key adds L = p(t) + rel with error
-        dp + dt dv + e, e ~ cov, so L carries the position uncertainty of that moment and its
-        correlation with the state; every later observation is the relative measurement
-        z = L - p(t), H = [-I -dt*I 0 0 .. I ..], gated like the displacements. While a
-        landmark stays in view the position error therefore cannot grow beyond what it was
-        when the landmark was first seen (plus observation noise). Returns True if the
-        observation was fused (False: first sight, gated out, or stale). ``gate=False``
-        skips the chi-square gate (for observations whose association cannot be wrong, e.g.
-        the stance ankle, where a drifted velocity must not lock the anchor out).
+        its covariance, ``key`` its id (``LandmarkKey("corner", track_id)`` or
+        ``LandmarkKey("ankle", stance_id)``; any hashable other than "clone" works). The
+        landmark is part of the state (SLAM-style augmentation, like the clone): the first
+        observation of a key adds L = p(t) + rel with error dp + dt dv + e, e ~ cov, so L
+        carries the position uncertainty of that moment and its correlation with the state;
+        every later observation is the relative measurement z = L - p(t), H = [-I -dt*I 0 0 .. I
+        ..], gated like the displacements. While a landmark stays in view the position error
+        therefore cannot grow beyond what it was when the landmark was first seen (plus
+        observation noise). Returns True if the observation was fused (False: first sight, gated
+        out, or stale). ``gate=False`` skips the chi-square gate (for observations whose
+        association cannot be wrong, e.g. the stance ankle, where a drifted velocity must not
+        lock the anchor out).
         """
         self._require_init()
         t = self._t_s if timestamp_s is None else float(timestamp_s)
@@ -446,18 +447,18 @@ class SagittalEskf:
             self._record_correction(t)
         return accepted
 
-    def drop_landmark(self, key: object) -> None:
+    def drop_landmark(self, key: LandmarkKey) -> None:
         """Forget landmark ``key`` (marginalise it out of the state); no-op if unknown."""
         if key == _CLONE:
             raise EstimationError("the clone is not a landmark")
         self._marginalise(key)
 
     @property
-    def landmark_keys(self) -> tuple[object, ...]:
+    def landmark_keys(self) -> tuple[LandmarkKey, ...]:
         """Keys of the landmarks currently in the state."""
-        return tuple(k for k in self._aug_keys if k != _CLONE)
+        return tuple(k for k in self._aug_keys if k != _CLONE)  # type: ignore[misc]
 
-    def landmark_xz(self, key: object) -> NDArray[np.float64]:
+    def landmark_xz(self, key: LandmarkKey) -> NDArray[np.float64]:
         """Current estimate (m) of landmark ``key``."""
         if key == _CLONE or key not in self._aug_xz:
             raise EstimationError(f"unknown landmark {key!r}")
@@ -535,11 +536,11 @@ class SagittalEskf:
         self._augment(_CLONE, self._position_ahead(dt), dt, np.zeros((2, 2)))
         self._clone_t_s = t_s
 
-    def _aug_index(self, key: object) -> int:
+    def _aug_index(self, key: LandmarkKey | str) -> int:
         """First row of the augmented block ``key`` in P."""
         return ERROR_STATE_DIM + 2 * self._aug_keys.index(key)
 
-    def _marginalise(self, key: object) -> None:
+    def _marginalise(self, key: LandmarkKey | str) -> None:
         """Drop the augmented block ``key`` (if present): delete its rows and columns of P."""
         if key not in self._aug_xz:
             return
@@ -550,7 +551,11 @@ class SagittalEskf:
         del self._aug_xz[key]
 
     def _augment(
-        self, key: object, value_xz: NDArray[np.float64], dt_s: float, extra_cov: NDArray
+        self,
+        key: LandmarkKey | str,
+        value_xz: NDArray[np.float64],
+        dt_s: float,
+        extra_cov: NDArray,
     ) -> None:
         """Append a static block x_new = p(t + dt) + e with error dp + dt dv + e, e ~ extra_cov
         independent of the state (the block's cross-covariance follows from J P J^T)."""

@@ -9,9 +9,12 @@ Nodes (``gtsam.symbol_shorthand``)::
     X(i)  Pose3 of the IMU in the world frame (R_world_imu, world position), keyframe i
     V(i)  IMU velocity in the world frame (3,), m/s
     B(i)  imuBias.ConstantBias [accel (m/s^2), gyro (rad/s)] at keyframe i
-    L(j)  Pose3 landmark of a corner track: translation = corner position (world, m);
-          rotation fixed at identity by a tight prior (it only makes the built-in
-          BetweenFactorPose3 usable as a "point seen from a pose" factor)
+    L(j)  Pose3 landmark of a corner track or of a stance anchor (the ankle planted during one
+          stance): translation = its position (world, m); rotation fixed at identity by a
+          tight prior (it only makes the built-in BetweenFactorPose3 usable as a "point seen
+          from a pose" factor). One numbering for both kinds, in order of first sight (keys
+          decide GTSAM's elimination order; a symbol of their own for anchors would change
+          the last bits of every result)
 
 Factors::
 
@@ -41,6 +44,8 @@ Factors::
 - Landmark observation (corner minus camera position, world x-z): BetweenFactorPose3(X(i),
   L(j)) with translation ``R_i^T o + imu_p_cam``; with the landmark rotation fixed at identity
   the translation error is in world axes, so the front end's covariance enters unrotated.
+  A stance observation (ankle minus camera) enters the same way, without the extra corner
+  sigma.
 - Attitude: PriorFactorPose3 on the rotation only (AHRS with heading removed, inflated sigma,
   huge translation sigma).
 - Sagittal-plane priors: world-y of every keyframe position (PoseTranslationPrior3D; with
@@ -67,11 +72,13 @@ from vio_graph.errors import EstimationError
 from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.types import (
-    STANCE_TRACK_ID_BASE,
     CornerObservation,
     Displacement2D,
     FrameEstimate,
     ImuSample,
+    LandmarkKey,
+    LandmarkObservation,
+    StanceObservation,
 )
 
 #: Sigma used for "unconstrained" axes of a prior (tangent units).
@@ -389,7 +396,7 @@ class _Pending:
     timestamp_s: float
     estimate: FrameEstimate | None
     displacement: tuple[NDArray[np.float64], NDArray[np.float64]] | None
-    observations: list[CornerObservation]
+    observations: list[LandmarkObservation]
     R_world_imu: NDArray[np.float64] | None = None
 
 
@@ -418,7 +425,8 @@ class KeyframeGraphBuilder:
         self._last_kf_R: NDArray[np.float64] | None = None
         # chained displacement since the last keyframe: start, end, sum (2,), cov (2, 2)
         self._chain: tuple[float, float, NDArray[np.float64], NDArray[np.float64]] | None = None
-        self._landmark_of_track: dict[int, int] = {}
+        # corner track / stance -> its GTSAM key L(j); landmarks of either kind so far
+        self._landmark_of: dict[LandmarkKey, int] = {}
         self._n_landmarks = 0
         # latest refined state of the newest keyframe (set by the smoother after each update)
         self._latest_nav: gtsam.NavState | None = None
@@ -433,11 +441,10 @@ class KeyframeGraphBuilder:
         self._latest_bias = bias
 
     def forget_landmarks(self, landmark_keys: Sequence[int]) -> None:
-        """Landmarks marginalised by a fixed-lag smoother: a re-seen track gets a new L(j)."""
+        """Landmarks marginalised by a fixed-lag smoother: a re-seen track or stance gets a new
+        L(j)."""
         dead = set(landmark_keys)
-        self._landmark_of_track = {
-            tr: j for tr, j in self._landmark_of_track.items() if L(j) not in dead
-        }
+        self._landmark_of = {lk: k for lk, k in self._landmark_of.items() if k not in dead}
 
     # ---- ingestion -----------------------------------------------------------------------------
     def add_imu(self, sample: ImuSample) -> list[KeyframeUpdate]:
@@ -459,7 +466,7 @@ class KeyframeGraphBuilder:
         is_keyframe: bool,
         filter_estimate: FrameEstimate | None,
         displacement: Displacement2D | None,
-        observation: CornerObservation | Sequence[CornerObservation] | None,
+        observation: LandmarkObservation | Sequence[LandmarkObservation] | None,
         R_world_imu: ArrayLike | None = None,
     ) -> list[KeyframeUpdate]:
         """Ingest one depth frame's outputs; returns completed keyframes (0, 1 or 2).
@@ -492,8 +499,8 @@ class KeyframeGraphBuilder:
             disp = (self._chain[2], self._chain[3])
         self._chain = (t, t, np.zeros(2), np.zeros((2, 2)))
         if observation is None:
-            obs: list[CornerObservation] = []
-        elif isinstance(observation, CornerObservation):
+            obs: list[LandmarkObservation] = []
+        elif isinstance(observation, (CornerObservation, StanceObservation)):
             obs = [observation]
         else:
             obs = list(observation)
@@ -534,6 +541,13 @@ class KeyframeGraphBuilder:
         ts = np.asarray(self._imu_t)
         g = np.asarray(self._imu_g)
         return np.array([np.interp(t_s, ts, g[:, i]) for i in range(3)])
+
+    def _new_landmark_key(self, lkey: LandmarkKey) -> int:
+        """The next GTSAM key L(j) for a corner track or a stance, remembered."""
+        k = L(self._n_landmarks)
+        self._n_landmarks += 1
+        self._landmark_of[lkey] = k
+        return k
 
     def _complete_pending(self) -> KeyframeUpdate:
         pend = self._pending
@@ -655,31 +669,33 @@ class KeyframeGraphBuilder:
             add(gtsam.PriorFactorVector(V(i), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(sig)),
                 [V(i)])
 
-        # -- corner landmarks: long-span constraints --
+        # -- corner landmarks and stance anchors: long-span constraints --
         if fam.landmarks:
             for ob in pend.observations:
-                o3 = _xz_to_3(ob.corner_rel_xz_m)
-                j = self._landmark_of_track.get(ob.track_id)
-                if j is None:
-                    j = self._n_landmarks
-                    self._n_landmarks += 1
-                    self._landmark_of_track[ob.track_id] = j
+                cov = np.asarray(ob.cov_m2, dtype=float).reshape(2, 2)
+                if isinstance(ob, StanceObservation):
+                    lkey = LandmarkKey("ankle", ob.stance_id)
+                    o3 = _xz_to_3(ob.ankle_rel_xz_m)
+                else:
+                    lkey = LandmarkKey("corner", ob.track_id)
+                    o3 = _xz_to_3(ob.corner_rel_xz_m)
+                    cov = cov + np.eye(2) * cfg.corner_landmark_sigma_m**2
+                lk = self._landmark_of.get(lkey)
+                if lk is None:
+                    lk = self._new_landmark_key(lkey)
                     lm = t_guess + R_i @ p_ic + o3
                     lm[1] = 0.0
                     lm_pose = gtsam.Pose3(gtsam.Rot3(), lm)
-                    values.insert(L(j), lm_pose)
+                    values.insert(lk, lm_pose)
                     sig = np.r_[[cfg.landmark_rotation_sigma_rad] * 3,
                                 cfg.landmark_position_sigma_m, cfg.landmark_lateral_sigma_m,
                                 cfg.landmark_position_sigma_m]
-                    add(gtsam.PriorFactorPose3(L(j), lm_pose,
-                                               gtsam.noiseModel.Diagonal.Sigmas(sig)), [L(j)])
+                    add(gtsam.PriorFactorPose3(lk, lm_pose,
+                                               gtsam.noiseModel.Diagonal.Sigmas(sig)), [lk])
                 meas = gtsam.Pose3(rot_i.inverse(), R_i.T @ o3 + p_ic)
-                cov = np.asarray(ob.cov_m2, dtype=float).reshape(2, 2)
-                if ob.track_id < STANCE_TRACK_ID_BASE:  # a corner, not a stance anchor
-                    cov = cov + np.eye(2) * cfg.corner_landmark_sigma_m**2
                 noise = _between_noise(_cov3_from_xz(cov, cfg), cfg)
-                add(gtsam.BetweenFactorPose3(X(i), L(j), meas, noise), [X(i), L(j)])
-                stamps[L(j)] = t
+                add(gtsam.BetweenFactorPose3(X(i), lk, meas, noise), [X(i), lk])
+                stamps[lk] = t
 
         self._n_keyframes += 1
         self._last_kf_time_s = t

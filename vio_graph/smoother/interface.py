@@ -1,8 +1,9 @@
 """Ingestion interface shared by the fixed-lag and the batch smoother.
 
 Both smoothers take the same stream as the SP-ESKF replay loop (IMU samples, then per depth
-frame the filter's estimate, the ICP displacement and corner observations), so one replay loop
-drives every estimator and the comparison is like for like.
+frame the filter's estimate, the ICP displacement and landmark observations: corners and
+stance anchors), so one replay loop drives every estimator and the comparison is like for
+like.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from vio_graph.errors import EstimationError
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.graph import KeyframeGraphBuilder, KeyframeUpdate
-from vio_graph.types import CornerObservation, Displacement2D, FrameEstimate, ImuSample
+from vio_graph.types import Displacement2D, FrameEstimate, ImuSample, LandmarkObservation
 
 
 class KeyframeEstimate(NamedTuple):
@@ -60,7 +61,7 @@ class KeyframeSmootherBase(ABC):
         is_keyframe: bool,
         filter_estimate: FrameEstimate | None,
         displacement: Displacement2D | None,
-        observation: CornerObservation | Sequence[CornerObservation] | None,
+        observation: LandmarkObservation | Sequence[LandmarkObservation] | None,
         R_world_imu: ArrayLike | None = None,
     ) -> None:
         """Feed one depth frame's outputs.
@@ -71,7 +72,7 @@ class KeyframeSmootherBase(ABC):
         which differs from it by the filter's attitude processing, see
         ``KeyframeGraphBuilder.add_frame``).
 
-        Non-keyframes only extend the displacement chain (their corner observations are not
+        Non-keyframes only extend the displacement chain (their landmark observations are not
         used). A keyframe becomes a node once IMU data reaches its time; ``filter_estimate`` is
         its initial guess (None: IMU prediction from the previous keyframe).
         """

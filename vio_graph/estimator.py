@@ -216,9 +216,9 @@ class OnlineEstimator:
                 np.array([0.0, -rig.leg.shank_length_m]) - rig.camera_in_shank_xz_m))),
             fc.measurement_noise_floor_m)
         #: stance bookkeeping for the health report: frames the detector proposed, refused by
-        #: vision, refused by the anchor gate, and anchored
+        #: vision, refused by the anchor gate, gate refusals overridden by vision, anchored
         self.stance_stats = {"candidate_frames": 0, "vision_refused": 0, "gate_refused": 0,
-                             "anchored_frames": 0}
+                             "vision_overrides": 0, "anchored_frames": 0}
 
     def health_report(self) -> dict:
         """Is the estimate in trouble? Shares of refused displacements and of stance frames,
@@ -443,12 +443,14 @@ class OnlineEstimator:
                      R_world_imu: NDArray[np.float64]) -> None:
         """Stance anchor: the ankle fixed at stance onset is a landmark seen through the leg.
 
-        The acceleration detector proposes a stance; the visual displacement of this frame
-        (and the chain of them since onset) must agree with a still ankle
-        (StanceConsistencyTest), and the anchor observation itself is chi-square gated when
-        ``stance_gate``. Either refusal ends the stance: its anchor is marginalised and a new
-        one may start at the next frame, so a wrong stance cannot pin the estimate and a
-        drifted velocity cannot lock the anchor out for a whole stance.
+        The acceleration detector (or the contact channel) proposes a stance; the visual
+        displacement of this frame (and the chain of them since onset) must agree with a still
+        ankle (StanceConsistencyTest), and the anchor observation itself is chi-square gated
+        when ``stance_gate``. A gate refusal is arbitrated: if vision tested and confirmed the
+        still ankle in this frame, the filter's velocity is the odd one out and the anchor is
+        taken; otherwise (no visual evidence) the stance ends, its anchor
+        is marginalised and a new one may start at the next frame. So a wrong stance cannot
+        pin the estimate, and a velocity drifted in a blind swing cannot lock the anchor out.
         """
         fc = self.config.filter
         lever, dlever, u = self._stance_lever(R_world_imu)
@@ -470,6 +472,12 @@ class OnlineEstimator:
                     + fc.stance_slip_sigma_m**2)
             first = key not in self.filter.landmark_keys
             fused = self.filter.update_landmark(key, lever, np.eye(2) * sig2, t, fc.stance_gate)
+            if not (first or fused) and self._stance_test.tested:
+                # the gate says the filter and the anchor disagree, while vision has just
+                # confirmed the still ankle: two sensors against the filter's velocity (which
+                # drifts in every swing without vision), so the anchor is taken.
+                fused = self.filter.update_landmark(key, lever, np.eye(2) * sig2, t, False)
+                stats["vision_overrides"] += 1
             if first or fused:
                 stats["anchored_frames"] += 1
                 # the same anchor, as a landmark observation the smoother can use

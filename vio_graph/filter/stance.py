@@ -114,6 +114,8 @@ class StanceConsistencyTest:
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, lever) last frame
         self._chain: tuple[NDArray, NDArray, NDArray] | None = None  # (lever0, sum d, sum C)
         self.last_d2: float = 0.0  #: largest Mahalanobis^2 of the last test (diagnostics)
+        #: True if the last call had a displacement to test (False: nothing was tested)
+        self.tested: bool = False
 
     def reset(self) -> None:
         """Forget the chain (the stance ended or was rejected)."""
@@ -130,9 +132,11 @@ class StanceConsistencyTest:
         lever = np.asarray(lever_xz_m, dtype=float)
         prev, self._prev = self._prev, (float(t_s), lever)
         self.last_d2 = 0.0
+        self.tested = False
         if displacement is None or prev is None or abs(displacement.t0_s - prev[0]) > 1e-6:
             self._chain = None
             return True
+        self.tested = True
         prev = prev[1]
         d = np.asarray(displacement.delta_xz_m, dtype=float)
         C = np.asarray(displacement.cov_m2, dtype=float) + np.eye(2) * self._floor_var

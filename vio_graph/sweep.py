@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from vio_graph.config import PipelineConfig
+from vio_graph.experiments import _merge
 from vio_graph.io_utils import atomic_write_json, atomic_write_text, write_generated_doc
 
 log = logging.getLogger(__name__)
@@ -119,13 +120,6 @@ def condition_by_name(name: str) -> SweepCondition:
             return c
     raise KeyError(f"unknown sweep condition {name!r}; choose from "
                    f"{[c.name for c in SWEEP_CONDITIONS]}")
-
-
-def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    out = dict(base)
-    for k, v in over.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
 
 
 def condition_scenario(cond: SweepCondition):

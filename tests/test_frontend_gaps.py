@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vio_graph.frontend.config import TerrainConfig
+from vio_graph.frontend.config import CornerConfig, TerrainConfig
 from vio_graph.frontend.corners import extract_corner
 from vio_graph.frontend.smoothing import smooth_profile
 from vio_graph.frontend.synthetic import (
@@ -76,16 +76,25 @@ def test_a_riser_band_is_not_taken_for_the_tread() -> None:
             assert np.linalg.norm(tips - corner.edge_xz_m, axis=1).min() < 0.01
 
 
-def test_no_face_below_a_tread_end_is_reported() -> None:
+def test_no_face_below_a_tread_end_is_reported_and_widened() -> None:
     """A tread seen from above without anything below its near end: the corner keeps the
-    tread end and says that no face supports it."""
+    tread end, says no face supports it, and the tracker's observation of it has a wide x
+    sigma (the end of the tread may be a band's border); ``near_edge_needs_face`` drops it."""
+    from vio_graph.frontend.tracker import CornerTracker
+
     rng = np.random.default_rng(3)
     x_low, x_high = np.linspace(-0.1, 0.15, 60), np.linspace(0.30, 0.60, 70)
     pts = np.vstack([np.column_stack([x_low, -0.45 + rng.normal(0, 0.002, x_low.size)]),
                      np.column_stack([x_high, -0.30 + rng.normal(0, 0.002, x_high.size)])])
-    corner = extract_corner(smooth_profile(pts), np.random.default_rng(0),
-                            terrain=TerrainKind.STAIR_UP)
+    profile = smooth_profile(pts)
+    strict = CornerConfig(near_edge_needs_face=True)
+    assert extract_corner(profile, np.random.default_rng(0), strict, TerrainKind.STAIR_UP) is None
+    corner = extract_corner(profile, np.random.default_rng(0), terrain=TerrainKind.STAIR_UP)
     assert corner is not None and not corner.has_face
+    obs = CornerTracker().update(0.0, profile, corner).observation
+    assert obs is not None
+    assert np.sqrt(obs.cov_m2[0, 0]) == pytest.approx(0.03)
+    assert np.sqrt(obs.cov_m2[1, 1]) == pytest.approx(0.01)
     assert corner.edge_xz_m[0] == pytest.approx(0.30, abs=0.01)
 
 

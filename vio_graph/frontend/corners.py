@@ -39,8 +39,10 @@ vio_graph's reading of the parts the paper leaves open:
   riser; choosing the foremost supported line puts the corner at the nosing tip, not at the
   riser. In the gravity-aligned ground frame the tread line is horizontal and the face line
   vertical, so the intersection is (face x, tread height). When no face is supported the
-  edge stays at the tread end and the corner says so (``has_face`` False): its x is then
-  only as good as the end of the tread (the tracker treats such corners separately).
+  edge stays at the tread end and the corner says so (``has_face`` False): the end of the
+  tread alone may be the border of a missing band (on simulated stairs with 2-6 cm bands such
+  corners were 2-5 cm off), so the tracker widens its x uncertainty; with
+  ``near_edge_needs_face`` no such corner is given at all.
   At the far end (stairs down) the riser faces away and no face can be seen: the edge x is
   the median x of the points just below the end of the run (within d in x, d to w below),
   when there are 3, else the run end. A missing band there shortens the tread and the edge
@@ -225,6 +227,8 @@ def extract_corner(
     edge = np.array([run[0] if side == "near" else run[-1], upper.height_m])
     # 4b. nosing = where the face line below the tread meets the tread line (module docstring)
     face_x = _face_line_x(pts, edge, cfg) if side == "near" else None
+    if side == "near" and face_x is None and cfg.near_edge_needs_face:
+        return None  # the tread end alone may be a band's border, centimetres behind the nosing
     if face_x is not None:
         edge[0] = face_x
         # tread height from the tread side only: riser points within d below the tread pull

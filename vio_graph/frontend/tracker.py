@@ -45,6 +45,10 @@ IMU-seeded mode (the default whenever the caller passes a prediction):
    is far outside the prediction's uncertainty over one frame, so the seed picks the period.
    On the simulated trials this raised the displacement availability from 0.62 to 0.90
    (upstair s1) and 0.08 to 0.9 (obstacle s1, mostly level floor). ``False`` = the paper.
+8. Corner ICP rejected (quality, gate or nosing check): the whole-profile ICP of step 7 is
+   tried before giving up, and the corner observation is kept. In fast swings the 10 cm
+   window can lose its counterpart while the profile still registers; without this, a frame
+   classified as stairs measured less than the same frame classified level.
 """
 
 from __future__ import annotations
@@ -262,11 +266,27 @@ class CornerTracker:
         T_assoc = T0 if bad is not None else T
         same = prev_corner is not None and self._is_same(corner, prev_corner, T_assoc)  # 5.
         track_id = prev.track_id if same and prev.track_id is not None else self._new_id()
-        obs = CornerObservation(t, track_id, corner.edge_xz_m.copy(), self._edge_cov_m2.copy())
+        obs = CornerObservation(t, track_id, corner.edge_xz_m.copy(), self._edge_cov(corner))
         if bad is not None:
+            if cfg.profile_fallback and profile is not None:
+                # 8. the corner window failed (too few points, RMS, gate): the whole profile
+                #    may still register; the corner observation is kept either way
+                alt = self._profile_icp(t, profile, prev, pred, pred_cov)
+                if alt.displacement is not None:
+                    return dataclasses.replace(alt, observation=obs, track_id=track_id,
+                                               same_corner=same)
             return TrackerOutput(None, obs, icp, bad, track_id, same, d2)
         disp = Displacement2D(prev.timestamp_s, t, -T, C)
         return TrackerOutput(disp, obs, icp, None, track_id, same, d2)
+
+    def _edge_cov(self, corner: CornerFeature) -> NDArray[np.float64]:
+        """Covariance of the corner observation, m^2: ``edge_sigma_m`` per axis, and x widened
+        to ``faceless_edge_x_sigma_m`` for a near-end corner no face line supports (its x is
+        the end of the tread, which a missing band moves by centimetres)."""
+        cov = self._edge_cov_m2.copy()
+        if corner.side == "near" and not corner.has_face:
+            cov[0, 0] = max(cov[0, 0], self._cfg.faceless_edge_x_sigma_m**2)
+        return cov
 
     def _has_face(self, corner: CornerFeature) -> bool:
         """True if the feature window holds a face (riser / obstacle side) below the edge."""
@@ -319,7 +339,7 @@ class CornerTracker:
         src, tree = self._source(prev, corner.feature_points_xz_m, shift)
         icp = icp_translation_2d(src, corner.feature_points_xz_m, shift, self._icp_cfg, tree)
         track_id = prev.track_id if prev.track_id is not None else self._new_id()
-        obs = CornerObservation(t, track_id, corner.edge_xz_m.copy(), self._edge_cov_m2.copy())
+        obs = CornerObservation(t, track_id, corner.edge_xz_m.copy(), self._edge_cov(corner))
         bad = self._quality_problem(icp)
         if bad is not None:
             return TrackerOutput(None, obs, icp, bad, track_id, True)
@@ -342,5 +362,5 @@ class CornerTracker:
         self, t: float, corner: CornerFeature, icp: IcpResult | None, reason: str
     ) -> TrackerOutput:
         track_id = self._new_id()
-        obs = CornerObservation(t, track_id, corner.edge_xz_m.copy(), self._edge_cov_m2.copy())
+        obs = CornerObservation(t, track_id, corner.edge_xz_m.copy(), self._edge_cov(corner))
         return TrackerOutput(None, obs, icp, reason, track_id, False)

@@ -117,9 +117,10 @@ class CornerTracker:
     ) -> None:
         self._cfg = TrackerConfig() if tracker_config is None else tracker_config
         self._icp_cfg = IcpConfig() if icp_config is None else icp_config
-        self._fallback_icp_cfg = self._icp_cfg.model_copy(
-            update={"normal_neighbours": self._cfg.fallback_normal_neighbours}
-        )
+        fallback = {"normal_neighbours": self._cfg.fallback_normal_neighbours}
+        if self._cfg.fallback_max_correspondence_m is not None:
+            fallback["max_correspondence_m"] = self._cfg.fallback_max_correspondence_m
+        self._fallback_icp_cfg = self._icp_cfg.model_copy(update=fallback)
         self._edge_cov_m2 = np.eye(2) * edge_sigma_m**2
         self._prev: _Frame | None = None
         self._next_id = 0

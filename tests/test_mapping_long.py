@@ -9,10 +9,10 @@ local geometry (rise and tread within 5 mm, the aim for a 2-minute trial).
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 import pytest
-
-from functools import lru_cache
 
 from tests.test_mapping_synth import camera_track, ray_cast, stair_profile
 from vio_graph.mapping.config import StepConfig

@@ -31,7 +31,8 @@ vio_graph's reading of the parts the paper leaves open:
   pixels at the depth discontinuity. The end of the tread run is then 3-8 cm behind the
   nosing. So the edge is placed where the face below it (riser, nosing block, obstacle side)
   meets the tread: the face candidates are the points between ``face_top_margin_m`` and
-  ``face_band_m`` (or, if too few, w) below the tread line (the top margin skips the corner that kNN smoothing rounds) within
+  ``face_band_m`` (or, if too few, w) below the tread line (the top margin skips the
+  corner that kNN smoothing rounds) within
   ``max_nosing_gap_m`` in front of the tread end; they are grouped into vertical lines
   (x clusters ``face_cluster_m`` wide) and the face is the line nearest the tread's edge side
   (the camera side for stairs up) with at least ``min_face_points`` points. With a nosing
@@ -50,7 +51,8 @@ vio_graph's reading of the parts the paper leaves open:
 - **Window w.** Feature points are ALL profile points in the square window
   |x - x_edge| <= w, |z - z_edge| <= w: the last w of the tread plus the top w of the riser
   (or obstacle face) below the edge. When the tread run starts behind the nosing (a missing
-  band), the window reaches that much farther along the tread, so it still holds w of tread. The L shape constrains both x and z in ICP.
+  band), the window reaches that much farther along the tread, so it still holds w of
+  tread. The L shape constrains both x and z in ICP.
 """
 
 from __future__ import annotations

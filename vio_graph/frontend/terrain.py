@@ -37,7 +37,8 @@ Rule
    Points outside every level are grouped along x (split at gaps above ``face_gap_m``); the
    points of a group within ``face_max_width_m`` / 2 of its median x are its core (a short
    piece of tread attached to a riser is left out), and a core of at least
-   ``min_face_points`` points spanning at least ``min_step_m`` in height is a face. A face rises (going
+   ``min_face_points`` points spanning at least ``min_step_m`` in height is a face. A face
+   rises (going
    away from the camera) when the surface just before it (within ``face_context_m``) is nearer
    its bottom than its top, or, without one, the surface just after it is nearer its top, or,
    without either, the previous face is lower; otherwise it drops. A face taller than

@@ -153,7 +153,7 @@ class TofCamera:
             S = C + s_par[k] * d
             w = seg[k] / np.hypot(*seg[k])
 
-            def side(p: NDArray) -> float:
+            def side(p: NDArray, d: NDArray = d, C: NDArray = C) -> float:
                 return float(d[0] * (p[1] - C[1]) - d[1] * (p[0] - C[0]))
 
             solid = [E + np.array([dx, -1e-3]) for dx in (-1e-3, 1e-3)]

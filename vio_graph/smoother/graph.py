@@ -51,8 +51,8 @@ Factors::
 - Sagittal-plane priors: world-y of every keyframe position (PoseTranslationPrior3D; with
   ``factors.weak_position`` it also carries a weak absolute x-z prior at the initial guess,
   off by default because over a long trial those priors add up and pull the path towards
-  the filter's drift) and world-y of every velocity (PriorFactorVector, loose on x and z). Landmarks get y = 0 and a weak x-z
-  prior.
+  the filter's drift) and world-y of every velocity (PriorFactorVector, loose on x and z).
+  Landmarks get y = 0 and a weak x-z prior.
 - First keyframe: tight pose prior, velocity prior at the filter's estimate, zero-bias prior.
 
 All factors are GTSAM built-ins (no Python CustomFactor on the hot path).

@@ -89,6 +89,8 @@ def _write_into(
 ) -> None:
     (root / layout.DEPTH_DIR).mkdir()
     meta_dict = metadata.model_dump(mode="json")
+    if meta_dict.get("contact") is None:  # optional section: absent, so older readers still read
+        meta_dict.pop("contact", None)
     (root / layout.METADATA_FILE).write_text(
         yaml.safe_dump(meta_dict, sort_keys=False, default_flow_style=None), encoding="utf-8"
     )

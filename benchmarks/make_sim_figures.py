@@ -1,6 +1,6 @@
 """Realism figures of the simulator -> docs/figures/sim_*.png (small PNGs).
 
-Run: /work/venv/bin/python benchmarks/make_sim_figures.py [--out docs/figures] [--seed 1]
+Run: .venv/bin/python benchmarks/make_sim_figures.py [--out docs/figures] [--seed 1]
 
 sim_joint_angles.png   hip / knee / ankle vs gait phase (steady strides) with published peaks
 sim_depth.png          one depth image (upstair)

@@ -128,7 +128,8 @@ def test_rotating_the_previous_frame_keeps_icp_consistent() -> None:
 
 
 def _shank_pitch_error_deg(rec_path: Path, enabled: bool) -> float:
-    from vio_graph.pipeline import Replay, shank_pitch_error_deg
+    from vio_graph.evaluation.run_metrics import shank_pitch_error_deg
+    from vio_graph.pipeline import Replay
     from vio_graph.viz.rerun_logger import NullVisualizer
 
     cfg = PipelineConfig()
@@ -136,7 +137,8 @@ def _shank_pitch_error_deg(rec_path: Path, enabled: bool) -> float:
     cfg = cfg.model_copy(update={"filter": cfg.filter.model_copy(update={"level_aiding": la})})
     rec = Recording.open(rec_path)
     lg = Replay(rec, cfg, {"filter"}, NullVisualizer()).run()
-    return shank_pitch_error_deg(rec, np.asarray(lg.t_s), np.asarray(lg.shank_pitch_imu))["rms"]
+    return shank_pitch_error_deg(rec.groundtruth, np.asarray(lg.t_s),
+                                 np.asarray(lg.shank_pitch_imu))["rms"]
 
 
 def test_level_aiding_cuts_the_shank_pitch_error_on_a_simulated_trial(short_upstair) -> None:

@@ -23,9 +23,12 @@ import vio_graph
 from vio_graph.config import PipelineConfig, dump_config
 from vio_graph.errors import EstimationError, OutputError
 from vio_graph.estimator import OnlineEstimator, RigGeometry
-from vio_graph.evaluation.association import associate
 from vio_graph.evaluation.diagnostics import displacement_nees, stance_scores, true_stance
-from vio_graph.evaluation.metrics import ape, ate_per_axis, rpe
+from vio_graph.evaluation.run_metrics import (
+    evaluate_paths,
+    shank_pitch_error_deg,
+    terrain_accuracy,
+)
 from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
 from vio_graph.frontend.projection import depth_to_points_cam
 from vio_graph.io_utils import atomic_write_json, atomic_write_text, remove_temporaries
@@ -39,7 +42,6 @@ log = logging.getLogger(__name__)
 
 MODES = ("filter", "smoother", "batch")
 BASELINES = ("imu_only", "icp_only")
-BODIES = ("camera", "knee", "ankle", "heel", "toe")
 
 
 @dataclass
@@ -342,66 +344,6 @@ def leg_trajectories(
     }
 
 
-def shank_pitch_error_deg(
-    rec: Recording, t_s: NDArray[np.float64], shank_pitch_rad: NDArray[np.float64]
-) -> dict[str, float]:
-    """Error (deg) of the shank pitch the kinematics used, against the pitch of the true
-    knee - ankle segment (ground truth at the frame times): rms, mean and max |error|."""
-    gt = rec.groundtruth.trajectories
-    seg = (_interp_xz(gt["knee"], t_s) - _interp_xz(gt["ankle"], t_s)).T  # (N, 2)
-    true = np.arctan2(seg[:, 0], seg[:, 1])  # rot_y(pitch) (0, L) = (L sin, L cos)
-    err = np.degrees(np.angle(np.exp(1j * (np.asarray(shank_pitch_rad) - true))))
-    return {"rms": float(np.sqrt(np.mean(err**2))), "mean": float(np.mean(err)),
-            "max_abs": float(np.max(np.abs(err)))}
-
-
-def evaluate_paths(
-    rec: Recording,
-    t_s: NDArray[np.float64],
-    paths: dict[str, dict[str, NDArray[np.float64]]],
-    visible: NDArray[np.bool_] | None,
-) -> dict[str, Any]:
-    """ATE (paper: first pose anchored, RMSE per axis), aligned APE and RPE per mode and body."""
-    gt = rec.groundtruth
-    out: dict[str, Any] = {
-        "ate_cm": {},
-        "ate_cm_visible": {},
-        "ape_se3_cm": {},
-        "rpe_cm": {"0.1s": {}, "1.0s": {}},
-    }
-    for mode, bodies in paths.items():
-        for key in out:
-            (out[key] if key != "rpe_cm" else out[key]["0.1s"]).setdefault(mode, {})
-        out["rpe_cm"]["1.0s"].setdefault(mode, {})
-        for body, xz in bodies.items():
-            est = Trajectory.from_xz(t_s, xz)
-            pair = associate(est, gt.trajectories[body], max_diff_s=0.02)
-            e, r = pair.est, pair.ref
-            a = ate_per_axis(e, r, anchor="first")
-            out["ate_cm"][mode][body] = {
-                "x": a.rmse_x_cm,
-                "z": a.rmse_z_cm,
-                "total": a.rmse_total_cm,
-            }
-            if visible is not None:
-                keep = np.interp(e.timestamp_s, t_s, visible.astype(float)) > 0.5
-                if keep.any():
-                    av = ate_per_axis(e, r, anchor="first", mask=keep)
-                    out["ate_cm_visible"][mode][body] = {
-                        "x": av.rmse_x_cm,
-                        "z": av.rmse_z_cm,
-                        "total": av.rmse_total_cm,
-                        "fraction": float(keep.mean()),
-                    }
-            ap = ape(e, r, alignment="translation")
-            out["ape_se3_cm"][mode][body] = {"x": 100 * ap.rmse_x_m, "z": 100 * ap.rmse_z_m}
-            for d in ("0.1s", "1.0s"):
-                rp = rpe(e, r, delta_s=float(d[:-1]))
-                out["rpe_cm"][d][mode][body] = 100 * rp.stats.rmse
-    out["ape_translation_aligned_cm"] = out.pop("ape_se3_cm")
-    return out
-
-
 def run_recording(
     recording: Path | str,
     out_dir: Path | str,
@@ -502,9 +444,9 @@ def _run_into(
     if gt is not None:
         if gt.frame_edge_visible is not None:
             visible = gt.frame_edge_visible[: len(t_s)].astype(bool)
-        metrics.update(evaluate_paths(rec, t_s, paths, visible))
+        metrics.update(evaluate_paths(gt, t_s, paths, visible))
         metrics["shank_pitch_error_deg"] = shank_pitch_error_deg(
-            rec, t_s, np.asarray(lg.shank_pitch_chain if use_enc else lg.shank_pitch_imu))
+            gt, t_s, np.asarray(lg.shank_pitch_chain if use_enc else lg.shank_pitch_imu))
     metrics["latency_ms"] = _latencies(lg, replay)
     metrics["smoother_failures"] = replay.failed
     if "batch" in replay.smoothers:  # measurements the robust kernels down-weighted
@@ -533,7 +475,8 @@ def _run_into(
     }
     metrics["health"] = replay.online.health_report()
     if gt is not None:
-        metrics["terrain_classification"] = _terrain_accuracy(rec, lg)
+        metrics["terrain_classification"] = terrain_accuracy(
+            rec.metadata.terrain.kind, lg.terrain, gt.frame_edge_visible)
         metrics["stance_detection"] = stance_scores(
             np.asarray(lg.in_stance, bool), true_stance(gt.trajectories["ankle"], t_s))
         metrics["frontend"]["displacement_nees"] = displacement_nees(
@@ -591,22 +534,6 @@ def _latencies(lg: FrameLog, replay: Replay) -> dict[str, Any]:
     if "batch" in smoothers:
         out["batch_solve_s"] = replay.batch_solve_s
     return out
-
-
-def _terrain_accuracy(rec: Recording, lg: FrameLog) -> dict[str, Any]:
-    """Fraction of frames whose terrain class matches the recording's terrain kind, among the
-    frames that saw a terrain edge (ground truth)."""
-    truth = rec.metadata.terrain.kind
-    pred = np.asarray(lg.terrain)
-    vis = rec.groundtruth.frame_edge_visible
-    mask = vis[: len(pred)].astype(bool) if vis is not None else np.ones(len(pred), bool)
-    if truth == "level" or not mask.any():  # level ground has no edge: judge every frame
-        mask = np.ones(len(pred), bool)
-    return {
-        "truth": truth,
-        "accuracy_visible": float(np.mean(pred[mask] == truth)) if mask.any() else float("nan"),
-        "predicted_counts_visible": _count(list(pred[mask])),
-    }
 
 
 def _write_frames_csv(path: Path, lg: FrameLog) -> Path:

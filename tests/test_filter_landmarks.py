@@ -7,9 +7,8 @@ import pytest
 
 from vio_graph.errors import EstimationError
 from vio_graph.filter import FilterConfig, SagittalEskf
-from vio_graph.filter.eskf import _cross3
 from vio_graph.filter.stance import StanceDetector
-from vio_graph.geometry import GRAVITY_MPS2
+from vio_graph.geometry import GRAVITY_MPS2, cross3
 from vio_graph.types import Displacement2D, ImuSample, LandmarkKey
 
 UPRIGHT = np.array([1.0, 0.0, 0.0, 0.0])
@@ -88,7 +87,7 @@ def test_stance_detector_quiet_at_rest_and_not_in_swing() -> None:
     # shank rotating about the ANKLE at a constant 2 rad/s (stance roll-over): the ankle
     # does not accelerate, so the IMU's centripetal term is exactly cancelled by the lever arm
     w = np.array([0.0, 2.0, 0.0])
-    f_imu = np.array([0.0, 0.0, GRAVITY_MPS2]) - _cross3(w, _cross3(w, ankle_in_imu))
+    f_imu = np.array([0.0, 0.0, GRAVITY_MPS2]) - cross3(w, cross3(w, ankle_in_imu))
     for k in range(20, 40):
         d.add_imu(k / 100.0, f_imu, w, R, g)
     assert d.quiet()
@@ -102,7 +101,7 @@ def test_cross3_matches_numpy() -> None:
     rng = np.random.default_rng(3)
     for _ in range(100):
         a, b = rng.normal(size=3), rng.normal(size=3)
-        assert np.array_equal(_cross3(a, b), np.cross(a, b))
+        assert np.array_equal(cross3(a, b), np.cross(a, b))
 
 
 def test_ungated_landmark_accepts_what_the_gate_rejects() -> None:

@@ -59,6 +59,7 @@ from vio_graph.geometry import (
     quat_wxyz_from_matrix,
     remove_yaw,
     rot_y,
+    rotate_xz,
 )
 from vio_graph.health import HealthLimits, HealthMonitor
 from vio_graph.keyframes import KeyframeSelector
@@ -434,9 +435,9 @@ class OnlineEstimator:
         camera_in_shank), its derivative by the shank pitch, and the shank-frame vector."""
         theta = self.rig.shank_pitch_rad(R_world_imu)
         u = np.array([0.0, -self.rig.leg.shank_length_m]) - self.rig.camera_in_shank_xz_m
-        c, sn = np.cos(theta), np.sin(theta)
-        lever = np.array([c * u[0] + sn * u[1], -sn * u[0] + c * u[1]])
-        dlever = np.array([-sn * u[0] + c * u[1], -c * u[0] - sn * u[1]])  # d lever/d theta
+        lever = rotate_xz(theta, u)
+        # d lever/d theta = R'(theta) u = R(theta) (u_z, -u_x): the same products and sums
+        dlever = rotate_xz(theta, np.array([u[1], -u[0]]))
         return lever, dlever, u
 
     def _fuse_stance(self, t: float, result: FrontendResult,

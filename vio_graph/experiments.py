@@ -10,7 +10,6 @@ band over trials, ground truth).
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -371,10 +370,6 @@ def write_report(
         plot_toe_bands(fig, runs)
         written["doc"] = doc_path
     return written
-
-
-def load_trial_metrics(results_dir: Path) -> dict[str, Any]:
-    return json.loads((Path(results_dir) / "metrics.json").read_text())
 
 
 # ----------------------------------------------------------------------------- ablation

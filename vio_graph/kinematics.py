@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.geometry import rotate_xz
+
 
 @dataclass(frozen=True)
 class LegModel:
@@ -37,15 +39,6 @@ class LegModel:
 def shank_pitch_rad(thigh_pitch_rad: ArrayLike, knee_rad: ArrayLike) -> NDArray[np.float64]:
     """Shank segment pitch (rad, + = knee ahead of ankle) from hip flexion and knee flexion."""
     return np.asarray(knee_rad, dtype=float) - np.asarray(thigh_pitch_rad, dtype=float)
-
-
-def _rotate_xz(pitch_rad: NDArray[np.float64], xz: ArrayLike) -> NDArray[np.float64]:
-    """Rotate body-frame (x, z) vectors by rot_y(pitch): returns (..., 2) world (x, z)."""
-    v = np.asarray(xz, dtype=float)
-    c, s = np.cos(pitch_rad), np.sin(pitch_rad)
-    x = c * v[..., 0] + s * v[..., 1]
-    z = -s * v[..., 0] + c * v[..., 1]
-    return np.stack([x, z], axis=-1)
 
 
 @dataclass(frozen=True)
@@ -74,19 +67,10 @@ def leg_points_from_knee(
     knee = np.atleast_2d(np.asarray(knee_xz_m, dtype=float))
     th_s = np.atleast_1d(np.asarray(shank_pitch, dtype=float))
     th_f = th_s + np.atleast_1d(np.asarray(ankle_rad, dtype=float))
-    ankle = knee + _rotate_xz(th_s, np.array([0.0, -leg.shank_length_m]))
-    heel = ankle + _rotate_xz(th_f, np.array(leg.heel_in_foot_xz_m))
-    toe = ankle + _rotate_xz(th_f, np.array(leg.toe_in_foot_xz_m))
+    ankle = knee + rotate_xz(th_s, np.array([0.0, -leg.shank_length_m]))
+    heel = ankle + rotate_xz(th_f, np.array(leg.heel_in_foot_xz_m))
+    toe = ankle + rotate_xz(th_f, np.array(leg.toe_in_foot_xz_m))
     return LegPoints(knee_xz_m=knee, ankle_xz_m=ankle, heel_xz_m=heel, toe_xz_m=toe)
-
-
-def knee_from_hip(
-    leg: LegModel, hip_xz_m: ArrayLike, thigh_pitch_rad: ArrayLike
-) -> NDArray[np.float64]:
-    """Knee position (N, 2) from the hip position and hip flexion."""
-    hip = np.atleast_2d(np.asarray(hip_xz_m, dtype=float))
-    th_t = -np.atleast_1d(np.asarray(thigh_pitch_rad, dtype=float))
-    return hip + _rotate_xz(th_t, np.array([0.0, -leg.thigh_length_m]))
 
 
 def knee_from_camera(
@@ -98,4 +82,4 @@ def knee_from_camera(
     """
     cam = np.atleast_2d(np.asarray(camera_xz_m, dtype=float))
     th_s = np.atleast_1d(np.asarray(shank_pitch, dtype=float))
-    return cam - _rotate_xz(th_s, np.asarray(camera_in_shank_xz_m, dtype=float))
+    return cam - rotate_xz(th_s, np.asarray(camera_in_shank_xz_m, dtype=float))

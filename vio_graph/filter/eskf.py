@@ -74,7 +74,7 @@ from scipy.stats import chi2
 
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
-from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw
+from vio_graph.geometry import cross3, matrix_from_quat_wxyz, pitch_of, remove_yaw, rot_y_xz
 from vio_graph.types import Displacement2D, EstimateStatus, ImuSample, LandmarkKey
 
 #: error-state dimension of the paper's filter: (dp, dv, da_b, dg), each 2D
@@ -127,9 +127,7 @@ def sagittal_rotation(quat_wxyz: ArrayLike) -> NDArray[np.float64]:
     R_w_i = remove_yaw(matrix_from_quat_wxyz(quat_wxyz))
     if R_w_i[1, 1] < 0.0:  # body y (lateral) points to world -y: the flipped ZYX solution
         R_w_i = np.diag([-1.0, -1.0, 1.0]) @ R_w_i
-    theta = float(pitch_of(R_w_i))
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, s], [-s, c]])
+    return rot_y_xz(float(pitch_of(R_w_i)))
 
 
 @dataclass(frozen=True)
@@ -254,12 +252,12 @@ class SagittalEskf:
         f3 = accel.copy()
         alpha = np.zeros(3)
         if self.config.lever_arm_compensation:
-            f3 += _cross3(gyro, _cross3(gyro, r))  # centripetal omega x (omega x r)
+            f3 += cross3(gyro, cross3(gyro, r))  # centripetal omega x (omega x r)
             if self._prev is not None and t > self._prev.timestamp_s:
                 # angular acceleration by finite differences of the gyro, valid at mid-interval
                 alpha = (gyro - self._prev.gyro_radps) / (t - self._prev.timestamp_s)
         f_xz = f3[[0, 2]]
-        tangential_xz = _cross3(alpha, r)[[0, 2]]  # alpha x r
+        tangential_xz = cross3(alpha, r)[[0, 2]]  # alpha x r
 
         # 2. ground-frame acceleration over [t - dt, t] (eq. 6: R (a_m - a_b) + g)
         ab, g = self._x[4:6], self._x[6:8]
@@ -351,30 +349,6 @@ class SagittalEskf:
             self._record_correction(t1)
         if cloning:
             self._set_clone(t1)
-        return accepted
-
-    def update_position(
-        self, z_xz: ArrayLike, cov: ArrayLike, timestamp_s: float | None = None
-    ) -> bool:
-        """Fuse an absolute camera-position measurement z (m) with covariance ``cov`` (m^2).
-
-        H = [I dt*I 0 0] with dt = ``timestamp_s`` - state time (0 if None). Gated like the
-        displacements; returns True if accepted.
-        """
-        self._require_init()
-        t = self._t_s if timestamp_s is None else float(timestamp_s)
-        dt = t - self._t_s
-        if abs(dt) > self.config.max_time_mismatch_s:
-            self._n_stale += 1
-            return False
-        H = np.zeros((2, self._P.shape[0]))
-        H[:, 0:2] = _I2
-        H[:, 2:4] = dt * _I2
-        innovation = _vec2(z_xz) - self._position_ahead(dt)
-        accepted = self._correct(innovation, H, _cov2(cov))
-        if accepted:
-            self._last_accept_s = t
-            self._record_correction(t)
         return accepted
 
     def clone_position(self, timestamp_s: float) -> None:
@@ -617,12 +591,3 @@ def _cov2(c: ArrayLike) -> NDArray[np.float64]:
     if a.shape != (2, 2) or not np.all(np.isfinite(a)):
         raise EstimationError(f"expected a finite 2x2 covariance, got shape {a.shape}")
     return 0.5 * (a + a.T)
-
-
-def _cross3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """a x b for 3-vectors, written out: np.cross costs ~80 us per call (argument checks and
-    axis moves), this ~4 us, and it is called 3 times per IMU sample. Same result bit for bit
-    (the same products and differences)."""
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )

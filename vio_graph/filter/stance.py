@@ -22,6 +22,7 @@ from collections import deque
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.geometry import cross3
 from vio_graph.types import Displacement2D
 
 
@@ -58,7 +59,7 @@ class StanceDetector:
         if self._prev is not None and t > self._prev[0]:
             alpha = (w - self._prev[1]) / (t - self._prev[0])
         self._prev = (t, w.copy())
-        f_ankle = f + _cross3(alpha, r) + _cross3(w, _cross3(w, r))
+        f_ankle = f + cross3(alpha, r) + cross3(w, cross3(w, r))
         a = R_sagittal @ f_ankle[[0, 2]] + np.asarray(gravity_xz_mps2, dtype=float)
         mag = float(np.hypot(a[0], a[1]))
         self._recent.append((t, mag))
@@ -71,12 +72,6 @@ class StanceDetector:
         if len(self._recent) < 2 or self._recent[-1][0] - self._recent[0][0] < 0.8 * self._window_s:
             return False
         return max(m for _, m in self._recent) < self._thr
-
-
-def _cross3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
 
 
 def chi2_2dof_quantile(probability: float) -> float:

@@ -64,6 +64,7 @@ from vio_graph.frontend.config import IcpConfig, TrackerConfig
 from vio_graph.frontend.corners import CornerFeature
 from vio_graph.frontend.icp import IcpResult, icp_translation_2d
 from vio_graph.frontend.smoothing import grid_thin
+from vio_graph.geometry import rot_y_xz
 from vio_graph.types import CornerObservation, Displacement2D
 
 
@@ -135,8 +136,7 @@ class CornerTracker:
         next ICP compares two slices rotated alike."""
         if self._prev is None or angle_rad == 0.0:
             return
-        c, s = np.cos(angle_rad), np.sin(angle_rad)
-        R = np.array([[c, s], [-s, c]])  # (x, z) -> (c x + s z, -s x + c z)
+        R = rot_y_xz(angle_rad)  # (x, z) -> (c x + s z, -s x + c z)
         prev = self._prev
         corner = prev.corner
         if corner is not None:

@@ -79,11 +79,6 @@ class Extrinsics(_Strict):
     def knee_T_cam_matrix(self) -> np.ndarray:
         return np.asarray(self.knee_T_cam, dtype=float)
 
-    def knee_T_imu_matrix(self) -> np.ndarray:
-        from vio_graph.geometry import invert_transform
-
-        return self.knee_T_cam_matrix() @ invert_transform(self.imu_T_cam_matrix())
-
 
 class LegGeometry(_Strict):
     """Link model of the instrumented leg (see vio_graph.kinematics.LegModel)."""

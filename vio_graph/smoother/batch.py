@@ -15,7 +15,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
 from vio_graph.smoother.config import SmootherConfig
-from vio_graph.smoother.graph import KeyframeUpdate, X, camera_xz_cov_from_pose_cov
+from vio_graph.smoother.graph import (
+    KeyframeUpdate,
+    X,
+    camera_from_pose,
+    camera_xz_cov_from_pose_cov,
+)
 from vio_graph.smoother.interface import KeyframeEstimate, KeyframeSmootherBase
 
 
@@ -83,9 +88,7 @@ class BatchSmoother(KeyframeSmootherBase):
                 self._marginals = None
         out = []
         for i, t in enumerate(self._kf_times_s):
-            pose = self._result.atPose3(X(i))
-            R = pose.rotation().matrix()
-            cam = np.asarray(pose.translation()) + R @ self.imu_p_cam_m
+            R, cam = camera_from_pose(self._result.atPose3(X(i)), self.imu_p_cam_m)
             cov: NDArray[np.float64] = np.full((2, 2), np.nan)
             if with_covariance and self._marginals is not None:
                 cov = camera_xz_cov_from_pose_cov(

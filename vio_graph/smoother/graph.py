@@ -69,7 +69,7 @@ from gtsam.symbol_shorthand import B, L, V, X
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
-from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw
+from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw, skew
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.types import (
     CornerObservation,
@@ -355,6 +355,14 @@ def imu_position_from_camera(
     return np.array([c[0] - off[0], 0.0, c[1] - off[2]])
 
 
+def camera_from_pose(
+    pose: gtsam.Pose3, imu_p_cam_m: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """World rotation R (3x3) of an IMU pose and the camera position (3,): c = t + R p."""
+    R = pose.rotation().matrix()
+    return R, np.asarray(pose.translation()) + R @ imu_p_cam_m
+
+
 def camera_xz_cov_from_pose_cov(
     R_world_imu: NDArray[np.float64], pose_cov: NDArray[np.float64], imu_p_cam_m: ArrayLike
 ) -> NDArray[np.float64]:
@@ -363,8 +371,7 @@ def camera_xz_cov_from_pose_cov(
     GTSAM's Pose3 tangent is [rotation, translation] in the body frame, so with
     ``T' = T Exp(xi)`` the camera c = t + R p moves by ``R (v - [p]x w)``.
     """
-    p = np.asarray(imu_p_cam_m, dtype=float)
-    px = np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
+    px = skew(imu_p_cam_m)
     J = R_world_imu @ np.hstack([-px, np.eye(3)])
     C = J @ pose_cov @ J.T
     return C[np.ix_([0, 2], [0, 2])]

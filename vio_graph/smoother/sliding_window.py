@@ -16,7 +16,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
 from vio_graph.smoother.config import SmootherConfig
-from vio_graph.smoother.graph import B, KeyframeUpdate, V, X, camera_xz_cov_from_pose_cov
+from vio_graph.smoother.graph import (
+    B,
+    KeyframeUpdate,
+    V,
+    X,
+    camera_from_pose,
+    camera_xz_cov_from_pose_cov,
+)
 from vio_graph.smoother.interface import KeyframeEstimate, KeyframeSmootherBase
 
 _NAN2 = np.full((2, 2), np.nan)
@@ -101,9 +108,7 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
     def _camera_estimate(
         self, i: int, with_covariance: bool
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        pose = self._smoother.calculateEstimatePose3(X(i))
-        R = pose.rotation().matrix()
-        cam = np.asarray(pose.translation()) + R @ self.imu_p_cam_m
+        R, cam = camera_from_pose(self._smoother.calculateEstimatePose3(X(i)), self.imu_p_cam_m)
         cov = _NAN2
         if with_covariance and self._incremental:
             cov = camera_xz_cov_from_pose_cov(

@@ -9,6 +9,7 @@ open3d are first imported. Benchmarks only, never used by the library.
 from __future__ import annotations
 
 import os
+import tempfile
 
 THREAD_VARIABLES = (
     "OMP_NUM_THREADS",
@@ -30,7 +31,8 @@ import numpy as np  # noqa: E402
 
 BENCH_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = BENCH_DIR / "results"
-SCRATCH_DIR = Path(os.environ.get("VIO_GRAPH_BENCH_SCRATCH", "/tmp/vio_graph_bench"))
+SCRATCH_DIR = Path(os.environ.get("VIO_GRAPH_BENCH_SCRATCH",
+                                  Path(tempfile.gettempdir()) / "vio_graph_bench"))
 
 
 def stats_ms(values: Any) -> dict[str, float]:

@@ -3,7 +3,7 @@
 Each benchmark runs in its own process with the BLAS / OpenMP pools pinned to one thread and
 writes benchmarks/results/<name>.json (gitignored); this script then renders the tables of all
 of them, the machine and the date into docs/performance.md. About 3-5 minutes on 2 cores (the
-first run also simulates the upstair trial into /tmp/vio_graph_bench, ~20 s).
+first run also simulates the upstair trial into the system temp folder, ~20 s).
 
     .venv/bin/python benchmarks/run_all.py [--quick] [--no-doc]
 """

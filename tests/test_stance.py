@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from vio_graph.config import PipelineConfig
-from vio_graph.filter.stance import StanceConsistencyTest, chi2_2dof_quantile
+from vio_graph.filter.gating import chi2_2dof_quantile
+from vio_graph.filter.stance import StanceConsistencyTest
 from vio_graph.pipeline import run_recording
 from vio_graph.types import Displacement2D
 

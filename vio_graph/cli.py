@@ -109,7 +109,9 @@ def _print_ate_table(metrics: dict) -> None:
     if not ate:
         typer.echo("no ground truth: no ATE")
         return
-    key = "ate_cm_visible" if metrics.get("terrain") == "obstacle" else "ate_cm"
+    from vio_graph.evaluation.run_metrics import ate_key
+
+    key = ate_key(metrics)
     typer.echo(
         f"ATE (cm, first pose anchored{', obstacle-visible frames' if key != 'ate_cm' else ''}):"
     )

@@ -49,7 +49,8 @@ from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
 from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_pitch_offset
 from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
-from vio_graph.filter.stance import StanceConsistencyTest, StanceDetector, chi2_2dof_quantile
+from vio_graph.filter.gating import chi2_2dof_quantile
+from vio_graph.filter.stance import StanceConsistencyTest, StanceDetector
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
 from vio_graph.frontend.level import SurfaceTilt, measure_surface_tilt
 from vio_graph.geometry import (
@@ -190,6 +191,7 @@ class OnlineEstimator:
         self._p0 = (np.zeros(2) if initial_camera_xz_m is None
                     else np.asarray(initial_camera_xz_m, float))
         self._last_imu: ImuSample | None = None
+        self._last_imu_shank_axes: ImuSample | None = None  # as received, in shank axes
         self._last_joints: JointAngles | None = None
         self._last_contact: ContactSample | None = None
         self._prev_frame: tuple[float, NDArray[np.float64]] | None = None  # (t, camera xz)
@@ -211,11 +213,15 @@ class OnlineEstimator:
         self._refused_in_row = 0  # displacements refused by the gate in a row
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
         self.health = HealthMonitor(HealthLimits(floor_m=fc.measurement_noise_floor_m))
+        #: ankle minus camera in the shank frame (x, z), m, and the sigma (m) of the
+        #: ankle-from-camera lever that a pitch-change error stance_pitch_sigma_rad makes
+        self._ankle_from_camera_shank_m = (np.array([0.0, -rig.leg.shank_length_m])
+                                           - rig.camera_in_shank_xz_m)
+        self._lever_sigma_m = fc.stance_pitch_sigma_rad * float(
+            np.hypot(*self._ankle_from_camera_shank_m))
         self._stance_test = StanceConsistencyTest(
             chi2_2dof_quantile(fc.stance_test_probability) if fc.stance_test else np.inf,
-            fc.stance_pitch_sigma_rad * float(np.hypot(*(
-                np.array([0.0, -rig.leg.shank_length_m]) - rig.camera_in_shank_xz_m))),
-            fc.measurement_noise_floor_m)
+            self._lever_sigma_m, fc.measurement_noise_floor_m)
         #: stance bookkeeping for the health report: frames the detector proposed, refused by
         #: vision, refused by the anchor gate, gate refusals overridden by vision, anchored
         self.stance_stats = {"candidate_frames": 0, "vision_refused": 0, "gate_refused": 0,
@@ -235,7 +241,7 @@ class OnlineEstimator:
     # ------------------------------------------------------------------ inputs
     def add_imu(self, sample: ImuSample) -> None:
         t0 = time.perf_counter()
-        sample = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
+        sample = shank = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
         sample = self.corrected_imu(sample)  # the offset applied once, for the strapdown
         if self._last_imu is None:
@@ -250,6 +256,7 @@ class OnlineEstimator:
                                  sagittal_rotation(sample.quat_wxyz),
                                  self.config.filter.gravity_xz_mps2)
         self._last_imu = sample
+        self._last_imu_shank_axes = shank
         self._imu_ms += (time.perf_counter() - t0) * 1e3
 
     def add_joints(self, sample: JointAngles) -> None:
@@ -269,6 +276,11 @@ class OnlineEstimator:
     @property
     def initialised(self) -> bool:
         return self._last_imu is not None
+
+    @property
+    def latest_imu_shank_axes(self) -> ImuSample | None:
+        """The latest IMU sample as received, turned into shank axes (no pitch offset)."""
+        return self._last_imu_shank_axes
 
     @property
     def latest_imu(self) -> ImuSample | None:
@@ -432,13 +444,13 @@ class OnlineEstimator:
 
     def _stance_lever(self, R_world_imu: NDArray[np.float64]):
         """ankle - camera through the shank (m, ground axes): R_shank (ankle_in_shank -
-        camera_in_shank), its derivative by the shank pitch, and the shank-frame vector."""
+        camera_in_shank), and its derivative by the shank pitch."""
         theta = self.rig.shank_pitch_rad(R_world_imu)
-        u = np.array([0.0, -self.rig.leg.shank_length_m]) - self.rig.camera_in_shank_xz_m
+        u = self._ankle_from_camera_shank_m
         lever = rotate_xz(theta, u)
         # d lever/d theta = R'(theta) u = R(theta) (u_z, -u_x): the same products and sums
         dlever = rotate_xz(theta, np.array([u[1], -u[0]]))
-        return lever, dlever, u
+        return lever, dlever
 
     def _fuse_stance(self, t: float, result: FrontendResult,
                      R_world_imu: NDArray[np.float64]) -> None:
@@ -454,7 +466,7 @@ class OnlineEstimator:
         pin the estimate, and a velocity drifted in a blind swing cannot lock the anchor out.
         """
         fc = self.config.filter
-        lever, dlever, u = self._stance_lever(R_world_imu)
+        lever, dlever = self._stance_lever(R_world_imu)
         agrees = self._stance_test.test(t, lever, result.displacement)
         candidate = (self._stance.quiet() if self._last_contact is None
                      else self._last_contact.loaded)
@@ -469,8 +481,7 @@ class OnlineEstimator:
         key = LandmarkKey("ankle", self._stance_n)
         self.stance_observation = None
         if stance:
-            sig2 = ((fc.stance_pitch_sigma_rad * float(np.hypot(*u))) ** 2
-                    + fc.stance_slip_sigma_m**2)
+            sig2 = self._lever_sigma_m**2 + fc.stance_slip_sigma_m**2
             first = key not in self.filter.landmark_keys
             fused = self.filter.update_landmark(key, lever, np.eye(2) * sig2, t, fc.stance_gate)
             if not (first or fused) and self._stance_test.tested:
@@ -488,11 +499,10 @@ class OnlineEstimator:
             else:
                 stats["gate_refused"] += 1
                 stance = False
-        if not stance and self._in_stance:
-            self.filter.drop_landmark(key)
-            self._stance_n += 1
-            self._stance_test.reset()
-        elif not stance:
+        if not stance:
+            if self._in_stance:  # the stance ended: its anchor leaves the state
+                self.filter.drop_landmark(key)
+                self._stance_n += 1
             self._stance_test.reset()
         self._in_stance = stance
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from vio_graph.filter.stance import chi2_2dof_quantile
+from vio_graph.filter.gating import chi2_2dof_quantile
 from vio_graph.types import Displacement2D
 
 

@@ -158,7 +158,7 @@ class Replay:
             if kind == 0:
                 s = rec.imu.sample(int(i))
                 online.add_imu(s)
-                s = self.rig.imu_in_shank_axes(s)  # what the estimator used, for the peers
+                s = online.latest_imu_shank_axes  # the sample in shank axes, for the peers
                 for b in self.baselines.values():
                     if not started:
                         b.initialise(s.timestamp_s, self.p0)

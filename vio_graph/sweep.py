@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from vio_graph.config import PipelineConfig
-from vio_graph.experiments import _merge
+from vio_graph.evaluation.run_metrics import ate_key
+from vio_graph.experiments import _map, _merge
 from vio_graph.io_utils import atomic_write_json, atomic_write_text, write_generated_doc
 
 log = logging.getLogger(__name__)
@@ -157,15 +157,13 @@ def _trial_task(args: tuple[str, int, str, str, str, tuple[str, ...]]) -> dict[s
     """Simulate (unless cached) and run one trial; returns its metrics (or an error)."""
     from vio_graph.pipeline import run_recording
     from vio_graph.sim import simulate
-    from vio_graph.sim.config import ScenarioConfig
 
     name, seed, rec, out, config_json, modes = args
     rec_dir, out_dir = Path(rec), Path(out)
     try:
         scen = condition_scenario(condition_by_name(name))
-        scen_json = scen.model_dump_json()
-        if not _recording_matches(rec_dir, scen_json):
-            simulate(ScenarioConfig.model_validate_json(scen_json), seed, rec_dir, overwrite=True)
+        if not _recording_matches(rec_dir, scen.model_dump_json()):
+            simulate(scen, seed, rec_dir, overwrite=True)
         cfg = PipelineConfig.model_validate_json(config_json)
         m = run_recording(rec_dir, out_dir, cfg, modes=modes, overwrite=True, visualize=False,
                           progress=False).metrics
@@ -196,30 +194,13 @@ def run_sweep(
                                 str(Path(out_dir) / "runs" / tag), config.model_dump_json(),
                                 tuple(modes))))
     tasks.sort(key=lambda t: -t[0])
-    items = [t[1] for t in tasks]
-    results: list[dict[str, Any]] = []
-    if jobs <= 1:
-        for k, it in enumerate(items):
-            results.append(_trial_task(it))
-            if progress:
-                progress(k + 1)
-    else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(_trial_task, it) for it in items]
-            for k, fut in enumerate(as_completed(futures)):
-                results.append(fut.result())
-                if progress:
-                    progress(k + 1)
+    results = _map(_trial_task, [t[1] for t in tasks], jobs, progress)
     order = {c.name: i for i, c in enumerate(conds)}
     results.sort(key=lambda r: (order[r["condition"]], r["seed"]))
     return results
 
 
 # ------------------------------------------------------------------------------ summary
-def _ate_key(m: dict[str, Any]) -> str:
-    return "ate_cm_visible" if m.get("terrain") == "obstacle" else "ate_cm"
-
-
 def _mean(values: list[float]) -> float:
     v = [x for x in values if x is not None and np.isfinite(x)]
     return float(np.mean(v)) if v else float("nan")
@@ -240,10 +221,10 @@ def summarise_sweep(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "ate_cm": {},
         }
         modes = [m for m in (*FUSED_MODES, *BASELINE_MODES)
-                 if ok and all(m in x.get(_ate_key(x), {}) for x in ok)]
+                 if ok and all(m in x.get(ate_key(x), {}) for x in ok)]
         for mode in modes:
             row["ate_cm"][mode] = {
-                body: {ax: _mean([x[_ate_key(x)][mode][body][ax] for x in ok])
+                body: {ax: _mean([x[ate_key(x)][mode][body][ax] for x in ok])
                        for ax in ("x", "z")}
                 for body in ("camera", "toe")
             }
@@ -297,8 +278,6 @@ def _f(v: float, fmt: str = "{:.2f}") -> str:
 
 def sweep_markdown(summary: dict[str, Any], command: str, n_seeds: int) -> str:
     """docs/generalisation.md (generated part)."""
-    from vio_graph.sim.config import load_scenario  # noqa: F401  (documents the base)
-
     conds = summary["conditions"]
     descr = {c.name: c for c in SWEEP_CONDITIONS}
     lines = [
@@ -379,7 +358,7 @@ def write_sweep_report(results: Sequence[dict[str, Any]], out_dir: Path, command
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out_dir / "sweep.json", {"summary": summary, "trials": [
         {k: v for k, v in r.items() if k != "metrics"} | (
-            {"ate_cm": r["metrics"].get(_ate_key(r["metrics"]))} if "metrics" in r else {})
+            {"ate_cm": r["metrics"].get(ate_key(r["metrics"]))} if "metrics" in r else {})
         for r in results]})
     md = sweep_markdown(summary, command, n_seeds)
     atomic_write_text(out_dir / "generalisation.md", md)

@@ -70,10 +70,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2
 
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
+from vio_graph.filter.gating import chi2_2dof_quantile
 from vio_graph.geometry import cross3, matrix_from_quat_wxyz, pitch_of, remove_yaw, rot_y_xz
 from vio_graph.types import Displacement2D, EstimateStatus, ImuSample, LandmarkKey
 
@@ -163,7 +163,7 @@ class SagittalEskf:
                 raise EstimationError(f"imu_T_cam must be a finite 4x4 matrix, got {T.shape}")
             self._r_imu_cam_m = T[:3, 3].copy()
         p = self.config.gate_probability
-        self._gate_d2 = float(chi2.ppf(p, df=2)) if p is not None else np.inf
+        self._gate_d2 = chi2_2dof_quantile(p) if p is not None else np.inf
         self._initialised = False
         self._t_s = 0.0
         self._x = np.zeros(ERROR_STATE_DIM)  # nominal (p, v, a_b, g)

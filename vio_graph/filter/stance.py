@@ -74,12 +74,6 @@ class StanceDetector:
         return max(m for _, m in self._recent) < self._thr
 
 
-def chi2_2dof_quantile(probability: float) -> float:
-    """Quantile of the chi-square distribution with 2 degrees of freedom (closed form:
-    -2 ln(1 - p)), e.g. 13.82 for p = 0.999."""
-    return float(-2.0 * np.log1p(-probability))
-
-
 class StanceConsistencyTest:
     """Tests the stance hypothesis "the ankle has not moved since onset" against vision.
 

@@ -45,6 +45,10 @@ def test_contact_round_trip_and_validation(short_upstair: Path, tmp_path: Path) 
     np.testing.assert_allclose(back.force_n, f, rtol=1e-8)
     assert np.array_equal(back.loaded, f >= 100.0)
     assert Recording.open(short_upstair).contact is None
+    # no 'contact' section is written for a recording without the channel (older readers)
+    import yaml
+
+    assert "contact" not in yaml.safe_load((short_upstair / "metadata.yaml").read_text())
     # a contact file the metadata does not describe is refused, naming the file
     (short_copy := tmp_path / "nometa").mkdir()
     import shutil

@@ -65,3 +65,20 @@ def test_run_warns_on_a_recording_whose_imu_mount_is_misdeclared(
         assert "health:" in res.output
         assert ("WARNING: the fused estimate is inconsistent" in res.output) == expect_warning, \
             res.output
+
+
+def test_one_window_far_off_is_a_jump_even_when_the_shares_are_low() -> None:
+    """25 healthy windows and one in which the fused path jumps 20 cm away from vision: the
+    departure share (4 %) and refusals (0 %) stay under their limits, the jump test warns."""
+    m = HealthMonitor()
+    cov = np.eye(2) * 1e-6
+    n = 26 * 30 + 1
+    for k in range(n):
+        d = None if k == 0 else Displacement2D((k - 1) * DT, k * DT, np.array([0.01, 0.0]), cov)
+        jump = 0.2 if k >= 400 else 0.0
+        m.add_frame(k * DT, np.array([k * 0.01 + jump, 0.0]), d, True, in_stance=False)
+    rep = m.report()
+    fv = rep["fused_vs_visual"]
+    assert fv["departure_share"] < m.limits.max_departure_share
+    assert rep["displacements_rejected_share"] == 0.0
+    assert fv["jump"] and not rep["ok"] and len(rep["warnings"]) == 1

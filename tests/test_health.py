@@ -82,3 +82,38 @@ def test_one_window_far_off_is_a_jump_even_when_the_shares_are_low() -> None:
     assert fv["departure_share"] < m.limits.max_departure_share
     assert rep["displacements_rejected_share"] == 0.0
     assert fv["jump"] and not rep["ok"] and len(rep["warnings"]) == 1
+
+
+def _feed_floor(monitor: HealthMonitor, x_var_m2: float, stance_every: int = 0,
+                n: int = 150) -> None:
+    """Accepted displacements whose x variance is ``x_var_m2`` (1.0 = the ICP's cap for an
+    unobservable direction: a floor); every ``stance_every``-th frame anchored in stance."""
+    cov = np.diag([x_var_m2, 1e-6])
+    for k in range(n):
+        d = None if k == 0 else Displacement2D((k - 1) * DT, k * DT, np.array([0.01, 0.0]), cov)
+        stance = bool(stance_every) and k % stance_every == 0
+        monitor.add_frame(k * DT, np.array([k * 0.01, 0.0]), d, True, in_stance=stance)
+
+
+def test_x_carried_by_the_imu_alone_is_reported() -> None:
+    blind = HealthMonitor()
+    _feed_floor(blind, x_var_m2=1.0)  # a floor only: x is never observed
+    rep = blind.report()
+    assert rep["x_blind"]["warned"] and not rep["ok"]
+    assert rep["x_blind"]["share"] == pytest.approx(1.0, abs=0.02)
+    assert rep["x_blind"]["longest_s"] == pytest.approx(149 * DT, abs=1e-9)
+    assert len(rep["warnings"]) == 1 and "forward (x)" in rep["warnings"][0]
+
+    seen = HealthMonitor()
+    _feed_floor(seen, x_var_m2=1e-6)  # risers in view: x measured on every frame
+    assert seen.report()["x_blind"]["share"] < 0.01 and seen.report()["ok"]  # frame 0 only
+
+    anchored = HealthMonitor()
+    _feed_floor(anchored, x_var_m2=1.0, stance_every=2)  # half the frames anchored
+    rep = anchored.report()
+    assert rep["x_blind"]["longest_s"] == pytest.approx(DT, abs=1e-9)
+    assert rep["x_blind"]["share"] == pytest.approx(0.5, abs=0.02)
+    assert rep["x_blind"]["warned"]  # above the 1/3 share
+    sparse = HealthMonitor()
+    _feed_floor(sparse, x_var_m2=1.0, stance_every=1)
+    assert not sparse.report()["x_blind"]["warned"]

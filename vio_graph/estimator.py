@@ -364,7 +364,9 @@ class OnlineEstimator:
         self._fuse_landmarks(t, result, R_world_imu)
         state = self.filter.state
         camera_xz, velocity = self._position_at(t)
-        self.health.add_frame(t, camera_xz, result.displacement, accepted, self._in_stance)
+        corner_seen = result.observation is not None and self.config.filter.corner_landmarks
+        self.health.add_frame(t, camera_xz, result.displacement, accepted, self._in_stance,
+                              corner_seen)
         timings["fusion"] = (time.perf_counter() - t0) * 1e3
         # 5. kinematics (Fig. 3)
         t0 = time.perf_counter()

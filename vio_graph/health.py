@@ -41,6 +41,11 @@ class HealthLimits:
     #: one window this far off is a jump, whatever the share (chi-square p = 1 - 1e-6: a
     #: healthy filter reaches it once in a million windows)
     jump_probability: float = 1.0 - 1e-6
+    #: a visual displacement whose x sigma (m) is at most this carries forward information
+    x_informative_sigma_m: float = 0.01
+    #: warn when nothing but the IMU carried x (no x-informative displacement, corner or
+    #: stance anchor) for more than this share of the trial
+    max_x_blind_share: float = 1.0 / 3.0
 
 
 @dataclass
@@ -69,15 +74,28 @@ class HealthMonitor:
         self.n_recoveries = 0  # gate lock-out recoveries of the filter (estimator sets it)
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, fused camera xz)
         self._window: _Window | None = None
+        # forward (x) observability: runs of frames on which nothing but the IMU carried x
+        self._x_blind_since: float | None = None
+        self._t_first_s: float | None = None
+        self.x_blind_s = 0.0  # summed length (s) of those runs
+        self.max_x_blind_s = 0.0  # the longest run (s)
 
     def add_frame(self, t_s: float, fused_camera_xz_m: NDArray[np.float64],
-                  displacement: Displacement2D | None, accepted: bool, in_stance: bool) -> None:
+                  displacement: Displacement2D | None, accepted: bool, in_stance: bool,
+                  landmark_seen: bool = False) -> None:
         """One depth frame: the fused camera position after the update, the front end's
-        displacement (None: none), whether the filter accepted it, whether it was anchored."""
+        displacement (None: none), whether the filter accepted it, whether it was anchored,
+        whether a corner landmark was observed."""
         p = np.asarray(fused_camera_xz_m, dtype=float)
         self.n_frames += 1
         self.n_stance += int(in_stance)
+        if self._t_first_s is None:
+            self._t_first_s = float(t_s)
         prev, self._prev = self._prev, (float(t_s), p.copy())
+        x_seen = in_stance or landmark_seen or (
+            accepted and displacement is not None
+            and float(displacement.cov_m2[0][0]) <= self.limits.x_informative_sigma_m**2)
+        self._track_x_blind(float(t_s), x_seen)
         if displacement is None:
             self._window = None  # the visual chain is broken
             return
@@ -101,10 +119,24 @@ class HealthMonitor:
             self.max_departure_d2 = max(self.max_departure_d2, d2)
             self._window = _Window(float(t_s), p.copy())
 
+    def _track_x_blind(self, t_s: float, x_seen: bool) -> None:
+        if not x_seen:
+            if self._x_blind_since is None:
+                self._x_blind_since = t_s
+            return
+        if self._x_blind_since is not None:
+            run = t_s - self._x_blind_since
+            self.x_blind_s += run
+            self.max_x_blind_s = max(self.max_x_blind_s, run)
+            self._x_blind_since = None
+
     def report(self, pitch_offset_deg: float = 0.0) -> dict:
         """Figures and warnings so far. ``pitch_offset_deg``: the level-surface correction
         of the IMU pitch (filter/attitude.PitchOffsetFilter), a hint for mounting errors."""
         lim = self.limits
+        longest_x_blind = self.max_x_blind_s
+        if self._x_blind_since is not None and self._prev is not None:
+            longest_x_blind = max(longest_x_blind, self._prev[0] - self._x_blind_since)
         rejected = _share(self.n_refused, self.n_displacements)
         departure = _share(self.n_departures, self.n_windows)
         stance = _share(self.n_stance, self.n_frames)
@@ -132,6 +164,20 @@ class HealthMonitor:
                          "imu_T_cam and the IMU noise settings")
             warnings.append(f"WARNING: the fused estimate is inconsistent: {what}. Likely "
                             f"cause: {cause}.")
+        x_blind_s = self.x_blind_s
+        if self._x_blind_since is not None and self._prev is not None:
+            x_blind_s += self._prev[0] - self._x_blind_since
+        duration_s = (0.0 if self._prev is None or self._t_first_s is None
+                      else self._prev[0] - self._t_first_s)
+        x_blind_share = x_blind_s / duration_s if duration_s > 0 else 0.0
+        weak_x = x_blind_share > lim.max_x_blind_share and not trouble  # one cause at a time
+        if weak_x:
+            warnings.append(
+                f"WARNING: the forward (x) position was carried by the IMU alone on "
+                f"{100 * x_blind_share:.0f} % of the trial (longest {longest_x_blind:.1f} s): no "
+                f"riser, corner or stance anchor constrained it, so x may have drifted by "
+                f"centimetres without the filter's covariance showing it. Likely cause: level "
+                f"floor walked fast (stance rarely detected) or a camera that sees no risers.")
         return {
             "frames": self.n_frames,
             "visual_displacements": self.n_displacements,
@@ -146,8 +192,10 @@ class HealthMonitor:
                 "jump": jump,
             },
             "recoveries": self.n_recoveries,
+            "x_blind": {"total_s": x_blind_s, "share": x_blind_share,
+                        "longest_s": longest_x_blind, "warned": weak_x},
             "pitch_offset_deg": float(pitch_offset_deg),
-            "ok": not trouble,
+            "ok": not (trouble or weak_x),
             "warnings": warnings,
         }
 

@@ -117,3 +117,20 @@ def test_x_carried_by_the_imu_alone_is_reported() -> None:
     sparse = HealthMonitor()
     _feed_floor(sparse, x_var_m2=1.0, stance_every=1)
     assert not sparse.report()["x_blind"]["warned"]
+
+
+def test_displacements_the_filter_could_not_relate_are_not_counted_as_refused() -> None:
+    """A displacement across a frame gap (stale) is neither accepted nor refused by the gate."""
+    m = HealthMonitor()
+    cov = np.eye(2) * 1e-6
+    for k in range(60):
+        d = None if k == 0 else Displacement2D((k - 1) * DT, k * DT, np.array([0.01, 0.0]), cov)
+        stale = k % 2 == 0
+        m.add_frame(k * DT, np.array([k * 0.01, 0.0]), d, accepted=not stale, in_stance=False,
+                    refused=False)
+    assert m.report()["displacements_rejected_share"] == 0.0
+    m2 = HealthMonitor()  # without the estimator's distinction every non-accepted one counts
+    for k in range(60):
+        d = None if k == 0 else Displacement2D((k - 1) * DT, k * DT, np.array([0.01, 0.0]), cov)
+        m2.add_frame(k * DT, np.array([k * 0.01, 0.0]), d, accepted=k % 2 == 1, in_stance=False)
+    assert m2.report()["displacements_rejected_share"] == pytest.approx(0.5, abs=0.02)

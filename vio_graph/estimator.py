@@ -354,11 +354,12 @@ class OnlineEstimator:
                 R_world_imu = self.R_world_imu(t)
         if transform_result is not None:
             result = transform_result(result)
-        accepted = False
+        accepted = refused = False
         if result.displacement is not None:
             n_refused = self.filter.n_gate_refusals
             accepted = self.filter.update_displacement(result.displacement)
-            self._recover_if_locked_out(self.filter.n_gate_refusals > n_refused)
+            refused = self.filter.n_gate_refusals > n_refused
+            self._recover_if_locked_out(refused)
         else:
             self.filter.clone_position(t)
         self._fuse_landmarks(t, result, R_world_imu)
@@ -366,7 +367,7 @@ class OnlineEstimator:
         camera_xz, velocity = self._position_at(t)
         corner_seen = result.observation is not None and self.config.filter.corner_landmarks
         self.health.add_frame(t, camera_xz, result.displacement, accepted, self._in_stance,
-                              corner_seen)
+                              corner_seen, refused=refused)
         timings["fusion"] = (time.perf_counter() - t0) * 1e3
         # 5. kinematics (Fig. 3)
         t0 = time.perf_counter()

@@ -82,10 +82,12 @@ class HealthMonitor:
 
     def add_frame(self, t_s: float, fused_camera_xz_m: NDArray[np.float64],
                   displacement: Displacement2D | None, accepted: bool, in_stance: bool,
-                  landmark_seen: bool = False) -> None:
+                  landmark_seen: bool = False, refused: bool | None = None) -> None:
         """One depth frame: the fused camera position after the update, the front end's
         displacement (None: none), whether the filter accepted it, whether it was anchored,
-        whether a corner landmark was observed."""
+        whether a corner landmark was observed, and whether the gate refused it (None: every
+        displacement not accepted counts as refused; the estimator tells a gate refusal from
+        a displacement it could not relate to its state, e.g. across a frame gap)."""
         p = np.asarray(fused_camera_xz_m, dtype=float)
         self.n_frames += 1
         self.n_stance += int(in_stance)
@@ -100,7 +102,7 @@ class HealthMonitor:
             self._window = None  # the visual chain is broken
             return
         self.n_displacements += 1
-        self.n_refused += int(not accepted)
+        self.n_refused += int(not accepted if refused is None else refused)
         if prev is None or abs(displacement.t0_s - prev[0]) > 1e-6:
             self._window = None
             return

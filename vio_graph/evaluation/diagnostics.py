@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from vio_graph.filter.gating import chi2_2dof_quantile
 from vio_graph.recording.streams import Trajectory
 from vio_graph.types import Displacement2D
 
@@ -16,9 +17,6 @@ from vio_graph.types import Displacement2D
 #: ``STILL_WINDOW_S``: mocap marker noise (~1 mm) gives ~1 cm/s over 0.1 s.
 STILL_SPEED_MPS = 0.05
 STILL_WINDOW_S = 0.1
-#: chi-square (2 dof) 95 % quantile, for the share of displacements inside their 95 % ellipse.
-CHI2_2DOF_95 = 5.991
-
 
 def interp_xz(traj: Trajectory, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
     """Positions (N, 2) x-z of ``traj`` linearly interpolated at the times ``t_s`` (s)."""
@@ -68,6 +66,6 @@ def displacement_nees(
         "n": int(nees.size),
         "mean": float(np.mean(nees)),
         "p95": float(np.percentile(nees, 95)),
-        "within_95": float(np.mean(nees < CHI2_2DOF_95)),
+        "within_95": float(np.mean(nees < chi2_2dof_quantile(0.95))),
         "error_p95_cm": float(100 * np.percentile(np.hypot(err[:, 0], err[:, 1]), 95)),
     }

@@ -57,3 +57,24 @@ def test_degenerate_direction_stays_at_the_initial_guess() -> None:
     assert abs(on.translation_xz_m[0] - T0[0]) < 1e-4
     assert on.cov_m2[0, 0] > 0.99 * IcpConfig().max_variance_m2
     assert abs(on.translation_xz_m[1]) < 0.001
+
+
+def test_fallback_pairs_only_surface_the_previous_frame_saw() -> None:
+    """A fast swing: the new frame sees 10 cm of floor beyond the previous frame's view. With
+    ``fallback_overlap_margin_m`` the target points that, moved back by the seed, fall outside
+    the previous extent shrunk by the margin take no part; with None they may pair with the
+    previous profile's end."""
+    c0, delta = np.array([0.0, 0.5]), np.array([0.10, 0.0])
+    prev = _floor(c0, 1)
+    prev_max_world = float((prev + c0)[:, 0].max())
+    margin = 0.01
+    used_max = {}
+    for m in (margin, None):
+        tracker = CornerTracker(TrackerConfig(fallback_overlap_margin_m=m))
+        tracker.update(0.0, prev, None)
+        out = tracker.update(1 / 30, _floor(c0 + delta, 2), None, delta, np.eye(2) * 0.01**2)
+        assert out.displacement is not None, out.reason
+        assert abs(out.displacement.delta_xz_m[1] - delta[1]) < 0.001
+        used_max[m] = float(out.icp.target_points_xz_m[:, 0].max() + (c0 + delta)[0])
+    assert used_max[margin] <= prev_max_world - margin + 1e-9
+    assert used_max[None] > prev_max_world - margin

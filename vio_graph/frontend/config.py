@@ -258,6 +258,12 @@ class TrackerConfig(_Strict):
         "drop). Measured on a simulated 40 s ascent, seed 1, ground-truth attitude: summed "
         "displacement z -3.0 % -> -0.8 %, availability 0.93 -> 1.00. None = the ICP's own",
     )
+    fallback_overlap_margin_m: float | None = Field(
+        0.01, ge=0,
+        description="profile fallback: keep only target points that, moved back by the IMU "
+        "seed, fall inside the previous profile's x extent shrunk by this margin (m): surface "
+        "the previous frame never saw has no counterpart. None = keep all",
+    )
     edge_x_without_face: bool = Field(
         True,
         description="corner windows without face points below the edge (stair descent: the "

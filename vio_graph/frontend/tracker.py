@@ -45,6 +45,9 @@ IMU-seeded mode (the default whenever the caller passes a prediction):
    is far outside the prediction's uncertainty over one frame, so the seed picks the period.
    On the simulated trials this raised the displacement availability from 0.62 to 0.90
    (upstair s1) and 0.08 to 0.9 (obstacle s1, mostly level floor). ``False`` = the paper.
+   Only surface the previous frame saw takes part (``fallback_overlap_margin_m``): in a fast
+   swing the far end of the new profile is new terrain, which would pair with the end of the
+   previous profile and pull the result towards zero motion.
 8. Corner ICP rejected (quality, gate or nosing check): the whole-profile ICP of step 7 is
    tried before giving up, and the corner observation is kept. In fast swings the 10 cm
    window can lose its counterpart while the profile still registers; without this, a frame
@@ -318,6 +321,13 @@ class CornerTracker:
         P = (np.eye(2) * cfg.default_prediction_sigma_m**2 if pred_cov is None
              else np.asarray(pred_cov, dtype=float))
         T0 = -pred
+        margin = cfg.fallback_overlap_margin_m
+        if margin is not None:
+            back_x = target[:, 0] - T0[0]
+            px = prev.profile_xz_m[:, 0]
+            seen = (back_x >= px.min() + margin) & (back_x <= px.max() - margin)
+            if int(seen.sum()) >= cfg.min_correspondences:
+                target = target[seen]
         src, tree = self._source(prev, target, T0)
         icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree)
         bad = self._quality_problem(icp)

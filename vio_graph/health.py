@@ -179,7 +179,8 @@ class HealthMonitor:
                 f"{100 * x_blind_share:.0f} % of the trial (longest {longest_x_blind:.1f} s): no "
                 f"riser, corner or stance anchor constrained it, so x may have drifted by "
                 f"centimetres without the filter's covariance showing it. Likely cause: level "
-                f"floor walked fast (stance rarely detected) or a camera that sees no risers.")
+                f"floor with no edge in view (vision measures no forward motion there) and "
+                f"few detected stances (fast walking), or a camera that sees no risers.")
         return {
             "frames": self.n_frames,
             "visual_displacements": self.n_displacements,

@@ -153,3 +153,49 @@ def plot_toe_bands(path: Path, runs, modes: tuple[str, ...] = ("filter", "smooth
         fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return Path(path)
+
+
+def plot_batch_summary(path: Path, rows: list[dict[str, Any]]) -> Path:
+    """``vio-graph batch``: toe ATE x and z (cm) per trial (and config), one bar per mode,
+    every mode named in the legend; a failed task is a red 'failed' mark in its slot."""
+    plt = _plt()
+    groups = list(dict.fromkeys((r["trial"], r["config"]) for r in rows))
+    n_cfg = len({c for _, c in groups})
+    modes = list(dict.fromkeys(r["mode"] for r in rows))
+    labels = [t if n_cfg == 1 else f"{t}\n{c}" for t, c in groups]
+    width_in = min(18.0, max(6.0, 0.35 * len(groups) * max(1, len(modes)) + 2.5))
+    fig, axes = plt.subplots(2, 1, figsize=(width_in, 6.0), sharex=True, constrained_layout=True)
+    bar_w = 0.8 / max(1, len(modes))
+    x0 = np.arange(len(groups), dtype=float)
+    by = {(r["trial"], r["config"], r["mode"]): r for r in rows}
+    for ax, axis in zip(axes, ("x", "z"), strict=True):
+        top = 0.0
+        for j, mode in enumerate(modes):
+            xs = x0 - 0.4 + bar_w * (j + 0.5)
+            vals = []
+            for g in groups:
+                r = by.get((*g, mode))
+                v = r.get(f"toe_{axis}_cm") if r and r["status"] == "ok" else None
+                vals.append(np.nan if v is None else float(v))
+            color = MODE_STYLE.get(mode, ("0.5", "-"))[0]
+            ax.bar(xs, vals, width=bar_w * 0.95, color=color, label=mode)
+            finite = [v for v in vals if np.isfinite(v)]
+            top = max([top, *finite])
+        for j, mode in enumerate(modes):
+            xs = x0 - 0.4 + bar_w * (j + 0.5)
+            for k, g in enumerate(groups):
+                r = by.get((*g, mode))
+                if r is not None and r["status"] != "ok":
+                    ax.text(xs[k], 0.02 * (top or 1.0), "failed", color="tab:red", rotation=90,
+                            ha="center", va="bottom", fontsize=8)
+        ax.set_ylim(0, 1.15 * top if top > 0 else 1.0)
+        ax.set_ylabel(f"toe ATE {axis} (cm)")
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend(title="mode", fontsize=8, ncol=len(modes), loc="upper left")
+    axes[0].set_title(f"Toe ATE per trial and mode ({len(rows)} tasks)")
+    axes[1].set_xticks(x0, labels, rotation=30 if len(groups) > 6 else 0,
+                       ha="right" if len(groups) > 6 else "center", fontsize=8)
+    with atomic_path(Path(path), suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    return Path(path)

@@ -46,7 +46,7 @@ def info(
 ) -> None:
     """Validate a recording and summarise it.
 
-    Example: vio-graph info runs/upstair_s1 --json
+    Example: vio-graph info data/recordings/upstair_s1 --json
     """
     from vio_graph.recording import Recording
 
@@ -89,7 +89,7 @@ def simulate(
 ) -> None:
     """Simulate a trial with ground truth into a recording folder.
 
-    Example: vio-graph simulate --scenario upstair --seed 1 --out runs/upstair_s1
+    Example: vio-graph simulate --scenario upstair --seed 1 --out data/recordings/upstair_s1
     """
     if out.exists() and not overwrite:  # before the (slow) simulator imports
         raise VioGraphError(f"{out}: already exists (use --overwrite to replace it)")
@@ -178,7 +178,7 @@ def run(
     """Estimate the knee/ankle/heel/toe motion of one recording and write results.
 
     Writes trajectories/*.tum (evo), metrics.json, frames.csv, plots/, map/, run.rrd and
-    config.yaml. Example: vio-graph run runs/upstair_s1 --out results/upstair_s1 --mode all
+    config.yaml. Example: vio-graph run data/sample --out results/sample --mode all
     """
     from vio_graph.config import load_config
     from vio_graph.pipeline import run_recording
@@ -368,7 +368,8 @@ def compare(
 ) -> None:
     """Filter vs smoother vs batch on existing recordings, grouped by their scenario.
 
-    Example: vio-graph compare runs/upstair_s* runs/downstair_s* --out results/cmp
+    Example: vio-graph compare data/recordings/upstair_s* data/recordings/downstair_s* \
+    --out results/cmp
     """
     from vio_graph.config import load_config
     from vio_graph.experiments import run_trials, write_report
@@ -421,8 +422,8 @@ def batch(
     """Many trials at once: one Dask task per recording x mode x config, failures isolated,
     one summary (summary.csv, summary.md, summary.png) in --out.
 
-    Example: vio-graph batch data/sample runs/up1 --out results/study --mode filter,smoother
-    --set smoother.window_s=1,2 --workers 2
+    Example: vio-graph batch data/sample data/recordings/up1 --out results/study \
+    --mode filter,smoother --set smoother.window_s=1,2 --workers 2
     """
     from vio_graph.config import load_config
     from vio_graph.studies.batch import make_tasks, run_batch, write_summary
@@ -470,7 +471,7 @@ def map_command(
     """Build the 2D stair map from refined keyframes and export it: map.ply, map.pcd (open3d),
     steps.json, steps.csv (rise, tread, nosing per step) and map.png.
 
-    Example: vio-graph map runs/upstair_s1 --out results/upstair_s1_map
+    Example: vio-graph map data/recordings/upstair_s1 --out results/upstair_s1_map
     """
     from vio_graph.config import load_config
     from vio_graph.pipeline import run_recording
@@ -580,7 +581,8 @@ def import_bag_command(
 ) -> None:
     """Convert a ROS bag (pico flexx depth, Xsens IMU, joint states) into a recording.
 
-    Example: vio-graph import-bag trial.bag --rig configs/rig_example.yaml --out runs/trial1
+    Example: vio-graph import-bag trial.bag --rig configs/rig_example.yaml \
+    --out data/recordings/trial1
     """
     if out.exists() and not overwrite:
         raise VioGraphError(f"{out}: already exists (use --overwrite to replace it)")

@@ -178,7 +178,9 @@ def plot_batch_summary(path: Path, rows: list[dict[str, Any]]) -> Path:
                 v = r.get(f"toe_{axis}_cm") if r and r["status"] == "ok" else None
                 vals.append(np.nan if v is None else float(v))
             color = MODE_STYLE.get(mode, ("0.5", "-"))[0]
-            ax.bar(xs, vals, width=bar_w * 0.95, color=color, label=mode)
+            bars = ax.bar(xs, vals, width=bar_w * 0.95, color=color, label=mode)
+            if len(groups) * len(modes) <= 24:  # values on the bars while they stay legible
+                ax.bar_label(bars, fmt="%.2f", fontsize=7, padding=1)
             finite = [v for v in vals if np.isfinite(v)]
             top = max([top, *finite])
         for j, mode in enumerate(modes):
@@ -191,7 +193,7 @@ def plot_batch_summary(path: Path, rows: list[dict[str, Any]]) -> Path:
         ax.set_ylim(0, 1.15 * top if top > 0 else 1.0)
         ax.set_ylabel(f"toe ATE {axis} (cm)")
         ax.grid(axis="y", alpha=0.3)
-    axes[0].legend(title="mode", fontsize=8, ncol=len(modes), loc="upper left")
+    axes[0].legend(title="mode", fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     axes[0].set_title(f"Toe ATE per trial and mode ({len(rows)} tasks)")
     axes[1].set_xticks(x0, labels, rotation=30 if len(groups) > 6 else 0,
                        ha="right" if len(groups) > 6 else "center", fontsize=8)

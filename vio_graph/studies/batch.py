@@ -80,11 +80,16 @@ def trial_names(recordings: Sequence[Path]) -> list[str]:
 def make_tasks(
     recordings: Sequence[Path], modes: Sequence[str], grid: Sequence[GridPoint], out_dir: Path
 ) -> list[BatchTask]:
+    # absolute: a worker resolves paths in its own working directory (on a remote machine,
+    # the shared file system must be mounted at the same path as here)
+    names = trial_names(recordings)
+    recordings = [Path(r).resolve() for r in recordings]
+    out_dir = Path(out_dir).resolve()
     tasks = []
     for point in grid:
         cfg_json = point.config.model_dump_json()
         params_json = json.dumps(point.params, sort_keys=False)
-        for trial, rec in zip(trial_names(recordings), recordings, strict=True):
+        for trial, rec in zip(names, recordings, strict=True):
             for mode in modes:
                 tasks.append(BatchTask(
                     trial=trial, recording=str(rec), mode=mode, config_tag=point.tag,
@@ -101,7 +106,8 @@ def _row(task: BatchTask, metrics: dict[str, Any] | None, error: str | None,
         "trial": task.trial, "mode": task.mode, "config": task.config_tag,
         "params": task.params_json if task.params_json != "{}" else "",
         "status": "ok" if error is None else "failed",
-        "results": Path(task.out_dir).relative_to(study_dir).as_posix(), "error": error or "",
+        "results": Path(task.out_dir).relative_to(Path(study_dir).resolve()).as_posix(),
+        "error": error or "",
     }
     if metrics is not None:
         key = ate_key(metrics)

@@ -166,10 +166,16 @@ def run_batch(
             if m is not None:
                 done[k] = m
     todo = [k for k in range(len(tasks)) if k not in done]
-    if progress and done:
-        progress(0)
+    n_done = len(done)
+    if progress and n_done:
+        progress(n_done)  # resumed tasks count as finished
+
+    def step(n: int) -> None:
+        if progress:
+            progress(n_done + n)
+
     outcomes = run_tasks(run_batch_task, [tasks[k] for k in todo], scheduler, workers,
-                         progress, names=[tasks[k].name for k in todo]) if todo else []
+                         step, names=[tasks[k].name for k in todo]) if todo else []
     rows: list[dict[str, Any] | None] = [None] * len(tasks)
     for k, m in done.items():
         rows[k] = _row(tasks[k], m, None, study_dir)

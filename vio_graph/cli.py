@@ -368,8 +368,8 @@ def compare(
 ) -> None:
     """Filter vs smoother vs batch on existing recordings, grouped by their scenario.
 
-    Example: vio-graph compare data/recordings/upstair_s* data/recordings/downstair_s* \
-    --out results/cmp
+    Example: vio-graph compare data/recordings/upstair_s* data/recordings/downstair_s* --out
+    results/cmp
     """
     from vio_graph.config import load_config
     from vio_graph.experiments import run_trials, write_report
@@ -422,7 +422,7 @@ def batch(
     """Many trials at once: one Dask task per recording x mode x config, failures isolated,
     one summary (summary.csv, summary.md, summary.png) in --out.
 
-    Example: vio-graph batch data/sample data/recordings/up1 --out results/study \
+    Example: vio-graph batch data/sample data/recordings/up1 --out results/study
     --mode filter,smoother --set smoother.window_s=1,2 --workers 2
     """
     from vio_graph.config import load_config
@@ -581,7 +581,7 @@ def import_bag_command(
 ) -> None:
     """Convert a ROS bag (pico flexx depth, Xsens IMU, joint states) into a recording.
 
-    Example: vio-graph import-bag trial.bag --rig configs/rig_example.yaml \
+    Example: vio-graph import-bag trial.bag --rig configs/rig_example.yaml
     --out data/recordings/trial1
     """
     if out.exists() and not overwrite:

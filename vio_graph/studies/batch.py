@@ -11,9 +11,9 @@ Layout of ``--out DIR``::
 
 A task is complete when its ``metrics.json`` (written last, atomically) exists and its
 ``config.yaml`` is the task's config; ``--resume`` skips complete tasks and reads their
-numbers from disk, so a resumed study has the same summary as one run in a single go. The
-summary holds no timings or absolute paths: the same study gives the same files whatever
-ran it (serially, on a local cluster, on a remote one).
+numbers from disk, so a resumed study has the same summary as one run in a single go.
+``summary.csv`` holds no timings or absolute paths: the same study gives the same file
+whatever ran it (serially, on a local cluster, on a remote one).
 """
 
 from __future__ import annotations

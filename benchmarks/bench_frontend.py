@@ -17,7 +17,7 @@ open3d's 3D point-to-point ICP on the same raw clouds (the paper's "direct ICP" 
 
 Threads: OMP / OpenBLAS / MKL pinned to 1 (``_common``). Writes benchmarks/results/frontend.json.
 
-    .venv/bin/python benchmarks/bench_frontend.py [--recording DIR] [--quick]
+    python benchmarks/bench_frontend.py [--recording DIR] [--quick]
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Writes benchmarks/results/simulator.json (threads pinned to 1 by ``_common``) and prints a
 markdown table.
-Run: .venv/bin/python benchmarks/bench_simulator.py [--runs N]
+Run: python benchmarks/bench_simulator.py [--runs N]
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ through ``vio_graph.pipeline``.
 
 Writes benchmarks/results/smoother.json (threads pinned to 1 by ``_common``).
 
-    .venv/bin/python benchmarks/bench_smoother.py [--quick] [--recording DIR]
+    python benchmarks/bench_smoother.py [--quick] [--recording DIR]
 """
 
 from __future__ import annotations

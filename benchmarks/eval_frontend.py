@@ -20,7 +20,7 @@ which separates attitude errors from ICP errors.
 
 Usage::
 
-    .venv/bin/python benchmarks/eval_frontend.py runs/upstair_1 [REC ...] \\
+    python benchmarks/eval_frontend.py data/recordings/upstair_1 [REC ...] \\
         --out results/eval_frontend [--attitude imu|gt] [--config CONFIG.yaml]
 
 Writes ``OUT/eval_frontend.json`` and ``OUT/eval_frontend.md``.

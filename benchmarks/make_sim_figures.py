@@ -1,6 +1,6 @@
 """Realism figures of the simulator -> docs/figures/sim_*.png (small PNGs).
 
-Run: .venv/bin/python benchmarks/make_sim_figures.py [--out docs/figures] [--seed 1]
+Run: python benchmarks/make_sim_figures.py [--out docs/figures] [--seed 1]
 
 sim_joint_angles.png   hip / knee / ankle vs gait phase (steady strides) with published peaks
 sim_depth.png          one depth image (upstair)
@@ -24,7 +24,8 @@ from vio_graph.sim import load_scenario, simulate_trial  # noqa: E402
 from vio_graph.sim.gait import rot_xz  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-# published peak flexion (deg) and ankle range (dorsi -, plantar +), sim-spec.md
+# published peak flexion (deg) and ankle range (dorsi -, plantar +): McFadyen & Winter 1988,
+# Protopapadaki 2007, Beaulieu 2008 (docs/simulator.md)
 PUBLISHED = {
     "upstair": {"knee": 93, "hip": 64, "ankle": (-16, 16)},
     "downstair": {"knee": 89, "hip": 36, "ankle": (-26, 25)},

@@ -5,7 +5,7 @@ writes benchmarks/results/<name>.json (gitignored); this script then renders the
 of them, the machine and the date into docs/performance.md. About 3-5 minutes on 2 cores (the
 first run also simulates the upstair trial into the system temp folder, ~20 s).
 
-    .venv/bin/python benchmarks/run_all.py [--quick] [--no-doc]
+    python benchmarks/run_all.py [--quick] [--no-doc]
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import bench_smoother
 
 BENCHMARKS = ("frontend", "smoother", "simulator")  # frontend first: it simulates the recording
 DOC = _common.BENCH_DIR.parent / "docs" / "performance.md"
-COMMAND = ".venv/bin/python benchmarks/run_all.py"
+COMMAND = "python benchmarks/run_all.py"
 
 
 def run_benchmark(name: str, quick: bool) -> float:

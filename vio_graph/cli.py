@@ -46,7 +46,7 @@ def info(
 ) -> None:
     """Validate a recording and summarise it.
 
-    Example: vio-graph info runs/upstair_s1 --json
+    Example: vio-graph info data/recordings/upstair_s1 --json
     """
     from vio_graph.recording import Recording
 
@@ -89,7 +89,7 @@ def simulate(
 ) -> None:
     """Simulate a trial with ground truth into a recording folder.
 
-    Example: vio-graph simulate --scenario upstair --seed 1 --out runs/upstair_s1
+    Example: vio-graph simulate --scenario upstair --seed 1 --out data/recordings/upstair_s1
     """
     if out.exists() and not overwrite:  # before the (slow) simulator imports
         raise VioGraphError(f"{out}: already exists (use --overwrite to replace it)")
@@ -178,7 +178,7 @@ def run(
     """Estimate the knee/ankle/heel/toe motion of one recording and write results.
 
     Writes trajectories/*.tum (evo), metrics.json, frames.csv, plots/, map/, run.rrd and
-    config.yaml. Example: vio-graph run runs/upstair_s1 --out results/upstair_s1 --mode all
+    config.yaml. Example: vio-graph run data/sample --out results/sample --mode all
     """
     from vio_graph.config import load_config
     from vio_graph.pipeline import run_recording
@@ -232,8 +232,15 @@ def demo(
     typer.echo(f"map         {res_dir / 'map'}")
 
 
+_SCHEDULER_HELP = (
+    "Run the trials on Dask: 'local' (a LocalCluster of --jobs workers) or an existing "
+    "scheduler's address, e.g. tcp://10.0.0.5:8786 (docs/scaling.md). Default: this machine's "
+    "process pool."
+)
+
+
 def _evaluate_sweep(out: Path, seeds: int, conditions: list[str] | None, mode: str,
-                    cfg, jobs: int, doc: Path | None) -> None:
+                    cfg, jobs: int, doc: Path | None, scheduler: str | None = None) -> None:
     from vio_graph.sweep import (
         SWEEP_CONDITIONS,
         SWEEP_SEED_BASE,
@@ -251,7 +258,7 @@ def _evaluate_sweep(out: Path, seeds: int, conditions: list[str] | None, mode: s
     seed_list = list(range(SWEEP_SEED_BASE, SWEEP_SEED_BASE + seeds))
     with progress_bar(len(names) * len(seed_list), "sweep", "trial") as bar:
         results = run_sweep(out, cfg, seed_list, names, _parse_modes(mode), jobs,
-                            progress=bar.update_to)
+                            progress=bar.update_to, scheduler=scheduler)
     command = "vio-graph evaluate " + " ".join(sys.argv[2:])
     written = write_sweep_report(results, out, command, len(seed_list), doc)
     failed = [r for r in results if "error" in r]
@@ -289,6 +296,7 @@ def evaluate(
     condition: Annotated[
         list[str] | None, typer.Option(help="--sweep: only these conditions (repeatable).")
     ] = None,
+    scheduler: Annotated[str | None, typer.Option(help=_SCHEDULER_HELP)] = None,
 ) -> None:
     """The paper's experiments x seeds on simulated trials: simulate (cached), run every mode,
     write summary.json, results.md and the Fig. 5-style plot. With --sweep: the
@@ -300,7 +308,7 @@ def evaluate(
     from vio_graph.config import load_config
 
     if sweep:
-        _evaluate_sweep(out, seeds, condition, mode, load_config(config), jobs, doc)
+        _evaluate_sweep(out, seeds, condition, mode, load_config(config), jobs, doc, scheduler)
         return
     from vio_graph.experiments import PAPER_EXPERIMENTS, run_trials, simulate_trials, write_report
     from vio_graph.viz.progress import progress_bar
@@ -310,11 +318,11 @@ def evaluate(
     seed_list = list(range(1, seeds + 1))
     n = len(scenarios) * len(seed_list)
     with progress_bar(n, "simulating", "trial") as bar:
-        recs = simulate_trials(out, scenarios, seed_list, jobs=jobs, progress=bar.update_to)
+        recs = simulate_trials(out, scenarios, seed_list, jobs=jobs, progress=bar.update_to,
+                               scheduler=scheduler)
     with progress_bar(n, "estimating", "trial") as bar:
-        runs = run_trials(
-            recs, out, cfg, modes=_parse_modes(mode), jobs=jobs, progress=bar.update_to
-        )
+        runs = run_trials(recs, out, cfg, modes=_parse_modes(mode), jobs=jobs,
+                          progress=bar.update_to, scheduler=scheduler)
     command = (
         "vio-graph evaluate " + " ".join(sys.argv[2:])
         if len(sys.argv) > 2
@@ -332,8 +340,9 @@ def evaluate(
 
         sub = [r for r in recs if r[1] in (1, 2)]
         with progress_bar(len(ABLATION_VARIANTS), "ablation", "variant") as bar:
-            table = run_ablation(sub, out, cfg, jobs=jobs, progress=bar.update_to)
-        ftable = run_filter_ablation(recs, out, cfg, jobs=jobs)
+            table = run_ablation(sub, out, cfg, jobs=jobs, progress=bar.update_to,
+                                 scheduler=scheduler)
+        ftable = run_filter_ablation(recs, out, cfg, jobs=jobs, scheduler=scheduler)
         md = (ablation_markdown(ftable, "Filter ablation, all seeds", ("filter",)) + "\n"
               + ablation_markdown(table, "Smoother ablation, seeds 1-2"))
         for path in [written["markdown"]] + ([written["doc"]] if "doc" in written else []):
@@ -355,10 +364,12 @@ def compare(
     config: Annotated[Path | None, typer.Option(help="Pipeline config YAML.")] = None,
     jobs: Annotated[int, typer.Option(help="Parallel processes.")] = 1,
     doc: Annotated[Path | None, typer.Option(help="Also write the report here.")] = None,
+    scheduler: Annotated[str | None, typer.Option(help=_SCHEDULER_HELP)] = None,
 ) -> None:
     """Filter vs smoother vs batch on existing recordings, grouped by their scenario.
 
-    Example: vio-graph compare runs/upstair_s* runs/downstair_s* --out results/cmp
+    Example: vio-graph compare data/recordings/upstair_s* data/recordings/downstair_s* --out
+    results/cmp
     """
     from vio_graph.config import load_config
     from vio_graph.experiments import run_trials, write_report
@@ -371,13 +382,78 @@ def compare(
         meta = Recording.open(r).metadata
         recs.append((meta.provenance.scenario or meta.terrain.kind, meta.provenance.seed, Path(r)))
     with progress_bar(len(recs), "estimating", "trial") as bar:
-        runs = run_trials(
-            recs, out, cfg, modes=_parse_modes(mode), jobs=jobs, progress=bar.update_to
-        )
+        runs = run_trials(recs, out, cfg, modes=_parse_modes(mode), jobs=jobs,
+                          progress=bar.update_to, scheduler=scheduler)
     written = write_report(runs, out, "vio-graph compare " + " ".join(sys.argv[2:]), cfg, doc)
     typer.echo(written["markdown"].read_text().split("## Smoother vs filter")[0])
     for k, p in written.items():
         typer.echo(f"{k:9} {p}")
+
+
+
+
+@app.command()
+def batch(
+    recordings: Annotated[list[Path], typer.Argument(help="Recording folders.")],
+    out: Annotated[Path, typer.Option(help="Study folder: runs/, summary.csv/.md/.png.")],
+    mode: Annotated[str, typer.Option(help="filter | smoother | batch | all (comma list ok).")] = (
+        "all"),
+    config: Annotated[Path | None, typer.Option(help="Base pipeline config YAML.")] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option("--set", help="Grid over a config field, FIELD=V1,V2 (repeatable; the "
+                     "grid is every combination), e.g. --set smoother.window_s=1,2."),
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(help="Dask scheduler address (tcp://HOST:PORT); 'local' (default) starts a "
+                     "LocalCluster here; 'serial' runs every task in this process."),
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(help="LocalCluster worker processes (default: CPU count).")
+    ] = None,
+    resume: Annotated[
+        bool, typer.Option(help="Skip tasks whose outputs are complete (same config).")
+    ] = False,
+    overwrite: Annotated[
+        bool, typer.Option(help="Run every task again into an existing study folder.")
+    ] = False,
+) -> None:
+    """Many trials at once: one Dask task per recording x mode x config, failures isolated,
+    one summary (summary.csv, summary.md, summary.png) in --out.
+
+    Example: vio-graph batch data/sample data/recordings/up1 --out results/study
+    --mode filter,smoother --set smoother.window_s=1,2 --workers 2
+    """
+    from vio_graph.config import load_config
+    from vio_graph.studies.batch import make_tasks, run_batch, write_summary
+    from vio_graph.studies.grid import expand_grid
+    from vio_graph.viz.progress import progress_bar
+
+    missing = [str(r) for r in recordings if not r.is_dir()]
+    if missing:
+        raise VioGraphError(f"not a recording folder: {', '.join(missing)}")
+    if (out / "runs").exists() and not (resume or overwrite):
+        raise VioGraphError(f"{out}: a study is already there (use --resume to finish it or "
+                            "--overwrite to run it again)")
+    grid = expand_grid(load_config(config), set_)
+    modes = _parse_modes(mode)
+    tasks = make_tasks(recordings, modes, grid, out)
+    typer.echo(f"{len(tasks)} tasks: {len(recordings)} recording(s) x {len(modes)} mode(s) x "
+               f"{len(grid)} config(s)", err=True)
+    with progress_bar(len(tasks), "batch", "task") as bar:
+        rows = run_batch(tasks, out, scheduler, workers, resume, progress=bar.update_to)
+    command = "vio-graph batch " + " ".join(sys.argv[2:])
+    written = write_summary(rows, out, command.strip())
+    failed = [r for r in rows if r["status"] != "ok"]
+    for r in failed:
+        typer.secho(f"failed {r['config']}/{r['trial']}/{r['mode']}: {r['error']}",
+                    fg=typer.colors.RED, err=True)
+    for k, p in written.items():
+        typer.echo(f"{k:9} {p}")
+    if failed:
+        raise VioGraphError(f"{len(failed)} of {len(rows)} tasks failed (listed in "
+                            f"{written['markdown']})")
 
 
 @app.command("map")
@@ -395,7 +471,7 @@ def map_command(
     """Build the 2D stair map from refined keyframes and export it: map.ply, map.pcd (open3d),
     steps.json, steps.csv (rise, tread, nosing per step) and map.png.
 
-    Example: vio-graph map runs/upstair_s1 --out results/upstair_s1_map
+    Example: vio-graph map data/recordings/upstair_s1 --out results/upstair_s1_map
     """
     from vio_graph.config import load_config
     from vio_graph.pipeline import run_recording
@@ -505,7 +581,8 @@ def import_bag_command(
 ) -> None:
     """Convert a ROS bag (pico flexx depth, Xsens IMU, joint states) into a recording.
 
-    Example: vio-graph import-bag trial.bag --rig configs/rig_example.yaml --out runs/trial1
+    Example: vio-graph import-bag trial.bag --rig configs/rig_example.yaml
+    --out data/recordings/trial1
     """
     if out.exists() and not overwrite:
         raise VioGraphError(f"{out}: already exists (use --overwrite to replace it)")

@@ -66,7 +66,15 @@ def _run_one(args: tuple[Path, Path, str, tuple[str, ...]]) -> dict[str, Any]:
     ).metrics
 
 
-def _map(fn: Callable, items: list, jobs: int, progress: Callable[[int], None] | None) -> list:
+def _map(fn: Callable, items: list, jobs: int, progress: Callable[[int], None] | None,
+         scheduler: str | None = None) -> list:
+    """``fn`` over ``items``: serially (jobs <= 1), on a process pool of ``jobs``, or, with
+    ``scheduler`` ('local' or a Dask address), on Dask through vio_graph.studies.engine
+    (a 'local' cluster gets ``jobs`` workers)."""
+    if scheduler is not None:
+        from vio_graph.studies.engine import map_or_raise
+
+        return map_or_raise(fn, items, scheduler, max(1, jobs), progress)
     if jobs <= 1:
         out = []
         for k, it in enumerate(items):
@@ -89,6 +97,7 @@ def simulate_trials(
     seeds: Sequence[int],
     jobs: int = 1,
     progress: Callable[[int], None] | None = None,
+    scheduler: str | None = None,
 ) -> list[tuple[str, int, Path]]:
     """Simulate (scenario, seed) recordings into ``out_dir/recordings`` (reused if present)."""
     items = [
@@ -96,7 +105,7 @@ def simulate_trials(
         for s in scenarios
         for seed in seeds
     ]
-    _map(_simulate_one, items, jobs, progress)
+    _map(_simulate_one, items, jobs, progress, scheduler)
     return items
 
 
@@ -107,13 +116,14 @@ def run_trials(
     modes: tuple[str, ...] = ("filter", "smoother", "batch"),
     jobs: int = 1,
     progress: Callable[[int], None] | None = None,
+    scheduler: str | None = None,
 ) -> list[TrialRun]:
     """Run every recording through the pipeline (results in ``out_dir/runs/<name>``)."""
     items = [
         (rec, Path(out_dir) / "runs" / rec.name, config.model_dump_json(), modes)
         for _, _, rec in recordings
     ]
-    metrics = _map(_run_one, items, jobs, progress)
+    metrics = _map(_run_one, items, jobs, progress, scheduler)
     return [
         TrialRun(exp, seed, rec, item[1], m)
         for (exp, seed, rec), item, m in zip(recordings, items, metrics, strict=True)
@@ -425,6 +435,7 @@ def run_filter_ablation(
     out_dir: Path,
     config: PipelineConfig,
     jobs: int = 1,
+    scheduler: str | None = None,
 ) -> dict[str, Any]:
     """Filter toe ATE for each variant in FILTER_ABLATION_VARIANTS (mean over trials)."""
     table: dict[str, Any] = {}
@@ -432,7 +443,7 @@ def run_filter_ablation(
         cfg = filter_ablation_config(config, overrides)
         slug = _slug(name)
         runs = run_trials(recordings, Path(out_dir) / "ablation_filter" / slug, cfg,
-                          modes=("filter",), jobs=jobs)
+                          modes=("filter",), jobs=jobs, scheduler=scheduler)
         table[name] = {exp: {"filter": e["filter"]["toe"]}
                        for exp, e in summarise_runs(runs).items() if "filter" in e}
     return table
@@ -453,6 +464,7 @@ def run_ablation(
     config: PipelineConfig,
     jobs: int = 1,
     progress: Callable[[int], None] | None = None,
+    scheduler: str | None = None,
 ) -> dict[str, Any]:
     """Smoother and batch toe ATE for each variant in ABLATION_VARIANTS (mean over trials)."""
     table: dict[str, Any] = {}
@@ -466,6 +478,7 @@ def run_ablation(
             cfg,
             modes=("smoother", "batch"),
             jobs=jobs,
+            scheduler=scheduler,
         )
         summary = summarise_runs(runs)
         table[name] = {

@@ -181,6 +181,7 @@ def run_sweep(
     modes: tuple[str, ...] = FUSED_MODES,
     jobs: int = 1,
     progress: Callable[[int], None] | None = None,
+    scheduler: str | None = None,
 ) -> list[dict[str, Any]]:
     """Simulate (cached per condition and seed) and run every condition x seed; results in
     ``out_dir/runs``, recordings in ``out_dir/recordings``. Longest trials go first."""
@@ -194,7 +195,7 @@ def run_sweep(
                                 str(Path(out_dir) / "runs" / tag), config.model_dump_json(),
                                 tuple(modes))))
     tasks.sort(key=lambda t: -t[0])
-    results = _map(_trial_task, [t[1] for t in tasks], jobs, progress)
+    results = _map(_trial_task, [t[1] for t in tasks], jobs, progress, scheduler)
     order = {c.name: i for i, c in enumerate(conds)}
     results.sort(key=lambda r: (order[r["condition"]], r["seed"]))
     return results

@@ -390,6 +390,39 @@ def read_geometry_csv(path: Path) -> tuple[tuple[StepGeometry, ...], tuple[Obsta
 
 # ---------------------------------------------------------------------------------------------
 # plot
+def _zoom_limits(
+    arrays: Sequence[NDArray[np.float64]], margin_m: float = 0.15
+) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """x and z limits around the finite points of ``arrays`` (each (N, 2)), with a margin."""
+    pts = [a[np.all(np.isfinite(a), axis=1)] for a in arrays if a.size]
+    pts = [a for a in pts if a.size]
+    if not pts:
+        return None
+    allp = np.vstack(pts)
+    lo, hi = allp.min(axis=0) - margin_m, allp.max(axis=0) + margin_m
+    return (float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1]))
+
+
+def _geometry_points(geometry: TerrainGeometry) -> NDArray[np.float64]:
+    pts = [[lv.x_start_edge_m, lv.z_m] for lv in geometry.levels]
+    pts += [[lv.x_end_edge_m, lv.z_m] for lv in geometry.levels]
+    pts += [list(s.nosing_xz_m) for s in geometry.steps]
+    pts += [list(e) for o in geometry.obstacles for e in (o.front_edge_xz_m, o.back_edge_xz_m)]
+    return np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+
+
+def _step_table_rows(geometry: TerrainGeometry) -> list[list[str]]:
+    rows = []
+    for k, s in enumerate(geometry.steps, start=1):
+        tread = "-" if s.tread_m is None else f"{1000 * s.tread_m:.1f}"
+        rows.append([str(k), s.direction, f"{1000 * s.rise_m:.1f}", tread,
+                     f"{s.nosing_xz_m[0]:.2f}, {s.nosing_xz_m[1]:.2f}"])
+    for k, o in enumerate(geometry.obstacles, start=1):
+        rows.append([f"O{k}", "block", f"{1000 * o.height_m:.1f}", f"{1000 * o.depth_m:.1f}",
+                     f"{o.front_edge_xz_m[0]:.2f}, {o.front_edge_xz_m[1]:.2f}"])
+    return rows
+
+
 def write_map_png(
     path: Path,
     points_xz_m: ArrayLike,
@@ -398,16 +431,43 @@ def write_map_png(
     camera_xz_m: ArrayLike | None = None,
     title: str | None = None,
 ) -> Path:
-    """Plot the map (x forward, z up, equal axes) with the detected levels, risers, nosings
-    and obstacle edges (error bars = 3 sigma), optionally the true profile and edges of
-    ``terrain_info`` and the keyframe camera positions (K, 2); write it as a PNG."""
+    """Write :func:`map_figure` as a PNG (atomically)."""
+    fig = map_figure(points_xz_m, geometry, terrain_info, camera_xz_m, title)
+    with atomic_path(Path(path), suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+    return Path(path)
+
+
+def map_figure(
+    points_xz_m: ArrayLike,
+    geometry: TerrainGeometry | None = None,
+    terrain_info: TerrainInfo | None = None,
+    camera_xz_m: ArrayLike | None = None,
+    title: str | None = None,
+) -> Any:
+    """The map (x forward, z up, equal axes, zoomed to the mapped part) with the detected
+    levels, risers, nosings and obstacle edges (error bars = 3 sigma), optionally the true
+    profile and edges of ``terrain_info`` and the keyframe camera positions (K, 2); nosings
+    are numbered and their rise / tread listed in a table beside the plot. A matplotlib
+    Figure (Agg canvas)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     pts = np.asarray(points_xz_m, dtype=np.float64).reshape(-1, 2)
-    fig = Figure(figsize=(10, 5), dpi=120)
+    cams = (np.asarray(camera_xz_m, dtype=np.float64).reshape(-1, 2)
+            if camera_xz_m is not None else np.zeros((0, 2)))
+    rows = _step_table_rows(geometry) if geometry is not None else []
+    fig = Figure(figsize=(12, 5.0), dpi=110)
     FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
+    if rows:
+        gs = fig.add_gridspec(1, 2, width_ratios=[2.6, 1], left=0.06, right=0.98, wspace=0.08,
+                              bottom=0.1, top=0.92)
+        ax = fig.add_subplot(gs[0, 0])
+        side = fig.add_subplot(gs[0, 1])
+        side.axis("off")
+    else:
+        ax = fig.add_subplot(1, 1, 1)
+        side = None
     ax.scatter(pts[:, 0], pts[:, 1], s=1.5, c="0.55", label=f"map ({pts.shape[0]} points)")
     if terrain_info is not None and terrain_info.profile_xz_m:
         true_profile = np.asarray(terrain_info.profile_xz_m)
@@ -415,22 +475,51 @@ def write_map_png(
     if terrain_info is not None and terrain_info.edges_xz_m:
         true_edges = np.asarray(terrain_info.edges_xz_m)
         ax.plot(true_edges[:, 0], true_edges[:, 1], "kx", ms=8, label="true edges")
-    if camera_xz_m is not None:
-        cams = np.asarray(camera_xz_m, dtype=np.float64).reshape(-1, 2)
-        ax.plot(cams[:, 0], cams[:, 1], "-", color="tab:purple", lw=1, label="camera")
+    if cams.size:
+        ax.plot(cams[:, 0], cams[:, 1], "-", color="tab:purple", lw=1,
+                label="camera (keyframes)")
     if geometry is not None:
         _draw_geometry(ax, geometry)
         ax.set_title(title or f"terrain map: {geometry.kind.value}")
     elif title:
         ax.set_title(title)
+    # zoom to what was mapped (and the camera that mapped it), not the whole true profile
+    limits = _zoom_limits([pts, cams] + ([_geometry_points(geometry)] if geometry else []))
+    if limits is not None:
+        ax.set_xlim(*limits[0])
+        ax.set_ylim(*limits[1])
+        ax.set_aspect("equal", adjustable="box")
+    else:
+        ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x forward [m]")
     ax.set_ylabel("z up [m]")
-    ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, lw=0.3)
-    ax.legend(loc="best", fontsize=7)
-    with atomic_path(Path(path), suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
-    return Path(path)
+    if side is None:
+        ax.legend(loc="best", fontsize=7)
+        return fig
+    handles, labels = ax.get_legend_handles_labels()
+    side.legend(handles, labels, loc="lower left", fontsize=8, frameon=False)
+    shown = rows[:24]
+    table = side.table(
+        cellText=shown,
+        colLabels=(["#", "kind", "rise or\nheight [mm]", "tread or\ndepth [mm]", "edge x, z [m]"]
+                   if geometry.obstacles else
+                   ["#", "kind", "rise\n[mm]", "tread\n[mm]", "nosing x, z [m]"]),
+        loc="upper center",
+        cellLoc="center",
+        colWidths=[0.08, 0.14, 0.24, 0.24, 0.3],
+    )
+    table.auto_set_font_size(False)
+    table.set_fontsize(8)
+    table.scale(1.0, 1.25)
+    for (r, _c), cell in table.get_celld().items():
+        cell.set_linewidth(0.3)
+        if r == 0:
+            cell.set_height(cell.get_height() * 1.8)
+    if len(rows) > len(shown):
+        side.text(0.5, 0.0, f"... {len(rows) - len(shown)} more in steps.csv", ha="center",
+                  fontsize=7, transform=side.transAxes)
+    return fig
 
 
 def _draw_geometry(ax: Any, geometry: TerrainGeometry) -> None:
@@ -463,16 +552,19 @@ def _draw_geometry(ax: Any, geometry: TerrainGeometry) -> None:
             fmt="o",
             color="tab:red",
             ms=5,
-            label="nosings (3 sigma)" if i == 0 else None,
+            label="nosings (3 sigma), numbered as in the table" if i == 0 else None,
         )
-        tread = "" if s.tread_m is None else f" x {1000 * s.tread_m:.1f}"
+        # the step number only, up and to the left of the nosing (above the riser, clear of
+        # the tread): short labels do not collide, the numbers are in the table
         ax.annotate(
-            f"{1000 * s.rise_m:.1f}{tread} mm",
+            str(i + 1),
             s.nosing_xz_m,
             textcoords="offset points",
-            xytext=(-10, 8),
-            fontsize=7,
+            xytext=(-9, 6),
+            ha="right",
+            fontsize=8,
             color="tab:red",
+            fontweight="bold",
         )
     for i, o in enumerate(geometry.obstacles):
         edges = np.array([o.front_edge_xz_m, o.back_edge_xz_m])
@@ -485,12 +577,14 @@ def _draw_geometry(ax: Any, geometry: TerrainGeometry) -> None:
             label="obstacle edges" if i == 0 else None,
         )
         ax.annotate(
-            f"h {1000 * o.height_m:.1f} mm, d {1000 * o.depth_m:.1f} mm",
+            f"O{i + 1}",
             edges.mean(axis=0),
             textcoords="offset points",
-            xytext=(-30, 10),
-            fontsize=7,
+            xytext=(0, 10),
+            ha="center",
+            fontsize=8,
             color="tab:orange",
+            fontweight="bold",
         )
 
 

@@ -28,6 +28,22 @@ def _plt():
     return plt
 
 
+def _sagittal_limits(
+    arrays: list[NDArray[np.float64]], margin_m: float = 0.12
+) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    pts = [a[np.all(np.isfinite(a), axis=1)] for a in arrays if a is not None and len(a)]
+    pts = [a for a in pts if a.size]
+    if not pts:
+        return None
+    allp = np.vstack(pts)
+    lo, hi = allp.min(axis=0) - margin_m, allp.max(axis=0) + margin_m
+    return (float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1]))
+
+
+#: fused modes and baselines drawn in the overview (the IMU-only baseline leaves the plot)
+_OVERVIEW_MODES = ("filter", "smoother", "batch", "icp_only")
+
+
 def plot_run_overview(
     path: Path,
     rec,
@@ -35,66 +51,83 @@ def plot_run_overview(
     paths: dict[str, dict[str, NDArray[np.float64]]],
     metrics: dict[str, Any],
 ) -> Path:
-    """Sagittal view (terrain, camera and toe paths) and toe x / z against time."""
+    """Write :func:`overview_figure` as a PNG (atomically)."""
     plt = _plt()
-    fig = plt.figure(figsize=(13, 8), constrained_layout=True)
-    gs = fig.add_gridspec(2, 2, width_ratios=[1.3, 1])
-    ax = fig.add_subplot(gs[:, 0])
-    prof = np.asarray(rec.metadata.terrain.profile_xz_m, dtype=float)
-    if prof.size:
-        ax.fill_between(prof[:, 0], prof[:, 1], prof[:, 1].min() - 0.1, color="0.85", step=None)
-        ax.plot(prof[:, 0], prof[:, 1], color="0.3", lw=1)
-    gt = rec.groundtruth
-    if gt is not None:
-        for body in ("camera", "toe"):
-            g = gt.trajectories[body]
-            ax.plot(
-                g.position_m[:, 0],
-                g.position_m[:, 2],
-                color="tab:green",
-                lw=2,
-                alpha=0.7,
-                label=f"ground truth {body}" if body == "toe" else None,
-            )
-    for mode, bodies in paths.items():
-        if mode not in MODE_STYLE:
-            continue
-        c, ls = MODE_STYLE[mode]
-        if mode in ("imu_only",):
-            continue  # diverges off the plot
-        ax.plot(
-            bodies["toe"][:, 0], bodies["toe"][:, 1], color=c, ls=ls, lw=1.2, label=f"{mode} toe"
-        )
-        ax.plot(bodies["camera"][:, 0], bodies["camera"][:, 1], color=c, ls=ls, lw=0.8, alpha=0.6)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x forward (m)")
-    ax.set_ylabel("z up (m)")
-    ax.set_title(f"{metrics.get('scenario') or rec.root.name}: sagittal paths (camera and toe)")
-    ax.legend(loc="upper left", fontsize=8)
-    for row, (axis, k) in enumerate((("x", 0), ("z", 1))):
-        a = fig.add_subplot(gs[row, 1])
-        if gt is not None:
-            g = gt.trajectories["toe"]
-            a.plot(
-                g.timestamp_s,
-                g.position_m[:, 0 if k == 0 else 2],
-                color="tab:green",
-                lw=2,
-                label="ground truth",
-            )
-        for mode, bodies in paths.items():
-            if mode in MODE_STYLE and mode != "imu_only":
-                c, ls = MODE_STYLE[mode]
-                ate = metrics.get("ate_cm", {}).get(mode, {}).get("toe", {}).get(axis)
-                lbl = f"{mode}" + (f" (ATE {ate:.1f} cm)" if ate is not None else "")
-                a.plot(t_s, bodies["toe"][:, k], color=c, ls=ls, lw=1, label=lbl)
-        a.set_ylabel(f"toe {axis} (m)")
-        a.set_xlabel("time (s)")
-        a.legend(fontsize=8)
+    fig = overview_figure(rec, t_s, paths, metrics)
     with atomic_path(Path(path), suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+def overview_figure(
+    rec,
+    t_s: NDArray[np.float64],
+    paths: dict[str, dict[str, NDArray[np.float64]]],
+    metrics: dict[str, Any],
+) -> Any:
+    """Left: the camera path and the toe path in the sagittal plane over the terrain, one panel
+    each, zoomed to the trial (ground truth and fused estimates); right: toe x and z against
+    time. Colour = estimator (ground truth green), the same in every panel; every line is in a
+    legend with its toe ATE."""
+    plt = _plt()
+    fig = plt.figure(figsize=(13, 8), constrained_layout=True)
+    gs = fig.add_gridspec(2, 2, width_ratios=[1.2, 1])
+    prof = np.asarray(rec.metadata.terrain.profile_xz_m, dtype=float)
+    gt = rec.groundtruth
+    ate = metrics.get("ate_cm", {})
+    modes = [m for m in _OVERVIEW_MODES if m in paths]
+
+    def label(mode: str, body: str) -> str:
+        a = ate.get(mode, {}).get(body)
+        return f"{mode} (ATE {a['total']:.1f} cm in x-z)" if a and "total" in a else mode
+
+    title = metrics.get("scenario") or rec.root.name
+    for row, body in enumerate(("camera", "toe")):
+        ax = fig.add_subplot(gs[row, 0])
+        if prof.size:
+            ax.fill_between(prof[:, 0], prof[:, 1], prof[:, 1].min() - 1.0, color="0.88",
+                            label="terrain (true)")
+            ax.plot(prof[:, 0], prof[:, 1], color="0.35", lw=1)
+        zoom = []
+        if gt is not None:
+            g = gt.trajectories[body].position_m[:, [0, 2]]
+            ax.plot(g[:, 0], g[:, 1], color="tab:green", lw=2.2, alpha=0.8,
+                    label="ground truth")
+            zoom.append(g)
+        for mode in modes:
+            c, ls = MODE_STYLE[mode]
+            xz = paths[mode][body]
+            ax.plot(xz[:, 0], xz[:, 1], color=c, ls=ls, lw=1.2, label=label(mode, body))
+            if mode != "icp_only" or gt is None:
+                zoom.append(xz)
+        limits = _sagittal_limits(zoom)
+        if limits is not None:
+            ax.set_xlim(*limits[0])
+            ax.set_ylim(*limits[1])
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x forward (m)")
+        ax.set_ylabel("z up (m)")
+        ax.set_title(f"{title}: {body} path (sagittal plane)")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+    for row, (axis, k) in enumerate((("x", 0), ("z", 1))):
+        a = fig.add_subplot(gs[row, 1])
+        if gt is not None:
+            g = gt.trajectories["toe"]
+            a.plot(g.timestamp_s, g.position_m[:, 0 if k == 0 else 2], color="tab:green", lw=2.2,
+                   alpha=0.8, label="ground truth")
+        for mode in modes:
+            c, ls = MODE_STYLE[mode]
+            v = ate.get(mode, {}).get("toe", {}).get(axis)
+            lbl = mode + (f" (ATE {v:.1f} cm)" if v is not None else "")
+            a.plot(t_s, paths[mode]["toe"][:, k], color=c, ls=ls, lw=1.1, label=lbl)
+        a.set_ylabel(f"toe {axis} (m)")
+        a.set_xlabel("time (s)")
+        a.set_title(f"toe {axis} against time")
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8, loc="best")
+    return fig
 
 
 def plot_toe_bands(path: Path, runs, modes: tuple[str, ...] = ("filter", "smoother")) -> Path:
@@ -151,5 +184,53 @@ def plot_toe_bands(path: Path, runs, modes: tuple[str, ...] = ("filter", "smooth
             ax.legend(fontsize=7)
     with atomic_path(Path(path), suffix=".png") as tmp:
         fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_batch_summary(path: Path, rows: list[dict[str, Any]]) -> Path:
+    """``vio-graph batch``: toe ATE x and z (cm) per trial (and config), one bar per mode,
+    every mode named in the legend; a failed task is a red 'failed' mark in its slot."""
+    plt = _plt()
+    groups = list(dict.fromkeys((r["trial"], r["config"]) for r in rows))
+    n_cfg = len({c for _, c in groups})
+    modes = list(dict.fromkeys(r["mode"] for r in rows))
+    labels = [t if n_cfg == 1 else f"{t}\n{c}" for t, c in groups]
+    width_in = min(18.0, max(6.0, 0.35 * len(groups) * max(1, len(modes)) + 2.5))
+    fig, axes = plt.subplots(2, 1, figsize=(width_in, 6.0), sharex=True, constrained_layout=True)
+    bar_w = 0.8 / max(1, len(modes))
+    x0 = np.arange(len(groups), dtype=float)
+    by = {(r["trial"], r["config"], r["mode"]): r for r in rows}
+    for ax, axis in zip(axes, ("x", "z"), strict=True):
+        top = 0.0
+        for j, mode in enumerate(modes):
+            xs = x0 - 0.4 + bar_w * (j + 0.5)
+            vals = []
+            for g in groups:
+                r = by.get((*g, mode))
+                v = r.get(f"toe_{axis}_cm") if r and r["status"] == "ok" else None
+                vals.append(np.nan if v is None else float(v))
+            color = MODE_STYLE.get(mode, ("0.5", "-"))[0]
+            bars = ax.bar(xs, vals, width=bar_w * 0.95, color=color, label=mode)
+            if len(groups) * len(modes) <= 24:  # values on the bars while they stay legible
+                ax.bar_label(bars, fmt="%.2f", fontsize=7, padding=1)
+            finite = [v for v in vals if np.isfinite(v)]
+            top = max([top, *finite])
+        for j, mode in enumerate(modes):
+            xs = x0 - 0.4 + bar_w * (j + 0.5)
+            for k, g in enumerate(groups):
+                r = by.get((*g, mode))
+                if r is not None and r["status"] != "ok":
+                    ax.text(xs[k], 0.02 * (top or 1.0), "failed", color="tab:red", rotation=90,
+                            ha="center", va="bottom", fontsize=8)
+        ax.set_ylim(0, 1.15 * top if top > 0 else 1.0)
+        ax.set_ylabel(f"toe ATE {axis} (cm)")
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend(title="mode", fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    axes[0].set_title(f"Toe ATE per trial and mode ({len(rows)} tasks)")
+    axes[1].set_xticks(x0, labels, rotation=30 if len(groups) > 6 else 0,
+                       ha="right" if len(groups) > 6 else "center", fontsize=8)
+    with atomic_path(Path(path), suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return Path(path)

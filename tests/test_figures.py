@@ -1,0 +1,89 @@
+"""Figures read at a glance: the map is zoomed to the mapped stair with step labels that do not
+overlap and a step table; the overview names every line and keeps camera and toe apart."""
+
+from __future__ import annotations
+
+from itertools import combinations
+from pathlib import Path
+
+import numpy as np
+
+from tests.test_mapping_export import _scene
+from tests.test_mapping_synth import stair_profile
+from vio_graph.mapping.export import map_figure
+from vio_graph.recording import Recording
+from vio_graph.recording.metadata import TerrainInfo
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _overlaps(a, b) -> bool:
+    return a.x0 < b.x1 and b.x0 < a.x1 and a.y0 < b.y1 and b.y0 < a.y1
+
+
+def test_map_zoomed_labels_apart_and_table() -> None:
+    terrain = stair_profile(0.147, 0.28, 8, up=True)
+    terrain_map, geometry = _scene(terrain, 2.4)
+    # the true profile goes on for 10 m past the stair, as on a real landing: not zoomed to
+    prof = [*terrain.profile_xz_m, (terrain.profile_xz_m[-1][0] + 10.0,
+                                    terrain.profile_xz_m[-1][1])]
+    far = TerrainInfo(kind=terrain.kind, params=terrain.params, profile_xz_m=prof,
+                      edges_xz_m=terrain.edges_xz_m)
+    cams = np.array([kf.camera_xz_m for kf in terrain_map.keyframes])
+    fig = map_figure(terrain_map.points_xz_m, geometry, far, camera_xz_m=cams)
+    fig.canvas.draw()
+    ax, side = fig.axes[0], fig.axes[1]
+    pts = terrain_map.points_xz_m
+    data_x = max(pts[:, 0].max(), cams[:, 0].max()) - min(pts[:, 0].min(), cams[:, 0].min())
+    x0, x1 = ax.get_xlim()
+    assert x1 - x0 < data_x + 0.5  # zoomed to the map and camera, not the 10 m profile
+    assert len(geometry.steps) >= 4
+    renderer = fig.canvas.get_renderer()
+    labels = [t for t in ax.texts if t.get_text()]
+    assert [t.get_text() for t in labels] == [str(k + 1) for k in range(len(geometry.steps))]
+    boxes = [t.get_window_extent(renderer) for t in labels]
+    assert not any(_overlaps(a, b) for a, b in combinations(boxes, 2))
+    # the step table beside the plot: one row per step, rise in mm
+    table = side.tables[0]
+    cells = table.get_celld()
+    n_rows = 1 + max(r for r, _ in cells)
+    assert n_rows == 1 + len(geometry.steps)
+    assert float(cells[(1, 2)].get_text().get_text()) == round(1000 * geometry.steps[0].rise_m, 1)
+    legend = side.get_legend()
+    assert "risers" in [t.get_text() for t in legend.get_texts()]
+
+
+def test_overview_names_every_line_and_separates_camera_and_toe() -> None:
+    from vio_graph.viz.plots import overview_figure
+
+    rec = Recording.open(ROOT / "data" / "sample")
+    gt = rec.groundtruth.trajectories
+    t_s = np.linspace(gt["toe"].timestamp_s[0], gt["toe"].timestamp_s[-1], 100)
+
+    def at(body: str, dz: float) -> np.ndarray:
+        g = gt[body]
+        return np.column_stack([np.interp(t_s, g.timestamp_s, g.position_m[:, 0]),
+                                np.interp(t_s, g.timestamp_s, g.position_m[:, 2]) + dz])
+
+    paths = {m: {"camera": at("camera", dz), "toe": at("toe", dz)}
+             for m, dz in (("filter", 0.01), ("smoother", 0.005), ("imu_only", 3.0))}
+    metrics = {"ate_cm": {"filter": {"toe": {"x": 1.0, "z": 1.0, "total": 1.4},
+                                     "camera": {"x": 1.0, "z": 1.0, "total": 1.4}}}}
+    fig = overview_figure(rec, t_s, paths, metrics)
+    fig.canvas.draw()
+    titles = [a.get_title() for a in fig.axes]
+    assert any("camera path" in t for t in titles) and any("toe path" in t for t in titles)
+    for ax in fig.axes:
+        lines = [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 10]
+        named = {t.get_text() for t in ax.get_legend().get_texts()}
+        for ln in lines:
+            if ln.get_label().startswith("_"):  # the terrain outline, drawn under its fill
+                assert ln.get_color() == "0.35"
+                continue
+            assert ln.get_label() in named
+        assert "ground truth" in named and any(n.startswith("filter (ATE") for n in named)
+        assert not any("imu_only" in n for n in named)  # leaves the plot: not drawn
+    toe_ax = next(a for a in fig.axes if "toe path" in a.get_title())
+    z0, z1 = toe_ax.get_ylim()
+    toe_z = gt["toe"].position_m[:, 2]
+    assert z1 - z0 < (toe_z.max() - toe_z.min()) + 1.0  # zoomed to the trial

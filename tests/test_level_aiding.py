@@ -129,7 +129,7 @@ def test_rotating_the_previous_frame_keeps_icp_consistent() -> None:
 
 def _shank_pitch_error_deg(rec_path: Path, enabled: bool) -> float:
     from vio_graph.evaluation.run_metrics import shank_pitch_error_deg
-    from vio_graph.pipeline import Replay
+    from vio_graph.replay import Replay
     from vio_graph.viz.rerun_logger import NullVisualizer
 
     cfg = PipelineConfig()

@@ -184,11 +184,11 @@ def test_builder_keeps_corners_and_stance_anchors_apart():
 def test_ingestion_errors():
     tr = make_swinging_shank_trial(0.5)
     s = SlidingWindowSmoother(SmootherConfig(), tr.imu_T_cam)
-    s.add_imu(tr.imu[0])
+    s.feed_imu(tr.imu[0])
     with pytest.raises(EstimationError):
-        s.add_imu(tr.imu[0])  # timestamps must increase
+        s.feed_imu(tr.imu[0])  # timestamps must increase
     with pytest.raises(EstimationError):
-        s.add_frame(0.0, True, None, None, None)  # first keyframe needs an initial guess
+        s.feed_frame(0.0, True, None, None, None)  # first keyframe needs an initial guess
     with pytest.raises(EstimationError):
         SlidingWindowSmoother(SmootherConfig(), np.eye(3))
 
@@ -263,7 +263,7 @@ def test_old_keyframes_leave_the_window_but_keep_their_estimates():
     assert all(np.isfinite(e.cov_m2).all() for e in est)
     # estimates of marginalised keyframes are frozen: more data does not change them
     first = est[0].camera_xz_m.copy()
-    s.add_imu(ImuSample(10.0, tr.imu[-1].accel_mps2, tr.imu[-1].gyro_radps, tr.imu[-1].quat_wxyz))
+    s.feed_imu(ImuSample(10.0, tr.imu[-1].accel_mps2, tr.imu[-1].gyro_radps, tr.imu[-1].quat_wxyz))
     np.testing.assert_array_equal(s.keyframe_estimates()[0].camera_xz_m, first)
     assert len(s.update_times_ms) == n_kf
 

@@ -206,9 +206,9 @@ def feed(trial: SyntheticTrial, smoother: object, use_filter_guess: bool = True)
     """Drive any smoother with the shared ingestion interface through a whole trial."""
     for kind, i in replay_events(trial):
         if kind == "imu":
-            smoother.add_imu(trial.imu[i])  # type: ignore[attr-defined]
+            smoother.feed_imu(trial.imu[i])  # type: ignore[attr-defined]
         else:
-            smoother.add_frame(  # type: ignore[attr-defined]
+            smoother.feed_frame(  # type: ignore[attr-defined]
                 float(trial.frame_times_s[i]),
                 bool(trial.is_keyframe[i]),
                 trial.filter_estimates[i] if use_filter_guess or i == 0 else None,

@@ -24,7 +24,8 @@ from vio_graph.sim import load_scenario, simulate_trial  # noqa: E402
 from vio_graph.sim.gait import rot_xz  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-# published peak flexion (deg) and ankle range (dorsi -, plantar +), sim-spec.md
+# published peak flexion (deg) and ankle range (dorsi -, plantar +), the sources of
+# tests/test_sim.py and docs/simulator.md
 PUBLISHED = {
     "upstair": {"knee": 93, "hip": 64, "ankle": (-16, 16)},
     "downstair": {"knee": 89, "hip": 36, "ankle": (-26, 25)},

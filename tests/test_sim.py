@@ -121,7 +121,7 @@ def _steady_mask(m, name: str):
     return mask
 
 
-# Published peaks (sim-spec.md: McFadyen & Winter 1988, Protopapadaki 2007, Beaulieu 2008,
+# Published peaks (McFadyen & Winter 1988, Protopapadaki 2007, Beaulieu 2008,
 # Winter 1983) and the tolerance the simulator meets today on steady strides (degrees). The
 # tolerances are wide where docs/simulator.md lists a known deviation (descent / level hip
 # flexion, ascent swing knee); tighten them when the gait model improves.

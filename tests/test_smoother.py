@@ -17,6 +17,8 @@ from vio_graph.smoother.graph import (
     V,
     X,
     camera_xz_cov_from_pose_cov,
+)
+from vio_graph.smoother.imu_sampling import (
     discretization_velocity_var,
     make_preintegration_params,
     midpoint_samples,
@@ -323,7 +325,7 @@ def test_batch_fixed_lag_variant_agrees_with_incremental():
 
 
 def test_held_samples_cover_interval_and_hold_values() -> None:
-    from vio_graph.smoother.graph import held_samples
+    from vio_graph.smoother.imu_sampling import held_samples
 
     t = np.arange(0.0, 0.5, 0.01)
     a = np.column_stack([t, 2 * t, np.full_like(t, 9.81)])
@@ -399,7 +401,7 @@ def test_common_frame_preintegration_is_exact_for_gravity_on_a_spinning_shank() 
     """Gravity seen by an IMU turning at 8 rad/s (swing): the world-frame velocity change over
     0.1 s is exactly g dt. The moving-frame midpoint rule falls short by (omega dt)^2/24 per
     step (a downward drift); the common-frame rule does not."""
-    from vio_graph.smoother.graph import common_frame_samples, midpoint_samples, so3_exp
+    from vio_graph.smoother.imu_sampling import common_frame_samples, midpoint_samples, so3_exp
 
     w = np.array([0.0, 8.0, 0.0])
     t = np.arange(0.0, 0.2, 0.01)

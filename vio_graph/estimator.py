@@ -53,6 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
 from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_pitch_offset
+from vio_graph.filter.corner_landmarks import CornerLandmarks
 from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
 from vio_graph.filter.gating import chi2_2dof_quantile
 from vio_graph.filter.stance import StanceConsistencyTest, StanceDetector
@@ -198,6 +199,9 @@ class OnlineEstimator:
         self._last_joints: JointAngles | None = None
         self._last_contact: ContactSample | None = None
         self._prev_frame: tuple[float, NDArray[np.float64]] | None = None  # (t, camera xz)
+        # pitch correction (rad) made after the previous frame's slice was taken: the front end
+        # re-expresses that slice with it before the next ICP
+        self._ground_turn_rad = 0.0
         self._imu_ms = 0.0
         fc = config.filter
         # ankle (knee frame (0, 0, -L_shank)) in the IMU frame, for the stance detector
@@ -210,8 +214,8 @@ class OnlineEstimator:
         self._stance_observation: StanceObservation | None = None
         # this frame's corner observation, track id replaced by its landmark's (re-identified)
         self._corner_observation: CornerObservation | None = None
-        self._corner_alias: dict[int, LandmarkKey] = {}  # track id -> landmark key
-        self._corner_seen: dict[LandmarkKey, float] = {}  # landmark key -> last seen, s
+        self._corners = CornerLandmarks(fc.corner_reidentify_radius_m, fc.corner_memory_s,
+                                        fc.max_corner_landmarks)
         self._in_stance = False
         self._refused_in_row = 0  # displacements refused by the gate in a row
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
@@ -348,14 +352,16 @@ class OnlineEstimator:
             P = self.filter.state.P
             pred_cov = P[2:4, 2:4] * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
         # 3. front end (eq. 1-4)
-        result = self.frontend.process(frame, self.rig.K, R_ground_cam, pred_delta, pred_cov)
+        result = self.frontend.process(frame, self.rig.K, R_ground_cam, pred_delta, pred_cov,
+                                       self._ground_turn_rad)
+        self._ground_turn_rad = 0.0
         timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
         # 4. fusion: level surfaces -> pitch of the attitude (used from here on), then eq. 8
         t0 = time.perf_counter()
         if self.config.filter.level_aiding.enabled and R_ground_cam_override is None:
             step = self._level_aiding(t, result.profile_xz_m)
             if step != 0.0:
-                self.frontend.rotate_previous(step)  # this frame, in the corrected frame
+                self._ground_turn_rad = step  # this frame, seen from the next one
                 R_world_imu = self.R_world_imu(t)
         if transform_result is not None:
             result = transform_result(result)
@@ -447,12 +453,13 @@ class OnlineEstimator:
         obs = result.observation
         self._corner_observation = obs
         if fc.corner_landmarks:
-            key = None if obs is None else self._corner_key(t, obs)
+            key = None
             if obs is not None:
+                key = self._corners.key(obs, self._position_at(t)[0], self.filter)
                 # the smoothers see the re-identified corner under one track id too
                 self._corner_observation = dataclasses.replace(obs, track_id=key.id)
-                self._corner_seen[key] = t
-            self._forget_corners(t, key)
+                self._corners.saw(key, t)
+            self._corners.forget(t, key, self.filter)
             if obs is not None:
                 cov = np.asarray(obs.cov_m2, float) + np.eye(2) * fc.corner_landmark_sigma_m**2
                 self.filter.update_landmark(key, obs.corner_rel_xz_m, cov, t)
@@ -522,46 +529,6 @@ class OnlineEstimator:
                 self._stance_n += 1
             self._stance_test.reset()
         self._in_stance = stance
-
-    def _corner_key(self, t: float, obs: CornerObservation) -> LandmarkKey:
-        """Landmark key of a corner observation: its track's, or, for a new track, a
-        remembered corner it matches (FilterConfig.corner_reidentify_radius_m)."""
-        tid = obs.track_id
-        if tid in self._corner_alias:
-            return self._corner_alias[tid]
-        key = LandmarkKey("corner", tid)
-        radius = self.config.filter.corner_reidentify_radius_m
-        if radius is not None:
-            p, _ = self._position_at(t)
-            seen = p + np.asarray(obs.corner_rel_xz_m, float)
-            known = self._corner_keys()
-            if known:
-                d = np.array([np.linalg.norm(self.filter.landmark_xz(k) - seen) for k in known])
-                order = np.argsort(d)
-                if d[order[0]] < radius and (d.size == 1 or d[order[1]] > 2 * d[order[0]]):
-                    key = known[int(order[0])]
-        self._corner_alias[tid] = key
-        return key
-
-    def _corner_keys(self) -> list[LandmarkKey]:
-        """The corner landmarks in the filter state, in its order."""
-        return [k for k in self.filter.landmark_keys if k.kind == "corner"]
-
-    def _forget_corners(self, t: float, current: LandmarkKey | None) -> None:
-        """Marginalise corner landmarks unseen for corner_memory_s, and the oldest beyond
-        max_corner_landmarks."""
-        fc = self.config.filter
-        for k in self._corner_keys():
-            if k != current and t - self._corner_seen.get(k, t) > fc.corner_memory_s:
-                self.filter.drop_landmark(k)
-        corners = sorted(self._corner_keys(), key=lambda k: self._corner_seen.get(k, t))
-        for k in corners[: max(0, len(corners) - fc.max_corner_landmarks)]:
-            if k != current:
-                self.filter.drop_landmark(k)
-        kept = set(self.filter.landmark_keys) | {current}
-        self._corner_seen = {k: v for k, v in self._corner_seen.items() if k in kept}
-        # ended tracks whose landmark is gone are never looked up again (ids only increase)
-        self._corner_alias = {tid: k for tid, k in self._corner_alias.items() if k in kept}
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
         """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""

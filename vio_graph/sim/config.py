@@ -244,7 +244,7 @@ class CameraConfig(_Section):
 
 
 class ImuConfig(_Section):
-    """Xsens MTi-1 series (datasheet values, sim-spec.md)."""
+    """Xsens MTi-1 series (values from its datasheet)."""
 
     rate_hz: float = Field(100.0, gt=0)
     noise: bool = Field(True, description="switch for all IMU errors")

@@ -1,7 +1,7 @@
 """IMU model: Xsens MTi-1 specific force and angular rate at the IMU's lever arm on the shank.
 
 The true signals are analytic derivatives of the gait splines (gravity, tangential and
-centripetal terms of the swinging shank); errors follow the MTi-1 datasheet (sim-spec.md):
+centripetal terms of the swinging shank); errors follow the MTi-1 datasheet:
 white noise, turn-on bias plus bias random walk, saturation, and the vendor orientation with
 time-correlated roll/pitch (1 deg RMS) and heading (2 deg RMS) errors.
 """

@@ -1,7 +1,7 @@
 """ToF depth camera (pmd pico flexx2, Mode 5) by ray casting the terrain mesh with open3d.
 
-Noise recipe (sim-spec.md, Cai et al. 2024; royale): lateral jitter of each pixel's sample
-position (~0.86 px), mixed depths at occlusion edges, axial noise
+Noise recipe (Cai et al. 2024; the pmd royale SDK's documentation): lateral jitter of each
+pixel's sample position (~0.86 px), mixed depths at occlusion edges, axial noise
 sigma_z(z, theta) = a + b z + c z^2 + d z^2.7 theta^2 / (pi/2 - theta)^2, royale's
 flying-pixel rule, grazing incidence (> 75 deg) dropped, out-of-range pixels invalid,
 confidence from sigma. Depth is along the optical axis, 0 where invalid.

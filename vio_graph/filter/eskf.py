@@ -288,7 +288,7 @@ class SagittalEskf:
         c = self.config
         var_v = (c.accel_noise_sigma_mps2 * dt) ** 2
         if c.attitude_sigma_rad > 0:
-            var_v += (np.linalg.norm(f_xz) * c.attitude_sigma_rad * dt) ** 2
+            var_v += float(np.linalg.norm(f_xz) * c.attitude_sigma_rad * dt) ** 2
         var_ab = c.accel_bias_rw_mps2_per_sqrt_s**2 * dt
         n = ERROR_STATE_DIM
         P = self._P

@@ -125,13 +125,13 @@ class StanceConsistencyTest:
             self._chain = None
             return True
         self.tested = True
-        prev = prev[1]
+        prev_lever = prev[1]
         d = np.asarray(displacement.delta_xz_m, dtype=float)
         C = np.asarray(displacement.cov_m2, dtype=float) + np.eye(2) * self._floor_var
         S1 = C + np.eye(2) * self._lever_var
-        r1 = d - (prev - lever)
+        r1 = d - (prev_lever - lever)
         d2_frame = float(r1 @ np.linalg.solve(S1, r1))
-        lever0, sum_d, sum_C = (prev, d, C) if self._chain is None else (
+        lever0, sum_d, sum_C = (prev_lever, d, C) if self._chain is None else (
             self._chain[0], self._chain[1] + d, self._chain[2] + C)
         self._chain = (lever0, sum_d, sum_C)
         r = sum_d - (lever0 - lever)

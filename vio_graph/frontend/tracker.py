@@ -118,7 +118,7 @@ class CornerTracker:
     ) -> None:
         self._cfg = TrackerConfig() if tracker_config is None else tracker_config
         self._icp_cfg = IcpConfig() if icp_config is None else icp_config
-        fallback = {"normal_neighbours": self._cfg.fallback_normal_neighbours}
+        fallback: dict[str, float] = {"normal_neighbours": self._cfg.fallback_normal_neighbours}
         if self._cfg.fallback_max_correspondence_m is not None:
             fallback["max_correspondence_m"] = self._cfg.fallback_max_correspondence_m
         self._fallback_icp_cfg = self._icp_cfg.model_copy(update=fallback)
@@ -250,15 +250,15 @@ class CornerTracker:
         bad = self._quality_problem(icp)  # 4. ICP quality
         T, C = icp.translation_xz_m, icp.cov_m2
         same_icp = prev_corner is not None and self._is_same(corner, prev_corner, T)
-        if (cfg.edge_x_without_face and same_icp and not self._has_face(corner)
-                and not self._has_face(prev_corner)):
+        if (cfg.edge_x_without_face and same_icp and prev_corner is not None
+                and not self._has_face(corner) and not self._has_face(prev_corner)):
             # 2b. no riser below the edge: x from the edge points, z from ICP
             T = np.array([corner.edge_xz_m[0] - prev_corner.edge_xz_m[0], T[1]])
             C = np.diag([2.0 * cfg.edge_x_sigma_m**2, C[1, 1]])
         d2, gate = self._gate(T, C, pred, P)  # 3. gate
         bad = bad or gate
-        if bad is None and cfg.corner_check and same_icp and corner.has_face and (
-                prev_corner.has_face):
+        if (bad is None and cfg.corner_check and same_icp and prev_corner is not None
+                and corner.has_face and prev_corner.has_face):
             # 3b. both nosings placed from their faces: their difference is a second,
             #     independent displacement; ICP pulled elsewhere (by the borders of a missing
             #     band that moves with the camera) disagrees with it

@@ -96,13 +96,12 @@ class BatchSmoother(KeyframeSmootherBase):
         self.solve_iterations = int(opt.iterations())
         return self._result
 
-    def robust_outliers(self) -> dict[str, int]:
+    def robust_outliers(self) -> dict[str, float]:
         """How many robust (Huber/Cauchy) factors the solution down-weights: whitened error
         beyond the kernel threshold, i.e. measurements the smoother effectively rejected.
         Returns {"robust_factors": n, "downweighted": k, "max_whitened_error": e}."""
-        if self._result is None:
-            self.solve()
-        return count_downweighted(self.graph, self._result, self.config.robust_threshold)
+        result = self.solve() if self._result is None else self._result
+        return count_downweighted(self.graph, result, self.config.robust_threshold)
 
     def keyframe_estimates(self, with_covariance: bool = True) -> list[KeyframeEstimate]:
         """Refined camera x-z of every keyframe (solves first if needed)."""
@@ -128,7 +127,7 @@ class BatchSmoother(KeyframeSmootherBase):
 
 def count_downweighted(
     graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, threshold: float
-) -> dict[str, int]:
+) -> dict[str, float]:
     """Count robust factors whose whitened error norm exceeds ``threshold`` at ``values``;
     also the largest whitened error norm (``max_whitened_error``, sigmas)."""
     n_robust = n_down = 0
@@ -141,7 +140,9 @@ def count_downweighted(
         if not isinstance(nm, gtsam.noiseModel.Robust):
             continue
         n_robust += 1
-        err = float(np.linalg.norm(nm.noise().whiten(f.unwhitenedError(values))))
+        # graph.at() is typed as the base class; a factor with a noise model has the method
+        raw = f.unwhitenedError(values)  # type: ignore[attr-defined]
+        err = float(np.linalg.norm(nm.noise().whiten(raw)))
         worst = max(worst, err)
         if err > threshold:
             n_down += 1

@@ -110,6 +110,7 @@ __all__ = [
 # ----------------------------------------------------------------------------------------------
 def robust_noise(config: SmootherConfig, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
     """Wrap ``base`` in the configured M-estimator (threshold in whitened units)."""
+    est: gtsam.noiseModel.mEstimator.Base
     if config.robust_kernel == "huber":
         est = gtsam.noiseModel.mEstimator.Huber.Create(config.robust_threshold)
     elif config.robust_kernel == "cauchy":

@@ -9,6 +9,7 @@ the newest state for the next prediction.
 from __future__ import annotations
 
 import time
+from typing import Any, cast
 
 import gtsam
 import numpy as np
@@ -49,7 +50,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             lm = gtsam.LevenbergMarquardtParams()
             if config.fixed_lag_factorization == "QR":
                 lm.setLinearSolverType("MULTIFRONTAL_QR")
-            self._smoother: gtsam.FixedLagSmoother = gtsam.BatchFixedLagSmoother(self.lag_s, lm)
+            self._smoother: gtsam.BatchFixedLagSmoother | gtsam.IncrementalFixedLagSmoother = (
+                gtsam.BatchFixedLagSmoother(self.lag_s, lm))
         else:
             p = gtsam.ISAM2Params()
             p.setFactorization(config.fixed_lag_factorization)
@@ -90,7 +92,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
                 self._frozen[i_old] = (xz, cov if cov_now else self._newest_cov.get(i_old, _NAN2))
 
         try:
-            self._smoother.update(factors, u.values, stamps)
+            # (the stubs type the key -> time map with invariant protocol keys; ints are fine)
+            self._smoother.update(factors, u.values, cast(dict[Any, Any], stamps))
         except RuntimeError as exc:  # GTSAM's exceptions surface as RuntimeError
             msg = f"fixed-lag update at {u.timestamp_s:.3f} s failed: {exc}"
             raise EstimationError(msg) from exc
@@ -114,7 +117,7 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         R, cam = camera_from_pose(self._smoother.calculateEstimatePose3(X(i)), self.imu_p_cam_m)
         cov = _NAN2
-        if with_covariance and self._incremental:
+        if with_covariance and isinstance(self._smoother, gtsam.IncrementalFixedLagSmoother):
             cov = camera_xz_cov_from_pose_cov(
                 R, self._smoother.marginalCovariance(X(i)), self.imu_p_cam_m
             )

@@ -20,7 +20,7 @@ def test_mypy_is_clean_on_the_core_packages() -> None:
          "--cache-dir", str(cache)],
         cwd=ROOT, capture_output=True, text=True, timeout=600,
     )
-    assert "No module named mypy" not in out.stderr, "install the test extra: pip install -e .[test]"
+    assert "No module named mypy" not in out.stderr, "install the test extra: .[test]"
     assert out.returncode == 0, out.stdout + out.stderr
     assert "Success: no issues found" in out.stdout
 

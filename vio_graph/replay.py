@@ -25,6 +25,7 @@ from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
 from vio_graph.protocol import Estimator, FilterTrack, FrameRecord
 from vio_graph.recording.reader import Recording
 from vio_graph.types import Displacement2D
+from vio_graph.viz.run_view import RunView
 
 log = logging.getLogger(__name__)
 
@@ -118,8 +119,6 @@ class Replay:
     """
 
     def __init__(self, rec: Recording, config: PipelineConfig, modes: set[str], viz) -> None:
-        from vio_graph.viz.run_view import RunView
-
         self.rec = rec
         self.config = config
         self.modes = modes

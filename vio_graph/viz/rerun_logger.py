@@ -173,6 +173,12 @@ class Visualizer(NullVisualizer):
         times.append(self._t_s)
         values.append(float(value))
 
+    def _time_column(self, times_s: list[float]):
+        """A ``time`` column with the nanoseconds ``set_time`` gives the same seconds (rounded,
+        where a float array would be truncated)."""
+        ns = np.array([round(1e9 * t) for t in times_s], dtype=np.int64)
+        return self._rr.TimeColumn("time", duration=ns.astype("timedelta64[ns]"))
+
     def _send_time_series(self) -> None:
         """The collected time series, one ``send_columns`` call per entity."""
         rr = self._rr
@@ -180,7 +186,7 @@ class Visualizer(NullVisualizer):
         if times:
             rr.send_columns(
                 "world/camera",
-                indexes=[rr.TimeColumn("time", duration=np.asarray(times))],
+                indexes=[self._time_column(times)],
                 columns=rr.Transform3D.columns(
                     translation=np.asarray(translations), mat3x3=np.asarray(rotations)
                 ),
@@ -189,7 +195,7 @@ class Visualizer(NullVisualizer):
         for entity, (t, v) in self._scalars.items():
             rr.send_columns(
                 entity,
-                indexes=[rr.TimeColumn("time", duration=np.asarray(t))],
+                indexes=[self._time_column(t)],
                 columns=rr.Scalars.columns(scalars=np.asarray(v)),
                 recording=self._rec,
             )

@@ -70,7 +70,13 @@ from vio_graph.geometry import (
 )
 from vio_graph.health import HealthLimits, HealthMonitor
 from vio_graph.keyframes import KeyframeSelector
-from vio_graph.kinematics import LegPoints, knee_from_camera, leg_points_from_knee, shank_pitch_rad
+from vio_graph.kinematics import (
+    LegModel,
+    LegPoints,
+    knee_from_camera,
+    leg_points_from_knee,
+    shank_pitch_rad,
+)
 from vio_graph.protocol import FrameRecord, ImuStep
 from vio_graph.recording.metadata import RecordingMetadata
 from vio_graph.types import (
@@ -101,7 +107,7 @@ class RigGeometry:
     K: NDArray[np.float64]
     imu_T_cam: NDArray[np.float64]
     knee_T_cam: NDArray[np.float64]
-    leg: object  # vio_graph.kinematics.LegModel
+    leg: LegModel
 
     @classmethod
     def from_metadata(cls, meta: RecordingMetadata) -> RigGeometry:
@@ -461,6 +467,7 @@ class OnlineEstimator:
                 self._corners.saw(key, t)
             self._corners.forget(t, key, self.filter)
             if obs is not None:
+                assert key is not None  # set above for every observation
                 cov = np.asarray(obs.cov_m2, float) + np.eye(2) * fc.corner_landmark_sigma_m**2
                 self.filter.update_landmark(key, obs.corner_rel_xz_m, cov, t)
         if fc.stance_anchor:
@@ -495,6 +502,7 @@ class OnlineEstimator:
         candidate = (self._stance.quiet() if self._last_contact is None
                      else self._last_contact.loaded)
         if candidate and fc.stance_speed_threshold_mps is not None:
+            assert self._last_imu is not None  # a frame comes after an IMU sample
             rate = float((R_world_imu @ np.asarray(self._last_imu.gyro_radps, float))[1])
             _, v_cam = self._position_at(t)
             candidate = float(np.hypot(*(v_cam + rate * dlever))) < fc.stance_speed_threshold_mps

@@ -151,13 +151,55 @@ def _run_into(
     files.append(write_frames_csv(out / "frames.csv", lg))
 
     # evaluate
+    metrics = _evaluate(rec, config, replay, lg, paths, wall_s)
+
+    # map, from the best refined keyframe poses available
+    map_mode = "batch" if "batch" in camera else "smoother" if "smoother" in camera else "filter"
+    run_map = build_run_map(lg.t_s, lg.profiles, camera[map_mode], config.mapping,
+                            rec.metadata.terrain)
+    metrics["map"] = {"source_mode": map_mode, **run_map.metrics}
+
+    # write
+    if run_map.geometry is not None:
+        from vio_graph.mapping.export import export_map
+
+        written = export_map(out / "map", run_map.points_xz_m, run_map.geometry,
+                             rec.metadata.terrain, run_map.comparison,
+                             camera_xz_m=camera[map_mode])
+        replay.view.map_points(run_map.points_xz_m)
+        files += list(written.values())
+    if config.output.plots:
+        from vio_graph.viz.plots import plot_run_overview
+
+        files.append(plot_run_overview(out / "plots" / "overview.png", rec, t_s, paths, metrics))
+    replay.view.paths(paths)
+    viz.close()
+    if isinstance(viz, Visualizer):
+        files.append(out / "run.rrd")
+    atomic_write_json(out / "metrics.json", metrics)
+    files.append(out / "metrics.json")
+    return RunResult(out_dir=out, metrics=metrics, files=files)
+
+
+def _evaluate(
+    rec: Recording,
+    config: PipelineConfig,
+    replay: Replay,
+    lg: FrameLog,
+    paths: dict[str, dict[str, NDArray[np.float64]]],
+    wall_s: float,
+) -> dict[str, Any]:
+    """metrics.json without the map: what was run, accuracy against ground truth (if any),
+    latency, the estimators' reports and failures, front end, filter, health, stance."""
+    t_s = np.asarray(lg.t_s)
+    use_enc = config.kinematics.shank_pitch_source == "encoders"
     metrics: dict[str, Any] = {
         "recording": str(rec.root),
         "scenario": rec.metadata.provenance.scenario,
         "seed": rec.metadata.provenance.seed,
         "terrain": rec.metadata.terrain.kind,
         "rig": rec.metadata.leg.rig,
-        "modes": sorted(camera),
+        "modes": sorted(paths),
         "software": f"vio_graph {vio_graph.__version__}",
         "frames": len(lg.t_s),
         "wall_time_s": wall_s,
@@ -186,30 +228,4 @@ def _run_into(
             np.asarray(lg.in_stance, bool), true_stance(gt.trajectories["ankle"], t_s))
         metrics["frontend"]["displacement_nees"] = displacement_nees(
             lg.displacements, gt.trajectories["camera"], config.filter.measurement_noise_floor_m)
-
-    # map, from the best refined keyframe poses available
-    map_mode = "batch" if "batch" in camera else "smoother" if "smoother" in camera else "filter"
-    run_map = build_run_map(lg.t_s, lg.profiles, camera[map_mode], config.mapping,
-                            rec.metadata.terrain)
-    metrics["map"] = {"source_mode": map_mode, **run_map.metrics}
-
-    # write
-    if run_map.geometry is not None:
-        from vio_graph.mapping.export import export_map
-
-        written = export_map(out / "map", run_map.points_xz_m, run_map.geometry,
-                             rec.metadata.terrain, run_map.comparison,
-                             camera_xz_m=camera[map_mode])
-        replay.view.map_points(run_map.points_xz_m)
-        files += list(written.values())
-    if config.output.plots:
-        from vio_graph.viz.plots import plot_run_overview
-
-        files.append(plot_run_overview(out / "plots" / "overview.png", rec, t_s, paths, metrics))
-    replay.view.paths(paths)
-    viz.close()
-    if isinstance(viz, Visualizer):
-        files.append(out / "run.rrd")
-    atomic_write_json(out / "metrics.json", metrics)
-    files.append(out / "metrics.json")
-    return RunResult(out_dir=out, metrics=metrics, files=files)
+    return metrics

@@ -2,7 +2,7 @@
 open3d's 3D point-to-point ICP on the same raw clouds (the paper's "direct ICP" baseline).
 
 1. Ours: the recording's IMU, joint and depth streams are replayed in time order
-   (``vio_graph.pipeline.replay_order``) through ``vio_graph.estimator.OnlineEstimator``, with
+   (``vio_graph.replay.replay_order``) through ``vio_graph.estimator.OnlineEstimator``, with
    every depth frame already in memory (disk reads are not timed). Stage times come from the
    estimator itself (``FrameEstimate.timings_ms``): projection (eq. 1-2), smoothing, terrain,
    corners, the tracker stage (eq. 3-4) split into the ICP solver (``icp_translation_2d``,
@@ -36,8 +36,8 @@ from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.frontend.projection import depth_to_points_cam
 from vio_graph.geometry import matrix_from_quat_wxyz
 from vio_graph.o3d import open3d
-from vio_graph.pipeline import replay_order
 from vio_graph.recording.reader import Recording
+from vio_graph.replay import replay_order
 
 STAGES = (
     "frontend_projection",

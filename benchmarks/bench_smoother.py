@@ -6,7 +6,7 @@ through ``vio_graph.pipeline``.
   landmarks while stairs are in view);
 - batch (synthetic): solve time (and build time) for 10, 30 and 60 s trials;
 - replay: the same windows and the batch solve on the simulated upstair trial (seed 1, 10 s)
-  replayed by ``vio_graph.pipeline.Replay`` (front end, filter and smoother exactly as in
+  replayed by ``vio_graph.replay.Replay`` (front end, filter and smoother exactly as in
   ``vio-graph run``; no visualisation), keyframe times from the smoother itself.
 
 Writes benchmarks/results/smoother.json (threads pinned to 1 by ``_common``).
@@ -143,8 +143,8 @@ def markdown_synthetic(fixed: list[dict], batch: list[dict], meta: dict) -> str:
 def bench_replay(recording: Path, windows_s: list[float]) -> dict[str, Any]:
     """The smoother inside the real replay loop, one replay per window (batch on the first)."""
     from vio_graph.config import PipelineConfig
-    from vio_graph.pipeline import Replay
     from vio_graph.recording.reader import Recording
+    from vio_graph.replay import Replay
     from vio_graph.viz.rerun_logger import NullVisualizer
 
     rec = Recording.open(recording)
@@ -158,15 +158,15 @@ def bench_replay(recording: Path, windows_s: list[float]) -> dict[str, Any]:
         t0 = time.perf_counter()
         replay.run()
         wall = time.perf_counter() - t0
-        sm = replay.smoothers["smoother"]
+        sm = replay.estimators["smoother"]
         k = min(len(sm.update_times_ms), len(sm.build_times_ms))
         upd, build = np.asarray(sm.update_times_ms[:k]), np.asarray(sm.build_times_ms[:k])
         rows.append({"window_s": w, "keyframes": k, "update_ms": _common.stats_ms(upd),
                      "build_ms": _common.stats_ms(build),
                      "update_plus_build_ms": _common.stats_ms(upd + build),
                      "replay_wall_s": wall})
-        if "batch" in replay.smoothers:
-            b = replay.smoothers["batch"]
+        if "batch" in replay.estimators:
+            b = replay.estimators["batch"]
             batch = {"trial_s": float(rec.frame_timestamps_s[-1] - rec.frame_timestamps_s[0]),
                      "keyframes": len(b.keyframe_estimates(with_covariance=False)),
                      "factors": int(b.graph.nrFactors()), "solve_s": b.solve_time_ms / 1e3,
@@ -199,7 +199,7 @@ def markdown(r: dict[str, Any]) -> str:
     b = rp["batch"]
     lines = [
         f"Replay of the simulated upstair trial ({rp['frames']} frames) through "
-        "`vio_graph.pipeline.Replay` (the smoother as `vio-graph run` uses it), per keyframe:",
+        "`vio_graph.replay.Replay` (the smoother as `vio-graph run` uses it), per keyframe:",
         "",
         _common.md_table(["window s", "keyframes", "update ms median", "update ms p95",
                           "build ms median", "build ms p95", "total ms median",

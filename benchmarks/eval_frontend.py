@@ -42,8 +42,8 @@ from scipy.spatial.transform import Rotation, Slerp
 from vio_graph.config import PipelineConfig, load_config
 from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.geometry import remove_yaw
-from vio_graph.pipeline import replay_order
 from vio_graph.recording.reader import Recording
+from vio_graph.replay import replay_order
 
 SPEED_BINS_MPS = (0.0, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, np.inf)
 

@@ -187,14 +187,14 @@ def test_run_interrupted_in_process(tmp_path: Path, monkeypatch) -> None:
 
     rec = _two_second_recording(tmp_path / "rec")
     before = _checksums(rec)
-    real_write = pipeline._write_frames_csv
+    real_write = pipeline.write_frames_csv
 
     def write_then_interrupt(path: Path, lg) -> Path:
         real_write(path, lg)
         (path.parent / ".frames.csv.abcd1234.tmp").write_text("half")  # a stale temporary
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(pipeline, "_write_frames_csv", write_then_interrupt)
+    monkeypatch.setattr(pipeline, "write_frames_csv", write_then_interrupt)
     out = tmp_path / "out"
     with pytest.raises(pipeline.RunInterrupted) as exc:
         pipeline.run_recording(rec, out, load_config(), progress=False, visualize=True)

@@ -118,30 +118,30 @@ def test_a_corner_seen_again_under_a_new_track_is_the_same_landmark() -> None:
     """The swinging shank looks at one nosing, another, then the first again; the front end
     gives the reappearance a new track id. Within corner_reidentify_radius_m of a remembered
     corner (and clearly nearest) it is re-identified; far away or ambiguous it is new."""
-    from tests.conftest import tiny_metadata
-    from vio_graph.config import PipelineConfig
-    from vio_graph.estimator import OnlineEstimator, RigGeometry
-    from vio_graph.types import CornerObservation, ImuSample
+    from vio_graph.filter.corner_landmarks import CornerLandmarks
+    from vio_graph.types import CornerObservation
 
-    est = OnlineEstimator(PipelineConfig(), RigGeometry.from_metadata(tiny_metadata()))
-    est.add_imu(ImuSample(0.0, np.array([0.0, 0.0, 9.81]), np.zeros(3),
-                          np.array([1.0, 0.0, 0.0, 0.0])))
+    fc = FilterConfig()
+    f = SagittalEskf(fc)
+    f.initialise(0.0, np.zeros(2))
+    camera = f.state.p_xz_m
+    corners = CornerLandmarks(fc.corner_reidentify_radius_m, fc.corner_memory_s,
+                              fc.max_corner_landmarks)
     cov = np.eye(2) * 1e-4
 
     def obs(track: int, rel) -> CornerObservation:
         return CornerObservation(0.0, track, np.asarray(rel, float), cov)
 
     # two remembered nosings one stair step apart (0.28 m, 0.147 m)
-    assert est._corner_key(0.0, obs(1, [0.50, -0.40])) == LandmarkKey("corner", 1)
-    est.filter.update_landmark(LandmarkKey("corner", 1), [0.50, -0.40], cov, 0.0)
-    assert est._corner_key(0.0, obs(2, [0.78, -0.253])) == LandmarkKey("corner", 2)
-    est.filter.update_landmark(LandmarkKey("corner", 2), [0.78, -0.253], cov, 0.0)
+    assert corners.key(obs(1, [0.50, -0.40]), camera, f) == LandmarkKey("corner", 1)
+    f.update_landmark(LandmarkKey("corner", 1), [0.50, -0.40], cov, 0.0)
+    assert corners.key(obs(2, [0.78, -0.253]), camera, f) == LandmarkKey("corner", 2)
+    f.update_landmark(LandmarkKey("corner", 2), [0.78, -0.253], cov, 0.0)
     # track 3 sees nosing 1 again, 3 cm off: re-identified, and stays so for the track
-    assert est._corner_key(0.0, obs(3, [0.53, -0.40])) == LandmarkKey("corner", 1)
-    assert est._corner_key(0.0, obs(3, [0.70, -0.30])) == LandmarkKey("corner", 1)
+    assert corners.key(obs(3, [0.53, -0.40]), camera, f) == LandmarkKey("corner", 1)
+    assert corners.key(obs(3, [0.70, -0.30]), camera, f) == LandmarkKey("corner", 1)
     # a corner 20 cm from both: new
-    assert est._corner_key(0.0, obs(4, [0.64, -0.20])) == LandmarkKey("corner", 4)
+    assert corners.key(obs(4, [0.64, -0.20]), camera, f) == LandmarkKey("corner", 4)
     # switched off: every track is new
-    est.config = PipelineConfig.model_validate(
-        {"filter": {"corner_reidentify_radius_m": None}})
-    assert est._corner_key(0.0, obs(5, [0.50, -0.40])) == LandmarkKey("corner", 5)
+    off = CornerLandmarks(None, fc.corner_memory_s, fc.max_corner_landmarks)
+    assert off.key(obs(5, [0.50, -0.40]), camera, f) == LandmarkKey("corner", 5)

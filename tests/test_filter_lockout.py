@@ -10,8 +10,8 @@ import pytest
 from vio_graph.config import PipelineConfig
 from vio_graph.filter import FilterConfig, SagittalEskf
 from vio_graph.geometry import GRAVITY_MPS2
-from vio_graph.pipeline import Replay
 from vio_graph.recording import Recording
+from vio_graph.replay import Replay
 from vio_graph.types import Displacement2D, ImuSample
 from vio_graph.viz.rerun_logger import NullVisualizer
 
@@ -54,17 +54,17 @@ def test_estimator_recovers_from_a_corrupted_velocity(short_upstair: Path) -> No
             update={"lockout_refusals": n})})
         rp = Replay(rec, cfg, {"filter"}, NullVisualizer())
         est = rp.online
-        orig = est.add_frame
+        orig = est.process_frame
         count = {"k": 0}
 
-        def add_frame(frame, *a, _orig=orig, _est=est, _count=count, **kw):
+        def process_frame(frame, *a, _orig=orig, _est=est, _count=count, **kw):
             _count["k"] += 1
             if _count["k"] == 40:
                 _est.filter._x[2:4] += np.array([0.6, 0.0])
                 _est.filter._P[2:4, 2:4] = np.eye(2) * 1e-6
             return _orig(frame, *a, **kw)
 
-        est.add_frame = add_frame
+        est.process_frame = process_frame
         lg = rp.run()
         gt = rec.groundtruth.trajectories["camera"]
         t = np.asarray(lg.t_s)

@@ -92,9 +92,9 @@ def test_offset_filter_converges_and_rejects_outliers() -> None:
 
 
 def test_rotating_the_previous_frame_keeps_icp_consistent() -> None:
-    """The estimator corrects its pitch between two frames: after ``rotate_previous`` the same
-    view seen through the corrected attitude gives a zero displacement; without it, the change
-    of attitude reads as motion."""
+    """The estimator corrects its pitch between two frames: told the turn (``ground_turn_rad``)
+    the same view seen through the corrected attitude gives a zero displacement; without it,
+    the change of attitude reads as motion."""
     from vio_graph.frontend.frontend import VisualFrontend
     from vio_graph.frontend.synthetic import (
         camera_rotation,
@@ -117,10 +117,8 @@ def test_rotating_the_previous_frame_keeps_icp_consistent() -> None:
     for rotate in (False, True):
         fe = VisualFrontend()
         fe.process(frame, K, R_wrong)
-        if rotate:
-            fe.rotate_previous(step)
         res = fe.process(DepthFrame(1, 1 / 30, depth, conf), K, rot_y(step) @ R_wrong,
-                         np.zeros(2), np.eye(2) * 0.01**2)
+                         np.zeros(2), np.eye(2) * 0.01**2, step if rotate else 0.0)
         assert res.displacement is not None, res.rejection_reason
         shifts[rotate] = np.linalg.norm(res.displacement.delta_xz_m)
     assert shifts[True] < 0.001  # same view, same frame: no motion
@@ -129,7 +127,7 @@ def test_rotating_the_previous_frame_keeps_icp_consistent() -> None:
 
 def _shank_pitch_error_deg(rec_path: Path, enabled: bool) -> float:
     from vio_graph.evaluation.run_metrics import shank_pitch_error_deg
-    from vio_graph.pipeline import Replay
+    from vio_graph.replay import Replay
     from vio_graph.viz.rerun_logger import NullVisualizer
 
     cfg = PipelineConfig()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +132,23 @@ def test_rerun_recording_verifies_and_has_the_scene(run_all) -> None:
                    "/world/leg/est", "/world/leg/gt", "/world/terrain/mesh", "/world/map",
                    "/world/gt/toe", "/world/est/toe", "/world/smoother/toe"):
         assert entity in dump, entity
+    # rows per entity and its component columns, summed over the chunks
+    rows: dict[str, int] = {}
+    columns: dict[str, str] = {}
+    for m in re.finditer(r"with (\d+) rows .* - (\S+) - data columns: \[(.*)\]", dump):
+        rows[m.group(2)] = rows.get(m.group(2), 0) + int(m.group(1))
+        columns[m.group(2)] = m.group(3)
+    n_frames = run_all.metrics["frames"]
+    # the time series (sent as columns): one row per frame each
+    for series in ("/plots/status/fused", "/plots/error_cm/toe_x", "/plots/error_cm/toe_z"):
+        assert rows.get(series) == n_frames, (series, rows.get(series))
+        assert "Scalars:scalars" in columns[series]
+    assert rows.get("/world/camera") == n_frames
+    assert "Transform3D:translation" in columns["/world/camera"]
+    # every frame's depth image under the camera's (static) pinhole, so it is back-projected
+    assert rows.get("/world/camera/image/depth") == n_frames
+    assert "DepthImage:buffer" in columns["/world/camera/image/depth"]
+    assert "Pinhole:image_from_camera" in columns["/world/camera/image"]
 
 
 def test_recording_without_ground_truth(short_upstair: Path, tmp_path: Path) -> None:

@@ -17,6 +17,8 @@ from vio_graph.smoother.graph import (
     V,
     X,
     camera_xz_cov_from_pose_cov,
+)
+from vio_graph.smoother.imu_sampling import (
     discretization_velocity_var,
     make_preintegration_params,
     midpoint_samples,
@@ -184,11 +186,11 @@ def test_builder_keeps_corners_and_stance_anchors_apart():
 def test_ingestion_errors():
     tr = make_swinging_shank_trial(0.5)
     s = SlidingWindowSmoother(SmootherConfig(), tr.imu_T_cam)
-    s.add_imu(tr.imu[0])
+    s.feed_imu(tr.imu[0])
     with pytest.raises(EstimationError):
-        s.add_imu(tr.imu[0])  # timestamps must increase
+        s.feed_imu(tr.imu[0])  # timestamps must increase
     with pytest.raises(EstimationError):
-        s.add_frame(0.0, True, None, None, None)  # first keyframe needs an initial guess
+        s.feed_frame(0.0, True, None, None, None)  # first keyframe needs an initial guess
     with pytest.raises(EstimationError):
         SlidingWindowSmoother(SmootherConfig(), np.eye(3))
 
@@ -263,7 +265,7 @@ def test_old_keyframes_leave_the_window_but_keep_their_estimates():
     assert all(np.isfinite(e.cov_m2).all() for e in est)
     # estimates of marginalised keyframes are frozen: more data does not change them
     first = est[0].camera_xz_m.copy()
-    s.add_imu(ImuSample(10.0, tr.imu[-1].accel_mps2, tr.imu[-1].gyro_radps, tr.imu[-1].quat_wxyz))
+    s.feed_imu(ImuSample(10.0, tr.imu[-1].accel_mps2, tr.imu[-1].gyro_radps, tr.imu[-1].quat_wxyz))
     np.testing.assert_array_equal(s.keyframe_estimates()[0].camera_xz_m, first)
     assert len(s.update_times_ms) == n_kf
 
@@ -323,7 +325,7 @@ def test_batch_fixed_lag_variant_agrees_with_incremental():
 
 
 def test_held_samples_cover_interval_and_hold_values() -> None:
-    from vio_graph.smoother.graph import held_samples
+    from vio_graph.smoother.imu_sampling import held_samples
 
     t = np.arange(0.0, 0.5, 0.01)
     a = np.column_stack([t, 2 * t, np.full_like(t, 9.81)])
@@ -399,7 +401,7 @@ def test_common_frame_preintegration_is_exact_for_gravity_on_a_spinning_shank() 
     """Gravity seen by an IMU turning at 8 rad/s (swing): the world-frame velocity change over
     0.1 s is exactly g dt. The moving-frame midpoint rule falls short by (omega dt)^2/24 per
     step (a downward drift); the common-frame rule does not."""
-    from vio_graph.smoother.graph import common_frame_samples, midpoint_samples, so3_exp
+    from vio_graph.smoother.imu_sampling import common_frame_samples, midpoint_samples, so3_exp
 
     w = np.array([0.0, 8.0, 0.0])
     t = np.arange(0.0, 0.2, 0.01)

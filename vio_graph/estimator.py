@@ -3,7 +3,10 @@
 Feed it IMU samples, joint angles and depth frames in time order (no look-ahead); each depth
 frame returns a :class:`vio_graph.types.FrameEstimate` with the camera, knee, ankle, heel and
 toe positions, velocity, covariance, status and per-stage timings. The CLI's replay loop
-(``vio_graph.pipeline``) drives exactly this object.
+(``vio_graph.replay``) drives exactly this object: :meth:`OnlineEstimator.add_imu` returns the
+:class:`~vio_graph.protocol.ImuStep` and :meth:`OnlineEstimator.process_frame` the
+:class:`~vio_graph.protocol.FrameRecord` that every other estimator (baselines, smoothers)
+then takes (vio_graph/protocol.py).
 
 Per frame, in the paper's order (Section II):
   1. attitude: the latest IMU orientation, heading removed -> R_ground_cam (eq. 2);
@@ -29,10 +32,12 @@ Per frame, in the paper's order (Section II):
         ground and on stair descent, where risers face away.
      Measured (toe ATE x cm, filter, displacements only -> + corners -> + stance):
      downstair s1 31.8 -> 7.9 -> 4.9, upstair s4 29.5 -> 15.6 -> 3.6, level s1 524 -> 4.1
-     (stance alone), see the final 20-trial table in the commit log / report.
+     (stance alone; measured when the landmarks were introduced, with ``vio-graph run
+     --mode filter`` and the switches above turned off in turn).
   5. knee from the camera and the knee <- camera extrinsic; ankle, heel, toe by forward
      kinematics from the thigh IMU and the joint encoders (Fig. 3);
-  6. keyframe decision and the local 2D map.
+  6. keyframe decision (the map is built after the replay from the keyframe profiles,
+     vio_graph/mapping/).
 """
 
 from __future__ import annotations
@@ -48,6 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
 from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_pitch_offset
+from vio_graph.filter.corner_landmarks import CornerLandmarks
 from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
 from vio_graph.filter.gating import chi2_2dof_quantile
 from vio_graph.filter.stance import StanceConsistencyTest, StanceDetector
@@ -64,8 +70,14 @@ from vio_graph.geometry import (
 )
 from vio_graph.health import HealthLimits, HealthMonitor
 from vio_graph.keyframes import KeyframeSelector
-from vio_graph.kinematics import LegPoints, knee_from_camera, leg_points_from_knee, shank_pitch_rad
-from vio_graph.mapping.local_map import TerrainMap2D
+from vio_graph.kinematics import (
+    LegModel,
+    LegPoints,
+    knee_from_camera,
+    leg_points_from_knee,
+    shank_pitch_rad,
+)
+from vio_graph.protocol import FrameRecord, ImuStep
 from vio_graph.recording.metadata import RecordingMetadata
 from vio_graph.types import (
     ContactSample,
@@ -95,7 +107,7 @@ class RigGeometry:
     K: NDArray[np.float64]
     imu_T_cam: NDArray[np.float64]
     knee_T_cam: NDArray[np.float64]
-    leg: object  # vio_graph.kinematics.LegModel
+    leg: LegModel
 
     @classmethod
     def from_metadata(cls, meta: RecordingMetadata) -> RigGeometry:
@@ -173,7 +185,7 @@ class RigGeometry:
 
 
 class OnlineEstimator:
-    """SP-ESKF front end + fusion + kinematics + keyframes + local map, frame by frame."""
+    """SP-ESKF front end + fusion + kinematics + keyframes, frame by frame."""
 
     def __init__(self, config: PipelineConfig, rig: RigGeometry,
                  initial_camera_xz_m: NDArray[np.float64] | None = None) -> None:
@@ -187,14 +199,15 @@ class OnlineEstimator:
         #: this frame's level-surface tilt measurement (None if no level surface was found)
         self.surface_tilt: SurfaceTilt | None = None
         self.keyframes = KeyframeSelector(config.keyframes)
-        self.local_map = TerrainMap2D(config.mapping.map)
         self._p0 = (np.zeros(2) if initial_camera_xz_m is None
                     else np.asarray(initial_camera_xz_m, float))
-        self._last_imu: ImuSample | None = None
-        self._last_imu_shank_axes: ImuSample | None = None  # as received, in shank axes
+        self._last_imu: ImuSample | None = None  # in shank axes, pitch offset applied
         self._last_joints: JointAngles | None = None
         self._last_contact: ContactSample | None = None
         self._prev_frame: tuple[float, NDArray[np.float64]] | None = None  # (t, camera xz)
+        # pitch correction (rad) made after the previous frame's slice was taken: the front end
+        # re-expresses that slice with it before the next ICP
+        self._ground_turn_rad = 0.0
         self._imu_ms = 0.0
         fc = config.filter
         # ankle (knee frame (0, 0, -L_shank)) in the IMU frame, for the stance detector
@@ -203,12 +216,12 @@ class OnlineEstimator:
         self._stance = StanceDetector(ankle_in_imu, fc.stance_accel_threshold_mps2,
                                       fc.stance_window_s)
         self._stance_n = 0  # id of the current / next stance anchor
-        #: this frame's stance anchor (ankle - camera) as an observation, None outside stance
-        self.stance_observation: StanceObservation | None = None
-        #: this frame's corner observation, track id replaced by its landmark's (re-identified)
-        self.corner_observation: CornerObservation | None = None
-        self._corner_alias: dict[int, LandmarkKey] = {}  # track id -> landmark key
-        self._corner_seen: dict[LandmarkKey, float] = {}  # landmark key -> last seen, s
+        # this frame's stance anchor (ankle - camera) as an observation, None outside stance
+        self._stance_observation: StanceObservation | None = None
+        # this frame's corner observation, track id replaced by its landmark's (re-identified)
+        self._corner_observation: CornerObservation | None = None
+        self._corners = CornerLandmarks(fc.corner_reidentify_radius_m, fc.corner_memory_s,
+                                        fc.max_corner_landmarks)
         self._in_stance = False
         self._refused_in_row = 0  # displacements refused by the gate in a row
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
@@ -239,7 +252,9 @@ class OnlineEstimator:
         return rep
 
     # ------------------------------------------------------------------ inputs
-    def add_imu(self, sample: ImuSample) -> None:
+    def add_imu(self, sample: ImuSample) -> ImuStep:
+        """Propagate with one IMU sample (any mount); returns it as the other estimators take
+        it: in shank axes, as measured and with the level-surface pitch offset applied."""
         t0 = time.perf_counter()
         sample = shank = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
@@ -256,8 +271,8 @@ class OnlineEstimator:
                                  sagittal_rotation(sample.quat_wxyz),
                                  self.config.filter.gravity_xz_mps2)
         self._last_imu = sample
-        self._last_imu_shank_axes = shank
         self._imu_ms += (time.perf_counter() - t0) * 1e3
+        return ImuStep(shank=shank, corrected=sample)
 
     def add_joints(self, sample: JointAngles) -> None:
         self._last_joints = sample
@@ -276,16 +291,6 @@ class OnlineEstimator:
     @property
     def initialised(self) -> bool:
         return self._last_imu is not None
-
-    @property
-    def latest_imu_shank_axes(self) -> ImuSample | None:
-        """The latest IMU sample as received, turned into shank axes (no pitch offset)."""
-        return self._last_imu_shank_axes
-
-    @property
-    def latest_imu(self) -> ImuSample | None:
-        """The latest IMU sample as the filter used it (pitch offset applied)."""
-        return self._last_imu
 
     def corrected_imu(self, sample: ImuSample) -> ImuSample:
         """``sample`` with its vendor orientation turned by the level-surface pitch offset
@@ -315,8 +320,18 @@ class OnlineEstimator:
     def add_frame(
         self, frame: DepthFrame, R_ground_cam_override: NDArray[np.float64] | None = None,
         transform_result=None,
-    ) -> tuple[FrameEstimate, FrontendResult | None]:
-        """Process one depth frame (after every IMU / joint sample stamped at or before it).
+    ) -> tuple[FrameEstimate, FrontendResult]:
+        """Process one depth frame (after every IMU / joint sample stamped at or before it);
+        returns the estimate and the front end's result (see :meth:`process_frame`)."""
+        record = self.process_frame(frame, R_ground_cam_override, transform_result)
+        return record.estimate, record.frontend
+
+    def process_frame(
+        self, frame: DepthFrame, R_ground_cam_override: NDArray[np.float64] | None = None,
+        transform_result=None,
+    ) -> FrameRecord:
+        """Process one depth frame (after every IMU / joint sample stamped at or before it);
+        returns the frame's record for the other estimators (vio_graph/protocol.py).
 
         ``R_ground_cam_override`` (3, 3) replaces the IMU attitude of eq. 2 (diagnostics only,
         e.g. ``benchmarks/eval_frontend.py --attitude gt``). ``transform_result`` (testing
@@ -343,14 +358,16 @@ class OnlineEstimator:
             P = self.filter.state.P
             pred_cov = P[2:4, 2:4] * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
         # 3. front end (eq. 1-4)
-        result = self.frontend.process(frame, self.rig.K, R_ground_cam, pred_delta, pred_cov)
+        result = self.frontend.process(frame, self.rig.K, R_ground_cam, pred_delta, pred_cov,
+                                       self._ground_turn_rad)
+        self._ground_turn_rad = 0.0
         timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
         # 4. fusion: level surfaces -> pitch of the attitude (used from here on), then eq. 8
         t0 = time.perf_counter()
         if self.config.filter.level_aiding.enabled and R_ground_cam_override is None:
             step = self._level_aiding(t, result.profile_xz_m)
             if step != 0.0:
-                self.frontend.rotate_previous(step)  # this frame, in the corrected frame
+                self._ground_turn_rad = step  # this frame, seen from the next one
                 R_world_imu = self.R_world_imu(t)
         if transform_result is not None:
             result = transform_result(result)
@@ -373,10 +390,8 @@ class OnlineEstimator:
         t0 = time.perf_counter()
         pts = self.leg_points(camera_xz, R_world_imu)
         timings["kinematics"] = (time.perf_counter() - t0) * 1e3
-        # 6. keyframes and local map
+        # 6. keyframes
         is_kf = self.keyframes.is_keyframe(t, camera_xz)
-        if is_kf and result.profile_xz_m.shape[0] > 0:
-            self.local_map.add_keyframe(t, camera_xz, result.profile_xz_m)
         self._prev_frame = (t, camera_xz)
         status = state.status
         if result.displacement is None and status is EstimateStatus.FUSED:
@@ -395,7 +410,21 @@ class OnlineEstimator:
             is_keyframe=is_kf,
             timings_ms=timings,
         )
-        return estimate, result
+        # the attitude the displacement and observations were built with (level-aided)
+        R_world_imu = self.R_world_imu(t)
+        imu_pitch, chain_pitch, ankle = self.leg_angles(R_world_imu)
+        return FrameRecord(
+            estimate=estimate,
+            frontend=result,
+            displacement=result.displacement,
+            corner=self._corner_observation,
+            stance=self._stance_observation,
+            R_world_imu=R_world_imu,
+            shank_pitch_imu_rad=imu_pitch,
+            shank_pitch_chain_rad=chain_pitch,
+            ankle_rad=ankle,
+            in_stance=self._in_stance,
+        )
 
     def _recover_if_locked_out(self, refused: bool) -> None:
         """Gate lock-out recovery. A chi-square gate at p = 0.999 refuses a correct
@@ -431,15 +460,17 @@ class OnlineEstimator:
         stance_anchor; SagittalEskf.update_landmark)."""
         fc = self.config.filter
         obs = result.observation
-        self.corner_observation = obs
+        self._corner_observation = obs
         if fc.corner_landmarks:
-            key = None if obs is None else self._corner_key(t, obs)
+            key = None
             if obs is not None:
+                key = self._corners.key(obs, self._position_at(t)[0], self.filter)
                 # the smoothers see the re-identified corner under one track id too
-                self.corner_observation = dataclasses.replace(obs, track_id=key.id)
-                self._corner_seen[key] = t
-            self._forget_corners(t, key)
+                self._corner_observation = dataclasses.replace(obs, track_id=key.id)
+                self._corners.saw(key, t)
+            self._corners.forget(t, key, self.filter)
             if obs is not None:
+                assert key is not None  # set above for every observation
                 cov = np.asarray(obs.cov_m2, float) + np.eye(2) * fc.corner_landmark_sigma_m**2
                 self.filter.update_landmark(key, obs.corner_rel_xz_m, cov, t)
         if fc.stance_anchor:
@@ -474,6 +505,7 @@ class OnlineEstimator:
         candidate = (self._stance.quiet() if self._last_contact is None
                      else self._last_contact.loaded)
         if candidate and fc.stance_speed_threshold_mps is not None:
+            assert self._last_imu is not None  # a frame comes after an IMU sample
             rate = float((R_world_imu @ np.asarray(self._last_imu.gyro_radps, float))[1])
             _, v_cam = self._position_at(t)
             candidate = float(np.hypot(*(v_cam + rate * dlever))) < fc.stance_speed_threshold_mps
@@ -482,7 +514,7 @@ class OnlineEstimator:
         stats["vision_refused"] += int(candidate and not agrees)
         stance = candidate and agrees
         key = LandmarkKey("ankle", self._stance_n)
-        self.stance_observation = None
+        self._stance_observation = None
         if stance:
             sig2 = self._lever_sigma_m**2 + fc.stance_slip_sigma_m**2
             first = key not in self.filter.landmark_keys
@@ -496,7 +528,7 @@ class OnlineEstimator:
             if first or fused:
                 stats["anchored_frames"] += 1
                 # the same anchor, as a landmark observation the smoother can use
-                self.stance_observation = StanceObservation(
+                self._stance_observation = StanceObservation(
                     timestamp_s=t, stance_id=self._stance_n,
                     ankle_rel_xz_m=lever.copy(), cov_m2=np.eye(2) * sig2)
             else:
@@ -508,46 +540,6 @@ class OnlineEstimator:
                 self._stance_n += 1
             self._stance_test.reset()
         self._in_stance = stance
-
-    def _corner_key(self, t: float, obs: CornerObservation) -> LandmarkKey:
-        """Landmark key of a corner observation: its track's, or, for a new track, a
-        remembered corner it matches (FilterConfig.corner_reidentify_radius_m)."""
-        tid = obs.track_id
-        if tid in self._corner_alias:
-            return self._corner_alias[tid]
-        key = LandmarkKey("corner", tid)
-        radius = self.config.filter.corner_reidentify_radius_m
-        if radius is not None:
-            p, _ = self._position_at(t)
-            seen = p + np.asarray(obs.corner_rel_xz_m, float)
-            known = self._corner_keys()
-            if known:
-                d = np.array([np.linalg.norm(self.filter.landmark_xz(k) - seen) for k in known])
-                order = np.argsort(d)
-                if d[order[0]] < radius and (d.size == 1 or d[order[1]] > 2 * d[order[0]]):
-                    key = known[int(order[0])]
-        self._corner_alias[tid] = key
-        return key
-
-    def _corner_keys(self) -> list[LandmarkKey]:
-        """The corner landmarks in the filter state, in its order."""
-        return [k for k in self.filter.landmark_keys if k.kind == "corner"]
-
-    def _forget_corners(self, t: float, current: LandmarkKey | None) -> None:
-        """Marginalise corner landmarks unseen for corner_memory_s, and the oldest beyond
-        max_corner_landmarks."""
-        fc = self.config.filter
-        for k in self._corner_keys():
-            if k != current and t - self._corner_seen.get(k, t) > fc.corner_memory_s:
-                self.filter.drop_landmark(k)
-        corners = sorted(self._corner_keys(), key=lambda k: self._corner_seen.get(k, t))
-        for k in corners[: max(0, len(corners) - fc.max_corner_landmarks)]:
-            if k != current:
-                self.filter.drop_landmark(k)
-        kept = set(self.filter.landmark_keys) | {current}
-        self._corner_seen = {k: v for k, v in self._corner_seen.items() if k in kept}
-        # ended tracks whose landmark is gone are never looked up again (ids only increase)
-        self._corner_alias = {tid: k for tid, k in self._corner_alias.items() if k in kept}
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
         """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""

@@ -118,9 +118,9 @@ def quat_wxyz_from_matrix(R: ArrayLike) -> NDArray[np.float64]:
 
 def matrix_from_quat_wxyz(q: ArrayLike) -> NDArray[np.float64]:
     """Rotation matrix(ces) (..., 3, 3) from quaternion(s) [w, x, y, z] (normalised here)."""
-    q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    qa = np.asarray(q, dtype=float)
+    qa = qa / np.linalg.norm(qa, axis=-1, keepdims=True)
+    w, x, y, z = qa[..., 0], qa[..., 1], qa[..., 2], qa[..., 3]
     return np.stack(
         [
             np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),

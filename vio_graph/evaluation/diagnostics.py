@@ -18,18 +18,12 @@ from vio_graph.types import Displacement2D
 STILL_SPEED_MPS = 0.05
 STILL_WINDOW_S = 0.1
 
-def interp_xz(traj: Trajectory, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Positions (N, 2) x-z of ``traj`` linearly interpolated at the times ``t_s`` (s)."""
-    xz = traj.xz_m
-    return np.stack([np.interp(t_s, traj.timestamp_s, xz[:, k]) for k in (0, 1)], axis=1)
-
-
 def true_stance(ankle: Trajectory, t_s: NDArray[np.float64]) -> NDArray[np.bool_]:
     """True where the ground-truth ankle is still (speed over ``STILL_WINDOW_S`` below
     ``STILL_SPEED_MPS``) at the times ``t_s`` (s)."""
     t = np.asarray(t_s, dtype=float)
     half = STILL_WINDOW_S / 2
-    d = interp_xz(ankle, t + half) - interp_xz(ankle, t - half)
+    d = ankle.xz_at(t + half) - ankle.xz_at(t - half)
     return np.hypot(d[:, 0], d[:, 1]) / STILL_WINDOW_S < STILL_SPEED_MPS
 
 
@@ -57,7 +51,7 @@ def displacement_nees(
         return {"n": 0, "mean": nan, "p95": nan, "within_95": nan, "error_p95_cm": nan}
     t0 = np.array([d.t0_s for d in displacements])
     t1 = np.array([d.t1_s for d in displacements])
-    true = interp_xz(camera, t1) - interp_xz(camera, t0)
+    true = camera.xz_at(t1) - camera.xz_at(t0)
     est = np.array([d.delta_xz_m for d in displacements], dtype=float)
     err = est - true
     cov = np.array([d.cov_m2 for d in displacements], dtype=float) + np.eye(2) * floor_m**2

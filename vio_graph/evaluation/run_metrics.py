@@ -10,7 +10,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vio_graph.evaluation.association import associate
-from vio_graph.evaluation.diagnostics import interp_xz
 from vio_graph.evaluation.metrics import ape, ate_per_axis, rpe
 from vio_graph.recording.streams import GroundTruth, Trajectory
 
@@ -28,7 +27,7 @@ def shank_pitch_error_deg(
     knee - ankle segment (ground truth at the frame times ``t_s``, s): rms, mean, max |error|."""
     gt = groundtruth.trajectories
     t = np.asarray(t_s, dtype=float)
-    seg = interp_xz(gt["knee"], t) - interp_xz(gt["ankle"], t)  # (N, 2)
+    seg = gt["knee"].xz_at(t) - gt["ankle"].xz_at(t)  # (N, 2)
     true = np.arctan2(seg[:, 0], seg[:, 1])  # rot_y(pitch) (0, L) = (L sin, L cos)
     err = np.degrees(np.angle(np.exp(1j * (np.asarray(shank_pitch_rad) - true))))
     return {"rms": float(np.sqrt(np.mean(err**2))), "mean": float(np.mean(err)),

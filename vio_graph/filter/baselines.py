@@ -1,5 +1,6 @@
-"""Baselines driven through the filter's surface (``propagate`` / ``update_displacement`` /
-``state``), so that one replay loop compares them like for like with the SP-ESKF.
+"""Baselines compared like for like with the SP-ESKF: both follow the estimator protocol
+(vio_graph/protocol.py: ``add_imu`` / ``add_frame`` / ``finish`` / ``camera_path``), built on
+the filter's surface (``initialise`` / ``propagate`` / ``update_displacement`` / ``state``).
 
 * :class:`ImuDeadReckoning` -- the SP-ESKF propagation (eq. 6-7) and nothing else.
 * :class:`IcpOdometry` -- the chain of ICP displacements, no IMU; holds the last position
@@ -9,22 +10,77 @@
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
 from vio_graph.filter.eskf import ERROR_STATE_DIM, FilterState, SagittalEskf
+from vio_graph.protocol import EstimatorReport, FrameRecord, ImuStep, path_of_frames
 from vio_graph.types import Displacement2D, EstimateStatus, ImuSample
 
 
-class ImuDeadReckoning:
+class _PathKeeper:
+    """The protocol half shared by the baselines: start at ``initial_camera_xz_m`` on the first
+    IMU sample, keep one camera position per frame."""
+
+    name: str
+
+    def __init__(self, initial_camera_xz_m: ArrayLike | None) -> None:
+        self._p0 = np.zeros(2) if initial_camera_xz_m is None else np.asarray(
+            initial_camera_xz_m, dtype=float)
+        self._started = False
+        self._path: list[NDArray[np.float64]] = []
+
+    def initialise(self, timestamp_s: float, p_xz: ArrayLike, v_xz: ArrayLike = (0.0, 0.0),
+                   **kwargs: object) -> None:
+        raise NotImplementedError
+
+    def propagate(self, imu: ImuSample) -> None:
+        raise NotImplementedError
+
+    def update_displacement(self, d: Displacement2D) -> bool:
+        raise NotImplementedError
+
+    def add_imu(self, step: ImuStep) -> None:
+        """The sample in shank axes as measured (no level-surface pitch offset)."""
+        if not self._started:
+            self.initialise(step.shank.timestamp_s, self._p0)
+            self._started = True
+        else:
+            self.propagate(step.shank)
+
+    def add_frame(self, record: FrameRecord) -> None:
+        if record.displacement is not None:
+            self.update_displacement(record.displacement)
+        self._path.append(self._camera_at(record.timestamp_s))
+
+    def _camera_at(self, t_s: float) -> NDArray[np.float64]:
+        raise NotImplementedError
+
+    def finish(self) -> None:
+        pass
+
+    def camera_path(self, frame_times_s: NDArray[np.float64],
+                    filter_xz_m: NDArray[np.float64]) -> NDArray[np.float64]:
+        return path_of_frames(self._path, len(frame_times_s), self.name)
+
+    def report(self) -> EstimatorReport:
+        return EstimatorReport()
+
+
+class ImuDeadReckoning(_PathKeeper):
     """IMU-only integration of the camera position: the filter without corrections.
 
     Displacements are counted as received but never used (``n_rejected`` stays 0;
-    ``n_stale`` counts them). Status is always IMU_ONLY after initialisation.
+    ``n_stale`` counts them). Status is always IMU_ONLY after initialisation. Per frame the
+    camera position is extrapolated from the last IMU sample to the frame time.
     """
 
-    def __init__(self, config: FilterConfig | None = None, imu_T_cam: ArrayLike | None = None):
+    name = "imu_only"
+
+    def __init__(self, config: FilterConfig | None = None, imu_T_cam: ArrayLike | None = None,
+                 initial_camera_xz_m: ArrayLike | None = None):
+        super().__init__(initial_camera_xz_m)
         self._eskf = SagittalEskf(config, imu_T_cam)
         self._n_ignored = 0
 
@@ -41,6 +97,10 @@ class ImuDeadReckoning:
         """Ignored (dead reckoning); returns False."""
         self._n_ignored += 1
         return False
+
+    def _camera_at(self, t_s: float) -> NDArray[np.float64]:
+        s = self.state
+        return s.p_xz_m + s.v_xz_mps * (t_s - s.timestamp_s)
 
     @property
     def state(self) -> FilterState:
@@ -63,7 +123,7 @@ class ImuDeadReckoning:
         )
 
 
-class IcpOdometry:
+class IcpOdometry(_PathKeeper):
     """Camera position as the running sum of ICP displacements (no IMU).
 
     The position covariance is the sum of the displacement covariances; the velocity is the
@@ -72,7 +132,11 @@ class IcpOdometry:
     displacements is lost (the odometry has nothing to bridge it with).
     """
 
-    def __init__(self, fused_timeout_s: float = 0.1):
+    name = "icp_only"
+
+    def __init__(self, fused_timeout_s: float = 0.1,
+                 initial_camera_xz_m: ArrayLike | None = None):
+        super().__init__(initial_camera_xz_m)
         self._fused_timeout_s = float(fused_timeout_s)
         self._initialised = False
         self._t_s = 0.0
@@ -115,6 +179,9 @@ class IcpOdometry:
         self._t_s = max(self._t_s, self._last_t1_s)
         self._n_acc += 1
         return True
+
+    def _camera_at(self, t_s: float) -> NDArray[np.float64]:
+        return self.state.p_xz_m.copy()
 
     @property
     def state(self) -> FilterState:

@@ -47,7 +47,7 @@ class LevelAidingConfig(BaseModel):
 
     Floors, treads and obstacle tops are horizontal; their tilt in the ground-frame slice is
     the pitch error of the attitude. Defaults: the vendor error drifts ~1 deg RMS with a
-    correlation time of ~2 s (MTi-1 datasheet, sim-spec.md), a line fit over >= 12 cm of
+    correlation time of ~2 s (MTi-1 datasheet), a line fit over >= 12 cm of
     floor has a slope error of ~0.1 deg.
     """
 

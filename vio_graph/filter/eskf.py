@@ -74,7 +74,8 @@ from numpy.typing import ArrayLike, NDArray
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
 from vio_graph.filter.gating import chi2_2dof_quantile
-from vio_graph.geometry import cross3, matrix_from_quat_wxyz, pitch_of, remove_yaw, rot_y_xz
+from vio_graph.filter.lever_arm import angular_acceleration, lever_arm_terms
+from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw, rot_y_xz
 from vio_graph.types import Displacement2D, EstimateStatus, ImuSample, LandmarkKey
 
 #: error-state dimension of the paper's filter: (dp, dv, da_b, dg), each 2D
@@ -248,16 +249,16 @@ class SagittalEskf:
         R = sagittal_rotation(imu.quat_wxyz)
 
         # 1. specific force at the camera centre (lever arm r, IMU frame)
-        r = self._r_imu_cam_m
         f3 = accel.copy()
-        alpha = np.zeros(3)
+        tangential = np.zeros(3)
         if self.config.lever_arm_compensation:
-            f3 += cross3(gyro, cross3(gyro, r))  # centripetal omega x (omega x r)
-            if self._prev is not None and t > self._prev.timestamp_s:
-                # angular acceleration by finite differences of the gyro, valid at mid-interval
-                alpha = (gyro - self._prev.gyro_radps) / (t - self._prev.timestamp_s)
+            prev = self._prev
+            alpha = angular_acceleration(t, gyro, None if prev is None else prev.timestamp_s,
+                                         None if prev is None else prev.gyro_radps)
+            centripetal, tangential = lever_arm_terms(gyro, alpha, self._r_imu_cam_m)
+            f3 += centripetal
         f_xz = f3[[0, 2]]
-        tangential_xz = cross3(alpha, r)[[0, 2]]  # alpha x r
+        tangential_xz = tangential[[0, 2]]  # alpha x r
 
         # 2. ground-frame acceleration over [t - dt, t] (eq. 6: R (a_m - a_b) + g)
         ab, g = self._x[4:6], self._x[6:8]
@@ -287,7 +288,7 @@ class SagittalEskf:
         c = self.config
         var_v = (c.accel_noise_sigma_mps2 * dt) ** 2
         if c.attitude_sigma_rad > 0:
-            var_v += (np.linalg.norm(f_xz) * c.attitude_sigma_rad * dt) ** 2
+            var_v += float(np.linalg.norm(f_xz) * c.attitude_sigma_rad * dt) ** 2
         var_ab = c.accel_bias_rw_mps2_per_sqrt_s**2 * dt
         n = ERROR_STATE_DIM
         P = self._P

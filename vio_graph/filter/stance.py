@@ -22,7 +22,7 @@ from collections import deque
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vio_graph.geometry import cross3
+from vio_graph.filter.lever_arm import angular_acceleration, lever_arm_terms
 from vio_graph.types import Displacement2D
 
 
@@ -54,12 +54,11 @@ class StanceDetector:
         t = float(timestamp_s)
         w = np.asarray(gyro_radps, dtype=float)
         f = np.asarray(accel_mps2, dtype=float)
-        r = self._r
-        alpha = np.zeros(3)
-        if self._prev is not None and t > self._prev[0]:
-            alpha = (w - self._prev[1]) / (t - self._prev[0])
+        prev_t, prev_w = (None, None) if self._prev is None else self._prev
+        alpha = angular_acceleration(t, w, prev_t, prev_w)
         self._prev = (t, w.copy())
-        f_ankle = f + cross3(alpha, r) + cross3(w, cross3(w, r))
+        centripetal, tangential = lever_arm_terms(w, alpha, self._r)
+        f_ankle = f + tangential + centripetal
         a = R_sagittal @ f_ankle[[0, 2]] + np.asarray(gravity_xz_mps2, dtype=float)
         mag = float(np.hypot(a[0], a[1]))
         self._recent.append((t, mag))
@@ -126,13 +125,13 @@ class StanceConsistencyTest:
             self._chain = None
             return True
         self.tested = True
-        prev = prev[1]
+        prev_lever = prev[1]
         d = np.asarray(displacement.delta_xz_m, dtype=float)
         C = np.asarray(displacement.cov_m2, dtype=float) + np.eye(2) * self._floor_var
         S1 = C + np.eye(2) * self._lever_var
-        r1 = d - (prev - lever)
+        r1 = d - (prev_lever - lever)
         d2_frame = float(r1 @ np.linalg.solve(S1, r1))
-        lever0, sum_d, sum_C = (prev, d, C) if self._chain is None else (
+        lever0, sum_d, sum_C = (prev_lever, d, C) if self._chain is None else (
             self._chain[0], self._chain[1] + d, self._chain[2] + C)
         self._chain = (lever0, sum_d, sum_C)
         r = sum_d - (lever0 - lever)

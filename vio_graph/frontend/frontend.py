@@ -62,11 +62,6 @@ class VisualFrontend:
         """Forget the previous frame (e.g. after a gap in the recording)."""
         self._tracker.reset()
 
-    def rotate_previous(self, angle_rad: float) -> None:
-        """The caller turned its ground frame by rot_y(``angle_rad``) since the previous frame
-        (a pitch correction): re-express the previous frame in it."""
-        self._tracker.rotate_previous(angle_rad)
-
     def process(
         self,
         frame: DepthFrame,
@@ -74,6 +69,7 @@ class VisualFrontend:
         R_ground_cam: NDArray[np.float64],
         predicted_delta_xz_m: NDArray[np.float64] | None = None,
         predicted_cov_m2: NDArray[np.float64] | None = None,
+        ground_turn_rad: float = 0.0,
     ) -> FrontendResult:
         """Process one depth frame.
 
@@ -84,6 +80,9 @@ class VisualFrontend:
             predicted_delta_xz_m: (2,) IMU-predicted camera displacement since the previous
                 frame, ground axes, metres; None = paper's association without IMU.
             predicted_cov_m2: (2, 2) covariance of the prediction, m^2.
+            ground_turn_rad: the caller turned its ground frame by rot_y(``ground_turn_rad``)
+                since the previous frame (a pitch correction, rad); the previous frame is
+                re-expressed in the turned frame before ICP compares the two.
         """
         if np.shape(R_ground_cam) != (3, 3):
             raise FrontendError(f"R_ground_cam must be 3x3, got {np.shape(R_ground_cam)}")
@@ -110,7 +109,8 @@ class VisualFrontend:
         t.append(time.perf_counter())
         # eq. 3-4: ICP against the previous frame, seeded and gated by the IMU prediction
         tracked = self._tracker.update(
-            frame.timestamp_s, profile, corner, predicted_delta_xz_m, predicted_cov_m2
+            frame.timestamp_s, profile, corner, predicted_delta_xz_m, predicted_cov_m2,
+            ground_turn_rad,
         )
         t.append(time.perf_counter())
         names = ("projection", "smoothing", "terrain", "corners", "icp")

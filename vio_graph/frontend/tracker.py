@@ -121,7 +121,7 @@ class CornerTracker:
     ) -> None:
         self._cfg = TrackerConfig() if tracker_config is None else tracker_config
         self._icp_cfg = IcpConfig() if icp_config is None else icp_config
-        fallback = {"normal_neighbours": self._cfg.fallback_normal_neighbours}
+        fallback: dict[str, float] = {"normal_neighbours": self._cfg.fallback_normal_neighbours}
         if self._cfg.fallback_max_correspondence_m is not None:
             fallback["max_correspondence_m"] = self._cfg.fallback_max_correspondence_m
         self._fallback_icp_cfg = self._icp_cfg.model_copy(update=fallback)
@@ -133,7 +133,7 @@ class CornerTracker:
         """Forget the previous frame (track ids keep increasing)."""
         self._prev = None
 
-    def rotate_previous(self, angle_rad: float) -> None:
+    def _rotate_previous(self, angle_rad: float) -> None:
         """Re-express the previous frame in a ground frame turned by rot_y(``angle_rad``)
         about the camera (the estimator corrected its pitch since that frame), so that the
         next ICP compares two slices rotated alike."""
@@ -167,6 +167,7 @@ class CornerTracker:
         corner: CornerFeature | None,
         predicted_delta_xz_m: NDArray[np.float64] | None = None,
         predicted_cov_m2: NDArray[np.float64] | None = None,
+        ground_turn_rad: float = 0.0,
     ) -> TrackerOutput:
         """Associate this frame's corner with the previous frame's and measure the displacement.
 
@@ -177,10 +178,14 @@ class CornerTracker:
             predicted_delta_xz_m: (2,) IMU-predicted camera displacement since the previous
                 frame (ground axes, metres), or None for the paper's mean-difference gating.
             predicted_cov_m2: (2, 2) its covariance; default ``default_prediction_sigma_m``^2 I.
+            ground_turn_rad: rad; the ground frame was turned by rot_y(``ground_turn_rad``)
+                since the previous frame (a pitch correction): the previous frame is
+                re-expressed in it first.
 
         Returns:
             TrackerOutput; the frame becomes the previous frame for the next call.
         """
+        self._rotate_previous(ground_turn_rad)
         out = self._associate(
             timestamp_s, corner, self._prev, predicted_delta_xz_m, predicted_cov_m2,
             np.asarray(profile_xz_m, float),
@@ -225,9 +230,10 @@ class CornerTracker:
                 return self._profile_icp(t, profile, prev, pred, pred_cov)
             return TrackerOutput(None, None, None, "no corner in this frame", None, False)
         prev_corner = None if prev is None else prev.corner
-        if prev is None or not (0.0 < t - prev.timestamp_s <= cfg.max_frame_gap_s):
-            reason = "no previous frame" if prev is None else "frame gap too large"
-            return self._without_displacement(t, corner, None, reason)
+        gap = self._gap_problem(t, prev)
+        if gap is not None:
+            return self._without_displacement(t, corner, None, gap)
+        assert prev is not None
 
         if prev.profile_xz_m.shape[0] == 0:
             return self._without_displacement(t, corner, None, "previous frame has no profile")
@@ -235,8 +241,7 @@ class CornerTracker:
             return self._paper_association(t, corner, prev)
 
         pred = np.asarray(pred, dtype=float)
-        P = (np.eye(2) * cfg.default_prediction_sigma_m**2 if pred_cov is None
-             else np.asarray(pred_cov, dtype=float))
+        P = self._prediction_cov(pred_cov)
         T0 = -pred  # 1. IMU-seeded initial guess
         if cfg.icp_target == "features":
             if prev_corner is None:
@@ -248,16 +253,15 @@ class CornerTracker:
         bad = self._quality_problem(icp)  # 4. ICP quality
         T, C = icp.translation_xz_m, icp.cov_m2
         same_icp = prev_corner is not None and self._is_same(corner, prev_corner, T)
-        if (cfg.edge_x_without_face and same_icp and not self._has_face(corner)
-                and not self._has_face(prev_corner)):
+        if (cfg.edge_x_without_face and same_icp and prev_corner is not None
+                and not self._has_face(corner) and not self._has_face(prev_corner)):
             # 2b. no riser below the edge: x from the edge points, z from ICP
             T = np.array([corner.edge_xz_m[0] - prev_corner.edge_xz_m[0], T[1]])
             C = np.diag([2.0 * cfg.edge_x_sigma_m**2, C[1, 1]])
-        d2 = _mahalanobis2(-T - pred, P + C, cfg.gate_sigma_floor_m**2)  # 3. gate
-        if bad is None and d2 > cfg.gate_chi2:
-            bad = f"ICP disagrees with the IMU prediction (Mahalanobis^2 {d2:.1f})"
-        if bad is None and cfg.corner_check and same_icp and corner.has_face and (
-                prev_corner.has_face):
+        d2, gate = self._gate(T, C, pred, P)  # 3. gate
+        bad = bad or gate
+        if (bad is None and cfg.corner_check and same_icp and prev_corner is not None
+                and corner.has_face and prev_corner.has_face):
             # 3b. both nosings placed from their faces: their difference is a second,
             #     independent displacement; ICP pulled elsewhere (by the borders of a missing
             #     band that moves with the camera) disagrees with it
@@ -282,6 +286,30 @@ class CornerTracker:
             return TrackerOutput(None, obs, icp, bad, track_id, same, d2)
         disp = Displacement2D(prev.timestamp_s, t, -T, C)
         return TrackerOutput(disp, obs, icp, None, track_id, same, d2)
+
+    def _gap_problem(self, t: float, prev: _Frame | None) -> str | None:
+        """Why there is no previous frame to register against at ``t`` (s), or None."""
+        if prev is None:
+            return "no previous frame"
+        if not (0.0 < t - prev.timestamp_s <= self._cfg.max_frame_gap_s):
+            return "frame gap too large"
+        return None
+
+    def _prediction_cov(self, pred_cov: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        """The IMU prediction's covariance (m^2), ``default_prediction_sigma_m``^2 I if none."""
+        if pred_cov is None:
+            return np.eye(2) * self._cfg.default_prediction_sigma_m**2
+        return np.asarray(pred_cov, dtype=float)
+
+    def _gate(self, T: NDArray[np.float64], C: NDArray[np.float64], pred: NDArray[np.float64],
+              P: NDArray[np.float64]) -> tuple[float, str | None]:
+        """Step 3: Mahalanobis^2 of the ICP displacement -T (covariance C) against the IMU
+        prediction (covariance P), and the rejection reason if it exceeds ``gate_chi2``."""
+        cfg = self._cfg
+        d2 = _mahalanobis2(-T - pred, P + C, cfg.gate_sigma_floor_m**2)
+        if d2 > cfg.gate_chi2:
+            return d2, f"ICP disagrees with the IMU prediction (Mahalanobis^2 {d2:.1f})"
+        return d2, None
 
     def _edge_cov(self, corner: CornerFeature) -> NDArray[np.float64]:
         """Covariance of the corner observation, m^2: ``edge_sigma_m`` per axis, and x widened
@@ -309,17 +337,16 @@ class CornerTracker:
         by the IMU prediction and gated like the corner ICP. Floors constrain z, risers x;
         unobservable directions get the capped variance, so the filter ignores them."""
         cfg = self._cfg
-        if prev is None or not (0.0 < t - prev.timestamp_s <= cfg.max_frame_gap_s):
-            reason = "no previous frame" if prev is None else "frame gap too large"
-            return TrackerOutput(None, None, None, f"no corner in this frame; {reason}", None,
+        gap = self._gap_problem(t, prev)
+        if gap is not None:
+            return TrackerOutput(None, None, None, f"no corner in this frame; {gap}", None,
                                  False)
+        assert prev is not None
         target = grid_thin(profile, cfg.fallback_grid_m) if cfg.fallback_grid_m > 0 else profile
         if target.shape[0] < cfg.min_correspondences or prev.profile_xz_m.shape[0] == 0:
             return TrackerOutput(None, None, None, "no corner in this frame; profile too short",
                                  None, False)
         pred = np.asarray(pred, dtype=float)
-        P = (np.eye(2) * cfg.default_prediction_sigma_m**2 if pred_cov is None
-             else np.asarray(pred_cov, dtype=float))
         T0 = -pred
         margin = cfg.fallback_overlap_margin_m
         if margin is not None:
@@ -331,10 +358,9 @@ class CornerTracker:
         src, tree = self._source(prev, target, T0)
         icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree)
         bad = self._quality_problem(icp)
-        d2 = _mahalanobis2(-icp.translation_xz_m - pred, P + icp.cov_m2,
-                           cfg.gate_sigma_floor_m**2)
-        if bad is None and d2 > cfg.gate_chi2:
-            bad = f"ICP disagrees with the IMU prediction (Mahalanobis^2 {d2:.1f})"
+        d2, gate = self._gate(icp.translation_xz_m, icp.cov_m2, pred,
+                              self._prediction_cov(pred_cov))
+        bad = bad or gate
         if bad is not None:
             return TrackerOutput(None, None, icp, f"profile ICP: {bad}", None, False, d2)
         disp = Displacement2D(prev.timestamp_s, t, -icp.translation_xz_m, icp.cov_m2)

@@ -105,6 +105,13 @@ class Trajectory:
     def xz_m(self) -> NDArray[np.float64]:
         return self.position_m[:, [0, 2]]
 
+    def xz_at(self, t_s: float | NDArray[np.float64]) -> NDArray[np.float64]:
+        """Position x-z (m) linearly interpolated at ``t_s`` (s; held beyond the ends): (2,)
+        for one time, (N, 2) for N times."""
+        return np.stack(
+            [np.interp(t_s, self.timestamp_s, self.position_m[:, k]) for k in (0, 2)], axis=-1
+        )
+
 
 @dataclass(frozen=True)
 class ImuStateTable:

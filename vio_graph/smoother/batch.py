@@ -7,6 +7,7 @@ upper bound of what the graph can do).
 
 from __future__ import annotations
 
+import logging
 import time
 
 import gtsam
@@ -14,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
+from vio_graph.protocol import EstimatorReport
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.graph import (
     KeyframeUpdate,
@@ -23,6 +25,8 @@ from vio_graph.smoother.graph import (
 )
 from vio_graph.smoother.interface import KeyframeEstimate, KeyframeSmootherBase
 
+log = logging.getLogger(__name__)
+
 
 class BatchSmoother(KeyframeSmootherBase):
     """Accumulate every keyframe's factors; :meth:`solve` runs LM over the whole graph.
@@ -30,7 +34,10 @@ class BatchSmoother(KeyframeSmootherBase):
     Attributes:
         solve_time_ms: wall time of the last :meth:`solve` (ms).
         solve_iterations: LM iterations of the last :meth:`solve`.
+        finish_s: wall time (s) of :meth:`finish` (flush and solve), NaN before.
     """
+
+    name = "batch"
 
     def __init__(self, config: SmootherConfig | None = None, imu_T_cam: ArrayLike | None = None):
         config = config or SmootherConfig()
@@ -41,6 +48,27 @@ class BatchSmoother(KeyframeSmootherBase):
         self._marginals: gtsam.Marginals | None = None
         self.solve_time_ms = float("nan")
         self.solve_iterations = 0
+        self.finish_s = float("nan")
+
+    def finish(self) -> None:
+        """Flush the pending keyframe and solve the whole graph (timed in ``finish_s``)."""
+        self.flush()
+        t0 = time.perf_counter()
+        try:
+            self.solve()
+        finally:
+            self.finish_s = time.perf_counter() - t0
+
+    def report(self) -> EstimatorReport:
+        """``batch_solve_s`` (latency) and, once solved, the robust kernels' statistics
+        (``batch_robust``, see :meth:`robust_outliers`)."""
+        rep = EstimatorReport(latency_ms={"batch_solve_s": self.finish_s})
+        if self._result is not None:
+            try:
+                rep.metrics["batch_robust"] = self.robust_outliers()
+            except EstimationError as exc:
+                log.warning("batch robust statistics unavailable: %s", exc)
+        return rep
 
     def _consume(self, u: KeyframeUpdate) -> None:
         self.graph.push_back(u.factors)
@@ -68,13 +96,12 @@ class BatchSmoother(KeyframeSmootherBase):
         self.solve_iterations = int(opt.iterations())
         return self._result
 
-    def robust_outliers(self) -> dict[str, int]:
+    def robust_outliers(self) -> dict[str, float]:
         """How many robust (Huber/Cauchy) factors the solution down-weights: whitened error
         beyond the kernel threshold, i.e. measurements the smoother effectively rejected.
         Returns {"robust_factors": n, "downweighted": k, "max_whitened_error": e}."""
-        if self._result is None:
-            self.solve()
-        return count_downweighted(self.graph, self._result, self.config.robust_threshold)
+        result = self.solve() if self._result is None else self._result
+        return count_downweighted(self.graph, result, self.config.robust_threshold)
 
     def keyframe_estimates(self, with_covariance: bool = True) -> list[KeyframeEstimate]:
         """Refined camera x-z of every keyframe (solves first if needed)."""
@@ -100,7 +127,7 @@ class BatchSmoother(KeyframeSmootherBase):
 
 def count_downweighted(
     graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, threshold: float
-) -> dict[str, int]:
+) -> dict[str, float]:
     """Count robust factors whose whitened error norm exceeds ``threshold`` at ``values``;
     also the largest whitened error norm (``max_whitened_error``, sigmas)."""
     n_robust = n_down = 0
@@ -113,7 +140,9 @@ def count_downweighted(
         if not isinstance(nm, gtsam.noiseModel.Robust):
             continue
         n_robust += 1
-        err = float(np.linalg.norm(nm.noise().whiten(f.unwhitenedError(values))))
+        # graph.at() is typed as the base class; a factor with a noise model has the method
+        raw = f.unwhitenedError(values)  # type: ignore[attr-defined]
+        err = float(np.linalg.norm(nm.noise().whiten(raw)))
         worst = max(worst, err)
         if err > threshold:
             n_down += 1

@@ -91,10 +91,10 @@ class SmootherConfig(BaseModel):
         default=0.02,
         ge=0,
         description="gain (dimensionless) on the sampled-signal model error added to each IMU "
-        "factor's covariance (graph.discretization_velocity_var); 0 = datasheet noise only. "
+        "factor's covariance (imu_sampling.discretization_velocity_var); 0 = datasheet noise only. "
         "0.02 makes the velocity error of preintegration from the true state consistent "
-        "(mean normalised squared error 1.0, p95 3.0) on the four simulated experiments "
-        "(results/smoother_fix/calib.py)",
+        "(mean normalised squared error 1.0, p95 3.0) on the four simulated experiments, "
+        "preintegrating from the true state over every keyframe interval",
     )
     integration_sigma_m: float = Field(
         default=1e-4, gt=0, description="preintegration position integration noise sigma (m)"
@@ -104,9 +104,9 @@ class SmootherConfig(BaseModel):
     preintegration: Literal["common_frame", "midpoint_curvature", "raw"] = Field(
         default="common_frame",
         description="'common_frame': curvature-corrected step means of the specific force "
-        "taken in the interval-start frame (graph.common_frame_samples; exact for gravity); "
+        "taken in the interval-start frame (imu_sampling.common_frame_samples; exact for gravity); "
         "'midpoint_curvature': the same means in the moving IMU frame, turned by half a "
-        "step (graph.midpoint_samples; gravity short by (omega dt)^2/24, upstair toe z "
+        "step (imu_sampling.midpoint_samples; gravity short by (omega dt)^2/24, upstair toe z "
         "0.70 vs 0.40 cm); 'raw': each IMU sample held over its step, as GTSAM's "
         "integrateMeasurement assumes (the ablation's baseline)",
     )
@@ -202,12 +202,13 @@ class SmootherConfig(BaseModel):
         default="QR",
         description="ISAM2 factorisation in the fixed-lag smoother. Cholesky is ~2x faster at the "
         "p95 (measured on synthetic data) but raised IndeterminantLinearSystem on a simulated "
-        "trial with 5 % spurious depth points; QR did not (gtsam-notes: conditioning)",
+        "trial with 5 % spurious depth points; QR did not (QR factorises the Jacobian itself, "
+        "Cholesky its normal equations, whose condition number is the square)",
     )
     batch_factorization: Literal["QR", "CHOLESKY"] = Field(
         default="QR",
         description="LM linear solver of the full batch (QR: robust to the poor conditioning "
-        "of long relative-only runs, gtsam-notes)",
+        "of long relative-only runs: it never squares the condition number)",
     )
     marginal_covariance: Literal["at_exit", "when_newest", "none"] = Field(
         default="when_newest",

@@ -31,9 +31,10 @@ Factors::
 - IMU: GTSAM's own preintegration (``PreintegrationCombinedParams.MakeSharedU(g)``, z up) fed
   with step means: curvature-corrected means of consecutive samples (and samples interpolated
   at the keyframe times), the specific force averaged in the frame of the interval's start
-  (:func:`common_frame_samples`, default; :func:`midpoint_samples` averages in the moving
-  frame and loses (omega dt)^2/24 of gravity). Noise: MTi-1 datasheet densities, bias random
-  walks, plus the sampled-signal model error (:func:`discretization_velocity_var`).
+  (``imu_sampling.common_frame_samples``, default; ``imu_sampling.midpoint_samples`` averages
+  in the moving frame and loses (omega dt)^2/24 of gravity). Noise: MTi-1 datasheet
+  densities, bias random walks, plus the sampled-signal model error
+  (``imu_sampling.discretization_velocity_var``).
 - Displacement (paper's ICP output, eq. 3-4, chained frame to frame between keyframes with
   summed covariance): the camera moves by d (world x-z), the camera sits at
   ``c = t + R imu_p_cam``, so the IMU moves by ``t_j - t_i = d - (R_j - R_i) imu_p_cam``
@@ -60,7 +61,7 @@ All factors are GTSAM built-ins (no Python CustomFactor on the hot path).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import gtsam
@@ -71,6 +72,13 @@ from numpy.typing import ArrayLike, NDArray
 from vio_graph.errors import EstimationError
 from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw, skew
 from vio_graph.smoother.config import SmootherConfig
+from vio_graph.smoother.imu_sampling import (
+    SAMPLERS,
+    TIME_TOL_S,
+    discretization_velocity_var,
+    make_preintegration_params,
+    so3_exp,
+)
 from vio_graph.types import (
     CornerObservation,
     Displacement2D,
@@ -83,8 +91,6 @@ from vio_graph.types import (
 
 #: Sigma used for "unconstrained" axes of a prior (tangent units).
 LOOSE_SIGMA = 1e4
-#: Two timestamps closer than this are the same instant (s).
-TIME_TOL_S = 1e-6
 
 __all__ = [
     "B",
@@ -95,220 +101,16 @@ __all__ = [
     "KeyframeUpdate",
     "camera_xz_cov_from_pose_cov",
     "imu_position_from_camera",
-    "make_preintegration_params",
-    "discretization_velocity_var",
-    "midpoint_samples",
-    "common_frame_samples",
     "robust_noise",
-    "so3_exp",
 ]
 
 
 # ----------------------------------------------------------------------------------------------
-# small numeric helpers
+# noise models and frame conversions
 # ----------------------------------------------------------------------------------------------
-def so3_exp(rotvec: ArrayLike) -> NDArray[np.float64]:
-    """Rodrigues' formula, vectorised: (..., 3) rotation vectors (rad) -> (..., 3, 3)."""
-    w = np.asarray(rotvec, dtype=float)
-    theta = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = np.zeros(w.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2] = -w[..., 2], w[..., 1]
-    K[..., 1, 0], K[..., 1, 2] = w[..., 2], -w[..., 0]
-    K[..., 2, 0], K[..., 2, 1] = -w[..., 1], w[..., 0]
-    small = theta < 1e-8
-    th = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0, np.sin(th) / th)
-    b = np.where(small, 0.5, (1.0 - np.cos(th)) / th**2)
-    return np.eye(3) + a * K + b * (K @ K)
-
-
-def _second_derivative(t: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Second time derivative (N, 3) of sampled y (N, 3) by non-uniform central differences.
-
-    The two end samples copy their neighbour; fewer than 3 samples give zeros.
-    """
-    ypp = np.zeros_like(y)
-    if t.size < 3:
-        return ypp
-    h0, h1 = np.diff(t)[:-1, None], np.diff(t)[1:, None]
-    ypp[1:-1] = 2.0 * ((y[2:] - y[1:-1]) / h1 - (y[1:-1] - y[:-2]) / h0) / (h0 + h1)
-    ypp[0], ypp[-1] = ypp[1], ypp[-2]
-    return ypp
-
-
-def _imu_knots(
-    times_s: ArrayLike, accel_mps2: ArrayLike, gyro_radps: ArrayLike, t0_s: float, t1_s: float
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Checked IMU arrays and the step knots over [t0_s, t1_s]: t0, the samples strictly
-    inside, t1."""
-    t = np.asarray(times_s, dtype=float)
-    a = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
-    g = np.asarray(gyro_radps, dtype=float).reshape(-1, 3)
-    if t.size == 0:
-        raise EstimationError("no IMU samples to preintegrate")
-    if t1_s <= t0_s:
-        raise EstimationError(f"empty preintegration interval [{t0_s}, {t1_s}]")
-    inner = t[(t > t0_s + TIME_TOL_S) & (t < t1_s - TIME_TOL_S)]
-    return t, a, g, np.concatenate([[t0_s], inner, [t1_s]])
-
-
-def _quadratic_step_means(
-    t: NDArray[np.float64], knots: NDArray[np.float64]
-) -> tuple[Callable[[NDArray[np.float64]], NDArray[np.float64]], NDArray[np.float64]]:
-    """Step means over the knot intervals of a signal sampled at ``t``, treated as locally
-    quadratic: the trapezoid minus ``dt^2/12 y''``, with knot values between samples
-    interpolated with the same curvature term (y'' from central differences). Returns the
-    function (N, 3) -> (K, 3) and the step lengths dt (K, 1)."""
-    lo = np.clip(np.searchsorted(t, knots, side="right") - 1, 0, t.size - 1)
-    hi = np.clip(lo + 1, 0, t.size - 1)
-    inside = (knots > t[0]) & (knots < t[-1])
-    curv = np.where(inside, 0.5 * (knots - t[lo]) * (knots - t[hi]), 0.0)[:, None]
-    dt = np.diff(knots)[:, None]
-
-    def step_means(y: NDArray[np.float64]) -> NDArray[np.float64]:
-        ypp = _second_derivative(t, y)
-        ypp_k = np.stack([np.interp(knots, t, ypp[:, i]) for i in range(3)], axis=-1)
-        y_k = np.stack([np.interp(knots, t, y[:, i]) for i in range(3)], axis=-1)
-        y_k = y_k + curv * ypp_k
-        return 0.5 * (y_k[1:] + y_k[:-1]) - dt**2 / 12.0 * 0.5 * (ypp_k[1:] + ypp_k[:-1])
-
-    return step_means, dt
-
-
-def midpoint_samples(
-    times_s: ArrayLike,
-    accel_mps2: ArrayLike,
-    gyro_radps: ArrayLike,
-    t0_s: float,
-    t1_s: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Midpoint-rule IMU steps covering [t0_s, t1_s] (gtsam-notes, "IMU preintegration").
-
-    Knots are t0, the samples strictly inside, and t1. Each step between consecutive knots gets
-    the mean of the signal over the step and the mean specific force rotated by half the
-    step's rotation, so that GTSAM's start-of-step integration uses the mid-step attitude.
-    The signal is treated as locally quadratic: the step mean is the trapezoid minus
-    ``dt^2/12 y''`` and values at t0/t1 between samples are interpolated with the same
-    curvature term (y'' from central differences of the samples). On a shank turning at
-    3 rad/s this removes the trapezoid's ~1e-4 rad per 0.1 s rotation error, which is 2-3
-    sigma of the MTi-1 gyro noise over that time. Outside the samples the signal is held.
-
-    Args:
-        times_s: (N,) increasing sample times, s. Must be non-empty.
-        accel_mps2: (N, 3) specific force in the IMU frame.
-        gyro_radps: (N, 3) angular rate in the IMU frame.
-    Returns:
-        ``accel_mid (K, 3)``, ``gyro_mid (K, 3)``, ``dt_s (K,)`` with sum(dt) = t1 - t0.
-    """
-    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
-    step_means, dt = _quadratic_step_means(t, knots)
-
-    g_mid = step_means(g)
-    a_mean = step_means(a)
-    a_mid = np.einsum("nij,nj->ni", so3_exp(0.5 * g_mid * dt), a_mean)
-    return a_mid, g_mid, dt[:, 0]
-
-
-def common_frame_samples(
-    times_s: ArrayLike,
-    accel_mps2: ArrayLike,
-    gyro_radps: ArrayLike,
-    t0_s: float,
-    t1_s: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Like :func:`midpoint_samples`, but the specific force is averaged in one frame.
-
-    The midpoint rule averages the specific force in the moving IMU frame and then turns the
-    mean by half the step's rotation. For gravity, which is fixed in the world and so turns
-    at -omega in the IMU frame, that mean is short by (omega dt)^2 / 24: 2.6e-3 m/s^2 at
-    8 rad/s and 100 Hz, always towards less support, so the preintegrated velocity sinks
-    by ~0.3-1 mm/s per 0.1 s and a long smoothing window drifts down. Here every sample is
-    first rotated into the frame of the interval's start, f_j -> R(t_j) f_j with R from the
-    same per-step gyro means GTSAM integrates, the curvature-corrected step means are taken
-    there (a world-fixed vector is then constant and exact), and each step's mean is handed
-    back in the step-start frame, where GTSAM applies it.
-    """
-    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
-    step_means, dt = _quadratic_step_means(t, knots)
-
-    g_mid = step_means(g)
-    steps = so3_exp(g_mid * dt)  # (K, 3, 3) step rotations, as GTSAM integrates them
-    R_knot = np.empty((knots.size, 3, 3))
-    R_knot[0] = np.eye(3)
-    for k in range(steps.shape[0]):
-        R_knot[k + 1] = R_knot[k] @ steps[k]
-    # rotation at each sample: from the knot at or before it (the first step's rate before t0,
-    # the last step's after t1)
-    k_of = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, g_mid.shape[0] - 1)
-    R_t = R_knot[k_of] @ so3_exp(g_mid[k_of] * (t - knots[k_of])[:, None])
-    F = np.einsum("nij,nj->ni", R_t, a)  # specific force in the interval-start frame
-    F_mean = step_means(F)
-    a_in = np.einsum("nji,nj->ni", R_knot[:-1], F_mean)  # back into each step-start frame
-    return a_in, g_mid, dt[:, 0]
-
-
-def held_samples(
-    times_s: ArrayLike,
-    accel_mps2: ArrayLike,
-    gyro_radps: ArrayLike,
-    t0_s: float,
-    t1_s: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Raw IMU steps covering [t0_s, t1_s]: each step uses the last sample at or before its
-    start (what feeding samples straight into ``integrateMeasurement`` does). Same outputs
-    as :func:`midpoint_samples`; kept as the ablation's baseline."""
-    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
-    idx = np.clip(np.searchsorted(t, knots[:-1] + TIME_TOL_S, side="right") - 1, 0, t.size - 1)
-    return a[idx], g[idx], np.diff(knots)
-
-
-def discretization_velocity_var(
-    times_s: ArrayLike, accel_mps2: ArrayLike, t0_s: float, t1_s: float
-) -> float:
-    """Unscaled variance (m^2/s^2) of the velocity error that sampling the specific force
-    leaves over [t0_s, t1_s]: ``sum_j (h |D4_j|)^2`` over the windows j of five consecutive
-    samples that touch the interval, D4 the fourth difference (m/s^2) and h the sample period.
-
-    A signal that is locally cubic at the sample rate has D4 ~ 0 and is integrated almost
-    exactly by :func:`midpoint_samples`; gait events (heel strike, toe off) are not, and there
-    the error is proportional to D4. On simulated stair gait (100 Hz) the midpoint rule's
-    velocity error over 0.1 s is ~0.5 mm/s in smooth phases but 3-16 mm/s around gait events,
-    10-40x GTSAM's white-noise sigma with the datasheet density; scaled by
-    ``SmootherConfig.imu_discretization_gain`` this term is added to the preintegration
-    covariance (:func:`make_preintegration_params`). Windows that need samples not yet
-    received are left out.
-    """
-    t = np.asarray(times_s, dtype=float)
-    a = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
-    if t.size < 5:
-        return 0.0
-    d4 = a[:-4] - 4.0 * a[1:-3] + 6.0 * a[2:-2] - 4.0 * a[3:-1] + a[4:]
-    h = (t[4:] - t[:-4]) / 4.0
-    touch = (t[4:] > t0_s - TIME_TOL_S) & (t[:-4] < t1_s + TIME_TOL_S)
-    return float(np.sum((h[touch, None] * d4[touch]) ** 2))
-
-
-def make_preintegration_params(
-    config: SmootherConfig, extra_velocity_var_m2ps2: float = 0.0, duration_s: float = 1.0
-) -> gtsam.PreintegrationCombinedParams:
-    """GTSAM combined preintegration parameters (z up, MTi-1 noise densities squared).
-
-    ``extra_velocity_var_m2ps2`` (the model error of the sampled signal over an interval of
-    ``duration_s``, :func:`discretization_velocity_var` times the gain squared) is spread
-    over the interval as extra accelerometer white noise.
-    """
-    p = gtsam.PreintegrationCombinedParams.MakeSharedU(config.gravity_mps2)
-    acc_var = config.accel_noise_density_mps2_per_sqrt_hz**2 + extra_velocity_var_m2ps2 / duration_s
-    p.setAccelerometerCovariance(np.eye(3) * acc_var)
-    p.setGyroscopeCovariance(np.eye(3) * config.gyro_noise_density_radps_per_sqrt_hz**2)
-    p.setIntegrationCovariance(np.eye(3) * config.integration_sigma_m**2)
-    p.setBiasAccCovariance(np.eye(3) * config.accel_bias_rw_mps3_per_sqrt_hz**2)
-    p.setBiasOmegaCovariance(np.eye(3) * config.gyro_bias_rw_radps2_per_sqrt_hz**2)
-    return p
-
-
 def robust_noise(config: SmootherConfig, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
     """Wrap ``base`` in the configured M-estimator (threshold in whitened units)."""
+    est: gtsam.noiseModel.mEstimator.Base
     if config.robust_kernel == "huber":
         est = gtsam.noiseModel.mEstimator.Huber.Create(config.robust_threshold)
     elif config.robust_kernel == "cauchy":
@@ -396,6 +198,20 @@ class KeyframeUpdate:
     R_world_imu: NDArray[np.float64]
     filter_camera_xz_m: NDArray[np.float64]
     factor_keys: list[list[int]] = field(default_factory=list)
+
+
+@dataclass
+class _FactorBatch:
+    """The factors (with their keys), initial values and key timestamps of one keyframe."""
+
+    stamps: dict[int, float]
+    graph: gtsam.NonlinearFactorGraph = field(default_factory=gtsam.NonlinearFactorGraph)
+    values: gtsam.Values = field(default_factory=gtsam.Values)
+    keys: list[list[int]] = field(default_factory=list)
+
+    def add(self, factor: gtsam.NonlinearFactor, factor_keys: list[int]) -> None:
+        self.graph.add(factor)
+        self.keys.append(factor_keys)
 
 
 @dataclass
@@ -557,41 +373,77 @@ class KeyframeGraphBuilder:
         return k
 
     def _complete_pending(self) -> KeyframeUpdate:
+        """Turn the pending keyframe into its node, initial values and factors, in this
+        order: first-keyframe priors or the motion factors from the previous keyframe (IMU,
+        displacement), attitude and sagittal-plane priors, landmark observations."""
         pend = self._pending
         assert pend is not None
         self._pending = None
         if not self._imu_t:
             raise EstimationError(f"keyframe at {pend.timestamp_s} s has no IMU data before it")
-        cfg, fam = self.config, self.config.factors
         i = self._n_keyframes
         t = pend.timestamp_s
         R_i = pend.R_world_imu if pend.R_world_imu is not None else self._attitude_at(t)
+        pim = self._preintegrate(t) if i > 0 else None
+        cam_xz, t_guess, v_guess = self._initial_guess(pend, t, R_i, pim)
+        pose_guess = gtsam.Pose3(gtsam.Rot3.ClosestTo(R_i), t_guess)
+        batch = _FactorBatch({X(i): t, V(i): t, B(i): t})
+        batch.values.insert(X(i), pose_guess)
+        batch.values.insert(V(i), v_guess)
+        batch.values.insert(B(i), self._latest_bias)
+
+        if i == 0:
+            self._add_first_priors(batch, pose_guess, v_guess)
+        else:
+            self._add_motion(batch, i, pend, R_i, pim, v_guess)
+        self._add_attitude_and_plane(batch, i, pose_guess, t_guess)
+        if self.config.factors.landmarks:
+            self._add_landmarks(batch, i, t, pend.observations, R_i, t_guess)
+
+        self._n_keyframes += 1
+        self._last_kf_time_s = t
+        self._last_kf_R = R_i
+        self._trim_imu(t)
+        if self._latest_nav is None or pend.estimate is not None:
+            self._latest_nav = gtsam.NavState(pose_guess, v_guess)
+        return KeyframeUpdate(
+            index=i,
+            timestamp_s=t,
+            factors=batch.graph,
+            values=batch.values,
+            timestamps=batch.stamps,
+            R_world_imu=R_i,
+            filter_camera_xz_m=np.asarray(cam_xz, dtype=float).reshape(2),
+            factor_keys=batch.keys,
+        )
+
+    def _preintegrate(self, t: float) -> gtsam.PreintegratedCombinedMeasurements:
+        """GTSAM preintegration from the previous keyframe to ``t`` (s) over the step means
+        of ``config.preintegration``, with the sampled-signal model error in its noise."""
+        cfg = self.config
+        assert self._last_kf_time_s is not None
+        ts = np.asarray(self._imu_t)
+        sampler = SAMPLERS[cfg.preintegration]
+        a_mid, g_mid, dt = sampler(
+            ts, np.asarray(self._imu_a), np.asarray(self._imu_g), self._last_kf_time_s, t
+        )
+        params = self._params
+        if cfg.imu_discretization_gain > 0:
+            extra = cfg.imu_discretization_gain**2 * discretization_velocity_var(
+                ts, np.asarray(self._imu_a), self._last_kf_time_s, t)
+            params = make_preintegration_params(cfg, extra, t - self._last_kf_time_s)
+        pim = gtsam.PreintegratedCombinedMeasurements(params, self._latest_bias)
+        for a_k, g_k, dt_k in zip(a_mid, g_mid, dt, strict=True):
+            pim.integrateMeasurement(a_k, g_k, float(dt_k))
+        return pim
+
+    def _initial_guess(
+        self, pend: _Pending, t: float, R_i: NDArray[np.float64],
+        pim: gtsam.PreintegratedCombinedMeasurements | None,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Camera x-z, IMU position and IMU velocity guesses (world, m and m/s): the filter's
+        estimate, else the IMU prediction from the newest solved keyframe."""
         p_ic = self.imu_p_cam_m
-        graph = gtsam.NonlinearFactorGraph()
-        values = gtsam.Values()
-        stamps: dict[int, float] = {X(i): t, V(i): t, B(i): t}
-
-        # -- IMU preintegration from the previous keyframe (midpoint rule) --
-        pim = None
-        if i > 0:
-            assert self._last_kf_time_s is not None
-            ts = np.asarray(self._imu_t)
-            sampler = {"midpoint_curvature": midpoint_samples,
-                       "common_frame": common_frame_samples,
-                       "raw": held_samples}[self.config.preintegration]
-            a_mid, g_mid, dt = sampler(
-                ts, np.asarray(self._imu_a), np.asarray(self._imu_g), self._last_kf_time_s, t
-            )
-            params = self._params
-            if cfg.imu_discretization_gain > 0:
-                extra = cfg.imu_discretization_gain**2 * discretization_velocity_var(
-                    ts, np.asarray(self._imu_a), self._last_kf_time_s, t)
-                params = make_preintegration_params(cfg, extra, t - self._last_kf_time_s)
-            pim = gtsam.PreintegratedCombinedMeasurements(params, self._latest_bias)
-            for a_k, g_k, dt_k in zip(a_mid, g_mid, dt, strict=True):
-                pim.integrateMeasurement(a_k, g_k, float(dt_k))
-
-        # -- initial guess: the filter's estimate, else the IMU prediction --
         if pend.estimate is not None:
             cam_xz = np.asarray(pend.estimate.camera_xz_m, dtype=float).reshape(2)
             t_guess = imu_position_from_camera(cam_xz, R_i, p_ic)
@@ -604,123 +456,121 @@ class KeyframeGraphBuilder:
             t_guess = np.asarray(nav.pose().translation(), dtype=float).copy()
             v_guess = np.asarray(nav.velocity(), dtype=float).copy()
             cam_xz = (t_guess + R_i @ p_ic)[[0, 2]]
-        rot_i = gtsam.Rot3.ClosestTo(R_i)
-        pose_guess = gtsam.Pose3(rot_i, t_guess)
-        values.insert(X(i), pose_guess)
-        values.insert(V(i), v_guess)
-        values.insert(B(i), self._latest_bias)
+        return cam_xz, t_guess, v_guess
 
-        keys: list[list[int]] = []
+    def _add_first_priors(
+        self, batch: _FactorBatch, pose_guess: gtsam.Pose3, v_guess: NDArray[np.float64]
+    ) -> None:
+        """First keyframe: tight pose prior, velocity prior at the guess, zero-bias prior."""
+        cfg = self.config
+        sig = np.r_[[cfg.first_attitude_sigma_rad] * 3, [cfg.first_position_sigma_m] * 3]
+        batch.add(gtsam.PriorFactorPose3(X(0), pose_guess, gtsam.noiseModel.Diagonal.Sigmas(sig)),
+                  [X(0)])
+        batch.add(gtsam.PriorFactorVector(V(0), v_guess, gtsam.noiseModel.Isotropic.Sigma(
+            3, cfg.first_velocity_sigma_mps)), [V(0)])
+        bsig = np.r_[
+            [cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3
+        ]
+        batch.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(),
+                                                gtsam.noiseModel.Diagonal.Sigmas(bsig)), [B(0)])
 
-        def add(factor: gtsam.NonlinearFactor, fkeys: list[int]) -> None:
-            graph.add(factor)
-            keys.append(fkeys)
+    def _add_motion(
+        self, batch: _FactorBatch, i: int, pend: _Pending, R_i: NDArray[np.float64],
+        pim: gtsam.PreintegratedCombinedMeasurements | None, v_guess: NDArray[np.float64],
+    ) -> None:
+        """Keyframe i-1 -> i: the IMU factor (also the bias random walk) or, without it, a
+        bias chain and a weak velocity walk; the chained ICP displacement (eq. 3-4)."""
+        cfg, fam = self.config, self.config.factors
+        p_ic = self.imu_p_cam_m
+        if fam.imu:
+            assert pim is not None
+            batch.add(gtsam.CombinedImuFactor(X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i), pim),
+                      [X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i)])
+        else:  # keep the bias chain connected without the IMU
+            bsig = np.r_[[cfg.accel_bias_prior_sigma_mps2] * 3,
+                         [cfg.gyro_bias_prior_sigma_radps] * 3]
+            batch.add(gtsam.BetweenFactorConstantBias(
+                B(i - 1), B(i), gtsam.imuBias.ConstantBias(),
+                gtsam.noiseModel.Diagonal.Sigmas(bsig)), [B(i - 1), B(i)])
+            if not (fam.displacement and pend.displacement is not None):
+                # velocity otherwise unconstrained: weak random walk between keyframes
+                batch.add(gtsam.BetweenFactorVector(V(i - 1), V(i), np.zeros(3),
+                                                    gtsam.noiseModel.Isotropic.Sigma(3, 1.0)),
+                          [V(i - 1), V(i)])
+        if fam.displacement and pend.displacement is not None:
+            assert self._last_kf_R is not None
+            R_h = self._last_kf_R
+            d3 = _xz_to_3(pend.displacement[0])
+            dt_imu = d3 - (R_i - R_h) @ p_ic  # IMU motion in world axes
+            meas = gtsam.Pose3(gtsam.Rot3.ClosestTo(R_h.T @ R_i), R_h.T @ dt_imu)
+            C3 = _cov3_from_xz(pend.displacement[1], cfg)
+            noise = _between_noise(R_i.T @ C3 @ R_i, cfg)
+            batch.add(gtsam.BetweenFactorPose3(X(i - 1), X(i), meas, noise), [X(i - 1), X(i)])
+        if not fam.imu:
+            batch.add(gtsam.PriorFactorVector(V(i), v_guess, gtsam.noiseModel.Isotropic.Sigma(
+                3, LOOSE_SIGMA)), [V(i)])
 
-        # -- priors of the first keyframe --
-        if i == 0:
-            sig = np.r_[[cfg.first_attitude_sigma_rad] * 3, [cfg.first_position_sigma_m] * 3]
-            add(gtsam.PriorFactorPose3(X(0), pose_guess, gtsam.noiseModel.Diagonal.Sigmas(sig)),
-                [X(0)])
-            add(gtsam.PriorFactorVector(V(0), v_guess, gtsam.noiseModel.Isotropic.Sigma(
-                3, cfg.first_velocity_sigma_mps)), [V(0)])
-            bsig = np.r_[
-                [cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3
-            ]
-            add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(),
-                                              gtsam.noiseModel.Diagonal.Sigmas(bsig)), [B(0)])
-        else:
-            # -- IMU factor (also the bias random walk B(i-1) -> B(i)) --
-            if fam.imu:
-                assert pim is not None
-                add(gtsam.CombinedImuFactor(X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i), pim),
-                    [X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i)])
-            else:  # keep the bias chain connected without the IMU
-                bsig = np.r_[[cfg.accel_bias_prior_sigma_mps2] * 3,
-                             [cfg.gyro_bias_prior_sigma_radps] * 3]
-                add(gtsam.BetweenFactorConstantBias(
-                    B(i - 1), B(i), gtsam.imuBias.ConstantBias(),
-                    gtsam.noiseModel.Diagonal.Sigmas(bsig)), [B(i - 1), B(i)])
-                if not (fam.displacement and pend.displacement is not None):
-                    # velocity otherwise unconstrained: weak random walk between keyframes
-                    add(gtsam.BetweenFactorVector(V(i - 1), V(i), np.zeros(3),
-                                                  gtsam.noiseModel.Isotropic.Sigma(3, 1.0)),
-                        [V(i - 1), V(i)])
-            # -- chained ICP displacement (eq. 3-4 output) --
-            if fam.displacement and pend.displacement is not None:
-                assert self._last_kf_R is not None
-                R_h = self._last_kf_R
-                d3 = _xz_to_3(pend.displacement[0])
-                dt_imu = d3 - (R_i - R_h) @ p_ic  # IMU motion in world axes
-                meas = gtsam.Pose3(gtsam.Rot3.ClosestTo(R_h.T @ R_i), R_h.T @ dt_imu)
-                C3 = _cov3_from_xz(pend.displacement[1], cfg)
-                noise = _between_noise(R_i.T @ C3 @ R_i, cfg)
-                add(gtsam.BetweenFactorPose3(X(i - 1), X(i), meas, noise), [X(i - 1), X(i)])
-            if not fam.imu:
-                add(gtsam.PriorFactorVector(V(i), v_guess, gtsam.noiseModel.Isotropic.Sigma(
-                    3, LOOSE_SIGMA)), [V(i)])
-
-        # -- attitude anchoring (AHRS, heading removed) --
+    def _add_attitude_and_plane(
+        self, batch: _FactorBatch, i: int, pose_guess: gtsam.Pose3, t_guess: NDArray[np.float64]
+    ) -> None:
+        """Attitude prior (AHRS, heading removed), sagittal-plane priors on position (with the
+        optional weak absolute x-z) and velocity."""
+        cfg, fam = self.config, self.config.factors
         if fam.attitude and i > 0:
             sig = np.r_[[cfg.attitude_sigma_rad] * 3, [LOOSE_SIGMA] * 3]
-            add(gtsam.PriorFactorPose3(X(i), pose_guess, gtsam.noiseModel.Diagonal.Sigmas(sig)),
-                [X(i)])
-        # -- sagittal plane + weak absolute position --
+            batch.add(gtsam.PriorFactorPose3(X(i), pose_guess,
+                                             gtsam.noiseModel.Diagonal.Sigmas(sig)), [X(i)])
         if (fam.planar or fam.weak_position) and i > 0:
             s_xz = cfg.weak_position_sigma_m if fam.weak_position else LOOSE_SIGMA
             s_y = cfg.lateral_position_sigma_m if fam.planar else LOOSE_SIGMA
-            add(gtsam.PoseTranslationPrior3D(
+            batch.add(gtsam.PoseTranslationPrior3D(
                 X(i), t_guess, gtsam.noiseModel.Diagonal.Sigmas(np.array([s_xz, s_y, s_xz]))),
                 [X(i)])
         if fam.planar:
             sig = np.array([LOOSE_SIGMA, cfg.lateral_velocity_sigma_mps, LOOSE_SIGMA])
-            add(gtsam.PriorFactorVector(V(i), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(sig)),
-                [V(i)])
+            batch.add(gtsam.PriorFactorVector(V(i), np.zeros(3),
+                                              gtsam.noiseModel.Diagonal.Sigmas(sig)), [V(i)])
 
-        # -- corner landmarks and stance anchors: long-span constraints --
-        if fam.landmarks:
-            for ob in pend.observations:
-                cov = np.asarray(ob.cov_m2, dtype=float).reshape(2, 2)
-                if isinstance(ob, StanceObservation):
-                    lkey = LandmarkKey("ankle", ob.stance_id)
-                    o3 = _xz_to_3(ob.ankle_rel_xz_m)
-                else:
-                    lkey = LandmarkKey("corner", ob.track_id)
-                    o3 = _xz_to_3(ob.corner_rel_xz_m)
-                    cov = cov + np.eye(2) * cfg.corner_landmark_sigma_m**2
-                lk = self._landmark_of.get(lkey)
-                if lk is None:
-                    lk = self._new_landmark_key(lkey)
-                    lm = t_guess + R_i @ p_ic + o3
-                    lm[1] = 0.0
-                    lm_pose = gtsam.Pose3(gtsam.Rot3(), lm)
-                    values.insert(lk, lm_pose)
-                    sig = np.r_[[cfg.landmark_rotation_sigma_rad] * 3,
-                                cfg.landmark_position_sigma_m, cfg.landmark_lateral_sigma_m,
-                                cfg.landmark_position_sigma_m]
-                    add(gtsam.PriorFactorPose3(lk, lm_pose,
-                                               gtsam.noiseModel.Diagonal.Sigmas(sig)), [lk])
-                meas = gtsam.Pose3(rot_i.inverse(), R_i.T @ o3 + p_ic)
-                noise = _between_noise(_cov3_from_xz(cov, cfg), cfg)
-                add(gtsam.BetweenFactorPose3(X(i), lk, meas, noise), [X(i), lk])
-                stamps[lk] = t
+    def _add_landmarks(
+        self, batch: _FactorBatch, i: int, t: float, observations: list[LandmarkObservation],
+        R_i: NDArray[np.float64], t_guess: NDArray[np.float64],
+    ) -> None:
+        """Corner landmarks and stance anchors (long-span constraints): a new landmark gets
+        its node at the observed position and a weak prior; every observation a robust
+        BetweenFactorPose3 from X(i)."""
+        cfg = self.config
+        p_ic = self.imu_p_cam_m
+        rot_i = gtsam.Rot3.ClosestTo(R_i)
+        for ob in observations:
+            cov = np.asarray(ob.cov_m2, dtype=float).reshape(2, 2)
+            if isinstance(ob, StanceObservation):
+                lkey = LandmarkKey("ankle", ob.stance_id)
+                o3 = _xz_to_3(ob.ankle_rel_xz_m)
+            else:
+                lkey = LandmarkKey("corner", ob.track_id)
+                o3 = _xz_to_3(ob.corner_rel_xz_m)
+                cov = cov + np.eye(2) * cfg.corner_landmark_sigma_m**2
+            lk = self._landmark_of.get(lkey)
+            if lk is None:
+                lk = self._new_landmark_key(lkey)
+                lm = t_guess + R_i @ p_ic + o3
+                lm[1] = 0.0
+                lm_pose = gtsam.Pose3(gtsam.Rot3(), lm)
+                batch.values.insert(lk, lm_pose)
+                sig = np.r_[[cfg.landmark_rotation_sigma_rad] * 3,
+                            cfg.landmark_position_sigma_m, cfg.landmark_lateral_sigma_m,
+                            cfg.landmark_position_sigma_m]
+                batch.add(gtsam.PriorFactorPose3(lk, lm_pose,
+                                                 gtsam.noiseModel.Diagonal.Sigmas(sig)), [lk])
+            meas = gtsam.Pose3(rot_i.inverse(), R_i.T @ o3 + p_ic)
+            noise = _between_noise(_cov3_from_xz(cov, cfg), cfg)
+            batch.add(gtsam.BetweenFactorPose3(X(i), lk, meas, noise), [X(i), lk])
+            batch.stamps[lk] = t
 
-        self._n_keyframes += 1
-        self._last_kf_time_s = t
-        self._last_kf_R = R_i
-        # keep the IMU samples at or before the keyframe that the next interval needs (one
-        # for the interpolation, four for the fourth differences of its first samples)
+    def _trim_imu(self, t: float) -> None:
+        """Keep the IMU samples at or before the keyframe at ``t`` (s) that the next interval
+        needs (one for the interpolation, four for the fourth differences of its first
+        samples)."""
         ts = np.asarray(self._imu_t)
         k0 = max(0, int(np.searchsorted(ts, t - TIME_TOL_S, side="right")) - 4)
         del self._imu_t[:k0], self._imu_a[:k0], self._imu_g[:k0], self._imu_q[:k0]
-        if self._latest_nav is None or pend.estimate is not None:
-            self._latest_nav = gtsam.NavState(pose_guess, v_guess)
-        return KeyframeUpdate(
-            index=i,
-            timestamp_s=t,
-            factors=graph,
-            values=values,
-            timestamps=stamps,
-            R_world_imu=R_i,
-            filter_camera_xz_m=np.asarray(cam_xz, dtype=float).reshape(2),
-            factor_keys=keys,
-        )

@@ -1,9 +1,12 @@
 """Ingestion interface shared by the fixed-lag and the batch smoother.
 
-Both smoothers take the same stream as the SP-ESKF replay loop (IMU samples, then per depth
-frame the filter's estimate, the ICP displacement and landmark observations: corners and
-stance anchors), so one replay loop drives every estimator and the comparison is like for
-like.
+Both smoothers follow the estimator protocol (vio_graph/protocol.py): per IMU sample an
+:class:`~vio_graph.protocol.ImuStep` (the level-aided sample in shank axes is used), per depth
+frame a :class:`~vio_graph.protocol.FrameRecord` (the filter's estimate as initial guess, the
+displacement, the corner and stance observations and the attitude they were built with), so
+one replay loop drives every estimator and the comparison is like for like. Below the
+protocol, :meth:`KeyframeSmootherBase.feed_imu` / :meth:`KeyframeSmootherBase.feed_frame` take
+the same inputs one by one (synthetic trials and tests use them).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
+from vio_graph.protocol import EstimatorReport, FrameRecord, ImuStep
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.graph import KeyframeGraphBuilder, KeyframeUpdate
 from vio_graph.types import Displacement2D, FrameEstimate, ImuSample, LandmarkObservation
@@ -34,10 +38,14 @@ class KeyframeEstimate(NamedTuple):
 
 
 class KeyframeSmootherBase(ABC):
-    """Common ingestion (``add_imu``, ``add_frame``) and per-frame output (``frame_trajectory``).
+    """Common ingestion (the protocol's ``add_imu`` / ``add_frame`` / ``finish``, or
+    ``feed_imu`` / ``feed_frame`` / ``flush``) and per-frame output (``camera_path`` /
+    ``frame_trajectory``).
 
     Subclasses consume :class:`KeyframeUpdate` batches and report refined keyframes.
     """
+
+    name: str
 
     def __init__(self, config: SmootherConfig, imu_T_cam: ArrayLike) -> None:
         self.config = config
@@ -48,14 +56,45 @@ class KeyframeSmootherBase(ABC):
         self._kf_times_s: list[float] = []
         self._kf_filter_xz: list[NDArray[np.float64]] = []
 
-    # ---- ingestion (same as the filter's replay loop) ------------------------------------------
-    def add_imu(self, sample: ImuSample) -> None:
+    # ---- the estimator protocol ----------------------------------------------------------------
+    def add_imu(self, step: ImuStep) -> None:
+        """One IMU sample: the level-aided sample in shank axes (what the filter used)."""
+        self.feed_imu(step.corrected)
+
+    def add_frame(self, record: FrameRecord) -> None:
+        """One depth frame: the filter's estimate, displacement, corner and (if
+        ``config.factors.stance_anchors``) stance observations, with the attitude they were
+        built with."""
+        self.feed_frame(
+            record.timestamp_s,
+            record.is_keyframe,
+            record.estimate,
+            record.displacement,
+            record.observations(self.config.factors.stance_anchors),
+            record.R_world_imu,
+        )
+
+    def finish(self) -> None:
+        """Insert a keyframe still waiting for IMU data."""
+        self.flush()
+
+    def camera_path(
+        self, frame_times_s: NDArray[np.float64], filter_xz_m: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """See :meth:`frame_trajectory`."""
+        return self.frame_trajectory(frame_times_s, filter_xz_m)
+
+    @abstractmethod
+    def report(self) -> EstimatorReport: ...
+
+    # ---- ingestion, one input at a time --------------------------------------------------------
+    def feed_imu(self, sample: ImuSample) -> None:
         """Feed one IMU sample (timestamps strictly increasing)."""
         t0 = time.perf_counter()
         updates = self._builder.add_imu(sample)
         self._dispatch(updates, t0)
 
-    def add_frame(
+    def feed_frame(
         self,
         timestamp_s: float,
         is_keyframe: bool,

@@ -9,12 +9,15 @@ the newest state for the next prediction.
 from __future__ import annotations
 
 import time
+from typing import Any, cast
 
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
+from vio_graph.evaluation.latency import stats_ms
+from vio_graph.protocol import EstimatorReport
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.graph import (
     B,
@@ -37,6 +40,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             included (factor building is in ``build_times_ms``).
     """
 
+    name = "smoother"
+
     def __init__(self, config: SmootherConfig | None = None, imu_T_cam: ArrayLike | None = None):
         config = config or SmootherConfig()
         super().__init__(config, np.eye(4) if imu_T_cam is None else imu_T_cam)
@@ -45,7 +50,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             lm = gtsam.LevenbergMarquardtParams()
             if config.fixed_lag_factorization == "QR":
                 lm.setLinearSolverType("MULTIFRONTAL_QR")
-            self._smoother: gtsam.FixedLagSmoother = gtsam.BatchFixedLagSmoother(self.lag_s, lm)
+            self._smoother: gtsam.BatchFixedLagSmoother | gtsam.IncrementalFixedLagSmoother = (
+                gtsam.BatchFixedLagSmoother(self.lag_s, lm))
         else:
             p = gtsam.ISAM2Params()
             p.setFactorization(config.fixed_lag_factorization)
@@ -86,7 +92,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
                 self._frozen[i_old] = (xz, cov if cov_now else self._newest_cov.get(i_old, _NAN2))
 
         try:
-            self._smoother.update(factors, u.values, stamps)
+            # (the stubs type the key -> time map with invariant protocol keys; ints are fine)
+            self._smoother.update(factors, u.values, cast(dict[Any, Any], stamps))
         except RuntimeError as exc:  # GTSAM's exceptions surface as RuntimeError
             msg = f"fixed-lag update at {u.timestamp_s:.3f} s failed: {exc}"
             raise EstimationError(msg) from exc
@@ -110,7 +117,7 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         R, cam = camera_from_pose(self._smoother.calculateEstimatePose3(X(i)), self.imu_p_cam_m)
         cov = _NAN2
-        if with_covariance and self._incremental:
+        if with_covariance and isinstance(self._smoother, gtsam.IncrementalFixedLagSmoother):
             cov = camera_xz_cov_from_pose_cov(
                 R, self._smoother.marginalCovariance(X(i)), self.imu_p_cam_m
             )
@@ -131,6 +138,12 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
                     xz, cov = np.full(2, np.nan), _NAN2
             out.append(KeyframeEstimate(t, xz.copy(), cov.copy()))
         return out
+
+    def report(self) -> EstimatorReport:
+        """Per-keyframe latency (update + factor building, ms) as ``smoother_update``."""
+        n = min(len(self.update_times_ms), len(self.build_times_ms))
+        per_kf = np.asarray(self.update_times_ms[:n]) + np.asarray(self.build_times_ms[:n])
+        return EstimatorReport(latency_ms={"smoother_update": stats_ms(per_kf)})
 
     def live_keys(self) -> set[int]:
         """Keys currently inside the window (our mirror of GTSAM's key-timestamp map)."""

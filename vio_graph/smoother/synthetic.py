@@ -152,7 +152,8 @@ def make_swinging_shank_trial(
     cov_o = np.eye(2) * max(observation_sigma_m, 1e-3) ** 2
     for k in range(n):
         rel = corner_xz - cam_xz[k]
-        vis = np.flatnonzero((rel[:, 0] > 0.3) & (rel[:, 0] < 1.2)) if corners else []
+        vis = (np.flatnonzero((rel[:, 0] > 0.3) & (rel[:, 0] < 1.2)) if corners
+               else np.zeros(0, dtype=int))
         frame_obs = []
         if not in_gap[k]:
             for j in vis:
@@ -206,9 +207,9 @@ def feed(trial: SyntheticTrial, smoother: object, use_filter_guess: bool = True)
     """Drive any smoother with the shared ingestion interface through a whole trial."""
     for kind, i in replay_events(trial):
         if kind == "imu":
-            smoother.add_imu(trial.imu[i])  # type: ignore[attr-defined]
+            smoother.feed_imu(trial.imu[i])  # type: ignore[attr-defined]
         else:
-            smoother.add_frame(  # type: ignore[attr-defined]
+            smoother.feed_frame(  # type: ignore[attr-defined]
                 float(trial.frame_times_s[i]),
                 bool(trial.is_keyframe[i]),
                 trial.filter_estimates[i] if use_filter_guess or i == 0 else None,

@@ -5,7 +5,9 @@ The pipeline logs through :class:`Visualizer`; with visualisation off it gets a
 data is shown in 3D at y = 0. Entity layout:
 
 - ``world/terrain``            terrain mesh (static) and true profile
-- ``world/camera``             estimated camera pose; ``world/camera/image`` depth image
+- ``world/camera``             estimated camera pose (a time series)
+- ``world/camera/image``       pinhole (static); ``world/camera/image/depth`` the depth image,
+                               which the viewer back-projects through the pinhole
 - ``world/cloud``              depth cloud in the world frame (subsampled)
 - ``world/slice``              sagittal slice (ground frame, placed at the estimate)
 - ``world/features``           corner feature points; ``world/icp`` ICP matches
@@ -13,10 +15,15 @@ data is shown in 3D at y = 0. Entity layout:
 - ``world/leg/est``, ``world/leg/gt``         leg links knee-ankle-heel-toe
 - ``world/map``                 2D map points and step edges
 - ``plots/...``                 scalar time series (errors, status)
+
+Time series (the camera pose and the ``plots/`` scalars) are collected during the run and sent
+with ``rr.send_columns`` when the recording is closed, one call per entity instead of one
+``rr.log`` per sample; images, clouds and leg links are logged frame by frame.
 """
 
 from __future__ import annotations
 
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -68,9 +75,17 @@ class Visualizer(NullVisualizer):
         self._tmp_path = self.path.with_name(f".{self.path.name}.partial")
         self._rec.save(str(self._tmp_path))
         self._rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self._t_s = 0.0
+        self._pinhole_logged = False
+        # time series sent as columns by close(): entity -> (times s, values)
+        self._scalars: dict[str, tuple[list[float], list[float]]] = defaultdict(
+            lambda: ([], []))
+        self._camera: tuple[list[float], list[NDArray[np.float64]], list[NDArray[np.float64]]] = (
+            [], [], [])
 
     def set_time(self, timestamp_s: float) -> None:
-        self._rec.set_time("time", duration=float(timestamp_s))
+        self._t_s = float(timestamp_s)
+        self._rec.set_time("time", duration=self._t_s)
 
     def log_terrain(self, vertices_m, triangles, profile_xz_m) -> None:
         rr = self._rr
@@ -93,21 +108,22 @@ class Visualizer(NullVisualizer):
 
     def log_camera(self, position_m, R_world_cam, K, width_px, height_px, depth_m=None) -> None:
         rr = self._rr
-        self._rec.log(
-            "world/camera",
-            rr.Transform3D(
-                translation=np.asarray(position_m, dtype=float), mat3x3=np.asarray(R_world_cam)
-            ),
-        )
-        self._rec.log(
-            "world/camera/image",
-            rr.Pinhole(
-                image_from_camera=np.asarray(K, dtype=float),
-                width=width_px,
-                height=height_px,
-                image_plane_distance=0.1,
-            ),
-        )
+        times, translations, rotations = self._camera
+        times.append(self._t_s)
+        translations.append(np.asarray(position_m, dtype=float))
+        rotations.append(np.asarray(R_world_cam, dtype=float))
+        if not self._pinhole_logged:  # one sensor: the same intrinsics for every frame
+            self._rec.log(
+                "world/camera/image",
+                rr.Pinhole(
+                    image_from_camera=np.asarray(K, dtype=float),
+                    width=width_px,
+                    height=height_px,
+                    image_plane_distance=0.1,
+                ),
+                static=True,
+            )
+            self._pinhole_logged = True
         if depth_m is not None:
             self._rec.log(
                 "world/camera/image/depth",
@@ -153,11 +169,41 @@ class Visualizer(NullVisualizer):
         )
 
     def log_scalar(self, name, value: float) -> None:
-        self._rec.log(f"plots/{name}", self._rr.Scalars(float(value)))
+        times, values = self._scalars[f"plots/{name}"]
+        times.append(self._t_s)
+        values.append(float(value))
+
+    def _time_column(self, times_s: list[float]):
+        """A ``time`` column with the nanoseconds ``set_time`` gives the same seconds (rounded,
+        where a float array would be truncated)."""
+        ns = np.array([round(1e9 * t) for t in times_s], dtype=np.int64)
+        return self._rr.TimeColumn("time", duration=ns.astype("timedelta64[ns]"))
+
+    def _send_time_series(self) -> None:
+        """The collected time series, one ``send_columns`` call per entity."""
+        rr = self._rr
+        times, translations, rotations = self._camera
+        if times:
+            rr.send_columns(
+                "world/camera",
+                indexes=[self._time_column(times)],
+                columns=rr.Transform3D.columns(
+                    translation=np.asarray(translations), mat3x3=np.asarray(rotations)
+                ),
+                recording=self._rec,
+            )
+        for entity, (t, v) in self._scalars.items():
+            rr.send_columns(
+                entity,
+                indexes=[self._time_column(t)],
+                columns=rr.Scalars.columns(scalars=np.asarray(v)),
+                recording=self._rec,
+            )
 
     def close(self) -> None:
         import os
 
+        self._send_time_series()
         self._rec.flush()
         self._rec.disconnect()
         os.replace(self._tmp_path, self.path)

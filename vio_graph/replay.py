@@ -1,0 +1,206 @@
+"""The replay: one recording's streams in time order through every estimator.
+
+The online estimator (front end + SP-ESKF, vio_graph/estimator.py) turns each IMU sample and
+each depth frame into the records of the estimator protocol (vio_graph/protocol.py); every
+estimator of the run -- the filter's own track, the IMU-only and ICP-only baselines, and, if
+asked for, the fixed-lag and batch smoothers -- takes the same records through the same
+calls. The per-frame quantities the outputs need are collected in a :class:`FrameLog`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vio_graph.config import PipelineConfig
+from vio_graph.errors import EstimationError
+from vio_graph.estimator import OnlineEstimator, RigGeometry
+from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
+from vio_graph.protocol import Estimator, FilterTrack, FrameRecord
+from vio_graph.recording.reader import Recording
+from vio_graph.types import Displacement2D
+from vio_graph.viz.run_view import RunView
+
+log = logging.getLogger(__name__)
+
+MODES = ("filter", "smoother", "batch")
+BASELINES = ("imu_only", "icp_only")
+
+
+@dataclass
+class FrameLog:
+    """Per-frame quantities collected during the replay (lists, one entry per depth frame);
+    ``camera_xz`` holds every estimator's camera path once the replay has finished."""
+
+    t_s: list[float] = field(default_factory=list)
+    camera_xz: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    shank_pitch_imu: list[float] = field(default_factory=list)
+    shank_pitch_chain: list[float] = field(default_factory=list)
+    ankle_rad: list[float] = field(default_factory=list)
+    status: list[str] = field(default_factory=list)
+    terrain: list[str] = field(default_factory=list)
+    displacement_ok: list[bool] = field(default_factory=list)
+    rejection: list[str] = field(default_factory=list)
+    is_keyframe: list[bool] = field(default_factory=list)
+    profiles: dict[int, NDArray[np.float64]] = field(default_factory=dict)  # keyframes only
+    timings_ms: list[dict[str, float]] = field(default_factory=list)
+    in_stance: list[bool] = field(default_factory=list)  # stance anchor used at this frame
+    displacements: list[Displacement2D] = field(default_factory=list)  # the front end's
+
+    def add(self, record: FrameRecord) -> None:
+        est, res = record.estimate, record.frontend
+        self.t_s.append(est.timestamp_s)
+        self.shank_pitch_imu.append(record.shank_pitch_imu_rad)
+        self.shank_pitch_chain.append(record.shank_pitch_chain_rad)
+        self.ankle_rad.append(record.ankle_rad)
+        self.status.append(est.status.value)
+        self.terrain.append(res.terrain.value)
+        self.displacement_ok.append(record.displacement is not None)
+        if record.displacement is not None:
+            self.displacements.append(record.displacement)
+        self.in_stance.append(record.in_stance)
+        self.rejection.append(res.rejection_reason or "")
+        self.is_keyframe.append(est.is_keyframe)
+        if est.is_keyframe:
+            self.profiles[len(self.t_s) - 1] = res.profile_xz_m
+        self.timings_ms.append(est.timings_ms)
+
+
+def replay_order(rec: Recording) -> tuple[NDArray[np.int8], NDArray[np.int64]]:
+    """Event order by time: (kind, index) with kind 0 = IMU, 1 = joints, 2 = depth frame,
+    3 = contact sample (recordings with ``contact.csv``).
+
+    On equal timestamps IMU comes first, then joints, then contact, then the frame (no
+    look-ahead: a frame only sees sensor data stamped at or before it).
+    """
+    times = [rec.imu.timestamp_s, rec.joints.timestamp_s, rec.frame_timestamps_s]
+    if rec.contact is not None:
+        times.append(rec.contact.timestamp_s)
+    kinds = np.concatenate([np.full(t.shape[0], k, np.int8) for k, t in enumerate(times)])
+    idx = np.concatenate([np.arange(t.shape[0]) for t in times])
+    priority = np.array([0, 1, 3, 2], np.int8)[kinds]  # contact before the frame
+    order = np.lexsort((priority, np.concatenate(times)))
+    return kinds[order], idx[order]
+
+
+def make_estimators(
+    config: PipelineConfig, rig: RigGeometry, modes: set[str], p0: NDArray[np.float64]
+) -> dict[str, Estimator]:
+    """The estimators of a run, by mode name: the filter's track and the two baselines
+    always, the fixed-lag (``smoother``) and batch smoothers when ``modes`` asks for them."""
+    estimators: list[Estimator] = [
+        FilterTrack(),
+        ImuDeadReckoning(config.filter, rig.shank_imu_T_cam, initial_camera_xz_m=p0),
+        IcpOdometry(initial_camera_xz_m=p0),
+    ]
+    if "smoother" in modes:
+        from vio_graph.smoother.sliding_window import SlidingWindowSmoother
+
+        estimators.append(SlidingWindowSmoother(config.smoother, rig.shank_imu_T_cam))
+    if "batch" in modes:
+        from vio_graph.smoother.batch import BatchSmoother
+
+        estimators.append(BatchSmoother(config.smoother, rig.shank_imu_T_cam))
+    return {e.name: e for e in estimators}
+
+
+class Replay:
+    """Drives the online estimator and every estimator of the run through one recording.
+
+    ``viz`` receives the per-frame view (vio_graph/viz/run_view.py; a NullVisualizer logs
+    nothing). After :meth:`run`, ``failed`` maps an estimator that raised EstimationError to
+    when and why (it was fed nothing after that, and its answer holds what it solved).
+    """
+
+    def __init__(self, rec: Recording, config: PipelineConfig, modes: set[str], viz) -> None:
+        self.rec = rec
+        self.config = config
+        self.modes = modes
+        self.rig = RigGeometry.from_metadata(rec.metadata)
+        gt = rec.groundtruth
+        p0 = None
+        if gt is not None:  # place the estimate's origin at the true start (the paper's anchor)
+            p0 = gt.trajectories["camera"].xz_at(rec.frame_timestamps_s[0])
+        self.p0 = np.zeros(2) if p0 is None else p0
+        self.online = OnlineEstimator(config, self.rig, p0)
+        self.estimators = make_estimators(config, self.rig, modes, self.p0)
+        self.view = RunView(viz, self.rig, rec.groundtruth, config.output)
+        self.log = FrameLog()
+        self._inject_rng = np.random.default_rng(config.inject.seed)
+        self.injected_wrong_associations = 0
+        self.failed: dict[str, dict[str, Any]] = {}
+
+    def run(self, progress: Callable[[int], Any] | None = None) -> FrameLog:
+        rec, online = self.rec, self.online
+        kinds, idx = replay_order(rec)
+        for kind, i in zip(kinds, idx, strict=True):
+            if kind == 0:
+                step = online.add_imu(rec.imu.sample(int(i)))
+                for e in self._running():
+                    self._guard(e, step.timestamp_s, e.add_imu, step)
+            elif kind == 1:
+                online.add_joints(rec.joints.sample(int(i)))
+            elif kind == 3:
+                assert rec.contact is not None
+                online.add_contact(rec.contact.sample(int(i)))
+            else:
+                if not online.initialised:
+                    continue  # frames before the first IMU sample cannot be placed
+                frame = rec.frame(int(i))
+                record = online.process_frame(frame, transform_result=self._inject)
+                self.log.add(record)
+                for e in self._running():
+                    self._guard(e, record.timestamp_s, e.add_frame, record)
+                self.view.frame(int(i), frame, record)
+                if progress is not None:
+                    progress(int(i) + 1)
+        for e in self._running():
+            self._guard(e, float("nan"), e.finish)
+        self.log.camera_xz = self.camera_paths()
+        return self.log
+
+    def camera_paths(self) -> dict[str, NDArray[np.float64]]:
+        """Every estimator's camera x-z (N, 2) at the replayed frames, by mode; one without
+        a usable answer gets the filter's."""
+        t_s = np.asarray(self.log.t_s)
+        filter_xz = self.estimators["filter"].camera_path(t_s, np.empty((0, 2)))
+        out: dict[str, NDArray[np.float64]] = {}
+        for name, e in self.estimators.items():
+            try:  # a failed smoother still reports the keyframes it solved before failing
+                out[name] = np.asarray(e.camera_path(t_s, filter_xz))
+            except EstimationError as exc:
+                log.warning("%s has no usable estimate: %s", name, exc)
+                out[name] = filter_xz.copy()
+        return out
+
+    def _running(self) -> list[Estimator]:
+        return [e for name, e in self.estimators.items() if name not in self.failed]
+
+    def _guard(self, e: Estimator, t_s: float, fn: Callable[..., None], *args: Any) -> None:
+        """Call an estimator; if it fails (e.g. GTSAM finds the system indeterminate), stop
+        feeding it, keep what it solved, and record the failure instead of killing the run
+        (the filter's answer stands in for the frames after it)."""
+        try:
+            fn(*args)
+        except EstimationError as exc:
+            log.warning("%s stopped at t=%.3f s: %s", e.name, t_s, str(exc).splitlines()[0])
+            self.failed[e.name] = {"t_s": t_s, "error": str(exc).splitlines()[0]}
+
+    def _inject(self, res):
+        """Shift a displacement by a whole stair step (config.inject), for robustness tests."""
+        inj = self.config.inject
+        if res.displacement is None or inj.wrong_association_rate <= 0:
+            return res
+        if self._inject_rng.random() >= inj.wrong_association_rate:
+            return res
+        sign = 1.0 if self._inject_rng.random() < 0.5 else -1.0
+        d = res.displacement
+        bad = dataclasses.replace(d, delta_xz_m=d.delta_xz_m + sign * np.asarray(inj.step_xz_m))
+        self.injected_wrong_associations += 1
+        return dataclasses.replace(res, displacement=bad)

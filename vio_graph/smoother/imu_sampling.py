@@ -1,0 +1,250 @@
+"""IMU sampling for GTSAM's preintegration (pure numpy, no graph).
+
+GTSAM integrates each IMU step with the values it is given at the step's start. Feeding the
+raw samples that way costs millimetres over a keyframe interval on a swinging shank, so the
+smoother hands it step means instead: knots at the keyframe times and the samples between
+them (:func:`_imu_knots`), curvature-corrected step means of a locally quadratic signal
+(:func:`_quadratic_step_means`), with the specific force averaged either in the frame of the
+interval's start (:func:`common_frame_samples`, the default) or in the moving frame and turned
+by half a step (:func:`midpoint_samples`); :func:`held_samples` is the raw baseline. The model
+error that sampling leaves around gait events is estimated by
+:func:`discretization_velocity_var` and enters the noise of
+:func:`make_preintegration_params`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import gtsam
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vio_graph.errors import EstimationError
+from vio_graph.smoother.config import SmootherConfig
+
+#: Two timestamps closer than this are the same instant (s).
+TIME_TOL_S = 1e-6
+
+__all__ = [
+    "SAMPLERS",
+    "TIME_TOL_S",
+    "common_frame_samples",
+    "discretization_velocity_var",
+    "held_samples",
+    "make_preintegration_params",
+    "midpoint_samples",
+    "so3_exp",
+]
+
+
+# ----------------------------------------------------------------------------------------------
+# rotations and step means
+# ----------------------------------------------------------------------------------------------
+def so3_exp(rotvec: ArrayLike) -> NDArray[np.float64]:
+    """Rodrigues' formula, vectorised: (..., 3) rotation vectors (rad) -> (..., 3, 3)."""
+    w = np.asarray(rotvec, dtype=float)
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = np.zeros(w.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2] = -w[..., 2], w[..., 1]
+    K[..., 1, 0], K[..., 1, 2] = w[..., 2], -w[..., 0]
+    K[..., 2, 0], K[..., 2, 1] = -w[..., 1], w[..., 0]
+    small = theta < 1e-8
+    th = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(th) / th)
+    b = np.where(small, 0.5, (1.0 - np.cos(th)) / th**2)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def _second_derivative(t: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Second time derivative (N, 3) of sampled y (N, 3) by non-uniform central differences.
+
+    The two end samples copy their neighbour; fewer than 3 samples give zeros.
+    """
+    ypp = np.zeros_like(y)
+    if t.size < 3:
+        return ypp
+    h0, h1 = np.diff(t)[:-1, None], np.diff(t)[1:, None]
+    ypp[1:-1] = 2.0 * ((y[2:] - y[1:-1]) / h1 - (y[1:-1] - y[:-2]) / h0) / (h0 + h1)
+    ypp[0], ypp[-1] = ypp[1], ypp[-2]
+    return ypp
+
+
+def _imu_knots(
+    times_s: ArrayLike, accel_mps2: ArrayLike, gyro_radps: ArrayLike, t0_s: float, t1_s: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Checked IMU arrays and the step knots over [t0_s, t1_s]: t0, the samples strictly
+    inside, t1."""
+    t = np.asarray(times_s, dtype=float)
+    a = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
+    g = np.asarray(gyro_radps, dtype=float).reshape(-1, 3)
+    if t.size == 0:
+        raise EstimationError("no IMU samples to preintegrate")
+    if t1_s <= t0_s:
+        raise EstimationError(f"empty preintegration interval [{t0_s}, {t1_s}]")
+    inner = t[(t > t0_s + TIME_TOL_S) & (t < t1_s - TIME_TOL_S)]
+    return t, a, g, np.concatenate([[t0_s], inner, [t1_s]])
+
+
+def _quadratic_step_means(
+    t: NDArray[np.float64], knots: NDArray[np.float64]
+) -> tuple[Callable[[NDArray[np.float64]], NDArray[np.float64]], NDArray[np.float64]]:
+    """Step means over the knot intervals of a signal sampled at ``t``, treated as locally
+    quadratic: the trapezoid minus ``dt^2/12 y''``, with knot values between samples
+    interpolated with the same curvature term (y'' from central differences). Returns the
+    function (N, 3) -> (K, 3) and the step lengths dt (K, 1)."""
+    lo = np.clip(np.searchsorted(t, knots, side="right") - 1, 0, t.size - 1)
+    hi = np.clip(lo + 1, 0, t.size - 1)
+    inside = (knots > t[0]) & (knots < t[-1])
+    curv = np.where(inside, 0.5 * (knots - t[lo]) * (knots - t[hi]), 0.0)[:, None]
+    dt = np.diff(knots)[:, None]
+
+    def step_means(y: NDArray[np.float64]) -> NDArray[np.float64]:
+        ypp = _second_derivative(t, y)
+        ypp_k = np.stack([np.interp(knots, t, ypp[:, i]) for i in range(3)], axis=-1)
+        y_k = np.stack([np.interp(knots, t, y[:, i]) for i in range(3)], axis=-1)
+        y_k = y_k + curv * ypp_k
+        return 0.5 * (y_k[1:] + y_k[:-1]) - dt**2 / 12.0 * 0.5 * (ypp_k[1:] + ypp_k[:-1])
+
+    return step_means, dt
+
+
+def midpoint_samples(
+    times_s: ArrayLike,
+    accel_mps2: ArrayLike,
+    gyro_radps: ArrayLike,
+    t0_s: float,
+    t1_s: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Midpoint-rule IMU steps covering [t0_s, t1_s].
+
+    Knots are t0, the samples strictly inside, and t1. Each step between consecutive knots gets
+    the mean of the signal over the step and the mean specific force rotated by half the
+    step's rotation, so that GTSAM's start-of-step integration uses the mid-step attitude.
+    The signal is treated as locally quadratic: the step mean is the trapezoid minus
+    ``dt^2/12 y''`` and values at t0/t1 between samples are interpolated with the same
+    curvature term (y'' from central differences of the samples). On a shank turning at
+    3 rad/s this removes the trapezoid's ~1e-4 rad per 0.1 s rotation error, which is 2-3
+    sigma of the MTi-1 gyro noise over that time. Outside the samples the signal is held.
+
+    Args:
+        times_s: (N,) increasing sample times, s. Must be non-empty.
+        accel_mps2: (N, 3) specific force in the IMU frame.
+        gyro_radps: (N, 3) angular rate in the IMU frame.
+    Returns:
+        ``accel_mid (K, 3)``, ``gyro_mid (K, 3)``, ``dt_s (K,)`` with sum(dt) = t1 - t0.
+    """
+    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
+    step_means, dt = _quadratic_step_means(t, knots)
+
+    g_mid = step_means(g)
+    a_mean = step_means(a)
+    a_mid = np.einsum("nij,nj->ni", so3_exp(0.5 * g_mid * dt), a_mean)
+    return a_mid, g_mid, dt[:, 0]
+
+
+def common_frame_samples(
+    times_s: ArrayLike,
+    accel_mps2: ArrayLike,
+    gyro_radps: ArrayLike,
+    t0_s: float,
+    t1_s: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Like :func:`midpoint_samples`, but the specific force is averaged in one frame.
+
+    The midpoint rule averages the specific force in the moving IMU frame and then turns the
+    mean by half the step's rotation. For gravity, which is fixed in the world and so turns
+    at -omega in the IMU frame, that mean is short by (omega dt)^2 / 24: 2.6e-3 m/s^2 at
+    8 rad/s and 100 Hz, always towards less support, so the preintegrated velocity sinks
+    by ~0.3-1 mm/s per 0.1 s and a long smoothing window drifts down. Here every sample is
+    first rotated into the frame of the interval's start, f_j -> R(t_j) f_j with R from the
+    same per-step gyro means GTSAM integrates, the curvature-corrected step means are taken
+    there (a world-fixed vector is then constant and exact), and each step's mean is handed
+    back in the step-start frame, where GTSAM applies it.
+    """
+    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
+    step_means, dt = _quadratic_step_means(t, knots)
+
+    g_mid = step_means(g)
+    steps = so3_exp(g_mid * dt)  # (K, 3, 3) step rotations, as GTSAM integrates them
+    R_knot = np.empty((knots.size, 3, 3))
+    R_knot[0] = np.eye(3)
+    for k in range(steps.shape[0]):
+        R_knot[k + 1] = R_knot[k] @ steps[k]
+    # rotation at each sample: from the knot at or before it (the first step's rate before t0,
+    # the last step's after t1)
+    k_of = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, g_mid.shape[0] - 1)
+    R_t = R_knot[k_of] @ so3_exp(g_mid[k_of] * (t - knots[k_of])[:, None])
+    F = np.einsum("nij,nj->ni", R_t, a)  # specific force in the interval-start frame
+    F_mean = step_means(F)
+    a_in = np.einsum("nji,nj->ni", R_knot[:-1], F_mean)  # back into each step-start frame
+    return a_in, g_mid, dt[:, 0]
+
+
+def held_samples(
+    times_s: ArrayLike,
+    accel_mps2: ArrayLike,
+    gyro_radps: ArrayLike,
+    t0_s: float,
+    t1_s: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Raw IMU steps covering [t0_s, t1_s]: each step uses the last sample at or before its
+    start (what feeding samples straight into ``integrateMeasurement`` does). Same outputs
+    as :func:`midpoint_samples`; kept as the ablation's baseline."""
+    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
+    idx = np.clip(np.searchsorted(t, knots[:-1] + TIME_TOL_S, side="right") - 1, 0, t.size - 1)
+    return a[idx], g[idx], np.diff(knots)
+
+
+def discretization_velocity_var(
+    times_s: ArrayLike, accel_mps2: ArrayLike, t0_s: float, t1_s: float
+) -> float:
+    """Unscaled variance (m^2/s^2) of the velocity error that sampling the specific force
+    leaves over [t0_s, t1_s]: ``sum_j (h |D4_j|)^2`` over the windows j of five consecutive
+    samples that touch the interval, D4 the fourth difference (m/s^2) and h the sample period.
+
+    A signal that is locally cubic at the sample rate has D4 ~ 0 and is integrated almost
+    exactly by :func:`midpoint_samples`; gait events (heel strike, toe off) are not, and there
+    the error is proportional to D4. On simulated stair gait (100 Hz) the midpoint rule's
+    velocity error over 0.1 s is ~0.5 mm/s in smooth phases but 3-16 mm/s around gait events,
+    10-40x GTSAM's white-noise sigma with the datasheet density; scaled by
+    ``SmootherConfig.imu_discretization_gain`` this term is added to the preintegration
+    covariance (:func:`make_preintegration_params`). Windows that need samples not yet
+    received are left out.
+    """
+    t = np.asarray(times_s, dtype=float)
+    a = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
+    if t.size < 5:
+        return 0.0
+    d4 = a[:-4] - 4.0 * a[1:-3] + 6.0 * a[2:-2] - 4.0 * a[3:-1] + a[4:]
+    h = (t[4:] - t[:-4]) / 4.0
+    touch = (t[4:] > t0_s - TIME_TOL_S) & (t[:-4] < t1_s + TIME_TOL_S)
+    return float(np.sum((h[touch, None] * d4[touch]) ** 2))
+
+
+def make_preintegration_params(
+    config: SmootherConfig, extra_velocity_var_m2ps2: float = 0.0, duration_s: float = 1.0
+) -> gtsam.PreintegrationCombinedParams:
+    """GTSAM combined preintegration parameters (z up, MTi-1 noise densities squared).
+
+    ``extra_velocity_var_m2ps2`` (the model error of the sampled signal over an interval of
+    ``duration_s``, :func:`discretization_velocity_var` times the gain squared) is spread
+    over the interval as extra accelerometer white noise.
+    """
+    p = gtsam.PreintegrationCombinedParams.MakeSharedU(config.gravity_mps2)
+    acc_var = config.accel_noise_density_mps2_per_sqrt_hz**2 + extra_velocity_var_m2ps2 / duration_s
+    p.setAccelerometerCovariance(np.eye(3) * acc_var)
+    p.setGyroscopeCovariance(np.eye(3) * config.gyro_noise_density_radps_per_sqrt_hz**2)
+    p.setIntegrationCovariance(np.eye(3) * config.integration_sigma_m**2)
+    p.setBiasAccCovariance(np.eye(3) * config.accel_bias_rw_mps3_per_sqrt_hz**2)
+    p.setBiasOmegaCovariance(np.eye(3) * config.gyro_bias_rw_radps2_per_sqrt_hz**2)
+    return p
+
+
+#: ``SmootherConfig.preintegration`` -> the step sampler it selects.
+SAMPLERS: dict[str, Callable[..., tuple[NDArray[np.float64], NDArray[np.float64],
+                                        NDArray[np.float64]]]] = {
+    "midpoint_curvature": midpoint_samples,
+    "common_frame": common_frame_samples,
+    "raw": held_samples,
+}

@@ -36,11 +36,14 @@ class Motion:
     ddtheta: Callable[[np.ndarray], np.ndarray]
 
 
+_ZERO2 = np.zeros(2)  # read-only defaults (never modified in place)
+_ZERO3 = np.zeros(3)
+
 def imu_samples(
     m: Motion,
     t: np.ndarray,
     r_imu_cam_m: np.ndarray,
-    bias_imu_xz: np.ndarray = np.zeros(2),
+    bias_imu_xz: np.ndarray = _ZERO2,
     noise_sigma: float = 0.0,
     seed: int = 0,
 ) -> list[ImuSample]:
@@ -101,8 +104,8 @@ def run(
     duration_s: float,
     *,
     frame_every: int | None = 3,
-    r_imu_cam_m=np.zeros(3),
-    bias=np.zeros(2),
+    r_imu_cam_m=_ZERO3,
+    bias=_ZERO2,
     imu_noise=0.0,
     disp_sigma_m=0.0,
     seed=0,

@@ -352,7 +352,8 @@ def test_fuzz_npy(workspace: _Workspace) -> None:
                         else np.zeros(arr.shape, dtype=np.dtype(dtype)))
             elif op == "shape":
                 shape = tuple(max(0, s + d) for s, d in zip(arr.shape, shape_delta, strict=True))
-                shape = shape[: len(shape) + extra_dims] if extra_dims < 0 else shape + (1,) * extra_dims
+                shape = (shape[: len(shape) + extra_dims] if extra_dims < 0
+                         else shape + (1,) * extra_dims)
                 np.save(p, np.resize(arr, shape))
             elif op == "fortran":
                 np.save(p, np.asfortranarray(arr))

@@ -1,7 +1,7 @@
 """Static types: mypy (with the pydantic plugin) is clean on the packages listed in
 pyproject.toml's [tool.mypy] ``files`` (frontend, filter, smoother, geometry, types, the
-estimator protocol, the online estimator, the replay and the run's pipeline). Runs as part of the test suite, so the README's test command is the CI
-check."""
+estimator protocol, the online estimator, the replay and the run's pipeline). Runs as part
+of the test suite, so the README's test command is the CI check."""
 
 from __future__ import annotations
 

@@ -10,6 +10,7 @@ import pytest
 
 from tests.test_mapping_synth import camera_track, observe, obstacle_profile, stair_profile
 from vio_graph.errors import OutputError
+from vio_graph.evaluation.map_accuracy import compare_to_truth
 from vio_graph.mapping.export import (
     CSV_COLUMNS,
     export_map,
@@ -21,7 +22,7 @@ from vio_graph.mapping.export import (
     write_point_cloud,
 )
 from vio_graph.mapping.local_map import TerrainMap2D
-from vio_graph.mapping.steps import TerrainGeometry, compare_to_truth, estimate_terrain_geometry
+from vio_graph.mapping.steps import TerrainGeometry, estimate_terrain_geometry
 from vio_graph.recording.metadata import TerrainInfo
 
 

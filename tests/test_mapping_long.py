@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from tests.test_mapping_synth import camera_track, ray_cast, stair_profile
+from vio_graph.evaluation.map_accuracy import compare_to_truth
 from vio_graph.mapping.config import StepConfig
 from vio_graph.mapping.local_map import TerrainMap2D
-from vio_graph.mapping.steps import compare_to_truth, estimate_terrain_geometry
+from vio_graph.mapping.steps import estimate_terrain_geometry
 
 RISE_M, TREAD_M, N_STEPS = 0.147, 0.28, 160
 NOISE_M = 0.0025  # per-point profile noise, metres

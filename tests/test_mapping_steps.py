@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from tests.test_mapping_synth import camera_track, observe, obstacle_profile, stair_profile
+from vio_graph.evaluation.map_accuracy import compare_to_truth
 from vio_graph.mapping.config import StepConfig
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.mapping.steps import (
     TerrainGeometry,
-    compare_to_truth,
     estimate_terrain_geometry,
     find_levels,
 )

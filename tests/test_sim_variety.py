@@ -148,7 +148,8 @@ def test_gait_is_feasible_over_rise_and_tread_range(kind, rise, tread, pattern) 
 
 
 def test_multi_flight_overhang_terrain_and_truth() -> None:
-    from vio_graph.mapping.steps import StepGeometry, TerrainGeometry, TerrainKind, compare_to_truth
+    from vio_graph.evaluation.map_accuracy import compare_to_truth
+    from vio_graph.mapping.steps import StepGeometry, TerrainGeometry, TerrainKind
 
     cfg = _with(load_scenario("upstair"), duration_s=1.0,
                 terrain={"n_steps": 4, "n_flights": 3, "flight_landing_m": 0.9,

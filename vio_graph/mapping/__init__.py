@@ -11,7 +11,6 @@ from vio_graph.mapping.steps import (
     RiserSegment,
     StepGeometry,
     TerrainGeometry,
-    compare_to_truth,
     estimate_terrain_geometry,
     find_levels,
 )
@@ -28,7 +27,6 @@ __all__ = [
     "StepGeometry",
     "TerrainGeometry",
     "TerrainMap2D",
-    "compare_to_truth",
     "estimate_terrain_geometry",
     "find_levels",
     "merge_points",

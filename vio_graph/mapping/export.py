@@ -231,7 +231,7 @@ def write_geometry_json(
     path: Path, geometry: TerrainGeometry, comparison: dict[str, Any] | None = None
 ) -> Path:
     """Write ``steps.json`` (schema in the module docstring), optionally with the
-    :func:`vio_graph.mapping.steps.compare_to_truth` result."""
+    :func:`vio_graph.evaluation.map_accuracy.compare_to_truth` result."""
     doc = geometry_to_dict(geometry, comparison)
     atomic_write_text(Path(path), json.dumps(doc, indent=2, allow_nan=False) + "\n")
     return Path(path)

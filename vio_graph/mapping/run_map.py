@@ -11,9 +11,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from vio_graph.evaluation.map_accuracy import compare_to_truth
 from vio_graph.mapping.config import MappingConfig
 from vio_graph.mapping.local_map import TerrainMap2D
-from vio_graph.mapping.steps import TerrainGeometry, compare_to_truth, estimate_terrain_geometry
+from vio_graph.mapping.steps import TerrainGeometry, estimate_terrain_geometry
 from vio_graph.recording.metadata import TerrainInfo
 from vio_graph.types import TerrainKind
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +20,18 @@ MODE_STYLE = {
     "icp_only": ("tab:red", ":"),
 }
 
+
+
+@contextlib.contextmanager
+def _quiet_axes_log():
+    """Silence matplotlib's 'Ignoring fixed x limits to fulfill fixed data aspect' notice."""
+    logger = logging.getLogger("matplotlib.axes._base")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 def _plt():
     import matplotlib
@@ -105,7 +119,15 @@ def overview_figure(
         if limits is not None:
             ax.set_xlim(*limits[0])
             ax.set_ylim(*limits[1])
-        ax.set_aspect("equal", adjustable="datalim")
+        # equal aspect by widening one axis range around the zoom (matplotlib logs that it
+        # overrides one of the limits we set: intended, so not logged)
+        with _quiet_axes_log():
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.apply_aspect()
+        xlim, ylim = ax.get_xlim(), ax.get_ylim()  # keep them: drawing re-applies the aspect
+        ax.set_aspect("equal", adjustable="box")
+        ax.set_xlim(*xlim)
+        ax.set_ylim(*ylim)
         ax.set_xlabel("x forward (m)")
         ax.set_ylabel("z up (m)")
         ax.set_title(f"{title}: {body} path (sagittal plane)")

@@ -43,12 +43,14 @@ from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.online import SafetyEstimate, SafetyMonitor
 
 MAX_LEAD_S = 1.0  # a warning up to this long before a near-trip's minimum counts for it
+TRUTH_STEP_S = 0.002  # time step of the true near-trip search (the truth is interpolated)
 
 
 def true_safety(gt: GroundTruth, terrain: TerrainInfo, t_s: NDArray[np.float64],
                 landing: NDArray[np.bool_], config: SafetyConfig) -> dict[str, NDArray] | None:
-    """Per frame: true clearance and nosing clearance (m), true near-trip flag, and the true
-    placement (N, 4) at the ``landing`` frames (NaN elsewhere). None without a true profile
+    """Per frame: true clearance and nosing clearance (m) and the true placement (N, 4) at
+    the ``landing`` frames (NaN elsewhere); on a dense grid ``t_dense_s`` (TRUTH_STEP_S): the
+    true nosing clearance and near-trip flag. None without a true profile
     or true heel / toe."""
     if len(terrain.profile_xz_m) < 2 or not {"heel", "toe", "ankle"} <= set(gt.trajectories):
         return None
@@ -73,14 +75,23 @@ def true_safety(gt: GroundTruth, terrain: TerrainInfo, t_s: NDArray[np.float64],
             placement[k] = placement_on_tread(h, o, win, config.tread_tolerance_m,
                                               config.edge_max_gap_m,
                                               config.edge_min_rise_m).as_array()
+    # near-trips on a dense time grid: the minimum over a nosing falls between frames
+    td = np.arange(t[0], t[-1], TRUTH_STEP_S) if n > 1 else t.copy()
+    heel_d, toe_d = gt.trajectories["heel"].xz_at(td), gt.trajectories["toe"].xz_at(td)
+    nos_d = np.full(len(td), np.nan)
+    for k in range(len(td)):
+        e = next_edge_index(ed, float(toe_d[k, 0]) - config.toe_pass_m)
+        if e >= 0:
+            nos_d[k] = edge_clearance(heel_d[k], toe_d[k], edges[e],
+                                      config.sole_thickness_m).distance_m
     dt = 0.01
-    v_toe = (gt.trajectories["toe"].xz_at(t + dt) - gt.trajectories["toe"].xz_at(t - dt)) / (
-        2 * dt)
-    swing = ~true_stance(gt.trajectories["ankle"], t)
+    toe_traj = gt.trajectories["toe"]
+    v_toe = (toe_traj.xz_at(td + dt) - toe_traj.xz_at(td - dt)) / (2 * dt)
+    swing = ~true_stance(gt.trajectories["ankle"], td)
     forward = (v_toe[:, 0] > config.warning_min_forward_speed_mps) & (v_toe[:, 1] > -v_toe[:, 0])
-    near = swing & forward & (nosing < config.near_trip_m)
+    near = swing & forward & (nos_d < config.near_trip_m)
     return {"clearance_m": clear, "nosing_clearance_m": nosing, "placement": placement,
-            "near_trip": near}
+            "t_dense_s": td, "near_trip": near, "nosing_dense_m": nos_d}
 
 
 def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -91,15 +102,17 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
 
 
 def near_trip_scores(t_s: NDArray[np.float64], warning: NDArray[np.bool_],
-                     near_trip: NDArray[np.bool_], true_clearance_m: NDArray[np.float64]
-                     ) -> dict[str, Any]:
-    """Precision / recall of the warning runs against the true near-trip events, and the
-    shortest lead (ms) of a warned event (see the module docstring)."""
+                     t_true_s: NDArray[np.float64], near_trip: NDArray[np.bool_],
+                     true_clearance_m: NDArray[np.float64]) -> dict[str, Any]:
+    """Precision / recall of the warning runs (frame times ``t_s``) against the true
+    near-trip events (flags and clearance at ``t_true_s``), and the shortest lead (ms) of a
+    warned event (see the module docstring)."""
     t = np.asarray(t_s, dtype=float)
+    td = np.asarray(t_true_s, dtype=float)
     events = []
     for a, b in _runs(near_trip):
         k = a + int(np.argmin(true_clearance_m[a:b + 1]))
-        events.append((t[a], t[b], t[k]))
+        events.append((td[a], td[b], td[k]))
     warns = [(t[a], t[b]) for a, b in _runs(warning)]
     tp = sum(any(ws <= e_end and we >= e_start - MAX_LEAD_S for e_start, e_end, _ in events)
              for ws, we in warns)
@@ -145,8 +158,8 @@ def score_mode(est: list[SafetyEstimate | None], truth: dict[str, NDArray],
         block["within_1sigma"] = float(np.mean(z <= 1)) if z.size else float("nan")
         block["within_2sigma"] = float(np.mean(z <= 2)) if z.size else float("nan")
     warn = np.array([bool(s.near_trip_warning) if s is not None else False for s in est])
-    block["near_trip"] = near_trip_scores(t_s, warn, truth["near_trip"][:n],
-                                          truth["nosing_clearance_m"][:n])
+    block["near_trip"] = near_trip_scores(t_s, warn, truth["t_dense_s"], truth["near_trip"],
+                                          truth["nosing_dense_m"])
     landing = np.array([bool(s.landing) if s is not None else False for s in est])
     pl_est = np.array([s.placement if s is not None else np.full(4, np.nan) for s in est])
     pl_err = (pl_est - truth["placement"][:n])[landing][:, :2]

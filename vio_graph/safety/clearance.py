@@ -363,22 +363,46 @@ def _edge_distance(ax: float, az: float, bx: float, bz: float, ex: float, ez: fl
     return d, qx, qz
 
 
+def _point_segment(px: float, pz: float, ax: float, az: float, bx: float, bz: float
+                   ) -> float:
+    dx, dz = bx - ax, bz - az
+    L2 = dx * dx + dz * dz
+    s = 0.0 if L2 == 0 else min(max(((px - ax) * dx + (pz - az) * dz) / L2, 0.0), 1.0)
+    return ((px - ax - s * dx) ** 2 + (pz - az - s * dz) ** 2) ** 0.5
+
+
+def _segments_cross(ax: float, az: float, bx: float, bz: float, cx: float, cz: float,
+                    dx: float, dz: float) -> bool:
+    def orient(px: float, pz: float, qx: float, qz: float, rx: float, rz: float) -> float:
+        return (qx - px) * (rz - pz) - (qz - pz) * (rx - px)
+
+    o1, o2 = orient(ax, az, bx, bz, cx, cz), orient(ax, az, bx, bz, dx, dz)
+    o3, o4 = orient(cx, cz, dx, dz, ax, az), orient(cx, cz, dx, dz, bx, bz)
+    return o1 * o2 < 0 and o3 * o4 < 0
+
+
 def predicted_min_edge_clearance(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike,
                                  velocity_xz_mps: ArrayLike, horizon_s: float, steps: int,
                                  edge_xz_m: ArrayLike, sole_thickness_m: float = 0.0) -> float:
-    """Minimum of :func:`edge_clearance` over the horizon, the foot translated at the constant
-    velocity ``velocity_xz_mps`` (m; NaN if the velocity is unknown)."""
+    """Minimum of :func:`edge_clearance` over the horizon [0, ``horizon_s``], the foot
+    translated at the constant velocity ``velocity_xz_mps`` (m; NaN if the velocity is
+    unknown). Exact over the continuous horizon: relative to the foot, the edge moves along
+    the segment e - v tau, so the minimum is the distance between that segment and the foot
+    segment (negative, the deepest signed value at the horizon's ends or 0, when they cross).
+    ``steps`` is unused (kept for a sampled variant's signature)."""
     vx, vz = (float(v) for v in np.asarray(velocity_xz_mps, dtype=float))
     if not (np.isfinite(vx) and np.isfinite(vz)):
         return float("nan")
     ax, az = (float(v) for v in np.asarray(heel_xz_m, dtype=float))
     bx, bz = (float(v) for v in np.asarray(toe_xz_m, dtype=float))
     ex, ez = (float(v) for v in np.asarray(edge_xz_m, dtype=float))
-    best = np.inf
-    for i in range(steps + 1):
-        tau = horizon_s * i / steps
-        ox, oz = vx * tau, vz * tau
-        best = min(best, _edge_distance(ax + ox, az + oz, bx + ox, bz + oz, ex, ez)[0])
+    fx, fz = ex - vx * horizon_s, ez - vz * horizon_s  # the edge at the horizon, foot-relative
+    d0 = _edge_distance(ax, az, bx, bz, ex, ez)[0]
+    d1 = _edge_distance(ax, az, bx, bz, fx, fz)[0]
+    best = min(d0, d1, _point_segment(ax, az, ex, ez, fx, fz),
+               _point_segment(bx, bz, ex, ez, fx, fz))
+    if _segments_cross(ax, az, bx, bz, ex, ez, fx, fz):
+        best = min(best, 0.0)
     return best - sole_thickness_m
 
 

@@ -10,7 +10,7 @@ relative-pose part of the sigma.
 Sigma. The clearance is a function of the foot minus the terrain point. Both were placed by
 the filter: the terrain at the keyframes that saw it, the foot now. The drift between the two
 is modelled as a random walk, so its covariance is |P_now - P_keyframes| (eigenvalues made
-non-negative); projected on the distance's gradient, plus the bin's height scatter (standard
+non-negative), weighted by ``relative_pose_scale``; projected on the distance's gradient, plus the bin's height scatter (standard
 error over keyframes, floored at ``map_sigma_m``) and ``foot_sigma_m`` (docs/method.md).
 
 Motion model of the prediction: the foot outline translates at the toe's velocity, a finite
@@ -105,9 +105,10 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
     return out
 
 
-def _psd_abs(M: NDArray[np.float64]) -> list[list[float]]:
-    """|M| for a symmetric 2x2 M: its eigenvalues made non-negative (closed form)."""
-    a, b, c = float(M[0, 0]), float((M[0, 1] + M[1, 0]) / 2), float(M[1, 1])
+def _psd_abs(M: NDArray[np.float64], scale: float = 1.0) -> list[list[float]]:
+    """|scale M| for a symmetric 2x2 M: its eigenvalues made non-negative (closed form)."""
+    a, b, c = (scale * float(M[0, 0]), scale * float((M[0, 1] + M[1, 0]) / 2),
+               scale * float(M[1, 1]))
     m, r = (a + c) / 2, (((a - c) / 2) ** 2 + b * b) ** 0.5
     l1, l2 = m + r, m - r
     if l2 >= 0 or r == 0:  # already non-negative (or a multiple of I)
@@ -239,7 +240,7 @@ class SafetyMonitor:
         sig = NAN
         if c.bin >= 0:
             k = i0 + c.bin
-            rel = _psd_abs(P - self.map.bin_cov(k))
+            rel = _psd_abs(P - self.map.bin_cov(k), cfg.relative_pose_scale)
             sig = clearance_sigma(c.normal_xz, rel, float(full.sigma_m[k]), cfg.foot_sigma_m)
         # the next edge ahead
         nc = nsig = ed = edsig = NAN
@@ -248,7 +249,7 @@ class SafetyMonitor:
             ec = edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
             kb = int(np.clip(np.searchsorted(full.x_lo_m, edges.xz_m[e, 0]) - 1, 0,
                              len(full) - 1))
-            rel = _psd_abs(P - self.map.bin_cov(kb))
+            rel = _psd_abs(P - self.map.bin_cov(kb), cfg.relative_pose_scale)
             nc = ec.distance_m
             nsig = clearance_sigma(ec.normal_xz, rel, float(full.sigma_m[kb]), cfg.foot_sigma_m)
             ed = float(edges.xz_m[e, 0] - toe[0])

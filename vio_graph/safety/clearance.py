@@ -191,12 +191,13 @@ class Edges:
 
 
 def find_edges(prof: HeightProfile, min_rise_m: float, max_gap_m: float,
-               slope_step_m: float = 0.004) -> Edges:
+               slope_step_m: float = 0.004, max_transition_bin_m: float = 0.03) -> Edges:
     """Height changes of at least ``min_rise_m`` between consecutive known bins.
 
     Consecutive bin pairs whose height changes by more than ``slope_step_m`` with the same
     sign form one transition (a smoothed nosing spreads over a few bins); pairs more than
-    ``max_gap_m`` apart are not connected. The edge sits at the transition's largest jump,
+    ``max_gap_m`` apart are not connected, and a bin wider than ``max_transition_bin_m`` (a
+    tread of the exact profile) ends the transition. The edge sits at the transition's largest jump,
     on its upper side, at the height of the transition's top.
     """
     n = len(prof)
@@ -213,7 +214,8 @@ def find_edges(prof: HeightProfile, min_rise_m: float, max_gap_m: float,
             i += 1
             continue
         j = i
-        while j + 1 < n - 1 and step[j + 1] == s:
+        while (j + 1 < n - 1 and step[j + 1] == s
+               and prof.x_hi_m[j + 1] - prof.x_lo_m[j + 1] <= max_transition_bin_m):
             j += 1
         rise = float(prof.z_m[j + 1] - prof.z_m[i])
         if abs(rise) >= min_rise_m:

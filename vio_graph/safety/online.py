@@ -2,8 +2,9 @@
 clearance, placement and the terrain ahead against it (no look-ahead, no I/O).
 
 Map. Each keyframe's sagittal profile (camera-relative, world axes) is placed at the
-keyframe's camera position; per x bin (``SafetyConfig.bin_m``) the top of the keyframe's points
-is averaged over keyframes. A bin is used once ``min_keyframes`` keyframes saw it. Each bin
+keyframe's camera position; per x bin (``SafetyConfig.bin_m``) the keyframe's surface height
+is the mean of its points within 1 cm of the bin's highest point (a riser's bin keeps its
+top), averaged over keyframes. A bin is used once ``min_keyframes`` keyframes saw it. Each bin
 also keeps the mean camera position covariance of the keyframes that saw it, for the
 relative-pose part of the sigma.
 
@@ -133,8 +134,9 @@ def forward_motion(v_xz_mps: NDArray[np.float64], cfg: SafetyConfig) -> bool:
 class OnlineHeightMap:
     """Per-x-bin terrain height from keyframe profiles (growable arrays, bin ``bin_m``)."""
 
-    def __init__(self, bin_m: float, min_keyframes: int) -> None:
+    def __init__(self, bin_m: float, min_keyframes: int, top_band_m: float = 0.01) -> None:
         self.bin_m = bin_m
+        self.top_band_m = top_band_m
         self.min_keyframes = min_keyframes
         self._i0 = 0  # bin index of array element 0
         self._sum = np.zeros(0)
@@ -171,7 +173,12 @@ class OnlineHeightMap:
         order = np.lexsort((-pts[:, 1], idx))  # by bin, highest point first
         idx, z = idx[order], pts[order, 1]
         first = np.r_[True, idx[1:] != idx[:-1]]
-        bins, top = idx[first], z[first]
+        bins = idx[first]
+        grp = np.cumsum(first) - 1  # group of every point
+        top_each = z[first][grp]
+        band = z >= top_each - self.top_band_m  # points near the bin's top (riser bins)
+        top = (np.bincount(grp[band], weights=z[band], minlength=bins.size)
+               / np.bincount(grp[band], minlength=bins.size))
         self._grow(int(bins.min()), int(bins.max()))
         j = bins - self._i0
         self._sum[j] += top

@@ -197,7 +197,8 @@ def find_edges(prof: HeightProfile, min_rise_m: float, max_gap_m: float,
     Consecutive bin pairs whose height changes by more than ``slope_step_m`` with the same
     sign form one transition (a smoothed nosing spreads over a few bins); pairs more than
     ``max_gap_m`` apart are not connected, and a bin wider than ``max_transition_bin_m`` (a
-    tread of the exact profile) ends the transition. The edge sits at the transition's largest jump,
+    tread of the exact profile) ends the transition; two transitions of the same sign at most
+    ``max_transition_bin_m`` apart are one (a riser with a noisy bin in it). The edge sits at the transition's largest jump,
     on its upper side, at the height of the transition's top.
     """
     n = len(prof)
@@ -206,10 +207,10 @@ def find_edges(prof: HeightProfile, min_rise_m: float, max_gap_m: float,
     dz = np.diff(prof.z_m)
     gap = prof.x_lo_m[1:] - prof.x_hi_m[:-1]
     step = np.where(gap <= max_gap_m, np.sign(dz) * (np.abs(dz) > slope_step_m), 0)
-    out_xz, out_rise = [], []
+    runs: list[list[int]] = []  # [first pair, last pair, sign]
     i = 0
     while i < n - 1:
-        s = step[i]
+        s = int(step[i])
         if s == 0:
             i += 1
             continue
@@ -217,15 +218,24 @@ def find_edges(prof: HeightProfile, min_rise_m: float, max_gap_m: float,
         while (j + 1 < n - 1 and step[j + 1] == s
                and prof.x_hi_m[j + 1] - prof.x_lo_m[j + 1] <= max_transition_bin_m):
             j += 1
-        rise = float(prof.z_m[j + 1] - prof.z_m[i])
-        if abs(rise) >= min_rise_m:
-            k = i + int(np.argmax(np.abs(dz[i:j + 1])))
-            if s > 0:  # rising in +x: nosing at the left end of the upper bin
-                out_xz.append((prof.x_lo_m[k + 1], prof.z_m[j + 1]))
-            else:  # falling: nosing at the right end of the upper bin
-                out_xz.append((prof.x_hi_m[k], prof.z_m[i]))
-            out_rise.append(rise)
+        # a riser interrupted by a bin or two of noise: continue the previous run
+        if (runs and runs[-1][2] == s
+                and prof.x_hi_m[i] - prof.x_lo_m[runs[-1][1] + 1] <= max_transition_bin_m):
+            runs[-1][1] = j
+        else:
+            runs.append([i, j, s])
         i = j + 1
+    out_xz, out_rise = [], []
+    for i, j, s in runs:
+        rise = float(prof.z_m[j + 1] - prof.z_m[i])
+        if abs(rise) < min_rise_m:
+            continue
+        k = i + int(np.argmax(np.abs(dz[i:j + 1]) * (np.sign(dz[i:j + 1]) == s)))
+        if s > 0:  # rising in +x: nosing at the left end of the upper bin
+            out_xz.append((prof.x_lo_m[k + 1], prof.z_m[j + 1]))
+        else:  # falling: nosing at the right end of the upper bin
+            out_xz.append((prof.x_hi_m[k], prof.z_m[i]))
+        out_rise.append(rise)
     if not out_xz:
         return Edges(np.zeros((0, 2)), np.zeros(0))
     return Edges(np.asarray(out_xz, float), np.asarray(out_rise, float))

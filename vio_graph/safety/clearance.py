@@ -198,8 +198,8 @@ def find_edges(prof: HeightProfile, min_rise_m: float, max_gap_m: float,
     sign form one transition (a smoothed nosing spreads over a few bins); pairs more than
     ``max_gap_m`` apart are not connected, and a bin wider than ``max_transition_bin_m`` (a
     tread of the exact profile) ends the transition; two transitions of the same sign at most
-    ``max_transition_bin_m`` apart are one (a riser with a noisy bin in it). The edge sits at the transition's largest jump,
-    on its upper side, at the height of the transition's top.
+    ``max_transition_bin_m`` apart are one (a riser with a noisy bin in it). The edge sits at
+    the transition's largest jump, on its upper side, at the height of the transition's top.
     """
     n = len(prof)
     if n < 2:

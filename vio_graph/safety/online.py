@@ -11,8 +11,9 @@ relative-pose part of the sigma.
 Sigma. The clearance is a function of the foot minus the terrain point. Both were placed by
 the filter: the terrain at the keyframes that saw it, the foot now. The drift between the two
 is modelled as a random walk, so its covariance is |P_now - P_keyframes| (eigenvalues made
-non-negative), weighted by ``relative_pose_scale``; projected on the distance's gradient, plus the bin's height scatter (standard
-error over keyframes, floored at ``map_sigma_m``) and ``foot_sigma_m`` (docs/method.md).
+non-negative), weighted by ``relative_pose_scale``; projected on the distance's gradient,
+plus the bin's height scatter (standard error over keyframes, floored at ``map_sigma_m``) and
+``foot_sigma_m`` (docs/method.md).
 
 Motion model of the prediction: the foot outline translates at the toe's velocity, a finite
 difference of the last two frames' toe estimates, constant over ``horizon_s``.

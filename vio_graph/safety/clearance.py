@@ -20,6 +20,7 @@ is subtracted from the distance. Definitions (docs/method.md, "Foot-to-terrain s
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -208,23 +209,24 @@ def find_edges(prof: HeightProfile, min_rise_m: float, max_gap_m: float,
     gap = prof.x_lo_m[1:] - prof.x_hi_m[:-1]
     step = np.where(gap <= max_gap_m, np.sign(dz) * (np.abs(dz) > slope_step_m), 0)
     runs: list[list[int]] = []  # [first pair, last pair, sign]
-    i = 0
-    while i < n - 1:
-        s = int(step[i])
-        if s == 0:
-            i += 1
-            continue
-        j = i
-        while (j + 1 < n - 1 and step[j + 1] == s
-               and prof.x_hi_m[j + 1] - prof.x_lo_m[j + 1] <= max_transition_bin_m):
+    width = (prof.x_hi_m - prof.x_lo_m).tolist()
+    nz = np.flatnonzero(step).tolist()  # only the changing pairs are visited
+    step_l = step.tolist()
+    p = 0
+    while p < len(nz):
+        i = j = nz[p]
+        s = int(step_l[i])
+        p += 1
+        while (j + 1 < n - 1 and step_l[j + 1] == s
+               and width[j + 1] <= max_transition_bin_m):
             j += 1
+            p += 1
         # a riser interrupted by a bin or two of noise: continue the previous run
         if (runs and runs[-1][2] == s
                 and prof.x_hi_m[i] - prof.x_lo_m[runs[-1][1] + 1] <= max_transition_bin_m):
             runs[-1][1] = j
         else:
             runs.append([i, j, s])
-        i = j + 1
     out_xz, out_rise = [], []
     for i, j, s in runs:
         rise = float(prof.z_m[j + 1] - prof.z_m[i])
@@ -336,7 +338,8 @@ def placement_on_tread(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightPr
     return Placement(dist(nosing, heel), dist(nosing, toe), dist(back, heel), dist(back, toe))
 
 
-def clearance_sigma(normal_xz: NDArray[np.float64], cov_relative_m2: NDArray[np.float64],
+def clearance_sigma(normal_xz: NDArray[np.float64],
+                    cov_relative_m2: NDArray[np.float64] | Sequence[Sequence[float]],
                     map_sigma_m: float, foot_sigma_m: float) -> float:
     """Linearised 1-sigma (m) of a clearance: the foot-minus-terrain position covariance
     (2, 2) projected on the distance's gradient ``normal_xz``, plus the terrain height's

@@ -199,8 +199,9 @@ class OnlineHeightMap:
         mean = self._sum[j] / n if j.size else np.zeros(0)
         var = np.maximum(self._sq[j] / n - mean**2, 0.0) if j.size else np.zeros(0)
         sig = np.sqrt(var / n + map_sigma_m**2)
-        x_lo = (j + self._i0) * self.bin_m
-        self._profile = HeightProfile(x_lo, x_lo + self.bin_m, mean, sig)
+        x_lo = ((j + self._i0) * self.bin_m).astype(np.float64)
+        self._profile = HeightProfile(x_lo, x_lo + self.bin_m, np.asarray(mean, np.float64),
+                                      np.asarray(sig, np.float64))
         c = self._cov[j] / n[:, None] if j.size else np.zeros((0, 3))
         self._cov_bins = np.stack([np.stack([c[:, 0], c[:, 1]], 1),
                                    np.stack([c[:, 1], c[:, 2]], 1)], 1)

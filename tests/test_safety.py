@@ -62,6 +62,21 @@ def test_step_clearance_riser_face_and_nosing() -> None:
         -0.02)
 
 
+def test_penetration_is_the_shortest_way_out() -> None:
+    """A heel 3 cm into the riser behind it (stair descent, the upper tread at 0.30 m): the
+    foot is 3 cm in the terrain sideways, not 15 cm below the upper tread's top."""
+    down = HeightProfile.from_polyline([(-1.0, 0.3), (0.5, 0.3), (0.5, 0.15), (2.0, 0.15)])
+    c = foot_clearance([0.47, 0.15], [0.72, 0.15], down)
+    assert c.distance_m == pytest.approx(-0.03)
+    c = foot_clearance([0.47, 0.20], [0.72, 0.20], down)  # 5 cm above the lower tread
+    assert c.distance_m == pytest.approx(-0.03)
+    # a toe 1 cm into a riser and 2 cm below the tread it stands on: out via the nosing corner
+    up = HeightProfile.from_polyline(STEP)
+    c = foot_clearance([0.53, 0.13], [0.79, 0.13], up)
+    assert c.distance_m == pytest.approx(-np.hypot(0.01, 0.02))  # toe to (0.78, 0.15)
+    np.testing.assert_allclose(c.terrain_xz_m, [0.78, 0.15])
+
+
 def test_edges_and_placement_on_a_stair() -> None:
     prof = HeightProfile.from_polyline(STEP)
     edges = find_edges(prof, 0.04, 0.15)

@@ -89,13 +89,32 @@ NO_CLEARANCE = Clearance(float("nan"), np.full(2, np.nan), np.full(2, np.nan), -
 
 def _point_to_columns(p: NDArray[np.float64], prof: HeightProfile):
     """Signed distance (B,) from point ``p`` (2,) to each column and the closest column
-    points (B, 2): outside, the Euclidean distance; inside, minus the depth below the top."""
-    cx = np.minimum(np.maximum(p[0], prof.x_lo_m), prof.x_hi_m)
-    cz = np.minimum(p[1], prof.z_m)
-    d = np.hypot(p[0] - cx, p[1] - cz)
-    inside = (p[0] >= prof.x_lo_m) & (p[0] <= prof.x_hi_m) & (p[1] < prof.z_m)
-    d = np.where(inside, p[1] - prof.z_m, d)
-    cz = np.where(inside, prof.z_m, cz)
+    points (B, 2): outside, the Euclidean distance; inside, minus the distance to the nearest
+    way out of the terrain (to the nearest point of a column top above the point, or sideways
+    to where the terrain is lower than the point, or past the known bins' ends), set on the
+    column holding the point."""
+    px, pz = float(p[0]), float(p[1])
+    cx = np.minimum(np.maximum(px, prof.x_lo_m), prof.x_hi_m)
+    cz = np.minimum(pz, prof.z_m)
+    d = np.hypot(px - cx, pz - cz)
+    inside = (px >= prof.x_lo_m) & (px <= prof.x_hi_m) & (pz < prof.z_m)
+    if not inside.any():
+        return d, np.stack([cx, cz], axis=1)
+    k = int(np.flatnonzero(inside)[0])
+    low = prof.z_m <= pz
+    left = np.concatenate([prof.x_hi_m[low & (prof.x_hi_m <= px)], [prof.x_lo_m[0]]])
+    right = np.concatenate([prof.x_lo_m[low & (prof.x_lo_m >= px)], [prof.x_hi_m[-1]]])
+    xl, xr = float(left.max()), float(right.min())
+    # up: the nearest point on the tops of the columns higher than the point
+    high = np.flatnonzero(prof.z_m > pz)
+    tx = np.minimum(np.maximum(px, prof.x_lo_m[high]), prof.x_hi_m[high])
+    up = np.hypot(tx - px, prof.z_m[high] - pz)
+    j = int(np.argmin(up))
+    depth = [float(up[j]), px - xl, xr - px]
+    way = int(np.argmin(depth))
+    d = np.where(inside, np.inf, d)
+    d[k] = -depth[way]
+    cx[k], cz[k] = [(float(tx[j]), float(prof.z_m[high[j]])), (xl, pz), (xr, pz)][way]
     return d, np.stack([cx, cz], axis=1)
 
 
@@ -103,7 +122,8 @@ def _corners_to_segment(a: NDArray[np.float64], b: NDArray[np.float64],
                         corners: NDArray[np.float64]):
     """Signed distance (C,) from points ``corners`` (C, 2) to segment a-b and the closest
     segment points (C, 2); negative when the corner lies above the segment within its x span
-    (the terrain pokes through the foot)."""
+    (the terrain pokes through the foot): minus the smaller of the lift and the slide that
+    would free it."""
     ab = b - a
     L2 = float(ab @ ab)
     s = np.zeros(len(corners)) if L2 == 0 else np.minimum(np.maximum(((corners - a) @ ab) / L2,
@@ -114,7 +134,10 @@ def _corners_to_segment(a: NDArray[np.float64], b: NDArray[np.float64],
     if x1 - x0 > 1e-12:
         z_line = a[1] + (corners[:, 0] - a[0]) * ab[1] / ab[0]
         above = (corners[:, 0] > x0) & (corners[:, 0] < x1) & (corners[:, 1] > z_line)
-        d = np.where(above, -(corners[:, 1] - z_line), d)
+        # the way out: lift the foot, or slide it until the corner leaves its x span
+        depth = np.minimum(corners[:, 1] - z_line,
+                           np.minimum(corners[:, 0] - x0, x1 - corners[:, 0]))
+        d = np.where(above, -depth, d)
     return d, q
 
 
@@ -273,9 +296,9 @@ def placement_on_tread(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightPr
                        tolerance_m: float, max_gap_m: float, min_rise_m: float) -> Placement:
     """Placement of the foot on the tread it stands on.
 
-    The tread is the run of known bins within ``tolerance_m`` of the highest bin under the
-    foot's x span (the surface the foot rests on; a heel overhanging a nosing stands on the
-    upper tread). At each end, the next known bin (within
+    The tread is the run of known bins within ``tolerance_m`` of the bin under the foot's x
+    span whose height is nearest the sole's (the lower of heel and toe): the surface the foot
+    rests on (a heel overhanging a nosing stands on the upper tread). At each end, the next known bin (within
     ``max_gap_m``) decides: lower by ``min_rise_m`` or more -> that end is the nosing, higher
     -> the back edge (riser of the next step up); no such bin -> unknown.
     """
@@ -287,8 +310,9 @@ def placement_on_tread(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightPr
     under = np.flatnonzero((prof.x_hi_m >= xa) & (prof.x_lo_m <= xb))
     if under.size == 0:
         return NO_PLACEMENT
-    z_top = prof.z_m[under].max()  # the foot rests on the highest surface under it
-    top = under[prof.z_m[under] >= z_top - tolerance_m]
+    z_sole = min(heel[1], toe[1])  # the foot rests on the surface nearest its sole
+    z_top = prof.z_m[under][np.argmin(np.abs(prof.z_m[under] - z_sole))]
+    top = under[np.abs(prof.z_m[under] - z_top) <= tolerance_m]
     mid = (prof.x_lo_m[top] + prof.x_hi_m[top]) / 2
     c = int(top[np.argmin(np.abs(mid - (xa + xb) / 2))])
     z0 = prof.z_m[c]
@@ -374,7 +398,7 @@ def _edge_distance(ax: float, az: float, bx: float, bz: float, ex: float, ez: fl
     if abs(dx) > 1e-12 and min(ax, bx) < ex < max(ax, bx):
         z_line = az + (ex - ax) * dz / dx
         if ez > z_line:
-            d = -(ez - z_line)
+            d = -min(ez - z_line, ex - min(ax, bx), max(ax, bx) - ex)
     return d, qx, qz
 
 

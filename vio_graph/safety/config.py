@@ -58,10 +58,9 @@ class SafetyConfig(BaseModel):
     map_sigma_m: float = Field(
         default=0.003, ge=0, description="1-sigma floor of a map bin's height, m")
     relative_pose_scale: float = Field(
-        default=0.1, ge=0, le=1, description="weight of the filter's covariance growth "
-        "|P_now - P_keyframes| in the clearance variance: the filter's covariance grows "
-        "faster in a swing than the foot-to-mapped-terrain error does (fitted on simulated "
-        "upstair trials, docs/method.md)")
+        default=1.0, ge=0, le=1, description="weight of the filter's covariance growth "
+        "|P_now - P_keyframes| in the clearance variance (1: the random-walk model as it is; "
+        "lower it where the filter's covariance is known to be conservative)")
     foot_sigma_m: float = Field(
         default=0.004, ge=0, description="1-sigma of the foot outline relative to the camera "
         "(joint angles, leg lengths), m")

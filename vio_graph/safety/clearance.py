@@ -299,8 +299,8 @@ def placement_on_tread(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightPr
     The tread is the run of known bins within ``tolerance_m`` of the bin under the foot's x
     span whose height is nearest the sole's (the lower of heel and toe): the surface the foot
     rests on (a heel overhanging a nosing stands on the upper tread). At each end, the next
-    known bin (within ``max_gap_m``) decides: lower by ``min_rise_m`` or more -> that end is the nosing, higher
-    -> the back edge (riser of the next step up); no such bin -> unknown.
+    known bin (within ``max_gap_m``) decides: lower by ``min_rise_m`` or more -> that end is
+    the nosing, higher -> the back edge (riser of the next step up); no such bin -> unknown.
     """
     if len(prof) == 0:
         return NO_PLACEMENT

@@ -269,7 +269,10 @@ class SafetyMonitor:
             v = (toe - self._prev[1]) / (t_s - self._prev[0])
         self._prev = (t_s, toe)
         pred = pred_edge = NAN
-        if np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
+        if (np.all(np.isfinite(v)) and np.isfinite(c.distance_m)
+                and float(np.hypot(*v)) * cfg.horizon_s < 1e-3):
+            pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
+        elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
             reach = np.abs(v[0]) * cfg.horizon_s
             swept = full.window(x0 - reach, x1 + reach)
             pred = predicted_min_clearance(heel, toe, v, cfg.horizon_s, cfg.horizon_steps,

@@ -187,13 +187,11 @@ def test_near_trip_scores_count_events_warnings_and_lead() -> None:
 
 @pytest.fixture(scope="module")
 def near_trip_run(tmp_path_factory: pytest.TempPathFactory):
-    """A 4 s upstair trial whose toe clears the nosings by 1.2 cm (a near-trip per step)."""
+    """4 s of configs/upstair_near_trip.yaml: the toe clears the nosings by 1.2 cm."""
     from vio_graph.pipeline import run_recording
     from vio_graph.sim import load_scenario, simulate
 
-    cfg = load_scenario("upstair")
-    cfg = cfg.model_copy(update={"duration_s": 4.0, "gait": cfg.gait.model_copy(
-        update={"toe_clearance_nosing_m": 0.012})})
+    cfg = load_scenario("upstair_near_trip").model_copy(update={"duration_s": 4.0})
     tmp = tmp_path_factory.mktemp("near_trip")
     rec = simulate(cfg, seed=1, out_dir=tmp / "rec")
     return run_recording(rec, tmp / "out", PipelineConfig(), progress=False, visualize=False)

@@ -150,11 +150,13 @@ class OnlineHeightMap:
     def _grow(self, i_min: int, i_max: int) -> None:
         n = self._sum.shape[0]
         if n == 0:
-            self._i0 = i_min
-        lo = min(self._i0, i_min)
-        hi = max(self._i0 + n, i_max + 1)
-        if lo == self._i0 and hi == self._i0 + n:
+            self._i0 = i_min - int(np.ceil(1.0 / self.bin_m))
+        if n and self._i0 <= i_min and i_max < self._i0 + n:
             return
+        # grow by at least 1 m at the side that needs it (amortised, not per keyframe)
+        margin = int(np.ceil(1.0 / self.bin_m))
+        lo = self._i0 if i_min >= self._i0 else i_min - margin
+        hi = self._i0 + n if i_max < self._i0 + n else i_max + 1 + margin
         pad_l, pad_r = self._i0 - lo, hi - (self._i0 + n)
         self._sum = np.pad(self._sum, (pad_l, pad_r))
         self._sq = np.pad(self._sq, (pad_l, pad_r))
@@ -220,6 +222,7 @@ class SafetyMonitor:
         self.config = config
         self.map = OnlineHeightMap(config.bin_m, config.min_keyframes)
         self._edges: Edges | None = None
+        self._edge_summary: tuple[int, float, float] = (0, NAN, NAN)
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, toe)
         self._in_stance = False
 
@@ -238,6 +241,7 @@ class SafetyMonitor:
         full = self.map.profile(cfg.map_sigma_m)
         if self._edges is None:
             self._edges = find_edges(full, cfg.edge_min_rise_m, cfg.edge_max_gap_m)
+            self._edge_summary = self._edges.summary()
         edges = self._edges
         x0, x1 = min(heel[0], toe[0]) - cfg.window_m, max(heel[0], toe[0]) + cfg.window_m
         i0 = int(np.searchsorted(full.x_hi_m, x0, side="left"))
@@ -292,7 +296,7 @@ class SafetyMonitor:
             placement = placement_on_tread(
                 heel, toe, win, cfg.tread_tolerance_m, cfg.edge_max_gap_m,
                 cfg.edge_min_rise_m).as_array()
-        n_steps, rise, tread = edges.summary()
+        n_steps, rise, tread = self._edge_summary
         return SafetyEstimate(
             clearance_m=c.distance_m, clearance_sigma_m=sig,
             toe_line_xz_m=np.stack([c.foot_xz_m, c.terrain_xz_m]),

@@ -131,6 +131,16 @@ def _print_ate_table(metrics: dict) -> None:
             f"map ({m['source_mode']} poses): rise error {m['rise_error_mm']:.1f} mm, "
             f"tread error {m.get('tread_error_mm') or float('nan'):.1f} mm"
         )
+    for mode, c in metrics.get("clearance", {}).items():  # safety outputs (docs/outputs.md)
+        nt = c["near_trip"]
+        pl = metrics["placement"][mode]["error_mm"]["median"]
+        w1 = c.get("within_1sigma", float("nan"))
+        typer.echo(
+            f"toe clearance ({mode}): error median {c['error_mm']['median']:.1f} mm, p95 "
+            f"{c['error_mm']['p95']:.1f} mm, within 1 sigma {w1:.2f}; "
+            f"near-trips {nt['events']}, warnings {nt['warnings']}, recall {nt['recall']:.2f}, "
+            f"min lead {nt['min_lead_ms']:.0f} ms; placement error median {pl:.1f} mm"
+        )
 
 
 def _print_health(metrics: dict) -> None:

@@ -22,6 +22,7 @@ from vio_graph.filter.config import FilterConfig
 from vio_graph.frontend.config import FrontendConfig
 from vio_graph.keyframes import KeyframeConfig
 from vio_graph.mapping.config import MappingConfig
+from vio_graph.safety.config import SafetyConfig
 from vio_graph.smoother.config import SmootherConfig
 
 
@@ -72,6 +73,7 @@ class PipelineConfig(_Section):
     mapping: MappingConfig = MappingConfig()
     output: OutputConfig = OutputConfig()
     inject: InjectedFaultsConfig = InjectedFaultsConfig()
+    safety: SafetyConfig = SafetyConfig()
 
 
 def load_config(path: str | Path | None = None) -> PipelineConfig:

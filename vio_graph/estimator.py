@@ -37,7 +37,10 @@ Per frame, in the paper's order (Section II):
   5. knee from the camera and the knee <- camera extrinsic; ankle, heel, toe by forward
      kinematics from the thigh IMU and the joint encoders (Fig. 3);
   6. keyframe decision (the map is built after the replay from the keyframe profiles,
-     vio_graph/mapping/).
+     vio_graph/mapping/);
+  7. safety outputs (``config.safety``, vio_graph/safety/): toe clearance to the terrain
+     seen so far, the next edge ahead, the predicted minimum clearance and near-trip
+     warning, the placement on the tread at landing (``FrameEstimate.safety``).
 """
 
 from __future__ import annotations
@@ -79,6 +82,7 @@ from vio_graph.kinematics import (
 )
 from vio_graph.protocol import FrameRecord, ImuStep
 from vio_graph.recording.metadata import RecordingMetadata
+from vio_graph.safety.online import SafetyMonitor
 from vio_graph.types import (
     ContactSample,
     CornerObservation,
@@ -199,6 +203,8 @@ class OnlineEstimator:
         #: this frame's level-surface tilt measurement (None if no level surface was found)
         self.surface_tilt: SurfaceTilt | None = None
         self.keyframes = KeyframeSelector(config.keyframes)
+        #: toe clearance, placement, terrain ahead (vio_graph/safety/online.py), or None
+        self.safety = SafetyMonitor(config.safety) if config.safety.enabled else None
         self._p0 = (np.zeros(2) if initial_camera_xz_m is None
                     else np.asarray(initial_camera_xz_m, float))
         self._last_imu: ImuSample | None = None  # in shank axes, pitch offset applied
@@ -393,6 +399,14 @@ class OnlineEstimator:
         # 6. keyframes
         is_kf = self.keyframes.is_keyframe(t, camera_xz)
         self._prev_frame = (t, camera_xz)
+        # 7. safety outputs: the foot against the terrain seen so far (safety/online.py)
+        safety = None
+        if self.safety is not None:
+            t0 = time.perf_counter()
+            safety = self.safety.update(
+                t, camera_xz, state.cov_position_m2, pts.heel_xz_m[0], pts.toe_xz_m[0],
+                self._in_stance, result.profile_xz_m if is_kf else None)
+            timings["safety"] = (time.perf_counter() - t0) * 1e3
         status = state.status
         if result.displacement is None and status is EstimateStatus.FUSED:
             status = EstimateStatus.IMU_ONLY
@@ -409,6 +423,7 @@ class OnlineEstimator:
             terrain=result.terrain,
             is_keyframe=is_kf,
             timings_ms=timings,
+            safety=safety,
         )
         # the attitude the displacement and observations were built with (level-aided)
         R_world_imu = self.R_world_imu(t)

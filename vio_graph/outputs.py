@@ -36,14 +36,19 @@ def write_trajectories(
 
 def write_frames_csv(path: Path, lg: FrameLog) -> Path:
     """One row per frame: time, status, terrain, displacement, rejection reason, keyframe,
-    front-end time (ms), stance."""
+    front-end time (ms), stance, then the safety outputs (vio_graph/safety/online.CSV_COLUMNS,
+    empty cells where unknown; docs/outputs.md)."""
+    from vio_graph.safety.online import CSV_COLUMNS, csv_values
+
     rows = ["frame,timestamp_s,status,terrain,displacement,rejection,keyframe,frontend_ms,"
-            "stance"]
+            "stance," + ",".join(CSV_COLUMNS)]
     for k, t in enumerate(lg.t_s):
+        safety = lg.safety[k] if k < len(lg.safety) else None
         rows.append(
             f"{k},{t:.6f},{lg.status[k]},{lg.terrain[k]},{int(lg.displacement_ok[k])},"
             f"{lg.rejection[k].replace(',', ';')},{int(lg.is_keyframe[k])},"
-            f"{lg.timings_ms[k].get('frontend_total', float('nan')):.4f},{int(lg.in_stance[k])}"
+            f"{lg.timings_ms[k].get('frontend_total', float('nan')):.4f},{int(lg.in_stance[k])},"
+            + ",".join(csv_values(safety))
         )
     atomic_write_text(path, "\n".join(rows) + "\n")
     return path
@@ -100,6 +105,7 @@ def latency_summary(lg: FrameLog, estimator_latency_ms: Mapping[str, Any]) -> di
         "kinematics": stats_ms(kin),
         "imu_propagation_per_frame": stats_ms(imu),
         "per_frame_total": stats_ms(total),
+        "safety": stats_ms(col("safety")),
     }
     for stage in ("projection", "smoothing", "terrain", "corners", "icp"):
         out[f"frontend_{stage}"] = stats_ms(col(f"frontend_{stage}"))

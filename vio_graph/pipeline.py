@@ -152,6 +152,13 @@ def _run_into(
 
     # evaluate
     metrics = _evaluate(rec, config, replay, lg, paths, wall_s)
+    safety_truth = None
+    if rec.groundtruth is not None and config.safety.enabled:
+        from vio_graph.evaluation.safety import safety_metrics
+
+        block, safety_truth = safety_metrics(config.safety, rec.groundtruth,
+                                             rec.metadata.terrain, lg, paths)
+        metrics.update(block)
 
     # map, from the best refined keyframe poses available
     map_mode = "batch" if "batch" in camera else "smoother" if "smoother" in camera else "filter"
@@ -172,6 +179,11 @@ def _run_into(
         from vio_graph.viz.plots import plot_run_overview
 
         files.append(plot_run_overview(out / "plots" / "overview.png", rec, t_s, paths, metrics))
+        if config.safety.enabled and lg.safety:
+            from vio_graph.viz.plots import plot_clearance
+
+            files.append(plot_clearance(out / "plots" / "clearance.png", t_s, lg.safety,
+                                        safety_truth))
     replay.view.paths(paths)
     viz.close()
     if isinstance(viz, Visualizer):

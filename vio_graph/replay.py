@@ -52,6 +52,8 @@ class FrameLog:
     timings_ms: list[dict[str, float]] = field(default_factory=list)
     in_stance: list[bool] = field(default_factory=list)  # stance anchor used at this frame
     displacements: list[Displacement2D] = field(default_factory=list)  # the front end's
+    safety: list[Any] = field(default_factory=list)  # SafetyEstimate | None (safety/online.py)
+    cov_position_m2: list[NDArray[np.float64]] = field(default_factory=list)  # filter, m^2
 
     def add(self, record: FrameRecord) -> None:
         est, res = record.estimate, record.frontend
@@ -70,6 +72,8 @@ class FrameLog:
         if est.is_keyframe:
             self.profiles[len(self.t_s) - 1] = res.profile_xz_m
         self.timings_ms.append(est.timings_ms)
+        self.safety.append(est.safety)
+        self.cov_position_m2.append(est.cov_position_m2)
 
 
 def replay_order(rec: Recording) -> tuple[NDArray[np.int8], NDArray[np.int64]]:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
-from typing import Literal, NamedTuple, TypeAlias
+from typing import Any, Literal, NamedTuple, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
@@ -154,3 +154,6 @@ class FrameEstimate:
     terrain: TerrainKind = TerrainKind.UNKNOWN
     is_keyframe: bool = False
     timings_ms: dict[str, float] = field(default_factory=dict)
+    #: toe clearance, placement and terrain ahead (vio_graph/safety/online.SafetyEstimate);
+    #: None when ``safety.enabled`` is off
+    safety: Any = None

@@ -256,3 +256,42 @@ def plot_batch_summary(path: Path, rows: list[dict[str, Any]]) -> Path:
         fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return Path(path)
+
+
+def plot_clearance(path: Path, t_s: NDArray[np.float64], safety: list[Any],
+                   truth: dict[str, NDArray[np.float64]] | None) -> Path:
+    """plots/clearance.png: the online toe clearance (cm) with its 1-sigma band, the predicted
+    minimum clearance, the truth when known, near-trip warnings and landings."""
+    plt = _plt()
+
+    def col(name: str) -> NDArray[np.float64]:
+        return np.array([getattr(s, name) if s is not None else np.nan for s in safety], float)
+
+    t = np.asarray(t_s, dtype=float)[: len(safety)]
+    c, sig = col("clearance_m") * 100, col("clearance_sigma_m") * 100
+    fig, ax = plt.subplots(figsize=(10, 3.6))
+    ax.fill_between(t, c - sig, c + sig, color="tab:blue", alpha=0.25, lw=0,
+                    label="estimate 1-sigma")
+    ax.plot(t, c, color="tab:blue", lw=1.2, label="clearance (filter)")
+    ax.plot(t, col("predicted_min_clearance_m") * 100, color="tab:orange", lw=0.8,
+            label="predicted minimum over the horizon")
+    if truth is not None:
+        ax.plot(t, truth["clearance_m"][: len(t)] * 100, color="k", lw=1.0, ls="--",
+                label="truth")
+    warn = np.array([bool(s.near_trip_warning) if s is not None else False for s in safety])
+    land = np.array([bool(s.landing) if s is not None else False for s in safety])
+    if warn.any():
+        ax.plot(t[warn], np.zeros(int(warn.sum())), "rv", ms=4, label="near-trip warning")
+    for x in t[land]:
+        ax.axvline(x, color="0.6", lw=0.6)
+    ax.axhline(2.0, color="r", lw=0.6, ls=":")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("foot clearance (cm)")
+    ax.set_ylim(-3, 30)
+    ax.legend(loc="upper right", fontsize=7, ncol=3)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(Path(path), suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    return Path(path)

@@ -57,7 +57,8 @@ class RunView:
 
     def frame(self, i: int, frame: DepthFrame, record: FrameRecord) -> None:
         """One depth frame: camera pose and depth image, cloud, slice, corner features, ICP
-        matches, the leg (estimated and true) and the status / toe-error time series."""
+        matches, the leg (estimated and true), the clearance line (foot to nearest terrain
+        point) and the status / toe-error / clearance time series."""
         viz, est, res = self.viz, record.estimate, record.frontend
         viz.set_time(est.timestamp_s)
         cam_xyz = np.array([est.camera_xz_m[0], 0.0, est.camera_xz_m[1]])
@@ -83,6 +84,15 @@ class RunView:
             np.vstack([est.knee_xz_m, est.ankle_xz_m, est.heel_xz_m, est.toe_xz_m, est.ankle_xz_m]),
         )
         viz.log_scalar("status/fused", float(est.status is EstimateStatus.FUSED))
+        sf = est.safety
+        if sf is not None and np.all(np.isfinite(sf.toe_line_xz_m)):
+            # the clearance: a line from the closest foot point to the closest terrain point
+            viz.log_segments("clearance", sf.toe_line_xz_m[:1], sf.toe_line_xz_m[1:],
+                             (255, 0, 160) if sf.near_trip_warning else (0, 200, 120))
+            viz.log_scalar("clearance_cm/estimate", 100 * sf.clearance_m)
+            viz.log_scalar("clearance_cm/sigma", 100 * sf.clearance_sigma_m)
+        if sf is not None and np.isfinite(sf.predicted_min_clearance_m):
+            viz.log_scalar("clearance_cm/predicted_min", 100 * sf.predicted_min_clearance_m)
         if self.gt is not None:
             pts = [
                 self.gt.trajectories[b].xz_at(est.timestamp_s)

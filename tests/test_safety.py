@@ -1,0 +1,244 @@
+"""Foot-to-terrain safety outputs (vio_graph/safety/): geometry against analytic cases, the
+online map, sigma calibration, the near-trip warning on a simulated trial, frames.csv, config."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from vio_graph.config import PipelineConfig, load_config
+from vio_graph.errors import ConfigError
+from vio_graph.evaluation.safety import near_trip_scores
+from vio_graph.outputs import write_frames_csv
+from vio_graph.replay import FrameLog
+from vio_graph.safety.clearance import (
+    HeightProfile,
+    edge_clearance,
+    find_edges,
+    foot_clearance,
+    placement_on_tread,
+    predicted_min_clearance,
+    predicted_min_edge_clearance,
+)
+from vio_graph.safety.config import SafetyConfig
+from vio_graph.safety.online import CSV_COLUMNS, SafetyEstimate, SafetyMonitor
+
+FLAT = HeightProfile.from_polyline([(-1.0, 0.0), (3.0, 0.0)])
+# one step up: riser at x = 0.5 (0.15 m), tread 0.28 m, second riser at 0.78 up to 0.30 m
+STEP = [(-1.0, 0.0), (0.5, 0.0), (0.5, 0.15), (0.78, 0.15), (0.78, 0.30), (2.0, 0.30)]
+
+
+def test_flat_floor_clearance_is_the_lowest_foot_point_height() -> None:
+    assert foot_clearance([0.0, 0.03], [0.25, 0.03], FLAT).distance_m == pytest.approx(0.03)
+    c = foot_clearance([0.0, 0.05], [0.25, 0.012], FLAT)
+    assert c.distance_m == pytest.approx(0.012)
+    np.testing.assert_allclose(c.terrain_xz_m, [0.25, 0.0])
+    np.testing.assert_allclose(c.normal_xz, [0.0, 1.0])
+    # toe 1 cm into the floor: minus the penetration; the sole's thickness is subtracted
+    assert foot_clearance([0.0, 0.05], [0.25, -0.01], FLAT).distance_m == pytest.approx(-0.01)
+    assert foot_clearance([0.0, 0.03], [0.25, 0.03], FLAT, 0.01).distance_m == pytest.approx(
+        0.02)
+
+
+def test_step_clearance_riser_face_and_nosing() -> None:
+    prof = HeightProfile.from_polyline(STEP)
+    # toe 5 cm behind the riser, 10 cm above the lower floor: the riser face is closest
+    c = foot_clearance([0.20, 0.10], [0.45, 0.10], prof)
+    assert c.distance_m == pytest.approx(0.05)
+    np.testing.assert_allclose(c.terrain_xz_m, [0.5, 0.10])
+    # the toe passes over the nosing (0.5, 0.15) 2 cm above it: the nosing is closest
+    c = foot_clearance([0.25, 0.17], [0.50, 0.17], prof)
+    assert c.distance_m == pytest.approx(0.02)
+    np.testing.assert_allclose(c.terrain_xz_m, [0.5, 0.15])
+    assert edge_clearance([0.40, 0.17], [0.65, 0.17], [0.5, 0.15]).distance_m == pytest.approx(
+        0.02)
+    # a foot sunk below the nosing level across the riser: negative (the step pokes through)
+    assert foot_clearance([0.40, 0.13], [0.65, 0.13], prof).distance_m < 0
+    assert edge_clearance([0.40, 0.13], [0.65, 0.13], [0.5, 0.15]).distance_m == pytest.approx(
+        -0.02)
+
+
+def test_penetration_is_the_shortest_way_out() -> None:
+    """A heel 3 cm into the riser behind it (stair descent, the upper tread at 0.30 m): the
+    foot is 3 cm in the terrain sideways, not 15 cm below the upper tread's top."""
+    down = HeightProfile.from_polyline([(-1.0, 0.3), (0.5, 0.3), (0.5, 0.15), (2.0, 0.15)])
+    c = foot_clearance([0.47, 0.15], [0.72, 0.15], down)
+    assert c.distance_m == pytest.approx(-0.03)
+    c = foot_clearance([0.47, 0.20], [0.72, 0.20], down)  # 5 cm above the lower tread
+    assert c.distance_m == pytest.approx(-0.03)
+    # a toe 1 cm into a riser and 2 cm below the tread it stands on: out via the nosing corner
+    up = HeightProfile.from_polyline(STEP)
+    c = foot_clearance([0.53, 0.13], [0.79, 0.13], up)
+    assert c.distance_m == pytest.approx(-np.hypot(0.01, 0.02))  # toe to (0.78, 0.15)
+    np.testing.assert_allclose(c.terrain_xz_m, [0.78, 0.15])
+
+
+def test_edges_and_placement_on_a_stair() -> None:
+    prof = HeightProfile.from_polyline(STEP)
+    edges = find_edges(prof, 0.04, 0.15)
+    np.testing.assert_allclose(edges.xz_m, [[0.5, 0.15], [0.78, 0.30]])
+    n, rise, tread = edges.summary()
+    assert (n, rise, tread) == (2, pytest.approx(0.15), pytest.approx(0.28))
+    # standing on the first tread, heel 3 cm past its nosing, foot 0.2 m long
+    p = placement_on_tread([0.53, 0.15], [0.73, 0.15], prof, 0.015, 0.15, 0.04)
+    np.testing.assert_allclose(p.as_array(), [0.03, 0.23, 0.25, 0.05], atol=1e-12)
+    # a heel overhanging the nosing by 1 cm still stands on the upper tread
+    p = placement_on_tread([0.49, 0.15], [0.74, 0.15], prof, 0.015, 0.15, 0.04)
+    assert p.heel_to_nosing_m == pytest.approx(-0.01)
+    # stair down (mirror): the nosing is the tread's far end
+    down = HeightProfile.from_polyline([(-1.0, 0.3), (0.5, 0.3), (0.5, 0.15), (0.78, 0.15),
+                                        (0.78, 0.0), (2.0, 0.0)])
+    np.testing.assert_allclose(find_edges(down, 0.04, 0.15).xz_m, [[0.5, 0.3], [0.78, 0.15]])
+    p = placement_on_tread([0.53, 0.15], [0.76, 0.15], down, 0.015, 0.15, 0.04)
+    np.testing.assert_allclose(p.as_array(), [0.25, 0.02, 0.03, 0.26], atol=1e-12)
+
+
+def test_prediction_constant_velocity() -> None:
+    prof = HeightProfile.from_polyline(STEP)
+    # the toe 10 cm behind the riser, 5 cm above the floor, moving forward at 1 m/s: after
+    # 0.1 s it touches the riser face, so the minimum over 0.2 s is below zero
+    heel, toe = [0.15, 0.05], [0.40, 0.05]
+    assert predicted_min_clearance(heel, toe, [0.0, 0.0], 0.2, 10, prof) == pytest.approx(0.05)
+    assert predicted_min_clearance(heel, toe, [1.0, 0.0], 0.2, 10, prof) <= 0.0
+    assert predicted_min_clearance(heel, toe, [1.0, 0.0], 0.05, 10, prof) == pytest.approx(0.05)
+    # edge prediction is exact over the continuous horizon: the toe passes 1.2 cm below the
+    # nosing's height at 2 m/s while rising; the min is reached between any 5 samples
+    d = predicted_min_edge_clearance([0.2, 0.162], [0.45, 0.162], [2.0, 0.0], 0.2, 5,
+                                     [0.5, 0.15])
+    assert d == pytest.approx(0.012)
+
+
+def _keyframes(mon: SafetyMonitor, profile: list, rng, n: int, noise_m: float,
+               cov_m2) -> None:
+    xs = np.linspace(-0.2, 1.6, 400)
+    prof = HeightProfile.from_polyline(profile)
+    z = np.array([prof.z_m[np.clip(np.searchsorted(prof.x_hi_m, x), 0, len(prof) - 1)]
+                  for x in xs])
+    cam = np.array([0.0, 0.5])
+    for k in range(n):
+        pts = np.stack([xs, z + rng.normal(0, noise_m, xs.size)], 1) - cam
+        mon.update(0.01 * k, cam, cov_m2, [-0.5, 0.2], [-0.25, 0.2], False, pts)
+
+
+def test_online_map_clearance_matches_the_analytic_step() -> None:
+    cfg = SafetyConfig(bin_m=0.005, min_keyframes=2)
+    mon = SafetyMonitor(cfg)
+    rng = np.random.default_rng(0)
+    _keyframes(mon, STEP, rng, 1, 0.0, np.eye(2) * 1e-6)
+    # one keyframe: not enough support, the clearance is unknown
+    s = mon.update(1.0, [0.0, 0.5], np.eye(2) * 1e-6, [0.2, 0.10], [0.45, 0.10], False)
+    assert np.isnan(s.clearance_m)
+    _keyframes(mon, STEP, rng, 3, 0.001, np.eye(2) * 1e-6)
+    s = mon.update(1.0, [0.0, 0.5], np.eye(2) * 1e-6, [0.2, 0.10], [0.45, 0.10], False)
+    assert s.clearance_m == pytest.approx(0.05, abs=0.006)  # one 5 mm bin
+    assert s.steps_seen == 2 and s.mean_rise_m == pytest.approx(0.15, abs=0.005)
+    assert s.edge_distance_m == pytest.approx(0.05, abs=0.006)
+    # the toe crossing the nosing, 3 cm above it
+    s = mon.update(1.1, [0.0, 0.5], np.eye(2) * 1e-6, [0.27, 0.18], [0.52, 0.18], False)
+    assert s.clearance_m == pytest.approx(0.03, abs=0.003)
+    assert s.nosing_clearance_m == pytest.approx(0.03, abs=0.003)
+    # the foot lands: placement on the first tread (heel 3 cm past the nosing)
+    s = mon.update(1.2, [0.0, 0.5], np.eye(2) * 1e-6, [0.53, 0.15], [0.73, 0.15], True)
+    assert s.landing
+    np.testing.assert_allclose(s.placement, [0.03, 0.23, 0.25, 0.05], atol=0.006)
+    s = mon.update(1.3, [0.0, 0.5], np.eye(2) * 1e-6, [0.53, 0.15], [0.73, 0.15], True)
+    assert not s.landing and np.all(np.isnan(s.placement))
+
+
+def test_sigma_is_calibrated_on_a_synthetic_case() -> None:
+    """Foot position error drawn from the covariance growth P_now - P_keyframe, map heights
+    from keyframes with 1 mm noise: the 1-sigma band holds ~68 % and 2 sigma ~95 %. (With map
+    noise comparable to the pose's, the minimum over the bins under the foot biases the
+    clearance low by about two bin sigmas: docs/method.md.)"""
+    rng = np.random.default_rng(1)
+    cfg = SafetyConfig(relative_pose_scale=1.0, foot_sigma_m=0.0, map_sigma_m=0.0,
+                       min_keyframes=4, bin_m=0.01)
+    P_kf, P_now = np.diag([1e-6, 1e-6]), np.diag([4e-6, 1.7e-5])
+    z_err = []
+    for _ in range(400):
+        mon = SafetyMonitor(cfg)
+        _keyframes(mon, [(-1.0, 0.0), (3.0, 0.0)], rng, 6, 0.001, P_kf)
+        true_h = 0.05
+        err = rng.multivariate_normal([0, 0], P_now - P_kf)
+        s = mon.update(1.0, [0.0, 0.5], P_now, np.array([0.2, true_h]) + err,
+                       np.array([0.45, true_h]) + err, False)
+        z_err.append((s.clearance_m - true_h) / s.clearance_sigma_m)
+    z = np.abs(np.asarray(z_err))
+    assert 0.61 <= np.mean(z <= 1) <= 0.75
+    assert 0.91 <= np.mean(z <= 2) <= 0.99
+
+
+def test_near_trip_scores_count_events_warnings_and_lead() -> None:
+    t = np.arange(0, 3, 0.03)
+    td = np.arange(0, 3, 0.002)
+    clear = np.full(td.size, 0.1)
+    clear[(td > 1.0) & (td < 1.02)] = 0.01  # one near-trip, minimum at ~1.01 s
+    warn = (t > 0.85) & (t < 1.0)  # warned from 0.87 s
+    warn |= (t > 2.0) & (t < 2.1)  # a false alarm
+    s = near_trip_scores(t, warn, td, clear < 0.02, clear)
+    assert s["events"] == 1 and s["warnings"] == 2
+    assert s["precision"] == 0.5 and s["recall"] == 1.0
+    assert s["min_lead_ms"] == pytest.approx(1000 * (1.002 - 0.87), abs=5)
+
+
+@pytest.fixture(scope="module")
+def near_trip_run(tmp_path_factory: pytest.TempPathFactory):
+    """4 s of configs/upstair_near_trip.yaml: the toe clears the nosings by 1.2 cm."""
+    from vio_graph.pipeline import run_recording
+    from vio_graph.sim import load_scenario, simulate
+
+    cfg = load_scenario("upstair_near_trip").model_copy(update={"duration_s": 4.0})
+    tmp = tmp_path_factory.mktemp("near_trip")
+    rec = simulate(cfg, seed=1, out_dir=tmp / "rec")
+    return run_recording(rec, tmp / "out", PipelineConfig(), progress=False, visualize=False)
+
+
+def test_near_trip_warned_on_a_simulated_trial(near_trip_run) -> None:
+    m = near_trip_run.metrics["clearance"]["filter"]
+    assert m["near_trip"]["events"] >= 1
+    assert m["near_trip"]["recall"] == 1.0  # every near-trip warned at or before its minimum
+    assert m["near_trip"]["min_lead_ms"] > 0
+    assert m["error_mm"]["p95"] < 20.0
+    assert (near_trip_run.out_dir / "plots" / "clearance.png").is_file()
+    assert near_trip_run.metrics["placement"]["filter"]["landings"] >= 1
+
+
+def test_frames_csv_round_trip(tmp_path: Path) -> None:
+    lg = FrameLog()
+    est = SafetyEstimate(0.0123, 0.004, np.zeros((2, 2)), float("nan"), float("nan"), -0.002,
+                         0.015, True, 0.31, 0.01, 3, 0.147, 0.28, True,
+                         np.array([0.03, 0.23, float("nan"), 0.05]))
+    for k, s in enumerate([est, None]):
+        lg.t_s.append(0.1 * k)
+        lg.status.append("fused")
+        lg.terrain.append("stair_up")
+        lg.displacement_ok.append(True)
+        lg.rejection.append("")
+        lg.is_keyframe.append(False)
+        lg.timings_ms.append({"frontend_total": 1.0})
+        lg.in_stance.append(False)
+        lg.safety.append(s)
+    rows = list(csv.DictReader(open(write_frames_csv(tmp_path / "frames.csv", lg))))
+    assert set(CSV_COLUMNS) <= set(rows[0])
+    r = rows[0]
+    assert float(r["clearance_m"]) == pytest.approx(0.0123)
+    assert float(r["predicted_min_clearance_m"]) == pytest.approx(-0.002)
+    assert r["near_trip_warning"] == "1" and r["landing"] == "1" and r["steps_seen"] == "3"
+    assert r["nosing_clearance_m"] == "" and r["heel_to_back_m"] == ""
+    assert float(r["toe_to_back_m"]) == pytest.approx(0.05)
+    assert all(rows[1][c] == "" for c in CSV_COLUMNS)
+
+
+def test_bad_safety_config_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ValidationError, match="horizon_s"):
+        PipelineConfig.model_validate({"safety": {"horizon_s": 2.0}})
+    with pytest.raises(ValidationError, match="tread_tolerance_m"):
+        SafetyConfig(tread_tolerance_m=0.05, edge_min_rise_m=0.04)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("safety:\n  near_trip_cm: 2\n")
+    with pytest.raises(ConfigError, match=r"bad\.yaml.*near_trip_cm|near_trip_cm.*bad\.yaml"):
+        load_config(bad)

@@ -1,0 +1,307 @@
+"""The per-frame safety monitor: a height map from what has been seen so far, and the foot's
+clearance, placement and the terrain ahead against it (no look-ahead, no I/O).
+
+Map. Each keyframe's sagittal profile (camera-relative, world axes) is placed at the
+keyframe's camera position; per x bin (``SafetyConfig.bin_m``) the keyframe's surface height
+is the mean of its points within 1 cm of the bin's highest point (a riser's bin keeps its
+top), averaged over keyframes. A bin is used once ``min_keyframes`` keyframes saw it. Each bin
+also keeps the mean camera position covariance of the keyframes that saw it, for the
+relative-pose part of the sigma.
+
+Sigma. The clearance is a function of the foot minus the terrain point. Both were placed by
+the filter: the terrain at the keyframes that saw it, the foot now. The drift between the two
+is modelled as a random walk, so its covariance is |P_now - P_keyframes| (eigenvalues made
+non-negative), weighted by ``relative_pose_scale``; projected on the distance's gradient,
+plus the bin's height scatter (standard error over keyframes, floored at ``map_sigma_m``) and
+``foot_sigma_m`` (docs/method.md).
+
+Motion model of the prediction: the foot outline translates at the toe's velocity, a finite
+difference of the last two frames' toe estimates, constant over ``horizon_s``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vio_graph.safety.clearance import (
+    NO_CLEARANCE,
+    Edges,
+    HeightProfile,
+    clearance_sigma,
+    coverage,
+    edge_clearance,
+    find_edges,
+    foot_clearance,
+    next_edge_index,
+    placement_on_tread,
+    predicted_min_clearance,
+    predicted_min_edge_clearance,
+)
+from vio_graph.safety.config import SafetyConfig
+
+NAN = float("nan")
+
+
+@dataclass(frozen=True)
+class SafetyEstimate:
+    """The safety outputs of one frame (metres, seconds; NaN where unknown).
+
+    ``clearance_m`` / ``clearance_sigma_m``: foot outline to the mapped terrain, and its
+    1-sigma; ``toe_line_xz_m`` (2, 2): the closest foot point and terrain point (the line the
+    viewer draws). ``nosing_clearance_m`` / ``nosing_sigma_m``: foot to the next edge ahead.
+    ``predicted_min_clearance_m``: minimum clearance over the horizon;
+    ``predicted_min_nosing_clearance_m``: the same to the next edge, which the
+    ``near_trip_warning`` tests.
+    ``edge_distance_m`` / ``edge_distance_sigma_m``: x from the toe to the next edge ahead;
+    ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
+    ``landing``: the foot landed at this frame; then ``placement`` (4,): heel and toe to the
+    tread's nosing, heel and toe to its back edge (else NaN).
+    """
+
+    clearance_m: float
+    clearance_sigma_m: float
+    toe_line_xz_m: NDArray[np.float64]
+    nosing_clearance_m: float
+    nosing_sigma_m: float
+    predicted_min_clearance_m: float
+    predicted_min_nosing_clearance_m: float
+    near_trip_warning: bool
+    edge_distance_m: float
+    edge_distance_sigma_m: float
+    steps_seen: int
+    mean_rise_m: float
+    mean_tread_m: float
+    landing: bool
+    placement: NDArray[np.float64]
+
+
+#: frames.csv columns of a SafetyEstimate, in order (docs/outputs.md)
+CSV_COLUMNS = ("clearance_m", "clearance_sigma_m", "nosing_clearance_m", "nosing_sigma_m",
+               "predicted_min_clearance_m", "predicted_min_nosing_clearance_m",
+               "near_trip_warning", "edge_distance_m",
+               "edge_distance_sigma_m", "steps_seen", "mean_rise_m", "mean_tread_m", "landing",
+               "heel_to_nosing_m", "toe_to_nosing_m", "heel_to_back_m", "toe_to_back_m")
+
+
+def csv_values(s: SafetyEstimate | None) -> list[str]:
+    """The frames.csv cells of ``s`` (empty cells for NaN or a frame without outputs)."""
+    if s is None:
+        return [""] * len(CSV_COLUMNS)
+    vals: list[float | int | bool] = [
+        s.clearance_m, s.clearance_sigma_m, s.nosing_clearance_m, s.nosing_sigma_m,
+        s.predicted_min_clearance_m, s.predicted_min_nosing_clearance_m,
+        s.near_trip_warning, s.edge_distance_m,
+        s.edge_distance_sigma_m, s.steps_seen, s.mean_rise_m, s.mean_tread_m, s.landing,
+        *s.placement]
+    out = []
+    for v in vals:
+        if isinstance(v, bool | np.bool_):
+            out.append(str(int(v)))
+        elif isinstance(v, int | np.integer):
+            out.append(str(int(v)))
+        else:
+            out.append("" if not np.isfinite(v) else f"{float(v):.5f}")
+    return out
+
+
+def _psd_abs(M: NDArray[np.float64], scale: float = 1.0) -> list[list[float]]:
+    """|scale M| for a symmetric 2x2 M: its eigenvalues made non-negative (closed form)."""
+    a, b, c = (scale * float(M[0, 0]), scale * float((M[0, 1] + M[1, 0]) / 2),
+               scale * float(M[1, 1]))
+    m, r = (a + c) / 2, (((a - c) / 2) ** 2 + b * b) ** 0.5
+    l1, l2 = m + r, m - r
+    if l2 >= 0 or r == 0:  # already non-negative (or a multiple of I)
+        return [[a, b], [b, c]] if l2 >= 0 else [[abs(a), 0.0], [0.0, abs(c)]]
+    # eigenvector of l1: (b, l1 - a) or (l1 - c, b)
+    vx, vz = (b, l1 - a) if abs(b) > 1e-30 or abs(l1 - a) > 1e-30 else (1.0, 0.0)
+    nrm = (vx * vx + vz * vz) ** 0.5
+    vx, vz = vx / nrm, vz / nrm
+    s1, s2 = abs(l1), abs(l2)
+    return [[s1 * vx * vx + s2 * vz * vz, (s1 - s2) * vx * vz],
+            [(s1 - s2) * vx * vz, s1 * vz * vz + s2 * vx * vx]]
+
+
+def forward_motion(v_xz_mps: NDArray[np.float64], cfg: SafetyConfig) -> bool:
+    """The toe moves forward faster than ``warning_min_forward_speed_mps`` and at least as
+    fast as it descends (a swing crossing an edge, not a landing)."""
+    vx, vz = float(v_xz_mps[0]), float(v_xz_mps[1])
+    return bool(np.isfinite(vx) and np.isfinite(vz)
+                and vx > cfg.warning_min_forward_speed_mps and vz > -vx)
+
+
+class OnlineHeightMap:
+    """Per-x-bin terrain height from keyframe profiles (growable arrays, bin ``bin_m``)."""
+
+    def __init__(self, bin_m: float, min_keyframes: int, top_band_m: float = 0.01) -> None:
+        self.bin_m = bin_m
+        self.top_band_m = top_band_m
+        self.min_keyframes = min_keyframes
+        self._i0 = 0  # bin index of array element 0
+        self._sum = np.zeros(0)
+        self._sq = np.zeros(0)
+        self._n = np.zeros(0, np.int64)
+        self._cov = np.zeros((0, 3))  # sum of (Pxx, Pxz, Pzz)
+        self._profile: HeightProfile | None = None
+        self._cov_bins = np.zeros((0, 2, 2))
+
+    def _grow(self, i_min: int, i_max: int) -> None:
+        n = self._sum.shape[0]
+        if n == 0:
+            self._i0 = i_min - int(np.ceil(1.0 / self.bin_m))
+        if n and self._i0 <= i_min and i_max < self._i0 + n:
+            return
+        # grow by at least 1 m at the side that needs it (amortised, not per keyframe)
+        margin = int(np.ceil(1.0 / self.bin_m))
+        lo = self._i0 if i_min >= self._i0 else i_min - margin
+        hi = self._i0 + n if i_max < self._i0 + n else i_max + 1 + margin
+        pad_l, pad_r = self._i0 - lo, hi - (self._i0 + n)
+        self._sum = np.pad(self._sum, (pad_l, pad_r))
+        self._sq = np.pad(self._sq, (pad_l, pad_r))
+        self._n = np.pad(self._n, (pad_l, pad_r))
+        self._cov = np.pad(self._cov, ((pad_l, pad_r), (0, 0)))
+        self._i0 = lo
+
+    def add_keyframe(self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike,
+                     cov_position_m2: ArrayLike) -> None:
+        """Add one keyframe: its profile (N, 2) relative to the camera, world axes, m."""
+        rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+        rel = rel[np.all(np.isfinite(rel), axis=1)]
+        if rel.shape[0] == 0:
+            return
+        pts = rel + np.asarray(camera_xz_m, dtype=float)[None]
+        idx = np.floor(pts[:, 0] / self.bin_m).astype(np.int64)
+        order = np.lexsort((-pts[:, 1], idx))  # by bin, highest point first
+        idx, z = idx[order], pts[order, 1]
+        first = np.r_[True, idx[1:] != idx[:-1]]
+        bins = idx[first]
+        grp = np.cumsum(first) - 1  # group of every point
+        top_each = z[first][grp]
+        band = z >= top_each - self.top_band_m  # points near the bin's top (riser bins)
+        top = (np.bincount(grp[band], weights=z[band], minlength=bins.size)
+               / np.bincount(grp[band], minlength=bins.size))
+        self._grow(int(bins.min()), int(bins.max()))
+        j = bins - self._i0
+        self._sum[j] += top
+        self._sq[j] += top * top
+        self._n[j] += 1
+        P = np.asarray(cov_position_m2, dtype=float)
+        self._cov[j] += np.array([P[0, 0], P[0, 1], P[1, 1]])
+        self._profile = None
+
+    def profile(self, map_sigma_m: float) -> HeightProfile:
+        """The bins seen by ``min_keyframes`` keyframes (cached until the next keyframe)."""
+        if self._profile is not None:
+            return self._profile
+        ok = self._n >= self.min_keyframes
+        j = np.flatnonzero(ok)
+        n = self._n[j].astype(float)
+        mean = self._sum[j] / n if j.size else np.zeros(0)
+        var = np.maximum(self._sq[j] / n - mean**2, 0.0) if j.size else np.zeros(0)
+        sig = np.sqrt(var / n + map_sigma_m**2)
+        x_lo = ((j + self._i0) * self.bin_m).astype(np.float64)
+        self._profile = HeightProfile(x_lo, x_lo + self.bin_m, np.asarray(mean, np.float64),
+                                      np.asarray(sig, np.float64))
+        c = self._cov[j] / n[:, None] if j.size else np.zeros((0, 3))
+        self._cov_bins = np.stack([np.stack([c[:, 0], c[:, 1]], 1),
+                                   np.stack([c[:, 1], c[:, 2]], 1)], 1)
+        return self._profile
+
+    def bin_cov(self, k: int) -> NDArray[np.float64]:
+        """Mean keyframe camera covariance (2, 2) of bin ``k`` of :meth:`profile`."""
+        return self._cov_bins[k]
+
+
+class SafetyMonitor:
+    """Per-frame safety outputs from the estimate (camera, covariance, heel, toe, stance)
+    and the keyframe profiles seen so far."""
+
+    def __init__(self, config: SafetyConfig) -> None:
+        self.config = config
+        self.map = OnlineHeightMap(config.bin_m, config.min_keyframes)
+        self._edges: Edges | None = None
+        self._edge_summary: tuple[int, float, float] = (0, NAN, NAN)
+        self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, toe)
+        self._in_stance = False
+
+    def update(self, t_s: float, camera_xz_m: ArrayLike, cov_position_m2: ArrayLike,
+               heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, in_stance: bool,
+               keyframe_profile_xz_m: ArrayLike | None = None) -> SafetyEstimate:
+        """The outputs of one frame; ``keyframe_profile_xz_m`` (N, 2, camera-relative) when
+        the frame is a keyframe (it joins the map before the frame's outputs are computed)."""
+        cfg = self.config
+        P = np.asarray(cov_position_m2, dtype=float)
+        if keyframe_profile_xz_m is not None:
+            self.map.add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
+            self._edges = None
+        heel = np.asarray(heel_xz_m, dtype=float)
+        toe = np.asarray(toe_xz_m, dtype=float)
+        full = self.map.profile(cfg.map_sigma_m)
+        if self._edges is None:
+            self._edges = find_edges(full, cfg.edge_min_rise_m, cfg.edge_max_gap_m)
+            self._edge_summary = self._edges.summary()
+        edges = self._edges
+        x0, x1 = min(heel[0], toe[0]) - cfg.window_m, max(heel[0], toe[0]) + cfg.window_m
+        i0 = int(np.searchsorted(full.x_hi_m, x0, side="left"))
+        win = full.window(x0, x1)
+        # clearance to the terrain and its sigma
+        c = foot_clearance(heel, toe, win, cfg.sole_thickness_m)
+        if coverage(heel, toe, win) < cfg.min_coverage:
+            c = NO_CLEARANCE  # the terrain under the foot has not been seen
+        sig = NAN
+        if c.bin >= 0:
+            k = i0 + c.bin
+            rel = _psd_abs(P - self.map.bin_cov(k), cfg.relative_pose_scale)
+            sig = clearance_sigma(c.normal_xz, rel, float(full.sigma_m[k]), cfg.foot_sigma_m)
+        # the next edge ahead
+        nc = nsig = ed = edsig = NAN
+        e = next_edge_index(edges, float(toe[0]) - cfg.toe_pass_m)
+        if e >= 0:
+            ec = edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
+            kb = int(np.clip(np.searchsorted(full.x_lo_m, edges.xz_m[e, 0]) - 1, 0,
+                             len(full) - 1))
+            rel = _psd_abs(P - self.map.bin_cov(kb), cfg.relative_pose_scale)
+            nc = ec.distance_m
+            nsig = clearance_sigma(ec.normal_xz, rel, float(full.sigma_m[kb]), cfg.foot_sigma_m)
+            ed = float(edges.xz_m[e, 0] - toe[0])
+            edsig = (rel[0][0] + cfg.foot_sigma_m**2 + (cfg.bin_m / 2) ** 2) ** 0.5
+        # prediction over the horizon and the near-trip warning
+        v = np.full(2, np.nan)
+        if self._prev is not None and t_s > self._prev[0]:
+            v = (toe - self._prev[1]) / (t_s - self._prev[0])
+        self._prev = (t_s, toe)
+        pred = pred_edge = NAN
+        if (np.all(np.isfinite(v)) and np.isfinite(c.distance_m)
+                and float(np.hypot(*v)) * cfg.horizon_s < 1e-3):
+            pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
+        elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
+            reach = np.abs(v[0]) * cfg.horizon_s
+            swept = full.window(x0 - reach, x1 + reach)
+            pred = predicted_min_clearance(heel, toe, v, cfg.horizon_s, cfg.horizon_steps,
+                                           swept, cfg.sole_thickness_m)
+        if e >= 0:
+            pred_edge = predicted_min_edge_clearance(heel, toe, v, cfg.horizon_s,
+                                                     cfg.horizon_steps, edges.xz_m[e],
+                                                     cfg.sole_thickness_m)
+        s = nsig if np.isfinite(nsig) else 0.0
+        warn = bool(not in_stance and np.isfinite(pred_edge) and forward_motion(v, cfg)
+                    and pred_edge - cfg.warning_sigma * s < cfg.near_trip_m)
+        # landing: the stance starts at this frame
+        landing = bool(in_stance and not self._in_stance)
+        self._in_stance = bool(in_stance)
+        placement = np.full(4, np.nan)
+        if landing:
+            placement = placement_on_tread(
+                heel, toe, win, cfg.tread_tolerance_m, cfg.edge_max_gap_m,
+                cfg.edge_min_rise_m).as_array()
+        n_steps, rise, tread = self._edge_summary
+        return SafetyEstimate(
+            clearance_m=c.distance_m, clearance_sigma_m=sig,
+            toe_line_xz_m=np.stack([c.foot_xz_m, c.terrain_xz_m]),
+            nosing_clearance_m=nc, nosing_sigma_m=nsig, predicted_min_clearance_m=pred,
+            predicted_min_nosing_clearance_m=pred_edge, near_trip_warning=warn,
+            edge_distance_m=ed, edge_distance_sigma_m=edsig,
+            steps_seen=n_steps, mean_rise_m=rise, mean_tread_m=tread, landing=landing,
+            placement=placement)

@@ -157,7 +157,8 @@ class Replay:
         for kind, i in zip(kinds, idx, strict=True):
             if kind == 0:
                 s = rec.imu.sample(int(i))
-                online.add_imu(s)
+                if not online.add_imu(s):
+                    continue  # stamp at or before the previous one: reported, not fused
                 s = online.latest_imu_shank_axes  # the sample in shank axes, for the peers
                 for b in self.baselines.values():
                     if not started:
@@ -474,6 +475,7 @@ def _run_into(
         },
     }
     metrics["health"] = replay.online.health_report()
+    metrics.update(replay.online.fault_report())  # imu_faults, time_offset, timestamps
     if gt is not None:
         metrics["terrain_classification"] = terrain_accuracy(
             rec.metadata.terrain.kind, lg.terrain, gt.frame_edge_visible)

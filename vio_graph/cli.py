@@ -461,6 +461,10 @@ def robustness(
     doc: Annotated[
         Path | None, typer.Option(help="Also write the report here (e.g. docs/robustness.md).")
     ] = None,
+    cases: Annotated[
+        str, typer.Option(help="'all' faults, or 'imu': clean, IMU spikes / saturation, "
+                          "camera-IMU offsets -30..30 ms, clock jitter.")
+    ] = "all",
 ) -> None:
     """Fault sweep: toe ATE of filter, smoother and batch for camera blackouts, dropped frames,
     wrong corner associations, depth corruption, IMU spikes/saturation, time offset and jitter.
@@ -468,13 +472,17 @@ def robustness(
     Example: vio-graph robustness --seeds 2 --jobs 2 --doc docs/robustness.md
     """
     from vio_graph.config import load_config
-    from vio_graph.robustness import FAULT_CASES, run_sweep, write_outputs
+    from vio_graph.robustness import FAULT_CASES, IMU_CASES, run_sweep, write_outputs
     from vio_graph.viz.progress import progress_bar
 
+    if cases not in ("all", "imu"):
+        raise VioGraphError(f"--cases: unknown {cases!r}; use all or imu")
+    case_list = FAULT_CASES if cases == "all" else IMU_CASES
     cfg = load_config(config)
     seed_list = list(range(1, seeds + 1))
-    with progress_bar(len(FAULT_CASES) * len(seed_list), "fault sweep", "run") as bar:
-        results = run_sweep(out, scenario, seed_list, cfg, jobs=jobs, progress=bar.update_to)
+    with progress_bar(len(case_list) * len(seed_list), "fault sweep", "run") as bar:
+        results = run_sweep(out, scenario, seed_list, cfg, case_list, jobs=jobs,
+                            progress=bar.update_to)
     command = "vio-graph robustness " + " ".join(sys.argv[2:])
     written = write_outputs(results, out, command.strip(), doc)
     typer.echo(written["markdown"].read_text())

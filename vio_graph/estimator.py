@@ -268,6 +268,8 @@ class OnlineEstimator:
         self.n_imu_inconsistent = 0  # displacements vision kept against the IMU
         self._joint_hist: deque[JointAngles] = deque(maxlen=32)
         self._frame_joints: JointAngles | None = None  # joints at a re-stamped frame time
+        self._imu_queue: deque[ImuSample] = deque()  # received, not yet propagated
+        self._filter_started = False
 
     def fault_report(self) -> dict:
         """IMU faults, time offset and timestamp problems, for metrics.json."""
@@ -294,13 +296,13 @@ class OnlineEstimator:
         sample = shank = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
         sample = self.corrected_imu(sample)  # the offset applied once, for the strapdown
-        if self._last_imu is None:
-            self.filter.initialise(sample.timestamp_s, self._p0)
-        elif sample.timestamp_s <= self._last_imu.timestamp_s:
+        if self._last_imu is not None and sample.timestamp_s <= self._last_imu.timestamp_s:
             raise EstimationError(f"IMU sample at {sample.timestamp_s:.6f} s is not after "
                                   f"{self._last_imu.timestamp_s:.6f} s")
-        else:
-            self.filter.propagate(sample)
+        self._imu_queue.append(sample)
+        # camera stamps late by td > 0: the filter stays td behind the IMU stream, so that a
+        # re-stamped frame finds it at (not past) its capture time
+        self._propagate_until(sample.timestamp_s - max(self.time_offset.applied_s, 0.0))
         if self.config.filter.stance_anchor:
             self._stance.add_imu(sample.timestamp_s, sample.accel_mps2, sample.gyro_radps,
                                  sagittal_rotation(sample.quat_wxyz),
@@ -379,6 +381,9 @@ class OnlineEstimator:
             raise EstimationError("a depth frame arrived before any IMU sample")
         frame = self._restamp(frame)
         t = frame.timestamp_s
+        self._propagate_until(t)
+        if not self._filter_started:
+            raise EstimationError("a depth frame arrived before any IMU sample")
         timings: dict[str, float] = {"imu_propagation": self._imu_ms}
         self._imu_ms = 0.0
         # 1. attitude at the frame time -> ground frame of eq. 2
@@ -448,6 +453,17 @@ class OnlineEstimator:
             timings_ms=timings,
         )
         return estimate, result
+
+    def _propagate_until(self, t_s: float) -> None:
+        """Propagate the filter with the queued IMU samples stamped at or before ``t_s``."""
+        q = self._imu_queue
+        while q and q[0].timestamp_s <= t_s + 1e-9:
+            s = q.popleft()
+            if self._filter_started:
+                self.filter.propagate(s)
+            else:
+                self.filter.initialise(s.timestamp_s, self._p0)
+                self._filter_started = True
 
     def _restamp(self, frame: DepthFrame) -> DepthFrame:
         """The frame on the IMU clock: stamp minus the applied camera-IMU offset (and the

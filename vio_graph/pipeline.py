@@ -154,7 +154,10 @@ class Replay:
         rec, online, lg = self.rec, self.online, self.log
         kinds, idx = replay_order(rec)
         started = False
+        waiting: list[int] = []  # frames whose capture time the IMU has not reached yet
         for kind, i in zip(kinds, idx, strict=True):
+            if kind != 2 and waiting:
+                self._release_frames(waiting, progress)
             if kind == 0:
                 s = rec.imu.sample(int(i))
                 if not online.add_imu(s):
@@ -176,9 +179,9 @@ class Replay:
             else:
                 if not started:
                     continue  # frames before the first IMU sample cannot be placed
-                self._frame(int(i))
-                if progress is not None:
-                    progress(int(i) + 1)
+                waiting.append(int(i))
+                self._release_frames(waiting, progress)
+        self._release_frames(waiting, progress, final=True)
         for name, sm in list(self.smoothers.items()):
             self._guard(name, sm.flush)
         if "batch" in self.smoothers:
@@ -186,6 +189,23 @@ class Replay:
             self._guard("batch", self.smoothers["batch"].solve)
             self.batch_solve_s = time.perf_counter() - t0
         return lg
+
+    def _release_frames(self, waiting: list[int], progress, final: bool = False) -> None:
+        """Process the waiting frames whose capture time on the IMU clock (stamp minus the
+        camera-IMU offset, filter/time_offset.py) is at most one IMU period after the latest
+        IMU sample (as without an offset); a negative offset (early camera stamps) holds a
+        frame until the IMU has caught up."""
+        online = self.online
+        period = 1.0 / self.rec.metadata.imu.rate_hz
+        while waiting:
+            t_imu = online.latest_imu.timestamp_s
+            t_cap = self.rec.frame_timestamps_s[waiting[0]] - online.time_offset.applied_s
+            if not final and t_cap > t_imu + period:
+                return
+            i = waiting.pop(0)
+            self._frame(i)
+            if progress is not None:
+                progress(i + 1)
 
     def _smoother_observations(self, res) -> list[LandmarkObservation]:
         """Landmark observations for the smoothers: the corner and, if enabled, the stance

@@ -129,7 +129,7 @@ class ImuFaultConfig(BaseModel):
         "displacement is fused",
     )
     velocity_fault_sigma_mps: float = Field(
-        default=1.0, gt=0,
+        default=0.4, gt=0,
         description="sigma (m/s) of the velocity jump one corrupted IMU sample can cause "
         "(a 30 m/s^2 spike at 100 Hz: 0.3 m/s); a wrong corner association (a stair step in "
         "one frame, ~5 m/s over 33 ms) stays far outside it",

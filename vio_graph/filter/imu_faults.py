@@ -7,10 +7,16 @@ spikes to any such threshold):
 * **Saturation** (:class:`ImuFaultMonitor`): an axis at or beyond ``saturation_margin`` of the
   range declared in the recording's metadata (``imu.accel_range_mps2``,
   ``imu.gyro_range_radps``) is clipped; its true value lies beyond the rail by an unknown
-  amount. The sample is kept (the clipped value is the best lower bound) but carries an extra
-  sigma of ``saturation_sigma_range`` x range on that sensor, which the filter adds to its
-  velocity process noise and the smoothers to the preintegration covariance, so the next
-  visual displacements and the stance anchor bridge the interval.
+  amount, on the rail's side. With a half-normal prior of sigma s = ``saturation_sigma_range``
+  x range on that excess, its conditional mean is s sqrt(2/pi) and its sigma
+  s sqrt(1 - 2/pi): the clipped axis is moved beyond the rail by the mean (the clipped value
+  alone loses the whole excess, always in the same direction, and the velocity drifts by
+  metres per second over a heel strike), and the sample carries the sigma as an extra
+  uncertainty, which the filter adds to its velocity process noise and the smoothers to the
+  preintegration covariance, so the next visual displacements and the stance anchor correct
+  what the prior gets wrong. (A bridge by the rigid-shank kinematics, knee force held from the
+  last good sample plus the gyro's rotational terms, was tried: the knee's own deceleration
+  dominates at heel strike and rises within a sample, so it bridged almost nothing.)
 * **Gyro outliers** (:class:`ImuFaultMonitor`): the IMU gives two views of the rotation, the
   gyro and the vendor orientation. Over one sample period the mean rate w_k from
   consecutive orientations predicts the gyro, g_k ~ 2 w_k - g_{k-1}; a chi-square test (3
@@ -39,6 +45,9 @@ from vio_graph.filter.config import ImuFaultConfig
 from vio_graph.filter.gating import chi2_quantile
 from vio_graph.geometry import matrix_from_quat_wxyz
 from vio_graph.types import ImuSample
+
+_HALF_NORMAL_MEAN = float(np.sqrt(2.0 / np.pi))  # mean of |N(0, 1)|
+_HALF_NORMAL_SD = float(np.sqrt(1.0 - 2.0 / np.pi))  # its standard deviation
 
 
 class ImuFaultMonitor:
@@ -75,10 +84,12 @@ class ImuFaultMonitor:
         gyr_sat = bool(np.any(np.abs(gyr) >= self._gyr_lim))
         if acc_sat:
             self.n_accel_saturated += 1
-            xa = max(xa, self._acc_sig)
+            rail = np.abs(acc) >= self._acc_lim
+            acc = np.where(rail, acc + np.sign(acc) * self._acc_sig * _HALF_NORMAL_MEAN, acc)
+            xa = max(xa, self._acc_sig * _HALF_NORMAL_SD)
         if gyr_sat:
             self.n_gyro_saturated += 1
-            xg = max(xg, self._gyr_sig)
+            xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
         t = float(sample.timestamp_s)
         R = matrix_from_quat_wxyz(sample.quat_wxyz)
         repaired = gyr
@@ -97,8 +108,8 @@ class ImuFaultMonitor:
         if repaired is gyr and xa == sample.accel_extra_sigma_mps2 \
                 and xg == sample.gyro_extra_sigma_radps:
             return sample
-        return dataclasses.replace(sample, gyro_radps=repaired, accel_extra_sigma_mps2=xa,
-                                   gyro_extra_sigma_radps=xg)
+        return dataclasses.replace(sample, accel_mps2=acc, gyro_radps=repaired,
+                                   accel_extra_sigma_mps2=xa, gyro_extra_sigma_radps=xg)
 
     def report(self) -> dict[str, int]:
         return {"accel_saturated_samples": self.n_accel_saturated,

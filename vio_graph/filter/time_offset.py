@@ -85,7 +85,10 @@ class ClockModel:
                 if len(self.gaps) < _MAX_REPORTED:
                     self.gaps.append({"t_s": self._last_stamp, "duration_s": dt})
                 self._pts.clear()
-            self._k += max(1, int(round(dt / self.period_s)))
+            # periods since the previous sample, counted from its model time (the raw
+            # difference of two jittered stamps can be off by a whole period)
+            ref = self._last_out if self._pts else self._last_stamp
+            self._k += max(1, int(round((t - ref) / self.period_s)))
         self._last_stamp = t
         self._pts.append((self._k, t))
         out = self._fit(t) if self.smooth else t

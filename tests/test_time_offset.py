@@ -86,3 +86,18 @@ def test_pipeline_estimates_a_camera_imu_offset_and_counts_saturation(tmp_path: 
     assert n_sat > 0 and m["imu_faults"]["accel_saturated_samples"] == n_sat
     assert m["timestamps"]["imu"]["gaps"] == 0 and m["timestamps"]["imu"]["backwards"] == 0
     assert m["ate_cm"]["filter"]["toe"]["x"] < 10.0
+
+
+def test_run_summary_reports_faults_offset_and_jumps() -> None:
+    from vio_graph.cli import fault_lines
+
+    assert fault_lines({"imu_faults": {"accel_saturated_samples": 0}, "timestamps": {
+        "imu": {"gaps": 0, "backwards": 0}}, "time_offset": {"applied_s": 0.0}}) == []
+    lines = fault_lines({
+        "imu_faults": {"accel_saturated_samples": 7, "gyro_saturated_samples": 0,
+                       "gyro_repaired_samples": 2, "vision_kept_against_imu": 1},
+        "time_offset": {"estimate_s": 0.0123, "sigma_s": 0.0004, "applied_s": 0.0123},
+        "timestamps": {"camera": {"gaps": 3, "gap_total_s": 0.2, "backwards": 1}}})
+    assert "7 accelerometer" in lines[0] and "2 gyro samples replaced" in lines[0]
+    assert "12.3 ms" in lines[1]
+    assert lines[2].startswith("camera timestamps: 3 gaps") and "1 stamps" in lines[2]

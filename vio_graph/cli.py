@@ -146,6 +146,32 @@ def _print_health(metrics: dict) -> None:
     )
     for line in h["warnings"]:
         typer.secho(line, fg=typer.colors.YELLOW, err=True)
+    for line in fault_lines(metrics):
+        typer.secho(line, fg=typer.colors.YELLOW, err=True)
+
+
+def fault_lines(metrics: dict) -> list[str]:
+    """Summary lines for IMU faults, the camera-IMU offset and timestamp jumps (empty when
+    there is nothing to say)."""
+    lines = []
+    f = metrics.get("imu_faults", {})
+    n_sat = f.get("accel_saturated_samples", 0) + f.get("gyro_saturated_samples", 0)
+    if n_sat or f.get("gyro_repaired_samples", 0) or f.get("vision_kept_against_imu", 0):
+        lines.append(
+            f"IMU: {f.get('accel_saturated_samples', 0)} accelerometer and "
+            f"{f.get('gyro_saturated_samples', 0)} gyro samples saturated, "
+            f"{f.get('gyro_repaired_samples', 0)} gyro samples replaced by the orientation "
+            f"rate, {f.get('vision_kept_against_imu', 0)} displacements kept against the IMU")
+    td = metrics.get("time_offset", {})
+    if td.get("applied_s", 0.0) != 0.0:
+        lines.append(f"camera-IMU time offset {1e3 * td['estimate_s']:.1f} ms "
+                     f"(1-sigma {1e3 * td['sigma_s']:.1f} ms), applied to the fusion")
+    for name, rep in metrics.get("timestamps", {}).items():
+        if rep.get("gaps") or rep.get("backwards"):
+            lines.append(f"{name} timestamps: {rep['gaps']} gaps ({rep['gap_total_s']:.3f} s "
+                         f"in total), {rep['backwards']} stamps at or before the previous one "
+                         "(dropped); see metrics.json 'timestamps'")
+    return lines
 
 
 def _parse_modes(mode: str) -> tuple[str, ...]:

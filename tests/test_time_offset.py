@@ -24,9 +24,20 @@ def test_clock_model_removes_jitter_keeps_exact_stamps_and_reports_gaps() -> Non
     assert err_in == pytest.approx(0.002, rel=0.1)
     assert err_out < 0.25 * err_in  # a line fit, not a per-sample correction
     assert np.all(np.diff(out) > 0)
-    # regular stamps are kept bit for bit
+    # no sample is ever given the wrong period count (that would be a whole 10 ms off), also
+    # while the line has few samples
+    for seed in range(5):
+        r = np.random.default_rng(seed)
+        st = true + np.clip(r.normal(0, 0.002, true.size), -0.004, 0.004)
+        c = ClockModel(T, 200, 2.5)
+        assert np.max(np.abs(np.array([c.correct(x) for x in st]) - true)) < 0.005
+    # a drifting clock is followed (the first 20 samples assume the nominal period)
+    drift = ClockModel(T, 200, 2.5)
+    assert np.max(np.abs(np.array([drift.correct(s) for s in true]) - true)) < 1e-5
+    # stamps at the nominal rate are kept bit for bit
     exact = ClockModel(T, 200, 2.5)
-    assert all(exact.correct(s) == s for s in true)
+    regular = 5.0 + T * np.arange(1000)
+    assert all(exact.correct(s) == s for s in regular)
     # a 0.2 s gap and a stamp going backwards are reported; the backward sample is dropped
     c = ClockModel(T, 200, 2.5)
     for s in (0.0, 0.01, 0.02, 0.22, 0.23):

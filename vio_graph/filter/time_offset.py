@@ -44,7 +44,8 @@ from vio_graph.filter.config import TimeOffsetConfig
 from vio_graph.filter.gating import chi2_quantile
 
 _KEEP_TOL_S = 1e-6  # a stamp within this of the clock model is kept bit for bit
-_MIN_FIT = 3  # samples before the line's slope is fitted (else the nominal period)
+_MIN_FIT = 20  # samples before the line's slope is fitted (else the nominal period: a
+# slope from a few jittered stamps would miscount the periods of the next sample)
 _MAX_REPORTED = 20  # gaps / backward stamps listed individually
 
 

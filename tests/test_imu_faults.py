@@ -71,7 +71,8 @@ def test_gyro_spike_is_replaced_by_the_vendor_orientation_rate() -> None:
     samples = _pitching(100, rate)
     spiked = list(samples)
     k = 60
-    spiked[k] = ImuSample(samples[k].timestamp_s, samples[k].accel_mps2,
+    spiked[k] = ImuSample(samples[k].timestamp_s,
+                          samples[k].accel_mps2 + np.array([30.0, 0.0, 0.0]),
                           samples[k].gyro_radps + np.array([0.0, 5.0, 0.0]), samples[k].quat_wxyz)
     clean = ImuFaultMonitor(ImuFaultConfig(), None, None)
     assert all(clean.process(s) is s for s in samples)
@@ -81,6 +82,10 @@ def test_gyro_spike_is_replaced_by_the_vendor_orientation_rate() -> None:
     assert mon.n_gyro_repaired == 1
     assert out[k].gyro_radps[1] == pytest.approx(rate(k * H), abs=0.05)
     assert out[k].gyro_extra_sigma_radps > 0
+    # the corrupt packet's accelerometer is replaced by the last trusted one, distrusted
+    np.testing.assert_array_equal(out[k].accel_mps2, samples[k - 1].accel_mps2)
+    assert out[k].accel_extra_sigma_mps2 == ImuFaultConfig().held_accel_sigma_mps2
+    assert out[k + 1] is spiked[k + 1]  # the next sample is clean again
 
 
 def _moving_filter(spike_mps2: float) -> tuple[SagittalEskf, float]:

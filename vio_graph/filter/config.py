@@ -121,6 +121,13 @@ class ImuFaultConfig(BaseModel):
         default=0.999999, gt=0, lt=1,
         description="chi-square (3 dof) probability of the gyro test",
     )
+    held_accel_sigma_mps2: float = Field(
+        default=10.0, gt=0,
+        description="a sample whose gyro failed the test is corrupted as a whole (a bus error "
+        "or a shock hits the packet): its accelerometer is replaced by the previous trusted "
+        "one with this extra sigma (m/s^2; gait changes the specific force by a few m/s^2 per "
+        "10 ms, up to tens at heel strike)",
+    )
     vision_arbitration: bool = Field(
         default=True,
         description="when the gate refuses a displacement, test the hypothesis 'the IMU was "

@@ -22,7 +22,9 @@ spikes to any such threshold):
   consecutive orientations predicts the gyro, g_k ~ 2 w_k - g_{k-1}; a chi-square test (3
   dof) on the residual flags a sample that disagrees and replaces it with that prediction
   (extra sigma = the test sigma). A heel strike turns the orientation as much as the gyro,
-  so it passes.
+  so it passes. The sample is then taken as corrupt as a whole (a bus error or a shock hits
+  the packet): its accelerometer is replaced by the last trusted one, with an extra sigma of
+  ``held_accel_sigma_mps2``. An accelerometer-only outlier is left to vision (below).
 * **Accelerometer outliers** (:func:`velocity_fault_cov`, used by the estimator): vision
   arbitrates. When the filter's chi-square gate refuses a displacement, the hypothesis "one
   corrupted IMU sample in this interval" -- a velocity jump of sigma
@@ -68,6 +70,7 @@ class ImuFaultMonitor:
             config.saturation_sigma_range * float(gyro_range_radps))
         self._gyro_d2 = chi2_quantile(config.gyro_ahrs_probability, 3)
         self._prev: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._last_acc: NDArray[np.float64] | None = None  # last trusted specific force
         self.n_accel_saturated = 0  #: samples with an accelerometer axis at the rail
         self.n_gyro_saturated = 0  #: samples with a gyro axis at the rail
         self.n_gyro_repaired = 0  #: gyro samples replaced by the orientation's rate
@@ -104,7 +107,13 @@ class ImuFaultMonitor:
                 self.n_gyro_repaired += 1
                 repaired = pred
                 xg = max(xg, self.config.gyro_ahrs_sigma_radps) if not gyr_sat else xg
+                if self._last_acc is not None and not acc_sat:
+                    # the packet is corrupt: hold the last trusted specific force
+                    acc = self._last_acc
+                    xa = max(xa, self.config.held_accel_sigma_mps2)
         self._prev = (t, R, repaired.copy())
+        if repaired is gyr and not acc_sat:
+            self._last_acc = acc.copy()
         if repaired is gyr and xa == sample.accel_extra_sigma_mps2 \
                 and xg == sample.gyro_extra_sigma_radps:
             return sample

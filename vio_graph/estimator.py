@@ -82,6 +82,9 @@ from vio_graph.types import (
     StanceObservation,
 )
 
+#: what the front end's tracker says when ICP disagrees with the IMU prediction
+_PREDICTION_REFUSAL = "disagrees with the IMU prediction"
+
 
 @dataclass(frozen=True)
 class RigGeometry:
@@ -421,6 +424,10 @@ class OnlineEstimator:
             self._recover_if_locked_out(self.filter.n_gate_refusals > n_refused)
         else:
             self.filter.clone_position(t)
+            if _PREDICTION_REFUSAL in (result.rejection_reason or ""):
+                # the front end's gate on the same IMU prediction refused ICP: for the
+                # lock-out it counts like a refusal of the filter's gate
+                self._recover_if_locked_out(True)
         self._fuse_landmarks(t, result, R_world_imu)
         state = self.filter.state
         camera_xz, velocity = self._position_at(t)

@@ -183,9 +183,11 @@ class TimeOffsetConfig(BaseModel):
         default=200, ge=10, description="samples the clock-model line fit remembers"
     )
     gap_periods: float = Field(
-        default=2.5, gt=1,
-        description="a stamp this many nominal periods after the previous one is a gap (reported; "
-        "the clock model restarts after it)",
+        default=1.9, gt=1,
+        description="a stamp more than this many nominal periods after the previous one is a "
+        "gap (reported; the clock model restarts after it). Below it consecutive samples count "
+        "as one period apart, so the stamp jitter must stay below (gap_periods - 1) periods "
+        "(the simulator clips its jitter at 0.4 periods); a single missing sample is a gap",
     )
 
 
@@ -288,7 +290,8 @@ class FilterConfig(BaseModel):
         default=3, ge=1,
         description="this many displacements refused by the gate in a row widen the velocity "
         "covariance to init_velocity_sigma_mps (gate lock-out recovery; at gate_probability "
-        "0.999 three chance refusals in a row happen once in 1e9). None = never",
+        "0.999 three chance refusals in a row happen once in 1e9). The front end's refusals of "
+        "ICP against the same IMU prediction count too. None = never",
     )
     history_s: float = Field(
         default=2.0, gt=0, description="how long (s) past position estimates are kept for t0"

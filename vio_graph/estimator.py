@@ -273,6 +273,7 @@ class OnlineEstimator:
         self._frame_joints: JointAngles | None = None  # joints at a re-stamped frame time
         self._imu_queue: deque[ImuSample] = deque()  # received, not yet propagated
         self._filter_started = False
+        self._last_frame_t: float | None = None  # previous frame time on the IMU clock
 
     def fault_report(self) -> dict:
         """IMU faults, time offset and timestamp problems, for metrics.json."""
@@ -481,6 +482,12 @@ class OnlineEstimator:
             t_clock = self.frame_clock.correct(t)
             t = t if t_clock is None else t_clock
         t = t - self.time_offset.applied_s
+        if self._last_frame_t is not None:
+            # the applied offset jumps once (0 -> td when it becomes significant): keep the
+            # frames in order, at least half a frame period apart
+            period = 1.0 / self.rig.frame_rate_hz if self.rig.frame_rate_hz else 2e-3
+            t = max(t, self._last_frame_t + 0.5 * period)
+        self._last_frame_t = t
         if t == frame.timestamp_s:
             return frame
         self._frame_joints = self._joints_at(t)

@@ -112,3 +112,20 @@ def test_run_summary_reports_faults_offset_and_jumps() -> None:
     assert "7 accelerometer" in lines[0] and "2 gyro samples replaced" in lines[0]
     assert "12.3 ms" in lines[1]
     assert lines[2].startswith("camera timestamps: 3 gaps") and "1 stamps" in lines[2]
+
+
+def test_restamped_frames_stay_in_order_when_the_offset_is_first_applied() -> None:
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.types import DepthFrame
+
+    est = OnlineEstimator(PipelineConfig(), RigGeometry.from_metadata(tiny_metadata()))
+    depth, conf = np.zeros((12, 16), np.float32), np.zeros((12, 16), np.uint8)
+    f0 = est._restamp(DepthFrame(0, 1.0, depth, conf))
+    assert f0.timestamp_s == 1.0  # no offset applied: the frame itself
+    est.time_offset.applied_s = 0.03  # td became significant: next frame 30 ms earlier
+    f1 = est._restamp(DepthFrame(1, 1.0 + 1 / 30.0, depth, conf))
+    assert f1.timestamp_s == pytest.approx(1.0 + 0.5 / 30.0)  # half a period after f0
+    f2 = est._restamp(DepthFrame(2, 1.0 + 2 / 30.0, depth, conf))
+    assert f2.timestamp_s == pytest.approx(1.0 + 2 / 30.0 - 0.03)  # then stamp - td

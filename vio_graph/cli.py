@@ -156,6 +156,32 @@ def _print_health(metrics: dict) -> None:
     )
     for line in h["warnings"]:
         typer.secho(line, fg=typer.colors.YELLOW, err=True)
+    for line in fault_lines(metrics):
+        typer.secho(line, fg=typer.colors.YELLOW, err=True)
+
+
+def fault_lines(metrics: dict) -> list[str]:
+    """Summary lines for IMU faults, the camera-IMU offset and timestamp jumps (empty when
+    there is nothing to say)."""
+    lines = []
+    f = metrics.get("imu_faults", {})
+    n_sat = f.get("accel_saturated_samples", 0) + f.get("gyro_saturated_samples", 0)
+    if n_sat or f.get("gyro_repaired_samples", 0) or f.get("vision_kept_against_imu", 0):
+        lines.append(
+            f"IMU: {f.get('accel_saturated_samples', 0)} accelerometer and "
+            f"{f.get('gyro_saturated_samples', 0)} gyro samples saturated, "
+            f"{f.get('gyro_repaired_samples', 0)} gyro samples replaced by the orientation "
+            f"rate, {f.get('vision_kept_against_imu', 0)} displacements kept against the IMU")
+    td = metrics.get("time_offset", {})
+    if td.get("applied_s", 0.0) != 0.0:
+        lines.append(f"camera-IMU time offset {1e3 * td['estimate_s']:.1f} ms "
+                     f"(1-sigma {1e3 * td['sigma_s']:.1f} ms), applied to the fusion")
+    for name, rep in metrics.get("timestamps", {}).items():
+        if rep.get("gaps") or rep.get("backwards"):
+            lines.append(f"{name} timestamps: {rep['gaps']} gaps ({rep['gap_total_s']:.3f} s "
+                         f"in total), {rep['backwards']} stamps at or before the previous one "
+                         "(dropped); see metrics.json 'timestamps'")
+    return lines
 
 
 def _parse_modes(mode: str) -> tuple[str, ...]:
@@ -547,6 +573,10 @@ def robustness(
     doc: Annotated[
         Path | None, typer.Option(help="Also write the report here (e.g. docs/robustness.md).")
     ] = None,
+    cases: Annotated[
+        str, typer.Option(help="'all' faults, or 'imu': clean, IMU spikes / saturation, "
+                          "camera-IMU offsets -30..30 ms, clock jitter.")
+    ] = "all",
 ) -> None:
     """Fault sweep: toe ATE of filter, smoother and batch for camera blackouts, dropped frames,
     wrong corner associations, depth corruption, IMU spikes/saturation, time offset and jitter.
@@ -554,13 +584,17 @@ def robustness(
     Example: vio-graph robustness --seeds 2 --jobs 2 --doc docs/robustness.md
     """
     from vio_graph.config import load_config
-    from vio_graph.robustness import FAULT_CASES, run_sweep, write_outputs
+    from vio_graph.robustness import FAULT_CASES, IMU_CASES, run_sweep, write_outputs
     from vio_graph.viz.progress import progress_bar
 
+    if cases not in ("all", "imu"):
+        raise VioGraphError(f"--cases: unknown {cases!r}; use all or imu")
+    case_list = FAULT_CASES if cases == "all" else IMU_CASES
     cfg = load_config(config)
     seed_list = list(range(1, seeds + 1))
-    with progress_bar(len(FAULT_CASES) * len(seed_list), "fault sweep", "run") as bar:
-        results = run_sweep(out, scenario, seed_list, cfg, jobs=jobs, progress=bar.update_to)
+    with progress_bar(len(case_list) * len(seed_list), "fault sweep", "run") as bar:
+        results = run_sweep(out, scenario, seed_list, cfg, case_list, jobs=jobs,
+                            progress=bar.update_to)
     command = "vio-graph robustness " + " ".join(sys.argv[2:])
     written = write_outputs(results, out, command.strip(), doc)
     typer.echo(written["markdown"].read_text())

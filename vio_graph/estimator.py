@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections import deque
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -59,7 +60,9 @@ from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_p
 from vio_graph.filter.corner_landmarks import CornerLandmarks
 from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
 from vio_graph.filter.gating import chi2_2dof_quantile
+from vio_graph.filter.imu_faults import ImuFaultMonitor, velocity_fault_cov
 from vio_graph.filter.stance import StanceConsistencyTest, StanceDetector
+from vio_graph.filter.time_offset import ClockModel, TimeOffsetEstimator
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
 from vio_graph.frontend.level import SurfaceTilt, measure_surface_tilt
 from vio_graph.geometry import (
@@ -95,6 +98,9 @@ from vio_graph.types import (
     StanceObservation,
 )
 
+#: what the front end's tracker says when ICP disagrees with the IMU prediction
+_PREDICTION_REFUSAL = "disagrees with the IMU prediction"
+
 
 @dataclass(frozen=True)
 class RigGeometry:
@@ -112,6 +118,11 @@ class RigGeometry:
     imu_T_cam: NDArray[np.float64]
     knee_T_cam: NDArray[np.float64]
     leg: LegModel
+    #: declared sensor ranges (m/s^2, rad/s) and nominal rates (Hz); None: unknown
+    accel_range_mps2: float | None = None
+    gyro_range_radps: float | None = None
+    imu_rate_hz: float | None = None
+    frame_rate_hz: float | None = None
 
     @classmethod
     def from_metadata(cls, meta: RecordingMetadata) -> RigGeometry:
@@ -120,6 +131,10 @@ class RigGeometry:
             imu_T_cam=meta.extrinsics.imu_T_cam_matrix(),
             knee_T_cam=meta.extrinsics.knee_T_cam_matrix(),
             leg=meta.leg.leg_model(),
+            accel_range_mps2=meta.imu.accel_range_mps2,
+            gyro_range_radps=meta.imu.gyro_range_radps,
+            imu_rate_hz=meta.imu.rate_hz,
+            frame_rate_hz=meta.camera.frame_rate_hz,
         )
 
     @cached_property
@@ -245,6 +260,7 @@ class OnlineEstimator:
         #: vision, refused by the anchor gate, gate refusals overridden by vision, anchored
         self.stance_stats = {"candidate_frames": 0, "vision_refused": 0, "gate_refused": 0,
                              "vision_overrides": 0, "anchored_frames": 0}
+        self._init_fault_handling()
 
     def health_report(self) -> dict:
         """Is the estimate in trouble? Shares of refused displacements and of stance frames,
@@ -257,21 +273,61 @@ class OnlineEstimator:
                             "rejected": fs.n_landmark_rejected}
         return rep
 
+    def _init_fault_handling(self) -> None:
+        """IMU fault monitor, clock models and the time-offset estimator
+        (filter/imu_faults.py, filter/time_offset.py)."""
+        fc, rig = self.config.filter, self.rig
+        to = fc.time_offset
+        self.imu_faults = ImuFaultMonitor(fc.imu_faults, rig.accel_range_mps2,
+                                          rig.gyro_range_radps)
+        self.imu_clock = (ClockModel(1.0 / rig.imu_rate_hz, to.clock_window, to.gap_periods,
+                                     to.imu_clock_model) if rig.imu_rate_hz else None)
+        self.frame_clock = (ClockModel(1.0 / rig.frame_rate_hz, to.clock_window, to.gap_periods,
+                                       to.camera_clock_model) if rig.frame_rate_hz else None)
+        la = fc.level_aiding
+        self.time_offset = TimeOffsetEstimator(
+            to, np.radians(la.initial_sigma_deg), np.radians(la.drift_deg_per_sqrt_s))
+        self.n_imu_inconsistent = 0  # displacements vision kept against the IMU
+        self._joint_hist: deque[JointAngles] = deque(maxlen=32)
+        self._frame_joints: JointAngles | None = None  # joints at a re-stamped frame time
+        self._imu_queue: deque[ImuSample] = deque()  # received, not yet propagated
+        self._filter_started = False
+        self._last_frame_t: float | None = None  # previous frame time on the IMU clock
+
+    def fault_report(self) -> dict:
+        """IMU faults, time offset and timestamp problems, for metrics.json."""
+        rep: dict = {"imu_faults": {**self.imu_faults.report(),
+                                    "vision_kept_against_imu": self.n_imu_inconsistent},
+                     "time_offset": self.time_offset.report(), "timestamps": {}}
+        for name, clock in (("imu", self.imu_clock), ("camera", self.frame_clock)):
+            if clock is not None:
+                rep["timestamps"][name] = clock.report()
+        return rep
+
     # ------------------------------------------------------------------ inputs
-    def add_imu(self, sample: ImuSample) -> ImuStep:
+    def add_imu(self, sample: ImuSample) -> ImuStep | None:
         """Propagate with one IMU sample (any mount); returns it as the other estimators take
-        it: in shank axes, as measured and with the level-surface pitch offset applied."""
+        it: in shank axes, as measured and with the level-surface pitch offset applied. None
+        if its stamp is at or before the previous one (dropped and reported in
+        :meth:`fault_report`, never fused, not passed on)."""
         t0 = time.perf_counter()
+        if self.imu_clock is not None:  # jitter smoothing and gap / backward-stamp report
+            t_clock = self.imu_clock.correct(sample.timestamp_s)
+            if t_clock is None:
+                return None
+            if t_clock != sample.timestamp_s:
+                sample = dataclasses.replace(sample, timestamp_s=t_clock)
+        sample = self.imu_faults.process(sample)  # saturation marks, gyro repair (IMU axes)
         sample = shank = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
         sample = self.corrected_imu(sample)  # the offset applied once, for the strapdown
-        if self._last_imu is None:
-            self.filter.initialise(sample.timestamp_s, self._p0)
-        elif sample.timestamp_s <= self._last_imu.timestamp_s:
+        if self._last_imu is not None and sample.timestamp_s <= self._last_imu.timestamp_s:
             raise EstimationError(f"IMU sample at {sample.timestamp_s:.6f} s is not after "
                                   f"{self._last_imu.timestamp_s:.6f} s")
-        else:
-            self.filter.propagate(sample)
+        self._imu_queue.append(sample)
+        # camera stamps late by td > 0: the filter stays td behind the IMU stream, so that a
+        # re-stamped frame finds it at (not past) its capture time
+        self._propagate_until(sample.timestamp_s - max(self.time_offset.applied_s, 0.0))
         if self.config.filter.stance_anchor:
             self._stance.add_imu(sample.timestamp_s, sample.accel_mps2, sample.gyro_radps,
                                  sagittal_rotation(sample.quat_wxyz),
@@ -282,6 +338,7 @@ class OnlineEstimator:
 
     def add_joints(self, sample: JointAngles) -> None:
         self._last_joints = sample
+        self._joint_hist.append(sample)
 
     def add_contact(self, sample: ContactSample) -> None:
         """Foot contact from a sensor (load cell, heel switch). Once any sample has arrived,
@@ -297,6 +354,11 @@ class OnlineEstimator:
     @property
     def initialised(self) -> bool:
         return self._last_imu is not None
+
+    @property
+    def last_imu_time_s(self) -> float | None:
+        """Stamp (s, IMU clock) of the latest IMU sample taken (None before the first)."""
+        return None if self._last_imu is None else self._last_imu.timestamp_s
 
     def corrected_imu(self, sample: ImuSample) -> ImuSample:
         """``sample`` with its vendor orientation turned by the level-surface pitch offset
@@ -346,7 +408,11 @@ class OnlineEstimator:
         """
         if not self.initialised:
             raise EstimationError("a depth frame arrived before any IMU sample")
+        frame = self._restamp(frame)
         t = frame.timestamp_s
+        self._propagate_until(t)
+        if not self._filter_started:
+            raise EstimationError("a depth frame arrived before any IMU sample")
         timings: dict[str, float] = {"imu_propagation": self._imu_ms}
         self._imu_ms = 0.0
         # 1. attitude at the frame time -> ground frame of eq. 2
@@ -372,6 +438,7 @@ class OnlineEstimator:
         t0 = time.perf_counter()
         if self.config.filter.level_aiding.enabled and R_ground_cam_override is None:
             step = self._level_aiding(t, result.profile_xz_m)
+            self._update_time_offset(t, step)
             if step != 0.0:
                 self._ground_turn_rad = step  # this frame, seen from the next one
                 R_world_imu = self.R_world_imu(t)
@@ -380,11 +447,16 @@ class OnlineEstimator:
         accepted = refused = False
         if result.displacement is not None:
             n_refused = self.filter.n_gate_refusals
+            self._arbitrate_imu(result.displacement)
             accepted = self.filter.update_displacement(result.displacement)
             refused = self.filter.n_gate_refusals > n_refused
             self._recover_if_locked_out(refused)
         else:
             self.filter.clone_position(t)
+            if _PREDICTION_REFUSAL in (result.rejection_reason or ""):
+                # the front end's gate on the same IMU prediction refused ICP: for the
+                # lock-out it counts like a refusal of the filter's gate
+                self._recover_if_locked_out(True)
         self._fuse_landmarks(t, result, R_world_imu)
         state = self.filter.state
         camera_xz, velocity = self._position_at(t)
@@ -440,6 +512,78 @@ class OnlineEstimator:
             ankle_rad=ankle,
             in_stance=self._in_stance,
         )
+
+    def _propagate_until(self, t_s: float) -> None:
+        """Propagate the filter with the queued IMU samples stamped at or before ``t_s``."""
+        q = self._imu_queue
+        while q and q[0].timestamp_s <= t_s + 1e-9:
+            s = q.popleft()
+            if self._filter_started:
+                self.filter.propagate(s)
+            else:
+                self.filter.initialise(s.timestamp_s, self._p0)
+                self._filter_started = True
+
+    def _restamp(self, frame: DepthFrame) -> DepthFrame:
+        """The frame on the IMU clock: stamp minus the applied camera-IMU offset (and the
+        camera clock model, if on); the joints are taken at that time."""
+        self._frame_joints = None
+        t = frame.timestamp_s
+        if self.frame_clock is not None:
+            t_clock = self.frame_clock.correct(t)
+            t = t if t_clock is None else t_clock
+        t = t - self.time_offset.applied_s
+        if self._last_frame_t is not None:
+            # the applied offset jumps once (0 -> td when it becomes significant): keep the
+            # frames in order, at least half a frame period apart
+            period = 1.0 / self.rig.frame_rate_hz if self.rig.frame_rate_hz else 2e-3
+            t = max(t, self._last_frame_t + 0.5 * period)
+        self._last_frame_t = t
+        if t == frame.timestamp_s:
+            return frame
+        self._frame_joints = self._joints_at(t)
+        return dataclasses.replace(frame, timestamp_s=t)
+
+    def _joints_at(self, t_s: float) -> JointAngles | None:
+        """Joint angles interpolated at ``t_s`` from the recent samples (held beyond them)."""
+        hist = self._joint_hist
+        if not hist:
+            return None
+        ts = np.array([j.timestamp_s for j in hist])
+        vals = [np.interp(t_s, ts, [getattr(j, f) for j in hist])
+                for f in ("thigh_pitch_rad", "knee_rad", "ankle_rad")]
+        return JointAngles(t_s, float(vals[0]), float(vals[1]), float(vals[2]))
+
+    def _update_time_offset(self, t: float, step_rad: float) -> None:
+        """Feed this frame's level-surface tilt to the time-offset estimator
+        (filter/time_offset.py) with the pitch offset it was measured with and the shank pitch
+        rate at the frame time."""
+        tilt = self.surface_tilt
+        if tilt is None or not self.config.filter.time_offset.estimate:
+            return
+        b_before = self.pitch_offset.offset_rad - step_rad
+        R = self.R_world_imu(t)
+        rate = float((R @ self.attitude.gyro_at(t))[1])
+        floor = np.radians(self.config.filter.level_aiding.measurement_floor_deg)
+        self.time_offset.update(t, tilt.tilt_rad, float(np.hypot(tilt.sigma_rad, floor)),
+                                b_before, rate)
+
+    def _arbitrate_imu(self, d) -> None:
+        """Vision against the IMU over one displacement interval (filter/imu_faults.py): if the
+        gate would refuse ``d`` but accepts it once a velocity jump of one corrupted IMU
+        sample is allowed, the IMU is the odd one out and the filter's position/velocity
+        covariance is widened by that jump before the update."""
+        cfg = self.config.filter.imu_faults
+        if not (cfg.enabled and cfg.vision_arbitration):
+            return
+        d2 = self.filter.displacement_d2(d)
+        if d2 is None or d2 <= self.filter.gate_d2:
+            return
+        Q = velocity_fault_cov(cfg.velocity_fault_sigma_mps, float(d.t1_s - d.t0_s))
+        d2_fault = self.filter.displacement_d2(d, Q)
+        if d2_fault is not None and d2_fault <= self.filter.gate_d2:
+            self.filter.inflate_position_velocity(Q)
+            self.n_imu_inconsistent += 1
 
     def _recover_if_locked_out(self, refused: bool) -> None:
         """Gate lock-out recovery. A chi-square gate at p = 0.999 refuses a correct
@@ -566,7 +710,7 @@ class OnlineEstimator:
         """(IMU shank pitch, thigh-IMU-minus-knee-encoder shank pitch, ankle) in rad, from the
         latest joint sample (without one: the IMU pitch and a neutral ankle)."""
         imu_pitch = self.rig.shank_pitch_rad(R_world_imu)
-        j = self._last_joints
+        j = self._frame_joints if self._frame_joints is not None else self._last_joints
         if j is None:
             return imu_pitch, imu_pitch, 0.0
         return imu_pitch, float(shank_pitch_rad(j.thigh_pitch_rad, j.knee_rad)), j.ankle_rad

@@ -233,6 +233,7 @@ def _evaluate(
     metrics["frontend"] = frontend_summary(lg)
     metrics["filter"] = filter_summary(replay)
     metrics["health"] = replay.online.health_report()
+    metrics.update(replay.online.fault_report())  # imu_faults, time_offset, timestamps
     if gt is not None:
         metrics["terrain_classification"] = terrain_accuracy(
             rec.metadata.terrain.kind, lg.terrain, gt.frame_edge_visible)

@@ -143,9 +143,14 @@ class Replay:
     def run(self, progress: Callable[[int], Any] | None = None) -> FrameLog:
         rec, online = self.rec, self.online
         kinds, idx = replay_order(rec)
+        waiting: list[int] = []  # frames whose capture time the IMU has not reached yet
         for kind, i in zip(kinds, idx, strict=True):
+            if kind != 2 and waiting:
+                self._release_frames(waiting, progress)
             if kind == 0:
                 step = online.add_imu(rec.imu.sample(int(i)))
+                if step is None:
+                    continue  # stamp at or before the previous one: reported, not fused
                 for e in self._running():
                     self._guard(e, step.timestamp_s, e.add_imu, step)
             elif kind == 1:
@@ -156,18 +161,41 @@ class Replay:
             else:
                 if not online.initialised:
                     continue  # frames before the first IMU sample cannot be placed
-                frame = rec.frame(int(i))
-                record = online.process_frame(frame, transform_result=self._inject)
-                self.log.add(record)
-                for e in self._running():
-                    self._guard(e, record.timestamp_s, e.add_frame, record)
-                self.view.frame(int(i), frame, record)
-                if progress is not None:
-                    progress(int(i) + 1)
+                waiting.append(int(i))
+                self._release_frames(waiting, progress)
+        self._release_frames(waiting, progress, final=True)
         for e in self._running():
             self._guard(e, float("nan"), e.finish)
         self.log.camera_xz = self.camera_paths()
         return self.log
+
+    def _release_frames(self, waiting: list[int], progress: Callable[[int], Any] | None,
+                        final: bool = False) -> None:
+        """Process the waiting frames whose capture time on the IMU clock (stamp minus the
+        camera-IMU offset, filter/time_offset.py) is at most one IMU period after the latest
+        IMU sample (as without an offset); a negative offset (early camera stamps) holds a
+        frame until the IMU has caught up."""
+        online = self.online
+        period = 1.0 / self.rec.metadata.imu.rate_hz
+        while waiting:
+            t_imu = online.last_imu_time_s
+            assert t_imu is not None  # frames wait only once the IMU has started
+            t_cap = self.rec.frame_timestamps_s[waiting[0]] - online.time_offset.applied_s
+            if not final and t_cap > t_imu + period:
+                return
+            i = waiting.pop(0)
+            self._frame(i)
+            if progress is not None:
+                progress(i + 1)
+
+    def _frame(self, i: int) -> None:
+        """One depth frame through the filter, then its record to every other estimator."""
+        frame = self.rec.frame(i)
+        record = self.online.process_frame(frame, transform_result=self._inject)
+        self.log.add(record)
+        for e in self._running():
+            self._guard(e, record.timestamp_s, e.add_frame, record)
+        self.view.frame(i, frame, record)
 
     def camera_paths(self) -> dict[str, NDArray[np.float64]]:
         """Every estimator's camera x-z (N, 2) at the replayed frames, by mode; one without

@@ -70,6 +70,16 @@ FAULT_CASES: tuple[FaultCase, ...] = (
     FaultCase("clock jitter", "2 ms", {"clock_jitter_s": 0.002}, {}),
 )
 
+#: the IMU and clock faults of issue 11 (``vio-graph robustness --cases imu``): spikes,
+#: saturation, camera-IMU offsets over -30..+30 ms and clock jitter
+IMU_CASES: tuple[FaultCase, ...] = (
+    FAULT_CASES[0],
+    *(c for c in FAULT_CASES if c.name in ("IMU spikes", "IMU accel saturation")),
+    FaultCase("camera-IMU time offset", "-30 ms", {"camera_time_offset_s": -0.03}, {}),
+    *(c for c in FAULT_CASES if c.name in ("camera-IMU time offset", "clock jitter")),
+    FaultCase("camera-IMU time offset", "30 ms", {"camera_time_offset_s": 0.03}, {}),
+)
+
 
 def _slug(case: FaultCase) -> str:
     text = f"{case.name}_{case.severity}".lower()
@@ -131,6 +141,9 @@ def run_sweep(
             )
             entry[mode] = {"x": float(vals[:, 0].mean()), "z": float(vals[:, 1].mean())}
         entry["filter_rejected_chi2"] = int(sum(m["filter"]["rejected_chi2"] for m in rows))
+        if all("time_offset" in m for m in rows):  # the online camera-IMU offset, per seed
+            entry["time_offset_ms"] = [1e3 * m["time_offset"]["estimate_s"] for m in rows]
+            entry["time_offset_sigma_ms"] = [1e3 * m["time_offset"]["sigma_s"] for m in rows]
         if c.name == "clean":
             for rec, res, _, _ in runs:
                 clean_err[rec.name.split("_s")[-1]] = _toe_error(rec, res)
@@ -193,8 +206,8 @@ def markdown(results: dict[str, Any], command: str) -> str:
         "toe error is back within 1.5x its clean-run median and stays there for 0.2 s.",
         "",
         "| fault | severity | filter x | filter z | smoother x | smoother z | batch x | "
-        "batch z | chi2 rej. | recovery (s) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "batch z | chi2 rej. | recovery (s) | td est. (ms) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for e in results["cases"]:
         cells = []
@@ -205,10 +218,18 @@ def markdown(results: dict[str, Any], command: str) -> str:
         lines.append(
             f"| {e['name']} | {e['severity']} | "
             + " | ".join(cells)
-            + f" | {e['filter_rejected_chi2']} | {rec} |"
+            + f" | {e['filter_rejected_chi2']} | {rec} | {_td_cell(e)} |"
         )
     lines += ["", "![fault sweep](figures/robustness.png)", ""]
     return "\n".join(lines)
+
+
+def _td_cell(entry: dict[str, Any]) -> str:
+    """Online camera-IMU offset per seed, ms (estimate +- 1 sigma)."""
+    if "time_offset_ms" not in entry:
+        return "—"
+    return ", ".join(f"{v:.1f}±{s:.1f}" for v, s in
+                     zip(entry["time_offset_ms"], entry["time_offset_sigma_ms"], strict=True))
 
 
 def plot(results: dict[str, Any], path: Path) -> Path:

@@ -19,12 +19,18 @@ class ImuSample:
     """One IMU output as an Xsens MTi gives it (body frame = IMU frame).
 
     ``quat_wxyz`` is the vendor orientation R_world_imu (gravity-aligned, heading arbitrary).
+    ``accel_extra_sigma_mps2`` / ``gyro_extra_sigma_radps``: how far the estimator distrusts
+    this sample beyond the sensor noise (set by vio_graph/filter/imu_faults.py for saturated
+    or repaired samples; 0 = a normal sample). The filter adds them to its process noise and
+    the smoothers to the preintegration covariance.
     """
 
     timestamp_s: float
     accel_mps2: NDArray[np.float64]  # (3,) specific force
     gyro_radps: NDArray[np.float64]  # (3,)
     quat_wxyz: NDArray[np.float64]  # (4,)
+    accel_extra_sigma_mps2: float = 0.0
+    gyro_extra_sigma_radps: float = 0.0
 
 
 @dataclass(frozen=True)

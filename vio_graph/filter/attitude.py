@@ -29,6 +29,8 @@ The class is pure (no I/O) and keeps only the latest sample.
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
@@ -37,6 +39,8 @@ from vio_graph.errors import EstimationError
 from vio_graph.filter.config import AttitudeConfig, LevelAidingConfig
 from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw, rot_y
 from vio_graph.types import ImuSample
+
+_HISTORY_SAMPLES = 16  # IMU samples of attitude kept for past frame times (0.16 s at 100 Hz)
 
 
 def _rotvec_matrix(rotvec: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -55,6 +59,9 @@ class AttitudeTracker:
         self._R: NDArray[np.float64] | None = None
         self._t_s = 0.0
         self._gyro_radps = np.zeros(3)
+        # recent (t, R, gyro), for frames re-stamped into the past (camera-IMU time offset)
+        self._recent: deque[tuple[float, NDArray[np.float64], NDArray[np.float64]]] = deque(
+            maxlen=_HISTORY_SAMPLES)
 
     def add(self, imu: ImuSample) -> None:
         """Advance to ``imu.timestamp_s`` with the sample's gyro rate and vendor orientation."""
@@ -73,19 +80,36 @@ class AttitudeTracker:
             R = R @ _rotvec_matrix(k * err)
             self._R = R
         self._t_s, self._gyro_radps = t, gyro
+        self._recent.append((t, self._R, gyro))
 
     @property
     def initialised(self) -> bool:
         return self._R is not None
 
+    def gyro_at(self, t_s: float) -> NDArray[np.float64]:
+        """Gyro rate (rad/s, IMU axes) at ``t_s``, interpolated over the recent samples (held
+        beyond them)."""
+        if not self._recent:
+            return self._gyro_radps.copy()
+        ts = np.array([r[0] for r in self._recent])
+        g = np.array([r[2] for r in self._recent])
+        return np.array([np.interp(t_s, ts, g[:, i]) for i in range(3)])
+
     def R_world_imu_at(self, t_s: float) -> NDArray[np.float64]:
         """(3, 3) R_world_imu at ``t_s`` (heading included; the caller removes it)."""
         if self._R is None:
             raise EstimationError("no IMU sample yet")
+        R, t_k, gyro = self._R, self._t_s, self._gyro_radps
+        past = float(t_s) < self._t_s and len(self._recent) > 1
+        if past:  # re-stamped frame (time offset): the latest sample at or before t_s
+            for t_j, R_j, g_j in reversed(self._recent):
+                R, t_k, gyro = R_j, t_j, g_j
+                if t_j <= t_s:
+                    break
         if self.config.source == "vendor":
-            return self._R.copy()
-        dt = max(0.0, float(t_s) - self._t_s)
-        return self._R @ _rotvec_matrix(self._gyro_radps * dt)
+            return R.copy()
+        dt = float(t_s) - t_k if past else max(0.0, float(t_s) - t_k)
+        return R @ _rotvec_matrix(gyro * dt)
 
 
 def with_pitch_offset(R_world_imu: NDArray[np.float64], offset_rad: float) -> NDArray[np.float64]:

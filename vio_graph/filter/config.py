@@ -88,6 +88,109 @@ class LevelAidingConfig(BaseModel):
     )
 
 
+class ImuFaultConfig(BaseModel):
+    """Saturated and corrupted IMU samples (vio_graph/filter/imu_faults.py)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    enabled: bool = Field(default=True, description="False = every IMU sample trusted as is")
+    saturation_margin: float = Field(
+        default=0.99, gt=0, le=1,
+        description="an axis at or beyond this fraction of the declared range (metadata "
+        "imu.accel_range_mps2 / gyro_range_radps) counts as saturated",
+    )
+    saturation_sigma_range: float = Field(
+        default=1.0, gt=0,
+        description="sigma of the unknown part of a saturated axis, in units of the range: the "
+        "true value is beyond the rail by an unknown amount (heel strike on a 4 g sensor: up "
+        "to 2-3x the range)",
+    )
+    gyro_ahrs_test: bool = Field(
+        default=True,
+        description="test each gyro sample against the rate of the vendor orientation (two "
+        "outputs of the IMU); an inconsistent sample is replaced by the rate the orientation "
+        "implies",
+    )
+    gyro_ahrs_sigma_radps: float = Field(
+        default=0.5, gt=0,
+        description="sigma (rad/s, per axis) of the test residual g_k - (2 w_k - g_{k-1}), w_k "
+        "the mean rate from consecutive vendor orientations: their error drift (MTi-1: "
+        "1-2 deg RMS, correlated over seconds) and the gyro noise",
+    )
+    gyro_ahrs_probability: float = Field(
+        default=0.999999, gt=0, lt=1,
+        description="chi-square (3 dof) probability of the gyro test",
+    )
+    held_accel_sigma_mps2: float = Field(
+        default=10.0, gt=0,
+        description="a sample whose gyro failed the test is corrupted as a whole (a bus error "
+        "or a shock hits the packet): its accelerometer is replaced by the previous trusted "
+        "one with this extra sigma (m/s^2; gait changes the specific force by a few m/s^2 per "
+        "10 ms, up to tens at heel strike)",
+    )
+    vision_arbitration: bool = Field(
+        default=False,
+        description="when the gate refuses a displacement, test the hypothesis 'the IMU was "
+        "wrong in this interval' (a velocity jump of velocity_fault_sigma_mps at mid-interval); "
+        "if vision then agrees, the filter's velocity and position are widened by it and the "
+        "displacement is fused. Off by default: on clean trials it also kept the few "
+        "displacements the gate rightly refuses (obstacle s1 filter toe x 2.12 -> 6.03 cm, "
+        "downstair s2 3.47 -> 4.94 cm) and under 2 ms of clock jitter the ones that frame-time "
+        "errors had spoiled",
+    )
+    velocity_fault_sigma_mps: float = Field(
+        default=0.4, gt=0,
+        description="sigma (m/s) of the velocity jump one corrupted IMU sample can cause "
+        "(a 30 m/s^2 spike at 100 Hz: 0.3 m/s); a wrong corner association (a stair step in "
+        "one frame, ~5 m/s over 33 ms) stays far outside it",
+    )
+
+
+class TimeOffsetConfig(BaseModel):
+    """Online camera-IMU time offset and timestamp clock models (filter/time_offset.py)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    estimate: bool = Field(
+        default=True,
+        description="estimate the camera-IMU offset td (frame stamp = IMU-clock time + td) "
+        "from the level-surface tilt against the shank pitch rate",
+    )
+    initial_sigma_s: float = Field(default=0.05, gt=0, description="prior sigma of td (s)")
+    drift_s_per_sqrt_s: float = Field(
+        default=1e-5, ge=0, description="random-walk sigma of td (s/sqrt(s))"
+    )
+    apply_sigmas: float = Field(
+        default=3.0, ge=0,
+        description="td is applied to the fusion once it is this many sigmas from 0 (a "
+        "synchronised rig keeps its stamps untouched)",
+    )
+    gate_probability: float = Field(
+        default=0.999, gt=0, lt=1, description="chi-square (1 dof) gate of a tilt measurement"
+    )
+    imu_clock_model: bool = Field(
+        default=True,
+        description="replace IMU stamps by a clock model fitted to them (nominal rate, "
+        "recursive line fit): removes timestamp jitter, keeps clock drift",
+    )
+    camera_clock_model: bool = Field(
+        default=False,
+        description="also smooth the depth-frame stamps with a clock model. Off by default: a "
+        "camera whose capture instants jitter (the simulator's clean camera, 1 ms) has correct "
+        "stamps that the model would move; gaps are reported either way",
+    )
+    clock_window: int = Field(
+        default=200, ge=10, description="samples the clock-model line fit remembers"
+    )
+    gap_periods: float = Field(
+        default=1.9, gt=1,
+        description="a stamp more than this many nominal periods after the previous one is a "
+        "gap (reported; the clock model restarts after it). Below it consecutive samples count "
+        "as one period apart, so the stamp jitter must stay below (gap_periods - 1) periods "
+        "(the simulator clips its jitter at 0.4 periods); a single missing sample is a gap",
+    )
+
+
 class FilterConfig(BaseModel):
     """Parameters of :class:`vio_graph.filter.eskf.SagittalEskf`.
 
@@ -187,7 +290,8 @@ class FilterConfig(BaseModel):
         default=3, ge=1,
         description="this many displacements refused by the gate in a row widen the velocity "
         "covariance to init_velocity_sigma_mps (gate lock-out recovery; at gate_probability "
-        "0.999 three chance refusals in a row happen once in 1e9). None = never",
+        "0.999 three chance refusals in a row happen once in 1e9). The front end's refusals of "
+        "ICP against the same IMU prediction count too. None = never",
     )
     history_s: float = Field(
         default=2.0, gt=0, description="how long (s) past position estimates are kept for t0"
@@ -214,6 +318,12 @@ class FilterConfig(BaseModel):
     level_aiding: LevelAidingConfig = Field(
         default=LevelAidingConfig(),
         description="pitch correction from level surfaces in the slice (frontend/level.py)",
+    )
+    imu_faults: ImuFaultConfig = Field(
+        default=ImuFaultConfig(), description="saturated / corrupted IMU samples"
+    )
+    time_offset: TimeOffsetConfig = Field(
+        default=TimeOffsetConfig(), description="camera-IMU time offset and clock models"
     )
     fused_timeout_s: float = Field(
         default=0.1,

@@ -180,6 +180,7 @@ class SagittalEskf:
         self._last_accept_s = -np.inf
         self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0
         self._n_lm_acc = self._n_lm_rej = 0
+        self._prev_xa = 0.0  # extra accel sigma of the previous IMU sample (m/s^2)
 
     # ------------------------------------------------------------------ set-up
     def initialise(
@@ -287,6 +288,12 @@ class SagittalEskf:
         Fx[2:4, 6:8] = _I2 * dt  # F_1
         c = self.config
         var_v = (c.accel_noise_sigma_mps2 * dt) ** 2
+        # distrusted samples (saturated / repaired, filter/imu_faults.py): the step leans on
+        # this sample and, with the trapezoid, on the previous one
+        xa = max(float(imu.accel_extra_sigma_mps2), self._prev_xa)
+        self._prev_xa = float(imu.accel_extra_sigma_mps2)
+        if xa > 0.0:
+            var_v += (xa * dt) ** 2
         if c.attitude_sigma_rad > 0:
             var_v += float(np.linalg.norm(f_xz) * c.attitude_sigma_rad * dt) ** 2
         var_ab = c.accel_bias_rw_mps2_per_sqrt_s**2 * dt
@@ -373,6 +380,44 @@ class SagittalEskf:
         trusts its velocity, so the next measurements can correct it."""
         self._require_init()
         self._P[2:4, 2:4] += float(sigma_mps) ** 2 * _I2
+
+    def displacement_d2(self, d: Displacement2D, extra_pv_cov: NDArray | None = None
+                        ) -> float | None:
+        """Mahalanobis distance^2 the gate would see for displacement ``d`` (no update), with
+        ``extra_pv_cov`` (4x4, on dp, dv) added to the state covariance first. None if ``d``
+        is not a relative measurement on the current clone (nothing to test)."""
+        self._require_init()
+        t1, t0 = float(d.t1_s), float(d.t0_s)
+        if (self.config.measurement_model != "stochastic_cloning" or _CLONE not in self._aug_xz
+                or abs(self._clone_t_s - t0) > _CLONE_TOL_S
+                or abs(t1 - self._t_s) > self.config.max_time_mismatch_s):
+            return None
+        dt1 = t1 - self._t_s
+        H = np.zeros((2, self._P.shape[0]))
+        H[:, 0:2] = _I2
+        H[:, 2:4] = dt1 * _I2
+        i = self._aug_index(_CLONE)
+        H[:, i : i + 2] = -_I2
+        y = _vec2(d.delta_xz_m) - (self._position_ahead(dt1) - self._aug_xz[_CLONE])
+        P = self._P.copy()
+        if extra_pv_cov is not None:
+            P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
+        V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
+        V = V + self.config.measurement_noise_floor_m**2 * _I2
+        S = H @ P @ H.T + V
+        return float(y @ np.linalg.solve(0.5 * (S + S.T), y))
+
+    def inflate_position_velocity(self, cov_pv: NDArray) -> None:
+        """Add ``cov_pv`` (4x4, on dp, dv) to the covariance: the IMU was wrong since the clone
+        by that much (filter/imu_faults.velocity_fault_cov)."""
+        self._require_init()
+        self._P[:4, :4] += np.asarray(cov_pv, dtype=float)
+        self._P = 0.5 * (self._P + self._P.T)
+
+    @property
+    def gate_d2(self) -> float:
+        """Chi-square threshold of the displacement gate (inf if disabled)."""
+        return self._gate_d2
 
     # --------------------------------------------------------------- landmarks
     def update_landmark(

@@ -189,7 +189,11 @@ def _metadata(
             accel_bias_random_walk_mps3_per_sqrt_hz=ic.accel_bias_rw,
             gyro_bias_random_walk_radps2_per_sqrt_hz=ic.gyro_bias_rw,
             orientation_rms_rad=float(np.radians(ic.orientation_rms_deg)),
-            accel_range_mps2=ic.accel_range_mps2, gyro_range_radps=ic.gyro_range_radps,
+            # a saturation fault emulates an IMU with that lower range: declare it
+            accel_range_mps2=min(ic.accel_range_mps2,
+                                 config.faults.imu_accel_saturation_mps2 or np.inf),
+            gyro_range_radps=min(ic.gyro_range_radps,
+                                 config.faults.imu_gyro_saturation_radps or np.inf),
         ),
         joint_rate_hz=ic.rate_hz,
         groundtruth_rate_hz=config.mocap.rate_hz,

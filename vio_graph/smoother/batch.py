@@ -42,6 +42,8 @@ class BatchSmoother(KeyframeSmootherBase):
     def __init__(self, config: SmootherConfig | None = None, imu_T_cam: ArrayLike | None = None):
         config = config or SmootherConfig()
         super().__init__(config, np.eye(4) if imu_T_cam is None else imu_T_cam)
+        # robust IMU factors here only: the full batch re-weights at every LM iteration
+        self._builder.robust_imu = True
         self.graph = gtsam.NonlinearFactorGraph()
         self.initial = gtsam.Values()
         self._result: gtsam.Values | None = None
@@ -101,7 +103,10 @@ class BatchSmoother(KeyframeSmootherBase):
         beyond the kernel threshold, i.e. measurements the smoother effectively rejected.
         Returns {"robust_factors": n, "downweighted": k, "max_whitened_error": e}."""
         result = self.solve() if self._result is None else self._result
-        return count_downweighted(self.graph, result, self.config.robust_threshold)
+        out = count_downweighted(self.graph, result, self.config.robust_threshold)
+        imu = count_downweighted(self.graph, result, self.config.imu_robust_threshold, imu=True)
+        out.update({f"imu_{k}": v for k, v in imu.items()})
+        return out
 
     def keyframe_estimates(self, with_covariance: bool = True) -> list[KeyframeEstimate]:
         """Refined camera x-z of every keyframe (solves first if needed)."""
@@ -126,15 +131,19 @@ class BatchSmoother(KeyframeSmootherBase):
 
 
 def count_downweighted(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, threshold: float
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, threshold: float,
+    imu: bool = False,
 ) -> dict[str, float]:
     """Count robust factors whose whitened error norm exceeds ``threshold`` at ``values``;
-    also the largest whitened error norm (``max_whitened_error``, sigmas)."""
+    also the largest whitened error norm (``max_whitened_error``, sigmas). ``imu``: the IMU
+    factors only (their own threshold); else every other robust factor."""
     n_robust = n_down = 0
     worst = 0.0
     for k in range(graph.size()):
         f = graph.at(k)
         if f is None or not hasattr(f, "noiseModel"):
+            continue
+        if isinstance(f, gtsam.CombinedImuFactor) != imu:
             continue
         nm = f.noiseModel()
         if not isinstance(nm, gtsam.noiseModel.Robust):

@@ -118,6 +118,20 @@ class SmootherConfig(BaseModel):
         gt=0,
         description="kernel threshold in whitened units (sigmas) of the whole factor residual",
     )
+    imu_robust_kernel: Literal["huber", "cauchy", "none"] = Field(
+        default="huber",
+        description="M-estimator on the IMU factors of the batch smoother (a spike or a "
+        "saturated interval the fault monitor did not catch); 'none' = Gaussian IMU factors. "
+        "Not in the fixed-lag smoother: iSAM2 keeps a factor's first linearisation, so IMU "
+        "factors down-weighted at the filter's initial guess stay down-weighted",
+    )
+    imu_robust_threshold: float = Field(
+        default=6.1,
+        gt=0,
+        description="IMU kernel threshold in whitened units of the whole 15-dim residual "
+        "(rotation, position, velocity, two biases): sqrt of the chi-square 15-dof quantile at "
+        "p = 0.999, so a consistent factor is never down-weighted",
+    )
     frame_displacement_sigma_m: float = Field(
         default=0.001,
         ge=0,

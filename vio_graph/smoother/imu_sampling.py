@@ -14,7 +14,7 @@ error that sampling leaves around gait events is estimated by
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import gtsam
 import numpy as np
@@ -222,19 +222,40 @@ def discretization_velocity_var(
     return float(np.sum((h[touch, None] * d4[touch]) ** 2))
 
 
+def distrust_variances(
+    times_s: ArrayLike, extra_sigmas: Sequence[tuple[float, float]], t0_s: float,
+    t1_s: float
+) -> tuple[float, float]:
+    """Velocity (m^2/s^2) and rotation (rad^2) variances that the distrusted samples touching
+    [t0_s, t1_s] add to a preintegrated interval: sum of (sigma h)^2 over the samples, h the
+    sample period (``ImuSample.accel_extra_sigma_mps2`` / ``gyro_extra_sigma_radps``, set by
+    vio_graph/filter/imu_faults.py). (0, 0) when every sample is trusted."""
+    x = np.asarray(extra_sigmas, dtype=float).reshape(-1, 2)
+    if x.size == 0 or not np.any(x > 0):
+        return 0.0, 0.0
+    t = np.asarray(times_s, dtype=float)
+    h = np.median(np.diff(t)) if t.size > 1 else t1_s - t0_s
+    touch = (t > t0_s - h + TIME_TOL_S) & (t < t1_s + h - TIME_TOL_S)
+    v = np.sum((x[touch] * h) ** 2, axis=0)
+    return float(v[0]), float(v[1])
+
+
 def make_preintegration_params(
-    config: SmootherConfig, extra_velocity_var_m2ps2: float = 0.0, duration_s: float = 1.0
+    config: SmootherConfig, extra_velocity_var_m2ps2: float = 0.0, duration_s: float = 1.0,
+    extra_rotation_var_rad2: float = 0.0,
 ) -> gtsam.PreintegrationCombinedParams:
     """GTSAM combined preintegration parameters (z up, MTi-1 noise densities squared).
 
     ``extra_velocity_var_m2ps2`` (the model error of the sampled signal over an interval of
-    ``duration_s``, :func:`discretization_velocity_var` times the gain squared) is spread
-    over the interval as extra accelerometer white noise.
+    ``duration_s``, :func:`discretization_velocity_var` times the gain squared, plus the
+    distrust of saturated or repaired samples) is spread over the interval as extra
+    accelerometer white noise; ``extra_rotation_var_rad2`` likewise as gyro noise.
     """
     p = gtsam.PreintegrationCombinedParams.MakeSharedU(config.gravity_mps2)
     acc_var = config.accel_noise_density_mps2_per_sqrt_hz**2 + extra_velocity_var_m2ps2 / duration_s
     p.setAccelerometerCovariance(np.eye(3) * acc_var)
-    p.setGyroscopeCovariance(np.eye(3) * config.gyro_noise_density_radps_per_sqrt_hz**2)
+    gyr_var = config.gyro_noise_density_radps_per_sqrt_hz**2 + extra_rotation_var_rad2 / duration_s
+    p.setGyroscopeCovariance(np.eye(3) * gyr_var)
     p.setIntegrationCovariance(np.eye(3) * config.integration_sigma_m**2)
     p.setBiasAccCovariance(np.eye(3) * config.accel_bias_rw_mps3_per_sqrt_hz**2)
     p.setBiasOmegaCovariance(np.eye(3) * config.gyro_bias_rw_radps2_per_sqrt_hz**2)

@@ -1,0 +1,157 @@
+"""IMU faults (vio_graph/filter/imu_faults.py): saturation marks, gyro repair from the vendor
+orientation, vision arbitration of gate refusals, and what the smoothers make of them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vio_graph.filter.config import FilterConfig, ImuFaultConfig
+from vio_graph.filter.eskf import SagittalEskf
+from vio_graph.filter.imu_faults import ImuFaultMonitor, velocity_fault_cov
+from vio_graph.geometry import GRAVITY_MPS2, quat_wxyz_from_matrix, rot_y
+from vio_graph.smoother.config import SmootherConfig
+from vio_graph.smoother.graph import KeyframeGraphBuilder, distrust_variances
+from vio_graph.types import Displacement2D, ImuSample
+
+RATE_HZ = 100.0
+H = 1.0 / RATE_HZ
+
+
+def _pitching(n: int, rate_fn) -> list[ImuSample]:
+    """A shank pitching at rate_fn(t) (rad/s about y): vendor orientation = the true attitude,
+    gyro = the true rate, specific force = gravity seen in the IMU frame."""
+    out, theta = [], 0.0
+    for k in range(n):
+        t = k * H
+        if k:
+            theta += 0.5 * (rate_fn(t - H) + rate_fn(t)) * H
+        R = rot_y(theta)
+        f = R.T @ np.array([0.0, 0.0, GRAVITY_MPS2])
+        out.append(ImuSample(t, f, np.array([0.0, rate_fn(t), 0.0]), quat_wxyz_from_matrix(R)))
+    return out
+
+
+def test_saturated_axis_is_marked_moved_beyond_the_rail_and_distrusted() -> None:
+    mon = ImuFaultMonitor(ImuFaultConfig(), accel_range_mps2=40.0, gyro_range_radps=35.0)
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    ok = mon.process(ImuSample(0.0, np.array([1.0, 0.0, 9.8]), np.zeros(3), q))
+    assert ok.accel_extra_sigma_mps2 == 0.0
+    s = mon.process(ImuSample(0.01, np.array([-40.0, 0.0, 9.8]), np.zeros(3), q))
+    # half-normal prior of sigma 1 x range on the hidden excess: mean 40 sqrt(2/pi) beyond
+    # the rail, sigma 40 sqrt(1 - 2/pi); the unsaturated axes are untouched
+    assert s.accel_mps2[0] == pytest.approx(-40.0 - 40.0 * np.sqrt(2 / np.pi))
+    assert s.accel_mps2[2] == 9.8
+    assert s.accel_extra_sigma_mps2 == pytest.approx(40.0 * np.sqrt(1 - 2 / np.pi))
+    assert mon.report()["accel_saturated_samples"] == 1
+
+
+def test_saturated_sample_widens_the_filter_velocity_by_its_extra_sigma() -> None:
+    def run(extra: float) -> np.ndarray:
+        f = SagittalEskf(FilterConfig(integration="zoh"))
+        f.initialise(0.0, (0.0, 0.0))
+        q = np.array([1.0, 0.0, 0.0, 0.0])
+        for k in range(1, 4):
+            xa = extra if k == 2 else 0.0
+            f.propagate(ImuSample(k * H, np.array([0.0, 0.0, GRAVITY_MPS2]), np.zeros(3), q,
+                                  accel_extra_sigma_mps2=xa))
+        return f.state.P[2:4, 2:4]
+
+    # the step onto the marked sample and the next one (trapezoid memory) lean on it
+    d = run(20.0) - run(0.0)
+    assert d[0, 0] == pytest.approx(2 * (20.0 * H) ** 2, rel=1e-6)
+
+
+def test_gyro_spike_is_replaced_by_the_vendor_orientation_rate() -> None:
+    # a heel-strike-like swing: the rate changes by 6 rad/s within 50 ms, which the vendor
+    # orientation sees as well, so no sample may be flagged; then one 5 rad/s spike
+    def rate(t):
+        return 3.0 * np.tanh((t - 0.5) / 0.02)
+
+    samples = _pitching(100, rate)
+    spiked = list(samples)
+    k = 60
+    spiked[k] = ImuSample(samples[k].timestamp_s,
+                          samples[k].accel_mps2 + np.array([30.0, 0.0, 0.0]),
+                          samples[k].gyro_radps + np.array([0.0, 5.0, 0.0]), samples[k].quat_wxyz)
+    clean = ImuFaultMonitor(ImuFaultConfig(), None, None)
+    assert all(clean.process(s) is s for s in samples)
+    assert clean.n_gyro_repaired == 0
+    mon = ImuFaultMonitor(ImuFaultConfig(), None, None)
+    out = [mon.process(s) for s in spiked]
+    assert mon.n_gyro_repaired == 1
+    assert out[k].gyro_radps[1] == pytest.approx(rate(k * H), abs=0.05)
+    assert out[k].gyro_extra_sigma_radps > 0
+    # the corrupt packet's accelerometer is replaced by the last trusted one, distrusted
+    np.testing.assert_array_equal(out[k].accel_mps2, samples[k - 1].accel_mps2)
+    assert out[k].accel_extra_sigma_mps2 == ImuFaultConfig().held_accel_sigma_mps2
+    assert out[k + 1] is spiked[k + 1]  # the next sample is clean again
+
+
+def _moving_filter(spike_mps2: float) -> tuple[SagittalEskf, float]:
+    """Filter moving at 1 m/s in x over 3 IMU samples (30 ms), the middle one carrying an
+    x spike of ``spike_mps2``; returns it and the interval (s)."""
+    f = SagittalEskf(FilterConfig(integration="zoh"))
+    f.initialise(0.0, (0.0, 0.0), v_xz=(1.0, 0.0),
+                 P0=np.diag([1e-6] * 2 + [1e-4] * 2 + [1e-4] * 4))
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    for k in range(1, 4):
+        spike = spike_mps2 if k == 2 else 0.0
+        f.propagate(ImuSample(k * H, np.array([spike, 0.0, GRAVITY_MPS2]), np.zeros(3), q))
+    return f, 3 * H
+
+
+def test_vision_arbitration_keeps_a_displacement_against_an_imu_spike_not_a_wrong_step() -> None:
+    gate = SagittalEskf(FilterConfig()).gate_d2
+    f, T = _moving_filter(60.0)  # a 60 m/s^2 spike: a 0.6 m/s jump at mid-interval
+    good = Displacement2D(0.0, T, np.array([T * 1.0, 0.0]), np.eye(2) * 1e-6)
+    Q = velocity_fault_cov(FilterConfig().imu_faults.velocity_fault_sigma_mps, T)
+    assert f.displacement_d2(good) > gate  # the plain gate would refuse vision
+    assert f.displacement_d2(good, Q) <= gate  # the IMU-fault hypothesis explains it
+    f.inflate_position_velocity(Q)
+    assert f.update_displacement(good)
+    # vision pulls the velocity back from 1.6 m/s
+    assert f.state.v_xz_mps[0] == pytest.approx(1.0, abs=0.1)
+    # a wrong association (a 17 cm stair step) is not explained by one bad IMU sample
+    f2, T = _moving_filter(0.0)
+    wrong = Displacement2D(0.0, T, np.array([T * 1.0 + 0.17, 0.0]), np.eye(2) * 1e-6)
+    assert f2.displacement_d2(wrong, Q) > gate
+
+
+def test_distrusted_samples_inflate_the_preintegration_and_batch_imu_factors_are_robust(
+) -> None:
+    t = np.arange(0.0, 0.2, H)
+    x = np.zeros((t.size, 2))
+    x[5] = (10.0, 2.0)
+    v, r = distrust_variances(t, x, 0.0, 0.1)
+    assert v == pytest.approx((10.0 * H) ** 2) and r == pytest.approx((2.0 * H) ** 2)
+    assert distrust_variances(t, x, 0.12, 0.2) == (0.0, 0.0)
+
+    import gtsam
+
+    from vio_graph.types import EstimateStatus, FrameEstimate, TerrainKind
+
+    def factors(robust: bool, extra: float) -> gtsam.CombinedImuFactor:
+        b = KeyframeGraphBuilder(SmootherConfig(), np.eye(4))
+        b.robust_imu = robust
+        for s in _pitching(25, lambda _t: 0.5):
+            b.add_imu(ImuSample(s.timestamp_s, s.accel_mps2, s.gyro_radps, s.quat_wxyz,
+                                accel_extra_sigma_mps2=extra if abs(s.timestamp_s - 0.1) < 1e-9
+                                else 0.0))
+        ups = []
+        for tk in (0.05, 0.15):
+            est = FrameEstimate(tk, EstimateStatus.FUSED, np.zeros(2), np.zeros(2),
+                                np.eye(2) * 1e-4, np.zeros(2), np.zeros(2), np.zeros(2),
+                                np.zeros(2), TerrainKind.LEVEL, True, {})
+            ups += b.add_frame(tk, True, est, None, None)
+        ups += b.flush()
+        g = ups[-1].factors
+        return next(g.at(i) for i in range(g.size())
+                    if isinstance(g.at(i), gtsam.CombinedImuFactor))
+
+    assert isinstance(factors(True, 0.0).noiseModel(), gtsam.noiseModel.Robust)
+    assert not isinstance(factors(False, 0.0).noiseModel(), gtsam.noiseModel.Robust)
+    # a distrusted sample in the interval loosens the velocity block of the IMU factor
+    c0 = factors(False, 0.0).preintegratedMeasurements().preintMeasCov()
+    c1 = factors(False, 30.0).preintegratedMeasurements().preintMeasCov()
+    assert c1[6, 6] > c0[6, 6] + 0.5 * (30.0 * H) ** 2

@@ -1,0 +1,131 @@
+"""Timestamps (vio_graph/filter/time_offset.py): IMU clock model, gaps and backward stamps,
+and the online camera-IMU offset, on synthetic data with known answers and end to end."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vio_graph.filter.config import TimeOffsetConfig
+from vio_graph.filter.time_offset import ClockModel, TimeOffsetEstimator
+
+
+def test_clock_model_removes_jitter_keeps_exact_stamps_and_reports_gaps() -> None:
+    rng = np.random.default_rng(0)
+    T = 0.01
+    true = 5.0 + T * np.arange(1000) * (1 + 50e-6)  # 50 ppm clock drift
+    stamps = true + np.clip(rng.normal(0, 0.002, true.size), -0.004, 0.004)
+    clock = ClockModel(T, 200, 2.5)
+    out = np.array([clock.correct(s) for s in stamps])
+    err_in = np.sqrt(np.mean((stamps[300:] - true[300:]) ** 2))
+    err_out = np.sqrt(np.mean((out[300:] - true[300:]) ** 2))
+    assert err_in == pytest.approx(0.002, rel=0.1)
+    assert err_out < 0.25 * err_in  # a line fit, not a per-sample correction
+    assert np.all(np.diff(out) > 0)
+    # no sample is ever given the wrong period count (that would be a whole 10 ms off), also
+    # while the line has few samples
+    for seed in range(40):
+        r = np.random.default_rng(seed)
+        st = true + np.clip(r.normal(0, 0.002, true.size), -0.004, 0.004)
+        c = ClockModel(T, 200, 2.5)
+        assert np.max(np.abs(np.array([c.correct(x) for x in st]) - true)) < 0.005
+    # a drifting clock is followed (the first 20 samples assume the nominal period)
+    drift = ClockModel(T, 200, 2.5)
+    assert np.max(np.abs(np.array([drift.correct(s) for s in true]) - true)) < 1e-5
+    # stamps at the nominal rate are kept bit for bit
+    exact = ClockModel(T, 200, 2.5)
+    regular = 5.0 + T * np.arange(1000)
+    assert all(exact.correct(s) == s for s in regular)
+    # a 0.2 s gap and a stamp going backwards are reported; the backward sample is dropped
+    c = ClockModel(T, 200, 2.5)
+    for s in (0.0, 0.01, 0.02, 0.22, 0.23):
+        assert c.correct(s) is not None
+    assert c.correct(0.225) is None
+    rep = c.report()
+    assert rep["gaps"] == 1 and rep["gap_total_s"] == pytest.approx(0.2)
+    assert rep["gap_list"][0]["t_s"] == pytest.approx(0.02)
+    assert rep["backwards"] == 1 and rep["backwards_list"][0]["jump_s"] == pytest.approx(-0.005)
+
+
+@pytest.mark.parametrize("td_s", [-0.03, 0.0, 0.01, 0.03])
+def test_time_offset_from_tilt_against_pitch_rate(td_s: float) -> None:
+    """m = b - w td + noise with a drifting b and a swinging shank: td within 1 ms; a zero
+    offset is never applied (stamps untouched)."""
+    rng = np.random.default_rng(1)
+    est = TimeOffsetEstimator(TimeOffsetConfig(), np.radians(3.0), np.radians(0.5))
+    b = np.radians(1.0)
+    for k in range(150):  # 5 s of frames at 30 Hz with level surfaces
+        t = k / 30.0
+        w = 5.0 * np.sin(2 * np.pi * t / 1.1)
+        b += np.radians(0.5) * np.sqrt(1 / 30.0) * rng.normal() * 0.2
+        # the slice was rotated with offset b_k and re-stamped by the applied td
+        b_k = 0.3 * b
+        tilt = (b - b_k) - w * (td_s - est.applied_s) + rng.normal(0, np.radians(0.15))
+        est.update(t, tilt, np.radians(0.15), b_k, w)
+    assert est.td_s == pytest.approx(td_s, abs=1e-3)
+    assert est.sigma_s < 1e-3
+    if td_s == 0.0:
+        assert est.applied_s == 0.0
+    else:
+        assert est.applied_s == est.td_s
+
+
+def test_pipeline_estimates_a_camera_imu_offset_and_counts_saturation(tmp_path: Path) -> None:
+    """End to end on a simulated upstair trial with a 20 ms camera offset and a 4 g
+    accelerometer: td within 2 ms of the truth, the saturated samples counted, the metrics keys
+    written."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.pipeline import run_recording
+    from vio_graph.recording.reader import Recording
+    from vio_graph.sim import load_scenario, simulate
+
+    cfg = load_scenario("upstair").model_copy(update={"duration_s": 5.0})
+    cfg = cfg.model_copy(update={"faults": cfg.faults.model_copy(update={
+        "camera_time_offset_s": 0.02, "imu_accel_saturation_mps2": 39.2})})
+    rec = simulate(cfg, seed=2, out_dir=tmp_path / "rec")
+    meta = Recording.open(rec).metadata
+    assert meta.imu.accel_range_mps2 == pytest.approx(39.2)  # the emulated sensor's range
+    m = run_recording(rec, tmp_path / "run", PipelineConfig(), visualize=False,
+                      progress=False).metrics
+    assert m["time_offset"]["estimate_s"] == pytest.approx(0.02, abs=0.002)
+    assert m["time_offset"]["applied_s"] == m["time_offset"]["estimate_s"]
+    assert 0 < m["time_offset"]["sigma_s"] < 0.002
+    imu = Recording.open(rec).imu
+    n_sat = int(np.sum(np.any(np.abs(imu.accel_mps2) >= 0.99 * 39.2, axis=1)))
+    assert n_sat > 0 and m["imu_faults"]["accel_saturated_samples"] == n_sat
+    assert m["timestamps"]["imu"]["gaps"] == 0 and m["timestamps"]["imu"]["backwards"] == 0
+    assert m["ate_cm"]["filter"]["toe"]["x"] < 10.0
+
+
+def test_run_summary_reports_faults_offset_and_jumps() -> None:
+    from vio_graph.cli import fault_lines
+
+    assert fault_lines({"imu_faults": {"accel_saturated_samples": 0}, "timestamps": {
+        "imu": {"gaps": 0, "backwards": 0}}, "time_offset": {"applied_s": 0.0}}) == []
+    lines = fault_lines({
+        "imu_faults": {"accel_saturated_samples": 7, "gyro_saturated_samples": 0,
+                       "gyro_repaired_samples": 2, "vision_kept_against_imu": 1},
+        "time_offset": {"estimate_s": 0.0123, "sigma_s": 0.0004, "applied_s": 0.0123},
+        "timestamps": {"camera": {"gaps": 3, "gap_total_s": 0.2, "backwards": 1}}})
+    assert "7 accelerometer" in lines[0] and "2 gyro samples replaced" in lines[0]
+    assert "12.3 ms" in lines[1]
+    assert lines[2].startswith("camera timestamps: 3 gaps") and "1 stamps" in lines[2]
+
+
+def test_restamped_frames_stay_in_order_when_the_offset_is_first_applied() -> None:
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.types import DepthFrame
+
+    est = OnlineEstimator(PipelineConfig(), RigGeometry.from_metadata(tiny_metadata()))
+    depth, conf = np.zeros((12, 16), np.float32), np.zeros((12, 16), np.uint8)
+    f0 = est._restamp(DepthFrame(0, 1.0, depth, conf))
+    assert f0.timestamp_s == 1.0  # no offset applied: the frame itself
+    est.time_offset.applied_s = 0.03  # td became significant: next frame 30 ms earlier
+    f1 = est._restamp(DepthFrame(1, 1.0 + 1 / 30.0, depth, conf))
+    assert f1.timestamp_s == pytest.approx(1.0 + 0.5 / 30.0)  # half a period after f0
+    f2 = est._restamp(DepthFrame(2, 1.0 + 2 / 30.0, depth, conf))
+    assert f2.timestamp_s == pytest.approx(1.0 + 2 / 30.0 - 0.03)  # then stamp - td

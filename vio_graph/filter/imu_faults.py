@@ -1,0 +1,133 @@
+"""IMU samples the estimator should not trust: saturation, outliers, vision arbitration.
+
+Three mechanisms, none of them a fixed threshold on the raw signal (a causal median spike
+filter was tried and removed: heel-strike transients of the true specific force look like
+spikes to any such threshold):
+
+* **Saturation** (:class:`ImuFaultMonitor`): an axis at or beyond ``saturation_margin`` of the
+  range declared in the recording's metadata (``imu.accel_range_mps2``,
+  ``imu.gyro_range_radps``) is clipped; its true value lies beyond the rail by an unknown
+  amount, on the rail's side. With a half-normal prior of sigma s = ``saturation_sigma_range``
+  x range on that excess, its conditional mean is s sqrt(2/pi) and its sigma
+  s sqrt(1 - 2/pi): the clipped axis is moved beyond the rail by the mean (the clipped value
+  alone loses the whole excess, always in the same direction, and the velocity drifts by
+  metres per second over a heel strike), and the sample carries the sigma as an extra
+  uncertainty, which the filter adds to its velocity process noise and the smoothers to the
+  preintegration covariance, so the next visual displacements and the stance anchor correct
+  what the prior gets wrong. (A bridge by the rigid-shank kinematics, knee force held from the
+  last good sample plus the gyro's rotational terms, was tried: the knee's own deceleration
+  dominates at heel strike and rises within a sample, so it bridged almost nothing.)
+* **Gyro outliers** (:class:`ImuFaultMonitor`): the IMU gives two views of the rotation, the
+  gyro and the vendor orientation. Over one sample period the mean rate w_k from
+  consecutive orientations predicts the gyro, g_k ~ 2 w_k - g_{k-1}; a chi-square test (3
+  dof) on the residual flags a sample that disagrees and replaces it with that prediction
+  (extra sigma = the test sigma). A heel strike turns the orientation as much as the gyro,
+  so it passes. The sample is then taken as corrupt as a whole (a bus error or a shock hits
+  the packet): its accelerometer is replaced by the last trusted one, with an extra sigma of
+  ``held_accel_sigma_mps2``. An accelerometer-only outlier is left to vision (below).
+* **Accelerometer outliers** (:func:`velocity_fault_cov`, used by the estimator): vision
+  arbitrates. When the filter's chi-square gate refuses a displacement, the hypothesis "one
+  corrupted IMU sample in this interval" -- a velocity jump of sigma
+  ``velocity_fault_sigma_mps`` at mid-interval, which moves the position by half the
+  interval times the jump -- is tested with the same gate. If vision agrees with it, the
+  filter's position/velocity covariance is widened by that jump and the displacement is
+  fused; if not (a wrong association shifts a displacement by a whole stair step), the
+  refusal stands.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from vio_graph.filter.config import ImuFaultConfig
+from vio_graph.filter.gating import chi2_quantile
+from vio_graph.geometry import matrix_from_quat_wxyz
+from vio_graph.types import ImuSample
+
+_HALF_NORMAL_MEAN = float(np.sqrt(2.0 / np.pi))  # mean of |N(0, 1)|
+_HALF_NORMAL_SD = float(np.sqrt(1.0 - 2.0 / np.pi))  # its standard deviation
+
+
+class ImuFaultMonitor:
+    """Marks saturated samples and repairs gyro outliers, sample by sample (no look-ahead).
+
+    Feed the samples in the IMU's own axes (before any mounting rotation), in time order.
+    """
+
+    def __init__(self, config: ImuFaultConfig, accel_range_mps2: float | None,
+                 gyro_range_radps: float | None) -> None:
+        self.config = config
+        m = config.saturation_margin
+        self._acc_lim = np.inf if accel_range_mps2 is None else m * float(accel_range_mps2)
+        self._gyr_lim = np.inf if gyro_range_radps is None else m * float(gyro_range_radps)
+        self._acc_sig = 0.0 if accel_range_mps2 is None else (
+            config.saturation_sigma_range * float(accel_range_mps2))
+        self._gyr_sig = 0.0 if gyro_range_radps is None else (
+            config.saturation_sigma_range * float(gyro_range_radps))
+        self._gyro_d2 = chi2_quantile(config.gyro_ahrs_probability, 3)
+        self._prev: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._last_acc: NDArray[np.float64] | None = None  # last trusted specific force
+        self.n_accel_saturated = 0  #: samples with an accelerometer axis at the rail
+        self.n_gyro_saturated = 0  #: samples with a gyro axis at the rail
+        self.n_gyro_repaired = 0  #: gyro samples replaced by the orientation's rate
+        self.max_gyro_d2 = 0.0  #: largest test statistic seen (diagnostics)
+
+    def process(self, sample: ImuSample) -> ImuSample:
+        """The sample with its extra sigmas set (and its gyro replaced if it failed the test)."""
+        if not self.config.enabled:
+            return sample
+        acc = np.asarray(sample.accel_mps2, dtype=float)
+        gyr = np.asarray(sample.gyro_radps, dtype=float)
+        xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
+        acc_sat = bool(np.any(np.abs(acc) >= self._acc_lim))
+        gyr_sat = bool(np.any(np.abs(gyr) >= self._gyr_lim))
+        if acc_sat:
+            self.n_accel_saturated += 1
+            rail = np.abs(acc) >= self._acc_lim
+            acc = np.where(rail, acc + np.sign(acc) * self._acc_sig * _HALF_NORMAL_MEAN, acc)
+            xa = max(xa, self._acc_sig * _HALF_NORMAL_SD)
+        if gyr_sat:
+            self.n_gyro_saturated += 1
+            xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
+        t = float(sample.timestamp_s)
+        R = matrix_from_quat_wxyz(sample.quat_wxyz)
+        repaired = gyr
+        if self.config.gyro_ahrs_test and self._prev is not None and t > self._prev[0]:
+            t0, R0, g0 = self._prev
+            w = Rotation.from_matrix(R0.T @ R).as_rotvec() / (t - t0)  # mean rate, IMU axes
+            pred = 2.0 * w - g0
+            r = gyr - pred
+            d2 = float(r @ r) / self.config.gyro_ahrs_sigma_radps**2
+            self.max_gyro_d2 = max(self.max_gyro_d2, d2) if not gyr_sat else self.max_gyro_d2
+            if d2 > self._gyro_d2:
+                self.n_gyro_repaired += 1
+                repaired = pred
+                xg = max(xg, self.config.gyro_ahrs_sigma_radps) if not gyr_sat else xg
+                if self._last_acc is not None and not acc_sat:
+                    # the packet is corrupt: hold the last trusted specific force
+                    acc = self._last_acc
+                    xa = max(xa, self.config.held_accel_sigma_mps2)
+        self._prev = (t, R, repaired.copy())
+        if repaired is gyr and not acc_sat:
+            self._last_acc = acc.copy()
+        if repaired is gyr and xa == sample.accel_extra_sigma_mps2 \
+                and xg == sample.gyro_extra_sigma_radps:
+            return sample
+        return dataclasses.replace(sample, accel_mps2=acc, gyro_radps=repaired,
+                                   accel_extra_sigma_mps2=xa, gyro_extra_sigma_radps=xg)
+
+    def report(self) -> dict[str, int]:
+        return {"accel_saturated_samples": self.n_accel_saturated,
+                "gyro_saturated_samples": self.n_gyro_saturated,
+                "gyro_repaired_samples": self.n_gyro_repaired}
+
+
+def velocity_fault_cov(sigma_mps: float, interval_s: float) -> NDArray[np.float64]:
+    """4x4 covariance on (dp, dv) of a velocity jump of sigma ``sigma_mps`` at the middle of
+    an interval of ``interval_s`` seconds ending now: dv = j, dp = (interval / 2) j."""
+    J = np.vstack([0.5 * interval_s * np.eye(2), np.eye(2)])
+    return sigma_mps**2 * (J @ J.T)

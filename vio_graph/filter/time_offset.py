@@ -1,0 +1,187 @@
+"""Timestamps: camera-IMU time offset, IMU clock model, gaps and stamps that go backwards.
+
+**Camera-IMU time offset** (:class:`TimeOffsetEstimator`). A depth frame stamped t was
+captured at t - td on the IMU clock (td > 0: the camera's stamps are late). The slice of
+that frame is rotated into the ground frame with the IMU attitude at the time the estimator
+believes it was captured, t - td_applied; the shank turns at up to 5-8 rad/s, so an offset
+error tilts the slice by w (td - td_applied), w the shank pitch rate. Level surfaces (floor,
+treads, obstacle tops) measure that tilt (frontend/level.py; the level aiding uses the same
+measurement for the slowly drifting pitch error b of the vendor orientation). With the
+level aiding's current offset b_k, the measured residual tilt y_k and the applied td:
+
+    m_k = y_k + b_k - w_k td_applied = b - w_k td + noise
+
+a linear model in (b, td) whose regressor w_k changes sign twice per stride, so a 2-state
+Kalman filter (b a random walk like the level aiding's, td a constant with a tiny random
+walk, each measurement chi-square gated) separates them within a few strides. Why this and
+not a td state in the SP-ESKF driven by the displacements (VINS-Mono, OpenVINS): in the
+sagittal filter the displacement residual carries td only through the velocity change over
+a frame, (v1 - v0) td, about 1 mm for 10 ms, the same size as the filter's own velocity
+errors (0.2-0.3 m/s lag, FilterConfig.accel_noise_sigma_mps2), so it is confounded with
+them; the tilt channel is first order in the rotation rate (10 ms at 5 rad/s = 2.9 deg
+against a tilt noise of ~0.1 deg), independent of the filter's velocity, and cannot be
+biased by it. The same idea as VINS-Mono's (Qin & Shen, IROS 2018: the feature velocity
+times td), with the level line as the feature. td is applied (frames re-stamped
+t - td_applied) once it is ``apply_sigmas`` sigmas away from 0, so a synchronised rig keeps
+its stamps untouched.
+
+**Clock model** (:class:`ClockModel`). IMU samples are taken on the sensor's crystal at a
+nominal rate; transport (USB, I2C) adds jitter to the host stamps. A least-squares line
+t_k = a + T k over the last ``clock_window`` samples (k counted from the nominal period)
+gives each sample the line's value at k instead of its stamp: the jitter averages out, a
+clock drift (T off nominal) is kept, and no sample is corrected on its own. A stamp more
+than ``gap_periods`` periods after the previous one is a gap (reported, the fit restarts);
+a stamp at or before the previous one is reported and the sample dropped, never fused.
+Between gaps consecutive samples are one period apart: jitter is assumed below
+(``gap_periods`` - 1) periods, so a single missing sample is a gap.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from vio_graph.filter.config import TimeOffsetConfig
+from vio_graph.filter.gating import chi2_quantile
+
+_KEEP_TOL_S = 1e-6  # a stamp within this of the clock model is kept bit for bit
+_MIN_FIT = 20  # samples before the line's slope is fitted (else the nominal period)
+_MAX_REPORTED = 20  # gaps / backward stamps listed individually
+
+
+class ClockModel:
+    """Recursive line fit of one stream's stamps (module docstring)."""
+
+    def __init__(self, nominal_period_s: float, window: int, gap_periods: float,
+                 smooth: bool = True) -> None:
+        self.period_s = float(nominal_period_s)
+        self.window = int(window)
+        self.gap_periods = float(gap_periods)
+        self.smooth = smooth
+        self._pts: deque[tuple[int, float]] = deque(maxlen=self.window)
+        self._k = 0
+        self._last_stamp: float | None = None
+        self._last_out: float | None = None
+        self.gaps: list[dict[str, float]] = []
+        self.n_gaps = 0
+        self.gap_total_s = 0.0
+        self.n_backwards = 0
+        self.backwards: list[dict[str, float]] = []
+        self._corr: list[float] = []
+
+    def correct(self, stamp_s: float) -> float | None:
+        """The time to use for a sample stamped ``stamp_s`` (s), or None if the stamp is at or
+        before the previous one (the sample must be dropped)."""
+        t = float(stamp_s)
+        if self._last_stamp is not None and t <= self._last_stamp:
+            self.n_backwards += 1
+            if len(self.backwards) < _MAX_REPORTED:
+                self.backwards.append({"t_s": t, "jump_s": t - self._last_stamp})
+            return None
+        if self._last_stamp is not None:
+            dt = t - self._last_stamp
+            if dt > self.gap_periods * self.period_s:
+                self.n_gaps += 1
+                self.gap_total_s += dt
+                if len(self.gaps) < _MAX_REPORTED:
+                    self.gaps.append({"t_s": self._last_stamp, "duration_s": dt})
+                self._pts.clear()  # the clock may have jumped: a new line
+                self._k += max(1, int(round(dt / self.period_s)))
+            else:
+                # consecutive samples: counting periods from jittered stamps (or from the
+                # line's value at the previous sample, which the newest point pulls) miscounts
+                # a whole period now and then under 2 ms of jitter at 100 Hz
+                self._k += 1
+        self._last_stamp = t
+        self._pts.append((self._k, t))
+        out = self._fit(t) if self.smooth else t
+        if self._last_out is not None and out <= self._last_out:
+            out = t if t > self._last_out else self._last_out + 0.5 * self.period_s
+        self._last_out = out
+        self._corr.append(out - t)
+        return out
+
+    def _fit(self, t: float) -> float:
+        k = np.array([p[0] for p in self._pts], dtype=float)
+        ts = np.array([p[1] for p in self._pts])
+        if k.size >= _MIN_FIT:
+            _, icpt = np.polyfit(k - k[-1], ts, 1)  # the line's value at the newest k
+        else:
+            icpt = float(np.mean(ts - self.period_s * (k - k[-1])))
+        return t if abs(icpt - t) < _KEEP_TOL_S else float(icpt)
+
+    def report(self) -> dict:
+        c = np.asarray(self._corr)
+        return {
+            "gaps": self.n_gaps,
+            "gap_total_s": self.gap_total_s,
+            "gap_list": self.gaps,
+            "backwards": self.n_backwards,
+            "backwards_list": self.backwards,
+            "correction_rms_s": float(np.sqrt(np.mean(c**2))) if c.size else 0.0,
+            "correction_max_s": float(np.max(np.abs(c))) if c.size else 0.0,
+        }
+
+
+class TimeOffsetEstimator:
+    """2-state Kalman filter on (pitch error b (rad), camera-IMU offset td (s)); see the
+    module docstring."""
+
+    def __init__(self, config: TimeOffsetConfig, initial_b_sigma_rad: float,
+                 b_drift_rad_per_sqrt_s: float) -> None:
+        self.config = config
+        self.x = np.zeros(2)
+        self.P = np.diag([initial_b_sigma_rad**2, config.initial_sigma_s**2])
+        self._q = np.array([b_drift_rad_per_sqrt_s**2, config.drift_s_per_sqrt_s**2])
+        self._gate = chi2_quantile(config.gate_probability, 1)
+        self._t_s: float | None = None
+        self.applied_s = 0.0  #: td the fusion uses now (s)
+        self._latched = False
+        self.n_updates = 0
+        self.n_rejected = 0
+
+    @property
+    def td_s(self) -> float:
+        return float(self.x[1])
+
+    @property
+    def sigma_s(self) -> float:
+        return float(np.sqrt(self.P[1, 1]))
+
+    def update(self, t_s: float, tilt_rad: float, tilt_sigma_rad: float, offset_b_rad: float,
+               pitch_rate_radps: float) -> bool:
+        """One level-surface tilt ``tilt_rad`` measured on a slice rotated with the pitch
+        offset ``offset_b_rad`` and re-stamped by :attr:`applied_s`; ``pitch_rate_radps`` the
+        shank pitch rate (ground frame) at the frame. Returns False if gated out."""
+        if self._t_s is not None and t_s > self._t_s:
+            self.P[np.diag_indices(2)] += self._q * (t_s - self._t_s)
+        self._t_s = t_s if self._t_s is None else max(self._t_s, t_s)
+        m = tilt_rad + offset_b_rad - pitch_rate_radps * self.applied_s
+        H = np.array([1.0, -pitch_rate_radps])
+        r = tilt_sigma_rad**2
+        y = m - H @ self.x
+        s = float(H @ self.P @ H + r)
+        if self.n_updates > 10 and y * y > self._gate * s:
+            self.n_rejected += 1
+            return False
+        K = self.P @ H / s
+        self.x = self.x + K * y
+        self.P = self.P - np.outer(K, H @ self.P)
+        self.P = 0.5 * (self.P + self.P.T)
+        self.n_updates += 1
+        if self.config.estimate:
+            if not self._latched and abs(self.td_s) > self.config.apply_sigmas * self.sigma_s:
+                self._latched = True
+            if self._latched:
+                self.applied_s = self.td_s
+        return True
+
+    def report(self) -> dict:
+        return {
+            "estimate_s": self.td_s,
+            "sigma_s": self.sigma_s,
+            "applied_s": self.applied_s,
+            "updates": self.n_updates,
+            "rejected": self.n_rejected,
+        }

@@ -54,7 +54,8 @@ from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
 from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_pitch_offset
 from vio_graph.filter.corner_landmarks import CornerLandmarks
-from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
+from vio_graph.filter.eskf import SagittalEskf
+from vio_graph.filter.fast_imu import pitch_offset_quat, sagittal_rotation_fast
 from vio_graph.filter.gating import chi2_2dof_quantile
 from vio_graph.filter.stance import StanceConsistencyTest, StanceDetector
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
@@ -90,6 +91,19 @@ from vio_graph.types import (
     LandmarkKey,
     StanceObservation,
 )
+
+
+def reference_pitch_offset_quat(quat_wxyz: NDArray[np.float64], offset_rad: float
+                                ) -> NDArray[np.float64]:
+    """numpy reference of ``fast_imu.pitch_offset_quat`` (the tests compare the two)."""
+    R = with_pitch_offset(matrix_from_quat_wxyz(quat_wxyz), offset_rad)
+    return quat_wxyz_from_matrix(R)
+
+
+#: per-IMU-sample closed forms (filter/fast_imu.py); the tests swap in the numpy references
+#: (``reference_pitch_offset_quat``, ``filter.eskf.sagittal_rotation``) and compare states.
+_pitch_offset_quat = pitch_offset_quat
+_sagittal_rotation = sagittal_rotation_fast
 
 
 @dataclass(frozen=True)
@@ -268,7 +282,7 @@ class OnlineEstimator:
             self.filter.propagate(sample)
         if self.config.filter.stance_anchor:
             self._stance.add_imu(sample.timestamp_s, sample.accel_mps2, sample.gyro_radps,
-                                 sagittal_rotation(sample.quat_wxyz),
+                                 _sagittal_rotation(sample.quat_wxyz),
                                  self.config.filter.gravity_xz_mps2)
         self._last_imu = sample
         self._imu_ms += (time.perf_counter() - t0) * 1e3
@@ -298,8 +312,7 @@ class OnlineEstimator:
         b = self.pitch_offset.offset_rad
         if not self.pitch_offset.initialised or b == 0.0:
             return sample
-        R = with_pitch_offset(matrix_from_quat_wxyz(sample.quat_wxyz), b)
-        return dataclasses.replace(sample, quat_wxyz=quat_wxyz_from_matrix(R))
+        return dataclasses.replace(sample, quat_wxyz=_pitch_offset_quat(sample.quat_wxyz, b))
 
     def R_world_imu(self, t_s: float | None = None) -> NDArray[np.float64]:
         """Attitude at ``t_s`` (default: the latest IMU sample) with the heading removed (the

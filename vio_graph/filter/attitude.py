@@ -31,16 +31,19 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import AttitudeConfig, LevelAidingConfig
+from vio_graph.filter.fast_imu import (
+    Mat3,
+    mat3_mul,
+    mat3_rotvec,
+    mat3_tmul,
+    quat_matrix,
+    rotvec_mat3,
+)
 from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw, rot_y
 from vio_graph.types import ImuSample
-
-
-def _rotvec_matrix(rotvec: NDArray[np.float64]) -> NDArray[np.float64]:
-    return Rotation.from_rotvec(rotvec).as_matrix()
 
 
 class AttitudeTracker:
@@ -52,14 +55,18 @@ class AttitudeTracker:
 
     def __init__(self, config: AttitudeConfig | None = None) -> None:
         self.config = AttitudeConfig() if config is None else config
-        self._R: NDArray[np.float64] | None = None
+        self._R: Mat3 | None = None  # R_world_imu, row-major
         self._t_s = 0.0
-        self._gyro_radps = np.zeros(3)
+        self._gyro_radps = (0.0, 0.0, 0.0)  # rad/s, latest sample
 
     def add(self, imu: ImuSample) -> None:
-        """Advance to ``imu.timestamp_s`` with the sample's gyro rate and vendor orientation."""
-        R_vendor = matrix_from_quat_wxyz(imu.quat_wxyz)
-        gyro = np.asarray(imu.gyro_radps, dtype=float)
+        """Advance to ``imu.timestamp_s`` with the sample's gyro rate and vendor orientation.
+
+        Scalar closed forms (filter/fast_imu.py); :meth:`add_reference` is the numpy / scipy
+        version the tests compare it with.
+        """
+        R_vendor = quat_matrix(imu.quat_wxyz)
+        gx, gy, gz = np.asarray(imu.gyro_radps, dtype=float).tolist()
         t = float(imu.timestamp_s)
         if self._R is None or self.config.source != "complementary":
             self._R = R_vendor
@@ -67,12 +74,34 @@ class AttitudeTracker:
             dt = t - self._t_s
             if dt < 0:
                 raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
-            R = self._R @ _rotvec_matrix(0.5 * (self._gyro_radps + gyro) * dt)
+            px, py, pz = self._gyro_radps
+            R = mat3_mul(self._R, rotvec_mat3(0.5 * (px + gx) * dt, 0.5 * (py + gy) * dt,
+                                              0.5 * (pz + gz) * dt))
+            k = min(1.0, dt / self.config.time_constant_s)
+            ex, ey, ez = mat3_rotvec(mat3_tmul(R, R_vendor))
+            self._R = mat3_mul(R, rotvec_mat3(k * ex, k * ey, k * ez))
+        self._t_s, self._gyro_radps = t, (gx, gy, gz)
+
+    def add_reference(self, imu: ImuSample) -> None:
+        """numpy / scipy reference of :meth:`add` (same attitude to rounding)."""
+        from scipy.spatial.transform import Rotation
+
+        R_vendor = matrix_from_quat_wxyz(imu.quat_wxyz)
+        gyro = np.asarray(imu.gyro_radps, dtype=float)
+        t = float(imu.timestamp_s)
+        if self._R is None or self.config.source != "complementary":
+            R = R_vendor
+        else:
+            dt = t - self._t_s
+            if dt < 0:
+                raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
+            R = np.array(self._R).reshape(3, 3)
+            R = R @ Rotation.from_rotvec(0.5 * (np.array(self._gyro_radps) + gyro) * dt).as_matrix()
             k = min(1.0, dt / self.config.time_constant_s)
             err = Rotation.from_matrix(R.T @ R_vendor).as_rotvec()
-            R = R @ _rotvec_matrix(k * err)
-            self._R = R
-        self._t_s, self._gyro_radps = t, gyro
+            R = R @ Rotation.from_rotvec(k * err).as_matrix()
+        self._R = tuple(R.ravel().tolist())
+        self._t_s, self._gyro_radps = t, tuple(gyro.tolist())
 
     @property
     def initialised(self) -> bool:
@@ -83,9 +112,10 @@ class AttitudeTracker:
         if self._R is None:
             raise EstimationError("no IMU sample yet")
         if self.config.source == "vendor":
-            return self._R.copy()
+            return np.array(self._R).reshape(3, 3)
         dt = max(0.0, float(t_s) - self._t_s)
-        return self._R @ _rotvec_matrix(self._gyro_radps * dt)
+        gx, gy, gz = self._gyro_radps
+        return np.array(mat3_mul(self._R, rotvec_mat3(gx * dt, gy * dt, gz * dt))).reshape(3, 3)
 
 
 def with_pitch_offset(R_world_imu: NDArray[np.float64], offset_rad: float) -> NDArray[np.float64]:

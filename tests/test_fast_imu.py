@@ -16,7 +16,13 @@ from vio_graph.filter import fast_imu
 from vio_graph.filter.attitude import AttitudeTracker, with_pitch_offset
 from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
 from vio_graph.filter.stance import StanceDetector
-from vio_graph.geometry import matrix_from_quat_wxyz, quat_wxyz_from_matrix, rot_y, rot_z
+from vio_graph.geometry import (
+    matrix_from_quat_wxyz,
+    quat_wxyz_from_matrix,
+    remove_yaw,
+    rot_y,
+    rot_z,
+)
 from vio_graph.recording import Recording
 from vio_graph.replay import Replay
 from vio_graph.types import ImuSample
@@ -46,6 +52,9 @@ def test_closed_forms_match_the_numpy_references() -> None:
                                    matrix_from_quat_wxyz(q), atol=1e-14)
         np.testing.assert_allclose(fast_imu.sagittal_rotation_fast(q), sagittal_rotation(q),
                                    atol=1e-12)
+        m = fast_imu.quat_matrix(q)
+        np.testing.assert_allclose(np.reshape(fast_imu.remove_yaw_mat3(m), (3, 3)),
+                                   remove_yaw(np.reshape(m, (3, 3))), atol=1e-14)
         b = rng.normal(0.0, 0.1)
         ref = quat_wxyz_from_matrix(with_pitch_offset(matrix_from_quat_wxyz(q), b))
         got = fast_imu.pitch_offset_quat(q, b)
@@ -55,6 +64,9 @@ def test_closed_forms_match_the_numpy_references() -> None:
         R = matrix_from_quat_wxyz(q)
         np.testing.assert_allclose(fast_imu.matrix_rotvec(R),
                                    Rotation.from_matrix(R).as_rotvec(), atol=1e-12)
+    for b in (-0.4, 0.0, 1e-3, 2.5):
+        np.testing.assert_allclose(np.reshape(fast_imu.rot_y_mat3(b), (3, 3)), rot_y(b),
+                                   atol=0)
     for scale in (0.0, 1e-9, 1e-4, 0.3, 3.0):
         v = rng.normal(size=3) * scale
         np.testing.assert_allclose(fast_imu.rotvec_matrix(*v),
@@ -129,6 +141,8 @@ def test_a_whole_replay_equals_the_reference_path(short_upstair: Path,
     monkeypatch.setattr(AttitudeTracker, "add", AttitudeTracker.add_reference)
     monkeypatch.setattr(StanceDetector, "add_imu", StanceDetector.add_imu_reference)
     monkeypatch.setattr(estimator_mod, "_sagittal_rotation", sagittal_rotation)
+    monkeypatch.setattr(estimator_mod.OnlineEstimator, "R_world_imu",
+                        estimator_mod.OnlineEstimator.R_world_imu_reference)
     monkeypatch.setattr(estimator_mod, "_pitch_offset_quat",
                         estimator_mod.reference_pitch_offset_quat)
     ref = run()

@@ -55,7 +55,13 @@ from vio_graph.errors import EstimationError
 from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_pitch_offset
 from vio_graph.filter.corner_landmarks import CornerLandmarks
 from vio_graph.filter.eskf import SagittalEskf
-from vio_graph.filter.fast_imu import pitch_offset_quat, sagittal_rotation_fast
+from vio_graph.filter.fast_imu import (
+    mat3_mul,
+    pitch_offset_quat,
+    remove_yaw_mat3,
+    rot_y_mat3,
+    sagittal_rotation_fast,
+)
 from vio_graph.filter.gating import chi2_2dof_quantile
 from vio_graph.filter.stance import StanceConsistencyTest, StanceDetector
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
@@ -317,6 +323,15 @@ class OnlineEstimator:
     def R_world_imu(self, t_s: float | None = None) -> NDArray[np.float64]:
         """Attitude at ``t_s`` (default: the latest IMU sample) with the heading removed (the
         paper's ground frame); ``config.filter.attitude`` says how (filter/attitude.py)."""
+        if self._last_imu is None:
+            raise EstimationError("no IMU sample yet")
+        t = self._last_imu.timestamp_s if t_s is None else t_s
+        G = remove_yaw_mat3(self.attitude.R_world_imu_at_mat3(t))  # scalar closed forms
+        b = self.pitch_offset.offset_rad
+        return np.array(mat3_mul(rot_y_mat3(b), G) if b != 0.0 else G).reshape(3, 3)
+
+    def R_world_imu_reference(self, t_s: float | None = None) -> NDArray[np.float64]:
+        """numpy reference of :meth:`R_world_imu` (the tests compare the two)."""
         if self._last_imu is None:
             raise EstimationError("no IMU sample yet")
         t = self._last_imu.timestamp_s if t_s is None else t_s

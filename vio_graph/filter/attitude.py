@@ -109,13 +109,17 @@ class AttitudeTracker:
 
     def R_world_imu_at(self, t_s: float) -> NDArray[np.float64]:
         """(3, 3) R_world_imu at ``t_s`` (heading included; the caller removes it)."""
+        return np.array(self.R_world_imu_at_mat3(t_s)).reshape(3, 3)
+
+    def R_world_imu_at_mat3(self, t_s: float) -> Mat3:
+        """:meth:`R_world_imu_at` as a row-major tuple."""
         if self._R is None:
             raise EstimationError("no IMU sample yet")
         if self.config.source == "vendor":
-            return np.array(self._R).reshape(3, 3)
+            return self._R
         dt = max(0.0, float(t_s) - self._t_s)
         gx, gy, gz = self._gyro_radps
-        return np.array(mat3_mul(self._R, rotvec_mat3(gx * dt, gy * dt, gz * dt))).reshape(3, 3)
+        return mat3_mul(self._R, rotvec_mat3(gx * dt, gy * dt, gz * dt))
 
 
 def with_pitch_offset(R_world_imu: NDArray[np.float64], offset_rad: float) -> NDArray[np.float64]:

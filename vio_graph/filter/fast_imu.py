@@ -154,6 +154,23 @@ def matrix_rotvec(R: NDArray[np.float64]) -> tuple[float, float, float]:
     return mat3_rotvec(tuple(np.asarray(R, dtype=float).ravel().tolist()))
 
 
+def remove_yaw_mat3(m: Mat3) -> Mat3:
+    """``geometry.remove_yaw`` of one row-major rotation: rot_z(-yaw') @ R with yaw' the
+    heading or heading + pi, whichever leaves the larger R[1, 1]."""
+    c, s, sign = _heading(m)
+    c, s = sign * c, sign * s  # rot_z(-(yaw + pi)) = -rot_z(-yaw) on the x-y rows
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
+    return (c * m0 + s * m3, c * m1 + s * m4, c * m2 + s * m5,
+            -s * m0 + c * m3, -s * m1 + c * m4, -s * m2 + c * m5,
+            m6, m7, m8)
+
+
+def rot_y_mat3(angle_rad: float) -> Mat3:
+    """``geometry.rot_y`` of one angle (rad), row-major."""
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    return (c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c)
+
+
 def pitch_offset_quat(q: ArrayLike, offset_rad: float) -> NDArray[np.float64]:
     """Quaternion [w, x, y, z] (w >= 0) of ``attitude.with_pitch_offset(R(q), offset_rad)``:
     R(q) turned by ``offset_rad`` about the lateral axis of its own ground frame, i.e. about

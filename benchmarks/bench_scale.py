@@ -116,7 +116,7 @@ def markdown(r: dict) -> str:
                 continue
             extra = ""
             if stage == "online":
-                extra = f"{row['duration_s'] / m['wall_s']:.1f}x real time"
+                extra = f"{row['duration_s'] / m['cpu_s']:.1f}x real time on CPU time"
             if stage == "batch" and row.get("batch_solve_s") is not None:
                 extra = f"batch solve {f(row['batch_solve_s'])} s"
             rows.append([f"{row['duration_s']:g} s ({row['frames']} frames)", stage,

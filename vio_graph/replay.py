@@ -53,10 +53,9 @@ class TimingTable:
                 grown[: self._n] = col[: self._n]
                 self._cols[name] = grown
         for name, ms in row.items():
-            col = self._cols.get(name)
-            if col is None:
-                col = self._cols[name] = np.full(self._cap, np.nan)
-            col[self._n] = ms
+            if name not in self._cols:
+                self._cols[name] = np.full(self._cap, np.nan)
+            self._cols[name][self._n] = ms
         self._n += 1
 
     def __len__(self) -> int:

@@ -100,8 +100,10 @@ class AttitudeTracker:
             k = min(1.0, dt / self.config.time_constant_s)
             err = Rotation.from_matrix(R.T @ R_vendor).as_rotvec()
             R = R @ Rotation.from_rotvec(k * err).as_matrix()
-        self._R = tuple(R.ravel().tolist())
-        self._t_s, self._gyro_radps = t, tuple(gyro.tolist())
+        r = R.ravel().tolist()
+        self._R = (r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8])
+        gx, gy, gz = gyro.tolist()
+        self._t_s, self._gyro_radps = t, (gx, gy, gz)
 
     @property
     def initialised(self) -> bool:

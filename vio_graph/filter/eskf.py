@@ -185,7 +185,8 @@ class SagittalEskf:
         self._aug_xz: dict[LandmarkKey | str, NDArray[np.float64]] = {}
         self._clone_t_s = 0.0
         self._prev: _ImuMemo | None = None
-        self._accel_w_mps2 = np.zeros(2)  # last ground-frame acceleration, for p(t)
+        # last ground-frame acceleration (m/s^2), for p(t); propagate() stores a tuple
+        self._accel_w_mps2: NDArray[np.float64] | tuple[float, float] = np.zeros(2)
         self._history: deque[tuple[float, NDArray[np.float64]]] = deque()
         self._last_accept_s = -np.inf
         self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0

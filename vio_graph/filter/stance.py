@@ -88,10 +88,11 @@ class StanceDetector:
         t = float(timestamp_s)
         w = np.asarray(gyro_radps, dtype=float)
         f = np.asarray(accel_mps2, dtype=float)
-        prev_t, prev_w = (None, None) if self._prev is None else self._prev
-        prev_w = None if prev_w is None else np.array(prev_w)
+        prev_t = None if self._prev is None else self._prev[0]
+        prev_w = None if self._prev is None else np.array(self._prev[1])
         alpha = angular_acceleration(t, w, prev_t, prev_w)
-        self._prev = (t, tuple(w.tolist()))
+        gx, gy, gz = w.tolist()
+        self._prev = (t, (gx, gy, gz))
         centripetal, tangential = lever_arm_terms(w, alpha, self._r)
         f_ankle = f + tangential + centripetal
         a = R_sagittal @ f_ankle[[0, 2]] + np.asarray(gravity_xz_mps2, dtype=float)

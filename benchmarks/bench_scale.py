@@ -124,8 +124,9 @@ def markdown(r: dict) -> str:
             rows.append([f"{row['duration_s']:g} s ({row['frames']} frames)", stage,
                          f(m["wall_s"], 1), f(m["cpu_s"], 1), f(m["peak_rss_mib"], 0), extra])
     return "\n".join([
-        "Stages as separate processes (`vio-graph simulate`; `vio-graph run REC --mode filter "
-        "--no-rerun` = online; `--mode batch --no-rerun` = batch, which includes the online "
+        "Stages as separate processes (`vio-graph simulate --scenario S --seed 1 --out REC`; "
+        "online = `vio-graph run REC --out OUT --mode filter --no-rerun`; batch = "
+        "`vio-graph run REC --out OUT --mode batch --no-rerun`, which includes the online "
         "pass), each with trajectories, metrics, plots and map written. Wall and CPU seconds and "
         "peak resident memory of that process (`os.wait4`); single thread. Scenario: "
         "configs/upstair_long.yaml stretched to the trial length.",

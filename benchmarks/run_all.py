@@ -102,7 +102,8 @@ def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any],
                  "render"])
     for row in sc["rows"]:
         on = row["online"]
-        rows.append([f"`vio-graph run --mode filter --no-rerun`, {row['duration_s']:g} s trial",
+        rows.append([f"`vio-graph run REC --out OUT --mode filter --no-rerun`, "
+                     f"{row['duration_s']:g} s trial",
                      f"{f(on['wall_s'], 1)} s wall, {f(on['cpu_s'], 1)} s CPU",
                      f"peak RSS {f(on['peak_rss_mib'], 0)} MiB; see Scale"])
     return _common.md_table(["what", "median / p95", "reference"], rows)

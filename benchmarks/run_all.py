@@ -20,28 +20,35 @@ from typing import Any
 
 import _common  # noqa: I001 - first: pins thread pools before numpy is imported
 import bench_frontend
+import bench_scale
 import bench_simulator
 import bench_smoother
 
-BENCHMARKS = ("frontend", "smoother", "simulator")  # frontend first: it simulates the recording
+# frontend first: it simulates the recording
+BENCHMARKS = ("frontend", "smoother", "simulator", "scale")
 DOC = _common.BENCH_DIR.parent / "docs" / "performance.md"
 COMMAND = "python benchmarks/run_all.py"
+#: trial lengths of the scaling table; 600 s (18,000 frames) is
+#: ``python benchmarks/bench_scale.py --durations 10 60 600`` (about an hour on 2 busy cores)
+SCALE_DURATIONS_S = ("10", "60")
 
 
 def run_benchmark(name: str, quick: bool) -> float:
     """Run benchmarks/bench_<name>.py in a fresh single-threaded process; wall time (s)."""
     args = [sys.executable, str(_common.BENCH_DIR / f"bench_{name}.py")]
     if quick:
-        args += {"frontend": ["--quick"], "smoother": ["--quick"], "simulator": ["--runs", "1"]}[
-            name
-        ]
+        args += {"frontend": ["--quick"], "smoother": ["--quick"], "simulator": ["--runs", "1"],
+                 "scale": ["--durations", "10"]}[name]
+    elif name == "scale":
+        args += ["--durations", *SCALE_DURATIONS_S]
     env = dict(os.environ, **{v: "1" for v in _common.THREAD_VARIABLES})
     t0 = time.perf_counter()
     subprocess.run(args, check=True, env=env, stdout=subprocess.DEVNULL)
     return time.perf_counter() - t0
 
 
-def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any]) -> str:
+def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any],
+            sc: dict[str, Any]) -> str:
     f = _common.fmt
     ours, best = fe["ours_ms"], fe["ours_best_of_repeats_ms"]
     o3d = fe["open3d"]["imu"]["ms"]
@@ -49,7 +56,13 @@ def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any]) -> str:
     default_w = [x for x in sm["replay"]["fixed_lag"] if x["window_s"] == 2.0]
     sm_row = default_w[0] if default_w else sm["replay"]["fixed_lag"][0]
     batch60 = [b for b in sm["batch"] if b["trial_s"] == 60.0]
+    imu = fe.get("imu_us_per_sample")
+    kiss = fe.get("kiss_icp")
     rows = [
+        *([["IMU propagation per sample (attitude, SP-ESKF, stance detector)",
+            f"{f(imu['fast']['median'], 1)} / {f(imu['fast']['p95'], 1)} us",
+            f"target <= 20 us; numpy reference {f(imu['reference']['median'], 1)} us "
+            f"(fast / reference = {f(imu['ratio_median'], 3)})"]] if imu else []),
         ["front end + fusion per frame (simulated upstair)",
          f"{f(ours['frontend_plus_fusion']['median'])} / "
          f"{f(ours['frontend_plus_fusion']['p95'])} ms",
@@ -66,6 +79,12 @@ def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any]) -> str:
          f"{f(o3d['median'], 1)} / {f(o3d['p95'], 1)} ms",
          f"paper ~{fe['paper_ms']['direct_icp']:.0f} ms; ours / open3d = "
          f"{f(fe['ratios']['ours_frontend_plus_fusion_over_open3d_imu'], 3)}"],
+        *([["KISS-ICP odometry, small-scene configuration, per frame",
+            f"{f(kiss['ms']['median'], 1)} / {f(kiss['ms']['p95'], 1)} ms",
+            f"displacement error {f(kiss['err_mm']['median'], 1)} mm median (ours "
+            f"{f(fe['ours_displacement']['err_mm']['median'], 1)}); ours / KISS-ICP = "
+            f"{f(fe['ratios']['ours_frontend_plus_fusion_over_kiss_icp'], 3)}"]]
+          if kiss else []),
         [f"fixed-lag smoother per keyframe, {sm_row['window_s']:g} s window (replay)",
          f"{f(sm_row['update_plus_build_ms']['median'])} / "
          f"{f(sm_row['update_plus_build_ms']['p95'])} ms", "update + factor building"],
@@ -81,14 +100,20 @@ def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any]) -> str:
                  f"{f(sim['simulate_median_s'], 1)} s",
                  f"median of {sim['runs']}; {f(sim['render_ms_per_frame'], 1)} ms per frame "
                  "render"])
+    for row in sc["rows"]:
+        on = row["online"]
+        rows.append([f"`vio-graph run REC --out OUT --mode filter --no-rerun`, "
+                     f"{row['duration_s']:g} s trial",
+                     f"{f(on['wall_s'], 1)} s wall, {f(on['cpu_s'], 1)} s CPU",
+                     f"peak RSS {f(on['peak_rss_mib'], 0)} MiB; see Scale"])
     return _common.md_table(["what", "median / p95", "reference"], rows)
 
 
 def render(walls_s: dict[str, float], quick: bool) -> str:
-    fe, sm, sim = (_common.read_result(n) for n in BENCHMARKS)
+    fe, sm, sim, sc = (_common.read_result(n) for n in BENCHMARKS)
     m = fe["machine"]
     loads = ", ".join(f"{n} {r['machine']['load_average_1_5_15min'][0]}"
-                      for n, r in zip(BENCHMARKS, (fe, sm, sim), strict=True))
+                      for n, r in zip(BENCHMARKS, (fe, sm, sim, sc), strict=True))
     lines = [
         "# Performance",
         "",
@@ -96,7 +121,7 @@ def render(walls_s: dict[str, float], quick: bool) -> str:
         + (" (--quick: fewer repeats, numbers less reliable)" if quick else "") + ". "
         "Do not edit by hand; rerun instead.",
         "",
-        "Reproduce (from the repository root, about 3-5 minutes):",
+        "Reproduce (from the repository root, about 10-15 minutes):",
         "",
         "```bash",
         COMMAND + (" --quick" if quick else ""),
@@ -115,7 +140,7 @@ def render(walls_s: dict[str, float], quick: bool) -> str:
         "",
         "## Summary",
         "",
-        summary(fe, sm, sim),
+        summary(fe, sm, sim, sc),
         "",
         "## Front end, fusion and kinematics per frame",
         "",
@@ -128,6 +153,13 @@ def render(walls_s: dict[str, float], quick: bool) -> str:
         "## Simulator",
         "",
         bench_simulator.markdown(sim),
+        "",
+        "## Scale",
+        "",
+        bench_scale.markdown(sc),
+        "",
+        "The 600 s (18,000 frames) row: `python benchmarks/bench_scale.py --durations 10 60 600` "
+        "(simulating and running it takes about an hour on this machine when it is busy).",
         "",
     ]
     if walls_s:

@@ -58,7 +58,14 @@ from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
 from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_pitch_offset
 from vio_graph.filter.corner_landmarks import CornerLandmarks
-from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
+from vio_graph.filter.eskf import SagittalEskf
+from vio_graph.filter.fast_imu import (
+    mat3_mul,
+    pitch_offset_quat,
+    remove_yaw_mat3,
+    rot_y_mat3,
+    sagittal_rotation_fast,
+)
 from vio_graph.filter.gating import chi2_2dof_quantile
 from vio_graph.filter.imu_faults import ImuFaultMonitor, velocity_fault_cov
 from vio_graph.filter.stance import StanceConsistencyTest, StanceDetector
@@ -100,6 +107,19 @@ from vio_graph.types import (
 
 #: what the front end's tracker says when ICP disagrees with the IMU prediction
 _PREDICTION_REFUSAL = "disagrees with the IMU prediction"
+
+
+def reference_pitch_offset_quat(quat_wxyz: NDArray[np.float64], offset_rad: float
+                                ) -> NDArray[np.float64]:
+    """numpy reference of ``fast_imu.pitch_offset_quat`` (the tests compare the two)."""
+    R = with_pitch_offset(matrix_from_quat_wxyz(quat_wxyz), offset_rad)
+    return quat_wxyz_from_matrix(R)
+
+
+#: per-IMU-sample closed forms (filter/fast_imu.py); the tests swap in the numpy references
+#: (``reference_pitch_offset_quat``, ``filter.eskf.sagittal_rotation``) and compare states.
+_pitch_offset_quat = pitch_offset_quat
+_sagittal_rotation = sagittal_rotation_fast
 
 
 @dataclass(frozen=True)
@@ -330,7 +350,7 @@ class OnlineEstimator:
         self._propagate_until(sample.timestamp_s - max(self.time_offset.applied_s, 0.0))
         if self.config.filter.stance_anchor:
             self._stance.add_imu(sample.timestamp_s, sample.accel_mps2, sample.gyro_radps,
-                                 sagittal_rotation(sample.quat_wxyz),
+                                 _sagittal_rotation(sample.quat_wxyz),
                                  self.config.filter.gravity_xz_mps2)
         self._last_imu = sample
         self._imu_ms += (time.perf_counter() - t0) * 1e3
@@ -366,12 +386,20 @@ class OnlineEstimator:
         b = self.pitch_offset.offset_rad
         if not self.pitch_offset.initialised or b == 0.0:
             return sample
-        R = with_pitch_offset(matrix_from_quat_wxyz(sample.quat_wxyz), b)
-        return dataclasses.replace(sample, quat_wxyz=quat_wxyz_from_matrix(R))
+        return dataclasses.replace(sample, quat_wxyz=_pitch_offset_quat(sample.quat_wxyz, b))
 
     def R_world_imu(self, t_s: float | None = None) -> NDArray[np.float64]:
         """Attitude at ``t_s`` (default: the latest IMU sample) with the heading removed (the
         paper's ground frame); ``config.filter.attitude`` says how (filter/attitude.py)."""
+        if self._last_imu is None:
+            raise EstimationError("no IMU sample yet")
+        t = self._last_imu.timestamp_s if t_s is None else t_s
+        G = remove_yaw_mat3(self.attitude.R_world_imu_at_mat3(t))  # scalar closed forms
+        b = self.pitch_offset.offset_rad
+        return np.array(mat3_mul(rot_y_mat3(b), G) if b != 0.0 else G).reshape(3, 3)
+
+    def R_world_imu_reference(self, t_s: float | None = None) -> NDArray[np.float64]:
+        """numpy reference of :meth:`R_world_imu` (the tests compare the two)."""
         if self._last_imu is None:
             raise EstimationError("no IMU sample yet")
         t = self._last_imu.timestamp_s if t_s is None else t_s

@@ -25,6 +25,9 @@ def rot_y(angle_rad: float | NDArray[np.float64]) -> NDArray[np.float64]:
     """
     a = np.asarray(angle_rad, dtype=float)
     c, s = np.cos(a), np.sin(a)
+    if a.ndim == 0:  # one angle: the same values without the stacking (~10x cheaper)
+        c, s = float(c), float(s)
+        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     zero, one = np.zeros_like(a), np.ones_like(a)
     m = np.stack(
         [np.stack([c, zero, s], -1), np.stack([zero, one, zero], -1), np.stack([-s, zero, c], -1)],

@@ -42,12 +42,13 @@ def write_frames_csv(path: Path, lg: FrameLog) -> Path:
 
     rows = ["frame,timestamp_s,status,terrain,displacement,rejection,keyframe,frontend_ms,"
             "stance," + ",".join(CSV_COLUMNS)]
+    fe_ms = lg.timings_ms.column("frontend_total")
     for k, t in enumerate(lg.t_s):
         safety = lg.safety[k] if k < len(lg.safety) else None
         rows.append(
             f"{k},{t:.6f},{lg.status[k]},{lg.terrain[k]},{int(lg.displacement_ok[k])},"
             f"{lg.rejection[k].replace(',', ';')},{int(lg.is_keyframe[k])},"
-            f"{lg.timings_ms[k].get('frontend_total', float('nan')):.4f},{int(lg.in_stance[k])},"
+            f"{fe_ms[k]:.4f},{int(lg.in_stance[k])},"
             + ",".join(csv_values(safety))
         )
     atomic_write_text(path, "\n".join(rows) + "\n")
@@ -94,7 +95,7 @@ def latency_summary(lg: FrameLog, estimator_latency_ms: Mapping[str, Any]) -> di
     (``estimator_latency_ms``, e.g. the smoother's per-keyframe update)."""
 
     def col(name: str) -> list[float]:
-        return [t.get(name, np.nan) for t in lg.timings_ms]
+        return lg.timings_ms.column(name).tolist()
 
     fe = col("frontend_total")
     fusion, kin, imu = col("fusion"), col("kinematics"), col("imu_propagation")

@@ -33,6 +33,49 @@ MODES = ("filter", "smoother", "batch")
 BASELINES = ("imu_only", "icp_only")
 
 
+class TimingTable:
+    """Per-frame stage timings (ms): one float64 column per stage, grown by doubling, so a
+    long trial keeps 8 bytes a value instead of a dict a frame (~1 KB). Reads like the list
+    of dicts it replaces: ``table[k]`` is frame k's ``{stage: ms}`` (stages that frame did not
+    time left out), iteration yields those dicts; :meth:`column` gives one stage as an array
+    (NaN where not timed)."""
+
+    def __init__(self) -> None:
+        self._cols: dict[str, NDArray[np.float64]] = {}
+        self._n = 0
+        self._cap = 0
+
+    def append(self, row: dict[str, float]) -> None:
+        if self._n == self._cap:
+            self._cap = max(64, 2 * self._cap)
+            for name, col in self._cols.items():
+                grown = np.full(self._cap, np.nan)
+                grown[: self._n] = col[: self._n]
+                self._cols[name] = grown
+        for name, ms in row.items():
+            if name not in self._cols:
+                self._cols[name] = np.full(self._cap, np.nan)
+            self._cols[name][self._n] = ms
+        self._n += 1
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, k: int) -> dict[str, float]:
+        if not -self._n <= k < self._n:
+            raise IndexError(f"frame {k} of {self._n}")
+        k %= self._n
+        return {name: float(col[k]) for name, col in self._cols.items() if not np.isnan(col[k])}
+
+    def __iter__(self):
+        return (self[k] for k in range(self._n))
+
+    def column(self, name: str) -> NDArray[np.float64]:
+        """Stage ``name`` (ms) at every frame, NaN where it was not timed."""
+        col = self._cols.get(name)
+        return np.full(self._n, np.nan) if col is None else col[: self._n].copy()
+
+
 @dataclass
 class FrameLog:
     """Per-frame quantities collected during the replay (lists, one entry per depth frame);
@@ -49,7 +92,7 @@ class FrameLog:
     rejection: list[str] = field(default_factory=list)
     is_keyframe: list[bool] = field(default_factory=list)
     profiles: dict[int, NDArray[np.float64]] = field(default_factory=dict)  # keyframes only
-    timings_ms: list[dict[str, float]] = field(default_factory=list)
+    timings_ms: TimingTable = field(default_factory=TimingTable)
     in_stance: list[bool] = field(default_factory=list)  # stance anchor used at this frame
     displacements: list[Displacement2D] = field(default_factory=list)  # the front end's
     safety: list[Any] = field(default_factory=list)  # SafetyEstimate | None (safety/online.py)

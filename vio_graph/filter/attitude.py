@@ -33,18 +33,21 @@ from collections import deque
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import AttitudeConfig, LevelAidingConfig
+from vio_graph.filter.fast_imu import (
+    Mat3,
+    mat3_mul,
+    mat3_rotvec,
+    mat3_tmul,
+    quat_matrix,
+    rotvec_mat3,
+)
 from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw, rot_y
 from vio_graph.types import ImuSample
 
 _HISTORY_SAMPLES = 16  # IMU samples of attitude kept for past frame times (0.16 s at 100 Hz)
-
-
-def _rotvec_matrix(rotvec: NDArray[np.float64]) -> NDArray[np.float64]:
-    return Rotation.from_rotvec(rotvec).as_matrix()
 
 
 class AttitudeTracker:
@@ -56,17 +59,21 @@ class AttitudeTracker:
 
     def __init__(self, config: AttitudeConfig | None = None) -> None:
         self.config = AttitudeConfig() if config is None else config
-        self._R: NDArray[np.float64] | None = None
+        self._R: Mat3 | None = None  # R_world_imu, row-major
         self._t_s = 0.0
-        self._gyro_radps = np.zeros(3)
+        self._gyro_radps = (0.0, 0.0, 0.0)  # rad/s, latest sample
         # recent (t, R, gyro), for frames re-stamped into the past (camera-IMU time offset)
-        self._recent: deque[tuple[float, NDArray[np.float64], NDArray[np.float64]]] = deque(
+        self._recent: deque[tuple[float, Mat3, tuple[float, float, float]]] = deque(
             maxlen=_HISTORY_SAMPLES)
 
     def add(self, imu: ImuSample) -> None:
-        """Advance to ``imu.timestamp_s`` with the sample's gyro rate and vendor orientation."""
-        R_vendor = matrix_from_quat_wxyz(imu.quat_wxyz)
-        gyro = np.asarray(imu.gyro_radps, dtype=float)
+        """Advance to ``imu.timestamp_s`` with the sample's gyro rate and vendor orientation.
+
+        Scalar closed forms (filter/fast_imu.py); :meth:`add_reference` is the numpy / scipy
+        version the tests compare it with.
+        """
+        R_vendor = quat_matrix(imu.quat_wxyz)
+        gx, gy, gz = np.asarray(imu.gyro_radps, dtype=float).tolist()
         t = float(imu.timestamp_s)
         if self._R is None or self.config.source != "complementary":
             self._R = R_vendor
@@ -74,13 +81,38 @@ class AttitudeTracker:
             dt = t - self._t_s
             if dt < 0:
                 raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
-            R = self._R @ _rotvec_matrix(0.5 * (self._gyro_radps + gyro) * dt)
+            px, py, pz = self._gyro_radps
+            R = mat3_mul(self._R, rotvec_mat3(0.5 * (px + gx) * dt, 0.5 * (py + gy) * dt,
+                                              0.5 * (pz + gz) * dt))
+            k = min(1.0, dt / self.config.time_constant_s)
+            ex, ey, ez = mat3_rotvec(mat3_tmul(R, R_vendor))
+            self._R = mat3_mul(R, rotvec_mat3(k * ex, k * ey, k * ez))
+        self._t_s, self._gyro_radps = t, (gx, gy, gz)
+        self._recent.append((t, self._R, self._gyro_radps))
+
+    def add_reference(self, imu: ImuSample) -> None:
+        """numpy / scipy reference of :meth:`add` (same attitude to rounding)."""
+        from scipy.spatial.transform import Rotation
+
+        R_vendor = matrix_from_quat_wxyz(imu.quat_wxyz)
+        gyro = np.asarray(imu.gyro_radps, dtype=float)
+        t = float(imu.timestamp_s)
+        if self._R is None or self.config.source != "complementary":
+            R = R_vendor
+        else:
+            dt = t - self._t_s
+            if dt < 0:
+                raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
+            R = np.array(self._R).reshape(3, 3)
+            R = R @ Rotation.from_rotvec(0.5 * (np.array(self._gyro_radps) + gyro) * dt).as_matrix()
             k = min(1.0, dt / self.config.time_constant_s)
             err = Rotation.from_matrix(R.T @ R_vendor).as_rotvec()
-            R = R @ _rotvec_matrix(k * err)
-            self._R = R
-        self._t_s, self._gyro_radps = t, gyro
-        self._recent.append((t, self._R, gyro))
+            R = R @ Rotation.from_rotvec(k * err).as_matrix()
+        r = R.ravel().tolist()
+        self._R = (r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8])
+        gx, gy, gz = gyro.tolist()
+        self._t_s, self._gyro_radps = t, (gx, gy, gz)
+        self._recent.append((t, self._R, self._gyro_radps))
 
     @property
     def initialised(self) -> bool:
@@ -90,13 +122,17 @@ class AttitudeTracker:
         """Gyro rate (rad/s, IMU axes) at ``t_s``, interpolated over the recent samples (held
         beyond them)."""
         if not self._recent:
-            return self._gyro_radps.copy()
+            return np.array(self._gyro_radps)
         ts = np.array([r[0] for r in self._recent])
         g = np.array([r[2] for r in self._recent])
         return np.array([np.interp(t_s, ts, g[:, i]) for i in range(3)])
 
     def R_world_imu_at(self, t_s: float) -> NDArray[np.float64]:
         """(3, 3) R_world_imu at ``t_s`` (heading included; the caller removes it)."""
+        return np.array(self.R_world_imu_at_mat3(t_s)).reshape(3, 3)
+
+    def R_world_imu_at_mat3(self, t_s: float) -> Mat3:
+        """:meth:`R_world_imu_at` as a row-major tuple."""
         if self._R is None:
             raise EstimationError("no IMU sample yet")
         R, t_k, gyro = self._R, self._t_s, self._gyro_radps
@@ -107,9 +143,10 @@ class AttitudeTracker:
                 if t_j <= t_s:
                     break
         if self.config.source == "vendor":
-            return R.copy()
+            return R
         dt = float(t_s) - t_k if past else max(0.0, float(t_s) - t_k)
-        return R @ _rotvec_matrix(gyro * dt)
+        gx, gy, gz = gyro
+        return mat3_mul(R, rotvec_mat3(gx * dt, gy * dt, gz * dt))
 
 
 def with_pitch_offset(R_world_imu: NDArray[np.float64], offset_rad: float) -> NDArray[np.float64]:

@@ -65,14 +65,17 @@ sample and the depth frame.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
+from vio_graph.filter.fast_imu import sagittal_pitch
 from vio_graph.filter.gating import chi2_2dof_quantile
 from vio_graph.filter.lever_arm import angular_acceleration, lever_arm_terms
 from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw, rot_y_xz
@@ -131,14 +134,19 @@ def sagittal_rotation(quat_wxyz: ArrayLike) -> NDArray[np.float64]:
     return rot_y_xz(float(pitch_of(R_w_i)))
 
 
-@dataclass(frozen=True)
-class _ImuMemo:
+class _ImuMemo(NamedTuple):
     """What propagation needs from the previous IMU sample."""
 
     timestamp_s: float
-    R: NDArray[np.float64]  # (2, 2) sagittal rotation
-    f_xz_mps2: NDArray[np.float64]  # (2,) specific force at the camera, no tangential term
-    gyro_radps: NDArray[np.float64]  # (3,)
+    rc: float  # sagittal rotation R = [[rc, rs], [-rs, rc]]
+    rs: float
+    fx: float  # specific force at the camera (x, z), m/s^2, no tangential term
+    fz: float
+    gyro_radps: tuple[float, float, float]
+
+    @property
+    def R(self) -> NDArray[np.float64]:
+        return np.array([[self.rc, self.rs], [-self.rs, self.rc]])
 
 
 class SagittalEskf:
@@ -163,6 +171,8 @@ class SagittalEskf:
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
                 raise EstimationError(f"imu_T_cam must be a finite 4x4 matrix, got {T.shape}")
             self._r_imu_cam_m = T[:3, 3].copy()
+        self._r_xyz = tuple(self._r_imu_cam_m.tolist())
+        self._Fx = np.eye(ERROR_STATE_DIM)  # propagate() rewrites the F_1 / F_2 entries
         p = self.config.gate_probability
         self._gate_d2 = chi2_2dof_quantile(p) if p is not None else np.inf
         self._initialised = False
@@ -175,7 +185,8 @@ class SagittalEskf:
         self._aug_xz: dict[LandmarkKey | str, NDArray[np.float64]] = {}
         self._clone_t_s = 0.0
         self._prev: _ImuMemo | None = None
-        self._accel_w_mps2 = np.zeros(2)  # last ground-frame acceleration, for p(t)
+        # last ground-frame acceleration (m/s^2), for p(t); propagate() stores a tuple
+        self._accel_w_mps2: NDArray[np.float64] | tuple[float, float] = np.zeros(2)
         self._history: deque[tuple[float, NDArray[np.float64]]] = deque()
         self._last_accept_s = -np.inf
         self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0
@@ -234,6 +245,110 @@ class SagittalEskf:
 
         dt is the time since the previous IMU sample (or since :meth:`initialise`).
         Raises EstimationError if not initialised or if time runs backwards.
+
+        Scalar arithmetic for the 2D vectors and a preallocated F_x (the numpy version,
+        :meth:`propagate_reference`, spends ~100 us a sample on small-array overhead); the
+        covariance product is the same F_x P F_x^T. Equal to the reference to rounding
+        (tests/test_fast_imu.py).
+        """
+        if not self._initialised:
+            raise EstimationError("propagate() called before initialise()")
+        t = float(imu.timestamp_s)
+        dt = t - self._t_s
+        if dt < -1e-9 or not math.isfinite(t):
+            raise EstimationError(
+                f"IMU sample at {t:.6f} s is older than the state at {self._t_s:.6f} s"
+            )
+        ax, ay, az = np.asarray(imu.accel_mps2, dtype=float).tolist()
+        gx, gy, gz = np.asarray(imu.gyro_radps, dtype=float).tolist()
+        if not all(map(math.isfinite, (ax, ay, az, gx, gy, gz))):
+            raise EstimationError(f"IMU sample at {t:.6f} s holds NaN or inf")
+        pitch = sagittal_pitch(imu.quat_wxyz)
+        rc, rs = math.cos(pitch), math.sin(pitch)  # R = [[rc, rs], [-rs, rc]]
+
+        # 1. specific force at the camera centre (lever arm r, IMU frame)
+        tx = tz = 0.0
+        if self.config.lever_arm_compensation:
+            prev = self._prev
+            if prev is not None and t > prev.timestamp_s:
+                h = t - prev.timestamp_s
+                pgx, pgy, pgz = prev.gyro_radps
+                alx, aly, alz = (gx - pgx) / h, (gy - pgy) / h, (gz - pgz) / h
+            else:
+                alx = aly = alz = 0.0
+            rx, ry, rz = self._r_xyz
+            # w x (w x r), alpha x r (geometry.cross3's products, in its order)
+            cx, cy, cz = gy * rz - gz * ry, gz * rx - gx * rz, gx * ry - gy * rx
+            ax += gy * cz - gz * cy
+            az += gx * cy - gy * cx
+            tx, tz = aly * rz - alz * ry, alx * ry - aly * rx
+        fx, fz = ax, az
+
+        # 2. ground-frame acceleration over [t - dt, t] (eq. 6: R (a_m - a_b) + g)
+        x = self._x
+        abx, abz, gwx, gwz = x[4:8].tolist()
+        p = self._prev
+        if self.config.integration == "trapezoid" and p is not None:
+            b00, b01 = 0.5 * (p.rc + rc), 0.5 * (p.rs + rs)  # R_bar = [[b00, b01], [-b01, b00]]
+            awx = 0.5 * ((p.rc * p.fx + p.rs * p.fz) + (rc * fx + rs * fz))
+            awz = 0.5 * ((-p.rs * p.fx + p.rc * p.fz) + (-rs * fx + rc * fz))
+        else:
+            b00, b01 = rc, rs
+            awx, awz = rc * fx + rs * fz, -rs * fx + rc * fz
+        ux, uz = tx - abx, tz - abz
+        awx = awx + (b00 * ux + b01 * uz) + gwx
+        awz = awz + (-b01 * ux + b00 * uz) + gwz
+        self._prev = _ImuMemo(t, rc, rs, fx, fz, (gx, gy, gz))
+        self._accel_w_mps2 = (awx, awz)  # a tuple: read once a frame, written every sample
+        self._n_imu += 1
+        if dt <= 0.0:
+            return
+
+        # 3. nominal state, eq. 6
+        px, pz, vx, vz = x[0:4].tolist()
+        dt2 = dt**2
+        x[0] = px + vx * dt + 0.5 * awx * dt2
+        x[1] = pz + vz * dt + 0.5 * awz * dt2
+        x[2] = vx + awx * dt
+        x[3] = vz + awz * dt
+
+        # 4. error state covariance, eq. 7: P <- F_x P F_x^T + F_i Q F_i^T; the augmented
+        # blocks (clone, landmarks) are static, so F = diag(F_x, I) over the whole P (one
+        # contiguous product instead of three sliced ones; the identity part is exact)
+        P = self._P
+        Fx = self._Fx
+        if Fx.shape != P.shape:
+            Fx = self._Fx = np.eye(P.shape[0])
+        Fx[0, 2] = Fx[1, 3] = Fx[2, 6] = Fx[3, 7] = dt  # F_1
+        Fx[2, 4], Fx[2, 5] = -b00 * dt, -b01 * dt  # F_2 = -R_bar dt
+        Fx[3, 4], Fx[3, 5] = b01 * dt, -b00 * dt
+        c = self.config
+        var_v = (c.accel_noise_sigma_mps2 * dt) ** 2
+        # distrusted samples (saturated / repaired, filter/imu_faults.py): the step leans on
+        # this sample and, with the trapezoid, on the previous one
+        xa_now = float(imu.accel_extra_sigma_mps2)
+        xa = max(xa_now, self._prev_xa)
+        self._prev_xa = xa_now
+        if xa > 0.0:
+            var_v += (xa * dt) ** 2
+        if c.attitude_sigma_rad > 0:
+            var_v += (math.sqrt(fx * fx + fz * fz) * c.attitude_sigma_rad * dt) ** 2
+        var_ab = c.accel_bias_rw_mps2_per_sqrt_s**2 * dt
+        P = self._P = Fx @ P @ Fx.T
+        P[2, 2] += var_v
+        P[3, 3] += var_v
+        P[4, 4] += var_ab
+        P[5, 5] += var_ab
+        self._t_s = t
+        self._remember(t, x[0:2])
+
+    def propagate_reference(self, imu: ImuSample) -> None:
+        """The numpy reference of :meth:`propagate` (same state to rounding; the tests run both).
+
+        Propagate nominal state (eq. 6) and covariance (eq. 7) to ``imu.timestamp_s``.
+
+        dt is the time since the previous IMU sample (or since :meth:`initialise`).
+        Raises EstimationError if not initialised or if time runs backwards.
         """
         if not self._initialised:
             raise EstimationError("propagate() called before initialise()")
@@ -255,7 +370,7 @@ class SagittalEskf:
         if self.config.lever_arm_compensation:
             prev = self._prev
             alpha = angular_acceleration(t, gyro, None if prev is None else prev.timestamp_s,
-                                         None if prev is None else prev.gyro_radps)
+                                         None if prev is None else np.array(prev.gyro_radps))
             centripetal, tangential = lever_arm_terms(gyro, alpha, self._r_imu_cam_m)
             f3 += centripetal
         f_xz = f3[[0, 2]]
@@ -264,13 +379,15 @@ class SagittalEskf:
         # 2. ground-frame acceleration over [t - dt, t] (eq. 6: R (a_m - a_b) + g)
         ab, g = self._x[4:6], self._x[6:8]
         if self.config.integration == "trapezoid" and self._prev is not None:
-            R_bar = 0.5 * (self._prev.R + R)
-            a_w = 0.5 * (self._prev.R @ self._prev.f_xz_mps2 + R @ f_xz)
+            R_prev, f_prev = self._prev.R, np.array([self._prev.fx, self._prev.fz])
+            R_bar = 0.5 * (R_prev + R)
+            a_w = 0.5 * (R_prev @ f_prev + R @ f_xz)
         else:
             R_bar = R
             a_w = R @ f_xz
         a_w = a_w + R_bar @ (tangential_xz - ab) + g
-        self._prev = _ImuMemo(t, R, f_xz, gyro.copy())
+        self._prev = _ImuMemo(t, float(R[0, 0]), float(R[0, 1]), float(f_xz[0]), float(f_xz[1]),
+                             tuple(gyro.tolist()))
         self._accel_w_mps2 = a_w
         self._n_imu += 1
         if dt <= 0.0:
@@ -593,7 +710,7 @@ class SagittalEskf:
     def _position_ahead(self, dt_s: float) -> NDArray[np.float64]:
         """p(t + dt) = p + v dt + a dt^2 / 2 with the last ground-frame acceleration a (the
         Jacobian keeps only the I and dt*I blocks: the a-term is second order in dt)."""
-        return self._x[0:2] + dt_s * self._x[2:4] + 0.5 * dt_s**2 * self._accel_w_mps2
+        return self._x[0:2] + dt_s * self._x[2:4] + 0.5 * dt_s**2 * np.asarray(self._accel_w_mps2)
 
     def _remember(self, t_s: float, p_xz: NDArray) -> None:
         """Append (t_s, p) to the history, dropping entries at or after t_s (keeps it sorted)."""

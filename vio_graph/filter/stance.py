@@ -17,6 +17,7 @@ velocity. Pure algorithm: no I/O.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -35,7 +36,8 @@ class StanceDetector:
         self._r = np.asarray(ankle_in_imu_m, dtype=float).reshape(3)
         self._thr = float(accel_threshold_mps2)
         self._window_s = float(window_s)
-        self._prev: tuple[float, NDArray[np.float64]] | None = None
+        self._prev: tuple[float, tuple[float, float, float]] | None = None  # (t, gyro)
+        self._r_xyz = tuple(self._r.tolist())
         self._recent: deque[tuple[float, float]] = deque()  # (t, |a_ankle|)
 
     def add_imu(
@@ -52,11 +54,45 @@ class StanceDetector:
         ``gravity_xz_mps2`` the gravity vector in the ground x-z plane (e.g. (0, -9.81)).
         """
         t = float(timestamp_s)
+        gx, gy, gz = np.asarray(gyro_radps, dtype=float).tolist()
+        fx, _, fz = np.asarray(accel_mps2, dtype=float).tolist()
+        if self._prev is not None and t > self._prev[0]:
+            h = t - self._prev[0]
+            pgx, pgy, pgz = self._prev[1]
+            alx, aly, alz = (gx - pgx) / h, (gy - pgy) / h, (gz - pgz) / h
+        else:
+            alx = aly = alz = 0.0
+        self._prev = (t, (gx, gy, gz))
+        rx, ry, rz = self._r_xyz
+        # geometry.cross3's products in its order: w x (w x r), alpha x r
+        cx, cy, cz = gy * rz - gz * ry, gz * rx - gx * rz, gx * ry - gy * rx
+        fx = fx + (aly * rz - alz * ry) + (gy * cz - gz * cy)
+        fz = fz + (alx * ry - aly * rx) + (gx * cy - gy * cx)
+        (r00, r01), (r10, r11) = np.asarray(R_sagittal, dtype=float).tolist()
+        gwx, gwz = np.asarray(gravity_xz_mps2, dtype=float).tolist()
+        mag = math.hypot(r00 * fx + r01 * fz + gwx, r10 * fx + r11 * fz + gwz)
+        self._recent.append((t, mag))
+        while self._recent and self._recent[0][0] < t - self._window_s:
+            self._recent.popleft()
+        return mag
+
+    def add_imu_reference(
+        self,
+        timestamp_s: float,
+        accel_mps2: ArrayLike,
+        gyro_radps: ArrayLike,
+        R_sagittal: NDArray[np.float64],
+        gravity_xz_mps2: ArrayLike,
+    ) -> float:
+        """numpy reference of :meth:`add_imu` (same |a_ankle| to rounding)."""
+        t = float(timestamp_s)
         w = np.asarray(gyro_radps, dtype=float)
         f = np.asarray(accel_mps2, dtype=float)
-        prev_t, prev_w = (None, None) if self._prev is None else self._prev
+        prev_t = None if self._prev is None else self._prev[0]
+        prev_w = None if self._prev is None else np.array(self._prev[1])
         alpha = angular_acceleration(t, w, prev_t, prev_w)
-        self._prev = (t, w.copy())
+        gx, gy, gz = w.tolist()
+        self._prev = (t, (gx, gy, gz))
         centripetal, tangential = lever_arm_terms(w, alpha, self._r)
         f_ankle = f + tangential + centripetal
         a = R_sagittal @ f_ankle[[0, 2]] + np.asarray(gravity_xz_mps2, dtype=float)

@@ -18,6 +18,7 @@ import yaml
 from vio_graph.errors import OutputError, RecordingError
 from vio_graph.recording import layout
 from vio_graph.recording.metadata import RecordingMetadata
+from vio_graph.recording.reader import RELEASE_EVERY_FRAMES, release_pages
 from vio_graph.recording.streams import ContactTable, GroundTruth, ImuTable, JointTable
 from vio_graph.recording.tum import format_tum
 
@@ -132,6 +133,10 @@ def _write_into(
         depth_mm[i] = np.clip(units, 0, max_units).astype(np.uint16)
         conf[i] = np.where(depth_mm[i] > 0, np.asarray(confidence, dtype=np.uint8), 0)
         count = i + 1
+        if count % RELEASE_EVERY_FRAMES == 0:  # written pages to disk and out of our memory
+            for arr in (depth_mm, conf):
+                arr.flush()
+                release_pages(arr)
         if progress is not None:
             progress(count)
     if count != n:

@@ -31,8 +31,9 @@ import numpy as np  # noqa: E402
 
 BENCH_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = BENCH_DIR / "results"
-SCRATCH_DIR = Path(os.environ.get("VIO_GRAPH_BENCH_SCRATCH",
-                                  Path(tempfile.gettempdir()) / "vio_graph_bench"))
+SCRATCH_DIR = Path(
+    os.environ.get("VIO_GRAPH_BENCH_SCRATCH", Path(tempfile.gettempdir()) / "vio_graph_bench")
+)
 
 
 def stats_ms(values: Any) -> dict[str, float]:
@@ -68,12 +69,14 @@ def source_revision() -> str:
     import subprocess
 
     def git(*args: str) -> str:
-        return subprocess.run(["git", *args], cwd=BENCH_DIR, capture_output=True, text=True,
-                              check=False).stdout.strip()
+        return subprocess.run(
+            ["git", *args], cwd=BENCH_DIR, capture_output=True, text=True, check=False
+        ).stdout.strip()
 
     rev = git("rev-parse", "--short", "HEAD") or "unknown"
-    return rev + ("+dirty" if git("status", "--porcelain", "--", "../vio_graph", "../configs")
-                  else "")
+    return rev + (
+        "+dirty" if git("status", "--porcelain", "--", "../vio_graph", "../configs") else ""
+    )
 
 
 def machine_info() -> dict[str, Any]:

@@ -94,8 +94,12 @@ def replay_once(rec: Recording, frames: list, timed_icp: _TimedIcp) -> dict[str,
     rig = RigGeometry.from_metadata(rec.metadata)
     gt = rec.groundtruth
     cam = gt.trajectories["camera"]
-    p0 = np.array([np.interp(rec.frame_timestamps_s[0], cam.timestamp_s, cam.position_m[:, k])
-                   for k in (0, 2)])
+    p0 = np.array(
+        [
+            np.interp(rec.frame_timestamps_s[0], cam.timestamp_s, cam.position_m[:, k])
+            for k in (0, 2)
+        ]
+    )
     est = OnlineEstimator(PipelineConfig(), rig, p0)
     kinds, idx = replay_order(rec)
     cpu0, wall0 = time.process_time(), time.perf_counter()
@@ -118,18 +122,29 @@ def replay_once(rec: Recording, frames: list, timed_icp: _TimedIcp) -> dict[str,
             tm["tracker_other"] = tm["frontend_icp"] - timed_icp.last_ms
             tm["frontend_plus_fusion"] = tm["frontend_total"] + tm["fusion"]
             tm.setdefault("safety", 0.0)  # safety.enabled off: no stage
-            tm["per_frame_total"] = (tm["frontend_total"] + tm["fusion"] + tm["kinematics"]
-                                     + tm["safety"] + tm["imu_propagation"])
+            tm["per_frame_total"] = (
+                tm["frontend_total"]
+                + tm["fusion"]
+                + tm["kinematics"]
+                + tm["safety"]
+                + tm["imu_propagation"]
+            )
             rows.append(tm)
             t_frames.append(e.timestamp_s)
             camera_xz.append(e.camera_xz_m)
             R_world_cam.append(est.R_world_imu() @ rig.R_imu_cam)
             disp.append(None if res.displacement is None else res.displacement.delta_xz_m)
     cpu_s, wall_s = time.process_time() - cpu0, time.perf_counter() - wall0
-    return {"timings": rows, "imu_us": imu_us, "cpu_s": cpu_s, "wall_s": wall_s,
-            "t_s": np.asarray(t_frames),
-            "camera_xz": np.asarray(camera_xz),
-            "R_world_cam": np.asarray(R_world_cam), "displacement": disp}
+    return {
+        "timings": rows,
+        "imu_us": imu_us,
+        "cpu_s": cpu_s,
+        "wall_s": wall_s,
+        "t_s": np.asarray(t_frames),
+        "camera_xz": np.asarray(camera_xz),
+        "R_world_cam": np.asarray(R_world_cam),
+        "displacement": disp,
+    }
 
 
 @contextlib.contextmanager
@@ -141,13 +156,18 @@ def reference_paths():
     from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
     from vio_graph.filter.stance import StanceDetector
 
-    swaps = [(SagittalEskf, "propagate", SagittalEskf.propagate_reference),
-             (AttitudeTracker, "add", AttitudeTracker.add_reference),
-             (StanceDetector, "add_imu", StanceDetector.add_imu_reference),
-             (estimator_mod, "_sagittal_rotation", sagittal_rotation),
-             (estimator_mod, "_pitch_offset_quat", estimator_mod.reference_pitch_offset_quat),
-             (estimator_mod.OnlineEstimator, "R_world_imu",
-              estimator_mod.OnlineEstimator.R_world_imu_reference)]
+    swaps = [
+        (SagittalEskf, "propagate", SagittalEskf.propagate_reference),
+        (AttitudeTracker, "add", AttitudeTracker.add_reference),
+        (StanceDetector, "add_imu", StanceDetector.add_imu_reference),
+        (estimator_mod, "_sagittal_rotation", sagittal_rotation),
+        (estimator_mod, "_pitch_offset_quat", estimator_mod.reference_pitch_offset_quat),
+        (
+            estimator_mod.OnlineEstimator,
+            "R_world_imu",
+            estimator_mod.OnlineEstimator.R_world_imu_reference,
+        ),
+    ]
     saved = [(obj, name, obj.__dict__[name]) for obj, name, _ in swaps]
     for obj, name, ref in swaps:
         setattr(obj, name, ref)
@@ -169,8 +189,9 @@ def gt_camera(rec: Recording, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return p, R
 
 
-def bench_open3d(rec: Recording, frames: list, run: dict[str, Any], stride: int,
-                 max_corr_m: float) -> dict[str, Any]:
+def bench_open3d(
+    rec: Recording, frames: list, run: dict[str, Any], stride: int, max_corr_m: float
+) -> dict[str, Any]:
     """Point-to-point ICP between consecutive full clouds (target k-1, source k)."""
     o3d = open3d()
     reg = o3d.pipelines.registration
@@ -187,8 +208,11 @@ def bench_open3d(rec: Recording, frames: list, run: dict[str, Any], stride: int,
             clouds[k] = pc
         return clouds[k]
 
-    out: dict[str, Any] = {"points": [], "identity": {"ms": [], "err_mm": [], "fitness": []},
-                           "imu": {"ms": [], "err_mm": [], "fitness": []}}
+    out: dict[str, Any] = {
+        "points": [],
+        "identity": {"ms": [], "err_mm": [], "fitness": []},
+        "imu": {"ms": [], "err_mm": [], "fitness": []},
+    }
     criteria = reg.ICPConvergenceCriteria()
     for k in range(1, len(frames), stride):
         src, tgt = cloud(k), cloud(k - 1)
@@ -201,8 +225,9 @@ def bench_open3d(rec: Recording, frames: list, run: dict[str, Any], stride: int,
         true_xz = (gt_p[k] - gt_p[k - 1])[[0, 2]]
         for name, init in (("identity", np.eye(4)), ("imu", init_imu)):
             t0 = time.perf_counter()
-            r = reg.registration_icp(src, tgt, max_corr_m, init,
-                                     reg.TransformationEstimationPointToPoint(), criteria)
+            r = reg.registration_icp(
+                src, tgt, max_corr_m, init, reg.TransformationEstimationPointToPoint(), criteria
+            )
             out[name]["ms"].append((time.perf_counter() - t0) * 1e3)
             # camera k's origin in camera k-1 = translation of k-1_T_k; to world with GT R
             est_xz = (gt_R[k - 1] @ np.asarray(r.transformation)[:3, 3])[[0, 2]]
@@ -218,8 +243,14 @@ def bench_open3d(rec: Recording, frames: list, run: dict[str, Any], stride: int,
 #: 120 frames of upstair s1: 5 cm / 5 mm diverged on some frames, p95 error 0.98 m; 10 cm /
 #: 1 cm and 30 cm / 2 cm both 16 mm), one thread, no
 #: deskewing (a ToF frame has no per-point times).
-KISS_SMALL_SCENE = {"max_range_m": 3.0, "min_range_m": 0.05, "voxel_size_m": 0.02,
-                    "initial_threshold_m": 0.1, "min_motion_m": 0.01, "threads": 1}
+KISS_SMALL_SCENE = {
+    "max_range_m": 3.0,
+    "min_range_m": 0.05,
+    "voxel_size_m": 0.02,
+    "initial_threshold_m": 0.1,
+    "min_motion_m": 0.01,
+    "threads": 1,
+}
 
 
 def bench_kiss_icp(rec: Recording, frames: list, run: dict[str, Any]) -> dict[str, Any] | None:
@@ -233,8 +264,11 @@ def bench_kiss_icp(rec: Recording, frames: list, run: dict[str, Any]) -> dict[st
         return None
     c = KISS_SMALL_SCENE
     cfg = KISSConfig()
-    cfg.data.max_range, cfg.data.min_range, cfg.data.deskew = (c["max_range_m"],
-                                                               c["min_range_m"], False)
+    cfg.data.max_range, cfg.data.min_range, cfg.data.deskew = (
+        c["max_range_m"],
+        c["min_range_m"],
+        False,
+    )
     cfg.mapping.voxel_size = c["voxel_size_m"]
     cfg.adaptive_threshold.initial_threshold = c["initial_threshold_m"]
     cfg.adaptive_threshold.min_motion_th = c["min_motion_m"]
@@ -245,8 +279,9 @@ def bench_kiss_icp(rec: Recording, frames: list, run: dict[str, Any]) -> dict[st
     ms, err_mm, poses = [], [], []
     no_times = np.zeros(0)
     for k, f in enumerate(frames):
-        pts = np.ascontiguousarray(depth_to_points_cam(f.depth_m, f.confidence, K),
-                                   dtype=np.float64)
+        pts = np.ascontiguousarray(
+            depth_to_points_cam(f.depth_m, f.confidence, K), dtype=np.float64
+        )
         t0 = time.perf_counter()
         odom.register_frame(pts, no_times)
         ms.append((time.perf_counter() - t0) * 1e3)
@@ -255,8 +290,12 @@ def bench_kiss_icp(rec: Recording, frames: list, run: dict[str, Any]) -> dict[st
             delta = np.linalg.inv(poses[k - 1]) @ poses[k]
             est_xz = (gt_R[k - 1] @ delta[:3, 3])[[0, 2]]
             err_mm.append(1e3 * float(np.linalg.norm(est_xz - (gt_p[k] - gt_p[k - 1])[[0, 2]])))
-    return {"config": dict(c), "frames": len(frames), "ms": _common.stats_ms(ms[1:]),
-            "err_mm": _common.stats_ms(err_mm)}
+    return {
+        "config": dict(c),
+        "frames": len(frames),
+        "ms": _common.stats_ms(ms[1:]),
+        "err_mm": _common.stats_ms(err_mm),
+    }
 
 
 def ours_displacement_error_mm(rec: Recording, run: dict[str, Any]) -> list[float]:
@@ -268,8 +307,9 @@ def ours_displacement_error_mm(rec: Recording, run: dict[str, Any]) -> list[floa
     return errs
 
 
-def run(recording: Path | None = None, repeats: int = 3, o3d_stride: int = 10,
-        max_corr_m: float = 0.05) -> dict[str, Any]:
+def run(
+    recording: Path | None = None, repeats: int = 3, o3d_stride: int = 10, max_corr_m: float = 0.05
+) -> dict[str, Any]:
     rec_path = ensure_recording(recording)
     rec = Recording.open(rec_path)
     frames = [rec.frame(i) for i in range(rec.num_frames)]  # preload: no disk I/O in timing
@@ -291,14 +331,22 @@ def run(recording: Path | None = None, repeats: int = 3, o3d_stride: int = 10,
     ours = {s: _common.stats_ms([r[s] for r in rows]) for s in STAGES}
     # per frame, the fastest of the replays: less sensitive to other processes on the machine
     n = min(len(rp["timings"]) for rp in runs)
-    best = {s: _common.stats_ms(np.min([[rp["timings"][k][s] for k in range(n)] for rp in runs],
-                                       axis=0)) for s in STAGES}
+    best = {
+        s: _common.stats_ms(
+            np.min([[rp["timings"][k][s] for k in range(n)] for rp in runs], axis=0)
+        )
+        for s in STAGES
+    }
     slice_pts = [int(np.asarray(f.depth_m).size) for f in frames[:1]]
     o3d = bench_open3d(rec, frames, runs[0], o3d_stride, max_corr_m)
-    o3d_stats = {name: {"ms": _common.stats_ms(o3d[name]["ms"]),
-                        "err_mm": _common.stats_ms(o3d[name]["err_mm"]),
-                        "fitness_median": float(np.median(o3d[name]["fitness"]))}
-                 for name in ("identity", "imu")}
+    o3d_stats = {
+        name: {
+            "ms": _common.stats_ms(o3d[name]["ms"]),
+            "err_mm": _common.stats_ms(o3d[name]["err_mm"]),
+            "fitness_median": float(np.median(o3d[name]["fitness"])),
+        }
+        for name in ("identity", "imu")
+    }
     ours_err = ours_displacement_error_mm(rec, runs[0])
     kiss = bench_kiss_icp(rec, frames, runs[0])
     ff = ours["frontend_plus_fusion"]["median"]
@@ -311,8 +359,11 @@ def run(recording: Path | None = None, repeats: int = 3, o3d_stride: int = 10,
         "ours_best_of_repeats_ms": best,
         # the same replays with the numpy reference paths (interleaved with the ones above)
         "reference_ms": ref_stats,
-        "imu_us_per_sample": {"fast": imu_fast, "reference": imu_ref,
-                              "ratio_median": imu_fast["median"] / imu_ref["median"]},
+        "imu_us_per_sample": {
+            "fast": imu_fast,
+            "reference": imu_ref,
+            "ratio_median": imu_fast["median"] / imu_ref["median"],
+        },
         # whole replay loop (IMU, joints, frames; bookkeeping included) per depth frame: CPU
         # time of this process does not count the time other processes held the core
         "replay_cpu_ms_per_frame": [1e3 * rp["cpu_s"] / len(rp["timings"]) for rp in runs],
@@ -330,14 +381,16 @@ def run(recording: Path | None = None, repeats: int = 3, o3d_stride: int = 10,
         },
         "kiss_icp": kiss,
         "ratios": {
-            "ours_frontend_plus_fusion_over_kiss_icp": (ff / kiss["ms"]["median"] if kiss
-                                                        else None),
+            "ours_frontend_plus_fusion_over_kiss_icp": (
+                ff / kiss["ms"]["median"] if kiss else None
+            ),
             "ours_frontend_plus_fusion_over_open3d_imu": ff / o3d_stats["imu"]["ms"]["median"],
-            "ours_frontend_plus_fusion_over_open3d_identity":
-                ff / o3d_stats["identity"]["ms"]["median"],
-            "ours_icp_stage_over_open3d_imu":
-                (ours["icp_solver"]["median"] + ours["tracker_other"]["median"])
-                / o3d_stats["imu"]["ms"]["median"],
+            "ours_frontend_plus_fusion_over_open3d_identity": ff
+            / o3d_stats["identity"]["ms"]["median"],
+            "ours_icp_stage_over_open3d_imu": (
+                ours["icp_solver"]["median"] + ours["tracker_other"]["median"]
+            )
+            / o3d_stats["imu"]["ms"]["median"],
             "ours_frontend_plus_fusion_over_1ms_target": ff / 1.0,
         },
         "paper_ms": PAPER_MS,
@@ -365,8 +418,16 @@ def markdown(r: dict[str, Any]) -> str:
     f = _common.fmt
     ours = r["ours_ms"]
     best = r["ours_best_of_repeats_ms"]
-    rows = [[LABELS[s], f(ours[s]["median"], 3), f(ours[s]["p95"], 3), f(best[s]["median"], 3),
-             f(best[s]["p95"], 3)] for s in STAGES]
+    rows = [
+        [
+            LABELS[s],
+            f(ours[s]["median"], 3),
+            f(ours[s]["p95"], 3),
+            f(best[s]["median"], 3),
+            f(best[s]["p95"], 3),
+        ]
+        for s in STAGES
+    ]
     o = r["open3d"]
     rr = r["ratios"]
     lines = [
@@ -374,15 +435,24 @@ def markdown(r: dict[str, Any]) -> str:
         f"{r['image_pixels']} pixels per frame), replayed {r['repeats']} times through "
         "`OnlineEstimator`; statistics over all frames of all replays, single thread.",
         "",
-        _common.md_table(["stage", "median ms", "p95 ms", f"median ms, best of {r['repeats']}",
-                          f"p95 ms, best of {r['repeats']}"], rows),
+        _common.md_table(
+            [
+                "stage",
+                "median ms",
+                "p95 ms",
+                f"median ms, best of {r['repeats']}",
+                f"p95 ms, best of {r['repeats']}",
+            ],
+            rows,
+        ),
         "",
         "Best of N: for every frame the fastest of the N replays (the replays are identical, so "
         "the difference is interference from other processes), then median / p95 over frames.",
         "",
         "Whole replay loop per frame (IMU, joints and frame handling, bookkeeping included), "
         "per replay: CPU time "
-        + ", ".join(f(x) for x in r["replay_cpu_ms_per_frame"]) + " ms; wall time "
+        + ", ".join(f(x) for x in r["replay_cpu_ms_per_frame"])
+        + " ms; wall time "
         + ", ".join(f(x) for x in r["replay_wall_ms_per_frame"])
         + " ms. CPU time excludes the time other processes held the core.",
         "",
@@ -401,23 +471,48 @@ def markdown(r: dict[str, Any]) -> str:
         f"{o['stride']}th consecutive pair, {o['pairs']} pairs):",
         "",
         _common.md_table(
-            ["method", "median ms", "p95 ms", "displacement error mm (median)",
-             "ratio ours/this (front end + fusion)"],
             [
-                ["open3d ICP, identity init", f(o["identity"]["ms"]["median"], 1),
-                 f(o["identity"]["ms"]["p95"], 1), f(o["identity"]["err_mm"]["median"], 1),
-                 f(rr["ours_frontend_plus_fusion_over_open3d_identity"], 3)],
-                ["open3d ICP, IMU init", f(o["imu"]["ms"]["median"], 1),
-                 f(o["imu"]["ms"]["p95"], 1), f(o["imu"]["err_mm"]["median"], 1),
-                 f(rr["ours_frontend_plus_fusion_over_open3d_imu"], 3)],
-                *([["KISS-ICP, small-scene configuration (every frame)",
-                    f(r["kiss_icp"]["ms"]["median"], 1), f(r["kiss_icp"]["ms"]["p95"], 1),
-                    f(r["kiss_icp"]["err_mm"]["median"], 1),
-                    f(rr["ours_frontend_plus_fusion_over_kiss_icp"], 3)]]
-                  if r.get("kiss_icp") else []),
-                ["ours, front end + fusion", f(ours["frontend_plus_fusion"]["median"], 2),
-                 f(ours["frontend_plus_fusion"]["p95"], 2),
-                 f(r["ours_displacement"]["err_mm"]["median"], 1), "1"],
+                "method",
+                "median ms",
+                "p95 ms",
+                "displacement error mm (median)",
+                "ratio ours/this (front end + fusion)",
+            ],
+            [
+                [
+                    "open3d ICP, identity init",
+                    f(o["identity"]["ms"]["median"], 1),
+                    f(o["identity"]["ms"]["p95"], 1),
+                    f(o["identity"]["err_mm"]["median"], 1),
+                    f(rr["ours_frontend_plus_fusion_over_open3d_identity"], 3),
+                ],
+                [
+                    "open3d ICP, IMU init",
+                    f(o["imu"]["ms"]["median"], 1),
+                    f(o["imu"]["ms"]["p95"], 1),
+                    f(o["imu"]["err_mm"]["median"], 1),
+                    f(rr["ours_frontend_plus_fusion_over_open3d_imu"], 3),
+                ],
+                *(
+                    [
+                        [
+                            "KISS-ICP, small-scene configuration (every frame)",
+                            f(r["kiss_icp"]["ms"]["median"], 1),
+                            f(r["kiss_icp"]["ms"]["p95"], 1),
+                            f(r["kiss_icp"]["err_mm"]["median"], 1),
+                            f(rr["ours_frontend_plus_fusion_over_kiss_icp"], 3),
+                        ]
+                    ]
+                    if r.get("kiss_icp")
+                    else []
+                ),
+                [
+                    "ours, front end + fusion",
+                    f(ours["frontend_plus_fusion"]["median"], 2),
+                    f(ours["frontend_plus_fusion"]["p95"], 2),
+                    f(r["ours_displacement"]["err_mm"]["median"], 1),
+                    "1",
+                ],
             ],
         ),
         "",
@@ -438,44 +533,64 @@ def _speedup_lines(r: dict[str, Any]) -> list[str]:
     f = _common.fmt
     imu = r["imu_us_per_sample"]
     ref, ours = r["reference_ms"], r["ours_ms"]
-    rows = [["IMU sample (`OnlineEstimator.add_imu`), us", f(imu["reference"]["median"], 1),
-             f(imu["fast"]["median"], 1), f(imu["fast"]["p95"], 1), f(imu["ratio_median"], 3)]]
-    for s in ("fusion", "kinematics", "frontend_plus_fusion", "imu_propagation",
-              "per_frame_total"):
-        rows.append([f"{LABELS[s]}, ms", f(ref[s]["median"], 3), f(ours[s]["median"], 3),
-                     f(ours[s]["p95"], 3), f(ours[s]["median"] / ref[s]["median"], 3)])
+    rows = [
+        [
+            "IMU sample (`OnlineEstimator.add_imu`), us",
+            f(imu["reference"]["median"], 1),
+            f(imu["fast"]["median"], 1),
+            f(imu["fast"]["p95"], 1),
+            f(imu["ratio_median"], 3),
+        ]
+    ]
+    for s in ("fusion", "kinematics", "frontend_plus_fusion", "imu_propagation", "per_frame_total"):
+        rows.append(
+            [
+                f"{LABELS[s]}, ms",
+                f(ref[s]["median"], 3),
+                f(ours[s]["median"], 3),
+                f(ours[s]["p95"], 3),
+                f(ours[s]["median"] / ref[s]["median"], 3),
+            ]
+        )
     return [
         "IMU propagation and attitude in scalar closed forms (vio_graph/filter/fast_imu.py) "
         "against the numpy reference paths they replaced (kept in the code and compared in "
         "tests/test_fast_imu.py: same states to 1e-9 m), the same replays interleaved "
         "(target: <= 20 us per IMU sample):",
         "",
-        _common.md_table(["what", "numpy reference median", "fast median", "fast p95",
-                          "ratio fast / reference"], rows),
+        _common.md_table(
+            ["what", "numpy reference median", "fast median", "fast p95", "ratio fast / reference"],
+            rows,
+        ),
         "",
     ]
 
 
 def _kiss_note(k: dict[str, Any] | None) -> str:
     if not k:
-        return ("KISS-ICP: not measured (install the `bench` extra: `pip install -e .[bench]`).")
+        return "KISS-ICP: not measured (install the `bench` extra: `pip install -e .[bench]`)."
     c = k["config"]
-    return (f"KISS-ICP (PyPI `kiss-icp`, the ICP odometry users usually reach for) on the same "
-            f"{k['frames']} frames, every frame registered against its local map, the same "
-            f"full clouds and the same error measure. Its defaults size the voxels for 100 m "
-            f"lidar scans (1 m voxels leave a handful of points from a 1 m scene and it "
-            f"diverges), so it is configured for a small scene: max range {c['max_range_m']:g} "
-            f"m, min range {c['min_range_m']:g} m, voxel {100 * c['voxel_size_m']:g} cm, "
-            f"initial correspondence threshold {100 * c['initial_threshold_m']:g} cm adapted "
-            f"from {1000 * c['min_motion_m']:g} mm motions on, {c['threads']} thread, no "
-            f"deskewing (`KISS_SMALL_SCENE` in benchmarks/bench_frontend.py).")
+    return (
+        f"KISS-ICP (PyPI `kiss-icp`, the ICP odometry users usually reach for) on the same "
+        f"{k['frames']} frames, every frame registered against its local map, the same "
+        f"full clouds and the same error measure. Its defaults size the voxels for 100 m "
+        f"lidar scans (1 m voxels leave a handful of points from a 1 m scene and it "
+        f"diverges), so it is configured for a small scene: max range {c['max_range_m']:g} "
+        f"m, min range {c['min_range_m']:g} m, voxel {100 * c['voxel_size_m']:g} cm, "
+        f"initial correspondence threshold {100 * c['initial_threshold_m']:g} cm adapted "
+        f"from {1000 * c['min_motion_m']:g} mm motions on, {c['threads']} thread, no "
+        f"deskewing (`KISS_SMALL_SCENE` in benchmarks/bench_frontend.py)."
+    )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--recording", type=Path, default=None,
-                    help="recording folder (default: simulate upstair seed 1 into "
-                    f"{_common.SCRATCH_DIR})")
+    ap.add_argument(
+        "--recording",
+        type=Path,
+        default=None,
+        help=f"recording folder (default: simulate upstair seed 1 into {_common.SCRATCH_DIR})",
+    )
     ap.add_argument("--repeats", type=int, default=3, help="replays of the recording")
     ap.add_argument("--o3d-stride", type=int, default=10, help="time every n-th frame pair")
     ap.add_argument("--quick", action="store_true", help="1 replay, every 30th pair")

@@ -44,8 +44,11 @@ def _measure(args: list[str]) -> dict:
     proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(args)} failed ({proc.returncode}):\n{err[-2000:]}")
-    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
-            "peak_rss_mib": usage.ru_maxrss / 1024.0}
+    return {
+        "wall_s": wall,
+        "cpu_s": usage.ru_utime + usage.ru_stime,
+        "peak_rss_mib": usage.ru_maxrss / 1024.0,
+    }
 
 
 def _scenario(duration_s: float, folder: Path) -> Path:
@@ -74,8 +77,19 @@ def run(durations_s: list[float]) -> dict:
         sim_file = scratch / f"upstair_long_{d:g}s.simulate.json"
         if not (rec / "metadata.yaml").exists() or not sim_file.exists():
             scen = _scenario(d, scratch)
-            row["simulate"] = _measure(cli + ["simulate", "--scenario", str(scen), "--seed", "1",
-                                              "--out", str(rec), "--overwrite"])
+            row["simulate"] = _measure(
+                cli
+                + [
+                    "simulate",
+                    "--scenario",
+                    str(scen),
+                    "--seed",
+                    "1",
+                    "--out",
+                    str(rec),
+                    "--overwrite",
+                ]
+            )
             sim_file.write_text(json.dumps(row["simulate"]))
         else:  # the recording is cached: the figures of the run that simulated it
             row["simulate"] = {**json.loads(sim_file.read_text()), "cached": True}
@@ -83,8 +97,10 @@ def run(durations_s: list[float]) -> dict:
         row["frames"] = frames
         for stage, mode in (("online", "filter"), ("batch", "batch")):
             out = scratch / f"out_{d:g}s_{stage}"
-            row[stage] = _measure(cli + ["run", str(rec), "--out", str(out), "--mode", mode,
-                                         "--no-rerun", "--overwrite"])
+            row[stage] = _measure(
+                cli
+                + ["run", str(rec), "--out", str(out), "--mode", mode, "--no-rerun", "--overwrite"]
+            )
             metrics = json.loads((out / "metrics.json").read_text())
             if stage == "batch":
                 row["batch_solve_s"] = _find(metrics, "batch_solve_s")
@@ -121,24 +137,36 @@ def markdown(r: dict) -> str:
                 extra = f"{row['duration_s'] / m['cpu_s']:.1f}x real time on CPU time"
             if stage == "batch" and row.get("batch_solve_s") is not None:
                 extra = f"batch solve {f(row['batch_solve_s'])} s"
-            rows.append([f"{row['duration_s']:g} s ({row['frames']} frames)", stage,
-                         f(m["wall_s"], 1), f(m["cpu_s"], 1), f(m["peak_rss_mib"], 0), extra])
-    return "\n".join([
-        "Stages as separate processes (`vio-graph simulate --scenario S --seed 1 --out REC`; "
-        "online = `vio-graph run REC --out OUT --mode filter --no-rerun`; batch = "
-        "`vio-graph run REC --out OUT --mode batch --no-rerun`, which includes the online "
-        "pass), each with trajectories, metrics, plots and map written. Wall and CPU seconds and "
-        "peak resident memory of that process (`os.wait4`); single thread. Scenario: "
-        "configs/upstair_long.yaml stretched to the trial length.",
-        "",
-        _common.md_table(["trial", "stage", "wall s", "CPU s", "peak RSS MiB", "note"], rows),
-    ])
+            rows.append(
+                [
+                    f"{row['duration_s']:g} s ({row['frames']} frames)",
+                    stage,
+                    f(m["wall_s"], 1),
+                    f(m["cpu_s"], 1),
+                    f(m["peak_rss_mib"], 0),
+                    extra,
+                ]
+            )
+    return "\n".join(
+        [
+            "Stages as separate processes (`vio-graph simulate --scenario S --seed 1 --out REC`; "
+            "online = `vio-graph run REC --out OUT --mode filter --no-rerun`; batch = "
+            "`vio-graph run REC --out OUT --mode batch --no-rerun`, which includes the online "
+            "pass), each with trajectories, metrics, plots and map written. Wall and CPU "
+            "seconds and peak resident memory of that process (`os.wait4`); single thread. "
+            "Scenario: "
+            "configs/upstair_long.yaml stretched to the trial length.",
+            "",
+            _common.md_table(["trial", "stage", "wall s", "CPU s", "peak RSS MiB", "note"], rows),
+        ]
+    )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--durations", type=float, nargs="+", default=[10.0, 60.0, 600.0],
-                    help="trial lengths, s")
+    ap.add_argument(
+        "--durations", type=float, nargs="+", default=[10.0, 60.0, 600.0], help="trial lengths, s"
+    )
     args = ap.parse_args()
     r = run(args.durations)
     _common.write_result("scale", r)

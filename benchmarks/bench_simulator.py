@@ -49,14 +49,17 @@ def run(runs: int = 3) -> dict:
 
 
 def markdown(r: dict) -> str:
-    return "\n".join([
-        "| metric | value |", "|---|---|",
-        f"| simulate() 10 s upstair, median of {r['runs']} | {r['simulate_median_s']:.1f} s |",
-        f"| in-memory simulate_trial (no frames) | {r['simulate_trial_in_memory_s']:.2f} s |",
-        f"| render one 224x172 frame | {r['render_ms_per_frame']:.1f} ms |",
-        f"| mean valid pixels / frame | {r['mean_valid_pixels_per_frame']:.0f} of 38528 |",
-        f"| frames seeing a stair edge | {100 * r['edge_visible_fraction']:.0f} % |",
-    ])
+    return "\n".join(
+        [
+            "| metric | value |",
+            "|---|---|",
+            f"| simulate() 10 s upstair, median of {r['runs']} | {r['simulate_median_s']:.1f} s |",
+            f"| in-memory simulate_trial (no frames) | {r['simulate_trial_in_memory_s']:.2f} s |",
+            f"| render one 224x172 frame | {r['render_ms_per_frame']:.1f} ms |",
+            f"| mean valid pixels / frame | {r['mean_valid_pixels_per_frame']:.0f} of 38528 |",
+            f"| frames seeing a stair edge | {100 * r['edge_visible_fraction']:.0f} % |",
+        ]
+    )
 
 
 def main() -> None:

@@ -31,6 +31,7 @@ from vio_graph.smoother.synthetic import SyntheticTrial, feed, make_swinging_sha
 
 WINDOWS_S = [0.5, 1.0, 2.0, 4.0]
 
+
 def trial(duration_s: float) -> SyntheticTrial:
     return make_swinging_shank_trial(
         duration_s,
@@ -151,8 +152,9 @@ def bench_replay(recording: Path, windows_s: list[float]) -> dict[str, Any]:
     rows, batch = [], {}
     for n, w in enumerate(windows_s):
         base = PipelineConfig()
-        config = base.model_copy(update={"smoother": base.smoother.model_copy(
-            update={"window_s": w})})
+        config = base.model_copy(
+            update={"smoother": base.smoother.model_copy(update={"window_s": w})}
+        )
         modes = {"smoother", "batch"} if n == 0 else {"smoother"}
         replay = Replay(rec, config, modes, NullVisualizer())
         t0 = time.perf_counter()
@@ -161,18 +163,31 @@ def bench_replay(recording: Path, windows_s: list[float]) -> dict[str, Any]:
         sm = replay.estimators["smoother"]
         k = min(len(sm.update_times_ms), len(sm.build_times_ms))
         upd, build = np.asarray(sm.update_times_ms[:k]), np.asarray(sm.build_times_ms[:k])
-        rows.append({"window_s": w, "keyframes": k, "update_ms": _common.stats_ms(upd),
-                     "build_ms": _common.stats_ms(build),
-                     "update_plus_build_ms": _common.stats_ms(upd + build),
-                     "replay_wall_s": wall})
+        rows.append(
+            {
+                "window_s": w,
+                "keyframes": k,
+                "update_ms": _common.stats_ms(upd),
+                "build_ms": _common.stats_ms(build),
+                "update_plus_build_ms": _common.stats_ms(upd + build),
+                "replay_wall_s": wall,
+            }
+        )
         if "batch" in replay.estimators:
             b = replay.estimators["batch"]
-            batch = {"trial_s": float(rec.frame_timestamps_s[-1] - rec.frame_timestamps_s[0]),
-                     "keyframes": len(b.keyframe_estimates(with_covariance=False)),
-                     "factors": int(b.graph.nrFactors()), "solve_s": b.solve_time_ms / 1e3,
-                     "iterations": b.solve_iterations}
-    return {"recording": str(recording), "frames": rec.num_frames, "fixed_lag": rows,
-            "batch": batch}
+            batch = {
+                "trial_s": float(rec.frame_timestamps_s[-1] - rec.frame_timestamps_s[0]),
+                "keyframes": len(b.keyframe_estimates(with_covariance=False)),
+                "factors": int(b.graph.nrFactors()),
+                "solve_s": b.solve_time_ms / 1e3,
+                "iterations": b.solve_iterations,
+            }
+    return {
+        "recording": str(recording),
+        "frames": rec.num_frames,
+        "fixed_lag": rows,
+        "batch": batch,
+    }
 
 
 def run(quick: bool = False, recording: Path | None = None) -> dict[str, Any]:
@@ -180,9 +195,11 @@ def run(quick: bool = False, recording: Path | None = None) -> dict[str, Any]:
     batch_trials = [10.0] if quick else [10.0, 30.0, 60.0]
     fixed = bench_fixed_lag(fixed_trial, WINDOWS_S)
     batch = bench_batch(batch_trials)
-    note = ("update = smoother update + bookkeeping (newest marginal included); "
-            "build = preintegration + factor construction. Corners exist only for x < 12.5 m "
-            "(the first ~14 s), after that only relative measurements constrain the drift.")
+    note = (
+        "update = smoother update + bookkeeping (newest marginal included); "
+        "build = preintegration + factor construction. Corners exist only for x < 12.5 m "
+        "(the first ~14 s), after that only relative measurements constrain the drift."
+    )
     from bench_frontend import ensure_recording
 
     replay = bench_replay(ensure_recording(recording), WINDOWS_S[:1] if quick else WINDOWS_S)
@@ -192,24 +209,46 @@ def run(quick: bool = False, recording: Path | None = None) -> dict[str, Any]:
 def markdown(r: dict[str, Any]) -> str:
     f = _common.fmt
     rp = r["replay"]
-    rows = [[f(x["window_s"], 1), x["keyframes"], f(x["update_ms"]["median"]),
-             f(x["update_ms"]["p95"]), f(x["build_ms"]["median"]), f(x["build_ms"]["p95"]),
-             f(x["update_plus_build_ms"]["median"]), f(x["update_plus_build_ms"]["p95"])]
-            for x in rp["fixed_lag"]]
+    rows = [
+        [
+            f(x["window_s"], 1),
+            x["keyframes"],
+            f(x["update_ms"]["median"]),
+            f(x["update_ms"]["p95"]),
+            f(x["build_ms"]["median"]),
+            f(x["build_ms"]["p95"]),
+            f(x["update_plus_build_ms"]["median"]),
+            f(x["update_plus_build_ms"]["p95"]),
+        ]
+        for x in rp["fixed_lag"]
+    ]
     b = rp["batch"]
     lines = [
         f"Replay of the simulated upstair trial ({rp['frames']} frames) through "
         "`vio_graph.replay.Replay` (the smoother as `vio-graph run` uses it), per keyframe:",
         "",
-        _common.md_table(["window s", "keyframes", "update ms median", "update ms p95",
-                          "build ms median", "build ms p95", "total ms median",
-                          "total ms p95"], rows),
+        _common.md_table(
+            [
+                "window s",
+                "keyframes",
+                "update ms median",
+                "update ms p95",
+                "build ms median",
+                "build ms p95",
+                "total ms median",
+                "total ms p95",
+            ],
+            rows,
+        ),
         "",
     ]
     if b:
-        lines += [f"Batch solve on the same replay: {b['trial_s']:.0f} s trial, {b['keyframes']} "
-                  f"keyframes, {b['factors']} factors, {b['solve_s']:.2f} s "
-                  f"({b['iterations']} LM iterations).", ""]
+        lines += [
+            f"Batch solve on the same replay: {b['trial_s']:.0f} s trial, {b['keyframes']} "
+            f"keyframes, {b['factors']} factors, {b['solve_s']:.2f} s "
+            f"({b['iterations']} LM iterations).",
+            "",
+        ]
     lines.append(markdown_synthetic(r["fixed_lag"], r["batch"], r["meta"]))
     return "\n".join(lines)
 
@@ -217,8 +256,12 @@ def markdown(r: dict[str, Any]) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short trials (smoke run)")
-    ap.add_argument("--recording", type=Path, default=None,
-                    help="recording for the replay part (default: simulated upstair seed 1)")
+    ap.add_argument(
+        "--recording",
+        type=Path,
+        default=None,
+        help="recording for the replay part (default: simulated upstair seed 1)",
+    )
     args = ap.parse_args()
     result = run(args.quick, args.recording)
     _common.write_result("smoother", result)

@@ -102,13 +102,15 @@ def replay(rec: Recording, config: PipelineConfig, attitude: str) -> dict[str, A
             d = res.displacement
             if d is not None:
                 true = _interp_xz(cam.timestamp_s, cam.position_m, d.t1_s) - _interp_xz(
-                    cam.timestamp_s, cam.position_m, d.t0_s)
-                row["disp"] = (d.t0_s, d.t1_s, np.asarray(d.delta_xz_m), np.asarray(d.cov_m2),
-                               true)
+                    cam.timestamp_s, cam.position_m, d.t0_s
+                )
+                row["disp"] = (d.t0_s, d.t1_s, np.asarray(d.delta_xz_m), np.asarray(d.cov_m2), true)
             rows.append(row)
     fs = est.filter.state
-    return {"rows": rows, "filter": {"accepted": fs.n_accepted, "rejected_chi2": fs.n_rejected,
-                                     "stale": fs.n_stale}}
+    return {
+        "rows": rows,
+        "filter": {"accepted": fs.n_accepted, "rejected_chi2": fs.n_rejected, "stale": fs.n_stale},
+    }
 
 
 def _true_speed(rec: Recording, t: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -126,8 +128,10 @@ def _err_stats(err: NDArray[np.float64]) -> dict[str, Any]:
     return {
         "n": int(err.shape[0]),
         "median_abs_mm": {"x": float(np.median(a[:, 0])), "z": float(np.median(a[:, 1]))},
-        "p95_abs_mm": {"x": float(np.percentile(a[:, 0], 95)),
-                       "z": float(np.percentile(a[:, 1], 95))},
+        "p95_abs_mm": {
+            "x": float(np.percentile(a[:, 0], 95)),
+            "z": float(np.percentile(a[:, 1], 95)),
+        },
         "mean_mm": {"x": float(err[:, 0].mean() * 1e3), "z": float(err[:, 1].mean() * 1e3)},
     }
 
@@ -138,13 +142,14 @@ def summarise(rec: Recording, out: dict[str, Any]) -> dict[str, Any]:
     t = np.array([r["t"] for r in rows])
     vis_all = rec.groundtruth.frame_edge_visible
     frames = np.array([r["frame"] for r in rows])
-    visible = (vis_all[frames].astype(bool) if vis_all is not None else np.ones(n, bool))
+    visible = vis_all[frames].astype(bool) if vis_all is not None else np.ones(n, bool)
     has = np.array([r["disp"] is not None for r in rows])
     speed = _true_speed(rec, t)
     with_d = [r for r in rows if r["disp"] is not None]
     err = np.array([r["disp"][2] - r["disp"][4] for r in with_d]).reshape(-1, 2)
-    nees = np.array([float(e @ np.linalg.solve(r["disp"][3], e))
-                     for e, r in zip(err, with_d, strict=True)])
+    nees = np.array(
+        [float(e @ np.linalg.solve(r["disp"][3], e)) for e, r in zip(err, with_d, strict=True)]
+    )
     d_speed = speed[has]
     by_speed = []
     for lo, hi in zip(SPEED_BINS_MPS[:-1], SPEED_BINS_MPS[1:], strict=True):
@@ -152,14 +157,17 @@ def summarise(rec: Recording, out: dict[str, Any]) -> dict[str, Any]:
         if not in_bin.any():
             continue
         sel = (d_speed >= lo) & (d_speed < hi)
-        by_speed.append({
-            "speed_mps": [lo, None if np.isinf(hi) else hi],
-            "frames": int(in_bin.sum()),
-            "frames_visible": int((in_bin & visible).sum()),
-            "availability_visible": float(has[in_bin & visible].mean())
-            if (in_bin & visible).any() else float("nan"),
-            **_err_stats(err[sel]),
-        })
+        by_speed.append(
+            {
+                "speed_mps": [lo, None if np.isinf(hi) else hi],
+                "frames": int(in_bin.sum()),
+                "frames_visible": int((in_bin & visible).sum()),
+                "availability_visible": float(has[in_bin & visible].mean())
+                if (in_bin & visible).any()
+                else float("nan"),
+                **_err_stats(err[sel]),
+            }
+        )
     reasons = Counter(re.sub(r"\s*\([^)]*\)", "", r["reason"]) for r in rows if r["reason"])
     truth_kind = rec.metadata.terrain.kind or "unknown"
     confusion: dict[str, Counter] = {}
@@ -170,7 +178,8 @@ def summarise(rec: Recording, out: dict[str, Any]) -> dict[str, Any]:
     sum_true = np.array([r["disp"][4] for r in with_d]).sum(axis=0) if with_d else np.zeros(2)
     cam = rec.groundtruth.trajectories["camera"]
     total_true = _interp_xz(cam.timestamp_s, cam.position_m, float(t[-1])) - _interp_xz(
-        cam.timestamp_s, cam.position_m, float(t[0]))
+        cam.timestamp_s, cam.position_m, float(t[0])
+    )
     est_xz = np.stack([r["est_xz"] for r in rows])
     gt_xz = np.stack([_interp_xz(cam.timestamp_s, cam.position_m, float(x)) for x in t])
     cam_err = est_xz - gt_xz - (est_xz[0] - gt_xz[0])
@@ -183,21 +192,30 @@ def summarise(rec: Recording, out: dict[str, Any]) -> dict[str, Any]:
         "availability_visible": float(has[visible].mean()) if visible.any() else float("nan"),
         "visible_fraction": float(visible.mean()) if n else 0.0,
         "error": _err_stats(err),
-        "nees": {"mean": float(nees.mean()) if nees.size else float("nan"),
-                 "median": float(np.median(nees)) if nees.size else float("nan"),
-                 "p95": float(np.percentile(nees, 95)) if nees.size else float("nan"),
-                 "max_abs_err_mm": float(np.abs(err).max() * 1e3) if nees.size else float("nan"),
-                 "frac_above_13.8": float((nees > 13.8).mean()) if nees.size else float("nan")},
+        "nees": {
+            "mean": float(nees.mean()) if nees.size else float("nan"),
+            "median": float(np.median(nees)) if nees.size else float("nan"),
+            "p95": float(np.percentile(nees, 95)) if nees.size else float("nan"),
+            "max_abs_err_mm": float(np.abs(err).max() * 1e3) if nees.size else float("nan"),
+            "frac_above_13.8": float((nees > 13.8).mean()) if nees.size else float("nan"),
+        },
         "error_by_speed": by_speed,
         "rejections": dict(reasons.most_common()),
         "filter": out["filter"],
         "terrain_confusion": {k: dict(v) for k, v in confusion.items()},
-        "displacement_sum_m": {"measured": sum_meas.tolist(), "true_same_intervals":
-                               sum_true.tolist(), "true_whole_trial": total_true.tolist()},
-        "filter_camera_rmse_cm": {"x": float(np.sqrt(np.mean(cam_err[:, 0] ** 2)) * 100),
-                                  "z": float(np.sqrt(np.mean(cam_err[:, 1] ** 2)) * 100)},
-        "frontend_ms": {"median": float(np.nanmedian([r["ms"] for r in rows])),
-                        "p95": float(np.nanpercentile([r["ms"] for r in rows], 95))},
+        "displacement_sum_m": {
+            "measured": sum_meas.tolist(),
+            "true_same_intervals": sum_true.tolist(),
+            "true_whole_trial": total_true.tolist(),
+        },
+        "filter_camera_rmse_cm": {
+            "x": float(np.sqrt(np.mean(cam_err[:, 0] ** 2)) * 100),
+            "z": float(np.sqrt(np.mean(cam_err[:, 1] ** 2)) * 100),
+        },
+        "frontend_ms": {
+            "median": float(np.nanmedian([r["ms"] for r in rows])),
+            "p95": float(np.nanpercentile([r["ms"] for r in rows], 95)),
+        },
         "_err": err,
         "_nees": nees,
     }
@@ -205,43 +223,63 @@ def summarise(rec: Recording, out: dict[str, Any]) -> dict[str, Any]:
 
 def _markdown(results: list[dict[str, Any]], attitude: str) -> str:
     L = [f"# Front-end displacement accuracy (attitude: {attitude})", ""]
-    L += ["| recording | avail | avail (edge visible) | err x med/p95/mean mm | "
-          "err z med/p95/mean mm | NEES mean/p95 | filter acc/rej | cam RMSE x/z cm | fe ms |",
-          "|---|---|---|---|---|---|---|---|---|"]
+    L += [
+        "| recording | avail | avail (edge visible) | err x med/p95/mean mm | "
+        "err z med/p95/mean mm | NEES mean/p95 | filter acc/rej | cam RMSE x/z cm | fe ms |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in results:
         e = r["error"]
         if e["n"]:
-            ex, ez = (f"{e['median_abs_mm'][a]:.1f}/{e['p95_abs_mm'][a]:.1f}/"
-                      f"{e['mean_mm'][a]:+.1f}" for a in ("x", "z"))
+            ex, ez = (
+                f"{e['median_abs_mm'][a]:.1f}/{e['p95_abs_mm'][a]:.1f}/{e['mean_mm'][a]:+.1f}"
+                for a in ("x", "z")
+            )
         else:
             ex = ez = "-"
         f = r["filter"]
         c = r["filter_camera_rmse_cm"]
-        L.append(f"| {r['scenario']} s{r['seed']} | {r['availability']:.2f} | "
-                 f"{r['availability_visible']:.2f} | {ex} | {ez} | {r['nees']['mean']:.1f}/"
-                 f"{r['nees']['p95']:.1f} | "
-                 f"{f['accepted']}/{f['rejected_chi2']} | {c['x']:.1f}/{c['z']:.1f} | "
-                 f"{r['frontend_ms']['median']:.1f} |")
+        L.append(
+            f"| {r['scenario']} s{r['seed']} | {r['availability']:.2f} | "
+            f"{r['availability_visible']:.2f} | {ex} | {ez} | {r['nees']['mean']:.1f}/"
+            f"{r['nees']['p95']:.1f} | "
+            f"{f['accepted']}/{f['rejected_chi2']} | {c['x']:.1f}/{c['z']:.1f} | "
+            f"{r['frontend_ms']['median']:.1f} |"
+        )
     for r in results:
-        L += ["", f"## {r['scenario']} seed {r['seed']}", "",
-              "| true speed m/s | frames (visible) | avail visible | n | |e| x med/p95 mm | "
-              "|e| z med/p95 mm | mean x/z mm |", "|---|---|---|---|---|---|---|"]
+        L += [
+            "",
+            f"## {r['scenario']} seed {r['seed']}",
+            "",
+            "| true speed m/s | frames (visible) | avail visible | n | |e| x med/p95 mm | "
+            "|e| z med/p95 mm | mean x/z mm |",
+            "|---|---|---|---|---|---|---|",
+        ]
         for b in r["error_by_speed"]:
             lo, hi = b["speed_mps"]
             rng = f"{lo:.2f}-{'inf' if hi is None else f'{hi:.2f}'}"
             if b["n"]:
-                L.append(f"| {rng} | {b['frames']} ({b['frames_visible']}) | "
-                         f"{b['availability_visible']:.2f} | {b['n']} | "
-                         f"{b['median_abs_mm']['x']:.1f}/{b['p95_abs_mm']['x']:.1f} | "
-                         f"{b['median_abs_mm']['z']:.1f}/{b['p95_abs_mm']['z']:.1f} | "
-                         f"{b['mean_mm']['x']:+.1f}/{b['mean_mm']['z']:+.1f} |")
+                L.append(
+                    f"| {rng} | {b['frames']} ({b['frames_visible']}) | "
+                    f"{b['availability_visible']:.2f} | {b['n']} | "
+                    f"{b['median_abs_mm']['x']:.1f}/{b['p95_abs_mm']['x']:.1f} | "
+                    f"{b['median_abs_mm']['z']:.1f}/{b['p95_abs_mm']['z']:.1f} | "
+                    f"{b['mean_mm']['x']:+.1f}/{b['mean_mm']['z']:+.1f} |"
+                )
             else:
-                L.append(f"| {rng} | {b['frames']} ({b['frames_visible']}) | "
-                         f"{b['availability_visible']:.2f} | 0 | - | - | - |")
-        L += ["", "Rejections: " + ", ".join(f"{k}: {v}" for k, v in r["rejections"].items()),
-              "", "Terrain confusion (rows truth, columns predicted): " + "; ".join(
-                  f"{k} -> {v}" for k, v in r["terrain_confusion"].items()),
-              "", f"Displacement sums (m): {r['displacement_sum_m']}"]
+                L.append(
+                    f"| {rng} | {b['frames']} ({b['frames_visible']}) | "
+                    f"{b['availability_visible']:.2f} | 0 | - | - | - |"
+                )
+        L += [
+            "",
+            "Rejections: " + ", ".join(f"{k}: {v}" for k, v in r["rejections"].items()),
+            "",
+            "Terrain confusion (rows truth, columns predicted): "
+            + "; ".join(f"{k} -> {v}" for k, v in r["terrain_confusion"].items()),
+            "",
+            f"Displacement sums (m): {r['displacement_sum_m']}",
+        ]
     return "\n".join(L) + "\n"
 
 
@@ -259,12 +297,16 @@ def main() -> None:
         results.append(summarise(rec, replay(rec, config, args.attitude)))
     pooled_err = np.vstack([r.pop("_err") for r in results])
     pooled_nees = np.concatenate([r.pop("_nees") for r in results])
-    report = {"attitude": args.attitude, "recordings": results,
-              "pooled_error": _err_stats(pooled_err),
-              "pooled_nees": {"n": int(pooled_nees.size),
-                              "mean": float(pooled_nees.mean()) if pooled_nees.size else None,
-                              "p95": float(np.percentile(pooled_nees, 95))
-                              if pooled_nees.size else None}}
+    report = {
+        "attitude": args.attitude,
+        "recordings": results,
+        "pooled_error": _err_stats(pooled_err),
+        "pooled_nees": {
+            "n": int(pooled_nees.size),
+            "mean": float(pooled_nees.mean()) if pooled_nees.size else None,
+            "p95": float(np.percentile(pooled_nees, 95)) if pooled_nees.size else None,
+        },
+    }
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "eval_frontend.json").write_text(json.dumps(report, indent=1))
     md = _markdown(results, args.attitude)

@@ -58,8 +58,9 @@ def joint_angles(trials: dict, out: Path) -> None:
         for a in pub["ankle"]:
             axes[2].axhline(a, color=colors[name], ls="--", lw=1)
         axes[0].plot([], [], color=colors[name], label=name)
-    for ax, title in zip(axes, ("hip flexion", "knee flexion", "ankle plantarflexion (+)"),
-                         strict=True):
+    for ax, title in zip(
+        axes, ("hip flexion", "knee flexion", "ankle plantarflexion (+)"), strict=True
+    ):
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("gait phase (% stride, from contact)")
         ax.grid(alpha=0.3)
@@ -74,8 +75,9 @@ def depth_and_slice(trial, out: Path, i: int) -> None:
     fig, ax = plt.subplots(figsize=(4.2, 3.4))
     im = ax.imshow(np.where(depth > 0, depth, np.nan), cmap="viridis")
     fig.colorbar(im, ax=ax, label="depth along optical axis (m); white = invalid")
-    ax.set_title(f"upstair seed {trial.seed}, frame {i} (t = {trial.frame_true_time_s[i]:.2f} s)",
-                 fontsize=8)
+    ax.set_title(
+        f"upstair seed {trial.seed}, frame {i} (t = {trial.frame_true_time_s[i]:.2f} s)", fontsize=8
+    )
     ax.set_axis_off()
     fig.tight_layout()
     _save(fig, out / "sim_depth.png")
@@ -137,16 +139,23 @@ def legs(trials: dict, out: Path) -> None:
         ax.plot(prof[sel, 0], prof[sel, 1], "k-", lw=1)
         cols = plt.cm.viridis(np.linspace(0, 1, idx.size))
         for c, i in zip(cols, idx, strict=True):
-            pts = np.array([m.hip_xz_m[i], m.knee_xz_m[i], m.ankle_xz_m[i], m.heel_xz_m[i],
-                            m.toe_xz_m[i], m.ankle_xz_m[i]])
+            pts = np.array(
+                [
+                    m.hip_xz_m[i],
+                    m.knee_xz_m[i],
+                    m.ankle_xz_m[i],
+                    m.heel_xz_m[i],
+                    m.toe_xz_m[i],
+                    m.ankle_xz_m[i],
+                ]
+            )
             ax.plot(pts[:, 0], pts[:, 1], "-", color=c, lw=1)
             p = m.knee_xz_m[i] + rot_xz(m.shank_pitch_rad[i], trial.camera_in_shank_xz_m)
             ax.plot(p[0], p[1], "s", color=c, ms=2.5)
         ax.plot(m.toe_xz_m[:, 0], m.toe_xz_m[:, 1], color="C3", lw=0.5, alpha=0.6)
         ax.set_xlim(x0, x1)
         ax.set_aspect("equal")
-        ax.set_title(f"{name} ({trial.config.rig.rig}, {trial.config.gait.pattern})",
-                     fontsize=8)
+        ax.set_title(f"{name} ({trial.config.rig.rig}, {trial.config.gait.pattern})", fontsize=8)
         ax.grid(alpha=0.3)
     fig.suptitle("leg every 0.2 s (squares: camera, red: toe path)", fontsize=9)
     fig.tight_layout()
@@ -159,8 +168,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
-    trials = {n: simulate_trial(load_scenario(n), a.seed)
-              for n in ("upstair", "downstair", "level", "obstacle", "prosthesis_upstair")}
+    trials = {
+        n: simulate_trial(load_scenario(n), a.seed)
+        for n in ("upstair", "downstair", "level", "obstacle", "prosthesis_upstair")
+    }
     joint_angles({n: trials[n] for n in ("upstair", "downstair", "level")}, a.out)
     depth_and_slice(trials["upstair"], a.out, 75)
     imu(trials["upstair"], a.out)

@@ -37,8 +37,12 @@ def run_benchmark(name: str, quick: bool) -> float:
     """Run benchmarks/bench_<name>.py in a fresh single-threaded process; wall time (s)."""
     args = [sys.executable, str(_common.BENCH_DIR / f"bench_{name}.py")]
     if quick:
-        args += {"frontend": ["--quick"], "smoother": ["--quick"], "simulator": ["--runs", "1"],
-                 "scale": ["--durations", "10"]}[name]
+        args += {
+            "frontend": ["--quick"],
+            "smoother": ["--quick"],
+            "simulator": ["--runs", "1"],
+            "scale": ["--durations", "10"],
+        }[name]
     elif name == "scale":
         args += ["--durations", *SCALE_DURATIONS_S]
     env = dict(os.environ, **{v: "1" for v in _common.THREAD_VARIABLES})
@@ -47,8 +51,7 @@ def run_benchmark(name: str, quick: bool) -> float:
     return time.perf_counter() - t0
 
 
-def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any],
-            sc: dict[str, Any]) -> str:
+def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any], sc: dict[str, Any]) -> str:
     f = _common.fmt
     ours, best = fe["ours_ms"], fe["ours_best_of_repeats_ms"]
     o3d = fe["open3d"]["imu"]["ms"]
@@ -59,66 +62,112 @@ def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any],
     imu = fe.get("imu_us_per_sample")
     kiss = fe.get("kiss_icp")
     rows = [
-        *([["IMU propagation per sample (attitude, SP-ESKF, stance detector)",
-            f"{f(imu['fast']['median'], 1)} / {f(imu['fast']['p95'], 1)} us",
-            f"target <= 20 us; numpy reference {f(imu['reference']['median'], 1)} us "
-            f"(fast / reference = {f(imu['ratio_median'], 3)})"]] if imu else []),
-        ["front end + fusion per frame (simulated upstair)",
-         f"{f(ours['frontend_plus_fusion']['median'])} / "
-         f"{f(ours['frontend_plus_fusion']['p95'])} ms",
-         f"target <= 1 ms; paper {paper_total:.1f} ms ({fe['paper_ms']['frontend']} + "
-         f"{fe['paper_ms']['fusion']})"],
-        [f"front end + fusion, per frame best of {fe['repeats']} replays",
-         f"{f(best['frontend_plus_fusion']['median'])} / "
-         f"{f(best['frontend_plus_fusion']['p95'])} ms",
-         "less sensitive to other processes (see below)"],
-        ["per frame incl. kinematics and IMU propagation",
-         f"{f(ours['per_frame_total']['median'])} / {f(ours['per_frame_total']['p95'])} ms",
-         "30 fps budget: 33 ms"],
-        ["open3d 3D point-to-point ICP, full clouds, IMU init (direct ICP)",
-         f"{f(o3d['median'], 1)} / {f(o3d['p95'], 1)} ms",
-         f"paper ~{fe['paper_ms']['direct_icp']:.0f} ms; ours / open3d = "
-         f"{f(fe['ratios']['ours_frontend_plus_fusion_over_open3d_imu'], 3)}"],
-        *([["KISS-ICP odometry, small-scene configuration, per frame",
-            f"{f(kiss['ms']['median'], 1)} / {f(kiss['ms']['p95'], 1)} ms",
-            f"displacement error {f(kiss['err_mm']['median'], 1)} mm median (ours "
-            f"{f(fe['ours_displacement']['err_mm']['median'], 1)}); ours / KISS-ICP = "
-            f"{f(fe['ratios']['ours_frontend_plus_fusion_over_kiss_icp'], 3)}"]]
-          if kiss else []),
-        [f"fixed-lag smoother per keyframe, {sm_row['window_s']:g} s window (replay)",
-         f"{f(sm_row['update_plus_build_ms']['median'])} / "
-         f"{f(sm_row['update_plus_build_ms']['p95'])} ms", "update + factor building"],
+        *(
+            [
+                [
+                    "IMU propagation per sample (attitude, SP-ESKF, stance detector)",
+                    f"{f(imu['fast']['median'], 1)} / {f(imu['fast']['p95'], 1)} us",
+                    f"target <= 20 us; numpy reference {f(imu['reference']['median'], 1)} us "
+                    f"(fast / reference = {f(imu['ratio_median'], 3)})",
+                ]
+            ]
+            if imu
+            else []
+        ),
+        [
+            "front end + fusion per frame (simulated upstair)",
+            f"{f(ours['frontend_plus_fusion']['median'])} / "
+            f"{f(ours['frontend_plus_fusion']['p95'])} ms",
+            f"target <= 1 ms; paper {paper_total:.1f} ms ({fe['paper_ms']['frontend']} + "
+            f"{fe['paper_ms']['fusion']})",
+        ],
+        [
+            f"front end + fusion, per frame best of {fe['repeats']} replays",
+            f"{f(best['frontend_plus_fusion']['median'])} / "
+            f"{f(best['frontend_plus_fusion']['p95'])} ms",
+            "less sensitive to other processes (see below)",
+        ],
+        [
+            "per frame incl. kinematics and IMU propagation",
+            f"{f(ours['per_frame_total']['median'])} / {f(ours['per_frame_total']['p95'])} ms",
+            "30 fps budget: 33 ms",
+        ],
+        [
+            "open3d 3D point-to-point ICP, full clouds, IMU init (direct ICP)",
+            f"{f(o3d['median'], 1)} / {f(o3d['p95'], 1)} ms",
+            f"paper ~{fe['paper_ms']['direct_icp']:.0f} ms; ours / open3d = "
+            f"{f(fe['ratios']['ours_frontend_plus_fusion_over_open3d_imu'], 3)}",
+        ],
+        *(
+            [
+                [
+                    "KISS-ICP odometry, small-scene configuration, per frame",
+                    f"{f(kiss['ms']['median'], 1)} / {f(kiss['ms']['p95'], 1)} ms",
+                    f"displacement error {f(kiss['err_mm']['median'], 1)} mm median (ours "
+                    f"{f(fe['ours_displacement']['err_mm']['median'], 1)}); ours / KISS-ICP = "
+                    f"{f(fe['ratios']['ours_frontend_plus_fusion_over_kiss_icp'], 3)}",
+                ]
+            ]
+            if kiss
+            else []
+        ),
+        [
+            f"fixed-lag smoother per keyframe, {sm_row['window_s']:g} s window (replay)",
+            f"{f(sm_row['update_plus_build_ms']['median'])} / "
+            f"{f(sm_row['update_plus_build_ms']['p95'])} ms",
+            "update + factor building",
+        ],
     ]
     if sm["replay"]["batch"]:
         b = sm["replay"]["batch"]
-        rows.append([f"batch smoother, {b['trial_s']:.0f} s trial (replay)",
-                     f"{f(b['solve_s'])} s", f"{b['keyframes']} keyframes"])
+        rows.append(
+            [
+                f"batch smoother, {b['trial_s']:.0f} s trial (replay)",
+                f"{f(b['solve_s'])} s",
+                f"{b['keyframes']} keyframes",
+            ]
+        )
     if batch60:
-        rows.append(["batch smoother, 60 s synthetic trial", f"{f(batch60[0]['solve_s'])} s",
-                     f"+ {f(batch60[0]['build_s'])} s graph building"])
-    rows.append([f"simulate a {sim['duration_s']:.0f} s upstair trial",
-                 f"{f(sim['simulate_median_s'], 1)} s",
-                 f"median of {sim['runs']}; {f(sim['render_ms_per_frame'], 1)} ms per frame "
-                 "render"])
+        rows.append(
+            [
+                "batch smoother, 60 s synthetic trial",
+                f"{f(batch60[0]['solve_s'])} s",
+                f"+ {f(batch60[0]['build_s'])} s graph building",
+            ]
+        )
+    rows.append(
+        [
+            f"simulate a {sim['duration_s']:.0f} s upstair trial",
+            f"{f(sim['simulate_median_s'], 1)} s",
+            f"median of {sim['runs']}; {f(sim['render_ms_per_frame'], 1)} ms per frame render",
+        ]
+    )
     for row in sc["rows"]:
         on = row["online"]
-        rows.append([f"`vio-graph run REC --out OUT --mode filter --no-rerun`, "
-                     f"{row['duration_s']:g} s trial",
-                     f"{f(on['wall_s'], 1)} s wall, {f(on['cpu_s'], 1)} s CPU",
-                     f"peak RSS {f(on['peak_rss_mib'], 0)} MiB; see Scale"])
+        rows.append(
+            [
+                f"`vio-graph run REC --out OUT --mode filter --no-rerun`, "
+                f"{row['duration_s']:g} s trial",
+                f"{f(on['wall_s'], 1)} s wall, {f(on['cpu_s'], 1)} s CPU",
+                f"peak RSS {f(on['peak_rss_mib'], 0)} MiB; see Scale",
+            ]
+        )
     return _common.md_table(["what", "median / p95", "reference"], rows)
 
 
 def render(walls_s: dict[str, float], quick: bool) -> str:
     fe, sm, sim, sc = (_common.read_result(n) for n in BENCHMARKS)
     m = fe["machine"]
-    loads = ", ".join(f"{n} {r['machine']['load_average_1_5_15min'][0]}"
-                      for n, r in zip(BENCHMARKS, (fe, sm, sim, sc), strict=True))
+    loads = ", ".join(
+        f"{n} {r['machine']['load_average_1_5_15min'][0]}"
+        for n, r in zip(BENCHMARKS, (fe, sm, sim, sc), strict=True)
+    )
     lines = [
         "# Performance",
         "",
         f"Generated by `benchmarks/run_all.py` on {m['date_utc']}"
-        + (" (--quick: fewer repeats, numbers less reliable)" if quick else "") + ". "
+        + (" (--quick: fewer repeats, numbers less reliable)" if quick else "")
+        + ". "
         "Do not edit by hand; rerun instead.",
         "",
         "Reproduce (from the repository root, about 10-15 minutes):",
@@ -130,8 +179,11 @@ def render(walls_s: dict[str, float], quick: bool) -> str:
         f"Machine: {m['cpu_model']}, {m['logical_cores']} logical cores "
         f"({m['usable_cores']} usable), {m['platform']}; Python {m['python']}, numpy "
         f"{m['numpy']}, scipy {m['scipy']}; vio_graph at `{m['source_revision']}`"
-        + (" (`+dirty`: the working tree had uncommitted changes in vio_graph/ or configs/)"
-           if "+dirty" in m["source_revision"] else "")
+        + (
+            " (`+dirty`: the working tree had uncommitted changes in vio_graph/ or configs/)"
+            if "+dirty" in m["source_revision"]
+            else ""
+        )
         + ". Every benchmark runs single-threaded "
         "(OMP / OpenBLAS / MKL threads = 1). Load average (1 min) when each benchmark "
         f"finished: {loads}. The machine is shared, so medians and p95 are reported, "
@@ -163,10 +215,15 @@ def render(walls_s: dict[str, float], quick: bool) -> str:
         "",
     ]
     if walls_s:
-        lines += ["## Benchmark wall times", "",
-                  _common.md_table(["benchmark", "wall s"],
-                                   [[f"`benchmarks/bench_{n}.py`", f"{w:.0f}"]
-                                    for n, w in walls_s.items()]), ""]
+        lines += [
+            "## Benchmark wall times",
+            "",
+            _common.md_table(
+                ["benchmark", "wall s"],
+                [[f"`benchmarks/bench_{n}.py`", f"{w:.0f}"] for n, w in walls_s.items()],
+            ),
+            "",
+        ]
     return "\n".join(lines)
 
 
@@ -174,8 +231,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="smoke run (fewer repeats)")
     ap.add_argument("--no-doc", action="store_true", help="only write benchmarks/results/")
-    ap.add_argument("--render-only", action="store_true",
-                    help="regenerate the doc from existing results (wall times unknown)")
+    ap.add_argument(
+        "--render-only",
+        action="store_true",
+        help="regenerate the doc from existing results (wall times unknown)",
+    )
     args = ap.parse_args()
     walls: dict[str, float] = {}
     walls_file = _common.RESULTS_DIR / "run_all_wall_s.json"

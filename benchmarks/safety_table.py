@@ -31,23 +31,34 @@ def rows_for(root: Path, mode: str) -> list[dict[str, Any]]:
         if c is None:
             continue
         p = m["placement"][mode]
-        rows.append({
-            "scenario": m["scenario"], "seed": m["seed"],
-            "err_med": c["error_mm"]["median"], "err_p95": c["error_mm"]["p95"],
-            "w1": c.get("within_1sigma"), "w2": c.get("within_2sigma"),
-            "cov": c["coverage"], "events": c["near_trip"]["events"],
-            "warnings": c["near_trip"]["warnings"], "prec": c["near_trip"]["precision"],
-            "rec": c["near_trip"]["recall"], "lead": c["near_trip"]["min_lead_ms"],
-            "pl_med": p["error_mm"]["median"], "landings": p["landings"],
-            "lat": m["latency_ms"]["safety"]["median"],
-        })
+        rows.append(
+            {
+                "scenario": m["scenario"],
+                "seed": m["seed"],
+                "err_med": c["error_mm"]["median"],
+                "err_p95": c["error_mm"]["p95"],
+                "w1": c.get("within_1sigma"),
+                "w2": c.get("within_2sigma"),
+                "cov": c["coverage"],
+                "events": c["near_trip"]["events"],
+                "warnings": c["near_trip"]["warnings"],
+                "prec": c["near_trip"]["precision"],
+                "rec": c["near_trip"]["recall"],
+                "lead": c["near_trip"]["min_lead_ms"],
+                "pl_med": p["error_mm"]["median"],
+                "landings": p["landings"],
+                "lat": m["latency_ms"]["safety"]["median"],
+            }
+        )
     return rows
 
 
 def markdown(rows: list[dict[str, Any]], mode: str) -> str:
-    head = ("| scenario | seed | clearance error median / p95 (mm) | within 1 / 2 sigma | "
-            "frames with an estimate | true near-trips | warnings | precision | recall | "
-            "min lead (ms) | placement error median (mm), landings | safety ms/frame |")
+    head = (
+        "| scenario | seed | clearance error median / p95 (mm) | within 1 / 2 sigma | "
+        "frames with an estimate | true near-trips | warnings | precision | recall | "
+        "min lead (ms) | placement error median (mm), landings | safety ms/frame |"
+    )
     lines = [f"Mode `{mode}`.", "", head, "|" + "---|" * 12]
     for r in rows:
         w = "—" if r["w1"] is None else f"{_f(r['w1'], 2)} / {_f(r['w2'], 2)}"
@@ -55,7 +66,8 @@ def markdown(rows: list[dict[str, Any]], mode: str) -> str:
             f"| {r['scenario']} | {r['seed']} | {_f(r['err_med'])} / {_f(r['err_p95'])} | {w} "
             f"| {_f(r['cov'], 2)} | {r['events']} | {r['warnings']} | {_f(r['prec'], 2)} | "
             f"{_f(r['rec'], 2)} | {_f(r['lead'], 0)} | {_f(r['pl_med'])}, {r['landings']} | "
-            f"{_f(r['lat'], 2)} |")
+            f"{_f(r['lat'], 2)} |"
+        )
     return "\n".join(lines)
 
 

@@ -28,8 +28,9 @@ from vio_graph.recording.tum import read_tum
 VIO_GRAPH = Path(sys.executable).with_name("vio-graph")
 
 
-def _cli(args: list[str], capsys: pytest.CaptureFixture[str],
-         monkeypatch: pytest.MonkeyPatch) -> tuple[int, str, str]:
+def _cli(
+    args: list[str], capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> tuple[int, str, str]:
     """Run the entry point in-process: (exit code, stdout, stderr)."""
     monkeypatch.setattr(sys, "argv", ["vio-graph", *args])
     previous = signal.getsignal(signal.SIGTERM)
@@ -45,13 +46,19 @@ def _cli(args: list[str], capsys: pytest.CaptureFixture[str],
 
 
 def _checksums(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def _temporaries(folder: Path) -> list[Path]:
-    return [p for p in folder.rglob("*")
-            if p.name.startswith(".") or p.name.endswith((".partial", ".tmp"))]
+    return [
+        p
+        for p in folder.rglob("*")
+        if p.name.startswith(".") or p.name.endswith((".partial", ".tmp"))
+    ]
 
 
 # --------------------------------------------------------------------------- info
@@ -66,8 +73,7 @@ def test_info_json_keys(tiny_recording: Path, capsys, monkeypatch) -> None:
     code, out, _ = _cli(["info", str(tiny_recording), "--json"], capsys, monkeypatch)
     assert code == 0
     s = json.loads(out)
-    for key in ("duration_s", "frames", "frame_rate_hz", "imu_rate_hz", "gt_rate_hz",
-                "image_size"):
+    for key in ("duration_s", "frames", "frame_rate_hz", "imu_rate_hz", "gt_rate_hz", "image_size"):
         assert key in s, key
     # the tiny recording: 1 s, 30 frames of 16 x 12 px at 30 Hz, IMU 100 Hz, ground truth 120 Hz
     assert s["frames"] == 30 and s["image_size"] == [16, 12]
@@ -95,14 +101,18 @@ BAD = {
     "missing imu": (lambda r: (r / "imu.csv").unlink(), "imu.csv", "missing"),
     "nan": (_nan_in_imu, "imu.csv", "NaN"),
     "version": (_version, "metadata.yaml", "unknown format version"),
-    "truncated npy": (lambda r: (r / "depth/depth_mm.npy").write_bytes(
-        (r / "depth/depth_mm.npy").read_bytes()[:300]), "depth_mm.npy", "truncated"),
+    "truncated npy": (
+        lambda r: (r / "depth/depth_mm.npy").write_bytes(
+            (r / "depth/depth_mm.npy").read_bytes()[:300]
+        ),
+        "depth_mm.npy",
+        "truncated",
+    ),
 }
 
 
 @pytest.mark.parametrize("case", list(BAD))
-def test_info_bad_recording_one_line(tiny_recording: Path, capsys, monkeypatch,
-                                     case: str) -> None:
+def test_info_bad_recording_one_line(tiny_recording: Path, capsys, monkeypatch, case: str) -> None:
     mutate, fname, words = BAD[case]
     mutate(tiny_recording)
     code, out, err = _cli(["info", str(tiny_recording)], capsys, monkeypatch)
@@ -121,8 +131,9 @@ def test_info_missing_folder(tmp_path: Path, capsys, monkeypatch) -> None:
 
 def test_installed_script_bad_recording_no_traceback(tiny_recording: Path) -> None:
     (tiny_recording / "joints.csv").write_text("timestamp_s,thigh_pitch_rad,knee_rad,ankle_rad\n")
-    r = subprocess.run([str(VIO_GRAPH), "info", str(tiny_recording)], capture_output=True,
-                       text=True, timeout=120)
+    r = subprocess.run(
+        [str(VIO_GRAPH), "info", str(tiny_recording)], capture_output=True, text=True, timeout=120
+    )
     assert r.returncode == 1
     assert "Traceback" not in r.stderr + r.stdout
     errors = [line for line in r.stderr.splitlines() if line.startswith("error:")]
@@ -134,14 +145,14 @@ def test_simulate_refuses_existing_out(tmp_path: Path, capsys, monkeypatch) -> N
     out = tmp_path / "rec"
     out.mkdir()
     (out / "keep.txt").write_text("mine")
-    code, _, err = _cli(["simulate", "--scenario", "level", "--out", str(out)], capsys,
-                        monkeypatch)
+    code, _, err = _cli(["simulate", "--scenario", "level", "--out", str(out)], capsys, monkeypatch)
     assert code == 1 and "already exists" in err and "--overwrite" in err
     assert [p.name for p in out.iterdir()] == ["keep.txt"]
 
 
-def test_run_refuses_nonempty_results(tiny_recording: Path, tmp_path: Path, capsys,
-                                      monkeypatch) -> None:
+def test_run_refuses_nonempty_results(
+    tiny_recording: Path, tmp_path: Path, capsys, monkeypatch
+) -> None:
     out = tmp_path / "results"
     out.mkdir()
     (out / "old.json").write_text("{}")
@@ -151,11 +162,11 @@ def test_run_refuses_nonempty_results(tiny_recording: Path, tmp_path: Path, caps
 
 
 @pytest.mark.parametrize("mode", ["bogus", "filter,nonsense", ","])
-def test_run_bad_mode(tiny_recording: Path, tmp_path: Path, capsys, monkeypatch,
-                      mode: str) -> None:
+def test_run_bad_mode(tiny_recording: Path, tmp_path: Path, capsys, monkeypatch, mode: str) -> None:
     out = tmp_path / "results"
-    code, _, err = _cli(["run", str(tiny_recording), "--out", str(out), "--mode", mode], capsys,
-                        monkeypatch)
+    code, _, err = _cli(
+        ["run", str(tiny_recording), "--out", str(out), "--mode", mode], capsys, monkeypatch
+    )
     assert code == 1 and "--mode" in err and "Traceback" not in err
     assert not out.exists()  # refused before anything was written
 
@@ -213,8 +224,9 @@ def test_run_complete_leaves_input_untouched(tmp_path: Path, capsys, monkeypatch
     before = _checksums(rec)
     mtimes = {p: p.stat().st_mtime_ns for p in rec.rglob("*")}
     out = tmp_path / "out"
-    code, out_text, err = _cli(["run", str(rec), "--out", str(out), "--no-rerun"], capsys,
-                               monkeypatch)
+    code, out_text, err = _cli(
+        ["run", str(rec), "--out", str(out), "--no-rerun"], capsys, monkeypatch
+    )
     assert code == 0, err
     assert _checksums(rec) == before
     assert {p: p.stat().st_mtime_ns for p in rec.rglob("*")} == mtimes
@@ -257,8 +269,13 @@ def test_sigterm_during_run(level_recording: Path, tmp_path: Path) -> None:
     before = _checksums(level_recording)
     out = tmp_path / "results"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([str(VIO_GRAPH), "run", str(level_recording), "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        [str(VIO_GRAPH), "run", str(level_recording), "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         deadline = time.monotonic() + 120
         while not (out / "config.yaml").exists():  # the first output: the replay starts now
@@ -292,4 +309,3 @@ def test_sigterm_during_run(level_recording: Path, tmp_path: Path) -> None:
     assert "metrics.json" not in files  # written last: the run did not finish
     assert _checksums(level_recording) == before
     Recording.open(level_recording)  # still valid
-

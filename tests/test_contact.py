@@ -17,16 +17,31 @@ from vio_graph.recording.streams import ContactTable
 from vio_graph.recording.writer import write_recording
 
 
-def with_contact(src: Path, dst: Path, force_n: np.ndarray | None, t_s: np.ndarray,
-                 kind: str = "load_cell", threshold_n: float = 100.0) -> Path:
+def with_contact(
+    src: Path,
+    dst: Path,
+    force_n: np.ndarray | None,
+    t_s: np.ndarray,
+    kind: str = "load_cell",
+    threshold_n: float = 100.0,
+) -> Path:
     """Copy ``src`` with a contact channel (force_n at t_s)."""
     rec = Recording.open(src)
     meta = rec.metadata.model_copy(
-        update={"contact": ContactModel(kind=kind, threshold_n=threshold_n)})
+        update={"contact": ContactModel(kind=kind, threshold_n=threshold_n)}
+    )
     table = ContactTable(t_s, force_n, force_n >= threshold_n)
     frames = ((f.depth_m, f.confidence) for f in rec.frames())
-    return write_recording(dst, meta, rec.imu, rec.joints, rec.groundtruth,
-                           rec.frame_timestamps_s, frames, contact=table)
+    return write_recording(
+        dst,
+        meta,
+        rec.imu,
+        rec.joints,
+        rec.groundtruth,
+        rec.frame_timestamps_s,
+        frames,
+        contact=table,
+    )
 
 
 def _load_cell(rec: Recording, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -69,8 +84,11 @@ def test_contact_proposes_stance_and_vision_still_decides(
 ) -> None:
     rec = Recording.open(short_upstair)
     t, f = _load_cell(rec, np.random.default_rng(1))
-    cfg = PipelineConfig().model_copy(update={"output": PipelineConfig().output.model_copy(
-        update={"rerun": False, "plots": False})})
+    cfg = PipelineConfig().model_copy(
+        update={
+            "output": PipelineConfig().output.model_copy(update={"rerun": False, "plots": False})
+        }
+    )
     good = with_contact(short_upstair, tmp_path / "good", f, t)
     m = run_recording(good, tmp_path / "rg", cfg, progress=False, visualize=False).metrics
     assert m["stance_detection"]["precision"] > 0.9

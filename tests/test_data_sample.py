@@ -26,7 +26,8 @@ def test_sample_loads_and_matches_its_scenario() -> None:
     prov = rec.metadata.provenance
     assert (prov.source, prov.scenario, prov.seed) == ("simulator", "sample", 1)
     assert ScenarioConfig.model_validate(prov.config) == load_scenario(
-        ROOT / "data" / "sample.yaml")
+        ROOT / "data" / "sample.yaml"
+    )
     size = sum(p.stat().st_size for p in SAMPLE.rglob("*") if p.is_file())
     assert size < 5e6, f"data/sample is {size / 1e6:.1f} MB; keep it to a few MB"
 
@@ -35,8 +36,14 @@ def test_sample_loads_and_matches_its_scenario() -> None:
 def test_sample_runs_with_small_error(tmp_path: Path) -> None:
     from vio_graph.pipeline import run_recording
 
-    m = run_recording(SAMPLE, tmp_path / "out", load_config(), modes=("filter", "batch"),
-                      visualize=False, progress=False).metrics
+    m = run_recording(
+        SAMPLE,
+        tmp_path / "out",
+        load_config(),
+        modes=("filter", "batch"),
+        visualize=False,
+        progress=False,
+    ).metrics
     for mode, bound_cm in (("filter", 2.0), ("batch", 1.0)):
         toe = m["ate_cm"][mode]["toe"]
         assert toe["x"] < bound_cm and toe["z"] < bound_cm, (mode, toe)

@@ -97,8 +97,9 @@ def test_docs_have_commands() -> None:
     assert {"README.md", "docs/scaling.md", "data/README.md"} <= docs_with
 
 
-@pytest.mark.parametrize("doc, command", VIO_COMMANDS,
-                         ids=[f"{d}:{c[:60]}" for d, c in VIO_COMMANDS])
+@pytest.mark.parametrize(
+    "doc, command", VIO_COMMANDS, ids=[f"{d}:{c[:60]}" for d, c in VIO_COMMANDS]
+)
 def test_vio_graph_command_parses(doc: str, command: str) -> None:
     try:
         _check_vio_graph(command)
@@ -107,9 +108,13 @@ def test_vio_graph_command_parses(doc: str, command: str) -> None:
 
 
 def test_the_checker_catches_mistakes() -> None:
-    for bad in ("vio-graph runn data/sample --out x", "vio-graph run data/sample --outt x",
-                "vio-graph run data/sample", "vio-graph batch data/sample --out x --sett a=1",
-                "vio-graph evaluate --seeds five"):
+    for bad in (
+        "vio-graph runn data/sample --out x",
+        "vio-graph run data/sample --outt x",
+        "vio-graph run data/sample",
+        "vio-graph batch data/sample --out x --sett a=1",
+        "vio-graph evaluate --seeds five",
+    ):
         with pytest.raises(DocCommandError):
             _check_vio_graph(bad)
 
@@ -129,10 +134,19 @@ def test_python_commands_name_existing_files() -> None:
 
 def test_no_machine_paths_in_docs_and_code() -> None:
     pattern = re.compile(r"/work/|/tmp/|/home/|shared/reference|\.venv/bin/python benchmarks")
-    files = [*DOCS, *(ROOT / "benchmarks").glob("*.py"), *(ROOT / "vio_graph").rglob("*.py"),
-             ROOT / "data" / "sample.yaml", ROOT / "data" / "sample" / "metadata.yaml"]
-    hits = [f"{f.relative_to(ROOT)}:{k + 1}: {line.strip()}" for f in files
-            for k, line in enumerate(f.read_text().splitlines()) if pattern.search(line)]
+    files = [
+        *DOCS,
+        *(ROOT / "benchmarks").glob("*.py"),
+        *(ROOT / "vio_graph").rglob("*.py"),
+        ROOT / "data" / "sample.yaml",
+        ROOT / "data" / "sample" / "metadata.yaml",
+    ]
+    hits = [
+        f"{f.relative_to(ROOT)}:{k + 1}: {line.strip()}"
+        for f in files
+        for k, line in enumerate(f.read_text().splitlines())
+        if pattern.search(line)
+    ]
     assert not hits, "\n".join(hits)
 
 
@@ -153,16 +167,23 @@ def _cheap(command: str) -> bool:
 @pytest.mark.slow
 def test_cheap_commands_run_as_written(tmp_path: Path) -> None:
     for folder in ("data", "configs"):
-        shutil.copytree(ROOT / folder, tmp_path / folder,
-                        ignore=shutil.ignore_patterns("recordings"))
+        shutil.copytree(
+            ROOT / folder, tmp_path / folder, ignore=shutil.ignore_patterns("recordings")
+        )
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     ran = []
     for doc, command in dict.fromkeys((d, c) for d, c in FENCED_VIO if _cheap(c)):
         if any(c == command for _, c in ran):
             continue
         words = shlex.split(command)
-        res = subprocess.run([str(VIO_GRAPH), *words[1:]], cwd=tmp_path, env=env,
-                             capture_output=True, text=True, timeout=300)
+        res = subprocess.run(
+            [str(VIO_GRAPH), *words[1:]],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert res.returncode == 0, f"{doc}: `{command}` failed:\n{res.stderr[-2000:]}"
         ran.append((doc, command))
     subs = {shlex.split(c)[1] for _, c in ran}

@@ -37,8 +37,9 @@ def perturbed(traj: Trajectory, offset_xyz, seed: int = 0, sigma: float = 0.01) 
     rng = np.random.default_rng(seed)
     noise = sigma * rng.standard_normal(traj.position_m.shape)
     noise[:, 1] = 0.0
-    return Trajectory(traj.timestamp_s.copy(), traj.position_m + offset_xyz + noise,
-                      traj.quat_wxyz.copy())
+    return Trajectory(
+        traj.timestamp_s.copy(), traj.position_m + offset_xyz + noise, traj.quat_wxyz.copy()
+    )
 
 
 # ----------------------------------------------------------------------------- association
@@ -49,8 +50,9 @@ def test_association_interpolates_linear_ground_truth_exactly():
     est = Trajectory.from_xz(t_est, np.zeros((t_est.size, 2)))
     pair = associate(est, ref, max_diff_s=0.01)
     assert len(pair.est) == t_est.size
-    np.testing.assert_allclose(pair.ref.xz_m, np.column_stack([1 + 0.5 * t_est, -0.25 * t_est]),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        pair.ref.xz_m, np.column_stack([1 + 0.5 * t_est, -0.25 * t_est]), atol=1e-12
+    )
     np.testing.assert_array_equal(pair.ref.timestamp_s, t_est)
 
 
@@ -79,8 +81,9 @@ def test_ate_first_anchor_removes_the_start_offset_and_reports_axes():
     e = np.zeros((n, 3))
     e[1:, 0] = 0.02 * np.where(np.arange(1, n) % 2 == 0, 1.0, -1.0)
     e[1:, 2] = 0.01
-    est = Trajectory(ref.timestamp_s.copy(), ref.position_m + [1.0, 0.0, -2.0] + e,
-                     ref.quat_wxyz.copy())
+    est = Trajectory(
+        ref.timestamp_s.copy(), ref.position_m + [1.0, 0.0, -2.0] + e, ref.quat_wxyz.copy()
+    )
     res = ate_per_axis(est, ref)
     np.testing.assert_allclose(res.translation_m, [-1.0, 0.0, 2.0], atol=1e-12)
     np.testing.assert_allclose(res.errors_xyz_m, e, atol=1e-12)
@@ -131,8 +134,9 @@ def _ours(p_est, p_ref):
 
 def test_ate_matches_evo_ape_with_align_origin(tmp_path):
     ref = sagittal_ref(120.0)
-    est = perturbed(Trajectory(ref.timestamp_s[::4], ref.position_m[::4], ref.quat_wxyz[::4]),
-                    [0.3, 0.0, -0.1])
+    est = perturbed(
+        Trajectory(ref.timestamp_s[::4], ref.position_m[::4], ref.quat_wxyz[::4]), [0.3, 0.0, -0.1]
+    )
     p_est, p_ref = _write_pair(tmp_path, est, ref)
     m, est_evo, ref_evo = _evo_ape(p_est, p_ref, align_origin=True)
     pair = _ours(p_est, p_ref)
@@ -209,8 +213,12 @@ def test_rpe_matches_evo_in_frames(tmp_path):
     est = perturbed(ref, [0.3, 0.0, -0.1], seed=5)
     p_est, p_ref = _write_pair(tmp_path, est, ref)
     m, est_evo, ref_evo = _evo_ape(p_est, p_ref)
-    r = metrics.RPE(metrics.PoseRelation.translation_part, delta=3,
-                    delta_unit=metrics.Unit.frames, all_pairs=True)
+    r = metrics.RPE(
+        metrics.PoseRelation.translation_part,
+        delta=3,
+        delta_unit=metrics.Unit.frames,
+        all_pairs=True,
+    )
     r.process_data((ref_evo, est_evo))
     pair = _ours(p_est, p_ref)
     res = rpe(pair.est, pair.ref, 3 / 30.0)
@@ -219,8 +227,9 @@ def test_rpe_matches_evo_in_frames(tmp_path):
 
 # --------------------------------------------------------------------------------- tables
 def test_summary_table_has_mean_sd_and_paper_numbers():
-    trials = [TrialAte("upstair", f"t{i}", x, z) for i, (x, z) in
-              enumerate([(0.02, 0.01), (0.04, 0.03)])]
+    trials = [
+        TrialAte("upstair", f"t{i}", x, z) for i, (x, z) in enumerate([(0.02, 0.01), (0.04, 0.03)])
+    ]
     trials.append(TrialAte("level", "t0", 0.01, 0.02))
     s = summarise(trials)
     assert [e.experiment for e in s] == ["upstair", "level"]

@@ -38,8 +38,11 @@ def _quats(n: int, seed: int = 0) -> np.ndarray:
         if i % 2:
             q = rng.normal(size=4)
         else:
-            R = (rot_z(rng.uniform(-np.pi, np.pi)) @ rot_y(rng.uniform(-2.1, 2.1))
-                 @ Rotation.from_euler("x", rng.normal(0, 0.1)).as_matrix())
+            R = (
+                rot_z(rng.uniform(-np.pi, np.pi))
+                @ rot_y(rng.uniform(-2.1, 2.1))
+                @ Rotation.from_euler("x", rng.normal(0, 0.1)).as_matrix()
+            )
             q = quat_wxyz_from_matrix(R)
         out.append(q * rng.uniform(0.5, 2.0))
     return np.array(out)
@@ -48,13 +51,18 @@ def _quats(n: int, seed: int = 0) -> np.ndarray:
 def test_closed_forms_match_the_numpy_references() -> None:
     rng = np.random.default_rng(1)
     for q in _quats(2000):
-        np.testing.assert_allclose(np.reshape(fast_imu.quat_matrix(q), (3, 3)),
-                                   matrix_from_quat_wxyz(q), atol=1e-14)
-        np.testing.assert_allclose(fast_imu.sagittal_rotation_fast(q), sagittal_rotation(q),
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            np.reshape(fast_imu.quat_matrix(q), (3, 3)), matrix_from_quat_wxyz(q), atol=1e-14
+        )
+        np.testing.assert_allclose(
+            fast_imu.sagittal_rotation_fast(q), sagittal_rotation(q), atol=1e-12
+        )
         m = fast_imu.quat_matrix(q)
-        np.testing.assert_allclose(np.reshape(fast_imu.remove_yaw_mat3(m), (3, 3)),
-                                   remove_yaw(np.reshape(m, (3, 3))), atol=1e-14)
+        np.testing.assert_allclose(
+            np.reshape(fast_imu.remove_yaw_mat3(m), (3, 3)),
+            remove_yaw(np.reshape(m, (3, 3))),
+            atol=1e-14,
+        )
         b = rng.normal(0.0, 0.1)
         ref = quat_wxyz_from_matrix(with_pitch_offset(matrix_from_quat_wxyz(q), b))
         got = fast_imu.pitch_offset_quat(q, b)
@@ -62,18 +70,20 @@ def test_closed_forms_match_the_numpy_references() -> None:
             got, ref = got * np.sign(got @ ref), ref
         np.testing.assert_allclose(got, ref, atol=1e-12)
         R = matrix_from_quat_wxyz(q)
-        np.testing.assert_allclose(fast_imu.matrix_rotvec(R),
-                                   Rotation.from_matrix(R).as_rotvec(), atol=1e-12)
+        np.testing.assert_allclose(
+            fast_imu.matrix_rotvec(R), Rotation.from_matrix(R).as_rotvec(), atol=1e-12
+        )
     for b in (-0.4, 0.0, 1e-3, 2.5):
-        np.testing.assert_allclose(np.reshape(fast_imu.rot_y_mat3(b), (3, 3)), rot_y(b),
-                                   atol=0)
+        np.testing.assert_allclose(np.reshape(fast_imu.rot_y_mat3(b), (3, 3)), rot_y(b), atol=0)
     for scale in (0.0, 1e-9, 1e-4, 0.3, 3.0):
         v = rng.normal(size=3) * scale
-        np.testing.assert_allclose(fast_imu.rotvec_matrix(*v),
-                                   Rotation.from_rotvec(v).as_matrix(), atol=1e-15)
+        np.testing.assert_allclose(
+            fast_imu.rotvec_matrix(*v), Rotation.from_rotvec(v).as_matrix(), atol=1e-15
+        )
         R = Rotation.from_rotvec(v).as_matrix()  # log then exp gives R back (|v| may be > pi)
-        np.testing.assert_allclose(fast_imu.rotvec_matrix(*fast_imu.matrix_rotvec(R)), R,
-                                   atol=1e-13)
+        np.testing.assert_allclose(
+            fast_imu.rotvec_matrix(*fast_imu.matrix_rotvec(R)), R, atol=1e-13
+        )
 
 
 def _swinging_samples(n: int = 600, seed: int = 2) -> list[ImuSample]:
@@ -107,8 +117,7 @@ def test_propagate_attitude_and_stance_equal_their_references() -> None:
         att_r.add_reference(s)
         R2 = sagittal_rotation(s.quat_wxyz)
         a_f = st_f.add_imu(s.timestamp_s, s.accel_mps2, s.gyro_radps, R2, (0.0, -9.81))
-        a_r = st_r.add_imu_reference(s.timestamp_s, s.accel_mps2, s.gyro_radps, R2,
-                                     (0.0, -9.81))
+        a_r = st_r.add_imu_reference(s.timestamp_s, s.accel_mps2, s.gyro_radps, R2, (0.0, -9.81))
         assert a_f == pytest.approx(a_r, abs=1e-12)
     sf, sr = fast.state, ref.state
     assert abs(sf.p_xz_m).max() > 0.5  # it moved: the comparison is not of zeros
@@ -118,8 +127,9 @@ def test_propagate_attitude_and_stance_equal_their_references() -> None:
     np.testing.assert_allclose(att_f.R_world_imu_at(6.0), att_r.R_world_imu_at(6.0), atol=1e-12)
 
 
-def test_a_whole_replay_equals_the_reference_path(short_upstair: Path,
-                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_whole_replay_equals_the_reference_path(
+    short_upstair: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The filter, IMU-only and ICP-only answers of a replay (front end, level aiding and
     stance anchor included) with the fast path and with every numpy reference swapped in.
 
@@ -141,10 +151,14 @@ def test_a_whole_replay_equals_the_reference_path(short_upstair: Path,
     monkeypatch.setattr(AttitudeTracker, "add", AttitudeTracker.add_reference)
     monkeypatch.setattr(StanceDetector, "add_imu", StanceDetector.add_imu_reference)
     monkeypatch.setattr(estimator_mod, "_sagittal_rotation", sagittal_rotation)
-    monkeypatch.setattr(estimator_mod.OnlineEstimator, "R_world_imu",
-                        estimator_mod.OnlineEstimator.R_world_imu_reference)
-    monkeypatch.setattr(estimator_mod, "_pitch_offset_quat",
-                        estimator_mod.reference_pitch_offset_quat)
+    monkeypatch.setattr(
+        estimator_mod.OnlineEstimator,
+        "R_world_imu",
+        estimator_mod.OnlineEstimator.R_world_imu_reference,
+    )
+    monkeypatch.setattr(
+        estimator_mod, "_pitch_offset_quat", estimator_mod.reference_pitch_offset_quat
+    )
     ref = run()
     assert set(fast) == set(ref) and {"filter", "imu_only", "icp_only"} <= set(fast)
     assert np.ptp(fast["filter"][:, 0]) > 0.05  # the camera moved

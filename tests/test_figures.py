@@ -25,10 +25,13 @@ def test_map_zoomed_labels_apart_and_table() -> None:
     terrain = stair_profile(0.147, 0.28, 8, up=True)
     terrain_map, geometry = _scene(terrain, 2.4)
     # the true profile goes on for 10 m past the stair, as on a real landing: not zoomed to
-    prof = [*terrain.profile_xz_m, (terrain.profile_xz_m[-1][0] + 10.0,
-                                    terrain.profile_xz_m[-1][1])]
-    far = TerrainInfo(kind=terrain.kind, params=terrain.params, profile_xz_m=prof,
-                      edges_xz_m=terrain.edges_xz_m)
+    prof = [
+        *terrain.profile_xz_m,
+        (terrain.profile_xz_m[-1][0] + 10.0, terrain.profile_xz_m[-1][1]),
+    ]
+    far = TerrainInfo(
+        kind=terrain.kind, params=terrain.params, profile_xz_m=prof, edges_xz_m=terrain.edges_xz_m
+    )
     cams = np.array([kf.camera_xz_m for kf in terrain_map.keyframes])
     fig = map_figure(terrain_map.points_xz_m, geometry, far, camera_xz_m=cams)
     fig.canvas.draw()
@@ -62,13 +65,25 @@ def test_overview_names_every_line_and_separates_camera_and_toe() -> None:
 
     def at(body: str, dz: float) -> np.ndarray:
         g = gt[body]
-        return np.column_stack([np.interp(t_s, g.timestamp_s, g.position_m[:, 0]),
-                                np.interp(t_s, g.timestamp_s, g.position_m[:, 2]) + dz])
+        return np.column_stack(
+            [
+                np.interp(t_s, g.timestamp_s, g.position_m[:, 0]),
+                np.interp(t_s, g.timestamp_s, g.position_m[:, 2]) + dz,
+            ]
+        )
 
-    paths = {m: {"camera": at("camera", dz), "toe": at("toe", dz)}
-             for m, dz in (("filter", 0.01), ("smoother", 0.005), ("imu_only", 3.0))}
-    metrics = {"ate_cm": {"filter": {"toe": {"x": 1.0, "z": 1.0, "total": 1.4},
-                                     "camera": {"x": 1.0, "z": 1.0, "total": 1.4}}}}
+    paths = {
+        m: {"camera": at("camera", dz), "toe": at("toe", dz)}
+        for m, dz in (("filter", 0.01), ("smoother", 0.005), ("imu_only", 3.0))
+    }
+    metrics = {
+        "ate_cm": {
+            "filter": {
+                "toe": {"x": 1.0, "z": 1.0, "total": 1.4},
+                "camera": {"x": 1.0, "z": 1.0, "total": 1.4},
+            }
+        }
+    }
     fig = overview_figure(rec, t_s, paths, metrics)
     fig.canvas.draw()
     titles = [a.get_title() for a in fig.axes]

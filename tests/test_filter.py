@@ -39,6 +39,7 @@ class Motion:
 _ZERO2 = np.zeros(2)  # read-only defaults (never modified in place)
 _ZERO3 = np.zeros(3)
 
+
 def imu_samples(
     m: Motion,
     t: np.ndarray,
@@ -91,7 +92,9 @@ def swinging_motion(amp_rad=0.5, freq_hz=0.8) -> Motion:
         return np.column_stack([-0.45 * np.sin(3 * t), -0.4 * np.sin(2 * t)])
 
     return Motion(
-        p, v, a,
+        p,
+        v,
+        a,
         theta=lambda t: amp_rad * np.sin(w * t),
         dtheta=lambda t: amp_rad * w * np.cos(w * t),
         ddtheta=lambda t: -amp_rad * w**2 * np.sin(w * t),
@@ -152,8 +155,9 @@ def test_sagittal_rotation_is_continuous_through_the_vertical():
     for th in np.linspace(-3.1, 3.1, 25):
         q = [np.cos(th / 2), 0.0, np.sin(th / 2), 0.0]
         R = sagittal_rotation(q)
-        np.testing.assert_allclose(R, [[np.cos(th), np.sin(th)], [-np.sin(th), np.cos(th)]],
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            R, [[np.cos(th), np.sin(th)], [-np.sin(th), np.cos(th)]], atol=1e-12
+        )
 
 
 @pytest.mark.parametrize("model", MODELS)
@@ -189,8 +193,9 @@ def test_covariance_grows_while_blind_and_shrinks_after_update():
         traces.append(np.trace(eskf.state.cov_position_m2))
         assert eskf.state.status is EstimateStatus.IMU_ONLY
     assert np.all(np.diff(traces) > 0)
-    d = Displacement2D(0.5, 1.0, m.p(np.array([1.0]))[0] - m.p(np.array([0.5]))[0],
-                       np.eye(2) * 1e-6)
+    d = Displacement2D(
+        0.5, 1.0, m.p(np.array([1.0]))[0] - m.p(np.array([0.5]))[0], np.eye(2) * 1e-6
+    )
     assert eskf.update_displacement(d)
     assert np.trace(eskf.state.cov_position_m2) < 0.5 * traces[-1]
     assert eskf.state.status is EstimateStatus.FUSED
@@ -207,8 +212,9 @@ def test_gate_rejects_a_stair_step_outlier(model):
         return d
 
     kw = dict(imu_noise=0.0118, disp_sigma_m=0.001)
-    _, p_clean, p_true = run(SagittalEskf(FilterConfig(measurement_model=model)),
-                             swinging_motion(), 6.0, **kw)
+    _, p_clean, p_true = run(
+        SagittalEskf(FilterConfig(measurement_model=model)), swinging_motion(), 6.0, **kw
+    )
     eskf = SagittalEskf(FilterConfig(measurement_model=model))
     _, p_est, _ = run(eskf, swinging_motion(), 6.0, hook=corrupt, **kw)
     s = eskf.state
@@ -279,11 +285,23 @@ def nees_and_rmse(model: str, seed: int) -> tuple[float, float]:
     """Final-position NEES and position RMSE (m) of one noisy 10 s run (numbers quoted in
     the vio_graph.filter.eskf docstring)."""
     # the synthetic IMU has exactly the datasheet noise: use the matched (paper's) Q
-    eskf = SagittalEskf(FilterConfig(measurement_model=model, measurement_noise_floor_m=0.0,
-                                     accel_noise_sigma_mps2=MTI1_ACCEL_SIGMA_MPS2,
-                                     init_velocity_sigma_mps=0.05))
-    _, p_est, p_true = run(eskf, swinging_motion(), 10.0, imu_noise=0.0118, disp_sigma_m=0.003,
-                           bias=np.array([0.05, -0.03]), seed=seed)
+    eskf = SagittalEskf(
+        FilterConfig(
+            measurement_model=model,
+            measurement_noise_floor_m=0.0,
+            accel_noise_sigma_mps2=MTI1_ACCEL_SIGMA_MPS2,
+            init_velocity_sigma_mps=0.05,
+        )
+    )
+    _, p_est, p_true = run(
+        eskf,
+        swinging_motion(),
+        10.0,
+        imu_noise=0.0118,
+        disp_sigma_m=0.003,
+        bias=np.array([0.05, -0.03]),
+        seed=seed,
+    )
     e = p_est[-1] - p_true[-1]
     nees = float(e @ np.linalg.solve(eskf.state.cov_position_m2, e))
     return nees, float(np.sqrt(np.mean(np.sum((p_est - p_true) ** 2, axis=1))))
@@ -330,8 +348,11 @@ def test_dead_reckoning_ignores_displacements_and_attitude_noise_inflates_covari
     _, p_dr, _ = run(dr, m, 1.0, bias=np.array([0.1, 0.0]))
     s = dr.state
     assert s.status is EstimateStatus.IMU_ONLY and s.n_accepted == 0 and s.n_stale == 33
-    tight = dict(init_velocity_sigma_mps=1e-6, init_accel_bias_sigma_mps2=1e-6,
-                 accel_noise_sigma_mps2=MTI1_ACCEL_SIGMA_MPS2)
+    tight = dict(
+        init_velocity_sigma_mps=1e-6,
+        init_accel_bias_sigma_mps2=1e-6,
+        accel_noise_sigma_mps2=MTI1_ACCEL_SIGMA_MPS2,
+    )
     plain = SagittalEskf(FilterConfig(**tight))
     tilted = SagittalEskf(FilterConfig(attitude_sigma_rad=np.deg2rad(1.0), **tight))
     run(plain, m, 1.0, frame_every=None)

@@ -20,8 +20,14 @@ def _spinning_samples(n: int, offset_rad: float = 0.0) -> list[ImuSample]:
     for k in range(n):
         t = 0.01 * k
         R = rot_y(offset_rad) @ rot_y(RATE_RADPS * t)
-        out.append(ImuSample(t, np.array([0.0, 0.0, GRAVITY_MPS2]), np.array([0.0, RATE_RADPS, 0]),
-                             quat_wxyz_from_matrix(R)))
+        out.append(
+            ImuSample(
+                t,
+                np.array([0.0, 0.0, GRAVITY_MPS2]),
+                np.array([0.0, RATE_RADPS, 0]),
+                quat_wxyz_from_matrix(R),
+            )
+        )
     return out
 
 

@@ -125,8 +125,9 @@ def test_a_corner_seen_again_under_a_new_track_is_the_same_landmark() -> None:
     f = SagittalEskf(fc)
     f.initialise(0.0, np.zeros(2))
     camera = f.state.p_xz_m
-    corners = CornerLandmarks(fc.corner_reidentify_radius_m, fc.corner_memory_s,
-                              fc.max_corner_landmarks)
+    corners = CornerLandmarks(
+        fc.corner_reidentify_radius_m, fc.corner_memory_s, fc.max_corner_landmarks
+    )
     cov = np.eye(2) * 1e-4
 
     def obs(track: int, rel) -> CornerObservation:

@@ -23,8 +23,15 @@ def test_inflated_velocity_lets_vision_back_in() -> None:
     f = SagittalEskf(FilterConfig())
     P0 = np.diag([1e-6] * 2 + [1e-6] * 2 + [1e-4] * 2 + [1e-6] * 2)
     f.initialise(0.0, (0.0, 0.0), v_xz=(0.5, 0.0), P0=P0)
-    still = lambda t: ImuSample(t, np.array([0.0, 0.0, GRAVITY_MPS2]), np.zeros(3),  # noqa: E731
-                                np.array([1.0, 0.0, 0.0, 0.0]))
+
+    def still(t: float) -> ImuSample:
+        return ImuSample(
+            t,
+            np.array([0.0, 0.0, GRAVITY_MPS2]),
+            np.zeros(3),
+            np.array([1.0, 0.0, 0.0, 0.0]),
+        )
+
     t_prev = 0.0
     accepted = []
     for k in range(1, 31):
@@ -50,8 +57,9 @@ def test_estimator_recovers_from_a_corrupted_velocity(short_upstair: Path) -> No
     errors = {}
     for name, n in (("recovery", 3), ("none", None)):
         cfg = PipelineConfig()
-        cfg = cfg.model_copy(update={"filter": cfg.filter.model_copy(
-            update={"lockout_refusals": n})})
+        cfg = cfg.model_copy(
+            update={"filter": cfg.filter.model_copy(update={"lockout_refusals": n})}
+        )
         rp = Replay(rec, cfg, {"filter"}, NullVisualizer())
         est = rp.online
         orig = est.process_frame

@@ -51,8 +51,14 @@ def test_floor_plane_projects_to_camera_height(roll_rad: float) -> None:
 def test_fast_slice_equals_reference_path() -> None:
     R_world_cam = camera_rotation(0.6, 0.1)
     stairs = stair_polyline("stair_up", start_x_m=0.5)
-    depth, conf = render_depth(stairs, np.array([0.0, CAM_HEIGHT_M]), R_world_cam, K,
-                               noise_m=0.003, rng=np.random.default_rng(3))
+    depth, conf = render_depth(
+        stairs,
+        np.array([0.0, CAM_HEIGHT_M]),
+        R_world_cam,
+        K,
+        noise_m=0.003,
+        rng=np.random.default_rng(3),
+    )
     conf[::7, ::5] = 0  # some invalid pixels
     ref = sagittal_slice(depth_to_points_cam(depth, conf, K, 0.1, 4.0), R_world_cam, 0.05)
     fast = sagittal_slice_from_depth(depth, conf, K, R_world_cam, 0.05, 0.1, 4.0)
@@ -120,10 +126,21 @@ def _profile(kind: str, cam_x_m: float, seed: int = 0) -> tuple[np.ndarray, np.n
 
 @pytest.mark.parametrize(
     ("kind", "cam_x_m"),
-    [("stair_up", -0.2), ("stair_up", 0.0), ("stair_up", 0.2), ("stair_up", 0.4),
-     ("stair_down", -0.2), ("stair_down", 0.0), ("stair_down", 0.2), ("stair_down", 0.4),
-     ("obstacle", -0.2), ("obstacle", 0.0), ("obstacle", 0.2),
-     ("level", 0.0), ("level", 0.3)],
+    [
+        ("stair_up", -0.2),
+        ("stair_up", 0.0),
+        ("stair_up", 0.2),
+        ("stair_up", 0.4),
+        ("stair_down", -0.2),
+        ("stair_down", 0.0),
+        ("stair_down", 0.2),
+        ("stair_down", 0.4),
+        ("obstacle", -0.2),
+        ("obstacle", 0.0),
+        ("obstacle", 0.2),
+        ("level", 0.0),
+        ("level", 0.3),
+    ],
 )
 def test_classifier_on_synthetic_terrain(kind: str, cam_x_m: float) -> None:
     profile, _ = _profile(kind, cam_x_m)
@@ -167,23 +184,31 @@ def test_confusion_table_counts() -> None:
 def test_ransac_finds_known_horizontal_lines() -> None:
     rng = np.random.default_rng(5)
     x1, x2 = rng.uniform(0.0, 0.5, 150), rng.uniform(0.5, 0.7, 60)
-    pts = np.vstack([
-        np.column_stack([x1, -0.40 + rng.normal(0, 0.003, x1.size)]),
-        np.column_stack([x2, -0.25 + rng.normal(0, 0.003, x2.size)]),
-        np.column_stack([rng.uniform(0, 0.7, 20), rng.uniform(-0.6, 0.0, 20)]),  # clutter
-    ])
+    pts = np.vstack(
+        [
+            np.column_stack([x1, -0.40 + rng.normal(0, 0.003, x1.size)]),
+            np.column_stack([x2, -0.25 + rng.normal(0, 0.003, x2.size)]),
+            np.column_stack([rng.uniform(0, 0.7, 20), rng.uniform(-0.6, 0.0, 20)]),  # clutter
+        ]
+    )
     first = ransac_horizontal_line(pts, 0.02, 64, np.random.default_rng(0))
     assert first is not None and first.height_m == pytest.approx(-0.40, abs=0.002)
     assert first.n_inliers >= 150
-    second = ransac_horizontal_line(pts, 0.02, 64, np.random.default_rng(0), (first.height_m,),
-                                    0.04, ~first.inliers)
+    second = ransac_horizontal_line(
+        pts, 0.02, 64, np.random.default_rng(0), (first.height_m,), 0.04, ~first.inliers
+    )
     assert second is not None and second.height_m == pytest.approx(-0.25, abs=0.002)
 
 
 @pytest.mark.parametrize(
     ("kind", "cam_x_m", "side"),
-    [("stair_up", 0.0, "near"), ("stair_up", 0.2, "near"), ("obstacle", 0.0, "near"),
-     ("stair_down", 0.0, "far"), ("stair_down", 0.4, "far")],
+    [
+        ("stair_up", 0.0, "near"),
+        ("stair_up", 0.2, "near"),
+        ("obstacle", 0.0, "near"),
+        ("stair_down", 0.0, "far"),
+        ("stair_down", 0.4, "far"),
+    ],
 )
 def test_corner_found_at_known_edge(kind: str, cam_x_m: float, side: str) -> None:
     profile, edges = _profile(kind, cam_x_m, seed=11)

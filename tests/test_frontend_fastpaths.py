@@ -17,8 +17,7 @@ def _stairs(rng: np.random.Generator, n: int = 400, noise_m: float = 0.002) -> n
     """Noisy two-step stair profile (treads and risers), metres."""
     s = rng.uniform(0.0, 1.0, n)
     x = np.where(s < 0.3, s, np.where(s < 0.45, 0.3, np.where(s < 0.75, s - 0.15, 0.6)))
-    z = np.where(s < 0.3, 0.0, np.where(s < 0.45, s - 0.3, np.where(s < 0.75, 0.15,
-                                                                   s - 0.6)))
+    z = np.where(s < 0.3, 0.0, np.where(s < 0.45, s - 0.3, np.where(s < 0.75, 0.15, s - 0.6)))
     return np.column_stack([x, z]) + rng.normal(0, noise_m, (n, 2))
 
 
@@ -95,8 +94,10 @@ def _reference_icp(src, tgt, T0, cfg: IcpConfig):
         _, nb = tree.query(src[idx], k=min(cfg.normal_neighbours, src.shape[0]))
         p = src[nb]
         d = p - p.mean(axis=1, keepdims=True)
-        th = 0.5 * np.arctan2(2.0 * (d[..., 0] * d[..., 1]).mean(axis=1),
-                              (d[..., 0] ** 2).mean(axis=1) - (d[..., 1] ** 2).mean(axis=1))
+        th = 0.5 * np.arctan2(
+            2.0 * (d[..., 0] * d[..., 1]).mean(axis=1),
+            (d[..., 0] ** 2).mean(axis=1) - (d[..., 1] ** 2).mean(axis=1),
+        )
         return np.column_stack([-np.sin(th), np.cos(th)])
 
     it = 0
@@ -174,14 +175,19 @@ def test_sagittal_slice_tables_equal_the_per_pixel_tests() -> None:
         depth[rng.integers(0, 172, 224), cols] = (half_width / np.maximum(ax, 1e-3)).astype(dtype)
         conf = rng.integers(0, 3, depth.shape).astype(np.uint8)
         R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-        args = (half_width, float(rng.choice([0.0, 0.1, 0.25])),
-                float(rng.choice([4.0, 1.5, np.inf])), int(rng.integers(1, 3)))
+        args = (
+            half_width,
+            float(rng.choice([0.0, 0.1, 0.25])),
+            float(rng.choice([4.0, 1.5, np.inf])),
+            int(rng.integers(1, 3)),
+        )
         fast = projection.sagittal_slice_from_depth(depth, conf, K, R, *args)
         reference = projection._sagittal_slice_reference(depth, conf, K, R, *args)
         assert fast.shape[0] > 0
         assert np.array_equal(fast, reference)
-        full = projection.sagittal_slice(projection.depth_to_points_cam(
-            depth, conf, K, args[1], args[2], args[3]), R, half_width)
+        full = projection.sagittal_slice(
+            projection.depth_to_points_cam(depth, conf, K, args[1], args[2], args[3]), R, half_width
+        )
         assert np.allclose(fast, full, rtol=0, atol=1e-12)
 
 

@@ -26,8 +26,9 @@ def _stair_view(overhang_m: float, gap_m: float, cam_x_m: float, seed: int):
     and the raw (unsmoothed) profile after the band removal."""
     poly = stair_polyline("stair_up", start_x_m=0.6, nosing_overhang_m=overhang_m)
     cam = np.array([cam_x_m, CAM_HEIGHT_M])
-    raw = raycast_profile(poly, cam, pitch_down_rad=0.7, noise_m=0.004,
-                          rng=np.random.default_rng(seed), n_rays=800)
+    raw = raycast_profile(
+        poly, cam, pitch_down_rad=0.7, noise_m=0.004, rng=np.random.default_rng(seed), n_rays=800
+    )
     if gap_m > 0:
         raw = drop_tread_band(raw, cam, poly, gap_m)
     return smooth_profile(raw), stair_edges(poly) - cam, raw
@@ -84,8 +85,12 @@ def test_no_face_below_a_tread_end_is_reported_and_widened() -> None:
 
     rng = np.random.default_rng(3)
     x_low, x_high = np.linspace(-0.1, 0.15, 60), np.linspace(0.30, 0.60, 70)
-    pts = np.vstack([np.column_stack([x_low, -0.45 + rng.normal(0, 0.002, x_low.size)]),
-                     np.column_stack([x_high, -0.30 + rng.normal(0, 0.002, x_high.size)])])
+    pts = np.vstack(
+        [
+            np.column_stack([x_low, -0.45 + rng.normal(0, 0.002, x_low.size)]),
+            np.column_stack([x_high, -0.30 + rng.normal(0, 0.002, x_high.size)]),
+        ]
+    )
     profile = smooth_profile(pts)
     strict = CornerConfig(near_edge_needs_face=True)
     assert extract_corner(profile, np.random.default_rng(0), strict, TerrainKind.STAIR_UP) is None
@@ -101,8 +106,9 @@ def test_no_face_below_a_tread_end_is_reported_and_widened() -> None:
 # --- terrain class from levels and faces ------------------------------------------------------
 
 
-def _polyline_points(vertices: list[tuple[float, float]], seed: int, noise_m: float = 0.002,
-                     spacing_m: float = 0.003) -> np.ndarray:
+def _polyline_points(
+    vertices: list[tuple[float, float]], seed: int, noise_m: float = 0.002, spacing_m: float = 0.003
+) -> np.ndarray:
     """Noisy points along a polyline (camera-relative), then grid thinning + kNN smoothing."""
     rng = np.random.default_rng(seed)
     v = np.asarray(vertices, dtype=float)
@@ -121,8 +127,10 @@ VIEWS = {
     # one tread, the next riser rising at its far end, the tread above out of view
     "tread_then_rising_riser": ([(0.14, -0.21), (0.38, -0.21), (0.38, -0.10)], "stair_up"),
     # a short piece of the lower tread, the riser, the tread above
-    "riser_at_the_near_end": ([(-0.03, -0.48), (0.01, -0.48), (0.01, -0.365), (0.29, -0.365)],
-                              "stair_up"),
+    "riser_at_the_near_end": (
+        [(-0.03, -0.48), (0.01, -0.48), (0.01, -0.365), (0.29, -0.365)],
+        "stair_up",
+    ),
     # treads too oblique to return: one riser, then only separate risers
     "floor_and_risers_only": ([(0.53, -0.25), (0.81, -0.25), (0.81, -0.14)], "stair_up"),
     "level_floor": ([(0.2, -0.40), (0.9, -0.40)], "level"),
@@ -135,8 +143,10 @@ def test_terrain_class_from_one_level_and_a_face(name: str) -> None:
     for seed in range(3):
         profile = _polyline_points(vertices, seed)
         if name == "floor_and_risers_only":  # add two more bare risers farther up
-            extra = [_polyline_points([(1.09, -0.135), (1.09, -0.02)], seed + 10),
-                     _polyline_points([(1.37, -0.02), (1.37, 0.095)], seed + 20)]
+            extra = [
+                _polyline_points([(1.09, -0.135), (1.09, -0.02)], seed + 10),
+                _polyline_points([(1.37, -0.02), (1.37, 0.095)], seed + 20),
+            ]
             profile = np.vstack([profile, *extra])
         kind, _ = classify_terrain(profile)
         assert kind == TerrainKind(truth), (name, seed)
@@ -177,16 +187,21 @@ def _gap_view(camera_xz: np.ndarray, gap_m: float, skirt_m: float, seed: int):
     corner."""
     poly = stair_polyline("stair_up", start_x_m=0.6, n_steps=6)
     tip = stair_edges(poly)[0]
-    raw = raycast_profile(poly, camera_xz, pitch_down_rad=0.7, noise_m=0.002,
-                          rng=np.random.default_rng(seed), n_rays=800)
+    raw = raycast_profile(
+        poly,
+        camera_xz,
+        pitch_down_rad=0.7,
+        noise_m=0.002,
+        rng=np.random.default_rng(seed),
+        n_rays=800,
+    )
     raw = drop_tread_band(raw, camera_xz, poly, gap_m)
     if skirt_m > 0:
         border = tip + [gap_m, 0.0] - camera_xz
         ray = border / np.linalg.norm(border)
         raw = np.vstack([raw, border - np.outer(np.linspace(0.0, skirt_m, 25), ray)])
     profile = smooth_profile(raw)
-    return profile, extract_corner(profile, np.random.default_rng(0),
-                                   terrain=TerrainKind.STAIR_UP)
+    return profile, extract_corner(profile, np.random.default_rng(0), terrain=TerrainKind.STAIR_UP)
 
 
 @pytest.mark.parametrize("skirt_m", [0.0, 0.05])
@@ -217,8 +232,9 @@ def test_tracker_with_bands_at_different_places_claims_an_honest_covariance(
     if skirt_m == 0.0:
         assert np.linalg.norm(err) < 0.003 and nees_unchecked < 9.21
         assert checked.displacement is not None
-        np.testing.assert_allclose(checked.displacement.delta_xz_m,
-                                   unchecked.displacement.delta_xz_m)
+        np.testing.assert_allclose(
+            checked.displacement.delta_xz_m, unchecked.displacement.delta_xz_m
+        )
         return
     assert abs(err[1]) > 0.01 and nees_unchecked > 20.0  # premise: wrong and over-confident
     if checked.displacement is not None:

@@ -26,8 +26,9 @@ def test_known_cells() -> None:
 
 def test_dense_and_sparse_paths_equal_the_sorting_reference(monkeypatch) -> None:
     rng = np.random.default_rng(7)
-    cases = [rng.normal(size=(int(rng.integers(1, 3000)), 2)) * rng.uniform(0.01, 1.0)
-             for _ in range(30)]
+    cases = [
+        rng.normal(size=(int(rng.integers(1, 3000)), 2)) * rng.uniform(0.01, 1.0) for _ in range(30)
+    ]
     for pts in cases:
         assert np.array_equal(grid_thin(pts, 0.005), _reference(pts, 0.005))
     monkeypatch.setattr(smoothing, "_MAX_DENSE_CELLS", 0)  # force the sparse path

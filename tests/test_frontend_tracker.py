@@ -31,8 +31,15 @@ WIDE_GATE = TrackerConfig(same_corner_gate_m=0.25)
 def _view(camera_xz: np.ndarray, x_lo: float, x_hi: float, seed: int):
     """Smoothed profile seen from ``camera_xz`` whose field of view covers world x in
     (x_lo, x_hi), and its corner."""
-    prof = raycast_profile(STAIRS, camera_xz, pitch_down_rad=0.6, fov_rad=1.2, n_rays=1500,
-                           noise_m=0.003, rng=np.random.default_rng(seed))
+    prof = raycast_profile(
+        STAIRS,
+        camera_xz,
+        pitch_down_rad=0.6,
+        fov_rad=1.2,
+        n_rays=1500,
+        noise_m=0.003,
+        rng=np.random.default_rng(seed),
+    )
     world_x = prof[:, 0] + camera_xz[0]
     profile = smooth_profile(prof[(world_x > x_lo) & (world_x < x_hi)])
     terrain, _ = classify_terrain(profile)
@@ -162,8 +169,11 @@ def test_visual_frontend_tracks_a_rendered_stair_sequence() -> None:
     for i, cam in enumerate(cams):
         depth, conf = render_depth(STAIRS, cam, R_world_cam, K, noise_m=0.004, rng=rng)
         pred = None if i == 0 else cams[i] - cams[i - 1] + np.array([0.004, -0.003])
-        results.append(frontend.process(DepthFrame(i, i / 30, depth, conf), K, R_world_cam,
-                                        pred, np.eye(2) * 0.01**2))
+        results.append(
+            frontend.process(
+                DepthFrame(i, i / 30, depth, conf), K, R_world_cam, pred, np.eye(2) * 0.01**2
+            )
+        )
     assert all(r.terrain == TerrainKind.STAIR_UP for r in results)
     assert results[0].displacement is None and results[0].corner is not None
     for r in results[1:]:
@@ -172,7 +182,12 @@ def test_visual_frontend_tracks_a_rendered_stair_sequence() -> None:
         assert r.observation is not None
         assert r.observation.track_id == results[0].observation.track_id
         assert set(r.timings_ms) == {
-            "projection", "smoothing", "terrain", "corners", "icp", "total"
+            "projection",
+            "smoothing",
+            "terrain",
+            "corners",
+            "icp",
+            "total",
         }
     # the tracked corner is a true nosing
     nosing_err = np.linalg.norm(NOSINGS - (results[-1].corner.edge_xz_m + cams[-1]), axis=1)

@@ -42,8 +42,11 @@ FUZZ_SETTINGS = settings(
     max_examples=EXAMPLES_PER_FAMILY,
     deadline=None,
     database=None,  # nothing written into the checkout; failures print a reproducible example
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                           HealthCheck.function_scoped_fixture],
+    suppress_health_check=[
+        HealthCheck.too_slow,
+        HealthCheck.data_too_large,
+        HealthCheck.function_scoped_fixture,
+    ],
 )
 RUN_COUNTS: Counter[str] = Counter()  # examples run per family, checked by the last test
 
@@ -58,8 +61,9 @@ def base_files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
     """The tiny valid recording as {relative path: bytes}."""
     meta = tiny_metadata().model_copy(update={"duration_s": 0.3})
     imu, joints, gt, t_frames, frames = tiny_streams(meta, duration_s=0.3)
-    root = write_recording(tmp_path_factory.mktemp("fuzz_base") / "rec", meta, imu, joints, gt,
-                           t_frames, iter(frames))
+    root = write_recording(
+        tmp_path_factory.mktemp("fuzz_base") / "rec", meta, imu, joints, gt, t_frames, iter(frames)
+    )
     files = {p.relative_to(root).as_posix(): p.read_bytes() for p in root.rglob("*") if p.is_file()}
     assert set(CSV_FILES + TUM_FILES + NPY_FILES) < set(files)
     _check_outcome(root)  # the base itself is valid
@@ -146,9 +150,13 @@ def test_fuzz_bytes(workspace: _Workspace, base_files: dict[str, bytes]) -> None
     names = sorted(base_files)
 
     @FUZZ_SETTINGS
-    @given(rel=st.sampled_from(names), op=st.sampled_from(BYTE_OPS),
-           pos=st.integers(0, 2**31 - 1), junk=st.binary(min_size=1, max_size=24),
-           bit=st.integers(0, 7))
+    @given(
+        rel=st.sampled_from(names),
+        op=st.sampled_from(BYTE_OPS),
+        pos=st.integers(0, 2**31 - 1),
+        junk=st.binary(min_size=1, max_size=24),
+        bit=st.integers(0, 7),
+    )
     def check(rel: str, op: str, pos: int, junk: bytes, bit: int) -> None:
         def mutate(root: Path, _: Path) -> None:
             p = root / rel
@@ -161,7 +169,7 @@ def test_fuzz_bytes(workspace: _Workspace, base_files: dict[str, bytes]) -> None
             elif op == "insert":
                 data[i:i] = junk
             elif op == "delete":
-                del data[i:i + len(junk)]
+                del data[i : i + len(junk)]
             elif op == "empty":
                 data = bytearray()
             elif op == "append":
@@ -177,11 +185,43 @@ def test_fuzz_bytes(workspace: _Workspace, base_files: dict[str, bytes]) -> None
 
 
 # --------------------------------------------------------------------------- 2. CSV cells
-CELL_VALUES = ("nan", "NaN", "inf", "-inf", "", " ", "abc", "1e400", "-1e400", "1e308", "-5",
-               "1,2", "0x10", "1.0.0", "--1", "\t", "#", "None", "true", "\"1\"", "9" * 400,
-               "0", "-0")
-CSV_OPS = ("cell", "cell_text", "negate", "scale", "swap_rows", "dup_row", "del_row",
-           "del_column", "reverse", "header_cell")
+CELL_VALUES = (
+    "nan",
+    "NaN",
+    "inf",
+    "-inf",
+    "",
+    " ",
+    "abc",
+    "1e400",
+    "-1e400",
+    "1e308",
+    "-5",
+    "1,2",
+    "0x10",
+    "1.0.0",
+    "--1",
+    "\t",
+    "#",
+    "None",
+    "true",
+    '"1"',
+    "9" * 400,
+    "0",
+    "-0",
+)
+CSV_OPS = (
+    "cell",
+    "cell_text",
+    "negate",
+    "scale",
+    "swap_rows",
+    "dup_row",
+    "del_row",
+    "del_column",
+    "reverse",
+    "header_cell",
+)
 
 
 def _split(line: str, sep: str) -> list[str]:
@@ -192,12 +232,19 @@ def test_fuzz_csv(workspace: _Workspace) -> None:
     outcomes: Counter[str] = Counter()
 
     @FUZZ_SETTINGS
-    @given(rel=st.sampled_from(CSV_FILES + TUM_FILES), op=st.sampled_from(CSV_OPS),
-           row=st.integers(0, 10**6), col=st.integers(0, 10**6), other=st.integers(0, 10**6),
-           value=st.sampled_from(CELL_VALUES), text=st.text(max_size=8),
-           factor=st.sampled_from((1e3, 1e-3, 57.2958, 1 / 9.81, 1e9, -1.0, 0.0)))
-    def check(rel: str, op: str, row: int, col: int, other: int, value: str, text: str,
-              factor: float) -> None:
+    @given(
+        rel=st.sampled_from(CSV_FILES + TUM_FILES),
+        op=st.sampled_from(CSV_OPS),
+        row=st.integers(0, 10**6),
+        col=st.integers(0, 10**6),
+        other=st.integers(0, 10**6),
+        value=st.sampled_from(CELL_VALUES),
+        text=st.text(max_size=8),
+        factor=st.sampled_from((1e3, 1e-3, 57.2958, 1 / 9.81, 1e9, -1.0, 0.0)),
+    )
+    def check(
+        rel: str, op: str, row: int, col: int, other: int, value: str, text: str, factor: float
+    ) -> None:
         def mutate(root: Path, _: Path) -> None:
             p = root / rel
             sep = "," if rel.endswith(".csv") else " "
@@ -228,7 +275,7 @@ def test_fuzz_csv(workspace: _Workspace) -> None:
             elif op == "del_row":
                 del body[r]
             elif op == "del_column":
-                body = [sep.join(cs[:c] + cs[c + 1:]) for cs in (_split(b, sep) for b in body)]
+                body = [sep.join(cs[:c] + cs[c + 1 :]) for cs in (_split(b, sep) for b in body)]
             elif op == "reverse":
                 body = body[::-1]
             elif op == "header_cell":
@@ -256,11 +303,14 @@ def _paths(node: object, prefix: tuple = ()) -> list[tuple]:
 
 
 WRONG_VALUES = st.one_of(
-    st.none(), st.booleans(), st.integers(-(2**70), 2**70),
-    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=12),
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**70), 2**70),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=12),
     st.sampled_from(["../imu.csv", "/etc/passwd", "depth/depth_mm.npy", "1e3", "30 Hz", ""]),
-    st.lists(st.integers(), max_size=4), st.dictionaries(st.text(max_size=4), st.integers(),
-                                                         max_size=2),
+    st.lists(st.integers(), max_size=4),
+    st.dictionaries(st.text(max_size=4), st.integers(), max_size=2),
 )
 YAML_TEXT_EDITS = (
     "!!python/object/apply:os.system ['echo pwned']\n",
@@ -284,11 +334,18 @@ def test_fuzz_yaml(workspace: _Workspace, base_files: dict[str, bytes]) -> None:
     paths = _paths(base)
 
     @FUZZ_SETTINGS
-    @given(op=st.sampled_from(YAML_OPS), path=st.sampled_from(paths), value=WRONG_VALUES,
-           key=st.text(min_size=1, max_size=10), version=st.integers(-3, 10**12),
-           edit=st.sampled_from(YAML_TEXT_EDITS), pos=st.integers(0, 10**6))
-    def check(op: str, path: tuple, value: object, key: str, version: int, edit: str,
-              pos: int) -> None:
+    @given(
+        op=st.sampled_from(YAML_OPS),
+        path=st.sampled_from(paths),
+        value=WRONG_VALUES,
+        key=st.text(min_size=1, max_size=10),
+        version=st.integers(-3, 10**12),
+        edit=st.sampled_from(YAML_TEXT_EDITS),
+        pos=st.integers(0, 10**6),
+    )
+    def check(
+        op: str, path: tuple, value: object, key: str, version: int, edit: str, pos: int
+    ) -> None:
         def mutate(root: Path, _: Path) -> None:
             p = root / "metadata.yaml"
             if op in ("text_append", "text_replace", "flow_garble"):
@@ -327,33 +384,78 @@ def test_fuzz_yaml(workspace: _Workspace, base_files: dict[str, bytes]) -> None:
 
 
 # --------------------------------------------------------------------------- 4. .npy files
-NPY_DTYPES = ("<u2", ">u2", "u1", "<i2", "<u4", "<f4", ">f4", "<f8", "?", "<c8", "S2", "U1",
-              "V2", "<u2,<u2")
-NPY_OPS = ("dtype", "shape", "fortran", "pickle", "npz", "header_byte", "magic", "version",
-           "header_len", "zero_frames", "values")
+NPY_DTYPES = (
+    "<u2",
+    ">u2",
+    "u1",
+    "<i2",
+    "<u4",
+    "<f4",
+    ">f4",
+    "<f8",
+    "?",
+    "<c8",
+    "S2",
+    "U1",
+    "V2",
+    "<u2,<u2",
+)
+NPY_OPS = (
+    "dtype",
+    "shape",
+    "fortran",
+    "pickle",
+    "npz",
+    "header_byte",
+    "magic",
+    "version",
+    "header_len",
+    "zero_frames",
+    "values",
+)
 
 
 def test_fuzz_npy(workspace: _Workspace) -> None:
     outcomes: Counter[str] = Counter()
 
     @FUZZ_SETTINGS
-    @given(rel=st.sampled_from(NPY_FILES), op=st.sampled_from(NPY_OPS),
-           dtype=st.sampled_from(NPY_DTYPES),
-           shape_delta=st.tuples(st.integers(-2, 2), st.integers(-2, 2), st.integers(-2, 2)),
-           extra_dims=st.integers(-2, 1), pos=st.integers(0, 10**6), byte=st.integers(0, 255),
-           fill=st.sampled_from((0, 1, 65535, 50, 2400, 5000, 255)))
-    def check(rel: str, op: str, dtype: str, shape_delta: tuple[int, int, int],
-              extra_dims: int, pos: int, byte: int, fill: int) -> None:
+    @given(
+        rel=st.sampled_from(NPY_FILES),
+        op=st.sampled_from(NPY_OPS),
+        dtype=st.sampled_from(NPY_DTYPES),
+        shape_delta=st.tuples(st.integers(-2, 2), st.integers(-2, 2), st.integers(-2, 2)),
+        extra_dims=st.integers(-2, 1),
+        pos=st.integers(0, 10**6),
+        byte=st.integers(0, 255),
+        fill=st.sampled_from((0, 1, 65535, 50, 2400, 5000, 255)),
+    )
+    def check(
+        rel: str,
+        op: str,
+        dtype: str,
+        shape_delta: tuple[int, int, int],
+        extra_dims: int,
+        pos: int,
+        byte: int,
+        fill: int,
+    ) -> None:
         def mutate(root: Path, _: Path) -> None:
             p = root / rel
             arr = np.load(p, allow_pickle=False)
             if op == "dtype":
-                np.save(p, arr.astype(np.dtype(dtype)) if dtype not in ("V2", "<u2,<u2")
-                        else np.zeros(arr.shape, dtype=np.dtype(dtype)))
+                np.save(
+                    p,
+                    arr.astype(np.dtype(dtype))
+                    if dtype not in ("V2", "<u2,<u2")
+                    else np.zeros(arr.shape, dtype=np.dtype(dtype)),
+                )
             elif op == "shape":
                 shape = tuple(max(0, s + d) for s, d in zip(arr.shape, shape_delta, strict=True))
-                shape = (shape[: len(shape) + extra_dims] if extra_dims < 0
-                         else shape + (1,) * extra_dims)
+                shape = (
+                    shape[: len(shape) + extra_dims]
+                    if extra_dims < 0
+                    else shape + (1,) * extra_dims
+                )
                 np.save(p, np.resize(arr, shape))
             elif op == "fortran":
                 np.save(p, np.asfortranarray(arr))
@@ -387,9 +489,21 @@ def test_fuzz_npy(workspace: _Workspace) -> None:
 
 
 # --------------------------------------------------------------------------- 5. file system
-FS_OPS = ("delete", "dir_for_file", "symlink_outside", "symlink_inside", "symlink_dangling",
-          "symlink_loop", "symlink_dir_outside", "delete_dir", "extra_file", "root_is_file",
-          "root_symlink", "fifo_for_file", "hardlink_inside")
+FS_OPS = (
+    "delete",
+    "dir_for_file",
+    "symlink_outside",
+    "symlink_inside",
+    "symlink_dangling",
+    "symlink_loop",
+    "symlink_dir_outside",
+    "delete_dir",
+    "extra_file",
+    "root_is_file",
+    "root_symlink",
+    "fifo_for_file",
+    "hardlink_inside",
+)
 
 
 def test_fuzz_filesystem(workspace: _Workspace, base_files: dict[str, bytes]) -> None:
@@ -397,9 +511,14 @@ def test_fuzz_filesystem(workspace: _Workspace, base_files: dict[str, bytes]) ->
     names = sorted(base_files)
 
     @FUZZ_SETTINGS
-    @given(op=st.sampled_from(FS_OPS), rel=st.sampled_from(names), other=st.sampled_from(names),
-           folder=st.sampled_from(("depth", "groundtruth")),
-           junk=st.binary(max_size=16), then_flip=st.integers(-1, 10**6))
+    @given(
+        op=st.sampled_from(FS_OPS),
+        rel=st.sampled_from(names),
+        other=st.sampled_from(names),
+        folder=st.sampled_from(("depth", "groundtruth")),
+        junk=st.binary(max_size=16),
+        then_flip=st.integers(-1, 10**6),
+    )
     def check(op: str, rel: str, other: str, folder: str, junk: bytes, then_flip: int) -> None:
         def mutate(root: Path, outside: Path) -> None:
             p = root / rel
@@ -516,40 +635,84 @@ def _fifo(root: Path) -> None:
 
 
 GAPS = {
-    "depth timestamps backwards": (_edit_rows("depth/timestamps.csv", _swap_times),
-                                   "timestamps.csv", "backwards"),
-    "frames.csv flag not 0/1": (_edit_rows("groundtruth/frames.csv",
-                                           lambda rows: rows[1].__setitem__(2, "5")),
-                                "frames.csv", "0 or 1"),
-    "frames.csv other times": (_edit_rows("groundtruth/frames.csv", _swap_times), "frames.csv",
-                               "backwards"),
-    "joints on another clock": (_edit_rows("joints.csv", _shift_times), "joints.csv",
-                                "different clocks"),
-    "imu truncated at a row": (_edit_rows("imu.csv", lambda rows: rows.__delitem__(
-        slice(len(rows) // 2, None))), "imu.csv", "declares duration_s"),
+    "depth timestamps backwards": (
+        _edit_rows("depth/timestamps.csv", _swap_times),
+        "timestamps.csv",
+        "backwards",
+    ),
+    "frames.csv flag not 0/1": (
+        _edit_rows("groundtruth/frames.csv", lambda rows: rows[1].__setitem__(2, "5")),
+        "frames.csv",
+        "0 or 1",
+    ),
+    "frames.csv other times": (
+        _edit_rows("groundtruth/frames.csv", _swap_times),
+        "frames.csv",
+        "backwards",
+    ),
+    "joints on another clock": (
+        _edit_rows("joints.csv", _shift_times),
+        "joints.csv",
+        "different clocks",
+    ),
+    "imu truncated at a row": (
+        _edit_rows("imu.csv", lambda rows: rows.__delitem__(slice(len(rows) // 2, None))),
+        "imu.csv",
+        "declares duration_s",
+    ),
     "npz named .npy": (_npz, "depth_mm.npy", "not a .npy array"),
     "npy header cut": (_header_len, "depth_mm.npy", "not a readable .npy array"),
-    "pickled npy": (lambda r: np.save(r / "depth/confidence.npy", np.array([{}, None]),
-                                      allow_pickle=True), "confidence.npy", "not a readable"),
-    "metres stored in mm units": (_set_meta(lambda d: d["camera"].update(depth_unit_m=1e-6)),
-                                  "depth_mm.npy", "below half the camera's min range"),
-    "all frames empty": (lambda r: np.save(r / "depth/depth_mm.npy", np.zeros(
-        np.load(r / "depth/depth_mm.npy").shape, np.uint16)), "depth_mm.npy", "empty frames"),
-    "yaml nan": (_set_meta(lambda d: d["camera"].update(fx_px=float("nan"))), "metadata.yaml",
-                 "[camera.fx_px]: NaN"),
-    "yaml recursive alias": (lambda r: (r / "metadata.yaml").write_text(
-        (r / "metadata.yaml").read_text() + "loop: &x [*x]\n"), "metadata.yaml",
-        "nested too deeply"),
-    "yaml newline key": (_set_meta(lambda d: d.update({"a\nb": 1})), "metadata.yaml",
-                         "[a\\nb]: Extra inputs"),
-    "yaml python tag": (lambda r: (r / "metadata.yaml").write_text(
-        "!!python/object/apply:os.system ['true']\n"), "metadata.yaml", "not valid YAML"),
-    "yaml names a file": (_set_meta(lambda d: d.update(imu_file="/etc/passwd")),
-                          "metadata.yaml", "[imu_file]: Extra inputs are not permitted"),
+    "pickled npy": (
+        lambda r: np.save(r / "depth/confidence.npy", np.array([{}, None]), allow_pickle=True),
+        "confidence.npy",
+        "not a readable",
+    ),
+    "metres stored in mm units": (
+        _set_meta(lambda d: d["camera"].update(depth_unit_m=1e-6)),
+        "depth_mm.npy",
+        "below half the camera's min range",
+    ),
+    "all frames empty": (
+        lambda r: np.save(
+            r / "depth/depth_mm.npy", np.zeros(np.load(r / "depth/depth_mm.npy").shape, np.uint16)
+        ),
+        "depth_mm.npy",
+        "empty frames",
+    ),
+    "yaml nan": (
+        _set_meta(lambda d: d["camera"].update(fx_px=float("nan"))),
+        "metadata.yaml",
+        "[camera.fx_px]: NaN",
+    ),
+    "yaml recursive alias": (
+        lambda r: (r / "metadata.yaml").write_text(
+            (r / "metadata.yaml").read_text() + "loop: &x [*x]\n"
+        ),
+        "metadata.yaml",
+        "nested too deeply",
+    ),
+    "yaml newline key": (
+        _set_meta(lambda d: d.update({"a\nb": 1})),
+        "metadata.yaml",
+        "[a\\nb]: Extra inputs",
+    ),
+    "yaml python tag": (
+        lambda r: (r / "metadata.yaml").write_text("!!python/object/apply:os.system ['true']\n"),
+        "metadata.yaml",
+        "not valid YAML",
+    ),
+    "yaml names a file": (
+        _set_meta(lambda d: d.update(imu_file="/etc/passwd")),
+        "metadata.yaml",
+        "[imu_file]: Extra inputs are not permitted",
+    ),
     "symlink loop": (_symlink_loop, "joints.csv", "cannot be opened"),
     "fifo": (_fifo, "imu.csv", "not a regular file"),
-    "NUL bytes": (lambda r: (r / "joints.csv").write_bytes(
-        (r / "joints.csv").read_bytes()[:60] + b"\0\0\0"), "joints.csv", "NUL bytes"),
+    "NUL bytes": (
+        lambda r: (r / "joints.csv").write_bytes((r / "joints.csv").read_bytes()[:60] + b"\0\0\0"),
+        "joints.csv",
+        "NUL bytes",
+    ),
 }
 
 
@@ -569,11 +732,14 @@ def test_metadata_cannot_redirect_reads(tiny_recording: Path, tmp_path: Path) ->
     original = Recording.open(tiny_recording).imu.accel_mps2
     decoy = tmp_path / "decoy"
     shutil.copytree(tiny_recording, decoy)
-    _edit_rows("imu.csv", lambda rows: [r.__setitem__(3, repr(float(r[3]) + 0.5))
-                                        for r in rows])(decoy)
-    _set_meta(lambda d: d["provenance"]["config"].update(
-        imu_file=str(decoy / "imu.csv"), recording=str(decoy), depth="../decoy/depth"))(
-        tiny_recording)
+    _edit_rows("imu.csv", lambda rows: [r.__setitem__(3, repr(float(r[3]) + 0.5)) for r in rows])(
+        decoy
+    )
+    _set_meta(
+        lambda d: d["provenance"]["config"].update(
+            imu_file=str(decoy / "imu.csv"), recording=str(decoy), depth="../decoy/depth"
+        )
+    )(tiny_recording)
     rec = Recording.open(tiny_recording)
     np.testing.assert_array_equal(rec.imu.accel_mps2, original)
     assert rec.metadata.provenance.config["imu_file"] == str(decoy / "imu.csv")

@@ -59,12 +59,14 @@ def test_run_warns_on_a_recording_whose_imu_mount_is_misdeclared(
     bad = remount_imu(short_upstair, tmp_path / "bad", R, declare=False)
     runner = CliRunner()
     for rec, expect_warning in ((bad, True), (short_upstair, False)):
-        res = runner.invoke(app, ["run", str(rec), "--out", str(tmp_path / f"res_{rec.name}"),
-                                  "--no-rerun"])
+        res = runner.invoke(
+            app, ["run", str(rec), "--out", str(tmp_path / f"res_{rec.name}"), "--no-rerun"]
+        )
         assert res.exit_code == 0, res.output
         assert "health:" in res.output
-        assert ("WARNING: the fused estimate is inconsistent" in res.output) == expect_warning, \
+        assert ("WARNING: the fused estimate is inconsistent" in res.output) == expect_warning, (
             res.output
+        )
 
 
 def test_one_window_far_off_is_a_jump_even_when_the_shares_are_low() -> None:
@@ -84,8 +86,9 @@ def test_one_window_far_off_is_a_jump_even_when_the_shares_are_low() -> None:
     assert fv["jump"] and not rep["ok"] and len(rep["warnings"]) == 1
 
 
-def _feed_floor(monitor: HealthMonitor, x_var_m2: float, stance_every: int = 0,
-                n: int = 150) -> None:
+def _feed_floor(
+    monitor: HealthMonitor, x_var_m2: float, stance_every: int = 0, n: int = 150
+) -> None:
     """Accepted displacements whose x variance is ``x_var_m2`` (1.0 = the ICP's cap for an
     unobservable direction: a floor); every ``stance_every``-th frame anchored in stance."""
     cov = np.diag([x_var_m2, 1e-6])
@@ -126,8 +129,9 @@ def test_displacements_the_filter_could_not_relate_are_not_counted_as_refused() 
     for k in range(60):
         d = None if k == 0 else Displacement2D((k - 1) * DT, k * DT, np.array([0.01, 0.0]), cov)
         stale = k % 2 == 0
-        m.add_frame(k * DT, np.array([k * 0.01, 0.0]), d, accepted=not stale, in_stance=False,
-                    refused=False)
+        m.add_frame(
+            k * DT, np.array([k * 0.01, 0.0]), d, accepted=not stale, in_stance=False, refused=False
+        )
     assert m.report()["displacements_rejected_share"] == 0.0
     m2 = HealthMonitor()  # without the estimator's distinction every non-accepted one counts
     for k in range(60):

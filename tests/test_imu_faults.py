@@ -53,8 +53,15 @@ def test_saturated_sample_widens_the_filter_velocity_by_its_extra_sigma() -> Non
         q = np.array([1.0, 0.0, 0.0, 0.0])
         for k in range(1, 4):
             xa = extra if k == 2 else 0.0
-            f.propagate(ImuSample(k * H, np.array([0.0, 0.0, GRAVITY_MPS2]), np.zeros(3), q,
-                                  accel_extra_sigma_mps2=xa))
+            f.propagate(
+                ImuSample(
+                    k * H,
+                    np.array([0.0, 0.0, GRAVITY_MPS2]),
+                    np.zeros(3),
+                    q,
+                    accel_extra_sigma_mps2=xa,
+                )
+            )
         return f.state.P[2:4, 2:4]
 
     # the step onto the marked sample and the next one (trapezoid memory) lean on it
@@ -71,9 +78,12 @@ def test_gyro_spike_is_replaced_by_the_vendor_orientation_rate() -> None:
     samples = _pitching(100, rate)
     spiked = list(samples)
     k = 60
-    spiked[k] = ImuSample(samples[k].timestamp_s,
-                          samples[k].accel_mps2 + np.array([30.0, 0.0, 0.0]),
-                          samples[k].gyro_radps + np.array([0.0, 5.0, 0.0]), samples[k].quat_wxyz)
+    spiked[k] = ImuSample(
+        samples[k].timestamp_s,
+        samples[k].accel_mps2 + np.array([30.0, 0.0, 0.0]),
+        samples[k].gyro_radps + np.array([0.0, 5.0, 0.0]),
+        samples[k].quat_wxyz,
+    )
     clean = ImuFaultMonitor(ImuFaultConfig(), None, None)
     assert all(clean.process(s) is s for s in samples)
     assert clean.n_gyro_repaired == 0
@@ -92,8 +102,7 @@ def _moving_filter(spike_mps2: float) -> tuple[SagittalEskf, float]:
     """Filter moving at 1 m/s in x over 3 IMU samples (30 ms), the middle one carrying an
     x spike of ``spike_mps2``; returns it and the interval (s)."""
     f = SagittalEskf(FilterConfig(integration="zoh"))
-    f.initialise(0.0, (0.0, 0.0), v_xz=(1.0, 0.0),
-                 P0=np.diag([1e-6] * 2 + [1e-4] * 2 + [1e-4] * 4))
+    f.initialise(0.0, (0.0, 0.0), v_xz=(1.0, 0.0), P0=np.diag([1e-6] * 2 + [1e-4] * 2 + [1e-4] * 4))
     q = np.array([1.0, 0.0, 0.0, 0.0])
     for k in range(1, 4):
         spike = spike_mps2 if k == 2 else 0.0
@@ -118,8 +127,7 @@ def test_vision_arbitration_keeps_a_displacement_against_an_imu_spike_not_a_wron
     assert f2.displacement_d2(wrong, Q) > gate
 
 
-def test_distrusted_samples_inflate_the_preintegration_and_batch_imu_factors_are_robust(
-) -> None:
+def test_distrusted_samples_inflate_the_preintegration_and_batch_imu_factors_are_robust() -> None:
     t = np.arange(0.0, 0.2, H)
     x = np.zeros((t.size, 2))
     x[5] = (10.0, 2.0)
@@ -135,19 +143,37 @@ def test_distrusted_samples_inflate_the_preintegration_and_batch_imu_factors_are
         b = KeyframeGraphBuilder(SmootherConfig(), np.eye(4))
         b.robust_imu = robust
         for s in _pitching(25, lambda _t: 0.5):
-            b.add_imu(ImuSample(s.timestamp_s, s.accel_mps2, s.gyro_radps, s.quat_wxyz,
-                                accel_extra_sigma_mps2=extra if abs(s.timestamp_s - 0.1) < 1e-9
-                                else 0.0))
+            b.add_imu(
+                ImuSample(
+                    s.timestamp_s,
+                    s.accel_mps2,
+                    s.gyro_radps,
+                    s.quat_wxyz,
+                    accel_extra_sigma_mps2=extra if abs(s.timestamp_s - 0.1) < 1e-9 else 0.0,
+                )
+            )
         ups = []
         for tk in (0.05, 0.15):
-            est = FrameEstimate(tk, EstimateStatus.FUSED, np.zeros(2), np.zeros(2),
-                                np.eye(2) * 1e-4, np.zeros(2), np.zeros(2), np.zeros(2),
-                                np.zeros(2), TerrainKind.LEVEL, True, {})
+            est = FrameEstimate(
+                tk,
+                EstimateStatus.FUSED,
+                np.zeros(2),
+                np.zeros(2),
+                np.eye(2) * 1e-4,
+                np.zeros(2),
+                np.zeros(2),
+                np.zeros(2),
+                np.zeros(2),
+                TerrainKind.LEVEL,
+                True,
+                {},
+            )
             ups += b.add_frame(tk, True, est, None, None)
         ups += b.flush()
         g = ups[-1].factors
-        return next(g.at(i) for i in range(g.size())
-                    if isinstance(g.at(i), gtsam.CombinedImuFactor))
+        return next(
+            g.at(i) for i in range(g.size()) if isinstance(g.at(i), gtsam.CombinedImuFactor)
+        )
 
     assert isinstance(factors(True, 0.0).noiseModel(), gtsam.noiseModel.Robust)
     assert not isinstance(factors(False, 0.0).noiseModel(), gtsam.noiseModel.Robust)

@@ -46,8 +46,9 @@ def remount_imu(src: Path, dst: Path, R_new_old: np.ndarray, declare: bool = Tru
     ext = rec.metadata.extrinsics.model_copy(update={"imu_T_cam": new_T.tolist()})
     meta = rec.metadata.model_copy(update={"extrinsics": ext}) if declare else rec.metadata
     frames = ((f.depth_m, f.confidence) for f in rec.frames())
-    return write_recording(dst, meta, new_imu, rec.joints, rec.groundtruth,
-                           rec.frame_timestamps_s, frames)
+    return write_recording(
+        dst, meta, new_imu, rec.joints, rec.groundtruth, rec.frame_timestamps_s, frames
+    )
 
 
 def test_shank_axes_undo_any_mount() -> None:
@@ -62,11 +63,13 @@ def test_shank_axes_undo_any_mount() -> None:
     s = ImuSample(0.5, rng.normal(size=3), rng.normal(size=3), quat_wxyz_from_matrix(R_world_imu))
     assert aligned.imu_in_shank_axes(s) is s  # bit for bit
     for R in (R_s_c.T, _rot("x", np.pi / 2), _rot("y", -np.pi / 2), _rot("x", np.pi)):
-        mounted = RigGeometry(np.eye(3), make_transform(R @ imu_T_cam[:3, :3],
-                                                        R @ imu_T_cam[:3, 3]), knee_T_cam, None)
+        mounted = RigGeometry(
+            np.eye(3), make_transform(R @ imu_T_cam[:3, :3], R @ imu_T_cam[:3, 3]), knee_T_cam, None
+        )
         assert not mounted.imu_is_shank_aligned
-        raw = ImuSample(0.5, R @ s.accel_mps2, R @ s.gyro_radps,
-                        quat_wxyz_from_matrix(R_world_imu @ R.T))
+        raw = ImuSample(
+            0.5, R @ s.accel_mps2, R @ s.gyro_radps, quat_wxyz_from_matrix(R_world_imu @ R.T)
+        )
         back = mounted.imu_in_shank_axes(raw)
         np.testing.assert_allclose(back.accel_mps2, s.accel_mps2, atol=1e-12)
         np.testing.assert_allclose(back.gyro_radps, s.gyro_radps, atol=1e-12)
@@ -78,16 +81,20 @@ def _config() -> PipelineConfig:
     """Default pipeline, no plots, shank pitch from the IMU (so that the reported shank pitch
     error is the IMU attitude's, whatever the mount)."""
     base = PipelineConfig()
-    return base.model_copy(update={
-        "output": base.output.model_copy(update={"plots": False}),
-        "kinematics": base.kinematics.model_copy(update={"shank_pitch_source": "imu"})})
+    return base.model_copy(
+        update={
+            "output": base.output.model_copy(update={"plots": False}),
+            "kinematics": base.kinematics.model_copy(update={"shank_pitch_source": "imu"}),
+        }
+    )
 
 
 @pytest.fixture(scope="module")
 def aligned_ate(short_upstair: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
     out = tmp_path_factory.mktemp("mount") / "aligned"
-    run_recording(short_upstair, out, _config(), modes=("filter", "smoother"),
-                  progress=False, visualize=False)
+    run_recording(
+        short_upstair, out, _config(), modes=("filter", "smoother"), progress=False, visualize=False
+    )
     return json.loads((out / "metrics.json").read_text())
 
 

@@ -62,8 +62,7 @@ def test_pitch_offset_is_applied_in_the_ground_frame_with_any_heading() -> None:
         Rc = with_pitch_offset(R, b)
         np.testing.assert_allclose(remove_yaw(Rc), rot_y(b) @ remove_yaw(R), atol=1e-12)
         # heading untouched
-        assert np.isclose(np.arctan2(Rc[1, 0], Rc[0, 0]), np.arctan2(R[1, 0], R[0, 0]),
-                          atol=0.05)
+        assert np.isclose(np.arctan2(Rc[1, 0], Rc[0, 0]), np.arctan2(R[1, 0], R[0, 0]), atol=0.05)
 
 
 def test_offset_filter_converges_and_rejects_outliers() -> None:
@@ -108,8 +107,7 @@ def test_rotating_the_previous_frame_keeps_icp_consistent() -> None:
     K = pico_flexx_K()
     R_true = camera_rotation(0.7)
     cam = np.array([0.0, 0.45])
-    depth, conf = render_depth(stairs, cam, R_true, K, noise_m=0.002,
-                               rng=np.random.default_rng(0))
+    depth, conf = render_depth(stairs, cam, R_true, K, noise_m=0.002, rng=np.random.default_rng(0))
     frame = DepthFrame(0, 0.0, depth, conf)
     R_wrong = rot_y(np.radians(-1.5)) @ R_true  # attitude off by 1.5 deg of pitch
     step = np.radians(1.5)
@@ -117,8 +115,14 @@ def test_rotating_the_previous_frame_keeps_icp_consistent() -> None:
     for rotate in (False, True):
         fe = VisualFrontend()
         fe.process(frame, K, R_wrong)
-        res = fe.process(DepthFrame(1, 1 / 30, depth, conf), K, rot_y(step) @ R_wrong,
-                         np.zeros(2), np.eye(2) * 0.01**2, step if rotate else 0.0)
+        res = fe.process(
+            DepthFrame(1, 1 / 30, depth, conf),
+            K,
+            rot_y(step) @ R_wrong,
+            np.zeros(2),
+            np.eye(2) * 0.01**2,
+            step if rotate else 0.0,
+        )
         assert res.displacement is not None, res.rejection_reason
         shifts[rotate] = np.linalg.norm(res.displacement.delta_xz_m)
     assert shifts[True] < 0.001  # same view, same frame: no motion
@@ -135,8 +139,9 @@ def _shank_pitch_error_deg(rec_path: Path, enabled: bool) -> float:
     cfg = cfg.model_copy(update={"filter": cfg.filter.model_copy(update={"level_aiding": la})})
     rec = Recording.open(rec_path)
     lg = Replay(rec, cfg, {"filter"}, NullVisualizer()).run()
-    return shank_pitch_error_deg(rec.groundtruth, np.asarray(lg.t_s),
-                                 np.asarray(lg.shank_pitch_imu))["rms"]
+    return shank_pitch_error_deg(
+        rec.groundtruth, np.asarray(lg.t_s), np.asarray(lg.shank_pitch_imu)
+    )["rms"]
 
 
 def test_level_aiding_cuts_the_shank_pitch_error_on_a_simulated_trial(short_upstair) -> None:
@@ -151,8 +156,7 @@ def _densely_sampled_stairs(spacing_m: float = 0.002) -> np.ndarray:
     """Points every ``spacing_m`` along three treads and their risers (stair up, level)."""
     from vio_graph.frontend.synthetic import stair_polyline
 
-    v = stair_polyline("stair_up", n_steps=3, start_x_m=0.3, floor_before_m=0.3,
-                       floor_after_m=0.05)
+    v = stair_polyline("stair_up", n_steps=3, start_x_m=0.3, floor_before_m=0.3, floor_after_m=0.05)
     pts = []
     for a, b in zip(v[:-1], v[1:], strict=True):
         n = max(2, int(np.hypot(*(b - a)) / spacing_m))
@@ -169,8 +173,9 @@ def test_end_trim_removes_the_corner_rounding_bias() -> None:
     prof = smooth_profile(_densely_sampled_stairs(), k=5, cell_m=0.005)
     tilt = {}
     for trim in (0.0, 0.025):
-        t = measure_surface_tilt(prof, np.random.default_rng(0), end_trim_m=trim,
-                                 correlated_points=1.0)
+        t = measure_surface_tilt(
+            prof, np.random.default_rng(0), end_trim_m=trim, correlated_points=1.0
+        )
         assert t is not None
         tilt[trim] = np.degrees(t.tilt_rad)
     assert abs(tilt[0.025]) < 0.05, tilt

@@ -123,14 +123,26 @@ def test_rerun_recording_verifies_and_has_the_scene(run_all) -> None:
     if not rerun_cli.exists():
         pytest.skip("rerun CLI not installed next to this interpreter")
     rrd = run_all.out_dir / "run.rrd"
-    ok = subprocess.run([str(rerun_cli), "rrd", "verify", str(rrd)], capture_output=True,
-                        text=True, timeout=120)
+    ok = subprocess.run(
+        [str(rerun_cli), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120
+    )
     assert ok.returncode == 0, ok.stderr
-    dump = subprocess.run([str(rerun_cli), "rrd", "print", str(rrd)], capture_output=True,
-                          text=True, timeout=120).stdout
-    for entity in ("/world/cloud", "/world/slice", "/world/features", "/world/icp",
-                   "/world/leg/est", "/world/leg/gt", "/world/terrain/mesh", "/world/map",
-                   "/world/gt/toe", "/world/est/toe", "/world/smoother/toe"):
+    dump = subprocess.run(
+        [str(rerun_cli), "rrd", "print", str(rrd)], capture_output=True, text=True, timeout=120
+    ).stdout
+    for entity in (
+        "/world/cloud",
+        "/world/slice",
+        "/world/features",
+        "/world/icp",
+        "/world/leg/est",
+        "/world/leg/gt",
+        "/world/terrain/mesh",
+        "/world/map",
+        "/world/gt/toe",
+        "/world/est/toe",
+        "/world/smoother/toe",
+    ):
         assert entity in dump, entity
     # rows per entity and its component columns, summed over the chunks
     rows: dict[str, int] = {}

@@ -53,8 +53,12 @@ class Spy:
 
 def test_every_estimator_of_a_run_follows_the_protocol(tiny_recording: Path) -> None:
     rec = Recording.open(tiny_recording)
-    ests = make_estimators(PipelineConfig(), RigGeometry.from_metadata(rec.metadata),
-                           {"smoother", "batch"}, np.zeros(2))
+    ests = make_estimators(
+        PipelineConfig(),
+        RigGeometry.from_metadata(rec.metadata),
+        {"smoother", "batch"},
+        np.zeros(2),
+    )
     assert list(ests) == ["filter", "imu_only", "icp_only", "smoother", "batch"]
     for name, e in ests.items():
         assert isinstance(e, Estimator), name
@@ -74,8 +78,9 @@ def test_the_replay_hands_every_estimator_the_same_records(tiny_recording: Path)
     np.testing.assert_array_equal(t_imu, rec.imu.timestamp_s)
     assert [r.timestamp_s for r in spy.records] == lg.t_s
     # the filter's path is what the records carry; the spy's own answer comes back by name
-    np.testing.assert_array_equal(lg.camera_xz["filter"],
-                                  [r.estimate.camera_xz_m for r in spy.records])
+    np.testing.assert_array_equal(
+        lg.camera_xz["filter"], [r.estimate.camera_xz_m for r in spy.records]
+    )
     np.testing.assert_array_equal(lg.camera_xz["spy"], lg.camera_xz["filter"] + 1.0)
     # the attitude the measurements were built with, and the leg angles, travel per frame
     for r, R_then in zip(spy.records, spy.attitude_then, strict=True):

@@ -47,7 +47,8 @@ def _rss_file_kib() -> int:
 
 
 def test_reading_every_frame_does_not_keep_the_depth_maps_resident(
-        short_upstair: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    short_upstair: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.setattr(reader_mod, "RELEASE_EVERY_FRAMES", 16)
     rec = Recording.open(short_upstair)
     depth, _, conf = rec._depth

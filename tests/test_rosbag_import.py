@@ -57,8 +57,14 @@ def _switch_closed() -> np.ndarray:
     return (np.arange(N_IMU) // 20) % 2 == 0
 
 
-def _write_bag(path: Path, ros2: bool, skip: tuple[str, ...] = (), encoding: str = "32FC1",
-               storage: StoragePlugin = StoragePlugin.MCAP, contact: str | None = None) -> Path:
+def _write_bag(
+    path: Path,
+    ros2: bool,
+    skip: tuple[str, ...] = (),
+    encoding: str = "32FC1",
+    storage: StoragePlugin = StoragePlugin.MCAP,
+    contact: str | None = None,
+) -> Path:
     """A synthetic bag: depth, camera_info, IMU and joint states on the default topics;
     ``contact`` adds a foot-contact topic ``/contact`` of that type (std_msgs/msg/Float64 as
     -force / 2, std_msgs/msg/Bool, geometry_msgs/msg/WrenchStamped with force.z = force),
@@ -78,38 +84,64 @@ def _write_bag(path: Path, ros2: bool, skip: tuple[str, ...] = (), encoding: str
         t = T0_NS + i * FRAME_DT_NS
         d = _depth_m(i)
         data = (np.nan_to_num(d) * 1000).astype("<u2") if encoding == "16UC1" else d.astype("<f4")
-        img = T["sensor_msgs/msg/Image"](header=header(t), height=H, width=W, encoding=encoding,
-                                         is_bigendian=0, step=W * data.itemsize,
-                                         data=np.frombuffer(data.tobytes(), np.uint8))
+        img = T["sensor_msgs/msg/Image"](
+            header=header(t),
+            height=H,
+            width=W,
+            encoding=encoding,
+            is_bigendian=0,
+            step=W * data.itemsize,
+            data=np.frombuffer(data.tobytes(), np.uint8),
+        )
         msgs.append((topics.depth, "sensor_msgs/msg/Image", t + 2_000_000, img))
-        roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
-                                                    do_rectify=False)
+        roi = T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        )
         k = np.array([FX, 0, CX, 0, FY, CY, 0, 0, 1], dtype=float)
         p = np.array([FX, 0, CX, 0, 0, FY, CY, 0, 0, 0, 1, 0], dtype=float)
-        fields = dict(header=header(t), height=H, width=W, distortion_model="plumb_bob",
-                      binning_x=0, binning_y=0, roi=roi)
+        fields = dict(
+            header=header(t),
+            height=H,
+            width=W,
+            distortion_model="plumb_bob",
+            binning_x=0,
+            binning_y=0,
+            roi=roi,
+        )
         if ros2:
             fields.update(d=np.zeros(5), k=k, r=np.eye(3).ravel(), p=p)
         else:
             fields.update(D=np.zeros(5), K=k, R=np.eye(3).ravel(), P=p)
-        msgs.append((topics.camera_info, "sensor_msgs/msg/CameraInfo", t + 2_000_000,
-                     T["sensor_msgs/msg/CameraInfo"](**fields)))
+        msgs.append(
+            (
+                topics.camera_info,
+                "sensor_msgs/msg/CameraInfo",
+                t + 2_000_000,
+                T["sensor_msgs/msg/CameraInfo"](**fields),
+            )
+        )
     vec = T["geometry_msgs/msg/Vector3"]
     for i, r in enumerate(_imu_rows()):
         t = T0_NS + i * IMU_DT_NS
         imu = T["sensor_msgs/msg/Imu"](
             header=header(t),
             orientation=T["geometry_msgs/msg/Quaternion"](x=r[7], y=r[8], z=r[9], w=r[6]),
-            orientation_covariance=np.zeros(9), angular_velocity=vec(x=r[3], y=r[4], z=r[5]),
+            orientation_covariance=np.zeros(9),
+            angular_velocity=vec(x=r[3], y=r[4], z=r[5]),
             angular_velocity_covariance=np.zeros(9),
             linear_acceleration=vec(x=r[0], y=r[1], z=r[2]),
-            linear_acceleration_covariance=np.zeros(9))
+            linear_acceleration_covariance=np.zeros(9),
+        )
         msgs.append((topics.imu, "sensor_msgs/msg/Imu", t + 1_000_000, imu))
     for i, r in enumerate(_joint_rows()):
         t = T0_NS + i * IMU_DT_NS + 3_000_000
         js = T["sensor_msgs/msg/JointState"](
-            header=header(t), name=["ankle", "knee", "thigh_pitch", "hip_yaw"],
-            position=np.array([r[2], r[1], r[0], 9.0]), velocity=np.zeros(4), effort=np.zeros(4))
+            header=header(t),
+            name=["ankle", "knee", "thigh_pitch", "hip_yaw"],
+            position=np.array([r[2], r[1], r[0], 9.0]),
+            velocity=np.zeros(4),
+            effort=np.zeros(4),
+        )
         msgs.append((topics.joints, "sensor_msgs/msg/JointState", t + 1_000_000, js))
     for i, (f, closed) in enumerate(zip(_contact_force_n(), _switch_closed(), strict=True)):
         t = T0_NS + i * IMU_DT_NS + 1_000_000  # receive time (= stamp of a WrenchStamped)
@@ -118,8 +150,9 @@ def _write_bag(path: Path, ros2: bool, skip: tuple[str, ...] = (), encoding: str
         elif contact == "std_msgs/msg/Bool":
             msg = T[contact](data=bool(closed))
         elif contact == "geometry_msgs/msg/WrenchStamped":
-            w = T["geometry_msgs/msg/Wrench"](force=vec(x=3.0, y=-2.0, z=f),
-                                              torque=vec(x=0.0, y=0.0, z=0.0))
+            w = T["geometry_msgs/msg/Wrench"](
+                force=vec(x=3.0, y=-2.0, z=f), torque=vec(x=0.0, y=0.0, z=0.0)
+            )
             msg = T[contact](header=header(t), wrench=w)
             t += 1_000_000  # received 1 ms after its stamp
         else:
@@ -177,7 +210,13 @@ def _check_round_trip(rec: Recording) -> None:
         assert np.all((f.confidence == 255) == (want > 0))
     cam = rec.metadata.camera
     assert (cam.width_px, cam.height_px, cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px) == (
-        W, H, FX, FY, CX, CY)
+        W,
+        H,
+        FX,
+        FY,
+        CX,
+        CY,
+    )
     n_imu = 97
     rows = _imu_rows()[:n_imu]
     imu = rec.imu
@@ -188,8 +227,12 @@ def _check_round_trip(rec: Recording) -> None:
     j = rec.joints  # stamped 3 ms after the IMU, JointState order ankle, knee, thigh, hip_yaw
     n_joint = 96
     np.testing.assert_allclose(j.timestamp_s, np.arange(n_joint) * 0.01 + 0.003, atol=1e-9)
-    np.testing.assert_allclose(np.column_stack([j.thigh_pitch_rad, j.knee_rad, j.ankle_rad]),
-                               _joint_rows()[:n_joint], atol=1e-6, rtol=0)
+    np.testing.assert_allclose(
+        np.column_stack([j.thigh_pitch_rad, j.knee_rad, j.ankle_rad]),
+        _joint_rows()[:n_joint],
+        atol=1e-6,
+        rtol=0,
+    )
     prov = rec.metadata.provenance
     assert prov.source == "device"
     assert prov.config["time_origin_ns"] == T0_NS
@@ -221,8 +264,7 @@ def test_receive_time_option(ros1_bag: Path, rig_10hz: Path, tmp_path: Path) -> 
     rec = Recording.open(import_bag(ros1_bag, rig_10hz, tmp_path / "rec", use_receive_time=True))
     # depth received 2 ms after its stamp, IMU 1 ms after: origin is the first IMU receive time
     assert rec.metadata.provenance.config["time_origin_ns"] == T0_NS + 1_000_000
-    np.testing.assert_allclose(rec.frame_timestamps_s, np.arange(N_FRAMES) * 0.1 + 0.001,
-                               atol=1e-9)
+    np.testing.assert_allclose(rec.frame_timestamps_s, np.arange(N_FRAMES) * 0.1 + 0.001, atol=1e-9)
 
 
 def test_16uc1_millimetre_depth(tmp_path: Path, rig_10hz: Path) -> None:
@@ -295,12 +337,24 @@ def test_cli_import_bag(ros1_bag: Path, rig_10hz: Path, tmp_path: Path) -> None:
     from vio_graph.cli import app
 
     out = tmp_path / "rec"
-    res = CliRunner().invoke(app, ["import-bag", str(ros1_bag), "--rig", str(rig_10hz),
-                                   "--out", str(out)])
+    res = CliRunner().invoke(
+        app, ["import-bag", str(ros1_bag), "--rig", str(rig_10hz), "--out", str(out)]
+    )
     assert res.exit_code == 0, res.output
     assert Recording.open(out).num_frames == N_FRAMES
-    res = CliRunner().invoke(app, ["import-bag", str(ros1_bag), "--rig", str(rig_10hz),
-                                   "--out", str(tmp_path / "rec2"), "--imu-topic", "/xsens/imu"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "import-bag",
+            str(ros1_bag),
+            "--rig",
+            str(rig_10hz),
+            "--out",
+            str(tmp_path / "rec2"),
+            "--imu-topic",
+            "/xsens/imu",
+        ],
+    )
     assert isinstance(res.exception, BagImportError) and "/xsens/imu" in str(res.exception)
 
 
@@ -318,15 +372,20 @@ def _rig_with_contact(rig_10hz: Path, tmp_path: Path, **contact) -> Path:
 @pytest.mark.parametrize(
     ("ros2", "msgtype", "mapping"),
     [
-        (False, "std_msgs/msg/Float64",
-         dict(kind="load_cell", msgtype="std_msgs/Float64", threshold_n=100.0, scale=2.0,
-              sign=-1)),
+        (
+            False,
+            "std_msgs/msg/Float64",
+            dict(
+                kind="load_cell", msgtype="std_msgs/Float64", threshold_n=100.0, scale=2.0, sign=-1
+            ),
+        ),
         (True, "geometry_msgs/msg/WrenchStamped", dict(kind="load_cell", threshold_n=100.0)),
         (False, "std_msgs/msg/Bool", dict(kind="switch", msgtype="std_msgs/Bool")),
     ],
 )
-def test_contact_topic_becomes_contact_csv(tmp_path: Path, rig_10hz: Path, ros2: bool,
-                                           msgtype: str, mapping: dict) -> None:
+def test_contact_topic_becomes_contact_csv(
+    tmp_path: Path, rig_10hz: Path, ros2: bool, msgtype: str, mapping: dict
+) -> None:
     bag = _write_bag(tmp_path / ("c_mcap" if ros2 else "c.bag"), ros2=ros2, contact=msgtype)
     rig = _rig_with_contact(rig_10hz, tmp_path, topic="/contact", **mapping)
     rec = Recording.open(import_bag(bag, rig, tmp_path / "rec"))
@@ -349,10 +408,12 @@ def test_contact_topic_becomes_contact_csv(tmp_path: Path, rig_10hz: Path, ros2:
     assert rec.metadata.provenance.config["topics"]["contact"] == "/contact"
 
 
-def test_contact_topic_missing_or_mismatched_names_it(tmp_path: Path, rig_10hz: Path,
-                                                      ros1_bag: Path) -> None:
-    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/prosthesis/load_cell",
-                            kind="load_cell", threshold_n=80.0)
+def test_contact_topic_missing_or_mismatched_names_it(
+    tmp_path: Path, rig_10hz: Path, ros1_bag: Path
+) -> None:
+    rig = _rig_with_contact(
+        rig_10hz, tmp_path, topic="/prosthesis/load_cell", kind="load_cell", threshold_n=80.0
+    )
     with pytest.raises(BagImportError) as err:
         import_bag(ros1_bag, rig, tmp_path / "rec")
     msg = str(err.value)
@@ -361,13 +422,15 @@ def test_contact_topic_missing_or_mismatched_names_it(tmp_path: Path, rig_10hz: 
     assert not (tmp_path / "rec").exists()
     # the rig's msgtype must match the bag's
     bag = _write_bag(tmp_path / "b.bag", ros2=False, contact="std_msgs/msg/Bool")
-    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/contact", kind="switch",
-                            msgtype="std_msgs/Float32")
+    rig = _rig_with_contact(
+        rig_10hz, tmp_path, topic="/contact", kind="switch", msgtype="std_msgs/Float32"
+    )
     with pytest.raises(BagImportError, match=r"/contact.*std_msgs/msg/Bool.*std_msgs/Float32"):
         import_bag(bag, rig, tmp_path / "rec")
     # a Bool is a switch, not a load cell
-    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/contact", kind="load_cell",
-                            threshold_n=50.0)
+    rig = _rig_with_contact(
+        rig_10hz, tmp_path, topic="/contact", kind="load_cell", threshold_n=50.0
+    )
     with pytest.raises(BagImportError, match="contact.kind = load_cell"):
         import_bag(bag, rig, tmp_path / "rec")
     # a numeric switch topic that is not 0 / 1
@@ -381,10 +444,17 @@ def test_rig_contact_section_is_validated(tmp_path: Path, rig_10hz: Path) -> Non
     rig = _rig_with_contact(rig_10hz, tmp_path, topic="/lc", kind="load_cell")
     with pytest.raises(ConfigError, match=r"\[contact\].*threshold_n"):
         load_rig(rig)
-    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/lc", kind="switch",
-                            msgtype="std_msgs/String")
+    rig = _rig_with_contact(
+        rig_10hz, tmp_path, topic="/lc", kind="switch", msgtype="std_msgs/String"
+    )
     with pytest.raises(ConfigError, match=r"\[contact\].*not supported"):
         load_rig(rig)
-    rig = _rig_with_contact(rig_10hz, tmp_path, topic="/lc", kind="load_cell",
-                            threshold_n=80.0, msgtype="geometry_msgs/WrenchStamped")
+    rig = _rig_with_contact(
+        rig_10hz,
+        tmp_path,
+        topic="/lc",
+        kind="load_cell",
+        threshold_n=80.0,
+        msgtype="geometry_msgs/WrenchStamped",
+    )
     assert load_rig(rig).contact.threshold == 80.0

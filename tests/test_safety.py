@@ -40,8 +40,7 @@ def test_flat_floor_clearance_is_the_lowest_foot_point_height() -> None:
     np.testing.assert_allclose(c.normal_xz, [0.0, 1.0])
     # toe 1 cm into the floor: minus the penetration; the sole's thickness is subtracted
     assert foot_clearance([0.0, 0.05], [0.25, -0.01], FLAT).distance_m == pytest.approx(-0.01)
-    assert foot_clearance([0.0, 0.03], [0.25, 0.03], FLAT, 0.01).distance_m == pytest.approx(
-        0.02)
+    assert foot_clearance([0.0, 0.03], [0.25, 0.03], FLAT, 0.01).distance_m == pytest.approx(0.02)
 
 
 def test_step_clearance_riser_face_and_nosing() -> None:
@@ -54,12 +53,12 @@ def test_step_clearance_riser_face_and_nosing() -> None:
     c = foot_clearance([0.25, 0.17], [0.50, 0.17], prof)
     assert c.distance_m == pytest.approx(0.02)
     np.testing.assert_allclose(c.terrain_xz_m, [0.5, 0.15])
-    assert edge_clearance([0.40, 0.17], [0.65, 0.17], [0.5, 0.15]).distance_m == pytest.approx(
-        0.02)
+    assert edge_clearance([0.40, 0.17], [0.65, 0.17], [0.5, 0.15]).distance_m == pytest.approx(0.02)
     # a foot sunk below the nosing level across the riser: negative (the step pokes through)
     assert foot_clearance([0.40, 0.13], [0.65, 0.13], prof).distance_m < 0
     assert edge_clearance([0.40, 0.13], [0.65, 0.13], [0.5, 0.15]).distance_m == pytest.approx(
-        -0.02)
+        -0.02
+    )
 
 
 def test_penetration_is_the_shortest_way_out() -> None:
@@ -90,8 +89,9 @@ def test_edges_and_placement_on_a_stair() -> None:
     p = placement_on_tread([0.49, 0.15], [0.74, 0.15], prof, 0.015, 0.15, 0.04)
     assert p.heel_to_nosing_m == pytest.approx(-0.01)
     # stair down (mirror): the nosing is the tread's far end
-    down = HeightProfile.from_polyline([(-1.0, 0.3), (0.5, 0.3), (0.5, 0.15), (0.78, 0.15),
-                                        (0.78, 0.0), (2.0, 0.0)])
+    down = HeightProfile.from_polyline(
+        [(-1.0, 0.3), (0.5, 0.3), (0.5, 0.15), (0.78, 0.15), (0.78, 0.0), (2.0, 0.0)]
+    )
     np.testing.assert_allclose(find_edges(down, 0.04, 0.15).xz_m, [[0.5, 0.3], [0.78, 0.15]])
     p = placement_on_tread([0.53, 0.15], [0.76, 0.15], down, 0.015, 0.15, 0.04)
     np.testing.assert_allclose(p.as_array(), [0.25, 0.02, 0.03, 0.26], atol=1e-12)
@@ -107,17 +107,14 @@ def test_prediction_constant_velocity() -> None:
     assert predicted_min_clearance(heel, toe, [1.0, 0.0], 0.05, 10, prof) == pytest.approx(0.05)
     # edge prediction is exact over the continuous horizon: the toe passes 1.2 cm below the
     # nosing's height at 2 m/s while rising; the min is reached between any 5 samples
-    d = predicted_min_edge_clearance([0.2, 0.162], [0.45, 0.162], [2.0, 0.0], 0.2, 5,
-                                     [0.5, 0.15])
+    d = predicted_min_edge_clearance([0.2, 0.162], [0.45, 0.162], [2.0, 0.0], 0.2, 5, [0.5, 0.15])
     assert d == pytest.approx(0.012)
 
 
-def _keyframes(mon: SafetyMonitor, profile: list, rng, n: int, noise_m: float,
-               cov_m2) -> None:
+def _keyframes(mon: SafetyMonitor, profile: list, rng, n: int, noise_m: float, cov_m2) -> None:
     xs = np.linspace(-0.2, 1.6, 400)
     prof = HeightProfile.from_polyline(profile)
-    z = np.array([prof.z_m[np.clip(np.searchsorted(prof.x_hi_m, x), 0, len(prof) - 1)]
-                  for x in xs])
+    z = np.array([prof.z_m[np.clip(np.searchsorted(prof.x_hi_m, x), 0, len(prof) - 1)] for x in xs])
     cam = np.array([0.0, 0.5])
     for k in range(n):
         pts = np.stack([xs, z + rng.normal(0, noise_m, xs.size)], 1) - cam
@@ -155,8 +152,9 @@ def test_sigma_is_calibrated_on_a_synthetic_case() -> None:
     noise comparable to the pose's, the minimum over the bins under the foot biases the
     clearance low by about two bin sigmas: docs/method.md.)"""
     rng = np.random.default_rng(1)
-    cfg = SafetyConfig(relative_pose_scale=1.0, foot_sigma_m=0.0, map_sigma_m=0.0,
-                       min_keyframes=4, bin_m=0.01)
+    cfg = SafetyConfig(
+        relative_pose_scale=1.0, foot_sigma_m=0.0, map_sigma_m=0.0, min_keyframes=4, bin_m=0.01
+    )
     P_kf, P_now = np.diag([1e-6, 1e-6]), np.diag([4e-6, 1.7e-5])
     z_err = []
     for _ in range(400):
@@ -164,8 +162,14 @@ def test_sigma_is_calibrated_on_a_synthetic_case() -> None:
         _keyframes(mon, [(-1.0, 0.0), (3.0, 0.0)], rng, 6, 0.001, P_kf)
         true_h = 0.05
         err = rng.multivariate_normal([0, 0], P_now - P_kf)
-        s = mon.update(1.0, [0.0, 0.5], P_now, np.array([0.2, true_h]) + err,
-                       np.array([0.45, true_h]) + err, False)
+        s = mon.update(
+            1.0,
+            [0.0, 0.5],
+            P_now,
+            np.array([0.2, true_h]) + err,
+            np.array([0.45, true_h]) + err,
+            False,
+        )
         z_err.append((s.clearance_m - true_h) / s.clearance_sigma_m)
     z = np.abs(np.asarray(z_err))
     assert 0.61 <= np.mean(z <= 1) <= 0.75
@@ -209,9 +213,23 @@ def test_near_trip_warned_on_a_simulated_trial(near_trip_run) -> None:
 
 def test_frames_csv_round_trip(tmp_path: Path) -> None:
     lg = FrameLog()
-    est = SafetyEstimate(0.0123, 0.004, np.zeros((2, 2)), float("nan"), float("nan"), -0.002,
-                         0.015, True, 0.31, 0.01, 3, 0.147, 0.28, True,
-                         np.array([0.03, 0.23, float("nan"), 0.05]))
+    est = SafetyEstimate(
+        0.0123,
+        0.004,
+        np.zeros((2, 2)),
+        float("nan"),
+        float("nan"),
+        -0.002,
+        0.015,
+        True,
+        0.31,
+        0.01,
+        3,
+        0.147,
+        0.28,
+        True,
+        np.array([0.03, 0.23, float("nan"), 0.05]),
+    )
     for k, s in enumerate([est, None]):
         lg.t_s.append(0.1 * k)
         lg.status.append("fused")

@@ -31,8 +31,10 @@ def motions():
     for name in SCENARIOS:
         cfg = load_scenario(name)
         terrain = build_terrain(cfg.terrain)
-        out[name] = (terrain, simulate_gait(terrain, cfg.gait, cfg.rig, cfg.duration_s,
-                                            np.random.default_rng(3)))
+        out[name] = (
+            terrain,
+            simulate_gait(terrain, cfg.gait, cfg.rig, cfg.duration_s, np.random.default_rng(3)),
+        )
     return out
 
 
@@ -64,7 +66,8 @@ def test_stair_profile_heights_and_nosings() -> None:
     # every mesh vertex of the walking surface lies on the profile
     floor = t.vertices_m[np.abs(t.vertices_m[:, 1]) < 0.6 - 1e-9]
     on_profile = np.isclose(floor[:, 2], t.height_at(floor[:, 0])) | np.any(
-        np.isclose(floor[:, 0][:, None], t.edges_xz_m[:, 0][None]), axis=1)
+        np.isclose(floor[:, 0][:, None], t.edges_xz_m[:, 0][None]), axis=1
+    )
     assert on_profile.all()
 
 
@@ -81,12 +84,15 @@ def test_obstacle_edges() -> None:
 def test_foot_never_penetrates_and_leg_stays_in_reach(motions, name) -> None:
     terrain, m = motions[name]
     fr = np.linspace(0, 1, 15)
-    sole = m.heel_xz_m[:, None, :] * (1 - fr[None, :, None]) + m.toe_xz_m[:, None, :] * fr[
-        None, :, None]
+    sole = (
+        m.heel_xz_m[:, None, :] * (1 - fr[None, :, None])
+        + m.toe_xz_m[:, None, :] * fr[None, :, None]
+    )
     gap = sole[..., 1] - terrain.height_at(sole[..., 0].ravel()).reshape(sole.shape[:2])
     assert gap.min() > -1e-6, f"sole penetrates by {-gap.min():.4f} m"
     reach = np.linalg.norm(m.hip_xz_m - m.ankle_xz_m, axis=1) / (
-        m.leg.thigh_length_m + m.leg.shank_length_m)
+        m.leg.thigh_length_m + m.leg.shank_length_m
+    )
     assert reach.max() < MAX_REACH_FRACTION
 
 
@@ -129,8 +135,9 @@ def _steady_mask(m, name: str):
     ("name", "knee_pub", "knee_tol", "hip_pub", "hip_tol"),
     [("upstair", 93, 12, 64, 6), ("downstair", 89, 12, 36, 16), ("level", 62, 13, 30, 20)],
 )
-def test_joint_angle_peaks_near_published_values(motions, name, knee_pub, knee_tol, hip_pub,
-                                                 hip_tol):
+def test_joint_angle_peaks_near_published_values(
+    motions, name, knee_pub, knee_tol, hip_pub, hip_tol
+):
     _, m = motions[name]
     mask = _steady_mask(m, name)
     assert mask.mean() > 0.4
@@ -202,8 +209,9 @@ def test_imu_noise_level_and_frames() -> None:
     np.testing.assert_allclose(acc - [0, 0, GRAVITY_MPS2], truth.accel_mps2, atol=1e-9)
     dt = 1e-3
     t = np.arange(0.5, 1.5, 0.05)
-    p = [imu_truth(trial.motion, t + k * dt, trial.imu_in_shank_xz_m).position_m
-         for k in (-1, 0, 1)]
+    p = [
+        imu_truth(trial.motion, t + k * dt, trial.imu_in_shank_xz_m).position_m for k in (-1, 0, 1)
+    ]
     acc_fd = (p[0] - 2 * p[1] + p[2]) / dt**2
     np.testing.assert_allclose(truth.accel_mps2[50:150:5], acc_fd, atol=0.05)
     assert np.abs(truth.accel_mps2).max() > 5.0  # the swinging shank is really accelerating
@@ -246,11 +254,9 @@ def test_noisy_depth_points_within_4_sigma_of_mesh() -> None:
     depth, _ = trial.render_frame(30)
     p_c, _, _ = _point_mesh_distance(trial, depth)
     p_w = p_c @ trial.R_world_cam[30].T + trial.camera_position_m[30]
-    d = np.abs(trial.camera.scene.compute_distance(
-        o3d.core.Tensor(p_w.astype(np.float32))).numpy())
+    d = np.abs(trial.camera.scene.compute_distance(o3d.core.Tensor(p_w.astype(np.float32))).numpy())
     # distance to the mesh is at most the axial error; sigma of a head-on pixel bounds it below
-    sigma = axial_sigma_m(p_c[:, 2], np.full(p_c.shape[0], np.radians(75)),
-                          cfg.camera.axial_coeffs)
+    sigma = axial_sigma_m(p_c[:, 2], np.full(p_c.shape[0], np.radians(75)), cfg.camera.axial_coeffs)
     frac = np.mean(d < 4 * sigma + 0.003)  # + lateral jitter on slanted surfaces
     assert frac > 0.97, frac
 

@@ -19,14 +19,14 @@ WEIGHT_N = 75.0 * 9.81  # default body_mass_kg
 
 
 def _with_contact(cfg: ScenarioConfig, duration_s: float = DURATION_S, **contact):
-    return cfg.model_copy(update={"duration_s": duration_s,
-                                  "contact": cfg.contact.model_copy(update=contact)})
+    return cfg.model_copy(
+        update={"duration_s": duration_s, "contact": cfg.contact.model_copy(update=contact)}
+    )
 
 
 def _stances(trial, end_s: float) -> list[tuple[float, float]]:
     """True stances (contact, toe-off) that lie inside [0, end_s]."""
-    return [(s.t_contact_s, s.t_toe_off_s) for s in trial.motion.strides
-            if s.t_toe_off_s < end_s]
+    return [(s.t_contact_s, s.t_toe_off_s) for s in trial.motion.strides if s.t_toe_off_s < end_s]
 
 
 def _runs(t: np.ndarray, on: np.ndarray) -> list[tuple[float, float]]:
@@ -47,14 +47,20 @@ def test_default_has_no_contact_and_other_streams_do_not_change(upstair) -> None
     assert off.contact is None and off.metadata.contact is None
     assert "contact" not in off.metadata.provenance.config  # saved config as before
     on = simulate_trial(_with_contact(upstair, kind="load_cell"), 1)
-    assert on.contact is not None and on.metadata.provenance.config["contact"]["kind"] == \
-        "load_cell"
+    assert (
+        on.contact is not None and on.metadata.provenance.config["contact"]["kind"] == "load_cell"
+    )
     # the sensor draws from its own random stream: every other stream is identical
-    for a, b in ((off.imu.accel_mps2, on.imu.accel_mps2), (off.imu.quat_wxyz, on.imu.quat_wxyz),
-                 (off.joints.knee_rad, on.joints.knee_rad),
-                 (off.frame_timestamps_s, on.frame_timestamps_s),
-                 (off.groundtruth.trajectories["toe"].position_m,
-                  on.groundtruth.trajectories["toe"].position_m)):
+    for a, b in (
+        (off.imu.accel_mps2, on.imu.accel_mps2),
+        (off.imu.quat_wxyz, on.imu.quat_wxyz),
+        (off.joints.knee_rad, on.joints.knee_rad),
+        (off.frame_timestamps_s, on.frame_timestamps_s),
+        (
+            off.groundtruth.trajectories["toe"].position_m,
+            on.groundtruth.trajectories["toe"].position_m,
+        ),
+    ):
         assert np.array_equal(a, b)
 
 
@@ -67,8 +73,12 @@ def test_config_rejects_unknown_contact_kind(tmp_path: Path) -> None:
 
 def test_switch_closed_exactly_during_true_stance_within_delay(upstair) -> None:
     delay_s, rate_hz = 0.01, 200.0
-    trial = simulate_trial(_with_contact(upstair, kind="switch", switch_bounce_s=0.0,
-                                         switch_delay_s=delay_s, rate_hz=rate_hz), 3)
+    trial = simulate_trial(
+        _with_contact(
+            upstair, kind="switch", switch_bounce_s=0.0, switch_delay_s=delay_s, rate_hz=rate_hz
+        ),
+        3,
+    )
     c = trial.contact
     assert trial.metadata.contact.kind == "switch" and trial.metadata.contact.threshold_n == 0.5
     assert set(np.unique(c.force_n)) == {0.0, 1.0}
@@ -95,8 +105,9 @@ def test_switch_bounce_only_right_after_transitions(upstair) -> None:
     bounce_s = 0.008
     kw = dict(kind="switch", rate_hz=1000.0, switch_delay_s=0.0)
     clean = simulate_trial(_with_contact(upstair, switch_bounce_s=0.0, **kw), 3).contact
-    noisy = simulate_trial(_with_contact(upstair, switch_bounce_s=bounce_s,
-                                         switch_max_bounces=3, **kw), 3).contact
+    noisy = simulate_trial(
+        _with_contact(upstair, switch_bounce_s=bounce_s, switch_max_bounces=3, **kw), 3
+    ).contact
     assert np.array_equal(clean.timestamp_s, noisy.timestamp_s)
     differ = clean.loaded != noisy.loaded
     assert differ.any()  # some bounce happened
@@ -107,12 +118,21 @@ def test_switch_bounce_only_right_after_transitions(upstair) -> None:
 
 
 def test_heel_switch_closes_at_foot_flat_after_forefoot_landing(upstair) -> None:
-    trial = simulate_trial(_with_contact(upstair, kind="switch", switch_region="heel",
-                                         switch_bounce_s=0.0, switch_delay_s=0.0,
-                                         rate_hz=500.0), 3)
+    trial = simulate_trial(
+        _with_contact(
+            upstair,
+            kind="switch",
+            switch_region="heel",
+            switch_bounce_s=0.0,
+            switch_delay_s=0.0,
+            rate_hz=500.0,
+        ),
+        3,
+    )
     c = trial.contact
-    toe_landings = [s for s in trial.motion.strides
-                    if s.landing == "toe" and s.t_toe_off_s < DURATION_S - 0.1]
+    toe_landings = [
+        s for s in trial.motion.strides if s.landing == "toe" and s.t_toe_off_s < DURATION_S - 0.1
+    ]
     assert len(toe_landings) >= 3  # stair ascent: forefoot landings
     for s in toe_landings:
         stance = (c.timestamp_s >= s.t_contact_s) & (c.timestamp_s <= s.t_toe_off_s)
@@ -153,8 +173,16 @@ def test_load_cell_tracks_body_weight_during_true_stance(upstair) -> None:
 
 def test_load_cell_shares_weight_during_standing_pauses() -> None:
     cfg = load_scenario("upstair_step_to_step_slow")
-    trial = simulate_trial(_with_contact(cfg, duration_s=10.0, kind="load_cell",
-                                         load_cell_noise_sd_n=0.0, load_cell_offset_sd_n=0.0), 1)
+    trial = simulate_trial(
+        _with_contact(
+            cfg,
+            duration_s=10.0,
+            kind="load_cell",
+            load_cell_noise_sd_n=0.0,
+            load_cell_offset_sd_n=0.0,
+        ),
+        1,
+    )
     holds = [h for h in trial.motion.holds_s if h[1] < 10.0]
     assert holds
     c = trial.contact
@@ -166,8 +194,9 @@ def test_load_cell_shares_weight_during_standing_pauses() -> None:
 
 def test_simulated_contact_round_trips_through_the_recording(upstair, tmp_path: Path) -> None:
     cfg = _with_contact(upstair, duration_s=1.5, kind="switch")
-    cfg = cfg.model_copy(update={"camera": cfg.camera.model_copy(
-        update={"width_px": 32, "height_px": 24})})
+    cfg = cfg.model_copy(
+        update={"camera": cfg.camera.model_copy(update={"width_px": 32, "height_px": 24})}
+    )
     out = simulate(cfg, 4, tmp_path / "rec")
     rec = Recording.open(out)
     want = simulate_trial(cfg, 4).contact

@@ -12,8 +12,9 @@ from vio_graph.sim.config import FaultsConfig
 def _cfg(duration_s: float = 3.0, **faults) -> ScenarioConfig:
     cfg = load_scenario("upstair")
     cam = cfg.camera.model_copy(update={"width_px": 56, "height_px": 43})
-    return cfg.model_copy(update={"duration_s": duration_s, "camera": cam,
-                                  "faults": FaultsConfig(**faults)})
+    return cfg.model_copy(
+        update={"duration_s": duration_s, "camera": cam, "faults": FaultsConfig(**faults)}
+    )
 
 
 @pytest.fixture(scope="module")
@@ -63,8 +64,15 @@ def test_dropped_frames_are_missing_and_timestamps_skip(clean) -> None:
 
 
 def test_spurious_points_and_occluding_blob(clean) -> None:
-    trial = simulate_trial(_cfg(spurious_point_fraction=0.05, occluder_start_s=2.0,
-                                occluder_duration_s=0.5, occluder_depth_m=0.25), 4)
+    trial = simulate_trial(
+        _cfg(
+            spurious_point_fraction=0.05,
+            occluder_start_s=2.0,
+            occluder_duration_s=0.5,
+            occluder_depth_m=0.25,
+        ),
+        4,
+    )
     i = 10  # before the occluder: only spurious points
     d0, d1 = clean.render_frame(i)[0], trial.render_frame(i)[0]
     changed = d0 != d1
@@ -79,8 +87,16 @@ def test_spurious_points_and_occluding_blob(clean) -> None:
 
 
 def test_imu_spikes_at_the_configured_rate_and_saturation(clean) -> None:
-    trial = simulate_trial(_cfg(10.0, imu_spike_rate_hz=2.0, imu_spike_accel_mps2=40.0,
-                                imu_spike_gyro_radps=6.0, imu_gyro_saturation_radps=3.0), 4)
+    trial = simulate_trial(
+        _cfg(
+            10.0,
+            imu_spike_rate_hz=2.0,
+            imu_spike_accel_mps2=40.0,
+            imu_spike_gyro_radps=6.0,
+            imu_gyro_saturation_radps=3.0,
+        ),
+        4,
+    )
     ref = simulate_trial(_cfg(10.0), 4)
     err_a = np.abs(trial.imu.accel_mps2 - ref.imu.accel_mps2).max(axis=1)
     hit = np.flatnonzero(err_a > 20.0)
@@ -98,8 +114,10 @@ def test_time_offset_shifts_depth_stamps_and_jitter_spreads_them(clean) -> None:
     np.testing.assert_allclose(trial.frame_timestamps_s - trial.frame_true_time_s, 0.015)
     np.testing.assert_allclose(trial.camera_position_m, clean.camera_position_m)
     np.testing.assert_array_equal(trial.imu.timestamp_s, clean.imu.timestamp_s)
-    np.testing.assert_array_equal(trial.groundtruth.trajectories["camera"].timestamp_s,
-                                  clean.groundtruth.trajectories["camera"].timestamp_s)
+    np.testing.assert_array_equal(
+        trial.groundtruth.trajectories["camera"].timestamp_s,
+        clean.groundtruth.trajectories["camera"].timestamp_s,
+    )
     jit = simulate_trial(_cfg(clock_jitter_s=0.002), 4)
     e_frame = jit.frame_timestamps_s - jit.frame_true_time_s
     e_imu = jit.imu.timestamp_s - clean.imu.timestamp_s
@@ -111,8 +129,13 @@ def test_time_offset_shifts_depth_stamps_and_jitter_spreads_them(clean) -> None:
 def test_faulty_trial_writes_a_readable_recording(tmp_path) -> None:
     from vio_graph.recording.reader import Recording
 
-    cfg = _cfg(1.5, dropped_frame_probability=0.1, camera_blackout_start_s=0.5,
-               camera_blackout_duration_s=0.2, camera_time_offset_s=-0.01)
+    cfg = _cfg(
+        1.5,
+        dropped_frame_probability=0.1,
+        camera_blackout_start_s=0.5,
+        camera_blackout_duration_s=0.2,
+        camera_time_offset_s=-0.01,
+    )
     rec = Recording.open(simulate(cfg, 2, tmp_path / "rec"))
     trial = simulate_trial(cfg, 2)
     assert rec.num_frames == trial.n_frames < 45

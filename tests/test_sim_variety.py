@@ -26,10 +26,13 @@ def _with(cfg: ScenarioConfig, **sections) -> ScenarioConfig:
 
 def _sole_gap(terrain, m) -> float:
     fr = np.linspace(0, 1, 15)
-    sole = m.heel_xz_m[:, None, :] * (1 - fr[None, :, None]) + m.toe_xz_m[:, None, :] * fr[
-        None, :, None]
-    return float((sole[..., 1] - terrain.height_at(sole[..., 0].ravel()).reshape(
-        sole.shape[:2])).min())
+    sole = (
+        m.heel_xz_m[:, None, :] * (1 - fr[None, :, None])
+        + m.toe_xz_m[:, None, :] * fr[None, :, None]
+    )
+    return float(
+        (sole[..., 1] - terrain.height_at(sole[..., 0].ravel()).reshape(sole.shape[:2])).min()
+    )
 
 
 def _max_stance_speed(m) -> float:
@@ -45,8 +48,9 @@ def _max_stance_speed(m) -> float:
 
 def _gait(cfg: ScenarioConfig, duration_s: float, seed: int = 2):
     terrain = build_terrain(cfg.terrain)
-    return terrain, simulate_gait(terrain, cfg.gait, cfg.rig, duration_s,
-                                  np.random.default_rng(seed))
+    return terrain, simulate_gait(
+        terrain, cfg.gait, cfg.rig, duration_s, np.random.default_rng(seed)
+    )
 
 
 # ------------------------------------------------------------------ gait families
@@ -57,10 +61,12 @@ def test_cadence_scale_stretches_every_phase() -> None:
     _, m1 = _gait(base, 6.0)
     _, m2 = _gait(_with(base, gait={"cadence_scale": 0.5}), 12.0)
     for a, b in zip(m1.strides[:4], m2.strides[:4], strict=True):
-        assert b.t_next_s - b.t_contact_s == pytest.approx(2 * (a.t_next_s - a.t_contact_s),
-                                                           rel=1e-12)
+        assert b.t_next_s - b.t_contact_s == pytest.approx(
+            2 * (a.t_next_s - a.t_contact_s), rel=1e-12
+        )
         assert b.t_toe_off_s - b.t_contact_s == pytest.approx(
-            2 * (a.t_toe_off_s - a.t_contact_s), rel=1e-12)
+            2 * (a.t_toe_off_s - a.t_contact_s), rel=1e-12
+        )
         assert b.toe_xz_m == a.toe_xz_m  # same footholds, same seed
     # same path at half the speed: the ankle at 2 t is the ankle at t (to 1 mm: the hip
     # smoothing window is fixed in seconds, which changes the swing foot pitch slightly)
@@ -78,7 +84,8 @@ def test_slow_step_to_step_with_pauses_and_weight_shift() -> None:
     assert _sole_gap(terrain, m) > -1e-6
     assert _max_stance_speed(m) < 1e-6
     reach = np.linalg.norm(m.hip_xz_m - m.ankle_xz_m, axis=1) / (
-        m.leg.thigh_length_m + m.leg.shank_length_m)
+        m.leg.thigh_length_m + m.leg.shank_length_m
+    )
     assert reach.max() < MAX_REACH_FRACTION
     # holds: 2.5-8 s standing with the foot flat and the ankle fixed, the shank swaying
     assert len(m.holds_s) >= 3
@@ -105,8 +112,7 @@ def test_slow_step_to_step_with_pauses_and_weight_shift() -> None:
 
 @pytest.mark.parametrize("lead", ["instrumented", "contralateral"])
 def test_step_to_step_both_feet_end_on_the_same_tread(lead) -> None:
-    cfg = _with(load_scenario("upstair"),
-                gait={"pattern": "step_to_step", "leading_leg": lead})
+    cfg = _with(load_scenario("upstair"), gait={"pattern": "step_to_step", "leading_leg": lead})
     terrain, m = _gait(cfg, 8.0)
     assert _sole_gap(terrain, m) > -1e-6
     assert _max_stance_speed(m) < 1e-6
@@ -127,20 +133,30 @@ def test_step_to_step_both_feet_end_on_the_same_tread(lead) -> None:
 
 
 @pytest.mark.parametrize("kind", ["stair_up", "stair_down"])
-@pytest.mark.parametrize(("rise", "tread"), [(0.10, 0.22), (0.20, 0.22), (0.10, 0.35),
-                                             (0.20, 0.35)])
+@pytest.mark.parametrize(
+    ("rise", "tread"), [(0.10, 0.22), (0.20, 0.22), (0.10, 0.35), (0.20, 0.35)]
+)
 @pytest.mark.parametrize("pattern", ["step_over_step", "step_to_step"])
 def test_gait_is_feasible_over_rise_and_tread_range(kind, rise, tread, pattern) -> None:
-    cfg = _with(load_scenario("upstair"),
-                terrain={"kind": kind, "stair_rise_m": rise, "stair_tread_m": tread,
-                         "n_steps": 5, "n_flights": 2, "flight_landing_m": 1.0,
-                         "nosing_overhang_m": 0.03},
-                gait={"pattern": pattern})
+    cfg = _with(
+        load_scenario("upstair"),
+        terrain={
+            "kind": kind,
+            "stair_rise_m": rise,
+            "stair_tread_m": tread,
+            "n_steps": 5,
+            "n_flights": 2,
+            "flight_landing_m": 1.0,
+            "nosing_overhang_m": 0.03,
+        },
+        gait={"pattern": pattern},
+    )
     terrain, m = _gait(cfg, 7.0)
     assert _sole_gap(terrain, m) > -1e-6
     assert _max_stance_speed(m) < 1e-6
     reach = np.linalg.norm(m.hip_xz_m - m.ankle_xz_m, axis=1) / (
-        m.leg.thigh_length_m + m.leg.shank_length_m)
+        m.leg.thigh_length_m + m.leg.shank_length_m
+    )
     assert reach.max() < MAX_REACH_FRACTION
     # the trial really climbs / descends the stairs
     dz = m.ankle_xz_m[-1, 1] - m.ankle_xz_m[0, 1]
@@ -151,10 +167,12 @@ def test_multi_flight_overhang_terrain_and_truth() -> None:
     from vio_graph.evaluation.map_accuracy import compare_to_truth
     from vio_graph.mapping.steps import StepGeometry, TerrainGeometry, TerrainKind
 
-    cfg = _with(load_scenario("upstair"), duration_s=1.0,
-                terrain={"n_steps": 4, "n_flights": 3, "flight_landing_m": 0.9,
-                         "nosing_overhang_m": 0.025},
-                camera={"width_px": 28, "height_px": 22})
+    cfg = _with(
+        load_scenario("upstair"),
+        duration_s=1.0,
+        terrain={"n_steps": 4, "n_flights": 3, "flight_landing_m": 0.9, "nosing_overhang_m": 0.025},
+        camera={"width_px": 28, "height_px": 22},
+    )
     trial = simulate_trial(cfg, 1)
     t = trial.terrain
     e = t.edges_xz_m
@@ -174,11 +192,21 @@ def test_multi_flight_overhang_terrain_and_truth() -> None:
     steps = []
     for i, edge in enumerate(e):
         top = i % 4 == 3
-        steps.append(StepGeometry(
-            index=i, direction="up", rise_m=0.147, rise_std_m=0.001,
-            tread_m=None if top else float(e[i + 1, 0] - edge[0]), tread_std_m=0.001,
-            nosing_xz_m=edge.copy(), nosing_std_xz_m=np.full(2, 0.001),
-            lower_z_m=edge[1] - 0.147, upper_z_m=edge[1], riser_observed=True))
+        steps.append(
+            StepGeometry(
+                index=i,
+                direction="up",
+                rise_m=0.147,
+                rise_std_m=0.001,
+                tread_m=None if top else float(e[i + 1, 0] - edge[0]),
+                tread_std_m=0.001,
+                nosing_xz_m=edge.copy(),
+                nosing_std_xz_m=np.full(2, 0.001),
+                lower_z_m=edge[1] - 0.147,
+                upper_z_m=edge[1],
+                riser_observed=True,
+            )
+        )
     geo = TerrainGeometry(TerrainKind.STAIR_UP, tuple(steps), (), (), ())
     rep = compare_to_truth(geo, trial.metadata.terrain)
     assert rep["n_steps_matched"] == 12
@@ -188,13 +216,15 @@ def test_multi_flight_overhang_terrain_and_truth() -> None:
 
 
 def test_too_short_landing_is_a_config_error_naming_the_field() -> None:
-    cfg = _with(load_scenario("upstair"),
-                terrain={"n_steps": 3, "n_flights": 2, "flight_landing_m": 0.2})
+    cfg = _with(
+        load_scenario("upstair"), terrain={"n_steps": 3, "n_flights": 2, "flight_landing_m": 0.2}
+    )
     with pytest.raises(ConfigError, match="flight_landing_m"):
         _gait(cfg, 5.0)
     with pytest.raises(ConfigError, match="nosing_thickness_m"):
-        build_terrain(cfg.terrain.model_copy(update={"nosing_overhang_m": 0.02,
-                                                     "nosing_thickness_m": 0.2}))
+        build_terrain(
+            cfg.terrain.model_copy(update={"nosing_overhang_m": 0.02, "nosing_thickness_m": 0.2})
+        )
 
 
 def test_overhang_nosing_is_rendered_with_its_undercut() -> None:
@@ -216,23 +246,35 @@ def test_overhang_nosing_is_rendered_with_its_undercut() -> None:
     p_c = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)
     p_w = p_c @ R.T + pos
     x0 = terrain.feature_x_m
-    under = (np.abs(p_w[:, 2] - (0.147 - 0.03)) < 1e-3) & (p_w[:, 0] > x0 + 1e-3) & (
-        p_w[:, 0] < x0 + 0.03 - 1e-3)
+    under = (
+        (np.abs(p_w[:, 2] - (0.147 - 0.03)) < 1e-3)
+        & (p_w[:, 0] > x0 + 1e-3)
+        & (p_w[:, 0] < x0 + 0.03 - 1e-3)
+    )
     assert under.sum() > 5
 
 
 # ------------------------------------------------------------------ rig
 
 
-@pytest.mark.parametrize(("axes", "rpy"), [("shank", (90.0, 0.0, 0.0)),
-                                           ("shank", (0.0, 90.0, 0.0)),
-                                           ("shank", (0.0, 0.0, 90.0)),
-                                           ("shank", (180.0, 0.0, 0.0)),
-                                           ("shank", (17.0, -33.0, 121.0)),
-                                           ("camera", (0.0, 0.0, 0.0))])
+@pytest.mark.parametrize(
+    ("axes", "rpy"),
+    [
+        ("shank", (90.0, 0.0, 0.0)),
+        ("shank", (0.0, 90.0, 0.0)),
+        ("shank", (0.0, 0.0, 90.0)),
+        ("shank", (180.0, 0.0, 0.0)),
+        ("shank", (17.0, -33.0, 121.0)),
+        ("camera", (0.0, 0.0, 0.0)),
+    ],
+)
 def test_rotated_imu_is_the_default_imu_seen_in_rotated_axes(axes, rpy) -> None:
-    base = _with(load_scenario("upstair"), duration_s=2.0, imu={"noise": False},
-                 camera={"width_px": 28, "height_px": 22})
+    base = _with(
+        load_scenario("upstair"),
+        duration_s=2.0,
+        imu={"noise": False},
+        camera={"width_px": 28, "height_px": 22},
+    )
     rot = _with(base, rig={"imu_axes": axes, "imu_rotation_rpy_deg": rpy})
     a, b = simulate_trial(base, 3), simulate_trial(rot, 3)
     # extrinsics: knee_T_cam unchanged, the IMU rotation is what imu_T_cam says
@@ -244,8 +286,9 @@ def test_rotated_imu_is_the_default_imu_seen_in_rotated_axes(axes, rpy) -> None:
     np.testing.assert_allclose(knee_T_imu_b[:3, 3], knee_T_imu_a[:3, 3], atol=1e-12)
     np.testing.assert_allclose(R_si @ R_si.T, np.eye(3), atol=1e-12)
     if axes == "camera":
-        np.testing.assert_allclose(np.array(b.metadata.extrinsics.imu_T_cam)[:3, :3],
-                                   np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(
+            np.array(b.metadata.extrinsics.imu_T_cam)[:3, :3], np.eye(3), atol=1e-12
+        )
     # signals rotated back by the extrinsic rotation are the shank-aligned ones
     np.testing.assert_allclose(b.imu.accel_mps2 @ R_si.T, a.imu.accel_mps2, atol=1e-9)
     np.testing.assert_allclose(b.imu.gyro_radps @ R_si.T, a.imu.gyro_radps, atol=1e-9)
@@ -254,14 +297,14 @@ def test_rotated_imu_is_the_default_imu_seen_in_rotated_axes(axes, rpy) -> None:
     np.testing.assert_allclose(Rb @ R_si.T, Ra, atol=1e-9)
     Rgt = np.stack([matrix_from_quat_wxyz(q) for q in b.groundtruth.imu_state.quat_wxyz])
     np.testing.assert_allclose(Rgt, Rb, atol=1e-9)
-    np.testing.assert_allclose(b.groundtruth.imu_state.position_m,
-                               a.groundtruth.imu_state.position_m, atol=1e-12)
+    np.testing.assert_allclose(
+        b.groundtruth.imu_state.position_m, a.groundtruth.imu_state.position_m, atol=1e-12
+    )
     assert np.abs(b.imu.accel_mps2 - a.imu.accel_mps2).max() > 1.0  # really rotated
 
 
 def test_rotated_imu_with_noise_keeps_the_noise_in_imu_axes() -> None:
-    base = _with(load_scenario("upstair"), duration_s=1.0,
-                 camera={"width_px": 28, "height_px": 22})
+    base = _with(load_scenario("upstair"), duration_s=1.0, camera={"width_px": 28, "height_px": 22})
     rot = _with(base, rig={"imu_rotation_rpy_deg": (30.0, 0.0, 0.0)})
     a, b = simulate_trial(base, 3), simulate_trial(rot, 3)
     err_a = a.imu.accel_mps2 - a.imu_truth.specific_force_mps2
@@ -269,16 +312,25 @@ def test_rotated_imu_with_noise_keeps_the_noise_in_imu_axes() -> None:
     np.testing.assert_allclose(err_b, err_a, atol=1e-12)  # same draws, in the IMU axes
 
 
-@pytest.mark.parametrize(("kind", "z_m", "pitch_deg"),
-                         [("stair_up", -0.08, 0.0), ("stair_up", -0.20, 40.0),
-                          ("stair_down", -0.08, 40.0), ("stair_down", -0.20, 0.0)])
+@pytest.mark.parametrize(
+    ("kind", "z_m", "pitch_deg"),
+    [
+        ("stair_up", -0.08, 0.0),
+        ("stair_up", -0.20, 40.0),
+        ("stair_down", -0.08, 40.0),
+        ("stair_down", -0.20, 0.0),
+    ],
+)
 def test_camera_mounts_8_to_20_cm_below_knee_see_the_stairs(kind, z_m, pitch_deg) -> None:
     """Usable frames: a step in view (valid depth on two stair levels, or on a riser and a
     level) in most frames over a few strides."""
     name = "upstair" if kind == "stair_up" else "downstair"
-    cfg = _with(load_scenario(name), duration_s=5.0,
-                rig={"camera_in_shank_xz_m": (0.07, z_m), "camera_pitch_down_deg": pitch_deg},
-                camera={"noise": False, "width_px": 56, "height_px": 43})
+    cfg = _with(
+        load_scenario(name),
+        duration_s=5.0,
+        rig={"camera_in_shank_xz_m": (0.07, z_m), "camera_pitch_down_deg": pitch_deg},
+        camera={"noise": False, "width_px": 56, "height_px": 43},
+    )
     trial = simulate_trial(cfg, 1)
     cam, ter = trial.camera, trial.terrain
     levels = np.concatenate([[0.0], ter.edges_xz_m[:, 1]])
@@ -290,10 +342,14 @@ def test_camera_mounts_8_to_20_cm_below_knee_see_the_stairs(kind, z_m, pitch_deg
         p_c = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)
         p_w = p_c @ trial.R_world_cam[i].T + trial.camera_position_m[i]
         on_tread = np.isclose(p_w[:, 2], ter.height_at(p_w[:, 0]), atol=2e-3) & (
-            np.abs(p_w[:, 1]) < 0.55)
+            np.abs(p_w[:, 1]) < 0.55
+        )
         counts = [np.sum(on_tread & (np.abs(p_w[:, 2] - lv) < 2e-3)) for lv in levels]
-        riser = np.any(np.abs(p_w[:, 0][:, None] - ter.edges_xz_m[:, 0][None]) < 2e-3,
-                       axis=1) & ~on_tread & (np.abs(p_w[:, 1]) < 0.55)
+        riser = (
+            np.any(np.abs(p_w[:, 0][:, None] - ter.edges_xz_m[:, 0][None]) < 2e-3, axis=1)
+            & ~on_tread
+            & (np.abs(p_w[:, 1]) < 0.55)
+        )
         n_levels = sum(c >= 20 for c in counts)
         seen.append(n_levels >= 2 or (n_levels >= 1 and riser.sum() >= 20))
     assert np.mean(seen) >= 0.6, np.mean(seen)
@@ -305,8 +361,11 @@ def test_camera_mounts_8_to_20_cm_below_knee_see_the_stairs(kind, z_m, pitch_deg
 @pytest.mark.parametrize("name", ["upstair", "downstair"])
 def test_edge_gap_removes_only_the_band_behind_each_nosing(name) -> None:
     lo, hi = 0.03, 0.06
-    base = _with(load_scenario(name), duration_s=2.0,
-                 camera={"noise": False, "width_px": 112, "height_px": 86})
+    base = _with(
+        load_scenario(name),
+        duration_s=2.0,
+        camera={"noise": False, "width_px": 112, "height_px": 86},
+    )
     gap = _with(base, camera={"edge_gap_m": (lo, hi)})
     a, b = simulate_trial(base, 1), simulate_trial(gap, 1)
     cam, ter = a.camera, a.terrain
@@ -355,8 +414,9 @@ def test_slow_scenario_runs_at_15_fps() -> None:
     cfg = load_scenario("upstair_step_to_step_slow")
     assert cfg.gait.pattern == "step_to_step" and cfg.gait.pause_range_s == (2.5, 8.0)
     assert 0.11 <= cfg.terrain.stair_rise_m <= 0.12
-    cfg = _with(cfg, duration_s=6.0, camera={"frame_rate_hz": 15.0, "width_px": 56,
-                                             "height_px": 43})
+    cfg = _with(
+        cfg, duration_s=6.0, camera={"frame_rate_hz": 15.0, "width_px": 56, "height_px": 43}
+    )
     trial = simulate_trial(cfg, 2)
     assert trial.n_frames == 90
     np.testing.assert_allclose(np.diff(trial.frame_timestamps_s).mean(), 1 / 15, rtol=1e-3)

@@ -165,8 +165,10 @@ def test_builder_keeps_corners_and_stance_anchors_apart():
             ups = b.add_imu(tr.imu[i])
         else:
             t, kf = float(tr.frame_times_s[i]), bool(tr.is_keyframe[i])
-            obs = [CornerObservation(t, 0, np.array([0.5, -0.3]), cov),
-                   StanceObservation(t, 0, np.array([-0.1, -0.4]), cov)]
+            obs = [
+                CornerObservation(t, 0, np.array([0.5, -0.3]), cov),
+                StanceObservation(t, 0, np.array([-0.1, -0.4]), cov),
+            ]
             ups = b.add_frame(t, kf, tr.filter_estimates[i], tr.displacements[i], obs)
         for u in ups:
             kf_factors = []
@@ -390,8 +392,14 @@ def test_builder_maps_measurements_with_the_given_attitude() -> None:
         if kind == "imu":
             ups = b.add_imu(tr.imu[i])
         else:
-            ups = b.add_frame(tr.frame_times_s[i], bool(tr.is_keyframe[i]),
-                              tr.filter_estimates[i], tr.displacements[i], None, R_given)
+            ups = b.add_frame(
+                tr.frame_times_s[i],
+                bool(tr.is_keyframe[i]),
+                tr.filter_estimates[i],
+                tr.displacements[i],
+                None,
+                R_given,
+            )
         rots += [u.values.atPose3(X(u.index)).rotation().matrix() for u in ups]
     assert len(rots) >= 2
     assert all(np.allclose(R, R_given, atol=1e-9) for R in rots)

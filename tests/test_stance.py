@@ -85,8 +85,9 @@ def test_a_detector_that_flags_every_frame_cannot_pin_the_filter(
     for name, cfg in {
         "default": _config(),
         "always": _config(stance_accel_threshold_mps2=100.0),
-        "always_untested": _config(stance_accel_threshold_mps2=100.0, stance_test=False,
-                                   stance_gate=False),
+        "always_untested": _config(
+            stance_accel_threshold_mps2=100.0, stance_test=False, stance_gate=False
+        ),
     }.items():
         res = run_recording(short_upstair, tmp_path / name, cfg, progress=False, visualize=False)
         toe = res.metrics["ate_cm"]["filter"]["toe"]

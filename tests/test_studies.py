@@ -34,8 +34,8 @@ ROOT = Path(__file__).resolve().parents[1]
 DASK = Path(sys.executable).with_name("dask")
 #: no plots: the tasks stay short; the numbers do not depend on them
 FAST = PipelineConfig().model_copy(
-    update={"output": PipelineConfig().output.model_copy(update={"plots": False,
-                                                                  "rerun": False})})
+    update={"output": PipelineConfig().output.model_copy(update={"plots": False, "rerun": False})}
+)
 MODES = ("filter", "smoother")
 
 
@@ -44,9 +44,12 @@ def trials(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     from vio_graph.sim import load_scenario, simulate
 
     base = load_scenario("upstair")
-    cfg = base.model_copy(update={
-        "duration_s": 1.2,
-        "camera": base.camera.model_copy(update={"width_px": 112, "height_px": 86})})
+    cfg = base.model_copy(
+        update={
+            "duration_s": 1.2,
+            "camera": base.camera.model_copy(update={"width_px": 112, "height_px": 86}),
+        }
+    )
     root = tmp_path_factory.mktemp("trials")
     return [simulate(cfg, seed=s, out_dir=root / f"up_s{s}") for s in (1, 2, 3)]
 
@@ -81,19 +84,38 @@ class _Cluster:
     def __init__(self, n_workers: int = 2) -> None:
         port = _free_port()
         self.address = f"tcp://127.0.0.1:{port}"
-        env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get(
-            "PYTHONPATH", "")}
-        common = dict(env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                      start_new_session=True)
+        env = {
+            **os.environ,
+            "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+        }
+        common = dict(
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+        )
         self.scheduler = subprocess.Popen(
-            [str(DASK), "scheduler", "--host", "127.0.0.1", "--port", str(port),
-             "--no-dashboard"], **common)
+            [str(DASK), "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+            **common,
+        )
         self.workers = {
             f"w{k}": subprocess.Popen(
-                [str(DASK), "worker", self.address, "--name", f"w{k}", "--nthreads", "1",
-                 "--no-nanny", "--host", "127.0.0.1", "--no-dashboard",
-                 "--memory-limit", "0"], **common)
-            for k in range(n_workers)}
+                [
+                    str(DASK),
+                    "worker",
+                    self.address,
+                    "--name",
+                    f"w{k}",
+                    "--nthreads",
+                    "1",
+                    "--no-nanny",
+                    "--host",
+                    "127.0.0.1",
+                    "--no-dashboard",
+                    "--memory-limit",
+                    "0",
+                ],
+                **common,
+            )
+            for k in range(n_workers)
+        }
         from distributed import Client
 
         deadline = time.monotonic() + 60
@@ -143,7 +165,8 @@ def _ate(study: Path, row: dict) -> dict:
 
 # --------------------------------------------------------------------------- the cluster
 def test_cluster_results_equal_serial_and_corrupt_fails_alone(
-        cluster: _Cluster, trials, corrupt, serial, tmp_path: Path) -> None:
+    cluster: _Cluster, trials, corrupt, serial, tmp_path: Path
+) -> None:
     ref_dir, ref_rows = serial
     out = tmp_path / "study"
     tasks = make_tasks([*trials, corrupt], MODES, expand_grid(FAST, None), out)
@@ -170,7 +193,8 @@ def test_cluster_results_equal_serial_and_corrupt_fails_alone(
 
 
 def test_compare_layer_on_the_cluster_equals_its_process_path(
-        cluster: _Cluster, trials, corrupt, tmp_path: Path) -> None:
+    cluster: _Cluster, trials, corrupt, tmp_path: Path
+) -> None:
     """`evaluate` / `compare` (experiments.run_trials) through --scheduler: the same metrics
     as the default path; a failure is one error naming the task, after the rest ran."""
     from vio_graph.experiments import run_trials
@@ -181,19 +205,24 @@ def test_compare_layer_on_the_cluster_equals_its_process_path(
     for a, b in zip(default, dask, strict=True):
         assert a.metrics["ate_cm"] == b.metrics["ate_cm"]
     with pytest.raises(VioGraphError, match=r"1 of 2 tasks failed.*corrupt_s9.*RecordingError"):
-        run_trials([*recs[:1], ("upstair", 9, corrupt)], tmp_path / "c", FAST,
-                   modes=("filter",), scheduler=cluster.address)
+        run_trials(
+            [*recs[:1], ("upstair", 9, corrupt)],
+            tmp_path / "c",
+            FAST,
+            modes=("filter",),
+            scheduler=cluster.address,
+        )
 
 
-def test_killed_worker_loses_no_trial(cluster: _Cluster, trials, serial,
-                                      tmp_path: Path) -> None:
+def test_killed_worker_loses_no_trial(cluster: _Cluster, trials, serial, tmp_path: Path) -> None:
     ref_dir, ref_rows = serial
     out = tmp_path / "study"
     tasks = make_tasks(trials, ("filter",), expand_grid(FAST, None), out)
     ref_rows = [r for r in ref_rows if r["mode"] == "filter"]
     result: dict[str, list] = {}
     runner = threading.Thread(
-        target=lambda: result.setdefault("rows", run_batch(tasks, out, cluster.address)))
+        target=lambda: result.setdefault("rows", run_batch(tasks, out, cluster.address))
+    )
     runner.start()
     victim = None
     deadline = time.monotonic() + 60
@@ -232,8 +261,7 @@ def test_resume_skips_complete_tasks(trials, serial, tmp_path: Path) -> None:
         assert _ate(out, r) == _ate(ref_dir, ref)
     # a different config is not "complete": the grid point's folder is new anyway, but the
     # same folder with another config.yaml must be run again
-    other = FAST.model_copy(update={"smoother": FAST.smoother.model_copy(
-        update={"window_s": 1.0})})
+    other = FAST.model_copy(update={"smoother": FAST.smoother.model_copy(update={"window_s": 1.0})})
     changed = make_tasks(trials[:1], MODES, [expand_grid(other, None)[0]], out)
     from vio_graph.studies.batch import task_complete
 
@@ -250,19 +278,26 @@ def test_grid_expands_and_validates() -> None:
         "smoother.window_s-2__filter.stance_anchor-False",
     ]
     assert [(p.config.smoother.window_s, p.config.filter.stance_anchor) for p in points] == [
-        (1.0, True), (1.0, False), (2.0, True), (2.0, False)]
+        (1.0, True),
+        (1.0, False),
+        (2.0, True),
+        (2.0, False),
+    ]
     assert points[0].config.output.plots is False  # the rest of the base config is kept
     assert expand_grid(FAST, None)[0].tag == "base"
 
 
-@pytest.mark.parametrize("option, message", [
-    ("filter.nosuch=1", "filter has no field 'nosuch'"),
-    ("nosuch.x=1", "the pipeline config has no field 'nosuch'"),
-    ("filter=1", "filter is a section"),
-    ("smoother.window_s", "expected FIELD=VALUE"),
-    ("smoother.window_s=", "empty value"),
-    ("smoother.window_s=1,1", "repeated"),
-])
+@pytest.mark.parametrize(
+    "option, message",
+    [
+        ("filter.nosuch=1", "filter has no field 'nosuch'"),
+        ("nosuch.x=1", "the pipeline config has no field 'nosuch'"),
+        ("filter=1", "filter is a section"),
+        ("smoother.window_s", "expected FIELD=VALUE"),
+        ("smoother.window_s=", "empty value"),
+        ("smoother.window_s=1,1", "repeated"),
+    ],
+)
 def test_bad_set_options(option: str, message: str) -> None:
     with pytest.raises(VioGraphError, match=message):
         expand_grid(FAST, [option])
@@ -288,15 +323,28 @@ def test_trial_names_disambiguate(tmp_path: Path) -> None:
 def test_cli_batch_serial_and_bad_set(trials, tmp_path: Path, capsys, monkeypatch) -> None:
     from tests.test_cli import _cli
 
-    code, _, err = _cli(["batch", str(trials[0]), "--out", str(tmp_path / "s"), "--set",
-                         "filter.nosuch=1"], capsys, monkeypatch)
+    code, _, err = _cli(
+        ["batch", str(trials[0]), "--out", str(tmp_path / "s"), "--set", "filter.nosuch=1"],
+        capsys,
+        monkeypatch,
+    )
     assert code == 1 and "filter has no field 'nosuch'" in err and "Traceback" not in err
     cfg = tmp_path / "fast.yaml"
     from vio_graph.config import dump_config
 
     cfg.write_text(dump_config(FAST))
-    args = ["batch", str(trials[0]), "--out", str(tmp_path / "s"), "--mode", "filter",
-            "--config", str(cfg), "--scheduler", "serial"]
+    args = [
+        "batch",
+        str(trials[0]),
+        "--out",
+        str(tmp_path / "s"),
+        "--mode",
+        "filter",
+        "--config",
+        str(cfg),
+        "--scheduler",
+        "serial",
+    ]
     code, out, err = _cli(args, capsys, monkeypatch)
     assert code == 0, err
     assert (tmp_path / "s" / "summary.csv").is_file() and "summary.md" in out

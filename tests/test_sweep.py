@@ -33,8 +33,13 @@ def _metrics(filter_x: float, icp_x: float, terrain: float) -> dict:
     cell = lambda v: {"camera": {"x": v, "z": 0.5}, "toe": {"x": v, "z": 0.5}}  # noqa: E731
     return {
         "terrain": "stair_up",
-        "ate_cm": {"filter": cell(filter_x), "smoother": cell(0.4), "batch": cell(0.3),
-                   "icp_only": cell(icp_x), "imu_only": cell(90.0)},
+        "ate_cm": {
+            "filter": cell(filter_x),
+            "smoother": cell(0.4),
+            "batch": cell(0.3),
+            "icp_only": cell(icp_x),
+            "imu_only": cell(90.0),
+        },
         "terrain_classification": {"accuracy_visible": terrain},
         "stance_detection": {"precision": 0.9, "recall": 0.8},
         "frontend": {"displacement_nees": {"mean": 0.5, "within_95": 0.99}},

@@ -82,13 +82,19 @@ def test_pipeline_estimates_a_camera_imu_offset_and_counts_saturation(tmp_path: 
     from vio_graph.sim import load_scenario, simulate
 
     cfg = load_scenario("upstair").model_copy(update={"duration_s": 5.0})
-    cfg = cfg.model_copy(update={"faults": cfg.faults.model_copy(update={
-        "camera_time_offset_s": 0.02, "imu_accel_saturation_mps2": 39.2})})
+    cfg = cfg.model_copy(
+        update={
+            "faults": cfg.faults.model_copy(
+                update={"camera_time_offset_s": 0.02, "imu_accel_saturation_mps2": 39.2}
+            )
+        }
+    )
     rec = simulate(cfg, seed=2, out_dir=tmp_path / "rec")
     meta = Recording.open(rec).metadata
     assert meta.imu.accel_range_mps2 == pytest.approx(39.2)  # the emulated sensor's range
-    m = run_recording(rec, tmp_path / "run", PipelineConfig(), visualize=False,
-                      progress=False).metrics
+    m = run_recording(
+        rec, tmp_path / "run", PipelineConfig(), visualize=False, progress=False
+    ).metrics
     assert m["time_offset"]["estimate_s"] == pytest.approx(0.02, abs=0.002)
     assert m["time_offset"]["applied_s"] == m["time_offset"]["estimate_s"]
     assert 0 < m["time_offset"]["sigma_s"] < 0.002
@@ -102,13 +108,28 @@ def test_pipeline_estimates_a_camera_imu_offset_and_counts_saturation(tmp_path: 
 def test_run_summary_reports_faults_offset_and_jumps() -> None:
     from vio_graph.cli import fault_lines
 
-    assert fault_lines({"imu_faults": {"accel_saturated_samples": 0}, "timestamps": {
-        "imu": {"gaps": 0, "backwards": 0}}, "time_offset": {"applied_s": 0.0}}) == []
-    lines = fault_lines({
-        "imu_faults": {"accel_saturated_samples": 7, "gyro_saturated_samples": 0,
-                       "gyro_repaired_samples": 2, "vision_kept_against_imu": 1},
-        "time_offset": {"estimate_s": 0.0123, "sigma_s": 0.0004, "applied_s": 0.0123},
-        "timestamps": {"camera": {"gaps": 3, "gap_total_s": 0.2, "backwards": 1}}})
+    assert (
+        fault_lines(
+            {
+                "imu_faults": {"accel_saturated_samples": 0},
+                "timestamps": {"imu": {"gaps": 0, "backwards": 0}},
+                "time_offset": {"applied_s": 0.0},
+            }
+        )
+        == []
+    )
+    lines = fault_lines(
+        {
+            "imu_faults": {
+                "accel_saturated_samples": 7,
+                "gyro_saturated_samples": 0,
+                "gyro_repaired_samples": 2,
+                "vision_kept_against_imu": 1,
+            },
+            "time_offset": {"estimate_s": 0.0123, "sigma_s": 0.0004, "applied_s": 0.0123},
+            "timestamps": {"camera": {"gaps": 3, "gap_total_s": 0.2, "backwards": 1}},
+        }
+    )
     assert "7 accelerometer" in lines[0] and "2 gyro samples replaced" in lines[0]
     assert "12.3 ms" in lines[1]
     assert lines[2].startswith("camera timestamps: 3 gaps") and "1 stamps" in lines[2]

@@ -16,9 +16,19 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_mypy_is_clean_on_the_core_packages() -> None:
     cache = Path(tempfile.gettempdir()) / "vio_graph_mypy_cache"  # reused between runs
     out = subprocess.run(
-        [sys.executable, "-m", "mypy", "--config-file", str(ROOT / "pyproject.toml"),
-         "--cache-dir", str(cache)],
-        cwd=ROOT, capture_output=True, text=True, timeout=600,
+        [
+            sys.executable,
+            "-m",
+            "mypy",
+            "--config-file",
+            str(ROOT / "pyproject.toml"),
+            "--cache-dir",
+            str(cache),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert "No module named mypy" not in out.stderr, "install the test extra: .[test]"
     assert out.returncode == 0, out.stdout + out.stderr
@@ -30,9 +40,20 @@ def test_mypy_reports_a_type_error(tmp_path: Path) -> None:
     bad = tmp_path / "bad.py"
     bad.write_text("from vio_graph.geometry import rot_y\n\nrot_y('half a turn')\n")
     out = subprocess.run(
-        [sys.executable, "-m", "mypy", "--config-file", str(ROOT / "pyproject.toml"),
-         "--cache-dir", str(Path(tempfile.gettempdir()) / "vio_graph_mypy_cache"), str(bad)],
-        cwd=ROOT, capture_output=True, text=True, timeout=600,
+        [
+            sys.executable,
+            "-m",
+            "mypy",
+            "--config-file",
+            str(ROOT / "pyproject.toml"),
+            "--cache-dir",
+            str(Path(tempfile.gettempdir()) / "vio_graph_mypy_cache"),
+            str(bad),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert out.returncode == 1, out.stdout + out.stderr
     assert "bad.py:3: error" in out.stdout

@@ -171,16 +171,21 @@ def fault_lines(metrics: dict) -> list[str]:
             f"IMU: {f.get('accel_saturated_samples', 0)} accelerometer and "
             f"{f.get('gyro_saturated_samples', 0)} gyro samples saturated, "
             f"{f.get('gyro_repaired_samples', 0)} gyro samples replaced by the orientation "
-            f"rate, {f.get('vision_kept_against_imu', 0)} displacements kept against the IMU")
+            f"rate, {f.get('vision_kept_against_imu', 0)} displacements kept against the IMU"
+        )
     td = metrics.get("time_offset", {})
     if td.get("applied_s", 0.0) != 0.0:
-        lines.append(f"camera-IMU time offset {1e3 * td['estimate_s']:.1f} ms "
-                     f"(1-sigma {1e3 * td['sigma_s']:.1f} ms), applied to the fusion")
+        lines.append(
+            f"camera-IMU time offset {1e3 * td['estimate_s']:.1f} ms "
+            f"(1-sigma {1e3 * td['sigma_s']:.1f} ms), applied to the fusion"
+        )
     for name, rep in metrics.get("timestamps", {}).items():
         if rep.get("gaps") or rep.get("backwards"):
-            lines.append(f"{name} timestamps: {rep['gaps']} gaps ({rep['gap_total_s']:.3f} s "
-                         f"in total), {rep['backwards']} stamps at or before the previous one "
-                         "(dropped); see metrics.json 'timestamps'")
+            lines.append(
+                f"{name} timestamps: {rep['gaps']} gaps ({rep['gap_total_s']:.3f} s "
+                f"in total), {rep['backwards']} stamps at or before the previous one "
+                "(dropped); see metrics.json 'timestamps'"
+            )
     return lines
 
 
@@ -275,8 +280,16 @@ _SCHEDULER_HELP = (
 )
 
 
-def _evaluate_sweep(out: Path, seeds: int, conditions: list[str] | None, mode: str,
-                    cfg, jobs: int, doc: Path | None, scheduler: str | None = None) -> None:
+def _evaluate_sweep(
+    out: Path,
+    seeds: int,
+    conditions: list[str] | None,
+    mode: str,
+    cfg,
+    jobs: int,
+    doc: Path | None,
+    scheduler: str | None = None,
+) -> None:
     from vio_graph.sweep import (
         SWEEP_CONDITIONS,
         SWEEP_SEED_BASE,
@@ -287,20 +300,32 @@ def _evaluate_sweep(out: Path, seeds: int, conditions: list[str] | None, mode: s
     from vio_graph.viz.progress import progress_bar
 
     try:
-        names = [condition_by_name(c).name for c in conditions] if conditions else [
-            c.name for c in SWEEP_CONDITIONS]
+        names = (
+            [condition_by_name(c).name for c in conditions]
+            if conditions
+            else [c.name for c in SWEEP_CONDITIONS]
+        )
     except KeyError as exc:
         raise typer.BadParameter(str(exc.args[0])) from None
     seed_list = list(range(SWEEP_SEED_BASE, SWEEP_SEED_BASE + seeds))
     with progress_bar(len(names) * len(seed_list), "sweep", "trial") as bar:
-        results = run_sweep(out, cfg, seed_list, names, _parse_modes(mode), jobs,
-                            progress=bar.update_to, scheduler=scheduler)
+        results = run_sweep(
+            out,
+            cfg,
+            seed_list,
+            names,
+            _parse_modes(mode),
+            jobs,
+            progress=bar.update_to,
+            scheduler=scheduler,
+        )
     command = "vio-graph evaluate " + " ".join(sys.argv[2:])
     written = write_sweep_report(results, out, command, len(seed_list), doc)
     failed = [r for r in results if "error" in r]
     for r in failed:
-        typer.secho(f"{r['condition']} seed {r['seed']} failed: {r['error']}",
-                    fg=typer.colors.RED, err=True)
+        typer.secho(
+            f"{r['condition']} seed {r['seed']} failed: {r['error']}", fg=typer.colors.RED, err=True
+        )
     for path in written.values():
         typer.echo(f"wrote {path}")
 
@@ -321,13 +346,19 @@ def evaluate(
         Path | None, typer.Option(help="Also write the report here (e.g. docs/results.md).")
     ] = None,
     ablation: Annotated[
-        bool, typer.Option(help="Also run the smoother ablation (seeds 1-2) and the filter "
-                           "ablation (all seeds, filter only).")
+        bool,
+        typer.Option(
+            help="Also run the smoother ablation (seeds 1-2) and the filter "
+            "ablation (all seeds, filter only)."
+        ),
     ] = False,
     sweep: Annotated[
-        bool, typer.Option(help="Run the generalisation sweep instead (vio_graph/sweep.py): "
-                           "every condition x --seeds seeds from 1000, default config; "
-                           "writes generalisation.md.")
+        bool,
+        typer.Option(
+            help="Run the generalisation sweep instead (vio_graph/sweep.py): "
+            "every condition x --seeds seeds from 1000, default config; "
+            "writes generalisation.md."
+        ),
     ] = False,
     condition: Annotated[
         list[str] | None, typer.Option(help="--sweep: only these conditions (repeatable).")
@@ -354,11 +385,19 @@ def evaluate(
     seed_list = list(range(1, seeds + 1))
     n = len(scenarios) * len(seed_list)
     with progress_bar(n, "simulating", "trial") as bar:
-        recs = simulate_trials(out, scenarios, seed_list, jobs=jobs, progress=bar.update_to,
-                               scheduler=scheduler)
+        recs = simulate_trials(
+            out, scenarios, seed_list, jobs=jobs, progress=bar.update_to, scheduler=scheduler
+        )
     with progress_bar(n, "estimating", "trial") as bar:
-        runs = run_trials(recs, out, cfg, modes=_parse_modes(mode), jobs=jobs,
-                          progress=bar.update_to, scheduler=scheduler)
+        runs = run_trials(
+            recs,
+            out,
+            cfg,
+            modes=_parse_modes(mode),
+            jobs=jobs,
+            progress=bar.update_to,
+            scheduler=scheduler,
+        )
     command = (
         "vio-graph evaluate " + " ".join(sys.argv[2:])
         if len(sys.argv) > 2
@@ -376,11 +415,15 @@ def evaluate(
 
         sub = [r for r in recs if r[1] in (1, 2)]
         with progress_bar(len(ABLATION_VARIANTS), "ablation", "variant") as bar:
-            table = run_ablation(sub, out, cfg, jobs=jobs, progress=bar.update_to,
-                                 scheduler=scheduler)
+            table = run_ablation(
+                sub, out, cfg, jobs=jobs, progress=bar.update_to, scheduler=scheduler
+            )
         ftable = run_filter_ablation(recs, out, cfg, jobs=jobs, scheduler=scheduler)
-        md = (ablation_markdown(ftable, "Filter ablation, all seeds", ("filter",)) + "\n"
-              + ablation_markdown(table, "Smoother ablation, seeds 1-2"))
+        md = (
+            ablation_markdown(ftable, "Filter ablation, all seeds", ("filter",))
+            + "\n"
+            + ablation_markdown(table, "Smoother ablation, seeds 1-2")
+        )
         for path in [written["markdown"]] + ([written["doc"]] if "doc" in written else []):
             text = path.read_text()
             atomic_write_text(
@@ -418,14 +461,19 @@ def compare(
         meta = Recording.open(r).metadata
         recs.append((meta.provenance.scenario or meta.terrain.kind, meta.provenance.seed, Path(r)))
     with progress_bar(len(recs), "estimating", "trial") as bar:
-        runs = run_trials(recs, out, cfg, modes=_parse_modes(mode), jobs=jobs,
-                          progress=bar.update_to, scheduler=scheduler)
+        runs = run_trials(
+            recs,
+            out,
+            cfg,
+            modes=_parse_modes(mode),
+            jobs=jobs,
+            progress=bar.update_to,
+            scheduler=scheduler,
+        )
     written = write_report(runs, out, "vio-graph compare " + " ".join(sys.argv[2:]), cfg, doc)
     typer.echo(written["markdown"].read_text().split("## Smoother vs filter")[0])
     for k, p in written.items():
         typer.echo(f"{k:9} {p}")
-
-
 
 
 @app.command()
@@ -433,17 +481,23 @@ def batch(
     recordings: Annotated[list[Path], typer.Argument(help="Recording folders.")],
     out: Annotated[Path, typer.Option(help="Study folder: runs/, summary.csv/.md/.png.")],
     mode: Annotated[str, typer.Option(help="filter | smoother | batch | all (comma list ok).")] = (
-        "all"),
+        "all"
+    ),
     config: Annotated[Path | None, typer.Option(help="Base pipeline config YAML.")] = None,
     set_: Annotated[
         list[str] | None,
-        typer.Option("--set", help="Grid over a config field, FIELD=V1,V2 (repeatable; the "
-                     "grid is every combination), e.g. --set smoother.window_s=1,2."),
+        typer.Option(
+            "--set",
+            help="Grid over a config field, FIELD=V1,V2 (repeatable; the "
+            "grid is every combination), e.g. --set smoother.window_s=1,2.",
+        ),
     ] = None,
     scheduler: Annotated[
         str | None,
-        typer.Option(help="Dask scheduler address (tcp://HOST:PORT); 'local' (default) starts a "
-                     "LocalCluster here; 'serial' runs every task in this process."),
+        typer.Option(
+            help="Dask scheduler address (tcp://HOST:PORT); 'local' (default) starts a "
+            "LocalCluster here; 'serial' runs every task in this process."
+        ),
     ] = None,
     workers: Annotated[
         int | None, typer.Option(help="LocalCluster worker processes (default: CPU count).")
@@ -470,26 +524,35 @@ def batch(
     if missing:
         raise VioGraphError(f"not a recording folder: {', '.join(missing)}")
     if (out / "runs").exists() and not (resume or overwrite):
-        raise VioGraphError(f"{out}: a study is already there (use --resume to finish it or "
-                            "--overwrite to run it again)")
+        raise VioGraphError(
+            f"{out}: a study is already there (use --resume to finish it or "
+            "--overwrite to run it again)"
+        )
     grid = expand_grid(load_config(config), set_)
     modes = _parse_modes(mode)
     tasks = make_tasks(recordings, modes, grid, out)
-    typer.echo(f"{len(tasks)} tasks: {len(recordings)} recording(s) x {len(modes)} mode(s) x "
-               f"{len(grid)} config(s)", err=True)
+    typer.echo(
+        f"{len(tasks)} tasks: {len(recordings)} recording(s) x {len(modes)} mode(s) x "
+        f"{len(grid)} config(s)",
+        err=True,
+    )
     with progress_bar(len(tasks), "batch", "task") as bar:
         rows = run_batch(tasks, out, scheduler, workers, resume, progress=bar.update_to)
     command = "vio-graph batch " + " ".join(sys.argv[2:])
     written = write_summary(rows, out, command.strip())
     failed = [r for r in rows if r["status"] != "ok"]
     for r in failed:
-        typer.secho(f"failed {r['config']}/{r['trial']}/{r['mode']}: {r['error']}",
-                    fg=typer.colors.RED, err=True)
+        typer.secho(
+            f"failed {r['config']}/{r['trial']}/{r['mode']}: {r['error']}",
+            fg=typer.colors.RED,
+            err=True,
+        )
     for k, p in written.items():
         typer.echo(f"{k:9} {p}")
     if failed:
-        raise VioGraphError(f"{len(failed)} of {len(rows)} tasks failed (listed in "
-                            f"{written['markdown']})")
+        raise VioGraphError(
+            f"{len(failed)} of {len(rows)} tasks failed (listed in {written['markdown']})"
+        )
 
 
 @app.command("map")
@@ -574,8 +637,11 @@ def robustness(
         Path | None, typer.Option(help="Also write the report here (e.g. docs/robustness.md).")
     ] = None,
     cases: Annotated[
-        str, typer.Option(help="'all' faults, or 'imu': clean, IMU spikes / saturation, "
-                          "camera-IMU offsets -30..30 ms, clock jitter.")
+        str,
+        typer.Option(
+            help="'all' faults, or 'imu': clean, IMU spikes / saturation, "
+            "camera-IMU offsets -30..30 ms, clock jitter."
+        ),
     ] = "all",
 ) -> None:
     """Fault sweep: toe ATE of filter, smoother and batch for camera blackouts, dropped frames,
@@ -593,8 +659,9 @@ def robustness(
     cfg = load_config(config)
     seed_list = list(range(1, seeds + 1))
     with progress_bar(len(case_list) * len(seed_list), "fault sweep", "run") as bar:
-        results = run_sweep(out, scenario, seed_list, cfg, case_list, jobs=jobs,
-                            progress=bar.update_to)
+        results = run_sweep(
+            out, scenario, seed_list, cfg, case_list, jobs=jobs, progress=bar.update_to
+        )
     command = "vio-graph robustness " + " ".join(sys.argv[2:])
     written = write_outputs(results, out, command.strip(), doc)
     typer.echo(written["markdown"].read_text())

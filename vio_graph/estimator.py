@@ -109,8 +109,9 @@ from vio_graph.types import (
 _PREDICTION_REFUSAL = "disagrees with the IMU prediction"
 
 
-def reference_pitch_offset_quat(quat_wxyz: NDArray[np.float64], offset_rad: float
-                                ) -> NDArray[np.float64]:
+def reference_pitch_offset_quat(
+    quat_wxyz: NDArray[np.float64], offset_rad: float
+) -> NDArray[np.float64]:
     """numpy reference of ``fast_imu.pitch_offset_quat`` (the tests compare the two)."""
     R = with_pitch_offset(matrix_from_quat_wxyz(quat_wxyz), offset_rad)
     return quat_wxyz_from_matrix(R)
@@ -186,8 +187,11 @@ class RigGeometry:
         R = self.R_shank_imu
         q = quat_wxyz_from_matrix(matrix_from_quat_wxyz(sample.quat_wxyz) @ R.T)
         return dataclasses.replace(
-            sample, accel_mps2=R @ np.asarray(sample.accel_mps2, dtype=float),
-            gyro_radps=R @ np.asarray(sample.gyro_radps, dtype=float), quat_wxyz=q)
+            sample,
+            accel_mps2=R @ np.asarray(sample.accel_mps2, dtype=float),
+            gyro_radps=R @ np.asarray(sample.gyro_radps, dtype=float),
+            quat_wxyz=q,
+        )
 
     @property
     def R_imu_cam(self) -> NDArray[np.float64]:
@@ -226,8 +230,12 @@ class RigGeometry:
 class OnlineEstimator:
     """SP-ESKF front end + fusion + kinematics + keyframes, frame by frame."""
 
-    def __init__(self, config: PipelineConfig, rig: RigGeometry,
-                 initial_camera_xz_m: NDArray[np.float64] | None = None) -> None:
+    def __init__(
+        self,
+        config: PipelineConfig,
+        rig: RigGeometry,
+        initial_camera_xz_m: NDArray[np.float64] | None = None,
+    ) -> None:
         self.config = config
         self.rig = rig
         self.frontend = VisualFrontend(config.frontend)
@@ -240,8 +248,9 @@ class OnlineEstimator:
         self.keyframes = KeyframeSelector(config.keyframes)
         #: toe clearance, placement, terrain ahead (vio_graph/safety/online.py), or None
         self.safety = SafetyMonitor(config.safety) if config.safety.enabled else None
-        self._p0 = (np.zeros(2) if initial_camera_xz_m is None
-                    else np.asarray(initial_camera_xz_m, float))
+        self._p0 = (
+            np.zeros(2) if initial_camera_xz_m is None else np.asarray(initial_camera_xz_m, float)
+        )
         self._last_imu: ImuSample | None = None  # in shank axes, pitch offset applied
         self._last_joints: JointAngles | None = None
         self._last_contact: ContactSample | None = None
@@ -254,32 +263,43 @@ class OnlineEstimator:
         # ankle (knee frame (0, 0, -L_shank)) in the IMU frame, for the stance detector
         imu_T_knee = invert_transform(rig.knee_T_cam @ invert_transform(rig.shank_imu_T_cam))
         ankle_in_imu = (imu_T_knee @ np.array([0.0, 0.0, -rig.leg.shank_length_m, 1.0]))[:3]
-        self._stance = StanceDetector(ankle_in_imu, fc.stance_accel_threshold_mps2,
-                                      fc.stance_window_s)
+        self._stance = StanceDetector(
+            ankle_in_imu, fc.stance_accel_threshold_mps2, fc.stance_window_s
+        )
         self._stance_n = 0  # id of the current / next stance anchor
         # this frame's stance anchor (ankle - camera) as an observation, None outside stance
         self._stance_observation: StanceObservation | None = None
         # this frame's corner observation, track id replaced by its landmark's (re-identified)
         self._corner_observation: CornerObservation | None = None
-        self._corners = CornerLandmarks(fc.corner_reidentify_radius_m, fc.corner_memory_s,
-                                        fc.max_corner_landmarks)
+        self._corners = CornerLandmarks(
+            fc.corner_reidentify_radius_m, fc.corner_memory_s, fc.max_corner_landmarks
+        )
         self._in_stance = False
         self._refused_in_row = 0  # displacements refused by the gate in a row
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
         self.health = HealthMonitor(HealthLimits(floor_m=fc.measurement_noise_floor_m))
         #: ankle minus camera in the shank frame (x, z), m, and the sigma (m) of the
         #: ankle-from-camera lever that a pitch-change error stance_pitch_sigma_rad makes
-        self._ankle_from_camera_shank_m = (np.array([0.0, -rig.leg.shank_length_m])
-                                           - rig.camera_in_shank_xz_m)
+        self._ankle_from_camera_shank_m = (
+            np.array([0.0, -rig.leg.shank_length_m]) - rig.camera_in_shank_xz_m
+        )
         self._lever_sigma_m = fc.stance_pitch_sigma_rad * float(
-            np.hypot(*self._ankle_from_camera_shank_m))
+            np.hypot(*self._ankle_from_camera_shank_m)
+        )
         self._stance_test = StanceConsistencyTest(
             chi2_2dof_quantile(fc.stance_test_probability) if fc.stance_test else np.inf,
-            self._lever_sigma_m, fc.measurement_noise_floor_m)
+            self._lever_sigma_m,
+            fc.measurement_noise_floor_m,
+        )
         #: stance bookkeeping for the health report: frames the detector proposed, refused by
         #: vision, refused by the anchor gate, gate refusals overridden by vision, anchored
-        self.stance_stats = {"candidate_frames": 0, "vision_refused": 0, "gate_refused": 0,
-                             "vision_overrides": 0, "anchored_frames": 0}
+        self.stance_stats = {
+            "candidate_frames": 0,
+            "vision_refused": 0,
+            "gate_refused": 0,
+            "vision_overrides": 0,
+            "anchored_frames": 0,
+        }
         self._init_fault_handling()
 
     def health_report(self) -> dict:
@@ -289,8 +309,7 @@ class OnlineEstimator:
         rep = self.health.report(float(np.degrees(self.pitch_offset.offset_rad)))
         rep["stance"] = dict(self.stance_stats)
         fs = self.filter.state
-        rep["landmarks"] = {"accepted": fs.n_landmark_accepted,
-                            "rejected": fs.n_landmark_rejected}
+        rep["landmarks"] = {"accepted": fs.n_landmark_accepted, "rejected": fs.n_landmark_rejected}
         return rep
 
     def _init_fault_handling(self) -> None:
@@ -298,15 +317,23 @@ class OnlineEstimator:
         (filter/imu_faults.py, filter/time_offset.py)."""
         fc, rig = self.config.filter, self.rig
         to = fc.time_offset
-        self.imu_faults = ImuFaultMonitor(fc.imu_faults, rig.accel_range_mps2,
-                                          rig.gyro_range_radps)
-        self.imu_clock = (ClockModel(1.0 / rig.imu_rate_hz, to.clock_window, to.gap_periods,
-                                     to.imu_clock_model) if rig.imu_rate_hz else None)
-        self.frame_clock = (ClockModel(1.0 / rig.frame_rate_hz, to.clock_window, to.gap_periods,
-                                       to.camera_clock_model) if rig.frame_rate_hz else None)
+        self.imu_faults = ImuFaultMonitor(fc.imu_faults, rig.accel_range_mps2, rig.gyro_range_radps)
+        self.imu_clock = (
+            ClockModel(1.0 / rig.imu_rate_hz, to.clock_window, to.gap_periods, to.imu_clock_model)
+            if rig.imu_rate_hz
+            else None
+        )
+        self.frame_clock = (
+            ClockModel(
+                1.0 / rig.frame_rate_hz, to.clock_window, to.gap_periods, to.camera_clock_model
+            )
+            if rig.frame_rate_hz
+            else None
+        )
         la = fc.level_aiding
         self.time_offset = TimeOffsetEstimator(
-            to, np.radians(la.initial_sigma_deg), np.radians(la.drift_deg_per_sqrt_s))
+            to, np.radians(la.initial_sigma_deg), np.radians(la.drift_deg_per_sqrt_s)
+        )
         self.n_imu_inconsistent = 0  # displacements vision kept against the IMU
         self._joint_hist: deque[JointAngles] = deque(maxlen=32)
         self._frame_joints: JointAngles | None = None  # joints at a re-stamped frame time
@@ -316,9 +343,14 @@ class OnlineEstimator:
 
     def fault_report(self) -> dict:
         """IMU faults, time offset and timestamp problems, for metrics.json."""
-        rep: dict = {"imu_faults": {**self.imu_faults.report(),
-                                    "vision_kept_against_imu": self.n_imu_inconsistent},
-                     "time_offset": self.time_offset.report(), "timestamps": {}}
+        rep: dict = {
+            "imu_faults": {
+                **self.imu_faults.report(),
+                "vision_kept_against_imu": self.n_imu_inconsistent,
+            },
+            "time_offset": self.time_offset.report(),
+            "timestamps": {},
+        }
         for name, clock in (("imu", self.imu_clock), ("camera", self.frame_clock)):
             if clock is not None:
                 rep["timestamps"][name] = clock.report()
@@ -342,16 +374,22 @@ class OnlineEstimator:
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
         sample = self.corrected_imu(sample)  # the offset applied once, for the strapdown
         if self._last_imu is not None and sample.timestamp_s <= self._last_imu.timestamp_s:
-            raise EstimationError(f"IMU sample at {sample.timestamp_s:.6f} s is not after "
-                                  f"{self._last_imu.timestamp_s:.6f} s")
+            raise EstimationError(
+                f"IMU sample at {sample.timestamp_s:.6f} s is not after "
+                f"{self._last_imu.timestamp_s:.6f} s"
+            )
         self._imu_queue.append(sample)
         # camera stamps late by td > 0: the filter stays td behind the IMU stream, so that a
         # re-stamped frame finds it at (not past) its capture time
         self._propagate_until(sample.timestamp_s - max(self.time_offset.applied_s, 0.0))
         if self.config.filter.stance_anchor:
-            self._stance.add_imu(sample.timestamp_s, sample.accel_mps2, sample.gyro_radps,
-                                 _sagittal_rotation(sample.quat_wxyz),
-                                 self.config.filter.gravity_xz_mps2)
+            self._stance.add_imu(
+                sample.timestamp_s,
+                sample.accel_mps2,
+                sample.gyro_radps,
+                _sagittal_rotation(sample.quat_wxyz),
+                self.config.filter.gravity_xz_mps2,
+            )
         self._last_imu = sample
         self._imu_ms += (time.perf_counter() - t0) * 1e3
         return ImuStep(shank=shank, corrected=sample)
@@ -414,7 +452,9 @@ class OnlineEstimator:
 
     # ------------------------------------------------------------------ per frame
     def add_frame(
-        self, frame: DepthFrame, R_ground_cam_override: NDArray[np.float64] | None = None,
+        self,
+        frame: DepthFrame,
+        R_ground_cam_override: NDArray[np.float64] | None = None,
         transform_result=None,
     ) -> tuple[FrameEstimate, FrontendResult]:
         """Process one depth frame (after every IMU / joint sample stamped at or before it);
@@ -423,7 +463,9 @@ class OnlineEstimator:
         return record.estimate, record.frontend
 
     def process_frame(
-        self, frame: DepthFrame, R_ground_cam_override: NDArray[np.float64] | None = None,
+        self,
+        frame: DepthFrame,
+        R_ground_cam_override: NDArray[np.float64] | None = None,
         transform_result=None,
     ) -> FrameRecord:
         """Process one depth frame (after every IMU / joint sample stamped at or before it);
@@ -458,8 +500,9 @@ class OnlineEstimator:
             P = self.filter.state.P
             pred_cov = P[2:4, 2:4] * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
         # 3. front end (eq. 1-4)
-        result = self.frontend.process(frame, self.rig.K, R_ground_cam, pred_delta, pred_cov,
-                                       self._ground_turn_rad)
+        result = self.frontend.process(
+            frame, self.rig.K, R_ground_cam, pred_delta, pred_cov, self._ground_turn_rad
+        )
         self._ground_turn_rad = 0.0
         timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
         # 4. fusion: level surfaces -> pitch of the attitude (used from here on), then eq. 8
@@ -489,8 +532,15 @@ class OnlineEstimator:
         state = self.filter.state
         camera_xz, velocity = self._position_at(t)
         corner_seen = result.observation is not None and self.config.filter.corner_landmarks
-        self.health.add_frame(t, camera_xz, result.displacement, accepted, self._in_stance,
-                              corner_seen, refused=refused)
+        self.health.add_frame(
+            t,
+            camera_xz,
+            result.displacement,
+            accepted,
+            self._in_stance,
+            corner_seen,
+            refused=refused,
+        )
         timings["fusion"] = (time.perf_counter() - t0) * 1e3
         # 5. kinematics (Fig. 3)
         t0 = time.perf_counter()
@@ -504,8 +554,14 @@ class OnlineEstimator:
         if self.safety is not None:
             t0 = time.perf_counter()
             safety = self.safety.update(
-                t, camera_xz, state.cov_position_m2, pts.heel_xz_m[0], pts.toe_xz_m[0],
-                self._in_stance, result.profile_xz_m if is_kf else None)
+                t,
+                camera_xz,
+                state.cov_position_m2,
+                pts.heel_xz_m[0],
+                pts.toe_xz_m[0],
+                self._in_stance,
+                result.profile_xz_m if is_kf else None,
+            )
             timings["safety"] = (time.perf_counter() - t0) * 1e3
         status = state.status
         if result.displacement is None and status is EstimateStatus.FUSED:
@@ -578,8 +634,10 @@ class OnlineEstimator:
         if not hist:
             return None
         ts = np.array([j.timestamp_s for j in hist])
-        vals = [np.interp(t_s, ts, [getattr(j, f) for j in hist])
-                for f in ("thigh_pitch_rad", "knee_rad", "ankle_rad")]
+        vals = [
+            np.interp(t_s, ts, [getattr(j, f) for j in hist])
+            for f in ("thigh_pitch_rad", "knee_rad", "ankle_rad")
+        ]
         return JointAngles(t_s, float(vals[0]), float(vals[1]), float(vals[2]))
 
     def _update_time_offset(self, t: float, step_rad: float) -> None:
@@ -593,8 +651,9 @@ class OnlineEstimator:
         R = self.R_world_imu(t)
         rate = float((R @ self.attitude.gyro_at(t))[1])
         floor = np.radians(self.config.filter.level_aiding.measurement_floor_deg)
-        self.time_offset.update(t, tilt.tilt_rad, float(np.hypot(tilt.sigma_rad, floor)),
-                                b_before, rate)
+        self.time_offset.update(
+            t, tilt.tilt_rad, float(np.hypot(tilt.sigma_rad, floor)), b_before, rate
+        )
 
     def _arbitrate_imu(self, d) -> None:
         """Vision against the IMU over one displacement interval (filter/imu_faults.py): if the
@@ -634,15 +693,23 @@ class OnlineEstimator:
         cfg = self.config.filter.level_aiding
         self.pitch_offset.predict(t)
         self.surface_tilt = measure_surface_tilt(
-            profile_xz_m, self._level_rng, np.radians(cfg.max_tilt_deg), cfg.inlier_m,
-            cfg.min_points, cfg.min_extent_m, cfg.max_lines, cfg.correlated_points,
-            cfg.end_trim_m)
+            profile_xz_m,
+            self._level_rng,
+            np.radians(cfg.max_tilt_deg),
+            cfg.inlier_m,
+            cfg.min_points,
+            cfg.min_extent_m,
+            cfg.max_lines,
+            cfg.correlated_points,
+            cfg.end_trim_m,
+        )
         if self.surface_tilt is None:
             return 0.0
         return self.pitch_offset.update(self.surface_tilt.tilt_rad, self.surface_tilt.sigma_rad)
 
-    def _fuse_landmarks(self, t: float, result: FrontendResult,
-                        R_world_imu: NDArray[np.float64]) -> None:
+    def _fuse_landmarks(
+        self, t: float, result: FrontendResult, R_world_imu: NDArray[np.float64]
+    ) -> None:
         """Corner landmarks and the stance ankle anchor (FilterConfig.corner_landmarks /
         stance_anchor; SagittalEskf.update_landmark)."""
         fc = self.config.filter
@@ -673,8 +740,9 @@ class OnlineEstimator:
         dlever = rotate_xz(theta, np.array([u[1], -u[0]]))
         return lever, dlever
 
-    def _fuse_stance(self, t: float, result: FrontendResult,
-                     R_world_imu: NDArray[np.float64]) -> None:
+    def _fuse_stance(
+        self, t: float, result: FrontendResult, R_world_imu: NDArray[np.float64]
+    ) -> None:
         """Stance anchor: the ankle fixed at stance onset is a landmark seen through the leg.
 
         The acceleration detector (or the contact channel) proposes a stance; the visual
@@ -689,8 +757,9 @@ class OnlineEstimator:
         fc = self.config.filter
         lever, dlever = self._stance_lever(R_world_imu)
         agrees = self._stance_test.test(t, lever, result.displacement)
-        candidate = (self._stance.quiet() if self._last_contact is None
-                     else self._last_contact.loaded)
+        candidate = (
+            self._stance.quiet() if self._last_contact is None else self._last_contact.loaded
+        )
         if candidate and fc.stance_speed_threshold_mps is not None:
             assert self._last_imu is not None  # a frame comes after an IMU sample
             rate = float((R_world_imu @ np.asarray(self._last_imu.gyro_radps, float))[1])
@@ -716,8 +785,11 @@ class OnlineEstimator:
                 stats["anchored_frames"] += 1
                 # the same anchor, as a landmark observation the smoother can use
                 self._stance_observation = StanceObservation(
-                    timestamp_s=t, stance_id=self._stance_n,
-                    ankle_rel_xz_m=lever.copy(), cov_m2=np.eye(2) * sig2)
+                    timestamp_s=t,
+                    stance_id=self._stance_n,
+                    ankle_rel_xz_m=lever.copy(),
+                    cov_m2=np.eye(2) * sig2,
+                )
             else:
                 stats["gate_refused"] += 1
                 stance = False

@@ -32,8 +32,13 @@ PAPER_EXPERIMENTS: dict[str, str] = {
     "obstacle": "ate_cm_visible",
     "prosthesis_upstair": "ate_cm",
 }
-_TRUE_KIND = {"upstair": "stair_up", "downstair": "stair_down", "obstacle": "obstacle",
-              "prosthesis_upstair": "stair_up", "level": "level"}
+_TRUE_KIND = {
+    "upstair": "stair_up",
+    "downstair": "stair_down",
+    "obstacle": "obstacle",
+    "prosthesis_upstair": "stair_up",
+    "level": "level",
+}
 REPORT_MODES = ("filter", "smoother", "batch", "imu_only", "icp_only")
 
 
@@ -66,8 +71,13 @@ def _run_one(args: tuple[Path, Path, str, tuple[str, ...]]) -> dict[str, Any]:
     ).metrics
 
 
-def _map(fn: Callable, items: list, jobs: int, progress: Callable[[int], None] | None,
-         scheduler: str | None = None) -> list:
+def _map(
+    fn: Callable,
+    items: list,
+    jobs: int,
+    progress: Callable[[int], None] | None,
+    scheduler: str | None = None,
+) -> list:
     """``fn`` over ``items``: serially (jobs <= 1), on a process pool of ``jobs``, or, with
     ``scheduler`` ('local' or a Dask address), on Dask through vio_graph.studies.engine
     (a 'local' cluster gets ``jobs`` workers)."""
@@ -173,8 +183,11 @@ def summarise_runs(runs: Sequence[TrialRun]) -> dict[str, Any]:
                     "max": float(np.max(vals)),
                     "n": len(vals),
                 }
-        pitch = [r.metrics["shank_pitch_error_deg"]["rms"] for r in rs
-                 if "shank_pitch_error_deg" in r.metrics]
+        pitch = [
+            r.metrics["shank_pitch_error_deg"]["rms"]
+            for r in rs
+            if "shank_pitch_error_deg" in r.metrics
+        ]
         if pitch:
             e["shank_pitch_rms_deg"] = {"mean": float(np.mean(pitch)), "max": float(np.max(pitch))}
         counts: dict[str, int] = {}
@@ -307,8 +320,9 @@ def markdown_report(summary: dict[str, Any], command: str, config: PipelineConfi
         total = sum(c.values())
         truth = _TRUE_KIND.get(exp, exp)
         acc = f"{100 * c.get(truth, 0) / total:.1f} %" if total else "—"
-        lines.append(f"| {exp} ({truth}) | " + " | ".join(str(c.get(k, 0)) for k in kinds)
-                     + f" | {acc} |")
+        lines.append(
+            f"| {exp} ({truth}) | " + " | ".join(str(c.get(k, 0)) for k in kinds) + f" | {acc} |"
+        )
     lines += [
         "",
         "## Latency (ms, median over trials of the per-trial median)",
@@ -390,7 +404,9 @@ ABLATION_VARIANTS: dict[str, tuple[dict[str, bool], dict[str, Any]]] = {
     "IMU + displacements + corner landmarks + stance anchors (default)": ({}, {}),
     "IMU + landmarks + stance anchors (no displacements)": ({"displacement": False}, {}),
     "default, specific force averaged in the moving IMU frame (midpoint rule)": (
-        {}, {"preintegration": "midpoint_curvature"}),
+        {},
+        {"preintegration": "midpoint_curvature"},
+    ),
     "default, raw IMU samples (no step means)": ({}, {"preintegration": "raw"}),
     "default, no robust kernel": ({}, {"robust_kernel": "none"}),
 }
@@ -401,10 +417,15 @@ _NO_LEVEL = {"level_aiding": {"enabled": False}}
 #: Filter variants for the ablation: name -> overrides of PipelineConfig.filter (nested dicts).
 FILTER_ABLATION_VARIANTS: dict[str, dict[str, Any]] = {
     "paper: displacements, pseudo-position update, latest vendor attitude": {
-        **_NO_LANDMARKS, **_NO_LEVEL, "measurement_model": "position_pseudo",
-        "attitude": {"source": "vendor"}},
+        **_NO_LANDMARKS,
+        **_NO_LEVEL,
+        "measurement_model": "position_pseudo",
+        "attitude": {"source": "vendor"},
+    },
     "displacements (stochastic cloning, attitude at the frame time)": {
-        **_NO_LANDMARKS, **_NO_LEVEL},
+        **_NO_LANDMARKS,
+        **_NO_LEVEL,
+    },
     "+ corner landmarks": {"stance_anchor": False, **_NO_LEVEL},
     "+ corner landmarks + stance anchors": {**_NO_LEVEL},
     "+ corner landmarks + stance anchors + level-surface pitch (default)": {},
@@ -442,10 +463,19 @@ def run_filter_ablation(
     for name, overrides in FILTER_ABLATION_VARIANTS.items():
         cfg = filter_ablation_config(config, overrides)
         slug = _slug(name)
-        runs = run_trials(recordings, Path(out_dir) / "ablation_filter" / slug, cfg,
-                          modes=("filter",), jobs=jobs, scheduler=scheduler)
-        table[name] = {exp: {"filter": e["filter"]["toe"]}
-                       for exp, e in summarise_runs(runs).items() if "filter" in e}
+        runs = run_trials(
+            recordings,
+            Path(out_dir) / "ablation_filter" / slug,
+            cfg,
+            modes=("filter",),
+            jobs=jobs,
+            scheduler=scheduler,
+        )
+        table[name] = {
+            exp: {"filter": e["filter"]["toe"]}
+            for exp, e in summarise_runs(runs).items()
+            if "filter" in e
+        }
     return table
 
 
@@ -492,7 +522,8 @@ def run_ablation(
 
 
 def ablation_markdown(
-    table: dict[str, Any], title: str = "Smoother ablation",
+    table: dict[str, Any],
+    title: str = "Smoother ablation",
     modes: tuple[str, ...] = ("smoother", "batch"),
 ) -> str:
     exps = list(dict.fromkeys(exp for v in table.values() for exp in v))

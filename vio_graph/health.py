@@ -80,9 +80,16 @@ class HealthMonitor:
         self.x_blind_s = 0.0  # summed length (s) of those runs
         self.max_x_blind_s = 0.0  # the longest run (s)
 
-    def add_frame(self, t_s: float, fused_camera_xz_m: NDArray[np.float64],
-                  displacement: Displacement2D | None, accepted: bool, in_stance: bool,
-                  landmark_seen: bool = False, refused: bool | None = None) -> None:
+    def add_frame(
+        self,
+        t_s: float,
+        fused_camera_xz_m: NDArray[np.float64],
+        displacement: Displacement2D | None,
+        accepted: bool,
+        in_stance: bool,
+        landmark_seen: bool = False,
+        refused: bool | None = None,
+    ) -> None:
         """One depth frame: the fused camera position after the update, the front end's
         displacement (None: none), whether the filter accepted it, whether it was anchored,
         whether a corner landmark was observed, and whether the gate refused it (None: every
@@ -94,9 +101,15 @@ class HealthMonitor:
         if self._t_first_s is None:
             self._t_first_s = float(t_s)
         prev, self._prev = self._prev, (float(t_s), p.copy())
-        x_seen = in_stance or landmark_seen or (
-            accepted and displacement is not None
-            and float(displacement.cov_m2[0][0]) <= self.limits.x_informative_sigma_m**2)
+        x_seen = (
+            in_stance
+            or landmark_seen
+            or (
+                accepted
+                and displacement is not None
+                and float(displacement.cov_m2[0][0]) <= self.limits.x_informative_sigma_m**2
+            )
+        )
         self._track_x_blind(float(t_s), x_seen)
         if displacement is None:
             self._window = None  # the visual chain is broken
@@ -110,8 +123,11 @@ class HealthMonitor:
         if w is None:
             w = self._window = _Window(prev[0], prev[1])
         w.sum_delta_xz_m = w.sum_delta_xz_m + np.asarray(displacement.delta_xz_m, dtype=float)
-        w.sum_cov_m2 = (w.sum_cov_m2 + np.asarray(displacement.cov_m2, dtype=float)
-                        + np.eye(2) * self.limits.floor_m**2)
+        w.sum_cov_m2 = (
+            w.sum_cov_m2
+            + np.asarray(displacement.cov_m2, dtype=float)
+            + np.eye(2) * self.limits.floor_m**2
+        )
         if t_s - w.t0_s >= self.limits.window_s:
             r = (p - w.p0_xz_m) - w.sum_delta_xz_m
             d2 = float(r @ np.linalg.solve(w.sum_cov_m2, r))
@@ -144,33 +160,44 @@ class HealthMonitor:
         stance = _share(self.n_stance, self.n_frames)
         warnings: list[str] = []
         jump = self.max_departure_d2 > self._jump_d2
-        trouble = (rejected > lim.max_rejected_share or departure > lim.max_departure_share
-                   or jump)
+        trouble = rejected > lim.max_rejected_share or departure > lim.max_departure_share or jump
         if trouble:
-            what = (f"{100 * rejected:.0f} % of visual displacements were refused by the "
-                    f"filter's gate and the fused path left visual odometry in "
-                    f"{100 * departure:.0f} % of {lim.window_s:g} s windows (up to "
-                    f"{100 * self.max_departure_m:.1f} cm"
-                    + (f", {self.n_recoveries} gate lock-out recoveries" if self.n_recoveries
-                       else "") + ")")
+            what = (
+                f"{100 * rejected:.0f} % of visual displacements were refused by the "
+                f"filter's gate and the fused path left visual odometry in "
+                f"{100 * departure:.0f} % of {lim.window_s:g} s windows (up to "
+                f"{100 * self.max_departure_m:.1f} cm"
+                + (f", {self.n_recoveries} gate lock-out recoveries" if self.n_recoveries else "")
+                + ")"
+            )
             if abs(pitch_offset_deg) > lim.max_pitch_offset_deg:
-                cause = (f"the IMU attitude disagrees with the level surfaces by "
-                         f"{pitch_offset_deg:.1f} deg: check imu_T_cam / knee_T_cam (the IMU "
-                         f"and camera mounting) in metadata.yaml")
+                cause = (
+                    f"the IMU attitude disagrees with the level surfaces by "
+                    f"{pitch_offset_deg:.1f} deg: check imu_T_cam / knee_T_cam (the IMU "
+                    f"and camera mounting) in metadata.yaml"
+                )
             elif stance > lim.max_stance_share:
-                cause = (f"the foot was anchored in stance on {100 * stance:.0f} % of frames: "
-                         f"the stance detector may be flagging swings (slow gait?); try "
-                         f"filter.stance_anchor: false")
+                cause = (
+                    f"the foot was anchored in stance on {100 * stance:.0f} % of frames: "
+                    f"the stance detector may be flagging swings (slow gait?); try "
+                    f"filter.stance_anchor: false"
+                )
             else:
-                cause = ("vision and the IMU disagree: check the camera-IMU time offset, "
-                         "imu_T_cam and the IMU noise settings")
-            warnings.append(f"WARNING: the fused estimate is inconsistent: {what}. Likely "
-                            f"cause: {cause}.")
+                cause = (
+                    "vision and the IMU disagree: check the camera-IMU time offset, "
+                    "imu_T_cam and the IMU noise settings"
+                )
+            warnings.append(
+                f"WARNING: the fused estimate is inconsistent: {what}. Likely cause: {cause}."
+            )
         x_blind_s = self.x_blind_s
         if self._x_blind_since is not None and self._prev is not None:
             x_blind_s += self._prev[0] - self._x_blind_since
-        duration_s = (0.0 if self._prev is None or self._t_first_s is None
-                      else self._prev[0] - self._t_first_s)
+        duration_s = (
+            0.0
+            if self._prev is None or self._t_first_s is None
+            else self._prev[0] - self._t_first_s
+        )
         x_blind_share = x_blind_s / duration_s if duration_s > 0 else 0.0
         weak_x = x_blind_share > lim.max_x_blind_share and not trouble  # one cause at a time
         if weak_x:
@@ -180,7 +207,8 @@ class HealthMonitor:
                 f"riser, corner or stance anchor constrained it, so x may have drifted by "
                 f"centimetres without the filter's covariance showing it. Likely cause: level "
                 f"floor with no edge in view (vision measures no forward motion there) and "
-                f"few detected stances (fast walking), or a camera that sees no risers.")
+                f"few detected stances (fast walking), or a camera that sees no risers."
+            )
         return {
             "frames": self.n_frames,
             "visual_displacements": self.n_displacements,
@@ -195,8 +223,12 @@ class HealthMonitor:
                 "jump": jump,
             },
             "recoveries": self.n_recoveries,
-            "x_blind": {"total_s": x_blind_s, "share": x_blind_share,
-                        "longest_s": longest_x_blind, "warned": weak_x},
+            "x_blind": {
+                "total_s": x_blind_s,
+                "share": x_blind_share,
+                "longest_s": longest_x_blind,
+                "warned": weak_x,
+            },
             "pitch_offset_deg": float(pitch_offset_deg),
             "ok": not (trouble or weak_x),
             "warnings": warnings,

@@ -40,16 +40,17 @@ def write_frames_csv(path: Path, lg: FrameLog) -> Path:
     empty cells where unknown; docs/outputs.md)."""
     from vio_graph.safety.online import CSV_COLUMNS, csv_values
 
-    rows = ["frame,timestamp_s,status,terrain,displacement,rejection,keyframe,frontend_ms,"
-            "stance," + ",".join(CSV_COLUMNS)]
+    rows = [
+        "frame,timestamp_s,status,terrain,displacement,rejection,keyframe,frontend_ms,"
+        "stance," + ",".join(CSV_COLUMNS)
+    ]
     fe_ms = lg.timings_ms.column("frontend_total")
     for k, t in enumerate(lg.t_s):
         safety = lg.safety[k] if k < len(lg.safety) else None
         rows.append(
             f"{k},{t:.6f},{lg.status[k]},{lg.terrain[k]},{int(lg.displacement_ok[k])},"
             f"{lg.rejection[k].replace(',', ';')},{int(lg.is_keyframe[k])},"
-            f"{fe_ms[k]:.4f},{int(lg.in_stance[k])},"
-            + ",".join(csv_values(safety))
+            f"{fe_ms[k]:.4f},{int(lg.in_stance[k])}," + ",".join(csv_values(safety))
         )
     atomic_write_text(path, "\n".join(rows) + "\n")
     return path

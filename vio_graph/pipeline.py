@@ -68,8 +68,13 @@ def leg_trajectories(
     rig: RigGeometry, camera_xz: NDArray[np.float64], lg: FrameLog, use_encoders: bool
 ) -> dict[str, NDArray[np.float64]]:
     """Knee, ankle, heel and toe (N, 2) for a camera path, by forward kinematics (Fig. 3)."""
-    pts = rig.leg_points(camera_xz, np.asarray(lg.shank_pitch_imu),
-                         np.asarray(lg.shank_pitch_chain), np.asarray(lg.ankle_rad), use_encoders)
+    pts = rig.leg_points(
+        camera_xz,
+        np.asarray(lg.shank_pitch_imu),
+        np.asarray(lg.shank_pitch_chain),
+        np.asarray(lg.ankle_rad),
+        use_encoders,
+    )
     return {
         "camera": camera_xz,
         "knee": pts.knee_xz_m,
@@ -156,23 +161,30 @@ def _run_into(
     if rec.groundtruth is not None and config.safety.enabled:
         from vio_graph.evaluation.safety import safety_metrics
 
-        block, safety_truth = safety_metrics(config.safety, rec.groundtruth,
-                                             rec.metadata.terrain, lg, paths)
+        block, safety_truth = safety_metrics(
+            config.safety, rec.groundtruth, rec.metadata.terrain, lg, paths
+        )
         metrics.update(block)
 
     # map, from the best refined keyframe poses available
     map_mode = "batch" if "batch" in camera else "smoother" if "smoother" in camera else "filter"
-    run_map = build_run_map(lg.t_s, lg.profiles, camera[map_mode], config.mapping,
-                            rec.metadata.terrain)
+    run_map = build_run_map(
+        lg.t_s, lg.profiles, camera[map_mode], config.mapping, rec.metadata.terrain
+    )
     metrics["map"] = {"source_mode": map_mode, **run_map.metrics}
 
     # write
     if run_map.geometry is not None:
         from vio_graph.mapping.export import export_map
 
-        written = export_map(out / "map", run_map.points_xz_m, run_map.geometry,
-                             rec.metadata.terrain, run_map.comparison,
-                             camera_xz_m=camera[map_mode])
+        written = export_map(
+            out / "map",
+            run_map.points_xz_m,
+            run_map.geometry,
+            rec.metadata.terrain,
+            run_map.comparison,
+            camera_xz_m=camera[map_mode],
+        )
         replay.view.map_points(run_map.points_xz_m)
         files += list(written.values())
     if config.output.plots:
@@ -182,8 +194,9 @@ def _run_into(
         if config.safety.enabled and lg.safety:
             from vio_graph.viz.plots import plot_clearance
 
-            files.append(plot_clearance(out / "plots" / "clearance.png", t_s, lg.safety,
-                                        safety_truth))
+            files.append(
+                plot_clearance(out / "plots" / "clearance.png", t_s, lg.safety, safety_truth)
+            )
     replay.view.paths(paths)
     viz.close()
     if isinstance(viz, Visualizer):
@@ -223,10 +236,12 @@ def _evaluate(
             visible = gt.frame_edge_visible[: len(t_s)].astype(bool)
         metrics.update(evaluate_paths(gt, t_s, paths, visible))
         metrics["shank_pitch_error_deg"] = shank_pitch_error_deg(
-            gt, t_s, np.asarray(lg.shank_pitch_chain if use_enc else lg.shank_pitch_imu))
+            gt, t_s, np.asarray(lg.shank_pitch_chain if use_enc else lg.shank_pitch_imu)
+        )
     reports = [e.report() for e in replay.estimators.values()]
     metrics["latency_ms"] = latency_summary(
-        lg, {k: v for r in reports for k, v in r.latency_ms.items()})
+        lg, {k: v for r in reports for k, v in r.latency_ms.items()}
+    )
     metrics["smoother_failures"] = replay.failed
     for r in reports:
         metrics.update(r.metrics)
@@ -236,9 +251,12 @@ def _evaluate(
     metrics.update(replay.online.fault_report())  # imu_faults, time_offset, timestamps
     if gt is not None:
         metrics["terrain_classification"] = terrain_accuracy(
-            rec.metadata.terrain.kind, lg.terrain, gt.frame_edge_visible)
+            rec.metadata.terrain.kind, lg.terrain, gt.frame_edge_visible
+        )
         metrics["stance_detection"] = stance_scores(
-            np.asarray(lg.in_stance, bool), true_stance(gt.trajectories["ankle"], t_s))
+            np.asarray(lg.in_stance, bool), true_stance(gt.trajectories["ankle"], t_s)
+        )
         metrics["frontend"]["displacement_nees"] = displacement_nees(
-            lg.displacements, gt.trajectories["camera"], config.filter.measurement_noise_floor_m)
+            lg.displacements, gt.trajectories["camera"], config.filter.measurement_noise_floor_m
+        )
     return metrics

@@ -168,9 +168,9 @@ class FilterTrack:
         return EstimatorReport()
 
 
-def path_of_frames(path: Sequence[NDArray[np.float64]], n_frames: int, name: str) -> NDArray[
-    np.float64
-]:
+def path_of_frames(
+    path: Sequence[NDArray[np.float64]], n_frames: int, name: str
+) -> NDArray[np.float64]:
     """A per-frame path kept by an estimator, checked to cover all ``n_frames`` frames."""
     from vio_graph.errors import EstimationError
 

@@ -212,8 +212,9 @@ class Replay:
         self.log.camera_xz = self.camera_paths()
         return self.log
 
-    def _release_frames(self, waiting: list[int], progress: Callable[[int], Any] | None,
-                        final: bool = False) -> None:
+    def _release_frames(
+        self, waiting: list[int], progress: Callable[[int], Any] | None, final: bool = False
+    ) -> None:
         """Process the waiting frames whose capture time on the IMU clock (stamp minus the
         camera-IMU offset, filter/time_offset.py) is at most one IMU period after the latest
         IMU sample (as without an offset); a negative offset (early camera stamps) holds a

@@ -171,8 +171,11 @@ def _toe_error(rec: Path, res: Path) -> tuple[np.ndarray, np.ndarray]:
     from vio_graph.evaluation.metrics import ate_per_axis
     from vio_graph.recording.tum import read_tum
 
-    pair = associate(read_tum(res / "trajectories" / "filter_toe.tum"),
-                     read_tum(rec / "groundtruth" / "toe.tum"), max_diff_s=0.02)
+    pair = associate(
+        read_tum(res / "trajectories" / "filter_toe.tum"),
+        read_tum(rec / "groundtruth" / "toe.tum"),
+        max_diff_s=0.02,
+    )
     ate = ate_per_axis(pair.est, pair.ref, anchor="first")
     return ate.timestamp_s, np.linalg.norm(ate.errors_xyz_m, axis=1)
 
@@ -228,8 +231,10 @@ def _td_cell(entry: dict[str, Any]) -> str:
     """Online camera-IMU offset per seed, ms (estimate +- 1 sigma)."""
     if "time_offset_ms" not in entry:
         return "—"
-    return ", ".join(f"{v:.1f}±{s:.1f}" for v, s in
-                     zip(entry["time_offset_ms"], entry["time_offset_sigma_ms"], strict=True))
+    return ", ".join(
+        f"{v:.1f}±{s:.1f}"
+        for v, s in zip(entry["time_offset_ms"], entry["time_offset_sigma_ms"], strict=True)
+    )
 
 
 def plot(results: dict[str, Any], path: Path) -> Path:

@@ -56,61 +56,142 @@ class SweepCondition:
 _SLOW_STS = {
     "duration_s": 30.0,
     "terrain": {"stair_rise_m": 0.115, "stair_tread_m": 0.28},
-    "gait": {"pattern": "step_to_step", "cadence_scale": 0.5, "pause_range_s": (2.5, 8.0),
-             "start_distance_m": 0.3},
+    "gait": {
+        "pattern": "step_to_step",
+        "cadence_scale": 0.5,
+        "pause_range_s": (2.5, 8.0),
+        "start_distance_m": 0.3,
+    },
     "rig": {"camera_in_shank_xz_m": (0.07, -0.15)},
 }
 
 SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
-    SweepCondition("reference", "reference", "the simulated upstair trial (step over step, "
-                   "14.7 x 28 cm, camera 5 cm below the knee, 30 fps)"),
-    SweepCondition("sts_slow_30fps", "gait", "user trial: slow step-to-step ascent, 2.5-8 s "
-                   "standing between steps, 11.5 x 28 cm, camera 15 cm below the knee",
-                   overrides=_SLOW_STS),
-    SweepCondition("sts_slow_15fps", "gait", "the same at 15 fps",
-                   overrides={**_SLOW_STS, "camera": {"frame_rate_hz": 15.0}}),
-    SweepCondition("sts_lead_instrumented", "gait", "step-to-step, the instrumented leg leads",
-                   overrides={"duration_s": 15.0, "gait": {
-                       "pattern": "step_to_step", "leading_leg": "instrumented"}}),
-    SweepCondition("sts_descent", "gait", "step-to-step descent, cadence 0.75",
-                   scenario="downstair", overrides={"duration_s": 15.0, "gait": {
-                       "pattern": "step_to_step", "cadence_scale": 0.75}}),
-    SweepCondition("cadence_0.5", "gait", "step over step at half the cadence",
-                   overrides={"duration_s": 20.0, "gait": {"cadence_scale": 0.5}}),
-    SweepCondition("cadence_1.5", "gait", "step over step at 1.5x the cadence",
-                   overrides={"gait": {"cadence_scale": 1.5},
-                              "terrain": {"landing_length_m": 10.0}}),
-    SweepCondition("pauses_0-8s", "gait", "step over step, standing 0-8 s once per stride "
-                   "with weight shifts", overrides={"duration_s": 30.0, "gait": {
-                       "pause_range_s": (0.0, 8.0)}}),
-    SweepCondition("rise10_tread35", "stairs", "shallow stairs: 10 cm rise, 35 cm tread",
-                   overrides={"terrain": {"stair_rise_m": 0.10, "stair_tread_m": 0.35}}),
-    SweepCondition("rise18_tread24", "stairs", "steep stairs: 18 cm rise, 24 cm tread",
-                   overrides={"terrain": {"stair_rise_m": 0.18, "stair_tread_m": 0.24}}),
-    SweepCondition("overhang_3cm", "stairs", "treads with a 3 cm nosing overhang",
-                   overrides={"terrain": {"nosing_overhang_m": 0.03}}),
-    SweepCondition("two_flights_down", "stairs", "descent over two flights of 6 steps and a "
-                   "landing", scenario="downstair", overrides={
-                       "duration_s": 12.0, "terrain": {"n_steps": 6, "n_flights": 2,
-                                                          "landing_length_m": 8.0}}),
-    SweepCondition("camera_8cm_0deg", "camera", "camera 8 cm below the knee, optical axis "
-                   "along the shank's x", overrides={"rig": {
-                       "camera_in_shank_xz_m": (0.07, -0.08), "camera_pitch_down_deg": 0.0}}),
-    SweepCondition("camera_20cm_40deg", "camera", "camera 20 cm below the knee, pitched 40 "
-                   "deg down", overrides={"rig": {
-                       "camera_in_shank_xz_m": (0.07, -0.20), "camera_pitch_down_deg": 40.0}}),
-    SweepCondition("fps_15", "camera", "depth at 15 fps",
-                   overrides={"camera": {"frame_rate_hz": 15.0}}),
-    SweepCondition("imu_camera_axes", "imu", "IMU axes = camera axes (imu_T_cam rotation I)",
-                   overrides={"rig": {"imu_axes": "camera"}}),
-    SweepCondition("imu_upside_down", "imu", "IMU turned 180 deg about its x axis",
-                   overrides={"rig": {"imu_rotation_rpy_deg": (180.0, 0.0, 0.0)}}),
-    SweepCondition("imu_yaw90", "imu", "IMU turned 90 deg about the shank axis",
-                   overrides={"rig": {"imu_rotation_rpy_deg": (0.0, 0.0, 90.0)}}),
-    SweepCondition("tof_gaps", "depth", "missing bands of 2-6 cm behind every nosing "
-                   "(flying-pixel filter)", overrides={"camera": {"edge_gap_m": (0.02, 0.06)}}),
-    SweepCondition("long_2min", "length", "2-minute ascent over 14 flights of 12 steps with "
-                   "landings (configs/upstair_long.yaml)", scenario="upstair_long"),
+    SweepCondition(
+        "reference",
+        "reference",
+        "the simulated upstair trial (step over step, "
+        "14.7 x 28 cm, camera 5 cm below the knee, 30 fps)",
+    ),
+    SweepCondition(
+        "sts_slow_30fps",
+        "gait",
+        "user trial: slow step-to-step ascent, 2.5-8 s "
+        "standing between steps, 11.5 x 28 cm, camera 15 cm below the knee",
+        overrides=_SLOW_STS,
+    ),
+    SweepCondition(
+        "sts_slow_15fps",
+        "gait",
+        "the same at 15 fps",
+        overrides={**_SLOW_STS, "camera": {"frame_rate_hz": 15.0}},
+    ),
+    SweepCondition(
+        "sts_lead_instrumented",
+        "gait",
+        "step-to-step, the instrumented leg leads",
+        overrides={
+            "duration_s": 15.0,
+            "gait": {"pattern": "step_to_step", "leading_leg": "instrumented"},
+        },
+    ),
+    SweepCondition(
+        "sts_descent",
+        "gait",
+        "step-to-step descent, cadence 0.75",
+        scenario="downstair",
+        overrides={"duration_s": 15.0, "gait": {"pattern": "step_to_step", "cadence_scale": 0.75}},
+    ),
+    SweepCondition(
+        "cadence_0.5",
+        "gait",
+        "step over step at half the cadence",
+        overrides={"duration_s": 20.0, "gait": {"cadence_scale": 0.5}},
+    ),
+    SweepCondition(
+        "cadence_1.5",
+        "gait",
+        "step over step at 1.5x the cadence",
+        overrides={"gait": {"cadence_scale": 1.5}, "terrain": {"landing_length_m": 10.0}},
+    ),
+    SweepCondition(
+        "pauses_0-8s",
+        "gait",
+        "step over step, standing 0-8 s once per stride with weight shifts",
+        overrides={"duration_s": 30.0, "gait": {"pause_range_s": (0.0, 8.0)}},
+    ),
+    SweepCondition(
+        "rise10_tread35",
+        "stairs",
+        "shallow stairs: 10 cm rise, 35 cm tread",
+        overrides={"terrain": {"stair_rise_m": 0.10, "stair_tread_m": 0.35}},
+    ),
+    SweepCondition(
+        "rise18_tread24",
+        "stairs",
+        "steep stairs: 18 cm rise, 24 cm tread",
+        overrides={"terrain": {"stair_rise_m": 0.18, "stair_tread_m": 0.24}},
+    ),
+    SweepCondition(
+        "overhang_3cm",
+        "stairs",
+        "treads with a 3 cm nosing overhang",
+        overrides={"terrain": {"nosing_overhang_m": 0.03}},
+    ),
+    SweepCondition(
+        "two_flights_down",
+        "stairs",
+        "descent over two flights of 6 steps and a landing",
+        scenario="downstair",
+        overrides={
+            "duration_s": 12.0,
+            "terrain": {"n_steps": 6, "n_flights": 2, "landing_length_m": 8.0},
+        },
+    ),
+    SweepCondition(
+        "camera_8cm_0deg",
+        "camera",
+        "camera 8 cm below the knee, optical axis along the shank's x",
+        overrides={"rig": {"camera_in_shank_xz_m": (0.07, -0.08), "camera_pitch_down_deg": 0.0}},
+    ),
+    SweepCondition(
+        "camera_20cm_40deg",
+        "camera",
+        "camera 20 cm below the knee, pitched 40 deg down",
+        overrides={"rig": {"camera_in_shank_xz_m": (0.07, -0.20), "camera_pitch_down_deg": 40.0}},
+    ),
+    SweepCondition(
+        "fps_15", "camera", "depth at 15 fps", overrides={"camera": {"frame_rate_hz": 15.0}}
+    ),
+    SweepCondition(
+        "imu_camera_axes",
+        "imu",
+        "IMU axes = camera axes (imu_T_cam rotation I)",
+        overrides={"rig": {"imu_axes": "camera"}},
+    ),
+    SweepCondition(
+        "imu_upside_down",
+        "imu",
+        "IMU turned 180 deg about its x axis",
+        overrides={"rig": {"imu_rotation_rpy_deg": (180.0, 0.0, 0.0)}},
+    ),
+    SweepCondition(
+        "imu_yaw90",
+        "imu",
+        "IMU turned 90 deg about the shank axis",
+        overrides={"rig": {"imu_rotation_rpy_deg": (0.0, 0.0, 90.0)}},
+    ),
+    SweepCondition(
+        "tof_gaps",
+        "depth",
+        "missing bands of 2-6 cm behind every nosing (flying-pixel filter)",
+        overrides={"camera": {"edge_gap_m": (0.02, 0.06)}},
+    ),
+    SweepCondition(
+        "long_2min",
+        "length",
+        "2-minute ascent over 14 flights of 12 steps with landings (configs/upstair_long.yaml)",
+        scenario="upstair_long",
+    ),
 )
 
 
@@ -118,8 +199,9 @@ def condition_by_name(name: str) -> SweepCondition:
     for c in SWEEP_CONDITIONS:
         if c.name == name:
             return c
-    raise KeyError(f"unknown sweep condition {name!r}; choose from "
-                   f"{[c.name for c in SWEEP_CONDITIONS]}")
+    raise KeyError(
+        f"unknown sweep condition {name!r}; choose from {[c.name for c in SWEEP_CONDITIONS]}"
+    )
 
 
 def condition_scenario(cond: SweepCondition):
@@ -150,7 +232,8 @@ def _recording_matches(rec_dir: Path, scenario_json: str) -> bool:
     except (VioGraphError, OSError):
         return False
     return json.dumps(prov.config, sort_keys=True) == json.dumps(
-        json.loads(scenario_json), sort_keys=True)
+        json.loads(scenario_json), sort_keys=True
+    )
 
 
 def _trial_task(args: tuple[str, int, str, str, str, tuple[str, ...]]) -> dict[str, Any]:
@@ -165,8 +248,9 @@ def _trial_task(args: tuple[str, int, str, str, str, tuple[str, ...]]) -> dict[s
         if not _recording_matches(rec_dir, scen.model_dump_json()):
             simulate(scen, seed, rec_dir, overwrite=True)
         cfg = PipelineConfig.model_validate_json(config_json)
-        m = run_recording(rec_dir, out_dir, cfg, modes=modes, overwrite=True, visualize=False,
-                          progress=False).metrics
+        m = run_recording(
+            rec_dir, out_dir, cfg, modes=modes, overwrite=True, visualize=False, progress=False
+        ).metrics
         return {"condition": name, "seed": seed, "metrics": m}
     except Exception as exc:  # one failed trial must not stop the sweep: reported per cell
         log.exception("sweep trial %s seed %d failed", name, seed)
@@ -191,9 +275,19 @@ def run_sweep(
         dur = condition_scenario(c).duration_s
         for s in seeds:
             tag = f"{c.name}_s{s}"
-            tasks.append((dur, (c.name, int(s), str(Path(out_dir) / "recordings" / tag),
-                                str(Path(out_dir) / "runs" / tag), config.model_dump_json(),
-                                tuple(modes))))
+            tasks.append(
+                (
+                    dur,
+                    (
+                        c.name,
+                        int(s),
+                        str(Path(out_dir) / "recordings" / tag),
+                        str(Path(out_dir) / "runs" / tag),
+                        config.model_dump_json(),
+                        tuple(modes),
+                    ),
+                )
+            )
     tasks.sort(key=lambda t: -t[0])
     results = _map(_trial_task, [t[1] for t in tasks], jobs, progress, scheduler)
     order = {c.name: i for i, c in enumerate(conds)}
@@ -221,18 +315,22 @@ def summarise_sweep(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "errors": [f"seed {r['seed']}: {r['error']}" for r in rs if "error" in r],
             "ate_cm": {},
         }
-        modes = [m for m in (*FUSED_MODES, *BASELINE_MODES)
-                 if ok and all(m in x.get(ate_key(x), {}) for x in ok)]
+        modes = [
+            m
+            for m in (*FUSED_MODES, *BASELINE_MODES)
+            if ok and all(m in x.get(ate_key(x), {}) for x in ok)
+        ]
         for mode in modes:
             row["ate_cm"][mode] = {
-                body: {ax: _mean([x[ate_key(x)][mode][body][ax] for x in ok])
-                       for ax in ("x", "z")}
+                body: {ax: _mean([x[ate_key(x)][mode][body][ax] for x in ok]) for ax in ("x", "z")}
                 for body in ("camera", "toe")
             }
         row["terrain_accuracy"] = _mean(
-            [x.get("terrain_classification", {}).get("accuracy_visible") for x in ok])
+            [x.get("terrain_classification", {}).get("accuracy_visible") for x in ok]
+        )
         row["stance_precision"] = _mean(
-            [x.get("stance_detection", {}).get("precision") for x in ok])
+            [x.get("stance_detection", {}).get("precision") for x in ok]
+        )
         row["stance_recall"] = _mean([x.get("stance_detection", {}).get("recall") for x in ok])
         nees = [x.get("frontend", {}).get("displacement_nees", {}) for x in ok]
         row["nees_mean"] = _mean([n.get("mean") for n in nees])
@@ -242,8 +340,14 @@ def summarise_sweep(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
         row["map_tread_error_mm"] = _mean([x.get("map", {}).get("tread_error_mm") for x in ok])
         row["misses"] = _misses(row)
         out[name] = row
-    smoother = [v for r in out.values() for b in ("camera", "toe") for ax in ("x", "z")
-                for v in [r["ate_cm"].get("smoother", {}).get(b, {}).get(ax)] if v is not None]
+    smoother = [
+        v
+        for r in out.values()
+        for b in ("camera", "toe")
+        for ax in ("x", "z")
+        for v in [r["ate_cm"].get("smoother", {}).get(b, {}).get(ax)]
+        if v is not None
+    ]
     return {
         "conditions": out,
         "smoother_median_cm": float(np.median(smoother)) if smoother else float("nan"),
@@ -305,9 +409,13 @@ def sweep_markdown(summary: dict[str, Any], command: str, n_seeds: int) -> str:
         if c is not None:
             lines.append(f"| {name} | {c.family} | {c.scenario} | {c.description} |")
     for body in ("camera", "toe"):
-        lines += ["", f"## {body.capitalize()} ATE (cm, x / z)", "",
-                  "| condition | filter | smoother | batch | ICP-only | IMU-only |",
-                  "|---|---|---|---|---|---|"]
+        lines += [
+            "",
+            f"## {body.capitalize()} ATE (cm, x / z)",
+            "",
+            "| condition | filter | smoother | batch | ICP-only | IMU-only |",
+            "|---|---|---|---|---|---|",
+        ]
         for name, row in conds.items():
             cells = []
             for mode in (*FUSED_MODES, *BASELINE_MODES):
@@ -330,14 +438,20 @@ def sweep_markdown(summary: dict[str, Any], command: str, n_seeds: int) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for name, row in conds.items():
-        aims = "met" if not row["misses"] else "missed: " + "; ".join(row["misses"][:4]) + (
-            f" (+{len(row['misses']) - 4} more)" if len(row["misses"]) > 4 else "")
+        aims = (
+            "met"
+            if not row["misses"]
+            else "missed: "
+            + "; ".join(row["misses"][:4])
+            + (f" (+{len(row['misses']) - 4} more)" if len(row["misses"]) > 4 else "")
+        )
         lines.append(
             f"| {name} | {_f(100 * row['terrain_accuracy'], '{:.0f} %')} | "
             f"{_f(row['stance_precision'])} / {_f(row['stance_recall'])} | "
             f"{_f(row['nees_mean'])} / {_f(100 * row['nees_within_95'], '{:.0f} %')} | "
             f"{row['warnings']} | {_f(row['map_rise_error_mm'], '{:.1f}')} / "
-            f"{_f(row['map_tread_error_mm'], '{:.1f}')} | {aims} |")
+            f"{_f(row['map_tread_error_mm'], '{:.1f}')} | {aims} |"
+        )
     met = sum(1 for r in conds.values() if not r["misses"])
     lines += [
         "",
@@ -351,16 +465,28 @@ def sweep_markdown(summary: dict[str, Any], command: str, n_seeds: int) -> str:
     return "\n".join(lines)
 
 
-def write_sweep_report(results: Sequence[dict[str, Any]], out_dir: Path, command: str,
-                       n_seeds: int, doc: Path | None = None) -> dict[str, Path]:
+def write_sweep_report(
+    results: Sequence[dict[str, Any]],
+    out_dir: Path,
+    command: str,
+    n_seeds: int,
+    doc: Path | None = None,
+) -> dict[str, Path]:
     """sweep.json + generalisation.md in ``out_dir`` (and ``doc`` if given)."""
     summary = summarise_sweep(results)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out_dir / "sweep.json", {"summary": summary, "trials": [
-        {k: v for k, v in r.items() if k != "metrics"} | (
-            {"ate_cm": r["metrics"].get(ate_key(r["metrics"]))} if "metrics" in r else {})
-        for r in results]})
+    atomic_write_json(
+        out_dir / "sweep.json",
+        {
+            "summary": summary,
+            "trials": [
+                {k: v for k, v in r.items() if k != "metrics"}
+                | ({"ate_cm": r["metrics"].get(ate_key(r["metrics"]))} if "metrics" in r else {})
+                for r in results
+            ],
+        },
+    )
     md = sweep_markdown(summary, command, n_seeds)
     atomic_write_text(out_dir / "generalisation.md", md)
     written = {"json": out_dir / "sweep.json", "markdown": out_dir / "generalisation.md"}

@@ -81,11 +81,13 @@ def associate(
     w = np.divide(tq_k - t_ref[lo], span, out=np.zeros_like(tq_k), where=span > 0)
     pos = (1.0 - w)[:, None] * traj_ref.position_m[lo] + w[:, None] * traj_ref.position_m[hi]
     quat = slerp_wxyz(traj_ref.quat_wxyz[lo], traj_ref.quat_wxyz[hi], w)
-    est = Trajectory(t_est[keep].copy(), traj_est.position_m[keep].copy(),
-                     traj_est.quat_wxyz[keep].copy())
+    est = Trajectory(
+        t_est[keep].copy(), traj_est.position_m[keep].copy(), traj_est.quat_wxyz[keep].copy()
+    )
     ref = Trajectory(t_est[keep].copy(), pos, quat)
-    return AssociatedTrajectories(est, ref, keep.astype(np.int64), float(max_diff_s),
-                                  float(offset_s))
+    return AssociatedTrajectories(
+        est, ref, keep.astype(np.int64), float(max_diff_s), float(offset_s)
+    )
 
 
 def slerp_wxyz(

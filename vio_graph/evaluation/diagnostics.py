@@ -18,6 +18,7 @@ from vio_graph.types import Displacement2D
 STILL_SPEED_MPS = 0.05
 STILL_WINDOW_S = 0.1
 
+
 def true_stance(ankle: Trajectory, t_s: NDArray[np.float64]) -> NDArray[np.bool_]:
     """True where the ground-truth ankle is still (speed over ``STILL_WINDOW_S`` below
     ``STILL_SPEED_MPS``) at the times ``t_s`` (s)."""

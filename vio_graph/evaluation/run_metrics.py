@@ -30,8 +30,11 @@ def shank_pitch_error_deg(
     seg = gt["knee"].xz_at(t) - gt["ankle"].xz_at(t)  # (N, 2)
     true = np.arctan2(seg[:, 0], seg[:, 1])  # rot_y(pitch) (0, L) = (L sin, L cos)
     err = np.degrees(np.angle(np.exp(1j * (np.asarray(shank_pitch_rad) - true))))
-    return {"rms": float(np.sqrt(np.mean(err**2))), "mean": float(np.mean(err)),
-            "max_abs": float(np.max(np.abs(err)))}
+    return {
+        "rms": float(np.sqrt(np.mean(err**2))),
+        "mean": float(np.mean(err)),
+        "max_abs": float(np.max(np.abs(err))),
+    }
 
 
 def evaluate_paths(
@@ -94,8 +97,11 @@ def terrain_accuracy(
         mask = np.ones(len(pred), bool)
     return {
         "truth": true_kind,
-        "accuracy_visible": float(np.mean(pred[mask] == true_kind)) if mask.any()
-        else float("nan"),
-        "predicted_counts_visible": {str(k): int(c) for k, c in zip(
-            *np.unique(np.asarray(pred[mask], dtype=str), return_counts=True), strict=True)},
+        "accuracy_visible": float(np.mean(pred[mask] == true_kind)) if mask.any() else float("nan"),
+        "predicted_counts_visible": {
+            str(k): int(c)
+            for k, c in zip(
+                *np.unique(np.asarray(pred[mask], dtype=str), return_counts=True), strict=True
+            )
+        },
     }

@@ -46,8 +46,13 @@ MAX_LEAD_S = 1.0  # a warning up to this long before a near-trip's minimum count
 TRUTH_STEP_S = 0.002  # time step of the true near-trip search (the truth is interpolated)
 
 
-def true_safety(gt: GroundTruth, terrain: TerrainInfo, t_s: NDArray[np.float64],
-                landing: NDArray[np.bool_], config: SafetyConfig) -> dict[str, NDArray] | None:
+def true_safety(
+    gt: GroundTruth,
+    terrain: TerrainInfo,
+    t_s: NDArray[np.float64],
+    landing: NDArray[np.bool_],
+    config: SafetyConfig,
+) -> dict[str, NDArray] | None:
     """Per frame: true clearance and nosing clearance (m) and the true placement (N, 4) at
     the ``landing`` frames (NaN elsewhere); on a dense grid ``t_dense_s`` (TRUTH_STEP_S): the
     true nosing clearance and near-trip flag. None without a true profile
@@ -72,9 +77,9 @@ def true_safety(gt: GroundTruth, terrain: TerrainInfo, t_s: NDArray[np.float64],
         if e >= 0:
             nosing[k] = edge_clearance(h, o, edges[e], config.sole_thickness_m).distance_m
         if landing[k]:
-            placement[k] = placement_on_tread(h, o, win, config.tread_tolerance_m,
-                                              config.edge_max_gap_m,
-                                              config.edge_min_rise_m).as_array()
+            placement[k] = placement_on_tread(
+                h, o, win, config.tread_tolerance_m, config.edge_max_gap_m, config.edge_min_rise_m
+            ).as_array()
     # near-trips on a dense time grid: the minimum over a nosing falls between frames
     td = np.arange(t[0], t[-1], TRUTH_STEP_S) if n > 1 else t.copy()
     heel_d, toe_d = gt.trajectories["heel"].xz_at(td), gt.trajectories["toe"].xz_at(td)
@@ -82,16 +87,23 @@ def true_safety(gt: GroundTruth, terrain: TerrainInfo, t_s: NDArray[np.float64],
     for k in range(len(td)):
         e = next_edge_index(ed, float(toe_d[k, 0]) - config.toe_pass_m)
         if e >= 0:
-            nos_d[k] = edge_clearance(heel_d[k], toe_d[k], edges[e],
-                                      config.sole_thickness_m).distance_m
+            nos_d[k] = edge_clearance(
+                heel_d[k], toe_d[k], edges[e], config.sole_thickness_m
+            ).distance_m
     dt = 0.01
     toe_traj = gt.trajectories["toe"]
     v_toe = (toe_traj.xz_at(td + dt) - toe_traj.xz_at(td - dt)) / (2 * dt)
     swing = ~true_stance(gt.trajectories["ankle"], td)
     forward = (v_toe[:, 0] > config.warning_min_forward_speed_mps) & (v_toe[:, 1] > -v_toe[:, 0])
     near = swing & forward & (nos_d < config.near_trip_m)
-    return {"clearance_m": clear, "nosing_clearance_m": nosing, "placement": placement,
-            "t_dense_s": td, "near_trip": near, "nosing_dense_m": nos_d}
+    return {
+        "clearance_m": clear,
+        "nosing_clearance_m": nosing,
+        "placement": placement,
+        "t_dense_s": td,
+        "near_trip": near,
+        "nosing_dense_m": nos_d,
+    }
 
 
 def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -101,9 +113,13 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1, strict=True))
 
 
-def near_trip_scores(t_s: NDArray[np.float64], warning: NDArray[np.bool_],
-                     t_true_s: NDArray[np.float64], near_trip: NDArray[np.bool_],
-                     true_clearance_m: NDArray[np.float64]) -> dict[str, Any]:
+def near_trip_scores(
+    t_s: NDArray[np.float64],
+    warning: NDArray[np.bool_],
+    t_true_s: NDArray[np.float64],
+    near_trip: NDArray[np.bool_],
+    true_clearance_m: NDArray[np.float64],
+) -> dict[str, Any]:
     """Precision / recall of the warning runs (frame times ``t_s``) against the true
     near-trip events (flags and clearance at ``t_true_s``), and the shortest lead (ms) of a
     warned event (see the module docstring)."""
@@ -111,11 +127,13 @@ def near_trip_scores(t_s: NDArray[np.float64], warning: NDArray[np.bool_],
     td = np.asarray(t_true_s, dtype=float)
     events = []
     for a, b in _runs(near_trip):
-        k = a + int(np.argmin(true_clearance_m[a:b + 1]))
+        k = a + int(np.argmin(true_clearance_m[a : b + 1]))
         events.append((td[a], td[b], td[k]))
     warns = [(t[a], t[b]) for a, b in _runs(warning)]
-    tp = sum(any(ws <= e_end and we >= e_start - MAX_LEAD_S for e_start, e_end, _ in events)
-             for ws, we in warns)
+    tp = sum(
+        any(ws <= e_end and we >= e_start - MAX_LEAD_S for e_start, e_end, _ in events)
+        for ws, we in warns
+    )
     leads = []
     for _, _, t_min in events:
         first = [ws for ws, we in warns if ws <= t_min and we >= t_min - MAX_LEAD_S]
@@ -137,8 +155,12 @@ def _mm_stats(err_m: NDArray[np.float64]) -> dict[str, float]:
     return {"median": float(np.median(e)), "p95": float(np.percentile(e, 95)), "n": int(e.size)}
 
 
-def score_mode(est: list[SafetyEstimate | None], truth: dict[str, NDArray],
-               t_s: NDArray[np.float64], with_sigma: bool) -> tuple[dict, dict]:
+def score_mode(
+    est: list[SafetyEstimate | None],
+    truth: dict[str, NDArray],
+    t_s: NDArray[np.float64],
+    with_sigma: bool,
+) -> tuple[dict, dict]:
     """(clearance block, placement block) of one mode's per-frame safety estimates."""
     n = len(t_s)
 
@@ -148,43 +170,67 @@ def score_mode(est: list[SafetyEstimate | None], truth: dict[str, NDArray],
     c, sig = col("clearance_m"), col("clearance_sigma_m")
     err = c - truth["clearance_m"][:n]
     ok = np.isfinite(err)
-    block: dict[str, Any] = {"error_mm": _mm_stats(err),
-                             "nosing_error_mm": _mm_stats(col("nosing_clearance_m")
-                                                          - truth["nosing_clearance_m"][:n]),
-                             "coverage": float(ok.mean()) if n else float("nan")}
+    block: dict[str, Any] = {
+        "error_mm": _mm_stats(err),
+        "nosing_error_mm": _mm_stats(col("nosing_clearance_m") - truth["nosing_clearance_m"][:n]),
+        "coverage": float(ok.mean()) if n else float("nan"),
+    }
     if with_sigma:
         ok &= np.isfinite(sig) & (sig > 0)
         z = np.abs(err[ok]) / sig[ok]
         block["within_1sigma"] = float(np.mean(z <= 1)) if z.size else float("nan")
         block["within_2sigma"] = float(np.mean(z <= 2)) if z.size else float("nan")
     warn = np.array([bool(s.near_trip_warning) if s is not None else False for s in est])
-    block["near_trip"] = near_trip_scores(t_s, warn, truth["t_dense_s"], truth["near_trip"],
-                                          truth["nosing_dense_m"])
+    block["near_trip"] = near_trip_scores(
+        t_s, warn, truth["t_dense_s"], truth["near_trip"], truth["nosing_dense_m"]
+    )
     landing = np.array([bool(s.landing) if s is not None else False for s in est])
     pl_est = np.array([s.placement if s is not None else np.full(4, np.nan) for s in est])
     pl_err = (pl_est - truth["placement"][:n])[landing][:, :2]
-    per_landing = [float(np.nanmax(np.abs(r)) * 1e3) if np.isfinite(r).any() else None
-                   for r in pl_err]
-    placement = {"error_mm": _mm_stats(pl_err.ravel()), "landings": int(landing.sum()),
-                 "per_landing_mm": per_landing}
+    per_landing = [
+        float(np.nanmax(np.abs(r)) * 1e3) if np.isfinite(r).any() else None for r in pl_err
+    ]
+    placement = {
+        "error_mm": _mm_stats(pl_err.ravel()),
+        "landings": int(landing.sum()),
+        "per_landing_mm": per_landing,
+    }
     return block, placement
 
 
-def replay_safety(config: SafetyConfig, t_s: NDArray[np.float64],
-                  path: dict[str, NDArray[np.float64]], cov_m2: list[NDArray[np.float64]],
-                  in_stance: list[bool], profiles: dict[int, NDArray[np.float64]]
-                  ) -> list[SafetyEstimate | None]:
+def replay_safety(
+    config: SafetyConfig,
+    t_s: NDArray[np.float64],
+    path: dict[str, NDArray[np.float64]],
+    cov_m2: list[NDArray[np.float64]],
+    in_stance: list[bool],
+    profiles: dict[int, NDArray[np.float64]],
+) -> list[SafetyEstimate | None]:
     """The safety outputs of another mode's path (camera, heel, toe per frame), with the same
     keyframe profiles placed at that mode's camera positions, frame by frame (causal in the
     profiles; the smoothers' poses themselves may use later data). ``cov_m2``: the filter's."""
     mon = SafetyMonitor(config)
-    return [mon.update(float(t), path["camera"][k], cov_m2[k], path["heel"][k], path["toe"][k],
-                       bool(in_stance[k]), profiles.get(k)) for k, t in enumerate(t_s)]
+    return [
+        mon.update(
+            float(t),
+            path["camera"][k],
+            cov_m2[k],
+            path["heel"][k],
+            path["toe"][k],
+            bool(in_stance[k]),
+            profiles.get(k),
+        )
+        for k, t in enumerate(t_s)
+    ]
 
 
-def safety_metrics(config: SafetyConfig, gt: GroundTruth, terrain: TerrainInfo, lg,
-                   paths: dict[str, dict[str, NDArray[np.float64]]]
-                   ) -> tuple[dict[str, Any], dict[str, NDArray] | None]:
+def safety_metrics(
+    config: SafetyConfig,
+    gt: GroundTruth,
+    terrain: TerrainInfo,
+    lg,
+    paths: dict[str, dict[str, NDArray[np.float64]]],
+) -> tuple[dict[str, Any], dict[str, NDArray] | None]:
     """metrics.json ``clearance`` and ``placement`` blocks for the run's modes (filter from
     the online outputs, smoother / batch replayed on their paths) and the per-frame truth."""
     t = np.asarray(lg.t_s, dtype=float)
@@ -197,11 +243,22 @@ def safety_metrics(config: SafetyConfig, gt: GroundTruth, terrain: TerrainInfo, 
     for mode in ("filter", "smoother", "batch"):
         if mode not in paths:
             continue
-        est = lg.safety if mode == "filter" else replay_safety(
-            config, t, paths[mode], lg.cov_position_m2, lg.in_stance, lg.profiles)
+        est = (
+            lg.safety
+            if mode == "filter"
+            else replay_safety(
+                config, t, paths[mode], lg.cov_position_m2, lg.in_stance, lg.profiles
+            )
+        )
         clearance[mode], placement[mode] = score_mode(est, truth, t, mode == "filter")
     return {"clearance": clearance, "placement": placement}, truth
 
 
-__all__ = ["Placement", "near_trip_scores", "replay_safety", "safety_metrics", "score_mode",
-           "true_safety"]
+__all__ = [
+    "Placement",
+    "near_trip_scores",
+    "replay_safety",
+    "safety_metrics",
+    "score_mode",
+    "true_safety",
+]

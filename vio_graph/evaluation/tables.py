@@ -64,8 +64,11 @@ def summarise(trials: Iterable[TrialAte]) -> list[ExperimentSummary]:
         xz_cm = np.array([[t.rmse_x_m, t.rmse_z_m] for t in items]) * M_TO_CM
         mean = xz_cm.mean(axis=0)
         sd = xz_cm.std(axis=0, ddof=1) if len(items) > 1 else np.full(2, np.nan)
-        out.append(ExperimentSummary(name, len(items), float(mean[0]), float(sd[0]),
-                                     float(mean[1]), float(sd[1])))
+        out.append(
+            ExperimentSummary(
+                name, len(items), float(mean[0]), float(sd[0]), float(mean[1]), float(sd[1])
+            )
+        )
     return out
 
 

@@ -64,7 +64,8 @@ class AttitudeTracker:
         self._gyro_radps = (0.0, 0.0, 0.0)  # rad/s, latest sample
         # recent (t, R, gyro), for frames re-stamped into the past (camera-IMU time offset)
         self._recent: deque[tuple[float, Mat3, tuple[float, float, float]]] = deque(
-            maxlen=_HISTORY_SAMPLES)
+            maxlen=_HISTORY_SAMPLES
+        )
 
     def add(self, imu: ImuSample) -> None:
         """Advance to ``imu.timestamp_s`` with the sample's gyro rate and vendor orientation.
@@ -82,8 +83,10 @@ class AttitudeTracker:
             if dt < 0:
                 raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
             px, py, pz = self._gyro_radps
-            R = mat3_mul(self._R, rotvec_mat3(0.5 * (px + gx) * dt, 0.5 * (py + gy) * dt,
-                                              0.5 * (pz + gz) * dt))
+            R = mat3_mul(
+                self._R,
+                rotvec_mat3(0.5 * (px + gx) * dt, 0.5 * (py + gy) * dt, 0.5 * (pz + gz) * dt),
+            )
             k = min(1.0, dt / self.config.time_constant_s)
             ex, ey, ez = mat3_rotvec(mat3_tmul(R, R_vendor))
             self._R = mat3_mul(R, rotvec_mat3(k * ex, k * ey, k * ez))

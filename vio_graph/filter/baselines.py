@@ -26,13 +26,17 @@ class _PathKeeper:
     name: str
 
     def __init__(self, initial_camera_xz_m: ArrayLike | None) -> None:
-        self._p0 = np.zeros(2) if initial_camera_xz_m is None else np.asarray(
-            initial_camera_xz_m, dtype=float)
+        self._p0 = (
+            np.zeros(2)
+            if initial_camera_xz_m is None
+            else np.asarray(initial_camera_xz_m, dtype=float)
+        )
         self._started = False
         self._path: list[NDArray[np.float64]] = []
 
-    def initialise(self, timestamp_s: float, p_xz: ArrayLike, v_xz: ArrayLike = (0.0, 0.0),
-                   **kwargs: object) -> None:
+    def initialise(
+        self, timestamp_s: float, p_xz: ArrayLike, v_xz: ArrayLike = (0.0, 0.0), **kwargs: object
+    ) -> None:
         raise NotImplementedError
 
     def propagate(self, imu: ImuSample) -> None:
@@ -60,8 +64,9 @@ class _PathKeeper:
     def finish(self) -> None:
         pass
 
-    def camera_path(self, frame_times_s: NDArray[np.float64],
-                    filter_xz_m: NDArray[np.float64]) -> NDArray[np.float64]:
+    def camera_path(
+        self, frame_times_s: NDArray[np.float64], filter_xz_m: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
         return path_of_frames(self._path, len(frame_times_s), self.name)
 
     def report(self) -> EstimatorReport:
@@ -78,14 +83,19 @@ class ImuDeadReckoning(_PathKeeper):
 
     name = "imu_only"
 
-    def __init__(self, config: FilterConfig | None = None, imu_T_cam: ArrayLike | None = None,
-                 initial_camera_xz_m: ArrayLike | None = None):
+    def __init__(
+        self,
+        config: FilterConfig | None = None,
+        imu_T_cam: ArrayLike | None = None,
+        initial_camera_xz_m: ArrayLike | None = None,
+    ):
         super().__init__(initial_camera_xz_m)
         self._eskf = SagittalEskf(config, imu_T_cam)
         self._n_ignored = 0
 
-    def initialise(self, timestamp_s: float, p_xz: ArrayLike, v_xz: ArrayLike = (0.0, 0.0),
-                   **kwargs: object) -> None:
+    def initialise(
+        self, timestamp_s: float, p_xz: ArrayLike, v_xz: ArrayLike = (0.0, 0.0), **kwargs: object
+    ) -> None:
         """Same arguments as :meth:`SagittalEskf.initialise`."""
         self._eskf.initialise(timestamp_s, p_xz, v_xz, **kwargs)  # type: ignore[arg-type]
 
@@ -134,8 +144,7 @@ class IcpOdometry(_PathKeeper):
 
     name = "icp_only"
 
-    def __init__(self, fused_timeout_s: float = 0.1,
-                 initial_camera_xz_m: ArrayLike | None = None):
+    def __init__(self, fused_timeout_s: float = 0.1, initial_camera_xz_m: ArrayLike | None = None):
         super().__init__(initial_camera_xz_m)
         self._fused_timeout_s = float(fused_timeout_s)
         self._initialised = False
@@ -147,8 +156,9 @@ class IcpOdometry(_PathKeeper):
         self._n_imu = 0
         self._n_acc = 0
 
-    def initialise(self, timestamp_s: float, p_xz: ArrayLike, v_xz: ArrayLike = (0.0, 0.0),
-                   **_: object) -> None:
+    def initialise(
+        self, timestamp_s: float, p_xz: ArrayLike, v_xz: ArrayLike = (0.0, 0.0), **_: object
+    ) -> None:
         """Start at camera position ``p_xz`` (m) at ``timestamp_s`` (s)."""
         self._t_s = float(timestamp_s)
         self._p = np.asarray(p_xz, dtype=float).reshape(2).copy()

@@ -62,13 +62,15 @@ class LevelAidingConfig(BaseModel):
     min_extent_m: float = Field(default=0.12, gt=0, description="x extent a line needs (m)")
     max_lines: int = Field(default=4, ge=1, description="most level lines used per frame")
     end_trim_m: float = Field(
-        default=0.025, ge=0,
+        default=0.025,
+        ge=0,
         description="points within this x distance (m) of either end of a level line are left "
         "out of the slope fit: the kNN smoothing rounds the corners at both ends of a tread "
         "the same way on every tread (about k grid cells, 2-3 cm), which biases the tilt",
     )
     correlated_points: float = Field(
-        default=5.0, ge=1,
+        default=5.0,
+        ge=1,
         description="slope variance multiplier: kNN smoothing (k = 5) correlates neighbouring "
         "profile points",
     )
@@ -79,7 +81,8 @@ class LevelAidingConfig(BaseModel):
         default=0.5, ge=0, description="random-walk sigma (deg/sqrt(s)) of the offset"
     )
     measurement_floor_deg: float = Field(
-        default=0.3, ge=0,
+        default=0.3,
+        ge=0,
         description="sigma (deg) added in quadrature to each tilt measurement (what the line "
         "fit does not see: smoothing at the line ends, mixed pixels)",
     )
@@ -95,12 +98,15 @@ class ImuFaultConfig(BaseModel):
 
     enabled: bool = Field(default=True, description="False = every IMU sample trusted as is")
     saturation_margin: float = Field(
-        default=0.99, gt=0, le=1,
+        default=0.99,
+        gt=0,
+        le=1,
         description="an axis at or beyond this fraction of the declared range (metadata "
         "imu.accel_range_mps2 / gyro_range_radps) counts as saturated",
     )
     saturation_sigma_range: float = Field(
-        default=1.0, gt=0,
+        default=1.0,
+        gt=0,
         description="sigma of the unknown part of a saturated axis, in units of the range: the "
         "true value is beyond the rail by an unknown amount (heel strike on a 4 g sensor: up "
         "to 2-3x the range)",
@@ -112,17 +118,21 @@ class ImuFaultConfig(BaseModel):
         "implies",
     )
     gyro_ahrs_sigma_radps: float = Field(
-        default=0.5, gt=0,
+        default=0.5,
+        gt=0,
         description="sigma (rad/s, per axis) of the test residual g_k - (2 w_k - g_{k-1}), w_k "
         "the mean rate from consecutive vendor orientations: their error drift (MTi-1: "
         "1-2 deg RMS, correlated over seconds) and the gyro noise",
     )
     gyro_ahrs_probability: float = Field(
-        default=0.999999, gt=0, lt=1,
+        default=0.999999,
+        gt=0,
+        lt=1,
         description="chi-square (3 dof) probability of the gyro test",
     )
     held_accel_sigma_mps2: float = Field(
-        default=10.0, gt=0,
+        default=10.0,
+        gt=0,
         description="a sample whose gyro failed the test is corrupted as a whole (a bus error "
         "or a shock hits the packet): its accelerometer is replaced by the previous trusted "
         "one with this extra sigma (m/s^2; gait changes the specific force by a few m/s^2 per "
@@ -139,7 +149,8 @@ class ImuFaultConfig(BaseModel):
         "errors had spoiled",
     )
     velocity_fault_sigma_mps: float = Field(
-        default=0.4, gt=0,
+        default=0.4,
+        gt=0,
         description="sigma (m/s) of the velocity jump one corrupted IMU sample can cause "
         "(a 30 m/s^2 spike at 100 Hz: 0.3 m/s); a wrong corner association (a stair step in "
         "one frame, ~5 m/s over 33 ms) stays far outside it",
@@ -161,7 +172,8 @@ class TimeOffsetConfig(BaseModel):
         default=1e-5, ge=0, description="random-walk sigma of td (s/sqrt(s))"
     )
     apply_sigmas: float = Field(
-        default=3.0, ge=0,
+        default=3.0,
+        ge=0,
         description="td is applied to the fusion once it is this many sigmas from 0 (a "
         "synchronised rig keeps its stamps untouched)",
     )
@@ -183,7 +195,8 @@ class TimeOffsetConfig(BaseModel):
         default=200, ge=10, description="samples the clock-model line fit remembers"
     )
     gap_periods: float = Field(
-        default=1.9, gt=1,
+        default=1.9,
+        gt=1,
         description="a stamp more than this many nominal periods after the previous one is a "
         "gap (reported; the clock model restarts after it). Below it consecutive samples count "
         "as one period apart, so the stamp jitter must stay below (gap_periods - 1) periods "
@@ -287,7 +300,8 @@ class FilterConfig(BaseModel):
         ),
     )
     lockout_refusals: int | None = Field(
-        default=3, ge=1,
+        default=3,
+        ge=1,
         description="this many displacements refused by the gate in a row widen the velocity "
         "covariance to init_velocity_sigma_mps (gate lock-out recovery; at gate_probability "
         "0.999 three chance refusals in a row happen once in 1e9). The front end's refusals of "
@@ -422,7 +436,9 @@ class FilterConfig(BaseModel):
         "False = trust the acceleration detector alone (a slow swing then pins the ankle)",
     )
     stance_test_probability: float = Field(
-        default=0.999, gt=0, lt=1,
+        default=0.999,
+        gt=0,
+        lt=1,
         description="chi-square (2 dof) probability of the stance consistency test",
     )
     stance_slip_sigma_m: float = Field(

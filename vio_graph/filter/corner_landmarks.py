@@ -20,16 +20,18 @@ from vio_graph.types import CornerObservation, LandmarkKey
 class CornerLandmarks:
     """Track id -> landmark key, and the last sight (s) of every corner landmark."""
 
-    def __init__(self, reidentify_radius_m: float | None, memory_s: float,
-                 max_landmarks: int) -> None:
+    def __init__(
+        self, reidentify_radius_m: float | None, memory_s: float, max_landmarks: int
+    ) -> None:
         self.reidentify_radius_m = reidentify_radius_m
         self.memory_s = memory_s
         self.max_landmarks = max_landmarks
         self._alias: dict[int, LandmarkKey] = {}  # track id -> landmark key
         self._seen: dict[LandmarkKey, float] = {}  # landmark key -> last seen, s
 
-    def key(self, obs: CornerObservation, camera_xz_m: NDArray[np.float64],
-            eskf: SagittalEskf) -> LandmarkKey:
+    def key(
+        self, obs: CornerObservation, camera_xz_m: NDArray[np.float64], eskf: SagittalEskf
+    ) -> LandmarkKey:
         """Landmark key of a corner observation seen from ``camera_xz_m`` (world, m): its
         track's, or, for a new track, a remembered corner landmark of ``eskf`` it matches."""
         tid = obs.track_id

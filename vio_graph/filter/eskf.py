@@ -369,8 +369,12 @@ class SagittalEskf:
         tangential = np.zeros(3)
         if self.config.lever_arm_compensation:
             prev = self._prev
-            alpha = angular_acceleration(t, gyro, None if prev is None else prev.timestamp_s,
-                                         None if prev is None else np.array(prev.gyro_radps))
+            alpha = angular_acceleration(
+                t,
+                gyro,
+                None if prev is None else prev.timestamp_s,
+                None if prev is None else np.array(prev.gyro_radps),
+            )
             centripetal, tangential = lever_arm_terms(gyro, alpha, self._r_imu_cam_m)
             f3 += centripetal
         f_xz = f3[[0, 2]]
@@ -386,8 +390,9 @@ class SagittalEskf:
             R_bar = R
             a_w = R @ f_xz
         a_w = a_w + R_bar @ (tangential_xz - ab) + g
-        self._prev = _ImuMemo(t, float(R[0, 0]), float(R[0, 1]), float(f_xz[0]), float(f_xz[1]),
-                             tuple(gyro.tolist()))
+        self._prev = _ImuMemo(
+            t, float(R[0, 0]), float(R[0, 1]), float(f_xz[0]), float(f_xz[1]), tuple(gyro.tolist())
+        )
         self._accel_w_mps2 = a_w
         self._n_imu += 1
         if dt <= 0.0:
@@ -498,16 +503,20 @@ class SagittalEskf:
         self._require_init()
         self._P[2:4, 2:4] += float(sigma_mps) ** 2 * _I2
 
-    def displacement_d2(self, d: Displacement2D, extra_pv_cov: NDArray | None = None
-                        ) -> float | None:
+    def displacement_d2(
+        self, d: Displacement2D, extra_pv_cov: NDArray | None = None
+    ) -> float | None:
         """Mahalanobis distance^2 the gate would see for displacement ``d`` (no update), with
         ``extra_pv_cov`` (4x4, on dp, dv) added to the state covariance first. None if ``d``
         is not a relative measurement on the current clone (nothing to test)."""
         self._require_init()
         t1, t0 = float(d.t1_s), float(d.t0_s)
-        if (self.config.measurement_model != "stochastic_cloning" or _CLONE not in self._aug_xz
-                or abs(self._clone_t_s - t0) > _CLONE_TOL_S
-                or abs(t1 - self._t_s) > self.config.max_time_mismatch_s):
+        if (
+            self.config.measurement_model != "stochastic_cloning"
+            or _CLONE not in self._aug_xz
+            or abs(self._clone_t_s - t0) > _CLONE_TOL_S
+            or abs(t1 - self._t_s) > self.config.max_time_mismatch_s
+        ):
             return None
         dt1 = t1 - self._t_s
         H = np.zeros((2, self._P.shape[0]))
@@ -630,8 +639,9 @@ class SagittalEskf:
         )
 
     # ----------------------------------------------------------------- helpers
-    def _correct(self, innovation: NDArray, H: NDArray, V: NDArray, gate: bool = True,
-                 landmark: bool = False) -> bool:
+    def _correct(
+        self, innovation: NDArray, H: NDArray, V: NDArray, gate: bool = True, landmark: bool = False
+    ) -> bool:
         """Gate, Kalman gain, injection and reset (eq. 8). Returns False if gated out.
         ``landmark`` says which counters the outcome goes to."""
         P = self._P

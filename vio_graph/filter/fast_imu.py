@@ -33,9 +33,15 @@ def quat_matrix(q: ArrayLike) -> Mat3:
     n = math.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / n, x / n, y / n, z / n
     return (
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - w * z),
+        2 * (x * z + w * y),
+        2 * (x * y + w * z),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - w * x),
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
     )
 
 
@@ -88,9 +94,15 @@ def rotvec_mat3(wx: float, wy: float, wz: float) -> Mat3:
     xx, yy, zz = wx * wx, wy * wy, wz * wz
     xy, xz, yz = wx * wy, wx * wz, wy * wz
     return (
-        1.0 - b * (yy + zz), b * xy - a * wz, b * xz + a * wy,
-        b * xy + a * wz, 1.0 - b * (xx + zz), b * yz - a * wx,
-        b * xz - a * wy, b * yz + a * wx, 1.0 - b * (xx + yy),
+        1.0 - b * (yy + zz),
+        b * xy - a * wz,
+        b * xz + a * wy,
+        b * xy + a * wz,
+        1.0 - b * (xx + zz),
+        b * yz - a * wx,
+        b * xz - a * wy,
+        b * yz + a * wx,
+        1.0 - b * (xx + yy),
     )
 
 
@@ -104,9 +116,15 @@ def mat3_mul(a: Mat3, b: Mat3) -> Mat3:
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
     b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
     return (
-        a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
-        a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
-        a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8,
+        a0 * b0 + a1 * b3 + a2 * b6,
+        a0 * b1 + a1 * b4 + a2 * b7,
+        a0 * b2 + a1 * b5 + a2 * b8,
+        a3 * b0 + a4 * b3 + a5 * b6,
+        a3 * b1 + a4 * b4 + a5 * b7,
+        a3 * b2 + a4 * b5 + a5 * b8,
+        a6 * b0 + a7 * b3 + a8 * b6,
+        a6 * b1 + a7 * b4 + a8 * b7,
+        a6 * b2 + a7 * b5 + a8 * b8,
     )
 
 
@@ -160,9 +178,17 @@ def remove_yaw_mat3(m: Mat3) -> Mat3:
     c, s, sign = _heading(m)
     c, s = sign * c, sign * s  # rot_z(-(yaw + pi)) = -rot_z(-yaw) on the x-y rows
     m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
-    return (c * m0 + s * m3, c * m1 + s * m4, c * m2 + s * m5,
-            -s * m0 + c * m3, -s * m1 + c * m4, -s * m2 + c * m5,
-            m6, m7, m8)
+    return (
+        c * m0 + s * m3,
+        c * m1 + s * m4,
+        c * m2 + s * m5,
+        -s * m0 + c * m3,
+        -s * m1 + c * m4,
+        -s * m2 + c * m5,
+        m6,
+        m7,
+        m8,
+    )
 
 
 def rot_y_mat3(angle_rad: float) -> Mat3:

@@ -58,16 +58,23 @@ class ImuFaultMonitor:
     Feed the samples in the IMU's own axes (before any mounting rotation), in time order.
     """
 
-    def __init__(self, config: ImuFaultConfig, accel_range_mps2: float | None,
-                 gyro_range_radps: float | None) -> None:
+    def __init__(
+        self, config: ImuFaultConfig, accel_range_mps2: float | None, gyro_range_radps: float | None
+    ) -> None:
         self.config = config
         m = config.saturation_margin
         self._acc_lim = np.inf if accel_range_mps2 is None else m * float(accel_range_mps2)
         self._gyr_lim = np.inf if gyro_range_radps is None else m * float(gyro_range_radps)
-        self._acc_sig = 0.0 if accel_range_mps2 is None else (
-            config.saturation_sigma_range * float(accel_range_mps2))
-        self._gyr_sig = 0.0 if gyro_range_radps is None else (
-            config.saturation_sigma_range * float(gyro_range_radps))
+        self._acc_sig = (
+            0.0
+            if accel_range_mps2 is None
+            else (config.saturation_sigma_range * float(accel_range_mps2))
+        )
+        self._gyr_sig = (
+            0.0
+            if gyro_range_radps is None
+            else (config.saturation_sigma_range * float(gyro_range_radps))
+        )
         self._gyro_d2 = chi2_quantile(config.gyro_ahrs_probability, 3)
         self._prev: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
         self._last_acc: NDArray[np.float64] | None = None  # last trusted specific force
@@ -114,16 +121,26 @@ class ImuFaultMonitor:
         self._prev = (t, R, repaired.copy())
         if repaired is gyr and not acc_sat:
             self._last_acc = acc.copy()
-        if repaired is gyr and xa == sample.accel_extra_sigma_mps2 \
-                and xg == sample.gyro_extra_sigma_radps:
+        if (
+            repaired is gyr
+            and xa == sample.accel_extra_sigma_mps2
+            and xg == sample.gyro_extra_sigma_radps
+        ):
             return sample
-        return dataclasses.replace(sample, accel_mps2=acc, gyro_radps=repaired,
-                                   accel_extra_sigma_mps2=xa, gyro_extra_sigma_radps=xg)
+        return dataclasses.replace(
+            sample,
+            accel_mps2=acc,
+            gyro_radps=repaired,
+            accel_extra_sigma_mps2=xa,
+            gyro_extra_sigma_radps=xg,
+        )
 
     def report(self) -> dict[str, int]:
-        return {"accel_saturated_samples": self.n_accel_saturated,
-                "gyro_saturated_samples": self.n_gyro_saturated,
-                "gyro_repaired_samples": self.n_gyro_repaired}
+        return {
+            "accel_saturated_samples": self.n_accel_saturated,
+            "gyro_saturated_samples": self.n_gyro_saturated,
+            "gyro_repaired_samples": self.n_gyro_repaired,
+        }
 
 
 def velocity_fault_cov(sigma_mps: float, interval_s: float) -> NDArray[np.float64]:

@@ -16,7 +16,9 @@ from vio_graph.geometry import cross3
 
 
 def angular_acceleration(
-    t_s: float, gyro_radps: NDArray[np.float64], prev_t_s: float | None,
+    t_s: float,
+    gyro_radps: NDArray[np.float64],
+    prev_t_s: float | None,
     prev_gyro_radps: NDArray[np.float64] | None,
 ) -> NDArray[np.float64]:
     """(gyro - previous gyro) / dt (rad/s^2, (3,)); zeros without a previous sample or dt."""

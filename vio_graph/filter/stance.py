@@ -145,8 +145,9 @@ class StanceConsistencyTest:
         """Forget the chain (the stance ended or was rejected)."""
         self._chain = None
 
-    def test(self, t_s: float, lever_xz_m: NDArray[np.float64],
-             displacement: Displacement2D | None) -> bool:
+    def test(
+        self, t_s: float, lever_xz_m: NDArray[np.float64], displacement: Displacement2D | None
+    ) -> bool:
         """True if this frame's visual displacement (None: none) agrees with a still ankle.
 
         ``lever_xz_m`` is ankle - camera (m, ground axes) at this frame (time ``t_s``); the
@@ -167,8 +168,11 @@ class StanceConsistencyTest:
         S1 = C + np.eye(2) * self._lever_var
         r1 = d - (prev_lever - lever)
         d2_frame = float(r1 @ np.linalg.solve(S1, r1))
-        lever0, sum_d, sum_C = (prev_lever, d, C) if self._chain is None else (
-            self._chain[0], self._chain[1] + d, self._chain[2] + C)
+        lever0, sum_d, sum_C = (
+            (prev_lever, d, C)
+            if self._chain is None
+            else (self._chain[0], self._chain[1] + d, self._chain[2] + C)
+        )
         self._chain = (lever0, sum_d, sum_C)
         r = sum_d - (lever0 - lever)
         d2_chain = float(r @ np.linalg.solve(sum_C + np.eye(2) * self._lever_var, r))

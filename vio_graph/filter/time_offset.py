@@ -53,8 +53,9 @@ _MAX_REPORTED = 20  # gaps / backward stamps listed individually
 class ClockModel:
     """Recursive line fit of one stream's stamps (module docstring)."""
 
-    def __init__(self, nominal_period_s: float, window: int, gap_periods: float,
-                 smooth: bool = True) -> None:
+    def __init__(
+        self, nominal_period_s: float, window: int, gap_periods: float, smooth: bool = True
+    ) -> None:
         self.period_s = float(nominal_period_s)
         self.window = int(window)
         self.gap_periods = float(gap_periods)
@@ -128,8 +129,9 @@ class TimeOffsetEstimator:
     """2-state Kalman filter on (pitch error b (rad), camera-IMU offset td (s)); see the
     module docstring."""
 
-    def __init__(self, config: TimeOffsetConfig, initial_b_sigma_rad: float,
-                 b_drift_rad_per_sqrt_s: float) -> None:
+    def __init__(
+        self, config: TimeOffsetConfig, initial_b_sigma_rad: float, b_drift_rad_per_sqrt_s: float
+    ) -> None:
         self.config = config
         self.x = np.zeros(2)
         self.P = np.diag([initial_b_sigma_rad**2, config.initial_sigma_s**2])
@@ -149,8 +151,14 @@ class TimeOffsetEstimator:
     def sigma_s(self) -> float:
         return float(np.sqrt(self.P[1, 1]))
 
-    def update(self, t_s: float, tilt_rad: float, tilt_sigma_rad: float, offset_b_rad: float,
-               pitch_rate_radps: float) -> bool:
+    def update(
+        self,
+        t_s: float,
+        tilt_rad: float,
+        tilt_sigma_rad: float,
+        offset_b_rad: float,
+        pitch_rate_radps: float,
+    ) -> bool:
         """One level-surface tilt ``tilt_rad`` measured on a slice rotated with the pitch
         offset ``offset_b_rad`` and re-stamped by :attr:`applied_s`; ``pitch_rate_radps`` the
         shank pitch rate (ground frame) at the frame. Returns False if gated out."""

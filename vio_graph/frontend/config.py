@@ -149,8 +149,9 @@ class CornerConfig(_Strict):
         "riser lies farther back, m",
     )
     face_cluster_m: float = Field(
-        0.006, gt=0, description="face candidates are split into vertical lines at x steps "
-        "larger than this, m",
+        0.006,
+        gt=0,
+        description="face candidates are split into vertical lines at x steps larger than this, m",
     )
     min_face_points: int = Field(
         3, ge=1, description="a face line needs at least this many points (5 mm grid: 1.5 cm)"
@@ -250,7 +251,8 @@ class TrackerConfig(_Strict):
         0.01, ge=0, description="profile fallback: the target profile is thinned to this grid, m"
     )
     fallback_max_correspondence_m: float | None = Field(
-        0.03, gt=0,
+        0.03,
+        gt=0,
         description="profile fallback: correspondence distance (m) of the whole-profile ICP. "
         "In a fast swing part of the new profile is surface the previous frame never saw; "
         "within the corner ICP's 8 cm those points still pair with an end of the previous "
@@ -259,7 +261,8 @@ class TrackerConfig(_Strict):
         "displacement z -3.0 % -> -0.8 %, availability 0.93 -> 1.00. None = the ICP's own",
     )
     fallback_overlap_margin_m: float | None = Field(
-        0.01, ge=0,
+        0.01,
+        ge=0,
         description="profile fallback: keep only target points that, moved back by the IMU "
         "seed, fall inside the previous profile's x extent shrunk by this margin (m): surface "
         "the previous frame never saw has no counterpart. None = keep all",

@@ -176,8 +176,14 @@ def _surface_line(
     mask = np.ones(pts.shape[0], bool) if candidates is None else candidates.copy()
     for _ in range(attempts):
         line = ransac_horizontal_line(
-            pts, cfg.inlier_distance_m, cfg.n_hypotheses, rng, exclude_heights_m,
-            cfg.min_line_separation_m, mask)
+            pts,
+            cfg.inlier_distance_m,
+            cfg.n_hypotheses,
+            rng,
+            exclude_heights_m,
+            cfg.min_line_separation_m,
+            mask,
+        )
         if line is None or line.n_inliers < cfg.min_line_inliers:
             return line
         run = _largest_run(pts[line.inliers, 0], cfg.max_gap_m)
@@ -242,8 +248,11 @@ def extract_corner(
         # the far end (stairs down): the riser faces away; points just below the end (mixed
         # pixels, the rounded end) fix x better than the smoothing-rounded end of the tread
         d, w = cfg.inlier_distance_m, cfg.window_m
-        below = (np.abs(pts[:, 0] - edge[0]) <= d) & (pts[:, 1] < edge[1] - d) & (
-            pts[:, 1] >= edge[1] - w)
+        below = (
+            (np.abs(pts[:, 0] - edge[0]) <= d)
+            & (pts[:, 1] < edge[1] - d)
+            & (pts[:, 1] >= edge[1] - w)
+        )
         if np.count_nonzero(below) >= 3:
             edge[0] = _median_of_sorted(np.sort(pts[below, 0]))
     # 5. feature points: square window of half-size w at the edge (tread end + riser top)
@@ -251,8 +260,10 @@ def extract_corner(
     #    side by the band's length, so that it still holds w of tread to fix z)
     dx = pts[:, 0] - edge[0]
     band = max(0.0, float(run[0]) - edge[0]) if face_x is not None else 0.0
-    in_window = (dx >= -cfg.window_m) & (dx <= cfg.window_m + band) & (
-        np.abs(pts[:, 1] - edge[1]) <= cfg.window_m
+    in_window = (
+        (dx >= -cfg.window_m)
+        & (dx <= cfg.window_m + band)
+        & (np.abs(pts[:, 1] - edge[1]) <= cfg.window_m)
     )
     features = pts[in_window]
     if features.shape[0] < cfg.min_feature_points:
@@ -286,8 +297,11 @@ def _face_line_x(
     x_end, h = float(tread_end_xz_m[0]), float(tread_end_xz_m[1])
     ahead = x_end - pts[:, 0]  # > 0: in front of the tread end, away from the tread
     depth = h - pts[:, 1]
-    near = (ahead <= cfg.max_nosing_gap_m) & (ahead >= -cfg.inlier_distance_m) & (
-        depth >= cfg.face_top_margin_m)
+    near = (
+        (ahead <= cfg.max_nosing_gap_m)
+        & (ahead >= -cfg.inlier_distance_m)
+        & (depth >= cfg.face_top_margin_m)
+    )
     cand = near & (depth <= cfg.face_band_m)  # the face right below the tread first
     if np.count_nonzero(cand) < cfg.min_face_points:
         cand = near & (depth <= cfg.window_m)

@@ -91,8 +91,14 @@ class VisualFrontend:
         # eq. 1-2: sagittal slice |x_C| < w, rotated into the ground frame (camera-relative)
         pc = cfg.projection
         points_xz = sagittal_slice_from_depth(
-            frame.depth_m, frame.confidence, K, R_ground_cam, pc.half_width_m,
-            pc.min_depth_m, pc.max_depth_m, pc.min_confidence,
+            frame.depth_m,
+            frame.confidence,
+            K,
+            R_ground_cam,
+            pc.half_width_m,
+            pc.min_depth_m,
+            pc.max_depth_m,
+            pc.min_confidence,
         )
         t.append(time.perf_counter())
         # kNN smoothing (after grid thinning)
@@ -109,7 +115,11 @@ class VisualFrontend:
         t.append(time.perf_counter())
         # eq. 3-4: ICP against the previous frame, seeded and gated by the IMU prediction
         tracked = self._tracker.update(
-            frame.timestamp_s, profile, corner, predicted_delta_xz_m, predicted_cov_m2,
+            frame.timestamp_s,
+            profile,
+            corner,
+            predicted_delta_xz_m,
+            predicted_cov_m2,
             ground_turn_rad,
         )
         t.append(time.perf_counter())

@@ -113,8 +113,15 @@ class _NearestSource:
     coordinates, distance and normal.
     """
 
-    def __init__(self, src: NDArray[np.float64], tree: cKDTree, tgt: NDArray[np.float64],
-                 max_distance_m: float, n_candidates: int = 8, margin_m: float = 0.02) -> None:
+    def __init__(
+        self,
+        src: NDArray[np.float64],
+        tree: cKDTree,
+        tgt: NDArray[np.float64],
+        max_distance_m: float,
+        n_candidates: int = 8,
+        margin_m: float = 0.02,
+    ) -> None:
         self._tree, self._tgt = tree, tgt
         self._n_src = src.shape[0]
         self._k = min(n_candidates, self._n_src)
@@ -205,8 +212,10 @@ def icp_translation_2d(
         raise FrontendError(f"ICP needs (N, 2) point sets, got {src.shape} and {tgt.shape}")
     if src.shape[0] == 0 or tgt.shape[0] == 0:
         raise FrontendError("ICP needs non-empty source and target point sets")
-    T = np.zeros(2) if initial_translation_xz_m is None else np.array(
-        initial_translation_xz_m, dtype=float
+    T = (
+        np.zeros(2)
+        if initial_translation_xz_m is None
+        else np.array(initial_translation_xz_m, dtype=float)
     )
     tree = cKDTree(src) if source_tree is None else source_tree
     normals = _NormalCache(src, tree, cfg.normal_neighbours)
@@ -242,8 +251,16 @@ def icp_translation_2d(
             converged = True
             break
     if keep.size == 0:
-        return IcpResult(T, np.eye(2) * cfg.max_variance_m2, iterations, False, float("inf"), 0,
-                         np.empty((0, 2)), np.empty((0, 2)))
+        return IcpResult(
+            T,
+            np.eye(2) * cfg.max_variance_m2,
+            iterations,
+            False,
+            float("inf"),
+            0,
+            np.empty((0, 2)),
+            np.empty((0, 2)),
+        )
     pairs_t, pairs_s = tgt[keep], src[j[keep]]
     residual = pairs_t - T - pairs_s
     rms = float(np.sqrt((residual**2).sum(axis=1).mean()))

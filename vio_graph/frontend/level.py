@@ -45,7 +45,10 @@ class SurfaceTilt:
 
 
 def _best_line(
-    x: NDArray[np.float64], z: NDArray[np.float64], max_slope: float, inlier_m: float,
+    x: NDArray[np.float64],
+    z: NDArray[np.float64],
+    max_slope: float,
+    inlier_m: float,
     rng: np.random.Generator,
 ) -> NDArray[np.bool_] | None:
     """Inlier mask of the near-horizontal line with the most inliers (None if none)."""

@@ -96,8 +96,12 @@ _MAX_STEPS = 64
 
 @functools.lru_cache(maxsize=8)
 def _slice_tables(
-    K_bytes: bytes, shape: tuple[int, int], dtype: np.dtype, half_width_m: float,
-    min_depth_m: float, max_depth_m: float,
+    K_bytes: bytes,
+    shape: tuple[int, int],
+    dtype: np.dtype,
+    half_width_m: float,
+    min_depth_m: float,
+    max_depth_m: float,
 ) -> tuple[int, int, NDArray, NDArray, NDArray[np.float64], NDArray[np.float64]] | None:
     """Per-camera tables of :func:`sagittal_slice_from_depth` (cached: K and the thresholds
     are the same for every frame).
@@ -177,14 +181,30 @@ def sagittal_slice_from_depth(
     _check_image(depth_m, confidence, K)
     K = np.asarray(K, dtype=float)
     if depth_m.dtype.kind != "f" or not np.ndim(min_depth_m) == np.ndim(max_depth_m) == 0:
-        return _sagittal_slice_reference(depth_m, confidence, K, R_ground_cam, half_width_m,
-                                         min_depth_m, max_depth_m, min_confidence)
+        return _sagittal_slice_reference(
+            depth_m,
+            confidence,
+            K,
+            R_ground_cam,
+            half_width_m,
+            min_depth_m,
+            max_depth_m,
+            min_confidence,
+        )
     tables = _slice_tables(
         K.tobytes(), depth_m.shape, depth_m.dtype, half_width_m, min_depth_m, max_depth_m
     )
     if tables is None:
-        return _sagittal_slice_reference(depth_m, confidence, K, R_ground_cam, half_width_m,
-                                         min_depth_m, max_depth_m, min_confidence)
+        return _sagittal_slice_reference(
+            depth_m,
+            confidence,
+            K,
+            R_ground_cam,
+            half_width_m,
+            min_depth_m,
+            max_depth_m,
+            min_confidence,
+        )
     c0, c1, lower, upper, x_grid, y_grid = tables
     if c1 == c0:
         return np.empty((0, 2))

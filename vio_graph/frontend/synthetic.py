@@ -40,8 +40,14 @@ def stair_polyline(
     if kind == "obstacle":
         h, d = obstacle_height_m, obstacle_depth_m
         return np.array(
-            [[x0 - floor_before_m, 0.0], [x0, 0.0], [x0, h], [x0 + d, h], [x0 + d, 0.0],
-             [x0 + d + floor_after_m, 0.0]]
+            [
+                [x0 - floor_before_m, 0.0],
+                [x0, 0.0],
+                [x0, h],
+                [x0 + d, h],
+                [x0 + d, 0.0],
+                [x0 + d + floor_after_m, 0.0],
+            ]
         )
     sign = {"stair_up": 1.0, "stair_down": -1.0}[kind]
     z = 0.0 if sign > 0 else n_steps * rise_m
@@ -112,8 +118,11 @@ def drop_tread_band(
     drop = np.zeros(pts.shape[0], dtype=bool)
     for edge, side in zip(stair_edges(polyline_xz_m), tread_side(polyline_xz_m), strict=True):
         behind = side * (world[:, 0] - edge[0])
-        drop |= (behind > start_m) & (behind < start_m + length_m) & (
-            np.abs(world[:, 1] - edge[1]) <= height_tol_m)
+        drop |= (
+            (behind > start_m)
+            & (behind < start_m + length_m)
+            & (np.abs(world[:, 1] - edge[1]) <= height_tol_m)
+        )
     return pts[~drop]
 
 

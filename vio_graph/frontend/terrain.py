@@ -211,9 +211,11 @@ def find_faces(
     band = config.level_band_m
     in_level = np.zeros(pts.shape[0], dtype=bool)
     for lv in levels:
-        in_level |= (np.abs(pts[:, 1] - lv.height_m) <= band) & (
-            pts[:, 0] >= lv.x_min_m - config.level_gap_m) & (
-            pts[:, 0] <= lv.x_max_m + config.level_gap_m)
+        in_level |= (
+            (np.abs(pts[:, 1] - lv.height_m) <= band)
+            & (pts[:, 0] >= lv.x_min_m - config.level_gap_m)
+            & (pts[:, 0] <= lv.x_max_m + config.level_gap_m)
+        )
     rest = pts[~in_level]
     if rest.shape[0] < config.min_face_points:
         return []
@@ -233,10 +235,10 @@ def find_faces(
             continue
         x_lo_g, x_hi_g = float(core[:, 0].min()), float(core[:, 0].max())
         ctx = config.face_context_m
-        before = pts[(pts[:, 0] < x_lo_g - 0.5 * config.face_gap_m)
-                     & (pts[:, 0] >= x_lo_g - ctx), 1]
-        after = pts[(pts[:, 0] > x_hi_g + 0.5 * config.face_gap_m)
-                    & (pts[:, 0] <= x_hi_g + ctx), 1]
+        before = pts[
+            (pts[:, 0] < x_lo_g - 0.5 * config.face_gap_m) & (pts[:, 0] >= x_lo_g - ctx), 1
+        ]
+        after = pts[(pts[:, 0] > x_hi_g + 0.5 * config.face_gap_m) & (pts[:, 0] <= x_hi_g + ctx), 1]
         mid = 0.5 * (z_lo + z_hi)
         if z_hi - z_lo > config.max_step_m:
             direction = 0  # a wall, not a step
@@ -290,8 +292,10 @@ def classify_terrain(
         beyond = pts[:, 0] > last.x_max_m + config.level_gap_m
         lower_beyond = bool(np.any(pts[beyond, 1] < last.height_m - config.min_step_m))
     kind = classify_levels(levels, pts.shape[0], config, lower_beyond)
-    if kind in (TerrainKind.LEVEL, TerrainKind.UNKNOWN) and config.use_faces and not (
-        _has_wall(levels, config)
+    if (
+        kind in (TerrainKind.LEVEL, TerrainKind.UNKNOWN)
+        and config.use_faces
+        and not (_has_wall(levels, config))
     ):
         by_faces = classify_faces(find_faces(pts, levels, config))
         if by_faces != TerrainKind.UNKNOWN:

@@ -153,8 +153,7 @@ class CornerTracker:
                 upper_height_m=corner.upper_height_m + dz,
                 lower_height_m=corner.lower_height_m + dz,
             )
-        self._prev = dataclasses.replace(
-            prev, profile_xz_m=prev.profile_xz_m @ R.T, corner=corner)
+        self._prev = dataclasses.replace(prev, profile_xz_m=prev.profile_xz_m @ R.T, corner=corner)
 
     def _new_id(self) -> int:
         self._next_id += 1
@@ -187,7 +186,11 @@ class CornerTracker:
         """
         self._rotate_previous(ground_turn_rad)
         out = self._associate(
-            timestamp_s, corner, self._prev, predicted_delta_xz_m, predicted_cov_m2,
+            timestamp_s,
+            corner,
+            self._prev,
+            predicted_delta_xz_m,
+            predicted_cov_m2,
             np.asarray(profile_xz_m, float),
         )
         self._prev = _Frame(timestamp_s, np.asarray(profile_xz_m, float), corner, out.track_id)
@@ -253,15 +256,26 @@ class CornerTracker:
         bad = self._quality_problem(icp)  # 4. ICP quality
         T, C = icp.translation_xz_m, icp.cov_m2
         same_icp = prev_corner is not None and self._is_same(corner, prev_corner, T)
-        if (cfg.edge_x_without_face and same_icp and prev_corner is not None
-                and not self._has_face(corner) and not self._has_face(prev_corner)):
+        if (
+            cfg.edge_x_without_face
+            and same_icp
+            and prev_corner is not None
+            and not self._has_face(corner)
+            and not self._has_face(prev_corner)
+        ):
             # 2b. no riser below the edge: x from the edge points, z from ICP
             T = np.array([corner.edge_xz_m[0] - prev_corner.edge_xz_m[0], T[1]])
             C = np.diag([2.0 * cfg.edge_x_sigma_m**2, C[1, 1]])
         d2, gate = self._gate(T, C, pred, P)  # 3. gate
         bad = bad or gate
-        if (bad is None and cfg.corner_check and same_icp and prev_corner is not None
-                and corner.has_face and prev_corner.has_face):
+        if (
+            bad is None
+            and cfg.corner_check
+            and same_icp
+            and prev_corner is not None
+            and corner.has_face
+            and prev_corner.has_face
+        ):
             # 3b. both nosings placed from their faces: their difference is a second,
             #     independent displacement; ICP pulled elsewhere (by the borders of a missing
             #     band that moves with the camera) disagrees with it
@@ -281,8 +295,9 @@ class CornerTracker:
                 #    may still register; the corner observation is kept either way
                 alt = self._profile_icp(t, profile, prev, pred, pred_cov)
                 if alt.displacement is not None:
-                    return dataclasses.replace(alt, observation=obs, track_id=track_id,
-                                               same_corner=same)
+                    return dataclasses.replace(
+                        alt, observation=obs, track_id=track_id, same_corner=same
+                    )
             return TrackerOutput(None, obs, icp, bad, track_id, same, d2)
         disp = Displacement2D(prev.timestamp_s, t, -T, C)
         return TrackerOutput(disp, obs, icp, None, track_id, same, d2)
@@ -301,8 +316,13 @@ class CornerTracker:
             return np.eye(2) * self._cfg.default_prediction_sigma_m**2
         return np.asarray(pred_cov, dtype=float)
 
-    def _gate(self, T: NDArray[np.float64], C: NDArray[np.float64], pred: NDArray[np.float64],
-              P: NDArray[np.float64]) -> tuple[float, str | None]:
+    def _gate(
+        self,
+        T: NDArray[np.float64],
+        C: NDArray[np.float64],
+        pred: NDArray[np.float64],
+        P: NDArray[np.float64],
+    ) -> tuple[float, str | None]:
         """Step 3: Mahalanobis^2 of the ICP displacement -T (covariance C) against the IMU
         prediction (covariance P), and the rejection reason if it exceeds ``gate_chi2``."""
         cfg = self._cfg
@@ -339,13 +359,13 @@ class CornerTracker:
         cfg = self._cfg
         gap = self._gap_problem(t, prev)
         if gap is not None:
-            return TrackerOutput(None, None, None, f"no corner in this frame; {gap}", None,
-                                 False)
+            return TrackerOutput(None, None, None, f"no corner in this frame; {gap}", None, False)
         assert prev is not None
         target = grid_thin(profile, cfg.fallback_grid_m) if cfg.fallback_grid_m > 0 else profile
         if target.shape[0] < cfg.min_correspondences or prev.profile_xz_m.shape[0] == 0:
-            return TrackerOutput(None, None, None, "no corner in this frame; profile too short",
-                                 None, False)
+            return TrackerOutput(
+                None, None, None, "no corner in this frame; profile too short", None, False
+            )
         pred = np.asarray(pred, dtype=float)
         T0 = -pred
         margin = cfg.fallback_overlap_margin_m
@@ -358,8 +378,9 @@ class CornerTracker:
         src, tree = self._source(prev, target, T0)
         icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree)
         bad = self._quality_problem(icp)
-        d2, gate = self._gate(icp.translation_xz_m, icp.cov_m2, pred,
-                              self._prediction_cov(pred_cov))
+        d2, gate = self._gate(
+            icp.translation_xz_m, icp.cov_m2, pred, self._prediction_cov(pred_cov)
+        )
         bad = bad or gate
         if bad is not None:
             return TrackerOutput(None, None, icp, f"profile ICP: {bad}", None, False, d2)

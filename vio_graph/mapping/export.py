@@ -114,14 +114,18 @@ def write_point_cloud(path: Path, points_xz_m: ArrayLike) -> Path:
     pts = np.ascontiguousarray(_points_3d(points_xz_m), dtype="<f8")
     n = pts.shape[0]
     if path.suffix.lower() == ".ply":
-        header = ("ply\nformat binary_little_endian 1.0\ncomment vio_graph map, x-z plane\n"
-                  f"element vertex {n}\nproperty double x\nproperty double y\n"
-                  "property double z\nend_header\n")
+        header = (
+            "ply\nformat binary_little_endian 1.0\ncomment vio_graph map, x-z plane\n"
+            f"element vertex {n}\nproperty double x\nproperty double y\n"
+            "property double z\nend_header\n"
+        )
     else:  # float32, as open3d writes (and reads) PCD
         pts = pts.astype("<f4")
-        header = ("# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z\n"
-                  f"SIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\n"
-                  f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n")
+        header = (
+            "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z\n"
+            f"SIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\n"
+            f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n"
+        )
     with atomic_path(path, suffix=path.suffix) as tmp:
         Path(tmp).write_bytes(header.encode("ascii") + pts.tobytes())
     return path
@@ -401,19 +405,6 @@ def read_geometry_csv(path: Path) -> tuple[tuple[StepGeometry, ...], tuple[Obsta
 
 # ---------------------------------------------------------------------------------------------
 # plot
-def _zoom_limits(
-    arrays: Sequence[NDArray[np.float64]], margin_m: float = 0.15
-) -> tuple[tuple[float, float], tuple[float, float]] | None:
-    """x and z limits around the finite points of ``arrays`` (each (N, 2)), with a margin."""
-    pts = [a[np.all(np.isfinite(a), axis=1)] for a in arrays if a.size]
-    pts = [a for a in pts if a.size]
-    if not pts:
-        return None
-    allp = np.vstack(pts)
-    lo, hi = allp.min(axis=0) - margin_m, allp.max(axis=0) + margin_m
-    return (float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1]))
-
-
 def _geometry_points(geometry: TerrainGeometry) -> NDArray[np.float64]:
     pts = [[lv.x_start_edge_m, lv.z_m] for lv in geometry.levels]
     pts += [[lv.x_end_edge_m, lv.z_m] for lv in geometry.levels]
@@ -426,11 +417,25 @@ def _step_table_rows(geometry: TerrainGeometry) -> list[list[str]]:
     rows = []
     for k, s in enumerate(geometry.steps, start=1):
         tread = "-" if s.tread_m is None else f"{1000 * s.tread_m:.1f}"
-        rows.append([str(k), s.direction, f"{1000 * s.rise_m:.1f}", tread,
-                     f"{s.nosing_xz_m[0]:.2f}, {s.nosing_xz_m[1]:.2f}"])
+        rows.append(
+            [
+                str(k),
+                s.direction,
+                f"{1000 * s.rise_m:.1f}",
+                tread,
+                f"{s.nosing_xz_m[0]:.2f}, {s.nosing_xz_m[1]:.2f}",
+            ]
+        )
     for k, o in enumerate(geometry.obstacles, start=1):
-        rows.append([f"O{k}", "block", f"{1000 * o.height_m:.1f}", f"{1000 * o.depth_m:.1f}",
-                     f"{o.front_edge_xz_m[0]:.2f}, {o.front_edge_xz_m[1]:.2f}"])
+        rows.append(
+            [
+                f"O{k}",
+                "block",
+                f"{1000 * o.height_m:.1f}",
+                f"{1000 * o.depth_m:.1f}",
+                f"{o.front_edge_xz_m[0]:.2f}, {o.front_edge_xz_m[1]:.2f}",
+            ]
+        )
     return rows
 
 
@@ -465,14 +470,18 @@ def map_figure(
     from matplotlib.figure import Figure
 
     pts = np.asarray(points_xz_m, dtype=np.float64).reshape(-1, 2)
-    cams = (np.asarray(camera_xz_m, dtype=np.float64).reshape(-1, 2)
-            if camera_xz_m is not None else np.zeros((0, 2)))
+    cams = (
+        np.asarray(camera_xz_m, dtype=np.float64).reshape(-1, 2)
+        if camera_xz_m is not None
+        else np.zeros((0, 2))
+    )
     rows = _step_table_rows(geometry) if geometry is not None else []
     fig = Figure(figsize=(12, 5.0), dpi=110)
     FigureCanvasAgg(fig)
     if rows:
-        gs = fig.add_gridspec(1, 2, width_ratios=[2.6, 1], left=0.06, right=0.98, wspace=0.08,
-                              bottom=0.1, top=0.92)
+        gs = fig.add_gridspec(
+            1, 2, width_ratios=[2.6, 1], left=0.06, right=0.98, wspace=0.08, bottom=0.1, top=0.92
+        )
         ax = fig.add_subplot(gs[0, 0])
         side = fig.add_subplot(gs[0, 1])
         side.axis("off")
@@ -487,15 +496,18 @@ def map_figure(
         true_edges = np.asarray(terrain_info.edges_xz_m)
         ax.plot(true_edges[:, 0], true_edges[:, 1], "kx", ms=8, label="true edges")
     if cams.size:
-        ax.plot(cams[:, 0], cams[:, 1], "-", color="tab:purple", lw=1,
-                label="camera (keyframes)")
+        ax.plot(cams[:, 0], cams[:, 1], "-", color="tab:purple", lw=1, label="camera (keyframes)")
     if geometry is not None:
         _draw_geometry(ax, geometry)
         ax.set_title(title or f"terrain map: {geometry.kind.value}")
     elif title:
         ax.set_title(title)
     # zoom to what was mapped (and the camera that mapped it), not the whole true profile
-    limits = _zoom_limits([pts, cams] + ([_geometry_points(geometry)] if geometry else []))
+    from vio_graph.viz.plots import zoom_limits
+
+    limits = zoom_limits(
+        [pts, cams] + ([_geometry_points(geometry)] if geometry else []), margin_m=0.15
+    )
     if limits is not None:
         ax.set_xlim(*limits[0])
         ax.set_ylim(*limits[1])
@@ -513,9 +525,11 @@ def map_figure(
     shown = rows[:24]
     table = side.table(
         cellText=shown,
-        colLabels=(["#", "kind", "rise or\nheight [mm]", "tread or\ndepth [mm]", "edge x, z [m]"]
-                   if geometry.obstacles else
-                   ["#", "kind", "rise\n[mm]", "tread\n[mm]", "nosing x, z [m]"]),
+        colLabels=(
+            ["#", "kind", "rise or\nheight [mm]", "tread or\ndepth [mm]", "edge x, z [m]"]
+            if geometry.obstacles
+            else ["#", "kind", "rise\n[mm]", "tread\n[mm]", "nosing x, z [m]"]
+        ),
         loc="upper center",
         cellLoc="center",
         colWidths=[0.08, 0.14, 0.24, 0.24, 0.3],
@@ -528,8 +542,14 @@ def map_figure(
         if r == 0:
             cell.set_height(cell.get_height() * 1.8)
     if len(rows) > len(shown):
-        side.text(0.5, 0.0, f"... {len(rows) - len(shown)} more in steps.csv", ha="center",
-                  fontsize=7, transform=side.transAxes)
+        side.text(
+            0.5,
+            0.0,
+            f"... {len(rows) - len(shown)} more in steps.csv",
+            ha="center",
+            fontsize=7,
+            transform=side.transAxes,
+        )
     return fig
 
 

@@ -20,20 +20,38 @@ GT_FRAMES_FILE = "groundtruth/frames.csv"
 
 IMU_COLUMNS = (
     "timestamp_s",
-    "acc_x_mps2", "acc_y_mps2", "acc_z_mps2",
-    "gyr_x_radps", "gyr_y_radps", "gyr_z_radps",
-    "q_w", "q_x", "q_y", "q_z",
+    "acc_x_mps2",
+    "acc_y_mps2",
+    "acc_z_mps2",
+    "gyr_x_radps",
+    "gyr_y_radps",
+    "gyr_z_radps",
+    "q_w",
+    "q_x",
+    "q_y",
+    "q_z",
 )
 JOINT_COLUMNS = ("timestamp_s", "thigh_pitch_rad", "knee_rad", "ankle_rad")
 DEPTH_TIMESTAMP_COLUMNS = ("frame", "timestamp_s")
 CONTACT_COLUMNS = ("timestamp_s", "force_n")
 GT_IMU_STATE_COLUMNS = (
     "timestamp_s",
-    "p_x_m", "p_y_m", "p_z_m",
-    "v_x_mps", "v_y_mps", "v_z_mps",
-    "q_w", "q_x", "q_y", "q_z",
-    "ba_x_mps2", "ba_y_mps2", "ba_z_mps2",
-    "bg_x_radps", "bg_y_radps", "bg_z_radps",
+    "p_x_m",
+    "p_y_m",
+    "p_z_m",
+    "v_x_mps",
+    "v_y_mps",
+    "v_z_mps",
+    "q_w",
+    "q_x",
+    "q_y",
+    "q_z",
+    "ba_x_mps2",
+    "ba_y_mps2",
+    "ba_z_mps2",
+    "bg_x_radps",
+    "bg_y_radps",
+    "bg_z_radps",
 )
 GT_FRAME_COLUMNS = ("frame", "timestamp_s", "edge_visible")
 

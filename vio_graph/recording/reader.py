@@ -252,12 +252,17 @@ class Recording:
         model = self.metadata.contact
         if d is None:
             if model is not None:
-                raise RecordingError(path, "metadata.yaml declares a contact channel but the "
-                                     "file is missing")
+                raise RecordingError(
+                    path, "metadata.yaml declares a contact channel but the file is missing"
+                )
             return None
         if model is None:
-            raise RecordingError(path, "contact.csv is present but metadata.yaml has no "
-                                 "'contact' section (kind, threshold_n)", field="contact")
+            raise RecordingError(
+                path,
+                "contact.csv is present but metadata.yaml has no "
+                "'contact' section (kind, threshold_n)",
+                field="contact",
+            )
         if model.kind == "switch" and not np.all(np.isin(d[:, 1], (0.0, 1.0))):
             raise RecordingError(path, "a switch channel must hold 0 or 1", field="force_n")
         return ContactTable(d[:, 0], d[:, 1], d[:, 1] >= model.threshold_n)

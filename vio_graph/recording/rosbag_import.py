@@ -68,8 +68,12 @@ MSGTYPES = {
     "joints": "sensor_msgs/msg/JointState",
 }
 # foot-contact message types; the std_msgs ones have no header (timed by receive time)
-CONTACT_MSGTYPES = ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Bool",
-                    "geometry_msgs/msg/WrenchStamped")
+CONTACT_MSGTYPES = (
+    "std_msgs/msg/Float64",
+    "std_msgs/msg/Float32",
+    "std_msgs/msg/Bool",
+    "geometry_msgs/msg/WrenchStamped",
+)
 SWITCH_THRESHOLD_N = 0.5  # a switch channel holds 0 / 1
 # depth encodings: numpy little-endian dtype and metres per stored unit
 DEPTH_ENCODINGS = {"32FC1": ("<f4", 1.0), "16UC1": ("<u2", 0.001), "mono16": ("<u2", 0.001)}
@@ -152,7 +156,8 @@ class RigContact(_Strict):
         description="load_cell: axial force in N; switch: 1 closed, 0 open"
     )
     threshold_n: float | None = Field(
-        None, gt=0,
+        None,
+        gt=0,
         description="load_cell: loaded at or above this force, N (required); switch: 0.5",
     )
     scale: float = Field(1.0, description="newtons per published unit (load_cell)")
@@ -166,15 +171,20 @@ class RigContact(_Strict):
     @model_validator(mode="after")
     def _consistent(self) -> RigContact:
         if self.msgtype is not None and _full_msgtype(self.msgtype) not in CONTACT_MSGTYPES:
-            raise ValueError(f"msgtype {self.msgtype!r} not supported (one of "
-                             f"{', '.join(CONTACT_MSGTYPES)})")
+            raise ValueError(
+                f"msgtype {self.msgtype!r} not supported (one of {', '.join(CONTACT_MSGTYPES)})"
+            )
         if self.kind == "load_cell" and self.threshold_n is None:
-            raise ValueError("a load_cell needs threshold_n (the force at which the foot "
-                             "counts as loaded, N)")
+            raise ValueError(
+                "a load_cell needs threshold_n (the force at which the foot counts as loaded, N)"
+            )
         if self.kind == "switch" and self.threshold_n not in (None, SWITCH_THRESHOLD_N):
             raise ValueError("a switch channel holds 0 / 1: leave threshold_n out (0.5)")
-        if (self.kind == "load_cell" and self.msgtype is not None
-                and _full_msgtype(self.msgtype) == "std_msgs/msg/Bool"):
+        if (
+            self.kind == "load_cell"
+            and self.msgtype is not None
+            and _full_msgtype(self.msgtype) == "std_msgs/msg/Bool"
+        ):
             raise ValueError("std_msgs/Bool carries a switch: set kind: switch")
         return self
 
@@ -229,16 +239,18 @@ def decode_depth_image(msg: Any) -> np.ndarray:
     Raises ValueError for an unsupported encoding or a short buffer (the caller names the bag).
     """
     if msg.encoding not in DEPTH_ENCODINGS:
-        raise ValueError(f"encoding {msg.encoding!r} not supported (expected one of "
-                         f"{sorted(DEPTH_ENCODINGS)})")
+        raise ValueError(
+            f"encoding {msg.encoding!r} not supported (expected one of {sorted(DEPTH_ENCODINGS)})"
+        )
     dtype_le, scale = DEPTH_ENCODINGS[msg.encoding]
     dtype = np.dtype(dtype_le).newbyteorder(">" if msg.is_bigendian else "<")
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     row_bytes = w * dtype.itemsize
     data = np.asarray(msg.data, dtype=np.uint8)
     if step < row_bytes or data.size < step * h:
-        raise ValueError(f"{data.size} bytes with step {step} do not hold a {w}x{h} "
-                         f"{msg.encoding} image")
+        raise ValueError(
+            f"{data.size} bytes with step {step} do not hold a {w}x{h} {msg.encoding} image"
+        )
     rows = data[: step * h].reshape(h, step)[:, :row_bytes]
     values = np.ascontiguousarray(rows).view(dtype).reshape(h, w)
     depth_m = values.astype(np.float32) * np.float32(scale)
@@ -281,12 +293,12 @@ def _connections(reader: Any, bag: Path, topic: str, kind: str, required: bool) 
         if not required:
             return []
         have = ", ".join(f"{t} ({i.msgtype})" for t, i in sorted(topics.items())) or "none"
-        raise BagImportError(bag, f"{kind} topic not in the bag; the bag has: {have}",
-                             field=topic)
+        raise BagImportError(bag, f"{kind} topic not in the bag; the bag has: {have}", field=topic)
     info = topics[topic]
     if info.msgtype != MSGTYPES[kind]:
-        raise BagImportError(bag, f"{kind} topic has type {info.msgtype}, expected "
-                             f"{MSGTYPES[kind]}", field=topic)
+        raise BagImportError(
+            bag, f"{kind} topic has type {info.msgtype}, expected {MSGTYPES[kind]}", field=topic
+        )
     if info.msgcount == 0 and required:
         raise BagImportError(bag, f"no messages on the {kind} topic", field=topic)
     return list(info.connections)
@@ -302,18 +314,32 @@ def _contact_connections(reader: Any, bag: Path, rc: RigContact) -> list:
     topics = reader.topics
     if rc.topic not in topics:
         have = ", ".join(f"{t} ({i.msgtype})" for t, i in sorted(topics.items())) or "none"
-        raise BagImportError(bag, "contact topic (rig file contact.topic) not in the bag; the "
-                             f"bag has: {have}", field=rc.topic)
+        raise BagImportError(
+            bag,
+            f"contact topic (rig file contact.topic) not in the bag; the bag has: {have}",
+            field=rc.topic,
+        )
     info = topics[rc.topic]
     if rc.msgtype is not None and info.msgtype != _full_msgtype(rc.msgtype):
-        raise BagImportError(bag, f"contact topic has type {info.msgtype}, the rig file says "
-                             f"contact.msgtype = {rc.msgtype}", field=rc.topic)
+        raise BagImportError(
+            bag,
+            f"contact topic has type {info.msgtype}, the rig file says "
+            f"contact.msgtype = {rc.msgtype}",
+            field=rc.topic,
+        )
     if info.msgtype not in CONTACT_MSGTYPES:
-        raise BagImportError(bag, f"contact topic has type {info.msgtype}, expected one of "
-                             f"{', '.join(CONTACT_MSGTYPES)}", field=rc.topic)
+        raise BagImportError(
+            bag,
+            f"contact topic has type {info.msgtype}, expected one of {', '.join(CONTACT_MSGTYPES)}",
+            field=rc.topic,
+        )
     if info.msgtype == "std_msgs/msg/Bool" and rc.kind != "switch":
-        raise BagImportError(bag, "contact topic is std_msgs/Bool (a switch) but the rig file "
-                             f"says contact.kind = {rc.kind}", field=rc.topic)
+        raise BagImportError(
+            bag,
+            "contact topic is std_msgs/Bool (a switch) but the rig file "
+            f"says contact.kind = {rc.kind}",
+            field=rc.topic,
+        )
     if info.msgcount == 0:
         raise BagImportError(bag, "no messages on the contact topic", field=rc.topic)
     return list(info.connections)
@@ -334,8 +360,9 @@ def _scan(bag: Path, topics: BagTopics, rig: RigConfig, use_receive_time: bool) 
             raise BagImportError(bag, "the bag is empty (no messages)")
         conns = {
             "depth": _connections(reader, bag, topics.depth, "depth", True),
-            "camera_info": _connections(reader, bag, topics.camera_info, "camera_info",
-                                        not rig.camera.has_intrinsics),
+            "camera_info": _connections(
+                reader, bag, topics.camera_info, "camera_info", not rig.camera.has_intrinsics
+            ),
             "imu": _connections(reader, bag, topics.imu, "imu", True),
             "joints": _connections(reader, bag, topics.joints, "joints", True),
         }
@@ -356,16 +383,22 @@ def _scan(bag: Path, topics: BagTopics, rig: RigConfig, use_receive_time: bool) 
             t_ns = _time_ns(msg, receive_ns, use_receive_time)
             if kind == "depth":
                 if msg.encoding not in DEPTH_ENCODINGS:
-                    raise BagImportError(bag, f"depth encoding {msg.encoding!r} not supported "
-                                         f"(expected one of {sorted(DEPTH_ENCODINGS)})",
-                                         field=conn.topic)
+                    raise BagImportError(
+                        bag,
+                        f"depth encoding {msg.encoding!r} not supported "
+                        f"(expected one of {sorted(DEPTH_ENCODINGS)})",
+                        field=conn.topic,
+                    )
                 wh = (int(msg.width), int(msg.height))
                 if size_wh is None:
                     size_wh = wh
                 elif wh != size_wh:
-                    raise BagImportError(bag, f"depth frame {len(depth_ns)} is {wh[0]}x{wh[1]} "
-                                         f"px, earlier frames {size_wh[0]}x{size_wh[1]} px",
-                                         field=conn.topic)
+                    raise BagImportError(
+                        bag,
+                        f"depth frame {len(depth_ns)} is {wh[0]}x{wh[1]} "
+                        f"px, earlier frames {size_wh[0]}x{size_wh[1]} px",
+                        field=conn.topic,
+                    )
                 depth_ns.append(t_ns)
             elif kind == "camera_info":
                 camera_info = camera_info if camera_info is not None else msg
@@ -382,18 +415,26 @@ def _scan(bag: Path, topics: BagTopics, rig: RigConfig, use_receive_time: bool) 
                 if names not in joint_index:
                     missing = [s.name for s in sources if s.name not in names]
                     if missing:
-                        raise BagImportError(bag, f"JointState without joints {missing}; it "
-                                             f"names {list(names)} (set joints.*.name in the "
-                                             "rig file)", field=conn.topic)
+                        raise BagImportError(
+                            bag,
+                            f"JointState without joints {missing}; it "
+                            f"names {list(names)} (set joints.*.name in the "
+                            "rig file)",
+                            field=conn.topic,
+                        )
                     joint_index[names] = [names.index(s.name) for s in sources]
                 pos = np.asarray(msg.position, dtype=float)
                 idx = joint_index[names]
                 if pos.shape[0] <= max(idx):
-                    raise BagImportError(bag, f"JointState with {pos.shape[0]} positions for "
-                                         f"{len(names)} names", field=conn.topic)
+                    raise BagImportError(
+                        bag,
+                        f"JointState with {pos.shape[0]} positions for {len(names)} names",
+                        field=conn.topic,
+                    )
                 joint_ns.append(t_ns)
-                joint_rows.append([s.sign * pos[i] + s.offset_rad
-                                   for s, i in zip(sources, idx, strict=True)])
+                joint_rows.append(
+                    [s.sign * pos[i] + s.offset_rad for s, i in zip(sources, idx, strict=True)]
+                )
     except BagImportError:
         raise
     except Exception as exc:  # corrupt chunks, undecodable messages
@@ -443,12 +484,16 @@ def _increasing_mask(t_ns: np.ndarray) -> np.ndarray:
 
 def _check_rate(bag: Path, topic: str, t_ns: np.ndarray, declared_hz: float, field: str) -> float:
     if t_ns.shape[0] < 3:
-        raise BagImportError(bag, f"only {t_ns.shape[0]} samples in the shared time span",
-                             field=topic)
+        raise BagImportError(
+            bag, f"only {t_ns.shape[0]} samples in the shared time span", field=topic
+        )
     measured = 1e9 / float(np.median(np.diff(t_ns)))
     if abs(measured - declared_hz) > RATE_TOLERANCE * declared_hz:
-        raise BagImportError(bag, f"measured rate {measured:.2f} Hz, the rig file declares "
-                             f"{field} = {declared_hz:g} Hz", field=topic)
+        raise BagImportError(
+            bag,
+            f"measured rate {measured:.2f} Hz, the rig file declares {field} = {declared_hz:g} Hz",
+            field=topic,
+        )
     return measured
 
 
@@ -470,25 +515,41 @@ def _camera_model(
     else:
         info = scan.camera_info
         if info is None:
-            raise BagImportError(bag, "no camera_info message and no intrinsics in the rig file",
-                                 field=topics.camera_info)
+            raise BagImportError(
+                bag,
+                "no camera_info message and no intrinsics in the rig file",
+                field=topics.camera_info,
+            )
         if (int(info.width), int(info.height)) != (w, h):
-            raise BagImportError(bag, f"camera_info is {info.width}x{info.height} px but depth "
-                                 f"frames are {w}x{h} px", field=topics.camera_info)
+            raise BagImportError(
+                bag,
+                f"camera_info is {info.width}x{info.height} px but depth frames are {w}x{h} px",
+                field=topics.camera_info,
+            )
         k = np.asarray(_field(info, "K", "k"), dtype=float)
         fx, fy, cx, cy = k[0], k[4], k[2], k[5]
         if not (fx > 0 and fy > 0):
-            raise BagImportError(bag, f"camera_info K has fx={fx}, fy={fy}",
-                                 field=topics.camera_info)
+            raise BagImportError(
+                bag, f"camera_info K has fx={fx}, fy={fy}", field=topics.camera_info
+            )
         note = "intrinsics from camera_info"
         d = np.asarray(_field(info, "D", "d"), dtype=float)
         if d.size and np.any(d != 0):
             log.warning("%s: camera_info has distortion %s; stored as a pinhole model", bag, d)
             note += f" (distortion {np.round(d, 6).tolist()} not applied: pinhole model)"
-    model = CameraModel(width_px=w, height_px=h, fx_px=float(fx), fy_px=float(fy),
-                        cx_px=float(cx), cy_px=float(cy), depth_unit_m=cam.depth_unit_m,
-                        min_range_m=cam.min_range_m, max_range_m=cam.max_range_m,
-                        frame_rate_hz=cam.frame_rate_hz, model=cam.model)
+    model = CameraModel(
+        width_px=w,
+        height_px=h,
+        fx_px=float(fx),
+        fy_px=float(fy),
+        cx_px=float(cx),
+        cy_px=float(cy),
+        depth_unit_m=cam.depth_unit_m,
+        min_range_m=cam.min_range_m,
+        max_range_m=cam.max_range_m,
+        frame_rate_hz=cam.frame_rate_hz,
+        model=cam.model,
+    )
     return model, note
 
 
@@ -506,8 +567,9 @@ def _load_groundtruth(gt_dir: Path, t0_ns: int) -> GroundTruth:
 
 
 # ---------------------------------------------------------------------------- import
-def _depth_frames(bag: Path, topic: str, keep: np.ndarray, scanned_ns: np.ndarray,
-                  use_receive_time: bool) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+def _depth_frames(
+    bag: Path, topic: str, keep: np.ndarray, scanned_ns: np.ndarray, use_receive_time: bool
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Second pass: the kept depth frames, one at a time (metres, confidence 255 if valid)."""
     reader = _open_reader(bag)
     try:
@@ -516,8 +578,12 @@ def _depth_frames(bag: Path, topic: str, keep: np.ndarray, scanned_ns: np.ndarra
             if i < keep.shape[0] and keep[i]:
                 msg = reader.deserialize(raw, conn.msgtype)
                 if _time_ns(msg, receive_ns, use_receive_time) != scanned_ns[i]:
-                    raise BagImportError(bag, f"depth message {i} changed between the two "
-                                         "passes (bag modified while importing?)", field=topic)
+                    raise BagImportError(
+                        bag,
+                        f"depth message {i} changed between the two "
+                        "passes (bag modified while importing?)",
+                        field=topic,
+                    )
                 try:
                     depth_m = decode_depth_image(msg)
                 except ValueError as exc:
@@ -559,15 +625,21 @@ def import_bag(
     start_ns = max(int(t.min()) for t in streams)
     end_ns = min(int(t.max()) for t in streams)
     if end_ns <= start_ns:
-        raise BagImportError(bag, "depth, IMU, joint" + (" and contact" if rc else "")
-                             + " streams do not overlap in time")
+        raise BagImportError(
+            bag,
+            "depth, IMU, joint"
+            + (" and contact" if rc else "")
+            + " streams do not overlap in time",
+        )
     slack_ns = int(0.5e9 / rig.camera.frame_rate_hz)
     start_ns, end_ns = start_ns - slack_ns, end_ns + slack_ns
     imu_ns, imu_rows, imu_dups = _sorted_unique(scan.imu_ns, scan.imu_rows)
     joint_ns, joint_rows, joint_dups = _sorted_unique(scan.joint_ns, scan.joint_rows)
     in_span = lambda t: (t >= start_ns) & (t <= end_ns)  # noqa: E731
-    imu_sel, joint_sel = _bracketing(imu_ns, start_ns, end_ns), _bracketing(joint_ns, start_ns,
-                                                                          end_ns)
+    imu_sel, joint_sel = (
+        _bracketing(imu_ns, start_ns, end_ns),
+        _bracketing(joint_ns, start_ns, end_ns),
+    )
     imu_ns, imu_rows = imu_ns[imu_sel], imu_rows[imu_sel]
     joint_ns, joint_rows = joint_ns[joint_sel], joint_rows[joint_sel]
     contact_ns, contact_rows, contact_dups = scan.contact_ns, scan.contact_rows, 0
@@ -588,27 +660,36 @@ def import_bag(
         force = contact_rows[:, 0]
         if rc.kind == "switch" and not np.all(np.isin(force, (0.0, 1.0))):
             bad = force[~np.isin(force, (0.0, 1.0))][0]
-            raise BagImportError(bag, f"a switch must read 0 or 1 after sign and scale, got "
-                                 f"{bad:g} (use std_msgs/Bool, or kind: load_cell)",
-                                 field=rc.topic)
+            raise BagImportError(
+                bag,
+                f"a switch must read 0 or 1 after sign and scale, got "
+                f"{bad:g} (use std_msgs/Bool, or kind: load_cell)",
+                field=rc.topic,
+            )
         if not np.all(np.isfinite(force)):
             raise BagImportError(bag, "contact force is NaN or inf", field=rc.topic)
         contact_model = ContactModel(kind=rc.kind, threshold_n=rc.threshold)
     q_norm = np.linalg.norm(imu_rows[:, 6:10], axis=1)
     if np.any(np.abs(q_norm - 1.0) > QUAT_NORM_TOLERANCE):
         row = int(np.argmax(np.abs(q_norm - 1.0)))
-        raise BagImportError(bag, f"IMU orientation not a unit quaternion (sample {row}, norm "
-                             f"{q_norm[row]:.4g}); the recording needs the vendor orientation",
-                             field=topics.imu)
+        raise BagImportError(
+            bag,
+            f"IMU orientation not a unit quaternion (sample {row}, norm "
+            f"{q_norm[row]:.4g}); the recording needs the vendor orientation",
+            field=topics.imu,
+        )
 
     camera, camera_note = _camera_model(bag, topics, rig, scan)
     kept = [depth_ns, imu_ns, joint_ns] + ([contact_ns] if rc else [])
     t0_ns = min(int(t[0]) for t in kept)  # earliest kept sample
     t1_ns = max(int(t[-1]) for t in kept)
     rel = lambda t: (t - t0_ns).astype(float) * 1e-9  # noqa: E731
-    dropped = {"imu_repeated_stamps": imu_dups, "joint_repeated_stamps": joint_dups,
-               "depth_out_of_order_or_repeated": int((~_increasing_mask(scan.depth_ns)).sum()),
-               "depth_outside_shared_span": int((~in_span(scan.depth_ns)).sum())}
+    dropped = {
+        "imu_repeated_stamps": imu_dups,
+        "joint_repeated_stamps": joint_dups,
+        "depth_out_of_order_or_repeated": int((~_increasing_mask(scan.depth_ns)).sum()),
+        "depth_outside_shared_span": int((~in_span(scan.depth_ns)).sum()),
+    }
     if rc is not None:
         dropped["contact_repeated_stamps"] = contact_dups
     metadata = RecordingMetadata(
@@ -623,10 +704,14 @@ def import_bag(
         terrain=rig.terrain,
         provenance=Provenance(
             source="device",
-            config={"bag": str(bag), "rig_file": str(rig_yaml),
-                    "topics": topics.model_dump() | ({"contact": rc.topic} if rc else {}),
-                    "time_source": "receive" if use_receive_time else "header.stamp",
-                    "time_origin_ns": t0_ns, "dropped": dropped},
+            config={
+                "bag": str(bag),
+                "rig_file": str(rig_yaml),
+                "topics": topics.model_dump() | ({"contact": rc.topic} if rc else {}),
+                "time_source": "receive" if use_receive_time else "header.stamp",
+                "time_origin_ns": t0_ns,
+                "dropped": dropped,
+            },
             software=f"vio_graph {vio_graph.__version__} rosbag_import",
             created_utc=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             notes="; ".join(x for x in (rig.notes, camera_note) if x),
@@ -639,13 +724,34 @@ def import_bag(
         force = contact_rows[:, 0]
         contact = ContactTable(rel(contact_ns), force, force >= contact_model.threshold_n)
     gt = _load_groundtruth(Path(groundtruth_dir), t0_ns) if groundtruth_dir else None
-    log.info("%s: %d depth frames, %d IMU, %d joint samples over %.2f s; dropped %s", bag,
-             depth_ns.shape[0], len(imu), len(joints), metadata.duration_s, dropped)
-    return write_recording(Path(out_dir), metadata, imu, joints, gt, rel(depth_ns),
-                           _depth_frames(bag, topics.depth, keep, scan.depth_ns,
-                                         use_receive_time), progress=progress,
-                           overwrite=overwrite, contact=contact)
+    log.info(
+        "%s: %d depth frames, %d IMU, %d joint samples over %.2f s; dropped %s",
+        bag,
+        depth_ns.shape[0],
+        len(imu),
+        len(joints),
+        metadata.duration_s,
+        dropped,
+    )
+    return write_recording(
+        Path(out_dir),
+        metadata,
+        imu,
+        joints,
+        gt,
+        rel(depth_ns),
+        _depth_frames(bag, topics.depth, keep, scan.depth_ns, use_receive_time),
+        progress=progress,
+        overwrite=overwrite,
+        contact=contact,
+    )
 
 
-__all__: Sequence[str] = ["BagTopics", "RigConfig", "RigContact", "decode_depth_image",
-                          "import_bag", "load_rig"]
+__all__: Sequence[str] = [
+    "BagTopics",
+    "RigConfig",
+    "RigContact",
+    "decode_depth_image",
+    "import_bag",
+    "load_rig",
+]

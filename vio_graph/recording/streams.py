@@ -76,8 +76,9 @@ class ContactTable:
         return int(self.timestamp_s.shape[0])
 
     def sample(self, i: int) -> ContactSample:
-        return ContactSample(float(self.timestamp_s[i]), bool(self.loaded[i]),
-                             float(self.force_n[i]))
+        return ContactSample(
+            float(self.timestamp_s[i]), bool(self.loaded[i]), float(self.force_n[i])
+        )
 
 
 @dataclass(frozen=True)

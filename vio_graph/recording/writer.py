@@ -61,14 +61,20 @@ def write_recording(
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".partial", dir=out_dir.parent))
     try:
         if (contact is None) != (metadata.contact is None):
-            raise OutputError(f"{out_dir}: a contact channel needs both the table and the "
-                              "metadata 'contact' section")
+            raise OutputError(
+                f"{out_dir}: a contact channel needs both the table and the "
+                "metadata 'contact' section"
+            )
         _write_into(
             tmp, metadata, imu, joints, groundtruth, frame_timestamps_s, depth_frames, progress
         )
         if contact is not None:
-            _write_csv(tmp / layout.CONTACT_FILE, layout.CONTACT_COLUMNS,
-                       np.column_stack([contact.timestamp_s, contact.force_n]), fmt="%.9g")
+            _write_csv(
+                tmp / layout.CONTACT_FILE,
+                layout.CONTACT_COLUMNS,
+                np.column_stack([contact.timestamp_s, contact.force_n]),
+                fmt="%.9g",
+            )
         if out_dir.exists():
             shutil.rmtree(out_dir)
         os.replace(tmp, out_dir)

@@ -83,8 +83,9 @@ class Clearance:
     normal_xz: NDArray[np.float64]
 
 
-NO_CLEARANCE = Clearance(float("nan"), np.full(2, np.nan), np.full(2, np.nan), -1,
-                         np.full(2, np.nan))
+NO_CLEARANCE = Clearance(
+    float("nan"), np.full(2, np.nan), np.full(2, np.nan), -1, np.full(2, np.nan)
+)
 
 
 def _point_to_columns(p: NDArray[np.float64], prof: HeightProfile):
@@ -118,16 +119,20 @@ def _point_to_columns(p: NDArray[np.float64], prof: HeightProfile):
     return d, np.stack([cx, cz], axis=1)
 
 
-def _corners_to_segment(a: NDArray[np.float64], b: NDArray[np.float64],
-                        corners: NDArray[np.float64]):
+def _corners_to_segment(
+    a: NDArray[np.float64], b: NDArray[np.float64], corners: NDArray[np.float64]
+):
     """Signed distance (C,) from points ``corners`` (C, 2) to segment a-b and the closest
     segment points (C, 2); negative when the corner lies above the segment within its x span
     (the terrain pokes through the foot): minus the smaller of the lift and the slide that
     would free it."""
     ab = b - a
     L2 = float(ab @ ab)
-    s = np.zeros(len(corners)) if L2 == 0 else np.minimum(np.maximum(((corners - a) @ ab) / L2,
-                                                                      0.0), 1.0)
+    s = (
+        np.zeros(len(corners))
+        if L2 == 0
+        else np.minimum(np.maximum(((corners - a) @ ab) / L2, 0.0), 1.0)
+    )
     q = a[None] + s[:, None] * ab[None]
     d = np.hypot(*(corners - q).T)
     x0, x1 = min(a[0], b[0]), max(a[0], b[0])
@@ -135,14 +140,16 @@ def _corners_to_segment(a: NDArray[np.float64], b: NDArray[np.float64],
         z_line = a[1] + (corners[:, 0] - a[0]) * ab[1] / ab[0]
         above = (corners[:, 0] > x0) & (corners[:, 0] < x1) & (corners[:, 1] > z_line)
         # the way out: lift the foot, or slide it until the corner leaves its x span
-        depth = np.minimum(corners[:, 1] - z_line,
-                           np.minimum(corners[:, 0] - x0, x1 - corners[:, 0]))
+        depth = np.minimum(
+            corners[:, 1] - z_line, np.minimum(corners[:, 0] - x0, x1 - corners[:, 0])
+        )
         d = np.where(above, -depth, d)
     return d, q
 
 
-def foot_clearance(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile,
-                   sole_thickness_m: float = 0.0) -> Clearance:
+def foot_clearance(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile, sole_thickness_m: float = 0.0
+) -> Clearance:
     """Signed distance (m) from the heel-toe segment, thickened by the sole, to the terrain.
 
     Exact for separated shapes (the distance between a segment and a convex column is reached
@@ -157,8 +164,9 @@ def foot_clearance(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfil
     B = len(prof)
     dh, ch = _point_to_columns(a, prof)
     dt, ct = _point_to_columns(b, prof)
-    corners = np.concatenate([np.stack([prof.x_lo_m, prof.z_m], 1),
-                              np.stack([prof.x_hi_m, prof.z_m], 1)])
+    corners = np.concatenate(
+        [np.stack([prof.x_lo_m, prof.z_m], 1), np.stack([prof.x_hi_m, prof.z_m], 1)]
+    )
     dc, qc = _corners_to_segment(a, b, corners)
     d_all = np.concatenate([dh, dt, dc])
     k = int(np.argmin(d_all))
@@ -174,12 +182,18 @@ def foot_clearance(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfil
     normal = diff / n if n > 1e-9 else np.array([0.0, 1.0])
     if dist < 0:
         normal = np.array([0.0, 1.0]) if n <= 1e-9 else -normal
-    return Clearance(dist - sole_thickness_m, np.asarray(foot, float).copy(),
-                     np.asarray(terr, float).copy(), col, normal)
+    return Clearance(
+        dist - sole_thickness_m,
+        np.asarray(foot, float).copy(),
+        np.asarray(terr, float).copy(),
+        col,
+        normal,
+    )
 
 
-def edge_clearance(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, edge_xz_m: ArrayLike,
-                   sole_thickness_m: float = 0.0) -> Clearance:
+def edge_clearance(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, edge_xz_m: ArrayLike, sole_thickness_m: float = 0.0
+) -> Clearance:
     """Signed distance (m) from the foot segment to one edge point (2,) (negative when the
     edge is above the foot's line within its x span), minus the sole thickness."""
     ax, az = (float(v) for v in np.asarray(heel_xz_m, dtype=float))
@@ -190,8 +204,9 @@ def edge_clearance(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, edge_xz_m: ArrayLi
     nx, nz = ((qx - ex) / n, (qz - ez) / n) if n > 1e-9 else (0.0, 1.0)
     if d < 0:
         nx, nz = -nx, -nz
-    return Clearance(d - sole_thickness_m, np.array([qx, qz]), np.array([ex, ez]), -1,
-                     np.array([nx, nz]))
+    return Clearance(
+        d - sole_thickness_m, np.array([qx, qz]), np.array([ex, ez]), -1, np.array([nx, nz])
+    )
 
 
 @dataclass(frozen=True)
@@ -214,8 +229,13 @@ class Edges:
         return n, rise, tread
 
 
-def find_edges(prof: HeightProfile, min_rise_m: float, max_gap_m: float,
-               slope_step_m: float = 0.004, max_transition_bin_m: float = 0.03) -> Edges:
+def find_edges(
+    prof: HeightProfile,
+    min_rise_m: float,
+    max_gap_m: float,
+    slope_step_m: float = 0.004,
+    max_transition_bin_m: float = 0.03,
+) -> Edges:
     """Height changes of at least ``min_rise_m`` between consecutive known bins.
 
     Consecutive bin pairs whose height changes by more than ``slope_step_m`` with the same
@@ -240,13 +260,15 @@ def find_edges(prof: HeightProfile, min_rise_m: float, max_gap_m: float,
         i = j = nz[p]
         s = int(step_l[i])
         p += 1
-        while (j + 1 < n - 1 and step_l[j + 1] == s
-               and width[j + 1] <= max_transition_bin_m):
+        while j + 1 < n - 1 and step_l[j + 1] == s and width[j + 1] <= max_transition_bin_m:
             j += 1
             p += 1
         # a riser interrupted by a bin or two of noise: continue the previous run
-        if (runs and runs[-1][2] == s
-                and prof.x_hi_m[i] - prof.x_lo_m[runs[-1][1] + 1] <= max_transition_bin_m):
+        if (
+            runs
+            and runs[-1][2] == s
+            and prof.x_hi_m[i] - prof.x_lo_m[runs[-1][1] + 1] <= max_transition_bin_m
+        ):
             runs[-1][1] = j
         else:
             runs.append([i, j, s])
@@ -255,7 +277,7 @@ def find_edges(prof: HeightProfile, min_rise_m: float, max_gap_m: float,
         rise = float(prof.z_m[j + 1] - prof.z_m[i])
         if abs(rise) < min_rise_m:
             continue
-        k = i + int(np.argmax(np.abs(dz[i:j + 1]) * (np.sign(dz[i:j + 1]) == s)))
+        k = i + int(np.argmax(np.abs(dz[i : j + 1]) * (np.sign(dz[i : j + 1]) == s)))
         if s > 0:  # rising in +x: nosing at the left end of the upper bin
             out_xz.append((prof.x_lo_m[k + 1], prof.z_m[j + 1]))
         else:  # falling: nosing at the right end of the upper bin
@@ -285,15 +307,22 @@ class Placement:
     toe_to_back_m: float
 
     def as_array(self) -> NDArray[np.float64]:
-        return np.array([self.heel_to_nosing_m, self.toe_to_nosing_m, self.heel_to_back_m,
-                         self.toe_to_back_m])
+        return np.array(
+            [self.heel_to_nosing_m, self.toe_to_nosing_m, self.heel_to_back_m, self.toe_to_back_m]
+        )
 
 
 NO_PLACEMENT = Placement(*(float("nan"),) * 4)
 
 
-def placement_on_tread(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile,
-                       tolerance_m: float, max_gap_m: float, min_rise_m: float) -> Placement:
+def placement_on_tread(
+    heel_xz_m: ArrayLike,
+    toe_xz_m: ArrayLike,
+    prof: HeightProfile,
+    tolerance_m: float,
+    max_gap_m: float,
+    min_rise_m: float,
+) -> Placement:
     """Placement of the foot on the tread it stands on.
 
     The tread is the run of known bins within ``tolerance_m`` of the bin under the foot's x
@@ -325,8 +354,11 @@ def placement_on_tread(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightPr
             j = i + direction
             if j < 0 or j >= n:
                 return (prof.x_lo_m[i] if direction < 0 else prof.x_hi_m[i]), 0
-            gap = (prof.x_lo_m[i] - prof.x_hi_m[j]) if direction < 0 else (
-                prof.x_lo_m[j] - prof.x_hi_m[i])
+            gap = (
+                (prof.x_lo_m[i] - prof.x_hi_m[j])
+                if direction < 0
+                else (prof.x_lo_m[j] - prof.x_hi_m[i])
+            )
             x_b = prof.x_lo_m[i] if direction < 0 else prof.x_hi_m[i]
             if gap > max_gap_m:
                 return x_b, 0
@@ -362,9 +394,12 @@ def placement_on_tread(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightPr
     return Placement(dist(nosing, heel), dist(nosing, toe), dist(back, heel), dist(back, toe))
 
 
-def clearance_sigma(normal_xz: NDArray[np.float64],
-                    cov_relative_m2: NDArray[np.float64] | Sequence[Sequence[float]],
-                    map_sigma_m: float, foot_sigma_m: float) -> float:
+def clearance_sigma(
+    normal_xz: NDArray[np.float64],
+    cov_relative_m2: NDArray[np.float64] | Sequence[Sequence[float]],
+    map_sigma_m: float,
+    foot_sigma_m: float,
+) -> float:
     """Linearised 1-sigma (m) of a clearance: the foot-minus-terrain position covariance
     (2, 2) projected on the distance's gradient ``normal_xz``, plus the terrain height's
     sigma along the normal's vertical part and the foot-outline sigma."""
@@ -372,8 +407,13 @@ def clearance_sigma(normal_xz: NDArray[np.float64],
     if not (np.isfinite(nx) and np.isfinite(nz)):
         return float("nan")
     C = cov_relative_m2
-    var = (nx * nx * float(C[0][0]) + 2 * nx * nz * float(C[0][1]) + nz * nz * float(C[1][1])
-           + (map_sigma_m * nz) ** 2 + foot_sigma_m**2)
+    var = (
+        nx * nx * float(C[0][0])
+        + 2 * nx * nz * float(C[0][1])
+        + nz * nz * float(C[1][1])
+        + (map_sigma_m * nz) ** 2
+        + foot_sigma_m**2
+    )
     return max(var, 0.0) ** 0.5
 
 
@@ -387,8 +427,9 @@ def coverage(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile) -> 
     return float(np.sum(np.maximum(ov, 0.0)) / (xb - xa))
 
 
-def _edge_distance(ax: float, az: float, bx: float, bz: float, ex: float, ez: float
-                   ) -> tuple[float, float, float]:
+def _edge_distance(
+    ax: float, az: float, bx: float, bz: float, ex: float, ez: float
+) -> tuple[float, float, float]:
     """Scalar :func:`_corners_to_segment` for one point: (signed distance, closest x, z)."""
     dx, dz = bx - ax, bz - az
     L2 = dx * dx + dz * dz
@@ -402,16 +443,16 @@ def _edge_distance(ax: float, az: float, bx: float, bz: float, ex: float, ez: fl
     return d, qx, qz
 
 
-def _point_segment(px: float, pz: float, ax: float, az: float, bx: float, bz: float
-                   ) -> float:
+def _point_segment(px: float, pz: float, ax: float, az: float, bx: float, bz: float) -> float:
     dx, dz = bx - ax, bz - az
     L2 = dx * dx + dz * dz
     s = 0.0 if L2 == 0 else min(max(((px - ax) * dx + (pz - az) * dz) / L2, 0.0), 1.0)
     return ((px - ax - s * dx) ** 2 + (pz - az - s * dz) ** 2) ** 0.5
 
 
-def _segments_cross(ax: float, az: float, bx: float, bz: float, cx: float, cz: float,
-                    dx: float, dz: float) -> bool:
+def _segments_cross(
+    ax: float, az: float, bx: float, bz: float, cx: float, cz: float, dx: float, dz: float
+) -> bool:
     def orient(px: float, pz: float, qx: float, qz: float, rx: float, rz: float) -> float:
         return (qx - px) * (rz - pz) - (qz - pz) * (rx - px)
 
@@ -420,9 +461,15 @@ def _segments_cross(ax: float, az: float, bx: float, bz: float, cx: float, cz: f
     return o1 * o2 < 0 and o3 * o4 < 0
 
 
-def predicted_min_edge_clearance(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike,
-                                 velocity_xz_mps: ArrayLike, horizon_s: float, steps: int,
-                                 edge_xz_m: ArrayLike, sole_thickness_m: float = 0.0) -> float:
+def predicted_min_edge_clearance(
+    heel_xz_m: ArrayLike,
+    toe_xz_m: ArrayLike,
+    velocity_xz_mps: ArrayLike,
+    horizon_s: float,
+    steps: int,
+    edge_xz_m: ArrayLike,
+    sole_thickness_m: float = 0.0,
+) -> float:
     """Minimum of :func:`edge_clearance` over the horizon [0, ``horizon_s``], the foot
     translated at the constant velocity ``velocity_xz_mps`` (m; NaN if the velocity is
     unknown). Exact over the continuous horizon: relative to the foot, the edge moves along
@@ -438,15 +485,17 @@ def predicted_min_edge_clearance(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike,
     fx, fz = ex - vx * horizon_s, ez - vz * horizon_s  # the edge at the horizon, foot-relative
     d0 = _edge_distance(ax, az, bx, bz, ex, ez)[0]
     d1 = _edge_distance(ax, az, bx, bz, fx, fz)[0]
-    best = min(d0, d1, _point_segment(ax, az, ex, ez, fx, fz),
-               _point_segment(bx, bz, ex, ez, fx, fz))
+    best = min(
+        d0, d1, _point_segment(ax, az, ex, ez, fx, fz), _point_segment(bx, bz, ex, ez, fx, fz)
+    )
     if _segments_cross(ax, az, bx, bz, ex, ez, fx, fz):
         best = min(best, 0.0)
     return best - sole_thickness_m
 
 
-def clearance_many(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile,
-                   sole_thickness_m: float = 0.0) -> NDArray[np.float64]:
+def clearance_many(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile, sole_thickness_m: float = 0.0
+) -> NDArray[np.float64]:
     """:func:`foot_clearance`'s distance for T foot poses at once (heel, toe (T, 2)) -> (T,)
     metres (NaN when ``prof`` is empty)."""
     a = np.asarray(heel_xz_m, dtype=float).reshape(-1, 2)
@@ -465,22 +514,32 @@ def clearance_many(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfil
     cz = np.concatenate([prof.z_m, prof.z_m])[None]
     ab = b - a
     L2 = np.maximum(np.sum(ab * ab, axis=1, keepdims=True), 1e-18)
-    s = np.minimum(np.maximum(((cx - a[:, :1]) * ab[:, :1] + (cz - a[:, 1:]) * ab[:, 1:]) / L2,
-                              0.0), 1.0)
+    s = np.minimum(
+        np.maximum(((cx - a[:, :1]) * ab[:, :1] + (cz - a[:, 1:]) * ab[:, 1:]) / L2, 0.0), 1.0
+    )
     qx, qz = a[:, :1] + s * ab[:, :1], a[:, 1:] + s * ab[:, 1:]
     dc = np.hypot(cx - qx, cz - qz)
     x0, x1 = np.minimum(a[:, :1], b[:, :1]), np.maximum(a[:, :1], b[:, :1])
-    slope = np.where(np.abs(ab[:, :1]) > 1e-12, ab[:, 1:] / np.where(
-        np.abs(ab[:, :1]) > 1e-12, ab[:, :1], 1.0), 0.0)
+    slope = np.where(
+        np.abs(ab[:, :1]) > 1e-12,
+        ab[:, 1:] / np.where(np.abs(ab[:, :1]) > 1e-12, ab[:, :1], 1.0),
+        0.0,
+    )
     z_line = a[:, 1:] + (cx - a[:, :1]) * slope
     above = (cx > x0) & (cx < x1) & (cz > z_line) & (x1 - x0 > 1e-12)
     dc = np.where(above, z_line - cz, dc).min(axis=1)
     return np.minimum(np.minimum(point(a), point(b)), dc) - sole_thickness_m
 
 
-def predicted_min_clearance(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike,
-                            velocity_xz_mps: ArrayLike, horizon_s: float, steps: int,
-                            prof: HeightProfile, sole_thickness_m: float = 0.0) -> float:
+def predicted_min_clearance(
+    heel_xz_m: ArrayLike,
+    toe_xz_m: ArrayLike,
+    velocity_xz_mps: ArrayLike,
+    horizon_s: float,
+    steps: int,
+    prof: HeightProfile,
+    sole_thickness_m: float = 0.0,
+) -> float:
     """Minimum clearance (m) over the next ``horizon_s``: the foot outline translated at the
     constant velocity ``velocity_xz_mps`` (the toe's), evaluated at ``steps`` times evenly in
     (0, horizon_s] and now. NaN if the profile is empty or the velocity unknown."""

@@ -16,58 +16,103 @@ class SafetyConfig(BaseModel):
 
     enabled: bool = Field(default=True, description="compute the safety outputs per frame")
     bin_m: float = Field(
-        default=0.01, gt=0, le=0.05,
-        description="x bin width of the online height map built from keyframe profiles, m")
+        default=0.01,
+        gt=0,
+        le=0.05,
+        description="x bin width of the online height map built from keyframe profiles, m",
+    )
     min_keyframes: int = Field(
-        default=2, ge=1, description="a map bin is used once this many keyframes saw it")
+        default=2, ge=1, description="a map bin is used once this many keyframes saw it"
+    )
     sole_thickness_m: float = Field(
-        default=0.0, ge=0, le=0.05,
+        default=0.0,
+        ge=0,
+        le=0.05,
         description="sole below the heel-toe line; 0 when the rig's heel and toe points are "
-        "the sole's contact points (the simulator's and the sample rig's), m")
+        "the sole's contact points (the simulator's and the sample rig's), m",
+    )
     horizon_s: float = Field(
-        default=0.2, ge=0.05, le=0.5,
-        description="prediction horizon of the minimum clearance (issue: 100-300 ms), s")
+        default=0.2,
+        ge=0.05,
+        le=0.5,
+        description="prediction horizon of the minimum clearance (issue: 100-300 ms), s",
+    )
     horizon_steps: int = Field(
-        default=5, ge=1, le=50, description="foot poses evaluated over the horizon (count)")
+        default=5, ge=1, le=50, description="foot poses evaluated over the horizon (count)"
+    )
     window_m: float = Field(
-        default=0.3, gt=0, description="terrain within this x distance of the foot is "
-        "searched for the nearest point, m")
+        default=0.3,
+        gt=0,
+        description="terrain within this x distance of the foot is "
+        "searched for the nearest point, m",
+    )
     toe_pass_m: float = Field(
-        default=0.05, ge=0, description="the next edge ahead is the first with x beyond the "
-        "toe minus this (an edge the toe is crossing still counts), m")
+        default=0.05,
+        ge=0,
+        description="the next edge ahead is the first with x beyond the "
+        "toe minus this (an edge the toe is crossing still counts), m",
+    )
     min_coverage: float = Field(
-        default=0.5, ge=0, le=1, description="the clearance is reported (else NaN) when the "
-        "terrain under at least this share of the foot's x span has been mapped")
+        default=0.5,
+        ge=0,
+        le=1,
+        description="the clearance is reported (else NaN) when the "
+        "terrain under at least this share of the foot's x span has been mapped",
+    )
     edge_min_rise_m: float = Field(
-        default=0.04, gt=0, description="a height change of at least this is a riser/edge, m")
+        default=0.04, gt=0, description="a height change of at least this is a riser/edge, m"
+    )
     edge_max_gap_m: float = Field(
-        default=0.15, gt=0, description="unseen x gaps up to this are bridged when looking "
-        "for an edge (a descending riser is hidden under its nosing), m")
+        default=0.15,
+        gt=0,
+        description="unseen x gaps up to this are bridged when looking "
+        "for an edge (a descending riser is hidden under its nosing), m",
+    )
     tread_tolerance_m: float = Field(
-        default=0.015, gt=0, description="bins within this height of the landing height "
-        "belong to the tread the foot lands on, m")
+        default=0.015,
+        gt=0,
+        description="bins within this height of the landing height "
+        "belong to the tread the foot lands on, m",
+    )
     near_trip_m: float = Field(
-        default=0.02, gt=0, description="a swing clearance below this is a near-trip, m")
+        default=0.02, gt=0, description="a swing clearance below this is a near-trip, m"
+    )
     warning_sigma: float = Field(
-        default=1.0, ge=0, description="warn when the predicted minimum clearance to the next "
-        "edge minus this many sigma falls below near_trip_m (count of sigma)")
+        default=1.0,
+        ge=0,
+        description="warn when the predicted minimum clearance to the next "
+        "edge minus this many sigma falls below near_trip_m (count of sigma)",
+    )
     warning_min_forward_speed_mps: float = Field(
-        default=0.5, ge=0, description="a near-trip needs the toe to move forward faster than "
+        default=0.5,
+        ge=0,
+        description="a near-trip needs the toe to move forward faster than "
         "this and at least as fast as it descends (excludes the landing, where the clearance "
-        "goes to zero by design), m/s")
+        "goes to zero by design), m/s",
+    )
     map_sigma_m: float = Field(
-        default=0.003, ge=0, description="1-sigma floor of a map bin's height, m")
+        default=0.003, ge=0, description="1-sigma floor of a map bin's height, m"
+    )
     relative_pose_scale: float = Field(
-        default=1.0, ge=0, le=1, description="weight of the filter's covariance growth "
+        default=1.0,
+        ge=0,
+        le=1,
+        description="weight of the filter's covariance growth "
         "|P_now - P_keyframes| in the clearance variance (1: the random-walk model as it is; "
-        "lower it where the filter's covariance is known to be conservative)")
+        "lower it where the filter's covariance is known to be conservative)",
+    )
     foot_sigma_m: float = Field(
-        default=0.004, ge=0, description="1-sigma of the foot outline relative to the camera "
-        "(joint angles, leg lengths), m")
+        default=0.004,
+        ge=0,
+        description="1-sigma of the foot outline relative to the camera "
+        "(joint angles, leg lengths), m",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> SafetyConfig:
         if self.tread_tolerance_m >= self.edge_min_rise_m:
-            raise ValueError(f"safety.tread_tolerance_m ({self.tread_tolerance_m} m) must be "
-                             f"below safety.edge_min_rise_m ({self.edge_min_rise_m} m)")
+            raise ValueError(
+                f"safety.tread_tolerance_m ({self.tread_tolerance_m} m) must be "
+                f"below safety.edge_min_rise_m ({self.edge_min_rise_m} m)"
+            )
         return self

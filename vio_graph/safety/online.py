@@ -79,11 +79,25 @@ class SafetyEstimate:
 
 
 #: frames.csv columns of a SafetyEstimate, in order (docs/outputs.md)
-CSV_COLUMNS = ("clearance_m", "clearance_sigma_m", "nosing_clearance_m", "nosing_sigma_m",
-               "predicted_min_clearance_m", "predicted_min_nosing_clearance_m",
-               "near_trip_warning", "edge_distance_m",
-               "edge_distance_sigma_m", "steps_seen", "mean_rise_m", "mean_tread_m", "landing",
-               "heel_to_nosing_m", "toe_to_nosing_m", "heel_to_back_m", "toe_to_back_m")
+CSV_COLUMNS = (
+    "clearance_m",
+    "clearance_sigma_m",
+    "nosing_clearance_m",
+    "nosing_sigma_m",
+    "predicted_min_clearance_m",
+    "predicted_min_nosing_clearance_m",
+    "near_trip_warning",
+    "edge_distance_m",
+    "edge_distance_sigma_m",
+    "steps_seen",
+    "mean_rise_m",
+    "mean_tread_m",
+    "landing",
+    "heel_to_nosing_m",
+    "toe_to_nosing_m",
+    "heel_to_back_m",
+    "toe_to_back_m",
+)
 
 
 def csv_values(s: SafetyEstimate | None) -> list[str]:
@@ -91,11 +105,21 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
     if s is None:
         return [""] * len(CSV_COLUMNS)
     vals: list[float | int | bool] = [
-        s.clearance_m, s.clearance_sigma_m, s.nosing_clearance_m, s.nosing_sigma_m,
-        s.predicted_min_clearance_m, s.predicted_min_nosing_clearance_m,
-        s.near_trip_warning, s.edge_distance_m,
-        s.edge_distance_sigma_m, s.steps_seen, s.mean_rise_m, s.mean_tread_m, s.landing,
-        *s.placement]
+        s.clearance_m,
+        s.clearance_sigma_m,
+        s.nosing_clearance_m,
+        s.nosing_sigma_m,
+        s.predicted_min_clearance_m,
+        s.predicted_min_nosing_clearance_m,
+        s.near_trip_warning,
+        s.edge_distance_m,
+        s.edge_distance_sigma_m,
+        s.steps_seen,
+        s.mean_rise_m,
+        s.mean_tread_m,
+        s.landing,
+        *s.placement,
+    ]
     out = []
     for v in vals:
         if isinstance(v, bool | np.bool_):
@@ -109,8 +133,11 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
 
 def _psd_abs(M: NDArray[np.float64], scale: float = 1.0) -> list[list[float]]:
     """|scale M| for a symmetric 2x2 M: its eigenvalues made non-negative (closed form)."""
-    a, b, c = (scale * float(M[0, 0]), scale * float((M[0, 1] + M[1, 0]) / 2),
-               scale * float(M[1, 1]))
+    a, b, c = (
+        scale * float(M[0, 0]),
+        scale * float((M[0, 1] + M[1, 0]) / 2),
+        scale * float(M[1, 1]),
+    )
     m, r = (a + c) / 2, (((a - c) / 2) ** 2 + b * b) ** 0.5
     l1, l2 = m + r, m - r
     if l2 >= 0 or r == 0:  # already non-negative (or a multiple of I)
@@ -120,16 +147,19 @@ def _psd_abs(M: NDArray[np.float64], scale: float = 1.0) -> list[list[float]]:
     nrm = (vx * vx + vz * vz) ** 0.5
     vx, vz = vx / nrm, vz / nrm
     s1, s2 = abs(l1), abs(l2)
-    return [[s1 * vx * vx + s2 * vz * vz, (s1 - s2) * vx * vz],
-            [(s1 - s2) * vx * vz, s1 * vz * vz + s2 * vx * vx]]
+    return [
+        [s1 * vx * vx + s2 * vz * vz, (s1 - s2) * vx * vz],
+        [(s1 - s2) * vx * vz, s1 * vz * vz + s2 * vx * vx],
+    ]
 
 
 def forward_motion(v_xz_mps: NDArray[np.float64], cfg: SafetyConfig) -> bool:
     """The toe moves forward faster than ``warning_min_forward_speed_mps`` and at least as
     fast as it descends (a swing crossing an edge, not a landing)."""
     vx, vz = float(v_xz_mps[0]), float(v_xz_mps[1])
-    return bool(np.isfinite(vx) and np.isfinite(vz)
-                and vx > cfg.warning_min_forward_speed_mps and vz > -vx)
+    return bool(
+        np.isfinite(vx) and np.isfinite(vz) and vx > cfg.warning_min_forward_speed_mps and vz > -vx
+    )
 
 
 class OnlineHeightMap:
@@ -164,8 +194,9 @@ class OnlineHeightMap:
         self._cov = np.pad(self._cov, ((pad_l, pad_r), (0, 0)))
         self._i0 = lo
 
-    def add_keyframe(self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike,
-                     cov_position_m2: ArrayLike) -> None:
+    def add_keyframe(
+        self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike, cov_position_m2: ArrayLike
+    ) -> None:
         """Add one keyframe: its profile (N, 2) relative to the camera, world axes, m."""
         rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
         rel = rel[np.all(np.isfinite(rel), axis=1)]
@@ -180,8 +211,9 @@ class OnlineHeightMap:
         grp = np.cumsum(first) - 1  # group of every point
         top_each = z[first][grp]
         band = z >= top_each - self.top_band_m  # points near the bin's top (riser bins)
-        top = (np.bincount(grp[band], weights=z[band], minlength=bins.size)
-               / np.bincount(grp[band], minlength=bins.size))
+        top = np.bincount(grp[band], weights=z[band], minlength=bins.size) / np.bincount(
+            grp[band], minlength=bins.size
+        )
         self._grow(int(bins.min()), int(bins.max()))
         j = bins - self._i0
         self._sum[j] += top
@@ -202,11 +234,13 @@ class OnlineHeightMap:
         var = np.maximum(self._sq[j] / n - mean**2, 0.0) if j.size else np.zeros(0)
         sig = np.sqrt(var / n + map_sigma_m**2)
         x_lo = ((j + self._i0) * self.bin_m).astype(np.float64)
-        self._profile = HeightProfile(x_lo, x_lo + self.bin_m, np.asarray(mean, np.float64),
-                                      np.asarray(sig, np.float64))
+        self._profile = HeightProfile(
+            x_lo, x_lo + self.bin_m, np.asarray(mean, np.float64), np.asarray(sig, np.float64)
+        )
         c = self._cov[j] / n[:, None] if j.size else np.zeros((0, 3))
-        self._cov_bins = np.stack([np.stack([c[:, 0], c[:, 1]], 1),
-                                   np.stack([c[:, 1], c[:, 2]], 1)], 1)
+        self._cov_bins = np.stack(
+            [np.stack([c[:, 0], c[:, 1]], 1), np.stack([c[:, 1], c[:, 2]], 1)], 1
+        )
         return self._profile
 
     def bin_cov(self, k: int) -> NDArray[np.float64]:
@@ -226,9 +260,16 @@ class SafetyMonitor:
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, toe)
         self._in_stance = False
 
-    def update(self, t_s: float, camera_xz_m: ArrayLike, cov_position_m2: ArrayLike,
-               heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, in_stance: bool,
-               keyframe_profile_xz_m: ArrayLike | None = None) -> SafetyEstimate:
+    def update(
+        self,
+        t_s: float,
+        camera_xz_m: ArrayLike,
+        cov_position_m2: ArrayLike,
+        heel_xz_m: ArrayLike,
+        toe_xz_m: ArrayLike,
+        in_stance: bool,
+        keyframe_profile_xz_m: ArrayLike | None = None,
+    ) -> SafetyEstimate:
         """The outputs of one frame; ``keyframe_profile_xz_m`` (N, 2, camera-relative) when
         the frame is a keyframe (it joins the map before the frame's outputs are computed)."""
         cfg = self.config
@@ -260,8 +301,7 @@ class SafetyMonitor:
         e = next_edge_index(edges, float(toe[0]) - cfg.toe_pass_m)
         if e >= 0:
             ec = edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
-            kb = int(np.clip(np.searchsorted(full.x_lo_m, edges.xz_m[e, 0]) - 1, 0,
-                             len(full) - 1))
+            kb = int(np.clip(np.searchsorted(full.x_lo_m, edges.xz_m[e, 0]) - 1, 0, len(full) - 1))
             rel = _psd_abs(P - self.map.bin_cov(kb), cfg.relative_pose_scale)
             nc = ec.distance_m
             nsig = clearance_sigma(ec.normal_xz, rel, float(full.sigma_m[kb]), cfg.foot_sigma_m)
@@ -273,35 +313,52 @@ class SafetyMonitor:
             v = (toe - self._prev[1]) / (t_s - self._prev[0])
         self._prev = (t_s, toe)
         pred = pred_edge = NAN
-        if (np.all(np.isfinite(v)) and np.isfinite(c.distance_m)
-                and float(np.hypot(*v)) * cfg.horizon_s < 1e-3):
+        if (
+            np.all(np.isfinite(v))
+            and np.isfinite(c.distance_m)
+            and float(np.hypot(*v)) * cfg.horizon_s < 1e-3
+        ):
             pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
         elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
             reach = np.abs(v[0]) * cfg.horizon_s
             swept = full.window(x0 - reach, x1 + reach)
-            pred = predicted_min_clearance(heel, toe, v, cfg.horizon_s, cfg.horizon_steps,
-                                           swept, cfg.sole_thickness_m)
+            pred = predicted_min_clearance(
+                heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
+            )
         if e >= 0:
-            pred_edge = predicted_min_edge_clearance(heel, toe, v, cfg.horizon_s,
-                                                     cfg.horizon_steps, edges.xz_m[e],
-                                                     cfg.sole_thickness_m)
+            pred_edge = predicted_min_edge_clearance(
+                heel, toe, v, cfg.horizon_s, cfg.horizon_steps, edges.xz_m[e], cfg.sole_thickness_m
+            )
         s = nsig if np.isfinite(nsig) else 0.0
-        warn = bool(not in_stance and np.isfinite(pred_edge) and forward_motion(v, cfg)
-                    and pred_edge - cfg.warning_sigma * s < cfg.near_trip_m)
+        warn = bool(
+            not in_stance
+            and np.isfinite(pred_edge)
+            and forward_motion(v, cfg)
+            and pred_edge - cfg.warning_sigma * s < cfg.near_trip_m
+        )
         # landing: the stance starts at this frame
         landing = bool(in_stance and not self._in_stance)
         self._in_stance = bool(in_stance)
         placement = np.full(4, np.nan)
         if landing:
             placement = placement_on_tread(
-                heel, toe, win, cfg.tread_tolerance_m, cfg.edge_max_gap_m,
-                cfg.edge_min_rise_m).as_array()
+                heel, toe, win, cfg.tread_tolerance_m, cfg.edge_max_gap_m, cfg.edge_min_rise_m
+            ).as_array()
         n_steps, rise, tread = self._edge_summary
         return SafetyEstimate(
-            clearance_m=c.distance_m, clearance_sigma_m=sig,
+            clearance_m=c.distance_m,
+            clearance_sigma_m=sig,
             toe_line_xz_m=np.stack([c.foot_xz_m, c.terrain_xz_m]),
-            nosing_clearance_m=nc, nosing_sigma_m=nsig, predicted_min_clearance_m=pred,
-            predicted_min_nosing_clearance_m=pred_edge, near_trip_warning=warn,
-            edge_distance_m=ed, edge_distance_sigma_m=edsig,
-            steps_seen=n_steps, mean_rise_m=rise, mean_tread_m=tread, landing=landing,
-            placement=placement)
+            nosing_clearance_m=nc,
+            nosing_sigma_m=nsig,
+            predicted_min_clearance_m=pred,
+            predicted_min_nosing_clearance_m=pred_edge,
+            near_trip_warning=warn,
+            edge_distance_m=ed,
+            edge_distance_sigma_m=edsig,
+            steps_seen=n_steps,
+            mean_rise_m=rise,
+            mean_tread_m=tread,
+            landing=landing,
+            placement=placement,
+        )

@@ -45,22 +45,27 @@ class TerrainConfig(_Section):
     side_walls: bool = Field(True, description="add vertical walls at y = +-width/2")
     wall_height_m: float = Field(1.2, gt=0, description="wall height above the profile, m")
     nosing_overhang_m: float = Field(
-        0.0, ge=0, le=0.05,
+        0.0,
+        ge=0,
+        le=0.05,
         description="stairs: horizontal protrusion of each tread's nosing past the riser "
         "below it, m (typical 0-0.03; building codes allow up to ~0.03-0.04). The nosing tip "
         "stays at the same place as without overhang; the riser is set back under it",
     )
     nosing_thickness_m: float = Field(
-        0.03, gt=0,
+        0.03,
+        gt=0,
         description="stairs with overhang: thickness of the protruding tread slab, m (its "
         "underside is visible to a camera below the nosing)",
     )
     n_flights: int = Field(
-        1, ge=1,
+        1,
+        ge=1,
         description="stairs: number of flights of n_steps risers each, joined by level landings",
     )
     flight_landing_m: float = Field(
-        1.2, gt=0,
+        1.2,
+        gt=0,
         description="stairs with n_flights > 1: level landing between flights, measured from "
         "the top (ascent) / last (descent) nosing of one flight to the first nosing of the "
         "next, m (must hold a foot: >= ~0.35 m)",
@@ -88,7 +93,9 @@ class GaitConfig(_Section):
         "joins it on the same tread (contralateral: the instrumented leg trails)",
     )
     cadence_scale: float = Field(
-        1.0, ge=0.25, le=2.0,
+        1.0,
+        ge=0.25,
+        le=2.0,
         description="multiplies the step frequency: every stride time (and the step_to_step "
         "movement time) is divided by it; 0.5 = twice the stride time (typical 0.5-1.5)",
     )
@@ -120,6 +127,7 @@ class GaitConfig(_Section):
     @classmethod
     def _positive_range(cls, v):
         return _check_range(v, 1e-6)
+
     start_distance_m: float = Field(
         0.45, gt=0, description="instrumented toe to the first feature at t = 0, m"
     )
@@ -145,14 +153,20 @@ class GaitConfig(_Section):
         description="knee flexion targets at mid-stance (30 % of the stride), deg",
     )
     swing_ankle_deg: dict[str, float | None] = Field(
-        default_factory=lambda: {"level": -10.0, "obstacle": -5.0, "ascent": -12.0,
-                                 "descent": None},
+        default_factory=lambda: {
+            "level": -10.0,
+            "obstacle": -5.0,
+            "ascent": -12.0,
+            "descent": None,
+        },
         description="ankle plantarflexion (+) held in mid-swing by swing kind, deg (stairs "
         "~10-16 dorsiflexion: McFadyen & Winter 1988); None: foot pitch from the key poses "
         "only (descent: blending towards the shank drives the heel into the nosing)",
     )
     swing_ankle_blend_fraction: float = Field(
-        0.35, gt=0, le=0.5,
+        0.35,
+        gt=0,
+        le=0.5,
         description="fraction of the swing over which the foot pitch blends from the toe-off "
         "pose to shank + swing ankle (and back to the landing pose)",
     )
@@ -294,12 +308,16 @@ class FaultsConfig(_Section):
     )
     camera_blackout_duration_s: float = Field(0.0, ge=0, description="blackout length, s")
     dropped_frame_probability: float = Field(
-        0.0, ge=0, lt=0.5,
+        0.0,
+        ge=0,
+        lt=0.5,
         description="per-frame probability that a frame is missing from the recording "
         "(its timestamp is skipped)",
     )
     spurious_point_fraction: float = Field(
-        0.0, ge=0, le=1,
+        0.0,
+        ge=0,
+        le=1,
         description="fraction of pixels per frame replaced by a spurious valid depth, uniform "
         "over the camera's range",
     )
@@ -333,7 +351,8 @@ class FaultsConfig(_Section):
         "offset (IMU and mocap keep true time), s",
     )
     clock_jitter_s: float = Field(
-        0.0, ge=0,
+        0.0,
+        ge=0,
         description="sd of white timestamp error on depth frames and IMU/joint samples (the "
         "data stay at the true times), s; clipped at 0.4 sample periods",
     )
@@ -352,12 +371,15 @@ class ContactConfig(_Section):
     rate_hz: float = Field(100.0, gt=0, description="sample rate of contact.csv, Hz")
     body_mass_kg: float = Field(75.0, gt=0, description="subject mass (with the device), kg")
     grf_dip_fraction: float = Field(
-        0.15, ge=0, lt=0.5,
+        0.15,
+        ge=0,
+        lt=0.5,
         description="vertical force shape over the stance: humps of (1 + f) body weight after "
         "loading and before push-off, (1 - f) at mid-stance (walking: ~0.1-0.2)",
     )
     threshold_n: float = Field(
-        80.0, gt=0,
+        80.0,
+        gt=0,
         description="load_cell: the foot counts as loaded at or above this force, N (written "
         "to metadata contact.threshold_n; a switch always writes 0.5)",
     )

@@ -75,8 +75,10 @@ def load_share(
         m = (t >= s.t_contact_s) & (t <= s.t_toe_off_s)
         if not m.any():
             continue
-        tc, to, tcc = (float(motion_time_s(motion, x)) for x in
-                       (s.t_contact_s, s.t_toe_off_s, s.t_contra_contact_s))
+        tc, to, tcc = (
+            float(motion_time_s(motion, x))
+            for x in (s.t_contact_s, s.t_toe_off_s, s.t_contra_contact_s)
+        )
         d = transfer_time_s(tc, to, tcc)
         x = u[m]
         up = _smoothstep((x - tc) / d)
@@ -108,8 +110,9 @@ def _first_order_lowpass(x: NDArray, dt_s: float, tau_s: float) -> NDArray[np.fl
     return y
 
 
-def _bounce(state: NDArray[np.bool_], cfg: ContactConfig,
-            rng: np.random.Generator) -> NDArray[np.bool_]:
+def _bounce(
+    state: NDArray[np.bool_], cfg: ContactConfig, rng: np.random.Generator
+) -> NDArray[np.bool_]:
     """Contact bounce: after each transition of ``state`` (1 kHz grid), up to
     ``switch_max_bounces`` short pulses back to the previous state within
     ``switch_bounce_s``."""
@@ -127,7 +130,10 @@ def _bounce(state: NDArray[np.bool_], cfg: ContactConfig,
 
 
 def simulate_contact(
-    motion: LegMotion, cfg: ContactConfig, duration_s: float, rng: np.random.Generator,
+    motion: LegMotion,
+    cfg: ContactConfig,
+    duration_s: float,
+    rng: np.random.Generator,
     pause_ramp_s: float = 0.4,
 ) -> tuple[ContactTable, ContactModel]:
     """The contact channel of one trial (``cfg.kind`` must not be ``none``)."""

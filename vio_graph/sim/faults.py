@@ -46,7 +46,10 @@ def kept_frames(n_frames: int, cfg: FaultsConfig, rng: np.random.Generator) -> N
 
 
 def stamp_times(
-    true_s: NDArray, offset_s: float, jitter_s: float, period_s: float,
+    true_s: NDArray,
+    offset_s: float,
+    jitter_s: float,
+    period_s: float,
     rng: np.random.Generator,
 ) -> NDArray[np.float64]:
     """Recorded timestamps: true time + constant offset + white jitter (clipped at
@@ -59,8 +62,12 @@ def stamp_times(
 
 
 def corrupt_depth(
-    depth_m: NDArray[np.float32], confidence: NDArray[np.uint8], t_true_s: float,
-    cfg: FaultsConfig, camera: CameraConfig, rng: np.random.Generator,
+    depth_m: NDArray[np.float32],
+    confidence: NDArray[np.uint8],
+    t_true_s: float,
+    cfg: FaultsConfig,
+    camera: CameraConfig,
+    rng: np.random.Generator,
 ) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
     """Depth faults of one frame captured at ``t_true_s``; returns new arrays."""
     depth = np.array(depth_m, dtype=np.float32, copy=True)
@@ -92,7 +99,10 @@ def corrupt_depth(
 
 
 def corrupt_imu(
-    accel_mps2: NDArray, gyro_radps: NDArray, rate_hz: float, cfg: FaultsConfig,
+    accel_mps2: NDArray,
+    gyro_radps: NDArray,
+    rate_hz: float,
+    cfg: FaultsConfig,
     rng: np.random.Generator,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
     """IMU spikes then saturation; returns new accel (N, 3), gyro (N, 3) and the spike
@@ -120,8 +130,10 @@ def summary(cfg: FaultsConfig, n_dropped: int, n_spikes: int) -> str:
     """One line naming the active faults (for metadata.provenance.notes); '' if none."""
     parts = []
     if cfg.camera_blackout_start_s is not None and cfg.camera_blackout_duration_s > 0:
-        parts.append(f"camera blackout {cfg.camera_blackout_start_s:g} s + "
-                     f"{cfg.camera_blackout_duration_s:g} s")
+        parts.append(
+            f"camera blackout {cfg.camera_blackout_start_s:g} s + "
+            f"{cfg.camera_blackout_duration_s:g} s"
+        )
     if cfg.dropped_frame_probability > 0:
         parts.append(f"{n_dropped} frames dropped (p={cfg.dropped_frame_probability:g})")
     if cfg.spurious_point_fraction > 0:
@@ -131,8 +143,10 @@ def summary(cfg: FaultsConfig, n_dropped: int, n_spikes: int) -> str:
     if cfg.imu_spike_rate_hz > 0:
         parts.append(f"{n_spikes} IMU spikes")
     if cfg.imu_accel_saturation_mps2 is not None or cfg.imu_gyro_saturation_radps is not None:
-        parts.append(f"IMU saturation accel {cfg.imu_accel_saturation_mps2} m/s^2, gyro "
-                     f"{cfg.imu_gyro_saturation_radps} rad/s")
+        parts.append(
+            f"IMU saturation accel {cfg.imu_accel_saturation_mps2} m/s^2, gyro "
+            f"{cfg.imu_gyro_saturation_radps} rad/s"
+        )
     if cfg.camera_time_offset_s != 0:
         parts.append(f"camera time offset {cfg.camera_time_offset_s:g} s")
     if cfg.clock_jitter_s > 0:

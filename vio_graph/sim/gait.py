@@ -139,7 +139,8 @@ class LegMotion:
     def joint_angles(self, t_s: NDArray) -> tuple[NDArray, NDArray, NDArray]:
         """Hip flexion, knee flexion, ankle plantarflexion (rad) at times (M,)."""
         return (
-            self._splines["hip_flex"](t_s), self._splines["knee"](t_s),
+            self._splines["hip_flex"](t_s),
+            self._splines["knee"](t_s),
             self._splines["ankle_angle"](t_s),
         )
 
@@ -155,7 +156,8 @@ class LegMotion:
             return self.ankle(t_s, 1) + dphi[:, None] * drot_xz(phi, r)
         ddphi = self.shank_pitch(t_s, 2)
         return (
-            self.ankle(t_s, 2) + ddphi[:, None] * drot_xz(phi, r)
+            self.ankle(t_s, 2)
+            + ddphi[:, None] * drot_xz(phi, r)
             - (dphi**2)[:, None] * rot_xz(phi, r)
         )
 
@@ -195,8 +197,13 @@ def _plan_steps(
         for f in range(n_fl):
             x0 = xf + f * span
             if f > 0:  # landing between flights: level steps up to the next flight
-                _landing_steps(toes, x0 - (gait.stair_toe_margin_m if up else 0.02),
-                               x0 - span + (n - 1) * t, foot_len, step)
+                _landing_steps(
+                    toes,
+                    x0 - (gait.stair_toe_margin_m if up else 0.02),
+                    x0 - span + (n - 1) * t,
+                    foot_len,
+                    step,
+                )
             if up:
                 toes.append(x0 - gait.stair_toe_margin_m)
                 toes += [x0 + (i + 1) * t - gait.stair_toe_margin_m for i in range(n - 1)]
@@ -262,8 +269,12 @@ def _kind_class(kind: str) -> str:
 
 
 def plan_strides(
-    terrain: Terrain, gait: GaitConfig, leg: LegModel, duration_s: float,
-    rng: np.random.Generator, allow_short: bool = False,
+    terrain: Terrain,
+    gait: GaitConfig,
+    leg: LegModel,
+    duration_s: float,
+    rng: np.random.Generator,
+    allow_short: bool = False,
 ) -> list[Stride]:
     """Timed strides of the instrumented leg covering [0, duration_s] (+ margin).
 
@@ -296,15 +307,27 @@ def plan_strides(
             move = gait.stair_stride_time_s * jit / gait.cadence_scale
             p = gait.step_to_step_pause_s * jit
             T = move + p
-            f = dict(flat=0.12 * move, ho=p + 0.45 * move, to=p + 0.62 * move,
-                     cc=0.42 * move, cm=0.42 * move + 0.5 * p, mid=0.2 * move)
+            f = dict(
+                flat=0.12 * move,
+                ho=p + 0.45 * move,
+                to=p + 0.62 * move,
+                cc=0.42 * move,
+                cm=0.42 * move + 0.5 * p,
+                mid=0.2 * move,
+            )
             f["rest"] = f["cm"]
         elif sts:
             move = gait.stair_stride_time_s * jit / gait.cadence_scale
             p = gait.step_to_step_pause_s * jit
             T = move + p
-            f = dict(flat=0.12 * move, ho=p + 0.45 * move, to=p + 0.62 * move,
-                     cc=p + 0.32 * move, cm=p + 0.6 * move, mid=0.5 * p)
+            f = dict(
+                flat=0.12 * move,
+                ho=p + 0.45 * move,
+                to=p + 0.62 * move,
+                cc=p + 0.32 * move,
+                cm=p + 0.6 * move,
+                mid=0.5 * p,
+            )
             # both feet on the tread, foot flat: from flat to the other foot's toe-off
             f["rest"] = 0.5 * (f["flat"] + max(f["flat"], p + 0.05 * move))
         else:
@@ -312,18 +335,37 @@ def plan_strides(
             T *= 1.25 if kind == "obstacle" else 1.0
             T /= gait.cadence_scale
             beta = gait.stance_fraction_stair if stair else gait.stance_fraction_level
-            f = dict(flat=(0.12 if landing == "toe" else 0.09) * T,
-                     ho=(beta - 0.2 if stair else beta - 0.26) * T, to=beta * T,
-                     cc=0.5 * T, cm=0.8 * T, mid=0.3 * T)
+            f = dict(
+                flat=(0.12 if landing == "toe" else 0.09) * T,
+                ho=(beta - 0.2 if stair else beta - 0.26) * T,
+                to=beta * T,
+                cc=0.5 * T,
+                cm=0.8 * T,
+                mid=0.3 * T,
+            )
             f["rest"] = f["flat"] + 0.02 * T  # foot just flat, other foot about to leave
-        strides.append(Stride(
-            toe_xz_m=a, next_toe_xz_m=b, landing=landing, swing_kind=kind, arrive_kind=arrive,
-            t_contact_s=t, t_flat_s=t + f["flat"], t_heel_off_s=t + f["ho"],
-            t_toe_off_s=t + f["to"], t_next_s=t + T, contra_toe_xz_m=c,
-            contra_landing=c_landing, contra_kind=c_kind, t_contra_contact_s=t + f["cc"],
-            t_contra_mid_s=t + f["cm"], t_mid_s=t + f["mid"], t_rest_s=t + f["rest"],
-            contra_joins=lead,
-        ))
+        strides.append(
+            Stride(
+                toe_xz_m=a,
+                next_toe_xz_m=b,
+                landing=landing,
+                swing_kind=kind,
+                arrive_kind=arrive,
+                t_contact_s=t,
+                t_flat_s=t + f["flat"],
+                t_heel_off_s=t + f["ho"],
+                t_toe_off_s=t + f["to"],
+                t_next_s=t + T,
+                contra_toe_xz_m=c,
+                contra_landing=c_landing,
+                contra_kind=c_kind,
+                t_contra_contact_s=t + f["cc"],
+                t_contra_mid_s=t + f["cm"],
+                t_mid_s=t + f["mid"],
+                t_rest_s=t + f["rest"],
+                contra_joins=lead,
+            )
+        )
         arrive = kind
         t += T
         if t > duration_s + 0.5:
@@ -360,13 +402,14 @@ def _pitch_function(strides: list[Stride], next_toes: list, gait: GaitConfig) ->
         next_landing = "toe" if s.swing_kind in ("ascent", "descent") else "heel"
         th_next = _landing_pitch(gait, next_landing, s.swing_kind)
         t_ms = 0.5 * (s.t_toe_off_s + s.t_next_s)
-        th_ms = {"level": -0.05, "obstacle": -0.05, "ascent": -0.2, "descent": 0.25}[
-            s.swing_kind
-        ]
+        th_ms = {"level": -0.05, "obstacle": -0.05, "ascent": -0.2, "descent": 0.25}[s.swing_kind]
         rate = 0.6 * (th_next - th_to) / (s.t_next_s - s.t_toe_off_s)
         knots += [
-            (s.t_contact_s, th_c, 0.0), (s.t_flat_s, 0.0, 0.0), (s.t_heel_off_s, 0.0, 0.0),
-            (s.t_toe_off_s, th_to, 0.0), (t_ms, th_ms, rate),
+            (s.t_contact_s, th_c, 0.0),
+            (s.t_flat_s, 0.0, 0.0),
+            (s.t_heel_off_s, 0.0, 0.0),
+            (s.t_toe_off_s, th_to, 0.0),
+            (t_ms, th_ms, rate),
         ]
     last = strides[-1]
     next_landing = "toe" if last.swing_kind in ("ascent", "descent") else "heel"
@@ -397,7 +440,8 @@ class _SwingPitch:
         self._t0, self._t1 = t_range
         self._swings = [
             (s.t_toe_off_s, s.t_next_s, np.radians(gait.swing_ankle_deg[s.swing_kind]))
-            for s in strides if gait.swing_ankle_deg.get(s.swing_kind) is not None
+            for s in strides
+            if gait.swing_ankle_deg.get(s.swing_kind) is not None
         ]
         self._ramp = gait.swing_ankle_blend_fraction
 
@@ -424,7 +468,11 @@ class _SwingPitch:
 
 
 def _swing_via(
-    s: Stride, b: tuple[float, float], terrain: Terrain, gait: GaitConfig, leg: LegModel,
+    s: Stride,
+    b: tuple[float, float],
+    terrain: Terrain,
+    gait: GaitConfig,
+    leg: LegModel,
     pitch: BPoly,
 ) -> tuple[list[float], list[tuple[float, float]]]:
     """Toe via-points (fractions of the swing, positions) from toe-off to the next landing."""
@@ -444,8 +492,11 @@ def _swing_via(
         d = x1 - x0
         late = toe_for_heel(0.85, x1 - heel_to_toe[0] - 0.06, z1 + 0.02)
         lift = gait.early_swing_toe_lift_m
-        return [0.25, 0.55, 0.85], [(x0 + 0.18 * d, z0 + lift), (x0 + 0.55 * d, z0 + c + 0.005),
-                                    late]
+        return [0.25, 0.55, 0.85], [
+            (x0 + 0.18 * d, z0 + lift),
+            (x0 + 0.55 * d, z0 + c + 0.005),
+            late,
+        ]
     if s.swing_kind == "obstacle":
         c = gait.toe_clearance_obstacle_m
         xa, xb = between[:, 0].min(), between[:, 0].max()
@@ -509,8 +560,13 @@ def _swing_lift(spl, pitch, s: Stride, terrain: Terrain, heel_f: NDArray, toe_f:
 
 
 def _foot_motion(
-    t: NDArray, strides: list[Stride], next_toes: list, terrain: Terrain, gait: GaitConfig,
-    leg: LegModel, pitch: BPoly,
+    t: NDArray,
+    strides: list[Stride],
+    next_toes: list,
+    terrain: Terrain,
+    gait: GaitConfig,
+    leg: LegModel,
+    pitch: BPoly,
 ) -> NDArray[np.float64]:
     """Ankle (N, 2) on the dense grid from the pivots (contact) and toe splines (swing)."""
     heel_f = np.array(leg.heel_in_foot_xz_m)
@@ -538,12 +594,12 @@ def _foot_motion(
         else:
             toe_land = b_arr
         dur = s.t_next_s - s.t_toe_off_s
-        ts = np.concatenate([[s.t_toe_off_s], s.t_toe_off_s + dur * np.asarray(fr),
-                             [s.t_next_s]])
+        ts = np.concatenate([[s.t_toe_off_s], s.t_toe_off_s + dur * np.asarray(fr), [s.t_next_s]])
         ps = np.vstack([toe_p, np.asarray(pts), toe_land])
         zero = np.zeros(2)
-        spl = make_interp_spline(ts, ps, k=5, bc_type=([(1, zero), (2, zero)],
-                                                       [(1, zero), (2, zero)]))
+        spl = make_interp_spline(
+            ts, ps, k=5, bc_type=([(1, zero), (2, zero)], [(1, zero), (2, zero)])
+        )
         m = (t >= s.t_toe_off_s) & (t <= s.t_next_s + 1e-12)
         lift = _swing_lift(spl, pitch, s, terrain, heel_f, toe_f)
         ankle[m] = spl(t[m]) - rot_xz(th[m], toe_f)
@@ -564,7 +620,11 @@ def _leg_distance(leg: LegModel, knee_rad: float) -> float:
 
 
 def _hip_path(
-    t: NDArray, ankle: NDArray, strides: list[Stride], gait: GaitConfig, leg: LegModel,
+    t: NDArray,
+    ankle: NDArray,
+    strides: list[Stride],
+    gait: GaitConfig,
+    leg: LegModel,
     pitch: BPoly,
 ) -> NDArray[np.float64]:
     """Hip (N, 2): C2 splines through key positions from knee-flexion targets."""
@@ -583,8 +643,10 @@ def _hip_path(
         k_in = _kind_class(s.swing_kind)
         k_c = _kind_class(s.contra_kind)
         kx_t += [s.t_mid_s, s.t_contra_mid_s]
-        kx_v += [s.toe_xz_m[0] - toe_f[0] + gait.hip_ahead_midstance_m[k_in],
-                 s.contra_toe_xz_m[0] - toe_f[0] + gait.hip_ahead_midstance_m[k_c]]
+        kx_v += [
+            s.toe_xz_m[0] - toe_f[0] + gait.hip_ahead_midstance_m[k_in],
+            s.contra_toe_xz_m[0] - toe_f[0] + gait.hip_ahead_midstance_m[k_c],
+        ]
     # extrapolate one key before the start so the spline is well-behaved at t = 0
     v0 = (kx_v[1] - kx_v[0]) / (kx_t[1] - kx_t[0])
     kx_t = [kx_t[0] - 0.5, *kx_t]
@@ -596,14 +658,18 @@ def _hip_path(
         k_in, k_c = _kind_class(s.swing_kind), _kind_class(s.contra_kind)
         arr = _kind_class(s.arrive_kind)
         items = [
-            (s.t_contact_s, landing_ankle(s.toe_xz_m, s.landing, s.arrive_kind),
-             gait.knee_contact_deg[arr]),
+            (
+                s.t_contact_s,
+                landing_ankle(s.toe_xz_m, s.landing, s.arrive_kind),
+                gait.knee_contact_deg[arr],
+            ),
             (s.t_mid_s, np.array(s.toe_xz_m) - toe_f, gait.knee_midstance_deg[k_in]),
-            (s.t_contra_contact_s,
-             landing_ankle(s.contra_toe_xz_m, s.contra_landing, s.contra_kind),
-             gait.knee_midstance_deg[k_c] if s.contra_joins else gait.knee_contact_deg[k_c]),
-            (s.t_contra_mid_s, np.array(s.contra_toe_xz_m) - toe_f,
-             gait.knee_midstance_deg[k_c]),
+            (
+                s.t_contra_contact_s,
+                landing_ankle(s.contra_toe_xz_m, s.contra_landing, s.contra_kind),
+                gait.knee_midstance_deg[k_c] if s.contra_joins else gait.knee_contact_deg[k_c],
+            ),
+            (s.t_contra_mid_s, np.array(s.contra_toe_xz_m) - toe_f, gait.knee_midstance_deg[k_c]),
         ]
         for tk, a, knee_deg in items:
             d = _leg_distance(leg, np.radians(knee_deg))
@@ -704,8 +770,7 @@ class _Pauses:
         """Shank pitch offset (rad) during the holds: a windowed sine (C2, zero outside)."""
         t = np.asarray(t_s, dtype=float)
         out = np.zeros(t.shape)
-        for s0, h, a, f in zip(self.start_s, self.hold_s, self.sway_rad, self.sway_hz,
-                               strict=True):
+        for s0, h, a, f in zip(self.start_s, self.hold_s, self.sway_rad, self.sway_hz, strict=True):
             t0 = s0 + self.ramp_s
             m = (t > t0) & (t < t0 + h)
             if h <= 0 or not np.any(m):
@@ -735,13 +800,25 @@ def _draw_pauses(strides: list[Stride], gait: GaitConfig, rng: np.random.Generat
 
 
 def _retime(s: Stride, to_real) -> Stride:
-    names = ("t_contact_s", "t_flat_s", "t_heel_off_s", "t_toe_off_s", "t_next_s",
-             "t_contra_contact_s", "t_contra_mid_s", "t_mid_s", "t_rest_s")
+    names = (
+        "t_contact_s",
+        "t_flat_s",
+        "t_heel_off_s",
+        "t_toe_off_s",
+        "t_next_s",
+        "t_contra_contact_s",
+        "t_contra_mid_s",
+        "t_mid_s",
+        "t_rest_s",
+    )
     return replace(s, **{k: float(to_real(getattr(s, k))) for k in names})
 
 
 def simulate_gait(
-    terrain: Terrain, gait: GaitConfig, rig: RigConfig, duration_s: float,
+    terrain: Terrain,
+    gait: GaitConfig,
+    rig: RigConfig,
+    duration_s: float,
     rng: np.random.Generator,
 ) -> LegMotion:
     """Plan and generate the instrumented leg's motion over [0, duration_s + 0.2 s]."""
@@ -771,8 +848,9 @@ def simulate_gait(
         shank_it = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])
         foot_pitch = pitch(t)
         pitch_used = pitch
-        pitch = _SwingPitch(base_pitch, strides, make_interp_spline(t, shank_it, k=5),
-                            (t[0], t[-1]), gait)
+        pitch = _SwingPitch(
+            base_pitch, strides, make_interp_spline(t, shank_it, k=5), (t[0], t[-1]), gait
+        )
     if pauses is not None:  # replay in real time with the pauses, sway during the holds
         tau = t
         t = np.arange(0.0, duration_s + 0.25 + 0.5 / DENSE_RATE_HZ, 1.0 / DENSE_RATE_HZ)
@@ -784,9 +862,11 @@ def simulate_gait(
         knee, _ = _two_link_ik(hip, ankle, leg)
         shank_sway = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])
         shank_sway = shank_sway + pauses.sway(t)
-        holds = tuple((float(s0 + pauses.ramp_s), float(s0 + pauses.ramp_s + h))
-                      for s0, h in zip(pauses.start_s, pauses.hold_s, strict=True)
-                      if s0 + pauses.ramp_s < t[-1])
+        holds = tuple(
+            (float(s0 + pauses.ramp_s), float(s0 + pauses.ramp_s + h))
+            for s0, h in zip(pauses.start_s, pauses.hold_s, strict=True)
+            if s0 + pauses.ramp_s < t[-1]
+        )
         knee_sway = ankle + rot_xz(shank_sway, np.array([0.0, leg.shank_length_m]))
         hip = hip + (knee_sway - knee)  # the thigh keeps its pitch: the hip shifts with it
         knee = knee_sway
@@ -816,8 +896,19 @@ def simulate_gait(
         "ankle_angle": _Evaluator(_spline(t, ankle_pf)),
     }
     return LegMotion(
-        leg=leg, t_s=t, hip_xz_m=hip, knee_xz_m=knee, ankle_xz_m=ankle, heel_xz_m=heel,
-        toe_xz_m=toe, thigh_pitch_rad=hip_flex, knee_rad=knee_flex, ankle_rad=ankle_pf,
-        shank_pitch_rad=shank, foot_pitch_rad=foot_pitch, strides=tuple(strides),
-        _splines=splines, holds_s=holds if pauses is not None else (),
+        leg=leg,
+        t_s=t,
+        hip_xz_m=hip,
+        knee_xz_m=knee,
+        ankle_xz_m=ankle,
+        heel_xz_m=heel,
+        toe_xz_m=toe,
+        thigh_pitch_rad=hip_flex,
+        knee_rad=knee_flex,
+        ankle_rad=ankle_pf,
+        shank_pitch_rad=shank,
+        foot_pitch_rad=foot_pitch,
+        strides=tuple(strides),
+        _splines=splines,
+        holds_s=holds if pauses is not None else (),
     )

@@ -46,7 +46,9 @@ def _xz_to_3d(xz: NDArray) -> NDArray[np.float64]:
 
 
 def imu_truth(
-    motion: LegMotion, timestamp_s: NDArray, imu_in_shank_xz_m: NDArray,
+    motion: LegMotion,
+    timestamp_s: NDArray,
+    imu_in_shank_xz_m: NDArray,
     R_shank_imu: NDArray | None = None,
 ) -> ImuTruth:
     """True IMU kinematics: the IMU point is fixed in the shank frame (origin at the knee)."""
@@ -73,8 +75,12 @@ def _gauss_markov(
 
 
 def simulate_imu(
-    motion: LegMotion, cfg: ImuConfig, duration_s: float, imu_in_shank_xz_m: NDArray,
-    rng: np.random.Generator, R_shank_imu: NDArray | None = None,
+    motion: LegMotion,
+    cfg: ImuConfig,
+    duration_s: float,
+    imu_in_shank_xz_m: NDArray,
+    rng: np.random.Generator,
+    R_shank_imu: NDArray | None = None,
 ) -> tuple[ImuTable, ImuStateTable, ImuTruth]:
     """IMU samples at ``cfg.rate_hz`` over [0, duration_s] and the true IMU state table.
 
@@ -91,18 +97,24 @@ def simulate_imu(
     R_out = truth.R_world_imu
     if cfg.noise:
         acc_bias = rng.normal(0, cfg.accel_turn_on_bias_mps2, 3) + np.cumsum(
-            rng.normal(0, cfg.accel_bias_rw * np.sqrt(dt), (n, 3)), axis=0)
+            rng.normal(0, cfg.accel_bias_rw * np.sqrt(dt), (n, 3)), axis=0
+        )
         gyro_bias = rng.normal(0, cfg.gyro_turn_on_bias_radps, 3) + np.cumsum(
-            rng.normal(0, cfg.gyro_bias_rw * np.sqrt(dt), (n, 3)), axis=0)
-        accel = accel + acc_bias + rng.normal(
-            0, cfg.accel_noise_density * np.sqrt(cfg.rate_hz), (n, 3))
-        gyro = gyro + gyro_bias + rng.normal(
-            0, cfg.gyro_noise_density * np.sqrt(cfg.rate_hz), (n, 3))
+            rng.normal(0, cfg.gyro_bias_rw * np.sqrt(dt), (n, 3)), axis=0
+        )
+        accel = (
+            accel + acc_bias + rng.normal(0, cfg.accel_noise_density * np.sqrt(cfg.rate_hz), (n, 3))
+        )
+        gyro = (
+            gyro + gyro_bias + rng.normal(0, cfg.gyro_noise_density * np.sqrt(cfg.rate_hz), (n, 3))
+        )
         # vendor orientation: R_err (world frame) @ R_true, errors correlated in time
-        rp = _gauss_markov(rng, n, 2, np.radians(cfg.orientation_rms_deg),
-                           cfg.orientation_error_tau_s, dt)
-        yaw = _gauss_markov(rng, n, 1, np.radians(cfg.heading_rms_deg),
-                            cfg.orientation_error_tau_s, dt)[:, 0]
+        rp = _gauss_markov(
+            rng, n, 2, np.radians(cfg.orientation_rms_deg), cfg.orientation_error_tau_s, dt
+        )
+        yaw = _gauss_markov(
+            rng, n, 1, np.radians(cfg.heading_rms_deg), cfg.orientation_error_tau_s, dt
+        )[:, 0]
         if cfg.random_heading_offset:
             yaw = yaw + rng.uniform(-np.pi, np.pi)
         R_err = np.stack([rot_z(yaw[k]) @ rot_y(rp[k, 1]) @ rot_x(rp[k, 0]) for k in range(n)])
@@ -111,8 +123,11 @@ def simulate_imu(
     gyro = np.clip(gyro, -cfg.gyro_range_radps, cfg.gyro_range_radps)
     imu = ImuTable(t, accel, gyro, quat_wxyz_from_matrix(R_out))
     state = ImuStateTable(
-        timestamp_s=t, position_m=truth.position_m, velocity_mps=truth.velocity_mps,
-        quat_wxyz=quat_wxyz_from_matrix(truth.R_world_imu), accel_bias_mps2=acc_bias,
+        timestamp_s=t,
+        position_m=truth.position_m,
+        velocity_mps=truth.velocity_mps,
+        quat_wxyz=quat_wxyz_from_matrix(truth.R_world_imu),
+        accel_bias_mps2=acc_bias,
         gyro_bias_radps=gyro_bias,
     )
     return imu, state, truth

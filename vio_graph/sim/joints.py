@@ -26,11 +26,16 @@ def simulate_joints(
     hip, knee, ankle = motion.joint_angles(t)
     if cfg.noise:
         dt = float(np.median(np.diff(t))) if t.size > 1 else 0.01
-        hip = hip + _gauss_markov(rng, t.size, 1, np.radians(cfg.thigh_pitch_error_deg),
-                                  cfg.thigh_error_tau_s, dt)[:, 0]
+        hip = (
+            hip
+            + _gauss_markov(
+                rng, t.size, 1, np.radians(cfg.thigh_pitch_error_deg), cfg.thigh_error_tau_s, dt
+            )[:, 0]
+        )
     noise_rad = np.radians(cfg.encoder_noise_deg)
     return JointTable(
-        timestamp_s=t.copy(), thigh_pitch_rad=hip,
+        timestamp_s=t.copy(),
+        thigh_pitch_rad=hip,
         knee_rad=_encoder(knee, cfg.encoder_bits, noise_rad, rng, cfg.noise),
         ankle_rad=_encoder(ankle, cfg.encoder_bits, noise_rad, rng, cfg.noise),
     )

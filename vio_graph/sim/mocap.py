@@ -29,8 +29,12 @@ def camera_poses(
 
 
 def simulate_mocap(
-    motion: LegMotion, cfg: MocapConfig, duration_s: float, camera_in_shank_xz_m: NDArray,
-    R_shank_cam: NDArray, rng: np.random.Generator,
+    motion: LegMotion,
+    cfg: MocapConfig,
+    duration_s: float,
+    camera_in_shank_xz_m: NDArray,
+    R_shank_cam: NDArray,
+    rng: np.random.Generator,
 ) -> dict[str, Trajectory]:
     """Ground-truth trajectories by name (see recording.streams.GROUNDTRUTH_BODIES)."""
     dt = 1.0 / cfg.rate_hz

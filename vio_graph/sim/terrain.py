@@ -185,23 +185,30 @@ def _wall_quads(a: NDArray, b: NDArray, y: float, height: float) -> NDArray[np.f
 def build_terrain(cfg: TerrainConfig) -> Terrain:
     """Profile, edges and extruded mesh for a terrain configuration."""
     profile, edges, mesh_profile = _profiles(cfg)
-    vertices, tris = extrude_profile(mesh_profile, cfg.width_m, cfg.side_walls,
-                                     cfg.wall_height_m)
+    vertices, tris = extrude_profile(mesh_profile, cfg.width_m, cfg.side_walls, cfg.wall_height_m)
     params: dict[str, float | int | str] = {"approach_length_m": cfg.approach_length_m}
     if cfg.kind in ("stair_up", "stair_down"):
         params.update(
-            rise_m=cfg.stair_rise_m, tread_m=cfg.stair_tread_m, n_steps=cfg.n_steps,
+            rise_m=cfg.stair_rise_m,
+            tread_m=cfg.stair_tread_m,
+            n_steps=cfg.n_steps,
             landing_length_m=cfg.landing_length_m,
         )
         if cfg.n_flights > 1:
             params.update(n_flights=cfg.n_flights, flight_landing_m=cfg.flight_landing_m)
         if cfg.nosing_overhang_m > 0:
-            params.update(nosing_overhang_m=cfg.nosing_overhang_m,
-                          nosing_thickness_m=cfg.nosing_thickness_m)
+            params.update(
+                nosing_overhang_m=cfg.nosing_overhang_m, nosing_thickness_m=cfg.nosing_thickness_m
+            )
     elif cfg.kind == "obstacle":
         params.update(height_m=cfg.obstacle_height_m, depth_m=cfg.obstacle_depth_m)
     return Terrain(
-        kind=cfg.kind, profile_xz_m=profile, edges_xz_m=edges, vertices_m=vertices,
-        triangles=tris, feature_x_m=cfg.approach_length_m, params=params,
+        kind=cfg.kind,
+        profile_xz_m=profile,
+        edges_xz_m=edges,
+        vertices_m=vertices,
+        triangles=tris,
+        feature_x_m=cfg.approach_length_m,
+        params=params,
         mesh_profile_xz_m=None if mesh_profile is profile else mesh_profile,
     )

@@ -54,9 +54,16 @@ class TofCamera:
     def camera_model(self) -> CameraModel:
         c = self.cfg
         return CameraModel(
-            width_px=c.width_px, height_px=c.height_px, fx_px=self.fx, fy_px=self.fy,
-            cx_px=self.cx, cy_px=self.cy, depth_unit_m=c.depth_unit_m,
-            min_range_m=c.min_range_m, max_range_m=c.max_range_m, frame_rate_hz=c.frame_rate_hz,
+            width_px=c.width_px,
+            height_px=c.height_px,
+            fx_px=self.fx,
+            fy_px=self.fy,
+            cx_px=self.cx,
+            cy_px=self.cy,
+            depth_unit_m=c.depth_unit_m,
+            min_range_m=c.min_range_m,
+            max_range_m=c.max_range_m,
+            frame_rate_hz=c.frame_rate_hz,
         )
 
     def cast(
@@ -64,8 +71,9 @@ class TofCamera:
     ) -> tuple[NDArray, NDArray, NDArray]:
         """Depth along the optical axis (inf = miss), world normals and camera-frame ray
         directions (z = 1) for pixel positions (H, W)."""
-        d_c = np.stack([(u_px - self.cx) / self.fx, (v_px - self.cy) / self.fy,
-                        np.ones_like(u_px)], axis=-1)
+        d_c = np.stack(
+            [(u_px - self.cx) / self.fx, (v_px - self.cy) / self.fy, np.ones_like(u_px)], axis=-1
+        )
         d_w = d_c @ np.asarray(R_world_cam).T
         rays = np.concatenate([np.broadcast_to(position_m, d_w.shape), d_w], axis=-1)
         ans = self.scene.cast_rays(self._o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
@@ -105,9 +113,14 @@ class TofCamera:
         if c.noise:
             valid &= ~self._flying(np.where(valid, z, 0.0))
         if c.edge_gap_m is not None:  # drawn last: the rest of the frame is unchanged
-            band = self.edge_gap_mask(np.asarray(position_m, float), R_world_cam, d_c,
-                                      z_true, n_w, rng.uniform(*c.edge_gap_m,
-                                                               self._terrain.edges_xz_m.shape[0]))
+            band = self.edge_gap_mask(
+                np.asarray(position_m, float),
+                R_world_cam,
+                d_c,
+                z_true,
+                n_w,
+                rng.uniform(*c.edge_gap_m, self._terrain.edges_xz_m.shape[0]),
+            )
             valid &= ~band
         depth = np.where(valid, z, 0.0).astype(np.float32)
         conf = np.where(valid, np.clip(np.round(255 * (1 - sigma / c.max_noise_m)), 1, 255), 0)
@@ -158,8 +171,7 @@ class TofCamera:
                 return float(d[0] * (p[1] - C[1]) - d[1] * (p[0] - C[0]))
 
             solid = [E + np.array([dx, -1e-3]) for dx in (-1e-3, 1e-3)]
-            inside = [p for p in solid
-                      if p[1] < self._terrain.height_at(np.array([p[0]]))[0]]
+            inside = [p for p in solid if p[1] < self._terrain.height_at(np.array([p[0]]))[0]]
             if not inside:
                 continue
             if np.sign(side(S + 1e-3 * w)) == np.sign(side(inside[0])):
@@ -168,8 +180,13 @@ class TofCamera:
         return out
 
     def edge_gap_mask(
-        self, position_m: NDArray, R_world_cam: NDArray, d_c: NDArray, z_m: NDArray,
-        normals_w: NDArray, band_m: NDArray,
+        self,
+        position_m: NDArray,
+        R_world_cam: NDArray,
+        d_c: NDArray,
+        z_m: NDArray,
+        normals_w: NDArray,
+        band_m: NDArray,
     ) -> NDArray[np.bool_]:
         """Pixels (H, W) whose true surface point lies in one of the bands of
         ``edge_gap_bands`` (within 2 mm of the surface, on a face parallel to it)."""
@@ -203,7 +220,10 @@ class TofCamera:
         return (z > 0) & (horiz | vert)
 
     def edges_visible(
-        self, positions_m: NDArray, R_world_cam: NDArray, edges_world_m: NDArray,
+        self,
+        positions_m: NDArray,
+        R_world_cam: NDArray,
+        edges_world_m: NDArray,
         margin_px: float = 2.0,
     ) -> NDArray[np.bool_]:
         """(F, E): edge point e is inside the image, within range and not occluded in frame f.

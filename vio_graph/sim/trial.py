@@ -104,8 +104,9 @@ class SimulatedTrial:
         fc = self.config.faults
         if _faults.has_depth_faults(fc):
             rng_f = np.random.default_rng([self.seed, _STREAMS.index("faults"), src])
-            depth, conf = _faults.corrupt_depth(depth, conf, float(self.frame_true_time_s[i]),
-                                                fc, self.config.camera, rng_f)
+            depth, conf = _faults.corrupt_depth(
+                depth, conf, float(self.frame_true_time_s[i]), fc, self.config.camera, rng_f
+            )
         return depth, conf
 
     def frames(self) -> Iterator[tuple[NDArray[np.float32], NDArray[np.uint8]]]:
@@ -121,25 +122,32 @@ def _rng(seed: int, stream: str) -> np.random.Generator:
 def simulate_trial(config: ScenarioConfig, seed: int) -> SimulatedTrial:
     """Simulate one trial in memory (frames are rendered on demand)."""
     terrain = build_terrain(config.terrain)
-    motion = simulate_gait(terrain, config.gait, config.rig, config.duration_s,
-                           _rng(seed, "gait"))
+    motion = simulate_gait(terrain, config.gait, config.rig, config.duration_s, _rng(seed, "gait"))
     knee_T_cam, knee_T_imu, imu_xz = rig_transforms(config.rig)
     cam_xz = np.asarray(config.rig.camera_in_shank_xz_m, dtype=float)
     R_s_c = knee_T_cam[:3, :3]
-    imu, imu_state, truth = simulate_imu(motion, config.imu, config.duration_s, imu_xz,
-                                         _rng(seed, "imu"), R_shank_imu=knee_T_imu[:3, :3])
+    imu, imu_state, truth = simulate_imu(
+        motion,
+        config.imu,
+        config.duration_s,
+        imu_xz,
+        _rng(seed, "imu"),
+        R_shank_imu=knee_T_imu[:3, :3],
+    )
     joints = simulate_joints(motion, config.joints, imu.timestamp_s, _rng(seed, "joints"))
     fc = config.faults
     f_rng = _rng(seed, "faults")
-    accel, gyro, spikes = _faults.corrupt_imu(imu.accel_mps2, imu.gyro_radps, config.imu.rate_hz,
-                                              fc, f_rng)
-    imu_stamp = _faults.stamp_times(imu.timestamp_s, 0.0, fc.clock_jitter_s,
-                                    1.0 / config.imu.rate_hz, f_rng)
+    accel, gyro, spikes = _faults.corrupt_imu(
+        imu.accel_mps2, imu.gyro_radps, config.imu.rate_hz, fc, f_rng
+    )
+    imu_stamp = _faults.stamp_times(
+        imu.timestamp_s, 0.0, fc.clock_jitter_s, 1.0 / config.imu.rate_hz, f_rng
+    )
     imu = ImuTable(imu_stamp, accel, gyro, imu.quat_wxyz)
-    joints = JointTable(imu_stamp.copy(), joints.thigh_pitch_rad, joints.knee_rad,
-                        joints.ankle_rad)
-    traj = simulate_mocap(motion, config.mocap, config.duration_s, cam_xz, R_s_c,
-                          _rng(seed, "mocap"))
+    joints = JointTable(imu_stamp.copy(), joints.thigh_pitch_rad, joints.knee_rad, joints.ankle_rad)
+    traj = simulate_mocap(
+        motion, config.mocap, config.duration_s, cam_xz, R_s_c, _rng(seed, "mocap")
+    )
     camera = TofCamera(config.camera, terrain)
     fr = _rng(seed, "frames")
     period = 1.0 / config.camera.frame_rate_hz
@@ -148,8 +156,9 @@ def simulate_trial(config: ScenarioConfig, seed: int) -> SimulatedTrial:
     frame_t = nominal + np.clip(jitter, -0.4 * period, 0.4 * period)
     source = _faults.kept_frames(frame_t.size, fc, f_rng)
     frame_t = frame_t[source]
-    frame_stamp = _faults.stamp_times(frame_t, fc.camera_time_offset_s, fc.clock_jitter_s,
-                                      period, f_rng)
+    frame_stamp = _faults.stamp_times(
+        frame_t, fc.camera_time_offset_s, fc.clock_jitter_s, period, f_rng
+    )
     cam_pos, R_w_c = camera_poses(motion, frame_t, cam_xz, R_s_c)
     edges = np.zeros((terrain.edges_xz_m.shape[0], 3))
     edges[:, 0], edges[:, 2] = terrain.edges_xz_m[:, 0], terrain.edges_xz_m[:, 1]
@@ -159,22 +168,47 @@ def simulate_trial(config: ScenarioConfig, seed: int) -> SimulatedTrial:
     contact, contact_model = None, None
     if config.contact.kind != "none":
         contact, contact_model = simulate_contact(
-            motion, config.contact, config.duration_s, _rng(seed, "contact"),
-            pause_ramp_s=config.gait.pause_ramp_s)
-    metadata = _metadata(config, seed, terrain, motion, camera, knee_T_cam, knee_T_imu, notes,
-                         contact_model)
+            motion,
+            config.contact,
+            config.duration_s,
+            _rng(seed, "contact"),
+            pause_ramp_s=config.gait.pause_ramp_s,
+        )
+    metadata = _metadata(
+        config, seed, terrain, motion, camera, knee_T_cam, knee_T_imu, notes, contact_model
+    )
     return SimulatedTrial(
-        config=config, seed=seed, terrain=terrain, motion=motion, camera=camera,
-        metadata=metadata, imu=imu, imu_truth=truth, joints=joints, groundtruth=gt,
-        frame_timestamps_s=frame_stamp, camera_position_m=cam_pos, R_world_cam=R_w_c,
-        camera_in_shank_xz_m=cam_xz, imu_in_shank_xz_m=imu_xz, frame_true_time_s=frame_t,
-        frame_source_index=source, imu_spike_index=spikes, contact=contact,
+        config=config,
+        seed=seed,
+        terrain=terrain,
+        motion=motion,
+        camera=camera,
+        metadata=metadata,
+        imu=imu,
+        imu_truth=truth,
+        joints=joints,
+        groundtruth=gt,
+        frame_timestamps_s=frame_stamp,
+        camera_position_m=cam_pos,
+        R_world_cam=R_w_c,
+        camera_in_shank_xz_m=cam_xz,
+        imu_in_shank_xz_m=imu_xz,
+        frame_true_time_s=frame_t,
+        frame_source_index=source,
+        imu_spike_index=spikes,
+        contact=contact,
     )
 
 
 def _metadata(
-    config: ScenarioConfig, seed: int, terrain: Terrain, motion: LegMotion, camera: TofCamera,
-    knee_T_cam: NDArray, knee_T_imu: NDArray, notes: str = "",
+    config: ScenarioConfig,
+    seed: int,
+    terrain: Terrain,
+    motion: LegMotion,
+    camera: TofCamera,
+    knee_T_cam: NDArray,
+    knee_T_imu: NDArray,
+    notes: str = "",
     contact: ContactModel | None = None,
 ) -> RecordingMetadata:
     ic = config.imu
@@ -184,16 +218,19 @@ def _metadata(
         duration_s=config.duration_s,
         camera=camera.camera_model(),
         imu=ImuModel(
-            rate_hz=ic.rate_hz, accel_noise_density_mps2_per_sqrt_hz=ic.accel_noise_density,
+            rate_hz=ic.rate_hz,
+            accel_noise_density_mps2_per_sqrt_hz=ic.accel_noise_density,
             gyro_noise_density_radps_per_sqrt_hz=ic.gyro_noise_density,
             accel_bias_random_walk_mps3_per_sqrt_hz=ic.accel_bias_rw,
             gyro_bias_random_walk_radps2_per_sqrt_hz=ic.gyro_bias_rw,
             orientation_rms_rad=float(np.radians(ic.orientation_rms_deg)),
             # a saturation fault emulates an IMU with that lower range: declare it
-            accel_range_mps2=min(ic.accel_range_mps2,
-                                 config.faults.imu_accel_saturation_mps2 or np.inf),
-            gyro_range_radps=min(ic.gyro_range_radps,
-                                 config.faults.imu_gyro_saturation_radps or np.inf),
+            accel_range_mps2=min(
+                ic.accel_range_mps2, config.faults.imu_accel_saturation_mps2 or np.inf
+            ),
+            gyro_range_radps=min(
+                ic.gyro_range_radps, config.faults.imu_gyro_saturation_radps or np.inf
+            ),
         ),
         joint_rate_hz=ic.rate_hz,
         groundtruth_rate_hz=config.mocap.rate_hz,
@@ -202,20 +239,24 @@ def _metadata(
             knee_T_cam=knee_T_cam.tolist(),
         ),
         leg=LegGeometry(
-            rig=config.rig.rig, thigh_length_m=leg.thigh_length_m,
-            shank_length_m=leg.shank_length_m, heel_in_foot_xz_m=leg.heel_in_foot_xz_m,
+            rig=config.rig.rig,
+            thigh_length_m=leg.thigh_length_m,
+            shank_length_m=leg.shank_length_m,
+            heel_in_foot_xz_m=leg.heel_in_foot_xz_m,
             toe_in_foot_xz_m=leg.toe_in_foot_xz_m,
         ),
         terrain=TerrainInfo(
-            kind=terrain.kind, params=terrain.params,
+            kind=terrain.kind,
+            params=terrain.params,
             profile_xz_m=[tuple(p) for p in terrain.profile_xz_m.tolist()],
             edges_xz_m=[tuple(p) for p in terrain.edges_xz_m.tolist()],
         ),
         provenance=Provenance(
-            source="simulator", scenario=config.name, seed=seed,
+            source="simulator",
+            scenario=config.name,
+            seed=seed,
             # without a contact sensor the saved config is the same as before the section
-            config=config.model_dump(mode="json",
-                                     exclude={"contact"} if contact is None else None),
+            config=config.model_dump(mode="json", exclude={"contact"} if contact is None else None),
             software=f"vio_graph {vio_graph.__version__}",
             created_utc=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             notes=notes,
@@ -225,15 +266,25 @@ def _metadata(
 
 
 def simulate(
-    config: ScenarioConfig, seed: int, out_dir: Path,
-    progress: Callable[[int], None] | None = None, overwrite: bool = False,
+    config: ScenarioConfig,
+    seed: int,
+    out_dir: Path,
+    progress: Callable[[int], None] | None = None,
+    overwrite: bool = False,
 ) -> Path:
     """Simulate a trial and write it as a recording folder; returns the folder."""
     from vio_graph.recording.writer import write_recording
 
     trial = simulate_trial(config, seed)
     return write_recording(
-        Path(out_dir), trial.metadata, trial.imu, trial.joints, trial.groundtruth,
-        trial.frame_timestamps_s, trial.frames(), progress=progress, overwrite=overwrite,
+        Path(out_dir),
+        trial.metadata,
+        trial.imu,
+        trial.joints,
+        trial.groundtruth,
+        trial.frame_timestamps_s,
+        trial.frames(),
+        progress=progress,
+        overwrite=overwrite,
         contact=trial.contact,
     )

@@ -131,7 +131,9 @@ class BatchSmoother(KeyframeSmootherBase):
 
 
 def count_downweighted(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, threshold: float,
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    threshold: float,
     imu: bool = False,
 ) -> dict[str, float]:
     """Count robust factors whose whitened error norm exceeds ``threshold`` at ``values``;

@@ -109,9 +109,12 @@ __all__ = [
 # ----------------------------------------------------------------------------------------------
 # noise models and frame conversions
 # ----------------------------------------------------------------------------------------------
-def robust_noise(config: SmootherConfig, base: gtsam.noiseModel.Base,
-                 kernel: str | None = None, threshold: float | None = None
-                 ) -> gtsam.noiseModel.Base:
+def robust_noise(
+    config: SmootherConfig,
+    base: gtsam.noiseModel.Base,
+    kernel: str | None = None,
+    threshold: float | None = None,
+) -> gtsam.noiseModel.Base:
     """Wrap ``base`` in an M-estimator (threshold in whitened units); by default the
     configured ``robust_kernel`` / ``robust_threshold``."""
     kernel = config.robust_kernel if kernel is None else kernel
@@ -139,9 +142,7 @@ def _cov3_from_xz(cov_xz_m2: ArrayLike, config: SmootherConfig) -> NDArray[np.fl
     return C3
 
 
-def _between_noise(
-    C_trans: NDArray[np.float64], config: SmootherConfig
-) -> gtsam.noiseModel.Base:
+def _between_noise(C_trans: NDArray[np.float64], config: SmootherConfig) -> gtsam.noiseModel.Base:
     """6x6 Gaussian [rotation, translation] for a BetweenFactorPose3, robustified."""
     cov = np.zeros((6, 6))
     cov[:3, :3] = np.eye(3) * config.measurement_rotation_sigma_rad**2
@@ -290,8 +291,9 @@ class KeyframeGraphBuilder:
         self._imu_a.append(np.asarray(sample.accel_mps2, dtype=float).reshape(3))
         self._imu_g.append(np.asarray(sample.gyro_radps, dtype=float).reshape(3))
         self._imu_q.append(np.asarray(sample.quat_wxyz, dtype=float).reshape(4))
-        self._imu_x.append((float(sample.accel_extra_sigma_mps2),
-                            float(sample.gyro_extra_sigma_radps)))
+        self._imu_x.append(
+            (float(sample.accel_extra_sigma_mps2), float(sample.gyro_extra_sigma_radps))
+        )
         if self._pending is not None and t >= self._pending.timestamp_s - TIME_TOL_S:
             return [self._complete_pending()]
         return []
@@ -358,8 +360,10 @@ class KeyframeGraphBuilder:
     def _chain_displacement(self, d: Displacement2D) -> None:
         """Append a frame-to-frame displacement to the chain if it continues it."""
         delta = np.asarray(d.delta_xz_m, dtype=float).reshape(2)
-        cov = np.asarray(d.cov_m2, dtype=float).reshape(2, 2) \
+        cov = (
+            np.asarray(d.cov_m2, dtype=float).reshape(2, 2)
             + np.eye(2) * self.config.frame_displacement_sigma_m**2
+        )
         if self._chain is not None and abs(d.t0_s - self._chain[1]) < TIME_TOL_S:
             s, _, acc, acc_cov = self._chain
             self._chain = (s, float(d.t1_s), acc + delta, acc_cov + cov)
@@ -444,16 +448,19 @@ class KeyframeGraphBuilder:
         x_vel, x_rot = distrust_variances(ts, self._imu_x, self._last_kf_time_s, t)
         if cfg.imu_discretization_gain > 0 or x_vel > 0 or x_rot > 0:
             extra = cfg.imu_discretization_gain**2 * discretization_velocity_var(
-                ts, np.asarray(self._imu_a), self._last_kf_time_s, t)
-            params = make_preintegration_params(cfg, extra + x_vel, t - self._last_kf_time_s,
-                                                x_rot)
+                ts, np.asarray(self._imu_a), self._last_kf_time_s, t
+            )
+            params = make_preintegration_params(cfg, extra + x_vel, t - self._last_kf_time_s, x_rot)
         pim = gtsam.PreintegratedCombinedMeasurements(params, self._latest_bias)
         for a_k, g_k, dt_k in zip(a_mid, g_mid, dt, strict=True):
             pim.integrateMeasurement(a_k, g_k, float(dt_k))
         return pim
 
     def _initial_guess(
-        self, pend: _Pending, t: float, R_i: NDArray[np.float64],
+        self,
+        pend: _Pending,
+        t: float,
+        R_i: NDArray[np.float64],
         pim: gtsam.PreintegratedCombinedMeasurements | None,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Camera x-z, IMU position and IMU velocity guesses (world, m and m/s): the filter's
@@ -479,19 +486,31 @@ class KeyframeGraphBuilder:
         """First keyframe: tight pose prior, velocity prior at the guess, zero-bias prior."""
         cfg = self.config
         sig = np.r_[[cfg.first_attitude_sigma_rad] * 3, [cfg.first_position_sigma_m] * 3]
-        batch.add(gtsam.PriorFactorPose3(X(0), pose_guess, gtsam.noiseModel.Diagonal.Sigmas(sig)),
-                  [X(0)])
-        batch.add(gtsam.PriorFactorVector(V(0), v_guess, gtsam.noiseModel.Isotropic.Sigma(
-            3, cfg.first_velocity_sigma_mps)), [V(0)])
-        bsig = np.r_[
-            [cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3
-        ]
-        batch.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(),
-                                                gtsam.noiseModel.Diagonal.Sigmas(bsig)), [B(0)])
+        batch.add(
+            gtsam.PriorFactorPose3(X(0), pose_guess, gtsam.noiseModel.Diagonal.Sigmas(sig)), [X(0)]
+        )
+        batch.add(
+            gtsam.PriorFactorVector(
+                V(0), v_guess, gtsam.noiseModel.Isotropic.Sigma(3, cfg.first_velocity_sigma_mps)
+            ),
+            [V(0)],
+        )
+        bsig = np.r_[[cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3]
+        batch.add(
+            gtsam.PriorFactorConstantBias(
+                B(0), gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(bsig)
+            ),
+            [B(0)],
+        )
 
     def _add_motion(
-        self, batch: _FactorBatch, i: int, pend: _Pending, R_i: NDArray[np.float64],
-        pim: gtsam.PreintegratedCombinedMeasurements | None, v_guess: NDArray[np.float64],
+        self,
+        batch: _FactorBatch,
+        i: int,
+        pend: _Pending,
+        R_i: NDArray[np.float64],
+        pim: gtsam.PreintegratedCombinedMeasurements | None,
+        v_guess: NDArray[np.float64],
     ) -> None:
         """Keyframe i-1 -> i: the IMU factor (also the bias random walk) or, without it, a
         bias chain and a weak velocity walk; the chained ICP displacement (eq. 3-4)."""
@@ -500,22 +519,36 @@ class KeyframeGraphBuilder:
         if fam.imu:
             assert pim is not None
             f_imu: gtsam.NoiseModelFactor = gtsam.CombinedImuFactor(
-                X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i), pim)
+                X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i), pim
+            )
             if self.robust_imu and cfg.imu_robust_kernel != "none":
-                f_imu = f_imu.cloneWithNewNoiseModel(robust_noise(
-                    cfg, f_imu.noiseModel(), cfg.imu_robust_kernel, cfg.imu_robust_threshold))
+                f_imu = f_imu.cloneWithNewNoiseModel(
+                    robust_noise(
+                        cfg, f_imu.noiseModel(), cfg.imu_robust_kernel, cfg.imu_robust_threshold
+                    )
+                )
             batch.add(f_imu, [X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i)])
         else:  # keep the bias chain connected without the IMU
-            bsig = np.r_[[cfg.accel_bias_prior_sigma_mps2] * 3,
-                         [cfg.gyro_bias_prior_sigma_radps] * 3]
-            batch.add(gtsam.BetweenFactorConstantBias(
-                B(i - 1), B(i), gtsam.imuBias.ConstantBias(),
-                gtsam.noiseModel.Diagonal.Sigmas(bsig)), [B(i - 1), B(i)])
+            bsig = np.r_[
+                [cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3
+            ]
+            batch.add(
+                gtsam.BetweenFactorConstantBias(
+                    B(i - 1),
+                    B(i),
+                    gtsam.imuBias.ConstantBias(),
+                    gtsam.noiseModel.Diagonal.Sigmas(bsig),
+                ),
+                [B(i - 1), B(i)],
+            )
             if not (fam.displacement and pend.displacement is not None):
                 # velocity otherwise unconstrained: weak random walk between keyframes
-                batch.add(gtsam.BetweenFactorVector(V(i - 1), V(i), np.zeros(3),
-                                                    gtsam.noiseModel.Isotropic.Sigma(3, 1.0)),
-                          [V(i - 1), V(i)])
+                batch.add(
+                    gtsam.BetweenFactorVector(
+                        V(i - 1), V(i), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)
+                    ),
+                    [V(i - 1), V(i)],
+                )
         if fam.displacement and pend.displacement is not None:
             assert self._last_kf_R is not None
             R_h = self._last_kf_R
@@ -526,8 +559,12 @@ class KeyframeGraphBuilder:
             noise = _between_noise(R_i.T @ C3 @ R_i, cfg)
             batch.add(gtsam.BetweenFactorPose3(X(i - 1), X(i), meas, noise), [X(i - 1), X(i)])
         if not fam.imu:
-            batch.add(gtsam.PriorFactorVector(V(i), v_guess, gtsam.noiseModel.Isotropic.Sigma(
-                3, LOOSE_SIGMA)), [V(i)])
+            batch.add(
+                gtsam.PriorFactorVector(
+                    V(i), v_guess, gtsam.noiseModel.Isotropic.Sigma(3, LOOSE_SIGMA)
+                ),
+                [V(i)],
+            )
 
     def _add_attitude_and_plane(
         self, batch: _FactorBatch, i: int, pose_guess: gtsam.Pose3, t_guess: NDArray[np.float64]
@@ -537,22 +574,34 @@ class KeyframeGraphBuilder:
         cfg, fam = self.config, self.config.factors
         if fam.attitude and i > 0:
             sig = np.r_[[cfg.attitude_sigma_rad] * 3, [LOOSE_SIGMA] * 3]
-            batch.add(gtsam.PriorFactorPose3(X(i), pose_guess,
-                                             gtsam.noiseModel.Diagonal.Sigmas(sig)), [X(i)])
+            batch.add(
+                gtsam.PriorFactorPose3(X(i), pose_guess, gtsam.noiseModel.Diagonal.Sigmas(sig)),
+                [X(i)],
+            )
         if (fam.planar or fam.weak_position) and i > 0:
             s_xz = cfg.weak_position_sigma_m if fam.weak_position else LOOSE_SIGMA
             s_y = cfg.lateral_position_sigma_m if fam.planar else LOOSE_SIGMA
-            batch.add(gtsam.PoseTranslationPrior3D(
-                X(i), t_guess, gtsam.noiseModel.Diagonal.Sigmas(np.array([s_xz, s_y, s_xz]))),
-                [X(i)])
+            batch.add(
+                gtsam.PoseTranslationPrior3D(
+                    X(i), t_guess, gtsam.noiseModel.Diagonal.Sigmas(np.array([s_xz, s_y, s_xz]))
+                ),
+                [X(i)],
+            )
         if fam.planar:
             sig = np.array([LOOSE_SIGMA, cfg.lateral_velocity_sigma_mps, LOOSE_SIGMA])
-            batch.add(gtsam.PriorFactorVector(V(i), np.zeros(3),
-                                              gtsam.noiseModel.Diagonal.Sigmas(sig)), [V(i)])
+            batch.add(
+                gtsam.PriorFactorVector(V(i), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(sig)),
+                [V(i)],
+            )
 
     def _add_landmarks(
-        self, batch: _FactorBatch, i: int, t: float, observations: list[LandmarkObservation],
-        R_i: NDArray[np.float64], t_guess: NDArray[np.float64],
+        self,
+        batch: _FactorBatch,
+        i: int,
+        t: float,
+        observations: list[LandmarkObservation],
+        R_i: NDArray[np.float64],
+        t_guess: NDArray[np.float64],
     ) -> None:
         """Corner landmarks and stance anchors (long-span constraints): a new landmark gets
         its node at the observed position and a weak prior; every observation a robust
@@ -576,11 +625,15 @@ class KeyframeGraphBuilder:
                 lm[1] = 0.0
                 lm_pose = gtsam.Pose3(gtsam.Rot3(), lm)
                 batch.values.insert(lk, lm_pose)
-                sig = np.r_[[cfg.landmark_rotation_sigma_rad] * 3,
-                            cfg.landmark_position_sigma_m, cfg.landmark_lateral_sigma_m,
-                            cfg.landmark_position_sigma_m]
-                batch.add(gtsam.PriorFactorPose3(lk, lm_pose,
-                                                 gtsam.noiseModel.Diagonal.Sigmas(sig)), [lk])
+                sig = np.r_[
+                    [cfg.landmark_rotation_sigma_rad] * 3,
+                    cfg.landmark_position_sigma_m,
+                    cfg.landmark_lateral_sigma_m,
+                    cfg.landmark_position_sigma_m,
+                ]
+                batch.add(
+                    gtsam.PriorFactorPose3(lk, lm_pose, gtsam.noiseModel.Diagonal.Sigmas(sig)), [lk]
+                )
             meas = gtsam.Pose3(rot_i.inverse(), R_i.T @ o3 + p_ic)
             noise = _between_noise(_cov3_from_xz(cov, cfg), cfg)
             batch.add(gtsam.BetweenFactorPose3(X(i), lk, meas, noise), [X(i), lk])

@@ -223,8 +223,7 @@ def discretization_velocity_var(
 
 
 def distrust_variances(
-    times_s: ArrayLike, extra_sigmas: Sequence[tuple[float, float]], t0_s: float,
-    t1_s: float
+    times_s: ArrayLike, extra_sigmas: Sequence[tuple[float, float]], t0_s: float, t1_s: float
 ) -> tuple[float, float]:
     """Velocity (m^2/s^2) and rotation (rad^2) variances that the distrusted samples touching
     [t0_s, t1_s] add to a preintegrated interval: sum of (sigma h)^2 over the samples, h the
@@ -241,7 +240,9 @@ def distrust_variances(
 
 
 def make_preintegration_params(
-    config: SmootherConfig, extra_velocity_var_m2ps2: float = 0.0, duration_s: float = 1.0,
+    config: SmootherConfig,
+    extra_velocity_var_m2ps2: float = 0.0,
+    duration_s: float = 1.0,
     extra_rotation_var_rad2: float = 0.0,
 ) -> gtsam.PreintegrationCombinedParams:
     """GTSAM combined preintegration parameters (z up, MTi-1 noise densities squared).
@@ -263,8 +264,9 @@ def make_preintegration_params(
 
 
 #: ``SmootherConfig.preintegration`` -> the step sampler it selects.
-SAMPLERS: dict[str, Callable[..., tuple[NDArray[np.float64], NDArray[np.float64],
-                                        NDArray[np.float64]]]] = {
+SAMPLERS: dict[
+    str, Callable[..., tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]]
+] = {
     "midpoint_curvature": midpoint_samples,
     "common_frame": common_frame_samples,
     "raw": held_samples,

@@ -51,7 +51,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             if config.fixed_lag_factorization == "QR":
                 lm.setLinearSolverType("MULTIFRONTAL_QR")
             self._smoother: gtsam.BatchFixedLagSmoother | gtsam.IncrementalFixedLagSmoother = (
-                gtsam.BatchFixedLagSmoother(self.lag_s, lm))
+                gtsam.BatchFixedLagSmoother(self.lag_s, lm)
+            )
         else:
             p = gtsam.ISAM2Params()
             p.setFactorization(config.fixed_lag_factorization)

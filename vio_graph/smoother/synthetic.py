@@ -152,8 +152,11 @@ def make_swinging_shank_trial(
     cov_o = np.eye(2) * max(observation_sigma_m, 1e-3) ** 2
     for k in range(n):
         rel = corner_xz - cam_xz[k]
-        vis = (np.flatnonzero((rel[:, 0] > 0.3) & (rel[:, 0] < 1.2)) if corners
-               else np.zeros(0, dtype=int))
+        vis = (
+            np.flatnonzero((rel[:, 0] > 0.3) & (rel[:, 0] < 1.2))
+            if corners
+            else np.zeros(0, dtype=int)
+        )
         frame_obs = []
         if not in_gap[k]:
             for j in vis:

@@ -37,8 +37,20 @@ from vio_graph.studies.grid import GridPoint
 log = logging.getLogger(__name__)
 
 SUMMARY_COLUMNS = (
-    "trial", "mode", "config", "params", "status", "ate", "toe_x_cm", "toe_z_cm",
-    "camera_x_cm", "camera_z_cm", "map_rise_error_mm", "map_tread_error_mm", "results", "error",
+    "trial",
+    "mode",
+    "config",
+    "params",
+    "status",
+    "ate",
+    "toe_x_cm",
+    "toe_z_cm",
+    "camera_x_cm",
+    "camera_z_cm",
+    "map_rise_error_mm",
+    "map_tread_error_mm",
+    "results",
+    "error",
 )
 
 
@@ -91,19 +103,29 @@ def make_tasks(
         params_json = json.dumps(point.params, sort_keys=False)
         for trial, rec in zip(names, recordings, strict=True):
             for mode in modes:
-                tasks.append(BatchTask(
-                    trial=trial, recording=str(rec), mode=mode, config_tag=point.tag,
-                    params_json=params_json, config_json=cfg_json,
-                    out_dir=str(Path(out_dir) / "runs" / point.tag / trial / mode)))
+                tasks.append(
+                    BatchTask(
+                        trial=trial,
+                        recording=str(rec),
+                        mode=mode,
+                        config_tag=point.tag,
+                        params_json=params_json,
+                        config_json=cfg_json,
+                        out_dir=str(Path(out_dir) / "runs" / point.tag / trial / mode),
+                    )
+                )
     return tasks
 
 
-def _row(task: BatchTask, metrics: dict[str, Any] | None, error: str | None,
-         study_dir: Path) -> dict[str, Any]:
+def _row(
+    task: BatchTask, metrics: dict[str, Any] | None, error: str | None, study_dir: Path
+) -> dict[str, Any]:
     from vio_graph.evaluation.run_metrics import ate_key
 
     row: dict[str, Any] = {
-        "trial": task.trial, "mode": task.mode, "config": task.config_tag,
+        "trial": task.trial,
+        "mode": task.mode,
+        "config": task.config_tag,
         "params": task.params_json if task.params_json != "{}" else "",
         "status": "ok" if error is None else "failed",
         "results": Path(task.out_dir).relative_to(Path(study_dir).resolve()).as_posix(),
@@ -145,8 +167,15 @@ def run_batch_task(task: BatchTask) -> dict[str, Any]:
     out = Path(task.out_dir)
     (out / "metrics.json").unlink(missing_ok=True)  # incomplete until rewritten
     cfg = PipelineConfig.model_validate_json(task.config_json)
-    return run_recording(task.recording, out, cfg, modes=(task.mode,), overwrite=True,
-                         visualize=False, progress=False).metrics
+    return run_recording(
+        task.recording,
+        out,
+        cfg,
+        modes=(task.mode,),
+        overwrite=True,
+        visualize=False,
+        progress=False,
+    ).metrics
 
 
 def run_batch(
@@ -174,15 +203,30 @@ def run_batch(
         if progress:
             progress(n_done + n)
 
-    outcomes = run_tasks(run_batch_task, [tasks[k] for k in todo], scheduler, workers,
-                         step, names=[tasks[k].name for k in todo]) if todo else []
+    outcomes = (
+        run_tasks(
+            run_batch_task,
+            [tasks[k] for k in todo],
+            scheduler,
+            workers,
+            step,
+            names=[tasks[k].name for k in todo],
+        )
+        if todo
+        else []
+    )
     rows: list[dict[str, Any] | None] = [None] * len(tasks)
     for k, m in done.items():
         rows[k] = _row(tasks[k], m, None, study_dir)
     for k, o in zip(todo, outcomes, strict=True):
         rows[k] = _row(tasks[k], o.value if o.ok else None, o.error, study_dir)
-    log.info("%d tasks: %d resumed, %d run, %d failed", len(tasks), len(done), len(todo),
-             sum(1 for r in rows if r and r["status"] != "ok"))
+    log.info(
+        "%d tasks: %d resumed, %d run, %d failed",
+        len(tasks),
+        len(done),
+        len(todo),
+        sum(1 for r in rows if r and r["status"] != "ok"),
+    )
     return [r for r in rows if r is not None]
 
 
@@ -214,26 +258,38 @@ def summary_markdown(rows: Sequence[dict[str, Any]], command: str) -> str:
     failed = [r for r in rows if r["status"] != "ok"]
     configs = list(dict.fromkeys(r["config"] for r in rows))
     lines = [
-        "# Batch summary", "",
-        "Reproduce with:", "", "```bash", command, "```", "",
+        "# Batch summary",
+        "",
+        "Reproduce with:",
+        "",
+        "```bash",
+        command,
+        "```",
+        "",
         f"{len(rows)} tasks (trial x mode x config), {len(rows) - len(failed)} ok, "
         f"{len(failed)} failed. ATE in cm (first pose anchored, RMSE per axis; obstacle "
         "trials over the frames with the obstacle in view), map errors in mm against the "
-        "recording's true stair. Per-task results: `runs/<config>/<trial>/<mode>/`.", "",
+        "recording's true stair. Per-task results: `runs/<config>/<trial>/<mode>/`.",
+        "",
     ]
     for cfg in configs:
         rs = [r for r in rows if r["config"] == cfg]
         params = rs[0]["params"]
-        lines += [f"## Config `{cfg}`" + (f" ({params})" if params else ""), "",
-                  "| trial | mode | toe x | toe z | camera x | camera z | rise err. | "
-                  "tread err. | status |", "|---|---|---|---|---|---|---|---|---|"]
+        lines += [
+            f"## Config `{cfg}`" + (f" ({params})" if params else ""),
+            "",
+            "| trial | mode | toe x | toe z | camera x | camera z | rise err. | "
+            "tread err. | status |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
         for r in rs:
             status = "ok" if r["status"] == "ok" else f"**failed**: {r['error']}"
             lines.append(
                 f"| {r['trial']} | {r['mode']} | {f2(r.get('toe_x_cm'))} | "
                 f"{f2(r.get('toe_z_cm'))} | {f2(r.get('camera_x_cm'))} | "
                 f"{f2(r.get('camera_z_cm'))} | {f2(r.get('map_rise_error_mm'))} | "
-                f"{f2(r.get('map_tread_error_mm'))} | {status} |")
+                f"{f2(r.get('map_tread_error_mm'))} | {status} |"
+            )
         lines.append("")
     if failed:
         lines += ["## Failed tasks", ""]
@@ -243,15 +299,17 @@ def summary_markdown(rows: Sequence[dict[str, Any]], command: str) -> str:
     return "\n".join(lines)
 
 
-def write_summary(rows: Sequence[dict[str, Any]], study_dir: Path, command: str
-                  ) -> dict[str, Path]:
+def write_summary(rows: Sequence[dict[str, Any]], study_dir: Path, command: str) -> dict[str, Path]:
     """summary.csv, summary.md and summary.png in ``study_dir`` (each written atomically)."""
     from vio_graph.viz.plots import plot_batch_summary
 
     study_dir = Path(study_dir)
     study_dir.mkdir(parents=True, exist_ok=True)
-    written = {"csv": study_dir / "summary.csv", "markdown": study_dir / "summary.md",
-               "plot": study_dir / "summary.png"}
+    written = {
+        "csv": study_dir / "summary.csv",
+        "markdown": study_dir / "summary.md",
+        "plot": study_dir / "summary.png",
+    }
     atomic_write_text(written["csv"], summary_csv(rows))
     atomic_write_text(written["markdown"], summary_markdown(rows, command))
     plot_batch_summary(written["plot"], rows)

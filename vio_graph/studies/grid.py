@@ -53,26 +53,30 @@ def check_field_path(path: str, model: type[BaseModel] = PipelineConfig) -> None
         if current is None:
             raise VioGraphError(
                 f"--set {path}: {'.'.join(walked)} is a value, not a section (no field "
-                f"{name!r} below it)")
+                f"{name!r} below it)"
+            )
         fields = current.model_fields
         if name not in fields:
             where = ".".join(walked) or "the pipeline config"
             raise VioGraphError(
-                f"--set {path}: {where} has no field {name!r}; fields: {', '.join(fields)}")
+                f"--set {path}: {where} has no field {name!r}; fields: {', '.join(fields)}"
+            )
         walked.append(name)
         sub = _model_in(fields[name].annotation)
         if k == len(parts) - 1 and sub is not None:
             raise VioGraphError(
                 f"--set {path}: {path} is a section; name one of its fields: "
-                f"{', '.join(sub.model_fields)}")
+                f"{', '.join(sub.model_fields)}"
+            )
         current = sub
 
 
 def parse_set(option: str) -> tuple[str, list[Any]]:
     """``"filter.x=1,2"`` -> ``("filter.x", [1, 2])`` (field checked, values read as YAML)."""
     if "=" not in option:
-        raise VioGraphError(f"--set {option}: expected FIELD=VALUE[,VALUE...], e.g. "
-                            "--set smoother.window_s=1,2")
+        raise VioGraphError(
+            f"--set {option}: expected FIELD=VALUE[,VALUE...], e.g. --set smoother.window_s=1,2"
+        )
     path, _, raw = option.partition("=")
     path = path.strip()
     check_field_path(path)
@@ -120,8 +124,8 @@ def expand_grid(base: PipelineConfig, options: list[str] | None) -> list[GridPoi
             err = exc.errors()[0]
             where = ".".join(str(x) for x in err["loc"])
             raise VioGraphError(
-                f"--set {', '.join(f'{k}={v}' for k, v in params.items())}: {where}: "
-                f"{err['msg']}") from None
+                f"--set {', '.join(f'{k}={v}' for k, v in params.items())}: {where}: {err['msg']}"
+            ) from None
         tag = "__".join(_slug(f"{k}-{v}") for k, v in params.items())
         points.append(GridPoint(tag, params, cfg))
     return points

@@ -21,7 +21,6 @@ MODE_STYLE = {
 }
 
 
-
 @contextlib.contextmanager
 def _quiet_axes_log():
     """Silence matplotlib's 'Ignoring fixed x limits to fulfill fixed data aspect' notice."""
@@ -33,6 +32,7 @@ def _quiet_axes_log():
     finally:
         logger.setLevel(level)
 
+
 def _plt():
     import matplotlib
 
@@ -42,9 +42,11 @@ def _plt():
     return plt
 
 
-def _sagittal_limits(
+def zoom_limits(
     arrays: list[NDArray[np.float64]], margin_m: float = 0.12
 ) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """x and z limits (m) around the finite points of ``arrays`` (each (N, 2), None or empty
+    ones skipped), grown by ``margin_m``; None when there is no point."""
     pts = [a[np.all(np.isfinite(a), axis=1)] for a in arrays if a is not None and len(a)]
     pts = [a for a in pts if a.size]
     if not pts:
@@ -100,14 +102,14 @@ def overview_figure(
     for row, body in enumerate(("camera", "toe")):
         ax = fig.add_subplot(gs[row, 0])
         if prof.size:
-            ax.fill_between(prof[:, 0], prof[:, 1], prof[:, 1].min() - 1.0, color="0.88",
-                            label="terrain (true)")
+            ax.fill_between(
+                prof[:, 0], prof[:, 1], prof[:, 1].min() - 1.0, color="0.88", label="terrain (true)"
+            )
             ax.plot(prof[:, 0], prof[:, 1], color="0.35", lw=1)
         zoom = []
         if gt is not None:
             g = gt.trajectories[body].position_m[:, [0, 2]]
-            ax.plot(g[:, 0], g[:, 1], color="tab:green", lw=2.2, alpha=0.8,
-                    label="ground truth")
+            ax.plot(g[:, 0], g[:, 1], color="tab:green", lw=2.2, alpha=0.8, label="ground truth")
             zoom.append(g)
         for mode in modes:
             c, ls = MODE_STYLE[mode]
@@ -115,7 +117,7 @@ def overview_figure(
             ax.plot(xz[:, 0], xz[:, 1], color=c, ls=ls, lw=1.2, label=label(mode, body))
             if mode != "icp_only" or gt is None:
                 zoom.append(xz)
-        limits = _sagittal_limits(zoom)
+        limits = zoom_limits(zoom)
         if limits is not None:
             ax.set_xlim(*limits[0])
             ax.set_ylim(*limits[1])
@@ -137,8 +139,14 @@ def overview_figure(
         a = fig.add_subplot(gs[row, 1])
         if gt is not None:
             g = gt.trajectories["toe"]
-            a.plot(g.timestamp_s, g.position_m[:, 0 if k == 0 else 2], color="tab:green", lw=2.2,
-                   alpha=0.8, label="ground truth")
+            a.plot(
+                g.timestamp_s,
+                g.position_m[:, 0 if k == 0 else 2],
+                color="tab:green",
+                lw=2.2,
+                alpha=0.8,
+                label="ground truth",
+            )
         for mode in modes:
             c, ls = MODE_STYLE[mode]
             v = ate.get(mode, {}).get("toe", {}).get(axis)
@@ -243,23 +251,40 @@ def plot_batch_summary(path: Path, rows: list[dict[str, Any]]) -> Path:
             for k, g in enumerate(groups):
                 r = by.get((*g, mode))
                 if r is not None and r["status"] != "ok":
-                    ax.text(xs[k], 0.02 * (top or 1.0), "failed", color="tab:red", rotation=90,
-                            ha="center", va="bottom", fontsize=8)
+                    ax.text(
+                        xs[k],
+                        0.02 * (top or 1.0),
+                        "failed",
+                        color="tab:red",
+                        rotation=90,
+                        ha="center",
+                        va="bottom",
+                        fontsize=8,
+                    )
         ax.set_ylim(0, 1.15 * top if top > 0 else 1.0)
         ax.set_ylabel(f"toe ATE {axis} (cm)")
         ax.grid(axis="y", alpha=0.3)
     axes[0].legend(title="mode", fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     axes[0].set_title(f"Toe ATE per trial and mode ({len(rows)} tasks)")
-    axes[1].set_xticks(x0, labels, rotation=30 if len(groups) > 6 else 0,
-                       ha="right" if len(groups) > 6 else "center", fontsize=8)
+    axes[1].set_xticks(
+        x0,
+        labels,
+        rotation=30 if len(groups) > 6 else 0,
+        ha="right" if len(groups) > 6 else "center",
+        fontsize=8,
+    )
     with atomic_path(Path(path), suffix=".png") as tmp:
         fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return Path(path)
 
 
-def plot_clearance(path: Path, t_s: NDArray[np.float64], safety: list[Any],
-                   truth: dict[str, NDArray[np.float64]] | None) -> Path:
+def plot_clearance(
+    path: Path,
+    t_s: NDArray[np.float64],
+    safety: list[Any],
+    truth: dict[str, NDArray[np.float64]] | None,
+) -> Path:
     """plots/clearance.png: the online toe clearance (cm) with its 1-sigma band, the predicted
     minimum clearance, the truth when known, near-trip warnings and landings."""
     plt = _plt()
@@ -270,14 +295,19 @@ def plot_clearance(path: Path, t_s: NDArray[np.float64], safety: list[Any],
     t = np.asarray(t_s, dtype=float)[: len(safety)]
     c, sig = col("clearance_m") * 100, col("clearance_sigma_m") * 100
     fig, ax = plt.subplots(figsize=(10, 3.6))
-    ax.fill_between(t, c - sig, c + sig, color="tab:blue", alpha=0.25, lw=0,
-                    label="estimate 1-sigma")
+    ax.fill_between(
+        t, c - sig, c + sig, color="tab:blue", alpha=0.25, lw=0, label="estimate 1-sigma"
+    )
     ax.plot(t, c, color="tab:blue", lw=1.2, label="clearance (filter)")
-    ax.plot(t, col("predicted_min_clearance_m") * 100, color="tab:orange", lw=0.8,
-            label="predicted minimum over the horizon")
+    ax.plot(
+        t,
+        col("predicted_min_clearance_m") * 100,
+        color="tab:orange",
+        lw=0.8,
+        label="predicted minimum over the horizon",
+    )
     if truth is not None:
-        ax.plot(t, truth["clearance_m"][: len(t)] * 100, color="k", lw=1.0, ls="--",
-                label="truth")
+        ax.plot(t, truth["clearance_m"][: len(t)] * 100, color="k", lw=1.0, ls="--", label="truth")
     warn = np.array([bool(s.near_trip_warning) if s is not None else False for s in safety])
     land = np.array([bool(s.landing) if s is not None else False for s in safety])
     if warn.any():

@@ -78,10 +78,12 @@ class Visualizer(NullVisualizer):
         self._t_s = 0.0
         self._pinhole_logged = False
         # time series sent as columns by close(): entity -> (times s, values)
-        self._scalars: dict[str, tuple[list[float], list[float]]] = defaultdict(
-            lambda: ([], []))
+        self._scalars: dict[str, tuple[list[float], list[float]]] = defaultdict(lambda: ([], []))
         self._camera: tuple[list[float], list[NDArray[np.float64]], list[NDArray[np.float64]]] = (
-            [], [], [])
+            [],
+            [],
+            [],
+        )
 
     def set_time(self, timestamp_s: float) -> None:
         self._t_s = float(timestamp_s)

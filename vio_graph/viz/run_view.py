@@ -21,22 +21,29 @@ from vio_graph.recording.streams import GroundTruth
 from vio_graph.types import DepthFrame, EstimateStatus
 
 
-def cloud_world(frame: DepthFrame, K: NDArray[np.float64], R_world_cam: NDArray[np.float64],
-                cam_xyz: NDArray[np.float64], stride: int) -> NDArray[np.float64]:
+def cloud_world(
+    frame: DepthFrame,
+    K: NDArray[np.float64],
+    R_world_cam: NDArray[np.float64],
+    cam_xyz: NDArray[np.float64],
+    stride: int,
+) -> NDArray[np.float64]:
     """The frame's valid points in the world frame, every ``stride``-th pixel (for viewing):
     the front end's back-projection on the subsampled image with its scaled intrinsics."""
     K_sub = np.array(K, dtype=float)
     K_sub[:2] /= stride
-    pts = depth_to_points_cam(frame.depth_m[::stride, ::stride],
-                              frame.confidence[::stride, ::stride], K_sub)
+    pts = depth_to_points_cam(
+        frame.depth_m[::stride, ::stride], frame.confidence[::stride, ::stride], K_sub
+    )
     return pts @ R_world_cam.T + cam_xyz
 
 
 class RunView:
     """The rerun view of one run (``viz``: a Visualizer or NullVisualizer)."""
 
-    def __init__(self, viz, rig: RigGeometry, groundtruth: GroundTruth | None,
-                 output: OutputConfig) -> None:
+    def __init__(
+        self, viz, rig: RigGeometry, groundtruth: GroundTruth | None, output: OutputConfig
+    ) -> None:
         self.viz = viz
         self.rig = rig
         self.gt = groundtruth
@@ -63,11 +70,18 @@ class RunView:
         viz.set_time(est.timestamp_s)
         cam_xyz = np.array([est.camera_xz_m[0], 0.0, est.camera_xz_m[1]])
         R_world_cam = record.R_world_imu @ self.rig.R_imu_cam
-        viz.log_camera(cam_xyz, R_world_cam, self.rig.K, frame.depth_m.shape[1],
-                       frame.depth_m.shape[0], frame.depth_m)
+        viz.log_camera(
+            cam_xyz,
+            R_world_cam,
+            self.rig.K,
+            frame.depth_m.shape[1],
+            frame.depth_m.shape[0],
+            frame.depth_m,
+        )
         if i % self.output.cloud_every_n_frames == 0:
-            viz.log_cloud(cloud_world(frame, self.rig.K, R_world_cam, cam_xyz,
-                                      self.output.cloud_pixel_stride))
+            viz.log_cloud(
+                cloud_world(frame, self.rig.K, R_world_cam, cam_xyz, self.output.cloud_pixel_stride)
+            )
         viz.log_sagittal("slice", est.camera_xz_m + res.profile_xz_m, 0.002, (250, 200, 0))
         if res.corner is not None:
             viz.log_sagittal(
@@ -87,8 +101,12 @@ class RunView:
         sf = est.safety
         if sf is not None and np.all(np.isfinite(sf.toe_line_xz_m)):
             # the clearance: a line from the closest foot point to the closest terrain point
-            viz.log_segments("clearance", sf.toe_line_xz_m[:1], sf.toe_line_xz_m[1:],
-                             (255, 0, 160) if sf.near_trip_warning else (0, 200, 120))
+            viz.log_segments(
+                "clearance",
+                sf.toe_line_xz_m[:1],
+                sf.toe_line_xz_m[1:],
+                (255, 0, 160) if sf.near_trip_warning else (0, 200, 120),
+            )
             viz.log_scalar("clearance_cm/estimate", 100 * sf.clearance_m)
             viz.log_scalar("clearance_cm/sigma", 100 * sf.clearance_sigma_m)
         if sf is not None and np.isfinite(sf.predicted_min_clearance_m):

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import signal
 import sys
 from pathlib import Path
@@ -135,11 +136,17 @@ def _print_ate_table(metrics: dict) -> None:
         nt = c["near_trip"]
         pl = metrics["placement"][mode]["error_mm"]["median"]
         w1 = c.get("within_1sigma", float("nan"))
+        sigma = f", within 1 sigma {w1:.2f}" if math.isfinite(w1) else ""
+        trips = (
+            f"near-trips {nt['events']}, warnings {nt['warnings']}, recall {nt['recall']:.2f}, "
+            f"min lead {nt['min_lead_ms']:.0f} ms"
+            if nt["events"]
+            else f"no near-trip (true clearance < 2 cm), near-trip warnings {nt['warnings']}"
+        )
+        place = f"; placement error median {pl:.1f} mm" if math.isfinite(pl) else ""
         typer.echo(
             f"toe clearance ({mode}): error median {c['error_mm']['median']:.1f} mm, p95 "
-            f"{c['error_mm']['p95']:.1f} mm, within 1 sigma {w1:.2f}; "
-            f"near-trips {nt['events']}, warnings {nt['warnings']}, recall {nt['recall']:.2f}, "
-            f"min lead {nt['min_lead_ms']:.0f} ms; placement error median {pl:.1f} mm"
+            f"{c['error_mm']['p95']:.1f} mm{sigma}; {trips}{place}"
         )
 
 

@@ -372,7 +372,10 @@ class OnlineEstimator:
         sample = self.imu_faults.process(sample)  # saturation marks, gyro repair (IMU axes)
         sample = shank = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
-        sample = self.corrected_imu(sample)  # the offset applied once, for the strapdown
+        if self.config.filter.strapdown_attitude == "tracked":
+            sample = self._with_tracked_attitude(sample)
+        else:
+            sample = self.corrected_imu(sample)  # the offset applied once, for the strapdown
         if self._last_imu is not None and sample.timestamp_s <= self._last_imu.timestamp_s:
             raise EstimationError(
                 f"IMU sample at {sample.timestamp_s:.6f} s is not after "
@@ -425,6 +428,14 @@ class OnlineEstimator:
         if not self.pitch_offset.initialised or b == 0.0:
             return sample
         return dataclasses.replace(sample, quat_wxyz=_pitch_offset_quat(sample.quat_wxyz, b))
+
+    def _with_tracked_attitude(self, sample: ImuSample) -> ImuSample:
+        """``sample`` carrying the tracked attitude at its time (filter/attitude.py, heading
+        removed, level-surface pitch offset applied) instead of the vendor orientation."""
+        G = remove_yaw_mat3(self.attitude.R_world_imu_at_mat3(sample.timestamp_s))
+        b = self.pitch_offset.offset_rad
+        R = np.array(mat3_mul(rot_y_mat3(b), G) if b != 0.0 else G).reshape(3, 3)
+        return dataclasses.replace(sample, quat_wxyz=quat_wxyz_from_matrix(R))
 
     def R_world_imu(self, t_s: float | None = None) -> NDArray[np.float64]:
         """Attitude at ``t_s`` (default: the latest IMU sample) with the heading removed (the

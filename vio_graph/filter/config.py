@@ -319,6 +319,14 @@ class FilterConfig(BaseModel):
             "mean of the previous and current ground-frame accelerations"
         ),
     )
+    strapdown_attitude: Literal["vendor", "tracked"] = Field(
+        default="vendor",
+        description=(
+            "attitude the strapdown rotates the specific force with: 'vendor' = each sample's "
+            "vendor orientation with the level-surface pitch offset; 'tracked' = the attitude "
+            "tracker's (attitude.source, e.g. gyro-integrated complementary) with the offset"
+        ),
+    )
     lever_arm_compensation: bool = Field(
         default=True,
         description=(

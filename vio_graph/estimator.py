@@ -432,20 +432,21 @@ class OnlineEstimator:
     def _with_tracked_attitude(self, sample: ImuSample) -> ImuSample:
         """``sample`` carrying the tracked attitude at its time (filter/attitude.py, heading
         removed, level-surface pitch offset applied) instead of the vendor orientation."""
-        G = remove_yaw_mat3(self.attitude.R_world_imu_at_mat3(sample.timestamp_s))
-        b = self.pitch_offset.offset_rad
-        R = np.array(mat3_mul(rot_y_mat3(b), G) if b != 0.0 else G).reshape(3, 3)
+        R = self._level_aided_attitude(sample.timestamp_s)
         return dataclasses.replace(sample, quat_wxyz=quat_wxyz_from_matrix(R))
+
+    def _level_aided_attitude(self, t_s: float) -> NDArray[np.float64]:
+        """(3, 3) tracked attitude at ``t_s``, heading removed, level-surface offset applied."""
+        G = remove_yaw_mat3(self.attitude.R_world_imu_at_mat3(t_s))  # scalar closed forms
+        b = self.pitch_offset.offset_rad
+        return np.array(mat3_mul(rot_y_mat3(b), G) if b != 0.0 else G).reshape(3, 3)
 
     def R_world_imu(self, t_s: float | None = None) -> NDArray[np.float64]:
         """Attitude at ``t_s`` (default: the latest IMU sample) with the heading removed (the
         paper's ground frame); ``config.filter.attitude`` says how (filter/attitude.py)."""
         if self._last_imu is None:
             raise EstimationError("no IMU sample yet")
-        t = self._last_imu.timestamp_s if t_s is None else t_s
-        G = remove_yaw_mat3(self.attitude.R_world_imu_at_mat3(t))  # scalar closed forms
-        b = self.pitch_offset.offset_rad
-        return np.array(mat3_mul(rot_y_mat3(b), G) if b != 0.0 else G).reshape(3, 3)
+        return self._level_aided_attitude(self._last_imu.timestamp_s if t_s is None else t_s)
 
     def R_world_imu_reference(self, t_s: float | None = None) -> NDArray[np.float64]:
         """numpy reference of :meth:`R_world_imu` (the tests compare the two)."""

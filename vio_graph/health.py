@@ -152,9 +152,13 @@ class HealthMonitor:
         """Figures and warnings so far. ``pitch_offset_deg``: the level-surface correction
         of the IMU pitch (filter/attitude.PitchOffsetFilter), a hint for mounting errors."""
         lim = self.limits
-        longest_x_blind = self.max_x_blind_s
-        if self._x_blind_since is not None and self._prev is not None:
-            longest_x_blind = max(longest_x_blind, self._prev[0] - self._x_blind_since)
+        open_run = (  # a stretch still running at the latest frame
+            self._prev[0] - self._x_blind_since
+            if self._x_blind_since is not None and self._prev is not None
+            else 0.0
+        )
+        longest_x_blind = max(self.max_x_blind_s, open_run)
+        x_blind_s = self.x_blind_s + open_run
         rejected = _share(self.n_refused, self.n_displacements)
         departure = _share(self.n_departures, self.n_windows)
         stance = _share(self.n_stance, self.n_frames)
@@ -190,9 +194,6 @@ class HealthMonitor:
             warnings.append(
                 f"WARNING: the fused estimate is inconsistent: {what}. Likely cause: {cause}."
             )
-        x_blind_s = self.x_blind_s
-        if self._x_blind_since is not None and self._prev is not None:
-            x_blind_s += self._prev[0] - self._x_blind_since
         duration_s = (
             0.0
             if self._prev is None or self._t_first_s is None

@@ -320,7 +320,7 @@ class FilterConfig(BaseModel):
         ),
     )
     strapdown_attitude: Literal["vendor", "tracked"] = Field(
-        default="vendor",
+        default="tracked",
         description=(
             "attitude the strapdown rotates the specific force with: 'vendor' = each sample's "
             "vendor orientation with the level-surface pitch offset; 'tracked' = the attitude "

@@ -163,6 +163,28 @@ def test_classifier_unknown_for_wall_and_empty() -> None:
     assert classify_terrain(np.zeros((3, 2)))[0] == TerrainKind.UNKNOWN
 
 
+def _risers(xs_m: list[float], rise_m: float = 0.147, z0_m: float = -0.25) -> np.ndarray:
+    """Only the risers of a stair, no treads: what a level camera at tread height sees when
+    the treads are too oblique to return (risers rise by ``rise_m`` each, going away)."""
+    rng = np.random.default_rng(3)
+    pts = []
+    for i, x in enumerate(xs_m):
+        z = np.arange(z0_m + i * rise_m, z0_m + (i + 1) * rise_m - 0.02, 0.004)
+        pts.append(np.c_[x + rng.normal(0.0, 0.002, z.size), z])
+    return np.concatenate(pts)
+
+
+def test_a_row_of_risers_without_treads_is_a_stair_up() -> None:
+    """Each riser has no surface beside it; the next riser, higher and farther, orients it
+    (camera 8 cm below the knee with a level optical axis: 80 % -> 99 % on the sweep)."""
+    assert classify_terrain(_risers([0.38, 0.66, 0.94]))[0] == TerrainKind.STAIR_UP
+    assert classify_terrain(_risers([0.38, 0.66]))[0] == TerrainKind.STAIR_UP
+    # the same faces getting lower going away: a drop, and one face alone: no decision
+    flipped = _risers([0.38, 0.66, 0.94]) * np.array([1.0, -1.0])
+    assert classify_terrain(flipped)[0] == TerrainKind.STAIR_DOWN
+    assert classify_terrain(_risers([0.38]))[0] == TerrainKind.UNKNOWN
+
+
 def test_confusion_table_counts() -> None:
     true = ["stair_up", "stair_up", "level", TerrainKind.OBSTACLE]
     pred = ["stair_up", "obstacle", "level", "obstacle"]

@@ -41,7 +41,8 @@ Rule
    rises (going
    away from the camera) when the surface just before it (within ``face_context_m``) is nearer
    its bottom than its top, or, without one, the surface just after it is nearer its top, or,
-   without either, the previous face is lower; otherwise it drops. A face taller than
+   without either, the nearest face (the previous one, else the next) is lower before it or
+   higher after it; otherwise it drops; a lone face with nothing beside it is left out. A face taller than
    ``max_step_m`` is a wall and leaves the class UNKNOWN. When the levels alone give
    LEVEL or UNKNOWN (not a wall), the faces decide: only rising -> STAIR_UP, only dropping ->
    STAIR_DOWN, rising then dropping -> OBSTACLE. The decision uses only the geometry of the
@@ -221,7 +222,8 @@ def find_faces(
         return []
     rest = rest[np.argsort(rest[:, 0], kind="stable")]
     breaks = np.flatnonzero(np.diff(rest[:, 0]) > config.face_gap_m) + 1
-    faces: list[Face] = []
+    # (x, z_lo, z_hi, direction or None when no surface or earlier face orients it)
+    found: list[tuple[float, float, float, int | None]] = []
     for lo, hi in zip(np.r_[0, breaks], np.r_[breaks, rest.shape[0]], strict=True):
         grp = rest[lo:hi]
         if grp.shape[0] < config.min_face_points:
@@ -240,18 +242,29 @@ def find_faces(
         ]
         after = pts[(pts[:, 0] > x_hi_g + 0.5 * config.face_gap_m) & (pts[:, 0] <= x_hi_g + ctx), 1]
         mid = 0.5 * (z_lo + z_hi)
+        direction: int | None = None
         if z_hi - z_lo > config.max_step_m:
             direction = 0  # a wall, not a step
         elif before.size >= config.min_face_points:
             direction = 1 if np.median(before) < mid else -1
         elif after.size >= config.min_face_points:
             direction = 1 if np.median(after) > mid else -1
-        elif faces:
-            prev_mid = 0.5 * (faces[-1].z_lo_m + faces[-1].z_hi_m)
-            direction = 1 if prev_mid < mid else -1
-        else:
-            continue  # an isolated segment: no direction
-        faces.append(Face(float(x_med), float(z_lo), float(z_hi), direction))
+        found.append((float(x_med), float(z_lo), float(z_hi), direction))
+    # A face with no surface beside it (a row of risers whose treads are seen too obliquely
+    # to return, e.g. a level camera at tread height) takes its direction from the nearest
+    # face: a higher face farther away means the surface rises. A lone face stays unoriented
+    # and is left out.
+    faces: list[Face] = []
+    for i, (x, z_lo, z_hi, direction) in enumerate(found):
+        if direction is None:
+            mid = 0.5 * (z_lo + z_hi)
+            if i > 0:
+                direction = 1 if 0.5 * (found[i - 1][1] + found[i - 1][2]) < mid else -1
+            elif i + 1 < len(found):
+                direction = 1 if 0.5 * (found[i + 1][1] + found[i + 1][2]) > mid else -1
+            else:
+                continue
+        faces.append(Face(x, z_lo, z_hi, direction))
     return faces
 
 

@@ -11,11 +11,14 @@ import math
 import signal
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from vio_graph.errors import VioGraphError
+
+if TYPE_CHECKING:
+    from vio_graph.config import PipelineConfig
 
 app = typer.Typer(
     add_completion=False,
@@ -384,7 +387,7 @@ def evaluate(
     if sweep:
         _evaluate_sweep(out, seeds, condition, mode, load_config(config), jobs, doc, scheduler)
         return
-    from vio_graph.experiments import PAPER_EXPERIMENTS, run_trials, simulate_trials, write_report
+    from vio_graph.experiments import PAPER_EXPERIMENTS, simulate_trials
     from vio_graph.viz.progress import progress_bar
 
     scenarios = scenario or list(PAPER_EXPERIMENTS)
@@ -395,22 +398,12 @@ def evaluate(
         recs = simulate_trials(
             out, scenarios, seed_list, jobs=jobs, progress=bar.update_to, scheduler=scheduler
         )
-    with progress_bar(n, "estimating", "trial") as bar:
-        runs = run_trials(
-            recs,
-            out,
-            cfg,
-            modes=_parse_modes(mode),
-            jobs=jobs,
-            progress=bar.update_to,
-            scheduler=scheduler,
-        )
     command = (
         "vio-graph evaluate " + " ".join(sys.argv[2:])
         if len(sys.argv) > 2
         else "vio-graph evaluate"
     )
-    written = write_report(runs, out, command, cfg, doc)
+    written = _estimate_and_report(recs, out, cfg, mode, jobs, scheduler, command, doc)
     if ablation:
         from vio_graph.experiments import (
             ABLATION_VARIANTS,
@@ -442,6 +435,34 @@ def evaluate(
         typer.echo(f"{k:9} {p}")
 
 
+def _estimate_and_report(
+    recs: list[tuple[str, int | None, Path]],
+    out: Path,
+    cfg: PipelineConfig,
+    mode: str,
+    jobs: int,
+    scheduler: str | None,
+    command: str,
+    doc: Path | None,
+) -> dict[str, Path]:
+    """Run every mode on (scenario, seed, recording) triples under a progress bar and write
+    the results report (evaluate and compare)."""
+    from vio_graph.experiments import run_trials, write_report
+    from vio_graph.viz.progress import progress_bar
+
+    with progress_bar(len(recs), "estimating", "trial") as bar:
+        runs = run_trials(
+            recs,
+            out,
+            cfg,
+            modes=_parse_modes(mode),
+            jobs=jobs,
+            progress=bar.update_to,
+            scheduler=scheduler,
+        )
+    return write_report(runs, out, command, cfg, doc)
+
+
 @app.command()
 def compare(
     recordings: Annotated[list[Path], typer.Argument(help="Recording folders.")],
@@ -458,26 +479,15 @@ def compare(
     results/cmp
     """
     from vio_graph.config import load_config
-    from vio_graph.experiments import run_trials, write_report
     from vio_graph.recording import Recording
-    from vio_graph.viz.progress import progress_bar
 
     cfg = load_config(config)
     recs = []
     for r in recordings:
         meta = Recording.open(r).metadata
         recs.append((meta.provenance.scenario or meta.terrain.kind, meta.provenance.seed, Path(r)))
-    with progress_bar(len(recs), "estimating", "trial") as bar:
-        runs = run_trials(
-            recs,
-            out,
-            cfg,
-            modes=_parse_modes(mode),
-            jobs=jobs,
-            progress=bar.update_to,
-            scheduler=scheduler,
-        )
-    written = write_report(runs, out, "vio-graph compare " + " ".join(sys.argv[2:]), cfg, doc)
+    command = "vio-graph compare " + " ".join(sys.argv[2:])
+    written = _estimate_and_report(recs, out, cfg, mode, jobs, scheduler, command, doc)
     typer.echo(written["markdown"].read_text().split("## Smoother vs filter")[0])
     for k, p in written.items():
         typer.echo(f"{k:9} {p}")

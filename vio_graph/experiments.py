@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from vio_graph.config import PipelineConfig, dump_config
-from vio_graph.evaluation.tables import PAPER_TOE_ATE_CM
+from vio_graph.evaluation.tables import PAPER_TOE_ATE_CM, report_header
 from vio_graph.io_utils import atomic_write_json, atomic_write_text, write_generated_doc
 
 log = logging.getLogger(__name__)
@@ -214,14 +214,7 @@ def _pm(d: dict[str, float], axis: str) -> str:
 def markdown_report(summary: dict[str, Any], command: str, config: PipelineConfig) -> str:
     """The results page: toe ATE beside the paper, ratios, camera ATE, map errors."""
     lines = [
-        "# Results on simulated trials",
-        "",
-        "Reproduce with:",
-        "",
-        "```bash",
-        command,
-        "```",
-        "",
+        *report_header("Results on simulated trials", command),
         "Toe ATE in cm, mean ± sd over seeds, first pose anchored to ground truth, RMSE per "
         "axis (the paper's definition, Section III.A). Obstacle: only frames in which the "
         "obstacle edge is visible, as in the paper. Paper: Chen et al., Section III.B-C "

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from vio_graph.config import PipelineConfig
+from vio_graph.evaluation.tables import report_header
 from vio_graph.experiments import _map, _run_one
 from vio_graph.io_utils import (
     atomic_path,
@@ -194,14 +195,7 @@ def _recovery_time(
 
 def markdown(results: dict[str, Any], command: str) -> str:
     lines = [
-        "# Robustness: toe ATE against sensor faults",
-        "",
-        "Reproduce with:",
-        "",
-        "```bash",
-        command,
-        "```",
-        "",
+        *report_header("Robustness: toe ATE against sensor faults", command),
         f"Scenario `{results['scenario']}`, seeds {results['seeds']} (the same walks with and "
         "without each fault). Toe ATE in cm (paper's definition, mean over seeds) and, in "
         "brackets, the ratio to the clean run. `chi2 rej.` counts displacements the filter's "

@@ -99,3 +99,9 @@ def markdown_table(
             f"{_pm(s.z_mean_cm, s.z_sd_cm)} | {pz} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def report_header(title: str, command: str) -> list[str]:
+    """The first lines of a generated report page: its title and the command that
+    reproduces it, as markdown lines."""
+    return [f"# {title}", "", "Reproduce with:", "", "```bash", command, "```", ""]

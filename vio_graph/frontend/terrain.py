@@ -38,15 +38,15 @@ Rule
    points of a group within ``face_max_width_m`` / 2 of its median x are its core (a short
    piece of tread attached to a riser is left out), and a core of at least
    ``min_face_points`` points spanning at least ``min_step_m`` in height is a face. A face
-   rises (going
-   away from the camera) when the surface just before it (within ``face_context_m``) is nearer
-   its bottom than its top, or, without one, the surface just after it is nearer its top, or,
-   without either, the nearest face (the previous one, else the next) is lower before it or
-   higher after it; otherwise it drops; a lone face with nothing beside it is left out. A face taller than
-   ``max_step_m`` is a wall and leaves the class UNKNOWN. When the levels alone give
-   LEVEL or UNKNOWN (not a wall), the faces decide: only rising -> STAIR_UP, only dropping ->
-   STAIR_DOWN, rising then dropping -> OBSTACLE. The decision uses only the geometry of the
-   frame (levels separated by a rise, a vertical segment between them), no proportions.
+   rises (going away from the camera) when the surface just before it (within
+   ``face_context_m``) is nearer its bottom than its top, or, without one, the surface just
+   after it is nearer its top, or, without either, the nearest face (the previous one, else
+   the next) is lower before it or higher after it; otherwise it drops; a lone face with
+   nothing beside it is left out. A face taller than ``max_step_m`` is a wall and leaves the
+   class UNKNOWN. When the levels alone give LEVEL or UNKNOWN (not a wall), the faces decide:
+   only rising -> STAIR_UP, only dropping -> STAIR_DOWN, rising then dropping -> OBSTACLE. The
+   decision uses only the geometry of the frame (levels separated by a rise, a vertical
+   segment between them), no proportions.
 
 Known limits: a floor and one rising face (an obstacle whose top is out of view) is called
 STAIR_UP; a stair tread cut short by the field of view can look like an obstacle top; a

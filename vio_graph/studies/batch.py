@@ -30,6 +30,7 @@ from typing import Any
 
 from vio_graph.config import PipelineConfig, dump_config
 from vio_graph.errors import VioGraphError
+from vio_graph.evaluation.tables import report_header
 from vio_graph.io_utils import atomic_write_text
 from vio_graph.studies.engine import run_tasks
 from vio_graph.studies.grid import GridPoint
@@ -258,14 +259,7 @@ def summary_markdown(rows: Sequence[dict[str, Any]], command: str) -> str:
     failed = [r for r in rows if r["status"] != "ok"]
     configs = list(dict.fromkeys(r["config"] for r in rows))
     lines = [
-        "# Batch summary",
-        "",
-        "Reproduce with:",
-        "",
-        "```bash",
-        command,
-        "```",
-        "",
+        *report_header("Batch summary", command),
         f"{len(rows)} tasks (trial x mode x config), {len(rows) - len(failed)} ok, "
         f"{len(failed)} failed. ATE in cm (first pose anchored, RMSE per axis; obstacle "
         "trials over the frames with the obstacle in view), map errors in mm against the "

@@ -10,6 +10,7 @@ import logging
 import math
 import signal
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -436,7 +437,7 @@ def evaluate(
 
 
 def _estimate_and_report(
-    recs: list[tuple[str, int | None, Path]],
+    recs: Sequence[tuple[str, int | None, Path]],
     out: Path,
     cfg: PipelineConfig,
     mode: str,

@@ -6,6 +6,8 @@ safety outputs") for the definitions.
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
@@ -16,13 +18,18 @@ class SafetyConfig(BaseModel):
 
     enabled: bool = Field(default=True, description="compute the safety outputs per frame")
     bin_m: float = Field(
-        default=0.01,
+        default=0.005,
         gt=0,
         le=0.05,
         description="x bin width of the online height map built from keyframe profiles, m",
     )
+    map_statistic: Literal["median", "mean"] = Field(
+        default="median",
+        description="a map bin's height over the keyframes that saw it: median (robust to "
+        "the ToF mixed pixels between a nosing and the tread below) or mean (before 2026-12)",
+    )
     min_keyframes: int = Field(
-        default=2, ge=1, description="a map bin is used once this many keyframes saw it"
+        default=4, ge=1, description="a map bin is used once this many keyframes saw it"
     )
     sole_thickness_m: float = Field(
         default=0.0,

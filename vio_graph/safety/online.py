@@ -163,22 +163,40 @@ def forward_motion(v_xz_mps: NDArray[np.float64], cfg: SafetyConfig) -> bool:
 
 
 class OnlineHeightMap:
-    """Per-x-bin terrain height from keyframe profiles (growable arrays, bin ``bin_m``)."""
+    """Per-x-bin terrain height from keyframe profiles (growable arrays, bin ``bin_m``).
 
-    def __init__(self, bin_m: float, min_keyframes: int, top_band_m: float = 0.01) -> None:
+    Each keyframe contributes one height per bin it saw (the top of the bin, see the module
+    docstring); a bin keeps the last ``capacity`` of them. ``statistic``: ``"median"`` (the
+    bin's height is the median over keyframes, its scatter the scaled median absolute
+    deviation: robust to the mixed pixels a ToF camera leaves between a nosing and the
+    tread below it, which each keyframe puts into different bins) or ``"mean"`` (mean and
+    standard deviation).
+    """
+
+    def __init__(
+        self,
+        bin_m: float,
+        min_keyframes: int,
+        top_band_m: float = 0.01,
+        statistic: str = "median",
+        capacity: int = 24,
+    ) -> None:
+        if statistic not in ("median", "mean"):
+            raise ValueError(f"statistic must be 'median' or 'mean', got {statistic!r}")
         self.bin_m = bin_m
         self.top_band_m = top_band_m
         self.min_keyframes = min_keyframes
+        self.statistic = statistic
+        self.capacity = max(int(capacity), min_keyframes)
         self._i0 = 0  # bin index of array element 0
-        self._sum = np.zeros(0)
-        self._sq = np.zeros(0)
-        self._n = np.zeros(0, np.int64)
+        self._z = np.full((0, self.capacity), np.nan)  # per bin: the keyframes' heights, m
+        self._n = np.zeros(0, np.int64)  # keyframes that saw the bin (all, not only kept)
         self._cov = np.zeros((0, 3))  # sum of (Pxx, Pxz, Pzz)
         self._profile: HeightProfile | None = None
         self._cov_bins = np.zeros((0, 2, 2))
 
     def _grow(self, i_min: int, i_max: int) -> None:
-        n = self._sum.shape[0]
+        n = self._n.shape[0]
         if n == 0:
             self._i0 = i_min - int(np.ceil(1.0 / self.bin_m))
         if n and self._i0 <= i_min and i_max < self._i0 + n:
@@ -188,8 +206,7 @@ class OnlineHeightMap:
         lo = self._i0 if i_min >= self._i0 else i_min - margin
         hi = self._i0 + n if i_max < self._i0 + n else i_max + 1 + margin
         pad_l, pad_r = self._i0 - lo, hi - (self._i0 + n)
-        self._sum = np.pad(self._sum, (pad_l, pad_r))
-        self._sq = np.pad(self._sq, (pad_l, pad_r))
+        self._z = np.pad(self._z, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
         self._n = np.pad(self._n, (pad_l, pad_r))
         self._cov = np.pad(self._cov, ((pad_l, pad_r), (0, 0)))
         self._i0 = lo
@@ -216,8 +233,7 @@ class OnlineHeightMap:
         )
         self._grow(int(bins.min()), int(bins.max()))
         j = bins - self._i0
-        self._sum[j] += top
-        self._sq[j] += top * top
+        self._z[j, self._n[j] % self.capacity] = top  # the oldest height makes room
         self._n[j] += 1
         P = np.asarray(cov_position_m2, dtype=float)
         self._cov[j] += np.array([P[0, 0], P[0, 1], P[1, 1]])
@@ -229,15 +245,26 @@ class OnlineHeightMap:
             return self._profile
         ok = self._n >= self.min_keyframes
         j = np.flatnonzero(ok)
-        n = self._n[j].astype(float)
-        mean = self._sum[j] / n if j.size else np.zeros(0)
-        var = np.maximum(self._sq[j] / n - mean**2, 0.0) if j.size else np.zeros(0)
-        sig = np.sqrt(var / n + map_sigma_m**2)
+        n_all = self._n[j].astype(float)
+        if j.size:
+            Z = self._z[j]
+            n = np.minimum(n_all, self.capacity)
+            if self.statistic == "median":
+                mid = np.nanmedian(Z, axis=1)
+                # scaled MAD (a Gaussian's sigma) and the median's standard error (x1.25)
+                sd = 1.4826 * np.nanmedian(np.abs(Z - mid[:, None]), axis=1)
+                se2 = (1.2533 * sd) ** 2 / n
+            else:
+                mid = np.nanmean(Z, axis=1)
+                se2 = np.nanvar(Z, axis=1) / n
+        else:
+            mid = se2 = np.zeros(0)
+        sig = np.sqrt(se2 + map_sigma_m**2)
         x_lo = ((j + self._i0) * self.bin_m).astype(np.float64)
         self._profile = HeightProfile(
-            x_lo, x_lo + self.bin_m, np.asarray(mean, np.float64), np.asarray(sig, np.float64)
+            x_lo, x_lo + self.bin_m, np.asarray(mid, np.float64), np.asarray(sig, np.float64)
         )
-        c = self._cov[j] / n[:, None] if j.size else np.zeros((0, 3))
+        c = self._cov[j] / n_all[:, None] if j.size else np.zeros((0, 3))
         self._cov_bins = np.stack(
             [np.stack([c[:, 0], c[:, 1]], 1), np.stack([c[:, 1], c[:, 2]], 1)], 1
         )
@@ -254,7 +281,9 @@ class SafetyMonitor:
 
     def __init__(self, config: SafetyConfig) -> None:
         self.config = config
-        self.map = OnlineHeightMap(config.bin_m, config.min_keyframes)
+        self.map = OnlineHeightMap(
+            config.bin_m, config.min_keyframes, statistic=config.map_statistic
+        )
         self._edges: Edges | None = None
         self._edge_summary: tuple[int, float, float] = (0, NAN, NAN)
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, toe)

@@ -45,7 +45,28 @@ class SafetyConfig(BaseModel):
         description="prediction horizon of the minimum clearance (issue: 100-300 ms), s",
     )
     horizon_steps: int = Field(
-        default=5, ge=1, le=50, description="foot poses evaluated over the horizon (count)"
+        default=10, ge=1, le=50, description="foot poses evaluated over the horizon (count)"
+    )
+    motion_model: Literal["swing_template", "constant_velocity"] = Field(
+        default="swing_template",
+        description="prediction of the foot over the horizon: the displacement the heel and "
+        "toe made at the same time since lift-off in the user's previous swings "
+        "(swing_template; constant velocity until one swing has been seen, and in stance), "
+        "or the toe's velocity held constant",
+    )
+    template_swings: int = Field(
+        default=3, ge=1, le=20, description="previous swings the template's median is over (count)"
+    )
+    swing_speed_mps: float = Field(
+        default=0.3,
+        gt=0,
+        description="lift-off: the toe moves faster than this without a stance anchor; "
+        "landing: slower than a third of it, m/s",
+    )
+    template_swing_s: tuple[float, float] = Field(
+        default=(0.2, 1.5),
+        description="a swing of this duration range joins the template; "
+        "a longer one is abandoned, s",
     )
     window_m: float = Field(
         default=0.3,

@@ -15,13 +15,25 @@ non-negative), weighted by ``relative_pose_scale``; projected on the distance's 
 plus the bin's height scatter (standard error over keyframes, floored at ``map_sigma_m``) and
 ``foot_sigma_m`` (docs/method.md).
 
-Motion model of the prediction: the foot outline translates at the toe's velocity, a finite
-difference of the last two frames' toe estimates, constant over ``horizon_s``.
+Motion model of the prediction (``motion_model``):
+
+- ``swing_template`` (default): the user's own previous swings. A swing runs from lift-off
+  (the first frame without a stance anchor at which the toe moves faster than
+  ``swing_speed_mps``) to landing (the next anchored frame, or the toe slowing below a third
+  of that speed); its heel and toe positions relative to where they were at lift-off are kept
+  as functions of the time since lift-off (the phase). At a swing frame with phase tau, the
+  foot over the horizon is the current heel / toe plus the displacement the template made
+  from tau to tau + h (median over the last ``template_swings`` swings; a template that has
+  already landed by tau + h stays where it landed). Until one swing has been seen, and
+  outside a swing, the constant-velocity model is used.
+- ``constant_velocity``: the foot outline translates at the toe's velocity, a finite
+  difference of the last two frames' toe estimates, constant over ``horizon_s``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,9 +42,11 @@ from vio_graph.safety.clearance import (
     NO_CLEARANCE,
     Edges,
     HeightProfile,
+    clearance_many,
     clearance_sigma,
     coverage,
     edge_clearance,
+    edge_clearance_many,
     find_edges,
     foot_clearance,
     next_edge_index,
@@ -55,7 +69,8 @@ class SafetyEstimate:
     ``predicted_min_clearance_m``: minimum clearance over the horizon;
     ``predicted_min_nosing_clearance_m``: the same to the next edge, which the
     ``near_trip_warning`` tests.
-    ``edge_distance_m`` / ``edge_distance_sigma_m``: x from the toe to the next edge ahead;
+    ``edge_distance_m`` / ``edge_distance_sigma_m``: x from the toe to the next edge ahead,
+    ``edge_xz_m`` (2,): that edge's point;
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
     ``landing``: the foot landed at this frame; then ``placement`` (4,): heel and toe to the
     tread's nosing, heel and toe to its back edge (else NaN).
@@ -76,6 +91,7 @@ class SafetyEstimate:
     mean_tread_m: float
     landing: bool
     placement: NDArray[np.float64]
+    edge_xz_m: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.nan))
 
 
 #: frames.csv columns of a SafetyEstimate, in order (docs/outputs.md)
@@ -288,6 +304,60 @@ class SafetyMonitor:
         self._edge_summary: tuple[int, float, float] = (0, NAN, NAN)
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, toe)
         self._in_stance = False
+        # swing templates: (phase s (S,), heel and toe minus their lift-off positions (S, 4))
+        self._templates: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = deque(
+            maxlen=config.template_swings
+        )
+        self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
+        self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
+
+    def _track_swing(
+        self,
+        t_s: float,
+        heel: NDArray[np.float64],
+        toe: NDArray[np.float64],
+        in_stance: bool,
+        toe_speed_mps: float,
+    ) -> float:
+        """Keep the current swing and close it into a template when the foot lands; the
+        phase (s since lift-off) of this frame, NaN outside a swing.
+
+        Lift-off: the first frame without a stance anchor at which the toe moves faster
+        than ``swing_speed_mps``; landing: the next anchored frame, or the toe slower than
+        ``swing_speed_mps`` / 3 once the swing is ``template_swing_s[0]`` old (the stance
+        detector anchors only part of a stance)."""
+        cfg = self.config
+        lo, hi = cfg.template_swing_s
+        moving = np.isfinite(toe_speed_mps) and toe_speed_mps > cfg.swing_speed_mps
+        if self._liftoff is None:
+            if in_stance or not moving:
+                return NAN
+            self._liftoff = (t_s, np.concatenate([heel, toe]))
+            self._swing = []
+        tau = t_s - self._liftoff[0]
+        slow = np.isfinite(toe_speed_mps) and toe_speed_mps < cfg.swing_speed_mps / 3
+        if in_stance or (slow and tau >= lo) or tau > hi:
+            if len(self._swing) >= 3 and lo <= tau <= hi:
+                d = np.concatenate([heel, toe]) - self._liftoff[1]
+                a = np.asarray([*self._swing, (tau, *d.tolist())], dtype=float)
+                self._templates.append((a[:, 0], a[:, 1:]))
+            self._liftoff = None
+            return NAN
+        d = np.concatenate([heel, toe]) - self._liftoff[1]
+        self._swing.append((tau, float(d[0]), float(d[1]), float(d[2]), float(d[3])))
+        return tau
+
+    def _template_motion(self, tau: float, h: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """Median displacement (H, 4) of heel and toe from phase tau to tau + h over the
+        templates, None without a template."""
+        if not self._templates or not np.isfinite(tau):
+            return None
+        out = []
+        for ph, d in self._templates:
+            at = np.stack([np.interp(tau + h, ph, d[:, j]) for j in range(4)], 1)
+            now = np.array([np.interp(tau, ph, d[:, j]) for j in range(4)])
+            out.append(at - now[None])
+        return np.median(np.stack(out), axis=0) if len(out) > 1 else out[0]
 
     def update(
         self,
@@ -341,23 +411,47 @@ class SafetyMonitor:
         if self._prev is not None and t_s > self._prev[0]:
             v = (toe - self._prev[1]) / (t_s - self._prev[0])
         self._prev = (t_s, toe)
+        tau = self._track_swing(t_s, heel, toe, bool(in_stance), float(np.hypot(*v)))
+        motion = None
+        if cfg.motion_model == "swing_template" and np.isfinite(tau):
+            h = np.linspace(0.0, cfg.horizon_s, cfg.horizon_steps + 1)
+            motion = self._template_motion(tau, h)
         pred = pred_edge = NAN
-        if (
-            np.all(np.isfinite(v))
-            and np.isfinite(c.distance_m)
-            and float(np.hypot(*v)) * cfg.horizon_s < 1e-3
-        ):
-            pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
-        elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
-            reach = np.abs(v[0]) * cfg.horizon_s
-            swept = full.window(x0 - reach, x1 + reach)
-            pred = predicted_min_clearance(
-                heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
-            )
-        if e >= 0:
-            pred_edge = predicted_min_edge_clearance(
-                heel, toe, v, cfg.horizon_s, cfg.horizon_steps, edges.xz_m[e], cfg.sole_thickness_m
-            )
+        if motion is not None:
+            hp = heel[None] + motion[:, :2]
+            tp = toe[None] + motion[:, 2:]
+            if np.isfinite(c.distance_m):
+                lo_x = float(min(hp[:, 0].min(), tp[:, 0].min())) - cfg.window_m
+                hi_x = float(max(hp[:, 0].max(), tp[:, 0].max())) + cfg.window_m
+                swept = full.window(lo_x, hi_x)
+                pred = float(np.min(clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
+            if e >= 0:
+                pred_edge = float(
+                    np.min(edge_clearance_many(hp, tp, edges.xz_m[e], cfg.sole_thickness_m))
+                )
+        else:
+            if (
+                np.all(np.isfinite(v))
+                and np.isfinite(c.distance_m)
+                and float(np.hypot(*v)) * cfg.horizon_s < 1e-3
+            ):
+                pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
+            elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
+                reach = np.abs(v[0]) * cfg.horizon_s
+                swept = full.window(x0 - reach, x1 + reach)
+                pred = predicted_min_clearance(
+                    heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
+                )
+            if e >= 0:
+                pred_edge = predicted_min_edge_clearance(
+                    heel,
+                    toe,
+                    v,
+                    cfg.horizon_s,
+                    cfg.horizon_steps,
+                    edges.xz_m[e],
+                    cfg.sole_thickness_m,
+                )
         s = nsig if np.isfinite(nsig) else 0.0
         warn = bool(
             not in_stance
@@ -390,4 +484,5 @@ class SafetyMonitor:
             mean_tread_m=tread,
             landing=landing,
             placement=placement,
+            edge_xz_m=edges.xz_m[e].copy() if e >= 0 else np.full(2, np.nan),
         )

@@ -1,5 +1,6 @@
 """Per-frame latency of the foot-to-terrain safety outputs (``SafetyMonitor.update``,
-vio_graph/safety/online.py), single thread, per motion model.
+vio_graph/safety/online.py), single thread, per configuration (today's, the constant-velocity
+motion model, and the configuration before 2026-12).
 
 The filter is replayed once on each recording to collect the monitor's inputs (camera,
 covariance, heel, toe, stance, keyframe profiles); then only the monitor is run over those
@@ -29,7 +30,16 @@ from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.online import SafetyMonitor
 from vio_graph.viz.rerun_logger import NullVisualizer
 
-MODELS = ("swing_template", "constant_velocity")
+VARIANTS = {  # label: SafetyConfig overrides
+    "default (swing template)": {},
+    "constant velocity": {"motion_model": "constant_velocity"},
+    "before 2026-12 (mean map, 1 cm bins, constant velocity)": {
+        "motion_model": "constant_velocity",
+        "map_statistic": "mean",
+        "bin_m": 0.01,
+        "min_keyframes": 2,
+    },
+}
 
 
 def bench(path: Path, repeats: int) -> list[dict]:
@@ -42,8 +52,8 @@ def bench(path: Path, repeats: int) -> list[dict]:
     kf = np.zeros(len(t), bool)
     kf[list(lg.profiles)] = True
     rows = []
-    for model in MODELS:
-        sc = SafetyConfig(**{**cfg.safety.model_dump(), "motion_model": model})
+    for label, over in VARIANTS.items():
+        sc = SafetyConfig(**{**cfg.safety.model_dump(), **over})
         ms = []
         for _ in range(repeats):
             mon = SafetyMonitor(sc)
@@ -63,7 +73,7 @@ def bench(path: Path, repeats: int) -> list[dict]:
         rows.append(
             {
                 "recording": path.name,
-                "model": model,
+                "variant": label,
                 "all": _common.stats_ms(a),
                 "keyframes": _common.stats_ms(a[:, kf]),
                 "other_frames": _common.stats_ms(a[:, ~kf]),
@@ -82,7 +92,7 @@ def main() -> None:
     table = [
         [
             r["recording"],
-            r["model"],
+            r["variant"],
             r["all"]["n"],
             _common.fmt(r["all"]["median"], 3),
             _common.fmt(r["all"]["p95"], 3),
@@ -95,7 +105,7 @@ def main() -> None:
         _common.md_table(
             [
                 "recording",
-                "motion model",
+                "safety config",
                 "frames",
                 "median ms",
                 "p95 ms",

@@ -207,6 +207,8 @@ class OnlineHeightMap:
         self._i0 = 0  # bin index of array element 0
         self._z = np.full((0, self.capacity), np.nan)  # per bin: the keyframes' heights, m
         self._n = np.zeros(0, np.int64)  # keyframes that saw the bin (all, not only kept)
+        self._mid = np.zeros(0)  # per bin: the height over the kept keyframes, m
+        self._se2 = np.zeros(0)  # per bin: its squared standard error, m^2
         self._cov = np.zeros((0, 3))  # sum of (Pxx, Pxz, Pzz)
         self._profile: HeightProfile | None = None
         self._cov_bins = np.zeros((0, 2, 2))
@@ -224,6 +226,8 @@ class OnlineHeightMap:
         pad_l, pad_r = self._i0 - lo, hi - (self._i0 + n)
         self._z = np.pad(self._z, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
         self._n = np.pad(self._n, (pad_l, pad_r))
+        self._mid = np.pad(self._mid, (pad_l, pad_r))
+        self._se2 = np.pad(self._se2, (pad_l, pad_r))
         self._cov = np.pad(self._cov, ((pad_l, pad_r), (0, 0)))
         self._i0 = lo
 
@@ -251,9 +255,25 @@ class OnlineHeightMap:
         j = bins - self._i0
         self._z[j, self._n[j] % self.capacity] = top  # the oldest height makes room
         self._n[j] += 1
+        self._mid[j], self._se2[j] = self._bin_stats(self._z[j])
         P = np.asarray(cov_position_m2, dtype=float)
         self._cov[j] += np.array([P[0, 0], P[0, 1], P[1, 1]])
         self._profile = None
+
+    def _bin_stats(self, Z: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
+        """Height and its squared standard error per row of ``Z`` (bins x kept keyframes,
+        NaN where empty; every row has at least one height)."""
+        n = np.sum(np.isfinite(Z), axis=1)
+        if self.statistic == "mean":
+            mid = np.nanmean(Z, axis=1)
+            return mid, np.nanvar(Z, axis=1) / n
+        r, lo, hi = np.arange(Z.shape[0]), (n - 1) // 2, n // 2
+        S = np.sort(Z, axis=1)  # NaN last
+        mid = (S[r, lo] + S[r, hi]) / 2
+        D = np.sort(np.abs(Z - mid[:, None]), axis=1)
+        # scaled MAD (a Gaussian's sigma) and the median's standard error (x1.2533)
+        sd = 1.4826 * (D[r, lo] + D[r, hi]) / 2
+        return mid, (1.2533 * sd) ** 2 / n
 
     def profile(self, map_sigma_m: float) -> HeightProfile:
         """The bins seen by ``min_keyframes`` keyframes (cached until the next keyframe)."""
@@ -262,19 +282,7 @@ class OnlineHeightMap:
         ok = self._n >= self.min_keyframes
         j = np.flatnonzero(ok)
         n_all = self._n[j].astype(float)
-        if j.size:
-            Z = self._z[j]
-            n = np.minimum(n_all, self.capacity)
-            if self.statistic == "median":
-                mid = np.nanmedian(Z, axis=1)
-                # scaled MAD (a Gaussian's sigma) and the median's standard error (x1.25)
-                sd = 1.4826 * np.nanmedian(np.abs(Z - mid[:, None]), axis=1)
-                se2 = (1.2533 * sd) ** 2 / n
-            else:
-                mid = np.nanmean(Z, axis=1)
-                se2 = np.nanvar(Z, axis=1) / n
-        else:
-            mid = se2 = np.zeros(0)
+        mid, se2 = self._mid[j], self._se2[j]
         sig = np.sqrt(se2 + map_sigma_m**2)
         x_lo = ((j + self._i0) * self.bin_m).astype(np.float64)
         self._profile = HeightProfile(

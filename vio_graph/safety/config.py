@@ -39,7 +39,7 @@ class SafetyConfig(BaseModel):
         "the sole's contact points (the simulator's and the sample rig's), m",
     )
     horizon_s: float = Field(
-        default=0.2,
+        default=0.3,
         ge=0.05,
         le=0.5,
         description="prediction horizon of the minimum clearance (issue: 100-300 ms), s",

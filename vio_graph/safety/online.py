@@ -355,6 +355,21 @@ class SafetyMonitor:
         self._swing.append((tau, float(d[0]), float(d[1]), float(d[2]), float(d[3])))
         return tau
 
+    def _edges_reached(self, edges: Edges, e: int, toe_x_max_m: float) -> NDArray[np.float64]:
+        """The edges from the next one (index ``e``) to the last one the toe can reach over
+        the horizon (x up to ``toe_x_max_m`` plus ``toe_pass_m``), (E, 2): a swing over two
+        steps passes two nosings."""
+        if e < 0:
+            return np.zeros((0, 2))
+        x = edges.xz_m[e:, 0]
+        n = max(1, int(np.searchsorted(x, toe_x_max_m + self.config.toe_pass_m, side="right")))
+        return edges.xz_m[e : e + n]
+
+    @property
+    def edges(self) -> Edges:
+        """The edges mapped so far (updated at each keyframe)."""
+        return self._edges if self._edges is not None else Edges(np.zeros((0, 2)), np.zeros(0))
+
     def _template_motion(self, tau: float, h: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """Median displacement (H, 4) of heel and toe from phase tau to tau + h over the
         templates, None without a template."""
@@ -433,10 +448,10 @@ class SafetyMonitor:
                 hi_x = float(max(hp[:, 0].max(), tp[:, 0].max())) + cfg.window_m
                 swept = full.window(lo_x, hi_x)
                 pred = float(np.min(clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
-            if e >= 0:
-                pred_edge = float(
-                    np.min(edge_clearance_many(hp, tp, edges.xz_m[e], cfg.sole_thickness_m))
-                )
+            for ee in self._edges_reached(edges, e, float(tp[:, 0].max())):
+                d = float(np.min(edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)))
+                if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
+                    pred_edge = d
         else:
             if (
                 np.all(np.isfinite(v))
@@ -450,16 +465,17 @@ class SafetyMonitor:
                 pred = predicted_min_clearance(
                     heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
                 )
-            if e >= 0:
-                pred_edge = predicted_min_edge_clearance(
-                    heel,
-                    toe,
-                    v,
-                    cfg.horizon_s,
-                    cfg.horizon_steps,
-                    edges.xz_m[e],
-                    cfg.sole_thickness_m,
+            reach_x = (
+                float(toe[0] + max(float(v[0]), 0.0) * cfg.horizon_s)
+                if np.all(np.isfinite(v))
+                else float(toe[0])
+            )
+            for ee in self._edges_reached(edges, e, reach_x):
+                d = predicted_min_edge_clearance(
+                    heel, toe, v, cfg.horizon_s, cfg.horizon_steps, ee, cfg.sole_thickness_m
                 )
+                if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
+                    pred_edge = float(d)
         s = nsig if np.isfinite(nsig) else 0.0
         warn = bool(
             not in_stance

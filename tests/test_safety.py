@@ -322,3 +322,20 @@ def test_swing_template_predicts_a_repeated_swing_better_than_constant_velocity(
     # the truth: swing 2 stops 10 cm before the edge (clearance >= 0.1 m - within the horizon)
     assert np.all(out["swing_template"] > 0.08)
     assert np.any(out["constant_velocity"] < 0.05)
+
+
+def test_prediction_covers_the_second_nosing_of_a_two_step_swing() -> None:
+    """Over the horizon the foot clears the next nosing by 16 cm and then passes the one
+    after it 1.2 cm above: the predicted edge clearance is the 1.2 cm (it was the next
+    edge's alone)."""
+    cfg = SafetyConfig(motion_model="constant_velocity", horizon_s=0.3, min_keyframes=2)
+    mon = SafetyMonitor(cfg)
+    _keyframes(mon, STEP, np.random.default_rng(1), 3, 0.0005, np.eye(2) * 1e-6)
+    v = np.array([1.5, 0.0])  # m/s: over 0.3 s the toe reaches x 0.9
+    toe0 = np.array([0.40, 0.312])
+    for dt in (0.0, 1 / 30):
+        toe = toe0 + v * dt
+        s = mon.update(5.0 + dt, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0.0], toe, False)
+    assert s.edge_xz_m[0] == pytest.approx(0.5, abs=0.006)  # the next edge is the first riser
+    assert s.nosing_clearance_m > 0.15
+    assert s.predicted_min_nosing_clearance_m == pytest.approx(0.012, abs=0.004)

@@ -67,8 +67,8 @@ class SafetyEstimate:
     1-sigma; ``toe_line_xz_m`` (2, 2): the closest foot point and terrain point (the line the
     viewer draws). ``nosing_clearance_m`` / ``nosing_sigma_m``: foot to the next edge ahead.
     ``predicted_min_clearance_m``: minimum clearance over the horizon;
-    ``predicted_min_nosing_clearance_m``: the same to the next edge, which the
-    ``near_trip_warning`` tests.
+    ``predicted_min_nosing_clearance_m``: the same to the edges the toe reaches over the
+    horizon from the next one on, which the ``near_trip_warning`` tests.
     ``edge_distance_m`` / ``edge_distance_sigma_m``: x from the toe to the next edge ahead,
     ``edge_xz_m`` (2,): that edge's point;
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.

@@ -33,8 +33,9 @@ from vio_graph.viz.rerun_logger import NullVisualizer
 VARIANTS = {  # label: SafetyConfig overrides
     "default (swing template)": {},
     "constant velocity": {"motion_model": "constant_velocity"},
-    "before 2026-12 (mean map, 1 cm bins, constant velocity)": {
+    "before 2026-12 (mean map, 1 cm bins, constant velocity, 0.2 s)": {
         "motion_model": "constant_velocity",
+        "horizon_s": 0.2,
         "map_statistic": "mean",
         "bin_m": 0.01,
         "min_keyframes": 2,

@@ -40,9 +40,7 @@ def test_peer_tracks_a_simulated_trial(short_upstair: Path, tmp_path: Path) -> N
         progress=False,
         visualize=False,
     )
-    run_recording(
-        short_upstair, tmp_path / "alone", cfg, progress=False, visualize=False
-    )
+    run_recording(short_upstair, tmp_path / "alone", cfg, progress=False, visualize=False)
     ate = with_peer.metrics["ate_cm"]
     peer = ate["gtsam_legged"]["camera"]
     assert peer["x"] < 0.2 * ate["imu_only"]["camera"]["x"]

@@ -30,6 +30,7 @@ and the contact sigma (2 mm), chosen on the simulated upstair trial seed 1 among
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -87,17 +88,17 @@ class GtsamLeggedPeer:
 
     name = "gtsam_legged"
 
-    def __init__(
-        self, imu_T_cam: ArrayLike, initial_camera_xz_m: ArrayLike | None = None
-    ) -> None:
+    def __init__(self, imu_T_cam: ArrayLike, initial_camera_xz_m: ArrayLike | None = None) -> None:
         T = np.asarray(imu_T_cam, dtype=float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise EstimationError(f"imu_T_cam must be a finite 4x4 matrix, got {T.shape}")
         self._t_cam = T[:3, 3].copy()  # camera in the IMU frame, m
-        self._p0 = np.zeros(2) if initial_camera_xz_m is None else np.asarray(
-            initial_camera_xz_m, dtype=float
+        self._p0 = (
+            np.zeros(2)
+            if initial_camera_xz_m is None
+            else np.asarray(initial_camera_xz_m, dtype=float)
         )
-        self._ekf = None
+        self._ekf: Any = None  # gtsam.LeggedInvariantEKF once the first IMU sample came
         self._t_s = float("nan")
         self._held: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._was_contact = False
@@ -124,7 +125,7 @@ class GtsamLeggedPeer:
     def _predict_to(self, t_s: float) -> None:
         dt = t_s - self._t_s
         if self._held is not None and dt > 0:
-            self._ekf.predict(self._held[0], self._held[1], dt)  # type: ignore[union-attr]
+            self._ekf.predict(self._held[0], self._held[1], dt)
             self._t_s = t_s
 
     def add_imu(self, step: ImuStep) -> None:

@@ -6,6 +6,9 @@ and mode, then the pooled numbers per scenario (median of the per-trial medians,
 p95s, sums of near-trip events and warnings, minimum lead).
 
     python benchmarks/safety_table.py results/safety [--mode filter]
+
+With ``--peer`` it prints instead the ATE (cm, first pose anchored) of the filter beside the
+GTSAM legged peer (``--mode filter,gtsam_legged`` runs) and the IMU-only baseline.
 """
 
 from __future__ import annotations
@@ -71,11 +74,44 @@ def markdown(rows: list[dict[str, Any]], mode: str) -> str:
     return "\n".join(lines)
 
 
+def peer_markdown(roots: list[Path]) -> str:
+    """ATE table: filter vs gtsam_legged vs imu_only, toe and camera x / z (cm)."""
+    lines = [
+        "| scenario | seed | filter toe x / z | gtsam_legged toe x / z | gtsam_legged camera "
+        "x / z | imu_only toe x / z | gtsam_legged ms per IMU sample (median) |",
+        "|" + "---|" * 7,
+    ]
+    found = []
+    for root in roots:
+        for m_path in sorted(root.rglob("metrics.json")):
+            m = json.loads(m_path.read_text())
+            if "gtsam_legged" in m.get("ate_cm", {}):
+                found.append(m)
+    found.sort(key=lambda m: (m["scenario"], m["seed"]))
+    for m in found:
+        a = m["ate_cm"]
+
+        def xz(mode: str, body: str, a: dict = a) -> str:
+            return f"{_f(a[mode][body]['x'], 2)} / {_f(a[mode][body]['z'], 2)}"
+
+        lat = m.get("latency_ms", {}).get("gtsam_legged", {}).get("median")
+        lines.append(
+            f"| {m['scenario']} | {m['seed']} | {xz('filter', 'toe')} | "
+            f"{xz('gtsam_legged', 'toe')} | {xz('gtsam_legged', 'camera')} | "
+            f"{xz('imu_only', 'toe')} | {_f(lat, 2)} |"
+        )
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("roots", nargs="+", type=Path, help="folders holding results folders")
     ap.add_argument("--mode", default="filter", help="filter, smoother or batch")
+    ap.add_argument("--peer", action="store_true", help="the ATE table of the GTSAM peer")
     args = ap.parse_args()
+    if args.peer:
+        print(peer_markdown(args.roots))
+        return
     rows = [r for root in args.roots for r in rows_for(root, args.mode)]
     rows.sort(key=lambda r: (r["scenario"], r["seed"]))
     print(markdown(rows, args.mode))

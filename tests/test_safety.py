@@ -260,3 +260,82 @@ def test_bad_safety_config_is_refused(tmp_path: Path) -> None:
     bad.write_text("safety:\n  near_trip_cm: 2\n")
     with pytest.raises(ConfigError, match=r"bad\.yaml.*near_trip_cm|near_trip_cm.*bad\.yaml"):
         load_config(bad)
+
+
+def test_map_median_rejects_mixed_pixels_seen_by_few_keyframes() -> None:
+    """Mixed pixels a few keyframes leave above the floor do not lift the median map; the
+    mean map takes them in."""
+    rng = np.random.default_rng(3)
+    heights = {}
+    for stat in ("median", "mean"):
+        mon = SafetyMonitor(SafetyConfig(map_statistic=stat, min_keyframes=4))
+        for k in range(7):
+            xs = np.linspace(0.0, 1.0, 300)
+            z = rng.normal(0.0, 0.001, xs.size)
+            if k in (2, 5):  # a veil 5 cm above the floor at x 0.50-0.53
+                z = np.where((xs > 0.50) & (xs < 0.53), 0.05, z)
+            mon.update(
+                0.1 * k,
+                [0.0, 0.5],
+                np.eye(2) * 1e-6,
+                [-1, 0.2],
+                [-0.8, 0.2],
+                False,
+                np.stack([xs, z], 1) - [0.0, 0.5],
+            )
+        p = mon.map.profile(0.003)
+        heights[stat] = float(np.max(p.z_m[(p.x_lo_m > 0.5) & (p.x_hi_m < 0.53)]))
+    assert heights["median"] < 0.003
+    assert heights["mean"] > 0.01
+
+
+def _swing_toe(tau: np.ndarray, x0: float) -> np.ndarray:
+    """A 0.5 s swing: forward 0.4 m (smooth), toe rising 8 cm and back (metres)."""
+    s = np.clip(tau / 0.5, 0, 1)
+    return np.stack([x0 + 0.4 * (10 * s**3 - 15 * s**4 + 6 * s**5), 0.08 * np.sin(np.pi * s)], 1)
+
+
+def test_swing_template_predicts_a_repeated_swing_better_than_constant_velocity() -> None:
+    """Two identical swings over a flat floor with an edge 5 cm high at the second swing's
+    end; the template learned from the first predicts the second's minimum clearance to the
+    edge 0.2 s ahead, where constant velocity overshoots it into the edge."""
+    edge_profile = [(-1.0, 0.0), (0.95, 0.0), (0.95, 0.05), (2.0, 0.05)]
+    out = {}
+    for model in ("swing_template", "constant_velocity"):
+        cfg = SafetyConfig(motion_model=model, horizon_s=0.2, min_keyframes=2)
+        mon = SafetyMonitor(cfg)
+        rng = np.random.default_rng(0)
+        _keyframes(mon, edge_profile, rng, 3, 0.0005, np.eye(2) * 1e-6)
+        t, dt, preds = 10.0, 1 / 30, []
+        for x0 in (0.0, 0.45):  # swing 1 ends at 0.4, swing 2 at 0.85 (toe 10 cm before edge)
+            for _ in range(6):  # stance
+                toe = _swing_toe(np.zeros(1), x0)[0]
+                mon.update(t, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0], toe, True)
+                t += dt
+            for tau in np.arange(dt, 0.5 + dt / 2, dt):
+                toe = _swing_toe(np.array([tau]), x0)[0]
+                s = mon.update(t, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0], toe, False)
+                if x0 > 0 and 0.15 < tau < 0.3:
+                    preds.append(s.predicted_min_nosing_clearance_m)
+                t += dt
+        out[model] = np.asarray(preds)
+    # the truth: swing 2 stops 10 cm before the edge (clearance >= 0.1 m - within the horizon)
+    assert np.all(out["swing_template"] > 0.08)
+    assert np.any(out["constant_velocity"] < 0.05)
+
+
+def test_prediction_covers_the_second_nosing_of_a_two_step_swing() -> None:
+    """Over the horizon the foot clears the next nosing by 16 cm and then passes the one
+    after it 1.2 cm above: the predicted edge clearance is the 1.2 cm (it was the next
+    edge's alone)."""
+    cfg = SafetyConfig(motion_model="constant_velocity", horizon_s=0.3, min_keyframes=2)
+    mon = SafetyMonitor(cfg)
+    _keyframes(mon, STEP, np.random.default_rng(1), 3, 0.0005, np.eye(2) * 1e-6)
+    v = np.array([1.5, 0.0])  # m/s: over 0.3 s the toe reaches x 0.9
+    toe0 = np.array([0.40, 0.312])
+    for dt in (0.0, 1 / 30):
+        toe = toe0 + v * dt
+        s = mon.update(5.0 + dt, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0.0], toe, False)
+    assert s.edge_xz_m[0] == pytest.approx(0.5, abs=0.006)  # the next edge is the first riser
+    assert s.nosing_clearance_m > 0.15
+    assert s.predicted_min_nosing_clearance_m == pytest.approx(0.012, abs=0.004)

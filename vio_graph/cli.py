@@ -201,14 +201,17 @@ def fault_lines(metrics: dict) -> list[str]:
 
 
 def _parse_modes(mode: str) -> tuple[str, ...]:
-    from vio_graph.pipeline import MODES
+    from vio_graph.pipeline import MODES, PEER_MODES
 
     if mode == "all":
         return MODES
     modes = tuple(m.strip() for m in mode.split(",") if m.strip())
-    bad = [m for m in modes if m not in MODES]
+    bad = [m for m in modes if m not in MODES + PEER_MODES]
     if bad or not modes:
-        raise VioGraphError(f"--mode: unknown {bad or mode!r}; use filter, smoother, batch or all")
+        raise VioGraphError(
+            f"--mode: unknown {bad or mode!r}; use filter, smoother, batch or all "
+            "(and the baseline gtsam_legged)"
+        )
     return modes
 
 

@@ -39,9 +39,16 @@ from vio_graph.outputs import (
     write_trajectories,
 )
 from vio_graph.recording.reader import Recording
-from vio_graph.replay import MODES, FrameLog, Replay
+from vio_graph.replay import MODES, PEER_MODES, FrameLog, Replay
 
-__all__ = ["MODES", "RunInterrupted", "RunResult", "leg_trajectories", "run_recording"]
+__all__ = [
+    "MODES",
+    "PEER_MODES",
+    "RunInterrupted",
+    "RunResult",
+    "leg_trajectories",
+    "run_recording",
+]
 
 
 @dataclass
@@ -104,9 +111,9 @@ def run_recording(
     if out.exists() and any(out.iterdir()) and not overwrite:
         raise OutputError(f"{out}: results folder exists and is not empty (use --overwrite)")
     rec = Recording.open(recording)
-    bad = set(modes) - set(MODES)
+    bad = set(modes) - set(MODES) - set(PEER_MODES)
     if bad:
-        raise OutputError(f"unknown modes {sorted(bad)}; choose from {MODES}")
+        raise OutputError(f"unknown modes {sorted(bad)}; choose from {MODES + PEER_MODES}")
     out.mkdir(parents=True, exist_ok=True)
     files: list[Path] = []
     viz = NullVisualizer()

@@ -30,6 +30,8 @@ from vio_graph.viz.run_view import RunView
 log = logging.getLogger(__name__)
 
 MODES = ("filter", "smoother", "batch")
+#: modes run only when named (never by ``--mode all``): GTSAM's legged-robot InEKF as a peer
+PEER_MODES = ("gtsam_legged",)
 BASELINES = ("imu_only", "icp_only")
 
 
@@ -140,7 +142,8 @@ def make_estimators(
     config: PipelineConfig, rig: RigGeometry, modes: set[str], p0: NDArray[np.float64]
 ) -> dict[str, Estimator]:
     """The estimators of a run, by mode name: the filter's track and the two baselines
-    always, the fixed-lag (``smoother``) and batch smoothers when ``modes`` asks for them."""
+    always, the fixed-lag (``smoother``) and batch smoothers and the GTSAM legged peer
+    (``gtsam_legged``, vio_graph/filter/legged_peer.py) when ``modes`` asks for them."""
     estimators: list[Estimator] = [
         FilterTrack(),
         ImuDeadReckoning(config.filter, rig.shank_imu_T_cam, initial_camera_xz_m=p0),
@@ -154,6 +157,10 @@ def make_estimators(
         from vio_graph.smoother.batch import BatchSmoother
 
         estimators.append(BatchSmoother(config.smoother, rig.shank_imu_T_cam))
+    if "gtsam_legged" in modes:
+        from vio_graph.filter.legged_peer import GtsamLeggedPeer
+
+        estimators.append(GtsamLeggedPeer(rig.shank_imu_T_cam, initial_camera_xz_m=p0))
     return {e.name: e for e in estimators}
 
 

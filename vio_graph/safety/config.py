@@ -6,6 +6,8 @@ safety outputs") for the definitions.
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
@@ -16,13 +18,18 @@ class SafetyConfig(BaseModel):
 
     enabled: bool = Field(default=True, description="compute the safety outputs per frame")
     bin_m: float = Field(
-        default=0.01,
+        default=0.005,
         gt=0,
         le=0.05,
         description="x bin width of the online height map built from keyframe profiles, m",
     )
+    map_statistic: Literal["median", "mean"] = Field(
+        default="median",
+        description="a map bin's height over the keyframes that saw it: median (robust to "
+        "the ToF mixed pixels between a nosing and the tread below) or mean (before 2026-12)",
+    )
     min_keyframes: int = Field(
-        default=2, ge=1, description="a map bin is used once this many keyframes saw it"
+        default=4, ge=1, description="a map bin is used once this many keyframes saw it"
     )
     sole_thickness_m: float = Field(
         default=0.0,
@@ -32,13 +39,34 @@ class SafetyConfig(BaseModel):
         "the sole's contact points (the simulator's and the sample rig's), m",
     )
     horizon_s: float = Field(
-        default=0.2,
+        default=0.3,
         ge=0.05,
         le=0.5,
         description="prediction horizon of the minimum clearance (issue: 100-300 ms), s",
     )
     horizon_steps: int = Field(
-        default=5, ge=1, le=50, description="foot poses evaluated over the horizon (count)"
+        default=10, ge=1, le=50, description="foot poses evaluated over the horizon (count)"
+    )
+    motion_model: Literal["swing_template", "constant_velocity"] = Field(
+        default="swing_template",
+        description="prediction of the foot over the horizon: the displacement the heel and "
+        "toe made at the same time since lift-off in the user's previous swings "
+        "(swing_template; constant velocity until one swing has been seen, and in stance), "
+        "or the toe's velocity held constant",
+    )
+    template_swings: int = Field(
+        default=3, ge=1, le=20, description="previous swings the template's median is over (count)"
+    )
+    swing_speed_mps: float = Field(
+        default=0.3,
+        gt=0,
+        description="lift-off: the toe moves faster than this without a stance anchor; "
+        "landing: slower than a third of it, m/s",
+    )
+    template_swing_s: tuple[float, float] = Field(
+        default=(0.2, 1.5),
+        description="a swing of this duration range joins the template; "
+        "a longer one is abandoned, s",
     )
     window_m: float = Field(
         default=0.3,

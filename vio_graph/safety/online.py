@@ -15,13 +15,25 @@ non-negative), weighted by ``relative_pose_scale``; projected on the distance's 
 plus the bin's height scatter (standard error over keyframes, floored at ``map_sigma_m``) and
 ``foot_sigma_m`` (docs/method.md).
 
-Motion model of the prediction: the foot outline translates at the toe's velocity, a finite
-difference of the last two frames' toe estimates, constant over ``horizon_s``.
+Motion model of the prediction (``motion_model``):
+
+- ``swing_template`` (default): the user's own previous swings. A swing runs from lift-off
+  (the first frame without a stance anchor at which the toe moves faster than
+  ``swing_speed_mps``) to landing (the next anchored frame, or the toe slowing below a third
+  of that speed); its heel and toe positions relative to where they were at lift-off are kept
+  as functions of the time since lift-off (the phase). At a swing frame with phase tau, the
+  foot over the horizon is the current heel / toe plus the displacement the template made
+  from tau to tau + h (median over the last ``template_swings`` swings; a template that has
+  already landed by tau + h stays where it landed). Until one swing has been seen, and
+  outside a swing, the constant-velocity model is used.
+- ``constant_velocity``: the foot outline translates at the toe's velocity, a finite
+  difference of the last two frames' toe estimates, constant over ``horizon_s``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,9 +42,11 @@ from vio_graph.safety.clearance import (
     NO_CLEARANCE,
     Edges,
     HeightProfile,
+    clearance_many,
     clearance_sigma,
     coverage,
     edge_clearance,
+    edge_clearance_many,
     find_edges,
     foot_clearance,
     next_edge_index,
@@ -53,9 +67,10 @@ class SafetyEstimate:
     1-sigma; ``toe_line_xz_m`` (2, 2): the closest foot point and terrain point (the line the
     viewer draws). ``nosing_clearance_m`` / ``nosing_sigma_m``: foot to the next edge ahead.
     ``predicted_min_clearance_m``: minimum clearance over the horizon;
-    ``predicted_min_nosing_clearance_m``: the same to the next edge, which the
-    ``near_trip_warning`` tests.
-    ``edge_distance_m`` / ``edge_distance_sigma_m``: x from the toe to the next edge ahead;
+    ``predicted_min_nosing_clearance_m``: the same to the edges the toe reaches over the
+    horizon from the next one on, which the ``near_trip_warning`` tests.
+    ``edge_distance_m`` / ``edge_distance_sigma_m``: x from the toe to the next edge ahead,
+    ``edge_xz_m`` (2,): that edge's point;
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
     ``landing``: the foot landed at this frame; then ``placement`` (4,): heel and toe to the
     tread's nosing, heel and toe to its back edge (else NaN).
@@ -76,6 +91,7 @@ class SafetyEstimate:
     mean_tread_m: float
     landing: bool
     placement: NDArray[np.float64]
+    edge_xz_m: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.nan))
 
 
 #: frames.csv columns of a SafetyEstimate, in order (docs/outputs.md)
@@ -163,22 +179,42 @@ def forward_motion(v_xz_mps: NDArray[np.float64], cfg: SafetyConfig) -> bool:
 
 
 class OnlineHeightMap:
-    """Per-x-bin terrain height from keyframe profiles (growable arrays, bin ``bin_m``)."""
+    """Per-x-bin terrain height from keyframe profiles (growable arrays, bin ``bin_m``).
 
-    def __init__(self, bin_m: float, min_keyframes: int, top_band_m: float = 0.01) -> None:
+    Each keyframe contributes one height per bin it saw (the top of the bin, see the module
+    docstring); a bin keeps the last ``capacity`` of them. ``statistic``: ``"median"`` (the
+    bin's height is the median over keyframes, its scatter the scaled median absolute
+    deviation: robust to the mixed pixels a ToF camera leaves between a nosing and the
+    tread below it, which each keyframe puts into different bins) or ``"mean"`` (mean and
+    standard deviation).
+    """
+
+    def __init__(
+        self,
+        bin_m: float,
+        min_keyframes: int,
+        top_band_m: float = 0.01,
+        statistic: str = "median",
+        capacity: int = 24,
+    ) -> None:
+        if statistic not in ("median", "mean"):
+            raise ValueError(f"statistic must be 'median' or 'mean', got {statistic!r}")
         self.bin_m = bin_m
         self.top_band_m = top_band_m
         self.min_keyframes = min_keyframes
+        self.statistic = statistic
+        self.capacity = max(int(capacity), min_keyframes)
         self._i0 = 0  # bin index of array element 0
-        self._sum = np.zeros(0)
-        self._sq = np.zeros(0)
-        self._n = np.zeros(0, np.int64)
+        self._z = np.full((0, self.capacity), np.nan)  # per bin: the keyframes' heights, m
+        self._n = np.zeros(0, np.int64)  # keyframes that saw the bin (all, not only kept)
+        self._mid = np.zeros(0)  # per bin: the height over the kept keyframes, m
+        self._se2 = np.zeros(0)  # per bin: its squared standard error, m^2
         self._cov = np.zeros((0, 3))  # sum of (Pxx, Pxz, Pzz)
         self._profile: HeightProfile | None = None
         self._cov_bins = np.zeros((0, 2, 2))
 
     def _grow(self, i_min: int, i_max: int) -> None:
-        n = self._sum.shape[0]
+        n = self._n.shape[0]
         if n == 0:
             self._i0 = i_min - int(np.ceil(1.0 / self.bin_m))
         if n and self._i0 <= i_min and i_max < self._i0 + n:
@@ -188,9 +224,10 @@ class OnlineHeightMap:
         lo = self._i0 if i_min >= self._i0 else i_min - margin
         hi = self._i0 + n if i_max < self._i0 + n else i_max + 1 + margin
         pad_l, pad_r = self._i0 - lo, hi - (self._i0 + n)
-        self._sum = np.pad(self._sum, (pad_l, pad_r))
-        self._sq = np.pad(self._sq, (pad_l, pad_r))
+        self._z = np.pad(self._z, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
         self._n = np.pad(self._n, (pad_l, pad_r))
+        self._mid = np.pad(self._mid, (pad_l, pad_r))
+        self._se2 = np.pad(self._se2, (pad_l, pad_r))
         self._cov = np.pad(self._cov, ((pad_l, pad_r), (0, 0)))
         self._i0 = lo
 
@@ -216,12 +253,27 @@ class OnlineHeightMap:
         )
         self._grow(int(bins.min()), int(bins.max()))
         j = bins - self._i0
-        self._sum[j] += top
-        self._sq[j] += top * top
+        self._z[j, self._n[j] % self.capacity] = top  # the oldest height makes room
         self._n[j] += 1
+        self._mid[j], self._se2[j] = self._bin_stats(self._z[j])
         P = np.asarray(cov_position_m2, dtype=float)
         self._cov[j] += np.array([P[0, 0], P[0, 1], P[1, 1]])
         self._profile = None
+
+    def _bin_stats(self, Z: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
+        """Height and its squared standard error per row of ``Z`` (bins x kept keyframes,
+        NaN where empty; every row has at least one height)."""
+        n = np.sum(np.isfinite(Z), axis=1)
+        if self.statistic == "mean":
+            mid = np.nanmean(Z, axis=1)
+            return mid, np.nanvar(Z, axis=1) / n
+        r, lo, hi = np.arange(Z.shape[0]), (n - 1) // 2, n // 2
+        S = np.sort(Z, axis=1)  # NaN last
+        mid = (S[r, lo] + S[r, hi]) / 2
+        D = np.sort(np.abs(Z - mid[:, None]), axis=1)
+        # scaled MAD (a Gaussian's sigma) and the median's standard error (x1.2533)
+        sd = 1.4826 * (D[r, lo] + D[r, hi]) / 2
+        return mid, (1.2533 * sd) ** 2 / n
 
     def profile(self, map_sigma_m: float) -> HeightProfile:
         """The bins seen by ``min_keyframes`` keyframes (cached until the next keyframe)."""
@@ -229,15 +281,14 @@ class OnlineHeightMap:
             return self._profile
         ok = self._n >= self.min_keyframes
         j = np.flatnonzero(ok)
-        n = self._n[j].astype(float)
-        mean = self._sum[j] / n if j.size else np.zeros(0)
-        var = np.maximum(self._sq[j] / n - mean**2, 0.0) if j.size else np.zeros(0)
-        sig = np.sqrt(var / n + map_sigma_m**2)
+        n_all = self._n[j].astype(float)
+        mid, se2 = self._mid[j], self._se2[j]
+        sig = np.sqrt(se2 + map_sigma_m**2)
         x_lo = ((j + self._i0) * self.bin_m).astype(np.float64)
         self._profile = HeightProfile(
-            x_lo, x_lo + self.bin_m, np.asarray(mean, np.float64), np.asarray(sig, np.float64)
+            x_lo, x_lo + self.bin_m, np.asarray(mid, np.float64), np.asarray(sig, np.float64)
         )
-        c = self._cov[j] / n[:, None] if j.size else np.zeros((0, 3))
+        c = self._cov[j] / n_all[:, None] if j.size else np.zeros((0, 3))
         self._cov_bins = np.stack(
             [np.stack([c[:, 0], c[:, 1]], 1), np.stack([c[:, 1], c[:, 2]], 1)], 1
         )
@@ -254,11 +305,82 @@ class SafetyMonitor:
 
     def __init__(self, config: SafetyConfig) -> None:
         self.config = config
-        self.map = OnlineHeightMap(config.bin_m, config.min_keyframes)
+        self.map = OnlineHeightMap(
+            config.bin_m, config.min_keyframes, statistic=config.map_statistic
+        )
         self._edges: Edges | None = None
         self._edge_summary: tuple[int, float, float] = (0, NAN, NAN)
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, toe)
         self._in_stance = False
+        # swing templates: (phase s (S,), heel and toe minus their lift-off positions (S, 4))
+        self._templates: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = deque(
+            maxlen=config.template_swings
+        )
+        self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
+        self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
+
+    def _track_swing(
+        self,
+        t_s: float,
+        heel: NDArray[np.float64],
+        toe: NDArray[np.float64],
+        in_stance: bool,
+        toe_speed_mps: float,
+    ) -> float:
+        """Keep the current swing and close it into a template when the foot lands; the
+        phase (s since lift-off) of this frame, NaN outside a swing.
+
+        Lift-off: the first frame without a stance anchor at which the toe moves faster
+        than ``swing_speed_mps``; landing: the next anchored frame, or the toe slower than
+        ``swing_speed_mps`` / 3 once the swing is ``template_swing_s[0]`` old (the stance
+        detector anchors only part of a stance)."""
+        cfg = self.config
+        lo, hi = cfg.template_swing_s
+        moving = np.isfinite(toe_speed_mps) and toe_speed_mps > cfg.swing_speed_mps
+        if self._liftoff is None:
+            if in_stance or not moving:
+                return NAN
+            self._liftoff = (t_s, np.concatenate([heel, toe]))
+            self._swing = []
+        tau = t_s - self._liftoff[0]
+        slow = np.isfinite(toe_speed_mps) and toe_speed_mps < cfg.swing_speed_mps / 3
+        if in_stance or (slow and tau >= lo) or tau > hi:
+            if len(self._swing) >= 3 and lo <= tau <= hi:
+                d = np.concatenate([heel, toe]) - self._liftoff[1]
+                a = np.asarray([*self._swing, (tau, *d.tolist())], dtype=float)
+                self._templates.append((a[:, 0], a[:, 1:]))
+            self._liftoff = None
+            return NAN
+        d = np.concatenate([heel, toe]) - self._liftoff[1]
+        self._swing.append((tau, float(d[0]), float(d[1]), float(d[2]), float(d[3])))
+        return tau
+
+    def _edges_reached(self, edges: Edges, e: int, toe_x_max_m: float) -> NDArray[np.float64]:
+        """The edges from the next one (index ``e``) to the last one the toe can reach over
+        the horizon (x up to ``toe_x_max_m`` plus ``toe_pass_m``), (E, 2): a swing over two
+        steps passes two nosings."""
+        if e < 0:
+            return np.zeros((0, 2))
+        x = edges.xz_m[e:, 0]
+        n = max(1, int(np.searchsorted(x, toe_x_max_m + self.config.toe_pass_m, side="right")))
+        return edges.xz_m[e : e + n]
+
+    @property
+    def edges(self) -> Edges:
+        """The edges mapped so far (updated at each keyframe)."""
+        return self._edges if self._edges is not None else Edges(np.zeros((0, 2)), np.zeros(0))
+
+    def _template_motion(self, tau: float, h: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """Median displacement (H, 4) of heel and toe from phase tau to tau + h over the
+        templates, None without a template."""
+        if not self._templates or not np.isfinite(tau):
+            return None
+        out = []
+        for ph, d in self._templates:
+            at = np.stack([np.interp(tau + h, ph, d[:, j]) for j in range(4)], 1)
+            now = np.array([np.interp(tau, ph, d[:, j]) for j in range(4)])
+            out.append(at - now[None])
+        return np.median(np.stack(out), axis=0) if len(out) > 1 else out[0]
 
     def update(
         self,
@@ -312,23 +434,48 @@ class SafetyMonitor:
         if self._prev is not None and t_s > self._prev[0]:
             v = (toe - self._prev[1]) / (t_s - self._prev[0])
         self._prev = (t_s, toe)
+        tau = self._track_swing(t_s, heel, toe, bool(in_stance), float(np.hypot(*v)))
+        motion = None
+        if cfg.motion_model == "swing_template" and np.isfinite(tau):
+            h = np.linspace(0.0, cfg.horizon_s, cfg.horizon_steps + 1)
+            motion = self._template_motion(tau, h)
         pred = pred_edge = NAN
-        if (
-            np.all(np.isfinite(v))
-            and np.isfinite(c.distance_m)
-            and float(np.hypot(*v)) * cfg.horizon_s < 1e-3
-        ):
-            pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
-        elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
-            reach = np.abs(v[0]) * cfg.horizon_s
-            swept = full.window(x0 - reach, x1 + reach)
-            pred = predicted_min_clearance(
-                heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
+        if motion is not None:
+            hp = heel[None] + motion[:, :2]
+            tp = toe[None] + motion[:, 2:]
+            if np.isfinite(c.distance_m):
+                lo_x = float(min(hp[:, 0].min(), tp[:, 0].min())) - cfg.window_m
+                hi_x = float(max(hp[:, 0].max(), tp[:, 0].max())) + cfg.window_m
+                swept = full.window(lo_x, hi_x)
+                pred = float(np.min(clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
+            for ee in self._edges_reached(edges, e, float(tp[:, 0].max())):
+                d = float(np.min(edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)))
+                if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
+                    pred_edge = d
+        else:
+            if (
+                np.all(np.isfinite(v))
+                and np.isfinite(c.distance_m)
+                and float(np.hypot(*v)) * cfg.horizon_s < 1e-3
+            ):
+                pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
+            elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
+                reach = np.abs(v[0]) * cfg.horizon_s
+                swept = full.window(x0 - reach, x1 + reach)
+                pred = predicted_min_clearance(
+                    heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
+                )
+            reach_x = (
+                float(toe[0] + max(float(v[0]), 0.0) * cfg.horizon_s)
+                if np.all(np.isfinite(v))
+                else float(toe[0])
             )
-        if e >= 0:
-            pred_edge = predicted_min_edge_clearance(
-                heel, toe, v, cfg.horizon_s, cfg.horizon_steps, edges.xz_m[e], cfg.sole_thickness_m
-            )
+            for ee in self._edges_reached(edges, e, reach_x):
+                d = predicted_min_edge_clearance(
+                    heel, toe, v, cfg.horizon_s, cfg.horizon_steps, ee, cfg.sole_thickness_m
+                )
+                if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
+                    pred_edge = float(d)
         s = nsig if np.isfinite(nsig) else 0.0
         warn = bool(
             not in_stance
@@ -361,4 +508,5 @@ class SafetyMonitor:
             mean_tread_m=tread,
             landing=landing,
             placement=placement,
+            edge_xz_m=edges.xz_m[e].copy() if e >= 0 else np.full(2, np.nan),
         )

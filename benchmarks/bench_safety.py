@@ -1,0 +1,124 @@
+"""Per-frame latency of the foot-to-terrain safety outputs (``SafetyMonitor.update``,
+vio_graph/safety/online.py), single thread, per configuration (today's, the constant-velocity
+motion model, and the configuration before 2026-12).
+
+The filter is replayed once on each recording to collect the monitor's inputs (camera,
+covariance, heel, toe, stance, keyframe profiles); then only the monitor is run over those
+frames ``--repeats`` times, each ``update`` timed with ``time.perf_counter``. Statistics pool
+all frames of all repeats; keyframe frames (which also add the profile to the map) are
+reported separately. Threads: BLAS / OpenMP pinned to 1 (``_common``). The machine's load
+average is written beside the numbers (benchmarks/results/safety.json): the machine this ran
+on is shared, so the median is the figure to read.
+
+    python benchmarks/bench_safety.py data/recordings/upstair_s1 data/recordings/downstair_s1
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import _common
+import numpy as np
+
+from vio_graph.config import load_config
+from vio_graph.pipeline import leg_trajectories
+from vio_graph.recording.reader import Recording
+from vio_graph.replay import Replay
+from vio_graph.safety.config import SafetyConfig
+from vio_graph.safety.online import SafetyMonitor
+from vio_graph.viz.rerun_logger import NullVisualizer
+
+VARIANTS = {  # label: SafetyConfig overrides
+    "default (swing template)": {},
+    "constant velocity": {"motion_model": "constant_velocity"},
+    "before 2026-12 (mean map, 1 cm bins, constant velocity, 0.2 s)": {
+        "motion_model": "constant_velocity",
+        "horizon_s": 0.2,
+        "map_statistic": "mean",
+        "bin_m": 0.01,
+        "min_keyframes": 2,
+    },
+}
+
+
+def bench(path: Path, repeats: int) -> list[dict]:
+    cfg = load_config(None)
+    rec = Recording.open(path)
+    replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
+    lg = replay.run()
+    est = leg_trajectories(replay.rig, lg.camera_xz["filter"], lg, False)
+    t = np.asarray(lg.t_s)
+    kf = np.zeros(len(t), bool)
+    kf[list(lg.profiles)] = True
+    rows = []
+    for label, over in VARIANTS.items():
+        sc = SafetyConfig(**{**cfg.safety.model_dump(), **over})
+        ms = []
+        for _ in range(repeats):
+            mon = SafetyMonitor(sc)
+            for k, tk in enumerate(t):
+                t0 = time.perf_counter()
+                mon.update(
+                    float(tk),
+                    est["camera"][k],
+                    lg.cov_position_m2[k],
+                    est["heel"][k],
+                    est["toe"][k],
+                    bool(lg.in_stance[k]),
+                    lg.profiles.get(k),
+                )
+                ms.append((time.perf_counter() - t0) * 1e3)
+        a = np.asarray(ms).reshape(repeats, -1)
+        rows.append(
+            {
+                "recording": path.name,
+                "variant": label,
+                "all": _common.stats_ms(a),
+                "keyframes": _common.stats_ms(a[:, kf]),
+                "other_frames": _common.stats_ms(a[:, ~kf]),
+            }
+        )
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("recordings", nargs="+", type=Path, help="recording folders")
+    ap.add_argument("--repeats", type=int, default=5, help="monitor replays per recording")
+    args = ap.parse_args()
+    rows = [r for p in args.recordings for r in bench(p, args.repeats)]
+    out = _common.write_result("safety", {"repeats": args.repeats, "rows": rows})
+    table = [
+        [
+            r["recording"],
+            r["variant"],
+            r["all"]["n"],
+            _common.fmt(r["all"]["median"], 3),
+            _common.fmt(r["all"]["p95"], 3),
+            _common.fmt(r["keyframes"]["median"], 3),
+            _common.fmt(r["other_frames"]["median"], 3),
+        ]
+        for r in rows
+    ]
+    print(
+        _common.md_table(
+            [
+                "recording",
+                "safety config",
+                "frames",
+                "median ms",
+                "p95 ms",
+                "keyframes median ms",
+                "other frames median ms",
+            ],
+            table,
+        )
+    )
+    print(f"load average (1, 5, 15 min): {_common.machine_info()['load_average_1_5_15min']}")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,130 @@
+"""Where the toe-clearance error comes from, on one simulated recording (docs/results.md,
+"Foot-to-terrain safety outputs").
+
+The filter is replayed once (``vio_graph.replay.Replay``, mode ``filter``); then the safety
+monitor (vio_graph/safety/online.py) is re-run on the same keyframe profiles with parts of the
+estimate replaced by the simulator's truth, and each variant's clearance is compared with the
+true clearance (the true foot against the true terrain):
+
+- ``map only``: true camera (the profiles placed at the true keyframe poses) and true heel /
+  toe: what is left is the map itself (depth noise, mixed pixels, binning, occlusion);
+- ``+ foot outline``: true camera, the estimated heel / toe relative to the estimated camera
+  (shank pitch, ankle, leg lengths);
+- ``+ pose``: estimated camera, the true foot outline relative to it;
+- ``online``: the estimate as it is (estimated camera and foot outline).
+
+Timing (frame time stamps) is not a separate source here: the truth is interpolated at the
+frame's time stamp, which is the time of the depth image the estimate uses.
+
+Each variant is scored under the given safety configurations (``--variant NAME=JSON``, JSON
+overrides of ``SafetyConfig``; by default today's configuration and the one before the map's
+median / 5 mm / 4-keyframe change).
+
+    python benchmarks/safety_error_sources.py data/recordings/downstair_s1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import _common  # noqa: F401  (pins BLAS threads before numpy)
+import numpy as np
+
+from vio_graph.config import load_config
+from vio_graph.evaluation.safety import true_safety
+from vio_graph.pipeline import leg_trajectories
+from vio_graph.recording.reader import Recording
+from vio_graph.replay import Replay
+from vio_graph.safety.config import SafetyConfig
+from vio_graph.safety.online import SafetyMonitor
+from vio_graph.viz.rerun_logger import NullVisualizer
+
+BEFORE = {"map_statistic": "mean", "bin_m": 0.01, "min_keyframes": 2}
+
+
+def _p95(e_mm: np.ndarray, mask: np.ndarray) -> str:
+    return f"{np.percentile(e_mm[mask], 95):.1f}" if mask.any() else "—"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("recording", type=Path, help="simulated recording folder")
+    ap.add_argument("--config", default=None, help="pipeline config (default: default.yaml)")
+    ap.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        help="NAME=JSON overrides of the safety config (repeatable)",
+    )
+    args = ap.parse_args()
+    cfg = load_config(args.config)
+    variants = {"today": {}, "before (mean, 1 cm bins, 2 keyframes)": BEFORE}
+    for v in args.variant:
+        name, _, js = v.partition("=")
+        variants[name] = json.loads(js)
+    rec = Recording.open(args.recording)
+    if rec.groundtruth is None:
+        raise SystemExit(f"{args.recording}: no ground truth (a simulated recording is needed)")
+    replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
+    lg = replay.run()
+    use_enc = cfg.kinematics.shank_pitch_source == "encoders"
+    est = leg_trajectories(replay.rig, lg.camera_xz["filter"], lg, use_enc)
+    t = np.asarray(lg.t_s)
+    gt = rec.groundtruth.trajectories
+    true = {b: gt[b].xz_at(t) for b in ("camera", "heel", "toe")}
+    landing = np.array([bool(s.landing) if s is not None else False for s in lg.safety])
+    truth = true_safety(rec.groundtruth, rec.metadata.terrain, t, landing, cfg.safety)
+    if truth is None:
+        raise SystemExit(f"{args.recording}: no true terrain profile / heel / toe")
+    tc = truth["clearance_m"]
+    oh, ot = est["heel"] - est["camera"], est["toe"] - est["camera"]
+    th, tt = true["heel"] - true["camera"], true["toe"] - true["camera"]
+    cases = {
+        "map only": (true["camera"], true["heel"], true["toe"]),
+        "+ foot outline": (true["camera"], true["camera"] + oh, true["camera"] + ot),
+        "+ pose": (est["camera"], est["camera"] + th, est["camera"] + tt),
+        "online": (est["camera"], est["heel"], est["toe"]),
+    }
+    stance = np.asarray(lg.in_stance, bool)
+    print(f"{args.recording.name}: |estimated - true clearance| (mm) over the frames with both")
+    print()
+    print(
+        "| safety config | case | frames | median | p95 | p95 stance | p95 swing "
+        "| within 1 / 2 sigma |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for vname, over in variants.items():
+        sc = SafetyConfig(**{**cfg.safety.model_dump(), **over})
+        for cname, (cam, heel, toe) in cases.items():
+            mon = SafetyMonitor(sc)
+            out = [
+                mon.update(
+                    float(tk),
+                    cam[k],
+                    lg.cov_position_m2[k],
+                    heel[k],
+                    toe[k],
+                    bool(lg.in_stance[k]),
+                    lg.profiles.get(k),
+                )
+                for k, tk in enumerate(t)
+            ]
+            c = np.array([s.clearance_m for s in out])
+            sig = np.array([s.clearance_sigma_m for s in out])
+            e = np.abs(c - tc) * 1e3
+            ok = np.isfinite(e)
+            if not ok.any():
+                continue
+            z = e[ok] / (sig[ok] * 1e3)
+            print(
+                f"| {vname} | {cname} | {ok.sum()} | {np.median(e[ok]):.1f} | "
+                f"{np.percentile(e[ok], 95):.1f} | {_p95(e, ok & stance)} | "
+                f"{_p95(e, ok & ~stance)} | "
+                f"{np.mean(z <= 1):.2f} / {np.mean(z <= 2):.2f} |"
+            )
+
+
+if __name__ == "__main__":
+    main()

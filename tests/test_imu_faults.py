@@ -206,7 +206,7 @@ def test_distrusted_samples_inflate_the_preintegration_and_batch_imu_factors_are
 
 def _imu_factor_delta_v(samples: list[ImuSample], config: SmootherConfig) -> tuple:
     """Keyframes at 0.05 s and 0.15 s over ``samples``: (delta v of the IMU factor between
-    them (3,), its velocity covariance (3, 3))."""
+    them (3,), its velocity covariance (3, 3), its delta rotation)."""
     import gtsam
 
     from vio_graph.types import EstimateStatus, FrameEstimate, TerrainKind
@@ -226,7 +226,7 @@ def _imu_factor_delta_v(samples: list[ImuSample], config: SmootherConfig) -> tup
     g = ups[-1].factors
     f = next(g.at(i) for i in range(g.size()) if isinstance(g.at(i), gtsam.CombinedImuFactor))
     pim = f.preintegratedMeasurements()
-    return np.asarray(pim.deltaVij()), pim.preintMeasCov()[6:9, 6:9]
+    return np.asarray(pim.deltaVij()), pim.preintMeasCov()[6:9, 6:9], pim.deltaRij()
 
 
 def test_smoothers_interpolate_a_held_accelerometer_sample_from_its_neighbours() -> None:
@@ -248,15 +248,42 @@ def test_smoothers_interpolate_a_held_accelerometer_sample_from_its_neighbours()
         accel_held=True,
     )  # fmt: skip
     cfg = SmootherConfig()
-    dv_true, _ = _imu_factor_delta_v(truth, cfg)
-    dv_interp, cov_interp = _imu_factor_delta_v(faulty, cfg)
+    dv_true, _, _ = _imu_factor_delta_v(truth, cfg)
+    dv_interp, cov_interp, _ = _imu_factor_delta_v(faulty, cfg)
     off = cfg.model_copy(update={"held_accel_interpolation": False})
-    dv_held, cov_held = _imu_factor_delta_v(faulty, off)
+    dv_held, cov_held, _ = _imu_factor_delta_v(faulty, off)
     # the ramp is linear: the interpolation recovers the sample exactly; the held value
     # loses about 400 H^2 = 0.04 m/s of velocity
     np.testing.assert_allclose(dv_interp, dv_true, atol=1e-9)
     assert abs(dv_held[0] - dv_true[0]) > 0.02
     # and it is distrusted by the interpolation's sigma, not the held one
     assert cov_interp[0, 0] < cov_held[0, 0]
-    _, cov_true = _imu_factor_delta_v(truth, cfg)
+    _, cov_true, _ = _imu_factor_delta_v(truth, cfg)
     assert cov_interp[0, 0] > cov_true[0, 0]
+
+
+def test_smoothers_can_interpolate_the_gyro_of_a_held_packet() -> None:
+    import gtsam
+
+    # pitch rate ramping by 20 rad/s per second; the corrupt packet at 0.10 s carries the
+    # monitor's prediction from the vendor orientation, here 0.5 rad/s off in roll
+    n, k = 25, 10
+
+    def sample(i: int, gyro_err: float = 0.0, held: bool = False) -> ImuSample:
+        g = np.array([gyro_err, 20.0 * i * H, 0.0])
+        return ImuSample(
+            i * H, np.array([0.0, 0.0, GRAVITY_MPS2]), g, np.array([1.0, 0.0, 0.0, 0.0]),
+            accel_extra_sigma_mps2=10.0 if held else 0.0,
+            gyro_extra_sigma_radps=0.5 if held else 0.0, accel_held=held,
+        )  # fmt: skip
+
+    truth = [sample(i) for i in range(n)]
+    faulty = list(truth)
+    faulty[k] = sample(k, gyro_err=0.5, held=True)
+    on = SmootherConfig(held_gyro_interpolation=True)
+    _, _, r_true = _imu_factor_delta_v(truth, on)
+    _, _, r_on = _imu_factor_delta_v(faulty, on)
+    _, _, r_off = _imu_factor_delta_v(faulty, SmootherConfig())
+    # linear rate: the interpolation is exact; the predicted gyro leaves a roll error
+    assert np.linalg.norm(gtsam.Rot3.Logmap(r_true.between(r_on))) < 1e-9
+    assert np.linalg.norm(gtsam.Rot3.Logmap(r_true.between(r_off))) > 1e-3

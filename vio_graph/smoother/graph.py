@@ -647,7 +647,8 @@ class KeyframeGraphBuilder:
         """The newest sample is a measurement: replace the held accelerometer samples just
         before it (ImuSample.accel_held, set by the fault monitor over a corrupted packet) by
         the linear interpolation in time between the trusted samples either side, with
-        ``interpolated_accel_sigma_mps2`` as their extra sigma. Runs before the sample can
+        ``interpolated_accel_sigma_mps2`` as their extra sigma (and their gyro too, if
+        ``held_gyro_interpolation``). Runs before the sample can
         complete a keyframe, so the preintegration that follows uses the interpolation."""
         k = len(self._imu_h) - 1
         j = k
@@ -657,11 +658,17 @@ class KeyframeGraphBuilder:
             return
         t0, a0 = self._imu_t[j - 1], self._imu_a[j - 1]
         t1, a1 = self._imu_t[k], self._imu_a[k]
+        g0, g1 = self._imu_g[j - 1], self._imu_g[k]
         sig = self.config.interpolated_accel_sigma_mps2
+        gyro = self.config.held_gyro_interpolation
         for m in range(j, k):
             w = (self._imu_t[m] - t0) / (t1 - t0)
             self._imu_a[m] = (1.0 - w) * a0 + w * a1
-            self._imu_x[m] = (sig, self._imu_x[m][1])
+            sig_g = self._imu_x[m][1]
+            if gyro:
+                self._imu_g[m] = (1.0 - w) * g0 + w * g1
+                sig_g = self.config.interpolated_gyro_sigma_radps
+            self._imu_x[m] = (sig, sig_g)
             self._imu_h[m] = False
 
     def _trim_imu(self, t: float) -> None:

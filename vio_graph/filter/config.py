@@ -111,8 +111,8 @@ class ImuFaultConfig(BaseModel):
         "in units of the range (the axis is moved beyond the rail by its mean, 0.8 sigma). "
         "0.5: on the four simulated paper experiments clipped at 4 g (seeds 1-4, 169 clipped "
         "stretches) the true excess averages 5-27 m/s^2 per clipped sample (0.1-0.7 x range; "
-        "upstair heel strike the most, up to 2.4 x range); with 0.5 the velocity a stretch "
-        "loses is matched on average on seed 4, not used to choose it (mean error -0.03 m/s, "
+        "upstair heel strike the most, up to 2.4 x range); with 0.5 (chosen on seeds 1-3) the "
+        "velocity a stretch loses is matched on average on seed 4 (mean error -0.03 m/s, "
         "RMS 0.45 m/s; sigma 1.0: +0.50 and 0.67 m/s)",
     )
     saturation_correlated: bool = Field(

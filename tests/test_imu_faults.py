@@ -38,12 +38,32 @@ def test_saturated_axis_is_marked_moved_beyond_the_rail_and_distrusted() -> None
     ok = mon.process(ImuSample(0.0, np.array([1.0, 0.0, 9.8]), np.zeros(3), q))
     assert ok.accel_extra_sigma_mps2 == 0.0
     s = mon.process(ImuSample(0.01, np.array([-40.0, 0.0, 9.8]), np.zeros(3), q))
-    # half-normal prior of sigma 1 x range on the hidden excess: mean 40 sqrt(2/pi) beyond
-    # the rail, sigma 40 sqrt(1 - 2/pi); the unsaturated axes are untouched
-    assert s.accel_mps2[0] == pytest.approx(-40.0 - 40.0 * np.sqrt(2 / np.pi))
+    # half-normal prior of sigma 0.5 x range on the hidden excess: mean 20 sqrt(2/pi) beyond
+    # the rail, sigma 20 sqrt(1 - 2/pi); the unsaturated axes are untouched
+    assert s.accel_mps2[0] == pytest.approx(-40.0 - 20.0 * np.sqrt(2 / np.pi))
     assert s.accel_mps2[2] == 9.8
-    assert s.accel_extra_sigma_mps2 == pytest.approx(40.0 * np.sqrt(1 - 2 / np.pi))
-    assert mon.report()["accel_saturated_samples"] == 1
+    sd = 20.0 * np.sqrt(1 - 2 / np.pi)
+    assert s.accel_extra_sigma_mps2 == pytest.approx(sd)
+    # the stretch goes on: its samples are one pulse, the k-th carries sqrt(2k - 1) sigma, so
+    # the variance of n samples is n^2 sigma^2 (not n sigma^2)
+    more = [mon.process(ImuSample(0.01 * k, np.array([-45.0, 0.0, 9.8]), np.zeros(3), q))
+            for k in (2, 3)]  # fmt: skip
+    var = sum(x.accel_extra_sigma_mps2**2 for x in [s, *more])
+    assert var == pytest.approx(9 * sd**2)
+    assert mon.report()["accel_saturated_samples"] == 3
+    # a trusted sample ends the stretch: the next clipped one starts a new one
+    assert mon.process(ImuSample(0.04, np.array([1.0, 0.0, 9.8]), np.zeros(3), q)) is not None
+    again = mon.process(ImuSample(0.05, np.array([40.0, 0.0, 9.8]), np.zeros(3), q))
+    assert again.accel_extra_sigma_mps2 == pytest.approx(sd)
+    indep = ImuFaultMonitor(
+        ImuFaultConfig(saturation_correlated=False, saturation_sigma_range=1.0), 40.0, 35.0
+    )
+    outs = [indep.process(ImuSample(0.01 * k, np.array([40.0, 0.0, 9.8]), np.zeros(3), q))
+            for k in range(3)]  # fmt: skip
+    assert [o.accel_extra_sigma_mps2 for o in outs] == pytest.approx(
+        [40.0 * np.sqrt(1 - 2 / np.pi)] * 3
+    )
+    assert outs[0].accel_mps2[0] == pytest.approx(40.0 + 40.0 * np.sqrt(2 / np.pi))
 
 
 def test_saturated_sample_widens_the_filter_velocity_by_its_extra_sigma() -> None:
@@ -95,6 +115,7 @@ def test_gyro_spike_is_replaced_by_the_vendor_orientation_rate() -> None:
     # the corrupt packet's accelerometer is replaced by the last trusted one, distrusted
     np.testing.assert_array_equal(out[k].accel_mps2, samples[k - 1].accel_mps2)
     assert out[k].accel_extra_sigma_mps2 == ImuFaultConfig().held_accel_sigma_mps2
+    assert out[k].accel_held and not samples[k].accel_held
     assert out[k + 1] is spiked[k + 1]  # the next sample is clean again
 
 
@@ -181,3 +202,88 @@ def test_distrusted_samples_inflate_the_preintegration_and_batch_imu_factors_are
     c0 = factors(False, 0.0).preintegratedMeasurements().preintMeasCov()
     c1 = factors(False, 30.0).preintegratedMeasurements().preintMeasCov()
     assert c1[6, 6] > c0[6, 6] + 0.5 * (30.0 * H) ** 2
+
+
+def _imu_factor_delta_v(samples: list[ImuSample], config: SmootherConfig) -> tuple:
+    """Keyframes at 0.05 s and 0.15 s over ``samples``: (delta v of the IMU factor between
+    them (3,), its velocity covariance (3, 3), its delta rotation)."""
+    import gtsam
+
+    from vio_graph.types import EstimateStatus, FrameEstimate, TerrainKind
+
+    b = KeyframeGraphBuilder(config, np.eye(4))
+    for s in samples:
+        b.add_imu(s)
+    ups = []
+    for tk in (0.05, 0.15):
+        z2 = np.zeros(2)
+        est = FrameEstimate(
+            tk, EstimateStatus.FUSED, z2, z2, np.eye(2) * 1e-4, z2, z2, z2, z2,
+            TerrainKind.LEVEL, True, {},
+        )  # fmt: skip
+        ups += b.add_frame(tk, True, est, None, None)
+    ups += b.flush()
+    g = ups[-1].factors
+    f = next(g.at(i) for i in range(g.size()) if isinstance(g.at(i), gtsam.CombinedImuFactor))
+    pim = f.preintegratedMeasurements()
+    return np.asarray(pim.deltaVij()), pim.preintMeasCov()[6:9, 6:9], pim.deltaRij()
+
+
+def test_smoothers_interpolate_a_held_accelerometer_sample_from_its_neighbours() -> None:
+    # specific force ramping by 400 m/s^2 per second in x (a heel-strike-like transient);
+    # the packet at 0.10 s is corrupt and the monitor held the previous sample (4 m/s^2 of
+    # hidden change: 0.04 m/s of velocity over the step if preintegrated as held)
+    n, k = 25, 10
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+
+    def sample(i: int) -> ImuSample:
+        a = np.array([400.0 * i * H, 0.0, GRAVITY_MPS2])
+        return ImuSample(i * H, a, np.zeros(3), q)
+
+    truth = [sample(i) for i in range(n)]
+    faulty = list(truth)
+    sig = ImuFaultConfig().held_accel_sigma_mps2
+    faulty[k] = ImuSample(
+        k * H, truth[k - 1].accel_mps2, np.zeros(3), q, accel_extra_sigma_mps2=sig,
+        accel_held=True,
+    )  # fmt: skip
+    cfg = SmootherConfig()
+    dv_true, _, _ = _imu_factor_delta_v(truth, cfg)
+    dv_interp, cov_interp, _ = _imu_factor_delta_v(faulty, cfg)
+    off = cfg.model_copy(update={"held_accel_interpolation": False})
+    dv_held, cov_held, _ = _imu_factor_delta_v(faulty, off)
+    # the ramp is linear: the interpolation recovers the sample exactly; the held value
+    # loses about 400 H^2 = 0.04 m/s of velocity
+    np.testing.assert_allclose(dv_interp, dv_true, atol=1e-9)
+    assert abs(dv_held[0] - dv_true[0]) > 0.02
+    # and it is distrusted by the interpolation's sigma, not the held one
+    assert cov_interp[0, 0] < cov_held[0, 0]
+    _, cov_true, _ = _imu_factor_delta_v(truth, cfg)
+    assert cov_interp[0, 0] > cov_true[0, 0]
+
+
+def test_smoothers_can_interpolate_the_gyro_of_a_held_packet() -> None:
+    import gtsam
+
+    # pitch rate ramping by 20 rad/s per second; the corrupt packet at 0.10 s carries the
+    # monitor's prediction from the vendor orientation, here 0.5 rad/s off in roll
+    n, k = 25, 10
+
+    def sample(i: int, gyro_err: float = 0.0, held: bool = False) -> ImuSample:
+        g = np.array([gyro_err, 20.0 * i * H, 0.0])
+        return ImuSample(
+            i * H, np.array([0.0, 0.0, GRAVITY_MPS2]), g, np.array([1.0, 0.0, 0.0, 0.0]),
+            accel_extra_sigma_mps2=10.0 if held else 0.0,
+            gyro_extra_sigma_radps=0.5 if held else 0.0, accel_held=held,
+        )  # fmt: skip
+
+    truth = [sample(i) for i in range(n)]
+    faulty = list(truth)
+    faulty[k] = sample(k, gyro_err=0.5, held=True)
+    on = SmootherConfig(held_gyro_interpolation=True)
+    _, _, r_true = _imu_factor_delta_v(truth, on)
+    _, _, r_on = _imu_factor_delta_v(faulty, on)
+    _, _, r_off = _imu_factor_delta_v(faulty, SmootherConfig())
+    # linear rate: the interpolation is exact; the predicted gyro leaves a roll error
+    assert np.linalg.norm(gtsam.Rot3.Logmap(r_true.between(r_on))) < 1e-9
+    assert np.linalg.norm(gtsam.Rot3.Logmap(r_true.between(r_off))) > 1e-3

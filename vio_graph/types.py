@@ -22,7 +22,9 @@ class ImuSample:
     ``accel_extra_sigma_mps2`` / ``gyro_extra_sigma_radps``: how far the estimator distrusts
     this sample beyond the sensor noise (set by vio_graph/filter/imu_faults.py for saturated
     or repaired samples; 0 = a normal sample). The filter adds them to its process noise and
-    the smoothers to the preintegration covariance.
+    the smoothers to the preintegration covariance. ``accel_held``: the accelerometer value is
+    a stand-in (the previous trusted sample, held over a corrupted packet), not a measurement;
+    an estimator that sees the next sample may replace it (the smoothers interpolate it).
     """
 
     timestamp_s: float
@@ -31,6 +33,7 @@ class ImuSample:
     quat_wxyz: NDArray[np.float64]  # (4,)
     accel_extra_sigma_mps2: float = 0.0
     gyro_extra_sigma_radps: float = 0.0
+    accel_held: bool = False
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,10 @@ spikes to any such threshold):
   metres per second over a heel strike), and the sample carries the sigma as an extra
   uncertainty, which the filter adds to its velocity process noise and the smoothers to the
   preintegration covariance, so the next visual displacements and the stance anchor correct
-  what the prior gets wrong. (A bridge by the rigid-shank kinematics, knee force held from the
+  what the prior gets wrong. The excesses of one clipped stretch are one pulse, so their
+  errors add up, not average out: the k-th sample of a stretch carries sqrt(2k - 1) times
+  the sigma (``saturation_correlated``), which makes the variance of a stretch of n samples
+  n^2 times one sample's. (A bridge by the rigid-shank kinematics, knee force held from the
   last good sample plus the gyro's rotational terms, was tried: the knee's own deceleration
   dominates at heel strike and rises within a sample, so it bridged almost nothing.)
 * **Gyro outliers** (:class:`ImuFaultMonitor`): the IMU gives two views of the rotation, the
@@ -24,7 +27,11 @@ spikes to any such threshold):
   (extra sigma = the test sigma). A heel strike turns the orientation as much as the gyro,
   so it passes. The sample is then taken as corrupt as a whole (a bus error or a shock hits
   the packet): its accelerometer is replaced by the last trusted one, with an extra sigma of
-  ``held_accel_sigma_mps2``. An accelerometer-only outlier is left to vision (below).
+  ``held_accel_sigma_mps2``, and marked ``accel_held``: the smoothers, which see the next
+  sample before they preintegrate, replace it by the interpolation between its trusted
+  neighbours (vio_graph/smoother/graph.py; on the simulated gaits 3x closer to the true
+  specific force than the held value). An accelerometer-only outlier is left to vision
+  (below).
 * **Accelerometer outliers** (:func:`velocity_fault_cov`, used by the estimator): vision
   arbitrates. When the filter's chi-square gate refuses a displacement, the hypothesis "one
   corrupted IMU sample in this interval" -- a velocity jump of sigma
@@ -78,6 +85,7 @@ class ImuFaultMonitor:
         self._gyro_d2 = chi2_quantile(config.gyro_ahrs_probability, 3)
         self._prev: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
         self._last_acc: NDArray[np.float64] | None = None  # last trusted specific force
+        self._acc_run = 0  # consecutive samples with a saturated accelerometer axis
         self.n_accel_saturated = 0  #: samples with an accelerometer axis at the rail
         self.n_gyro_saturated = 0  #: samples with a gyro axis at the rail
         self.n_gyro_repaired = 0  #: gyro samples replaced by the orientation's rate
@@ -92,17 +100,20 @@ class ImuFaultMonitor:
         xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
         acc_sat = bool(np.any(np.abs(acc) >= self._acc_lim))
         gyr_sat = bool(np.any(np.abs(gyr) >= self._gyr_lim))
+        self._acc_run = self._acc_run + 1 if acc_sat else 0
         if acc_sat:
             self.n_accel_saturated += 1
             rail = np.abs(acc) >= self._acc_lim
             acc = np.where(rail, acc + np.sign(acc) * self._acc_sig * _HALF_NORMAL_MEAN, acc)
-            xa = max(xa, self._acc_sig * _HALF_NORMAL_SD)
+            corr = np.sqrt(2.0 * self._acc_run - 1.0) if self.config.saturation_correlated else 1.0
+            xa = max(xa, self._acc_sig * _HALF_NORMAL_SD * corr)
         if gyr_sat:
             self.n_gyro_saturated += 1
             xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
         t = float(sample.timestamp_s)
         R = matrix_from_quat_wxyz(sample.quat_wxyz)
         repaired = gyr
+        held = False  # accelerometer replaced by the last trusted one
         if self.config.gyro_ahrs_test and self._prev is not None and t > self._prev[0]:
             t0, R0, g0 = self._prev
             w = Rotation.from_matrix(R0.T @ R).as_rotvec() / (t - t0)  # mean rate, IMU axes
@@ -118,6 +129,7 @@ class ImuFaultMonitor:
                     # the packet is corrupt: hold the last trusted specific force
                     acc = self._last_acc
                     xa = max(xa, self.config.held_accel_sigma_mps2)
+                    held = True
         self._prev = (t, R, repaired.copy())
         if repaired is gyr and not acc_sat:
             self._last_acc = acc.copy()
@@ -133,6 +145,7 @@ class ImuFaultMonitor:
             gyro_radps=repaired,
             accel_extra_sigma_mps2=xa,
             gyro_extra_sigma_radps=xg,
+            accel_held=held or sample.accel_held,
         )
 
     def report(self) -> dict[str, int]:

@@ -250,6 +250,7 @@ class KeyframeGraphBuilder:
         self._imu_g: list[NDArray[np.float64]] = []
         self._imu_q: list[NDArray[np.float64]] = []
         self._imu_x: list[tuple[float, float]] = []  # extra (accel, gyro) sigma per sample
+        self._imu_h: list[bool] = []  # accelerometer held over a corrupted packet (not measured)
         #: wrap IMU factors in SmootherConfig.imu_robust_kernel (the batch smoother sets it;
         #: iSAM2 keeps a factor's first linearisation, and a poor initial guess would leave
         #: good IMU factors down-weighted: upstair s1 smoother toe x 1.33 -> 1.6-2.0 cm)
@@ -294,6 +295,9 @@ class KeyframeGraphBuilder:
         self._imu_x.append(
             (float(sample.accel_extra_sigma_mps2), float(sample.gyro_extra_sigma_radps))
         )
+        self._imu_h.append(bool(sample.accel_held))
+        if self.config.held_accel_interpolation and not sample.accel_held:
+            self._interpolate_held()
         if self._pending is not None and t >= self._pending.timestamp_s - TIME_TOL_S:
             return [self._complete_pending()]
         return []
@@ -639,6 +643,34 @@ class KeyframeGraphBuilder:
             batch.add(gtsam.BetweenFactorPose3(X(i), lk, meas, noise), [X(i), lk])
             batch.stamps[lk] = t
 
+    def _interpolate_held(self) -> None:
+        """The newest sample is a measurement: replace the held accelerometer samples just
+        before it (ImuSample.accel_held, set by the fault monitor over a corrupted packet) by
+        the linear interpolation in time between the trusted samples either side, with
+        ``interpolated_accel_sigma_mps2`` as their extra sigma (and their gyro too, if
+        ``held_gyro_interpolation``). Runs before the sample can
+        complete a keyframe, so the preintegration that follows uses the interpolation."""
+        k = len(self._imu_h) - 1
+        j = k
+        while j > 0 and self._imu_h[j - 1]:
+            j -= 1
+        if j == k or j == 0:  # nothing held, or no trusted sample before the run (trimmed)
+            return
+        t0, a0 = self._imu_t[j - 1], self._imu_a[j - 1]
+        t1, a1 = self._imu_t[k], self._imu_a[k]
+        g0, g1 = self._imu_g[j - 1], self._imu_g[k]
+        sig = self.config.interpolated_accel_sigma_mps2
+        gyro = self.config.held_gyro_interpolation
+        for m in range(j, k):
+            w = (self._imu_t[m] - t0) / (t1 - t0)
+            self._imu_a[m] = (1.0 - w) * a0 + w * a1
+            sig_g = self._imu_x[m][1]
+            if gyro:
+                self._imu_g[m] = (1.0 - w) * g0 + w * g1
+                sig_g = self.config.interpolated_gyro_sigma_radps
+            self._imu_x[m] = (sig, sig_g)
+            self._imu_h[m] = False
+
     def _trim_imu(self, t: float) -> None:
         """Keep the IMU samples at or before the keyframe at ``t`` (s) that the next interval
         needs (one for the interpolation, four for the fourth differences of its first
@@ -646,4 +678,4 @@ class KeyframeGraphBuilder:
         ts = np.asarray(self._imu_t)
         k0 = max(0, int(np.searchsorted(ts, t - TIME_TOL_S, side="right")) - 4)
         del self._imu_t[:k0], self._imu_a[:k0], self._imu_g[:k0], self._imu_q[:k0]
-        del self._imu_x[:k0]
+        del self._imu_x[:k0], self._imu_h[:k0]

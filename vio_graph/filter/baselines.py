@@ -19,7 +19,7 @@ from vio_graph.protocol import EstimatorReport, FrameRecord, ImuStep, path_of_fr
 from vio_graph.types import Displacement2D, EstimateStatus, ImuSample
 
 
-class _PathKeeper:
+class PathKeeper:
     """The protocol half shared by the baselines: start at ``initial_camera_xz_m`` on the first
     IMU sample, keep one camera position per frame."""
 
@@ -73,7 +73,7 @@ class _PathKeeper:
         return EstimatorReport()
 
 
-class ImuDeadReckoning(_PathKeeper):
+class ImuDeadReckoning(PathKeeper):
     """IMU-only integration of the camera position: the filter without corrections.
 
     Displacements are counted as received but never used (``n_rejected`` stays 0;
@@ -133,7 +133,7 @@ class ImuDeadReckoning(_PathKeeper):
         )
 
 
-class IcpOdometry(_PathKeeper):
+class IcpOdometry(PathKeeper):
     """Camera position as the running sum of ICP displacements (no IMU).
 
     The position covariance is the sum of the displacement covariances; the velocity is the

@@ -36,8 +36,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
+from vio_graph.filter.baselines import PathKeeper
 from vio_graph.geometry import remove_yaw
-from vio_graph.protocol import EstimatorReport, FrameRecord, ImuStep, path_of_frames
+from vio_graph.protocol import EstimatorReport, FrameRecord, ImuStep
 
 GRAVITY_MPS2 = 9.81
 
@@ -83,7 +84,7 @@ def legged_params(
     return p
 
 
-class GtsamLeggedPeer:
+class GtsamLeggedPeer(PathKeeper):
     """GTSAM's ``LeggedInvariantEKF`` on the shank IMU with the ankle as the one foot."""
 
     name = "gtsam_legged"
@@ -92,17 +93,12 @@ class GtsamLeggedPeer:
         T = np.asarray(imu_T_cam, dtype=float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise EstimationError(f"imu_T_cam must be a finite 4x4 matrix, got {T.shape}")
+        super().__init__(initial_camera_xz_m)  # self._p0, self._path
         self._t_cam = T[:3, 3].copy()  # camera in the IMU frame, m
-        self._p0 = (
-            np.zeros(2)
-            if initial_camera_xz_m is None
-            else np.asarray(initial_camera_xz_m, dtype=float)
-        )
         self._ekf: Any = None  # gtsam.LeggedInvariantEKF once the first IMU sample came
         self._t_s = float("nan")
         self._held: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._was_contact = False
-        self._path: list[NDArray[np.float64]] = []
         self._ms: list[float] = []
         self._n_contacts = 0
 
@@ -170,14 +166,6 @@ class GtsamLeggedPeer:
             raise EstimationError(f"gtsam_legged diverged at t={record.timestamp_s:.3f} s")
         self._path.append(np.array([cam_w[0], cam_w[2]]))
         self._ms[-1] += (time.perf_counter() - t0) * 1e3
-
-    def finish(self) -> None:
-        pass
-
-    def camera_path(
-        self, frame_times_s: NDArray[np.float64], filter_xz_m: NDArray[np.float64]
-    ) -> NDArray[np.float64]:
-        return path_of_frames(self._path, len(frame_times_s), self.name)
 
     def report(self) -> EstimatorReport:
         ms = np.asarray(self._ms) if self._ms else np.zeros(1)

@@ -154,7 +154,9 @@ def reference_paths():
     import vio_graph.estimator as estimator_mod
     from vio_graph.filter.attitude import AttitudeTracker
     from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
+    from vio_graph.filter.imu_faults import ImuFaultMonitor
     from vio_graph.filter.stance import StanceDetector
+    from vio_graph.filter.time_offset import ClockModel
 
     swaps = [
         (SagittalEskf, "propagate", SagittalEskf.propagate_reference),
@@ -167,6 +169,13 @@ def reference_paths():
             "R_world_imu",
             estimator_mod.OnlineEstimator.R_world_imu_reference,
         ),
+        (
+            estimator_mod.OnlineEstimator,
+            "_with_tracked_attitude",
+            estimator_mod.OnlineEstimator._with_tracked_attitude_reference,
+        ),
+        (ImuFaultMonitor, "process", ImuFaultMonitor.process_reference),
+        (ClockModel, "_fit", ClockModel._fit_reference),
     ]
     saved = [(obj, name, obj.__dict__[name]) for obj, name, _ in swaps]
     for obj, name, ref in swaps:

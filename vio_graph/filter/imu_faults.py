@@ -41,9 +41,9 @@ import dataclasses
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from vio_graph.filter.config import ImuFaultConfig
+from vio_graph.filter.fast_imu import Mat3, mat3_rotvec, mat3_tmul, quat_matrix
 from vio_graph.filter.gating import chi2_quantile
 from vio_graph.geometry import matrix_from_quat_wxyz
 from vio_graph.types import ImuSample
@@ -76,15 +76,74 @@ class ImuFaultMonitor:
             else (config.saturation_sigma_range * float(gyro_range_radps))
         )
         self._gyro_d2 = chi2_quantile(config.gyro_ahrs_probability, 3)
-        self._prev: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
-        self._last_acc: NDArray[np.float64] | None = None  # last trusted specific force
+        self._prev: tuple[float, Mat3, tuple[float, float, float]] | None = None
+        self._last_acc: tuple[float, ...] | None = None  # last trusted specific force
         self.n_accel_saturated = 0  #: samples with an accelerometer axis at the rail
         self.n_gyro_saturated = 0  #: samples with a gyro axis at the rail
         self.n_gyro_repaired = 0  #: gyro samples replaced by the orientation's rate
         self.max_gyro_d2 = 0.0  #: largest test statistic seen (diagnostics)
 
     def process(self, sample: ImuSample) -> ImuSample:
-        """The sample with its extra sigmas set (and its gyro replaced if it failed the test)."""
+        """The sample with its extra sigmas set (and its gyro replaced if it failed the test).
+
+        Scalar arithmetic on Python floats (a clean sample costs a few microseconds; the
+        numpy arrays are only built when the sample changes)."""
+        if not self.config.enabled:
+            return sample
+        acc_l = np.asarray(sample.accel_mps2, dtype=float).tolist()
+        gx, gy, gz = gyr_l = np.asarray(sample.gyro_radps, dtype=float).tolist()
+        acc: NDArray[np.float64] | None = None  # built only if the sample changes
+        xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
+        acc_sat = any(abs(v) >= self._acc_lim for v in acc_l)
+        gyr_sat = any(abs(v) >= self._gyr_lim for v in gyr_l)
+        if acc_sat:
+            self.n_accel_saturated += 1
+            a = np.asarray(sample.accel_mps2, dtype=float)
+            rail = np.abs(a) >= self._acc_lim
+            acc = np.where(rail, a + np.sign(a) * self._acc_sig * _HALF_NORMAL_MEAN, a)
+            xa = max(xa, self._acc_sig * _HALF_NORMAL_SD)
+        if gyr_sat:
+            self.n_gyro_saturated += 1
+            xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
+        t = float(sample.timestamp_s)
+        R = quat_matrix(sample.quat_wxyz)  # row-major tuple (geometry.matrix_from_quat_wxyz)
+        repaired: tuple[float, float, float] | None = None
+        if self.config.gyro_ahrs_test and self._prev is not None and t > self._prev[0]:
+            t0, R0, (g0x, g0y, g0z) = self._prev
+            h = t - t0
+            wx, wy, wz = self._relative_rotvec(R0, R)  # over h: the mean rate, IMU axes
+            px, py, pz = 2.0 * (wx / h) - g0x, 2.0 * (wy / h) - g0y, 2.0 * (wz / h) - g0z
+            rx, ry, rz = gx - px, gy - py, gz - pz
+            d2 = (rx * rx + ry * ry + rz * rz) / self.config.gyro_ahrs_sigma_radps**2
+            self.max_gyro_d2 = max(self.max_gyro_d2, d2) if not gyr_sat else self.max_gyro_d2
+            if d2 > self._gyro_d2:
+                self.n_gyro_repaired += 1
+                repaired = (px, py, pz)
+                xg = max(xg, self.config.gyro_ahrs_sigma_radps) if not gyr_sat else xg
+                if self._last_acc is not None and not acc_sat:
+                    # the packet is corrupt: hold the last trusted specific force
+                    acc = np.array(self._last_acc)
+                    xa = max(xa, self.config.held_accel_sigma_mps2)
+        self._prev = (t, R, (gx, gy, gz) if repaired is None else repaired)
+        if repaired is None and not acc_sat:
+            self._last_acc = tuple(acc_l)
+        if (
+            repaired is None
+            and acc is None
+            and xa == sample.accel_extra_sigma_mps2
+            and xg == sample.gyro_extra_sigma_radps
+        ):
+            return sample
+        return dataclasses.replace(
+            sample,
+            accel_mps2=np.array(acc_l) if acc is None else acc,
+            gyro_radps=np.array(gyr_l if repaired is None else repaired),
+            accel_extra_sigma_mps2=xa,
+            gyro_extra_sigma_radps=xg,
+        )
+
+    def process_reference(self, sample: ImuSample) -> ImuSample:
+        """numpy reference of :meth:`process` (the tests compare the two)."""
         if not self.config.enabled:
             return sample
         acc = np.asarray(sample.accel_mps2, dtype=float)
@@ -105,8 +164,9 @@ class ImuFaultMonitor:
         repaired = gyr
         if self.config.gyro_ahrs_test and self._prev is not None and t > self._prev[0]:
             t0, R0, g0 = self._prev
-            w = Rotation.from_matrix(R0.T @ R).as_rotvec() / (t - t0)  # mean rate, IMU axes
-            pred = 2.0 * w - g0
+            R0 = np.reshape(R0, (3, 3))
+            w = np.array(self._relative_rotvec_reference(R0.ravel(), R.ravel())) / (t - t0)
+            pred = 2.0 * w - np.asarray(g0)
             r = gyr - pred
             d2 = float(r @ r) / self.config.gyro_ahrs_sigma_radps**2
             self.max_gyro_d2 = max(self.max_gyro_d2, d2) if not gyr_sat else self.max_gyro_d2
@@ -115,12 +175,11 @@ class ImuFaultMonitor:
                 repaired = pred
                 xg = max(xg, self.config.gyro_ahrs_sigma_radps) if not gyr_sat else xg
                 if self._last_acc is not None and not acc_sat:
-                    # the packet is corrupt: hold the last trusted specific force
-                    acc = self._last_acc
+                    acc = np.array(self._last_acc)
                     xa = max(xa, self.config.held_accel_sigma_mps2)
-        self._prev = (t, R, repaired.copy())
+        self._prev = (t, tuple(R.ravel().tolist()), tuple(repaired.tolist()))
         if repaired is gyr and not acc_sat:
-            self._last_acc = acc.copy()
+            self._last_acc = tuple(acc.tolist())
         if (
             repaired is gyr
             and xa == sample.accel_extra_sigma_mps2
@@ -134,6 +193,21 @@ class ImuFaultMonitor:
             accel_extra_sigma_mps2=xa,
             gyro_extra_sigma_radps=xg,
         )
+
+    @staticmethod
+    def _relative_rotvec(R0: Mat3, R: Mat3) -> tuple[float, float, float]:
+        """Rotation vector (rad) of R0^T R, scalar closed form (fast_imu); equals
+        :meth:`_relative_rotvec_reference` to rounding (tests/test_fast_imu.py)."""
+        return mat3_rotvec(mat3_tmul(R0, R))
+
+    @staticmethod
+    def _relative_rotvec_reference(R0: Mat3, R: Mat3) -> tuple[float, float, float]:
+        """numpy / scipy reference of :meth:`_relative_rotvec`."""
+        from scipy.spatial.transform import Rotation
+
+        R_rel = np.reshape(R0, (3, 3)).T @ np.reshape(R, (3, 3))
+        wx, wy, wz = Rotation.from_matrix(R_rel).as_rotvec().tolist()
+        return wx, wy, wz
 
     def report(self) -> dict[str, int]:
         return {

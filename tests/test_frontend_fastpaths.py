@@ -146,6 +146,77 @@ def test_icp_equals_the_straightforward_implementation(normal_neighbours: int) -
         assert (res.iterations, res.n_correspondences) == (iterations, n_pairs)
 
 
+def test_compiled_icp_equals_the_numpy_path() -> None:
+    """The numba iterations (icp_kernels) against icp_translation_2d_reference: both metrics,
+    with and without trimming, wide normals, coarse grids full of exact ties (the kernel hands
+    those back to the numpy path) and targets out of range."""
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None  # numba is a dependency: the compiled path is the one tested
+    rng = np.random.default_rng(21)
+    statuses = []
+    configs = [
+        IcpConfig(),
+        IcpConfig(metric="point_to_point"),
+        IcpConfig(trim_fraction=0.0, normal_neighbours=15),
+        IcpConfig(max_correspondence_m=0.03, normal_neighbours=3),
+    ]
+    for case in range(40):
+        cfg = configs[case % len(configs)]
+        src = _smoothed(rng)
+        if case % 5 == 4:  # a coarse grid: exact duplicates and exactly tied distances
+            src = np.round(src, 2)
+        box = (src[:, 0] > rng.uniform(-0.1, 0.4)) & (src[:, 0] < rng.uniform(0.3, 0.7))
+        true_T = rng.normal(0, 0.03, 2)
+        tgt = src[box] + true_T + rng.normal(0, 0.002, (int(box.sum()), 2))
+        if case % 5 == 4:
+            tgt = np.round(tgt, 2)
+        if case == 7:
+            tgt = tgt + 1.0  # nothing within range
+        if tgt.shape[0] == 0:
+            continue
+        T0 = true_T + rng.normal(0, 0.005, 2)
+        statuses.append(
+            kernels.icp_loop(
+                src, np.ascontiguousarray(tgt), T0[0], T0[1], cfg.max_iterations,
+                cfg.convergence_m, cfg.max_correspondence_m, cfg.trim_fraction,
+                cfg.normal_neighbours, cfg.metric != "point_to_point", cfg.degenerate_ratio,
+            )[-1]
+        )  # fmt: skip
+        got = icp_translation_2d(src, tgt, T0, cfg)
+        ref = icp_module.icp_translation_2d_reference(src, tgt, T0, cfg)
+        np.testing.assert_allclose(got.translation_xz_m, ref.translation_xz_m, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got.cov_m2, ref.cov_m2, rtol=1e-9, atol=1e-15)
+        assert (got.iterations, got.converged, got.n_correspondences) == (
+            ref.iterations,
+            ref.converged,
+            ref.n_correspondences,
+        )
+        assert got.rms_m == pytest.approx(ref.rms_m, rel=1e-9)
+        if got.n_correspondences:
+            assert np.array_equal(got.target_points_xz_m, ref.target_points_xz_m) or np.allclose(
+                np.sort(got.target_points_xz_m, axis=0), np.sort(ref.target_points_xz_m, axis=0)
+            )
+        if case == 7:
+            assert got.n_correspondences == 0 and np.array_equal(got.translation_xz_m, T0)
+    assert statuses.count(0) >= 25  # mostly compiled,
+    assert any(s != 0 for s in statuses)  # and the ties did go back to the numpy path
+
+
+def test_compiled_icp_hands_an_exact_tie_back() -> None:
+    """Two distinct source points exactly as near to a target point: which one the KD-tree
+    picks is its own business, so the kernel must not decide."""
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    src = np.array([[-0.25, 0.0], [0.25, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    tgt = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]])
+    cfg = IcpConfig(max_correspondence_m=0.5, trim_fraction=0.0)
+    out = kernels.icp_loop(src, tgt, 0.0, 0.0, 20, 1e-6, 0.5, 0.0, 3, True, cfg.degenerate_ratio)
+    assert out[-1] != 0
+    got = icp_translation_2d(src, tgt, None, cfg)
+    ref = icp_module.icp_translation_2d_reference(src, tgt, None, cfg)
+    assert np.array_equal(got.translation_xz_m, ref.translation_xz_m)
+
+
 def test_nearest_source_on_small_and_sparse_sets() -> None:
     rng = np.random.default_rng(11)
     for _ in range(100):

@@ -33,6 +33,30 @@ def test_knn_smooth_equals_the_mean_over_the_neighbours(k: int) -> None:
     assert np.array_equal(knn_smooth(pts, k), pts[idx].mean(axis=1))
 
 
+def test_compiled_smoothing_equals_the_numpy_path() -> None:
+    """grid_thin and knn_smooth compiled (numba) against their numpy references: the same
+    centroids and means bit for bit, the sparse (sorted) grid path included; an exact tie at
+    the k-th neighbour goes back to the numpy path."""
+    from vio_graph.frontend import smoothing
+
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(31)
+    for case in range(30):
+        pts = _stairs(rng, int(rng.integers(1, 3000)))
+        if case % 5 == 0:
+            pts = np.vstack([pts, [[4000.0, -3000.0]]])  # 1e12 cells: the sorted path
+        cell = [0.005, 0.01, 0.0021][case % 3]
+        thin = smoothing.grid_thin(pts, cell)
+        assert np.array_equal(thin, smoothing.grid_thin_reference(pts, cell))
+        for k in (2, 5, 9):
+            ref = smoothing.knn_smooth_reference(thin, k)
+            assert np.array_equal(smoothing.knn_smooth(thin, k), ref)
+    grid = np.array([[x, z] for x in range(6) for z in range(3)], dtype=float)  # ties everywhere
+    assert kernels.knn_smooth(grid, 2)[1] != 0
+    assert np.array_equal(smoothing.knn_smooth(grid, 2), smoothing.knn_smooth_reference(grid, 2))
+
+
 def _check_nearest(src: np.ndarray, tgt: np.ndarray, translations: list[np.ndarray]) -> None:
     tree = cKDTree(src)
     nearest = icp_module._NearestSource(src, tree, tgt, 0.08)
@@ -147,7 +171,7 @@ def test_icp_equals_the_straightforward_implementation(normal_neighbours: int) -
 
 
 def test_compiled_icp_equals_the_numpy_path() -> None:
-    """The numba iterations (icp_kernels) against icp_translation_2d_reference: both metrics,
+    """The numba iterations (compiled) against icp_translation_2d_reference: both metrics,
     with and without trimming, wide normals, coarse grids full of exact ties (the kernel hands
     those back to the numpy path) and targets out of range."""
     kernels = icp_module.compiled_kernels()

@@ -205,7 +205,7 @@ def icp_translation_2d(
         IcpResult. ``n_correspondences`` is 0 (and ``rms_m`` inf) when no pair is within
         ``max_correspondence_m``; the translation is then T0.
 
-    The iterations run compiled (``icp_kernels``, numba) when numba is installed; otherwise,
+    The iterations run compiled (``compiled``, numba) when numba is installed; otherwise,
     and on the rare exact distance ties the kernel hands back, the numpy path
     :func:`icp_translation_2d_reference` runs (the same answer to rounding; tests compare them).
     """
@@ -252,14 +252,14 @@ _KERNELS: list = []  # [module or None] once looked up
 
 
 def compiled_kernels():
-    """The numba kernels module (``vio_graph.frontend.icp_kernels``), or None without numba.
+    """The numba kernels module (``vio_graph.frontend.compiled``), or None without numba.
     Imported on first use: numba's import (~0.5 s) is paid only by runs that track."""
     if not _KERNELS:
         try:
-            from vio_graph.frontend import icp_kernels
+            from vio_graph.frontend import compiled
         except ImportError:  # numba not installed: the numpy path
-            icp_kernels = None
-        _KERNELS.append(icp_kernels)
+            compiled = None
+        _KERNELS.append(compiled)
     return _KERNELS[0]
 
 

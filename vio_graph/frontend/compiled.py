@@ -290,3 +290,142 @@ def icp_loop(
             normals[m, 1] = nz
             have[m] = True
     return tx, tz, iterations, converged, keep, j, normals, _OK
+
+
+# ----------------------------------------------------------------------------- smoothing
+
+
+@numba.njit(cache=True)
+def grid_thin(pts, cell_m, max_dense_cells):  # pragma: no cover - compiled
+    """``smoothing.grid_thin_reference`` (N > 0, cell_m > 0): centroids of the occupied cells
+    in ascending cell key, each cell summed in input order (as np.bincount does)."""
+    n = pts.shape[0]
+    ix = np.empty(n, np.int64)
+    iz = np.empty(n, np.int64)
+    for i in range(n):
+        ix[i] = np.int64(math.floor(pts[i, 0] / cell_m))
+        iz[i] = np.int64(math.floor(pts[i, 1] / cell_m))
+    ix -= ix.min()
+    iz -= iz.min()
+    n_z = iz.max() + 1
+    key = ix * n_z + iz
+    n_cells = (ix.max() + 1) * n_z
+    if n_cells > max_dense_cells:  # sparse over a huge extent: sort the keys instead
+        order = np.argsort(key, kind="mergesort")  # stable: input order within a cell
+        out = np.empty((n, 2))
+        m = -1
+        prev = -1
+        count = 0
+        sx = 0.0
+        sz = 0.0
+        for r in range(n):
+            i = order[r]
+            if key[i] != prev:
+                if m >= 0:
+                    out[m, 0] = sx / count
+                    out[m, 1] = sz / count
+                m += 1
+                prev = key[i]
+                count = 0
+                sx = 0.0
+                sz = 0.0
+            count += 1
+            sx += pts[i, 0]
+            sz += pts[i, 1]
+        out[m, 0] = sx / count
+        out[m, 1] = sz / count
+        return out[: m + 1].copy()
+    # dense keys: number the occupied cells in ascending key, then sum in input order
+    number = np.full(n_cells, -1, np.int64)
+    for i in range(n):
+        number[key[i]] = 0
+    m = 0
+    for c in range(n_cells):
+        if number[c] == 0:
+            number[c] = m
+            m += 1
+    sums = np.zeros((m, 2))
+    counts = np.zeros(m, np.int64)
+    for i in range(n):
+        c = number[key[i]]
+        sums[c, 0] += pts[i, 0]
+        sums[c, 1] += pts[i, 1]
+        counts[c] += 1
+    for c in range(m):
+        sums[c, 0] /= counts[c]
+        sums[c, 1] /= counts[c]
+    return sums
+
+
+@numba.njit(cache=True)
+def knn_smooth(pts, k):  # pragma: no cover - compiled
+    """``smoothing.knn_smooth_reference`` (2 <= k <= N): every point replaced by the mean of
+    its k nearest points (itself included), summed in distance order. Returns (out, status):
+    status 1 when a distinct point ties with a k-th neighbour (the KD-tree's pick decides:
+    run the numpy path)."""
+    n = pts.shape[0]
+    order = np.argsort(pts[:, 0], kind="mergesort")
+    sxs = pts[order, 0].copy()
+    rank = np.empty(n, np.int64)
+    for r in range(n):
+        rank[order[r]] = r
+    out = np.empty((n, 2))
+    kk = min(k + 1, n)
+    best_d = np.empty(kk)
+    best_i = np.empty(kk, np.int64)
+    for i in range(n):
+        px, pz = pts[i, 0], pts[i, 1]
+        best_d[:] = np.inf
+        best_i[:] = -1
+        lo = rank[i]
+        hi = rank[i]
+        while True:
+            dl = px - sxs[lo - 1] if lo > 0 else np.inf
+            dr = sxs[hi] - px if hi < n else np.inf
+            if dl <= dr:
+                if dl * dl > best_d[kk - 1]:
+                    break
+                lo -= 1
+                m = order[lo]
+            else:
+                if dr * dr > best_d[kk - 1]:
+                    break
+                m = order[hi]
+                hi += 1
+            dx = pts[m, 0] - px
+            dz = pts[m, 1] - pz
+            d2 = dx * dx + dz * dz
+            if d2 < best_d[kk - 1]:
+                q = kk - 1
+                while q > 0 and best_d[q - 1] > d2:
+                    best_d[q] = best_d[q - 1]
+                    best_i[q] = best_i[q - 1]
+                    q -= 1
+                best_d[q] = d2
+                best_i[q] = m
+        if kk > k and best_d[k] == best_d[k - 1]:
+            # a point at the k-th distance outside the chosen k (all such points were scanned)
+            dk = best_d[k - 1]
+            for r in range(lo, hi):
+                m = order[r]
+                dx = pts[m, 0] - px
+                dz = pts[m, 1] - pz
+                if dx * dx + dz * dz == dk:
+                    inside = False
+                    same = False
+                    for t in range(k):
+                        b = best_i[t]
+                        if b == m:
+                            inside = True
+                        elif best_d[t] == dk and _same(pts[b, 0], pts[b, 1], pts[m, 0], pts[m, 1]):
+                            same = True
+                    if not inside and not same:
+                        return out, _TIE
+        sx = pts[best_i[0], 0]
+        sz = pts[best_i[0], 1]
+        for t in range(1, k):
+            sx = sx + pts[best_i[t], 0]
+            sz = sz + pts[best_i[t], 1]
+        out[i, 0] = sx / k
+        out[i, 1] = sz / k
+    return out, _OK

@@ -344,3 +344,34 @@ def test_find_levels_equals_the_numpy_formulation() -> None:
             assert levels == _reference_find_levels(pts, cfg)
             n_levels += len(levels)
     assert n_levels > 300
+
+
+def test_compiled_level_ransac_equals_the_numpy_path() -> None:
+    """The level-surface RANSAC's hypotheses scored compiled and in numpy: the same inlier
+    mask, the same random draws consumed, None in the same cases (steep or too short)."""
+    from vio_graph.frontend import level
+
+    assert icp_module.compiled_kernels() is not None
+    rng = np.random.default_rng(41)
+    n_none = n_masks = 0
+    for case in range(200):
+        n = int(rng.integers(5, 400))
+        x = np.sort(rng.uniform(-0.5, 1.0, n))
+        z = np.where(x > 0.3, 0.15, 0.0) + rng.normal(0, 0.002, n) + 0.02 * x * (case % 3)
+        if case % 5 == 0:
+            x, z = np.round(x, 2), np.round(z, 3)  # ties between hypotheses' counts
+        if case % 9 == 0:
+            z = 2.0 * x  # every line too steep
+        if case % 11 == 0:
+            x = np.full(n, 0.2) + rng.normal(0, 0.005, n)  # no pair 3 cm apart
+        ra, rb = np.random.default_rng(case), np.random.default_rng(case)
+        got = level._best_line(x, z, 0.0875, 0.004, ra)
+        ref = level._best_line_reference(x, z, 0.0875, 0.004, rb)
+        assert (got is None) == (ref is None)
+        if ref is None:
+            n_none += 1
+        else:
+            assert np.array_equal(got, ref)
+            n_masks += 1
+        assert ra.integers(0, 1 << 30) == rb.integers(0, 1 << 30)
+    assert n_none > 10 and n_masks > 100

@@ -429,3 +429,36 @@ def knn_smooth(pts, k):  # pragma: no cover - compiled
         out[i, 0] = sx / k
         out[i, 1] = sz / k
     return out, _OK
+
+
+# ----------------------------------------------------------------------------- level surfaces
+
+
+@numba.njit(cache=True)
+def best_line(x, z, i, j, max_slope, inlier_m):  # pragma: no cover - compiled
+    """``level._best_line_reference`` after its random draws ``i``, ``j``: the hypothesis
+    through points i[h], j[h] (near-horizontal, > 3 cm apart in x) with the most points
+    within ``inlier_m`` vertically, the first of equals. Returns (i[h], slope), or (-1, 0.0)
+    when no hypothesis qualifies."""
+    n = x.shape[0]
+    best_count = -1
+    best_a = -1
+    best_s = 0.0
+    for h in range(i.shape[0]):
+        a = i[h]
+        b = j[h]
+        dx = x[b] - x[a]
+        if not abs(dx) > 0.03:
+            continue
+        s = (z[b] - z[a]) / dx
+        if not abs(s) <= max_slope:
+            continue
+        c = 0
+        for k in range(n):
+            if abs(z[k] - z[a] - s * (x[k] - x[a])) < inlier_m:
+                c += 1
+        if c > best_count:
+            best_count = c
+            best_a = a
+            best_s = s
+    return best_a, best_s

@@ -375,3 +375,18 @@ def test_compiled_level_ransac_equals_the_numpy_path() -> None:
             n_masks += 1
         assert ra.integers(0, 1 << 30) == rb.integers(0, 1 << 30)
     assert n_none > 10 and n_masks > 100
+
+
+def test_compiled_paths_can_be_switched_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    """VIO_GRAPH_COMPILED=0: the numpy paths run (no kernels), with the same answers."""
+    src = _smoothed(np.random.default_rng(51))
+    tgt = src[(src[:, 0] > 0.2) & (src[:, 0] < 0.45)] + 0.01
+    on = icp_translation_2d(src, tgt, np.array([0.012, 0.008]))
+    monkeypatch.setattr(icp_module, "_KERNELS", [])
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "0")
+    assert icp_module.compiled_kernels() is None
+    off = icp_translation_2d(src, tgt, np.array([0.012, 0.008]))
+    np.testing.assert_allclose(on.translation_xz_m, off.translation_xz_m, rtol=0, atol=1e-9)
+    monkeypatch.setattr(icp_module, "_KERNELS", [])
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "1")
+    assert icp_module.compiled_kernels() is not None

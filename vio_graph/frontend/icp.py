@@ -30,6 +30,7 @@ capped at ``max_variance_m2`` instead of infinity.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -251,14 +252,22 @@ def icp_translation_2d(
 _KERNELS: list = []  # [module or None] once looked up
 
 
+#: set to 0 to run the numpy paths even with numba installed (same answers; no numba import
+#: and no first-call loading, ~1 s a process, which a short trial may not win back)
+COMPILED_ENV = "VIO_GRAPH_COMPILED"
+
+
 def compiled_kernels():
-    """The numba kernels module (``vio_graph.frontend.compiled``), or None without numba.
-    Imported on first use: numba's import (~0.5 s) is paid only by runs that track."""
+    """The numba kernels module (``vio_graph.frontend.compiled``), or None without numba or
+    with ``VIO_GRAPH_COMPILED=0``. Imported on first use: numba's import (~0.5 s) is paid
+    only by runs that use the front end."""
     if not _KERNELS:
-        try:
-            from vio_graph.frontend import compiled
-        except ImportError:  # numba not installed: the numpy path
-            compiled = None
+        compiled = None
+        if os.environ.get(COMPILED_ENV, "1").strip().lower() not in ("0", "false", "no", "off"):
+            try:
+                from vio_graph.frontend import compiled
+            except ImportError:  # numba not installed: the numpy path
+                compiled = None
         _KERNELS.append(compiled)
     return _KERNELS[0]
 

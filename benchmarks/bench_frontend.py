@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -40,6 +41,8 @@ from vio_graph.geometry import matrix_from_quat_wxyz
 from vio_graph.o3d import open3d
 from vio_graph.recording.reader import Recording
 from vio_graph.replay import replay_order
+
+os.environ.setdefault("VIO_GRAPH_COMPILED", "1")  # the compiled front end, against numpy
 
 STAGES = (
     "frontend_projection",

@@ -13,6 +13,12 @@ from vio_graph.frontend.icp import icp_translation_2d
 from vio_graph.frontend.smoothing import grid_thin, knn_smooth
 
 
+@pytest.fixture(autouse=True)
+def _compiled_on(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The compiled kernels on (VIO_GRAPH_COMPILED=1) unless a test says otherwise."""
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "1")
+
+
 def _stairs(rng: np.random.Generator, n: int = 400, noise_m: float = 0.002) -> np.ndarray:
     """Noisy two-step stair profile (treads and risers), metres."""
     s = rng.uniform(0.0, 1.0, n)
@@ -389,4 +395,10 @@ def test_compiled_paths_can_be_switched_off(monkeypatch: pytest.MonkeyPatch) -> 
     np.testing.assert_allclose(on.translation_xz_m, off.translation_xz_m, rtol=0, atol=1e-9)
     monkeypatch.setattr(icp_module, "_KERNELS", [])
     monkeypatch.setenv(icp_module.COMPILED_ENV, "1")
+    assert icp_module.compiled_kernels() is not None
+    # unset ("auto"): off until a run asks (the replay of a long recording does)
+    monkeypatch.delenv(icp_module.COMPILED_ENV)
+    monkeypatch.setattr(icp_module, "_AUTO", [False])
+    assert icp_module.compiled_kernels() is None
+    icp_module.use_compiled_by_default()
     assert icp_module.compiled_kernels() is not None

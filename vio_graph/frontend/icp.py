@@ -249,25 +249,39 @@ def icp_translation_2d(
     return IcpResult(T, cov, iterations, converged, rms, int(keep.size), pairs_t, pairs_s)
 
 
-_KERNELS: list = []  # [module or None] once looked up
+_KERNELS: list = []  # [module or None] once imported
+_AUTO = [False]  # what "auto" (VIO_GRAPH_COMPILED unset) means now; see use_compiled_by_default
 
-
-#: set to 0 to run the numpy paths even with numba installed (same answers; no numba import
-#: and no first-call loading, ~1 s a process, which a short trial may not win back)
+#: VIO_GRAPH_COMPILED: "1" compiled kernels whenever numba is installed, "0" never (the numpy
+#: paths; same answers), unset or "auto": when the run asked for them
+#: (:func:`use_compiled_by_default`, e.g. the replay of a long recording). A process pays
+#: ~0.5 s for numba's import and ~0.5-1 s to load the cached kernels (the first run on a
+#: machine compiles them: ~10-20 s), which a short trial does not win back.
 COMPILED_ENV = "VIO_GRAPH_COMPILED"
+
+#: recordings with at least this many depth frames replay with the compiled kernels under
+#: "auto": measured on the 2-core Xeon, the kernels save ~1-1.5 ms of CPU a frame and cost a
+#: process ~1-2 s once, so they pay off from about 1000-1500 frames (50 s at 30 fps)
+AUTO_COMPILED_MIN_FRAMES = 1500
+
+
+def use_compiled_by_default(enabled: bool = True) -> None:
+    """Whether "auto" (``VIO_GRAPH_COMPILED`` unset) uses the compiled kernels from now on."""
+    _AUTO[0] = bool(enabled)
 
 
 def compiled_kernels():
-    """The numba kernels module (``vio_graph.frontend.compiled``), or None without numba or
-    with ``VIO_GRAPH_COMPILED=0``. Imported on first use: numba's import (~0.5 s) is paid
-    only by runs that use the front end."""
+    """The numba kernels module (``vio_graph.frontend.compiled``), or None: without numba,
+    with ``VIO_GRAPH_COMPILED=0``, or under "auto" until :func:`use_compiled_by_default`.
+    Imported on first use, so a run that does not use it pays nothing."""
+    mode = os.environ.get(COMPILED_ENV, "auto").strip().lower()
+    if mode in ("0", "false", "no", "off") or (mode == "auto" and not _AUTO[0]):
+        return None
     if not _KERNELS:
-        compiled = None
-        if os.environ.get(COMPILED_ENV, "1").strip().lower() not in ("0", "false", "no", "off"):
-            try:
-                from vio_graph.frontend import compiled
-            except ImportError:  # numba not installed: the numpy path
-                compiled = None
+        try:
+            from vio_graph.frontend import compiled
+        except ImportError:  # numba not installed: the numpy path
+            compiled = None
         _KERNELS.append(compiled)
     return _KERNELS[0]
 

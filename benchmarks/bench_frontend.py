@@ -36,6 +36,7 @@ import vio_graph.frontend.icp as icp_module
 import vio_graph.frontend.tracker as tracker_module
 from vio_graph.config import PipelineConfig
 from vio_graph.estimator import OnlineEstimator, RigGeometry
+from vio_graph.frontend.icp import AUTO_COMPILED_MIN_FRAMES
 from vio_graph.frontend.projection import depth_to_points_cam
 from vio_graph.geometry import matrix_from_quat_wxyz
 from vio_graph.o3d import open3d
@@ -620,7 +621,10 @@ def _speedup_lines(r: dict[str, Any]) -> list[str]:
                 f"The compiled kernels cost a process once: importing numba and them "
                 f"{_common.fmt(c['import_s'], 2)} s, their first calls (loading the machine "
                 f"code numba cached at the first run on the machine) "
-                f"{_common.fmt(c['first_calls_s'], 2)} s; not in the per-frame numbers.",
+                f"{_common.fmt(c['first_calls_s'], 2)} s; not in the per-frame numbers. A "
+                f"short trial does not win that back, so `vio-graph run` uses them only on "
+                f"recordings of at least {AUTO_COMPILED_MIN_FRAMES} frames "
+                f"(`VIO_GRAPH_COMPILED=1` or `0` forces them on or off; this benchmark sets 1).",
             ]
             if (c := r.get("compiled_startup_s"))
             else []

@@ -243,4 +243,3 @@ def mat3_quat(m: Mat3) -> NDArray[np.float64]:
         w, x, y, z = -w, -x, -y, -z
     n = math.sqrt(w * w + x * x + y * y + z * z)
     return np.array([w / n, x / n, y / n, z / n])
-

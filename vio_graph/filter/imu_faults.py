@@ -52,6 +52,12 @@ _HALF_NORMAL_MEAN = float(np.sqrt(2.0 / np.pi))  # mean of |N(0, 1)|
 _HALF_NORMAL_SD = float(np.sqrt(1.0 - 2.0 / np.pi))  # its standard deviation
 
 
+def _as_mat3(R: NDArray[np.float64]) -> Mat3:
+    """A (3, 3) array as a row-major tuple."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = np.asarray(R, dtype=float).ravel().tolist()
+    return (m0, m1, m2, m3, m4, m5, m6, m7, m8)
+
+
 class ImuFaultMonitor:
     """Marks saturated samples and repairs gyro outliers, sample by sample (no look-ahead).
 
@@ -164,8 +170,7 @@ class ImuFaultMonitor:
         repaired = gyr
         if self.config.gyro_ahrs_test and self._prev is not None and t > self._prev[0]:
             t0, R0, g0 = self._prev
-            R0 = np.reshape(R0, (3, 3))
-            w = np.array(self._relative_rotvec_reference(R0.ravel(), R.ravel())) / (t - t0)
+            w = np.array(self._relative_rotvec_reference(R0, _as_mat3(R))) / (t - t0)
             pred = 2.0 * w - np.asarray(g0)
             r = gyr - pred
             d2 = float(r @ r) / self.config.gyro_ahrs_sigma_radps**2
@@ -177,7 +182,8 @@ class ImuFaultMonitor:
                 if self._last_acc is not None and not acc_sat:
                     acc = np.array(self._last_acc)
                     xa = max(xa, self.config.held_accel_sigma_mps2)
-        self._prev = (t, tuple(R.ravel().tolist()), tuple(repaired.tolist()))
+        gx, gy, gz = repaired.tolist()
+        self._prev = (t, _as_mat3(R), (gx, gy, gz))
         if repaired is gyr and not acc_sat:
             self._last_acc = tuple(acc.tolist())
         if (

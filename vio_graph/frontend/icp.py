@@ -279,10 +279,11 @@ def compiled_kernels():
         return None
     if not _KERNELS:
         try:
-            from vio_graph.frontend import compiled
+            from vio_graph.frontend import compiled as module
         except ImportError:  # numba not installed: the numpy path
-            compiled = None
-        _KERNELS.append(compiled)
+            _KERNELS.append(None)
+        else:
+            _KERNELS.append(module)
     return _KERNELS[0]
 
 

@@ -202,6 +202,24 @@ def render(
         "comparisons are ratios measured in the same run, and a load above the core count "
         "inflates every number (the p95 most).",
         "",
+        *(
+            [
+                f"**Measured on an overloaded machine** (load average up to {max_load:.0f} on "
+                f"{m['logical_cores']} cores): the process held a core a fraction of the time, "
+                "so wall-clock figures (per-stage medians included) are inflated several-fold "
+                "and even CPU times rise (shared caches); trust the ratios measured in the same "
+                "run and the CPU time per frame of the whole replay loop, and rerun on a quiet "
+                "machine for absolute numbers.",
+                "",
+            ]
+            if (
+                max_load := max(
+                    r["machine"]["load_average_1_5_15min"][0] for r in (fe, sm, sim, sc)
+                )
+            )
+            > 2 * (m["logical_cores"] or 1)
+            else []
+        ),
         "## Summary",
         "",
         summary(fe, sm, sim, sc),

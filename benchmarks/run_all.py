@@ -33,7 +33,9 @@ COMMAND = "python benchmarks/run_all.py"
 SCALE_DURATIONS_S = ("10", "60")
 
 
-def run_benchmark(name: str, quick: bool) -> float:
+def run_benchmark(
+    name: str, quick: bool, scale_durations: tuple[str, ...] = SCALE_DURATIONS_S
+) -> float:
     """Run benchmarks/bench_<name>.py in a fresh single-threaded process; wall time (s)."""
     args = [sys.executable, str(_common.BENCH_DIR / f"bench_{name}.py")]
     if quick:
@@ -44,7 +46,7 @@ def run_benchmark(name: str, quick: bool) -> float:
             "scale": ["--durations", "10"],
         }[name]
     elif name == "scale":
-        args += ["--durations", *SCALE_DURATIONS_S]
+        args += ["--durations", *scale_durations]
     env = dict(os.environ, **{v: "1" for v in _common.THREAD_VARIABLES})
     t0 = time.perf_counter()
     subprocess.run(args, check=True, env=env, stdout=subprocess.DEVNULL)
@@ -155,7 +157,9 @@ def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any], sc: dic
     return _common.md_table(["what", "median / p95", "reference"], rows)
 
 
-def render(walls_s: dict[str, float], quick: bool) -> str:
+def render(
+    walls_s: dict[str, float], quick: bool, scale_durations: tuple[str, ...] = SCALE_DURATIONS_S
+) -> str:
     fe, sm, sim, sc = (_common.read_result(n) for n in BENCHMARKS)
     m = fe["machine"]
     loads = ", ".join(
@@ -170,10 +174,18 @@ def render(walls_s: dict[str, float], quick: bool) -> str:
         + ". "
         "Do not edit by hand; rerun instead.",
         "",
-        "Reproduce (from the repository root, about 10-15 minutes):",
+        "Reproduce (from the repository root, about 10-15 minutes"
+        + (", plus about an hour for the 600 s trial" if "600" in scale_durations else "")
+        + "):",
         "",
         "```bash",
-        COMMAND + (" --quick" if quick else ""),
+        COMMAND
+        + (" --quick" if quick else "")
+        + (
+            " --scale-durations " + " ".join(scale_durations)
+            if scale_durations != SCALE_DURATIONS_S
+            else ""
+        ),
         "```",
         "",
         f"Machine: {m['cpu_model']}, {m['logical_cores']} logical cores "
@@ -190,6 +202,24 @@ def render(walls_s: dict[str, float], quick: bool) -> str:
         "comparisons are ratios measured in the same run, and a load above the core count "
         "inflates every number (the p95 most).",
         "",
+        *(
+            [
+                f"**Measured on an overloaded machine** (load average up to {max_load:.0f} on "
+                f"{m['logical_cores']} cores): the process held a core a fraction of the time, "
+                "so wall-clock figures (per-stage medians included) are inflated several-fold "
+                "and even CPU times rise (shared caches); trust the ratios measured in the same "
+                "run and the CPU time per frame of the whole replay loop, and rerun on a quiet "
+                "machine for absolute numbers.",
+                "",
+            ]
+            if (
+                max_load := max(
+                    r["machine"]["load_average_1_5_15min"][0] for r in (fe, sm, sim, sc)
+                )
+            )
+            > 2 * (m["logical_cores"] or 1)
+            else []
+        ),
         "## Summary",
         "",
         summary(fe, sm, sim, sc),
@@ -210,9 +240,16 @@ def render(walls_s: dict[str, float], quick: bool) -> str:
         "",
         bench_scale.markdown(sc),
         "",
-        "The 600 s (18,000 frames) row: `python benchmarks/bench_scale.py --durations 10 60 600` "
-        "(simulating and running it takes about an hour on this machine when it is busy).",
-        "",
+        *(
+            [
+                "The 600 s (18,000 frames) row: `python benchmarks/run_all.py --scale-durations "
+                "10 60 600` (simulating and running it takes about an hour on this machine when "
+                "it is busy).",
+                "",
+            ]
+            if not any(row["duration_s"] >= 600 for row in sc["rows"])
+            else []
+        ),
     ]
     if walls_s:
         lines += [
@@ -236,6 +273,12 @@ def main() -> None:
         action="store_true",
         help="regenerate the doc from existing results (wall times unknown)",
     )
+    ap.add_argument(
+        "--scale-durations",
+        nargs="+",
+        default=list(SCALE_DURATIONS_S),
+        help="trial lengths (s) of the scaling table; 600 adds about an hour",
+    )
     args = ap.parse_args()
     walls: dict[str, float] = {}
     walls_file = _common.RESULTS_DIR / "run_all_wall_s.json"
@@ -243,11 +286,11 @@ def main() -> None:
         walls = json.loads(walls_file.read_text()) if walls_file.exists() else {}
     else:
         for name in BENCHMARKS:
-            walls[name] = run_benchmark(name, args.quick)
+            walls[name] = run_benchmark(name, args.quick, tuple(args.scale_durations))
             print(f"{name}: {walls[name]:.0f} s", flush=True)  # noqa: T201 - script output
         walls_file.write_text(json.dumps(walls) + "\n")
     if not args.no_doc:
-        DOC.write_text(render(walls, args.quick))
+        DOC.write_text(render(walls, args.quick, tuple(args.scale_durations)))
         print(f"wrote {DOC}")  # noqa: T201 - script output
 
 

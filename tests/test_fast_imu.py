@@ -4,6 +4,7 @@ same estimator run (filter, IMU-only, ICP-only paths, filter state) to 1e-9 m.""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,9 @@ from vio_graph.config import PipelineConfig
 from vio_graph.filter import fast_imu
 from vio_graph.filter.attitude import AttitudeTracker, with_pitch_offset
 from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
+from vio_graph.filter.imu_faults import ImuFaultMonitor
 from vio_graph.filter.stance import StanceDetector
+from vio_graph.filter.time_offset import ClockModel
 from vio_graph.geometry import (
     matrix_from_quat_wxyz,
     quat_wxyz_from_matrix,
@@ -73,6 +76,9 @@ def test_closed_forms_match_the_numpy_references() -> None:
         np.testing.assert_allclose(
             fast_imu.matrix_rotvec(R), Rotation.from_matrix(R).as_rotvec(), atol=1e-12
         )
+    for R in Rotation.random(3000, random_state=3).as_matrix():  # every Shepperd branch
+        m = tuple(R.ravel().tolist())
+        assert np.array_equal(fast_imu.mat3_quat(m), quat_wxyz_from_matrix(R))  # bit for bit
     for b in (-0.4, 0.0, 1e-3, 2.5):
         np.testing.assert_allclose(np.reshape(fast_imu.rot_y_mat3(b), (3, 3)), rot_y(b), atol=0)
     for scale in (0.0, 1e-9, 1e-4, 0.3, 3.0):
@@ -84,6 +90,39 @@ def test_closed_forms_match_the_numpy_references() -> None:
         np.testing.assert_allclose(
             fast_imu.rotvec_matrix(*fast_imu.matrix_rotvec(R)), R, atol=1e-13
         )
+
+
+def test_clock_fit_and_fault_monitor_equal_their_references() -> None:
+    """The clock model's closed-form line fit against np.polyfit on jittered stamps with a gap,
+    and the IMU fault monitor's scalar path against its numpy reference on a swinging shank
+    with saturated and corrupted samples (both paths must fire)."""
+    rng = np.random.default_rng(4)
+    stamps = 5.0 + np.cumsum(0.01 + rng.normal(0.0, 0.002, 1500))
+    stamps[900:] += 0.4  # a gap: the line starts over
+    fast, ref = ClockModel(0.01, 200, 5.0), ClockModel(0.01, 200, 5.0)
+    ref._fit = ref._fit_reference  # type: ignore[method-assign]
+    out_f = np.array([fast.correct(t) for t in stamps])
+    out_r = np.array([ref.correct(t) for t in stamps])
+    assert fast.n_gaps == 1 and np.count_nonzero(out_f != stamps) > 1000  # the fit moved them
+    np.testing.assert_allclose(out_f, out_r, rtol=0, atol=1e-12)
+
+    samples = _swinging_samples(400, seed=5)
+    for k in (50, 51, 200):  # corrupt packets: gyro and accelerometer off
+        s = samples[k]
+        samples[k] = dataclasses.replace(s, gyro_radps=s.gyro_radps + 3.0, accel_mps2=-s.accel_mps2)
+    cfg = PipelineConfig().filter.imu_faults
+    mon_f = ImuFaultMonitor(cfg, accel_range_mps2=9.9, gyro_range_radps=6.0)
+    mon_r = ImuFaultMonitor(cfg, accel_range_mps2=9.9, gyro_range_radps=6.0)
+    for s in samples:
+        a, b = mon_f.process(s), mon_r.process_reference(s)
+        for field in ("accel_mps2", "gyro_radps", "quat_wxyz"):
+            np.testing.assert_allclose(getattr(a, field), getattr(b, field), atol=1e-12)
+        assert a.accel_extra_sigma_mps2 == b.accel_extra_sigma_mps2
+        assert a.gyro_extra_sigma_radps == b.gyro_extra_sigma_radps
+        assert a.accel_held == b.accel_held
+    assert mon_f.report() == mon_r.report()
+    assert mon_f.n_gyro_repaired >= 3 and mon_f.n_accel_saturated > 0
+    assert mon_f.max_gyro_d2 == pytest.approx(mon_r.max_gyro_d2, rel=1e-9)
 
 
 def _swinging_samples(n: int = 600, seed: int = 2) -> list[ImuSample]:
@@ -138,6 +177,7 @@ def test_a_whole_replay_equals_the_reference_path(
     paths) moved the filter's answer by 1.6 mm, a discrete decision flipping on an exact tie;
     on the simulated trials the answers agree to 1e-13 m."""
     rec = Recording.open(short_upstair)
+    assert PipelineConfig().filter.strapdown_attitude == "tracked"  # the default path is covered
 
     def run() -> dict[str, np.ndarray]:
         rp = Replay(rec, PipelineConfig(), {"filter"}, NullVisualizer())
@@ -159,6 +199,13 @@ def test_a_whole_replay_equals_the_reference_path(
     monkeypatch.setattr(
         estimator_mod, "_pitch_offset_quat", estimator_mod.reference_pitch_offset_quat
     )
+    monkeypatch.setattr(
+        estimator_mod.OnlineEstimator,
+        "_with_tracked_attitude",
+        estimator_mod.OnlineEstimator._with_tracked_attitude_reference,
+    )
+    monkeypatch.setattr(ImuFaultMonitor, "process", ImuFaultMonitor.process_reference)
+    monkeypatch.setattr(ClockModel, "_fit", ClockModel._fit_reference)
     ref = run()
     assert set(fast) == set(ref) and {"filter", "imu_only", "icp_only"} <= set(fast)
     assert np.ptp(fast["filter"][:, 0]) > 0.05  # the camera moved

@@ -13,6 +13,12 @@ from vio_graph.frontend.icp import icp_translation_2d
 from vio_graph.frontend.smoothing import grid_thin, knn_smooth
 
 
+@pytest.fixture(autouse=True)
+def _compiled_on(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The compiled kernels on (VIO_GRAPH_COMPILED=1) unless a test says otherwise."""
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "1")
+
+
 def _stairs(rng: np.random.Generator, n: int = 400, noise_m: float = 0.002) -> np.ndarray:
     """Noisy two-step stair profile (treads and risers), metres."""
     s = rng.uniform(0.0, 1.0, n)
@@ -31,6 +37,30 @@ def test_knn_smooth_equals_the_mean_over_the_neighbours(k: int) -> None:
     pts = _stairs(np.random.default_rng(k), 500)
     _, idx = cKDTree(pts).query(pts, k=k)
     assert np.array_equal(knn_smooth(pts, k), pts[idx].mean(axis=1))
+
+
+def test_compiled_smoothing_equals_the_numpy_path() -> None:
+    """grid_thin and knn_smooth compiled (numba) against their numpy references: the same
+    centroids and means bit for bit, the sparse (sorted) grid path included; an exact tie at
+    the k-th neighbour goes back to the numpy path."""
+    from vio_graph.frontend import smoothing
+
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(31)
+    for case in range(30):
+        pts = _stairs(rng, int(rng.integers(1, 3000)))
+        if case % 5 == 0:
+            pts = np.vstack([pts, [[4000.0, -3000.0]]])  # 1e12 cells: the sorted path
+        cell = [0.005, 0.01, 0.0021][case % 3]
+        thin = smoothing.grid_thin(pts, cell)
+        assert np.array_equal(thin, smoothing.grid_thin_reference(pts, cell))
+        for k in (2, 5, 9):
+            ref = smoothing.knn_smooth_reference(thin, k)
+            assert np.array_equal(smoothing.knn_smooth(thin, k), ref)
+    grid = np.array([[x, z] for x in range(6) for z in range(3)], dtype=float)  # ties everywhere
+    assert kernels.knn_smooth(grid, 2)[1] != 0
+    assert np.array_equal(smoothing.knn_smooth(grid, 2), smoothing.knn_smooth_reference(grid, 2))
 
 
 def _check_nearest(src: np.ndarray, tgt: np.ndarray, translations: list[np.ndarray]) -> None:
@@ -146,6 +176,77 @@ def test_icp_equals_the_straightforward_implementation(normal_neighbours: int) -
         assert (res.iterations, res.n_correspondences) == (iterations, n_pairs)
 
 
+def test_compiled_icp_equals_the_numpy_path() -> None:
+    """The numba iterations (compiled) against icp_translation_2d_reference: both metrics,
+    with and without trimming, wide normals, coarse grids full of exact ties (the kernel hands
+    those back to the numpy path) and targets out of range."""
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None  # numba is a dependency: the compiled path is the one tested
+    rng = np.random.default_rng(21)
+    statuses = []
+    configs = [
+        IcpConfig(),
+        IcpConfig(metric="point_to_point"),
+        IcpConfig(trim_fraction=0.0, normal_neighbours=15),
+        IcpConfig(max_correspondence_m=0.03, normal_neighbours=3),
+    ]
+    for case in range(40):
+        cfg = configs[case % len(configs)]
+        src = _smoothed(rng)
+        if case % 5 == 4:  # a coarse grid: exact duplicates and exactly tied distances
+            src = np.round(src, 2)
+        box = (src[:, 0] > rng.uniform(-0.1, 0.4)) & (src[:, 0] < rng.uniform(0.3, 0.7))
+        true_T = rng.normal(0, 0.03, 2)
+        tgt = src[box] + true_T + rng.normal(0, 0.002, (int(box.sum()), 2))
+        if case % 5 == 4:
+            tgt = np.round(tgt, 2)
+        if case == 7:
+            tgt = tgt + 1.0  # nothing within range
+        if tgt.shape[0] == 0:
+            continue
+        T0 = true_T + rng.normal(0, 0.005, 2)
+        statuses.append(
+            kernels.icp_loop(
+                src, np.ascontiguousarray(tgt), T0[0], T0[1], cfg.max_iterations,
+                cfg.convergence_m, cfg.max_correspondence_m, cfg.trim_fraction,
+                cfg.normal_neighbours, cfg.metric != "point_to_point", cfg.degenerate_ratio,
+            )[-1]
+        )  # fmt: skip
+        got = icp_translation_2d(src, tgt, T0, cfg)
+        ref = icp_module.icp_translation_2d_reference(src, tgt, T0, cfg)
+        np.testing.assert_allclose(got.translation_xz_m, ref.translation_xz_m, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got.cov_m2, ref.cov_m2, rtol=1e-9, atol=1e-15)
+        assert (got.iterations, got.converged, got.n_correspondences) == (
+            ref.iterations,
+            ref.converged,
+            ref.n_correspondences,
+        )
+        assert got.rms_m == pytest.approx(ref.rms_m, rel=1e-9)
+        if got.n_correspondences:
+            assert np.array_equal(got.target_points_xz_m, ref.target_points_xz_m) or np.allclose(
+                np.sort(got.target_points_xz_m, axis=0), np.sort(ref.target_points_xz_m, axis=0)
+            )
+        if case == 7:
+            assert got.n_correspondences == 0 and np.array_equal(got.translation_xz_m, T0)
+    assert statuses.count(0) >= 25  # mostly compiled,
+    assert any(s != 0 for s in statuses)  # and the ties did go back to the numpy path
+
+
+def test_compiled_icp_hands_an_exact_tie_back() -> None:
+    """Two distinct source points exactly as near to a target point: which one the KD-tree
+    picks is its own business, so the kernel must not decide."""
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    src = np.array([[-0.25, 0.0], [0.25, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    tgt = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]])
+    cfg = IcpConfig(max_correspondence_m=0.5, trim_fraction=0.0)
+    out = kernels.icp_loop(src, tgt, 0.0, 0.0, 20, 1e-6, 0.5, 0.0, 3, True, cfg.degenerate_ratio)
+    assert out[-1] != 0
+    got = icp_translation_2d(src, tgt, None, cfg)
+    ref = icp_module.icp_translation_2d_reference(src, tgt, None, cfg)
+    assert np.array_equal(got.translation_xz_m, ref.translation_xz_m)
+
+
 def test_nearest_source_on_small_and_sparse_sets() -> None:
     rng = np.random.default_rng(11)
     for _ in range(100):
@@ -249,3 +350,55 @@ def test_find_levels_equals_the_numpy_formulation() -> None:
             assert levels == _reference_find_levels(pts, cfg)
             n_levels += len(levels)
     assert n_levels > 300
+
+
+def test_compiled_level_ransac_equals_the_numpy_path() -> None:
+    """The level-surface RANSAC's hypotheses scored compiled and in numpy: the same inlier
+    mask, the same random draws consumed, None in the same cases (steep or too short)."""
+    from vio_graph.frontend import level
+
+    assert icp_module.compiled_kernels() is not None
+    rng = np.random.default_rng(41)
+    n_none = n_masks = 0
+    for case in range(200):
+        n = int(rng.integers(5, 400))
+        x = np.sort(rng.uniform(-0.5, 1.0, n))
+        z = np.where(x > 0.3, 0.15, 0.0) + rng.normal(0, 0.002, n) + 0.02 * x * (case % 3)
+        if case % 5 == 0:
+            x, z = np.round(x, 2), np.round(z, 3)  # ties between hypotheses' counts
+        if case % 9 == 0:
+            z = 2.0 * x  # every line too steep
+        if case % 11 == 0:
+            x = np.full(n, 0.2) + rng.normal(0, 0.005, n)  # no pair 3 cm apart
+        ra, rb = np.random.default_rng(case), np.random.default_rng(case)
+        got = level._best_line(x, z, 0.0875, 0.004, ra)
+        ref = level._best_line_reference(x, z, 0.0875, 0.004, rb)
+        assert (got is None) == (ref is None)
+        if ref is None:
+            n_none += 1
+        else:
+            assert np.array_equal(got, ref)
+            n_masks += 1
+        assert ra.integers(0, 1 << 30) == rb.integers(0, 1 << 30)
+    assert n_none > 10 and n_masks > 100
+
+
+def test_compiled_paths_can_be_switched_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    """VIO_GRAPH_COMPILED=0: the numpy paths run (no kernels), with the same answers."""
+    src = _smoothed(np.random.default_rng(51))
+    tgt = src[(src[:, 0] > 0.2) & (src[:, 0] < 0.45)] + 0.01
+    on = icp_translation_2d(src, tgt, np.array([0.012, 0.008]))
+    monkeypatch.setattr(icp_module, "_KERNELS", [])
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "0")
+    assert icp_module.compiled_kernels() is None
+    off = icp_translation_2d(src, tgt, np.array([0.012, 0.008]))
+    np.testing.assert_allclose(on.translation_xz_m, off.translation_xz_m, rtol=0, atol=1e-9)
+    monkeypatch.setattr(icp_module, "_KERNELS", [])
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "1")
+    assert icp_module.compiled_kernels() is not None
+    # unset ("auto"): off until a run asks (the replay of a long recording does)
+    monkeypatch.delenv(icp_module.COMPILED_ENV)
+    monkeypatch.setattr(icp_module, "_AUTO", [False])
+    assert icp_module.compiled_kernels() is None
+    icp_module.use_compiled_by_default()
+    assert icp_module.compiled_kernels() is not None

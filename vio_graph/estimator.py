@@ -60,7 +60,9 @@ from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_p
 from vio_graph.filter.corner_landmarks import CornerLandmarks
 from vio_graph.filter.eskf import SagittalEskf
 from vio_graph.filter.fast_imu import (
+    Mat3,
     mat3_mul,
+    mat3_quat,
     pitch_offset_quat,
     remove_yaw_mat3,
     rot_y_mat3,
@@ -432,14 +434,26 @@ class OnlineEstimator:
     def _with_tracked_attitude(self, sample: ImuSample) -> ImuSample:
         """``sample`` carrying the tracked attitude at its time (filter/attitude.py, heading
         removed, level-surface pitch offset applied) instead of the vendor orientation."""
-        R = self._level_aided_attitude(sample.timestamp_s)
+        q = mat3_quat(self._level_aided_attitude_mat3(sample.timestamp_s))
+        return dataclasses.replace(sample, quat_wxyz=q)
+
+    def _with_tracked_attitude_reference(self, sample: ImuSample) -> ImuSample:
+        """numpy reference of :meth:`_with_tracked_attitude` (the tests compare the two)."""
+        R = remove_yaw(self.attitude.R_world_imu_at(sample.timestamp_s))
+        b = self.pitch_offset.offset_rad
+        R = rot_y(b) @ R if b != 0.0 else R
         return dataclasses.replace(sample, quat_wxyz=quat_wxyz_from_matrix(R))
+
+    def _level_aided_attitude_mat3(self, t_s: float) -> Mat3:
+        """Row-major tracked attitude at ``t_s``, heading removed, level-surface offset
+        applied (scalar closed forms)."""
+        G = remove_yaw_mat3(self.attitude.R_world_imu_at_mat3(t_s))
+        b = self.pitch_offset.offset_rad
+        return mat3_mul(rot_y_mat3(b), G) if b != 0.0 else G
 
     def _level_aided_attitude(self, t_s: float) -> NDArray[np.float64]:
         """(3, 3) tracked attitude at ``t_s``, heading removed, level-surface offset applied."""
-        G = remove_yaw_mat3(self.attitude.R_world_imu_at_mat3(t_s))  # scalar closed forms
-        b = self.pitch_offset.offset_rad
-        return np.array(mat3_mul(rot_y_mat3(b), G) if b != 0.0 else G).reshape(3, 3)
+        return np.array(self._level_aided_attitude_mat3(t_s)).reshape(3, 3)
 
     def R_world_imu(self, t_s: float | None = None) -> NDArray[np.float64]:
         """Attitude at ``t_s`` (default: the latest IMU sample) with the heading removed (the

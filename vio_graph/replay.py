@@ -22,6 +22,7 @@ from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
 from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
+from vio_graph.frontend.icp import AUTO_COMPILED_MIN_FRAMES, use_compiled_by_default
 from vio_graph.protocol import Estimator, FilterTrack, FrameRecord
 from vio_graph.recording.reader import Recording
 from vio_graph.types import Displacement2D
@@ -176,6 +177,8 @@ class Replay:
         self.rec = rec
         self.config = config
         self.modes = modes
+        if rec.num_frames >= AUTO_COMPILED_MIN_FRAMES:  # long enough to win numba's start back
+            use_compiled_by_default()
         self.rig = RigGeometry.from_metadata(rec.metadata)
         gt = rec.groundtruth
         p0 = None

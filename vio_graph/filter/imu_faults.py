@@ -48,15 +48,21 @@ import dataclasses
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from vio_graph.filter.config import ImuFaultConfig
+from vio_graph.filter.fast_imu import Mat3, mat3_rotvec, mat3_tmul, quat_matrix
 from vio_graph.filter.gating import chi2_quantile
 from vio_graph.geometry import matrix_from_quat_wxyz
 from vio_graph.types import ImuSample
 
 _HALF_NORMAL_MEAN = float(np.sqrt(2.0 / np.pi))  # mean of |N(0, 1)|
 _HALF_NORMAL_SD = float(np.sqrt(1.0 - 2.0 / np.pi))  # its standard deviation
+
+
+def _as_mat3(R: NDArray[np.float64]) -> Mat3:
+    """A (3, 3) array as a row-major tuple."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = np.asarray(R, dtype=float).ravel().tolist()
+    return (m0, m1, m2, m3, m4, m5, m6, m7, m8)
 
 
 class ImuFaultMonitor:
@@ -83,8 +89,8 @@ class ImuFaultMonitor:
             else (config.saturation_sigma_range * float(gyro_range_radps))
         )
         self._gyro_d2 = chi2_quantile(config.gyro_ahrs_probability, 3)
-        self._prev: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None
-        self._last_acc: NDArray[np.float64] | None = None  # last trusted specific force
+        self._prev: tuple[float, Mat3, tuple[float, float, float]] | None = None
+        self._last_acc: tuple[float, ...] | None = None  # last trusted specific force
         self._acc_run = 0  # consecutive samples with a saturated accelerometer axis
         self.n_accel_saturated = 0  #: samples with an accelerometer axis at the rail
         self.n_gyro_saturated = 0  #: samples with a gyro axis at the rail
@@ -92,7 +98,71 @@ class ImuFaultMonitor:
         self.max_gyro_d2 = 0.0  #: largest test statistic seen (diagnostics)
 
     def process(self, sample: ImuSample) -> ImuSample:
-        """The sample with its extra sigmas set (and its gyro replaced if it failed the test)."""
+        """The sample with its extra sigmas set (and its gyro replaced if it failed the test).
+
+        Scalar arithmetic on Python floats (a clean sample costs a few microseconds; the
+        numpy arrays are only built when the sample changes)."""
+        if not self.config.enabled:
+            return sample
+        acc_l = np.asarray(sample.accel_mps2, dtype=float).tolist()
+        gx, gy, gz = gyr_l = np.asarray(sample.gyro_radps, dtype=float).tolist()
+        acc: NDArray[np.float64] | None = None  # built only if the sample changes
+        xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
+        acc_sat = any(abs(v) >= self._acc_lim for v in acc_l)
+        gyr_sat = any(abs(v) >= self._gyr_lim for v in gyr_l)
+        self._acc_run = self._acc_run + 1 if acc_sat else 0
+        if acc_sat:
+            self.n_accel_saturated += 1
+            a = np.asarray(sample.accel_mps2, dtype=float)
+            rail = np.abs(a) >= self._acc_lim
+            acc = np.where(rail, a + np.sign(a) * self._acc_sig * _HALF_NORMAL_MEAN, a)
+            corr = np.sqrt(2.0 * self._acc_run - 1.0) if self.config.saturation_correlated else 1.0
+            xa = max(xa, self._acc_sig * _HALF_NORMAL_SD * corr)
+        if gyr_sat:
+            self.n_gyro_saturated += 1
+            xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
+        t = float(sample.timestamp_s)
+        R = quat_matrix(sample.quat_wxyz)  # row-major tuple (geometry.matrix_from_quat_wxyz)
+        repaired: tuple[float, float, float] | None = None
+        held = False  # accelerometer replaced by the last trusted one
+        if self.config.gyro_ahrs_test and self._prev is not None and t > self._prev[0]:
+            t0, R0, (g0x, g0y, g0z) = self._prev
+            h = t - t0
+            wx, wy, wz = self._relative_rotvec(R0, R)  # over h: the mean rate, IMU axes
+            px, py, pz = 2.0 * (wx / h) - g0x, 2.0 * (wy / h) - g0y, 2.0 * (wz / h) - g0z
+            rx, ry, rz = gx - px, gy - py, gz - pz
+            d2 = (rx * rx + ry * ry + rz * rz) / self.config.gyro_ahrs_sigma_radps**2
+            self.max_gyro_d2 = max(self.max_gyro_d2, d2) if not gyr_sat else self.max_gyro_d2
+            if d2 > self._gyro_d2:
+                self.n_gyro_repaired += 1
+                repaired = (px, py, pz)
+                xg = max(xg, self.config.gyro_ahrs_sigma_radps) if not gyr_sat else xg
+                if self._last_acc is not None and not acc_sat:
+                    # the packet is corrupt: hold the last trusted specific force
+                    acc = np.array(self._last_acc)
+                    xa = max(xa, self.config.held_accel_sigma_mps2)
+                    held = True
+        self._prev = (t, R, (gx, gy, gz) if repaired is None else repaired)
+        if repaired is None and not acc_sat:
+            self._last_acc = tuple(acc_l)
+        if (
+            repaired is None
+            and acc is None
+            and xa == sample.accel_extra_sigma_mps2
+            and xg == sample.gyro_extra_sigma_radps
+        ):
+            return sample
+        return dataclasses.replace(
+            sample,
+            accel_mps2=np.array(acc_l) if acc is None else acc,
+            gyro_radps=np.array(gyr_l if repaired is None else repaired),
+            accel_extra_sigma_mps2=xa,
+            gyro_extra_sigma_radps=xg,
+            accel_held=held or sample.accel_held,
+        )
+
+    def process_reference(self, sample: ImuSample) -> ImuSample:
+        """numpy reference of :meth:`process` (the tests compare the two)."""
         if not self.config.enabled:
             return sample
         acc = np.asarray(sample.accel_mps2, dtype=float)
@@ -116,8 +186,8 @@ class ImuFaultMonitor:
         held = False  # accelerometer replaced by the last trusted one
         if self.config.gyro_ahrs_test and self._prev is not None and t > self._prev[0]:
             t0, R0, g0 = self._prev
-            w = Rotation.from_matrix(R0.T @ R).as_rotvec() / (t - t0)  # mean rate, IMU axes
-            pred = 2.0 * w - g0
+            w = np.array(self._relative_rotvec_reference(R0, _as_mat3(R))) / (t - t0)
+            pred = 2.0 * w - np.asarray(g0)
             r = gyr - pred
             d2 = float(r @ r) / self.config.gyro_ahrs_sigma_radps**2
             self.max_gyro_d2 = max(self.max_gyro_d2, d2) if not gyr_sat else self.max_gyro_d2
@@ -126,13 +196,13 @@ class ImuFaultMonitor:
                 repaired = pred
                 xg = max(xg, self.config.gyro_ahrs_sigma_radps) if not gyr_sat else xg
                 if self._last_acc is not None and not acc_sat:
-                    # the packet is corrupt: hold the last trusted specific force
-                    acc = self._last_acc
+                    acc = np.array(self._last_acc)
                     xa = max(xa, self.config.held_accel_sigma_mps2)
                     held = True
-        self._prev = (t, R, repaired.copy())
+        gx, gy, gz = repaired.tolist()
+        self._prev = (t, _as_mat3(R), (gx, gy, gz))
         if repaired is gyr and not acc_sat:
-            self._last_acc = acc.copy()
+            self._last_acc = tuple(acc.tolist())
         if (
             repaired is gyr
             and xa == sample.accel_extra_sigma_mps2
@@ -147,6 +217,21 @@ class ImuFaultMonitor:
             gyro_extra_sigma_radps=xg,
             accel_held=held or sample.accel_held,
         )
+
+    @staticmethod
+    def _relative_rotvec(R0: Mat3, R: Mat3) -> tuple[float, float, float]:
+        """Rotation vector (rad) of R0^T R, scalar closed form (fast_imu); equals
+        :meth:`_relative_rotvec_reference` to rounding (tests/test_fast_imu.py)."""
+        return mat3_rotvec(mat3_tmul(R0, R))
+
+    @staticmethod
+    def _relative_rotvec_reference(R0: Mat3, R: Mat3) -> tuple[float, float, float]:
+        """numpy / scipy reference of :meth:`_relative_rotvec`."""
+        from scipy.spatial.transform import Rotation
+
+        R_rel = np.reshape(R0, (3, 3)).T @ np.reshape(R, (3, 3))
+        wx, wy, wz = Rotation.from_matrix(R_rel).as_rotvec().tolist()
+        return wx, wy, wz
 
     def report(self) -> dict[str, int]:
         return {

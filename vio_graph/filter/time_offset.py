@@ -61,6 +61,12 @@ class ClockModel:
         self.gap_periods = float(gap_periods)
         self.smooth = smooth
         self._pts: deque[tuple[int, float]] = deque(maxlen=self.window)
+        # the same stamps in a flat buffer for the fast fit: the newest line's stamps are
+        # _buf[_pos - _n:_pos], at consecutive k (a gap starts a new line)
+        self._buf = np.empty(2 * self.window)
+        self._pos = 0
+        self._n = 0
+        self._ar = np.arange(self.window, dtype=float)
         self._k = 0
         self._last_stamp: float | None = None
         self._last_out: float | None = None
@@ -88,6 +94,7 @@ class ClockModel:
                 if len(self.gaps) < _MAX_REPORTED:
                     self.gaps.append({"t_s": self._last_stamp, "duration_s": dt})
                 self._pts.clear()  # the clock may have jumped: a new line
+                self._n = 0
                 self._k += max(1, int(round(dt / self.period_s)))
             else:
                 # consecutive samples: counting periods from jittered stamps (or from the
@@ -96,6 +103,13 @@ class ClockModel:
                 self._k += 1
         self._last_stamp = t
         self._pts.append((self._k, t))
+        if self._pos == self._buf.size:  # keep the newest window - 1 stamps, at the front
+            keep = self.window - 1
+            self._buf[:keep] = self._buf[self._pos - keep : self._pos]
+            self._pos = keep
+        self._buf[self._pos] = t
+        self._pos += 1
+        self._n = min(self._n + 1, self.window)
         out = self._fit(t) if self.smooth else t
         if self._last_out is not None and out <= self._last_out:
             out = t if t > self._last_out else self._last_out + 0.5 * self.period_s
@@ -104,6 +118,24 @@ class ClockModel:
         return out
 
     def _fit(self, t: float) -> float:
+        """The clock line's value at the newest sample: :meth:`_fit_reference` with the line
+        fitted in closed form (the stamps sit at consecutive k, so the x sums are known);
+        equal to rounding (tests/test_fast_imu.py)."""
+        n = self._n
+        ts = self._buf[self._pos - n : self._pos]
+        if n >= _MIN_FIT:
+            # x = k - k_newest = -(n-1) .. 0: mean -(n-1)/2, sum of squared deviations
+            # n (n^2 - 1) / 12
+            half = 0.5 * (n - 1)
+            my = float(ts.mean())
+            sxy = float((self._ar[:n] - half) @ (ts - my))
+            icpt = my + (sxy / (n * (n * n - 1) / 12.0)) * half  # the line at the newest k
+        else:
+            icpt = float(np.mean(ts + self.period_s * (n - 1 - self._ar[:n])))
+        return t if abs(icpt - t) < _KEEP_TOL_S else float(icpt)
+
+    def _fit_reference(self, t: float) -> float:
+        """numpy reference of :meth:`_fit` (np.polyfit)."""
         k = np.array([p[0] for p in self._pts], dtype=float)
         ts = np.array([p[1] for p in self._pts])
         if k.size >= _MIN_FIT:

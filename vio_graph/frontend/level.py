@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from vio_graph.frontend.icp import compiled_kernels
+
 #: RANSAC hypotheses (pairs of points) per line search
 _N_HYPOTHESES = 48
 
@@ -51,7 +53,31 @@ def _best_line(
     inlier_m: float,
     rng: np.random.Generator,
 ) -> NDArray[np.bool_] | None:
-    """Inlier mask of the near-horizontal line with the most inliers (None if none)."""
+    """Inlier mask of the near-horizontal line with the most inliers (None if none).
+
+    The hypotheses are scored compiled (``compiled.best_line``, numba) when numba is installed:
+    the same draws and arithmetic as :func:`_best_line_reference`, the same mask."""
+    kernels = compiled_kernels()
+    if kernels is None:
+        return _best_line_reference(x, z, max_slope, inlier_m, rng)
+    n = x.shape[0]
+    i = rng.integers(0, n, _N_HYPOTHESES)
+    j = rng.integers(0, n, _N_HYPOTHESES)
+    xc, zc = np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(z, dtype=float)
+    a, s = kernels.best_line(xc, zc, i, j, max_slope, inlier_m)
+    if a < 0:
+        return None
+    return np.abs(zc - zc[a] - s * (xc - xc[a])) < inlier_m
+
+
+def _best_line_reference(
+    x: NDArray[np.float64],
+    z: NDArray[np.float64],
+    max_slope: float,
+    inlier_m: float,
+    rng: np.random.Generator,
+) -> NDArray[np.bool_] | None:
+    """numpy path of :func:`_best_line` (all hypotheses' residuals at once)."""
     n = x.shape[0]
     i = rng.integers(0, n, _N_HYPOTHESES)
     j = rng.integers(0, n, _N_HYPOTHESES)

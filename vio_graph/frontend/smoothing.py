@@ -17,6 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from vio_graph.frontend.icp import compiled_kernels
+
 #: above this many cells in the bounding box, grid_thin sorts the keys instead of counting
 #: into a dense array (memory bound: 4e6 cells = 3 arrays of 32 MB at most)
 _MAX_DENSE_CELLS = 4_000_000
@@ -31,7 +33,21 @@ def grid_thin(points_xz_m: NDArray[np.float64], cell_m: float) -> NDArray[np.flo
 
     Returns:
         (M, 2) centroids, M <= N, ordered by cell (x-major).
+
+    Compiled (``compiled.grid_thin``, numba) when numba is installed: the same sums in the
+    same order, so the same centroids bit for bit as :func:`grid_thin_reference`.
     """
+    pts = np.asarray(points_xz_m, dtype=float)
+    if cell_m <= 0 or pts.shape[0] == 0:
+        return pts.copy()
+    kernels = compiled_kernels()
+    if kernels is not None and pts.ndim == 2 and pts.shape[1] == 2:
+        return kernels.grid_thin(np.ascontiguousarray(pts), float(cell_m), _MAX_DENSE_CELLS)
+    return grid_thin_reference(pts, cell_m)
+
+
+def grid_thin_reference(points_xz_m: NDArray[np.float64], cell_m: float) -> NDArray[np.float64]:
+    """numpy path of :func:`grid_thin` (bincounts over the occupied cells)."""
     pts = np.asarray(points_xz_m, dtype=float)
     if cell_m <= 0 or pts.shape[0] == 0:
         return pts.copy()
@@ -75,7 +91,27 @@ def knn_smooth(
 
     Returns:
         (N, 2) smoothed points in the input order.
+
+    Compiled (``compiled.knn_smooth``, numba) when numba is installed and no tree is given:
+    the same neighbours summed in the same order (equal to :func:`knn_smooth_reference` to
+    rounding; a tie at the k-th neighbour runs the numpy path).
     """
+    pts = np.asarray(points_xz_m, dtype=float)
+    k = min(int(k), pts.shape[0])
+    if k <= 1:
+        return pts.copy()
+    kernels = compiled_kernels() if tree is None else None
+    if kernels is not None and pts.ndim == 2 and pts.shape[1] == 2:
+        out, status = kernels.knn_smooth(np.ascontiguousarray(pts), k)
+        if status == 0:
+            return out
+    return knn_smooth_reference(pts, k, tree)
+
+
+def knn_smooth_reference(
+    points_xz_m: NDArray[np.float64], k: int, tree: cKDTree | None = None
+) -> NDArray[np.float64]:
+    """numpy path of :func:`knn_smooth` (one KD-tree query)."""
     pts = np.asarray(points_xz_m, dtype=float)
     k = min(int(k), pts.shape[0])
     if k <= 1:

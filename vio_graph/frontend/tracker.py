@@ -65,7 +65,7 @@ from scipy.spatial import cKDTree
 
 from vio_graph.frontend.config import IcpConfig, TrackerConfig
 from vio_graph.frontend.corners import CornerFeature
-from vio_graph.frontend.icp import IcpResult, icp_translation_2d
+from vio_graph.frontend.icp import IcpResult, compiled_kernels, icp_translation_2d
 from vio_graph.frontend.smoothing import grid_thin
 from vio_graph.geometry import rot_y_xz
 from vio_graph.types import CornerObservation, Displacement2D
@@ -198,14 +198,15 @@ class CornerTracker:
 
     def _source(
         self, prev: _Frame, target: NDArray[np.float64], T0: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], cKDTree]:
+    ) -> tuple[NDArray[np.float64], cKDTree | None]:
         """ICP source: previous features, or the part of the previous profile that the target
         (moved back by T0) can reach: its bounding box grown by the correspondence distance
-        plus ``source_margin_m``. Cropping keeps the KD-tree small (tens of points)."""
+        plus ``source_margin_m``. Cropping keeps the KD-tree small (tens of points). The tree
+        is None when the compiled ICP runs (it needs none; its numpy fallback builds one)."""
         if self._cfg.icp_target == "features":
             assert prev.corner is not None
             pts = prev.corner.feature_points_xz_m
-            return pts, cKDTree(pts)
+            return pts, _source_tree(pts)
         moved = target - T0
         grow = self._icp_cfg.max_correspondence_m + self._cfg.source_margin_m
         mx, mz = moved[:, 0], moved[:, 1]
@@ -216,7 +217,7 @@ class CornerTracker:
         pts = prof[inside]
         if pts.shape[0] == 0:
             pts = prof[:1]  # ICP will find no correspondences and say so
-        return pts, cKDTree(pts)
+        return pts, _source_tree(pts)
 
     def _associate(
         self,
@@ -422,3 +423,8 @@ class CornerTracker:
         track_id = self._new_id()
         obs = CornerObservation(t, track_id, corner.edge_xz_m.copy(), self._edge_cov(corner))
         return TrackerOutput(None, obs, icp, reason, track_id, False)
+
+
+def _source_tree(pts: NDArray[np.float64]) -> cKDTree | None:
+    """KD-tree of the ICP source for the numpy ICP path; None when the compiled one runs."""
+    return None if compiled_kernels() is not None else cKDTree(pts)

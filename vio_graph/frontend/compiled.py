@@ -1,0 +1,464 @@
+"""Compiled ICP iterations (numba): the loop of :func:`vio_graph.frontend.icp.icp_translation_2d`
+in one call, without numpy's per-call overhead on a few hundred points.
+
+Same algorithm and arithmetic as the numpy path (``icp._icp_numpy``, the tested reference):
+
+- nearest source point of each target point moved back by T (eq. 3), squared distances as
+  the KD-tree computes them, ``(x - x')^2 + (z - z')^2``; a pair counts when that is below
+  ``max_correspondence_m^2``. The source is sorted by x once and each query scans only the x
+  window ``|x - x'| < max_correspondence_m`` (the others cannot be within range);
+- the trimmed ICP, the point-to-line step and its eigen-decomposition, and the source normals
+  (PCA of the ``normal_neighbours`` nearest source points, summed over the neighbours in
+  distance order like ``icp._source_normals``).
+
+Where the two could pick different points -- two distinct source points at exactly the same
+distance from a target point, a distinct point tied with the k-th neighbour of a normal, or
+two distinct pairs tied at the trimming cut -- the kernel stops and says so (status > 0), and
+the caller runs the numpy path instead. Points within ``_SAME_M`` of each other count as one
+(kNN smoothing leaves near duplicates a rounding step apart). Otherwise the answers agree to
+rounding (tests/test_frontend_fastpaths.py, 1e-9 m).
+
+numba is imported only here, and only when the first ICP runs (``cache=True``: compiled once
+per machine, then loaded from ``__pycache__``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_OK = 0
+_TIE = 1  # a distinct source point as near as the matched one
+_TIE_TRIM = 2  # distinct pairs at the same distance across the trimming cut
+_TIE_NORMAL = 3  # a distinct point as near as a normal's k-th neighbour
+#: points closer than this (m, per axis) count as the same point: kNN smoothing leaves near
+#: duplicates one rounding step apart, and either gives the same answer to ~1e-18 m
+_SAME_M = 1e-12
+
+
+@numba.njit(cache=True)
+def _same(ax, az, bx, bz):  # pragma: no cover - compiled
+    return abs(ax - bx) <= _SAME_M and abs(az - bz) <= _SAME_M
+
+
+@numba.njit(cache=True)
+def _eig_sym2(a, b, c):  # pragma: no cover - compiled
+    half_trace = 0.5 * (a + c)
+    radius = math.hypot(0.5 * (a - c), b)
+    theta = 0.5 * math.atan2(2.0 * b, a - c)
+    cos_t, sin_t = math.cos(theta), math.sin(theta)
+    return half_trace - radius, half_trace + radius, -sin_t, cos_t, cos_t, sin_t
+
+
+@numba.njit(cache=True)
+def _normal(src, order, sxs, pos, k):  # pragma: no cover - compiled
+    """Unit normal at source point ``order[pos]`` from its k nearest source points (itself
+    included), scanning outwards in x from it (``sxs`` = source x sorted, ``order`` the
+    sort); returns (nx, nz, tie)."""
+    n = src.shape[0]
+    i = order[pos]
+    px, pz = src[i, 0], src[i, 1]
+    kk = min(k + 1, n)  # one more than needed: a tie at the k-th place is detected
+    kn = min(k, n)
+    best_d = np.full(kk, np.inf)
+    best_i = np.full(kk, -1, np.int64)
+    lo = pos  # next candidates: lo - 1 on the left, hi on the right
+    hi = pos
+    while True:
+        dl = px - sxs[lo - 1] if lo > 0 else np.inf
+        dr = sxs[hi] - px if hi < n else np.inf
+        if dl <= dr:
+            if dl * dl > best_d[kk - 1]:
+                break  # every point left is farther in x alone than the (k+1)-th
+            lo -= 1
+            m = order[lo]
+        else:
+            if dr * dr > best_d[kk - 1]:
+                break
+            m = order[hi]
+            hi += 1
+        dx = src[m, 0] - px
+        dz = src[m, 1] - pz
+        d2 = dx * dx + dz * dz
+        if d2 < best_d[kk - 1]:
+            q = kk - 1
+            while q > 0 and best_d[q - 1] > d2:
+                best_d[q] = best_d[q - 1]
+                best_i[q] = best_i[q - 1]
+                q -= 1
+            best_d[q] = d2
+            best_i[q] = m
+    tie = False
+    if kk > kn:
+        # a distinct point at the k-th distance outside the chosen k: the KD-tree may pick it
+        # (every point at that distance lies in the scanned range [lo, hi))
+        dk = best_d[kn - 1]
+        for r in range(lo, hi):
+            m = order[r]
+            dx = src[m, 0] - px
+            dz = src[m, 1] - pz
+            if dx * dx + dz * dz == dk:
+                inside = False
+                same = False
+                for t in range(kn):
+                    b = best_i[t]
+                    if b == m:
+                        inside = True
+                    elif best_d[t] == dk and _same(src[b, 0], src[b, 1], src[m, 0], src[m, 1]):
+                        same = True
+                if not inside and not same:
+                    tie = True
+    sx = 0.0
+    sz = 0.0
+    for r in range(kn):
+        sx += src[best_i[r], 0]
+        sz += src[best_i[r], 1]
+    mx = sx / kn
+    mz = sz / kn
+    sxx = 0.0
+    szz = 0.0
+    sxz = 0.0
+    for r in range(kn):
+        dx = src[best_i[r], 0] - mx
+        dz = src[best_i[r], 1] - mz
+        sxx += dx * dx
+        szz += dz * dz
+        sxz += dx * dz
+    sxx /= kn
+    szz /= kn
+    sxz /= kn
+    theta = 0.5 * math.atan2(2.0 * sxz, sxx - szz)
+    return -math.sin(theta), math.cos(theta), tie
+
+
+@numba.njit(cache=True)
+def icp_loop(
+    src,
+    tgt,
+    t0x,
+    t0z,
+    max_iterations,
+    convergence_m,
+    max_correspondence_m,
+    trim_fraction,
+    normal_neighbours,
+    point_to_line,
+    degenerate_ratio,
+):  # pragma: no cover - compiled
+    """The ICP iterations. Returns (Tx, Tz, iterations, converged, keep, j, normals, status):
+    ``keep`` the kept target indices of the last iteration (in the numpy path's order), ``j``
+    (Nt,) matched source index per target (n_src: none), ``normals`` (Ns, 2) source normals
+    (NaN where not computed), status 0 = fine, else a tie (``_TIE*``: run the numpy path)."""
+    ns = src.shape[0]
+    nt = tgt.shape[0]
+    order = np.argsort(src[:, 0], kind="mergesort")
+    sxs = src[order, 0].copy()
+    rank = np.empty(ns, np.int64)  # position of each source point in the x order
+    for r in range(ns):
+        rank[order[r]] = r
+    max2 = max_correspondence_m * max_correspondence_m
+    normals = np.full((ns, 2), np.nan)
+    have = np.zeros(ns, np.bool_)
+    j = np.full(nt, ns, np.int64)
+    dist = np.full(nt, np.inf)
+    keep = np.zeros(0, np.int64)
+    tx, tz = t0x, t0z
+    converged = False
+    iterations = 0
+    window = max_correspondence_m * (1.0 + 1e-9) + 1e-12  # |x - x'| beyond: out of range
+    for it in range(1, max_iterations + 1):
+        iterations = it
+        # eq. 3: nearest source point of every target point moved back by T
+        n_found = 0
+        for i in range(nt):
+            qx = tgt[i, 0] - tx
+            qz = tgt[i, 1] - tz
+            lo = np.searchsorted(sxs, qx - window, side="left")
+            hi = np.searchsorted(sxs, qx + window, side="right")
+            best2 = np.inf
+            bi = ns
+            tie = False
+            for r in range(lo, hi):
+                m = order[r]
+                dx = qx - src[m, 0]
+                dz = qz - src[m, 1]
+                d2 = dx * dx + dz * dz
+                if d2 < best2:
+                    best2 = d2
+                    bi = m
+                    tie = False
+                elif d2 == best2 and not _same(src[m, 0], src[m, 1], src[bi, 0], src[bi, 1]):
+                    tie = True
+            if best2 < max2:
+                if tie:
+                    return tx, tz, iterations, converged, keep, j, normals, _TIE
+                j[i] = bi
+                dist[i] = math.sqrt(best2)
+                n_found += 1
+            else:
+                j[i] = ns
+                dist[i] = np.inf
+        if n_found == 0:
+            keep = np.zeros(0, np.int64)
+            break
+        keep = np.empty(n_found, np.int64)
+        c = 0
+        for i in range(nt):
+            if dist[i] < np.inf:
+                keep[c] = i
+                c += 1
+        if trim_fraction > 0 and n_found >= 4:
+            n_keep = max(3, math.ceil((1.0 - trim_fraction) * n_found))
+            dk = dist[keep]
+            srt = np.argsort(dk, kind="mergesort")
+            if n_keep < n_found and dk[srt[n_keep - 1]] == dk[srt[n_keep]]:
+                # equal distances across the cut: which pairs stay must not depend on the sort,
+                # so every pair at that distance must be the same pair (duplicates)
+                a = keep[srt[n_keep - 1]]
+                for c in range(n_found):
+                    b = keep[c]
+                    if dist[b] == dk[srt[n_keep]] and not (
+                        _same(tgt[a, 0], tgt[a, 1], tgt[b, 0], tgt[b, 1])
+                        and _same(src[j[a], 0], src[j[a], 1], src[j[b], 0], src[j[b], 1])
+                    ):
+                        return tx, tz, iterations, converged, keep, j, normals, _TIE_TRIM
+            keep = keep[srt[:n_keep]]
+        nk = keep.size
+        if not point_to_line:
+            # eq. 4: the mean residual
+            rx = 0.0
+            rz = 0.0
+            for c in range(nk):
+                i = keep[c]
+                rx += (tgt[i, 0] - tx) - src[j[i], 0]
+                rz += (tgt[i, 1] - tz) - src[j[i], 1]
+            dtx = rx / nk
+            dtz = rz / nk
+        else:
+            a = 0.0
+            b = 0.0
+            cc = 0.0
+            gx = 0.0
+            gz = 0.0
+            for c in range(nk):
+                i = keep[c]
+                m = j[i]
+                if not have[m]:
+                    nx, nz, ntie = _normal(src, order, sxs, rank[m], normal_neighbours)
+                    if ntie:
+                        return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
+                    normals[m, 0] = nx
+                    normals[m, 1] = nz
+                    have[m] = True
+                nx = normals[m, 0]
+                nz = normals[m, 1]
+                rx = (tgt[i, 0] - tx) - src[m, 0]
+                rz = (tgt[i, 1] - tz) - src[m, 1]
+                r_n = nx * rx + nz * rz
+                a += nx * nx
+                b += nx * nz
+                cc += nz * nz
+                gx += nx * r_n
+                gz += nz * r_n
+            w0, w1, v0x, v0z, v1x, v1z = _eig_sym2(a, b, cc)
+            floor = max(degenerate_ratio * w1, 1e-9)
+            dtx = 0.0
+            dtz = 0.0
+            if w0 > floor:
+                step = (v0x * gx + v0z * gz) / w0
+                dtx += v0x * step
+                dtz += v0z * step
+            if w1 > floor:
+                step = (v1x * gx + v1z * gz) / w1
+                dtx += v1x * step
+                dtz += v1z * step
+        tx = tx + dtx
+        tz = tz + dtz
+        if math.hypot(dtx, dtz) <= convergence_m:
+            converged = True
+            break
+    # the normals the covariance needs (the numpy path computes them for the kept pairs)
+    for c in range(keep.size):
+        m = j[keep[c]]
+        if not have[m]:
+            nx, nz, ntie = _normal(src, order, sxs, rank[m], normal_neighbours)
+            if ntie:
+                return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
+            normals[m, 0] = nx
+            normals[m, 1] = nz
+            have[m] = True
+    return tx, tz, iterations, converged, keep, j, normals, _OK
+
+
+# ----------------------------------------------------------------------------- smoothing
+
+
+@numba.njit(cache=True)
+def grid_thin(pts, cell_m, max_dense_cells):  # pragma: no cover - compiled
+    """``smoothing.grid_thin_reference`` (N > 0, cell_m > 0): centroids of the occupied cells
+    in ascending cell key, each cell summed in input order (as np.bincount does)."""
+    n = pts.shape[0]
+    ix = np.empty(n, np.int64)
+    iz = np.empty(n, np.int64)
+    for i in range(n):
+        ix[i] = np.int64(math.floor(pts[i, 0] / cell_m))
+        iz[i] = np.int64(math.floor(pts[i, 1] / cell_m))
+    ix -= ix.min()
+    iz -= iz.min()
+    n_z = iz.max() + 1
+    key = ix * n_z + iz
+    n_cells = (ix.max() + 1) * n_z
+    if n_cells > max_dense_cells:  # sparse over a huge extent: sort the keys instead
+        order = np.argsort(key, kind="mergesort")  # stable: input order within a cell
+        out = np.empty((n, 2))
+        m = -1
+        prev = -1
+        count = 0
+        sx = 0.0
+        sz = 0.0
+        for r in range(n):
+            i = order[r]
+            if key[i] != prev:
+                if m >= 0:
+                    out[m, 0] = sx / count
+                    out[m, 1] = sz / count
+                m += 1
+                prev = key[i]
+                count = 0
+                sx = 0.0
+                sz = 0.0
+            count += 1
+            sx += pts[i, 0]
+            sz += pts[i, 1]
+        out[m, 0] = sx / count
+        out[m, 1] = sz / count
+        return out[: m + 1].copy()
+    # dense keys: number the occupied cells in ascending key, then sum in input order
+    number = np.full(n_cells, -1, np.int64)
+    for i in range(n):
+        number[key[i]] = 0
+    m = 0
+    for c in range(n_cells):
+        if number[c] == 0:
+            number[c] = m
+            m += 1
+    sums = np.zeros((m, 2))
+    counts = np.zeros(m, np.int64)
+    for i in range(n):
+        c = number[key[i]]
+        sums[c, 0] += pts[i, 0]
+        sums[c, 1] += pts[i, 1]
+        counts[c] += 1
+    for c in range(m):
+        sums[c, 0] /= counts[c]
+        sums[c, 1] /= counts[c]
+    return sums
+
+
+@numba.njit(cache=True)
+def knn_smooth(pts, k):  # pragma: no cover - compiled
+    """``smoothing.knn_smooth_reference`` (2 <= k <= N): every point replaced by the mean of
+    its k nearest points (itself included), summed in distance order. Returns (out, status):
+    status 1 when a distinct point ties with a k-th neighbour (the KD-tree's pick decides:
+    run the numpy path)."""
+    n = pts.shape[0]
+    order = np.argsort(pts[:, 0], kind="mergesort")
+    sxs = pts[order, 0].copy()
+    rank = np.empty(n, np.int64)
+    for r in range(n):
+        rank[order[r]] = r
+    out = np.empty((n, 2))
+    kk = min(k + 1, n)
+    best_d = np.empty(kk)
+    best_i = np.empty(kk, np.int64)
+    for i in range(n):
+        px, pz = pts[i, 0], pts[i, 1]
+        best_d[:] = np.inf
+        best_i[:] = -1
+        lo = rank[i]
+        hi = rank[i]
+        while True:
+            dl = px - sxs[lo - 1] if lo > 0 else np.inf
+            dr = sxs[hi] - px if hi < n else np.inf
+            if dl <= dr:
+                if dl * dl > best_d[kk - 1]:
+                    break
+                lo -= 1
+                m = order[lo]
+            else:
+                if dr * dr > best_d[kk - 1]:
+                    break
+                m = order[hi]
+                hi += 1
+            dx = pts[m, 0] - px
+            dz = pts[m, 1] - pz
+            d2 = dx * dx + dz * dz
+            if d2 < best_d[kk - 1]:
+                q = kk - 1
+                while q > 0 and best_d[q - 1] > d2:
+                    best_d[q] = best_d[q - 1]
+                    best_i[q] = best_i[q - 1]
+                    q -= 1
+                best_d[q] = d2
+                best_i[q] = m
+        if kk > k and best_d[k] == best_d[k - 1]:
+            # a point at the k-th distance outside the chosen k (all such points were scanned)
+            dk = best_d[k - 1]
+            for r in range(lo, hi):
+                m = order[r]
+                dx = pts[m, 0] - px
+                dz = pts[m, 1] - pz
+                if dx * dx + dz * dz == dk:
+                    inside = False
+                    same = False
+                    for t in range(k):
+                        b = best_i[t]
+                        if b == m:
+                            inside = True
+                        elif best_d[t] == dk and _same(pts[b, 0], pts[b, 1], pts[m, 0], pts[m, 1]):
+                            same = True
+                    if not inside and not same:
+                        return out, _TIE
+        sx = pts[best_i[0], 0]
+        sz = pts[best_i[0], 1]
+        for t in range(1, k):
+            sx = sx + pts[best_i[t], 0]
+            sz = sz + pts[best_i[t], 1]
+        out[i, 0] = sx / k
+        out[i, 1] = sz / k
+    return out, _OK
+
+
+# ----------------------------------------------------------------------------- level surfaces
+
+
+@numba.njit(cache=True)
+def best_line(x, z, i, j, max_slope, inlier_m):  # pragma: no cover - compiled
+    """``level._best_line_reference`` after its random draws ``i``, ``j``: the hypothesis
+    through points i[h], j[h] (near-horizontal, > 3 cm apart in x) with the most points
+    within ``inlier_m`` vertically, the first of equals. Returns (i[h], slope), or (-1, 0.0)
+    when no hypothesis qualifies."""
+    n = x.shape[0]
+    best_count = -1
+    best_a = -1
+    best_s = 0.0
+    for h in range(i.shape[0]):
+        a = i[h]
+        b = j[h]
+        dx = x[b] - x[a]
+        if not abs(dx) > 0.03:
+            continue
+        s = (z[b] - z[a]) / dx
+        if not abs(s) <= max_slope:
+            continue
+        c = 0
+        for k in range(n):
+            if abs(z[k] - z[a] - s * (x[k] - x[a])) < inlier_m:
+                c += 1
+        if c > best_count:
+            best_count = c
+            best_a = a
+            best_s = s
+    return best_a, best_s

@@ -47,6 +47,17 @@ def test_a_pinned_filter_is_reported_with_a_cause() -> None:
     assert "imu_T_cam" in m2.report(pitch_offset_deg=8.0)["warnings"][0]
 
 
+def test_level_surfaces_far_from_the_imu_gravity_warn_on_their_own() -> None:
+    """Vision accepted, no departure: a level-surface correction of 8 deg still warns (a
+    mounting error); 2.3 deg, the largest seen on correctly mounted simulated trials, does not."""
+    m = HealthMonitor()
+    _feed(m, 0.01, accept=True)
+    assert not m.report(pitch_offset_deg=2.3)["warnings"]
+    rep = m.report(pitch_offset_deg=-8.0)
+    assert not rep["ok"] and len(rep["warnings"]) == 1
+    assert "imu_T_cam" in rep["warnings"][0]
+
+
 @pytest.mark.slow
 def test_run_warns_on_a_recording_whose_imu_mount_is_misdeclared(
     short_upstair: Path, tmp_path: Path

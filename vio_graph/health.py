@@ -38,6 +38,10 @@ class HealthLimits:
     max_departure_share: float = 0.1  #: warn above this share of windows failing the test
     max_stance_share: float = 0.8  #: stance on more frames than this is suspicious
     max_pitch_offset_deg: float = 3.0  #: level surfaces disagree with the IMU by more
+    #: the level surfaces disagree with the IMU's gravity by more than this on their own: a
+    #: mounting error, whatever the refusals say (a vendor orientation is ~1 deg off, and the
+    #: correction stayed within 2.3 deg on every simulated trial with a correct mount)
+    max_pitch_offset_alone_deg: float = 5.0
     #: one window this far off is a jump, whatever the share (chi-square p = 1 - 1e-6: a
     #: healthy filter reaches it once in a million windows)
     jump_probability: float = 1.0 - 1e-6
@@ -164,7 +168,12 @@ class HealthMonitor:
         stance = _share(self.n_stance, self.n_frames)
         warnings: list[str] = []
         jump = self.max_departure_d2 > self._jump_d2
-        trouble = rejected > lim.max_rejected_share or departure > lim.max_departure_share or jump
+        trouble = (
+            rejected > lim.max_rejected_share
+            or departure > lim.max_departure_share
+            or jump
+            or abs(pitch_offset_deg) > lim.max_pitch_offset_alone_deg
+        )
         if trouble:
             what = (
                 f"{100 * rejected:.0f} % of visual displacements were refused by the "

@@ -53,17 +53,14 @@ def _eig_sym2(a, b, c):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _normal(src, order, sxs, pos, k):  # pragma: no cover - compiled
-    """Unit normal at source point ``order[pos]`` from its k nearest source points (itself
-    included), scanning outwards in x from it (``sxs`` = source x sorted, ``order`` the
-    sort); returns (nx, nz, tie)."""
-    n = src.shape[0]
-    i = order[pos]
-    px, pz = src[i, 0], src[i, 1]
-    kk = min(k + 1, n)  # one more than needed: a tie at the k-th place is detected
-    kn = min(k, n)
-    best_d = np.full(kk, np.inf)
-    best_i = np.full(kk, -1, np.int64)
+def _scan_nearest(pts, order, sxs, px, pz, pos, best_d, best_i):  # pragma: no cover - compiled
+    """Fill ``best_d`` / ``best_i`` (squared distances, indices; preset to inf / -1) with the
+    len(best_d) points of ``pts`` nearest to (px, pz), in distance order, scanning outwards
+    in x from sorted position ``pos`` (``sxs`` = x sorted, ``order`` the sort) and stopping
+    when every point left is farther in x alone than the last kept one. Returns the scanned
+    sorted range [lo, hi)."""
+    n = pts.shape[0]
+    kk = best_d.shape[0]
     lo = pos  # next candidates: lo - 1 on the left, hi on the right
     hi = pos
     while True:
@@ -79,8 +76,8 @@ def _normal(src, order, sxs, pos, k):  # pragma: no cover - compiled
                 break
             m = order[hi]
             hi += 1
-        dx = src[m, 0] - px
-        dz = src[m, 1] - pz
+        dx = pts[m, 0] - px
+        dz = pts[m, 1] - pz
         d2 = dx * dx + dz * dz
         if d2 < best_d[kk - 1]:
             q = kk - 1
@@ -90,6 +87,22 @@ def _normal(src, order, sxs, pos, k):  # pragma: no cover - compiled
                 q -= 1
             best_d[q] = d2
             best_i[q] = m
+    return lo, hi
+
+
+@numba.njit(cache=True)
+def _normal(src, order, sxs, pos, k):  # pragma: no cover - compiled
+    """Unit normal at source point ``order[pos]`` from its k nearest source points (itself
+    included), scanning outwards in x from it (``sxs`` = source x sorted, ``order`` the
+    sort); returns (nx, nz, tie)."""
+    n = src.shape[0]
+    i = order[pos]
+    px, pz = src[i, 0], src[i, 1]
+    kk = min(k + 1, n)  # one more than needed: a tie at the k-th place is detected
+    kn = min(k, n)
+    best_d = np.full(kk, np.inf)
+    best_i = np.full(kk, -1, np.int64)
+    lo, hi = _scan_nearest(src, order, sxs, px, pz, pos, best_d, best_i)
     tie = False
     if kk > kn:
         # a distinct point at the k-th distance outside the chosen k: the KD-tree may pick it
@@ -377,32 +390,7 @@ def knn_smooth(pts, k):  # pragma: no cover - compiled
         px, pz = pts[i, 0], pts[i, 1]
         best_d[:] = np.inf
         best_i[:] = -1
-        lo = rank[i]
-        hi = rank[i]
-        while True:
-            dl = px - sxs[lo - 1] if lo > 0 else np.inf
-            dr = sxs[hi] - px if hi < n else np.inf
-            if dl <= dr:
-                if dl * dl > best_d[kk - 1]:
-                    break
-                lo -= 1
-                m = order[lo]
-            else:
-                if dr * dr > best_d[kk - 1]:
-                    break
-                m = order[hi]
-                hi += 1
-            dx = pts[m, 0] - px
-            dz = pts[m, 1] - pz
-            d2 = dx * dx + dz * dz
-            if d2 < best_d[kk - 1]:
-                q = kk - 1
-                while q > 0 and best_d[q - 1] > d2:
-                    best_d[q] = best_d[q - 1]
-                    best_i[q] = best_i[q - 1]
-                    q -= 1
-                best_d[q] = d2
-                best_i[q] = m
+        lo, hi = _scan_nearest(pts, order, sxs, px, pz, rank[i], best_d, best_i)
         if kk > k and best_d[k] == best_d[k - 1]:
             # a point at the k-th distance outside the chosen k (all such points were scanned)
             dk = best_d[k - 1]

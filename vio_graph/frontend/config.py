@@ -29,6 +29,19 @@ class ProjectionConfig(_Strict):
     min_confidence: int = Field(
         1, ge=1, le=255, description="ignore pixels whose confidence is below this (0 = invalid)"
     )
+    speckle_min_agree: int = Field(
+        0,
+        ge=0,
+        le=8,
+        description="drop a depth pixel unless at least this many of its 8 neighbours agree "
+        "with it (speckle_rel_tol, speckle_abs_tol_m); 0 = off",
+    )
+    speckle_rel_tol: float = Field(
+        0.03, ge=0, description="speckle test: neighbours agree within this share of the depth"
+    )
+    speckle_abs_tol_m: float = Field(
+        0.01, ge=0, description="speckle test: plus this absolute tolerance, m"
+    )
 
 
 class SmoothingConfig(_Strict):

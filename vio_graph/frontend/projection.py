@@ -249,3 +249,36 @@ def _sagittal_slice_reference(
     points_cam = np.column_stack([z * x_per_m[cols + c0], z * ((rows - cy) / fy), z])
     R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
     return points_cam @ R_xz.T  # eq. 2
+
+
+def drop_speckles(
+    depth_m: NDArray[np.floating],
+    confidence: NDArray[np.uint8],
+    rel_tol: float,
+    abs_tol_m: float,
+    min_agree: int,
+) -> NDArray[np.uint8]:
+    """Confidence with isolated depth pixels set to 0 (invalid).
+
+    A pixel is kept when at least ``min_agree`` of its 8 neighbours are valid and within
+    ``abs_tol_m`` + ``rel_tol`` x depth of it. A surface is continuous in the image, so its
+    pixels agree with several neighbours, even on either side of a depth edge; a spurious
+    return (multipath, a glitch) lands at a random range and agrees with none. The same idea
+    as a ToF driver's flying-pixel or speckle filter, applied in the image before the slice
+    (in the sagittal slice the spurious points near the camera are as dense as a surface)."""
+    d = np.asarray(depth_m, dtype=np.float32)
+    valid = (np.asarray(confidence) > 0) & np.isfinite(d) & (d > 0)
+    h, w = d.shape
+    pad = np.zeros((h + 2, w + 2), dtype=np.float32)
+    pad[1:-1, 1:-1] = np.where(valid, d, 0.0)
+    tol = abs_tol_m + rel_tol * d
+    agree = np.zeros((h, w), dtype=np.int8)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy == 0 and dx == 0:
+                continue
+            nb = pad[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+            agree += ((nb > 0) & (np.abs(nb - d) <= tol)).astype(np.int8)
+    out = np.array(confidence, copy=True)
+    out[valid & (agree < min_agree)] = 0
+    return out

@@ -91,6 +91,30 @@ def _scan_nearest(pts, order, sxs, px, pz, pos, best_d, best_i):  # pragma: no c
 
 
 @numba.njit(cache=True)
+def _tie_outside(pts, order, lo, hi, px, pz, best_d, best_i, k):  # pragma: no cover - compiled
+    """True if a point distinct from the chosen k nearest (``best_i[:k]``) lies at the k-th
+    distance: the KD-tree of the numpy path may pick it instead. Every point at that
+    distance lies in the scanned sorted range [lo, hi) (:func:`_scan_nearest`)."""
+    dk = best_d[k - 1]
+    for r in range(lo, hi):
+        m = order[r]
+        dx = pts[m, 0] - px
+        dz = pts[m, 1] - pz
+        if dx * dx + dz * dz == dk:
+            inside = False
+            same = False
+            for t in range(k):
+                b = best_i[t]
+                if b == m:
+                    inside = True
+                elif best_d[t] == dk and _same(pts[b, 0], pts[b, 1], pts[m, 0], pts[m, 1]):
+                    same = True
+            if not inside and not same:
+                return True
+    return False
+
+
+@numba.njit(cache=True)
 def _normal(src, order, sxs, pos, k):  # pragma: no cover - compiled
     """Unit normal at source point ``order[pos]`` from its k nearest source points (itself
     included), scanning outwards in x from it (``sxs`` = source x sorted, ``order`` the
@@ -103,26 +127,7 @@ def _normal(src, order, sxs, pos, k):  # pragma: no cover - compiled
     best_d = np.full(kk, np.inf)
     best_i = np.full(kk, -1, np.int64)
     lo, hi = _scan_nearest(src, order, sxs, px, pz, pos, best_d, best_i)
-    tie = False
-    if kk > kn:
-        # a distinct point at the k-th distance outside the chosen k: the KD-tree may pick it
-        # (every point at that distance lies in the scanned range [lo, hi))
-        dk = best_d[kn - 1]
-        for r in range(lo, hi):
-            m = order[r]
-            dx = src[m, 0] - px
-            dz = src[m, 1] - pz
-            if dx * dx + dz * dz == dk:
-                inside = False
-                same = False
-                for t in range(kn):
-                    b = best_i[t]
-                    if b == m:
-                        inside = True
-                    elif best_d[t] == dk and _same(src[b, 0], src[b, 1], src[m, 0], src[m, 1]):
-                        same = True
-                if not inside and not same:
-                    tie = True
+    tie = kk > kn and _tie_outside(src, order, lo, hi, px, pz, best_d, best_i, kn)
     sx = 0.0
     sz = 0.0
     for r in range(kn):
@@ -391,24 +396,12 @@ def knn_smooth(pts, k):  # pragma: no cover - compiled
         best_d[:] = np.inf
         best_i[:] = -1
         lo, hi = _scan_nearest(pts, order, sxs, px, pz, rank[i], best_d, best_i)
-        if kk > k and best_d[k] == best_d[k - 1]:
-            # a point at the k-th distance outside the chosen k (all such points were scanned)
-            dk = best_d[k - 1]
-            for r in range(lo, hi):
-                m = order[r]
-                dx = pts[m, 0] - px
-                dz = pts[m, 1] - pz
-                if dx * dx + dz * dz == dk:
-                    inside = False
-                    same = False
-                    for t in range(k):
-                        b = best_i[t]
-                        if b == m:
-                            inside = True
-                        elif best_d[t] == dk and _same(pts[b, 0], pts[b, 1], pts[m, 0], pts[m, 1]):
-                            same = True
-                    if not inside and not same:
-                        return out, _TIE
+        if (
+            kk > k
+            and best_d[k] == best_d[k - 1]
+            and _tie_outside(pts, order, lo, hi, px, pz, best_d, best_i, k)
+        ):
+            return out, _TIE
         sx = pts[best_i[0], 0]
         sz = pts[best_i[0], 1]
         for t in range(1, k):

@@ -180,19 +180,12 @@ def sagittal_slice_from_depth(
     """
     _check_image(depth_m, confidence, K)
     K = np.asarray(K, dtype=float)
-    if depth_m.dtype.kind != "f" or not np.ndim(min_depth_m) == np.ndim(max_depth_m) == 0:
-        return _sagittal_slice_reference(
-            depth_m,
-            confidence,
-            K,
-            R_ground_cam,
-            half_width_m,
-            min_depth_m,
-            max_depth_m,
-            min_confidence,
+    tables = (
+        None  # integer depth or per-pixel depth limits: the general path
+        if depth_m.dtype.kind != "f" or not np.ndim(min_depth_m) == np.ndim(max_depth_m) == 0
+        else _slice_tables(
+            K.tobytes(), depth_m.shape, depth_m.dtype, half_width_m, min_depth_m, max_depth_m
         )
-    tables = _slice_tables(
-        K.tobytes(), depth_m.shape, depth_m.dtype, half_width_m, min_depth_m, max_depth_m
     )
     if tables is None:
         return _sagittal_slice_reference(

@@ -131,3 +131,17 @@ def fmt(x: float, digits: int = 2) -> str:
     if x is None or not np.isfinite(x):
         return "n/a"
     return f"{x:.{digits}f}"
+
+
+def filter_leg_run(rec: Any, cfg: Any) -> tuple[Any, dict[str, Any]]:
+    """Replay a recording in filter mode; returns the replay log and the filter's camera,
+    knee, ankle, heel and toe paths (x-z, metres) with the config's shank pitch source
+    (the safety benchmarks' common input)."""
+    from vio_graph.pipeline import leg_trajectories
+    from vio_graph.replay import Replay
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
+    lg = replay.run()
+    use_enc = cfg.kinematics.shank_pitch_source == "encoders"
+    return lg, leg_trajectories(replay.rig, lg.camera_xz["filter"], lg, use_enc)

@@ -23,12 +23,9 @@ import _common
 import numpy as np
 
 from vio_graph.config import load_config
-from vio_graph.pipeline import leg_trajectories
 from vio_graph.recording.reader import Recording
-from vio_graph.replay import Replay
 from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.online import SafetyMonitor
-from vio_graph.viz.rerun_logger import NullVisualizer
 
 VARIANTS = {  # label: SafetyConfig overrides
     "default (swing template)": {},
@@ -46,9 +43,7 @@ VARIANTS = {  # label: SafetyConfig overrides
 def bench(path: Path, repeats: int) -> list[dict]:
     cfg = load_config(None)
     rec = Recording.open(path)
-    replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
-    lg = replay.run()
-    est = leg_trajectories(replay.rig, lg.camera_xz["filter"], lg, False)
+    lg, est = _common.filter_leg_run(rec, cfg)
     t = np.asarray(lg.t_s)
     kf = np.zeros(len(t), bool)
     kf[list(lg.profiles)] = True

@@ -29,17 +29,13 @@ import argparse
 import json
 from pathlib import Path
 
-import _common  # noqa: F401  (pins BLAS threads before numpy)
+import _common  # pins BLAS threads before numpy
 import numpy as np
 
 from vio_graph.config import load_config
-from vio_graph.evaluation.safety import true_safety
-from vio_graph.pipeline import leg_trajectories
+from vio_graph.evaluation.safety import replay_safety, true_safety
 from vio_graph.recording.reader import Recording
-from vio_graph.replay import Replay
 from vio_graph.safety.config import SafetyConfig
-from vio_graph.safety.online import SafetyMonitor
-from vio_graph.viz.rerun_logger import NullVisualizer
 
 BEFORE = {"map_statistic": "mean", "bin_m": 0.01, "min_keyframes": 2}
 
@@ -67,10 +63,7 @@ def main() -> None:
     rec = Recording.open(args.recording)
     if rec.groundtruth is None:
         raise SystemExit(f"{args.recording}: no ground truth (a simulated recording is needed)")
-    replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
-    lg = replay.run()
-    use_enc = cfg.kinematics.shank_pitch_source == "encoders"
-    est = leg_trajectories(replay.rig, lg.camera_xz["filter"], lg, use_enc)
+    lg, est = _common.filter_leg_run(rec, cfg)
     t = np.asarray(lg.t_s)
     gt = rec.groundtruth.trajectories
     true = {b: gt[b].xz_at(t) for b in ("camera", "heel", "toe")}
@@ -98,19 +91,8 @@ def main() -> None:
     for vname, over in variants.items():
         sc = SafetyConfig(**{**cfg.safety.model_dump(), **over})
         for cname, (cam, heel, toe) in cases.items():
-            mon = SafetyMonitor(sc)
-            out = [
-                mon.update(
-                    float(tk),
-                    cam[k],
-                    lg.cov_position_m2[k],
-                    heel[k],
-                    toe[k],
-                    bool(lg.in_stance[k]),
-                    lg.profiles.get(k),
-                )
-                for k, tk in enumerate(t)
-            ]
+            path = {"camera": cam, "heel": heel, "toe": toe}
+            out = replay_safety(sc, t, path, lg.cov_position_m2, lg.in_stance, lg.profiles)
             c = np.array([s.clearance_m for s in out])
             sig = np.array([s.clearance_sigma_m for s in out])
             e = np.abs(c - tc) * 1e3

@@ -27,18 +27,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import _common  # noqa: F401  (pins BLAS threads before numpy)
+import _common  # pins BLAS threads before numpy
 import numpy as np
 
 from vio_graph.config import load_config
 from vio_graph.evaluation.safety import near_trip_scores, true_safety
-from vio_graph.pipeline import leg_trajectories
 from vio_graph.recording.reader import Recording
-from vio_graph.replay import Replay
 from vio_graph.safety.clearance import Edges, edge_clearance_many, next_edge_index
 from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.online import SafetyMonitor
-from vio_graph.viz.rerun_logger import NullVisualizer
 
 MODELS = ("constant_velocity", "swing_template")
 HORIZONS_S = (0.1, 0.2, 0.3)
@@ -64,10 +61,7 @@ def one_recording(path: Path, config_name: str | None) -> list[dict]:
     rec = Recording.open(path)
     if rec.groundtruth is None:
         raise SystemExit(f"{path}: no ground truth (a simulated recording is needed)")
-    replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
-    lg = replay.run()
-    use_enc = cfg.kinematics.shank_pitch_source == "encoders"
-    est = leg_trajectories(replay.rig, lg.camera_xz["filter"], lg, use_enc)
+    lg, est = _common.filter_leg_run(rec, cfg)
     t = np.asarray(lg.t_s)
     stance = np.asarray(lg.in_stance, bool)
     landing = np.r_[stance[:1], stance[1:] & ~stance[:-1]]

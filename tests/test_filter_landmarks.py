@@ -146,3 +146,21 @@ def test_a_corner_seen_again_under_a_new_track_is_the_same_landmark() -> None:
     # switched off: every track is new
     off = CornerLandmarks(None, fc.corner_memory_s, fc.max_corner_landmarks)
     assert off.key(obs(5, [0.50, -0.40]), camera, f) == LandmarkKey("corner", 5)
+
+
+def test_velocity_observation_corrects_a_velocity_error_and_is_gated() -> None:
+    """The still ankle's velocity (update_velocity): one observation removes most of a 1 m/s
+    error when the filter admits its velocity is uncertain; a confident filter gates it out
+    unless told not to."""
+    f = SagittalEskf()
+    f.initialise(0.0, (0.0, 0.0), v_xz=(1.0, 0.0), P0=np.diag([1e-4, 1e-4, 1.0, 1.0] + [1e-6] * 4))
+    assert f.update_velocity((0.0, 0.0), np.eye(2) * 0.05**2, 0.0) is True
+    assert np.linalg.norm(f.state.v_xz_mps) < 0.01
+    assert f.state.P[2, 2] < 0.05**2
+    g = SagittalEskf()
+    g.initialise(0.0, (0.0, 0.0), v_xz=(1.0, 0.0), P0=np.diag([1e-4] * 4 + [1e-6] * 4))
+    assert g.update_velocity((0.0, 0.0), np.eye(2) * 0.05**2, 0.0) is False
+    assert g.state.v_xz_mps[0] == pytest.approx(1.0)
+    assert g.update_velocity((0.0, 0.0), np.eye(2) * 0.05**2, 0.0, gate=False) is True
+    # the Kalman gain of a 1 cm/s state against a 5 cm/s observation
+    assert g.state.v_xz_mps[0] == pytest.approx(1.0 - 1e-4 / (1e-4 + 0.05**2))

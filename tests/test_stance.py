@@ -97,3 +97,24 @@ def test_a_detector_that_flags_every_frame_cannot_pin_the_filter(
             assert h["stance"]["vision_refused"] > 0
     assert ate["always"] < max(2.0 * ate["default"], 2.0), ate
     assert ate["always_untested"] > 2.0 * ate["always"], ate
+
+
+@pytest.mark.slow
+def test_fast_cadence_stances_correct_the_velocity(tmp_path: Path) -> None:
+    """Step over step at 1.5x the cadence: the accelerometer clips at a push-off (16 g) and the
+    next foot-flat lasts 0.15 s on a level landing, where vision measures no forward motion.
+    The stance anchor needs two frames of one stance; the stance velocity observation
+    corrects the velocity from the first one (seed 1000 of the sweep: toe x 10.3 -> 1.7 cm)."""
+    from vio_graph.sim import simulate
+    from vio_graph.sweep import condition_by_name, condition_scenario
+
+    rec = simulate(condition_scenario(condition_by_name("cadence_1.5")), 1000, tmp_path / "rec")
+    ate = {}
+    for name, sigma in {"with": 0.05, "without": None}.items():
+        cfg = _config(stance_velocity_sigma_mps=sigma)
+        res = run_recording(rec, tmp_path / name, cfg, progress=False, visualize=False)
+        ate[name] = res.metrics["ate_cm"]["filter"]["toe"]["x"]
+        if name == "with":
+            assert res.metrics["health"]["stance"]["velocity_fused"] > 20
+    assert ate["with"] < 3.0, ate
+    assert ate["without"] > 2.0 * ate["with"], ate

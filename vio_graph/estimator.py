@@ -301,6 +301,7 @@ class OnlineEstimator:
             "gate_refused": 0,
             "vision_overrides": 0,
             "anchored_frames": 0,
+            "velocity_fused": 0,
         }
         self._init_fault_handling()
 
@@ -809,6 +810,8 @@ class OnlineEstimator:
                 stats["vision_overrides"] += 1
             if first or fused:
                 stats["anchored_frames"] += 1
+                if fc.stance_velocity_sigma_mps is not None:
+                    self._fuse_stance_velocity(t, R_world_imu, dlever)
                 # the same anchor, as a landmark observation the smoother can use
                 self._stance_observation = StanceObservation(
                     timestamp_s=t,
@@ -825,6 +828,23 @@ class OnlineEstimator:
                 self._stance_n += 1
             self._stance_test.reset()
         self._in_stance = stance
+
+    def _fuse_stance_velocity(
+        self, t: float, R_world_imu: NDArray[np.float64], dlever: NDArray[np.float64]
+    ) -> None:
+        """The still ankle's velocity: v_cam + pitch rate x d lever/d pitch = 0, so the camera
+        moves at -rate x dlever (m/s, ground axes). Gated, and never forced: a stance the
+        detector proposes in the slow part of a swing passes the vision test and would zero
+        a velocity that is not zero (a detector flagging every frame: toe 8 cm forced, within
+        2 cm gated)."""
+        fc = self.config.filter
+        assert fc.stance_velocity_sigma_mps is not None
+        assert self._last_imu is not None  # a frame comes after an IMU sample
+        rate = float((R_world_imu @ np.asarray(self._last_imu.gyro_radps, float))[1])
+        v_cam = -rate * np.asarray(dlever, dtype=float)
+        cov = np.eye(2) * fc.stance_velocity_sigma_mps**2
+        fused = self.filter.update_velocity(v_cam, cov, t, fc.stance_gate)
+        self.stance_stats["velocity_fused"] += int(fused)
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
         """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""

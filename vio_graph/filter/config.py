@@ -460,6 +460,17 @@ class FilterConfig(BaseModel):
         lt=1,
         description="chi-square (2 dof) probability of the stance consistency test",
     )
+    stance_velocity_sigma_mps: float | None = Field(
+        default=0.05,
+        gt=0,
+        description="if set: every anchored stance frame also observes the camera velocity "
+        "of a still ankle (v_cam = -pitch rate x lever, ground axes) with this sigma (m/s) per "
+        "axis, gated (never forced, unlike the anchor). The anchor needs two frames of one stance "
+        "before it says anything; at 1.5x cadence foot-flat lasts 0.15 s and the detector "
+        "passes 1-2 frames of it, so a velocity error (e.g. from an accelerometer clipped at a "
+        "push-off) ran on across a level landing: sweep cadence_1.5 seeds 1000-1002, filter "
+        "toe x 10.3/3.0/7.2 -> 2.4/3.6/5.4 cm. None = off",
+    )
     stance_slip_sigma_m: float = Field(
         default=0.0005,
         ge=0,

@@ -593,6 +593,35 @@ class SagittalEskf:
             self._record_correction(t)
         return accepted
 
+    def update_velocity(
+        self,
+        v_xz_mps: ArrayLike,
+        cov: ArrayLike,
+        timestamp_s: float | None = None,
+        gate: bool = True,
+    ) -> bool:
+        """Fuse a direct observation of the camera velocity (m/s, ground axes) at
+        ``timestamp_s`` with covariance ``cov`` ((m/s)^2), e.g. the still ankle in stance seen
+        through the turning shank (v_cam = -pitch rate x lever). The velocity there is
+        v + a dt (H = [0 I 0 ..]). Unlike the stance anchor, which needs two frames of one
+        stance, this informs the velocity from the first stance frame on: a fast gait's
+        foot-flat lasts only a few frames. Returns True if fused (False: gated out or stale).
+        """
+        self._require_init()
+        t = self._t_s if timestamp_s is None else float(timestamp_s)
+        dt = t - self._t_s
+        if abs(dt) > self.config.max_time_mismatch_s:
+            self._n_stale += 1
+            return False
+        H = np.zeros((2, self._P.shape[0]))
+        H[:, 2:4] = _I2
+        predicted = self._x[2:4] + dt * np.asarray(self._accel_w_mps2)
+        innovation = _vec2(v_xz_mps) - predicted
+        accepted = self._correct(innovation, H, _cov2(cov), gate, landmark=True)
+        if accepted:
+            self._record_correction(t)
+        return accepted
+
     def drop_landmark(self, key: LandmarkKey) -> None:
         """Forget landmark ``key`` (marginalise it out of the state); no-op if unknown."""
         if key == _CLONE:

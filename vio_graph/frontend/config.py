@@ -30,11 +30,16 @@ class ProjectionConfig(_Strict):
         1, ge=1, le=255, description="ignore pixels whose confidence is below this (0 = invalid)"
     )
     speckle_min_agree: int = Field(
-        0,
+        2,
         ge=0,
         le=8,
         description="drop a depth pixel unless at least this many of its 8 neighbours agree "
-        "with it (speckle_rel_tol, speckle_abs_tol_m); 0 = off",
+        "with it (speckle_rel_tol, speckle_abs_tol_m), or, with fewer valid neighbours, all of "
+        "them but at least one; 0 = off. A random return agrees with one neighbour by chance "
+        "about 1 time in 5 and with two about 1 in 40, while a surface pixel at a depth edge "
+        "still has two along the edge. Upstair seeds 1-3, filter toe x/z cm, 5 % spurious "
+        "pixels: off 9.55/2.24, 2: 0.93/1.13, 3 (without the dropout rule): 0.96/1.19; clean: "
+        "off 0.62/1.01, 2: 0.61/1.06, 3: 0.87/0.87",
     )
     speckle_rel_tol: float = Field(
         0.03, ge=0, description="speckle test: neighbours agree within this share of the depth"

@@ -254,9 +254,11 @@ def drop_speckles(
     """Confidence with isolated depth pixels set to 0 (invalid).
 
     A pixel is kept when at least ``min_agree`` of its 8 neighbours are valid and within
-    ``abs_tol_m`` + ``rel_tol`` x depth of it. A surface is continuous in the image, so its
-    pixels agree with several neighbours, even on either side of a depth edge; a spurious
-    return (multipath, a glitch) lands at a random range and agrees with none. The same idea
+    ``abs_tol_m`` + ``rel_tol`` x depth of it; where fewer than ``min_agree`` neighbours are
+    valid at all (dropout around the pixel), as many as are valid, and at least one. A surface
+    is continuous in the image, so its pixels agree with several neighbours, even on either
+    side of a depth edge; a spurious return (multipath, a glitch) lands at a random range and
+    agrees with none. The same idea
     as a ToF driver's flying-pixel or speckle filter, applied in the image before the slice
     (in the sagittal slice the spurious points near the camera are as dense as a surface)."""
     d = np.asarray(depth_m, dtype=np.float32)
@@ -266,12 +268,18 @@ def drop_speckles(
     pad[1:-1, 1:-1] = np.where(valid, d, 0.0)
     tol = abs_tol_m + rel_tol * d
     agree = np.zeros((h, w), dtype=np.int8)
+    n_valid = np.zeros((h, w), dtype=np.int8)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
             if dy == 0 and dx == 0:
                 continue
             nb = pad[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
-            agree += ((nb > 0) & (np.abs(nb - d) <= tol)).astype(np.int8)
+            n_valid += nb > 0
+            agree += (nb > 0) & (np.abs(nb - d) <= tol)
+    # where the sensor returned little around a pixel (dropout at range or at grazing
+    # angles), ask only for as many agreeing neighbours as there are valid ones, but one
+    # at least: an isolated return cannot be told from a spurious one
+    need = np.clip(n_valid, 1, min_agree)
     out = np.array(confidence, copy=True)
-    out[valid & (agree < min_agree)] = 0
+    out[valid & (agree < need)] = 0
     return out

@@ -164,3 +164,37 @@ def test_velocity_observation_corrects_a_velocity_error_and_is_gated() -> None:
     assert g.update_velocity((0.0, 0.0), np.eye(2) * 0.05**2, 0.0, gate=False) is True
     # the Kalman gain of a 1 cm/s state against a 5 cm/s observation
     assert g.state.v_xz_mps[0] == pytest.approx(1.0 - 1e-4 / (1e-4 + 0.05**2))
+
+
+@pytest.mark.parametrize("at_frame", [False, True])
+def test_filter_starts_at_the_first_frame_when_asked(at_frame: bool) -> None:
+    """filter.start_at_first_frame: the filter's origin is the first depth frame (no IMU
+    interval before it whose velocity a later update could re-write), else the first IMU
+    sample, propagated to the frame."""
+    from tests.conftest import tiny_metadata, tiny_streams
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.types import DepthFrame
+
+    meta = tiny_metadata()
+    imu, _, _, t_frames, frames = tiny_streams(meta)
+    base = PipelineConfig()
+    cfg = base.model_copy(
+        update={"filter": base.filter.model_copy(update={"start_at_first_frame": at_frame})}
+    )
+    est = OnlineEstimator(cfg, RigGeometry.from_metadata(meta))
+    t_frame = float(t_frames[1])  # the first frame comes 1/30 s in: 3 IMU samples before it
+    for i in range(imu.timestamp_s.size):
+        if imu.timestamp_s[i] > t_frame:
+            break
+        est.add_imu(
+            ImuSample(imu.timestamp_s[i], imu.accel_mps2[i], imu.gyro_radps[i], imu.quat_wxyz[i])
+        )
+    assert est._filter_started is (not at_frame)
+    depth, conf = frames[1]
+    est.add_frame(DepthFrame(0, t_frame, depth, conf))
+    state = est.filter.state
+    expected_t = t_frame if at_frame else float(imu.timestamp_s[imu.timestamp_s <= t_frame][-1])
+    assert state.timestamp_s == pytest.approx(expected_t)
+    if at_frame:
+        assert np.allclose(state.p_xz_m, 0.0) and np.allclose(state.v_xz_mps, 0.0)

@@ -508,6 +508,8 @@ class OnlineEstimator:
         frame = self._restamp(frame)
         t = frame.timestamp_s
         self._propagate_until(t)
+        if self.config.filter.start_at_first_frame:
+            self._start_filter_at(t)
         if not self._filter_started:
             raise EstimationError("a depth frame arrived before any IMU sample")
         timings: dict[str, float] = {"imu_propagation": self._imu_ms}
@@ -627,13 +629,22 @@ class OnlineEstimator:
     def _propagate_until(self, t_s: float) -> None:
         """Propagate the filter with the queued IMU samples stamped at or before ``t_s``."""
         q = self._imu_queue
+        at_frame = self.config.filter.start_at_first_frame
         while q and q[0].timestamp_s <= t_s + 1e-9:
             s = q.popleft()
             if self._filter_started:
                 self.filter.propagate(s)
-            else:
+            elif not at_frame:
                 self.filter.initialise(s.timestamp_s, self._p0)
                 self._filter_started = True
+            # else: before the first frame the samples only feed the attitude and detectors
+
+    def _start_filter_at(self, t_s: float) -> None:
+        """Start the filter at the first frame's time (``filter.start_at_first_frame``): the
+        trajectory's origin is that frame, and its clone carries no velocity uncertainty."""
+        if not self._filter_started:
+            self.filter.initialise(t_s, self._p0)
+            self._filter_started = True
 
     def _restamp(self, frame: DepthFrame) -> DepthFrame:
         """The frame on the IMU clock: stamp minus the applied camera-IMU offset (and the

@@ -192,14 +192,39 @@ class Replay:
         self._inject_rng = np.random.default_rng(config.inject.seed)
         self.injected_wrong_associations = 0
         self.failed: dict[str, dict[str, Any]] = {}
+        #: the retroactive re-run (:meth:`_restart`): frames re-run, the last one's stamp,
+        #: the offset applied and its sigma (s); None if there was none
+        self.rerun: dict[str, Any] | None = None
+        #: the filter's camera x-z (m) the first pass gave for those frames (what an online
+        #: consumer received), None without a re-run
+        self.first_pass_xz: NDArray[np.float64] | None = None
+        self._rerun_frame = -1
 
     def run(self, progress: Callable[[int], Any] | None = None) -> FrameLog:
+        """Every event of the recording in time order through every estimator. If the
+        camera-IMU offset is applied early in the trial (``time_offset.rerun_window_s``), the
+        replay restarts once from the first event with it applied from the start
+        (:meth:`_restart`)."""
+        kinds, idx = replay_order(self.rec)
+        while not self._pass(kinds, idx, progress):
+            self._restart()
+        for e in self._running():
+            self._guard(e, float("nan"), e.finish)
+        self.log.camera_xz = self.camera_paths()
+        return self.log
+
+    def _pass(
+        self,
+        kinds: NDArray[np.int8],
+        idx: NDArray[np.int64],
+        progress: Callable[[int], Any] | None,
+    ) -> bool:
+        """One pass over the events; False if it stopped for a retroactive re-run."""
         rec, online = self.rec, self.online
-        kinds, idx = replay_order(rec)
         waiting: list[int] = []  # frames whose capture time the IMU has not reached yet
         for kind, i in zip(kinds, idx, strict=True):
-            if kind != 2 and waiting:
-                self._release_frames(waiting, progress)
+            if kind != 2 and waiting and not self._release_frames(waiting, progress):
+                return False
             if kind == 0:
                 step = online.add_imu(rec.imu.sample(int(i)))
                 if step is None:
@@ -215,20 +240,17 @@ class Replay:
                 if not online.initialised:
                     continue  # frames before the first IMU sample cannot be placed
                 waiting.append(int(i))
-                self._release_frames(waiting, progress)
-        self._release_frames(waiting, progress, final=True)
-        for e in self._running():
-            self._guard(e, float("nan"), e.finish)
-        self.log.camera_xz = self.camera_paths()
-        return self.log
+                if not self._release_frames(waiting, progress):
+                    return False
+        return self._release_frames(waiting, progress, final=True)
 
     def _release_frames(
         self, waiting: list[int], progress: Callable[[int], Any] | None, final: bool = False
-    ) -> None:
+    ) -> bool:
         """Process the waiting frames whose capture time on the IMU clock (stamp minus the
         camera-IMU offset, filter/time_offset.py) is at most one IMU period after the latest
         IMU sample (as without an offset); a negative offset (early camera stamps) holds a
-        frame until the IMU has caught up."""
+        frame until the IMU has caught up. False if a retroactive re-run is due."""
         online = self.online
         period = 1.0 / self.rec.metadata.imu.rate_hz
         while waiting:
@@ -236,11 +258,58 @@ class Replay:
             assert t_imu is not None  # frames wait only once the IMU has started
             t_cap = self.rec.frame_timestamps_s[waiting[0]] - online.time_offset.applied_s
             if not final and t_cap > t_imu + period:
-                return
+                return True
             i = waiting.pop(0)
             self._frame(i)
             if progress is not None:
                 progress(i + 1)
+            if self._rerun_due(i):
+                return False
+        return True
+
+    def _rerun_due(self, i: int) -> bool:
+        """A retroactive re-run is due after frame ``i``: none yet, the time offset is applied
+        (and, with ``rerun_sigma_s``, known to that sigma, or the window ends at the next
+        frame), and frame ``i`` is within ``rerun_window_s`` of the first frame."""
+        cfg = self.config.filter.time_offset
+        to = self.online.time_offset
+        if self.rerun is not None or cfg.rerun_window_s <= 0 or not to.latched:
+            return False
+        stamps = self.rec.frame_timestamps_s
+        if stamps[i] - stamps[0] > cfg.rerun_window_s:
+            return False
+        self._rerun_frame = i
+        if cfg.rerun_sigma_s is None or to.sigma_s <= cfg.rerun_sigma_s:
+            return True
+        nxt = stamps[i + 1] if i + 1 < stamps.size else np.inf
+        return bool(nxt - stamps[0] > cfg.rerun_window_s)
+
+    def _restart(self) -> None:
+        """Retroactive re-run: what the filter fused before the camera-IMU offset was known
+        (slices rotated with the attitude at the wrong time, displacements at the wrong
+        interval) would stay in its state, since nothing observes the absolute position
+        afterwards. So every estimator starts again from the first event, the time-offset
+        estimator carrying what it learnt (applied from the first frame, the tilts of the
+        frames it has already used not counted twice). The per-frame estimates the first pass
+        gave (what an online consumer received then) are kept in :attr:`first_pass_xz`."""
+        old = self.online
+        t_s = np.asarray(self.log.t_s)
+        self.first_pass_xz = np.asarray(self.estimators["filter"].camera_path(t_s, t_s[:0]))
+        stamp = float(self.rec.frame_timestamps_s[self._rerun_frame])
+        self.rerun = {
+            "frames": len(t_s),
+            "until_stamp_s": stamp,
+            "applied_s": old.time_offset.applied_s,
+            "sigma_s": old.time_offset.sigma_s,
+        }
+        self.online = OnlineEstimator(self.config, self.rig, self.p0)
+        self.online.time_offset.carry_over(old.time_offset)
+        self.online.td_counted_until_s = stamp
+        self.estimators = make_estimators(self.config, self.rig, self.modes, self.p0)
+        self.log = FrameLog()
+        self._inject_rng = np.random.default_rng(self.config.inject.seed)
+        self.injected_wrong_associations = 0
+        self.failed = {}
 
     def _frame(self, i: int) -> None:
         """One depth frame through the filter, then its record to every other estimator."""

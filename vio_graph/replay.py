@@ -199,6 +199,7 @@ class Replay:
         #: consumer received), None without a re-run
         self.first_pass_xz: NDArray[np.float64] | None = None
         self._rerun_frame = -1
+        self._first_imu_s: float | None = None  # stamp of the first IMU sample taken
 
     def run(self, progress: Callable[[int], Any] | None = None) -> FrameLog:
         """Every event of the recording in time order through every estimator. If the
@@ -229,6 +230,8 @@ class Replay:
                 step = online.add_imu(rec.imu.sample(int(i)))
                 if step is None:
                     continue  # stamp at or before the previous one: reported, not fused
+                if self._first_imu_s is None:
+                    self._first_imu_s = step.timestamp_s
                 for e in self._running():
                     self._guard(e, step.timestamp_s, e.add_imu, step)
             elif kind == 1:
@@ -237,8 +240,10 @@ class Replay:
                 assert rec.contact is not None
                 online.add_contact(rec.contact.sample(int(i)))
             else:
-                if not online.initialised:
+                if not online.initialised and online.time_offset.applied_s >= 0:
                     continue  # frames before the first IMU sample cannot be placed
+                # (with early camera stamps, td < 0, a frame stamped before the first IMU
+                # sample may be captured after it: it waits like the others)
                 waiting.append(int(i))
                 if not self._release_frames(waiting, progress):
                     return False
@@ -255,11 +260,14 @@ class Replay:
         period = 1.0 / self.rec.metadata.imu.rate_hz
         while waiting:
             t_imu = online.last_imu_time_s
-            assert t_imu is not None  # frames wait only once the IMU has started
+            if t_imu is None:  # only with td < 0: frames wait for the IMU to start
+                return True
             t_cap = self.rec.frame_timestamps_s[waiting[0]] - online.time_offset.applied_s
             if not final and t_cap > t_imu + period:
                 return True
             i = waiting.pop(0)
+            if self._first_imu_s is not None and t_cap < self._first_imu_s:
+                continue  # captured before the first IMU sample: cannot be placed
             self._frame(i)
             if progress is not None:
                 progress(i + 1)
@@ -302,6 +310,10 @@ class Replay:
             "applied_s": old.time_offset.applied_s,
             "sigma_s": old.time_offset.sigma_s,
         }
+        gt = self.rec.groundtruth
+        if gt is not None:  # the true camera at the first frame's capture time, as without td
+            t0 = self.rec.frame_timestamps_s[0] - old.time_offset.applied_s
+            self.p0 = gt.trajectories["camera"].xz_at(t0)
         self.online = OnlineEstimator(self.config, self.rig, self.p0)
         self.online.time_offset.carry_over(old.time_offset)
         self.online.td_counted_until_s = stamp

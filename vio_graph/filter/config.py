@@ -200,10 +200,10 @@ class TimeOffsetConfig(BaseModel):
         "wrong offset does not stay in the state; 0: never",
     )
     rerun_sigma_s: float | None = Field(
-        default=None,
+        default=0.0015,
         gt=0,
-        description="the re-run waits (within rerun_window_s) until td's sigma is at most this "
-        "(s); None: re-run as soon as td is applied",
+        description="the re-run waits until td's sigma is at most this (s), or until the next "
+        "frame would leave rerun_window_s; None: re-run as soon as td is applied",
     )
     imu_clock_model: bool = Field(
         default=True,

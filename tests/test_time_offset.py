@@ -171,21 +171,23 @@ def _first_second_error_cm(rec, rerun_window_s: float):
     return 100.0 * np.sqrt(np.mean(err**2, axis=0)), replay
 
 
+@pytest.mark.parametrize("td_s", [0.02, -0.02])
 def test_retroactive_rerun_removes_what_was_fused_before_the_offset_was_known(
-    tmp_path: Path,
+    tmp_path: Path, td_s: float
 ) -> None:
-    """A 3 s upstair trial whose camera stamps are 20 ms late: the offset is applied a few
-    frames in; without the re-run the filter keeps what it fused with the wrong offset (a
-    first-second error of 1-3 cm), with it the first second is re-run with the offset
-    applied from the start (well under 1 cm), and the online (first-pass) estimates are
-    kept and reported as they were."""
+    """A 3 s upstair trial whose camera stamps are 20 ms late (or early): the offset is
+    applied a few frames in; without the re-run the filter keeps what it fused with the
+    wrong offset (+20 ms: a first-second error of 1-3 cm), with it the stretch until td is
+    known to 1.5 ms (at most the 2 s window) is re-run with the offset applied from the
+    start (well under 1 cm), and the online (first-pass) estimates are kept and reported
+    as they were."""
     from vio_graph.pipeline import rerun_report
     from vio_graph.recording.reader import Recording
     from vio_graph.sim import load_scenario, simulate
 
     cfg = load_scenario("upstair").model_copy(update={"duration_s": 3.0})
     cfg = cfg.model_copy(
-        update={"faults": cfg.faults.model_copy(update={"camera_time_offset_s": 0.02})}
+        update={"faults": cfg.faults.model_copy(update={"camera_time_offset_s": td_s})}
     )
     rec = Recording.open(simulate(cfg, seed=2, out_dir=tmp_path / "rec"))
     err_without, plain = _first_second_error_cm(rec, 0.0)
@@ -193,14 +195,19 @@ def test_retroactive_rerun_removes_what_was_fused_before_the_offset_was_known(
     assert plain.rerun is None and plain.first_pass_xz is None
     assert replay.rerun is not None
     n = replay.rerun["frames"]
-    assert 0 < n < 30  # the offset was applied within the first second
-    assert replay.rerun["applied_s"] == pytest.approx(0.02, abs=0.01)
-    # the re-run applied td from the first frame: its frames are stamped td earlier
+    assert 30 <= n <= 61  # after the first second, within the 2 s window (30 frames/s)
+    assert replay.rerun["sigma_s"] <= 0.0015
+    assert replay.rerun["applied_s"] == pytest.approx(td_s, abs=0.003)
+    # the re-run applied td from the first frame: its frames are stamped td earlier; with
+    # early stamps the first frame is stamped before the first IMU sample (0 s) but captured
+    # after it, and the re-run keeps it
     t0 = rec.frame_timestamps_s[0]
+    assert rec.imu.timestamp_s[0] == 0.0 and (t0 < 0.0) == (td_s < 0)
     assert replay.log.t_s[0] == pytest.approx(t0 - replay.rerun["applied_s"])
-    assert plain.log.t_s[0] == t0
-    assert np.max(err_without) > 1.0
-    assert np.max(err_with) < 0.5 * np.max(err_without) and np.max(err_with) < 1.0
+    assert plain.log.t_s[0] == (t0 if td_s > 0 else rec.frame_timestamps_s[1])
+    assert np.max(err_with) < 1.0
+    if td_s > 0:  # (early stamps cost this trial 0.5 cm in its first second, late ones more)
+        assert np.max(err_without) > 1.0 and np.max(err_with) < 0.5 * np.max(err_without)
     # the first pass's estimates are what the online output gave: the same as without the
     # re-run for those frames
     assert replay.first_pass_xz is not None and len(replay.first_pass_xz) == n

@@ -5,6 +5,12 @@ each depth frame into the records of the estimator protocol (vio_graph/protocol.
 estimator of the run -- the filter's own track, the IMU-only and ICP-only baselines, and, if
 asked for, the fixed-lag and batch smoothers -- takes the same records through the same
 calls. The per-frame quantities the outputs need are collected in a :class:`FrameLog`.
+
+Retroactive re-run: once the camera-IMU offset is applied early in the trial
+(``filter.time_offset.rerun_window_s``), every estimator starts again from the first event
+with the offset applied from the first frame (:meth:`Replay._restart`), so the written
+trajectories do not keep what was fused with the wrong offset; the first pass's filter
+estimates for those frames (what an online consumer got) are kept beside them.
 """
 
 from __future__ import annotations
@@ -299,7 +305,10 @@ class Replay:
         afterwards. So every estimator starts again from the first event, the time-offset
         estimator carrying what it learnt (applied from the first frame, the tilts of the
         frames it has already used not counted twice). The per-frame estimates the first pass
-        gave (what an online consumer received then) are kept in :attr:`first_pass_xz`."""
+        gave (what an online consumer received then) are kept in :attr:`first_pass_xz`.
+        The estimators are built anew by :func:`make_estimators` (one added to
+        :attr:`estimators` by hand is dropped, with a warning); the visualizer is sent the
+        re-run frames again."""
         old = self.online
         t_s = np.asarray(self.log.t_s)
         self.first_pass_xz = np.asarray(self.estimators["filter"].camera_path(t_s, t_s[:0]))
@@ -317,7 +326,11 @@ class Replay:
         self.online = OnlineEstimator(self.config, self.rig, self.p0)
         self.online.time_offset.carry_over(old.time_offset)
         self.online.td_counted_until_s = stamp
-        self.estimators = make_estimators(self.config, self.rig, self.modes, self.p0)
+        estimators = make_estimators(self.config, self.rig, self.modes, self.p0)
+        dropped = sorted(set(self.estimators) - set(estimators))
+        if dropped:
+            log.warning("re-run: estimators %s are not rebuilt and leave the run", dropped)
+        self.estimators = estimators
         self.log = FrameLog()
         self._inject_rng = np.random.default_rng(self.config.inject.seed)
         self.injected_wrong_associations = 0

@@ -192,6 +192,13 @@ def fault_lines(metrics: dict) -> list[str]:
             f"camera-IMU time offset {1e3 * td['estimate_s']:.1f} ms "
             f"(1-sigma {1e3 * td['sigma_s']:.1f} ms), applied to the fusion"
         )
+    if "rerun" in td:
+        r = td["rerun"]
+        lines.append(
+            f"the first {r['frames']} frames were re-run with the offset applied from the "
+            "start; the online output for them was the first pass's (metrics.json "
+            "'time_offset' 'rerun')"
+        )
     for name, rep in metrics.get("timestamps", {}).items():
         if rep.get("gaps") or rep.get("backwards"):
             lines.append(
@@ -663,7 +670,8 @@ def robustness(
         str,
         typer.Option(
             help="'all' faults, or 'imu': clean, IMU spikes / saturation, "
-            "camera-IMU offsets -30..30 ms, clock jitter."
+            "camera-IMU offsets -30..30 ms, clock jitter; or 'offsets': clean and the "
+            "camera-IMU offsets only."
         ),
     ] = "all",
 ) -> None:
@@ -673,12 +681,19 @@ def robustness(
     Example: vio-graph robustness --seeds 2 --jobs 2 --doc docs/robustness.md
     """
     from vio_graph.config import load_config
-    from vio_graph.robustness import FAULT_CASES, IMU_CASES, run_sweep, write_outputs
+    from vio_graph.robustness import (
+        FAULT_CASES,
+        IMU_CASES,
+        OFFSET_CASES,
+        run_sweep,
+        write_outputs,
+    )
     from vio_graph.viz.progress import progress_bar
 
-    if cases not in ("all", "imu"):
-        raise VioGraphError(f"--cases: unknown {cases!r}; use all or imu")
-    case_list = FAULT_CASES if cases == "all" else IMU_CASES
+    case_sets = {"all": FAULT_CASES, "imu": IMU_CASES, "offsets": OFFSET_CASES}
+    if cases not in case_sets:
+        raise VioGraphError(f"--cases: unknown {cases!r}; use all, imu or offsets")
+    case_list = case_sets[cases]
     cfg = load_config(config)
     seed_list = list(range(1, seeds + 1))
     with progress_bar(len(case_list) * len(seed_list), "fault sweep", "run") as bar:

@@ -343,6 +343,9 @@ class OnlineEstimator:
         self._imu_queue: deque[ImuSample] = deque()  # received, not yet propagated
         self._filter_started = False
         self._last_frame_t: float | None = None  # previous frame time on the IMU clock
+        #: frames stamped (camera clock, s) at or before this have already given their tilt
+        #: to the time-offset estimator (set by the retroactive re-run, vio_graph/replay.py)
+        self.td_counted_until_s = -np.inf
 
     def fault_report(self) -> dict:
         """IMU faults, time offset and timestamp problems, for metrics.json."""
@@ -505,6 +508,7 @@ class OnlineEstimator:
         """
         if not self.initialised:
             raise EstimationError("a depth frame arrived before any IMU sample")
+        stamp = frame.timestamp_s  # as recorded (camera clock)
         frame = self._restamp(frame)
         t = frame.timestamp_s
         self._propagate_until(t)
@@ -538,7 +542,8 @@ class OnlineEstimator:
         t0 = time.perf_counter()
         if self.config.filter.level_aiding.enabled and R_ground_cam_override is None:
             step = self._level_aiding(t, result.profile_xz_m)
-            self._update_time_offset(t, step)
+            if stamp > self.td_counted_until_s:
+                self._update_time_offset(t, step)
             if step != 0.0:
                 self._ground_turn_rad = step  # this frame, seen from the next one
                 R_world_imu = self.R_world_imu(t)

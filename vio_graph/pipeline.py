@@ -256,6 +256,8 @@ def _evaluate(
     metrics["filter"] = filter_summary(replay)
     metrics["health"] = replay.online.health_report()
     metrics.update(replay.online.fault_report())  # imu_faults, time_offset, timestamps
+    if replay.rerun is not None:
+        metrics["time_offset"]["rerun"] = rerun_report(replay, gt)
     if gt is not None:
         metrics["terrain_classification"] = terrain_accuracy(
             rec.metadata.terrain.kind, lg.terrain, gt.frame_edge_visible
@@ -267,3 +269,20 @@ def _evaluate(
             lg.displacements, gt.trajectories["camera"], config.filter.measurement_noise_floor_m
         )
     return metrics
+
+
+def rerun_report(replay: Replay, gt) -> dict[str, Any]:
+    """The retroactive re-run (vio_graph/replay.py): frames re-run, the last one's stamp
+    (s), the offset applied and its sigma (s), and, with ground truth, the filter's camera
+    error (cm RMS, x and z) over those frames as the first pass gave it online and as
+    written after the re-run."""
+    rep: dict[str, Any] = dict(replay.rerun or {})
+    first = replay.first_pass_xz
+    if gt is not None and first is not None and len(first):
+        n = len(first)
+        t_s = np.asarray(replay.log.t_s[:n])
+        true = np.array([gt.trajectories["camera"].xz_at(t) for t in t_s])
+        for name, xz in (("first_pass", first), ("rerun", replay.log.camera_xz["filter"][:n])):
+            rms = 100.0 * np.sqrt(np.mean((np.asarray(xz) - true) ** 2, axis=0))
+            rep[f"{name}_filter_camera_rmse_cm"] = {"x": float(rms[0]), "z": float(rms[1])}
+    return rep

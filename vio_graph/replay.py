@@ -5,6 +5,12 @@ each depth frame into the records of the estimator protocol (vio_graph/protocol.
 estimator of the run -- the filter's own track, the IMU-only and ICP-only baselines, and, if
 asked for, the fixed-lag and batch smoothers -- takes the same records through the same
 calls. The per-frame quantities the outputs need are collected in a :class:`FrameLog`.
+
+Retroactive re-run: once the camera-IMU offset is applied early in the trial
+(``filter.time_offset.rerun_window_s``), every estimator starts again from the first event
+with the offset applied from the first frame (:meth:`Replay._restart`), so the written
+trajectories do not keep what was fused with the wrong offset; the first pass's filter
+estimates for those frames (what an online consumer got) are kept beside them.
 """
 
 from __future__ import annotations
@@ -192,18 +198,46 @@ class Replay:
         self._inject_rng = np.random.default_rng(config.inject.seed)
         self.injected_wrong_associations = 0
         self.failed: dict[str, dict[str, Any]] = {}
+        #: the retroactive re-run (:meth:`_restart`): frames re-run, the last one's stamp,
+        #: the offset applied and its sigma (s); None if there was none
+        self.rerun: dict[str, Any] | None = None
+        #: the filter's camera x-z (m) the first pass gave for those frames (what an online
+        #: consumer received), None without a re-run
+        self.first_pass_xz: NDArray[np.float64] | None = None
+        self._rerun_frame = -1
+        self._first_imu_s: float | None = None  # stamp of the first IMU sample taken
 
     def run(self, progress: Callable[[int], Any] | None = None) -> FrameLog:
+        """Every event of the recording in time order through every estimator. If the
+        camera-IMU offset is applied early in the trial (``time_offset.rerun_window_s``), the
+        replay restarts once from the first event with it applied from the start
+        (:meth:`_restart`)."""
+        kinds, idx = replay_order(self.rec)
+        while not self._pass(kinds, idx, progress):
+            self._restart()
+        for e in self._running():
+            self._guard(e, float("nan"), e.finish)
+        self.log.camera_xz = self.camera_paths()
+        return self.log
+
+    def _pass(
+        self,
+        kinds: NDArray[np.int8],
+        idx: NDArray[np.int64],
+        progress: Callable[[int], Any] | None,
+    ) -> bool:
+        """One pass over the events; False if it stopped for a retroactive re-run."""
         rec, online = self.rec, self.online
-        kinds, idx = replay_order(rec)
         waiting: list[int] = []  # frames whose capture time the IMU has not reached yet
         for kind, i in zip(kinds, idx, strict=True):
-            if kind != 2 and waiting:
-                self._release_frames(waiting, progress)
+            if kind != 2 and waiting and not self._release_frames(waiting, progress):
+                return False
             if kind == 0:
                 step = online.add_imu(rec.imu.sample(int(i)))
                 if step is None:
                     continue  # stamp at or before the previous one: reported, not fused
+                if self._first_imu_s is None:
+                    self._first_imu_s = step.timestamp_s
                 for e in self._running():
                     self._guard(e, step.timestamp_s, e.add_imu, step)
             elif kind == 1:
@@ -212,35 +246,95 @@ class Replay:
                 assert rec.contact is not None
                 online.add_contact(rec.contact.sample(int(i)))
             else:
-                if not online.initialised:
+                if not online.initialised and online.time_offset.applied_s >= 0:
                     continue  # frames before the first IMU sample cannot be placed
+                # (with early camera stamps, td < 0, a frame stamped before the first IMU
+                # sample may be captured after it: it waits like the others)
                 waiting.append(int(i))
-                self._release_frames(waiting, progress)
-        self._release_frames(waiting, progress, final=True)
-        for e in self._running():
-            self._guard(e, float("nan"), e.finish)
-        self.log.camera_xz = self.camera_paths()
-        return self.log
+                if not self._release_frames(waiting, progress):
+                    return False
+        return self._release_frames(waiting, progress, final=True)
 
     def _release_frames(
         self, waiting: list[int], progress: Callable[[int], Any] | None, final: bool = False
-    ) -> None:
+    ) -> bool:
         """Process the waiting frames whose capture time on the IMU clock (stamp minus the
         camera-IMU offset, filter/time_offset.py) is at most one IMU period after the latest
         IMU sample (as without an offset); a negative offset (early camera stamps) holds a
-        frame until the IMU has caught up."""
+        frame until the IMU has caught up. False if a retroactive re-run is due."""
         online = self.online
         period = 1.0 / self.rec.metadata.imu.rate_hz
         while waiting:
             t_imu = online.last_imu_time_s
-            assert t_imu is not None  # frames wait only once the IMU has started
+            if t_imu is None:  # only with td < 0: frames wait for the IMU to start
+                return True
             t_cap = self.rec.frame_timestamps_s[waiting[0]] - online.time_offset.applied_s
             if not final and t_cap > t_imu + period:
-                return
+                return True
             i = waiting.pop(0)
+            if self._first_imu_s is not None and t_cap < self._first_imu_s:
+                continue  # captured before the first IMU sample: cannot be placed
             self._frame(i)
             if progress is not None:
                 progress(i + 1)
+            if self._rerun_due(i):
+                return False
+        return True
+
+    def _rerun_due(self, i: int) -> bool:
+        """A retroactive re-run is due after frame ``i``: none yet, the time offset is applied
+        (and, with ``rerun_sigma_s``, known to that sigma, or the window ends at the next
+        frame), and frame ``i`` is within ``rerun_window_s`` of the first frame."""
+        cfg = self.config.filter.time_offset
+        to = self.online.time_offset
+        if self.rerun is not None or cfg.rerun_window_s <= 0 or not to.latched:
+            return False
+        stamps = self.rec.frame_timestamps_s
+        if stamps[i] - stamps[0] > cfg.rerun_window_s:
+            return False
+        self._rerun_frame = i
+        if cfg.rerun_sigma_s is None or to.sigma_s <= cfg.rerun_sigma_s:
+            return True
+        nxt = stamps[i + 1] if i + 1 < stamps.size else np.inf
+        return bool(nxt - stamps[0] > cfg.rerun_window_s)
+
+    def _restart(self) -> None:
+        """Retroactive re-run: what the filter fused before the camera-IMU offset was known
+        (slices rotated with the attitude at the wrong time, displacements at the wrong
+        interval) would stay in its state, since nothing observes the absolute position
+        afterwards. So every estimator starts again from the first event, the time-offset
+        estimator carrying what it learnt (applied from the first frame, the tilts of the
+        frames it has already used not counted twice). The per-frame estimates the first pass
+        gave (what an online consumer received then) are kept in :attr:`first_pass_xz`.
+        The estimators are built anew by :func:`make_estimators` (one added to
+        :attr:`estimators` by hand is dropped, with a warning); the visualizer is sent the
+        re-run frames again."""
+        old = self.online
+        t_s = np.asarray(self.log.t_s)
+        self.first_pass_xz = np.asarray(self.estimators["filter"].camera_path(t_s, t_s[:0]))
+        stamp = float(self.rec.frame_timestamps_s[self._rerun_frame])
+        self.rerun = {
+            "frames": len(t_s),
+            "until_stamp_s": stamp,
+            "applied_s": old.time_offset.applied_s,
+            "sigma_s": old.time_offset.sigma_s,
+        }
+        gt = self.rec.groundtruth
+        if gt is not None:  # the true camera at the first frame's capture time, as without td
+            t0 = self.rec.frame_timestamps_s[0] - old.time_offset.applied_s
+            self.p0 = gt.trajectories["camera"].xz_at(t0)
+        self.online = OnlineEstimator(self.config, self.rig, self.p0)
+        self.online.time_offset.carry_over(old.time_offset)
+        self.online.td_counted_until_s = stamp
+        estimators = make_estimators(self.config, self.rig, self.modes, self.p0)
+        dropped = sorted(set(self.estimators) - set(estimators))
+        if dropped:
+            log.warning("re-run: estimators %s are not rebuilt and leave the run", dropped)
+        self.estimators = estimators
+        self.log = FrameLog()
+        self._inject_rng = np.random.default_rng(self.config.inject.seed)
+        self.injected_wrong_associations = 0
+        self.failed = {}
 
     def _frame(self, i: int) -> None:
         """One depth frame through the filter, then its record to every other estimator."""

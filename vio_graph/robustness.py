@@ -81,6 +81,12 @@ IMU_CASES: tuple[FaultCase, ...] = (
     FaultCase("camera-IMU time offset", "30 ms", {"camera_time_offset_s": 0.03}, {}),
 )
 
+#: the camera-IMU offset rows of IMU_CASES with their clean reference
+#: (``vio-graph robustness --cases offsets``)
+OFFSET_CASES: tuple[FaultCase, ...] = tuple(
+    c for c in IMU_CASES if c.name in ("clean", "camera-IMU time offset")
+)
+
 
 def _slug(case: FaultCase) -> str:
     text = f"{case.name}_{case.severity}".lower()
@@ -145,6 +151,8 @@ def run_sweep(
         if all("time_offset" in m for m in rows):  # the online camera-IMU offset, per seed
             entry["time_offset_ms"] = [1e3 * m["time_offset"]["estimate_s"] for m in rows]
             entry["time_offset_sigma_ms"] = [1e3 * m["time_offset"]["sigma_s"] for m in rows]
+            # seeds whose replay was re-run with the offset applied from the start
+            entry["time_offset_reruns"] = sum("rerun" in m["time_offset"] for m in rows)
         if c.name == "clean":
             for rec, res, _, _ in runs:
                 clean_err[rec.name.split("_s")[-1]] = _toe_error(rec, res)

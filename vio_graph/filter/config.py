@@ -191,6 +191,20 @@ class TimeOffsetConfig(BaseModel):
     gate_probability: float = Field(
         default=0.999, gt=0, lt=1, description="chi-square (1 dof) gate of a tilt measurement"
     )
+    rerun_window_s: float = Field(
+        default=2.0,
+        ge=0,
+        description="retroactive re-run (vio_graph/replay.py): once td is applied within this "
+        "many seconds of the first frame, the replay restarts every estimator from the first "
+        "frame with the frames re-stamped by td from the start, so what was fused with the "
+        "wrong offset does not stay in the state; 0: never",
+    )
+    rerun_sigma_s: float | None = Field(
+        default=0.0015,
+        gt=0,
+        description="the re-run waits until td's sigma is at most this (s), or until the next "
+        "frame would leave rerun_window_s; None: re-run as soon as td is applied",
+    )
     imu_clock_model: bool = Field(
         default=True,
         description="replace IMU stamps by a clock model fitted to them (nominal rate, "

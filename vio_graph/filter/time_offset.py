@@ -217,6 +217,22 @@ class TimeOffsetEstimator:
                 self.applied_s = self.td_s
         return True
 
+    @property
+    def latched(self) -> bool:
+        """True once td has been applied (it stays applied)."""
+        return self._latched
+
+    def carry_over(self, other: TimeOffsetEstimator) -> None:
+        """Take ``other``'s estimate, covariance, applied offset and counts (the retroactive
+        re-run of vio_graph/replay.py starts with what the first pass learnt)."""
+        self.x = other.x.copy()
+        self.P = other.P.copy()
+        self._t_s = other._t_s
+        self.applied_s = other.applied_s
+        self._latched = other._latched
+        self.n_updates = other.n_updates
+        self.n_rejected = other.n_rejected
+
     def report(self) -> dict:
         return {
             "estimate_s": self.td_s,

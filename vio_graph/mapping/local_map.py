@@ -167,15 +167,26 @@ class TerrainMap2D:
             profile_xz_m=_as_profile(profile_xz_m),
         )
         existing = self._find(keyframe.timestamp_s)
+        times = self._times  # sorted timestamps, valid after _find; kept valid when cheap
         if existing is not None:
             self._keyframes[existing] = keyframe
+            times = None
         else:
+            last = self._keyframes[-1].timestamp_s if self._keyframes else -np.inf
             self._keyframes.append(keyframe)
-            self._keyframes.sort(key=lambda kf: kf.timestamp_s)
+            if last <= keyframe.timestamp_s:  # in time order (a replay): no sort needed
+                if times is not None and times.shape[0] == len(self._keyframes) - 1:
+                    times = np.append(times, keyframe.timestamp_s)
+            else:
+                self._keyframes.sort(key=lambda kf: kf.timestamp_s)
+                times = None
         if self.config.max_keyframes is not None:
-            del self._keyframes[: max(0, len(self._keyframes) - self.config.max_keyframes)]
+            drop = max(0, len(self._keyframes) - self.config.max_keyframes)
+            if drop:
+                del self._keyframes[:drop]
+                times = None
         self._cells = None
-        self._times = None
+        self._times = times
 
     def update_poses(
         self,

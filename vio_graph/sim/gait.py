@@ -444,11 +444,17 @@ class _SwingPitch:
             if gait.swing_ankle_deg.get(s.swing_kind) is not None
         ]
         self._ramp = gait.swing_ankle_blend_fraction
+        self._swing_start_s = np.array([sw[0] for sw in self._swings])
+        self._swing_end_s = np.array([sw[1] for sw in self._swings])
 
     def weight_and_target(self, t: NDArray) -> tuple[NDArray, NDArray]:
         w = np.zeros(t.shape)
         ankle = np.zeros(t.shape)
-        for t_to, t_nx, a in self._swings:
+        swings = self._swings
+        if t.size and not np.isnan(t).any():  # only the swings that reach into [min t, max t]
+            near = (self._swing_end_s > t.min()) & (self._swing_start_s < t.max())
+            swings = [swings[k] for k in np.flatnonzero(near)]  # in order: later ones win
+        for t_to, t_nx, a in swings:
             m = (t > t_to) & (t < t_nx)
             if not np.any(m):
                 continue
@@ -559,6 +565,24 @@ def _swing_lift(spl, pitch, s: Stride, terrain: Terrain, heel_f: NDArray, toe_f:
     return lambda tt: height * bump((np.asarray(tt) - t0) / (t1 - t0))
 
 
+class _TimeSpans:
+    """The samples of a time grid t (N,) in [a, b) (or [a, b] with ``closed``): the boolean
+    mask ``(t >= a) & (t < b)``, or, when t is sorted (the dense grids are), the same samples
+    as a slice found by bisection (O(log N) instead of O(N) per stride phase)."""
+
+    def __init__(self, t: NDArray) -> None:
+        self._t = t
+        self._sorted = bool(t.size == 0 or np.all(t[1:] >= t[:-1]))  # False with NaN
+
+    def __call__(self, a: float, b: float, closed: bool = False) -> slice | NDArray[np.bool_]:
+        t = self._t
+        if not self._sorted:
+            return (t >= a) & ((t <= b) if closed else (t < b))
+        lo = int(np.searchsorted(t, a, side="left"))
+        hi = int(np.searchsorted(t, b, side="right" if closed else "left"))
+        return slice(lo, max(lo, hi))
+
+
 def _foot_motion(
     t: NDArray,
     strides: list[Stride],
@@ -573,17 +597,18 @@ def _foot_motion(
     toe_f = np.array(leg.toe_in_foot_xz_m)
     th = pitch(t)
     ankle = np.full((t.size, 2), np.nan)
+    span = _TimeSpans(t)
     for s, b in zip(strides, next_toes, strict=True):
         toe_p = np.array(s.toe_xz_m)
         ankle_flat = toe_p - toe_f
         heel_p = ankle_flat + heel_f
         piv_land = heel_p if s.landing == "heel" else toe_p
         r_land = heel_f if s.landing == "heel" else toe_f
-        m = (t >= s.t_contact_s) & (t < s.t_flat_s)
+        m = span(s.t_contact_s, s.t_flat_s)
         ankle[m] = piv_land - rot_xz(th[m], r_land)
-        m = (t >= s.t_flat_s) & (t < s.t_heel_off_s)
+        m = span(s.t_flat_s, s.t_heel_off_s)
         ankle[m] = ankle_flat
-        m = (t >= s.t_heel_off_s) & (t < s.t_toe_off_s)
+        m = span(s.t_heel_off_s, s.t_toe_off_s)
         ankle[m] = toe_p - rot_xz(th[m], toe_f)
         fr, pts = _swing_via(s, b, terrain, gait, leg, pitch)
         next_landing = "toe" if s.swing_kind in ("ascent", "descent") else "heel"
@@ -600,7 +625,7 @@ def _foot_motion(
         spl = make_interp_spline(
             ts, ps, k=5, bc_type=([(1, zero), (2, zero)], [(1, zero), (2, zero)])
         )
-        m = (t >= s.t_toe_off_s) & (t <= s.t_next_s + 1e-12)
+        m = span(s.t_toe_off_s, s.t_next_s + 1e-12, closed=True)
         lift = _swing_lift(spl, pitch, s, terrain, heel_f, toe_f)
         ankle[m] = spl(t[m]) - rot_xz(th[m], toe_f)
         if lift is not None:

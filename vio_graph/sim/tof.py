@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import maximum_filter, minimum_filter
 
 from vio_graph.o3d import open3d
 from vio_graph.recording.metadata import CameraModel
 from vio_graph.sim.config import CameraConfig
 from vio_graph.sim.terrain import Terrain
+
+#: (frame, edge) pairs per chunk of ``TofCamera.edges_visible`` (bounds its memory)
+EDGE_RAYS_PER_CHUNK = 1 << 18
 
 
 def axial_sigma_m(
@@ -27,6 +29,19 @@ def axial_sigma_m(
     a, b, c, d = coeffs
     th = np.clip(incidence_rad, 0.0, np.pi / 2 - 1e-3)
     return a + b * z_m + c * z_m**2 + d * z_m**2.7 * th**2 / (np.pi / 2 - th) ** 2
+
+
+def _extremes_3x3(a: NDArray) -> tuple[NDArray, NDArray]:
+    """Maximum and minimum over each pixel's 3x3 neighbourhood (H, W), the border repeated:
+    equal to scipy.ndimage's ``maximum_filter`` / ``minimum_filter`` with ``size=3``
+    (``reflect`` mode repeats the edge pixel for a 3-wide window), a few times faster."""
+    p = np.pad(a, 1, mode="edge")
+    h, w = a.shape
+    rows_max = np.maximum(np.maximum(p[:, :w], p[:, 1 : w + 1]), p[:, 2:])
+    rows_min = np.minimum(np.minimum(p[:, :w], p[:, 1 : w + 1]), p[:, 2:])
+    zmax = np.maximum(np.maximum(rows_max[:h], rows_max[1 : h + 1]), rows_max[2:])
+    zmin = np.minimum(np.minimum(rows_min[:h], rows_min[1 : h + 1]), rows_min[2:])
+    return zmax, zmin
 
 
 class TofCamera:
@@ -84,22 +99,40 @@ class TofCamera:
     def render(
         self, position_m: NDArray, R_world_cam: NDArray, rng: np.random.Generator
     ) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
-        """One frame: depth_m (H, W) float32 (0 invalid) and confidence (H, W) uint8."""
+        """One frame: depth_m (H, W) float32 (0 invalid) and confidence (H, W) uint8.
+
+        Same arithmetic as ``cast`` + the noise recipe written with whole-image reductions
+        (tests/test_tof_render.py keeps that form as the reference and checks equality bit
+        for bit): the 3-vector dot products and norms are summed left to right as numpy's
+        ``sum(axis=-1)`` does, the 3x3 min/max filter is taken over shifted views (edge
+        padding equals scipy's ``reflect`` mode for size 3), the rays are cast to float32 in
+        place. The random draws are the same and in the same order.
+        """
         c = self.cfg
         u, v = self._u, self._v
         if c.noise and c.lateral_noise_px > 0:
             u = u + rng.normal(0, c.lateral_noise_px, u.shape)
             v = v + rng.normal(0, c.lateral_noise_px, v.shape)
-        z, n_w, d_c = self.cast(np.asarray(position_m, float), R_world_cam, u, v)
-        hit = np.isfinite(z)
-        z_true = np.where(hit, z, 0.0)
-        d_w = d_c @ np.asarray(R_world_cam).T
-        cos_inc = np.abs(np.sum(n_w * d_w, axis=-1)) / np.linalg.norm(d_w, axis=-1)
+        position = np.asarray(position_m, float)
+        R = np.asarray(R_world_cam)
+        d_c = np.stack([(u - self.cx) / self.fx, (v - self.cy) / self.fy, np.ones_like(u)], axis=-1)
+        d_w = d_c @ R.T
+        rays = np.empty(d_w.shape[:-1] + (6,), dtype=np.float32)
+        rays[..., :3] = position
+        rays[..., 3:] = d_w
+        ans = self.scene.cast_rays(self._o3d.core.Tensor(rays), nthreads=0)
+        t_hit = ans["t_hit"].numpy().astype(np.float64)
+        n_w = ans["primitive_normals"].numpy().astype(np.float64)
+        hit = np.isfinite(t_hit)
+        z_true = np.where(hit, t_hit, 0.0)
+        dx, dy, dz = d_w[..., 0], d_w[..., 1], d_w[..., 2]
+        dot = (n_w[..., 0] * dx + n_w[..., 1] * dy) + n_w[..., 2] * dz
+        cos_inc = np.abs(dot) / np.sqrt((dx * dx + dy * dy) + dz * dz)
         incidence = np.arccos(np.clip(cos_inc, 0.0, 1.0))
-        z = np.where(hit, z, 0.0)
+        z = z_true
         if c.noise:
-            far = np.where(hit, z, 10.0)  # misses behave like a far background
-            zmax, zmin = maximum_filter(far, size=3), minimum_filter(far, size=3)
+            far = np.where(hit, t_hit, 10.0)  # misses behave like a far background
+            zmax, zmin = _extremes_3x3(far)
             mixed = hit & (zmax - zmin > c.mixed_pixel_jump_m)
             mixed &= rng.random(z.shape) < c.mixed_pixel_probability
             w = rng.random(z.shape)
@@ -108,13 +141,14 @@ class TofCamera:
         if c.noise:
             z = z + sigma * rng.standard_normal(z.shape)
         valid = hit & (incidence < np.radians(c.max_incidence_deg)) & (sigma < c.max_noise_m)
-        rng_m = z * np.linalg.norm(d_c, axis=-1)
+        dcx, dcy = d_c[..., 0], d_c[..., 1]
+        rng_m = z * np.sqrt((dcx * dcx + dcy * dcy) + 1.0)  # |d_c|, d_c z = 1
         valid &= (rng_m >= c.min_range_m) & (rng_m <= c.max_range_m)
         if c.noise:
             valid &= ~self._flying(np.where(valid, z, 0.0))
         if c.edge_gap_m is not None:  # drawn last: the rest of the frame is unchanged
             band = self.edge_gap_mask(
-                np.asarray(position_m, float),
+                position,
                 R_world_cam,
                 d_c,
                 z_true,
@@ -233,6 +267,22 @@ class TofCamera:
         F, E = positions_m.shape[0], edges_world_m.shape[0]
         if E == 0:
             return np.zeros((F, 0), dtype=bool)
+        # a long trial has many frames and many edges: frames in chunks of EDGE_RAYS_PER_CHUNK
+        # keep the (F, E, 3) arrays small; every ray is cast on its own, so chunking changes
+        # nothing
+        step = max(1, EDGE_RAYS_PER_CHUNK // E)
+        if F > step:
+            return np.concatenate(
+                [
+                    self.edges_visible(
+                        positions_m[a : a + step],
+                        R_world_cam[a : a + step],
+                        edges_world_m,
+                        margin_px,
+                    )
+                    for a in range(0, F, step)
+                ]
+            )
         rel = edges_world_m[None, :, :] - positions_m[:, None, :]  # (F, E, 3)
         p_c = np.einsum("fji,fej->fei", R_world_cam, rel)
         z = p_c[..., 2]
@@ -244,8 +294,13 @@ class TofCamera:
         inside = (z > 1e-6) & (u >= margin_px) & (u <= c.width_px - 1 - margin_px)
         inside &= (v >= margin_px) & (v <= c.height_px - 1 - margin_px)
         inside &= (rng_m >= c.min_range_m) & (rng_m <= c.max_range_m)
-        rays = np.concatenate([np.broadcast_to(positions_m[:, None, :], rel.shape), rel], -1)
+        # only the (frame, edge) pairs in view need the occlusion ray (each ray on its own)
+        out = np.zeros((F, E), dtype=bool)
+        if not inside.any():
+            return out
+        pos = np.broadcast_to(positions_m[:, None, :], rel.shape)[inside]
+        rays = np.concatenate([pos, rel[inside]], -1)
         ans = self.scene.cast_rays(self._o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
         t_hit = ans["t_hit"].numpy()
-        unoccluded = t_hit >= 1.0 - 0.01 / np.maximum(rng_m, 1e-6)
-        return inside & unoccluded
+        out[inside] = t_hit >= 1.0 - 0.01 / np.maximum(rng_m[inside], 1e-6)
+        return out

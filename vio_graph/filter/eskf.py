@@ -570,12 +570,10 @@ class SagittalEskf:
         association cannot be wrong, e.g. the stance ankle, where a drifted velocity must not
         lock the anchor out).
         """
-        self._require_init()
-        t = self._t_s if timestamp_s is None else float(timestamp_s)
-        dt = t - self._t_s
-        if abs(dt) > self.config.max_time_mismatch_s:
-            self._n_stale += 1
+        timing = self._measurement_time(timestamp_s)
+        if timing is None:
             return False
+        t, dt = timing
         rel = _vec2(rel_xz)
         V = _cov2(cov)
         if key not in self._aug_xz:
@@ -607,12 +605,10 @@ class SagittalEskf:
         stance, this informs the velocity from the first stance frame on: a fast gait's
         foot-flat lasts only a few frames. Returns True if fused (False: gated out or stale).
         """
-        self._require_init()
-        t = self._t_s if timestamp_s is None else float(timestamp_s)
-        dt = t - self._t_s
-        if abs(dt) > self.config.max_time_mismatch_s:
-            self._n_stale += 1
+        timing = self._measurement_time(timestamp_s)
+        if timing is None:
             return False
+        t, dt = timing
         H = np.zeros((2, self._P.shape[0]))
         H[:, 2:4] = _I2
         predicted = self._x[2:4] + dt * np.asarray(self._accel_w_mps2)
@@ -621,6 +617,17 @@ class SagittalEskf:
         if accepted:
             self._record_correction(t)
         return accepted
+
+    def _measurement_time(self, timestamp_s: float | None) -> tuple[float, float] | None:
+        """(t, t - t_state) of a measurement at ``timestamp_s`` (None: now), or None (counted
+        as stale) if it is further than ``max_time_mismatch_s`` from the state."""
+        self._require_init()
+        t = self._t_s if timestamp_s is None else float(timestamp_s)
+        dt = t - self._t_s
+        if abs(dt) > self.config.max_time_mismatch_s:
+            self._n_stale += 1
+            return None
+        return t, dt
 
     def drop_landmark(self, key: LandmarkKey) -> None:
         """Forget landmark ``key`` (marginalise it out of the state); no-op if unknown."""

@@ -826,14 +826,17 @@ class OnlineEstimator:
                 stats["vision_overrides"] += 1
             if first or fused:
                 stats["anchored_frames"] += 1
+                velocity = None
                 if fc.stance_velocity_sigma_mps is not None:
-                    self._fuse_stance_velocity(t, R_world_imu, dlever)
+                    velocity = self._fuse_stance_velocity(t, R_world_imu, dlever)
                 # the same anchor, as a landmark observation the smoother can use
                 self._stance_observation = StanceObservation(
                     timestamp_s=t,
                     stance_id=self._stance_n,
                     ankle_rel_xz_m=lever.copy(),
                     cov_m2=np.eye(2) * sig2,
+                    camera_velocity_xz_mps=None if velocity is None else velocity[0],
+                    velocity_cov=None if velocity is None else velocity[1],
                 )
             else:
                 stats["gate_refused"] += 1
@@ -847,7 +850,7 @@ class OnlineEstimator:
 
     def _fuse_stance_velocity(
         self, t: float, R_world_imu: NDArray[np.float64], dlever: NDArray[np.float64]
-    ) -> None:
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The still ankle's velocity: v_cam + pitch rate x d lever/d pitch = 0, so the camera
         moves at -rate x dlever (m/s, ground axes). Gated, and never forced: a stance the
         detector proposes in the slow part of a swing passes the vision test and would zero
@@ -861,6 +864,7 @@ class OnlineEstimator:
         cov = np.eye(2) * fc.stance_velocity_sigma_mps**2
         fused = self.filter.update_velocity(v_cam, cov, t, fc.stance_gate)
         self.stance_stats["velocity_fused"] += int(fused)
+        return (v_cam, cov) if fused else None
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
         """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""

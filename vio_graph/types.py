@@ -127,12 +127,17 @@ class StanceObservation:
 
     ``ankle_rel_xz_m``: ankle minus camera position, ground-aligned axes, metres.
     ``stance_id``: one id per stance (the same anchor keeps it over the stance's frames).
+    ``camera_velocity_xz_mps`` / ``velocity_cov``: the camera velocity a still ankle implies
+    (m/s, ground axes) and its covariance ((m/s)^2), when the filter fused it
+    (``filter.stance_velocity_sigma_mps``); else None.
     """
 
     timestamp_s: float
     stance_id: int
     ankle_rel_xz_m: NDArray[np.float64]
     cov_m2: NDArray[np.float64]
+    camera_velocity_xz_mps: NDArray[np.float64] | None = None
+    velocity_cov: NDArray[np.float64] | None = None
 
 
 #: A landmark seen from the camera: a terrain corner or the stance ankle.

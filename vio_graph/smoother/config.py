@@ -38,6 +38,14 @@ class FactorFamilies(BaseModel):
         description="the planted ankle during each stance as a landmark seen through the leg "
         "(the filter's stance anchor, vio_graph/filter/stance.py)",
     )
+    stance_velocity: bool = Field(
+        default=True,
+        description="a stance keyframe's IMU velocity from the still ankle (the filter's "
+        "stance velocity observation, moved from the camera to the IMU with the gyro). Sweep "
+        "seed 1002, smoother / batch toe x cm: IMU upside down 2.27 / 1.02 -> 0.46 / 0.44, IMU "
+        "turned 90 deg 2.06 / 1.16 -> 0.62 / 0.62 (the smoother's x ran away on the final "
+        "level landing, where the filter, with the velocity, did not)",
+    )
     attitude: bool = Field(default=True, description="vendor AHRS attitude prior per keyframe")
     planar: bool = Field(
         default=True, description="sagittal-plane priors: lateral position and velocity = 0"

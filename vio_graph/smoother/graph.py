@@ -642,6 +642,35 @@ class KeyframeGraphBuilder:
             noise = _between_noise(_cov3_from_xz(cov, cfg), cfg)
             batch.add(gtsam.BetweenFactorPose3(X(i), lk, meas, noise), [X(i), lk])
             batch.stamps[lk] = t
+            if (
+                cfg.factors.stance_velocity
+                and isinstance(ob, StanceObservation)
+                and ob.camera_velocity_xz_mps is not None
+                and ob.velocity_cov is not None
+            ):
+                self._add_stance_velocity(batch, i, t, ob, R_i)
+
+    def _add_stance_velocity(
+        self,
+        batch: _FactorBatch,
+        i: int,
+        t: float,
+        ob: StanceObservation,
+        R_i: NDArray[np.float64],
+    ) -> None:
+        """V(i) from the still ankle: the camera's velocity minus the gyro's share of the
+        IMU-camera lever (v_cam = v_imu + omega x R p_ic), world axes; loose laterally."""
+        assert ob.camera_velocity_xz_mps is not None and ob.velocity_cov is not None
+        omega = R_i @ self._gyro_at(t)
+        lever = R_i @ self.imu_p_cam_m
+        v_imu = _xz_to_3(ob.camera_velocity_xz_mps) - np.cross(omega, lever)
+        vc = np.asarray(ob.velocity_cov, dtype=float).reshape(2, 2)
+        cov3 = np.diag([0.0, 1.0, 0.0])
+        cov3[np.ix_([0, 2], [0, 2])] = vc
+        batch.add(
+            gtsam.PriorFactorVector(V(i), v_imu, gtsam.noiseModel.Gaussian.Covariance(cov3)),
+            [V(i)],
+        )
 
     def _interpolate_held(self) -> None:
         """The newest sample is a measurement: replace the held accelerometer samples just

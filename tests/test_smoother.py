@@ -480,3 +480,42 @@ def test_long_trial_does_not_follow_a_drifting_filter(cls):
     assert SmootherConfig().factors.weak_position is False  # the default
     # the old prior drags the end towards the filter (measured: 8.6-9.1 vs 1.1-1.4 cm)
     assert rms(err[True]) > 4 * rms(err[False])
+
+
+def test_stance_velocity_bounds_a_blind_stretch() -> None:
+    """2.5 s without displacements or corners and an accelerometer bias: the camera velocity
+    a still ankle implies (here the true camera velocity with a 5 cm/s sigma, as the filter
+    passes it in StanceObservation) holds the keyframe velocities, and so the path, through
+    the stretch; the factor moves it from the camera to the IMU with the gyro's lever term
+    (a wrong lever sign or frame would make it worse, not better)."""
+    bias = (0.1, 0.0, -0.1)
+    kw = dict(displacement_sigma_m=0.001, accel_bias_mps2=bias, corners=False, seed=2)
+    tr = make_swinging_shank_trial(4.0, gap_s=(1.5, 4.0), **kw)
+    t_f = tr.frame_times_s
+    v_cam = np.gradient(tr.camera_xz_true_m, t_f, axis=0)
+    cov = np.eye(2) * 1e-4
+    obs = [
+        [
+            StanceObservation(
+                float(t_f[n]),
+                n,
+                np.array([0.0, -0.4]),
+                cov,
+                camera_velocity_xz_mps=v_cam[n],
+                velocity_cov=np.eye(2) * 0.05**2,
+            )
+        ]
+        if 1.5 <= t_f[n] <= 4.0
+        else []
+        for n in range(t_f.size)
+    ]
+    errs = {}
+    for on in (False, True):
+        fam = FactorFamilies(stance_anchors=False, stance_velocity=on)
+        s = SlidingWindowSmoother(SmootherConfig(window_s=2.0, factors=fam), tr.imu_T_cam)
+        trial = SyntheticTrial(**{**tr.__dict__, "observations": obs})
+        feed(trial, s, use_filter_guess=False)
+        err, t = keyframe_errors_m(tr, s)
+        errs[on] = err[t >= 1.5].max()
+    assert errs[True] < 0.5 * errs[False], errs
+    assert errs[True] < 0.02, errs

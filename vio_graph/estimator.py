@@ -804,8 +804,7 @@ class OnlineEstimator:
             self._stance.quiet() if self._last_contact is None else self._last_contact.loaded
         )
         if candidate and fc.stance_speed_threshold_mps is not None:
-            assert self._last_imu is not None  # a frame comes after an IMU sample
-            rate = float((R_world_imu @ np.asarray(self._last_imu.gyro_radps, float))[1])
+            rate = self._pitch_rate_radps(R_world_imu)
             _, v_cam = self._position_at(t)
             candidate = float(np.hypot(*(v_cam + rate * dlever))) < fc.stance_speed_threshold_mps
         stats = self.stance_stats
@@ -848,6 +847,12 @@ class OnlineEstimator:
             self._stance_test.reset()
         self._in_stance = stance
 
+    def _pitch_rate_radps(self, R_world_imu: NDArray[np.float64]) -> float:
+        """The shank's pitch rate (rad/s, about the ground frame's lateral axis) from the
+        latest IMU sample's gyro."""
+        assert self._last_imu is not None  # a frame comes after an IMU sample
+        return float((R_world_imu @ np.asarray(self._last_imu.gyro_radps, float))[1])
+
     def _fuse_stance_velocity(
         self, t: float, R_world_imu: NDArray[np.float64], dlever: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
@@ -858,8 +863,7 @@ class OnlineEstimator:
         2 cm gated)."""
         fc = self.config.filter
         assert fc.stance_velocity_sigma_mps is not None
-        assert self._last_imu is not None  # a frame comes after an IMU sample
-        rate = float((R_world_imu @ np.asarray(self._last_imu.gyro_radps, float))[1])
+        rate = self._pitch_rate_radps(R_world_imu)
         v_cam = -rate * np.asarray(dlever, dtype=float)
         cov = np.eye(2) * fc.stance_velocity_sigma_mps**2
         fused = self.filter.update_velocity(v_cam, cov, t, fc.stance_gate)

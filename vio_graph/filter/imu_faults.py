@@ -47,7 +47,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.filter.config import ImuFaultConfig
 from vio_graph.filter.fast_imu import Mat3, mat3_rotvec, mat3_tmul, quat_matrix
@@ -97,6 +97,27 @@ class ImuFaultMonitor:
         self.n_gyro_repaired = 0  #: gyro samples replaced by the orientation's rate
         self.max_gyro_d2 = 0.0  #: largest test statistic seen (diagnostics)
 
+    def _saturation_prior(
+        self, accel_mps2: ArrayLike, acc_sat: bool, gyr_sat: bool, xa: float, xg: float
+    ) -> tuple[NDArray[np.float64] | None, float, float]:
+        """Count a clipped sample and apply the saturation prior: the accelerometer with the
+        prior's mean put back on the railed axes (None if no axis is clipped) and the extra
+        sigmas (the accelerometer's growing along a clipped stretch if
+        ``saturation_correlated``). Shared by :meth:`process` and its reference."""
+        self._acc_run = self._acc_run + 1 if acc_sat else 0
+        acc = None
+        if acc_sat:
+            self.n_accel_saturated += 1
+            a = np.asarray(accel_mps2, dtype=float)
+            rail = np.abs(a) >= self._acc_lim
+            acc = np.where(rail, a + np.sign(a) * self._acc_sig * _HALF_NORMAL_MEAN, a)
+            corr = np.sqrt(2.0 * self._acc_run - 1.0) if self.config.saturation_correlated else 1.0
+            xa = max(xa, self._acc_sig * _HALF_NORMAL_SD * corr)
+        if gyr_sat:
+            self.n_gyro_saturated += 1
+            xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
+        return acc, xa, xg
+
     def process(self, sample: ImuSample) -> ImuSample:
         """The sample with its extra sigmas set (and its gyro replaced if it failed the test).
 
@@ -106,21 +127,11 @@ class ImuFaultMonitor:
             return sample
         acc_l = np.asarray(sample.accel_mps2, dtype=float).tolist()
         gx, gy, gz = gyr_l = np.asarray(sample.gyro_radps, dtype=float).tolist()
-        acc: NDArray[np.float64] | None = None  # built only if the sample changes
         xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
         acc_sat = any(abs(v) >= self._acc_lim for v in acc_l)
         gyr_sat = any(abs(v) >= self._gyr_lim for v in gyr_l)
-        self._acc_run = self._acc_run + 1 if acc_sat else 0
-        if acc_sat:
-            self.n_accel_saturated += 1
-            a = np.asarray(sample.accel_mps2, dtype=float)
-            rail = np.abs(a) >= self._acc_lim
-            acc = np.where(rail, a + np.sign(a) * self._acc_sig * _HALF_NORMAL_MEAN, a)
-            corr = np.sqrt(2.0 * self._acc_run - 1.0) if self.config.saturation_correlated else 1.0
-            xa = max(xa, self._acc_sig * _HALF_NORMAL_SD * corr)
-        if gyr_sat:
-            self.n_gyro_saturated += 1
-            xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
+        # acc: built only if the sample changes (None until then)
+        acc, xa, xg = self._saturation_prior(sample.accel_mps2, acc_sat, gyr_sat, xa, xg)
         t = float(sample.timestamp_s)
         R = quat_matrix(sample.quat_wxyz)  # row-major tuple (geometry.matrix_from_quat_wxyz)
         repaired: tuple[float, float, float] | None = None
@@ -170,16 +181,8 @@ class ImuFaultMonitor:
         xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
         acc_sat = bool(np.any(np.abs(acc) >= self._acc_lim))
         gyr_sat = bool(np.any(np.abs(gyr) >= self._gyr_lim))
-        self._acc_run = self._acc_run + 1 if acc_sat else 0
-        if acc_sat:
-            self.n_accel_saturated += 1
-            rail = np.abs(acc) >= self._acc_lim
-            acc = np.where(rail, acc + np.sign(acc) * self._acc_sig * _HALF_NORMAL_MEAN, acc)
-            corr = np.sqrt(2.0 * self._acc_run - 1.0) if self.config.saturation_correlated else 1.0
-            xa = max(xa, self._acc_sig * _HALF_NORMAL_SD * corr)
-        if gyr_sat:
-            self.n_gyro_saturated += 1
-            xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
+        prior_acc, xa, xg = self._saturation_prior(acc, acc_sat, gyr_sat, xa, xg)
+        acc = acc if prior_acc is None else prior_acc
         t = float(sample.timestamp_s)
         R = matrix_from_quat_wxyz(sample.quat_wxyz)
         repaired = gyr

@@ -152,6 +152,21 @@ def _normal(src, order, sxs, pos, k):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _fill_normal(src, order, sxs, rank, k, normals, have, m):  # pragma: no cover - compiled
+    """Compute source point m's normal into ``normals`` once (``have`` marks it); True if a
+    distance tie makes it ambiguous (the caller hands the case to the numpy path)."""
+    if have[m]:
+        return False
+    nx, nz, tie = _normal(src, order, sxs, rank[m], k)
+    if tie:
+        return True
+    normals[m, 0] = nx
+    normals[m, 1] = nz
+    have[m] = True
+    return False
+
+
+@numba.njit(cache=True)
 def icp_loop(
     src,
     tgt,
@@ -263,13 +278,8 @@ def icp_loop(
             for c in range(nk):
                 i = keep[c]
                 m = j[i]
-                if not have[m]:
-                    nx, nz, ntie = _normal(src, order, sxs, rank[m], normal_neighbours)
-                    if ntie:
-                        return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
-                    normals[m, 0] = nx
-                    normals[m, 1] = nz
-                    have[m] = True
+                if _fill_normal(src, order, sxs, rank, normal_neighbours, normals, have, m):
+                    return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
                 nx = normals[m, 0]
                 nz = normals[m, 1]
                 rx = (tgt[i, 0] - tx) - src[m, 0]
@@ -300,13 +310,8 @@ def icp_loop(
     # the normals the covariance needs (the numpy path computes them for the kept pairs)
     for c in range(keep.size):
         m = j[keep[c]]
-        if not have[m]:
-            nx, nz, ntie = _normal(src, order, sxs, rank[m], normal_neighbours)
-            if ntie:
-                return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
-            normals[m, 0] = nx
-            normals[m, 1] = nz
-            have[m] = True
+        if _fill_normal(src, order, sxs, rank, normal_neighbours, normals, have, m):
+            return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
     return tx, tz, iterations, converged, keep, j, normals, _OK
 
 

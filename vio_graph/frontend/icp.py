@@ -215,15 +215,7 @@ def icp_translation_2d(
         return icp_translation_2d_reference(
             source_xz_m, target_xz_m, initial_translation_xz_m, config, source_tree
         )
-    cfg = IcpConfig() if config is None else config
-    src = np.ascontiguousarray(source_xz_m, dtype=float)
-    tgt = np.ascontiguousarray(target_xz_m, dtype=float)
-    _check_point_sets(src, tgt)
-    T0 = (
-        np.zeros(2)
-        if initial_translation_xz_m is None
-        else np.array(initial_translation_xz_m, dtype=float)
-    )
+    cfg, src, tgt, T0 = _icp_inputs(source_xz_m, target_xz_m, initial_translation_xz_m, config)
     tx, tz, iterations, converged, keep, j, normals, status = kernels.icp_loop(
         src,
         tgt,
@@ -294,6 +286,26 @@ def _check_point_sets(src: NDArray[np.float64], tgt: NDArray[np.float64]) -> Non
         raise FrontendError("ICP needs non-empty source and target point sets")
 
 
+def _icp_inputs(
+    source_xz_m: NDArray[np.float64],
+    target_xz_m: NDArray[np.float64],
+    initial_translation_xz_m: NDArray[np.float64] | None,
+    config: IcpConfig | None,
+) -> tuple[IcpConfig, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """(config, source, target, initial translation) as both ICP paths take them: float,
+    contiguous (N, 2) point sets checked, the translation a fresh (2,) array (zeros if none)."""
+    cfg = IcpConfig() if config is None else config
+    src = np.ascontiguousarray(source_xz_m, dtype=float)
+    tgt = np.ascontiguousarray(target_xz_m, dtype=float)
+    _check_point_sets(src, tgt)
+    T0 = (
+        np.zeros(2)
+        if initial_translation_xz_m is None
+        else np.array(initial_translation_xz_m, dtype=float)
+    )
+    return cfg, src, tgt, T0
+
+
 def _no_correspondence(T: NDArray[np.float64], iterations: int, cfg: IcpConfig) -> IcpResult:
     return IcpResult(
         T,
@@ -315,15 +327,7 @@ def icp_translation_2d_reference(
     source_tree: cKDTree | None = None,
 ) -> IcpResult:
     """numpy path of :func:`icp_translation_2d` (KD-tree queries; the tested reference)."""
-    cfg = IcpConfig() if config is None else config
-    src = np.asarray(source_xz_m, dtype=float)
-    tgt = np.asarray(target_xz_m, dtype=float)
-    _check_point_sets(src, tgt)
-    T = (
-        np.zeros(2)
-        if initial_translation_xz_m is None
-        else np.array(initial_translation_xz_m, dtype=float)
-    )
+    cfg, src, tgt, T = _icp_inputs(source_xz_m, target_xz_m, initial_translation_xz_m, config)
     tree = cKDTree(src) if source_tree is None else source_tree
     normals = _NormalCache(src, tree, cfg.normal_neighbours)
     nearest = _NearestSource(src, tree, tgt, cfg.max_correspondence_m)

@@ -36,6 +36,16 @@ SCRATCH_DIR = Path(
 )
 
 
+def display_path(path: Path | str) -> str:
+    """A recording path as results JSON should show it: relative to the working directory
+    when it lies below it, else only its folder name (no path of the machine it ran on)."""
+    p = Path(path)
+    try:
+        return str(p.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return p.name
+
+
 def stats_ms(values: Any) -> dict[str, float]:
     """Median, p95, mean, min and count of a list of durations (any unit; name says ms)."""
     v = np.asarray(values, dtype=float).reshape(-1)

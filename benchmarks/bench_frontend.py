@@ -387,7 +387,7 @@ def run(
     kiss = bench_kiss_icp(rec, frames, runs[0])
     ff = ours["frontend_plus_fusion"]["median"]
     return {
-        "recording": str(rec_path),
+        "recording": _common.display_path(str(rec_path)),
         "frames": len(frames),
         "image_pixels": slice_pts[0],
         "repeats": repeats,

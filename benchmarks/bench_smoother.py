@@ -183,7 +183,7 @@ def bench_replay(recording: Path, windows_s: list[float]) -> dict[str, Any]:
                 "iterations": b.solve_iterations,
             }
     return {
-        "recording": str(recording),
+        "recording": _common.display_path(str(recording)),
         "frames": rec.num_frames,
         "fixed_lag": rows,
         "batch": batch,

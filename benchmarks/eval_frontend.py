@@ -184,7 +184,7 @@ def summarise(rec: Recording, out: dict[str, Any]) -> dict[str, Any]:
     gt_xz = np.stack([_interp_xz(cam.timestamp_s, cam.position_m, float(x)) for x in t])
     cam_err = est_xz - gt_xz - (est_xz[0] - gt_xz[0])
     return {
-        "recording": str(rec.root),
+        "recording": Path(rec.root).name,
         "scenario": rec.metadata.provenance.scenario,
         "seed": rec.metadata.provenance.seed,
         "frames": n,

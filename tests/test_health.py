@@ -149,3 +149,51 @@ def test_displacements_the_filter_could_not_relate_are_not_counted_as_refused() 
         d = None if k == 0 else Displacement2D((k - 1) * DT, k * DT, np.array([0.01, 0.0]), cov)
         m2.add_frame(k * DT, np.array([k * 0.01, 0.0]), d, accepted=k % 2 == 1, in_stance=False)
     assert m2.report()["displacements_rejected_share"] == pytest.approx(0.5, abs=0.02)
+
+
+def test_a_drift_the_filters_own_covariance_allows_is_reported() -> None:
+    """x blind for 0.5 s at a velocity sigma of 0.3 m/s (a clipped heel strike before a level
+    floor): the filter's own account says x may be 15 cm off, and run says so; vision or a
+    stance in between restarts the sum."""
+
+    def feed(v_sigma: float, seen_every: int = 0, distrusted: int = 0) -> dict:
+        m = HealthMonitor()
+        floor, risers = np.diag([1.0, 1e-6]), np.eye(2) * 1e-6
+        for k in range(56):  # 1.3 s of stairs (x measured), then 0.5 s of floor
+            blind = k > 39
+            cov = floor if blind else risers
+            d = None if k == 0 else Displacement2D((k - 1) * DT, k * DT, np.zeros(2), cov)
+            stance = blind and bool(seen_every) and (k - 40) % seen_every == 0
+            m.add_frame(
+                k * DT,
+                np.zeros(2),
+                d,
+                True,
+                stance,
+                velocity_sigma_x_mps=v_sigma if blind else 0.01,
+                distrusted_imu_samples=distrusted if k >= 40 else 0,  # clipped at 1.3 s
+            )
+        return m.report()
+
+    rep = feed(0.3, distrusted=5)
+    # 0.01 -> 0.3 m/s over the first blind frame, then 0.3 m/s over 15 frames
+    assert rep["x_blind"]["max_drift_sigma_cm"] == pytest.approx(0.155 * 100 * DT + 30.0 * 15 * DT)
+    assert not rep["x_blind"]["warned"]  # 16 of 56 frames: below the blind-share warning
+    assert rep["x_blind"]["drift_warned"] and not rep["ok"]
+    assert "15.5 cm" in rep["warnings"][0] and "5 saturated" in rep["warnings"][0]
+    # the same covariance without distrusted IMU samples is left to the blind-share test
+    rep = feed(0.3)
+    assert rep["x_blind"]["max_drift_sigma_cm"] == pytest.approx(0.155 * 100 * DT + 30.0 * 15 * DT)
+    assert not rep["x_blind"]["drift_warned"] and rep["ok"]
+    # a filter that knows its velocity to 1 cm/s: 0.5 cm at most, no warning
+    rep = feed(0.01, distrusted=5)
+    assert not rep["x_blind"]["drift_warned"] and rep["ok"]
+    # a stance every 5 frames, the first on the frame after the clipped samples: each sum
+    # runs over the 5 frame periods up to an anchored frame (0.3 m/s * 5/30 s = 5 cm), and
+    # only the first run (one period, 0.5 cm) held distrusted samples: no warning
+    rep = feed(0.3, seen_every=5, distrusted=5)
+    assert rep["x_blind"]["max_drift_sigma_cm"] == pytest.approx(30.0 * 5 * DT)
+    assert rep["x_blind"]["max_drift_sigma_after_distrusted_imu_cm"] == pytest.approx(
+        0.155 * 100 * DT
+    )
+    assert not rep["x_blind"]["drift_warned"]

@@ -287,3 +287,57 @@ def test_smoothers_can_interpolate_the_gyro_of_a_held_packet() -> None:
     # linear rate: the interpolation is exact; the predicted gyro leaves a roll error
     assert np.linalg.norm(gtsam.Rot3.Logmap(r_true.between(r_on))) < 1e-9
     assert np.linalg.norm(gtsam.Rot3.Logmap(r_true.between(r_off))) > 1e-3
+
+
+def test_distrusted_sample_noise_enters_at_its_own_time() -> None:
+    """A clipped sample at 0.06 s in the keyframe interval 0.05-0.15 s is a velocity pulse
+    whose position error grows over the 0.09 s after it: its preintegrated position variance
+    is (sigma h)^2 (0.09 s)^2 with the per-step distrust, and only a third of T^2 spread over
+    the interval (the model before, 'spread')."""
+    import gtsam
+
+    from vio_graph.smoother.imu_sampling import distrust_step_variances
+    from vio_graph.types import EstimateStatus, FrameEstimate, TerrainKind
+
+    t = np.arange(0.0, 0.2, H)
+    x = np.zeros((t.size, 2))
+    x[6] = (30.0, 0.0)
+    dt = np.full(10, H)  # steps 0.05-0.15 s on the samples
+    vel, rot = distrust_step_variances(t, x, 0.05, dt)
+    # the sample at 0.06 s covers 0.055-0.065 s: half in each of the steps around it
+    assert vel[0] == pytest.approx(0.5 * (30.0 * H) ** 2) and vel[1] == pytest.approx(vel[0])
+    assert vel.sum() == pytest.approx(distrust_variances(t, x, 0.05, 0.15)[0])
+    assert not np.any(vel[2:]) and not np.any(rot)
+
+    def position_var(mode: str, extra: float) -> float:
+        b = KeyframeGraphBuilder(SmootherConfig(distrust_noise=mode), np.eye(4))
+        for s in _pitching(25, lambda _t: 0.0):
+            b.add_imu(
+                ImuSample(
+                    s.timestamp_s,
+                    s.accel_mps2,
+                    s.gyro_radps,
+                    s.quat_wxyz,
+                    accel_extra_sigma_mps2=extra if abs(s.timestamp_s - 0.06) < 1e-9 else 0.0,
+                )
+            )
+        ups = []
+        for tk in (0.05, 0.15):
+            z2 = np.zeros(2)
+            est = FrameEstimate(
+                tk, EstimateStatus.FUSED, z2, z2, np.eye(2) * 1e-4, z2, z2, z2, z2,
+                TerrainKind.LEVEL, True, {},
+            )  # fmt: skip
+            ups += b.add_frame(tk, True, est, None, None)
+        ups += b.flush()
+        g = ups[-1].factors
+        f = next(g.at(i) for i in range(g.size()) if isinstance(g.at(i), gtsam.CombinedImuFactor))
+        return float(f.preintegratedMeasurements().preintMeasCov()[3, 3])
+
+    base = position_var("per_step", 0.0)
+    assert position_var("spread", 0.0) == base  # clean samples: the same factor
+    pulse = (30.0 * H) ** 2 * 0.09**2
+    assert position_var("per_step", 30.0) - base == pytest.approx(pulse, rel=0.1)
+    assert position_var("spread", 30.0) - base == pytest.approx(
+        pulse * 0.1**2 / 3 / 0.09**2, rel=0.15
+    )

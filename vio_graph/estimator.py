@@ -574,6 +574,8 @@ class OnlineEstimator:
             self._in_stance,
             corner_seen,
             refused=refused,
+            velocity_sigma_x_mps=float(np.sqrt(max(state.P[2, 2], 0.0))),
+            distrusted_imu_samples=self.imu_faults.n_distrusted,
         )
         timings["fusion"] = (time.perf_counter() - t0) * 1e3
         # 5. kinematics (Fig. 3)

@@ -236,6 +236,11 @@ class ImuFaultMonitor:
         wx, wy, wz = Rotation.from_matrix(R_rel).as_rotvec().tolist()
         return wx, wy, wz
 
+    @property
+    def n_distrusted(self) -> int:
+        """Samples marked so far: saturated (either sensor) or repaired."""
+        return self.n_accel_saturated + self.n_gyro_saturated + self.n_gyro_repaired
+
     def report(self) -> dict[str, int]:
         return {
             "accel_saturated_samples": self.n_accel_saturated,

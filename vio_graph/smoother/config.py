@@ -147,6 +147,15 @@ class SmootherConfig(BaseModel):
         "0.70 vs 0.40 cm); 'raw': each IMU sample held over its step, as GTSAM's "
         "integrateMeasurement assumes (the ablation's baseline)",
     )
+    distrust_noise: Literal["per_step", "spread"] = Field(
+        default="per_step",
+        description="where the extra variance of distrusted IMU samples (saturated, repaired; "
+        "vio_graph/filter/imu_faults.py) enters the preintegration: 'per_step' = in the steps "
+        "those samples fall in, so the position uncertainty grows with the time since them, "
+        "as a lost velocity pulse's error does; 'spread' = evenly over the keyframe interval "
+        "as extra white noise (before 2026-12-02; upstair s1 4 g saturation batch toe x "
+        "4.29 cm)",
+    )
     robust_kernel: Literal["huber", "cauchy", "none"] = Field(
         default="huber", description="M-estimator on displacement and landmark factors"
     )

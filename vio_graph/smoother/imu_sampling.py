@@ -31,6 +31,7 @@ __all__ = [
     "TIME_TOL_S",
     "common_frame_samples",
     "discretization_velocity_var",
+    "distrust_step_variances",
     "held_samples",
     "make_preintegration_params",
     "midpoint_samples",
@@ -237,6 +238,36 @@ def distrust_variances(
     touch = (t > t0_s - h + TIME_TOL_S) & (t < t1_s + h - TIME_TOL_S)
     v = np.sum((x[touch] * h) ** 2, axis=0)
     return float(v[0]), float(v[1])
+
+
+def distrust_step_variances(
+    times_s: ArrayLike,
+    extra_sigmas: Sequence[tuple[float, float]],
+    t0_s: float,
+    dt_s: ArrayLike,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per preintegration step, the velocity (m^2/s^2) and rotation (rad^2) variances that the
+    distrusted samples add: each sample's (sigma h)^2 (h the sample period) goes to the steps
+    that its period [t - h/2, t + h/2] overlaps, in proportion to the overlap. Steps start at
+    ``t0_s`` and last ``dt_s`` (K,). The sum over the steps is :func:`distrust_variances` for
+    the samples inside the interval; unlike spreading that sum evenly over the interval, it
+    keeps WHEN the distrusted samples were, so the position uncertainty a clipped heel strike
+    leaves grows with the time since it, as the error does."""
+    dt = np.asarray(dt_s, dtype=float).reshape(-1)
+    vel, rot = np.zeros(dt.size), np.zeros(dt.size)
+    x = np.asarray(extra_sigmas, dtype=float).reshape(-1, 2)
+    t = np.asarray(times_s, dtype=float)
+    if dt.size == 0 or x.size == 0 or not np.any(x > 0):
+        return vel, rot
+    h = float(np.median(np.diff(t))) if t.size > 1 else float(dt.sum())
+    ends = t0_s + np.cumsum(dt)
+    starts = ends - dt
+    for j in np.flatnonzero(np.any(x > 0, axis=1)):
+        lo, hi = t[j] - 0.5 * h, t[j] + 0.5 * h
+        frac = np.clip(np.minimum(ends, hi) - np.maximum(starts, lo), 0.0, None) / h
+        vel += frac * (x[j, 0] * h) ** 2
+        rot += frac * (x[j, 1] * h) ** 2
+    return vel, rot
 
 
 def make_preintegration_params(

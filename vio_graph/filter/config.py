@@ -493,7 +493,9 @@ class FilterConfig(BaseModel):
         "flattening at ~1 rad/s, ankle moving 8-10 cm/s with accelerations under the "
         "detector's threshold) otherwise passes as stance and the anchor holds the camera "
         "back by the ankle's travel (sweep sts_slow_30fps seed 1000: 2.2 cm in the first "
-        "0.3 s, kept for the whole trial). False = no foot test",
+        "0.3 s, kept for the whole trial). Sweep seeds 1000-1002, filter toe x cm, off -> "
+        "on: sts_slow_30fps 2.74 -> 1.12, sts_slow_15fps 2.20 -> 2.04; paper scenarios seeds "
+        "1-5 identical except prosthesis_upstair 0.97 -> 1.05. False = no foot test",
     )
     stance_test_probability: float = Field(
         default=0.999,

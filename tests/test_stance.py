@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from vio_graph.config import PipelineConfig
-from vio_graph.filter.gating import chi2_2dof_quantile
-from vio_graph.filter.stance import StanceConsistencyTest
+from vio_graph.filter.gating import chi2_2dof_quantile, chi2_quantile
+from vio_graph.filter.stance import FootRotationTest, StanceConsistencyTest
 from vio_graph.pipeline import run_recording
 from vio_graph.types import Displacement2D
 
@@ -118,3 +118,72 @@ def test_fast_cadence_stances_correct_the_velocity(tmp_path: Path) -> None:
             assert res.metrics["health"]["stance"]["velocity_fused"] > 20
     assert ate["with"] < 3.0, ate
     assert ate["without"] > 2.0 * ate["with"], ate
+
+
+# --- the foot-rotation test (FootRotationTest) -----------------------------------------------
+HEEL_M = float(np.hypot(0.055, 0.068))  # ankle to heel of the able-bodied rig (m)
+
+
+def _foot_test() -> FootRotationTest:
+    # the defaults: stance_pitch_sigma_rad 0.002, stance_slip_sigma_m 0.0005, p = 0.999
+    return FootRotationTest(chi2_quantile(0.999, 1), HEEL_M, 0.002, 0.0005)
+
+
+def test_a_foot_flattening_about_its_heel_is_not_a_still_ankle() -> None:
+    """Loading response: the foot comes down from -15 deg to flat at 1 rad/s about its heel
+    (the ankle moves ~9 cm/s); every frame of it is refused, the flat foot after it passes."""
+    rng = np.random.default_rng(0)
+    n_turn = int(np.radians(15) / 1.0 * FPS)  # 7 frames at 30 fps
+    pitch = np.r_[np.radians(-15) + np.arange(n_turn) / FPS, np.zeros(30)]
+    pitch += rng.normal(0, np.radians(0.05), pitch.size)  # encoder + IMU pitch noise
+    test = _foot_test()
+    ok = []
+    for p in pitch:
+        ok.append(test.test(float(p)))
+        if not ok[-1]:
+            test.reset()  # the caller ends the stance
+    assert not any(ok[1:n_turn]), ok[:n_turn]  # the first call has nothing to compare with
+    assert all(ok[n_turn + 1 :]), ok[n_turn:]
+    # what it would have cost: the ankle travels HEEL_M x 15 deg = 2.3 cm
+    assert HEEL_M * np.radians(15) > 0.02
+
+
+def test_a_flat_foot_under_a_turning_shank_passes() -> None:
+    """Foot-flat while the shank rolls 30 deg over it: shank pitch and ankle angle change
+    together, the foot pitch does not (2 s of stance, encoder and IMU noise)."""
+    rng = np.random.default_rng(1)
+    shank = np.radians(np.linspace(-10, 20, 60))
+    ankle = -shank + rng.normal(0, np.radians(0.05), shank.size)
+    test = _foot_test()
+    assert all(test.test(float(s + a)) for s, a in zip(shank, ankle, strict=True))
+
+
+def test_without_an_ankle_angle_the_foot_test_stands() -> None:
+    test = _foot_test()
+    assert test.test(None) and test.test(0.0) and test.test(None)
+    assert test.test(0.0) and not test.test(0.1)  # 0.1 rad: 8.8 mm of ankle motion
+
+
+@pytest.mark.slow
+def test_a_trial_starting_in_a_loading_response_is_not_held_back(tmp_path: Path) -> None:
+    """Slow step-to-step sweep condition, seed 1000, first 3 s: the trial starts as the
+    instrumented foot comes down about its heel (toe 7 cm -> 0 in 0.3 s, the ankle 2 cm
+    forward and 1 cm down) with ankle accelerations under the detector's threshold. Without
+    the foot test the anchor took that as stance and held the filter 2 cm behind the truth
+    for the rest of the trial; with it the stance starts once the foot is flat."""
+    from vio_graph.sim import simulate
+    from vio_graph.sweep import condition_by_name, condition_scenario
+
+    scenario = condition_scenario(condition_by_name("sts_slow_30fps"))
+    scenario = scenario.model_copy(update={"duration_s": 3.0})
+    rec = simulate(scenario, 1000, tmp_path / "rec")
+    err = {}
+    for name, on in {"with": True, "without": False}.items():
+        res = run_recording(
+            rec, tmp_path / name, _config(stance_foot_test=on), progress=False, visualize=False
+        )
+        err[name] = res.metrics["ate_cm"]["filter"]["camera"]["x"]
+        if on:
+            assert res.metrics["health"]["stance"]["foot_refused"] >= 3
+    assert err["with"] < 0.8, err
+    assert err["without"] > 1.5, err

@@ -68,9 +68,9 @@ from vio_graph.filter.fast_imu import (
     rot_y_mat3,
     sagittal_rotation_fast,
 )
-from vio_graph.filter.gating import chi2_2dof_quantile
+from vio_graph.filter.gating import chi2_2dof_quantile, chi2_quantile
 from vio_graph.filter.imu_faults import ImuFaultMonitor, velocity_fault_cov
-from vio_graph.filter.stance import StanceConsistencyTest, StanceDetector
+from vio_graph.filter.stance import FootRotationTest, StanceConsistencyTest, StanceDetector
 from vio_graph.filter.time_offset import ClockModel, TimeOffsetEstimator
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
 from vio_graph.frontend.level import SurfaceTilt, measure_surface_tilt
@@ -293,11 +293,23 @@ class OnlineEstimator:
             self._lever_sigma_m,
             fc.measurement_noise_floor_m,
         )
+        # the foot turns about its heel or toe: the nearer one bounds the ankle's motion
+        contact_m = min(
+            float(np.hypot(*rig.leg.heel_in_foot_xz_m)), float(np.hypot(*rig.leg.toe_in_foot_xz_m))
+        )
+        self._foot_test = FootRotationTest(
+            chi2_quantile(fc.stance_test_probability, 1) if fc.stance_foot_test else np.inf,
+            contact_m,
+            fc.stance_pitch_sigma_rad,
+            fc.stance_slip_sigma_m,
+        )
         #: stance bookkeeping for the health report: frames the detector proposed, refused by
-        #: vision, refused by the anchor gate, gate refusals overridden by vision, anchored
+        #: vision (displacement or foot rotation), of those by the foot rotation, refused by
+        #: the anchor gate, gate refusals overridden by vision, anchored
         self.stance_stats = {
             "candidate_frames": 0,
             "vision_refused": 0,
+            "foot_refused": 0,
             "gate_refused": 0,
             "vision_overrides": 0,
             "anchored_frames": 0,
@@ -802,6 +814,7 @@ class OnlineEstimator:
         fc = self.config.filter
         lever, dlever = self._stance_lever(R_world_imu)
         agrees = self._stance_test.test(t, lever, result.displacement)
+        foot_still = self._foot_test.test(self._foot_pitch_rad(R_world_imu))
         candidate = (
             self._stance.quiet() if self._last_contact is None else self._last_contact.loaded
         )
@@ -811,8 +824,9 @@ class OnlineEstimator:
             candidate = float(np.hypot(*(v_cam + rate * dlever))) < fc.stance_speed_threshold_mps
         stats = self.stance_stats
         stats["candidate_frames"] += int(candidate)
-        stats["vision_refused"] += int(candidate and not agrees)
-        stance = candidate and agrees
+        stats["vision_refused"] += int(candidate and not (agrees and foot_still))
+        stats["foot_refused"] += int(candidate and agrees and not foot_still)
+        stance = candidate and agrees and foot_still
         key = LandmarkKey("ankle", self._stance_n)
         self._stance_observation = None
         if stance:
@@ -847,7 +861,16 @@ class OnlineEstimator:
                 self.filter.drop_landmark(key)
                 self._stance_n += 1
             self._stance_test.reset()
+            self._foot_test.reset()
         self._in_stance = stance
+
+    def _foot_pitch_rad(self, R_world_imu: NDArray[np.float64]) -> float | None:
+        """Foot pitch (rad): the IMU shank pitch (the one the stance lever uses) plus the
+        ankle encoder at this frame; None without a joints stream."""
+        j = self._frame_joints if self._frame_joints is not None else self._last_joints
+        if j is None:
+            return None
+        return self.rig.shank_pitch_rad(R_world_imu) + float(j.ankle_rad)
 
     def _pitch_rate_radps(self, R_world_imu: NDArray[np.float64]) -> float:
         """The shank's pitch rate (rad/s, about the ground frame's lateral axis) from the

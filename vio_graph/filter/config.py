@@ -482,6 +482,21 @@ class FilterConfig(BaseModel):
         "shank turning about a still ankle explains, frame to frame and summed since onset. "
         "False = trust the acceleration detector alone (a slow swing then pins the ankle)",
     )
+    stance_foot_test: bool = Field(
+        default=True,
+        description="test every proposed stance frame against the foot's rotation "
+        "(filter/stance.FootRotationTest; needs the ankle angle of joints.csv): the foot "
+        "pitch (shank pitch + ankle angle) must not change since onset by more than the "
+        "anchor's ankle sigma allows, since a foot turning about its heel or toe moves the "
+        "ankle. Mechanism, not a fitted threshold: the test uses stance_pitch_sigma_rad, "
+        "stance_slip_sigma_m and stance_test_probability. A slow loading response (foot "
+        "flattening at ~1 rad/s, ankle moving 8-10 cm/s with accelerations under the "
+        "detector's threshold) otherwise passes as stance and the anchor holds the camera "
+        "back by the ankle's travel (sweep sts_slow_30fps seed 1000: 2.2 cm in the first "
+        "0.3 s, kept for the whole trial). Sweep seeds 1000-1002, filter toe x cm, off -> "
+        "on: sts_slow_30fps 2.74 -> 1.12, sts_slow_15fps 2.20 -> 2.04; paper scenarios seeds "
+        "1-5 identical except prosthesis_upstair 0.97 -> 1.05. False = no foot test",
+    )
     stance_test_probability: float = Field(
         default=0.999,
         gt=0,

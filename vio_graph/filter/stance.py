@@ -178,3 +178,53 @@ class StanceConsistencyTest:
         d2_chain = float(r @ np.linalg.solve(sum_C + np.eye(2) * self._lever_var, r))
         self.last_d2 = max(d2_frame, d2_chain)
         return self.last_d2 <= self._gate_d2
+
+
+class FootRotationTest:
+    """Tests the stance hypothesis "the ankle has not moved since onset" against the foot's
+    own rotation (shank pitch + ankle encoder = foot pitch).
+
+    A foot on the ground can only turn about a point of contact: the heel while it comes
+    down after heel strike (loading response), the toe at heel-off or in a toe-first
+    landing. The ankle then moves by (foot rotation) x (ankle - contact), at least
+    ``contact_distance_m`` (the nearer of heel and toe) per radian: in a slow loading
+    response (foot flattening at ~1 rad/s, ankle accelerations well under the detector's
+    threshold) that is 8-10 cm/s, a motion that the camera displacement, ~1 cm a frame,
+    barely resolves. The foot pitch change since onset, turned into that ankle motion, is
+    tested (chi-square, 1 dof) against the ankle sigma the anchor assumes (pitch-change
+    error of shank and encoder, slip), so a foot that turns more than the anchor tolerates
+    ends the stance. Like :class:`StanceConsistencyTest`, the first tested frame is measured
+    against the previous frame (the stance's onset is itself tested). Without an ankle
+    angle (no joints stream) there is nothing to test and the hypothesis stands.
+    Pure algorithm: no I/O.
+    """
+
+    def __init__(
+        self, gate_d2: float, contact_distance_m: float, pitch_sigma_rad: float, slip_sigma_m: float
+    ) -> None:
+        self._gate_d2 = float(gate_d2)
+        self._r = float(contact_distance_m)
+        # two pitch evaluations (onset and now), each with the pitch-change error, plus slip
+        self._var_m2 = 2.0 * (self._r * float(pitch_sigma_rad)) ** 2 + float(slip_sigma_m) ** 2
+        self._prev: float | None = None  # foot pitch (rad) at the previous frame
+        self._onset: float | None = None  # foot pitch (rad) the stance is measured from
+        self.last_d2: float = 0.0  #: Mahalanobis^2 of the last test (diagnostics)
+
+    def reset(self) -> None:
+        """Forget the onset (the stance ended or was rejected)."""
+        self._onset = None
+
+    def test(self, foot_pitch_rad: float | None) -> bool:
+        """True if the foot has not turned since onset by more than a still ankle allows.
+        ``foot_pitch_rad`` is shank pitch + ankle angle at this frame (None: no joints).
+        Call once per frame, in or out of stance."""
+        prev, self._prev = self._prev, foot_pitch_rad
+        self.last_d2 = 0.0
+        if foot_pitch_rad is None or prev is None:
+            self._onset = None
+            return True
+        if self._onset is None:
+            self._onset = prev
+        motion_m = self._r * (foot_pitch_rad - self._onset)
+        self.last_d2 = motion_m**2 / self._var_m2
+        return self.last_d2 <= self._gate_d2

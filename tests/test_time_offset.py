@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vio_graph.filter.config import TimeOffsetConfig
-from vio_graph.filter.time_offset import ClockModel, TimeOffsetEstimator
+from vio_graph.filter.time_offset import ClockModel, FrameStampTest, TimeOffsetEstimator
 
 
 def test_clock_model_removes_jitter_keeps_exact_stamps_and_reports_gaps() -> None:
@@ -215,3 +215,48 @@ def test_retroactive_rerun_removes_what_was_fused_before_the_offset_was_known(
     rep = rerun_report(replay, rec.groundtruth)
     first, rerun = rep["first_pass_filter_camera_rmse_cm"], rep["rerun_filter_camera_rmse_cm"]
     assert max(rerun.values()) < max(first.values())
+
+
+def _stamp_test_on(stamps_jitter: bool, seed: int = 0) -> FrameStampTest:
+    """Frames at 30 fps of a camera moving at v(t) = 1.5 sin(2 pi t) m/s along x; the IMU
+    prediction over [a, b] is exact, so a displacement's innovation under the times in use is
+    the motion between those times and the capture times, plus 1 mm of noise.
+    ``stamps_jitter``: stamps = capture (on the clock line) + 2 ms of transport jitter;
+    else the capture instants jitter by 1 ms and the stamps are exact."""
+    rng = np.random.default_rng(seed)
+    n, T, sigma = 300, 1 / 30, 1e-3
+    line = np.arange(n) * T
+    if stamps_jitter:
+        capture, stamp = line, line + rng.normal(0, 2e-3, n)
+    else:
+        capture = line + rng.normal(0, 1e-3, n)
+        stamp = capture
+    v = lambda t: np.array([1.5 * np.sin(2 * np.pi * t), 0.0])  # noqa: E731
+    pos = lambda t: np.array([-1.5 / (2 * np.pi) * np.cos(2 * np.pi * t), 0.0])  # noqa: E731
+    test = FrameStampTest(cap_d2=13.8)
+    for k in range(n):
+        test.note_frame(line[k] - stamp[k])
+        if k:
+            used = line if test.use_line else stamp
+            meas = pos(capture[k]) - pos(capture[k - 1]) + rng.normal(0, sigma, 2)
+            pred = pos(used[k]) - pos(used[k - 1])
+            u = test.shift(v(used[k]))
+            assert u is not None
+            other = meas + (u if test.use_line else -u)
+            d2 = float(np.sum((meas - pred) ** 2)) / (2 * sigma**2)
+            d2_other = float(np.sum((other - pred) ** 2)) / (2 * sigma**2)
+            test.add(d2, d2_other)
+        test.end_frame(v(line[k] if test.use_line else stamp[k]))
+    return test
+
+
+def test_frame_stamp_test_lets_vision_choose_between_stamps_and_the_clock_line() -> None:
+    """Transport jitter on the stamps: the line wins within the trial and stays; jittering
+    capture instants with exact stamps: the stamps are kept (never switched)."""
+    for seed in range(3):
+        jittered = _stamp_test_on(stamps_jitter=True, seed=seed)
+        assert jittered.use_line and jittered.n_switches == 1
+        assert jittered.llr > jittered.threshold
+        exact = _stamp_test_on(stamps_jitter=False, seed=seed)
+        assert not exact.use_line and exact.n_switches == 0
+        assert exact.llr < -exact.threshold

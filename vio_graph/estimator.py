@@ -71,7 +71,7 @@ from vio_graph.filter.fast_imu import (
 from vio_graph.filter.gating import chi2_2dof_quantile, chi2_quantile
 from vio_graph.filter.imu_faults import ImuFaultMonitor, velocity_fault_cov
 from vio_graph.filter.stance import FootRotationTest, StanceConsistencyTest, StanceDetector
-from vio_graph.filter.time_offset import ClockModel, TimeOffsetEstimator
+from vio_graph.filter.time_offset import ClockModel, FrameStampTest, TimeOffsetEstimator
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
 from vio_graph.frontend.level import SurfaceTilt, measure_surface_tilt
 from vio_graph.geometry import (
@@ -99,6 +99,7 @@ from vio_graph.types import (
     ContactSample,
     CornerObservation,
     DepthFrame,
+    Displacement2D,
     EstimateStatus,
     FrameEstimate,
     ImuSample,
@@ -340,9 +341,18 @@ class OnlineEstimator:
         )
         self.frame_clock = (
             ClockModel(
-                1.0 / rig.frame_rate_hz, to.clock_window, to.gap_periods, to.camera_clock_model
+                1.0 / rig.frame_rate_hz,
+                to.clock_window,
+                to.gap_periods,
+                to.camera_clock_model is not False,
             )
             if rig.frame_rate_hz
+            else None
+        )
+        # 'auto': vision decides between the stamps and the clock line (FrameStampTest)
+        self.stamp_test = (
+            FrameStampTest(chi2_quantile(fc.gate_probability or 0.999, 2))
+            if to.camera_clock_model == "auto" and self.frame_clock is not None
             else None
         )
         la = fc.level_aiding
@@ -372,6 +382,8 @@ class OnlineEstimator:
         for name, clock in (("imu", self.imu_clock), ("camera", self.frame_clock)):
             if clock is not None:
                 rep["timestamps"][name] = clock.report()
+        if self.stamp_test is not None and "camera" in rep["timestamps"]:
+            rep["timestamps"]["camera"]["stamp_test"] = self.stamp_test.report()
         return rep
 
     # ------------------------------------------------------------------ inputs
@@ -563,6 +575,7 @@ class OnlineEstimator:
             result = transform_result(result)
         accepted = refused = False
         if result.displacement is not None:
+            self._test_frame_stamps(t, result.displacement)
             n_refused = self.filter.n_gate_refusals
             self._arbitrate_imu(result.displacement)
             accepted = self.filter.update_displacement(result.displacement)
@@ -577,6 +590,8 @@ class OnlineEstimator:
         self._fuse_landmarks(t, result, R_world_imu)
         state = self.filter.state
         camera_xz, velocity = self._position_at(t)
+        if self.stamp_test is not None:
+            self.stamp_test.end_frame(velocity)
         corner_seen = result.observation is not None and self.config.filter.corner_landmarks
         self.health.add_frame(
             t,
@@ -672,7 +687,12 @@ class OnlineEstimator:
         t = frame.timestamp_s
         if self.frame_clock is not None:
             t_clock = self.frame_clock.correct(t)
-            t = t if t_clock is None else t_clock
+            if self.stamp_test is not None:
+                self.stamp_test.note_frame(None if t_clock is None else t_clock - t)
+                if self.stamp_test.use_line and t_clock is not None:
+                    t = t_clock
+            elif t_clock is not None:
+                t = t_clock
         t = t - self.time_offset.applied_s
         if self._last_frame_t is not None:
             # the applied offset jumps once (0 -> td when it becomes significant): keep the
@@ -684,6 +704,23 @@ class OnlineEstimator:
             return frame
         self._frame_joints = self._joints_at(t)
         return dataclasses.replace(frame, timestamp_s=t)
+
+    def _test_frame_stamps(self, t_s: float, d: Displacement2D) -> None:
+        """Feed the frame-stamp test (``camera_clock_model: auto``): the displacement's gate
+        statistic under the frame times in use and under the other choice, whose IMU
+        prediction differs by u (time_offset.FrameStampTest)."""
+        test = self.stamp_test
+        if test is None:
+            return
+        u = test.shift(self._position_at(t_s)[1])
+        if u is None:
+            return
+        # r_line = r_stamp - u: the other hypothesis moves the measurement by -u (or +u)
+        moved = np.asarray(d.delta_xz_m, dtype=float) + (u if test.use_line else -u)
+        d2 = self.filter.displacement_d2(d)
+        d2_other = self.filter.displacement_d2(dataclasses.replace(d, delta_xz_m=moved))
+        if d2 is not None and d2_other is not None:
+            test.add(d2, d2_other)
 
     def _joints_at(self, t_s: float) -> JointAngles | None:
         """Joint angles interpolated at ``t_s`` from the recent samples (held beyond them)."""

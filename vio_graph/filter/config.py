@@ -210,11 +210,13 @@ class TimeOffsetConfig(BaseModel):
         description="replace IMU stamps by a clock model fitted to them (nominal rate, "
         "recursive line fit): removes timestamp jitter, keeps clock drift",
     )
-    camera_clock_model: bool = Field(
-        default=False,
-        description="also smooth the depth-frame stamps with a clock model. Off by default: a "
-        "camera whose capture instants jitter (the simulator's clean camera, 1 ms) has correct "
-        "stamps that the model would move; gaps are reported either way",
+    camera_clock_model: bool | Literal["auto"] = Field(
+        default="auto",
+        description="smooth the depth-frame stamps with a clock model: true = always; false = "
+        "never (a camera whose capture instants jitter, like the simulator's clean camera at "
+        "1 ms, has correct stamps the model would move); 'auto' = vision decides, frame by "
+        "frame, with a sequential likelihood-ratio test of the displacements under both "
+        "(time_offset.FrameStampTest); gaps are reported either way",
     )
     clock_window: int = Field(
         default=200, ge=10, description="samples the clock-model line fit remembers"

@@ -34,6 +34,18 @@ than ``gap_periods`` periods after the previous one is a gap (reported, the fit 
 a stamp at or before the previous one is reported and the sample dropped, never fused.
 Between gaps consecutive samples are one period apart: jitter is assumed below
 (``gap_periods`` - 1) periods, so a single missing sample is a gap.
+
+**Depth-frame stamps: as recorded or on the clock line?** (:class:`FrameStampTest`). Whether a
+frame stamp that wanders off the camera's clock line is a transport delay (the frame was
+taken on the line: smooth the stamp) or a capture that really happened then (a camera whose
+exposure start jitters: keep the stamp) depends on the camera, so vision decides. With
+delta_k = line_k - stamp_k, the IMU-predicted displacement between two frames moves by
+u_k = v_k delta_k - v_{k-1} delta_{k-1} (v the filter's velocity) when the line times are used
+instead of the stamps. Each frame's displacement is tested against both predictions with the
+filter's gate statistic (capped at the gate), and the log-likelihood ratio
+sum (d2_stamp - d2_line) / 2 decides, like a sequential probability ratio test: the line
+times are used once it exceeds ln 100, the stamps again once it falls below -ln 100 (it is
+clamped to twice that, so either switch stays possible). Stamps as recorded until then.
 """
 
 from __future__ import annotations
@@ -41,6 +53,7 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
+from numpy.typing import NDArray
 
 from vio_graph.filter.config import TimeOffsetConfig
 from vio_graph.filter.gating import chi2_quantile
@@ -246,4 +259,61 @@ class TimeOffsetEstimator:
             "applied_s": self.applied_s,
             "updates": self.n_updates,
             "rejected": self.n_rejected,
+        }
+
+
+class FrameStampTest:
+    """Sequential test between frame stamps as recorded and the clock line (module doc).
+
+    Per frame: :meth:`note_frame` with delta = line - stamp (s) when the frame is re-stamped,
+    :meth:`shift` with the filter's velocity at the frame for u (m; None without a previous
+    frame), :meth:`add` with the gate statistics of the displacement under the hypothesis in
+    use and under the other one, :meth:`end_frame` with the velocity after the update.
+    """
+
+    def __init__(self, cap_d2: float, threshold: float = float(np.log(100.0))) -> None:
+        self.cap_d2 = float(cap_d2)
+        self.threshold = float(threshold)
+        self.llr = 0.0  # log-likelihood ratio, line over stamps
+        self.use_line = False
+        self.n_switches = 0
+        self.n_tested = 0
+        self._delta_s: float | None = None
+        self._prev: tuple[float, NDArray[np.float64]] | None = None  # (delta, velocity)
+
+    def note_frame(self, delta_s: float | None) -> None:
+        self._delta_s = None if delta_s is None else float(delta_s)
+
+    def shift(self, velocity_xz_mps: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """u (2,): how much the IMU-predicted displacement since the previous frame grows
+        when line times replace the stamps (first order in the velocities)."""
+        if self._delta_s is None or self._prev is None:
+            return None
+        d0, v0 = self._prev
+        return np.asarray(velocity_xz_mps, dtype=float) * self._delta_s - v0 * d0
+
+    def add(self, d2_in_use: float, d2_other: float) -> None:
+        """One displacement's gate statistics under the hypothesis in use and the other."""
+        a, b = min(d2_in_use, self.cap_d2), min(d2_other, self.cap_d2)
+        d2_stamp, d2_line = (b, a) if self.use_line else (a, b)
+        lim = 2.0 * self.threshold
+        self.llr = min(max(self.llr + 0.5 * (d2_stamp - d2_line), -lim), lim)
+        self.n_tested += 1
+        if not self.use_line and self.llr > self.threshold:
+            self.use_line, self.n_switches = True, self.n_switches + 1
+        elif self.use_line and self.llr < -self.threshold:
+            self.use_line, self.n_switches = False, self.n_switches + 1
+
+    def end_frame(self, velocity_xz_mps: NDArray[np.float64]) -> None:
+        if self._delta_s is not None:
+            self._prev = (self._delta_s, np.asarray(velocity_xz_mps, dtype=float).copy())
+        else:
+            self._prev = None
+
+    def report(self) -> dict:
+        return {
+            "stamps": "clock line" if self.use_line else "as recorded",
+            "log_likelihood_ratio_line": self.llr,
+            "switches": self.n_switches,
+            "frames_tested": self.n_tested,
         }

@@ -15,7 +15,7 @@ Per frame, in the paper's order (Section II):
   4. pitch correction from the level surfaces in the slice (frontend/level.py; used by
      everything after it, and the previous slice is re-expressed with it), then the
      SP-ESKF correction with the displacement (eq. 8) -- or IMU-only if none passed;
-     then landmarks (``_fuse_landmarks``, both switchable in FilterConfig):
+     then landmarks (``_fuse_landmarks``, each switchable in FilterConfig):
      a. corner landmarks (``corner_landmarks``): the front end's corner observation (corner
         minus camera, track id kept for the same physical corner) is a landmark in the
         filter state (SagittalEskf.update_landmark: augmented at first sight with the
@@ -30,6 +30,12 @@ Per frame, in the paper's order (Section II):
         R_shank the IMU shank pitch; ungated (``stance_gate``) so that a velocity drifted
         during a blind swing cannot lock the anchor out. It makes x observable on level
         ground and on stair descent, where risers face away.
+     c. height landmarks (``level_landmarks``, filter/level_landmarks.py): the height of
+        every level surface the level aiding finds in the slice (tread, landing, floor) is
+        a z-only landmark (SagittalEskf.update_height_landmark), associated by height. Several
+        are in view at once, so the camera height is handed from surface to surface by
+        co-observation; one corner a frame cannot do that, and the displacements' and
+        anchors' sub-millimetre per-step biases otherwise add up over a long stair.
      Measured (toe ATE x cm, filter, displacements only -> + corners -> + stance):
      downstair s1 31.8 -> 7.9 -> 4.9, upstair s4 29.5 -> 15.6 -> 3.6, level s1 524 -> 4.1
      (stance alone; measured when the landmarks were introduced, with ``vio-graph run
@@ -792,8 +798,9 @@ class OnlineEstimator:
         found = []
         for line in lines:
             key = self._levels.key(camera_z + line.height_m, self.filter, taken)
-            taken.add(key)
-            found.append((key, line))
+            if key is not None:
+                taken.add(key)
+                found.append((key, line))
         self._levels.forget(t, taken, self.filter)
         floor = self.config.filter.measurement_noise_floor_m
         for key, line in found:

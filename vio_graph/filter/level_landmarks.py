@@ -6,9 +6,10 @@ landings, the floor, obstacle tops. Each is a static surface at one height, so i
 relative to the camera is a z-only landmark observation (SagittalEskf.update_height_landmark).
 Surfaces carry no track id: a measured line whose height (filter camera z + observed height)
 lies within ``reidentify_m`` of a remembered height landmark, and clearly nearer to it than to
-any other, is that landmark; otherwise it is a new one. Two different surfaces at the same
-height are the same landmark, which is right for a z-only landmark. A height landmark unseen
-for ``memory_s`` leaves the filter state, and so do the oldest beyond ``max_landmarks``.
+any landmark of another height, is that landmark; otherwise it is a new one. Two different
+surfaces at the same height are the same landmark, which is right for a z-only landmark. A
+height landmark unseen for ``memory_s`` leaves the filter state, and so do the oldest beyond
+``max_landmarks``.
 """
 
 from __future__ import annotations
@@ -34,14 +35,25 @@ class LevelLandmarks:
 
     def key(
         self, height_m: float, eskf: SagittalEskf, taken: set[LandmarkKey]
-    ) -> LandmarkKey:
-        """Landmark key of a level surface at world height ``height_m`` (m): a remembered
-        height landmark of ``eskf`` within ``reidentify_m`` and clearly the nearest (not one
-        in ``taken``, already matched in this frame), else a new key."""
-        known = [k for k in self.keys(eskf) if k not in taken]
-        d = sorted((abs(float(eskf.landmark_xz(k)[1]) - height_m), i) for i, k in enumerate(known))
-        if d and d[0][0] < self.reidentify_m and (len(d) == 1 or d[1][0] > 2 * d[0][0]):
-            return known[d[0][1]]
+    ) -> LandmarkKey | None:
+        """Landmark key of a level surface at world height ``height_m`` (m): the nearest
+        height landmark of ``eskf`` if it is within ``reidentify_m`` and no landmark of another
+        surface (more than ``reidentify_m`` from it) is within twice that distance; else a new
+        key. None if that nearest landmark is in ``taken`` (already matched in this frame:
+        one surface the line fit split in two, observed once)."""
+        known = self.keys(eskf)
+        if known:
+            heights = {k: float(eskf.landmark_xz(k)[1]) for k in known}
+            best = min(known, key=lambda k: abs(heights[k] - height_m))
+            d0 = abs(heights[best] - height_m)
+            if d0 < self.reidentify_m:
+                rivals = [
+                    abs(h - height_m)
+                    for k, h in heights.items()
+                    if abs(h - heights[best]) > self.reidentify_m
+                ]
+                if all(d > 2 * d0 for d in rivals):
+                    return None if best in taken else best
         self._next_id += 1
         return LandmarkKey("level", self._next_id)
 

@@ -796,7 +796,12 @@ class OnlineEstimator:
         camera_z = float(self._position_at(t)[0][1])
         taken: set[LandmarkKey] = set()
         found = []
+        # a height whose sigma reaches a third of the association window cannot be told from
+        # the next surface's (short, grazing lines far down a descent: 2-5 cm off)
+        max_sigma = self.config.filter.level_reidentify_m / 3.0
         for line in lines:
+            if line.sigma_m > max_sigma:
+                continue
             key = self._levels.key(camera_z + line.height_m, self.filter, taken)
             if key is not None:
                 taken.add(key)

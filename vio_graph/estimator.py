@@ -15,7 +15,7 @@ Per frame, in the paper's order (Section II):
   4. pitch correction from the level surfaces in the slice (frontend/level.py; used by
      everything after it, and the previous slice is re-expressed with it), then the
      SP-ESKF correction with the displacement (eq. 8) -- or IMU-only if none passed;
-     then landmarks (``_fuse_landmarks``, both switchable in FilterConfig):
+     then landmarks (``_fuse_landmarks``, each switchable in FilterConfig):
      a. corner landmarks (``corner_landmarks``): the front end's corner observation (corner
         minus camera, track id kept for the same physical corner) is a landmark in the
         filter state (SagittalEskf.update_landmark: augmented at first sight with the
@@ -30,6 +30,12 @@ Per frame, in the paper's order (Section II):
         R_shank the IMU shank pitch; ungated (``stance_gate``) so that a velocity drifted
         during a blind swing cannot lock the anchor out. It makes x observable on level
         ground and on stair descent, where risers face away.
+     c. height landmarks (``level_landmarks``, filter/level_landmarks.py): the height of
+        every level surface the level aiding finds in the slice (tread, landing, floor) is
+        a z-only landmark (SagittalEskf.update_height_landmark), associated by height. Several
+        are in view at once, so the camera height is handed from surface to surface by
+        co-observation; one corner a frame cannot do that, and the displacements' and
+        anchors' sub-millimetre per-step biases otherwise add up over a long stair.
      Measured (toe ATE x cm, filter, displacements only -> + corners -> + stance):
      downstair s1 31.8 -> 7.9 -> 4.9, upstair s4 29.5 -> 15.6 -> 3.6, level s1 524 -> 4.1
      (stance alone; measured when the landmarks were introduced, with ``vio-graph run
@@ -70,6 +76,7 @@ from vio_graph.filter.fast_imu import (
 )
 from vio_graph.filter.gating import chi2_2dof_quantile, chi2_quantile
 from vio_graph.filter.imu_faults import ImuFaultMonitor, velocity_fault_cov
+from vio_graph.filter.level_landmarks import LevelLandmarks
 from vio_graph.filter.stance import FootRotationTest, StanceConsistencyTest, StanceDetector
 from vio_graph.filter.time_offset import ClockModel, FrameStampTest, TimeOffsetEstimator
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
@@ -276,6 +283,9 @@ class OnlineEstimator:
         self._corner_observation: CornerObservation | None = None
         self._corners = CornerLandmarks(
             fc.corner_reidentify_radius_m, fc.corner_memory_s, fc.max_corner_landmarks
+        )
+        self._levels = LevelLandmarks(
+            fc.level_reidentify_m, fc.level_memory_s, fc.max_level_landmarks
         )
         self._in_stance = False
         self._refused_in_row = 0  # displacements refused by the gate in a row
@@ -564,6 +574,7 @@ class OnlineEstimator:
         timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
         # 4. fusion: level surfaces -> pitch of the attitude (used from here on), then eq. 8
         t0 = time.perf_counter()
+        self.surface_tilt = None
         if self.config.filter.level_aiding.enabled and R_ground_cam_override is None:
             step = self._level_aiding(t, result.profile_xz_m)
             if stamp > self.td_counted_until_s:
@@ -821,8 +832,36 @@ class OnlineEstimator:
                 assert key is not None  # set above for every observation
                 cov = np.asarray(obs.cov_m2, float) + np.eye(2) * fc.corner_landmark_sigma_m**2
                 self.filter.update_landmark(key, obs.corner_rel_xz_m, cov, t)
+        if fc.level_landmarks:
+            self._fuse_levels(t)
         if fc.stance_anchor:
             self._fuse_stance(t, result, R_world_imu)
+
+    def _fuse_levels(self, t: float) -> None:
+        """Height landmarks (FilterConfig.level_landmarks): every level surface of this
+        frame's slice (self.surface_tilt.lines) is associated by height with a remembered one
+        (filter/level_landmarks.py) and fused as its height relative to the camera
+        (SagittalEskf.update_height_landmark), with the line's sigma and the displacements'
+        noise floor in quadrature."""
+        lines = () if self.surface_tilt is None else self.surface_tilt.lines
+        camera_z = float(self._position_at(t)[0][1])
+        taken: set[LandmarkKey] = set()
+        found = []
+        # a height whose sigma reaches a third of the association window cannot be told from
+        # the next surface's (short, grazing lines far down a descent: 2-5 cm off)
+        max_sigma = self.config.filter.level_reidentify_m / 3.0
+        for line in lines:
+            if line.sigma_m > max_sigma:
+                continue
+            key = self._levels.key(camera_z + line.height_m, self.filter, taken)
+            if key is not None:
+                taken.add(key)
+                found.append((key, line))
+        self._levels.forget(t, taken, self.filter)
+        floor = self.config.filter.measurement_noise_floor_m
+        for key, line in found:
+            self._levels.saw(key, t)
+            self.filter.update_height_landmark(key, line.height_m, line.sigma_m**2 + floor**2, t)
 
     def _stance_lever(self, R_world_imu: NDArray[np.float64]):
         """ankle - camera through the shank (m, ground axes): R_shank (ankle_in_shank -

@@ -145,10 +145,11 @@ LandmarkObservation: TypeAlias = CornerObservation | StanceObservation
 
 
 class LandmarkKey(NamedTuple):
-    """Key of a landmark in the filter state: a corner (``id`` = its landmark's track id) or
-    the stance ankle (``id`` = the stance id)."""
+    """Key of a landmark in the filter state: a corner (``id`` = its landmark's track id),
+    the stance ankle (``id`` = the stance id) or a level surface's height (``id`` = its
+    number)."""
 
-    kind: Literal["corner", "ankle"]
+    kind: Literal["corner", "ankle", "level"]
     id: int
 
 

@@ -429,6 +429,35 @@ class FilterConfig(BaseModel):
     max_corner_landmarks: int = Field(
         default=8, ge=1, description="most corner landmarks kept in the state (oldest go)"
     )
+    level_landmarks: bool = Field(
+        default=True,
+        description=(
+            "fuse the heights of the level surfaces the level aiding finds in the slice "
+            "(treads, landings, floor, obstacle tops; frontend/level.py) as height landmarks "
+            "(SagittalEskf.update_height_landmark): z only, so any static level surface is "
+            "one, and several are in view at once for many frames, so the camera height is "
+            "handed from surface to surface by co-observation. The corner landmarks cannot do "
+            "that (one corner a frame: a new nosing is placed where the displacements and the "
+            "stance anchor put the camera, and their sub-millimetre per-step biases add up: "
+            "filter toe z 6.7 cm on the 2-minute ascent). Needs level_aiding. False = none"
+        ),
+    )
+    level_reidentify_m: float = Field(
+        default=0.03,
+        gt=0,
+        description="a level surface whose height (filter camera z + observed height, m) is "
+        "within this distance of a remembered height landmark, and clearly nearest to it (the "
+        "next at least twice as far), is that landmark; else a new one. Level surfaces of "
+        "different height are a rise apart (>= 0.10 m on the simulated stairs)",
+    )
+    level_memory_s: float = Field(
+        default=3.0,
+        gt=0,
+        description="a height landmark not seen for this long (s) leaves the state",
+    )
+    max_level_landmarks: int = Field(
+        default=6, ge=1, description="most height landmarks kept in the state (oldest go)"
+    )
     stance_anchor: bool = Field(
         default=True,
         description=(

@@ -68,6 +68,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import NamedTuple
 
 import numpy as np
@@ -86,6 +87,8 @@ ERROR_STATE_DIM = 8
 _CLONE_TOL_S = 1e-3  # a displacement's t0 must match the clone time to 1 ms
 _CLONE = "clone"  # key of the stochastic clone among the augmented blocks (else LandmarkKey)
 _I2 = np.eye(2)
+#: variance (m^2) of a height landmark's x: a copy of the camera x that nothing observes
+_FREE_X_VAR_M2 = 1.0
 
 
 @dataclass(frozen=True)
@@ -175,6 +178,10 @@ class SagittalEskf:
         self._Fx = np.eye(ERROR_STATE_DIM)  # propagate() rewrites the F_1 / F_2 entries
         p = self.config.gate_probability
         self._gate_d2 = chi2_2dof_quantile(p) if p is not None else np.inf
+        # 1 dof: chi2_1(q) = (Phi^-1((1 + q) / 2))^2
+        self._gate_d2_1dof = (
+            float(NormalDist().inv_cdf(0.5 * (1.0 + p))) ** 2 if p is not None else np.inf
+        )
         self._initialised = False
         self._t_s = 0.0
         self._x = np.zeros(ERROR_STATE_DIM)  # nominal (p, v, a_b, g)
@@ -591,6 +598,47 @@ class SagittalEskf:
             self._record_correction(t)
         return accepted
 
+    def update_height_landmark(
+        self,
+        key: LandmarkKey,
+        rel_z_m: float,
+        var_m2: float,
+        timestamp_s: float | None = None,
+    ) -> bool:
+        """Fuse the height of a static level surface (tread, landing, floor) relative to the
+        camera: ``rel_z_m`` = surface z - camera z at ``timestamp_s`` (m, ground z), variance
+        ``var_m2`` (m^2). Like :meth:`update_landmark` but z only: the first observation of
+        ``key`` augments the state with the surface's height (the block's x is a free copy
+        of the camera x, never observed), later ones are the scalar relative measurement
+        z = L_z - p_z(t), gated at the displacement gate's probability with 1 dof. A surface
+        stays in view for many frames and over several steps, and several are in view at once,
+        so one is still seen when the next appears: the camera height is handed from surface
+        to surface by co-observation instead of through the displacements. Returns True if fused.
+        """
+        timing = self._measurement_time(timestamp_s)
+        if timing is None:
+            return False
+        t, dt = timing
+        var = float(var_m2)
+        if not (math.isfinite(rel_z_m) and math.isfinite(var) and var > 0.0):
+            raise EstimationError("height landmark needs a finite height and variance > 0")
+        if key not in self._aug_xz:
+            value = self._position_ahead(dt) + np.array([0.0, float(rel_z_m)])
+            self._augment(key, value, dt, np.diag([_FREE_X_VAR_M2, var]))
+            return False
+        i = self._aug_index(key)
+        H = np.zeros((1, self._P.shape[0]))
+        H[0, 1] = -1.0
+        H[0, 3] = -dt
+        H[0, i + 1] = 1.0
+        predicted = self._aug_xz[key][1] - self._position_ahead(dt)[1]
+        innovation = np.array([float(rel_z_m) - predicted])
+        accepted = self._correct(innovation, H, np.array([[var]]), True, landmark=True, dof=1)
+        if accepted:
+            self._last_accept_s = max(self._last_accept_s, t)
+            self._record_correction(t)
+        return accepted
+
     def update_velocity(
         self,
         v_xz_mps: ArrayLike,
@@ -676,10 +724,17 @@ class SagittalEskf:
 
     # ----------------------------------------------------------------- helpers
     def _correct(
-        self, innovation: NDArray, H: NDArray, V: NDArray, gate: bool = True, landmark: bool = False
+        self,
+        innovation: NDArray,
+        H: NDArray,
+        V: NDArray,
+        gate: bool = True,
+        landmark: bool = False,
+        dof: int = 2,
     ) -> bool:
         """Gate, Kalman gain, injection and reset (eq. 8). Returns False if gated out.
-        ``landmark`` says which counters the outcome goes to."""
+        ``landmark`` says which counters the outcome goes to; ``dof`` is the measurement's
+        dimension for the gate (2, or 1 for a height)."""
         P = self._P
         S = H @ P @ H.T + V
         S = 0.5 * (S + S.T)
@@ -687,7 +742,8 @@ class SagittalEskf:
             S_inv_y = np.linalg.solve(S, innovation)
         except np.linalg.LinAlgError as exc:
             raise EstimationError(f"singular innovation covariance: {exc}") from None
-        if gate and float(innovation @ S_inv_y) > self._gate_d2:
+        gate_d2 = self._gate_d2 if dof == 2 else self._gate_d2_1dof
+        if gate and float(innovation @ S_inv_y) > gate_d2:
             if landmark:
                 self._n_lm_rej += 1
             else:

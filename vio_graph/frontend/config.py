@@ -285,6 +285,16 @@ class TrackerConfig(_Strict):
         "seed, fall inside the previous profile's x extent shrunk by this margin (m): surface "
         "the previous frame never saw has no counterpart. None = keep all",
     )
+    corner_overlap_check: bool = Field(
+        True,
+        description="a corner the previous frame did not hold (a nosing entering the view): "
+        "its window is registered only with the points that, moved back by the IMU seed, fall "
+        "inside the previous profile (fallback_overlap_margin_m), and with the profile "
+        "fallback if fewer than min_correspondences do. Unchecked, the unseen part slides "
+        "onto the surface next to it: on the 2-minute ascent (sweep long_2min, seed 1000, "
+        "first 22 s) such displacements were 15-49 mm off in z, all downwards, while claiming "
+        "4-11 mm, and carried most of the filter's z drift. False = register the whole window",
+    )
     edge_x_without_face: bool = Field(
         True,
         description="corner windows without face points below the edge (stair descent: the "

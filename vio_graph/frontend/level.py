@@ -44,6 +44,23 @@ class SurfaceTilt:
     n_inliers: int
     extent_m: float
     n_lines: int
+    #: per line: (height m, its sigma m, x min m, x max m) relative to the camera, the height
+    #: taken after levelling the slice by the common tilt (``LevelLine``)
+    lines: tuple[LevelLine, ...] = ()
+
+
+@dataclass(frozen=True)
+class LevelLine:
+    """A level surface in the slice (tread, landing, floor, obstacle top): its height
+    relative to the camera (m, ground z, the slice levelled by the common tilt about the
+    camera) with its sigma (m: the line's own residual noise over its points, correlated
+    points counted as fewer, and the tilt's uncertainty at the line's distance), and its x
+    extent relative to the camera (m)."""
+
+    height_m: float
+    sigma_m: float
+    x_min_m: float
+    x_max_m: float
 
 
 def _best_line(
@@ -171,22 +188,35 @@ def measure_surface_tilt(
         return None
     # per line: centred x, z and its own noise variance (residuals of its own fit)
     szx = info = 0.0
+    variances = []
     for sel in lines:
         xc = x[sel] - x[sel].mean()
         zc = z[sel] - z[sel].mean()
         Sxx = float(xc @ xc)
         s_k = float(xc @ zc) / max(Sxx, 1e-12)
         var_k = max(float(np.sum((zc - s_k * xc) ** 2)) / max(1, sel.size - 2), 1e-8)
+        variances.append(var_k)
         szx += float(xc @ zc) / var_k
         info += Sxx / var_k
     s = szx / info
     if abs(s) > max_slope:
         return None
     sigma_slope = float(np.sqrt(correlated_points / info))
+    levels = []
+    for sel, var_k in zip(lines, variances, strict=True):
+        xs, zs = x[sel], z[sel]
+        x_mid = float(xs.mean())
+        var_h = correlated_points * var_k / sel.size + (x_mid * sigma_slope) ** 2
+        levels.append(
+            LevelLine(
+                float(np.mean(zs - s * xs)), float(np.sqrt(var_h)), float(xs.min()), float(xs.max())
+            )
+        )
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),
         sigma_rad=sigma_slope / (1.0 + s * s),
         n_inliers=int(sum(sel.size for sel in lines)),
         extent_m=float(sum(np.ptp(x[sel]) for sel in lines)),
         n_lines=len(lines),
+        lines=tuple(levels),
     )

@@ -252,8 +252,18 @@ class CornerTracker:
                 return self._without_displacement(t, corner, None, "no corner in previous frame")
             if not self._is_same(corner, prev_corner, T0):
                 return self._without_displacement(t, corner, None, "corner changed (features)")
-        src, tree = self._source(prev, corner.feature_points_xz_m, T0)  # 2. previous profile
-        icp = icp_translation_2d(src, corner.feature_points_xz_m, T0, self._icp_cfg, tree)
+        target = corner.feature_points_xz_m
+        if prev_corner is None and cfg.corner_overlap_check:
+            # 2a. a corner the previous frame did not hold: only the part of its window that
+            #     frame saw can register (a nosing entering the view would slide onto the
+            #     surface next to it); too little of it -> the profile fallback below
+            seen = self._seen_before(target, T0, prev)
+            if seen is not None and int(seen.sum()) < cfg.min_correspondences:
+                return self._unseen_corner(t, corner, prev, pred, pred_cov, profile)
+            if seen is not None:
+                target = target[seen]
+        src, tree = self._source(prev, target, T0)  # 2. previous profile
+        icp = icp_translation_2d(src, target, T0, self._icp_cfg, tree)
         bad = self._quality_problem(icp)  # 4. ICP quality
         T, C = icp.translation_xz_m, icp.cov_m2
         same_icp = prev_corner is not None and self._is_same(corner, prev_corner, T)
@@ -302,6 +312,29 @@ class CornerTracker:
             return TrackerOutput(None, obs, icp, bad, track_id, same, d2)
         disp = Displacement2D(prev.timestamp_s, t, -T, C)
         return TrackerOutput(disp, obs, icp, None, track_id, same, d2)
+
+    def _unseen_corner(
+        self,
+        t: float,
+        corner: CornerFeature,
+        prev: _Frame,
+        pred: NDArray[np.float64],
+        pred_cov: NDArray[np.float64] | None,
+        profile: NDArray[np.float64] | None,
+    ) -> TrackerOutput:
+        """A new corner whose window the previous frame did not see: its observation (a new
+        track) with the profile fallback's displacement, if that registers."""
+        reason = "corner window not seen in the previous frame"
+        if self._cfg.profile_fallback and profile is not None:
+            alt = self._profile_icp(t, profile, prev, pred, pred_cov)
+            if alt.displacement is not None:
+                track_id = self._new_id()
+                edge = corner.edge_xz_m.copy()
+                obs = CornerObservation(t, track_id, edge, self._edge_cov(corner))
+                return dataclasses.replace(
+                    alt, observation=obs, track_id=track_id, same_corner=False
+                )
+        return self._without_displacement(t, corner, None, reason)
 
     def _gap_problem(self, t: float, prev: _Frame | None) -> str | None:
         """Why there is no previous frame to register against at ``t`` (s), or None."""
@@ -369,13 +402,9 @@ class CornerTracker:
             )
         pred = np.asarray(pred, dtype=float)
         T0 = -pred
-        margin = cfg.fallback_overlap_margin_m
-        if margin is not None:
-            back_x = target[:, 0] - T0[0]
-            px = prev.profile_xz_m[:, 0]
-            seen = (back_x >= px.min() + margin) & (back_x <= px.max() - margin)
-            if int(seen.sum()) >= cfg.min_correspondences:
-                target = target[seen]
+        seen = self._seen_before(target, T0, prev)
+        if seen is not None and int(seen.sum()) >= cfg.min_correspondences:
+            target = target[seen]
         src, tree = self._source(prev, target, T0)
         icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree)
         bad = self._quality_problem(icp)
@@ -387,6 +416,19 @@ class CornerTracker:
             return TrackerOutput(None, None, icp, f"profile ICP: {bad}", None, False, d2)
         disp = Displacement2D(prev.timestamp_s, t, -icp.translation_xz_m, icp.cov_m2)
         return TrackerOutput(disp, None, icp, None, None, False, d2)
+
+    def _seen_before(
+        self, target: NDArray[np.float64], T0: NDArray[np.float64], prev: _Frame
+    ) -> NDArray[np.bool_] | None:
+        """Which ``target`` points (m, this frame), moved back by the IMU seed ``T0``, fall
+        inside the previous profile's x extent shrunk by ``fallback_overlap_margin_m``: surface
+        the previous frame never saw has no counterpart there. None if the margin is off."""
+        margin = self._cfg.fallback_overlap_margin_m
+        if margin is None:
+            return None
+        back_x = target[:, 0] - T0[0]
+        px = prev.profile_xz_m[:, 0]
+        return (back_x >= px.min() + margin) & (back_x <= px.max() - margin)
 
     def _paper_association(self, t: float, corner: CornerFeature, prev: _Frame) -> TrackerOutput:
         """Paper: same corner if the feature means are close; ICP from the mean difference."""

@@ -1,0 +1,75 @@
+"""Height landmarks of the filter: which remembered level surface a measured one is, and when
+to forget one.
+
+The level aiding finds the near-horizontal lines of every slice (frontend/level.py): treads,
+landings, the floor, obstacle tops. Each is a static surface at one height, so its height
+relative to the camera is a z-only landmark observation (SagittalEskf.update_height_landmark).
+Surfaces carry no track id: a measured line whose height (filter camera z + observed height)
+lies within ``reidentify_m`` of a remembered height landmark, and clearly nearer to it than to
+any landmark of another height, is that landmark; otherwise it is a new one. Two different
+surfaces at the same height are the same landmark, which is right for a z-only landmark. A
+height landmark unseen for ``memory_s`` leaves the filter state, and so do the oldest beyond
+``max_landmarks``.
+"""
+
+from __future__ import annotations
+
+from vio_graph.filter.eskf import SagittalEskf
+from vio_graph.types import LandmarkKey
+
+
+class LevelLandmarks:
+    """Association of measured level surfaces to height landmarks, and their last sight (s)."""
+
+    def __init__(self, reidentify_m: float, memory_s: float, max_landmarks: int) -> None:
+        self.reidentify_m = reidentify_m
+        self.memory_s = memory_s
+        self.max_landmarks = max_landmarks
+        self._seen: dict[LandmarkKey, float] = {}  # landmark key -> last seen, s
+        self._next_id = 0
+
+    @staticmethod
+    def keys(eskf: SagittalEskf) -> list[LandmarkKey]:
+        """The height landmarks in the filter state, in its order."""
+        return [k for k in eskf.landmark_keys if k.kind == "level"]
+
+    def key(
+        self, height_m: float, eskf: SagittalEskf, taken: set[LandmarkKey]
+    ) -> LandmarkKey | None:
+        """Landmark key of a level surface at world height ``height_m`` (m): the nearest
+        height landmark of ``eskf`` if it is within ``reidentify_m`` and no landmark of another
+        surface (more than ``reidentify_m`` from it) is within twice that distance; else a new
+        key. None if that nearest landmark is in ``taken`` (already matched in this frame:
+        one surface the line fit split in two, observed once)."""
+        known = self.keys(eskf)
+        if known:
+            heights = {k: float(eskf.landmark_xz(k)[1]) for k in known}
+            best = min(known, key=lambda k: abs(heights[k] - height_m))
+            d0 = abs(heights[best] - height_m)
+            if d0 < self.reidentify_m:
+                rivals = [
+                    abs(h - height_m)
+                    for k, h in heights.items()
+                    if abs(h - heights[best]) > self.reidentify_m
+                ]
+                if all(d > 2 * d0 for d in rivals):
+                    return None if best in taken else best
+        self._next_id += 1
+        return LandmarkKey("level", self._next_id)
+
+    def saw(self, key: LandmarkKey, t_s: float) -> None:
+        """The landmark ``key`` was observed at ``t_s`` (s)."""
+        self._seen[key] = t_s
+
+    def forget(self, t_s: float, current: set[LandmarkKey], eskf: SagittalEskf) -> None:
+        """Marginalise from ``eskf`` the height landmarks unseen for ``memory_s`` at ``t_s``
+        (s), and the oldest beyond ``max_landmarks`` (never one in ``current``)."""
+        for k in self.keys(eskf):
+            if k not in current and t_s - self._seen.get(k, t_s) > self.memory_s:
+                eskf.drop_landmark(k)
+        levels = sorted(self.keys(eskf), key=lambda k: self._seen.get(k, t_s))
+        for k in levels[: max(0, len(levels) - self.max_landmarks)]:
+            if k not in current:
+                eskf.drop_landmark(k)
+        kept = set(eskf.landmark_keys) | current
+        self._seen = {k: v for k, v in self._seen.items() if k in kept}

@@ -545,7 +545,11 @@ def test_stance_velocity_uses_the_gyro_at_the_keyframe_time() -> None:
     ankle_rel = np.array([0.05, -0.40])  # ankle - camera, m
     stale = -np.cross([0.0, rate(0.10), 0.0], [ankle_rel[0], 0.0, ankle_rel[1]])[[0, 2]]
     ob = StanceObservation(
-        t_kf, 0, ankle_rel, np.eye(2) * 1e-6, camera_velocity_xz_mps=stale,
+        t_kf,
+        0,
+        ankle_rel,
+        np.eye(2) * 1e-6,
+        camera_velocity_xz_mps=stale,
         velocity_cov=np.eye(2) * 0.05**2,
     )
     est = make_swinging_shank_trial(0.2).filter_estimates[0]

@@ -483,29 +483,33 @@ def test_long_trial_does_not_follow_a_drifting_filter(cls):
 
 
 def test_stance_velocity_bounds_a_blind_stretch() -> None:
-    """2.5 s without displacements or corners and an accelerometer bias: the camera velocity
-    a still ankle implies (here the true camera velocity with a 5 cm/s sigma, as the filter
-    passes it in StanceObservation) holds the keyframe velocities, and so the path, through
-    the stretch; the factor moves it from the camera to the IMU with the gyro's lever term
+    """2.5 s without displacements or corners and an accelerometer bias: the velocity a still
+    point implies (here the camera's instantaneous centre of rotation, as the ankle, with a
+    5 cm/s sigma) holds the keyframe velocities, and so the path, through the stretch; the
+    factor takes the IMU velocity from the gyro and the lever IMU -> camera -> still point
     (a wrong lever sign or frame would make it worse, not better)."""
     bias = (0.1, 0.0, -0.1)
     kw = dict(displacement_sigma_m=0.001, accel_bias_mps2=bias, corners=False, seed=2)
     tr = make_swinging_shank_trial(4.0, gap_s=(1.5, 4.0), **kw)
     t_f = tr.frame_times_s
     v_cam = np.gradient(tr.camera_xz_true_m, t_f, axis=0)
+    # the still point: the camera's instantaneous centre of rotation (pitch rate about world
+    # y): v_cam = -omega x r  <=>  r = (v_z, -v_x) / rate; only where it is within 1 m
+    t_imu = np.array([s.timestamp_s for s in tr.imu])
+    rate = np.interp(t_f, t_imu, [s.gyro_radps[1] for s in tr.imu])
     cov = np.eye(2) * 1e-4
     obs = [
         [
             StanceObservation(
                 float(t_f[n]),
                 n,
-                np.array([0.0, -0.4]),
+                np.array([v_cam[n, 1], -v_cam[n, 0]]) / rate[n],
                 cov,
                 camera_velocity_xz_mps=v_cam[n],
                 velocity_cov=np.eye(2) * 0.05**2,
             )
         ]
-        if 1.5 <= t_f[n] <= 4.0
+        if 1.5 <= t_f[n] <= 4.0 and np.hypot(*v_cam[n]) < abs(rate[n])
         else []
         for n in range(t_f.size)
     ]
@@ -519,3 +523,50 @@ def test_stance_velocity_bounds_a_blind_stretch() -> None:
         errs[on] = err[t >= 1.5].max()
     assert errs[True] < 0.5 * errs[False], errs
     assert errs[True] < 0.02, errs
+
+
+def test_stance_velocity_uses_the_gyro_at_the_keyframe_time() -> None:
+    """The shank's pitch rate ramps at 20 rad/s^2 (stance at 1.5x cadence) and the keyframe
+    falls 7 ms after a 100 Hz gyro sample. The IMU velocity prior is that of a still ankle
+    with the gyro interpolated to the keyframe time, -omega(t) x (ankle - imu), for the whole
+    lever; the filter's camera velocity, built with the latest (stale) gyro sample, is only
+    the flag that the filter fused it. Mixing the two (the former model) is off by 0.06 m/s
+    here."""
+    T = np.eye(4)
+    T[:3, 3] = [0.02, 0.0, 0.05]  # camera in IMU axes, m
+    b = KeyframeGraphBuilder(SmootherConfig(), T)
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    rate = lambda t: 1.0 + 20.0 * t  # noqa: E731 (rad/s about y)
+    for k in range(12):
+        t = 0.01 * k
+        gyro = np.array([0.0, rate(t), 0.0])
+        b.add_imu(ImuSample(t, np.array([0.0, 0.0, GRAVITY_MPS2]), gyro, q))
+    t_kf = 0.107
+    ankle_rel = np.array([0.05, -0.40])  # ankle - camera, m
+    stale = -np.cross([0.0, rate(0.10), 0.0], [ankle_rel[0], 0.0, ankle_rel[1]])[[0, 2]]
+    ob = StanceObservation(
+        t_kf,
+        0,
+        ankle_rel,
+        np.eye(2) * 1e-6,
+        camera_velocity_xz_mps=stale,
+        velocity_cov=np.eye(2) * 0.05**2,
+    )
+    est = make_swinging_shank_trial(0.2).filter_estimates[0]
+    assert b.add_frame(0.05, True, est, None, None, np.eye(3))  # first keyframe, no stance
+    ups = b.add_frame(t_kf, True, est, None, ob, np.eye(3))
+    assert len(ups) == 1 and ups[0].index == 1
+    g = ups[0].factors
+    priors = [
+        g.at(k).prior()
+        for k in range(g.size())
+        if isinstance(g.at(k), gtsam.PriorFactorVector)
+        and g.at(k).keys()[0] == V(1)
+        and np.linalg.norm(g.at(k).prior()) > 0
+    ]
+    assert len(priors) == 1
+    imu_to_ankle = T[:3, 3] + np.array([ankle_rel[0], 0.0, ankle_rel[1]])
+    expected = -np.cross([0.0, rate(t_kf), 0.0], imu_to_ankle)
+    np.testing.assert_allclose(priors[0], expected, atol=1e-9)
+    former = np.r_[stale[0], 0.0, stale[1]] - np.cross([0.0, rate(t_kf), 0.0], T[:3, 3])
+    assert np.linalg.norm(former - expected) > 0.05

@@ -277,6 +277,7 @@ class OnlineEstimator:
             ankle_in_imu, fc.stance_accel_threshold_mps2, fc.stance_window_s
         )
         self._stance_n = 0  # id of the current / next stance anchor
+        self._stance_offset_rad = 0.0  # level-surface pitch offset when the anchor started
         # this frame's stance anchor (ankle - camera) as an observation, None outside stance
         self._stance_observation: StanceObservation | None = None
         # this frame's corner observation, track id replaced by its landmark's (re-identified)
@@ -323,6 +324,7 @@ class OnlineEstimator:
             "foot_refused": 0,
             "gate_refused": 0,
             "vision_overrides": 0,
+            "attitude_reanchors": 0,
             "anchored_frames": 0,
             "velocity_fused": 0,
         }
@@ -904,10 +906,30 @@ class OnlineEstimator:
         stats["foot_refused"] += int(candidate and agrees and not foot_still)
         stance = candidate and agrees and foot_still
         key = LandmarkKey("ankle", self._stance_n)
+        if (
+            fc.stance_attitude_reanchor
+            and stance
+            and self._in_stance
+            and key in self.filter.landmark_keys
+        ):
+            # the anchor holds the ankle seen through the attitude of its onset; the level
+            # surfaces have turned that attitude since (pitch offset) by more than the anchor's
+            # own sigma allows over this lever: the anchor would drag the camera by the turn
+            # times the lever, so it ends here and a new one starts at this frame
+            turn = abs(self.pitch_offset.offset_rad - self._stance_offset_rad)
+            sig = np.sqrt(self._lever_sigma_m**2 + fc.stance_slip_sigma_m**2)
+            if turn * float(np.hypot(*lever)) > sig:
+                self.filter.drop_landmark(key)
+                self._stance_n += 1
+                self._stance_test.reset()
+                key = LandmarkKey("ankle", self._stance_n)
+                stats["attitude_reanchors"] += 1
         self._stance_observation = None
         if stance:
             sig2 = self._lever_sigma_m**2 + fc.stance_slip_sigma_m**2
             first = key not in self.filter.landmark_keys
+            if first:
+                self._stance_offset_rad = self.pitch_offset.offset_rad
             fused = self.filter.update_landmark(key, lever, np.eye(2) * sig2, t, fc.stance_gate)
             if not (first or fused) and self._stance_test.tested:
                 # the gate says the filter and the anchor disagree, while vision has just

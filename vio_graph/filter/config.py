@@ -545,6 +545,17 @@ class FilterConfig(BaseModel):
         "push-off) ran on across a level landing: sweep cadence_1.5 seeds 1000-1002, filter "
         "toe x 10.3/3.0/7.2 -> 2.4/3.6/5.4 cm. None = off",
     )
+    stance_attitude_reanchor: bool = Field(
+        default=True,
+        description="end a stance anchor and start a new one at this frame when the "
+        "level-surface pitch offset (level_aiding) has turned since the anchor's onset by "
+        "more than the anchor's own sigma allows over the camera-ankle lever (turn x lever > "
+        "sqrt(lever sigma^2 + slip sigma^2)): the anchor holds the ankle seen through the "
+        "onset's attitude, and the turned lever would drag the camera by turn x lever "
+        "(camera 8 cm below the knee, 0.36 m lever: 1 deg -> 6 mm). Sweep camera_8cm_0deg "
+        "seeds 1000-1002 filter toe x 1.39/3.32/1.43 -> 1.23/1.86/1.51 cm. False = keep the "
+        "anchor",
+    )
     stance_slip_sigma_m: float = Field(
         default=0.0005,
         ge=0,

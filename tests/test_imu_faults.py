@@ -3,6 +3,8 @@ orientation, vision arbitration of gate refusals, and what the smoothers make of
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -204,9 +206,9 @@ def test_distrusted_samples_inflate_the_preintegration_and_batch_imu_factors_are
     assert c1[6, 6] > c0[6, 6] + 0.5 * (30.0 * H) ** 2
 
 
-def _imu_factor_delta_v(samples: list[ImuSample], config: SmootherConfig) -> tuple:
-    """Keyframes at 0.05 s and 0.15 s over ``samples``: (delta v of the IMU factor between
-    them (3,), its velocity covariance (3, 3), its delta rotation)."""
+def _imu_factor(samples: list[ImuSample], config: SmootherConfig):
+    """Keyframes at 0.05 s and 0.15 s over ``samples``: the preintegrated measurements of the
+    IMU factor between them."""
     import gtsam
 
     from vio_graph.types import EstimateStatus, FrameEstimate, TerrainKind
@@ -225,7 +227,12 @@ def _imu_factor_delta_v(samples: list[ImuSample], config: SmootherConfig) -> tup
     ups += b.flush()
     g = ups[-1].factors
     f = next(g.at(i) for i in range(g.size()) if isinstance(g.at(i), gtsam.CombinedImuFactor))
-    pim = f.preintegratedMeasurements()
+    return f.preintegratedMeasurements()
+
+
+def _imu_factor_delta_v(samples: list[ImuSample], config: SmootherConfig) -> tuple:
+    """(delta v (3,), velocity covariance (3, 3), delta rotation) of :func:`_imu_factor`."""
+    pim = _imu_factor(samples, config)
     return np.asarray(pim.deltaVij()), pim.preintMeasCov()[6:9, 6:9], pim.deltaRij()
 
 
@@ -294,10 +301,7 @@ def test_distrusted_sample_noise_enters_at_its_own_time() -> None:
     whose position error grows over the 0.09 s after it: its preintegrated position variance
     is (sigma h)^2 (0.09 s)^2 with the per-step distrust, and only a third of T^2 spread over
     the interval (the model before, 'spread')."""
-    import gtsam
-
     from vio_graph.smoother.imu_sampling import distrust_step_variances
-    from vio_graph.types import EstimateStatus, FrameEstimate, TerrainKind
 
     t = np.arange(0.0, 0.2, H)
     x = np.zeros((t.size, 2))
@@ -310,29 +314,14 @@ def test_distrusted_sample_noise_enters_at_its_own_time() -> None:
     assert not np.any(vel[2:]) and not np.any(rot)
 
     def position_var(mode: str, extra: float) -> float:
-        b = KeyframeGraphBuilder(SmootherConfig(distrust_noise=mode), np.eye(4))
-        for s in _pitching(25, lambda _t: 0.0):
-            b.add_imu(
-                ImuSample(
-                    s.timestamp_s,
-                    s.accel_mps2,
-                    s.gyro_radps,
-                    s.quat_wxyz,
-                    accel_extra_sigma_mps2=extra if abs(s.timestamp_s - 0.06) < 1e-9 else 0.0,
-                )
+        samples = [
+            dataclasses.replace(
+                s, accel_extra_sigma_mps2=extra if abs(s.timestamp_s - 0.06) < 1e-9 else 0.0
             )
-        ups = []
-        for tk in (0.05, 0.15):
-            z2 = np.zeros(2)
-            est = FrameEstimate(
-                tk, EstimateStatus.FUSED, z2, z2, np.eye(2) * 1e-4, z2, z2, z2, z2,
-                TerrainKind.LEVEL, True, {},
-            )  # fmt: skip
-            ups += b.add_frame(tk, True, est, None, None)
-        ups += b.flush()
-        g = ups[-1].factors
-        f = next(g.at(i) for i in range(g.size()) if isinstance(g.at(i), gtsam.CombinedImuFactor))
-        return float(f.preintegratedMeasurements().preintMeasCov()[3, 3])
+            for s in _pitching(25, lambda _t: 0.0)
+        ]
+        pim = _imu_factor(samples, SmootherConfig(distrust_noise=mode))
+        return float(pim.preintMeasCov()[3, 3])
 
     base = position_var("per_step", 0.0)
     assert position_var("spread", 0.0) == base  # clean samples: the same factor

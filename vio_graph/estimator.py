@@ -277,6 +277,10 @@ class OnlineEstimator:
             ankle_in_imu, fc.stance_accel_threshold_mps2, fc.stance_window_s
         )
         self._stance_n = 0  # id of the current / next stance anchor
+        # id of the current / next stance as the smoothers see it: an anchor restarted for the
+        # filter's attitude (stance_attitude_reanchor) stays the same stance for the graphs,
+        # whose own attitude at each keyframe observes the ankle
+        self._stance_episode = 0
         self._stance_offset_rad = 0.0  # level-surface pitch offset when the anchor started
         # this frame's stance anchor (ankle - camera) as an observation, None outside stance
         self._stance_observation: StanceObservation | None = None
@@ -945,7 +949,7 @@ class OnlineEstimator:
                 # the same anchor, as a landmark observation the smoother can use
                 self._stance_observation = StanceObservation(
                     timestamp_s=t,
-                    stance_id=self._stance_n,
+                    stance_id=self._stance_episode,
                     ankle_rel_xz_m=lever.copy(),
                     cov_m2=np.eye(2) * sig2,
                     camera_velocity_xz_mps=None if velocity is None else velocity[0],
@@ -958,6 +962,7 @@ class OnlineEstimator:
             if self._in_stance:  # the stance ended: its anchor leaves the state
                 self.filter.drop_landmark(key)
                 self._stance_n += 1
+                self._stance_episode += 1
             self._stance_test.reset()
             self._foot_test.reset()
         self._in_stance = stance

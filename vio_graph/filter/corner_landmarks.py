@@ -14,20 +14,21 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vio_graph.filter.eskf import SagittalEskf
+from vio_graph.filter.landmark_memory import LandmarkMemory
 from vio_graph.types import CornerObservation, LandmarkKey
 
 
-class CornerLandmarks:
+class CornerLandmarks(LandmarkMemory):
     """Track id -> landmark key, and the last sight (s) of every corner landmark."""
+
+    kind = "corner"
 
     def __init__(
         self, reidentify_radius_m: float | None, memory_s: float, max_landmarks: int
     ) -> None:
+        super().__init__(memory_s, max_landmarks)
         self.reidentify_radius_m = reidentify_radius_m
-        self.memory_s = memory_s
-        self.max_landmarks = max_landmarks
         self._alias: dict[int, LandmarkKey] = {}  # track id -> landmark key
-        self._seen: dict[LandmarkKey, float] = {}  # landmark key -> last seen, s
 
     def key(
         self, obs: CornerObservation, camera_xz_m: NDArray[np.float64], eskf: SagittalEskf
@@ -50,26 +51,9 @@ class CornerLandmarks:
         self._alias[tid] = key
         return key
 
-    def saw(self, key: LandmarkKey, t_s: float) -> None:
-        """The landmark ``key`` was observed at ``t_s`` (s)."""
-        self._seen[key] = t_s
-
-    @staticmethod
-    def keys(eskf: SagittalEskf) -> list[LandmarkKey]:
-        """The corner landmarks in the filter state, in its order."""
-        return [k for k in eskf.landmark_keys if k.kind == "corner"]
-
     def forget(self, t_s: float, current: LandmarkKey | None, eskf: SagittalEskf) -> None:
         """Marginalise from ``eskf`` the corner landmarks unseen for ``memory_s`` at ``t_s``
         (s), and the oldest beyond ``max_landmarks`` (never ``current``)."""
-        for k in self.keys(eskf):
-            if k != current and t_s - self._seen.get(k, t_s) > self.memory_s:
-                eskf.drop_landmark(k)
-        corners = sorted(self.keys(eskf), key=lambda k: self._seen.get(k, t_s))
-        for k in corners[: max(0, len(corners) - self.max_landmarks)]:
-            if k != current:
-                eskf.drop_landmark(k)
-        kept = set(eskf.landmark_keys) | {current}
-        self._seen = {k: v for k, v in self._seen.items() if k in kept}
+        kept = self._forget(t_s, set() if current is None else {current}, eskf)
         # ended tracks whose landmark is gone are never looked up again (ids only increase)
         self._alias = {tid: k for tid, k in self._alias.items() if k in kept}

@@ -15,23 +15,19 @@ height landmark unseen for ``memory_s`` leaves the filter state, and so do the o
 from __future__ import annotations
 
 from vio_graph.filter.eskf import SagittalEskf
+from vio_graph.filter.landmark_memory import LandmarkMemory
 from vio_graph.types import LandmarkKey
 
 
-class LevelLandmarks:
+class LevelLandmarks(LandmarkMemory):
     """Association of measured level surfaces to height landmarks, and their last sight (s)."""
 
-    def __init__(self, reidentify_m: float, memory_s: float, max_landmarks: int) -> None:
-        self.reidentify_m = reidentify_m
-        self.memory_s = memory_s
-        self.max_landmarks = max_landmarks
-        self._seen: dict[LandmarkKey, float] = {}  # landmark key -> last seen, s
-        self._next_id = 0
+    kind = "level"
 
-    @staticmethod
-    def keys(eskf: SagittalEskf) -> list[LandmarkKey]:
-        """The height landmarks in the filter state, in its order."""
-        return [k for k in eskf.landmark_keys if k.kind == "level"]
+    def __init__(self, reidentify_m: float, memory_s: float, max_landmarks: int) -> None:
+        super().__init__(memory_s, max_landmarks)
+        self.reidentify_m = reidentify_m
+        self._next_id = 0
 
     def key(
         self, height_m: float, eskf: SagittalEskf, taken: set[LandmarkKey]
@@ -57,19 +53,7 @@ class LevelLandmarks:
         self._next_id += 1
         return LandmarkKey("level", self._next_id)
 
-    def saw(self, key: LandmarkKey, t_s: float) -> None:
-        """The landmark ``key`` was observed at ``t_s`` (s)."""
-        self._seen[key] = t_s
-
     def forget(self, t_s: float, current: set[LandmarkKey], eskf: SagittalEskf) -> None:
         """Marginalise from ``eskf`` the height landmarks unseen for ``memory_s`` at ``t_s``
         (s), and the oldest beyond ``max_landmarks`` (never one in ``current``)."""
-        for k in self.keys(eskf):
-            if k not in current and t_s - self._seen.get(k, t_s) > self.memory_s:
-                eskf.drop_landmark(k)
-        levels = sorted(self.keys(eskf), key=lambda k: self._seen.get(k, t_s))
-        for k in levels[: max(0, len(levels) - self.max_landmarks)]:
-            if k not in current:
-                eskf.drop_landmark(k)
-        kept = set(eskf.landmark_keys) | current
-        self._seen = {k: v for k, v in self._seen.items() if k in kept}
+        self._forget(t_s, current, eskf)

@@ -456,31 +456,30 @@ class KeyframeGraphBuilder:
             extra = cfg.imu_discretization_gain**2 * discretization_velocity_var(
                 ts, np.asarray(self._imu_a), self._last_kf_time_s, t
             )
-            if per_step:  # the distrust goes in below, step by step
-                x_vel = x_rot = 0.0
-            params = make_preintegration_params(cfg, extra + x_vel, t - self._last_kf_time_s, x_rot)
+            spread_vel, spread_rot = (0.0, 0.0) if per_step else (x_vel, x_rot)
+            params = make_preintegration_params(
+                cfg, extra + spread_vel, t - self._last_kf_time_s, spread_rot
+            )
         pim = gtsam.PreintegratedCombinedMeasurements(params, self._latest_bias)
-        if not per_step:
-            for a_k, g_k, dt_k in zip(a_mid, g_mid, dt, strict=True):
-                pim.integrateMeasurement(a_k, g_k, float(dt_k))
-            return pim
-        # GTSAM adds (accelerometer covariance) x dt of velocity variance per step and reads
-        # the covariance from the (shared) params at every step: raise it for the steps the
-        # distrusted samples fall in, then put it back
-        vel_var, rot_var = distrust_step_variances(ts, self._imu_x, self._last_kf_time_s, dt)
-        # copies: the getters return views of the params' own matrices
-        acc0 = np.array(params.getAccelerometerCovariance(), dtype=float, copy=True)
-        gyr0 = np.array(params.getGyroscopeCovariance(), dtype=float, copy=True)
-        eye = np.eye(3)
+        if per_step:
+            # GTSAM adds (accelerometer covariance) x dt of velocity variance per step and
+            # reads the covariance from the (shared) params at every step: raise it for the
+            # steps the distrusted samples fall in, then put it back
+            vel_var, rot_var = distrust_step_variances(ts, self._imu_x, self._last_kf_time_s, dt)
+            # copies: the getters return views of the params' own matrices
+            acc0 = np.array(params.getAccelerometerCovariance(), dtype=float, copy=True)
+            gyr0 = np.array(params.getGyroscopeCovariance(), dtype=float, copy=True)
+        else:
+            vel_var = rot_var = np.zeros(len(dt))
         for a_k, g_k, dt_k, vv, rv in zip(a_mid, g_mid, dt, vel_var, rot_var, strict=True):
-            if vv > 0 or rv > 0:
-                params.setAccelerometerCovariance(acc0 + eye * (vv / dt_k))
-                params.setGyroscopeCovariance(gyr0 + eye * (rv / dt_k))
-                pim.integrateMeasurement(a_k, g_k, float(dt_k))
+            distrusted = vv > 0 or rv > 0
+            if distrusted:
+                params.setAccelerometerCovariance(acc0 + np.eye(3) * (vv / dt_k))
+                params.setGyroscopeCovariance(gyr0 + np.eye(3) * (rv / dt_k))
+            pim.integrateMeasurement(a_k, g_k, float(dt_k))
+            if distrusted:
                 params.setAccelerometerCovariance(acc0)
                 params.setGyroscopeCovariance(gyr0)
-            else:
-                pim.integrateMeasurement(a_k, g_k, float(dt_k))
         return pim
 
     def _initial_guess(

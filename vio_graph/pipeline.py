@@ -72,12 +72,20 @@ class RunInterrupted(KeyboardInterrupt):
 
 
 def leg_trajectories(
-    rig: RigGeometry, camera_xz: NDArray[np.float64], lg: FrameLog, use_encoders: bool
+    rig: RigGeometry,
+    camera_xz: NDArray[np.float64],
+    lg: FrameLog,
+    use_encoders: bool,
+    mode: str | None = None,
 ) -> dict[str, NDArray[np.float64]]:
-    """Knee, ankle, heel and toe (N, 2) for a camera path, by forward kinematics (Fig. 3)."""
+    """Knee, ankle, heel and toe (N, 2) for a camera path, by forward kinematics (Fig. 3).
+
+    The shank pitch from the IMU is the mode's own (``lg.shank_pitch_by_mode``: a keyframe
+    smoother's refined attitude) if it has one, else the filter's (``lg.shank_pitch_imu``)."""
+    pitch = lg.shank_pitch_by_mode.get(mode) if mode is not None else None
     pts = rig.leg_points(
         camera_xz,
-        np.asarray(lg.shank_pitch_imu),
+        np.asarray(lg.shank_pitch_imu if pitch is None else pitch),
         np.asarray(lg.shank_pitch_chain),
         np.asarray(lg.ankle_rad),
         use_encoders,
@@ -158,7 +166,7 @@ def _run_into(
     t_s = np.asarray(lg.t_s)
     camera = lg.camera_xz
     use_enc = config.kinematics.shank_pitch_source == "encoders"
-    paths = {m: leg_trajectories(replay.rig, xz, lg, use_enc) for m, xz in camera.items()}
+    paths = {m: leg_trajectories(replay.rig, xz, lg, use_enc, m) for m, xz in camera.items()}
     files += write_trajectories(out, t_s, paths)
     files.append(write_frames_csv(out / "frames.csv", lg))
 

@@ -92,6 +92,9 @@ class FrameLog:
 
     t_s: list[float] = field(default_factory=list)
     camera_xz: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    #: shank pitch (N,) rad of the modes whose leg kinematics use their own attitude
+    #: (keyframe smoothers with ``smoother.leg_attitude: smoothed``); others use shank_pitch_imu
+    shank_pitch_by_mode: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     shank_pitch_imu: list[float] = field(default_factory=list)
     shank_pitch_chain: list[float] = field(default_factory=list)
     ankle_rad: list[float] = field(default_factory=list)
@@ -218,6 +221,7 @@ class Replay:
         for e in self._running():
             self._guard(e, float("nan"), e.finish)
         self.log.camera_xz = self.camera_paths()
+        self.log.shank_pitch_by_mode = self.shank_pitch_paths()
         return self.log
 
     def _pass(
@@ -357,6 +361,26 @@ class Replay:
             except EstimationError as exc:
                 log.warning("%s has no usable estimate: %s", name, exc)
                 out[name] = filter_xz.copy()
+        return out
+
+    def shank_pitch_paths(self) -> dict[str, NDArray[np.float64]]:
+        """Per-frame shank pitch (N,) rad of every keyframe smoother, from its own refined
+        attitude (``smoother.leg_attitude: smoothed``; empty with ``filter``); a smoother
+        without a usable answer is left out (its legs use the filter's pitch, as its camera
+        path is the filter's)."""
+        if self.config.smoother.leg_attitude != "smoothed":
+            return {}
+        t_s = np.asarray(self.log.t_s)
+        pitch = np.asarray(self.log.shank_pitch_imu)
+        out: dict[str, NDArray[np.float64]] = {}
+        for name, e in self.estimators.items():
+            path_of = getattr(e, "shank_pitch_path", None)
+            if path_of is None:
+                continue
+            try:
+                out[name] = np.asarray(path_of(t_s, pitch, self.rig.shank_pitch_rad))
+            except EstimationError as exc:
+                log.warning("%s has no usable attitude: %s", name, exc)
         return out
 
     def _running(self) -> list[Estimator]:

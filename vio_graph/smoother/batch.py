@@ -126,7 +126,7 @@ class BatchSmoother(KeyframeSmootherBase):
                 cov = camera_xz_cov_from_pose_cov(
                     R, self._marginals.marginalCovariance(X(i)), self.imu_p_cam_m
                 )
-            out.append(KeyframeEstimate(t, cam[[0, 2]], cov))
+            out.append(KeyframeEstimate(t, cam[[0, 2]], cov, R))
         return out
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -27,7 +27,8 @@ from vio_graph.types import Displacement2D, FrameEstimate, ImuSample, LandmarkOb
 
 
 class KeyframeEstimate(NamedTuple):
-    """Refined camera position of one keyframe (world x-z, metres) and its 2x2 covariance.
+    """Refined camera position of one keyframe (world x-z, metres), its 2x2 covariance and
+    the refined IMU attitude ``R_world_imu`` (3, 3, heading removed; None if unsolved).
 
     ``cov_m2`` is NaN where the solver gives no marginal (e.g. BatchFixedLagSmoother).
     """
@@ -35,6 +36,7 @@ class KeyframeEstimate(NamedTuple):
     timestamp_s: float
     camera_xz_m: NDArray[np.float64]
     cov_m2: NDArray[np.float64]
+    R_world_imu: NDArray[np.float64] | None = None
 
 
 class KeyframeSmootherBase(ABC):
@@ -55,6 +57,8 @@ class KeyframeSmootherBase(ABC):
         self.build_times_ms: list[float] = []
         self._kf_times_s: list[float] = []
         self._kf_filter_xz: list[NDArray[np.float64]] = []
+        #: the attitude each keyframe's factors were built with (its prior), oldest first
+        self._kf_prior_R: list[NDArray[np.float64]] = []
 
     # ---- the estimator protocol ----------------------------------------------------------------
     def add_imu(self, step: ImuStep) -> None:
@@ -133,6 +137,7 @@ class KeyframeSmootherBase(ABC):
         for u in updates:
             self._kf_times_s.append(u.timestamp_s)
             self._kf_filter_xz.append(u.filter_camera_xz_m)
+            self._kf_prior_R.append(np.asarray(u.R_world_imu, dtype=float).reshape(3, 3))
             self._consume(u)
 
     @abstractmethod
@@ -166,3 +171,37 @@ class KeyframeSmootherBase(ABC):
             raise EstimationError("no solved keyframe in the smoother")
         kt, corr = kt[ok], corr[ok]
         return f + np.stack([np.interp(t, kt, corr[:, 0]), np.interp(t, kt, corr[:, 1])], -1)
+
+    def shank_pitch_path(
+        self,
+        frame_times_s: ArrayLike,
+        filter_pitch_rad: ArrayLike,
+        pitch_of: Callable[[NDArray[np.float64]], float],
+    ) -> NDArray[np.float64]:
+        """Per-frame shank pitch (N,) in radians from this smoother's own refined attitude:
+        the filter's per-frame pitch plus the smoother's correction.
+
+        ``pitch_of`` maps an IMU attitude R_world_imu (3, 3) to the shank pitch (rad; the
+        rig's geometry, e.g. ``RigGeometry.shank_pitch_rad``). At each solved keyframe the
+        correction is pitch_of(refined) - pitch_of(prior), the prior being the attitude the
+        keyframe's factors were built with (the filter's, level-aided); it is linearly
+        interpolated in time between keyframes (held before the first / after the last), as
+        the camera correction of :meth:`frame_trajectory` is. The refined attitude carries
+        what the filter cannot use at that frame: later keyframes through the gyro, and the
+        gravity direction the accelerometer shows once vision fixes the motion.
+        """
+        t = np.asarray(frame_times_s, dtype=float).reshape(-1)
+        p = np.asarray(filter_pitch_rad, dtype=float).reshape(-1)
+        if t.shape[0] != p.shape[0]:
+            raise EstimationError(f"{t.shape[0]} frame times but {p.shape[0]} filter pitches")
+        est = self.keyframe_estimates(with_covariance=False)
+        kt, corr = [], []
+        for e, R0 in zip(est, self._kf_prior_R, strict=True):
+            if e.R_world_imu is None or not np.all(np.isfinite(e.R_world_imu)):
+                continue  # a keyframe a failed update never solved
+            d = pitch_of(e.R_world_imu) - pitch_of(R0)
+            kt.append(e.timestamp_s)
+            corr.append(float(np.arctan2(np.sin(d), np.cos(d))))
+        if not kt:
+            raise EstimationError("no solved keyframe in the smoother")
+        return p + np.interp(t, np.asarray(kt), np.asarray(corr))

@@ -61,7 +61,10 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             self._smoother = gtsam.IncrementalFixedLagSmoother(self.lag_s, p)
         self._incremental = not config.fixed_lag_batch_solver
         self._live: dict[int, float] = {}  # key -> timestamp (s), mirrors GTSAM's window
-        self._frozen: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+        # keyframe -> (camera x-z, its covariance, R_world_imu) read just before it left
+        self._frozen: dict[
+            int, tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+        ] = {}
         self._newest_cov: dict[int, NDArray[np.float64]] = {}
         self.update_times_ms: list[float] = []
 
@@ -89,8 +92,9 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             if gtsam.Symbol(k).chr() == ord("x"):
                 i_old = gtsam.Symbol(k).index()
                 cov_now = self.config.marginal_covariance == "at_exit"
-                xz, cov = self._camera_estimate(i_old, with_covariance=cov_now)
-                self._frozen[i_old] = (xz, cov if cov_now else self._newest_cov.get(i_old, _NAN2))
+                xz, cov, R = self._camera_estimate(i_old, with_covariance=cov_now)
+                cov = cov if cov_now else self._newest_cov.get(i_old, _NAN2)
+                self._frozen[i_old] = (xz, cov, R)
 
         try:
             # (the stubs type the key -> time map with invariant protocol keys; ints are fine)
@@ -115,14 +119,15 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
 
     def _camera_estimate(
         self, i: int, with_covariance: bool
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Camera x-z (m), its 2x2 covariance (NaN unless asked) and R_world_imu (3, 3)."""
         R, cam = camera_from_pose(self._smoother.calculateEstimatePose3(X(i)), self.imu_p_cam_m)
         cov = _NAN2
         if with_covariance and isinstance(self._smoother, gtsam.IncrementalFixedLagSmoother):
             cov = camera_xz_cov_from_pose_cov(
                 R, self._smoother.marginalCovariance(X(i)), self.imu_p_cam_m
             )
-        return cam[[0, 2]], cov
+        return cam[[0, 2]], cov, R
 
     # ---- outputs -------------------------------------------------------------------------------
     def keyframe_estimates(self, with_covariance: bool = True) -> list[KeyframeEstimate]:
@@ -130,14 +135,15 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         a keyframe whose update failed (it never entered the smoother)."""
         out = []
         for i, t in enumerate(self._kf_times_s):
+            R: NDArray[np.float64] | None
             if i in self._frozen:
-                xz, cov = self._frozen[i]
+                xz, cov, R = self._frozen[i]
             else:
                 try:
-                    xz, cov = self._camera_estimate(i, with_covariance)
+                    xz, cov, R = self._camera_estimate(i, with_covariance)
                 except (IndexError, RuntimeError):
-                    xz, cov = np.full(2, np.nan), _NAN2
-            out.append(KeyframeEstimate(t, xz.copy(), cov.copy()))
+                    xz, cov, R = np.full(2, np.nan), _NAN2, None
+            out.append(KeyframeEstimate(t, xz.copy(), cov.copy(), None if R is None else R.copy()))
         return out
 
     def report(self) -> EstimatorReport:

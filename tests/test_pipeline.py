@@ -61,6 +61,11 @@ def test_metrics_schema_and_accuracy(run_all) -> None:
     # the level-aided shank pitch against the true knee-ankle segment (MTi-1 alone: ~1 deg)
     sp = m["shank_pitch_error_deg"]
     assert 0.0 < sp["rms"] < 0.6 and sp["max_abs"] >= sp["rms"]
+    # the smoothed modes' legs use their own refined attitude (smoother.leg_attitude)
+    by_mode = m["shank_pitch_error_deg_by_mode"]
+    assert set(by_mode) == {"smoother", "batch"}
+    for mode in ("smoother", "batch"):
+        assert 0.0 < by_mode[mode]["rms"] < 0.6
     for mode in ("smoother", "batch"):
         assert m["ate_cm"][mode]["toe"]["x"] < 6.0 and m["ate_cm"][mode]["toe"]["z"] < 6.0
     assert m["map"]["rise_error_mm"] is not None and m["map"]["rise_error_mm"] < 15.0

@@ -253,6 +253,10 @@ def _evaluate(
         metrics["shank_pitch_error_deg"] = shank_pitch_error_deg(
             gt, t_s, np.asarray(lg.shank_pitch_chain if use_enc else lg.shank_pitch_imu)
         )
+        if lg.shank_pitch_by_mode:  # the smoothers' own pitch (smoother.leg_attitude)
+            metrics["shank_pitch_error_deg_by_mode"] = {
+                m: shank_pitch_error_deg(gt, t_s, p) for m, p in lg.shank_pitch_by_mode.items()
+            }
     reports = [e.report() for e in replay.estimators.values()]
     metrics["latency_ms"] = latency_summary(
         lg, {k: v for r in reports for k, v in r.latency_ms.items()}

@@ -9,7 +9,7 @@ import pytest
 
 from vio_graph.config import PipelineConfig
 from vio_graph.filter.gating import chi2_2dof_quantile, chi2_quantile
-from vio_graph.filter.stance import FootRotationTest, StanceConsistencyTest
+from vio_graph.filter.stance import FootRotationTest, StanceConsistencyTest, StanceDetector
 from vio_graph.pipeline import run_recording
 from vio_graph.types import Displacement2D
 
@@ -255,3 +255,35 @@ def test_a_restarted_anchor_stays_one_stance_for_the_smoothers(
             stances_with_a_restart += int(stats["attitude_reanchors"] > restarts_at_onset)
         ids = []
     assert stances_with_a_restart > 0
+
+
+@pytest.mark.parametrize("reference", [False, True])
+def test_a_repaired_imu_packet_does_not_end_a_quiet_window(reference: bool) -> None:
+    """A standing shank (gravity only, no rotation) with one packet whose gyro the fault
+    monitor predicted 0.5 rad/s off (a repaired spike): taken as a measurement, the
+    finite-difference angular acceleration (50 rad/s^2) over the 0.4 m ankle lever reads as
+    ~20 m/s^2 at the ankle and the window is no longer quiet for 0.1 s; marked untrusted
+    (ImuSample.accel_held) it gives no vote and the stance stands."""
+
+    def run(trusted_spike: bool) -> list[bool]:
+        det = StanceDetector((0.0, 0.0, -0.4), 2.0, 0.1)
+        add = det.add_imu_reference if reference else det.add_imu
+        quiet = []
+        for k in range(60):
+            t = 0.01 * k
+            spike = k == 30
+            gyro = (0.0, 0.5, 0.0) if spike else (0.0, 0.0, 0.0)
+            add(
+                t,
+                (0.0, 0.0, 9.81),
+                gyro,
+                np.eye(2),
+                (0.0, -9.81),
+                trusted=trusted_spike or not spike,
+            )
+            quiet.append(det.quiet())
+        return quiet
+
+    as_measured, untrusted = run(True), run(False)
+    assert all(untrusted[15:])  # quiet from a full window on, the repaired packet included
+    assert not all(as_measured[30:42])  # the same packet as a measurement breaks the window

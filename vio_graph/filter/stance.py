@@ -47,13 +47,22 @@ class StanceDetector:
         gyro_radps: ArrayLike,
         R_sagittal: NDArray[np.float64],
         gravity_xz_mps2: ArrayLike,
-    ) -> float:
+        trusted: bool = True,
+    ) -> float | None:
         """Add one IMU sample; returns |a_ankle| (m/s^2) for this sample.
 
         ``R_sagittal`` (2, 2) maps IMU (x, z) to ground (x, z) (filter.eskf.sagittal_rotation);
         ``gravity_xz_mps2`` the gravity vector in the ground x-z plane (e.g. (0, -9.81)).
+        ``trusted=False`` (a packet the fault monitor repaired: its gyro predicted, its
+        accelerometer held, ImuSample.accel_held) gives no vote: the sample is left out of the
+        window and the next angular acceleration is differenced across it (returns None).
+        A repaired gyro is 0.4-0.6 rad/s off, which through the finite-difference angular
+        acceleration and the 0.4 m lever reads as ~20 m/s^2 at the ankle, so every repaired
+        spike ended the quiet window for its whole length.
         """
         t = float(timestamp_s)
+        if not trusted:
+            return None
         gx, gy, gz = np.asarray(gyro_radps, dtype=float).tolist()
         fx, _, fz = np.asarray(accel_mps2, dtype=float).tolist()
         if self._prev is not None and t > self._prev[0]:
@@ -83,9 +92,12 @@ class StanceDetector:
         gyro_radps: ArrayLike,
         R_sagittal: NDArray[np.float64],
         gravity_xz_mps2: ArrayLike,
-    ) -> float:
+        trusted: bool = True,
+    ) -> float | None:
         """numpy reference of :meth:`add_imu` (same |a_ankle| to rounding)."""
         t = float(timestamp_s)
+        if not trusted:
+            return None
         w = np.asarray(gyro_radps, dtype=float)
         f = np.asarray(accel_mps2, dtype=float)
         prev_t = None if self._prev is None else self._prev[0]

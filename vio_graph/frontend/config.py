@@ -330,6 +330,13 @@ class TrackerConfig(_Strict):
         description="1-sigma of one nosing position placed from its face line, per axis, for "
         "corner_check (synthetic noisy stairs with 0-6 cm bands: median 1 mm, p90 2-3 mm), m",
     )
+    fallback_restart_check: bool = Field(
+        True,
+        description="profile fallback: run ICP a second time from the seed moved by two "
+        "prediction sigmas along the least-known direction of the result; a result that "
+        "follows the seed by more than its covariance allows (corner_inflate_chi2) gets the "
+        "difference added to its covariance. False = the covariance as ICP claims it",
+    )
     corner_inflate_chi2: float = Field(
         5.99,
         gt=0,

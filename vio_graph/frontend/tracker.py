@@ -408,14 +408,47 @@ class CornerTracker:
         src, tree = self._source(prev, target, T0)
         icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree)
         bad = self._quality_problem(icp)
-        d2, gate = self._gate(
-            icp.translation_xz_m, icp.cov_m2, pred, self._prediction_cov(pred_cov)
-        )
+        P = self._prediction_cov(pred_cov)
+        d2, gate = self._gate(icp.translation_xz_m, icp.cov_m2, P=P, pred=pred)
         bad = bad or gate
         if bad is not None:
             return TrackerOutput(None, None, icp, f"profile ICP: {bad}", None, False, d2)
-        disp = Displacement2D(prev.timestamp_s, t, -icp.translation_xz_m, icp.cov_m2)
+        C = icp.cov_m2
+        if cfg.fallback_restart_check:
+            C = self._restart_check(src, target, T0, P, tree, icp)
+        disp = Displacement2D(prev.timestamp_s, t, -icp.translation_xz_m, C)
         return TrackerOutput(disp, None, icp, None, None, False, d2)
+
+    def _restart_check(
+        self,
+        src: NDArray[np.float64],
+        target: NDArray[np.float64],
+        T0: NDArray[np.float64],
+        P: NDArray[np.float64],
+        tree: cKDTree | None,
+        icp: IcpResult,
+    ) -> NDArray[np.float64]:
+        """Does the profile determine the answer, or the seed? ICP again from the seed moved by
+        two prediction sigmas (at most half the correspondence distance) along the direction
+        the result claims to know least; if the two
+        answers differ by more than the claimed covariance allows (Mahalanobis^2 above
+        ``corner_inflate_chi2``), the claim is widened by that difference (C + d d^T), as
+        for the nosing check. A short, noisy far floor (1.5 m away, z noise ~1 cm) gives PCA
+        normals tilted at random, which the point-to-line covariance reads as x information:
+        downstair with IMU spikes s2, a displacement 1.6 cm off in x claiming 0.36 cm, which
+        the filter's uncertain velocity turned into a 5 cm jump."""
+        C = icp.cov_m2
+        w, V = np.linalg.eigh(C)
+        u = V[:, 1]  # the least-known direction of the claim
+        # within ICP's capture range: a seed moved farther than half the correspondence
+        # distance can leave a well-measured riser's basin, which would look like ambiguity
+        reach = 0.5 * self._fallback_icp_cfg.max_correspondence_m
+        shift = min(2.0 * float(np.sqrt(max(float(u @ P @ u), 0.0))), reach)
+        icp2 = icp_translation_2d(src, target, T0 + shift * u, self._fallback_icp_cfg, tree)
+        d = icp2.translation_xz_m - icp.translation_xz_m
+        if _mahalanobis2(d, C, 0.0) > self._cfg.corner_inflate_chi2:
+            C = C + np.outer(d, d)
+        return C
 
     def _seen_before(
         self, target: NDArray[np.float64], T0: NDArray[np.float64], prev: _Frame

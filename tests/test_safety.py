@@ -12,7 +12,7 @@ from pydantic import ValidationError
 
 from vio_graph.config import PipelineConfig, load_config
 from vio_graph.errors import ConfigError
-from vio_graph.evaluation.safety import near_trip_scores
+from vio_graph.evaluation.safety import approached, near_trip_scores
 from vio_graph.outputs import write_frames_csv
 from vio_graph.replay import FrameLog
 from vio_graph.safety.clearance import (
@@ -205,7 +205,10 @@ def test_near_trip_warned_on_a_simulated_trial(near_trip_run) -> None:
     m = near_trip_run.metrics["clearance"]["filter"]
     assert m["near_trip"]["events"] >= 1
     assert m["near_trip"]["recall"] == 1.0  # every near-trip warned at or before its minimum
-    assert m["near_trip"]["min_lead_ms"] > 0
+    # the issue's aim: warned at least 100 ms before the minimum (lead 222 ms on the full
+    # 5 s trial, seed 1; 124 ms with the lift-off and landing poses in the prediction)
+    assert m["near_trip"]["min_lead_ms"] >= 100
+    assert m["near_trip"]["precision"] >= 0.5
     assert m["error_mm"]["p95"] < 20.0
     assert (near_trip_run.out_dir / "plots" / "clearance.png").is_file()
     assert near_trip_run.metrics["placement"]["filter"]["landings"] >= 1
@@ -339,3 +342,55 @@ def test_prediction_covers_the_second_nosing_of_a_two_step_swing() -> None:
     assert s.edge_xz_m[0] == pytest.approx(0.5, abs=0.006)  # the next edge is the first riser
     assert s.nosing_clearance_m > 0.15
     assert s.predicted_min_nosing_clearance_m == pytest.approx(0.012, abs=0.004)
+
+
+def test_approached_needs_the_foot_clear_of_the_edge_first() -> None:
+    """A foot lifting off the nosing it stood on starts at zero clearance (no near-trip);
+    the same clearances after the foot was 2 cm clear of that edge are one; a new next edge
+    or a stance starts over."""
+    swing = np.array([1, 1, 1, 1, 1, 1, 0, 1, 1], bool)
+    edge = np.array([3, 3, 3, 3, 4, 4, 4, 4, 4])
+    clear = np.array([0.0, 0.01, 0.03, 0.01, 0.01, 0.05, 0.01, 0.01, 0.01])
+    got = approached(swing, edge, clear, 0.02)
+    assert got.tolist() == [False, False, False, True, False, False, False, False, False]
+
+
+# descending stair: nosings at x 0.5, 0.78, 1.06 (rise 0.15 m, tread 0.28 m)
+DOWN = [(-1.0, 0.0), (0.5, 0.0), (0.5, -0.15), (0.78, -0.15), (0.78, -0.30), (1.06, -0.30)]
+DOWN += [(1.06, -0.45), (2.0, -0.45)]
+
+
+def _descent() -> list[SafetyEstimate]:
+    """Three step-to-step swings down DOWN (0.5 s each; the toe from 5 mm past one nosing to
+    5 mm past the next, the foot pitched toe-down mid-swing so the heel clears the nosing it
+    leaves by 7 cm); the outputs of the third swing."""
+    cfg = SafetyConfig(min_keyframes=2)
+    mon = SafetyMonitor(cfg)
+    _keyframes(mon, DOWN, np.random.default_rng(2), 3, 0.0005, np.eye(2) * 1e-6)
+    t, dt, out = 10.0, 1 / 30, []
+    for i, (x0, z0) in enumerate([(0.225, 0.15), (0.505, 0.0), (0.785, -0.15)]):
+        for _ in range(6):  # stance, the toe 5 mm past the nosing
+            toe = np.array([x0, z0])
+            mon.update(t, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0], toe, True)
+            t += dt
+        for tau in np.arange(dt, 0.5 + dt / 2, dt):
+            s = np.clip(tau / 0.5, 0, 1)
+            p = 10 * s**3 - 15 * s**4 + 6 * s**5
+            toe = np.array([x0 + 0.28 * p, z0 + 0.06 * np.sin(np.pi * s) - 0.15 * p**2])
+            pitch = 0.6 * np.sin(np.pi * s)  # toe-down, rad
+            heel = toe + 0.25 * np.array([-np.cos(pitch), np.sin(pitch)])
+            est = mon.update(t, [0, 0.5], np.eye(2) * 1e-6, heel, toe, False)
+            if i == 2:
+                out.append(est)
+            t += dt
+    return out
+
+
+def test_no_near_trip_warning_for_lifting_off_and_landing_on_nosings() -> None:
+    """Descent: the toe leaves the nosing it stood on and lands 5 mm past the next one, both
+    at zero clearance, never coming back close to an edge it had cleared: geometrically the
+    predicted clearance to the edges is < 2 cm, but no pose is a near-trip and nothing warns
+    (before 2026-12-02 the lift-off and the landing both warned)."""
+    out = _descent()
+    assert min(s.predicted_min_nosing_clearance_m for s in out) < 0.02
+    assert not any(s.near_trip_warning for s in out)

@@ -68,7 +68,9 @@ class SafetyEstimate:
     viewer draws). ``nosing_clearance_m`` / ``nosing_sigma_m``: foot to the next edge ahead.
     ``predicted_min_clearance_m``: minimum clearance over the horizon;
     ``predicted_min_nosing_clearance_m``: the same to the edges the toe reaches over the
-    horizon from the next one on, which the ``near_trip_warning`` tests.
+    horizon from the next one on; ``near_trip_clearance_m``: its minimum over the predicted
+    poses that could be a near-trip (each pose against its own next edge, the toe moving
+    forward, the foot clear of that edge before), which the ``near_trip_warning`` tests.
     ``edge_distance_m`` / ``edge_distance_sigma_m``: x from the toe to the next edge ahead,
     ``edge_xz_m`` (2,): that edge's point;
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
@@ -92,6 +94,7 @@ class SafetyEstimate:
     landing: bool
     placement: NDArray[np.float64]
     edge_xz_m: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.nan))
+    near_trip_clearance_m: float = NAN
 
 
 #: frames.csv columns of a SafetyEstimate, in order (docs/outputs.md)
@@ -318,6 +321,7 @@ class SafetyMonitor:
         )
         self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
         self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
+        self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
 
     def _track_swing(
         self,
@@ -364,6 +368,21 @@ class SafetyMonitor:
         x = edges.xz_m[e:, 0]
         n = max(1, int(np.searchsorted(x, toe_x_max_m + self.config.toe_pass_m, side="right")))
         return edges.xz_m[e : e + n]
+
+    def _approach(self, edge_x_m: float, d_m: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Per foot pose of a sequence starting now (clearances ``d_m`` to the edge at
+        ``edge_x_m``): the foot has been at least ``near_trip_m`` from that edge since the
+        stance anchor was released (earlier frames or earlier poses of the sequence). A
+        near-trip is the foot coming back close to an edge it was clear of, not the foot
+        lifting off the nosing it stood on. The edge is remembered as cleared (by x, within
+        two bins: it is re-detected at each keyframe)."""
+        tol = 2 * self.config.bin_m
+        clear = np.logical_or.accumulate(d_m >= self.config.near_trip_m)
+        if any(abs(x - edge_x_m) <= tol for x in self._cleared):
+            return np.ones(d_m.shape, bool)
+        if clear[0]:
+            self._cleared.append(edge_x_m)
+        return clear
 
     @property
     def edges(self) -> Edges:
@@ -439,7 +458,9 @@ class SafetyMonitor:
         if cfg.motion_model == "swing_template" and np.isfinite(tau):
             h = np.linspace(0.0, cfg.horizon_s, cfg.horizon_steps + 1)
             motion = self._template_motion(tau, h)
-        pred = pred_edge = NAN
+        if in_stance:
+            self._cleared = []
+        pred = pred_edge = risk = NAN  # risk: the minimum over near-trip candidates
         if motion is not None:
             hp = heel[None] + motion[:, :2]
             tp = toe[None] + motion[:, 2:]
@@ -448,10 +469,19 @@ class SafetyMonitor:
                 hi_x = float(max(hp[:, 0].max(), tp[:, 0].max())) + cfg.window_m
                 swept = full.window(lo_x, hi_x)
                 pred = float(np.min(clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
-            for ee in self._edges_reached(edges, e, float(tp[:, 0].max())):
-                d = float(np.min(edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)))
+            # the predicted toe velocity: a near-trip needs forward motion at that instant
+            vp = np.gradient(tp, cfg.horizon_s / cfg.horizon_steps, axis=0)
+            fwd = (vp[:, 0] > cfg.warning_min_forward_speed_mps) & (vp[:, 1] > -vp[:, 0])
+            # each predicted pose is tested against its own next edge (as the truth is)
+            nxt = np.searchsorted(edges.xz_m[:, 0], tp[:, 0] - cfg.toe_pass_m, side="right")
+            for i, ee in enumerate(self._edges_reached(edges, e, float(tp[:, 0].max()))):
+                dd = edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)
+                d = float(np.min(dd))
                 if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
                     pred_edge = d
+                ok = fwd & (nxt == e + i) & self._approach(float(ee[0]), dd)
+                if ok.any() and not float(np.min(dd[ok])) >= risk:
+                    risk = float(np.min(dd[ok]))
         else:
             if (
                 np.all(np.isfinite(v))
@@ -476,12 +506,19 @@ class SafetyMonitor:
                 )
                 if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
                     pred_edge = float(d)
+                now = edge_clearance_many(heel, toe, ee, cfg.sole_thickness_m)
+                if (
+                    forward_motion(v, cfg)
+                    and np.any(self._approach(float(ee[0]), now))
+                    and np.isfinite(d)
+                    and not d >= risk
+                ):
+                    risk = float(d)
         s = nsig if np.isfinite(nsig) else 0.0
         warn = bool(
             not in_stance
-            and np.isfinite(pred_edge)
-            and forward_motion(v, cfg)
-            and pred_edge - cfg.warning_sigma * s < cfg.near_trip_m
+            and np.isfinite(risk)
+            and risk - cfg.warning_sigma * s < cfg.near_trip_m
         )
         # landing: the stance starts at this frame
         landing = bool(in_stance and not self._in_stance)
@@ -509,4 +546,5 @@ class SafetyMonitor:
             landing=landing,
             placement=placement,
             edge_xz_m=edges.xz_m[e].copy() if e >= 0 else np.full(2, np.nan),
+            near_trip_clearance_m=risk,
         )

@@ -394,3 +394,24 @@ def test_no_near_trip_warning_for_lifting_off_and_landing_on_nosings() -> None:
     out = _descent()
     assert min(s.predicted_min_nosing_clearance_m for s in out) < 0.02
     assert not any(s.near_trip_warning for s in out)
+
+
+def test_pitch_error_common_to_foot_and_map_cancels() -> None:
+    """A 1 deg shank pitch error rotates the keyframe profiles and the foot outline alike
+    about the camera: the foot moves 8 mm but its clearance to the mapped floor stays the
+    true 3 cm (within 1 mm), which is why the foot-outline sigma counts only what does not
+    cancel (safety.foot_sigma_m)."""
+    th = np.deg2rad(1.0)
+    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    cam = np.array([0.0, 0.5])
+    xs = np.linspace(-0.3, 1.0, 300)
+    floor_rel = np.stack([xs, np.zeros_like(xs)], 1) - cam  # camera-relative, true
+    mon = SafetyMonitor(SafetyConfig(min_keyframes=2))
+    for k in range(3):
+        mon.update(0.01 * k, cam, np.eye(2) * 1e-8, [-0.5, 0.2], [-0.25, 0.2], False,
+                   floor_rel @ R.T)
+    heel, toe = np.array([0.10, 0.03]), np.array([0.35, 0.03])
+    heel_e, toe_e = cam + (heel - cam) @ R.T, cam + (toe - cam) @ R.T
+    assert np.hypot(*(toe_e - toe)) > 0.006  # the foot outline's own error
+    s = mon.update(1.0, cam, np.eye(2) * 1e-8, heel_e, toe_e, False)
+    assert s.clearance_m == pytest.approx(0.03, abs=0.001)

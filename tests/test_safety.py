@@ -17,6 +17,7 @@ from vio_graph.outputs import write_frames_csv
 from vio_graph.replay import FrameLog
 from vio_graph.safety.clearance import (
     HeightProfile,
+    clearance_many,
     edge_clearance,
     find_edges,
     foot_clearance,
@@ -415,3 +416,32 @@ def test_pitch_error_common_to_foot_and_map_cancels() -> None:
     assert np.hypot(*(toe_e - toe)) > 0.006  # the foot outline's own error
     s = mon.update(1.0, cam, np.eye(2) * 1e-8, heel_e, toe_e, False)
     assert s.clearance_m == pytest.approx(0.03, abs=0.001)
+
+
+def test_pruned_prediction_window_gives_the_same_minimum() -> None:
+    """The predicted minimum clearance searched only over the bins nearer in x than the
+    current clearance (SafetyMonitor._swept) equals the minimum over the whole search range,
+    exactly, for random stairs, feet and motions (penetrating ones included)."""
+    rng = np.random.default_rng(5)
+    mon = SafetyMonitor(SafetyConfig())
+    for _ in range(300):
+        rise, tread = rng.uniform(-0.18, 0.18), rng.uniform(0.2, 0.35)
+        pts = [(-1.0, 0.0)]
+        for i in range(6):
+            x = i * tread
+            pts += [(x, i * rise), (x, (i + 1) * rise)]
+        pts.append((6 * tread + 1.0, 6 * rise))
+        pts = sorted(pts, key=lambda p: p[0])
+        prof = HeightProfile.from_polyline(pts)
+        x = rng.uniform(0.0, 1.2)
+        toe = np.array([x, np.interp(x, *np.array(pts).T) + rng.uniform(-0.02, 0.2)])
+        heel = toe + [-0.25, rng.uniform(-0.05, 0.1)]
+        steps = np.linspace(0, 0.3, 11)[:, None] * rng.uniform(-1.5, 1.5, 2)[None]
+        hp, tp = heel[None] + steps, toe[None] + steps
+        lo = float(min(hp[:, 0].min(), tp[:, 0].min()))
+        hi = float(max(hp[:, 0].max(), tp[:, 0].max()))
+        win = prof.window(min(heel[0], toe[0]) - 0.3, max(heel[0], toe[0]) + 0.3)
+        now = foot_clearance(heel, toe, win).distance_m
+        full = clearance_many(hp, tp, prof.window(lo - 0.3, hi + 0.3))
+        pruned = clearance_many(hp, tp, mon._swept(prof, lo, hi, lo - 0.3, hi + 0.3, now))
+        assert float(np.min(pruned)) == float(np.min(full))

@@ -369,6 +369,25 @@ class SafetyMonitor:
         n = max(1, int(np.searchsorted(x, toe_x_max_m + self.config.toe_pass_m, side="right")))
         return edges.xz_m[e : e + n]
 
+    def _swept(
+        self,
+        full: HeightProfile,
+        lo_x_m: float,
+        hi_x_m: float,
+        search_lo_m: float,
+        search_hi_m: float,
+        clearance_now_m: float,
+    ) -> HeightProfile:
+        """The bins the predicted minimum clearance can come from, for foot poses spanning
+        x in [lo_x_m, hi_x_m] over the horizon (the first pose is the current foot): those
+        in the prediction's search range [search_lo_m, search_hi_m] and nearer in x to the
+        poses than the current clearance (plus the sole). A bin farther in x than that is
+        farther from every pose than the current foot is from the terrain, and the minimum
+        is at most that (the current pose is one of the poses, and the predicted distance
+        is never above :func:`foot_clearance`'s), so leaving it out changes only the time."""
+        d = max(clearance_now_m + self.config.sole_thickness_m, 0.0) + 1e-6  # m; 1 um rounding
+        return full.window(max(search_lo_m, lo_x_m - d), min(search_hi_m, hi_x_m + d))
+
     def _approach(self, edge_x_m: float, d_m: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Per foot pose of a sequence starting now (clearances ``d_m`` to the edge at
         ``edge_x_m``): the foot has been at least ``near_trip_m`` from that edge since the
@@ -395,10 +414,10 @@ class SafetyMonitor:
         if not self._templates or not np.isfinite(tau):
             return None
         out = []
+        q = np.concatenate([[tau], tau + h])  # now, then the horizon's instants
         for ph, d in self._templates:
-            at = np.stack([np.interp(tau + h, ph, d[:, j]) for j in range(4)], 1)
-            now = np.array([np.interp(tau, ph, d[:, j]) for j in range(4)])
-            out.append(at - now[None])
+            at = np.stack([np.interp(q, ph, d[:, j]) for j in range(4)], 1)
+            out.append(at[1:] - at[:1])
         return np.median(np.stack(out), axis=0) if len(out) > 1 else out[0]
 
     def update(
@@ -465,9 +484,10 @@ class SafetyMonitor:
             hp = heel[None] + motion[:, :2]
             tp = toe[None] + motion[:, 2:]
             if np.isfinite(c.distance_m):
-                lo_x = float(min(hp[:, 0].min(), tp[:, 0].min())) - cfg.window_m
-                hi_x = float(max(hp[:, 0].max(), tp[:, 0].max())) + cfg.window_m
-                swept = full.window(lo_x, hi_x)
+                lo_x = float(min(hp[:, 0].min(), tp[:, 0].min()))
+                hi_x = float(max(hp[:, 0].max(), tp[:, 0].max()))
+                w = cfg.window_m
+                swept = self._swept(full, lo_x, hi_x, lo_x - w, hi_x + w, c.distance_m)
                 pred = float(np.min(clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
             # the predicted toe velocity: a near-trip needs forward motion at that instant
             vp = np.gradient(tp, cfg.horizon_s / cfg.horizon_steps, axis=0)
@@ -490,8 +510,10 @@ class SafetyMonitor:
             ):
                 pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
             elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
-                reach = np.abs(v[0]) * cfg.horizon_s
-                swept = full.window(x0 - reach, x1 + reach)
+                dx = float(v[0]) * cfg.horizon_s  # the foot's x span over the horizon
+                lo_x = float(min(heel[0], toe[0])) + min(dx, 0.0)
+                hi_x = float(max(heel[0], toe[0])) + max(dx, 0.0)
+                swept = self._swept(full, lo_x, hi_x, x0 - abs(dx), x1 + abs(dx), c.distance_m)
                 pred = predicted_min_clearance(
                     heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
                 )

@@ -214,7 +214,7 @@ class OnlineHeightMap:
         self._se2 = np.zeros(0)  # per bin: its squared standard error, m^2
         self._cov = np.zeros((0, 3))  # sum of (Pxx, Pxz, Pzz)
         self._profile: HeightProfile | None = None
-        self._cov_bins = np.zeros((0, 2, 2))
+        self._cov_bins: tuple[NDArray, NDArray] = (np.zeros((0, 3)), np.zeros(0))
 
     def _grow(self, i_min: int, i_max: int) -> None:
         n = self._n.shape[0]
@@ -291,15 +291,16 @@ class OnlineHeightMap:
         self._profile = HeightProfile(
             x_lo, x_lo + self.bin_m, np.asarray(mid, np.float64), np.asarray(sig, np.float64)
         )
-        c = self._cov[j] / n_all[:, None] if j.size else np.zeros((0, 3))
-        self._cov_bins = np.stack(
-            [np.stack([c[:, 0], c[:, 1]], 1), np.stack([c[:, 1], c[:, 2]], 1)], 1
-        )
+        # (Pxx, Pxz, Pzz) sums and keyframe counts of the profile's bins; the mean is taken
+        # in bin_cov, for the one or two bins a frame asks for
+        self._cov_bins = (self._cov[j], n_all)
         return self._profile
 
     def bin_cov(self, k: int) -> NDArray[np.float64]:
         """Mean keyframe camera covariance (2, 2) of bin ``k`` of :meth:`profile`."""
-        return self._cov_bins[k]
+        sums, n = self._cov_bins
+        c = sums[k] / n[k]
+        return np.array([[c[0], c[1]], [c[1], c[2]]])
 
 
 class SafetyMonitor:

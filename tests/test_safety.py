@@ -26,7 +26,7 @@ from vio_graph.safety.clearance import (
     predicted_min_edge_clearance,
 )
 from vio_graph.safety.config import SafetyConfig
-from vio_graph.safety.online import CSV_COLUMNS, SafetyEstimate, SafetyMonitor
+from vio_graph.safety.online import CSV_COLUMNS, OnlineHeightMap, SafetyEstimate, SafetyMonitor
 
 FLAT = HeightProfile.from_polyline([(-1.0, 0.0), (3.0, 0.0)])
 # one step up: riser at x = 0.5 (0.15 m), tread 0.28 m, second riser at 0.78 up to 0.30 m
@@ -445,3 +445,17 @@ def test_pruned_prediction_window_gives_the_same_minimum() -> None:
         full = clearance_many(hp, tp, prof.window(lo - 0.3, hi + 0.3))
         pruned = clearance_many(hp, tp, mon._swept(prof, lo, hi, lo - 0.3, hi + 0.3, now))
         assert float(np.min(pruned)) == float(np.min(full))
+
+
+def test_map_bin_covariance_is_the_mean_over_its_keyframes() -> None:
+    """Two keyframes seeing the same floor with camera covariances P1 and P2: every bin's
+    covariance (the relative-pose part of the sigma) is (P1 + P2) / 2, symmetric."""
+    m = OnlineHeightMap(0.01, 2)
+    pts = np.stack([np.linspace(0.0, 0.5, 60), np.full(60, -0.5)], 1)
+    P1, P2 = np.array([[4e-6, 1e-6], [1e-6, 2e-6]]), np.array([[8e-6, -3e-6], [-3e-6, 6e-6]])
+    m.add_keyframe([0.0, 0.5], pts, P1)
+    m.add_keyframe([0.0, 0.5], pts, P2)
+    prof = m.profile(0.003)
+    assert len(prof) >= 45
+    for k in (0, len(prof) // 2, len(prof) - 1):
+        np.testing.assert_allclose(m.bin_cov(k), (P1 + P2) / 2, rtol=1e-12)

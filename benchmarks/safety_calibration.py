@@ -42,10 +42,13 @@ def pose_part(lg, est, true, cfg: SafetyConfig) -> tuple[float, float, float]:
     res = {}
     for name, cam in (("true", true["camera"]), ("est", est["camera"])):
         path = {"camera": cam, "heel": cam + off["heel"], "toe": cam + off["toe"]}
-        out = replay_safety(sc, np.asarray(lg.t_s), path, lg.cov_position_m2, lg.in_stance,
-                            lg.profiles)
-        res[name] = (np.array([s.clearance_m for s in out]),
-                     np.array([s.clearance_sigma_m for s in out]))
+        out = replay_safety(
+            sc, np.asarray(lg.t_s), path, lg.cov_position_m2, lg.in_stance, lg.profiles
+        )
+        res[name] = (
+            np.array([s.clearance_m for s in out]),
+            np.array([s.clearance_sigma_m for s in out]),
+        )
     e, sig = res["est"][0] - res["true"][0], res["est"][1]
     ok = np.isfinite(e) & np.isfinite(sig) & (sig > 0)
     rms = lambda a: float(np.sqrt(np.mean(a**2)))  # noqa: E731
@@ -77,8 +80,10 @@ def main() -> None:
     args = ap.parse_args()
     cfg = load_config(None)
     sc = cfg.safety
-    print("| recording | pose part: error rms (mm) | sigma rms (mm) | error / sigma rms "
-          "| false warnings | of which motion model | of which clearance |")
+    print(
+        "| recording | pose part: error rms (mm) | sigma rms (mm) | error / sigma rms "
+        "| false warnings | of which motion model | of which clearance |"
+    )
     print("|---|---|---|---|---|---|---|")
     for path in args.recordings:
         rec = Recording.open(path)
@@ -97,21 +102,32 @@ def main() -> None:
         mon = SafetyMonitor(sc)
         warn, oracle_warns = [], []
         for k, tk in enumerate(t):
-            s = mon.update(float(tk), est["camera"][k], lg.cov_position_m2[k], est["heel"][k],
-                           est["toe"][k], bool(lg.in_stance[k]), lg.profiles.get(k))
+            s = mon.update(
+                float(tk),
+                est["camera"][k],
+                lg.cov_position_m2[k],
+                est["heel"][k],
+                est["toe"][k],
+                bool(lg.in_stance[k]),
+                lg.profiles.get(k),
+            )
             warn.append(s.near_trip_warning)
             r = oracle_risk(mon, t, k, est, sc) if s.near_trip_warning else float("nan")
             sig = s.nosing_sigma_m if np.isfinite(s.nosing_sigma_m) else 0.0
-            oracle_warns.append(bool(np.isfinite(r) and r - sc.warning_sigma * sig
-                                     < sc.near_trip_m))
+            oracle_warns.append(
+                bool(np.isfinite(r) and r - sc.warning_sigma * sig < sc.near_trip_m)
+            )
         false = motion = 0
         for a, b in _runs(np.array(warn)):
             if any(t[a] <= e1 and t[b] >= e0 - 1.0 for e0, e1 in events):
                 continue
             false += 1
             motion += not oracle_warns[a]
-        print(f"| {_common.display_path(path)} | {e_mm:.1f} | {s_mm:.1f} | {z:.2f} | {false} "
-              f"| {motion} | {false - motion} |", flush=True)
+        print(
+            f"| {_common.display_path(path)} | {e_mm:.1f} | {s_mm:.1f} | {z:.2f} | {false} "
+            f"| {motion} | {false - motion} |",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -409,8 +409,9 @@ def test_pitch_error_common_to_foot_and_map_cancels() -> None:
     floor_rel = np.stack([xs, np.zeros_like(xs)], 1) - cam  # camera-relative, true
     mon = SafetyMonitor(SafetyConfig(min_keyframes=2))
     for k in range(3):
-        mon.update(0.01 * k, cam, np.eye(2) * 1e-8, [-0.5, 0.2], [-0.25, 0.2], False,
-                   floor_rel @ R.T)
+        mon.update(
+            0.01 * k, cam, np.eye(2) * 1e-8, [-0.5, 0.2], [-0.25, 0.2], False, floor_rel @ R.T
+        )
     heel, toe = np.array([0.10, 0.03]), np.array([0.35, 0.03])
     heel_e, toe_e = cam + (heel - cam) @ R.T, cam + (toe - cam) @ R.T
     assert np.hypot(*(toe_e - toe)) > 0.006  # the foot outline's own error

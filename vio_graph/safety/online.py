@@ -539,9 +539,7 @@ class SafetyMonitor:
                     risk = float(d)
         s = nsig if np.isfinite(nsig) else 0.0
         warn = bool(
-            not in_stance
-            and np.isfinite(risk)
-            and risk - cfg.warning_sigma * s < cfg.near_trip_m
+            not in_stance and np.isfinite(risk) and risk - cfg.warning_sigma * s < cfg.near_trip_m
         )
         # landing: the stance starts at this frame
         landing = bool(in_stance and not self._in_stance)

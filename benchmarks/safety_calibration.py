@@ -10,6 +10,8 @@ is re-run on its estimate (``replay_safety``):
   the sigma of the estimated-camera run without the map floor and the foot term; its rms
   (1 when the filter's covariance growth describes its drift), with the rms error and sigma
   in mm;
+- the foot outline's error relative to the camera (heel and toe, sd per axis), the range of
+  the camera's z error and the filter's own z sigma at the end of the trial;
 - false warnings: each warning run that is not a true positive (``near_trip_scores``) is
   re-tested with the estimated foot's actual poses over the next ``horizon_s`` in place of the
   motion model's (same candidate poses: forward, next edge, cleared first; same sigma):
@@ -81,10 +83,11 @@ def main() -> None:
     cfg = load_config(None)
     sc = cfg.safety
     print(
-        "| recording | pose part: error rms (mm) | sigma rms (mm) | error / sigma rms "
-        "| false warnings | of which motion model | of which clearance |"
+        "| recording | foot outline error sd x / z (mm) | camera z error range (mm) "
+        "| filter z sigma at the end (mm) | pose part: error rms (mm) | sigma rms (mm) "
+        "| error / sigma rms | false warnings | of which motion model | of which clearance |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for path in args.recordings:
         rec = Recording.open(path)
         if rec.groundtruth is None:
@@ -123,9 +126,15 @@ def main() -> None:
                 continue
             false += 1
             motion += not oracle_warns[a]
+        rel = np.concatenate(
+            [est[b] - est["camera"] - (true[b] - true["camera"]) for b in ("heel", "toe")]
+        )
+        cam_z = est["camera"][:, 1] - true["camera"][:, 1]
         print(
-            f"| {_common.display_path(path)} | {e_mm:.1f} | {s_mm:.1f} | {z:.2f} | {false} "
-            f"| {motion} | {false - motion} |",
+            f"| {_common.display_path(path)} | {np.std(rel[:, 0]) * 1e3:.1f} / "
+            f"{np.std(rel[:, 1]) * 1e3:.1f} | {np.ptp(cam_z) * 1e3:.1f} | "
+            f"{np.sqrt(lg.cov_position_m2[-1][1][1]) * 1e3:.1f} | {e_mm:.1f} | {s_mm:.1f} | "
+            f"{z:.2f} | {false} | {motion} | {false - motion} |",
             flush=True,
         )
 

@@ -108,8 +108,9 @@ class SafetyConfig(BaseModel):
     warning_sigma: float = Field(
         default=1.0,
         ge=0,
-        description="warn when the predicted minimum clearance to the next "
-        "edge minus this many sigma falls below near_trip_m (count of sigma)",
+        description="warn when the predicted clearance of the foot poses that could be a "
+        "near-trip (SafetyEstimate.near_trip_clearance_m) minus this many sigma of the next "
+        "edge falls below near_trip_m (count of sigma)",
     )
     warning_min_forward_speed_mps: float = Field(
         default=0.5,

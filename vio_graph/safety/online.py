@@ -530,12 +530,8 @@ class SafetyMonitor:
                 if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
                     pred_edge = float(d)
                 now = edge_clearance_many(heel, toe, ee, cfg.sole_thickness_m)
-                if (
-                    forward_motion(v, cfg)
-                    and np.any(self._approach(float(ee[0]), now))
-                    and np.isfinite(d)
-                    and not d >= risk
-                ):
+                cleared = bool(np.any(self._approach(float(ee[0]), now)))  # (remembers it)
+                if cleared and forward_motion(v, cfg) and np.isfinite(d) and not d >= risk:
                     risk = float(d)
         s = nsig if np.isfinite(nsig) else 0.0
         warn = bool(

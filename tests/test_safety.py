@@ -460,3 +460,24 @@ def test_map_bin_covariance_is_the_mean_over_its_keyframes() -> None:
     assert len(prof) >= 45
     for k in (0, len(prof) // 2, len(prof) - 1):
         np.testing.assert_allclose(m.bin_cov(k), (P1 + P2) / 2, rtol=1e-12)
+
+
+def test_constant_velocity_warning_needs_an_approached_edge() -> None:
+    """Constant-velocity fallback (no swing template): the toe leaving the nosing it stood
+    on at 1 m/s (clearance ~0 to it, never cleared) is no near-trip; the foot passing 1.2 cm
+    over a nosing it was 16 cm from is one, warned with its clearance."""
+    cfg = SafetyConfig(motion_model="constant_velocity", horizon_s=0.3, min_keyframes=2)
+    leave = SafetyMonitor(cfg)
+    _keyframes(leave, DOWN, np.random.default_rng(3), 3, 0.0005, np.eye(2) * 1e-6)
+    for dt in (-1 / 30, 0.0, 1 / 30):  # standing on the nosing, then leaving it
+        toe = np.array([0.505 + 1.0 * max(dt, 0.0), 0.0])
+        s = leave.update(5.0 + dt, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0.0], toe, dt < 0)
+    assert s.predicted_min_nosing_clearance_m < 0.01  # geometrically close to the nosing
+    assert not s.near_trip_warning and not s.near_trip_clearance_m < 0.02
+    cross = SafetyMonitor(cfg)
+    _keyframes(cross, STEP, np.random.default_rng(1), 3, 0.0005, np.eye(2) * 1e-6)
+    for dt in (0.0, 1 / 30):
+        toe = np.array([0.40, 0.312]) + np.array([1.5, 0.0]) * dt
+        s = cross.update(5.0 + dt, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0.0], toe, False)
+    assert s.near_trip_clearance_m == pytest.approx(0.012, abs=0.004)
+    assert s.near_trip_warning

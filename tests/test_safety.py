@@ -12,11 +12,12 @@ from pydantic import ValidationError
 
 from vio_graph.config import PipelineConfig, load_config
 from vio_graph.errors import ConfigError
-from vio_graph.evaluation.safety import near_trip_scores
+from vio_graph.evaluation.safety import approached, near_trip_scores
 from vio_graph.outputs import write_frames_csv
 from vio_graph.replay import FrameLog
 from vio_graph.safety.clearance import (
     HeightProfile,
+    clearance_many,
     edge_clearance,
     find_edges,
     foot_clearance,
@@ -25,7 +26,7 @@ from vio_graph.safety.clearance import (
     predicted_min_edge_clearance,
 )
 from vio_graph.safety.config import SafetyConfig
-from vio_graph.safety.online import CSV_COLUMNS, SafetyEstimate, SafetyMonitor
+from vio_graph.safety.online import CSV_COLUMNS, OnlineHeightMap, SafetyEstimate, SafetyMonitor
 
 FLAT = HeightProfile.from_polyline([(-1.0, 0.0), (3.0, 0.0)])
 # one step up: riser at x = 0.5 (0.15 m), tread 0.28 m, second riser at 0.78 up to 0.30 m
@@ -205,7 +206,10 @@ def test_near_trip_warned_on_a_simulated_trial(near_trip_run) -> None:
     m = near_trip_run.metrics["clearance"]["filter"]
     assert m["near_trip"]["events"] >= 1
     assert m["near_trip"]["recall"] == 1.0  # every near-trip warned at or before its minimum
-    assert m["near_trip"]["min_lead_ms"] > 0
+    # the issue's aim: warned at least 100 ms before the minimum (lead 222 ms on the full
+    # 5 s trial, seed 1; 124 ms with the lift-off and landing poses in the prediction)
+    assert m["near_trip"]["min_lead_ms"] >= 100
+    assert m["near_trip"]["precision"] >= 0.5
     assert m["error_mm"]["p95"] < 20.0
     assert (near_trip_run.out_dir / "plots" / "clearance.png").is_file()
     assert near_trip_run.metrics["placement"]["filter"]["landings"] >= 1
@@ -339,3 +343,141 @@ def test_prediction_covers_the_second_nosing_of_a_two_step_swing() -> None:
     assert s.edge_xz_m[0] == pytest.approx(0.5, abs=0.006)  # the next edge is the first riser
     assert s.nosing_clearance_m > 0.15
     assert s.predicted_min_nosing_clearance_m == pytest.approx(0.012, abs=0.004)
+
+
+def test_approached_needs_the_foot_clear_of_the_edge_first() -> None:
+    """A foot lifting off the nosing it stood on starts at zero clearance (no near-trip);
+    the same clearances after the foot was 2 cm clear of that edge are one; a new next edge
+    or a stance starts over."""
+    swing = np.array([1, 1, 1, 1, 1, 1, 0, 1, 1], bool)
+    edge = np.array([3, 3, 3, 3, 4, 4, 4, 4, 4])
+    clear = np.array([0.0, 0.01, 0.03, 0.01, 0.01, 0.05, 0.01, 0.01, 0.01])
+    got = approached(swing, edge, clear, 0.02)
+    assert got.tolist() == [False, False, False, True, False, False, False, False, False]
+
+
+# descending stair: nosings at x 0.5, 0.78, 1.06 (rise 0.15 m, tread 0.28 m)
+DOWN = [(-1.0, 0.0), (0.5, 0.0), (0.5, -0.15), (0.78, -0.15), (0.78, -0.30), (1.06, -0.30)]
+DOWN += [(1.06, -0.45), (2.0, -0.45)]
+
+
+def _descent() -> list[SafetyEstimate]:
+    """Three step-to-step swings down DOWN (0.5 s each; the toe from 5 mm past one nosing to
+    5 mm past the next, the foot pitched toe-down mid-swing so the heel clears the nosing it
+    leaves by 7 cm); the outputs of the third swing."""
+    cfg = SafetyConfig(min_keyframes=2)
+    mon = SafetyMonitor(cfg)
+    _keyframes(mon, DOWN, np.random.default_rng(2), 3, 0.0005, np.eye(2) * 1e-6)
+    t, dt, out = 10.0, 1 / 30, []
+    for i, (x0, z0) in enumerate([(0.225, 0.15), (0.505, 0.0), (0.785, -0.15)]):
+        for _ in range(6):  # stance, the toe 5 mm past the nosing
+            toe = np.array([x0, z0])
+            mon.update(t, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0], toe, True)
+            t += dt
+        for tau in np.arange(dt, 0.5 + dt / 2, dt):
+            s = np.clip(tau / 0.5, 0, 1)
+            p = 10 * s**3 - 15 * s**4 + 6 * s**5
+            toe = np.array([x0 + 0.28 * p, z0 + 0.06 * np.sin(np.pi * s) - 0.15 * p**2])
+            pitch = 0.6 * np.sin(np.pi * s)  # toe-down, rad
+            heel = toe + 0.25 * np.array([-np.cos(pitch), np.sin(pitch)])
+            est = mon.update(t, [0, 0.5], np.eye(2) * 1e-6, heel, toe, False)
+            if i == 2:
+                out.append(est)
+            t += dt
+    return out
+
+
+def test_no_near_trip_warning_for_lifting_off_and_landing_on_nosings() -> None:
+    """Descent: the toe leaves the nosing it stood on and lands 5 mm past the next one, both
+    at zero clearance, never coming back close to an edge it had cleared: geometrically the
+    predicted clearance to the edges is < 2 cm, but no pose is a near-trip and nothing warns
+    (before 2026-12-02 the lift-off and the landing both warned)."""
+    out = _descent()
+    assert min(s.predicted_min_nosing_clearance_m for s in out) < 0.02
+    assert not any(s.near_trip_warning for s in out)
+
+
+def test_pitch_error_common_to_foot_and_map_cancels() -> None:
+    """A 1 deg shank pitch error rotates the keyframe profiles and the foot outline alike
+    about the camera: the foot moves 8 mm but its clearance to the mapped floor stays the
+    true 3 cm (within 1 mm), which is why the foot-outline sigma counts only what does not
+    cancel (safety.foot_sigma_m)."""
+    th = np.deg2rad(1.0)
+    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    cam = np.array([0.0, 0.5])
+    xs = np.linspace(-0.3, 1.0, 300)
+    floor_rel = np.stack([xs, np.zeros_like(xs)], 1) - cam  # camera-relative, true
+    mon = SafetyMonitor(SafetyConfig(min_keyframes=2))
+    for k in range(3):
+        mon.update(
+            0.01 * k, cam, np.eye(2) * 1e-8, [-0.5, 0.2], [-0.25, 0.2], False, floor_rel @ R.T
+        )
+    heel, toe = np.array([0.10, 0.03]), np.array([0.35, 0.03])
+    heel_e, toe_e = cam + (heel - cam) @ R.T, cam + (toe - cam) @ R.T
+    assert np.hypot(*(toe_e - toe)) > 0.006  # the foot outline's own error
+    s = mon.update(1.0, cam, np.eye(2) * 1e-8, heel_e, toe_e, False)
+    assert s.clearance_m == pytest.approx(0.03, abs=0.001)
+
+
+def test_pruned_prediction_window_gives_the_same_minimum() -> None:
+    """The predicted minimum clearance searched only over the bins nearer in x than the
+    current clearance (SafetyMonitor._swept) equals the minimum over the whole search range,
+    exactly, for random stairs, feet and motions (penetrating ones included)."""
+    rng = np.random.default_rng(5)
+    mon = SafetyMonitor(SafetyConfig())
+    for _ in range(300):
+        rise, tread = rng.uniform(-0.18, 0.18), rng.uniform(0.2, 0.35)
+        pts = [(-1.0, 0.0)]
+        for i in range(6):
+            x = i * tread
+            pts += [(x, i * rise), (x, (i + 1) * rise)]
+        pts.append((6 * tread + 1.0, 6 * rise))
+        pts = sorted(pts, key=lambda p: p[0])
+        prof = HeightProfile.from_polyline(pts)
+        x = rng.uniform(0.0, 1.2)
+        toe = np.array([x, np.interp(x, *np.array(pts).T) + rng.uniform(-0.02, 0.2)])
+        heel = toe + [-0.25, rng.uniform(-0.05, 0.1)]
+        steps = np.linspace(0, 0.3, 11)[:, None] * rng.uniform(-1.5, 1.5, 2)[None]
+        hp, tp = heel[None] + steps, toe[None] + steps
+        lo = float(min(hp[:, 0].min(), tp[:, 0].min()))
+        hi = float(max(hp[:, 0].max(), tp[:, 0].max()))
+        win = prof.window(min(heel[0], toe[0]) - 0.3, max(heel[0], toe[0]) + 0.3)
+        now = foot_clearance(heel, toe, win).distance_m
+        full = clearance_many(hp, tp, prof.window(lo - 0.3, hi + 0.3))
+        pruned = clearance_many(hp, tp, mon._swept(prof, lo, hi, lo - 0.3, hi + 0.3, now))
+        assert float(np.min(pruned)) == float(np.min(full))
+
+
+def test_map_bin_covariance_is_the_mean_over_its_keyframes() -> None:
+    """Two keyframes seeing the same floor with camera covariances P1 and P2: every bin's
+    covariance (the relative-pose part of the sigma) is (P1 + P2) / 2, symmetric."""
+    m = OnlineHeightMap(0.01, 2)
+    pts = np.stack([np.linspace(0.0, 0.5, 60), np.full(60, -0.5)], 1)
+    P1, P2 = np.array([[4e-6, 1e-6], [1e-6, 2e-6]]), np.array([[8e-6, -3e-6], [-3e-6, 6e-6]])
+    m.add_keyframe([0.0, 0.5], pts, P1)
+    m.add_keyframe([0.0, 0.5], pts, P2)
+    prof = m.profile(0.003)
+    assert len(prof) >= 45
+    for k in (0, len(prof) // 2, len(prof) - 1):
+        np.testing.assert_allclose(m.bin_cov(k), (P1 + P2) / 2, rtol=1e-12)
+
+
+def test_constant_velocity_warning_needs_an_approached_edge() -> None:
+    """Constant-velocity fallback (no swing template): the toe leaving the nosing it stood
+    on at 1 m/s (clearance ~0 to it, never cleared) is no near-trip; the foot passing 1.2 cm
+    over a nosing it was 16 cm from is one, warned with its clearance."""
+    cfg = SafetyConfig(motion_model="constant_velocity", horizon_s=0.3, min_keyframes=2)
+    leave = SafetyMonitor(cfg)
+    _keyframes(leave, DOWN, np.random.default_rng(3), 3, 0.0005, np.eye(2) * 1e-6)
+    for dt in (-1 / 30, 0.0, 1 / 30):  # standing on the nosing, then leaving it
+        toe = np.array([0.505 + 1.0 * max(dt, 0.0), 0.0])
+        s = leave.update(5.0 + dt, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0.0], toe, dt < 0)
+    assert s.predicted_min_nosing_clearance_m < 0.01  # geometrically close to the nosing
+    assert not s.near_trip_warning and not s.near_trip_clearance_m < 0.02
+    cross = SafetyMonitor(cfg)
+    _keyframes(cross, STEP, np.random.default_rng(1), 3, 0.0005, np.eye(2) * 1e-6)
+    for dt in (0.0, 1 / 30):
+        toe = np.array([0.40, 0.312]) + np.array([1.5, 0.0]) * dt
+        s = cross.update(5.0 + dt, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0.0], toe, False)
+    assert s.near_trip_clearance_m == pytest.approx(0.012, abs=0.004)
+    assert s.near_trip_warning

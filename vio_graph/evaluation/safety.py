@@ -10,7 +10,9 @@ The true clearance and placement per frame come from the ground-truth heel and t
 - ``within_1sigma`` / ``within_2sigma``: share of those frames with |error| <= 1 / 2 sigma;
 - ``near_trip``: a true near-trip frame is a swing frame (ankle not still) with the true toe
   moving forward faster than ``warning_min_forward_speed_mps`` and at least as fast as it
-  descends, and a true clearance to the next edge (nosing clearance) below ``near_trip_m``;
+  descends, and a true clearance to the next edge (nosing clearance) below ``near_trip_m``
+  after the foot was at least ``near_trip_m`` from that edge earlier in the swing
+  (:func:`approached`: lifting off the nosing the foot stood on is not a near-trip);
   consecutive such frames are one event, at its minimum. A warning run
   (consecutive warning frames) is a true positive if it overlaps an event or precedes it by
   at most ``MAX_LEAD_S``; ``precision`` = true-positive warning runs / warning runs,
@@ -84,8 +86,9 @@ def true_safety(
     td = np.arange(t[0], t[-1], TRUTH_STEP_S) if n > 1 else t.copy()
     heel_d, toe_d = gt.trajectories["heel"].xz_at(td), gt.trajectories["toe"].xz_at(td)
     nos_d = np.full(len(td), np.nan)
+    edge_d = np.full(len(td), -1, np.int64)  # index of the next edge per sample
     for k in range(len(td)):
-        e = next_edge_index(ed, float(toe_d[k, 0]) - config.toe_pass_m)
+        e = edge_d[k] = next_edge_index(ed, float(toe_d[k, 0]) - config.toe_pass_m)
         if e >= 0:
             nos_d[k] = edge_clearance(
                 heel_d[k], toe_d[k], edges[e], config.sole_thickness_m
@@ -95,7 +98,8 @@ def true_safety(
     v_toe = (toe_traj.xz_at(td + dt) - toe_traj.xz_at(td - dt)) / (2 * dt)
     swing = ~true_stance(gt.trajectories["ankle"], td)
     forward = (v_toe[:, 0] > config.warning_min_forward_speed_mps) & (v_toe[:, 1] > -v_toe[:, 0])
-    near = swing & forward & (nos_d < config.near_trip_m)
+    approach = approached(swing, edge_d, nos_d, config.near_trip_m)
+    near = swing & forward & approach & (nos_d < config.near_trip_m)
     return {
         "clearance_m": clear,
         "nosing_clearance_m": nosing,
@@ -104,6 +108,31 @@ def true_safety(
         "near_trip": near,
         "nosing_dense_m": nos_d,
     }
+
+
+def approached(
+    swing: NDArray[np.bool_],
+    edge_index: NDArray[np.int64],
+    clearance_m: NDArray[np.float64],
+    near_trip_m: float,
+) -> NDArray[np.bool_]:
+    """Per sample: in a swing, the foot has been at least ``near_trip_m`` from this sample's
+    next edge (``edge_index``) at an earlier sample of the same swing. A near-trip is the
+    foot coming back close to an edge it was clear of; the edge the foot lifts off from (on
+    descent the toe rests on the nosing of its own tread and leaves it at forward speed)
+    starts at zero clearance and is not one."""
+    out = np.zeros(len(swing), bool)
+    cleared, prev = False, -2
+    for k in range(len(swing)):
+        if not swing[k]:
+            cleared, prev = False, -2
+            continue
+        if edge_index[k] != prev:
+            cleared, prev = False, int(edge_index[k])
+        out[k] = cleared
+        if clearance_m[k] >= near_trip_m:
+            cleared = True
+    return out
 
 
 def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -256,6 +285,7 @@ def safety_metrics(
 
 __all__ = [
     "Placement",
+    "approached",
     "near_trip_scores",
     "replay_safety",
     "safety_metrics",

@@ -108,8 +108,9 @@ class SafetyConfig(BaseModel):
     warning_sigma: float = Field(
         default=1.0,
         ge=0,
-        description="warn when the predicted minimum clearance to the next "
-        "edge minus this many sigma falls below near_trip_m (count of sigma)",
+        description="warn when the predicted clearance of the foot poses that could be a "
+        "near-trip (SafetyEstimate.near_trip_clearance_m) minus this many sigma of the next "
+        "edge falls below near_trip_m (count of sigma)",
     )
     warning_min_forward_speed_mps: float = Field(
         default=0.5,
@@ -130,10 +131,15 @@ class SafetyConfig(BaseModel):
         "lower it where the filter's covariance is known to be conservative)",
     )
     foot_sigma_m: float = Field(
-        default=0.004,
+        default=0.001,
         ge=0,
-        description="1-sigma of the foot outline relative to the camera "
-        "(joint angles, leg lengths), m",
+        description="1-sigma of the foot outline relative to the terrain points, m: the "
+        "shank pitch error common to the foot and the keyframe profiles (both rotated by the "
+        "estimated attitude about the camera) cancels; left is the pitch change since the "
+        "keyframes (filter.stance_pitch_sigma_rad 0.002 rad x 0.45 m camera-to-foot lever "
+        "= 0.9 mm) and the ankle encoder (0.05 deg x 0.2 m = 0.2 mm). 4 mm before "
+        "2026-12-02 (the heel / toe error relative to the camera alone, 1.4-2.4 mm per "
+        "axis on the paper trials, did not cancel in that)",
     )
 
     @model_validator(mode="after")

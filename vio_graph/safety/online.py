@@ -68,7 +68,9 @@ class SafetyEstimate:
     viewer draws). ``nosing_clearance_m`` / ``nosing_sigma_m``: foot to the next edge ahead.
     ``predicted_min_clearance_m``: minimum clearance over the horizon;
     ``predicted_min_nosing_clearance_m``: the same to the edges the toe reaches over the
-    horizon from the next one on, which the ``near_trip_warning`` tests.
+    horizon from the next one on; ``near_trip_clearance_m``: its minimum over the predicted
+    poses that could be a near-trip (each pose against its own next edge, the toe moving
+    forward, the foot clear of that edge before), which the ``near_trip_warning`` tests.
     ``edge_distance_m`` / ``edge_distance_sigma_m``: x from the toe to the next edge ahead,
     ``edge_xz_m`` (2,): that edge's point;
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
@@ -92,6 +94,7 @@ class SafetyEstimate:
     landing: bool
     placement: NDArray[np.float64]
     edge_xz_m: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.nan))
+    near_trip_clearance_m: float = NAN
 
 
 #: frames.csv columns of a SafetyEstimate, in order (docs/outputs.md)
@@ -211,7 +214,7 @@ class OnlineHeightMap:
         self._se2 = np.zeros(0)  # per bin: its squared standard error, m^2
         self._cov = np.zeros((0, 3))  # sum of (Pxx, Pxz, Pzz)
         self._profile: HeightProfile | None = None
-        self._cov_bins = np.zeros((0, 2, 2))
+        self._cov_bins: tuple[NDArray, NDArray] = (np.zeros((0, 3)), np.zeros(0))
 
     def _grow(self, i_min: int, i_max: int) -> None:
         n = self._n.shape[0]
@@ -288,15 +291,16 @@ class OnlineHeightMap:
         self._profile = HeightProfile(
             x_lo, x_lo + self.bin_m, np.asarray(mid, np.float64), np.asarray(sig, np.float64)
         )
-        c = self._cov[j] / n_all[:, None] if j.size else np.zeros((0, 3))
-        self._cov_bins = np.stack(
-            [np.stack([c[:, 0], c[:, 1]], 1), np.stack([c[:, 1], c[:, 2]], 1)], 1
-        )
+        # (Pxx, Pxz, Pzz) sums and keyframe counts of the profile's bins; the mean is taken
+        # in bin_cov, for the one or two bins a frame asks for
+        self._cov_bins = (self._cov[j], n_all)
         return self._profile
 
     def bin_cov(self, k: int) -> NDArray[np.float64]:
         """Mean keyframe camera covariance (2, 2) of bin ``k`` of :meth:`profile`."""
-        return self._cov_bins[k]
+        sums, n = self._cov_bins
+        c = sums[k] / n[k]
+        return np.array([[c[0], c[1]], [c[1], c[2]]])
 
 
 class SafetyMonitor:
@@ -318,6 +322,7 @@ class SafetyMonitor:
         )
         self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
         self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
+        self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
 
     def _track_swing(
         self,
@@ -365,6 +370,40 @@ class SafetyMonitor:
         n = max(1, int(np.searchsorted(x, toe_x_max_m + self.config.toe_pass_m, side="right")))
         return edges.xz_m[e : e + n]
 
+    def _swept(
+        self,
+        full: HeightProfile,
+        lo_x_m: float,
+        hi_x_m: float,
+        search_lo_m: float,
+        search_hi_m: float,
+        clearance_now_m: float,
+    ) -> HeightProfile:
+        """The bins the predicted minimum clearance can come from, for foot poses spanning
+        x in [lo_x_m, hi_x_m] over the horizon (the first pose is the current foot): those
+        in the prediction's search range [search_lo_m, search_hi_m] and nearer in x to the
+        poses than the current clearance (plus the sole). A bin farther in x than that is
+        farther from every pose than the current foot is from the terrain, and the minimum
+        is at most that (the current pose is one of the poses, and the predicted distance
+        is never above :func:`foot_clearance`'s), so leaving it out changes only the time."""
+        d = max(clearance_now_m + self.config.sole_thickness_m, 0.0) + 1e-6  # m; 1 um rounding
+        return full.window(max(search_lo_m, lo_x_m - d), min(search_hi_m, hi_x_m + d))
+
+    def _approach(self, edge_x_m: float, d_m: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Per foot pose of a sequence starting now (clearances ``d_m`` to the edge at
+        ``edge_x_m``): the foot has been at least ``near_trip_m`` from that edge since the
+        stance anchor was released (earlier frames or earlier poses of the sequence). A
+        near-trip is the foot coming back close to an edge it was clear of, not the foot
+        lifting off the nosing it stood on. The edge is remembered as cleared (by x, within
+        two bins: it is re-detected at each keyframe)."""
+        tol = 2 * self.config.bin_m
+        clear = np.logical_or.accumulate(d_m >= self.config.near_trip_m)
+        if any(abs(x - edge_x_m) <= tol for x in self._cleared):
+            return np.ones(d_m.shape, bool)
+        if clear[0]:
+            self._cleared.append(edge_x_m)
+        return clear
+
     @property
     def edges(self) -> Edges:
         """The edges mapped so far (updated at each keyframe)."""
@@ -376,10 +415,10 @@ class SafetyMonitor:
         if not self._templates or not np.isfinite(tau):
             return None
         out = []
+        q = np.concatenate([[tau], tau + h])  # now, then the horizon's instants
         for ph, d in self._templates:
-            at = np.stack([np.interp(tau + h, ph, d[:, j]) for j in range(4)], 1)
-            now = np.array([np.interp(tau, ph, d[:, j]) for j in range(4)])
-            out.append(at - now[None])
+            at = np.stack([np.interp(q, ph, d[:, j]) for j in range(4)], 1)
+            out.append(at[1:] - at[:1])
         return np.median(np.stack(out), axis=0) if len(out) > 1 else out[0]
 
     def update(
@@ -439,19 +478,31 @@ class SafetyMonitor:
         if cfg.motion_model == "swing_template" and np.isfinite(tau):
             h = np.linspace(0.0, cfg.horizon_s, cfg.horizon_steps + 1)
             motion = self._template_motion(tau, h)
-        pred = pred_edge = NAN
+        if in_stance:
+            self._cleared = []
+        pred = pred_edge = risk = NAN  # risk: the minimum over near-trip candidates
         if motion is not None:
             hp = heel[None] + motion[:, :2]
             tp = toe[None] + motion[:, 2:]
             if np.isfinite(c.distance_m):
-                lo_x = float(min(hp[:, 0].min(), tp[:, 0].min())) - cfg.window_m
-                hi_x = float(max(hp[:, 0].max(), tp[:, 0].max())) + cfg.window_m
-                swept = full.window(lo_x, hi_x)
+                lo_x = float(min(hp[:, 0].min(), tp[:, 0].min()))
+                hi_x = float(max(hp[:, 0].max(), tp[:, 0].max()))
+                w = cfg.window_m
+                swept = self._swept(full, lo_x, hi_x, lo_x - w, hi_x + w, c.distance_m)
                 pred = float(np.min(clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
-            for ee in self._edges_reached(edges, e, float(tp[:, 0].max())):
-                d = float(np.min(edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)))
+            # the predicted toe velocity: a near-trip needs forward motion at that instant
+            vp = np.gradient(tp, cfg.horizon_s / cfg.horizon_steps, axis=0)
+            fwd = (vp[:, 0] > cfg.warning_min_forward_speed_mps) & (vp[:, 1] > -vp[:, 0])
+            # each predicted pose is tested against its own next edge (as the truth is)
+            nxt = np.searchsorted(edges.xz_m[:, 0], tp[:, 0] - cfg.toe_pass_m, side="right")
+            for i, ee in enumerate(self._edges_reached(edges, e, float(tp[:, 0].max()))):
+                dd = edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)
+                d = float(np.min(dd))
                 if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
                     pred_edge = d
+                ok = fwd & (nxt == e + i) & self._approach(float(ee[0]), dd)
+                if ok.any() and not float(np.min(dd[ok])) >= risk:
+                    risk = float(np.min(dd[ok]))
         else:
             if (
                 np.all(np.isfinite(v))
@@ -460,8 +511,10 @@ class SafetyMonitor:
             ):
                 pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
             elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
-                reach = np.abs(v[0]) * cfg.horizon_s
-                swept = full.window(x0 - reach, x1 + reach)
+                dx = float(v[0]) * cfg.horizon_s  # the foot's x span over the horizon
+                lo_x = float(min(heel[0], toe[0])) + min(dx, 0.0)
+                hi_x = float(max(heel[0], toe[0])) + max(dx, 0.0)
+                swept = self._swept(full, lo_x, hi_x, x0 - abs(dx), x1 + abs(dx), c.distance_m)
                 pred = predicted_min_clearance(
                     heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
                 )
@@ -476,12 +529,13 @@ class SafetyMonitor:
                 )
                 if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
                     pred_edge = float(d)
+                now = edge_clearance_many(heel, toe, ee, cfg.sole_thickness_m)
+                cleared = bool(np.any(self._approach(float(ee[0]), now)))  # (remembers it)
+                if cleared and forward_motion(v, cfg) and np.isfinite(d) and not d >= risk:
+                    risk = float(d)
         s = nsig if np.isfinite(nsig) else 0.0
         warn = bool(
-            not in_stance
-            and np.isfinite(pred_edge)
-            and forward_motion(v, cfg)
-            and pred_edge - cfg.warning_sigma * s < cfg.near_trip_m
+            not in_stance and np.isfinite(risk) and risk - cfg.warning_sigma * s < cfg.near_trip_m
         )
         # landing: the stance starts at this frame
         landing = bool(in_stance and not self._in_stance)
@@ -509,4 +563,5 @@ class SafetyMonitor:
             landing=landing,
             placement=placement,
             edge_xz_m=edges.xz_m[e].copy() if e >= 0 else np.full(2, np.nan),
+            near_trip_clearance_m=risk,
         )

@@ -402,3 +402,35 @@ def test_compiled_paths_can_be_switched_off(monkeypatch: pytest.MonkeyPatch) -> 
     assert icp_module.compiled_kernels() is None
     icp_module.use_compiled_by_default()
     assert icp_module.compiled_kernels() is not None
+
+
+def test_speckle_test_at_the_slice_pixels_equals_the_whole_image_filter() -> None:
+    """sagittal_slice_from_depth(..., speckle=...) evaluates drop_speckles only where the slice
+    keeps a pixel: the same points as the whole-image filter followed by the slice, on noisy
+    stair-like images (spurious returns, dropout, NaN, float32 and float64 depth)."""
+    from vio_graph.frontend import projection
+
+    K = np.array([[210.6, 0.0, 111.5], [0.0, 212.9, 85.5], [0.0, 0.0, 1.0]])
+    rng = np.random.default_rng(5)
+    rows = np.arange(172, dtype=np.float32)[:, None]
+    n_dropped = 0
+    for trial in range(24):
+        dtype = np.float32 if trial % 3 else np.float64
+        depth = 0.4 + (172 - rows) * 0.006 + np.zeros((1, 224), dtype=np.float32)
+        depth[: int(rng.integers(40, 120))] += 0.15  # a riser
+        spurious = rng.random(depth.shape) < 0.05
+        depth[spurious] = rng.uniform(0.05, 4.0, int(spurious.sum()))
+        depth[rng.random(depth.shape) < 0.01] = np.nan
+        depth = depth.astype(dtype)
+        conf = np.where(rng.random(depth.shape) < 0.1, 0, 200).astype(np.uint8)
+        R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        speckle = (0.03, 0.01, int(rng.integers(1, 4)))
+        args = (0.05, float(rng.choice([0.0, 0.1])), float(rng.choice([4.0, 1.5])), 1)
+        fast = projection.sagittal_slice_from_depth(depth, conf, K, R, *args, speckle)
+        filtered = projection.drop_speckles(depth, conf, *speckle)
+        reference = projection.sagittal_slice_from_depth(depth, filtered, K, R, *args)
+        unfiltered = projection.sagittal_slice_from_depth(depth, conf, K, R, *args)
+        assert reference.shape[0] > 100
+        assert np.array_equal(fast, reference)
+        n_dropped += unfiltered.shape[0] - reference.shape[0]
+    assert n_dropped > 100  # the filter did drop slice points

@@ -404,11 +404,18 @@ def test_compiled_paths_can_be_switched_off(monkeypatch: pytest.MonkeyPatch) -> 
     assert icp_module.compiled_kernels() is not None
 
 
-def test_speckle_test_at_the_slice_pixels_equals_the_whole_image_filter() -> None:
+@pytest.mark.parametrize("compiled", ["1", "0"])
+def test_speckle_test_at_the_slice_pixels_equals_the_whole_image_filter(
+    compiled: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """sagittal_slice_from_depth(..., speckle=...) evaluates drop_speckles only where the slice
-    keeps a pixel: the same points as the whole-image filter followed by the slice, on noisy
-    stair-like images (spurious returns, dropout, NaN, float32 and float64 depth)."""
+    keeps a pixel (numpy on their bounding box, or the compiled kernel for float32 depth): the
+    same points as the whole-image filter followed by the slice, on noisy stair-like images
+    (spurious returns, dropout, NaN, float32 and float64 depth)."""
     from vio_graph.frontend import projection
+
+    monkeypatch.setenv(icp_module.COMPILED_ENV, compiled)
+    assert (icp_module.compiled_kernels() is not None) == (compiled == "1")
 
     K = np.array([[210.6, 0.0, 111.5], [0.0, 212.9, 85.5], [0.0, 0.0, 1.0]])
     rng = np.random.default_rng(5)
@@ -428,8 +435,8 @@ def test_speckle_test_at_the_slice_pixels_equals_the_whole_image_filter() -> Non
         args = (0.05, float(rng.choice([0.0, 0.1])), float(rng.choice([4.0, 1.5])), 1)
         fast = projection.sagittal_slice_from_depth(depth, conf, K, R, *args, speckle)
         filtered = projection.drop_speckles(depth, conf, *speckle)
-        reference = projection.sagittal_slice_from_depth(depth, filtered, K, R, *args)
-        unfiltered = projection.sagittal_slice_from_depth(depth, conf, K, R, *args)
+        reference = projection._sagittal_slice_reference(depth, filtered, K, R, *args)
+        unfiltered = projection._sagittal_slice_reference(depth, conf, K, R, *args)
         assert reference.shape[0] > 100
         assert np.array_equal(fast, reference)
         n_dropped += unfiltered.shape[0] - reference.shape[0]

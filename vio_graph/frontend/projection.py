@@ -216,9 +216,26 @@ def sagittal_slice_from_depth(
     if c1 == c0:
         return np.empty((0, 2))
     depth = depth_m[:, c0:c1]
-    keep = depth <= upper  # max depth and eq. 1 per pixel (NaN fails)
-    keep &= depth >= lower
-    keep &= confidence[:, c0:c1] >= min_confidence
+    kernels = _compiled_slice_kernels(depth_m, confidence, min_confidence)
+    if kernels is not None:  # the tests below and the speckle test in one compiled pass
+        rel, abs_m, agree = (0.0, 0.0, 0) if speckle is None else speckle
+        keep = kernels.slice_keep(
+            depth_m,
+            confidence,
+            c0,
+            c1,
+            lower,
+            upper,
+            int(min_confidence),
+            np.float32(rel),
+            np.float32(abs_m),
+            int(agree),
+        )
+        speckle = None
+    else:
+        keep = depth <= upper  # max depth and eq. 1 per pixel (NaN fails)
+        keep &= depth >= lower
+        keep &= confidence[:, c0:c1] >= min_confidence
     if speckle is not None:  # drop_speckles on the bounding box of the slice's pixels
         in_rows = np.flatnonzero(keep.any(axis=1))
         in_cols = np.flatnonzero(keep.any(axis=0))
@@ -236,6 +253,18 @@ def sagittal_slice_from_depth(
     points_cam[:, 2] = z
     R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
     return points_cam @ R_xz.T  # eq. 2
+
+
+def _compiled_slice_kernels(depth_m: NDArray, confidence: NDArray, min_confidence: int):
+    """The numba kernels (frontend/compiled.py) if they run and fit this image (float32
+    depth, uint8 confidence, an integer threshold in 1..255), else None (the numpy path)."""
+    if depth_m.dtype != np.float32 or confidence.dtype != np.uint8:
+        return None
+    if not (isinstance(min_confidence, (int, np.integer)) and 1 <= min_confidence <= 255):
+        return None
+    from vio_graph.frontend.icp import compiled_kernels
+
+    return compiled_kernels()
 
 
 def _sagittal_slice_reference(

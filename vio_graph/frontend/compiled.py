@@ -496,3 +496,26 @@ def slice_keep(
                     continue
             keep[r, c - c0] = True
     return keep
+
+
+@numba.njit(cache=True)
+def slice_points(depth, keep, c0, x_grid, y_grid):  # pragma: no cover - compiled
+    """Camera-frame points (M, 3) of the ``keep`` pixels (columns c0:, row-major order):
+    z = depth (float64), x = z x_grid, y = z y_grid, the numpy path's products."""
+    h, w = keep.shape
+    m = 0
+    for r in range(h):
+        for c in range(w):
+            if keep[r, c]:
+                m += 1
+    out = np.empty((m, 3))
+    k = 0
+    for r in range(h):
+        for c in range(w):
+            if keep[r, c]:
+                z = np.float64(depth[r, c0 + c])
+                out[k, 0] = z * x_grid[r, c]
+                out[k, 1] = z * y_grid[r, c]
+                out[k, 2] = z
+                k += 1
+    return out

@@ -246,11 +246,14 @@ def sagittal_slice_from_depth(
                 depth_m, confidence, r0, r1, c0 + k0, c0 + k1, *speckle
             )
             keep[r0:r1, k0:k1] &= ~drops
-    z = depth[keep].astype(np.float64)
-    points_cam = np.empty((z.size, 3))
-    np.multiply(z, x_grid[keep], out=points_cam[:, 0])
-    np.multiply(z, y_grid[keep], out=points_cam[:, 1])
-    points_cam[:, 2] = z
+    if kernels is not None:
+        points_cam = kernels.slice_points(depth_m, keep, c0, x_grid, y_grid)
+    else:
+        z = depth[keep].astype(np.float64)
+        points_cam = np.empty((z.size, 3))
+        np.multiply(z, x_grid[keep], out=points_cam[:, 0])
+        np.multiply(z, y_grid[keep], out=points_cam[:, 1])
+        points_cam[:, 2] = z
     R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
     return points_cam @ R_xz.T  # eq. 2
 

@@ -695,6 +695,11 @@ class SagittalEskf:
         return self._aug_xz[key].copy()
 
     # ------------------------------------------------------------------- state
+    def position_velocity(self) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+        """(time s, camera position m, velocity m/s) of the current estimate: the same values
+        as :attr:`state`'s, without its snapshot of the covariance and the counters."""
+        return self._t_s, self._x[0:2].copy(), self._x[2:4].copy()
+
     @property
     def state(self) -> FilterState:
         """Frozen snapshot of the current estimate."""

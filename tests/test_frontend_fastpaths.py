@@ -441,3 +441,26 @@ def test_speckle_test_at_the_slice_pixels_equals_the_whole_image_filter(
         assert np.array_equal(fast, reference)
         n_dropped += unfiltered.shape[0] - reference.shape[0]
     assert n_dropped > 100  # the filter did drop slice points
+
+
+def test_level_tilt_means_are_np_mean_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """measure_surface_tilt's means and extents taken without numpy's dispatch
+    (level._mean, level._ptp) give the same SurfaceTilt, every float equal, as np.mean and
+    np.ptp, on stair-like profiles with 1-4 level lines."""
+    from vio_graph.frontend import level
+
+    rng = np.random.default_rng(8)
+    profiles = []
+    for case in range(60):
+        n_steps = int(rng.integers(1, 5))
+        x = np.sort(rng.uniform(-0.3, 0.3 * n_steps, int(rng.integers(60, 400))))
+        z = 0.15 * np.floor(x / 0.3) + rng.normal(0, 0.002, x.size) + 0.01 * x * (case % 3)
+        profiles.append(np.column_stack([x, z]))
+    fast = [level.measure_surface_tilt(p, np.random.default_rng(k), end_trim_m=0.01)
+            for k, p in enumerate(profiles)]
+    monkeypatch.setattr(level, "_mean", lambda a: float(np.mean(a)))
+    monkeypatch.setattr(level, "_ptp", lambda a: float(np.ptp(a)))
+    ref = [level.measure_surface_tilt(p, np.random.default_rng(k), end_trim_m=0.01)
+           for k, p in enumerate(profiles)]
+    assert sum(t is not None and t.n_lines >= 2 for t in fast) > 20
+    assert fast == ref  # dataclass equality: every float the same

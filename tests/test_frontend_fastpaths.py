@@ -456,11 +456,15 @@ def test_level_tilt_means_are_np_mean_bit_for_bit(monkeypatch: pytest.MonkeyPatc
         x = np.sort(rng.uniform(-0.3, 0.3 * n_steps, int(rng.integers(60, 400))))
         z = 0.15 * np.floor(x / 0.3) + rng.normal(0, 0.002, x.size) + 0.01 * x * (case % 3)
         profiles.append(np.column_stack([x, z]))
-    fast = [level.measure_surface_tilt(p, np.random.default_rng(k), end_trim_m=0.01)
-            for k, p in enumerate(profiles)]
+    fast = [
+        level.measure_surface_tilt(p, np.random.default_rng(k), end_trim_m=0.01)
+        for k, p in enumerate(profiles)
+    ]
     monkeypatch.setattr(level, "_mean", lambda a: float(np.mean(a)))
     monkeypatch.setattr(level, "_ptp", lambda a: float(np.ptp(a)))
-    ref = [level.measure_surface_tilt(p, np.random.default_rng(k), end_trim_m=0.01)
-           for k, p in enumerate(profiles)]
+    ref = [
+        level.measure_surface_tilt(p, np.random.default_rng(k), end_trim_m=0.01)
+        for k, p in enumerate(profiles)
+    ]
     assert sum(t is not None and t.n_lines >= 2 for t in fast) > 20
     assert fast == ref  # dataclass equality: every float the same

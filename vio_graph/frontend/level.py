@@ -221,9 +221,7 @@ def measure_surface_tilt(
         x_mid = _mean(xs)
         var_h = correlated_points * var_k / sel.size + (x_mid * sigma_slope) ** 2
         levels.append(
-            LevelLine(
-                _mean(zs - s * xs), float(np.sqrt(var_h)), float(xs.min()), float(xs.max())
-            )
+            LevelLine(_mean(zs - s * xs), float(np.sqrt(var_h)), float(xs.min()), float(xs.max()))
         )
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),

@@ -242,9 +242,7 @@ def sagittal_slice_from_depth(
         if in_rows.size:
             r0, r1 = int(in_rows[0]), int(in_rows[-1]) + 1
             k0, k1 = int(in_cols[0]), int(in_cols[-1]) + 1
-            drops = _speckle_drops_in_box(
-                depth_m, confidence, r0, r1, c0 + k0, c0 + k1, *speckle
-            )
+            drops = _speckle_drops_in_box(depth_m, confidence, r0, r1, c0 + k0, c0 + k1, *speckle)
             keep[r0:r1, k0:k1] &= ~drops
     if kernels is not None:
         points_cam = kernels.slice_points(depth_m, keep, c0, x_grid, y_grid)

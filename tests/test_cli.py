@@ -237,6 +237,31 @@ def test_run_complete_leaves_input_untouched(tmp_path: Path, capsys, monkeypatch
     assert mode & 0o044 == 0o044 & ~_umask()  # not mkstemp's 0600: readable like any output
 
 
+def test_run_no_plots_writes_the_same_results_without_figures(
+    tmp_path: Path, capsys, monkeypatch
+) -> None:
+    """--no-plots leaves out plots/ and map/map.png; trajectories and the map's files are the
+    same bytes as with the figures (frames.csv holds timings, so it is not compared)."""
+    rec = _two_second_recording(tmp_path / "rec")
+    runs = {}
+    for name, extra in (("plots", []), ("no_plots", ["--no-plots"])):
+        out = tmp_path / name
+        args = ["run", str(rec), "--out", str(out), "--no-rerun", *extra]
+        code, _, err = _cli(args, capsys, monkeypatch)
+        assert code == 0, err
+        runs[name] = {
+            str(p.relative_to(out)): p.read_bytes() for p in out.rglob("*") if p.is_file()
+        }
+    with_plots, without = runs["plots"], runs["no_plots"]
+    pngs = {k for k in with_plots if k.endswith(".png")}
+    assert "plots/overview.png" in pngs and "map/map.png" in pngs
+    assert not any(k.endswith(".png") for k in without)
+    assert set(without) == set(with_plots) - pngs
+    for k in without:
+        if k.endswith((".tum", ".ply", ".pcd")) or k.startswith("map/steps."):
+            assert without[k] == with_plots[k], k
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)

@@ -92,6 +92,42 @@ def test_closed_forms_match_the_numpy_references() -> None:
         )
 
 
+def _fit_with_np_mean(model: ClockModel, t: float) -> float:
+    """ClockModel._fit as written with np.mean (before its means were taken as one add.reduce
+    and a division), for the bit-for-bit comparison below."""
+    n = model._n
+    ts = model._buf[model._pos - n : model._pos]
+    if n >= 20:
+        half = 0.5 * (n - 1)
+        my = float(ts.mean())
+        sxy = float((model._ar[:n] - half) @ (ts - my))
+        icpt = my + (sxy / (n * (n * n - 1) / 12.0)) * half
+    else:
+        icpt = float(np.mean(ts + model.period_s * (n - 1 - model._ar[:n])))
+    return t if abs(icpt - t) < 1e-6 else float(icpt)
+
+
+def test_clock_fit_is_bit_for_bit_the_np_mean_formulation() -> None:
+    """The clock line's means without np.mean's dispatch give the same floats, bit for bit,
+    from the first stamps (nominal period) to full windows, across a gap."""
+    rng = np.random.default_rng(11)
+    stamps = 3.0 + np.cumsum(0.01 + rng.normal(0.0, 0.002, 700))
+    stamps[400:] += 0.3
+    model = ClockModel(0.01, 120, 5.0)
+    fitted = model._fit
+    checked = []
+
+    def both(t: float) -> float:
+        out = fitted(t)
+        assert out == _fit_with_np_mean(model, t)
+        checked.append(model._n)
+        return out
+
+    model._fit = both  # type: ignore[method-assign]
+    moved = sum(model.correct(t) != t for t in stamps)
+    assert min(checked) < 20 <= max(checked) == 120 and moved > 300
+
+
 def test_clock_fit_and_fault_monitor_equal_their_references() -> None:
     """The clock model's closed-form line fit against np.polyfit on jittered stamps with a gap,
     and the IMU fault monitor's scalar path against its numpy reference on a swinging shank

@@ -198,3 +198,20 @@ def test_filter_starts_at_the_first_frame_when_asked(at_frame: bool) -> None:
     assert state.timestamp_s == pytest.approx(expected_t)
     if at_frame:
         assert np.allclose(state.p_xz_m, 0.0) and np.allclose(state.v_xz_mps, 0.0)
+
+
+def test_dropping_a_middle_landmark_keeps_the_other_blocks_exactly() -> None:
+    """Marginalising a block between others removes its two rows and columns and copies the
+    rest bit for bit, C-ordered (the np.ix_ gather it replaces), on a correlated covariance."""
+    f = SagittalEskf()
+    f.initialise(0.0, (0.0, 0.0))
+    for j, xz in enumerate([(0.5, -0.2), (0.9, -0.3), (1.2, 0.1)]):
+        f.update_landmark(f"L{j}", xz, np.eye(2) * 1e-4)
+        f.propagate(_static_imu(0.01 * (j + 1)))
+        f.update_landmark(f"L{j}", np.add(xz, 1e-3), np.eye(2) * 1e-4, 0.01 * (j + 1))
+    P = f._P.copy()
+    i = f._aug_index("L1")
+    keep = np.r_[0:i, i + 2 : P.shape[0]]
+    f.drop_landmark("L1")
+    assert np.array_equal(f._P, P[np.ix_(keep, keep)]) and f._P.flags.c_contiguous
+    assert f.landmark_keys == ("L0", "L2") and np.any(P[0:2, i : i + 2])

@@ -402,3 +402,69 @@ def test_compiled_paths_can_be_switched_off(monkeypatch: pytest.MonkeyPatch) -> 
     assert icp_module.compiled_kernels() is None
     icp_module.use_compiled_by_default()
     assert icp_module.compiled_kernels() is not None
+
+
+@pytest.mark.parametrize("compiled", ["1", "0"])
+def test_speckle_test_at_the_slice_pixels_equals_the_whole_image_filter(
+    compiled: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """sagittal_slice_from_depth(..., speckle=...) evaluates drop_speckles only where the slice
+    keeps a pixel (numpy on their bounding box, or the compiled kernel for float32 depth): the
+    same points as the whole-image filter followed by the slice, on noisy stair-like images
+    (spurious returns, dropout, NaN, float32 and float64 depth)."""
+    from vio_graph.frontend import projection
+
+    monkeypatch.setenv(icp_module.COMPILED_ENV, compiled)
+    assert (icp_module.compiled_kernels() is not None) == (compiled == "1")
+
+    K = np.array([[210.6, 0.0, 111.5], [0.0, 212.9, 85.5], [0.0, 0.0, 1.0]])
+    rng = np.random.default_rng(5)
+    rows = np.arange(172, dtype=np.float32)[:, None]
+    n_dropped = 0
+    for trial in range(24):
+        dtype = np.float32 if trial % 3 else np.float64
+        depth = 0.4 + (172 - rows) * 0.006 + np.zeros((1, 224), dtype=np.float32)
+        depth[: int(rng.integers(40, 120))] += 0.15  # a riser
+        spurious = rng.random(depth.shape) < 0.05
+        depth[spurious] = rng.uniform(0.05, 4.0, int(spurious.sum()))
+        depth[rng.random(depth.shape) < 0.01] = np.nan
+        depth = depth.astype(dtype)
+        conf = np.where(rng.random(depth.shape) < 0.1, 0, 200).astype(np.uint8)
+        R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        speckle = (0.03, 0.01, int(rng.integers(1, 4)))
+        args = (0.05, float(rng.choice([0.0, 0.1])), float(rng.choice([4.0, 1.5])), 1)
+        fast = projection.sagittal_slice_from_depth(depth, conf, K, R, *args, speckle)
+        filtered = projection.drop_speckles(depth, conf, *speckle)
+        reference = projection._sagittal_slice_reference(depth, filtered, K, R, *args)
+        unfiltered = projection._sagittal_slice_reference(depth, conf, K, R, *args)
+        assert reference.shape[0] > 100
+        assert np.array_equal(fast, reference)
+        n_dropped += unfiltered.shape[0] - reference.shape[0]
+    assert n_dropped > 100  # the filter did drop slice points
+
+
+def test_level_tilt_means_are_np_mean_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """measure_surface_tilt's means and extents taken without numpy's dispatch
+    (level._mean, level._ptp) give the same SurfaceTilt, every float equal, as np.mean and
+    np.ptp, on stair-like profiles with 1-4 level lines."""
+    from vio_graph.frontend import level
+
+    rng = np.random.default_rng(8)
+    profiles = []
+    for case in range(60):
+        n_steps = int(rng.integers(1, 5))
+        x = np.sort(rng.uniform(-0.3, 0.3 * n_steps, int(rng.integers(60, 400))))
+        z = 0.15 * np.floor(x / 0.3) + rng.normal(0, 0.002, x.size) + 0.01 * x * (case % 3)
+        profiles.append(np.column_stack([x, z]))
+    fast = [
+        level.measure_surface_tilt(p, np.random.default_rng(k), end_trim_m=0.01)
+        for k, p in enumerate(profiles)
+    ]
+    monkeypatch.setattr(level, "_mean", lambda a: float(np.mean(a)))
+    monkeypatch.setattr(level, "_ptp", lambda a: float(np.ptp(a)))
+    ref = [
+        level.measure_surface_tilt(p, np.random.default_rng(k), end_trim_m=0.01)
+        for k, p in enumerate(profiles)
+    ]
+    assert sum(t is not None and t.n_lines >= 2 for t in fast) > 20
+    assert fast == ref  # dataclass equality: every float the same

@@ -61,3 +61,33 @@ def test_reading_every_frame_does_not_keep_the_depth_maps_resident(
     # and the frames read are right: the same values as reading the arrays directly
     k = len(frames) // 2
     assert np.array_equal(frames[k].depth_m > 0, np.asarray(depth[k]) > 0)
+
+
+def test_run_view_computes_nothing_for_the_null_visualizer_only(tmp_path: Path) -> None:
+    """--no-rerun (the NullVisualizer itself): the per-frame view is skipped; a visualizer that
+    records (any subclass) still receives every frame's logs, the same as before."""
+    from vio_graph.config import load_config
+    from vio_graph.replay import Replay
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    class Spy(NullVisualizer):
+        def __init__(self) -> None:
+            self.calls: list[str] = []
+
+        def set_time(self, timestamp_s: float) -> None:
+            self.calls.append("time")
+
+        def log_leg(self, name, points_xz_m) -> None:
+            self.calls.append(f"leg/{name}")
+
+    rec = Recording.open(Path(__file__).resolve().parents[1] / "data" / "sample")
+    spy = Spy()
+    replay = Replay(rec, load_config(), {"filter"}, spy)
+    assert replay.view.active
+    replay.run()
+    assert spy.calls.count("time") == rec.num_frames and "leg/gt" in spy.calls
+    quiet = Replay(rec, load_config(), {"filter"}, NullVisualizer())
+    assert not quiet.view.active
+    quiet.view.frame(0, None, None)  # returns before touching its arguments
+    lg = quiet.run()
+    assert np.array_equal(lg.camera_xz["filter"], replay.log.camera_xz["filter"])

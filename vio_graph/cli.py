@@ -238,6 +238,10 @@ def run(
         bool, typer.Option(help="Write into an existing, non-empty folder.")
     ] = False,
     no_rerun: Annotated[bool, typer.Option("--no-rerun", help="Skip the .rrd recording.")] = False,
+    no_plots: Annotated[
+        bool,
+        typer.Option("--no-plots", help="Skip the PNG figures (plots/, map/map.png)."),
+    ] = False,
 ) -> None:
     """Estimate the knee/ankle/heel/toe motion of one recording and write results.
 
@@ -248,6 +252,8 @@ def run(
     from vio_graph.pipeline import run_recording
 
     cfg = load_config(config)
+    if no_plots:  # output.plots: false, as a config file could say
+        cfg = cfg.model_copy(update={"output": cfg.output.model_copy(update={"plots": False})})
     result = run_recording(
         recording, out, cfg, modes=_parse_modes(mode), overwrite=overwrite, visualize=not no_rerun
     )

@@ -44,7 +44,9 @@ class KinematicsConfig(_Section):
 
 class OutputConfig(_Section):
     rerun: bool = Field(default=True, description="write a rerun .rrd of the run")
-    plots: bool = Field(default=True, description="write PNG plots")
+    plots: bool = Field(
+        default=True, description="write the PNG figures (plots/, map/map.png); --no-plots"
+    )
     cloud_every_n_frames: int = Field(default=3, ge=1, description="3D cloud logging stride")
     cloud_pixel_stride: int = Field(default=3, ge=1, description="pixel subsampling of the cloud")
 

@@ -522,8 +522,8 @@ class OnlineEstimator:
 
     def _position_at(self, t_s: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Filter camera position (m) and velocity extrapolated to ``t_s`` (few ms at most)."""
-        s = self.filter.state
-        return s.p_xz_m + s.v_xz_mps * (t_s - s.timestamp_s), s.v_xz_mps
+        t, p, v = self.filter.position_velocity()
+        return p + v * (t_s - t), v
 
     # ------------------------------------------------------------------ per frame
     def add_frame(
@@ -597,9 +597,9 @@ class OnlineEstimator:
             result = transform_result(result)
         accepted = refused = False
         if result.displacement is not None:
-            self._test_frame_stamps(t, result.displacement)
+            d2 = self._test_frame_stamps(t, result.displacement)
             n_refused = self.filter.n_gate_refusals
-            self._arbitrate_imu(result.displacement)
+            self._arbitrate_imu(result.displacement, d2)
             accepted = self.filter.update_displacement(result.displacement)
             refused = self.filter.n_gate_refusals > n_refused
             self._recover_if_locked_out(refused)
@@ -727,22 +727,24 @@ class OnlineEstimator:
         self._frame_joints = self._joints_at(t)
         return dataclasses.replace(frame, timestamp_s=t)
 
-    def _test_frame_stamps(self, t_s: float, d: Displacement2D) -> None:
+    def _test_frame_stamps(self, t_s: float, d: Displacement2D) -> float | None:
         """Feed the frame-stamp test (``camera_clock_model: auto``): the displacement's gate
         statistic under the frame times in use and under the other choice, whose IMU
-        prediction differs by u (time_offset.FrameStampTest)."""
+        prediction differs by u (time_offset.FrameStampTest). Returns the first (None if not
+        computed): the filter is unchanged, so :meth:`_arbitrate_imu` need not recompute it."""
         test = self.stamp_test
         if test is None:
-            return
+            return None
         u = test.shift(self._position_at(t_s)[1])
         if u is None:
-            return
+            return None
         # r_line = r_stamp - u: the other hypothesis moves the measurement by -u (or +u)
         moved = np.asarray(d.delta_xz_m, dtype=float) + (u if test.use_line else -u)
         d2 = self.filter.displacement_d2(d)
         d2_other = self.filter.displacement_d2(dataclasses.replace(d, delta_xz_m=moved))
         if d2 is not None and d2_other is not None:
             test.add(d2, d2_other)
+        return d2
 
     def _joints_at(self, t_s: float) -> JointAngles | None:
         """Joint angles interpolated at ``t_s`` from the recent samples (held beyond them)."""
@@ -771,15 +773,17 @@ class OnlineEstimator:
             t, tilt.tilt_rad, float(np.hypot(tilt.sigma_rad, floor)), b_before, rate
         )
 
-    def _arbitrate_imu(self, d) -> None:
+    def _arbitrate_imu(self, d, d2: float | None = None) -> None:
         """Vision against the IMU over one displacement interval (filter/imu_faults.py): if the
         gate would refuse ``d`` but accepts it once a velocity jump of one corrupted IMU
         sample is allowed, the IMU is the odd one out and the filter's position/velocity
-        covariance is widened by that jump before the update."""
+        covariance is widened by that jump before the update. ``d2``: the filter's
+        ``displacement_d2(d)`` if already computed on the current state."""
         cfg = self.config.filter.imu_faults
         if not (cfg.enabled and cfg.vision_arbitration):
             return
-        d2 = self.filter.displacement_d2(d)
+        if d2 is None:
+            d2 = self.filter.displacement_d2(d)
         if d2 is None or d2 <= self.filter.gate_d2:
             return
         Q = velocity_fault_cov(cfg.velocity_fault_sigma_mps, float(d.t1_s - d.t0_s))

@@ -41,6 +41,9 @@ from vio_graph.outputs import (
 from vio_graph.recording.reader import Recording
 from vio_graph.replay import MODES, PEER_MODES, FrameLog, Replay
 
+#: map files of a run (map/); the PNG figure only with ``output.plots``
+MAP_FORMATS = ("ply", "pcd", "json", "csv", "png")
+
 __all__ = [
     "MODES",
     "PEER_MODES",
@@ -199,6 +202,7 @@ def _run_into(
             rec.metadata.terrain,
             run_map.comparison,
             camera_xz_m=camera[map_mode],
+            formats=MAP_FORMATS if config.output.plots else MAP_FORMATS[:-1],  # png last
         )
         replay.view.map_points(run_map.points_xz_m)
         files += list(written.values())

@@ -695,6 +695,11 @@ class SagittalEskf:
         return self._aug_xz[key].copy()
 
     # ------------------------------------------------------------------- state
+    def position_velocity(self) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+        """(time s, camera position m, velocity m/s) of the current estimate: the same values
+        as :attr:`state`'s, without its snapshot of the covariance and the counters."""
+        return self._t_s, self._x[0:2].copy(), self._x[2:4].copy()
+
     @property
     def state(self) -> FilterState:
         """Frozen snapshot of the current estimate."""
@@ -784,8 +789,10 @@ class SagittalEskf:
         if key not in self._aug_xz:
             return
         i = self._aug_index(key)
-        keep = np.r_[0:i, i + 2 : self._P.shape[0]]
-        self._P = self._P[np.ix_(keep, keep)]
+        # rows and columns 0:i and i+2: copied (take: the np.ix_ gather's values and C order
+        # without its index-grid overhead)
+        keep = np.concatenate((np.arange(i), np.arange(i + 2, self._P.shape[0])))
+        self._P = self._P.take(keep, 0).take(keep, 1)
         self._aug_keys.remove(key)
         del self._aug_xz[key]
 

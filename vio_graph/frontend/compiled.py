@@ -448,3 +448,74 @@ def best_line(x, z, i, j, max_slope, inlier_m):  # pragma: no cover - compiled
             best_a = a
             best_s = s
     return best_a, best_s
+
+
+# ----------------------------------------------------------------------------- depth slice
+
+
+@numba.njit(cache=True)
+def _present(depth, conf, r, c):  # pragma: no cover - compiled
+    """drop_speckles' validity of pixel (r, c): confidence > 0, finite depth > 0."""
+    d = depth[r, c]
+    return conf[r, c] > 0 and math.isfinite(d) and d > 0
+
+
+@numba.njit(cache=True)
+def slice_keep(
+    depth, conf, c0, c1, lower, upper, min_conf, rel_tol, abs_tol, min_agree
+):  # pragma: no cover - compiled
+    """``projection.sagittal_slice_from_depth``'s pixel mask over columns c0:c1 (float32
+    depth, uint8 confidence): depth in [lower, upper[column]] (float32 bounds), confidence
+    >= ``min_conf``, and, with ``min_agree`` > 0, ``projection.drop_speckles``' test at those
+    pixels only (float32 ``rel_tol`` / ``abs_tol``: the same float32 operations as numpy's)."""
+    h, w = depth.shape
+    keep = np.zeros((h, c1 - c0), np.bool_)
+    for r in range(h):
+        for c in range(c0, c1):
+            d = depth[r, c]
+            if not (d <= upper[c - c0] and d >= lower and conf[r, c] >= min_conf):
+                continue
+            if min_agree > 0 and _present(depth, conf, r, c):
+                tol = abs_tol + rel_tol * d
+                n_valid = 0
+                agree = 0
+                for dy in range(-1, 2):
+                    rr = r + dy
+                    if rr < 0 or rr >= h:
+                        continue
+                    for dx in range(-1, 2):
+                        cc = c + dx
+                        if (dy == 0 and dx == 0) or cc < 0 or cc >= w:
+                            continue
+                        if _present(depth, conf, rr, cc):
+                            n_valid += 1
+                            if abs(depth[rr, cc] - d) <= tol:
+                                agree += 1
+                need = min(max(n_valid, 1), min_agree)
+                if agree < need:
+                    continue
+            keep[r, c - c0] = True
+    return keep
+
+
+@numba.njit(cache=True)
+def slice_points(depth, keep, c0, x_grid, y_grid):  # pragma: no cover - compiled
+    """Camera-frame points (M, 3) of the ``keep`` pixels (columns c0:, row-major order):
+    z = depth (float64), x = z x_grid, y = z y_grid, the numpy path's products."""
+    h, w = keep.shape
+    m = 0
+    for r in range(h):
+        for c in range(w):
+            if keep[r, c]:
+                m += 1
+    out = np.empty((m, 3))
+    k = 0
+    for r in range(h):
+        for c in range(w):
+            if keep[r, c]:
+                z = np.float64(depth[r, c0 + c])
+                out[k, 0] = z * x_grid[r, c]
+                out[k, 1] = z * y_grid[r, c]
+                out[k, 2] = z
+                k += 1
+    return out

@@ -152,8 +152,8 @@ def _largest_run(x: NDArray[np.float64], max_gap_m: float) -> NDArray[np.float64
     """The longest (most points) run of sorted x values without a gap > max_gap_m."""
     xs = np.sort(x)
     breaks = np.flatnonzero(np.diff(xs) > max_gap_m) + 1
-    starts = np.r_[0, breaks]
-    ends = np.r_[breaks, xs.size]
+    starts = np.concatenate(([0], breaks))
+    ends = np.concatenate((breaks, [xs.size]))
     i = int(np.argmax(ends - starts))
     return xs[starts[i] : ends[i]]
 
@@ -309,7 +309,8 @@ def _face_line_x(
             return None
     a = np.sort(ahead[cand])[::-1]  # foremost (farthest from the tread) first
     breaks = np.flatnonzero(-np.diff(a) > cfg.face_cluster_m) + 1
-    for lo, hi in zip(np.r_[0, breaks], np.r_[breaks, a.size], strict=True):
+    starts, ends = np.concatenate(([0], breaks)), np.concatenate((breaks, [a.size]))
+    for lo, hi in zip(starts, ends, strict=True):
         if hi - lo >= cfg.min_face_points:
             return float(x_end - _median_of_sorted(a[lo:hi][::-1]))
     return None

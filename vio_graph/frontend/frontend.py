@@ -18,7 +18,7 @@ from vio_graph.errors import FrontendError
 from vio_graph.frontend.config import FrontendConfig
 from vio_graph.frontend.corners import CornerFeature, extract_corner
 from vio_graph.frontend.icp import IcpResult
-from vio_graph.frontend.projection import drop_speckles, sagittal_slice_from_depth
+from vio_graph.frontend.projection import sagittal_slice_from_depth
 from vio_graph.frontend.smoothing import smooth_profile
 from vio_graph.frontend.terrain import classify_terrain
 from vio_graph.frontend.tracker import CornerTracker
@@ -90,24 +90,19 @@ class VisualFrontend:
         t = [time.perf_counter()]
         # eq. 1-2: sagittal slice |x_C| < w, rotated into the ground frame (camera-relative)
         pc = cfg.projection
-        confidence = frame.confidence
-        if pc.speckle_min_agree > 0:
-            confidence = drop_speckles(
-                frame.depth_m,
-                confidence,
-                pc.speckle_rel_tol,
-                pc.speckle_abs_tol_m,
-                pc.speckle_min_agree,
-            )
+        speckle = None
+        if pc.speckle_min_agree > 0:  # drop_speckles, evaluated at the slice's pixels only
+            speckle = (pc.speckle_rel_tol, pc.speckle_abs_tol_m, pc.speckle_min_agree)
         points_xz = sagittal_slice_from_depth(
             frame.depth_m,
-            confidence,
+            frame.confidence,
             K,
             R_ground_cam,
             pc.half_width_m,
             pc.min_depth_m,
             pc.max_depth_m,
             pc.min_confidence,
+            speckle,
         )
         t.append(time.perf_counter())
         # kNN smoothing (after grid thinning)

@@ -166,6 +166,7 @@ def sagittal_slice_from_depth(
     min_depth_m: float = 0.0,
     max_depth_m: float = np.inf,
     min_confidence: int = 1,
+    speckle: tuple[float, float, int] | None = None,
 ) -> NDArray[np.float64]:
     """Fast path of eq. 1-2 straight from the depth image; same result as
     ``sagittal_slice(depth_to_points_cam(...), R_ground_cam, half_width_m)``.
@@ -175,10 +176,21 @@ def sagittal_slice_from_depth(
     With it, the depth range is one per-column interval of depth values (cached per camera,
     ``_slice_tables``): two comparisons per pixel of the column band.
 
+    ``speckle`` = (rel_tol, abs_tol_m, min_agree) with min_agree > 0: the speckle test of
+    :func:`drop_speckles` is applied too, evaluated only at the pixels the slice keeps
+    (a few thousand of the 38k): the same points as
+    ``sagittal_slice_from_depth(depth_m, drop_speckles(depth_m, confidence, *speckle), ...)``.
+
     Returns:
         (M, 2) ``points_xz_m`` relative to the camera centre, world axes, metres.
     """
     _check_image(depth_m, confidence, K)
+    if speckle is not None and speckle[2] > 0:
+        if min_confidence < 1:  # a pixel of confidence 0 would pass the slice unchecked
+            confidence = drop_speckles(depth_m, confidence, *speckle)
+            speckle = None
+    else:
+        speckle = None
     K = np.asarray(K, dtype=float)
     tables = (
         None  # integer depth or per-pixel depth limits: the general path
@@ -188,6 +200,8 @@ def sagittal_slice_from_depth(
         )
     )
     if tables is None:
+        if speckle is not None:
+            confidence = drop_speckles(depth_m, confidence, *speckle)
         return _sagittal_slice_reference(
             depth_m,
             confidence,
@@ -202,16 +216,56 @@ def sagittal_slice_from_depth(
     if c1 == c0:
         return np.empty((0, 2))
     depth = depth_m[:, c0:c1]
-    keep = depth <= upper  # max depth and eq. 1 per pixel (NaN fails)
-    keep &= depth >= lower
-    keep &= confidence[:, c0:c1] >= min_confidence
-    z = depth[keep].astype(np.float64)
-    points_cam = np.empty((z.size, 3))
-    np.multiply(z, x_grid[keep], out=points_cam[:, 0])
-    np.multiply(z, y_grid[keep], out=points_cam[:, 1])
-    points_cam[:, 2] = z
+    kernels = _compiled_slice_kernels(depth_m, confidence, min_confidence)
+    if kernels is not None:  # the tests below and the speckle test in one compiled pass
+        rel, abs_m, agree = (0.0, 0.0, 0) if speckle is None else speckle
+        keep = kernels.slice_keep(
+            depth_m,
+            confidence,
+            c0,
+            c1,
+            lower,
+            upper,
+            int(min_confidence),
+            np.float32(rel),
+            np.float32(abs_m),
+            int(agree),
+        )
+        speckle = None
+    else:
+        keep = depth <= upper  # max depth and eq. 1 per pixel (NaN fails)
+        keep &= depth >= lower
+        keep &= confidence[:, c0:c1] >= min_confidence
+    if speckle is not None:  # drop_speckles on the bounding box of the slice's pixels
+        in_rows = np.flatnonzero(keep.any(axis=1))
+        in_cols = np.flatnonzero(keep.any(axis=0))
+        if in_rows.size:
+            r0, r1 = int(in_rows[0]), int(in_rows[-1]) + 1
+            k0, k1 = int(in_cols[0]), int(in_cols[-1]) + 1
+            drops = _speckle_drops_in_box(depth_m, confidence, r0, r1, c0 + k0, c0 + k1, *speckle)
+            keep[r0:r1, k0:k1] &= ~drops
+    if kernels is not None:
+        points_cam = kernels.slice_points(depth_m, keep, c0, x_grid, y_grid)
+    else:
+        z = depth[keep].astype(np.float64)
+        points_cam = np.empty((z.size, 3))
+        np.multiply(z, x_grid[keep], out=points_cam[:, 0])
+        np.multiply(z, y_grid[keep], out=points_cam[:, 1])
+        points_cam[:, 2] = z
     R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
     return points_cam @ R_xz.T  # eq. 2
+
+
+def _compiled_slice_kernels(depth_m: NDArray, confidence: NDArray, min_confidence: int):
+    """The numba kernels (frontend/compiled.py) if they run and fit this image (float32
+    depth, uint8 confidence, an integer threshold in 1..255), else None (the numpy path)."""
+    if depth_m.dtype != np.float32 or confidence.dtype != np.uint8:
+        return None
+    if not (isinstance(min_confidence, (int, np.integer)) and 1 <= min_confidence <= 255):
+        return None
+    from vio_graph.frontend.icp import compiled_kernels
+
+    return compiled_kernels()
 
 
 def _sagittal_slice_reference(
@@ -242,6 +296,44 @@ def _sagittal_slice_reference(
     points_cam = np.column_stack([z * x_per_m[cols + c0], z * ((rows - cy) / fy), z])
     R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
     return points_cam @ R_xz.T  # eq. 2
+
+
+def _speckle_drops_in_box(
+    depth_m: NDArray[np.floating],
+    confidence: NDArray[np.uint8],
+    r0: int,
+    r1: int,
+    c0: int,
+    c1: int,
+    rel_tol: float,
+    abs_tol_m: float,
+    min_agree: int,
+) -> NDArray[np.bool_]:
+    """:func:`drop_speckles`' decisions for the pixels of rows r0:r1, columns c0:c1 only
+    (True = dropped): the box with a one-pixel halo of its neighbours, zero outside the
+    image, and the same float32 operations on the same operands, so the same decisions."""
+    d = np.asarray(depth_m, dtype=np.float32)
+    h, w = d.shape
+    a0, a1, b0, b1 = max(r0 - 1, 0), min(r1 + 1, h), max(c0 - 1, 0), min(c1 + 1, w)
+    dh = d[a0:a1, b0:b1]
+    valid = (np.asarray(confidence)[a0:a1, b0:b1] > 0) & np.isfinite(dh) & (dh > 0)
+    hh, ww = r1 - r0, c1 - c0
+    pad = np.zeros((hh + 2, ww + 2), dtype=np.float32)
+    pad[a0 - r0 + 1 : a1 - r0 + 1, b0 - c0 + 1 : b1 - c0 + 1] = np.where(valid, dh, 0.0)
+    db = d[r0:r1, c0:c1]
+    tol = abs_tol_m + rel_tol * db
+    agree = np.zeros((hh, ww), dtype=np.int8)
+    n_valid = np.zeros((hh, ww), dtype=np.int8)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy == 0 and dx == 0:
+                continue
+            nb = pad[1 + dy : 1 + dy + hh, 1 + dx : 1 + dx + ww]
+            n_valid += nb > 0
+            agree += (nb > 0) & (np.abs(nb - db) <= tol)
+    need = np.clip(n_valid, 1, min_agree)
+    box_valid = valid[r0 - a0 : r0 - a0 + hh, c0 - b0 : c0 - b0 + ww]
+    return box_valid & (agree < need)
 
 
 def drop_speckles(

@@ -224,7 +224,8 @@ def find_faces(
     breaks = np.flatnonzero(np.diff(rest[:, 0]) > config.face_gap_m) + 1
     # (x, z_lo, z_hi, direction or None when no surface or earlier face orients it)
     found: list[tuple[float, float, float, int | None]] = []
-    for lo, hi in zip(np.r_[0, breaks], np.r_[breaks, rest.shape[0]], strict=True):
+    starts, ends = np.concatenate(([0], breaks)), np.concatenate((breaks, [rest.shape[0]]))
+    for lo, hi in zip(starts, ends, strict=True):
         grp = rest[lo:hi]
         if grp.shape[0] < config.min_face_points:
             continue

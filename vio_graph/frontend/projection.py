@@ -353,25 +353,11 @@ def drop_speckles(
     agrees with none. The same idea
     as a ToF driver's flying-pixel or speckle filter, applied in the image before the slice
     (in the sagittal slice the spurious points near the camera are as dense as a surface)."""
-    d = np.asarray(depth_m, dtype=np.float32)
-    valid = (np.asarray(confidence) > 0) & np.isfinite(d) & (d > 0)
-    h, w = d.shape
-    pad = np.zeros((h + 2, w + 2), dtype=np.float32)
-    pad[1:-1, 1:-1] = np.where(valid, d, 0.0)
-    tol = abs_tol_m + rel_tol * d
-    agree = np.zeros((h, w), dtype=np.int8)
-    n_valid = np.zeros((h, w), dtype=np.int8)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy == 0 and dx == 0:
-                continue
-            nb = pad[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
-            n_valid += nb > 0
-            agree += (nb > 0) & (np.abs(nb - d) <= tol)
+    h, w = np.shape(depth_m)
     # where the sensor returned little around a pixel (dropout at range or at grazing
-    # angles), ask only for as many agreeing neighbours as there are valid ones, but one
-    # at least: an isolated return cannot be told from a spurious one
-    need = np.clip(n_valid, 1, min_agree)
+    # angles), only as many agreeing neighbours as there are valid ones are asked for, but
+    # one at least: an isolated return cannot be told from a spurious one
+    drop = _speckle_drops_in_box(depth_m, confidence, 0, h, 0, w, rel_tol, abs_tol_m, min_agree)
     out = np.array(confidence, copy=True)
-    out[valid & (agree < need)] = 0
+    out[drop] = 0
     return out

@@ -155,3 +155,25 @@ def filter_leg_run(rec: Any, cfg: Any) -> tuple[Any, dict[str, Any]]:
     lg = replay.run()
     use_enc = cfg.kinematics.shank_pitch_source == "encoders"
     return lg, leg_trajectories(replay.rig, lg.camera_xz["filter"], lg, use_enc)
+
+
+def monitor_update(mon: Any, lg: Any, est: dict[str, Any], k: int, in_stance: Any = None) -> Any:
+    """Feed frame ``k`` of a :func:`filter_leg_run` to a ``SafetyMonitor`` as the online
+    estimator does; ``in_stance`` replaces the log's stance flags when given (bool per
+    frame). Returns the monitor's estimate."""
+    stance = lg.in_stance if in_stance is None else in_stance
+    return mon.update(
+        float(lg.t_s[k]),
+        est["camera"][k],
+        lg.cov_position_m2[k],
+        est["heel"][k],
+        est["toe"][k],
+        bool(stance[k]),
+        lg.profiles.get(k),
+    )
+
+
+def true_leg_paths(rec: Any, t: Any) -> dict[str, Any]:
+    """The simulator's true camera, heel and toe (x-z, metres) at the times ``t`` (s)."""
+    gt = rec.groundtruth.trajectories
+    return {b: gt[b].xz_at(t) for b in ("camera", "heel", "toe")}

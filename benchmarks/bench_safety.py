@@ -53,17 +53,9 @@ def bench(path: Path, repeats: int) -> list[dict]:
         ms = []
         for _ in range(repeats):
             mon = SafetyMonitor(sc)
-            for k, tk in enumerate(t):
+            for k in range(len(t)):
                 t0 = time.perf_counter()
-                mon.update(
-                    float(tk),
-                    est["camera"][k],
-                    lg.cov_position_m2[k],
-                    est["heel"][k],
-                    est["toe"][k],
-                    bool(lg.in_stance[k]),
-                    lg.profiles.get(k),
-                )
+                _common.monitor_update(mon, lg, est, k)
                 ms.append((time.perf_counter() - t0) * 1e3)
         a = np.asarray(ms).reshape(repeats, -1)
         rows.append(

@@ -94,8 +94,7 @@ def main() -> None:
             raise SystemExit(f"{path}: no ground truth (a simulated recording is needed)")
         lg, est = _common.filter_leg_run(rec, cfg)
         t = np.asarray(lg.t_s)
-        gt = rec.groundtruth.trajectories
-        true = {b: gt[b].xz_at(t) for b in ("camera", "heel", "toe")}
+        true = _common.true_leg_paths(rec, t)
         e_mm, s_mm, z = pose_part(lg, est, true, sc)
         truth = true_safety(rec.groundtruth, rec.metadata.terrain, t, np.zeros(len(t), bool), sc)
         if truth is None:
@@ -104,16 +103,8 @@ def main() -> None:
         events = [(td[a], td[b]) for a, b in _runs(truth["near_trip"])]
         mon = SafetyMonitor(sc)
         warn, oracle_warns = [], []
-        for k, tk in enumerate(t):
-            s = mon.update(
-                float(tk),
-                est["camera"][k],
-                lg.cov_position_m2[k],
-                est["heel"][k],
-                est["toe"][k],
-                bool(lg.in_stance[k]),
-                lg.profiles.get(k),
-            )
+        for k in range(len(t)):
+            s = _common.monitor_update(mon, lg, est, k)
             warn.append(s.near_trip_warning)
             r = oracle_risk(mon, t, k, est, sc) if s.near_trip_warning else float("nan")
             sig = s.nosing_sigma_m if np.isfinite(s.nosing_sigma_m) else 0.0

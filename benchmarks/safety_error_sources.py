@@ -65,8 +65,7 @@ def main() -> None:
         raise SystemExit(f"{args.recording}: no ground truth (a simulated recording is needed)")
     lg, est = _common.filter_leg_run(rec, cfg)
     t = np.asarray(lg.t_s)
-    gt = rec.groundtruth.trajectories
-    true = {b: gt[b].xz_at(t) for b in ("camera", "heel", "toe")}
+    true = _common.true_leg_paths(rec, t)
     landing = np.array([bool(s.landing) if s is not None else False for s in lg.safety])
     truth = true_safety(rec.groundtruth, rec.metadata.terrain, t, landing, cfg.safety)
     if truth is None:

@@ -87,18 +87,8 @@ def one_recording(path: Path, config_name: str | None) -> list[dict]:
             sc = SafetyConfig(**{**cfg.safety.model_dump(), "motion_model": model, "horizon_s": H})
             mon = SafetyMonitor(sc)
             out, mapped = [], []
-            for k, tk in enumerate(t):
-                out.append(
-                    mon.update(
-                        float(tk),
-                        est["camera"][k],
-                        lg.cov_position_m2[k],
-                        est["heel"][k],
-                        est["toe"][k],
-                        bool(stance[k]),
-                        lg.profiles.get(k),
-                    )
-                )
+            for k in range(len(t)):
+                out.append(_common.monitor_update(mon, lg, est, k, stance))
                 mapped.append(mon.edges.xz_m)  # the edges the monitor knew at frame k
             pred = np.array([s.predicted_min_nosing_clearance_m for s in out])
             edge_x = np.array([s.edge_distance_m for s in out]) + est["toe"][:, 0]

@@ -430,16 +430,15 @@ class CornerTracker:
     ) -> NDArray[np.float64]:
         """Does the profile determine the answer, or the seed? ICP again from the seed moved by
         two prediction sigmas (at most half the correspondence distance) along the direction
-        the result claims to know least; if the two
-        answers differ by more than the claimed covariance allows (Mahalanobis^2 above
-        ``corner_inflate_chi2``), the claim is widened by that difference (C + d d^T), as
-        for the nosing check. A short, noisy far floor (1.5 m away, z noise ~1 cm) gives PCA
-        normals tilted at random, which the point-to-line covariance reads as x information:
+        the result claims to know least; if the two answers differ by more than the claimed
+        covariance allows (Mahalanobis^2 above ``corner_inflate_chi2``), the claim is widened
+        by that difference (C + d d^T), as for the nosing check. A short, noisy far floor
+        (1.5 m away, z noise ~1 cm) gives PCA normals tilted at random, which the
+        point-to-line covariance reads as x information:
         downstair with IMU spikes s2, a displacement 1.6 cm off in x claiming 0.36 cm, which
         the filter's uncertain velocity turned into a 5 cm jump."""
         C = icp.cov_m2
-        w, V = np.linalg.eigh(C)
-        u = V[:, 1]  # the least-known direction of the claim
+        u = np.linalg.eigh(C)[1][:, 1]  # the least-known direction of the claim
         # within ICP's capture range: a seed moved farther than half the correspondence
         # distance can leave a well-measured riser's basin, which would look like ambiguity
         reach = 0.5 * self._fallback_icp_cfg.max_correspondence_m

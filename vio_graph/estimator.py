@@ -741,7 +741,7 @@ class OnlineEstimator:
         # r_line = r_stamp - u: the other hypothesis moves the measurement by -u (or +u)
         moved = np.asarray(d.delta_xz_m, dtype=float) + (u if test.use_line else -u)
         d2 = self.filter.displacement_d2(d)
-        d2_other = self.filter.displacement_d2(dataclasses.replace(d, delta_xz_m=moved))
+        d2_other = self.filter.displacement_d2(d, delta_xz_m=moved)
         if d2 is not None and d2_other is not None:
             test.add(d2, d2_other)
         return d2

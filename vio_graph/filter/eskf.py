@@ -511,11 +511,58 @@ class SagittalEskf:
         self._P[2:4, 2:4] += float(sigma_mps) ** 2 * _I2
 
     def displacement_d2(
-        self, d: Displacement2D, extra_pv_cov: NDArray | None = None
+        self,
+        d: Displacement2D,
+        extra_pv_cov: NDArray | None = None,
+        delta_xz_m: ArrayLike | None = None,
     ) -> float | None:
         """Mahalanobis distance^2 the gate would see for displacement ``d`` (no update), with
-        ``extra_pv_cov`` (4x4, on dp, dv) added to the state covariance first. None if ``d``
-        is not a relative measurement on the current clone (nothing to test)."""
+        ``extra_pv_cov`` (4x4, on dp, dv) added to the state covariance first and
+        ``delta_xz_m`` (m), if given, in place of ``d.delta_xz_m``. None if ``d`` is not a
+        relative measurement on the current clone (nothing to test). The innovation
+        covariance's 2x2 inverse in closed form (as :meth:`_correct`); the LAPACK solve of
+        :meth:`displacement_d2_reference` agrees to rounding."""
+        self._require_init()
+        t1, t0 = float(d.t1_s), float(d.t0_s)
+        if (
+            self.config.measurement_model != "stochastic_cloning"
+            or _CLONE not in self._aug_xz
+            or abs(self._clone_t_s - t0) > _CLONE_TOL_S
+            or abs(t1 - self._t_s) > self.config.max_time_mismatch_s
+        ):
+            return None
+        dt1 = t1 - self._t_s
+        H = np.zeros((2, self._P.shape[0]))
+        H[:, 0:2] = _I2
+        H[:, 2:4] = dt1 * _I2
+        i = self._aug_index(_CLONE)
+        H[:, i : i + 2] = -_I2
+        delta = _vec2(d.delta_xz_m if delta_xz_m is None else delta_xz_m)
+        y = delta - (self._position_ahead(dt1) - self._aug_xz[_CLONE])
+        P = self._P
+        if extra_pv_cov is not None:
+            P = P.copy()
+            P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
+        V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
+        V = V + self.config.measurement_noise_floor_m**2 * _I2
+        S = H @ P @ H.T + V
+        s00, s11 = float(S[0, 0]), float(S[1, 1])
+        s01 = 0.5 * (float(S[0, 1]) + float(S[1, 0]))
+        det = s00 * s11 - s01 * s01
+        if det == 0.0 or not math.isfinite(det):
+            raise EstimationError("singular innovation covariance")
+        y0, y1 = float(y[0]), float(y[1])
+        return (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s01 * y0)) / det
+
+    def displacement_d2_reference(
+        self,
+        d: Displacement2D,
+        extra_pv_cov: NDArray | None = None,
+        delta_xz_m: ArrayLike | None = None,
+    ) -> float | None:
+        """numpy reference of :meth:`displacement_d2` (a LAPACK solve)."""
+        if delta_xz_m is not None:
+            d = Displacement2D(d.t0_s, d.t1_s, np.asarray(delta_xz_m, dtype=float), d.cov_m2)
         self._require_init()
         t1, t0 = float(d.t1_s), float(d.t0_s)
         if (
@@ -739,7 +786,77 @@ class SagittalEskf:
     ) -> bool:
         """Gate, Kalman gain, injection and reset (eq. 8). Returns False if gated out.
         ``landmark`` says which counters the outcome goes to; ``dof`` is the measurement's
-        dimension for the gate (2, or 1 for a height)."""
+        dimension for the gate (2, or 1 for a height).
+
+        Every measurement here is 1- or 2-dimensional, so S is inverted in closed form and
+        the covariance update is P - K H P, which equals the Joseph form of
+        :meth:`_correct_reference` (K = P H^T S^-1 makes its K S K^T and cross terms cancel);
+        the two differ by rounding only (tests/test_filter_fastpaths.py). This replaces two
+        LAPACK solves and four n x n products (n = 8 + 2 per clone / landmark) by small ones:
+        numpy's per-call overhead, not the flops, is what a 2-row update costs."""
+        m = H.shape[0]
+        if m > 2:
+            return self._correct_reference(innovation, H, V, gate, landmark, dof)
+        P = self._P
+        HP = H @ P
+        S = HP @ H.T + V
+        if m == 2:
+            s00, s11 = float(S[0, 0]), float(S[1, 1])
+            s01 = 0.5 * (float(S[0, 1]) + float(S[1, 0]))
+            det = s00 * s11 - s01 * s01
+            if det == 0.0 or not math.isfinite(det):
+                raise EstimationError("singular innovation covariance")
+            y0, y1 = float(innovation[0]), float(innovation[1])
+            # S^-1 = [[s11, -s01], [-s01, s00]] / det
+            u0, u1 = (s11 * y0 - s01 * y1) / det, (s00 * y1 - s01 * y0) / det
+            d2 = y0 * u0 + y1 * u1
+            S_inv = np.array([[s11 / det, -s01 / det], [-s01 / det, s00 / det]])
+        else:
+            s00 = float(S[0, 0])
+            if s00 == 0.0 or not math.isfinite(s00):
+                raise EstimationError("singular innovation covariance")
+            y0 = float(innovation[0])
+            d2 = y0 * y0 / s00
+            S_inv = np.array([[1.0 / s00]])
+        gate_d2 = self._gate_d2 if dof == 2 else self._gate_d2_1dof
+        if gate and d2 > gate_d2:
+            if landmark:
+                self._n_lm_rej += 1
+            else:
+                self._n_rej += 1
+            return False
+        K = (S_inv @ HP).T  # P H^T S^-1 (P, S symmetric)
+        dx = K @ innovation
+        P = P - K @ HP
+        self._P = 0.5 * (P + P.T)
+        self._inject(dx)
+        if landmark:
+            self._n_lm_acc += 1
+        else:
+            self._n_acc += 1
+        return True
+
+    def _inject(self, dx: NDArray[np.float64]) -> None:
+        """Add the error state ``dx`` to the nominal state and the augmented blocks; all
+        errors are additive, so the reset dx <- 0 leaves P unchanged (reset Jacobian G = I)."""
+        n = ERROR_STATE_DIM
+        self._x = self._x + dx[:n]
+        aug = self._aug_xz
+        for j, key in enumerate(self._aug_keys):
+            i = n + 2 * j
+            aug[key] = aug[key] + dx[i : i + 2]
+
+    def _correct_reference(
+        self,
+        innovation: NDArray,
+        H: NDArray,
+        V: NDArray,
+        gate: bool = True,
+        landmark: bool = False,
+        dof: int = 2,
+    ) -> bool:
+        """numpy reference of :meth:`_correct` (LAPACK solves, the Joseph form); any number
+        of measurement rows."""
         P = self._P
         S = H @ P @ H.T + V
         S = 0.5 * (S + S.T)
@@ -852,14 +969,17 @@ class SagittalEskf:
 
 
 def _vec2(v: ArrayLike) -> NDArray[np.float64]:
-    a = np.asarray(v, dtype=float).reshape(-1)
-    if a.shape != (2,) or not np.all(np.isfinite(a)):
+    """A finite (x, z) vector as a new float array (the finiteness test on Python floats:
+    np.all(np.isfinite(.)) costs more than the rest of a small update)."""
+    a = np.array(v, dtype=float).reshape(-1)
+    if a.shape != (2,) or not (math.isfinite(a[0]) and math.isfinite(a[1])):
         raise EstimationError(f"expected a finite (x, z) vector, got {np.asarray(v)!r}")
-    return a.copy()
+    return a
 
 
 def _cov2(c: ArrayLike) -> NDArray[np.float64]:
+    """A finite 2x2 covariance, symmetrised (new array)."""
     a = np.asarray(c, dtype=float)
-    if a.shape != (2, 2) or not np.all(np.isfinite(a)):
+    if a.shape != (2, 2) or not all(map(math.isfinite, a.ravel().tolist())):
         raise EstimationError(f"expected a finite 2x2 covariance, got shape {a.shape}")
     return 0.5 * (a + a.T)

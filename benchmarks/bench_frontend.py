@@ -177,6 +177,7 @@ def reference_paths():
         (SagittalEskf, "propagate", SagittalEskf.propagate_reference),
         (SagittalEskf, "_correct", SagittalEskf._correct_reference),
         (SagittalEskf, "displacement_d2", SagittalEskf.displacement_d2_reference),
+        (SagittalEskf, "_augment", SagittalEskf._augment_reference),
         (AttitudeTracker, "add", AttitudeTracker.add_reference),
         (StanceDetector, "add_imu", StanceDetector.add_imu_reference),
         (estimator_mod, "_sagittal_rotation", sagittal_rotation),

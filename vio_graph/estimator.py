@@ -88,7 +88,6 @@ from vio_graph.geometry import (
     quat_wxyz_from_matrix,
     remove_yaw,
     rot_y,
-    rotate_xz,
 )
 from vio_graph.health import HealthLimits, HealthMonitor
 from vio_graph.keyframes import KeyframeSelector
@@ -262,6 +261,8 @@ class OnlineEstimator:
             np.zeros(2) if initial_camera_xz_m is None else np.asarray(initial_camera_xz_m, float)
         )
         self._last_imu: ImuSample | None = None  # in shank axes, pitch offset applied
+        # R_world_imu's last answer: (t s, pitch offset rad, latest IMU sample, row-major R)
+        self._attitude_memo: tuple[float, float, ImuSample, Mat3] | None = None
         #: the latest sample the fault monitor did not repair (its gyro is a measurement)
         self._last_trusted_imu: ImuSample | None = None
         self._last_joints: JointAngles | None = None
@@ -509,7 +510,13 @@ class OnlineEstimator:
         paper's ground frame); ``config.filter.attitude`` says how (filter/attitude.py)."""
         if self._last_imu is None:
             raise EstimationError("no IMU sample yet")
-        return self._level_aided_attitude(self._last_imu.timestamp_s if t_s is None else t_s)
+        t = self._last_imu.timestamp_s if t_s is None else t_s
+        # a frame asks for the same attitude up to four times: remembered while the time, the
+        # pitch offset and the latest IMU sample (the attitude tracker's input) are the same
+        b, last, memo = self.pitch_offset.offset_rad, self._last_imu, self._attitude_memo
+        if memo is None or memo[0] != t or memo[1] != b or memo[2] is not last:
+            memo = self._attitude_memo = (t, b, last, self._level_aided_attitude_mat3(t))
+        return np.array(memo[3]).reshape(3, 3)
 
     def R_world_imu_reference(self, t_s: float | None = None) -> NDArray[np.float64]:
         """numpy reference of :meth:`R_world_imu` (the tests compare the two)."""
@@ -882,10 +889,12 @@ class OnlineEstimator:
         """ankle - camera through the shank (m, ground axes): R_shank (ankle_in_shank -
         camera_in_shank), and its derivative by the shank pitch."""
         theta = self.rig.shank_pitch_rad(R_world_imu)
-        u = self._ankle_from_camera_shank_m
-        lever = rotate_xz(theta, u)
-        # d lever/d theta = R'(theta) u = R(theta) (u_z, -u_x): the same products and sums
-        dlever = rotate_xz(theta, np.array([u[1], -u[0]]))
+        u0, u1 = self._ankle_from_camera_shank_m.tolist()
+        # geometry.rotate_xz written out on scalars (the same products and sums, no stack)
+        c, s = np.cos(theta), np.sin(theta)
+        lever = np.array([c * u0 + s * u1, -s * u0 + c * u1])
+        # d lever/d theta = R'(theta) u = R(theta) (u_z, -u_x)
+        dlever = np.array([c * u1 + s * -u0, -s * u1 + c * -u0])
         return lever, dlever
 
     def _fuse_stance(

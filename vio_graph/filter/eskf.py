@@ -77,7 +77,7 @@ from numpy.typing import ArrayLike, NDArray
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
 from vio_graph.filter.fast_imu import sagittal_pitch
-from vio_graph.filter.gating import chi2_2dof_quantile
+from vio_graph.filter.gating import chi2_2dof_quantile, mahalanobis2_2d
 from vio_graph.filter.lever_arm import angular_acceleration, lever_arm_terms
 from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw, rot_y_xz
 from vio_graph.types import Displacement2D, EstimateStatus, ImuSample, LandmarkKey
@@ -545,14 +545,7 @@ class SagittalEskf:
             P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
         V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
         V = V + self.config.measurement_noise_floor_m**2 * _I2
-        S = H @ P @ H.T + V
-        s00, s11 = float(S[0, 0]), float(S[1, 1])
-        s01 = 0.5 * (float(S[0, 1]) + float(S[1, 0]))
-        det = s00 * s11 - s01 * s01
-        if det == 0.0 or not math.isfinite(det):
-            raise EstimationError("singular innovation covariance")
-        y0, y1 = float(y[0]), float(y[1])
-        return (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s01 * y0)) / det
+        return mahalanobis2_2d(H @ P @ H.T + V, y)
 
     def displacement_d2_reference(
         self,
@@ -922,6 +915,30 @@ class SagittalEskf:
     ) -> None:
         """Append a static block x_new = p(t + dt) + e with error dp + dt dv + e, e ~ extra_cov
         independent of the state (the block's cross-covariance follows from J P J^T)."""
+        # J P J^T block by block, J = [[I], [I dt*I 0 ..]]: the old P, its new rows
+        # A = P[0:2] + dt P[2:4] (and their transpose), and the new block A J_b^T + extra
+        P = self._P
+        P = 0.5 * (P + P.T)  # (propagation leaves it symmetric only to rounding)
+        m = P.shape[0]
+        A = P[0:2] + dt_s * P[2:4]
+        Q = np.empty((m + 2, m + 2))
+        Q[:m, :m] = P
+        Q[m:, :m] = A
+        Q[:m, m:] = A.T
+        B = A[:, 0:2] + dt_s * A[:, 2:4] + extra_cov
+        Q[m:, m:] = 0.5 * (B + B.T)
+        self._P = Q
+        self._aug_keys.append(key)
+        self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+
+    def _augment_reference(
+        self,
+        key: LandmarkKey | str,
+        value_xz: NDArray[np.float64],
+        dt_s: float,
+        extra_cov: NDArray,
+    ) -> None:
+        """numpy reference of :meth:`_augment` (the full J P J^T)."""
         m = self._P.shape[0]
         J = np.zeros((m + 2, m))
         J[:m, :m] = np.eye(m)

@@ -23,6 +23,7 @@ from collections import deque
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.filter.gating import mahalanobis2_2d
 from vio_graph.filter.lever_arm import angular_acceleration, lever_arm_terms
 from vio_graph.types import Displacement2D
 
@@ -147,6 +148,8 @@ class StanceConsistencyTest:
         self._gate_d2 = float(gate_d2)
         self._lever_var = 2.0 * float(lever_sigma_m) ** 2  # two lever evaluations per test
         self._floor_var = float(floor_m) ** 2
+        self._lever_cov = np.eye(2) * self._lever_var  # (2, 2) m^2
+        self._floor_cov = np.eye(2) * self._floor_var
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, lever) last frame
         self._chain: tuple[NDArray, NDArray, NDArray] | None = None  # (lever0, sum d, sum C)
         self.last_d2: float = 0.0  #: largest Mahalanobis^2 of the last test (diagnostics)
@@ -176,10 +179,9 @@ class StanceConsistencyTest:
         self.tested = True
         prev_lever = prev[1]
         d = np.asarray(displacement.delta_xz_m, dtype=float)
-        C = np.asarray(displacement.cov_m2, dtype=float) + np.eye(2) * self._floor_var
-        S1 = C + np.eye(2) * self._lever_var
+        C = np.asarray(displacement.cov_m2, dtype=float) + self._floor_cov
         r1 = d - (prev_lever - lever)
-        d2_frame = float(r1 @ np.linalg.solve(S1, r1))
+        d2_frame = mahalanobis2_2d(C + self._lever_cov, r1)
         lever0, sum_d, sum_C = (
             (prev_lever, d, C)
             if self._chain is None
@@ -187,7 +189,7 @@ class StanceConsistencyTest:
         )
         self._chain = (lever0, sum_d, sum_C)
         r = sum_d - (lever0 - lever)
-        d2_chain = float(r @ np.linalg.solve(sum_C + np.eye(2) * self._lever_var, r))
+        d2_chain = mahalanobis2_2d(sum_C + self._lever_cov, r)
         self.last_d2 = max(d2_frame, d2_chain)
         return self.last_d2 <= self._gate_d2
 

@@ -333,8 +333,12 @@ def _reference_find_levels(pts: np.ndarray, config) -> list:
 
 
 def test_find_levels_equals_the_numpy_formulation() -> None:
+    """The compiled levels (the fixture turns the kernels on) and the numpy path both equal
+    the original formulation, bit for bit."""
     from vio_graph.frontend.config import TerrainConfig
-    from vio_graph.frontend.terrain import find_levels
+    from vio_graph.frontend.terrain import find_levels, find_levels_reference
+
+    assert icp_module.compiled_kernels() is not None
 
     rng = np.random.default_rng(4)
     configs = [TerrainConfig(), TerrainConfig(min_level_points=3, level_gap_m=0.02)]
@@ -348,6 +352,7 @@ def test_find_levels_equals_the_numpy_formulation() -> None:
         for cfg in configs:
             levels = find_levels(pts, cfg)
             assert levels == _reference_find_levels(pts, cfg)
+            assert find_levels_reference(pts, cfg) == levels
             n_levels += len(levels)
     assert n_levels > 300
 

@@ -64,6 +64,7 @@ from numpy.typing import NDArray
 
 from vio_graph.errors import FrontendError
 from vio_graph.frontend.config import TerrainConfig
+from vio_graph.frontend.icp import compiled_kernels
 from vio_graph.types import TerrainKind
 
 
@@ -99,12 +100,35 @@ def _robust_extent(xs: NDArray[np.float64]) -> tuple[float, float, float]:
 def find_levels(profile_xz_m: NDArray[np.float64], config: TerrainConfig) -> list[Level]:
     """Greedy extraction of horizontal levels (rule step 1), sorted by median x.
 
+    Compiled (``compiled.find_levels``, numba) when the front end's kernels are on: the same
+    levels bit for bit as :func:`find_levels_reference` (tests/test_frontend_fastpaths.py).
+
     Args:
         profile_xz_m: (N, 2) smoothed profile, metres.
 
     Returns:
         Levels, near (small x) to far.
     """
+    kernels = compiled_kernels()
+    if kernels is None:
+        return find_levels_reference(profile_xz_m, config)
+    pts = np.asarray(profile_xz_m, dtype=float)
+    order = np.argsort(pts[:, 1])
+    rows = kernels.find_levels(
+        pts[order, 1],
+        pts[order, 0],
+        float(config.level_band_m),
+        int(config.max_levels),
+        int(config.min_level_points),
+        float(config.level_gap_m),
+        float(config.min_level_length_m),
+    ).tolist()
+    levels = [Level(h, x_lo, x_hi, x_med, int(n)) for h, x_lo, x_hi, x_med, n in rows]
+    return sorted(levels, key=lambda lv: lv.x_median_m)
+
+
+def find_levels_reference(profile_xz_m: NDArray[np.float64], config: TerrainConfig) -> list[Level]:
+    """numpy path of :func:`find_levels`."""
     pts = np.asarray(profile_xz_m, dtype=float)
     band = config.level_band_m
     order = np.argsort(pts[:, 1])

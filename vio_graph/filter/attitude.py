@@ -126,6 +126,8 @@ class AttitudeTracker:
         beyond them)."""
         if not self._recent:
             return np.array(self._gyro_radps)
+        if t_s >= self._recent[-1][0]:  # at or after the latest sample: np.interp holds it
+            return np.array(self._recent[-1][2])
         ts = np.array([r[0] for r in self._recent])
         g = np.array([r[2] for r in self._recent])
         return np.array([np.interp(t_s, ts, g[:, i]) for i in range(3)])

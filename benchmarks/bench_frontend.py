@@ -179,6 +179,7 @@ def reference_paths():
         (SagittalEskf, "displacement_d2", SagittalEskf.displacement_d2_reference),
         (SagittalEskf, "_augment", SagittalEskf._augment_reference),
         (AttitudeTracker, "add", AttitudeTracker.add_reference),
+        (AttitudeTracker, "gyro_at", AttitudeTracker.gyro_at_reference),
         (StanceDetector, "add_imu", StanceDetector.add_imu_reference),
         (estimator_mod, "_sagittal_rotation", sagittal_rotation),
         (estimator_mod, "_pitch_offset_quat", estimator_mod.reference_pitch_offset_quat),

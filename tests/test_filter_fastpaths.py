@@ -106,3 +106,21 @@ def test_closed_form_mahalanobis_equals_the_solve() -> None:
         assert mahalanobis2_2d(S, y) == pytest.approx(float(y @ np.linalg.solve(S, y)), rel=1e-9)
     with pytest.raises(EstimationError, match="singular"):
         mahalanobis2_2d(np.ones((2, 2)), np.ones(2))
+
+
+def test_gyro_interpolation_equals_np_interp() -> None:
+    """AttitudeTracker.gyro_at (np.interp written out) equals the numpy form bit for bit:
+    between samples, on their stamps, before the history and after the latest sample."""
+    from vio_graph.filter.attitude import AttitudeTracker
+
+    rng = np.random.default_rng(11)
+    tracker = AttitudeTracker()
+    stamps = np.cumsum(rng.uniform(0.008, 0.012, 40))
+    for t in stamps:
+        tracker.add(
+            ImuSample(float(t), np.array([0.0, 0.0, GRAVITY_MPS2]), rng.normal(0, 1, 3), UPRIGHT)
+        )
+        kept = np.array([r[0] for r in tracker._recent])
+        queries = [*kept, *rng.uniform(kept[0] - 0.02, kept[-1] + 0.02, 20)]
+        for q in queries:
+            assert np.array_equal(tracker.gyro_at(float(q)), tracker.gyro_at_reference(float(q)))

@@ -29,6 +29,7 @@ The class is pure (no I/O) and keeps only the latest sample.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -124,10 +125,38 @@ class AttitudeTracker:
     def gyro_at(self, t_s: float) -> NDArray[np.float64]:
         """Gyro rate (rad/s, IMU axes) at ``t_s``, interpolated over the recent samples (held
         beyond them)."""
+        recent = self._recent
+        if not recent:
+            return np.array(self._gyro_radps)
+        # np.interp per axis, written out on the few samples kept (same branches and
+        # arithmetic as numpy's: held beyond the ends, the sample itself on an exact stamp,
+        # else slope * (t - t_j) + g_j); :meth:`gyro_at_reference` is the numpy form
+        if t_s >= recent[-1][0]:
+            return np.array(recent[-1][2])
+        if t_s <= recent[0][0]:
+            return np.array(recent[0][2])
+        j = len(recent) - 2
+        while recent[j][0] > t_s:  # the latest sample at or before t_s (frames lag a few)
+            j -= 1
+        t0, _, g0 = recent[j]
+        if t0 == t_s:
+            return np.array(g0)
+        t1, _, g1 = recent[j + 1]
+        out = []
+        for a, b in zip(g0, g1, strict=True):
+            slope = (b - a) / (t1 - t0)
+            v = slope * (t_s - t0) + a
+            if math.isnan(v):
+                v = slope * (t_s - t1) + b
+                if math.isnan(v) and a == b:
+                    v = a
+            out.append(v)
+        return np.array(out)
+
+    def gyro_at_reference(self, t_s: float) -> NDArray[np.float64]:
+        """numpy reference of :meth:`gyro_at` (np.interp per axis)."""
         if not self._recent:
             return np.array(self._gyro_radps)
-        if t_s >= self._recent[-1][0]:  # at or after the latest sample: np.interp holds it
-            return np.array(self._recent[-1][2])
         ts = np.array([r[0] for r in self._recent])
         g = np.array([r[2] for r in self._recent])
         return np.array([np.interp(t_s, ts, g[:, i]) for i in range(3)])

@@ -124,3 +124,18 @@ def test_gyro_interpolation_equals_np_interp() -> None:
         queries = [*kept, *rng.uniform(kept[0] - 0.02, kept[-1] + 0.02, 20)]
         for q in queries:
             assert np.array_equal(tracker.gyro_at(float(q)), tracker.gyro_at_reference(float(q)))
+
+
+def test_state_accessors_equal_the_snapshot() -> None:
+    """status, cov_position_m2, cov_velocity_m2ps2 and variance read what :attr:`state`
+    copies, without the snapshot."""
+    f = SagittalEskf()
+    assert f.status == f.state.status
+    f, _ = _run(2, reference=False)
+    state = f.state
+    assert f.status == state.status
+    assert np.array_equal(f.cov_position_m2(), state.cov_position_m2)
+    assert np.array_equal(f.cov_velocity_m2ps2(), state.P[2:4, 2:4])
+    assert [f.variance(i) for i in range(8)] == np.diag(state.P).tolist()
+    with pytest.raises(EstimationError, match="index"):
+        f.variance(8)

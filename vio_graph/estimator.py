@@ -582,8 +582,9 @@ class OnlineEstimator:
             t_prev, p_prev = self._prev_frame
             dt = t - t_prev
             pred_delta = p_pred - p_prev
-            P = self.filter.state.P
-            pred_cov = P[2:4, 2:4] * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
+            pred_cov = (
+                self.filter.cov_velocity_m2ps2() * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
+            )
         # 3. front end (eq. 1-4)
         result = self.frontend.process(
             frame, self.rig.K, R_ground_cam, pred_delta, pred_cov, self._ground_turn_rad
@@ -617,7 +618,6 @@ class OnlineEstimator:
                 # lock-out it counts like a refusal of the filter's gate
                 self._recover_if_locked_out(True)
         self._fuse_landmarks(t, result, R_world_imu)
-        state = self.filter.state
         camera_xz, velocity = self._position_at(t)
         if self.stamp_test is not None:
             self.stamp_test.end_frame(velocity)
@@ -630,7 +630,7 @@ class OnlineEstimator:
             self._in_stance,
             corner_seen,
             refused=refused,
-            velocity_sigma_x_mps=float(np.sqrt(max(state.P[2, 2], 0.0))),
+            velocity_sigma_x_mps=float(np.sqrt(max(self.filter.variance(2), 0.0))),
             distrusted_imu_samples=self.imu_faults.n_distrusted,
         )
         timings["fusion"] = (time.perf_counter() - t0) * 1e3
@@ -648,14 +648,14 @@ class OnlineEstimator:
             safety = self.safety.update(
                 t,
                 camera_xz,
-                state.cov_position_m2,
+                self.filter.cov_position_m2(),
                 pts.heel_xz_m[0],
                 pts.toe_xz_m[0],
                 self._in_stance,
                 result.profile_xz_m if is_kf else None,
             )
             timings["safety"] = (time.perf_counter() - t0) * 1e3
-        status = state.status
+        status = self.filter.status
         if result.displacement is None and status is EstimateStatus.FUSED:
             status = EstimateStatus.IMU_ONLY
         estimate = FrameEstimate(
@@ -663,7 +663,7 @@ class OnlineEstimator:
             status=status,
             camera_xz_m=camera_xz,
             velocity_xz_mps=velocity,
-            cov_position_m2=state.cov_position_m2,
+            cov_position_m2=self.filter.cov_position_m2(),
             knee_xz_m=pts.knee_xz_m[0],
             ankle_xz_m=pts.ankle_xz_m[0],
             heel_xz_m=pts.heel_xz_m[0],

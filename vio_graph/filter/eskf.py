@@ -741,14 +741,32 @@ class SagittalEskf:
         return self._t_s, self._x[0:2].copy(), self._x[2:4].copy()
 
     @property
+    def status(self) -> EstimateStatus:
+        """:attr:`state`'s status without the snapshot: FUSED while a measurement was accepted
+        within ``fused_timeout_s``, else IMU_ONLY (INITIALISING before :meth:`initialise`)."""
+        if not self._initialised:
+            return EstimateStatus.INITIALISING
+        if self._t_s - self._last_accept_s <= self.config.fused_timeout_s:
+            return EstimateStatus.FUSED
+        return EstimateStatus.IMU_ONLY
+
+    def cov_position_m2(self) -> NDArray[np.float64]:
+        """2x2 covariance of the position (m^2), a copy: :attr:`state`'s without the snapshot."""
+        return self._P[:2, :2].copy()
+
+    def cov_velocity_m2ps2(self) -> NDArray[np.float64]:
+        """2x2 covariance of the velocity ((m/s)^2), a copy."""
+        return self._P[2:4, 2:4].copy()
+
+    def variance(self, i: int) -> float:
+        """Variance of error-state component ``i`` (0-7: dp, dv, da_b, dg; x then z)."""
+        if not 0 <= i < ERROR_STATE_DIM:
+            raise EstimationError(f"error-state index {i} outside 0..{ERROR_STATE_DIM - 1}")
+        return float(self._P[i, i])
+
+    @property
     def state(self) -> FilterState:
         """Frozen snapshot of the current estimate."""
-        if not self._initialised:
-            status = EstimateStatus.INITIALISING
-        elif self._t_s - self._last_accept_s <= self.config.fused_timeout_s:
-            status = EstimateStatus.FUSED
-        else:
-            status = EstimateStatus.IMU_ONLY
         n = ERROR_STATE_DIM
         return FilterState(
             timestamp_s=self._t_s,
@@ -757,7 +775,7 @@ class SagittalEskf:
             accel_bias_xz_mps2=self._x[4:6].copy(),
             gravity_xz_mps2=self._x[6:8].copy(),
             P=self._P[:n, :n].copy(),
-            status=status,
+            status=self.status,
             n_imu=self._n_imu,
             n_accepted=self._n_acc,
             n_rejected=self._n_rej,

@@ -473,3 +473,41 @@ def test_level_tilt_means_are_np_mean_bit_for_bit(monkeypatch: pytest.MonkeyPatc
     ]
     assert sum(t is not None and t.n_lines >= 2 for t in fast) > 20
     assert fast == ref  # dataclass equality: every float the same
+
+
+def test_compiled_corner_lines_equal_the_numpy_path() -> None:
+    """The corners' horizontal-line RANSAC and largest run compiled and in numpy: the same
+    height, the same inlier mask, the same draws consumed, None in the same cases (no
+    candidate, every hypothesis excluded); the same run."""
+    from vio_graph.frontend import corners
+
+    assert icp_module.compiled_kernels() is not None
+    rng = np.random.default_rng(43)
+    n_none = n_lines = 0
+    for case in range(200):
+        pts = _stairs(rng, int(rng.integers(1, 300)), noise_m=0.003)
+        if case % 5 == 0:
+            pts = np.round(pts, 2)  # ties between the hypotheses' counts and in the runs
+        cand = None if case % 3 == 0 else rng.uniform(size=pts.shape[0]) < 0.7
+        if case % 13 == 0:
+            cand = np.zeros(pts.shape[0], bool)  # no candidate at all
+        exclude = () if case % 2 else (0.0, 0.15)
+        separation = 0.5 if case % 7 == 0 else 0.02  # 0.5: every hypothesis excluded
+        ra, rb = np.random.default_rng(case), np.random.default_rng(case)
+        got = corners.ransac_horizontal_line(pts, 0.01, 20, ra, exclude, separation, cand)
+        ref = corners.ransac_horizontal_line_reference(pts, 0.01, 20, rb, exclude, separation, cand)
+        assert (got is None) == (ref is None)
+        if ref is None:
+            n_none += 1
+        else:
+            assert got is not None
+            assert got.height_m == ref.height_m
+            assert np.array_equal(got.inliers, ref.inliers)
+            n_lines += 1
+            gap = 0.005 * (case % 4)
+            x = pts[ref.inliers, 0]
+            assert np.array_equal(
+                corners._largest_run(x, gap), corners._largest_run_reference(x, gap)
+            )
+        assert ra.integers(0, 1 << 30) == rb.integers(0, 1 << 30)
+    assert n_none > 20 and n_lines > 100

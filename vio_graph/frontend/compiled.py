@@ -450,6 +450,69 @@ def best_line(x, z, i, j, max_slope, inlier_m):  # pragma: no cover - compiled
     return best_a, best_s
 
 
+# ----------------------------------------------------------------------------- corner lines
+
+
+@numba.njit(cache=True)
+def horizontal_line(z_all, mask, draws, exclude, min_sep, d):  # pragma: no cover - compiled
+    """``corners.ransac_horizontal_line_reference`` after its random draws (``draws``:
+    indices into the sorted heights of the ``mask`` points): the hypotheses not within
+    ``min_sep`` of an ``exclude`` height, the first with the most heights within ``d``, its
+    inliers' median height. Returns (height, inlier mask), or (nan, empty) when every
+    hypothesis is excluded. Comparisons and one (a + b) / 2 only: the same floats."""
+    z = np.sort(z_all[mask])
+    n = z.size
+    best_count = -1
+    best = 0.0
+    for q in range(draws.size):
+        h = z[draws[q]]
+        excluded = False
+        for e in range(exclude.size):
+            if not abs(h - exclude[e]) >= min_sep:
+                excluded = True
+                break
+        if excluded:
+            continue
+        c = np.searchsorted(z, h + d, side="right") - np.searchsorted(z, h - d)
+        if c > best_count:
+            best_count = c
+            best = h
+    if best_count < 0:
+        return np.nan, np.zeros(0, np.bool_)
+    lo = 0  # the inliers |z - best| <= d: one run of the sorted heights
+    while lo < n and not abs(z[lo] - best) <= d:
+        lo += 1
+    hi = lo
+    while hi < n and abs(z[hi] - best) <= d:
+        hi += 1
+    k = hi - lo
+    mid = lo + k // 2
+    height = z[mid] if k % 2 else (z[mid - 1] + z[mid]) / 2
+    inliers = np.empty(z_all.size, np.bool_)
+    for i in range(z_all.size):
+        inliers[i] = mask[i] and abs(z_all[i] - height) <= d
+    return height, inliers
+
+
+@numba.njit(cache=True)
+def largest_run(x, max_gap_m):  # pragma: no cover - compiled
+    """``corners._largest_run_reference``: the sorted x values of the run (no gap above
+    ``max_gap_m``) with the most points, the first of equals."""
+    xs = np.sort(x)
+    n = xs.size
+    best_lo = 0
+    best_hi = 0
+    start = 0
+    for end in range(1, n + 1):
+        if end < n and not xs[end] - xs[end - 1] > max_gap_m:
+            continue
+        if end - start > best_hi - best_lo:
+            best_lo = start
+            best_hi = end
+        start = end
+    return xs[best_lo:best_hi]
+
+
 # ----------------------------------------------------------------------------- terrain levels
 
 

@@ -511,3 +511,20 @@ def test_compiled_corner_lines_equal_the_numpy_path() -> None:
             )
         assert ra.integers(0, 1 << 30) == rb.integers(0, 1 << 30)
     assert n_none > 20 and n_lines > 100
+
+
+def test_face_percentiles_and_medians_are_numpys_bit_for_bit() -> None:
+    """find_faces' percentile (linear) and median on sorted values equal np.percentile and
+    np.median exactly, for every size (odd, even, 1) and with ties."""
+    from vio_graph.frontend.terrain import _median_sorted, _percentile_sorted
+
+    rng = np.random.default_rng(47)
+    for n in [*range(1, 40), 97, 128, 301]:
+        for _ in range(5):
+            v = rng.normal(0.1, 0.05, n)
+            if n % 3 == 0:
+                v = np.round(v, 2)
+            s = np.sort(v).tolist()
+            for q in (5, 50, 95):
+                assert _percentile_sorted(s, q) == np.percentile(v, q)
+            assert _median_sorted(s, 0, n) == np.median(v)

@@ -162,10 +162,11 @@ def replay_once(rec: Recording, frames: list, timed_icp: _TimedIcp) -> dict[str,
 
 @contextlib.contextmanager
 def reference_paths():
-    """Swap the numpy references back in for the per-sample closed forms and the compiled
-    front end (ICP, grid thinning, kNN smoothing): what the code did before them;
-    tests/test_fast_imu.py and tests/test_frontend_fastpaths.py check both give the same
-    answers."""
+    """Swap the numpy references back in for the per-sample closed forms, the filter's
+    closed-form updates and the compiled front end (ICP, grid thinning, kNN smoothing,
+    terrain levels, corner lines): what the code did before them; tests/test_fast_imu.py,
+    tests/test_filter_fastpaths.py and tests/test_frontend_fastpaths.py check both give the
+    same answers."""
     import vio_graph.estimator as estimator_mod
     from vio_graph.filter.attitude import AttitudeTracker
     from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
@@ -680,11 +681,14 @@ def _speedup_lines(r: dict[str, Any]) -> list[str]:
         )
     return [
         "IMU sample path in scalar closed forms (vio_graph/filter/fast_imu.py, the fault "
-        "monitor, the clock model) and the front end's ICP, grid thinning and kNN smoothing "
+        "monitor, the clock model), the SP-ESKF updates with the 2x2 innovation covariance "
+        "inverted in closed form and block-wise augmentation (vio_graph/filter/eskf.py), and "
+        "the front end's ICP, grid thinning, kNN smoothing, terrain levels and corner lines "
         "compiled with numba (vio_graph/frontend/compiled.py), against the numpy reference "
-        "paths they replaced (kept in the code and compared in tests/test_fast_imu.py and "
-        "tests/test_frontend_fastpaths.py: same answers to 1e-9 m), the same replays "
-        "interleaved (target: <= 20 us per IMU sample):",
+        "paths they replaced (kept in the code and compared in tests/test_fast_imu.py, "
+        "tests/test_filter_fastpaths.py and tests/test_frontend_fastpaths.py: same answers "
+        "to 1e-9 m, the levels and corner lines bit for bit), the same replays interleaved "
+        "(target: <= 20 us per IMU sample):",
         "",
         *(
             [

@@ -172,7 +172,7 @@ def reference_paths():
     from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
     from vio_graph.filter.imu_faults import ImuFaultMonitor
     from vio_graph.filter.stance import StanceDetector
-    from vio_graph.filter.time_offset import ClockModel
+    from vio_graph.filter.time_offset import ClockModel, TimeOffsetEstimator
 
     swaps = [
         (SagittalEskf, "propagate", SagittalEskf.propagate_reference),
@@ -196,6 +196,7 @@ def reference_paths():
         ),
         (ImuFaultMonitor, "process", ImuFaultMonitor.process_reference),
         (ClockModel, "_fit", ClockModel._fit_reference),
+        (TimeOffsetEstimator, "update", TimeOffsetEstimator.update_reference),
     ]
     saved = [(obj, name, obj.__dict__[name]) for obj, name, _ in swaps]
     for obj, name, ref in swaps:

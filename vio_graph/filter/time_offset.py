@@ -218,7 +218,50 @@ class TimeOffsetEstimator:
     ) -> bool:
         """One level-surface tilt ``tilt_rad`` measured on a slice rotated with the pitch
         offset ``offset_b_rad`` and re-stamped by :attr:`applied_s`; ``pitch_rate_radps`` the
-        shank pitch rate (ground frame) at the frame. Returns False if gated out."""
+        shank pitch rate (ground frame) at the frame. Returns False if gated out.
+
+        The 2-state update on Python floats (a scalar measurement, H = [1, -rate]); the
+        numpy form is :meth:`update_reference` (the same estimate to rounding, compared in
+        tests/test_time_offset.py)."""
+        p00, p01, p10, p11 = self.P.ravel().tolist()
+        if self._t_s is not None and t_s > self._t_s:
+            q0, q1 = self._q.tolist()
+            dt = t_s - self._t_s
+            p00 += q0 * dt
+            p11 += q1 * dt
+        self._t_s = t_s if self._t_s is None else max(self._t_s, t_s)
+        m = tilt_rad + offset_b_rad - pitch_rate_radps * self.applied_s
+        h = -pitch_rate_radps
+        x0, x1 = self.x.tolist()
+        y = m - (x0 + h * x1)
+        hp0, hp1 = p00 + h * p10, p01 + h * p11  # H P
+        s = float(hp0 + hp1 * h + tilt_sigma_rad**2)
+        if self.n_updates > 10 and y * y > self._gate * s:
+            self.P = np.array([[p00, p01], [p10, p11]])
+            self.n_rejected += 1
+            return False
+        k0, k1 = (p00 + p01 * h) / s, (p10 + p11 * h) / s  # K = P H^T / s
+        self.x = np.array([x0 + k0 * y, x1 + k1 * y])
+        a00, a01, a10, a11 = p00 - k0 * hp0, p01 - k0 * hp1, p10 - k1 * hp0, p11 - k1 * hp1
+        off = 0.5 * (a01 + a10)
+        self.P = np.array([[a00, off], [off, a11]])  # symmetrised, as 0.5 (P + P^T)
+        self.n_updates += 1
+        if self.config.estimate:
+            if not self._latched and abs(self.td_s) > self.config.apply_sigmas * self.sigma_s:
+                self._latched = True
+            if self._latched:
+                self.applied_s = self.td_s
+        return True
+
+    def update_reference(
+        self,
+        t_s: float,
+        tilt_rad: float,
+        tilt_sigma_rad: float,
+        offset_b_rad: float,
+        pitch_rate_radps: float,
+    ) -> bool:
+        """numpy reference of :meth:`update`."""
         if self._t_s is not None and t_s > self._t_s:
             self.P[np.diag_indices(2)] += self._q * (t_s - self._t_s)
         self._t_s = t_s if self._t_s is None else max(self._t_s, t_s)

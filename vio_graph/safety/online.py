@@ -55,6 +55,7 @@ from vio_graph.safety.clearance import (
     predicted_min_edge_clearance,
 )
 from vio_graph.safety.config import SafetyConfig
+from vio_graph.safety.consistency import SigmaConsistency
 
 NAN = float("nan")
 
@@ -76,6 +77,8 @@ class SafetyEstimate:
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
     ``landing``: the foot landed at this frame; then ``placement`` (4,): heel and toe to the
     tread's nosing, heel and toe to its back edge (else NaN).
+    ``consistency_scale``: the factor the data put on the sigmas' pose and map terms
+    (safety/consistency.py; above 1: the filter's covariance understates its drift).
     """
 
     clearance_m: float
@@ -95,6 +98,7 @@ class SafetyEstimate:
     placement: NDArray[np.float64]
     edge_xz_m: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.nan))
     near_trip_clearance_m: float = NAN
+    consistency_scale: float = 1.0
 
 
 #: frames.csv columns of a SafetyEstimate, in order (docs/outputs.md)
@@ -116,6 +120,7 @@ CSV_COLUMNS = (
     "toe_to_nosing_m",
     "heel_to_back_m",
     "toe_to_back_m",
+    "consistency_scale",
 )
 
 
@@ -138,6 +143,7 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
         s.mean_tread_m,
         s.landing,
         *s.placement,
+        s.consistency_scale,
     ]
     out = []
     for v in vals:
@@ -323,6 +329,11 @@ class SafetyMonitor:
         self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
         self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
         self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
+        self.consistency = SigmaConsistency(
+            config.consistency_window_keyframes,
+            config.consistency_min_keyframes,
+            config.consistency_scale_range,
+        )
 
     def _track_swing(
         self,
@@ -436,6 +447,16 @@ class SafetyMonitor:
         cfg = self.config
         P = np.asarray(cov_position_m2, dtype=float)
         if keyframe_profile_xz_m is not None:
+            self.consistency.observe_keyframe(  # the keyframe against the map, before it joins
+                camera_xz_m,
+                keyframe_profile_xz_m,
+                P,
+                self.map.profile(cfg.map_sigma_m),
+                self.map.bin_cov,
+                cfg.bin_m,
+                self.map.top_band_m,
+                cfg.relative_pose_scale,
+            )
             self.map.add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
             self._edges = None
         heel = np.asarray(heel_xz_m, dtype=float)
@@ -453,19 +474,23 @@ class SafetyMonitor:
         if coverage(heel, toe, win) < cfg.min_coverage:
             c = NO_CLEARANCE  # the terrain under the foot has not been seen
         sig = NAN
+        sc = self.consistency.scale  # on the pose and map terms
+        pose_w = cfg.relative_pose_scale * sc * sc
         if c.bin >= 0:
             k = i0 + c.bin
-            rel = _psd_abs(P - self.map.bin_cov(k), cfg.relative_pose_scale)
-            sig = clearance_sigma(c.normal_xz, rel, float(full.sigma_m[k]), cfg.foot_sigma_m)
+            rel = _psd_abs(P - self.map.bin_cov(k), pose_w)
+            sig = clearance_sigma(c.normal_xz, rel, sc * float(full.sigma_m[k]), cfg.foot_sigma_m)
         # the next edge ahead
         nc = nsig = ed = edsig = NAN
         e = next_edge_index(edges, float(toe[0]) - cfg.toe_pass_m)
         if e >= 0:
             ec = edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
             kb = int(np.clip(np.searchsorted(full.x_lo_m, edges.xz_m[e, 0]) - 1, 0, len(full) - 1))
-            rel = _psd_abs(P - self.map.bin_cov(kb), cfg.relative_pose_scale)
+            rel = _psd_abs(P - self.map.bin_cov(kb), pose_w)
             nc = ec.distance_m
-            nsig = clearance_sigma(ec.normal_xz, rel, float(full.sigma_m[kb]), cfg.foot_sigma_m)
+            nsig = clearance_sigma(
+                ec.normal_xz, rel, sc * float(full.sigma_m[kb]), cfg.foot_sigma_m
+            )
             ed = float(edges.xz_m[e, 0] - toe[0])
             edsig = (rel[0][0] + cfg.foot_sigma_m**2 + (cfg.bin_m / 2) ** 2) ** 0.5
         # prediction over the horizon and the near-trip warning
@@ -564,4 +589,5 @@ class SafetyMonitor:
             placement=placement,
             edge_xz_m=edges.xz_m[e].copy() if e >= 0 else np.full(2, np.nan),
             near_trip_clearance_m=risk,
+            consistency_scale=sc,
         )

@@ -5,22 +5,27 @@ The clearance sigma's pose and map terms (docs/method.md, section 8) say how far
 placed by the filter now can be from a terrain bin placed by the filter at the keyframes
 that saw it. A new keyframe is the same situation with the camera in place of the foot: its
 profile, placed at the filter's camera position now, lands on bins the map already holds.
-Per such bin the innovation is the keyframe's height minus the map's, and the same two terms
-predict its variance::
+Per shared bin b the innovation r_b is the keyframe's height minus the map's. Two tests:
 
-    v_b = relative_pose_scale * |P_now - P_bin|_zz + sigma_bin^2
+- pose: the drift of the camera since the bins were mapped moves the whole profile, so the
+  keyframe's common offset o = median_b r_b observes it, with predicted variance
+  ``relative_pose_scale`` x median_b |P_now - P_bin|_zz (the filter's covariance growth,
+  projected on z) plus the variance of the median itself (1.2533^2 x the residuals' scaled
+  MAD^2 / the number of bins);
+- map: what is left per bin, r_b - o, against the bin's height variance sigma_bin^2 (its
+  standard error over keyframes with the floor ``map_sigma_m``).
 
-(the camera covariance growth since the bin was mapped, projected on z, plus the bin's height
-variance with its floor). If the model is right, r_b^2 / v_b is chi-square with one degree
-of freedom; its median over the last ``window`` keyframes' bins over 0.4549 (the median of
-chi-square(1)) is the squared scale the data put on the model. A median and not a mean: a
-ToF mixed pixel or a nosing bin shifted by a bin is a single large innovation, not a sign
-that every bin is off.
+If the terms are right, each normalised square is chi-square with one degree of freedom; its
+median over the last ``window`` keyframes over 0.4549 (the median of chi-square(1)) is the
+squared scale the data put on that term. A median and not a mean: a ToF mixed pixel or a
+nosing bin shifted by a bin is one large value, not a sign that every bin is off.
 
-The scale is >1 when the filter's covariance grows less than its drift (the filter is
-overconfident: the estimator is in trouble and says so) and <1 when the map floor and the
-covariance are conservative. The monitor multiplies the pose and map terms of every sigma by
-it (the foot-outline term is not seen by this test and stays as configured).
+A pose scale above 1 says the filter's covariance grows less than its drift (the filter is
+overconfident: the estimator is in trouble and says so); below 1, that it is conservative.
+The map test sees the random scatter of the bins, not an error all keyframes share (a nosing
+placed up to a bin off, the strip hidden behind a nosing): the floor is there for those, and
+the map scale is a statement about the scatter only. The monitor multiplies the pose and map
+terms of every sigma by their scales; the foot-outline term is seen by neither test.
 """
 
 from __future__ import annotations
@@ -75,11 +80,11 @@ def psd_abs_zz(dP_m2: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.abs(l1) * vz2 + np.abs(l2) * (1.0 - vz2)
 
 
-class SigmaConsistency:
-    """Running consistency scale of the clearance sigma's pose and map terms (see module
-    docstring). ``window``: keyframes whose innovations are kept (0 disables: the scale
-    stays 1); ``min_keyframes``: keyframes with innovations before the scale leaves 1;
-    ``scale_range``: the scale is clipped to it (a bound against a degenerate map)."""
+class ChiSquareScale:
+    """Running scale of one sigma term from normalised squares (see module docstring).
+    ``window``: keyframes whose values are kept (0 disables: the scale stays 1);
+    ``min_keyframes``: keyframes observed before the scale leaves 1; ``scale_range``: the
+    scale is clipped to it (a bound against a degenerate map)."""
 
     def __init__(
         self,
@@ -102,12 +107,12 @@ class SigmaConsistency:
 
     @property
     def scale(self) -> float:
-        """Factor on the sigma's pose and map terms (1 until ``min_keyframes`` keyframes)."""
+        """Factor on the sigma term (1 until ``min_keyframes`` keyframes were observed)."""
         return self._scale
 
     def observe(self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike) -> None:
-        """One keyframe's innovations (keyframe minus map height per bin it shares with the
-        map, m) and their predicted variances (m^2); updates :attr:`scale`."""
+        """One keyframe's innovations (m) and their predicted variances (m^2); updates
+        :attr:`scale`."""
         if self.window == 0:
             return
         r = np.asarray(innovation_m, dtype=float).reshape(-1)
@@ -122,6 +127,30 @@ class SigmaConsistency:
             s2 = float(np.median(np.concatenate(self._q))) / CHI2_1_MEDIAN
             self._scale = float(np.clip(np.sqrt(s2), *self.scale_range))
 
+
+class MapConsistency:
+    """The pose and map scales of the clearance sigma from each keyframe tested against the
+    map before it joins it (see module docstring); arguments as :class:`ChiSquareScale`."""
+
+    def __init__(
+        self,
+        window: int,
+        min_keyframes: int = 5,
+        scale_range: tuple[float, float] = (0.25, 4.0),
+    ) -> None:
+        self.pose = ChiSquareScale(window, min_keyframes, scale_range)
+        self.map = ChiSquareScale(window, min_keyframes, scale_range)
+
+    @property
+    def pose_scale(self) -> float:
+        """Factor on the sigmas' pose term."""
+        return self.pose.scale
+
+    @property
+    def map_scale(self) -> float:
+        """Factor on the sigmas' map term."""
+        return self.map.scale
+
     def observe_keyframe(
         self,
         camera_xz_m: ArrayLike,
@@ -133,23 +162,25 @@ class SigmaConsistency:
         top_band_m: float,
         pose_scale: float,
     ) -> None:
-        """Test a keyframe against the map before it joins it: ``mapped`` is the map's
-        profile (bins of width ``bin_m`` in use), ``bin_cov(k)`` the mean keyframe camera
-        covariance (2, 2) of its bin ``k``; the keyframe's camera covariance
-        ``cov_position_m2`` (2, 2) is now's; ``pose_scale``: the config's
-        ``relative_pose_scale``."""
-        if self.window == 0 or len(mapped) == 0:
+        """Test a keyframe against the map: ``mapped`` is the map's profile (bins of width
+        ``bin_m`` in use), ``bin_cov(k)`` the mean keyframe camera covariance (2, 2) of its
+        bin ``k``; the keyframe's camera covariance ``cov_position_m2`` (2, 2) is now's;
+        ``pose_scale``: the config's ``relative_pose_scale``."""
+        if self.pose.window == 0 or len(mapped) == 0:
             return
         bins, top = keyframe_bin_tops(camera_xz_m, profile_xz_m, bin_m, top_band_m)
         mapped_bins = np.rint(mapped.x_lo_m / bin_m).astype(np.int64)
-        k = np.searchsorted(mapped_bins, bins)
-        k = np.minimum(k, len(mapped) - 1)
+        k = np.minimum(np.searchsorted(mapped_bins, bins), len(mapped) - 1)
         hit = mapped_bins[k] == bins
         if not hit.any():
             return
         k = k[hit]
+        r = top[hit] - mapped.z_m[k]
         P = np.asarray(cov_position_m2, dtype=float)
         Pb = np.array([bin_cov(int(i)) for i in k])  # (B, 2, 2)
         dP = np.stack([P[0, 0] - Pb[:, 0, 0], P[0, 1] - Pb[:, 0, 1], P[1, 1] - Pb[:, 1, 1]], 1)
-        v = pose_scale * psd_abs_zz(dP) + mapped.sigma_m[k] ** 2
-        self.observe(top[hit] - mapped.z_m[k], v)
+        offset = float(np.median(r))
+        mad_sd = 1.4826 * float(np.median(np.abs(r - offset)))  # per-bin scatter, m
+        v_offset = pose_scale * float(np.median(psd_abs_zz(dP))) + (1.2533 * mad_sd) ** 2 / r.size
+        self.pose.observe(np.array([offset]), np.array([v_offset]))
+        self.map.observe(r - offset, mapped.sigma_m[k] ** 2)

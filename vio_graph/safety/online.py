@@ -55,7 +55,7 @@ from vio_graph.safety.clearance import (
     predicted_min_edge_clearance,
 )
 from vio_graph.safety.config import SafetyConfig
-from vio_graph.safety.consistency import SigmaConsistency
+from vio_graph.safety.consistency import MapConsistency
 
 NAN = float("nan")
 
@@ -77,8 +77,9 @@ class SafetyEstimate:
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
     ``landing``: the foot landed at this frame; then ``placement`` (4,): heel and toe to the
     tread's nosing, heel and toe to its back edge (else NaN).
-    ``consistency_scale``: the factor the data put on the sigmas' pose and map terms
-    (safety/consistency.py; above 1: the filter's covariance understates its drift).
+    ``pose_consistency_scale`` / ``map_consistency_scale``: the factors the keyframes'
+    heights put on the sigmas' pose and map terms (safety/consistency.py; a pose scale above
+    1: the filter's covariance understates its drift).
     """
 
     clearance_m: float
@@ -98,7 +99,8 @@ class SafetyEstimate:
     placement: NDArray[np.float64]
     edge_xz_m: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.nan))
     near_trip_clearance_m: float = NAN
-    consistency_scale: float = 1.0
+    pose_consistency_scale: float = 1.0
+    map_consistency_scale: float = 1.0
 
 
 #: frames.csv columns of a SafetyEstimate, in order (docs/outputs.md)
@@ -120,7 +122,8 @@ CSV_COLUMNS = (
     "toe_to_nosing_m",
     "heel_to_back_m",
     "toe_to_back_m",
-    "consistency_scale",
+    "pose_consistency_scale",
+    "map_consistency_scale",
 )
 
 
@@ -143,7 +146,8 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
         s.mean_tread_m,
         s.landing,
         *s.placement,
-        s.consistency_scale,
+        s.pose_consistency_scale,
+        s.map_consistency_scale,
     ]
     out = []
     for v in vals:
@@ -329,7 +333,7 @@ class SafetyMonitor:
         self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
         self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
         self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
-        self.consistency = SigmaConsistency(
+        self.consistency = MapConsistency(
             config.consistency_window_keyframes,
             config.consistency_min_keyframes,
             config.consistency_scale_range,
@@ -474,12 +478,12 @@ class SafetyMonitor:
         if coverage(heel, toe, win) < cfg.min_coverage:
             c = NO_CLEARANCE  # the terrain under the foot has not been seen
         sig = NAN
-        sc = self.consistency.scale  # on the pose and map terms
-        pose_w = cfg.relative_pose_scale * sc * sc
+        sp, sm = self.consistency.pose_scale, self.consistency.map_scale
+        pose_w = cfg.relative_pose_scale * sp * sp
         if c.bin >= 0:
             k = i0 + c.bin
             rel = _psd_abs(P - self.map.bin_cov(k), pose_w)
-            sig = clearance_sigma(c.normal_xz, rel, sc * float(full.sigma_m[k]), cfg.foot_sigma_m)
+            sig = clearance_sigma(c.normal_xz, rel, sm * float(full.sigma_m[k]), cfg.foot_sigma_m)
         # the next edge ahead
         nc = nsig = ed = edsig = NAN
         e = next_edge_index(edges, float(toe[0]) - cfg.toe_pass_m)
@@ -489,7 +493,7 @@ class SafetyMonitor:
             rel = _psd_abs(P - self.map.bin_cov(kb), pose_w)
             nc = ec.distance_m
             nsig = clearance_sigma(
-                ec.normal_xz, rel, sc * float(full.sigma_m[kb]), cfg.foot_sigma_m
+                ec.normal_xz, rel, sm * float(full.sigma_m[kb]), cfg.foot_sigma_m
             )
             ed = float(edges.xz_m[e, 0] - toe[0])
             edsig = (rel[0][0] + cfg.foot_sigma_m**2 + (cfg.bin_m / 2) ** 2) ** 0.5
@@ -589,5 +593,6 @@ class SafetyMonitor:
             placement=placement,
             edge_xz_m=edges.xz_m[e].copy() if e >= 0 else np.full(2, np.nan),
             near_trip_clearance_m=risk,
-            consistency_scale=sc,
+            pose_consistency_scale=sp,
+            map_consistency_scale=sm,
         )

@@ -133,9 +133,10 @@ class SafetyConfig(BaseModel):
     consistency_window_keyframes: int = Field(
         default=30,
         ge=0,
-        description="the sigmas' pose and map terms are scaled by the consistency of the last "
-        "this many keyframes' heights with the map (safety/consistency.py); 0: not scaled "
-        "(count)",
+        description="the sigmas' pose and map terms are scaled by how the last this many "
+        "keyframes' heights agreed with the map (their common offset against the filter's "
+        "covariance growth, the per-bin rest against the bins' sigma; safety/consistency.py); "
+        "0: not scaled (count)",
     )
     consistency_min_keyframes: int = Field(
         default=5,

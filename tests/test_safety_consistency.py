@@ -128,7 +128,7 @@ def test_drift_the_filter_understates_is_found_and_the_sigma_covers_it() -> None
 def test_empty_map_and_keyframe_leave_the_scale_alone() -> None:
     c = MapConsistency(window=5, min_keyframes=1)
     empty = HeightProfile(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
-    no_cov = np.zeros((2, 2))
+    no_cov = np.zeros((1, 3))
     c.observe_keyframe(
         [0, 0.5], np.zeros((0, 2)), np.eye(2), empty, lambda k: no_cov, 0.005, 0.01, 1
     )
@@ -147,10 +147,29 @@ def test_pose_and_map_scales_from_keyframes_against_a_known_map() -> None:
     P_now = P_bin + np.diag([0.0, 0.002**2])
     c = MapConsistency(window=60)
     cam = np.array([0.0, 0.5])
+    P_bin_rows = np.array([[P_bin[0, 0], P_bin[0, 1], P_bin[1, 1]]])
+
+    def rows(k: np.ndarray) -> np.ndarray:
+        return np.repeat(P_bin_rows, len(k), axis=0)
+
     for _ in range(60):
         drift = rng.normal(0.0, 2 * 0.002)
         z = drift + rng.normal(0.0, 0.001, n_bins)
         pts = np.stack([x_lo + bin_m / 2, z], 1) - cam
-        c.observe_keyframe(cam, pts, P_now, mapped, lambda k: P_bin, bin_m, 0.01, 1.0)
+        c.observe_keyframe(cam, pts, P_now, mapped, rows, bin_m, 0.01, 1.0)
     assert c.pose_scale == pytest.approx(2.0, rel=0.25)
     assert c.map_scale == pytest.approx(1 / 3, rel=0.15)
+
+
+def test_bin_cov_rows_match_bin_cov() -> None:
+    rng = np.random.default_rng(4)
+    m = OnlineHeightMap(0.005, 2)
+    for i in range(4):
+        A = rng.normal(0, 1e-3, (2, 2))
+        xs = np.linspace(0.1 + 0.02 * i, 0.6, 120)
+        m.add_keyframe([0.0, 0.5], np.stack([xs, np.zeros_like(xs)], 1) - [0.0, 0.5], A @ A.T)
+    prof = m.profile(0.003)
+    k = np.arange(len(prof))
+    rows = m.bin_cov_rows(k)
+    ref = np.array([m.bin_cov(int(i)) for i in k])
+    np.testing.assert_allclose(rows, np.stack([ref[:, 0, 0], ref[:, 0, 1], ref[:, 1, 1]], 1))

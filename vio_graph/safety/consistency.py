@@ -157,15 +157,16 @@ class MapConsistency:
         profile_xz_m: ArrayLike,
         cov_position_m2: ArrayLike,
         mapped: HeightProfile,
-        bin_cov: Callable[[int], NDArray[np.float64]],
+        bin_cov_rows: Callable[[NDArray[np.int64]], NDArray[np.float64]],
         bin_m: float,
         top_band_m: float,
         pose_scale: float,
     ) -> None:
         """Test a keyframe against the map: ``mapped`` is the map's profile (bins of width
-        ``bin_m`` in use), ``bin_cov(k)`` the mean keyframe camera covariance (2, 2) of its
-        bin ``k``; the keyframe's camera covariance ``cov_position_m2`` (2, 2) is now's;
-        ``pose_scale``: the config's ``relative_pose_scale``."""
+        ``bin_m`` in use), ``bin_cov_rows(k)`` the mean keyframe camera covariance of its
+        bins ``k`` as rows (Pxx, Pxz, Pzz), (K, 3); the keyframe's camera covariance
+        ``cov_position_m2`` (2, 2) is now's; ``pose_scale``: the config's
+        ``relative_pose_scale``."""
         if self.pose.window == 0 or len(mapped) == 0:
             return
         bins, top = keyframe_bin_tops(camera_xz_m, profile_xz_m, bin_m, top_band_m)
@@ -177,8 +178,7 @@ class MapConsistency:
         k = k[hit]
         r = top[hit] - mapped.z_m[k]
         P = np.asarray(cov_position_m2, dtype=float)
-        Pb = np.array([bin_cov(int(i)) for i in k])  # (B, 2, 2)
-        dP = np.stack([P[0, 0] - Pb[:, 0, 0], P[0, 1] - Pb[:, 0, 1], P[1, 1] - Pb[:, 1, 1]], 1)
+        dP = np.array([P[0, 0], (P[0, 1] + P[1, 0]) / 2, P[1, 1]])[None] - bin_cov_rows(k)
         offset = float(np.median(r))
         mad_sd = 1.4826 * float(np.median(np.abs(r - offset)))  # per-bin scatter, m
         v_offset = pose_scale * float(np.median(psd_abs_zz(dP))) + (1.2533 * mad_sd) ** 2 / r.size

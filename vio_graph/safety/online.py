@@ -13,7 +13,8 @@ the filter: the terrain at the keyframes that saw it, the foot now. The drift be
 is modelled as a random walk, so its covariance is |P_now - P_keyframes| (eigenvalues made
 non-negative), weighted by ``relative_pose_scale``; projected on the distance's gradient,
 plus the bin's height scatter (standard error over keyframes, floored at ``map_sigma_m``) and
-``foot_sigma_m`` (docs/method.md).
+``foot_sigma_m`` (docs/method.md). The pose and map terms are multiplied by the consistency
+scales the keyframes' heights give against the map (safety/consistency.py).
 
 Motion model of the prediction (``motion_model``):
 
@@ -312,6 +313,11 @@ class OnlineHeightMap:
         c = sums[k] / n[k]
         return np.array([[c[0], c[1]], [c[1], c[2]]])
 
+    def bin_cov_rows(self, k: NDArray[np.int64]) -> NDArray[np.float64]:
+        """:meth:`bin_cov` of many bins at once, as rows (Pxx, Pxz, Pzz), (K, 3), m^2."""
+        sums, n = self._cov_bins
+        return sums[k] / n[k][:, None]
+
 
 class SafetyMonitor:
     """Per-frame safety outputs from the estimate (camera, covariance, heel, toe, stance)
@@ -456,7 +462,7 @@ class SafetyMonitor:
                 keyframe_profile_xz_m,
                 P,
                 self.map.profile(cfg.map_sigma_m),
-                self.map.bin_cov,
+                self.map.bin_cov_rows,
                 cfg.bin_m,
                 self.map.top_band_m,
                 cfg.relative_pose_scale,

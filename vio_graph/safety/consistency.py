@@ -23,9 +23,10 @@ nosing bin shifted by a bin is one large value, not a sign that every bin is off
 A pose scale above 1 says the filter's covariance grows less than its drift (the filter is
 overconfident: the estimator is in trouble and says so); below 1, that it is conservative.
 The map test sees the random scatter of the bins, not an error all keyframes share (a nosing
-placed up to a bin off, the strip hidden behind a nosing): the floor is there for those, and
-the map scale is a statement about the scatter only. The monitor multiplies the pose and map
-terms of every sigma by their scales; the foot-outline term is seen by neither test.
+placed up to a bin off, the strip hidden behind a nosing): the floor was there for those, and
+the map scale takes it down with the scatter (docs/method.md, docs/results.md). The monitor
+multiplies the pose and map terms of every sigma by their scales; the foot-outline term is
+seen by neither test.
 """
 
 from __future__ import annotations

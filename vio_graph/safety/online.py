@@ -13,7 +13,8 @@ the filter: the terrain at the keyframes that saw it, the foot now. The drift be
 is modelled as a random walk, so its covariance is |P_now - P_keyframes| (eigenvalues made
 non-negative), weighted by ``relative_pose_scale``; projected on the distance's gradient,
 plus the bin's height scatter (standard error over keyframes, floored at ``map_sigma_m``) and
-``foot_sigma_m`` (docs/method.md).
+``foot_sigma_m`` (docs/method.md). The pose and map terms are multiplied by the consistency
+scales the keyframes' heights give against the map (safety/consistency.py).
 
 Motion model of the prediction (``motion_model``):
 
@@ -55,6 +56,7 @@ from vio_graph.safety.clearance import (
     predicted_min_edge_clearance,
 )
 from vio_graph.safety.config import SafetyConfig
+from vio_graph.safety.consistency import MapConsistency
 
 NAN = float("nan")
 
@@ -76,6 +78,9 @@ class SafetyEstimate:
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
     ``landing``: the foot landed at this frame; then ``placement`` (4,): heel and toe to the
     tread's nosing, heel and toe to its back edge (else NaN).
+    ``pose_consistency_scale`` / ``map_consistency_scale``: the factors the keyframes'
+    heights put on the sigmas' pose and map terms (safety/consistency.py; a pose scale above
+    1: the filter's covariance understates its drift).
     """
 
     clearance_m: float
@@ -95,6 +100,8 @@ class SafetyEstimate:
     placement: NDArray[np.float64]
     edge_xz_m: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.nan))
     near_trip_clearance_m: float = NAN
+    pose_consistency_scale: float = 1.0
+    map_consistency_scale: float = 1.0
 
 
 #: frames.csv columns of a SafetyEstimate, in order (docs/outputs.md)
@@ -116,6 +123,8 @@ CSV_COLUMNS = (
     "toe_to_nosing_m",
     "heel_to_back_m",
     "toe_to_back_m",
+    "pose_consistency_scale",
+    "map_consistency_scale",
 )
 
 
@@ -138,6 +147,8 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
         s.mean_tread_m,
         s.landing,
         *s.placement,
+        s.pose_consistency_scale,
+        s.map_consistency_scale,
     ]
     out = []
     for v in vals:
@@ -302,6 +313,11 @@ class OnlineHeightMap:
         c = sums[k] / n[k]
         return np.array([[c[0], c[1]], [c[1], c[2]]])
 
+    def bin_cov_rows(self, k: NDArray[np.int64]) -> NDArray[np.float64]:
+        """:meth:`bin_cov` of many bins at once, as rows (Pxx, Pxz, Pzz), (K, 3), m^2."""
+        sums, n = self._cov_bins
+        return sums[k] / n[k][:, None]
+
 
 class SafetyMonitor:
     """Per-frame safety outputs from the estimate (camera, covariance, heel, toe, stance)
@@ -323,6 +339,11 @@ class SafetyMonitor:
         self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
         self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
         self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
+        self.consistency = MapConsistency(
+            config.consistency_window_keyframes,
+            config.consistency_min_keyframes,
+            config.consistency_scale_range,
+        )
 
     def _track_swing(
         self,
@@ -436,6 +457,16 @@ class SafetyMonitor:
         cfg = self.config
         P = np.asarray(cov_position_m2, dtype=float)
         if keyframe_profile_xz_m is not None:
+            self.consistency.observe_keyframe(  # the keyframe against the map, before it joins
+                camera_xz_m,
+                keyframe_profile_xz_m,
+                P,
+                self.map.profile(cfg.map_sigma_m),
+                self.map.bin_cov_rows,
+                cfg.bin_m,
+                self.map.top_band_m,
+                cfg.relative_pose_scale,
+            )
             self.map.add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
             self._edges = None
         heel = np.asarray(heel_xz_m, dtype=float)
@@ -453,19 +484,23 @@ class SafetyMonitor:
         if coverage(heel, toe, win) < cfg.min_coverage:
             c = NO_CLEARANCE  # the terrain under the foot has not been seen
         sig = NAN
+        sp, sm = self.consistency.pose_scale, self.consistency.map_scale
+        pose_w = cfg.relative_pose_scale * sp * sp
         if c.bin >= 0:
             k = i0 + c.bin
-            rel = _psd_abs(P - self.map.bin_cov(k), cfg.relative_pose_scale)
-            sig = clearance_sigma(c.normal_xz, rel, float(full.sigma_m[k]), cfg.foot_sigma_m)
+            rel = _psd_abs(P - self.map.bin_cov(k), pose_w)
+            sig = clearance_sigma(c.normal_xz, rel, sm * float(full.sigma_m[k]), cfg.foot_sigma_m)
         # the next edge ahead
         nc = nsig = ed = edsig = NAN
         e = next_edge_index(edges, float(toe[0]) - cfg.toe_pass_m)
         if e >= 0:
             ec = edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
             kb = int(np.clip(np.searchsorted(full.x_lo_m, edges.xz_m[e, 0]) - 1, 0, len(full) - 1))
-            rel = _psd_abs(P - self.map.bin_cov(kb), cfg.relative_pose_scale)
+            rel = _psd_abs(P - self.map.bin_cov(kb), pose_w)
             nc = ec.distance_m
-            nsig = clearance_sigma(ec.normal_xz, rel, float(full.sigma_m[kb]), cfg.foot_sigma_m)
+            nsig = clearance_sigma(
+                ec.normal_xz, rel, sm * float(full.sigma_m[kb]), cfg.foot_sigma_m
+            )
             ed = float(edges.xz_m[e, 0] - toe[0])
             edsig = (rel[0][0] + cfg.foot_sigma_m**2 + (cfg.bin_m / 2) ** 2) ** 0.5
         # prediction over the horizon and the near-trip warning
@@ -564,4 +599,6 @@ class SafetyMonitor:
             placement=placement,
             edge_xz_m=edges.xz_m[e].copy() if e >= 0 else np.full(2, np.nan),
             near_trip_clearance_m=risk,
+            pose_consistency_scale=sp,
+            map_consistency_scale=sm,
         )

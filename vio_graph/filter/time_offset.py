@@ -56,6 +56,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vio_graph.filter.config import TimeOffsetConfig
+from vio_graph.filter.fast_imu import imu_kernels
 from vio_graph.filter.gating import chi2_quantile
 
 _add_reduce = np.add.reduce
@@ -94,6 +95,7 @@ class ClockModel:
         # (8 bytes a sample; a list of floats costs 32)
         self._corr = np.empty(1024)
         self._n_corr = 0
+        self._kernels = imu_kernels()  # compiled line fit, or None
 
     def correct(self, stamp_s: float) -> float | None:
         """The time to use for a sample stamped ``stamp_s`` (s), or None if the stamp is at or
@@ -143,6 +145,9 @@ class ClockModel:
         fitted in closed form (the stamps sit at consecutive k, so the x sums are known);
         equal to rounding (tests/test_fast_imu.py)."""
         n = self._n
+        if self._kernels is not None:  # compiled (filter/compiled_imu.py)
+            icpt = self._kernels.clock_line(self._buf, self._pos, n, self.period_s, _MIN_FIT)
+            return t if abs(icpt - t) < _KEEP_TOL_S else float(icpt)
         ts = self._buf[self._pos - n : self._pos]
         # np.mean's value without its dispatch (~6 us a call): the same pairwise sum, then
         # one float64 division by n

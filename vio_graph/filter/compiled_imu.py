@@ -36,7 +36,7 @@ MEM_SIZE = 12
 
 
 @numba.njit(cache=True)
-def _quat_matrix(w, x, y, z):  # type: ignore[no-untyped-def]
+def _quat_matrix(w, x, y, z):
     """fast_imu.quat_matrix."""
     n = math.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / n, x / n, y / n, z / n
@@ -54,7 +54,7 @@ def _quat_matrix(w, x, y, z):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def sagittal_pitch(w, x, y, z):  # type: ignore[no-untyped-def]
+def sagittal_pitch(w, x, y, z):
     """fast_imu.sagittal_pitch of the quaternion (w, x, y, z)."""
     n = math.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / n, x / n, y / n, z / n
@@ -71,7 +71,7 @@ def sagittal_pitch(w, x, y, z):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def _rotvec_mat3(wx, wy, wz):  # type: ignore[no-untyped-def]
+def _rotvec_mat3(wx, wy, wz):
     """fast_imu.rotvec_mat3."""
     th2 = wx * wx + wy * wy + wz * wz
     if th2 < 1e-12:
@@ -97,7 +97,7 @@ def _rotvec_mat3(wx, wy, wz):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def _mat3_mul(a, b):  # type: ignore[no-untyped-def]
+def _mat3_mul(a, b):
     """fast_imu.mat3_mul."""
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
     b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
@@ -115,7 +115,7 @@ def _mat3_mul(a, b):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def _mat3_rotvec(m):  # type: ignore[no-untyped-def]
+def _mat3_rotvec(m):
     """fast_imu.mat3_rotvec (Shepperd's method, w >= 0)."""
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
     tr = m00 + m11 + m22
@@ -148,7 +148,7 @@ def _mat3_rotvec(m):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def attitude_step(R, p, g, q, dt, k):  # type: ignore[no-untyped-def]
+def attitude_step(R, p, g, q, dt, k):
     """``AttitudeTracker.add``'s complementary step: R_world_imu (row-major 9-tuple) turned by
     the mid-point gyro rate over ``dt`` (previous rate ``p``, new ``g``, rad/s), then pulled by
     ``k`` of the remaining rotation towards the vendor orientation ``q``."""
@@ -164,7 +164,7 @@ def attitude_step(R, p, g, q, dt, k):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def tracked_quat(R, g, dt, offset_rad):  # type: ignore[no-untyped-def]
+def tracked_quat(R, g, dt, offset_rad):
     """``OnlineEstimator._with_tracked_attitude``'s quaternion: R_world_imu (9-tuple) extrapolated
     by the gyro ``g`` over ``dt`` (s), heading removed (``remove_yaw_mat3``), turned by
     ``rot_y(offset_rad)`` if the offset is not 0, as a unit quaternion with w >= 0
@@ -211,7 +211,7 @@ def tracked_quat(R, g, dt, offset_rad):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def stance_ankle_accel(t, prev, f, g, q, r, gravity_xz):  # type: ignore[no-untyped-def]
+def stance_ankle_accel(t, prev, f, g, q, r, gravity_xz):
     """``StanceDetector.add_imu``'s |a_ankle| (m/s^2) with the sagittal rotation of ``q`` (4,):
     lever-arm terms of ``r`` (3,, ankle in the IMU frame, m) with the angular acceleration
     differenced from the previous sample ``prev`` = [has, t, gx, gy, gz] (none if it is not
@@ -235,7 +235,7 @@ def stance_ankle_accel(t, prev, f, g, q, r, gravity_xz):  # type: ignore[no-unty
 
 
 @numba.njit(cache=True)
-def eskf_propagate(  # type: ignore[no-untyped-def]
+def eskf_propagate(
     x, P, mem, t, dt, f, g, q, r, lever, trapezoid, accel_sigma, xa_now, attitude_sigma, var_ab_rate
 ):
     """``SagittalEskf.propagate`` (eq. 6-7) on the nominal state ``x`` (8,), the covariance
@@ -338,7 +338,7 @@ def new_memory() -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def fault_check(prev, t, acc, gyr, q, acc_lim, gyr_lim, test, sigma2):  # type: ignore[no-untyped-def]
+def fault_check(prev, t, acc, gyr, q, acc_lim, gyr_lim, test, sigma2):
     """``ImuFaultMonitor.process``'s arithmetic: saturation flags of the specific force
     ``acc`` and gyro ``gyr`` (|v| >= limit on any axis) and the chi-square statistic d2 of the
     gyro against the rate predicted from consecutive vendor orientations (-1 if not tested:
@@ -364,7 +364,7 @@ def fault_check(prev, t, acc, gyr, q, acc_lim, gyr_lim, test, sigma2):  # type: 
 
 
 @numba.njit(cache=True)
-def _pairwise_block(a, lo, n):  # type: ignore[no-untyped-def]
+def _pairwise_block(a, lo, n):
     """numpy's pairwise summation of a[lo:lo + n] for n <= 128: a plain loop below 8 values,
     else eight accumulators."""
     if n < 8:
@@ -392,7 +392,7 @@ def _pairwise_block(a, lo, n):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def add_reduce(a):  # type: ignore[no-untyped-def]
+def add_reduce(a):
     """``np.add.reduce`` of a 1-D contiguous float64 array, the same float: numpy's pairwise
     summation (blocks of at most 128 values; above that the two halves, the first a multiple
     of 8 long, summed separately and added), its recursion unrolled on a stack."""
@@ -431,7 +431,7 @@ def add_reduce(a):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def clock_line(buf, pos, n, period_s, min_fit):  # type: ignore[no-untyped-def]
+def clock_line(buf, pos, n, period_s, min_fit):
     """``ClockModel._fit``'s line value at the newest of the ``n`` stamps ``buf[pos - n:pos]``
     (consecutive periods): least squares from ``min_fit`` stamps on, else the mean of the
     stamps moved by whole nominal periods ``period_s``. The means are numpy's pairwise sums;

@@ -249,9 +249,10 @@ class SagittalEskf:
         self._aug_keys, self._aug_xz = [], {}
         self._prev = None
         self._accel_w_mps2 = np.zeros(2)
-        if self._mem is not None:
-            self._mem[: self._kernels.MEM_PREV_XA] = 0.0  # no previous sample
-            self._mem[self._kernels.MEM_AW :] = 0.0
+        k = self._kernels
+        if self._mem is not None and k is not None:
+            self._mem[: k.MEM_PREV_XA] = 0.0  # no previous sample
+            self._mem[k.MEM_AW :] = 0.0
         self._history = deque([(self._t_s, x[:2].copy())])
         self._last_accept_s = -np.inf
         self._initialised = True
@@ -367,8 +368,8 @@ class SagittalEskf:
     def _propagate_compiled(self, imu: ImuSample, t: float, dt: float) -> None:
         """The rest of :meth:`propagate` in one compiled call (filter/compiled_imu.py)."""
         c = self.config
-        k = self._kernels
-        mem = self._mem
+        k, mem = self._kernels, self._mem
+        assert k is not None and mem is not None
         moved = k.eskf_propagate(
             self._x,
             self._P,

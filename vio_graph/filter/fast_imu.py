@@ -22,6 +22,7 @@ calls (docs/performance.md, "IMU propagation"). Angles in radians, quaternions [
 from __future__ import annotations
 
 import math
+from types import ModuleType
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -250,7 +251,7 @@ def mat3_quat(m: Mat3) -> NDArray[np.float64]:
 USE_COMPILED = [True]
 
 
-def imu_kernels():  # type: ignore[no-untyped-def]
+def imu_kernels() -> ModuleType | None:
     """The compiled kernels of this path (``vio_graph.filter.compiled_imu``, numba), or None.
 
     On exactly when the compiled front end is (``frontend.icp.compiled_kernels``: numba

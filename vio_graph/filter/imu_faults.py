@@ -185,6 +185,7 @@ class ImuFaultMonitor:
         t = float(sample.timestamp_s)
         cfg = self.config
         prev = self._prev_arr
+        assert self._kernels is not None
         d2, px, py, pz, acc_sat, gyr_sat = self._kernels.fault_check(
             prev,
             t,
@@ -218,7 +219,7 @@ class ImuFaultMonitor:
         else:
             prev[11:14] = gyr
             if not acc_sat:
-                self._last_acc = acc.copy()
+                self._last_acc = tuple(acc.tolist())
         if (
             not repaired
             and new_acc is None

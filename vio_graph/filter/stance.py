@@ -103,6 +103,7 @@ class StanceDetector:
         t = float(timestamp_s)
         if not trusted:
             return None
+        assert self._kernels is not None, "add_imu_quat needs the compiled kernels"
         mag = self._kernels.stance_ankle_accel(
             t,
             self._prev_arr,

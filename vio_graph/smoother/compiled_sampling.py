@@ -22,7 +22,7 @@ import numpy as np
 
 
 @numba.njit(cache=True)
-def _interp(x, xp, fp, col):  # type: ignore[no-untyped-def]
+def _interp(x, xp, fp, col):
     """``np.interp(x, xp, fp[:, col])`` for one x (held outside xp, exact at a sample)."""
     n = xp.size
     if x > xp[n - 1]:
@@ -44,7 +44,7 @@ def _interp(x, xp, fp, col):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def _second_derivative(t, y):  # type: ignore[no-untyped-def]
+def _second_derivative(t, y):
     """``imu_sampling._second_derivative``: central differences, ends copied."""
     n = t.size
     ypp = np.zeros_like(y)
@@ -64,7 +64,7 @@ def _second_derivative(t, y):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def _step_means(t, y, knots, curv, dt):  # type: ignore[no-untyped-def]
+def _step_means(t, y, knots, curv, dt):
     """``imu_sampling._quadratic_step_means``' step means of y (N, 3) over the knots."""
     ypp = _second_derivative(t, y)
     nk = knots.size
@@ -83,7 +83,7 @@ def _step_means(t, y, knots, curv, dt):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def _so3_exp(wx, wy, wz, R):  # type: ignore[no-untyped-def]
+def _so3_exp(wx, wy, wz, R):
     """``imu_sampling.so3_exp`` of one rotation vector (rad) into R (3, 3)."""
     theta = math.sqrt(wx * wx + wy * wy + wz * wz)
     if theta < 1e-8:
@@ -104,7 +104,7 @@ def _so3_exp(wx, wy, wz, R):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True)
-def common_frame_steps(t, a, g, t0, t1, tol):  # type: ignore[no-untyped-def]
+def common_frame_steps(t, a, g, t0, t1, tol):
     """``imu_sampling.common_frame_samples(t, a, g, t0, t1)`` (tol = ``TIME_TOL_S``): the
     step accelerations (K, 3, each in its step-start frame), gyro means (K, 3) and step
     lengths (K,)."""

@@ -95,6 +95,7 @@ from vio_graph.types import (
 #: Sigma used for "unconstrained" axes of a prior (tangent units).
 LOOSE_SIGMA = 1e4
 
+_EIGH_LO: np.ufunc | None
 try:  # the gufunc np.linalg.eigh calls (UPLO="L"); private, so looked up defensively
     from numpy.linalg import _umath_linalg
 

@@ -146,6 +146,16 @@ def test_clock_fit_and_fault_monitor_equal_their_references(
     out_r = np.array([ref.correct(t) for t in stamps])
     assert fast.n_gaps == 1 and np.count_nonzero(out_f != stamps) > 1000  # the fit moved them
     np.testing.assert_allclose(out_f, out_r, rtol=0, atol=1e-12)
+    for model in (fast, ref):  # a stamp going backwards: dropped and reported by both
+        assert model.correct(stamps[-1] - 0.05) is None
+    rep_f, rep_r = fast.report(), ref.report()
+    assert (
+        rep_f["gap_list"] == rep_r["gap_list"]
+        and rep_f["backwards_list"] == rep_r["backwards_list"]
+    )
+    assert rep_f["correction_rms_s"] == pytest.approx(
+        rep_r["correction_rms_s"], rel=1e-9, abs=1e-15
+    )
 
     samples = _swinging_samples(400, seed=5)
     for k in (50, 51, 200):  # corrupt packets: gyro and accelerometer off

@@ -448,3 +448,58 @@ def clock_line(buf, pos, n, period_s, min_fit):
     for i in range(n):
         tmp[i] = ts[i] + period_s * (n - 1 - float(i))
     return add_reduce(tmp) / n
+
+
+# ClockModel's state in compiled mode (``ClockModel._st``; CLK_N_CORR stays the last slot,
+# ClockModel.report reads it there)
+CLK_HAS_LAST, CLK_LAST, CLK_K, CLK_POS, CLK_N, CLK_HAS_OUT, CLK_OUT, CLK_N_CORR = range(8)
+CLK_SIZE = 8
+
+
+@numba.njit(cache=True)
+def clock_correct(st, buf, corr, t, period_s, gap_periods, window, smooth, min_fit, keep_tol_s):
+    """``ClockModel.correct`` on the state ``st`` (CLK_* slots), the stamp buffer ``buf`` and
+    the corrections ``corr`` (room for one more, checked by the caller). Returns (time to use,
+    code, dt, previous stamp): code 0 for a consecutive sample, 1 after a gap of dt s (the
+    line restarts), -1 for a stamp at or before the previous one (nothing changed, dt the
+    jump, the time NaN)."""
+    prev = st[CLK_LAST]
+    code = 0
+    gap = 0.0
+    if st[CLK_HAS_LAST] > 0.0:
+        if t <= prev:
+            return np.nan, -1, t - prev, prev
+        dt = t - prev
+        if dt > gap_periods * period_s:
+            code = 1
+            gap = dt
+            st[CLK_N] = 0.0
+            st[CLK_K] += max(1.0, np.rint(dt / period_s))
+        else:
+            st[CLK_K] += 1.0
+    st[CLK_HAS_LAST] = 1.0
+    st[CLK_LAST] = t
+    pos = int(st[CLK_POS])
+    if pos == buf.size:  # keep the newest window - 1 stamps, at the front
+        keep = window - 1
+        for i in range(keep):
+            buf[i] = buf[pos - keep + i]
+        pos = keep
+    buf[pos] = t
+    pos += 1
+    st[CLK_POS] = pos
+    n = min(int(st[CLK_N]) + 1, window)
+    st[CLK_N] = n
+    out = t
+    if smooth:
+        icpt = clock_line(buf, pos, n, period_s, min_fit)
+        if not abs(icpt - t) < keep_tol_s:
+            out = icpt
+    if st[CLK_HAS_OUT] > 0.0 and out <= st[CLK_OUT]:
+        out = t if t > st[CLK_OUT] else st[CLK_OUT] + 0.5 * period_s
+    st[CLK_HAS_OUT] = 1.0
+    st[CLK_OUT] = out
+    nc = int(st[CLK_N_CORR])
+    corr[nc] = out - t
+    st[CLK_N_CORR] = nc + 1
+    return out, code, gap, prev

@@ -41,6 +41,8 @@ class StanceDetector:
         self._r_xyz = tuple(self._r.tolist())
         self._recent: deque[tuple[float, float]] = deque()  # (t, |a_ankle|)
         self._kernels = imu_kernels()  # compiled add_imu_quat, or None
+        #: True if :meth:`add_imu_quat` runs compiled (numba, ``fast_imu.imu_kernels``)
+        self.compiled = self._kernels is not None
         # add_imu_quat's previous sample: [has one, t, gyro x, y, z]
         self._prev_arr = np.zeros(5)
 
@@ -99,7 +101,7 @@ class StanceDetector:
         trusted: bool = True,
     ) -> float | None:
         """:meth:`add_imu` with the sagittal rotation of the vendor orientation ``quat_wxyz``
-        computed inside, compiled (filter/compiled_imu.py; needs :attr:`compiled`)."""
+        computed inside, compiled (filter/compiled_imu.py; needs ``compiled``)."""
         t = float(timestamp_s)
         if not trusted:
             return None
@@ -117,11 +119,6 @@ class StanceDetector:
         while self._recent[0][0] < t - self._window_s:
             self._recent.popleft()
         return mag
-
-    @property
-    def compiled(self) -> bool:
-        """True if :meth:`add_imu_quat` runs compiled (numba, ``fast_imu.imu_kernels``)."""
-        return self._kernels is not None
 
     def add_imu_reference(
         self,

@@ -32,6 +32,7 @@ from typing import Any
 import _common  # noqa: I001 - before numpy: pins the thread pools numpy reads on import
 import numpy as np
 
+import vio_graph.filter.fast_imu as fast_imu
 import vio_graph.frontend.icp as icp_module
 import vio_graph.frontend.tracker as tracker_module
 from vio_graph.config import PipelineConfig
@@ -158,6 +159,17 @@ def replay_once(rec: Recording, frames: list, timed_icp: _TimedIcp) -> dict[str,
         "R_world_cam": np.asarray(R_world_cam),
         "displacement": disp,
     }
+
+
+@contextlib.contextmanager
+def scalar_imu_path():
+    """The per-IMU-sample path in its Python closed forms instead of the numba kernels
+    (filter/compiled_imu.py, smoother/compiled_sampling.py); the compiled front end stays on."""
+    fast_imu.USE_COMPILED[0] = False
+    try:
+        yield
+    finally:
+        fast_imu.USE_COMPILED[0] = True
 
 
 @contextlib.contextmanager
@@ -366,15 +378,18 @@ def run(
     timed_icp = _TimedIcp(tracker_module.icp_translation_2d)
     tracker_module.icp_translation_2d = timed_icp
     try:
-        runs, ref_runs = [], []
+        runs, ref_runs, scalar_runs = [], [], []
         for _ in range(repeats):  # interleaved: the fast path and the numpy references
             runs.append(replay_once(rec, frames, timed_icp))
+            with scalar_imu_path():
+                scalar_runs.append(replay_once(rec, frames, timed_icp))
             with reference_paths():
                 ref_runs.append(replay_once(rec, frames, timed_icp))
     finally:
         tracker_module.icp_translation_2d = timed_icp.fn
     imu_fast = _common.stats_ms([u for rp in runs for u in rp["imu_us"]])
     imu_ref = _common.stats_ms([u for rp in ref_runs for u in rp["imu_us"]])
+    imu_scalar = _common.stats_ms([u for rp in scalar_runs for u in rp["imu_us"]])
     ref_rows = [r for rp in ref_runs for r in rp["timings"]]
     ref_stats = {s: _common.stats_ms([r[s] for r in ref_rows]) for s in STAGES}
     rows = [r for rp in runs for r in rp["timings"]]
@@ -414,6 +429,9 @@ def run(
             "fast": imu_fast,
             "reference": imu_ref,
             "ratio_median": imu_fast["median"] / imu_ref["median"],
+            # the per-sample path in Python closed forms (compiled front end still on): what a
+            # short recording runs by default (VIO_GRAPH_COMPILED unset)
+            "scalar": imu_scalar,
         },
         # whole replay loop (IMU, joints, frames; bookkeeping included) per depth frame: CPU
         # time of this process does not count the time other processes held the core
@@ -437,6 +455,9 @@ def run(
         "add_imu_cpu_us": _common.stats_ms([c for rp in runs for c in rp["imu_cpu_us"]]),
         "add_imu_cpu_us_reference": _common.stats_ms(
             [c for rp in ref_runs for c in rp["imu_cpu_us"]]
+        ),
+        "add_imu_cpu_us_scalar": _common.stats_ms(
+            [c for rp in scalar_runs for c in rp["imu_cpu_us"]]
         ),
         "ours_displacement": {
             "accepted_fraction": len(ours_err) / max(len(frames) - 1, 1),
@@ -661,6 +682,17 @@ def _speedup_lines(r: dict[str, Any]) -> list[str]:
             f(imu["ratio_median"], 3),
         ]
     ]
+    if "scalar" in imu:
+        sc = imu["scalar"]
+        rows.append(
+            [
+                "IMU sample, Python closed forms (no numba; short recordings), us",
+                f(imu["reference"]["median"], 1),
+                f(sc["median"], 1),
+                f(sc["p95"], 1),
+                f(sc["median"] / imu["reference"]["median"], 3),
+            ]
+        )
     for s in (
         "frontend_smoothing",
         "icp_solver",
@@ -681,14 +713,16 @@ def _speedup_lines(r: dict[str, Any]) -> list[str]:
             ]
         )
     return [
-        "IMU sample path in scalar closed forms (vio_graph/filter/fast_imu.py, the fault "
-        "monitor, the clock model), the SP-ESKF updates with the 2x2 innovation covariance "
-        "inverted in closed form and block-wise augmentation (vio_graph/filter/eskf.py), and "
-        "the front end's ICP, grid thinning, kNN smoothing, terrain levels and corner lines "
-        "compiled with numba (vio_graph/frontend/compiled.py), against the numpy reference "
-        "paths they replaced (kept in the code and compared in tests/test_fast_imu.py, "
-        "tests/test_filter_fastpaths.py and tests/test_frontend_fastpaths.py: same answers "
-        "to 1e-9 m, the levels and corner lines bit for bit), the same replays interleaved "
+        "IMU sample path compiled with numba (vio_graph/filter/compiled_imu.py: SP-ESKF "
+        "propagation, attitude tracker, stance detector, fault monitor, clock line; the Python "
+        "closed forms of vio_graph/filter/fast_imu.py run instead without numba and on short "
+        "recordings), the SP-ESKF updates with the 2x2 innovation covariance inverted in "
+        "closed form and block-wise augmentation (vio_graph/filter/eskf.py), and the front "
+        "end's ICP, grid thinning, kNN smoothing, terrain levels and corner lines compiled "
+        "(vio_graph/frontend/compiled.py), against the numpy reference paths they replaced "
+        "(kept in the code and compared in tests/test_fast_imu.py, "
+        "tests/test_filter_fastpaths.py and tests/test_frontend_fastpaths.py: same answers to "
+        "1e-9 m, the levels and corner lines bit for bit), the same replays interleaved "
         "(target: <= 20 us per IMU sample):",
         "",
         *(

@@ -132,6 +132,20 @@ _pitch_offset_quat = pitch_offset_quat
 _sagittal_rotation = sagittal_rotation_fast
 
 
+def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float64]) -> ImuSample:
+    """``dataclasses.replace(sample, timestamp_s=..., quat_wxyz=...)`` without its field
+    introspection (a few microseconds on the per-sample path)."""
+    return ImuSample(
+        timestamp_s,
+        sample.accel_mps2,
+        sample.gyro_radps,
+        quat_wxyz,
+        sample.accel_extra_sigma_mps2,
+        sample.gyro_extra_sigma_radps,
+        sample.accel_held,
+    )
+
+
 @dataclass(frozen=True)
 class RigGeometry:
     """What the estimator needs to know about the sensors and the leg (from metadata).
@@ -417,7 +431,7 @@ class OnlineEstimator:
             if t_clock is None:
                 return None
             if t_clock != sample.timestamp_s:
-                sample = dataclasses.replace(sample, timestamp_s=t_clock)
+                sample = _replaced(sample, t_clock, sample.quat_wxyz)
         sample = self.imu_faults.process(sample)  # saturation marks, gyro repair (IMU axes)
         sample = shank = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
@@ -435,14 +449,24 @@ class OnlineEstimator:
         # re-stamped frame finds it at (not past) its capture time
         self._propagate_until(sample.timestamp_s - max(self.time_offset.applied_s, 0.0))
         if self.config.filter.stance_anchor:
-            self._stance.add_imu(
-                sample.timestamp_s,
-                sample.accel_mps2,
-                sample.gyro_radps,
-                _sagittal_rotation(sample.quat_wxyz),
-                self.config.filter.gravity_xz_mps2,
-                trusted=not sample.accel_held,
-            )
+            if self._stance.compiled:  # the sagittal rotation inside, compiled
+                self._stance.add_imu_quat(
+                    sample.timestamp_s,
+                    sample.accel_mps2,
+                    sample.gyro_radps,
+                    sample.quat_wxyz,
+                    self.config.filter.gravity_xz_mps2,
+                    trusted=not sample.accel_held,
+                )
+            else:
+                self._stance.add_imu(
+                    sample.timestamp_s,
+                    sample.accel_mps2,
+                    sample.gyro_radps,
+                    _sagittal_rotation(sample.quat_wxyz),
+                    self.config.filter.gravity_xz_mps2,
+                    trusted=not sample.accel_held,
+                )
         self._last_imu = sample
         if not sample.accel_held:
             self._last_trusted_imu = sample
@@ -484,8 +508,19 @@ class OnlineEstimator:
     def _with_tracked_attitude(self, sample: ImuSample) -> ImuSample:
         """``sample`` carrying the tracked attitude at its time (filter/attitude.py, heading
         removed, level-surface pitch offset applied) instead of the vendor orientation."""
-        q = mat3_quat(self._level_aided_attitude_mat3(sample.timestamp_s))
-        return dataclasses.replace(sample, quat_wxyz=q)
+        att = self.attitude
+        k = att._kernels
+        t = sample.timestamp_s
+        if k is not None and att.config.source != "vendor" and t >= att._t_s:
+            # compiled: the tracker's latest attitude extrapolated to t (0 s here), heading
+            # removed, level-surface offset applied, as a quaternion
+            R = att._R
+            assert R is not None
+            b = self.pitch_offset.offset_rad
+            q = np.array(k.tracked_quat(R, att._gyro_radps, t - att._t_s, b))
+        else:
+            q = mat3_quat(self._level_aided_attitude_mat3(t))
+        return _replaced(sample, t, q)
 
     def _with_tracked_attitude_reference(self, sample: ImuSample) -> ImuSample:
         """numpy reference of :meth:`_with_tracked_attitude` (the tests compare the two)."""

@@ -39,6 +39,7 @@ from vio_graph.errors import EstimationError
 from vio_graph.filter.config import AttitudeConfig, LevelAidingConfig
 from vio_graph.filter.fast_imu import (
     Mat3,
+    imu_kernels,
     mat3_mul,
     mat3_rotvec,
     mat3_tmul,
@@ -67,6 +68,7 @@ class AttitudeTracker:
         self._recent: deque[tuple[float, Mat3, tuple[float, float, float]]] = deque(
             maxlen=_HISTORY_SAMPLES
         )
+        self._kernels = imu_kernels()  # compiled complementary step, or None
 
     def add(self, imu: ImuSample) -> None:
         """Advance to ``imu.timestamp_s`` with the sample's gyro rate and vendor orientation.
@@ -74,12 +76,21 @@ class AttitudeTracker:
         Scalar closed forms (filter/fast_imu.py); :meth:`add_reference` is the numpy / scipy
         version the tests compare it with.
         """
-        R_vendor = quat_matrix(imu.quat_wxyz)
         gx, gy, gz = np.asarray(imu.gyro_radps, dtype=float).tolist()
         t = float(imu.timestamp_s)
         if self._R is None or self.config.source != "complementary":
-            self._R = R_vendor
+            self._R = quat_matrix(imu.quat_wxyz)
+        elif self._kernels is not None:  # the same step compiled (filter/compiled_imu.py)
+            dt = t - self._t_s
+            if dt < 0:
+                raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
+            qw, qx, qy, qz = np.asarray(imu.quat_wxyz, dtype=float).tolist()
+            k = min(1.0, dt / self.config.time_constant_s)
+            self._R = self._kernels.attitude_step(
+                self._R, self._gyro_radps, (gx, gy, gz), (qw, qx, qy, qz), dt, k
+            )
         else:
+            R_vendor = quat_matrix(imu.quat_wxyz)
             dt = t - self._t_s
             if dt < 0:
                 raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")

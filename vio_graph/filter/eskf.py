@@ -76,7 +76,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
-from vio_graph.filter.fast_imu import sagittal_pitch
+from vio_graph.filter.fast_imu import imu_kernels, sagittal_pitch
 from vio_graph.filter.gating import chi2_2dof_quantile, mahalanobis2_2d
 from vio_graph.filter.lever_arm import angular_acceleration, lever_arm_terms
 from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw, rot_y_xz
@@ -135,6 +135,11 @@ def sagittal_rotation(quat_wxyz: ArrayLike) -> NDArray[np.float64]:
     if R_w_i[1, 1] < 0.0:  # body y (lateral) points to world -y: the flipped ZYX solution
         R_w_i = np.diag([-1.0, -1.0, 1.0]) @ R_w_i
     return rot_y_xz(float(pitch_of(R_w_i)))
+
+
+def _f64(a: ArrayLike) -> NDArray[np.float64]:
+    """``a`` as a float64 array (itself if it is one)."""
+    return np.asarray(a, dtype=np.float64)
 
 
 class _ImuMemo(NamedTuple):
@@ -199,6 +204,10 @@ class SagittalEskf:
         self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0
         self._n_lm_acc = self._n_lm_rej = 0
         self._prev_xa = 0.0  # extra accel sigma of the previous IMU sample (m/s^2)
+        # compiled propagation (filter/compiled_imu.py): the previous sample's memory in one
+        # array instead of _prev / _prev_xa / _accel_w_mps2
+        self._kernels = imu_kernels()
+        self._mem = None if self._kernels is None else self._kernels.new_memory()
 
     # ------------------------------------------------------------------ set-up
     def initialise(
@@ -240,6 +249,10 @@ class SagittalEskf:
         self._aug_keys, self._aug_xz = [], {}
         self._prev = None
         self._accel_w_mps2 = np.zeros(2)
+        k = self._kernels
+        if self._mem is not None and k is not None:
+            self._mem[: k.MEM_PREV_XA] = 0.0  # no previous sample
+            self._mem[k.MEM_AW :] = 0.0
         self._history = deque([(self._t_s, x[:2].copy())])
         self._last_accept_s = -np.inf
         self._initialised = True
@@ -266,6 +279,9 @@ class SagittalEskf:
             raise EstimationError(
                 f"IMU sample at {t:.6f} s is older than the state at {self._t_s:.6f} s"
             )
+        if self._mem is not None:
+            self._propagate_compiled(imu, t, dt)
+            return
         ax, ay, az = np.asarray(imu.accel_mps2, dtype=float).tolist()
         gx, gy, gz = np.asarray(imu.gyro_radps, dtype=float).tolist()
         if not all(map(math.isfinite, (ax, ay, az, gx, gy, gz))):
@@ -348,6 +364,36 @@ class SagittalEskf:
         P[5, 5] += var_ab
         self._t_s = t
         self._remember(t, x[0:2])
+
+    def _propagate_compiled(self, imu: ImuSample, t: float, dt: float) -> None:
+        """The rest of :meth:`propagate` in one compiled call (filter/compiled_imu.py)."""
+        c = self.config
+        k, mem = self._kernels, self._mem
+        assert k is not None and mem is not None
+        moved = k.eskf_propagate(
+            self._x,
+            self._P,
+            mem,
+            t,
+            dt,
+            _f64(imu.accel_mps2),
+            _f64(imu.gyro_radps),
+            _f64(imu.quat_wxyz),
+            self._r_imu_cam_m,
+            c.lever_arm_compensation,
+            c.integration == "trapezoid",
+            c.accel_noise_sigma_mps2,
+            float(imu.accel_extra_sigma_mps2),
+            c.attitude_sigma_rad,
+            c.accel_bias_rw_mps2_per_sqrt_s**2,
+        )
+        if moved < 0:
+            raise EstimationError(f"IMU sample at {t:.6f} s holds NaN or inf")
+        self._accel_w_mps2 = mem[k.MEM_AW : k.MEM_AW + 2]  # a view: updated in place
+        self._n_imu += 1
+        if moved:
+            self._t_s = t
+            self._remember(t, self._x[0:2])
 
     def propagate_reference(self, imu: ImuSample) -> None:
         """The numpy reference of :meth:`propagate` (same state to rounding; the tests run both).

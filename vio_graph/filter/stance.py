@@ -23,6 +23,7 @@ from collections import deque
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.filter.fast_imu import imu_kernels
 from vio_graph.filter.gating import mahalanobis2_2d
 from vio_graph.filter.lever_arm import angular_acceleration, lever_arm_terms
 from vio_graph.types import Displacement2D
@@ -40,6 +41,11 @@ class StanceDetector:
         self._prev: tuple[float, tuple[float, float, float]] | None = None  # (t, gyro)
         self._r_xyz = tuple(self._r.tolist())
         self._recent: deque[tuple[float, float]] = deque()  # (t, |a_ankle|)
+        self._kernels = imu_kernels()  # compiled add_imu_quat, or None
+        #: True if :meth:`add_imu_quat` runs compiled (numba, ``fast_imu.imu_kernels``)
+        self.compiled = self._kernels is not None
+        # add_imu_quat's previous sample: [has one, t, gyro x, y, z]
+        self._prev_arr = np.zeros(5)
 
     def add_imu(
         self,
@@ -83,6 +89,35 @@ class StanceDetector:
         mag = math.hypot(r00 * fx + r01 * fz + gwx, r10 * fx + r11 * fz + gwz)
         self._recent.append((t, mag))
         while self._recent and self._recent[0][0] < t - self._window_s:
+            self._recent.popleft()
+        return mag
+
+    def add_imu_quat(
+        self,
+        timestamp_s: float,
+        accel_mps2: ArrayLike,
+        gyro_radps: ArrayLike,
+        quat_wxyz: ArrayLike,
+        gravity_xz_mps2: ArrayLike,
+        trusted: bool = True,
+    ) -> float | None:
+        """:meth:`add_imu` with the sagittal rotation of the vendor orientation ``quat_wxyz``
+        computed inside, compiled (filter/compiled_imu.py; needs ``compiled``)."""
+        t = float(timestamp_s)
+        if not trusted:
+            return None
+        assert self._kernels is not None, "add_imu_quat needs the compiled kernels"
+        mag = self._kernels.stance_ankle_accel(
+            t,
+            self._prev_arr,
+            np.asarray(accel_mps2, dtype=np.float64),
+            np.asarray(gyro_radps, dtype=np.float64),
+            np.asarray(quat_wxyz, dtype=np.float64),
+            self._r,
+            np.asarray(gravity_xz_mps2, dtype=np.float64),
+        )
+        self._recent.append((t, mag))
+        while self._recent[0][0] < t - self._window_s:
             self._recent.popleft()
         return mag
 

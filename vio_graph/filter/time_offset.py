@@ -56,6 +56,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vio_graph.filter.config import TimeOffsetConfig
+from vio_graph.filter.fast_imu import imu_kernels
 from vio_graph.filter.gating import chi2_quantile
 
 _add_reduce = np.add.reduce
@@ -94,11 +95,16 @@ class ClockModel:
         # (8 bytes a sample; a list of floats costs 32)
         self._corr = np.empty(1024)
         self._n_corr = 0
+        self._kernels = imu_kernels()  # compiled correct(), or None
+        # correct()'s state when compiled (compiled_imu.CLK_* slots) instead of the attributes
+        self._st = None if self._kernels is None else np.zeros(self._kernels.CLK_SIZE)
 
     def correct(self, stamp_s: float) -> float | None:
         """The time to use for a sample stamped ``stamp_s`` (s), or None if the stamp is at or
         before the previous one (the sample must be dropped)."""
         t = float(stamp_s)
+        if self._kernels is not None:
+            return self._correct_compiled(t)
         if self._last_stamp is not None and t <= self._last_stamp:
             self.n_backwards += 1
             if len(self.backwards) < _MAX_REPORTED:
@@ -138,11 +144,44 @@ class ClockModel:
         self._n_corr += 1
         return out
 
+    def _correct_compiled(self, t: float) -> float | None:
+        """:meth:`correct` in one compiled call (filter/compiled_imu.py); the reports here."""
+        k, st = self._kernels, self._st
+        assert k is not None and st is not None
+        if int(st[k.CLK_N_CORR]) == self._corr.size:
+            self._corr = np.concatenate([self._corr, np.empty(self._corr.size)])
+        out, code, dt, prev = k.clock_correct(
+            st,
+            self._buf,
+            self._corr,
+            t,
+            self.period_s,
+            self.gap_periods,
+            self.window,
+            self.smooth,
+            _MIN_FIT,
+            _KEEP_TOL_S,
+        )
+        if code < 0:
+            self.n_backwards += 1
+            if len(self.backwards) < _MAX_REPORTED:
+                self.backwards.append({"t_s": t, "jump_s": dt})
+            return None
+        if code > 0:
+            self.n_gaps += 1
+            self.gap_total_s += dt
+            if len(self.gaps) < _MAX_REPORTED:
+                self.gaps.append({"t_s": prev, "duration_s": dt})
+        return out
+
     def _fit(self, t: float) -> float:
         """The clock line's value at the newest sample: :meth:`_fit_reference` with the line
         fitted in closed form (the stamps sit at consecutive k, so the x sums are known);
         equal to rounding (tests/test_fast_imu.py)."""
         n = self._n
+        if self._kernels is not None:  # compiled (filter/compiled_imu.py)
+            icpt = self._kernels.clock_line(self._buf, self._pos, n, self.period_s, _MIN_FIT)
+            return t if abs(icpt - t) < _KEEP_TOL_S else float(icpt)
         ts = self._buf[self._pos - n : self._pos]
         # np.mean's value without its dispatch (~6 us a call): the same pairwise sum, then
         # one float64 division by n
@@ -170,7 +209,8 @@ class ClockModel:
         return t if abs(icpt - t) < _KEEP_TOL_S else float(icpt)
 
     def report(self) -> dict:
-        c = self._corr[: self._n_corr]
+        n = self._n_corr if self._st is None or self._kernels is None else int(self._st[-1])
+        c = self._corr[:n]
         return {
             "gaps": self.n_gaps,
             "gap_total_s": self.gap_total_s,

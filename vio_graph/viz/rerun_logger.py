@@ -240,6 +240,12 @@ class Visualizer(NullVisualizer):
                 instances = archetype.columns(
                     positions=np.concatenate(rows.data).astype(np.float32).reshape(-1, 3)
                 )
+            elif len({d.shape[1] for d in rows.data}) == 1:  # equal-length strips: one array
+                instances = archetype.columns(
+                    strips=np.concatenate(rows.data)
+                    .astype(np.float32)
+                    .reshape(-1, *rows.data[0].shape[1:])
+                )
             else:
                 instances = archetype.columns(strips=[s for d in rows.data for s in d])
             columns = [

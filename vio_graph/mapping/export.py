@@ -553,7 +553,7 @@ def map_figure(
     # the table as one monospaced text block (one text artist instead of one per cell)
     headers = (
         ["#", "kind", "rise/height mm", "tread/depth mm", "edge x, z m"]
-        if geometry.obstacles
+        if geometry is not None and geometry.obstacles
         else ["#", "kind", "rise mm", "tread mm", "nosing x, z m"]
     )
     side.text(

@@ -52,8 +52,11 @@ _COLORS = {
 
 
 def _xz_to_xyz(xz: NDArray[np.float64]) -> NDArray[np.float64]:
-    xz = np.atleast_2d(np.asarray(xz, dtype=float))
-    return np.column_stack([xz[:, 0], np.zeros(xz.shape[0]), xz[:, 1]])
+    """Sagittal points (N, 2) or one (2,), metres, as (N, 3) at y = 0."""
+    xz = np.asarray(xz, dtype=float).reshape(-1, 2)
+    xyz = np.zeros((xz.shape[0], 3))
+    xyz[:, 0::2] = xz
+    return xyz
 
 
 class NullVisualizer:

@@ -10,11 +10,13 @@ once and cached under results/benchmarks/ (git-ignored). Two kinds of measuremen
   user + system CPU seconds of that process (``os.wait4``), medians;
 * **per-stage split**: one more process per configuration runs the same command in-process
   with the stages wrapped (CPU seconds, ``time.process_time``, each stage without the stages
-  nested in it): estimation (every estimator over the frames), the rerun view (recording
-  setup, the per-frame view and sending it), evaluation (metrics and the safety replay), map
-  building, map files (PLY, PCD, JSON, CSV), map PNG, plots (overview, clearance), trajectory
-  and frames.csv files; ``startup and rest`` is the remainder of the process (interpreter,
-  imports, CLI, config, opening the recording, metrics.json).
+  nested in it): estimation (every estimator over the frames), rerun setup (importing rerun
+  and its pyarrow / pandas, opening the .rrd), the rerun view (the per-frame view, sending
+  it in columns, closing the file), evaluation (metrics and the safety replay), map
+  building, map files (PLY, PCD, JSON, CSV), map PNG (the first figure: it pays the matplotlib
+  import), plots (overview, clearance), trajectory and frames.csv files; ``startup and
+  rest`` is the remainder of the process (interpreter, imports, CLI, config, opening the
+  recording, metrics.json).
 
 Writes benchmarks/results/end_to_end.json and prints a markdown table.
 Run: python benchmarks/bench_end_to_end.py [--repeats 3]
@@ -47,8 +49,10 @@ CONFIGS: dict[str, tuple[list[str], float]] = {
 #: stage -> functions (module, qualified name) whose time counts as that stage
 STAGES: dict[str, tuple[tuple[str, str], ...]] = {
     "estimation": (("vio_graph.replay", "Replay.run"),),
-    "rerun view (.rrd)": (
+    "rerun setup (import rerun, open .rrd)": (
         ("vio_graph.viz.rerun_logger", "Visualizer.__init__"),
+    ),
+    "rerun view (per frame, sending)": (
         ("vio_graph.viz.rerun_logger", "Visualizer.close"),
         ("vio_graph.viz.run_view", "RunView.scene"),
         ("vio_graph.viz.run_view", "RunView.frame"),

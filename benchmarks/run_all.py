@@ -19,6 +19,7 @@ import time
 from typing import Any
 
 import _common  # noqa: I001 - first: pins thread pools before numpy is imported
+import bench_end_to_end
 import bench_frontend
 import bench_scale
 import bench_simulator
@@ -26,6 +27,8 @@ import bench_smoother
 
 # frontend first: it simulates the recording
 BENCHMARKS = ("frontend", "smoother", "simulator", "scale")
+#: run after those, each with its own section when its results exist
+EXTRA_BENCHMARKS = ("end_to_end",)
 DOC = _common.BENCH_DIR.parent / "docs" / "performance.md"
 COMMAND = "python benchmarks/run_all.py"
 #: trial lengths of the scaling table; 600 s (18,000 frames) is
@@ -44,6 +47,7 @@ def run_benchmark(
             "smoother": ["--quick"],
             "simulator": ["--runs", "1"],
             "scale": ["--durations", "10"],
+            "end_to_end": ["--repeats", "1"],
         }[name]
     elif name == "scale":
         args += ["--durations", *scale_durations]
@@ -274,6 +278,13 @@ def render(
             else []
         ),
     ]
+    if (_common.RESULTS_DIR / "end_to_end.json").exists():
+        lines += [
+            "## End to end",
+            "",
+            bench_end_to_end.markdown(_common.read_result("end_to_end")),
+            "",
+        ]
     if walls_s:
         lines += [
             "## Benchmark wall times",
@@ -308,7 +319,7 @@ def main() -> None:
     if args.render_only:
         walls = json.loads(walls_file.read_text()) if walls_file.exists() else {}
     else:
-        for name in BENCHMARKS:
+        for name in (*BENCHMARKS, *EXTRA_BENCHMARKS):
             walls[name] = run_benchmark(name, args.quick, tuple(args.scale_durations))
             print(f"{name}: {walls[name]:.0f} s", flush=True)  # noqa: T201 - script output
         walls_file.write_text(json.dumps(walls) + "\n")

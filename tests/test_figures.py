@@ -46,14 +46,26 @@ def test_map_zoomed_labels_apart_and_table() -> None:
     assert [t.get_text() for t in labels] == [str(k + 1) for k in range(len(geometry.steps))]
     boxes = [t.get_window_extent(renderer) for t in labels]
     assert not any(_overlaps(a, b) for a, b in combinations(boxes, 2))
-    # the step table beside the plot: one row per step, rise in mm
-    table = side.tables[0]
-    cells = table.get_celld()
-    n_rows = 1 + max(r for r, _ in cells)
-    assert n_rows == 1 + len(geometry.steps)
-    assert float(cells[(1, 2)].get_text().get_text()) == round(1000 * geometry.steps[0].rise_m, 1)
+    # the step table beside the plot (one text block): header, rule, one row per step, rise in mm
+    (table,) = [t for t in side.texts if t.get_text().lstrip().startswith("#")]
+    lines = table.get_text().splitlines()
+    assert lines[0].split()[:3] == ["#", "kind", "rise"]
+    assert len(lines) == 2 + len(geometry.steps)
+    assert float(lines[2].split()[2]) == round(1000 * geometry.steps[0].rise_m, 1)
+    assert not _overlaps(table.get_window_extent(renderer), side.get_legend().get_window_extent())
     legend = side.get_legend()
     assert "risers" in [t.get_text() for t in legend.get_texts()]
+
+
+def test_step_table_text_caps_the_rows() -> None:
+    from vio_graph.mapping.export import step_table_text
+
+    rows = [[str(k), "up", "147.0", "280.0", "1.00, 0.15"] for k in range(1, 6)]
+    text = step_table_text(rows, ["#", "kind", "rise mm", "tread mm", "nosing x, z m"], 3)
+    lines = text.splitlines()
+    assert len(lines) == 2 + 3 + 1 and lines[-1] == "... 2 more in steps.csv"
+    assert len({len(line) for line in lines[:5]}) == 1  # fixed width: the columns line up
+    assert lines[2].split() == ["1", "up", "147.0", "280.0", "1.00,", "0.15"]
 
 
 def test_overview_names_every_line_and_separates_camera_and_toe() -> None:

@@ -38,7 +38,10 @@ Step geometry CSV (``steps.csv``)
 
 Plot (``map.png``)
     Map points, detected levels (treads / floor) and risers, nosings and obstacle edges with
-    their uncertainty, and optionally the true profile and edges.
+    their uncertainty, and optionally the true profile and edges; beside it the legend and a
+    table of the first :data:`MAP_TABLE_ROWS` steps (the rest in ``steps.csv``). Drawn on an
+    Agg canvas with a fixed layout; the camera path through at most
+    ``vio_graph.viz.decimate.MAX_LINE_POINTS`` points.
 """
 
 from __future__ import annotations
@@ -439,6 +442,22 @@ def _step_table_rows(geometry: TerrainGeometry) -> list[list[str]]:
     return rows
 
 
+def step_table_text(rows: list[list[str]], headers: list[str], max_rows: int) -> str:
+    """``rows`` (cells as strings) under ``headers`` as fixed-width text, columns right-aligned
+    to their widest cell, a rule under the header; the first ``max_rows`` rows, then a line
+    saying how many more are in ``steps.csv``."""
+    shown = rows[:max_rows]
+    widths = [max(len(c) for c in col) for col in zip(headers, *shown, strict=False)]
+
+    def line(cells: list[str]) -> str:
+        return "  ".join(c.rjust(w) for c, w in zip(cells, widths, strict=True))
+
+    lines = [line(headers), "-" * len(line(headers)), *(line(r) for r in shown)]
+    if len(rows) > len(shown):
+        lines.append(f"... {len(rows) - len(shown)} more in steps.csv")
+    return "\n".join(lines)
+
+
 def write_map_png(
     path: Path,
     points_xz_m: ArrayLike,
@@ -454,6 +473,10 @@ def write_map_png(
     return Path(path)
 
 
+#: step rows in the table beside the map: as many as fit above the legend
+MAP_TABLE_ROWS = 14
+
+
 def map_figure(
     points_xz_m: ArrayLike,
     geometry: TerrainGeometry | None = None,
@@ -466,8 +489,8 @@ def map_figure(
     profile and edges of ``terrain_info`` and the keyframe camera positions (K, 2); nosings
     are numbered and their rise / tread listed in a table beside the plot. A matplotlib
     Figure (Agg canvas)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from vio_graph.viz.decimate import plot_indices
+    from vio_graph.viz.plots import new_figure, zoom_limits
 
     pts = np.asarray(points_xz_m, dtype=np.float64).reshape(-1, 2)
     cams = (
@@ -476,8 +499,7 @@ def map_figure(
         else np.zeros((0, 2))
     )
     rows = _step_table_rows(geometry) if geometry is not None else []
-    fig = Figure(figsize=(12, 5.0), dpi=110)
-    FigureCanvasAgg(fig)
+    fig = new_figure(figsize=(12, 5.0), dpi=110)
     if rows:
         gs = fig.add_gridspec(
             1, 2, width_ratios=[2.6, 1], left=0.06, right=0.98, wspace=0.08, bottom=0.1, top=0.92
@@ -496,15 +518,21 @@ def map_figure(
         true_edges = np.asarray(terrain_info.edges_xz_m)
         ax.plot(true_edges[:, 0], true_edges[:, 1], "kx", ms=8, label="true edges")
     if cams.size:
-        ax.plot(cams[:, 0], cams[:, 1], "-", color="tab:purple", lw=1, label="camera (keyframes)")
+        shown_cams = cams[plot_indices(cams)]
+        ax.plot(
+            shown_cams[:, 0],
+            shown_cams[:, 1],
+            "-",
+            color="tab:purple",
+            lw=1,
+            label="camera (keyframes)",
+        )
     if geometry is not None:
         _draw_geometry(ax, geometry)
-        ax.set_title(title or f"terrain map: {geometry.kind.value}")
+        ax.set_title(title or f"terrain map: {geometry.kind.value}", y=1.0)
     elif title:
-        ax.set_title(title)
+        ax.set_title(title, y=1.0)
     # zoom to what was mapped (and the camera that mapped it), not the whole true profile
-    from vio_graph.viz.plots import zoom_limits
-
     limits = zoom_limits(
         [pts, cams] + ([_geometry_points(geometry)] if geometry else []), margin_m=0.15
     )
@@ -522,34 +550,22 @@ def map_figure(
         return fig
     handles, labels = ax.get_legend_handles_labels()
     side.legend(handles, labels, loc="lower left", fontsize=8, frameon=False)
-    shown = rows[:24]
-    table = side.table(
-        cellText=shown,
-        colLabels=(
-            ["#", "kind", "rise or\nheight [mm]", "tread or\ndepth [mm]", "edge x, z [m]"]
-            if geometry.obstacles
-            else ["#", "kind", "rise\n[mm]", "tread\n[mm]", "nosing x, z [m]"]
-        ),
-        loc="upper center",
-        cellLoc="center",
-        colWidths=[0.08, 0.14, 0.24, 0.24, 0.3],
+    # the table as one monospaced text block (one text artist instead of one per cell)
+    headers = (
+        ["#", "kind", "rise/height mm", "tread/depth mm", "edge x, z m"]
+        if geometry is not None and geometry.obstacles
+        else ["#", "kind", "rise mm", "tread mm", "nosing x, z m"]
     )
-    table.auto_set_font_size(False)
-    table.set_fontsize(8)
-    table.scale(1.0, 1.25)
-    for (r, _c), cell in table.get_celld().items():
-        cell.set_linewidth(0.3)
-        if r == 0:
-            cell.set_height(cell.get_height() * 1.8)
-    if len(rows) > len(shown):
-        side.text(
-            0.5,
-            0.0,
-            f"... {len(rows) - len(shown)} more in steps.csv",
-            ha="center",
-            fontsize=7,
-            transform=side.transAxes,
-        )
+    side.text(
+        0.0,
+        1.0,
+        step_table_text(rows, headers, MAP_TABLE_ROWS),
+        family="monospace",
+        fontsize=8,
+        va="top",
+        linespacing=1.35,
+        transform=side.transAxes,
+    )
     return fig
 
 
@@ -574,17 +590,20 @@ def _draw_geometry(ax: Any, geometry: TerrainGeometry) -> None:
             alpha=0.8,
             label="risers" if i == 0 else None,
         )
-    for i, s in enumerate(geometry.steps):
+    if geometry.steps:  # one errorbar artist for every nosing
+        nosing = np.array([s.nosing_xz_m for s in geometry.steps], dtype=float)
+        sigma3 = 3 * np.array([s.nosing_std_xz_m for s in geometry.steps], dtype=float)
         ax.errorbar(
-            s.nosing_xz_m[0],
-            s.nosing_xz_m[1],
-            xerr=3 * s.nosing_std_xz_m[0],
-            yerr=3 * s.nosing_std_xz_m[1],
+            nosing[:, 0],
+            nosing[:, 1],
+            xerr=sigma3[:, 0],
+            yerr=sigma3[:, 1],
             fmt="o",
             color="tab:red",
             ms=5,
-            label="nosings (3 sigma), numbered as in the table" if i == 0 else None,
+            label="nosings (3 sigma), numbered as in the table",
         )
+    for i, s in enumerate(geometry.steps):
         # the step number only, up and to the left of the nosing (above the riser, clear of
         # the tread): short labels do not collide, the numbers are in the table
         ax.annotate(

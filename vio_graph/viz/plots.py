@@ -1,4 +1,10 @@
-"""PNG plots of a run (matplotlib, Agg backend; no display needed)."""
+"""PNG plots of a run (matplotlib figures on an Agg canvas; no display, no pyplot).
+
+The figures of ``vio-graph run`` (overview, clearance) use a fixed layout (no constrained or
+tight layout pass, which lays every text out a second time) and draw every line from at most
+:data:`vio_graph.viz.decimate.MAX_LINE_POINTS` points that keep its extremes
+(:func:`vio_graph.viz.decimate.plot_indices`), so their cost does not grow with the trial.
+"""
 
 from __future__ import annotations
 
@@ -11,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vio_graph.io_utils import atomic_path
+from vio_graph.viz.decimate import plot_indices
 
 MODE_STYLE = {
     "filter": ("tab:orange", "-"),
@@ -33,13 +40,23 @@ def _quiet_axes_log():
         logger.setLevel(level)
 
 
-def _plt():
-    import matplotlib
+def new_figure(**kwargs: Any) -> Any:
+    """A matplotlib Figure on its own Agg canvas (not registered with pyplot, so nothing to
+    close and no GUI backend); ``kwargs`` go to ``Figure``."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    fig = Figure(**kwargs)
+    FigureCanvasAgg(fig)
+    return fig
 
-    return plt
+
+def _line(ax: Any, x: NDArray[np.float64], y: NDArray[np.float64], *args: Any, **kw: Any) -> Any:
+    """``ax.plot(x, y, ...)`` through at most MAX_LINE_POINTS points keeping the extremes of
+    both coordinates (a path in the x-z plane or a series against time alike)."""
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    keep = plot_indices(np.column_stack([x, y]))
+    return ax.plot(x[keep], y[keep], *args, **kw)
 
 
 def zoom_limits(
@@ -68,11 +85,9 @@ def plot_run_overview(
     metrics: dict[str, Any],
 ) -> Path:
     """Write :func:`overview_figure` as a PNG (atomically)."""
-    plt = _plt()
     fig = overview_figure(rec, t_s, paths, metrics)
     with atomic_path(Path(path), suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110)
-    plt.close(fig)
     return Path(path)
 
 
@@ -86,9 +101,19 @@ def overview_figure(
     each, zoomed to the trial (ground truth and fused estimates); right: toe x and z against
     time. Colour = estimator (ground truth green), the same in every panel; every line is in a
     legend with its toe ATE."""
-    plt = _plt()
-    fig = plt.figure(figsize=(13, 8), constrained_layout=True)
-    gs = fig.add_gridspec(2, 2, width_ratios=[1.2, 1])
+    fig = new_figure(figsize=(13, 8))
+    # fixed margins (fractions of the 13 x 8 in figure) instead of a layout engine: one text pass
+    gs = fig.add_gridspec(
+        2,
+        2,
+        width_ratios=[1.2, 1],
+        left=0.055,
+        right=0.99,
+        bottom=0.06,
+        top=0.965,
+        wspace=0.12,
+        hspace=0.22,
+    )
     prof = np.asarray(rec.metadata.terrain.profile_xz_m, dtype=float)
     gt = rec.groundtruth
     ate = metrics.get("ate_cm", {})
@@ -105,16 +130,16 @@ def overview_figure(
             ax.fill_between(
                 prof[:, 0], prof[:, 1], prof[:, 1].min() - 1.0, color="0.88", label="terrain (true)"
             )
-            ax.plot(prof[:, 0], prof[:, 1], color="0.35", lw=1)
+            _line(ax, prof[:, 0], prof[:, 1], color="0.35", lw=1)
         zoom = []
         if gt is not None:
             g = gt.trajectories[body].position_m[:, [0, 2]]
-            ax.plot(g[:, 0], g[:, 1], color="tab:green", lw=2.2, alpha=0.8, label="ground truth")
+            _line(ax, g[:, 0], g[:, 1], color="tab:green", lw=2.2, alpha=0.8, label="ground truth")
             zoom.append(g)
         for mode in modes:
             c, ls = MODE_STYLE[mode]
             xz = paths[mode][body]
-            ax.plot(xz[:, 0], xz[:, 1], color=c, ls=ls, lw=1.2, label=label(mode, body))
+            _line(ax, xz[:, 0], xz[:, 1], color=c, ls=ls, lw=1.2, label=label(mode, body))
             if mode != "icp_only" or gt is None:
                 zoom.append(xz)
         limits = zoom_limits(zoom)
@@ -132,14 +157,15 @@ def overview_figure(
         ax.set_ylim(*ylim)
         ax.set_xlabel("x forward (m)")
         ax.set_ylabel("z up (m)")
-        ax.set_title(f"{title}: {body} path (sagittal plane)")
+        ax.set_title(f"{title}: {body} path (sagittal plane)", y=1.0)  # y: no auto-placement
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize=8)
     for row, (axis, k) in enumerate((("x", 0), ("z", 1))):
         a = fig.add_subplot(gs[row, 1])
         if gt is not None:
             g = gt.trajectories["toe"]
-            a.plot(
+            _line(
+                a,
                 g.timestamp_s,
                 g.position_m[:, 0 if k == 0 else 2],
                 color="tab:green",
@@ -151,10 +177,10 @@ def overview_figure(
             c, ls = MODE_STYLE[mode]
             v = ate.get(mode, {}).get("toe", {}).get(axis)
             lbl = mode + (f" (ATE {v:.1f} cm)" if v is not None else "")
-            a.plot(t_s, paths[mode]["toe"][:, k], color=c, ls=ls, lw=1.1, label=lbl)
+            _line(a, t_s, paths[mode]["toe"][:, k], color=c, ls=ls, lw=1.1, label=lbl)
         a.set_ylabel(f"toe {axis} (m)")
         a.set_xlabel("time (s)")
-        a.set_title(f"toe {axis} against time")
+        a.set_title(f"toe {axis} against time", y=1.0)
         a.grid(alpha=0.3)
         a.legend(fontsize=8, loc="best")
     return fig
@@ -165,11 +191,9 @@ def plot_toe_bands(path: Path, runs, modes: tuple[str, ...] = ("filter", "smooth
     over trials of each mode's estimate (band) and of the ground truth (line)."""
     from vio_graph.recording.tum import read_tum
 
-    plt = _plt()
     exps = list(dict.fromkeys(r.experiment for r in runs))
-    fig, axes = plt.subplots(
-        2, len(exps), figsize=(4.2 * len(exps), 6.5), squeeze=False, constrained_layout=True
-    )
+    fig = new_figure(figsize=(4.2 * len(exps), 6.5), layout="constrained")
+    axes = fig.subplots(2, len(exps), squeeze=False)
     for col, exp in enumerate(exps):
         rs = [r for r in runs if r.experiment == exp]
         series: dict[str, list[NDArray[np.float64]]] = {m: [] for m in (*modes, "gt")}
@@ -214,20 +238,19 @@ def plot_toe_bands(path: Path, runs, modes: tuple[str, ...] = ("filter", "smooth
             ax.legend(fontsize=7)
     with atomic_path(Path(path), suffix=".png") as tmp:
         fig.savefig(tmp, dpi=90)
-    plt.close(fig)
     return Path(path)
 
 
 def plot_batch_summary(path: Path, rows: list[dict[str, Any]]) -> Path:
     """``vio-graph batch``: toe ATE x and z (cm) per trial (and config), one bar per mode,
     every mode named in the legend; a failed task is a red 'failed' mark in its slot."""
-    plt = _plt()
     groups = list(dict.fromkeys((r["trial"], r["config"]) for r in rows))
     n_cfg = len({c for _, c in groups})
     modes = list(dict.fromkeys(r["mode"] for r in rows))
     labels = [t if n_cfg == 1 else f"{t}\n{c}" for t, c in groups]
     width_in = min(18.0, max(6.0, 0.35 * len(groups) * max(1, len(modes)) + 2.5))
-    fig, axes = plt.subplots(2, 1, figsize=(width_in, 6.0), sharex=True, constrained_layout=True)
+    fig = new_figure(figsize=(width_in, 6.0), layout="constrained")
+    axes = fig.subplots(2, 1, sharex=True)
     bar_w = 0.8 / max(1, len(modes))
     x0 = np.arange(len(groups), dtype=float)
     by = {(r["trial"], r["config"], r["mode"]): r for r in rows}
@@ -275,7 +298,6 @@ def plot_batch_summary(path: Path, rows: list[dict[str, Any]]) -> Path:
     )
     with atomic_path(Path(path), suffix=".png") as tmp:
         fig.savefig(tmp, dpi=100)
-    plt.close(fig)
     return Path(path)
 
 
@@ -287,41 +309,45 @@ def plot_clearance(
 ) -> Path:
     """plots/clearance.png: the online toe clearance (cm) with its 1-sigma band, the predicted
     minimum clearance, the truth when known, near-trip warnings and landings."""
-    plt = _plt()
 
     def col(name: str) -> NDArray[np.float64]:
         return np.array([getattr(s, name) if s is not None else np.nan for s in safety], float)
 
     t = np.asarray(t_s, dtype=float)[: len(safety)]
     c, sig = col("clearance_m") * 100, col("clearance_sigma_m") * 100
-    fig, ax = plt.subplots(figsize=(10, 3.6))
+    pred = col("predicted_min_clearance_m") * 100
+    true_c = truth["clearance_m"][: len(t)] * 100 if truth is not None else np.full(len(t), np.nan)
+    # one subset for all four series: the band edges stay paired with the line they surround
+    keep = plot_indices(np.column_stack([c - sig, c + sig, pred, true_c]))
+    fig = new_figure(figsize=(10, 3.6))
+    ax = fig.add_subplot(1, 1, 1)
+    fig.subplots_adjust(left=0.065, right=0.99, bottom=0.13, top=0.97)  # fixed: no tight pass
+    tk = t[keep]
     ax.fill_between(
-        t, c - sig, c + sig, color="tab:blue", alpha=0.25, lw=0, label="estimate 1-sigma"
+        tk,
+        (c - sig)[keep],
+        (c + sig)[keep],
+        color="tab:blue",
+        alpha=0.25,
+        lw=0,
+        label="estimate 1-sigma",
     )
-    ax.plot(t, c, color="tab:blue", lw=1.2, label="clearance (filter)")
-    ax.plot(
-        t,
-        col("predicted_min_clearance_m") * 100,
-        color="tab:orange",
-        lw=0.8,
-        label="predicted minimum over the horizon",
-    )
+    ax.plot(tk, c[keep], color="tab:blue", lw=1.2, label="clearance (filter)")
+    ax.plot(tk, pred[keep], color="tab:orange", lw=0.8, label="predicted minimum over the horizon")
     if truth is not None:
-        ax.plot(t, truth["clearance_m"][: len(t)] * 100, color="k", lw=1.0, ls="--", label="truth")
+        ax.plot(tk, true_c[keep], color="k", lw=1.0, ls="--", label="truth")
     warn = np.array([bool(s.near_trip_warning) if s is not None else False for s in safety])
     land = np.array([bool(s.landing) if s is not None else False for s in safety])
     if warn.any():
         ax.plot(t[warn], np.zeros(int(warn.sum())), "rv", ms=4, label="near-trip warning")
-    for x in t[land]:
-        ax.axvline(x, color="0.6", lw=0.6)
+    if land.any():  # one collection of full-height lines instead of one axvline per landing
+        ax.vlines(t[land], 0.0, 1.0, transform=ax.get_xaxis_transform(), color="0.6", lw=0.6)
     ax.axhline(2.0, color="r", lw=0.6, ls=":")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("foot clearance (cm)")
     ax.set_ylim(-3, 30)
     ax.legend(loc="upper right", fontsize=7, ncol=3)
-    fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(Path(path), suffix=".png") as tmp:
         fig.savefig(tmp, dpi=100)
-    plt.close(fig)
     return Path(path)

@@ -16,9 +16,20 @@ data is shown in 3D at y = 0. Entity layout:
 - ``world/map``                 2D map points and step edges
 - ``plots/...``                 scalar time series (errors, status)
 
-Time series (the camera pose and the ``plots/`` scalars) are collected during the run and sent
-with ``rr.send_columns`` when the recording is closed, one call per entity instead of one
-``rr.log`` per sample; images, clouds and leg links are logged frame by frame.
+Nothing is logged one frame at a time. The time series (the camera pose and the ``plots/``
+scalars) are collected during the run and sent with ``rr.send_columns`` when the recording is
+closed, one call per entity. The per-frame entities (depth image, cloud, slice, features, ICP
+matches, clearance line, leg links, map) are collected as rows (time, instances, radius,
+colour) and sent the same way every :data:`FLUSH_ROWS` rows and at close, so memory stays
+bounded on long trials and an entity costs one archetype construction per batch instead of
+one per frame. The rows are the ones ``rr.log`` would have written (same components, one
+radius and one colour per row), without rerun's ``log_time`` wall-clock timeline.
+
+What is logged how often (vio_graph/viz/run_view.py): depth image, slice, features, ICP
+matches, leg links and scalars every frame; the 3D cloud every
+``output.cloud_every_n_frames``-th frame (default 3) at every ``output.cloud_pixel_stride``-th
+pixel (default 3): the viewer back-projects the full depth image through the pinhole anyway,
+the cloud is the world-frame overlay.
 """
 
 from __future__ import annotations
@@ -41,8 +52,11 @@ _COLORS = {
 
 
 def _xz_to_xyz(xz: NDArray[np.float64]) -> NDArray[np.float64]:
-    xz = np.atleast_2d(np.asarray(xz, dtype=float))
-    return np.column_stack([xz[:, 0], np.zeros(xz.shape[0]), xz[:, 1]])
+    """Sagittal points (N, 2) or one (2,), metres, as (N, 3) at y = 0."""
+    xz = np.asarray(xz, dtype=float).reshape(-1, 2)
+    xyz = np.zeros((xz.shape[0], 3))
+    xyz[:, 0::2] = xz
+    return xyz
 
 
 class NullVisualizer:
@@ -59,6 +73,31 @@ class NullVisualizer:
     def log_scalar(self, name, value: float) -> None: ...
     def close(self) -> None: ...
     def abort(self) -> None: ...
+
+
+#: rows of a per-frame entity collected before they are sent (5 s at 30 frames/s; about 6 MB
+#: of depth images at 112 x 86 pixels)
+FLUSH_ROWS = 150
+
+
+class _Rows:
+    """The rows of one per-frame entity not yet sent: per row the time stamp (s), the
+    instances (points (n, 3), strips (k, m, 3) or a depth image (h, w), metres), one radius
+    (m) and one RGB colour."""
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind  # "points" | "strips" | "depth"
+        self.times_s: list[float] = []
+        self.data: list[NDArray[np.floating]] = []
+        self.radii: list[float] = []
+        self.colors: list[tuple[int, int, int]] = []
+
+    def add(self, t_s: float, data, radius_m: float = 0.0, color=(0, 0, 0)) -> int:
+        self.times_s.append(t_s)
+        self.data.append(data)
+        self.radii.append(radius_m)
+        self.colors.append(color)
+        return len(self.times_s)
 
 
 class Visualizer(NullVisualizer):
@@ -84,10 +123,18 @@ class Visualizer(NullVisualizer):
             [],
             [],
         )
+        # per-frame entities, sent as columns every FLUSH_ROWS rows and by close()
+        self._rows: dict[str, _Rows] = {}
 
     def set_time(self, timestamp_s: float) -> None:
         self._t_s = float(timestamp_s)
-        self._rec.set_time("time", duration=self._t_s)
+
+    def _add(self, entity: str, kind: str, data, radius_m: float = 0.0, color=(0, 0, 0)) -> None:
+        rows = self._rows.get(entity)
+        if rows is None:
+            rows = self._rows[entity] = _Rows(kind)
+        if rows.add(self._t_s, data, radius_m, tuple(color)) >= FLUSH_ROWS:
+            self._flush(entity)
 
     def log_terrain(self, vertices_m, triangles, profile_xz_m) -> None:
         rr = self._rr
@@ -127,41 +174,30 @@ class Visualizer(NullVisualizer):
             )
             self._pinhole_logged = True
         if depth_m is not None:
-            self._rec.log(
-                "world/camera/image/depth",
-                rr.DepthImage(np.asarray(depth_m, dtype=np.float32), meter=1.0),
-            )
+            # a copy: the caller's frame buffer may be reused before the rows are sent
+            self._add("world/camera/image/depth", "depth", np.array(depth_m, dtype=np.float32))
 
     def log_cloud(self, points_world_m) -> None:
-        pts = np.asarray(points_world_m, dtype=np.float32)
-        self._rec.log("world/cloud", self._rr.Points3D(pts, radii=0.002, colors=[(120, 140, 200)]))
+        pts = np.asarray(points_world_m, dtype=np.float32).reshape(-1, 3)
+        self._add("world/cloud", "points", pts, 0.002, (120, 140, 200))
 
     def log_sagittal(self, name, points_xz_m, radius_m: float = 0.004, color=None) -> None:
-        self._rec.log(
-            f"world/{name}",
-            self._rr.Points3D(
-                _xz_to_xyz(points_xz_m), radii=radius_m, colors=[color or (250, 200, 0)]
-            ),
+        self._add(
+            f"world/{name}", "points", _xz_to_xyz(points_xz_m), radius_m, color or (250, 200, 0)
         )
 
     def log_segments(self, name, starts_xz_m, ends_xz_m, color=None) -> None:
-        a, b = _xz_to_xyz(starts_xz_m), _xz_to_xyz(ends_xz_m)
-        self._rec.log(
-            f"world/{name}",
-            self._rr.LineStrips3D(
-                np.stack([a, b], axis=1), colors=[color or (255, 0, 255)], radii=0.001
-            ),
-        )
+        strips = np.stack([_xz_to_xyz(starts_xz_m), _xz_to_xyz(ends_xz_m)], axis=1)
+        self._add(f"world/{name}", "strips", strips, 0.001, color or (255, 0, 255))
 
     def log_leg(self, name, points_xz_m) -> None:
         color = _COLORS["gt"] if name.endswith("gt") else _COLORS["est"]
-        self._rec.log(
-            f"world/leg/{name}",
-            self._rr.LineStrips3D([_xz_to_xyz(points_xz_m)], colors=[color], radii=0.006),
-        )
+        self._add(f"world/leg/{name}", "strips", _xz_to_xyz(points_xz_m)[None], 0.006, color)
 
     def log_path(self, name, xz_m, static: bool = True) -> None:
         kind = name.split("/")[0]
+        if not static:
+            self._rec.set_time("time", duration=self._t_s)
         self._rec.log(
             f"world/{name}",
             self._rr.LineStrips3D(
@@ -181,9 +217,59 @@ class Visualizer(NullVisualizer):
         ns = np.array([round(1e9 * t) for t in times_s], dtype=np.int64)
         return self._rr.TimeColumn("time", duration=ns.astype("timedelta64[ns]"))
 
+    def _flush(self, entity: str) -> None:
+        """Send the collected rows of one per-frame entity with one ``send_columns`` call:
+        the instances partitioned by row, one radius and one colour per row."""
+        rr, rows = self._rr, self._rows.pop(entity, None)
+        if rows is None or not rows.times_s:
+            return
+        n = len(rows.times_s)
+        if rows.kind == "depth":
+            fmt = [
+                rr.components.ImageFormat(
+                    width=d.shape[1], height=d.shape[0], channel_datatype=rr.ChannelDatatype.F32
+                )
+                for d in rows.data
+            ]
+            columns = rr.DepthImage.columns(
+                buffer=[d.reshape(-1).view(np.uint8) for d in rows.data],
+                format=fmt,
+                meter=np.ones(n, dtype=np.float32),
+            )
+        else:
+            archetype = rr.Points3D if rows.kind == "points" else rr.LineStrips3D
+            lengths = [len(d) for d in rows.data]
+            if rows.kind == "points":
+                instances = archetype.columns(
+                    positions=np.concatenate(rows.data).astype(np.float32).reshape(-1, 3)
+                )
+            elif len({d.shape[1] for d in rows.data}) == 1:  # equal-length strips: one array
+                instances = archetype.columns(
+                    strips=np.concatenate(rows.data)
+                    .astype(np.float32)
+                    .reshape(-1, *rows.data[0].shape[1:])
+                )
+            else:
+                instances = archetype.columns(strips=[s for d in rows.data for s in d])
+            columns = [
+                *instances.partition(lengths),
+                *archetype.columns(
+                    radii=np.asarray(rows.radii, dtype=np.float32),
+                    colors=np.asarray(rows.colors, dtype=np.uint8).reshape(n, 3),
+                ),
+            ]
+        rr.send_columns(
+            entity,
+            indexes=[self._time_column(rows.times_s)],
+            columns=columns,
+            recording=self._rec,
+        )
+
     def _send_time_series(self) -> None:
         """The collected time series, one ``send_columns`` call per entity."""
         rr = self._rr
+        for entity in list(self._rows):
+            self._flush(entity)
         times, translations, rotations = self._camera
         if times:
             rr.send_columns(

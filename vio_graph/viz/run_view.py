@@ -118,10 +118,11 @@ class RunView:
         if sf is not None and np.isfinite(sf.predicted_min_clearance_m):
             viz.log_scalar("clearance_cm/predicted_min", 100 * sf.predicted_min_clearance_m)
         if self.gt is not None:
-            pts = [
+            knee, ankle, heel, toe = (
                 self.gt.trajectories[b].xz_at(est.timestamp_s)
-                for b in ("knee", "ankle", "heel", "toe", "ankle")
-            ]
+                for b in ("knee", "ankle", "heel", "toe")
+            )
+            pts = [knee, ankle, heel, toe, ankle]
             viz.log_leg("gt", np.vstack(pts))
             toe_err = est.toe_xz_m - pts[3]
             viz.log_scalar("error_cm/toe_x", 100 * toe_err[0])

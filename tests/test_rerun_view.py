@@ -1,0 +1,216 @@
+"""The .rrd written in columns holds what one ``rr.log`` per frame would have written, and the
+recording of data/sample has the documented entities with one row per frame."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+rr = pytest.importorskip("rerun")
+from rerun.chunk import RrdReader  # noqa: E402
+
+from vio_graph.viz import rerun_logger  # noqa: E402
+from vio_graph.viz.rerun_logger import Visualizer, _xz_to_xyz  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+IGNORED = ("rerun.controls.RowId", "log_time", "time")
+
+
+def rrd_content(path: Path) -> dict[tuple[str, str], list[tuple[Any, Any]]]:
+    """(entity, component) -> sorted (time, value) rows of a .rrd, whatever the chunking;
+    the recording properties, row ids and rerun's wall-clock ``log_time`` left out."""
+    out: dict[tuple[str, str], list[tuple[Any, Any]]] = {}
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path == "/__properties":
+            continue
+        batch = chunk.to_record_batch()
+        cols = batch.to_pydict()
+        times = cols.get("time", [None] * batch.num_rows)
+        for name in batch.schema.names:
+            if name not in IGNORED:
+                rows = out.setdefault((chunk.entity_path, name), [])
+                rows += list(zip(times, cols[name], strict=True))
+    return {k: sorted(v, key=repr) for k, v in out.items()}
+
+
+def rrd_rows(path: Path) -> dict[str, dict[str, Any]]:
+    """Per entity: static rows, rows on the time line, component columns."""
+    out: dict[str, dict[str, Any]] = {}
+    for chunk in RrdReader(path).stream():
+        e = out.setdefault(chunk.entity_path, {"static": 0, "rows": 0, "columns": set()})
+        e["static" if chunk.is_static else "rows"] += chunk.num_rows
+        e["columns"] |= set(chunk.to_record_batch().schema.names) - set(IGNORED)
+    return out
+
+
+def _frames(n: int = 11) -> list[dict[str, Any]]:
+    rng = np.random.default_rng(7)
+    return [
+        {
+            "t": 0.1 + i / 30.0,
+            "depth": rng.uniform(0.2, 2.0, (6, 8)).astype(np.float32),
+            "cloud": rng.normal(size=(int(rng.integers(0, 5)), 3)),
+            "slice": rng.normal(size=(int(rng.integers(1, 6)), 2)),
+            "icp": rng.normal(size=(int(rng.integers(0, 4)), 2, 2)),
+            "leg": rng.normal(size=(5, 2)),
+            "warn": bool(i % 4 == 0),
+            "err": float(rng.normal()),
+        }
+        for i in range(n)
+    ]
+
+
+def _log_frames(viz: Visualizer, frames: list[dict[str, Any]]) -> None:
+    K = np.array([[100.0, 0, 4], [0, 100.0, 3], [0, 0, 1]])
+    viz.log_terrain(np.zeros((3, 3)), np.array([[0, 1, 2]]), np.array([[0.0, 0.0], [1.0, 0.1]]))
+    for i, f in enumerate(frames):
+        viz.set_time(f["t"])
+        viz.log_camera(np.array([i, 0.0, 1.0]), np.eye(3), K, 8, 6, f["depth"])
+        if i % 3 == 0:
+            viz.log_cloud(f["cloud"])
+        viz.log_sagittal("slice", f["slice"], 0.002, (250, 200, 0))
+        viz.log_segments("icp", f["icp"][:, 0], f["icp"][:, 1])
+        viz.log_segments(
+            "clearance", f["leg"][:1], f["leg"][1:2], (255, 0, 160) if f["warn"] else None
+        )
+        viz.log_leg("est", f["leg"])
+        viz.log_scalar("error_cm/toe_x", f["err"])
+    viz.log_sagittal("map", frames[0]["slice"], 0.003, (90, 90, 255))
+    viz.log_path("est/toe", frames[1]["slice"])
+    viz.close()
+
+
+def _reference(path: Path, frames: list[dict[str, Any]]) -> None:
+    """The same frames through one ``rr.log`` per entity and frame (the way of the logger
+    before it sent columns)."""
+    rec = rr.RecordingStream("vio_graph")
+    rec.save(str(path))
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    K = np.array([[100.0, 0, 4], [0, 100.0, 3], [0, 0, 1]])
+    rec.log(
+        "world/terrain/mesh",
+        rr.Mesh3D(
+            vertex_positions=np.zeros((3, 3), np.float32),
+            triangle_indices=np.array([[0, 1, 2]], np.uint32),
+            albedo_factor=[0.75, 0.75, 0.78, 0.6],
+        ),
+        static=True,
+    )
+    rec.log(
+        "world/terrain/profile",
+        rr.LineStrips3D([_xz_to_xyz(np.array([[0.0, 0.0], [1.0, 0.1]]))], colors=[(60, 60, 60)]),
+        static=True,
+    )
+    rec.log(
+        "world/camera/image",
+        rr.Pinhole(image_from_camera=K, width=8, height=6, image_plane_distance=0.1),
+        static=True,
+    )
+
+    def strips(name, a, b, color, radius=0.001):
+        s = np.stack([_xz_to_xyz(a), _xz_to_xyz(b)], axis=1)
+        rec.log(name, rr.LineStrips3D(s, colors=[color], radii=radius))
+
+    for i, f in enumerate(frames):
+        rec.set_time("time", duration=f["t"])
+        rec.log("world/camera", rr.Transform3D(translation=[i, 0.0, 1.0], mat3x3=np.eye(3)))
+        rec.log("world/camera/image/depth", rr.DepthImage(f["depth"], meter=1.0))
+        if i % 3 == 0:
+            pts = f["cloud"].astype(np.float32)
+            rec.log("world/cloud", rr.Points3D(pts, radii=0.002, colors=[(120, 140, 200)]))
+        rec.log(
+            "world/slice",
+            rr.Points3D(_xz_to_xyz(f["slice"]), radii=0.002, colors=[(250, 200, 0)]),
+        )
+        strips("world/icp", f["icp"][:, 0], f["icp"][:, 1], (255, 0, 255))
+        color = (255, 0, 160) if f["warn"] else (255, 0, 255)
+        strips("world/clearance", f["leg"][:1], f["leg"][1:2], color)
+        rec.log(
+            "world/leg/est",
+            rr.LineStrips3D([_xz_to_xyz(f["leg"])], colors=[(230, 120, 20)], radii=0.006),
+        )
+        rec.log("plots/error_cm/toe_x", rr.Scalars(f["err"]))
+    rec.log(
+        "world/map",
+        rr.Points3D(_xz_to_xyz(frames[0]["slice"]), radii=0.003, colors=[(90, 90, 255)]),
+    )
+    rec.log(
+        "world/est/toe",
+        rr.LineStrips3D([_xz_to_xyz(frames[1]["slice"])], colors=[(230, 120, 20)], radii=0.0015),
+        static=True,
+    )
+    rec.flush()
+    rec.disconnect()
+
+
+def test_columns_hold_what_per_frame_logging_held(tmp_path: Path, monkeypatch) -> None:
+    """Every entity, component and value of the per-frame ``rr.log`` reference, across several
+    flushes (4 rows each) and with frames that have no ICP match or cloud point."""
+    monkeypatch.setattr(rerun_logger, "FLUSH_ROWS", 4)
+    frames = _frames()
+    viz = Visualizer(tmp_path / "cols.rrd")
+    _log_frames(viz, frames)
+    _reference(tmp_path / "ref.rrd", frames)
+    got, want = rrd_content(tmp_path / "cols.rrd"), rrd_content(tmp_path / "ref.rrd")
+    assert sorted(got) == sorted(want)
+    for key in want:
+        assert got[key] == want[key], key
+    assert not list(tmp_path.glob("*.partial"))
+
+
+def test_sample_recording_entities_and_lengths(tmp_path: Path) -> None:
+    """data/sample, filter mode: the entity paths of the docs, one row per frame for the time
+    series, the camera, the depth image, slice, ICP and leg links; a cloud every third frame."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.pipeline import run_recording
+
+    res = run_recording(ROOT / "data" / "sample", tmp_path / "r", PipelineConfig(), progress=False)
+    n = res.metrics["frames"]
+    rows = rrd_rows(res.out_dir / "run.rrd")
+    expected = {
+        "/__properties",
+        "/world",
+        "/world/terrain/mesh",
+        "/world/terrain/profile",
+        "/world/camera",
+        "/world/camera/image",
+        "/world/camera/image/depth",
+        "/world/cloud",
+        "/world/slice",
+        "/world/features",
+        "/world/icp",
+        "/world/clearance",
+        "/world/leg/est",
+        "/world/leg/gt",
+        "/world/map",
+        *(f"/world/gt/{b}" for b in ("camera", "toe", "knee")),
+        *(f"/world/{m}/{b}" for m in ("est", "imu_only", "icp_only") for b in ("camera", "toe")),
+        "/plots/status/fused",
+        "/plots/error_cm/toe_x",
+        "/plots/error_cm/toe_z",
+        "/plots/clearance_cm/estimate",
+        "/plots/clearance_cm/sigma",
+        "/plots/clearance_cm/predicted_min",
+    }
+    assert set(rows) == expected
+    for entity in (
+        "/plots/status/fused",
+        "/plots/error_cm/toe_x",
+        "/plots/error_cm/toe_z",
+        "/world/camera",
+        "/world/camera/image/depth",
+        "/world/slice",
+        "/world/leg/est",
+        "/world/leg/gt",
+    ):
+        assert rows[entity]["rows"] == n, entity
+    stride = PipelineConfig().output.cloud_every_n_frames
+    assert rows["/world/cloud"]["rows"] == math.ceil(n / stride)
+    assert 0 < rows["/world/icp"]["rows"] <= n
+    assert rows["/world/camera/image/depth"]["columns"] >= {"DepthImage:buffer", "DepthImage:meter"}
+    assert "Pinhole:image_from_camera" in rows["/world/camera/image"]["columns"]
+    assert rows["/world/camera/image"]["static"] == 1 and rows["/world/est/toe"]["static"] == 1

@@ -1,0 +1,449 @@
+"""Compiled (numba) versions of the safety monitor's per-frame geometry and map updates: the
+same loops as the numpy reference (vio_graph/safety/clearance.py, height_map.py), without
+numpy's per-call overhead on a few hundred bins.
+
+The public functions here have the signatures and results of their reference namesakes
+(:func:`foot_clearance`, :func:`clearance_many`, :func:`edge_clearance_many`,
+:func:`coverage`, :func:`edge_runs`) or of the map's steps (:func:`keyframe_tops`,
+:func:`add_tops`). The arithmetic is the reference's, operation for operation; where numpy
+sums or multiplies in another order (its pairwise sums, BLAS products) the answers differ by
+rounding only (tests/test_safety_incremental.py: 1e-9 m).
+
+numba is imported only here, and this module only when the compiled paths are switched on
+(:func:`vio_graph.safety.online.compiled_geometry`); ``cache=True``: compiled once per
+machine, then loaded from ``__pycache__``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vio_graph.safety.clearance import (
+    MAX_TRANSITION_BIN_M,
+    NO_CLEARANCE,
+    SLOPE_STEP_M,
+    Clearance,
+    Edges,
+    HeightProfile,
+)
+
+# ---------------------------------------------------------------------------------------------
+# foot to terrain
+
+
+@numba.njit(cache=True)
+def _point_to_columns(px, pz, lo, hi, z, d, cx, cz):  # pragma: no cover - compiled
+    """In place: signed distance ``d`` (B,) from (px, pz) to each column and the closest
+    column points ``cx``, ``cz`` (clearance._point_to_columns)."""
+    B = z.shape[0]
+    k = -1
+    for i in range(B):
+        x = min(max(px, lo[i]), hi[i])
+        zz = min(pz, z[i])
+        cx[i] = x
+        cz[i] = zz
+        d[i] = math.hypot(px - x, pz - zz)
+        if k < 0 and px >= lo[i] and px <= hi[i] and pz < z[i]:
+            k = i
+    if k < 0:
+        return
+    # the way out sideways (to where the terrain is lower than the point, or past the known
+    # bins' ends) and up (the nearest point of a column top above the point)
+    xl = lo[0]
+    xr = hi[B - 1]
+    best_up = np.inf
+    tx_best = 0.0
+    tz_best = 0.0
+    for i in range(B):
+        if z[i] <= pz:
+            if hi[i] <= px:
+                xl = max(xl, hi[i])
+            if lo[i] >= px:
+                xr = min(xr, lo[i])
+        else:
+            tx = min(max(px, lo[i]), hi[i])
+            up = math.hypot(tx - px, z[i] - pz)
+            if up < best_up:
+                best_up, tx_best, tz_best = up, tx, z[i]
+    for i in range(B):
+        if px >= lo[i] and px <= hi[i] and pz < z[i]:
+            d[i] = np.inf
+    depth0, depth1, depth2 = best_up, px - xl, xr - px
+    if depth1 < depth0 and depth1 <= depth2:
+        d[k], cx[k], cz[k] = -depth1, xl, pz
+    elif depth2 < depth0 and depth2 < depth1:
+        d[k], cx[k], cz[k] = -depth2, xr, pz
+    else:
+        d[k], cx[k], cz[k] = -depth0, tx_best, tz_best
+
+
+@numba.njit(cache=True)
+def _corner_distance(ax, az, bx, bz, ex, ez):  # pragma: no cover - compiled
+    """clearance._corners_to_segment for one corner: (signed distance, closest x, z)."""
+    dx, dz = bx - ax, bz - az
+    L2 = dx * dx + dz * dz
+    s = 0.0
+    if L2 != 0:
+        s = min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
+    qx, qz = ax + s * dx, az + s * dz
+    d = math.hypot(ex - qx, ez - qz)
+    x0, x1 = min(ax, bx), max(ax, bx)
+    if x1 - x0 > 1e-12:
+        z_line = az + (ex - ax) * dz / dx
+        if ex > x0 and ex < x1 and ez > z_line:
+            d = -min(ez - z_line, min(ex - x0, x1 - ex))
+    return d, qx, qz
+
+
+@numba.njit(cache=True)
+def _foot_clearance(ax, az, bx, bz, lo, hi, z):  # pragma: no cover - compiled
+    """(distance, foot x, z, terrain x, z, column) of clearance.foot_clearance (no sole)."""
+    B = z.shape[0]
+    dh, ch_x, ch_z = np.empty(B), np.empty(B), np.empty(B)
+    dt, ct_x, ct_z = np.empty(B), np.empty(B), np.empty(B)
+    _point_to_columns(ax, az, lo, hi, z, dh, ch_x, ch_z)
+    _point_to_columns(bx, bz, lo, hi, z, dt, ct_x, ct_z)
+    best = np.inf
+    out = (np.nan, np.nan, np.nan, np.nan, np.nan, -1)
+    for i in range(B):  # heel against the columns (first minimum wins, as np.argmin)
+        if dh[i] < best:
+            best = dh[i]
+            out = (best, ax, az, ch_x[i], ch_z[i], i)
+    for i in range(B):  # toe
+        if dt[i] < best:
+            best = dt[i]
+            out = (best, bx, bz, ct_x[i], ct_z[i], i)
+    for c in range(2 * B):  # column top corners: the left ones, then the right ones
+        i = c % B
+        ex = lo[i] if c < B else hi[i]
+        d, qx, qz = _corner_distance(ax, az, bx, bz, ex, z[i])
+        if d < best:
+            best = d
+            out = (best, qx, qz, ex, z[i], i)
+    return out
+
+
+def foot_clearance(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile, sole_thickness_m: float = 0.0
+) -> Clearance:
+    """:func:`vio_graph.safety.clearance.foot_clearance`, compiled."""
+    if len(prof) == 0:
+        return NO_CLEARANCE
+    ax, az = float(heel_xz_m[0]), float(heel_xz_m[1])  # type: ignore[index]
+    bx, bz = float(toe_xz_m[0]), float(toe_xz_m[1])  # type: ignore[index]
+    dist, fx, fz, tx, tz, col = _foot_clearance(ax, az, bx, bz, prof.x_lo_m, prof.x_hi_m, prof.z_m)
+    ddx, ddz = fx - tx, fz - tz
+    n = float(np.hypot(ddx, ddz))
+    nx, nz = (ddx / n, ddz / n) if n > 1e-9 else (0.0, 1.0)
+    if dist < 0:
+        nx, nz = (0.0, 1.0) if n <= 1e-9 else (-nx, -nz)
+    return Clearance(
+        dist - sole_thickness_m, np.array([fx, fz]), np.array([tx, tz]), col, np.array([nx, nz])
+    )
+
+
+@numba.njit(cache=True)
+def _clearance_many(a, b, lo, hi, z, sole):  # pragma: no cover - compiled
+    T, B = a.shape[0], z.shape[0]
+    out = np.empty(T)
+    for t in range(T):
+        ax, az, bx, bz = a[t, 0], a[t, 1], b[t, 0], b[t, 1]
+        best = np.inf
+        for px, pz in ((ax, az), (bx, bz)):  # heel and toe against the columns
+            for i in range(B):
+                if px >= lo[i] and px <= hi[i] and pz < z[i]:
+                    v = pz - z[i]
+                else:
+                    v = math.hypot(px - min(max(px, lo[i]), hi[i]), pz - min(pz, z[i]))
+                if v < best or v != v:
+                    best = v
+        abx, abz = bx - ax, bz - az
+        L2 = max(abx * abx + abz * abz, 1e-18)
+        x0, x1 = min(ax, bx), max(ax, bx)
+        slope = abz / abx if abs(abx) > 1e-12 else 0.0
+        for c in range(2 * B):  # column top corners against the segment
+            i = c % B
+            cx = lo[i] if c < B else hi[i]
+            cz = z[i]
+            s = min(max(((cx - ax) * abx + (cz - az) * abz) / L2, 0.0), 1.0)
+            v = math.hypot(cx - (ax + s * abx), cz - (az + s * abz))
+            z_line = az + (cx - ax) * slope
+            if cx > x0 and cx < x1 and cz > z_line and x1 - x0 > 1e-12:
+                v = z_line - cz
+            if v < best or v != v:
+                best = v
+        out[t] = best - sole
+    return out
+
+
+def clearance_many(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile, sole_thickness_m: float = 0.0
+) -> NDArray[np.float64]:
+    """:func:`vio_graph.safety.clearance.clearance_many`, compiled."""
+    a = np.ascontiguousarray(heel_xz_m, dtype=float).reshape(-1, 2)
+    b = np.ascontiguousarray(toe_xz_m, dtype=float).reshape(-1, 2)
+    if len(prof) == 0:
+        return np.full(a.shape[0], np.nan)
+    return _clearance_many(a, b, prof.x_lo_m, prof.x_hi_m, prof.z_m, float(sole_thickness_m))
+
+
+@numba.njit(cache=True)
+def _edge_clearance_many(a, b, ex, ez, sole):  # pragma: no cover - compiled
+    out = np.empty(a.shape[0])
+    for t in range(a.shape[0]):
+        ax, az, bx, bz = a[t, 0], a[t, 1], b[t, 0], b[t, 1]
+        dx, dz = bx - ax, bz - az
+        L2 = dx * dx + dz * dz
+        s = 0.0 if L2 == 0 else min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
+        qx, qz = ax + s * dx, az + s * dz
+        d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** 0.5
+        if abs(dx) > 1e-12 and min(ax, bx) < ex and ex < max(ax, bx):
+            z_line = az + (ex - ax) * dz / dx
+            if ez > z_line:
+                d = -min(ez - z_line, ex - min(ax, bx), max(ax, bx) - ex)
+        out[t] = d - sole
+    return out
+
+
+def edge_clearance_many(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, edge_xz_m: ArrayLike, sole_thickness_m: float = 0.0
+) -> NDArray[np.float64]:
+    """:func:`vio_graph.safety.clearance.edge_clearance_many`, compiled."""
+    a = np.ascontiguousarray(heel_xz_m, dtype=float).reshape(-1, 2)
+    b = np.ascontiguousarray(toe_xz_m, dtype=float).reshape(-1, 2)
+    e = np.asarray(edge_xz_m, dtype=float)
+    return _edge_clearance_many(a, b, float(e[0]), float(e[1]), float(sole_thickness_m))
+
+
+@numba.njit(cache=True)
+def _coverage(xa, xb, lo, hi):  # pragma: no cover - compiled
+    s = 0.0
+    for i in range(lo.shape[0]):
+        s += max(min(hi[i], xb) - max(lo[i], xa), 0.0)
+    return s / (xb - xa)
+
+
+def coverage(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile) -> float:
+    """:func:`vio_graph.safety.clearance.coverage`, compiled."""
+    h0, t0 = float(heel_xz_m[0]), float(toe_xz_m[0])  # type: ignore[index]
+    xa, xb = min(h0, t0), max(h0, t0)
+    if len(prof) == 0 or xb <= xa:
+        return 0.0 if len(prof) == 0 else 1.0
+    return float(_coverage(xa, xb, prof.x_lo_m, prof.x_hi_m))
+
+
+# ---------------------------------------------------------------------------------------------
+# edges
+
+
+@numba.njit(cache=True)
+def _step(lo, hi, z, p, max_gap, slope_step):  # pragma: no cover - compiled
+    """Sign of the transition pair p (bins p, p + 1), 0 if it is none (clearance.edge_runs)."""
+    dz = z[p + 1] - z[p]
+    if lo[p + 1] - hi[p] <= max_gap and abs(dz) > slope_step:
+        return 1 if dz > 0 else -1
+    return 0
+
+
+@numba.njit(cache=True)
+def _edge_runs(lo, hi, z, min_rise, max_gap, slope_step, max_bin):  # pragma: no cover
+    n = z.shape[0]
+    xz = np.empty((n, 2))
+    rise = np.empty(n)
+    first = np.empty(n, np.int64)
+    m = 0
+    # runs: [first pair, last pair, sign]; only the last one can still change
+    r_i, r_j, r_s = -1, -1, 0
+    have = False
+    p = 0
+    while p < n - 1:
+        s = _step(lo, hi, z, p, max_gap, slope_step)
+        if s == 0:
+            p += 1
+            continue
+        i = j = p
+        while (
+            j + 1 < n - 1
+            and _step(lo, hi, z, j + 1, max_gap, slope_step) == s
+            and hi[j + 1] - lo[j + 1] <= max_bin
+        ):
+            j += 1
+        if have and r_s == s and hi[i] - lo[r_j + 1] <= max_bin:
+            r_j = j
+        else:
+            if have:
+                m = _emit(lo, hi, z, r_i, r_j, r_s, min_rise, xz, rise, first, m)
+            r_i, r_j, r_s, have = i, j, s, True
+        p = j + 1
+    if have:
+        m = _emit(lo, hi, z, r_i, r_j, r_s, min_rise, xz, rise, first, m)
+    return xz[:m], rise[:m], first[:m]
+
+
+@numba.njit(cache=True)
+def _emit(lo, hi, z, i, j, s, min_rise, xz, rise, first, m):  # pragma: no cover - compiled
+    """Write the edge of the run of pairs i..j (sign s) at row m if it rises enough."""
+    r = z[j + 1] - z[i]
+    if abs(r) < min_rise:
+        return m
+    k, best = i, -1.0
+    for q in range(i, j + 1):
+        dz = z[q + 1] - z[q]
+        sg = 1 if dz > 0 else (-1 if dz < 0 else 0)
+        v = abs(dz) * (1.0 if sg == s else 0.0)
+        if v > best:
+            k, best = q, v
+    if s > 0:
+        xz[m, 0], xz[m, 1] = lo[k + 1], z[j + 1]
+    else:
+        xz[m, 0], xz[m, 1] = hi[k], z[i]
+    rise[m] = r
+    first[m] = i
+    return m + 1
+
+
+def edge_runs(
+    prof: HeightProfile,
+    min_rise_m: float,
+    max_gap_m: float,
+    slope_step_m: float = SLOPE_STEP_M,
+    max_transition_bin_m: float = MAX_TRANSITION_BIN_M,
+) -> tuple[Edges, NDArray[np.int64]]:
+    """:func:`vio_graph.safety.clearance.edge_runs`, compiled."""
+    if len(prof) < 2:
+        return Edges(np.zeros((0, 2)), np.zeros(0)), np.zeros(0, np.int64)
+    xz, rise, first = _edge_runs(
+        prof.x_lo_m,
+        prof.x_hi_m,
+        prof.z_m,
+        float(min_rise_m),
+        float(max_gap_m),
+        float(slope_step_m),
+        float(max_transition_bin_m),
+    )
+    return Edges(xz, rise), first
+
+
+# ---------------------------------------------------------------------------------------------
+# the map's keyframe step
+
+
+@numba.njit(cache=True)
+def keyframe_tops(pts, bin_m, top_band_m):  # pragma: no cover - compiled
+    """Per bin a keyframe's points (N, 2, world, finite) fall in: the bin index (ascending)
+    and the mean height of the points within ``top_band_m`` of its highest, summed from the
+    highest down (the order of height_map.OnlineHeightMap.add_keyframe)."""
+    N = pts.shape[0]
+    idx = np.empty(N, np.int64)
+    for k in range(N):
+        idx[k] = np.int64(np.floor(pts[k, 0] / bin_m))
+    order = np.argsort(idx, kind="mergesort")
+    bins = np.empty(N, np.int64)
+    tops = np.empty(N)
+    zs = np.empty(N)
+    m = 0
+    g = 0
+    while g < N:
+        h = g
+        while h < N and idx[order[h]] == idx[order[g]]:
+            h += 1
+        # the group's heights, highest first, ties in input order (stable insertion sort)
+        c = 0
+        for q in range(g, h):
+            v = pts[order[q], 1]
+            r = c
+            while r > 0 and zs[r - 1] < v:
+                zs[r] = zs[r - 1]
+                r -= 1
+            zs[r] = v
+            c += 1
+        s, cnt = 0.0, 0
+        for r in range(c):
+            if zs[r] >= zs[0] - top_band_m:
+                s += zs[r]
+                cnt += 1
+        bins[m] = idx[order[g]]
+        tops[m] = s / cnt
+        m += 1
+        g = h
+    return bins[:m], tops[:m]
+
+
+@numba.njit(cache=True)
+def add_tops(Z, n, used, mid, se2, cov, j, tops, min_keyframes, median, P):  # pragma: no cover
+    """In place: the keyframe heights ``tops`` join bins at array elements ``j``, and those
+    bins' count, used flag, height, squared standard error and covariance sum are updated
+    (height_map.OnlineHeightMap.add_keyframe and _bin_stats)."""
+    cap = Z.shape[1]
+    buf = np.empty(cap)
+    dev = np.empty(cap)
+    for q in range(j.shape[0]):
+        e = j[q]
+        Z[e, n[e] % cap] = tops[q]
+        n[e] += 1
+        used[e] = n[e] >= min_keyframes
+        c = 0
+        for r in range(cap):
+            if Z[e, r] == Z[e, r]:
+                buf[c] = Z[e, r]
+                c += 1
+        if median:
+            S = np.sort(buf[:c])
+            lo, hi = (c - 1) // 2, c // 2
+            m = (S[lo] + S[hi]) / 2
+            for r in range(c):
+                dev[r] = abs(buf[r] - m)
+            D = np.sort(dev[:c])
+            sd = 1.4826 * (D[lo] + D[hi]) / 2
+            mid[e] = m
+            se2[e] = (1.2533 * sd) ** 2 / c
+        else:
+            m = 0.0
+            for r in range(c):
+                m += buf[r]
+            m /= c
+            v = 0.0
+            for r in range(c):
+                v += (buf[r] - m) ** 2
+            mid[e] = m
+            se2[e] = v / c / c
+        cov[e, 0] += P[0, 0]
+        cov[e, 1] += P[0, 1]
+        cov[e, 2] += P[1, 1]
+
+
+@numba.njit(cache=True)
+def used_bins(used, a0, a1, i0, bin_m, x_min, x_max):  # pragma: no cover - compiled
+    """Array elements in [a0, a1) of the used bins overlapping [x_min, x_max]."""
+    out = np.empty(max(a1 - a0, 0), np.int64)
+    m = 0
+    for e in range(a0, a1):
+        if used[e]:
+            x_lo = (e + i0) * bin_m
+            if x_lo + bin_m >= x_min and x_lo <= x_max:
+                out[m] = e
+                m += 1
+    return out[:m]
+
+
+def predicted_min_clearance(
+    heel_xz_m: ArrayLike,
+    toe_xz_m: ArrayLike,
+    velocity_xz_mps: ArrayLike,
+    horizon_s: float,
+    steps: int,
+    prof: HeightProfile,
+    sole_thickness_m: float = 0.0,
+) -> float:
+    """:func:`vio_graph.safety.clearance.predicted_min_clearance`, compiled."""
+    v = np.asarray(velocity_xz_mps, dtype=float)
+    if len(prof) == 0 or not np.all(np.isfinite(v)):
+        return float("nan")
+    tau = np.linspace(0.0, horizon_s, steps + 1)[:, None]
+    a = np.asarray(heel_xz_m, dtype=float)[None] + v[None] * tau
+    b = np.asarray(toe_xz_m, dtype=float)[None] + v[None] * tau
+    return float(np.min(clearance_many(a, b, prof, sole_thickness_m)))

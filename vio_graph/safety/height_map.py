@@ -38,6 +38,7 @@ from types import ModuleType
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.safety import clearance
 from vio_graph.safety.clearance import (
     MAX_TRANSITION_BIN_M,
     SLOPE_STEP_M,
@@ -45,7 +46,6 @@ from vio_graph.safety.clearance import (
     HeightProfile,
     edge_runs,
 )
-from vio_graph.safety import clearance
 
 NAN = float("nan")
 

@@ -333,14 +333,23 @@ def edge_runs(
 
 
 @numba.njit(cache=True)
-def keyframe_tops(pts, bin_m, top_band_m):  # pragma: no cover - compiled
-    """Per bin a keyframe's points (N, 2, world, finite) fall in: the bin index (ascending)
-    and the mean height of the points within ``top_band_m`` of its highest, summed from the
-    highest down (the order of height_map.OnlineHeightMap.add_keyframe)."""
-    N = pts.shape[0]
+def keyframe_tops(rel, cam_x, cam_z, bin_m, top_band_m):  # pragma: no cover - compiled
+    """Per bin a keyframe's points fall in (``rel`` (N, 2) camera-relative, placed at the
+    camera; non-finite rows skipped): the bin index (ascending) and the mean height of the
+    points within ``top_band_m`` of its highest, summed from the highest down (the order of
+    height_map.OnlineHeightMap.add_keyframe)."""
+    N0 = rel.shape[0]
+    px = np.empty(N0)
+    pz = np.empty(N0)
+    N = 0
+    for k in range(N0):
+        if np.isfinite(rel[k, 0]) and np.isfinite(rel[k, 1]):
+            px[N] = rel[k, 0] + cam_x
+            pz[N] = rel[k, 1] + cam_z
+            N += 1
     idx = np.empty(N, np.int64)
     for k in range(N):
-        idx[k] = np.int64(np.floor(pts[k, 0] / bin_m))
+        idx[k] = np.int64(np.floor(px[k] / bin_m))
     order = np.argsort(idx, kind="mergesort")
     bins = np.empty(N, np.int64)
     tops = np.empty(N)
@@ -354,7 +363,7 @@ def keyframe_tops(pts, bin_m, top_band_m):  # pragma: no cover - compiled
         # the group's heights, highest first, ties in input order (stable insertion sort)
         c = 0
         for q in range(g, h):
-            v = pts[order[q], 1]
+            v = pz[order[q]]
             r = c
             while r > 0 and zs[r - 1] < v:
                 zs[r] = zs[r - 1]
@@ -374,41 +383,65 @@ def keyframe_tops(pts, bin_m, top_band_m):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def add_tops(Z, n, used, mid, se2, cov, j, tops, min_keyframes, median, P):  # pragma: no cover
+def add_tops(Z, Zs, n, used, mid, se2, cov, j, tops, min_keyframes, median, P):  # pragma: no cover
     """In place: the keyframe heights ``tops`` join bins at array elements ``j``, and those
     bins' count, used flag, height, squared standard error and covariance sum are updated
-    (height_map.OnlineHeightMap.add_keyframe and _bin_stats)."""
+    (height_map.OnlineHeightMap.add_keyframe and _bin_stats). ``Zs``: each bin's kept
+    heights sorted (NaN after them), kept up to date here: the median is read off it and the
+    median absolute deviation found by walking out from the median (no sort per keyframe)."""
     cap = Z.shape[1]
-    buf = np.empty(cap)
-    dev = np.empty(cap)
     for q in range(j.shape[0]):
         e = j[q]
-        Z[e, n[e] % cap] = tops[q]
+        slot = n[e] % cap
+        old = Z[e, slot]
+        c = min(n[e], cap)  # kept heights before this one
+        Z[e, slot] = tops[q]
         n[e] += 1
         used[e] = n[e] >= min_keyframes
-        c = 0
-        for r in range(cap):
-            if Z[e, r] == Z[e, r]:
-                buf[c] = Z[e, r]
-                c += 1
+        if old == old:  # the oldest height leaves the sorted copy
+            r = 0
+            while Zs[e, r] != old:
+                r += 1
+            while r < c - 1:
+                Zs[e, r] = Zs[e, r + 1]
+                r += 1
+            c -= 1
+        r = c
+        while r > 0 and Zs[e, r - 1] > tops[q]:
+            Zs[e, r] = Zs[e, r - 1]
+            r -= 1
+        Zs[e, r] = tops[q]
+        c += 1
         if median:
-            S = np.sort(buf[:c])
             lo, hi = (c - 1) // 2, c // 2
-            m = (S[lo] + S[hi]) / 2
-            for r in range(c):
-                dev[r] = abs(buf[r] - m)
-            D = np.sort(dev[:c])
-            sd = 1.4826 * (D[lo] + D[hi]) / 2
+            m = (Zs[e, lo] + Zs[e, hi]) / 2
+            # the lo-th and hi-th smallest |height - m|: merge the deviations below and above
+            L = lo if Zs[e, lo] < m else lo - 1
+            R = L + 1
+            d_lo = d_hi = 0.0
+            for k in range(hi + 1):
+                if R >= c or (L >= 0 and m - Zs[e, L] <= Zs[e, R] - m):
+                    d = m - Zs[e, L]
+                    L -= 1
+                else:
+                    d = Zs[e, R] - m
+                    R += 1
+                if k == lo:
+                    d_lo = d
+                d_hi = d
+            sd = 1.4826 * (d_lo + d_hi) / 2
             mid[e] = m
             se2[e] = (1.2533 * sd) ** 2 / c
         else:
             m = 0.0
-            for r in range(c):
-                m += buf[r]
+            for r in range(cap):
+                if Z[e, r] == Z[e, r]:
+                    m += Z[e, r]
             m /= c
             v = 0.0
-            for r in range(c):
-                v += (buf[r] - m) ** 2
+            for r in range(cap):
+                if Z[e, r] == Z[e, r]:
+                    v += (Z[e, r] - m) ** 2
             mid[e] = m
             se2[e] = v / c / c
         cov[e, 0] += P[0, 0]
@@ -417,17 +450,204 @@ def add_tops(Z, n, used, mid, se2, cov, j, tops, min_keyframes, median, P):  # p
 
 
 @numba.njit(cache=True)
-def used_bins(used, a0, a1, i0, bin_m, x_min, x_max):  # pragma: no cover - compiled
-    """Array elements in [a0, a1) of the used bins overlapping [x_min, x_max]."""
-    out = np.empty(max(a1 - a0, 0), np.int64)
+def window_bins(used, mid, se2, a0, a1, i0, bin_m, x_min, x_max, map_sigma):  # pragma: no cover
+    """The used bins among array elements [a0, a1) overlapping [x_min, x_max]: their x_lo,
+    x_hi, height, height sigma and bin index (height_map: _bins_profile of the window)."""
     m = 0
     for e in range(a0, a1):
         if used[e]:
             x_lo = (e + i0) * bin_m
             if x_lo + bin_m >= x_min and x_lo <= x_max:
-                out[m] = e
                 m += 1
-    return out[:m]
+    lo, hi, z, sig = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    bins = np.empty(m, np.int64)
+    k = 0
+    s2 = map_sigma**2
+    for e in range(a0, a1):
+        if used[e]:
+            x_lo = (e + i0) * bin_m
+            if x_lo + bin_m >= x_min and x_lo <= x_max:
+                lo[k], hi[k], z[k] = x_lo, x_lo + bin_m, mid[e]
+                sig[k] = math.sqrt(se2[e] + s2)
+                bins[k] = e + i0
+                k += 1
+    return lo, hi, z, sig, bins
+
+
+# ---------------------------------------------------------------------------------------------
+# the swing-template prediction
+
+
+@numba.njit(cache=True)
+def template_motion(tau, h, phase, disp, starts):  # pragma: no cover - compiled
+    """Median displacement (H, 4) of heel and toe from phase tau to tau + h over the
+    templates (online.SafetyMonitor._template_motion): template k is ``phase`` (s) and
+    ``disp`` (., 4) rows ``starts[k]:starts[k + 1]``."""
+    T, H = starts.shape[0] - 1, h.shape[0]
+    q = np.empty(H + 1)
+    q[0] = tau
+    for i in range(H):
+        q[i + 1] = tau + h[i]
+    out = np.empty((T, H, 4))
+    for k in range(T):
+        ph = phase[starts[k] : starts[k + 1]]
+        for c in range(4):
+            at = np.interp(q, ph, np.ascontiguousarray(disp[starts[k] : starts[k + 1], c]))
+            for i in range(H):
+                out[k, i, c] = at[i + 1] - at[0]
+    if T == 1:
+        return out[0].copy()
+    med = np.empty((H, 4))
+    v = np.empty(T)
+    for i in range(H):
+        for c in range(4):
+            for k in range(T):
+                v[k] = out[k, i, c]
+            v.sort()
+            med[i, c] = v[T // 2] if T % 2 else (v[T // 2 - 1] + v[T // 2]) / 2
+    return med
+
+
+@numba.njit(cache=True)
+def _pair_changes(used_mid, p, q, i0, bin_m, max_gap, slope_step):  # pragma: no cover
+    """Used bins at array elements p < q form a transition pair (edge_runs' step != 0)."""
+    gap = (q + i0) * bin_m - ((p + i0) * bin_m + bin_m)
+    return gap <= max_gap and abs(used_mid[q] - used_mid[p]) > slope_step
+
+
+@numba.njit(cache=True)
+def rescan_edges(
+    used, mid, i0, bin_m, e_lo, e_hi, min_rise, max_gap, slope_step, max_bin, xz, rise, first
+):  # pragma: no cover - compiled
+    """height_map.IncrementalHeightMap._rescan_edges in one call: the map's edges (``xz``,
+    ``rise``, ``first`` bin index) after the bins at array elements [e_lo, e_hi] changed."""
+    n = used.shape[0]
+    # the scan's start: the right end of the first quiet stretch walking left from e_lo
+    start = -1
+    e = e_lo - 1
+    while e >= 0 and not used[e]:
+        e -= 1
+    if e >= 0:
+        v = w = e
+        u = w - 1
+        while True:
+            while u >= 0 and not used[u]:
+                u -= 1
+            if u < 0:
+                break
+            if _pair_changes(mid, u, w, i0, bin_m, max_gap, slope_step):
+                v = w = u
+            else:
+                w = u
+                if (v + i0) * bin_m + bin_m - (w + i0) * bin_m > max_bin:
+                    start = v
+                    break
+            u = w - 1
+    # its stop: the right end of the first quiet stretch walking right from e_hi
+    stop = -1
+    e = e_hi + 1
+    while e < n and not used[e]:
+        e += 1
+    if e < n:
+        w = v = e
+        u = v + 1
+        while True:
+            while u < n and not used[u]:
+                u += 1
+            if u >= n:
+                break
+            if _pair_changes(mid, v, u, i0, bin_m, max_gap, slope_step):
+                w = v = u
+            else:
+                v = u
+                if (v + i0) * bin_m + bin_m - (w + i0) * bin_m > max_bin:
+                    stop = v
+                    break
+            u = v + 1
+    lo = start if start >= 0 else 0
+    hi = stop if stop >= 0 else n - 1
+    m = 0
+    for e in range(lo, hi + 1):
+        if used[e]:
+            m += 1
+    sub = np.empty(m, np.int64)
+    x_lo, x_hi, z = np.empty(m), np.empty(m), np.empty(m)
+    k = 0
+    for e in range(lo, hi + 1):
+        if used[e]:
+            sub[k] = e
+            x_lo[k] = (e + i0) * bin_m
+            x_hi[k] = x_lo[k] + bin_m
+            z[k] = mid[e]
+            k += 1
+    new_xz, new_rise, new_first = _edge_runs(x_lo, x_hi, z, min_rise, max_gap, slope_step, max_bin)
+    # splice: the old edges whose scan starts before lo or from hi on stay
+    keep_l = 0
+    keep_r = 0
+    for q in range(first.shape[0]):
+        if start >= 0 and first[q] < lo + i0:
+            keep_l += 1
+        elif stop >= 0 and first[q] >= hi + i0:
+            keep_r += 1
+    E = keep_l + new_rise.shape[0] + keep_r
+    out_xz, out_rise, out_first = np.empty((E, 2)), np.empty(E), np.empty(E, np.int64)
+    k = 0
+    for q in range(first.shape[0]):
+        if start >= 0 and first[q] < lo + i0:
+            out_xz[k, 0], out_xz[k, 1], out_rise[k], out_first[k] = (
+                xz[q, 0],
+                xz[q, 1],
+                rise[q],
+                first[q],
+            )
+            k += 1
+    for q in range(new_rise.shape[0]):
+        out_xz[k, 0], out_xz[k, 1] = new_xz[q, 0], new_xz[q, 1]
+        out_rise[k], out_first[k] = new_rise[q], sub[new_first[q]] + i0
+        k += 1
+    for q in range(first.shape[0]):
+        if stop >= 0 and first[q] >= hi + i0:
+            out_xz[k, 0], out_xz[k, 1], out_rise[k], out_first[k] = (
+                xz[q, 0],
+                xz[q, 1],
+                rise[q],
+                first[q],
+            )
+            k += 1
+    return out_xz, out_rise, out_first
+
+
+@numba.njit(cache=True)
+def bin_below(used, i0, bin_m, x):  # pragma: no cover - compiled
+    """height_map.IncrementalHeightMap.bin_below: (found, bin index)."""
+    n = used.shape[0]
+    hi = min(max(np.int64(np.floor(x / bin_m)) + 2 - i0, 0), n)
+    for e in range(hi - 1, -1, -1):
+        if used[e] and (e + i0) * bin_m < x:
+            return True, e + i0
+    for e in range(n):
+        if used[e]:
+            return True, e + i0
+    return False, 0
+
+
+@numba.njit(cache=True)
+def _predicted_min(hx, hz, tx, tz, vx, vz, horizon, steps, lo, hi, z, sole):  # pragma: no cover
+    T = steps + 1
+    a, b = np.empty((T, 2)), np.empty((T, 2))
+    step = horizon / steps
+    for i in range(T):
+        tau = i * step + 0.0 if i < steps else horizon  # np.linspace(0, horizon, steps + 1)
+        a[i, 0], a[i, 1] = hx + vx * tau, hz + vz * tau
+        b[i, 0], b[i, 1] = tx + vx * tau, tz + vz * tau
+    d = _clearance_many(a, b, lo, hi, z, sole)
+    best = d[0]
+    for i in range(1, T):
+        if d[i] < best or d[i] != d[i]:
+            best = d[i]
+            if best != best:
+                break
+    return best
 
 
 def predicted_min_clearance(
@@ -440,10 +660,22 @@ def predicted_min_clearance(
     sole_thickness_m: float = 0.0,
 ) -> float:
     """:func:`vio_graph.safety.clearance.predicted_min_clearance`, compiled."""
-    v = np.asarray(velocity_xz_mps, dtype=float)
-    if len(prof) == 0 or not np.all(np.isfinite(v)):
+    vx, vz = float(velocity_xz_mps[0]), float(velocity_xz_mps[1])  # type: ignore[index]
+    if len(prof) == 0 or not (math.isfinite(vx) and math.isfinite(vz)):
         return float("nan")
-    tau = np.linspace(0.0, horizon_s, steps + 1)[:, None]
-    a = np.asarray(heel_xz_m, dtype=float)[None] + v[None] * tau
-    b = np.asarray(toe_xz_m, dtype=float)[None] + v[None] * tau
-    return float(np.min(clearance_many(a, b, prof, sole_thickness_m)))
+    return float(
+        _predicted_min(
+            float(heel_xz_m[0]),  # type: ignore[index]
+            float(heel_xz_m[1]),  # type: ignore[index]
+            float(toe_xz_m[0]),  # type: ignore[index]
+            float(toe_xz_m[1]),  # type: ignore[index]
+            vx,
+            vz,
+            float(horizon_s),
+            int(steps),
+            prof.x_lo_m,
+            prof.x_hi_m,
+            prof.z_m,
+            float(sole_thickness_m),
+        )
+    )

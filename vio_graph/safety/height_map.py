@@ -94,6 +94,8 @@ class OnlineHeightMap:
         self.version = 0
         self._i0 = 0  # bin index of array element 0
         self._z = np.full((0, self.capacity), np.nan)  # per bin: the keyframes' heights, m
+        # the same sorted, NaN after them (kept by the compiled keyframe step only)
+        self._zs = np.full((0, self.capacity), np.nan)
         self._n = np.zeros(0, np.int64)  # keyframes that saw the bin (all, not only kept)
         self._used = np.zeros(0, bool)  # _n >= min_keyframes
         self._mid = np.zeros(0)  # per bin: the height over the kept keyframes, m
@@ -115,6 +117,7 @@ class OnlineHeightMap:
         hi = self._i0 + n if i_max < self._i0 + n else i_max + 1 + margin
         pad_l, pad_r = self._i0 - lo, hi - (self._i0 + n)
         self._z = np.pad(self._z, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
+        self._zs = np.pad(self._zs, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
         self._n = np.pad(self._n, (pad_l, pad_r))
         self._used = np.pad(self._used, (pad_l, pad_r))
         self._mid = np.pad(self._mid, (pad_l, pad_r))
@@ -271,14 +274,16 @@ class IncrementalHeightMap(OnlineHeightMap):
         """:meth:`OnlineHeightMap.add_keyframe` through the compiled kernels."""
         assert self._kernels is not None
         rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
-        rel = rel[np.all(np.isfinite(rel), axis=1)]
-        if rel.shape[0] == 0:
+        cam = np.asarray(camera_xz_m, dtype=float)
+        bins, tops = self._kernels.keyframe_tops(
+            rel, float(cam[0]), float(cam[1]), self.bin_m, self.top_band_m
+        )
+        if bins.shape[0] == 0:
             return None
-        pts = rel + np.asarray(camera_xz_m, dtype=float)[None]
-        bins, tops = self._kernels.keyframe_tops(pts, self.bin_m, self.top_band_m)
         self._grow(int(bins[0]), int(bins[-1]))
         self._kernels.add_tops(
             self._z,
+            self._zs,
             self._n,
             self._used,
             self._mid,
@@ -303,16 +308,21 @@ class IncrementalHeightMap(OnlineHeightMap):
         a0 = min(max(int(np.floor(x_min_m / b)) - 2 - self._i0, 0), n)
         a1 = min(max(int(np.floor(x_max_m / b)) + 3 - self._i0, a0), n)
         if self._kernels is not None:
-            j = self._kernels.used_bins(self._used, a0, a1, self._i0, b, x_min_m, x_max_m)
-        else:
-            j = a0 + np.flatnonzero(self._used[a0:a1])
-            x_lo = ((j + self._i0) * b).astype(np.float64)
-            j = j[(x_lo + b >= x_min_m) & (x_lo <= x_max_m)]
+            lo, hi, z, sig, bins = self._kernels.window_bins(
+                self._used, self._mid, self._se2, a0, a1, self._i0, b, x_min_m, x_max_m, map_sigma_m
+            )
+            return MapWindow(HeightProfile(lo, hi, z, sig), bins)
+        j = a0 + np.flatnonzero(self._used[a0:a1])
+        x_lo = ((j + self._i0) * b).astype(np.float64)
+        j = j[(x_lo + b >= x_min_m) & (x_lo <= x_max_m)]
         return MapWindow(self._bins_profile(j, map_sigma_m), j + self._i0)
 
     def bin_below(self, x_m: float) -> int:
         if not np.isfinite(x_m):
             return super().bin_below(x_m)
+        if self._kernels is not None:
+            found, b = self._kernels.bin_below(self._used, self._i0, self.bin_m, x_m)
+            return int(b) if found else -1
         # bins from this index on start after x_m
         hi = min(max(int(np.floor(x_m / self.bin_m)) + 2 - self._i0, 0), self._n.shape[0])
         span = 64
@@ -359,6 +369,23 @@ class IncrementalHeightMap(OnlineHeightMap):
         """Re-run the edge scan over the bins from the quiet stretch before ``b_first`` to
         the one after ``b_last`` (bin indices) and splice its edges in."""
         lo_e, hi_e = b_first - self._i0, b_last - self._i0
+        if self._kernels is not None:
+            self._edge_xz, self._edge_rise, self._edge_first = self._kernels.rescan_edges(
+                self._used,
+                self._mid,
+                self._i0,
+                self.bin_m,
+                lo_e,
+                hi_e,
+                self.edge_min_rise_m,
+                self.edge_max_gap_m,
+                SLOPE_STEP_M,
+                MAX_TRANSITION_BIN_M,
+                self._edge_xz,
+                self._edge_rise,
+                self._edge_first,
+            )
+            return
         n = self._n.shape[0]
         start = stop = None
         span = 64

@@ -227,6 +227,8 @@ class SafetyMonitor:
         self._templates: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = deque(
             maxlen=config.template_swings
         )
+        # the templates end to end for the compiled path: phases, displacements, row starts
+        self._templates_flat: tuple[NDArray, NDArray, NDArray] | None = None
         self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
         self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
         self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
@@ -261,6 +263,7 @@ class SafetyMonitor:
                 d = np.concatenate([heel, toe]) - self._liftoff[1]
                 a = np.asarray([*self._swing, (tau, *d.tolist())], dtype=float)
                 self._templates.append((a[:, 0], a[:, 1:]))
+                self._templates_flat = None
             self._liftoff = None
             return NAN
         d = np.concatenate([heel, toe]) - self._liftoff[1]
@@ -325,6 +328,15 @@ class SafetyMonitor:
         templates, None without a template."""
         if not self._templates or not np.isfinite(tau):
             return None
+        if self.geometry is not clearance:  # compiled
+            if self._templates_flat is None:
+                rows = np.cumsum([0] + [len(ph) for ph, _ in self._templates])
+                self._templates_flat = (
+                    np.concatenate([ph for ph, _ in self._templates]),
+                    np.concatenate([d for _, d in self._templates]),
+                    rows.astype(np.int64),
+                )
+            return self.geometry.template_motion(tau, h, *self._templates_flat)
         out = []
         q = np.concatenate([[tau], tau + h])  # now, then the horizon's instants
         for ph, d in self._templates:

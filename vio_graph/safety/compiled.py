@@ -679,3 +679,95 @@ def predicted_min_clearance(
             float(sole_thickness_m),
         )
     )
+
+
+@numba.njit(cache=True)
+def _edge_distance(ax, az, bx, bz, ex, ez):  # pragma: no cover - compiled
+    """clearance._edge_distance: (signed distance, closest x, z)."""
+    dx, dz = bx - ax, bz - az
+    L2 = dx * dx + dz * dz
+    s = 0.0 if L2 == 0 else min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
+    qx, qz = ax + s * dx, az + s * dz
+    d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** 0.5
+    if abs(dx) > 1e-12 and min(ax, bx) < ex and ex < max(ax, bx):
+        z_line = az + (ex - ax) * dz / dx
+        if ez > z_line:
+            d = -min(ez - z_line, ex - min(ax, bx), max(ax, bx) - ex)
+    return d, qx, qz
+
+
+def edge_clearance(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, edge_xz_m: ArrayLike, sole_thickness_m: float = 0.0
+) -> Clearance:
+    """:func:`vio_graph.safety.clearance.edge_clearance`, compiled."""
+    ex, ez = float(edge_xz_m[0]), float(edge_xz_m[1])  # type: ignore[index]
+    d, qx, qz = _edge_distance(
+        float(heel_xz_m[0]),  # type: ignore[index]
+        float(heel_xz_m[1]),  # type: ignore[index]
+        float(toe_xz_m[0]),  # type: ignore[index]
+        float(toe_xz_m[1]),  # type: ignore[index]
+        ex,
+        ez,
+    )
+    n = ((qx - ex) ** 2 + (qz - ez) ** 2) ** 0.5
+    nx, nz = ((qx - ex) / n, (qz - ez) / n) if n > 1e-9 else (0.0, 1.0)
+    if d < 0:
+        nx, nz = -nx, -nz
+    return Clearance(
+        d - sole_thickness_m, np.array([qx, qz]), np.array([ex, ez]), -1, np.array([nx, nz])
+    )
+
+
+@numba.njit(cache=True)
+def _point_segment(px, pz, ax, az, bx, bz):  # pragma: no cover - compiled
+    dx, dz = bx - ax, bz - az
+    L2 = dx * dx + dz * dz
+    s = 0.0 if L2 == 0 else min(max(((px - ax) * dx + (pz - az) * dz) / L2, 0.0), 1.0)
+    return ((px - ax - s * dx) ** 2 + (pz - az - s * dz) ** 2) ** 0.5
+
+
+@numba.njit(cache=True)
+def _orient(px, pz, qx, qz, rx, rz):  # pragma: no cover - compiled
+    return (qx - px) * (rz - pz) - (qz - pz) * (rx - px)
+
+
+@numba.njit(cache=True)
+def _predicted_min_edge(ax, az, bx, bz, vx, vz, horizon, ex, ez):  # pragma: no cover
+    fx, fz = ex - vx * horizon, ez - vz * horizon
+    d0 = _edge_distance(ax, az, bx, bz, ex, ez)[0]
+    d1 = _edge_distance(ax, az, bx, bz, fx, fz)[0]
+    best = min(
+        d0, d1, _point_segment(ax, az, ex, ez, fx, fz), _point_segment(bx, bz, ex, ez, fx, fz)
+    )
+    o1, o2 = _orient(ax, az, bx, bz, ex, ez), _orient(ax, az, bx, bz, fx, fz)
+    o3, o4 = _orient(ex, ez, fx, fz, ax, az), _orient(ex, ez, fx, fz, bx, bz)
+    if o1 * o2 < 0 and o3 * o4 < 0:
+        best = min(best, 0.0)
+    return best
+
+
+def predicted_min_edge_clearance(
+    heel_xz_m: ArrayLike,
+    toe_xz_m: ArrayLike,
+    velocity_xz_mps: ArrayLike,
+    horizon_s: float,
+    steps: int,
+    edge_xz_m: ArrayLike,
+    sole_thickness_m: float = 0.0,
+) -> float:
+    """:func:`vio_graph.safety.clearance.predicted_min_edge_clearance`, compiled."""
+    vx, vz = float(velocity_xz_mps[0]), float(velocity_xz_mps[1])  # type: ignore[index]
+    if not (math.isfinite(vx) and math.isfinite(vz)):
+        return float("nan")
+    best = _predicted_min_edge(
+        float(heel_xz_m[0]),  # type: ignore[index]
+        float(heel_xz_m[1]),  # type: ignore[index]
+        float(toe_xz_m[0]),  # type: ignore[index]
+        float(toe_xz_m[1]),  # type: ignore[index]
+        vx,
+        vz,
+        float(horizon_s),
+        float(edge_xz_m[0]),  # type: ignore[index]
+        float(edge_xz_m[1]),  # type: ignore[index]
+    )
+    return float(best) - sole_thickness_m

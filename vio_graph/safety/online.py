@@ -32,6 +32,7 @@ Motion model of the prediction (``motion_model``):
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from types import ModuleType
@@ -45,10 +46,8 @@ from vio_graph.safety.clearance import (
     Edges,
     HeightProfile,
     clearance_sigma,
-    edge_clearance,
     next_edge_index,
     placement_on_tread,
-    predicted_min_edge_clearance,
 )
 from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.height_map import IncrementalHeightMap, OnlineHeightMap
@@ -169,6 +168,16 @@ def _psd_abs(M: NDArray[np.float64], scale: float = 1.0) -> list[list[float]]:
     ]
 
 
+def _gradient(f: NDArray[np.float64], dt_s: float) -> NDArray[np.float64]:
+    """``np.gradient(f, dt_s, axis=0)`` of (T >= 2, 2) samples: central differences inside,
+    one-sided at the ends (the same operations, without its generic set-up)."""
+    out = np.empty_like(f)
+    out[1:-1] = (f[2:] - f[:-2]) / (2.0 * dt_s)
+    out[0] = (f[1] - f[0]) / dt_s
+    out[-1] = (f[-1] - f[-2]) / dt_s
+    return out
+
+
 def forward_motion(v_xz_mps: NDArray[np.float64], cfg: SafetyConfig) -> bool:
     """The toe moves forward faster than ``warning_min_forward_speed_mps`` and at least as
     fast as it descends (a swing crossing an edge, not a landing)."""
@@ -232,6 +241,8 @@ class SafetyMonitor:
         self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
         self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
         self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
+        #: the horizon's instants (s since now)
+        self._h = np.linspace(0.0, config.horizon_s, config.horizon_steps + 1)
 
     def _track_swing(
         self,
@@ -250,14 +261,14 @@ class SafetyMonitor:
         detector anchors only part of a stance)."""
         cfg = self.config
         lo, hi = cfg.template_swing_s
-        moving = np.isfinite(toe_speed_mps) and toe_speed_mps > cfg.swing_speed_mps
+        moving = math.isfinite(toe_speed_mps) and toe_speed_mps > cfg.swing_speed_mps
         if self._liftoff is None:
             if in_stance or not moving:
                 return NAN
             self._liftoff = (t_s, np.concatenate([heel, toe]))
             self._swing = []
         tau = t_s - self._liftoff[0]
-        slow = np.isfinite(toe_speed_mps) and toe_speed_mps < cfg.swing_speed_mps / 3
+        slow = math.isfinite(toe_speed_mps) and toe_speed_mps < cfg.swing_speed_mps / 3
         if in_stance or (slow and tau >= lo) or tau > hi:
             if len(self._swing) >= 3 and lo <= tau <= hi:
                 d = np.concatenate([heel, toe]) - self._liftoff[1]
@@ -326,7 +337,7 @@ class SafetyMonitor:
     def _template_motion(self, tau: float, h: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """Median displacement (H, 4) of heel and toe from phase tau to tau + h over the
         templates, None without a template."""
-        if not self._templates or not np.isfinite(tau):
+        if not self._templates or not math.isfinite(tau):
             return None
         if self.geometry is not clearance:  # compiled
             if self._templates_flat is None:
@@ -362,8 +373,9 @@ class SafetyMonitor:
             self.map.add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
         heel = np.asarray(heel_xz_m, dtype=float)
         toe = np.asarray(toe_xz_m, dtype=float)
+        hx, tx = float(heel[0]), float(toe[0])
         edges = self.map.edges()
-        x0, x1 = min(heel[0], toe[0]) - cfg.window_m, max(heel[0], toe[0]) + cfg.window_m
+        x0, x1 = min(hx, tx) - cfg.window_m, max(hx, tx) + cfg.window_m
         near = self.map.window(x0, x1, cfg.map_sigma_m)
         win = near.profile
         # clearance to the terrain and its sigma
@@ -379,9 +391,9 @@ class SafetyMonitor:
             )
         # the next edge ahead
         nc = nsig = ed = edsig = NAN
-        e = next_edge_index(edges, float(toe[0]) - cfg.toe_pass_m)
+        e = next_edge_index(edges, tx - cfg.toe_pass_m)
         if e >= 0:
-            ec = edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
+            ec = g.edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
             kb = self.map.bin_below(float(edges.xz_m[e, 0]))  # the bin at the edge
             rel = _psd_abs(P - self.map.bin_cov_at(kb), cfg.relative_pose_scale)
             nc = ec.distance_m
@@ -395,44 +407,41 @@ class SafetyMonitor:
         if self._prev is not None and t_s > self._prev[0]:
             v = (toe - self._prev[1]) / (t_s - self._prev[0])
         self._prev = (t_s, toe)
-        tau = self._track_swing(t_s, heel, toe, bool(in_stance), float(np.hypot(*v)))
+        speed = float(np.hypot(v[0], v[1]))  # m/s, NaN without a previous frame
+        v_known = math.isfinite(v[0]) and math.isfinite(v[1])
+        tau = self._track_swing(t_s, heel, toe, bool(in_stance), speed)
         motion = None
-        if cfg.motion_model == "swing_template" and np.isfinite(tau):
-            h = np.linspace(0.0, cfg.horizon_s, cfg.horizon_steps + 1)
-            motion = self._template_motion(tau, h)
+        if cfg.motion_model == "swing_template" and math.isfinite(tau):
+            motion = self._template_motion(tau, self._h)
         if in_stance:
             self._cleared = []
         pred = pred_edge = risk = NAN  # risk: the minimum over near-trip candidates
         if motion is not None:
             hp = heel[None] + motion[:, :2]
             tp = toe[None] + motion[:, 2:]
-            if np.isfinite(c.distance_m):
+            if math.isfinite(c.distance_m):
                 lo_x = float(min(hp[:, 0].min(), tp[:, 0].min()))
                 hi_x = float(max(hp[:, 0].max(), tp[:, 0].max()))
                 w = cfg.window_m
                 swept = self._window(self._swept(lo_x, hi_x, lo_x - w, hi_x + w, c.distance_m))
                 pred = float(np.min(g.clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
             # the predicted toe velocity: a near-trip needs forward motion at that instant
-            vp = np.gradient(tp, cfg.horizon_s / cfg.horizon_steps, axis=0)
+            vp = _gradient(tp, cfg.horizon_s / cfg.horizon_steps)
             fwd = (vp[:, 0] > cfg.warning_min_forward_speed_mps) & (vp[:, 1] > -vp[:, 0])
             # each predicted pose is tested against its own next edge (as the truth is)
             nxt = np.searchsorted(edges.xz_m[:, 0], tp[:, 0] - cfg.toe_pass_m, side="right")
             for i, ee in enumerate(self._edges_reached(edges, e, float(tp[:, 0].max()))):
                 dd = g.edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)
                 d = float(np.min(dd))
-                if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
+                if math.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
                     pred_edge = d
                 ok = fwd & (nxt == e + i) & self._approach(float(ee[0]), dd)
                 if ok.any() and not float(np.min(dd[ok])) >= risk:
                     risk = float(np.min(dd[ok]))
         else:
-            if (
-                np.all(np.isfinite(v))
-                and np.isfinite(c.distance_m)
-                and float(np.hypot(*v)) * cfg.horizon_s < 1e-3
-            ):
+            if v_known and math.isfinite(c.distance_m) and speed * cfg.horizon_s < 1e-3:
                 pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
-            elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
+            elif v_known and math.isfinite(c.distance_m):
                 dx = float(v[0]) * cfg.horizon_s  # the foot's x span over the horizon
                 lo_x = float(min(heel[0], toe[0])) + min(dx, 0.0)
                 hi_x = float(max(heel[0], toe[0])) + max(dx, 0.0)
@@ -442,24 +451,20 @@ class SafetyMonitor:
                 pred = g.predicted_min_clearance(
                     heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
                 )
-            reach_x = (
-                float(toe[0] + max(float(v[0]), 0.0) * cfg.horizon_s)
-                if np.all(np.isfinite(v))
-                else float(toe[0])
-            )
+            reach_x = float(toe[0] + max(float(v[0]), 0.0) * cfg.horizon_s) if v_known else tx
             for ee in self._edges_reached(edges, e, reach_x):
-                d = predicted_min_edge_clearance(
+                d = g.predicted_min_edge_clearance(
                     heel, toe, v, cfg.horizon_s, cfg.horizon_steps, ee, cfg.sole_thickness_m
                 )
-                if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
+                if math.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
                     pred_edge = float(d)
                 now = g.edge_clearance_many(heel, toe, ee, cfg.sole_thickness_m)
                 cleared = bool(np.any(self._approach(float(ee[0]), now)))  # (remembers it)
-                if cleared and forward_motion(v, cfg) and np.isfinite(d) and not d >= risk:
+                if cleared and forward_motion(v, cfg) and math.isfinite(d) and not d >= risk:
                     risk = float(d)
-        s = nsig if np.isfinite(nsig) else 0.0
+        s = nsig if math.isfinite(nsig) else 0.0
         warn = bool(
-            not in_stance and np.isfinite(risk) and risk - cfg.warning_sigma * s < cfg.near_trip_m
+            not in_stance and math.isfinite(risk) and risk - cfg.warning_sigma * s < cfg.near_trip_m
         )
         # landing: the stance starts at this frame
         landing = bool(in_stance and not self._in_stance)

@@ -32,6 +32,7 @@ tests/test_safety_incremental.py replays recordings through both and requires eq
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from types import ModuleType
 
@@ -204,7 +205,7 @@ class OnlineHeightMap:
     def bin_sigma(self, b: int, map_sigma_m: float) -> float:
         """1-sigma (m) of the height of the bin with index ``b``: its standard error over
         the keyframes, floored by ``map_sigma_m`` in quadrature."""
-        return float(np.sqrt(self._se2[b - self._i0] + map_sigma_m**2))
+        return math.sqrt(self._se2[b - self._i0] + map_sigma_m**2)
 
     def window(self, x_min_m: float, x_max_m: float, map_sigma_m: float) -> MapWindow:
         """The used bins overlapping [x_min_m, x_max_m] (as :meth:`HeightProfile.window`)."""
@@ -300,13 +301,13 @@ class IncrementalHeightMap(OnlineHeightMap):
         return int(bins[0]), int(bins[-1])
 
     def window(self, x_min_m: float, x_max_m: float, map_sigma_m: float) -> MapWindow:
-        if not (np.isfinite(x_min_m) and np.isfinite(x_max_m)):
+        if not (math.isfinite(x_min_m) and math.isfinite(x_max_m)):
             return super().window(x_min_m, x_max_m, map_sigma_m)
         b = self.bin_m
         n = self._n.shape[0]
         # bins beyond these indices lie a bin or more outside the range
-        a0 = min(max(int(np.floor(x_min_m / b)) - 2 - self._i0, 0), n)
-        a1 = min(max(int(np.floor(x_max_m / b)) + 3 - self._i0, a0), n)
+        a0 = min(max(math.floor(x_min_m / b) - 2 - self._i0, 0), n)
+        a1 = min(max(math.floor(x_max_m / b) + 3 - self._i0, a0), n)
         if self._kernels is not None:
             lo, hi, z, sig, bins = self._kernels.window_bins(
                 self._used, self._mid, self._se2, a0, a1, self._i0, b, x_min_m, x_max_m, map_sigma_m
@@ -318,7 +319,7 @@ class IncrementalHeightMap(OnlineHeightMap):
         return MapWindow(self._bins_profile(j, map_sigma_m), j + self._i0)
 
     def bin_below(self, x_m: float) -> int:
-        if not np.isfinite(x_m):
+        if not math.isfinite(x_m):
             return super().bin_below(x_m)
         if self._kernels is not None:
             found, b = self._kernels.bin_below(self._used, self._i0, self.bin_m, x_m)

@@ -403,9 +403,10 @@ class SafetyMonitor:
             ed = float(edges.xz_m[e, 0] - toe[0])
             edsig = (rel[0][0] + cfg.foot_sigma_m**2 + (cfg.bin_m / 2) ** 2) ** 0.5
         # prediction over the horizon and the near-trip warning
-        v = np.full(2, np.nan)
+        v = (NAN, NAN)  # the toe's velocity (x, z), m/s
         if self._prev is not None and t_s > self._prev[0]:
-            v = (toe - self._prev[1]) / (t_s - self._prev[0])
+            dt, prev = t_s - self._prev[0], self._prev[1]
+            v = ((tx - float(prev[0])) / dt, (float(toe[1]) - float(prev[1])) / dt)
         self._prev = (t_s, toe)
         speed = float(np.hypot(v[0], v[1]))  # m/s, NaN without a previous frame
         v_known = math.isfinite(v[0]) and math.isfinite(v[1])
@@ -478,7 +479,7 @@ class SafetyMonitor:
         return SafetyEstimate(
             clearance_m=c.distance_m,
             clearance_sigma_m=sig,
-            toe_line_xz_m=np.stack([c.foot_xz_m, c.terrain_xz_m]),
+            toe_line_xz_m=np.array([c.foot_xz_m, c.terrain_xz_m]),
             nosing_clearance_m=nc,
             nosing_sigma_m=nsig,
             predicted_min_clearance_m=pred,

@@ -350,7 +350,24 @@ def keyframe_tops(rel, cam_x, cam_z, bin_m, top_band_m):  # pragma: no cover - c
     idx = np.empty(N, np.int64)
     for k in range(N):
         idx[k] = np.int64(np.floor(px[k] / bin_m))
-    order = np.argsort(idx, kind="mergesort")
+    if N == 0:
+        return idx, px[:0]
+    # stable counting sort by bin (a profile spans a few hundred bins; a stable argsort if
+    # a stray point makes the span large)
+    i_min, i_max = idx.min(), idx.max()
+    if i_max - i_min > 4 * N + 4096:
+        order = np.argsort(idx, kind="mergesort")
+    else:
+        start = np.zeros(i_max - i_min + 2, np.int64)
+        for k in range(N):
+            start[idx[k] - i_min + 1] += 1
+        for r in range(1, start.shape[0]):
+            start[r] += start[r - 1]
+        order = np.empty(N, np.int64)
+        for k in range(N):
+            r = idx[k] - i_min
+            order[start[r]] = k
+            start[r] += 1
     bins = np.empty(N, np.int64)
     tops = np.empty(N)
     zs = np.empty(N)

@@ -788,3 +788,45 @@ def predicted_min_edge_clearance(
         float(edge_xz_m[1]),  # type: ignore[index]
     )
     return float(best) - sole_thickness_m
+
+
+def warm_up() -> None:
+    """Call every kernel once on a small input, with the argument types the monitor uses:
+    numba loads their machine code (compiles it, on a machine's first run) at a kernel's
+    first call, which would otherwise land on the first frames."""
+    prof = HeightProfile(
+        np.array([0.0, 0.005, 0.01]), np.array([0.005, 0.01, 0.015]), np.zeros(3), np.zeros(3)
+    )
+    heel, toe, v = np.array([-0.2, 0.05]), np.array([0.0, 0.05]), (0.5, 0.0)
+    foot_clearance(heel, toe, prof)
+    coverage(heel, toe, prof)
+    clearance_many(heel[None], toe[None], prof)
+    edge_clearance(heel, toe, np.array([0.01, 0.0]))
+    edge_clearance_many(heel[None], toe[None], np.array([0.01, 0.0]))
+    predicted_min_clearance(heel, toe, v, 0.3, 10, prof)
+    predicted_min_edge_clearance(heel, toe, v, 0.3, 10, np.array([0.01, 0.0]))
+    edge_runs(prof, 0.04, 0.15)
+    bins, tops = keyframe_tops(np.zeros((2, 2)), 0.0, 0.0, 0.005, 0.01)
+    n, used = np.zeros(3, np.int64), np.zeros(3, bool)
+    mid, se2, cov = np.zeros(3), np.zeros(3), np.zeros((3, 3))
+    Z = np.full((3, 4), np.nan)
+    add_tops(Z, Z.copy(), n, used, mid, se2, cov, bins + 1, tops, 1, True, np.eye(2))
+    window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
+    rescan_edges(
+        used,
+        mid,
+        0,
+        0.005,
+        1,
+        1,
+        0.04,
+        0.15,
+        SLOPE_STEP_M,
+        MAX_TRANSITION_BIN_M,
+        np.zeros((0, 2)),
+        np.zeros(0),
+        np.zeros(0, np.int64),
+    )
+    bin_below(used, 0, 0.005, 0.01)
+    phase = np.array([0.0, 0.1, 0.2])
+    template_motion(0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]))

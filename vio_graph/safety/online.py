@@ -217,6 +217,8 @@ class SafetyMonitor:
         kernels = None
         if incremental and (compiled or compiled is None):
             kernels = compiled_kernels(force=bool(compiled))
+            if kernels is not None:
+                kernels.warm_up()  # the kernels' one-time load here, not on the first frames
         #: the module computing the per-frame geometry: clearance (numpy) or compiled
         self.geometry: ModuleType = clearance if kernels is None else kernels
         args = (config.bin_m, config.min_keyframes)

@@ -202,6 +202,11 @@ class OnlineHeightMap:
         c = self._cov[b - self._i0] / float(self._n[b - self._i0])
         return np.array([[c[0], c[1]], [c[1], c[2]]])
 
+    def bin_cov_mean(self, b: int) -> tuple[float, float, float]:
+        """(xx, xz, zz) of :meth:`bin_cov_at`, m^2."""
+        xx, xz, zz = (self._cov[b - self._i0] / float(self._n[b - self._i0])).tolist()
+        return xx, xz, zz
+
     def bin_sigma(self, b: int, map_sigma_m: float) -> float:
         """1-sigma (m) of the height of the bin with index ``b``: its standard error over
         the keyframes, floored by ``map_sigma_m`` in quadrature."""

@@ -53,6 +53,7 @@ from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.height_map import IncrementalHeightMap, OnlineHeightMap
 
 NAN = float("nan")
+_NAN2, _NAN4 = np.full(2, NAN), np.full(4, NAN)
 
 
 @dataclass(frozen=True)
@@ -148,11 +149,12 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
 
 def _psd_abs(M: NDArray[np.float64], scale: float = 1.0) -> list[list[float]]:
     """|scale M| for a symmetric 2x2 M: its eigenvalues made non-negative (closed form)."""
-    a, b, c = (
-        scale * float(M[0, 0]),
-        scale * float((M[0, 1] + M[1, 0]) / 2),
-        scale * float(M[1, 1]),
-    )
+    return _psd_abs_entries(float(M[0, 0]), float((M[0, 1] + M[1, 0]) / 2), float(M[1, 1]), scale)
+
+
+def _psd_abs_entries(mxx: float, mxz: float, mzz: float, scale: float) -> list[list[float]]:
+    """:func:`_psd_abs` of [[mxx, mxz], [mxz, mzz]]."""
+    a, b, c = scale * mxx, scale * mxz, scale * mzz
     m, r = (a + c) / 2, (((a - c) / 2) ** 2 + b * b) ** 0.5
     l1, l2 = m + r, m - r
     if l2 >= 0 or r == 0:  # already non-negative (or a multiple of I)
@@ -312,6 +314,13 @@ class SafetyMonitor:
         d = max(clearance_now_m + self.config.sole_thickness_m, 0.0) + 1e-6  # m; 1 um rounding
         return max(search_lo_m, lo_x_m - d), min(search_hi_m, hi_x_m + d)
 
+    def _relative_cov(self, P: list[list[float]], b: int) -> list[list[float]]:
+        """The drift covariance between now (camera covariance ``P``) and the keyframes that
+        saw bin ``b``: |P - their mean covariance|, scaled by ``relative_pose_scale``, m^2."""
+        cxx, cxz, czz = self.map.bin_cov_mean(b)
+        mxz = ((P[0][1] - cxz) + (P[1][0] - cxz)) / 2
+        return _psd_abs_entries(P[0][0] - cxx, mxz, P[1][1] - czz, self.config.relative_pose_scale)
+
     def _window(self, x_range_m: tuple[float, float]) -> HeightProfile:
         """The map's used bins over an x range (min, max), m."""
         return self.map.window(*x_range_m, self.config.map_sigma_m).profile
@@ -371,6 +380,7 @@ class SafetyMonitor:
         the frame is a keyframe (it joins the map before the frame's outputs are computed)."""
         cfg, g = self.config, self.geometry
         P = np.asarray(cov_position_m2, dtype=float)
+        Pl = P.tolist()
         if keyframe_profile_xz_m is not None:
             self.map.add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
         heel = np.asarray(heel_xz_m, dtype=float)
@@ -387,7 +397,7 @@ class SafetyMonitor:
         sig = NAN
         if c.bin >= 0:
             k = int(near.bins[c.bin])
-            rel = _psd_abs(P - self.map.bin_cov_at(k), cfg.relative_pose_scale)
+            rel = self._relative_cov(Pl, k)
             sig = clearance_sigma(
                 c.normal_xz, rel, self.map.bin_sigma(k, cfg.map_sigma_m), cfg.foot_sigma_m
             )
@@ -397,7 +407,7 @@ class SafetyMonitor:
         if e >= 0:
             ec = g.edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
             kb = self.map.bin_below(float(edges.xz_m[e, 0]))  # the bin at the edge
-            rel = _psd_abs(P - self.map.bin_cov_at(kb), cfg.relative_pose_scale)
+            rel = self._relative_cov(Pl, kb)
             nc = ec.distance_m
             nsig = clearance_sigma(
                 ec.normal_xz, rel, self.map.bin_sigma(kb, cfg.map_sigma_m), cfg.foot_sigma_m
@@ -472,7 +482,7 @@ class SafetyMonitor:
         # landing: the stance starts at this frame
         landing = bool(in_stance and not self._in_stance)
         self._in_stance = bool(in_stance)
-        placement = np.full(4, np.nan)
+        placement = _NAN4.copy()
         if landing:
             placement = placement_on_tread(
                 heel, toe, win, cfg.tread_tolerance_m, cfg.edge_max_gap_m, cfg.edge_min_rise_m
@@ -494,6 +504,6 @@ class SafetyMonitor:
             mean_tread_m=tread,
             landing=landing,
             placement=placement,
-            edge_xz_m=edges.xz_m[e].copy() if e >= 0 else np.full(2, np.nan),
+            edge_xz_m=edges.xz_m[e].copy() if e >= 0 else _NAN2.copy(),
             near_trip_clearance_m=risk,
         )

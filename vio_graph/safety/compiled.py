@@ -35,6 +35,12 @@ from vio_graph.safety.clearance import (
 # foot to terrain
 
 
+def _xz(p: ArrayLike) -> tuple[float, float]:
+    """An (x, z) point or vector as two floats."""
+    a = np.asarray(p, dtype=float)
+    return float(a[0]), float(a[1])
+
+
 @numba.njit(cache=True)
 def _point_to_columns(px, pz, lo, hi, z, d, cx, cz):  # pragma: no cover - compiled
     """In place: signed distance ``d`` (B,) from (px, pz) to each column and the closest
@@ -133,8 +139,7 @@ def foot_clearance(
     """:func:`vio_graph.safety.clearance.foot_clearance`, compiled."""
     if len(prof) == 0:
         return NO_CLEARANCE
-    ax, az = float(heel_xz_m[0]), float(heel_xz_m[1])  # type: ignore[index]
-    bx, bz = float(toe_xz_m[0]), float(toe_xz_m[1])  # type: ignore[index]
+    (ax, az), (bx, bz) = _xz(heel_xz_m), _xz(toe_xz_m)
     dist, fx, fz, tx, tz, col = _foot_clearance(ax, az, bx, bz, prof.x_lo_m, prof.x_hi_m, prof.z_m)
     ddx, ddz = fx - tx, fz - tz
     n = float(np.hypot(ddx, ddz))
@@ -229,7 +234,7 @@ def _coverage(xa, xb, lo, hi):  # pragma: no cover - compiled
 
 def coverage(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile) -> float:
     """:func:`vio_graph.safety.clearance.coverage`, compiled."""
-    h0, t0 = float(heel_xz_m[0]), float(toe_xz_m[0])  # type: ignore[index]
+    h0, t0 = _xz(heel_xz_m)[0], _xz(toe_xz_m)[0]
     xa, xb = min(h0, t0), max(h0, t0)
     if len(prof) == 0 or xb <= xa:
         return 0.0 if len(prof) == 0 else 1.0
@@ -677,15 +682,13 @@ def predicted_min_clearance(
     sole_thickness_m: float = 0.0,
 ) -> float:
     """:func:`vio_graph.safety.clearance.predicted_min_clearance`, compiled."""
-    vx, vz = float(velocity_xz_mps[0]), float(velocity_xz_mps[1])  # type: ignore[index]
+    vx, vz = _xz(velocity_xz_mps)
     if len(prof) == 0 or not (math.isfinite(vx) and math.isfinite(vz)):
         return float("nan")
     return float(
         _predicted_min(
-            float(heel_xz_m[0]),  # type: ignore[index]
-            float(heel_xz_m[1]),  # type: ignore[index]
-            float(toe_xz_m[0]),  # type: ignore[index]
-            float(toe_xz_m[1]),  # type: ignore[index]
+            *_xz(heel_xz_m),
+            *_xz(toe_xz_m),
             vx,
             vz,
             float(horizon_s),
@@ -717,12 +720,10 @@ def edge_clearance(
     heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, edge_xz_m: ArrayLike, sole_thickness_m: float = 0.0
 ) -> Clearance:
     """:func:`vio_graph.safety.clearance.edge_clearance`, compiled."""
-    ex, ez = float(edge_xz_m[0]), float(edge_xz_m[1])  # type: ignore[index]
+    ex, ez = _xz(edge_xz_m)
     d, qx, qz = _edge_distance(
-        float(heel_xz_m[0]),  # type: ignore[index]
-        float(heel_xz_m[1]),  # type: ignore[index]
-        float(toe_xz_m[0]),  # type: ignore[index]
-        float(toe_xz_m[1]),  # type: ignore[index]
+        *_xz(heel_xz_m),
+        *_xz(toe_xz_m),
         ex,
         ez,
     )
@@ -773,19 +774,16 @@ def predicted_min_edge_clearance(
     sole_thickness_m: float = 0.0,
 ) -> float:
     """:func:`vio_graph.safety.clearance.predicted_min_edge_clearance`, compiled."""
-    vx, vz = float(velocity_xz_mps[0]), float(velocity_xz_mps[1])  # type: ignore[index]
+    vx, vz = _xz(velocity_xz_mps)
     if not (math.isfinite(vx) and math.isfinite(vz)):
         return float("nan")
     best = _predicted_min_edge(
-        float(heel_xz_m[0]),  # type: ignore[index]
-        float(heel_xz_m[1]),  # type: ignore[index]
-        float(toe_xz_m[0]),  # type: ignore[index]
-        float(toe_xz_m[1]),  # type: ignore[index]
+        *_xz(heel_xz_m),
+        *_xz(toe_xz_m),
         vx,
         vz,
         float(horizon_s),
-        float(edge_xz_m[0]),  # type: ignore[index]
-        float(edge_xz_m[1]),  # type: ignore[index]
+        *_xz(edge_xz_m),
     )
     return float(best) - sole_thickness_m
 

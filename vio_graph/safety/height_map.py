@@ -255,8 +255,26 @@ class IncrementalHeightMap(OnlineHeightMap):
     module (vio_graph/safety/compiled.py) for the keyframe step, the window and the edge
     scan, or None (numpy)."""
 
-    def __init__(self, *args, kernels: ModuleType | None = None, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
+    def __init__(
+        self,
+        bin_m: float,
+        min_keyframes: int,
+        top_band_m: float = 0.01,
+        statistic: str = "median",
+        capacity: int = 24,
+        edge_min_rise_m: float = 0.04,
+        edge_max_gap_m: float = 0.15,
+        kernels: ModuleType | None = None,
+    ) -> None:
+        super().__init__(
+            bin_m,
+            min_keyframes,
+            top_band_m,
+            statistic,
+            capacity,
+            edge_min_rise_m,
+            edge_max_gap_m,
+        )
         self._kernels = kernels
         self._geometry = clearance if kernels is None else kernels
         self._edge_xz = np.zeros((0, 2))

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from types import ModuleType
 
@@ -180,7 +181,7 @@ def _gradient(f: NDArray[np.float64], dt_s: float) -> NDArray[np.float64]:
     return out
 
 
-def forward_motion(v_xz_mps: NDArray[np.float64], cfg: SafetyConfig) -> bool:
+def forward_motion(v_xz_mps: Sequence[float] | NDArray[np.float64], cfg: SafetyConfig) -> bool:
     """The toe moves forward faster than ``warning_min_forward_speed_mps`` and at least as
     fast as it descends (a swing crossing an edge, not a landing)."""
     vx, vz = float(v_xz_mps[0]), float(v_xz_mps[1])
@@ -223,16 +224,23 @@ class SafetyMonitor:
                 kernels.warm_up()  # the kernels' one-time load here, not on the first frames
         #: the module computing the per-frame geometry: clearance (numpy) or compiled
         self.geometry: ModuleType = clearance if kernels is None else kernels
-        args = (config.bin_m, config.min_keyframes)
-        kw = {
-            "statistic": config.map_statistic,
-            "edge_min_rise_m": config.edge_min_rise_m,
-            "edge_max_gap_m": config.edge_max_gap_m,
-        }
         self.map: OnlineHeightMap = (
-            IncrementalHeightMap(*args, kernels=kernels, **kw)
+            IncrementalHeightMap(
+                config.bin_m,
+                config.min_keyframes,
+                statistic=config.map_statistic,
+                edge_min_rise_m=config.edge_min_rise_m,
+                edge_max_gap_m=config.edge_max_gap_m,
+                kernels=kernels,
+            )
             if incremental
-            else OnlineHeightMap(*args, **kw)
+            else OnlineHeightMap(
+                config.bin_m,
+                config.min_keyframes,
+                statistic=config.map_statistic,
+                edge_min_rise_m=config.edge_min_rise_m,
+                edge_max_gap_m=config.edge_max_gap_m,
+            )
         )
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, toe)
         self._in_stance = False

@@ -77,13 +77,14 @@ def test_incremental_map_gives_the_reference_estimates_over_a_replay(
     agree within 1e-9 m."""
     cfg = load_config(None).safety.model_copy(update={"motion_model": motion_model})
     ref = _replay(sample_frames, cfg, incremental=False)
-    inc = _replay(sample_frames, cfg, compiled=False)
+    inc = _replay(sample_frames, cfg, incremental=True, compiled=False)
     assert sum(f[6] is not None for f in sample_frames) > 20  # keyframes joined the map
     assert np.isfinite(np.array(ref)[:, 0]).sum() > 50  # clearances were computed
     for k, (a, b) in enumerate(zip(ref, inc, strict=True)):
         np.testing.assert_array_equal(a, b, err_msg=f"frame {k}")
     _compiled()
     comp = _replay(sample_frames, cfg, compiled=True)
+    assert _replay(sample_frames[:5], cfg, compiled=False)  # numpy: the reference map
     for k, (a, b) in enumerate(zip(ref, comp, strict=True)):
         np.testing.assert_allclose(b, a, rtol=0, atol=TOL_M, err_msg=f"frame {k}")
 

@@ -4,9 +4,11 @@ clearance, placement and the terrain ahead against it (no look-ahead, no I/O).
 Map: vio_graph/safety/height_map.py (per x bin of ``SafetyConfig.bin_m``, the median over
 keyframes of the top of each keyframe's profile in the bin; each bin also keeps the mean
 camera position covariance of the keyframes that saw it, for the relative-pose part of the
-sigma). The monitor asks it only about the bins near the foot and the edges
-(``IncrementalHeightMap``; ``SafetyMonitor(config, incremental=False)`` runs the reference
-map that rebuilds its whole profile after each keyframe, same outputs).
+sigma). The monitor asks it about the bins near the foot and the edges. With the compiled
+kernels (vio_graph/safety/compiled.py) it answers from those bins only
+(``IncrementalHeightMap``); in numpy it is by default the reference map, which rebuilds its
+whole profile after each keyframe (on a trial of minutes no slower than the incremental
+map's bookkeeping in numpy). Same outputs either way (tests/test_safety_incremental.py).
 
 Sigma. The clearance is a function of the foot minus the terrain point. Both were placed by
 the filter: the terrain at the keyframes that saw it, the foot now. The drift between the two
@@ -209,19 +211,30 @@ def compiled_kernels(force: bool = False) -> ModuleType | None:
 
 class SafetyMonitor:
     """Per-frame safety outputs from the estimate (camera, covariance, heel, toe, stance)
-    and the keyframe profiles seen so far. ``incremental``: the map answers from the bins
-    near the foot (:class:`IncrementalHeightMap`); False: the reference map
-    (:class:`OnlineHeightMap`, whole profile rebuilt per keyframe), same outputs."""
+    and the keyframe profiles seen so far.
+
+    ``compiled``: the compiled kernels (True), numpy (False), or as the compiled front end
+    (None: :func:`compiled_kernels`). ``incremental``: the map answers from the bins near the
+    foot (:class:`IncrementalHeightMap`, True) or is the reference (:class:`OnlineHeightMap`,
+    whole profile rebuilt per keyframe, False); None: incremental when compiled. The
+    compiled kernels need the incremental map. Same outputs in every combination."""
 
     def __init__(
-        self, config: SafetyConfig, incremental: bool = True, compiled: bool | None = None
+        self,
+        config: SafetyConfig,
+        incremental: bool | None = None,
+        compiled: bool | None = None,
     ) -> None:
+        if incremental is False and compiled:
+            raise ValueError("the compiled safety kernels run on the incremental map")
         self.config = config
         kernels = None
-        if incremental and (compiled or compiled is None):
+        if incremental is not False and compiled is not False:
             kernels = compiled_kernels(force=bool(compiled))
             if kernels is not None:
                 kernels.warm_up()  # the kernels' one-time load here, not on the first frames
+        if incremental is None:
+            incremental = kernels is not None
         #: the module computing the per-frame geometry: clearance (numpy) or compiled
         self.geometry: ModuleType = clearance if kernels is None else kernels
         self.map: OnlineHeightMap = (

@@ -361,6 +361,15 @@ class SafetyMonitor:
             self._cleared.append(edge_x_m)
         return clear
 
+    def _approach_now(self, edge_x_m: float, d_m: float) -> bool:
+        """:meth:`_approach` for the current pose alone (clearance ``d_m``)."""
+        if any(abs(x - edge_x_m) <= 2 * self.config.bin_m for x in self._cleared):
+            return True
+        if d_m >= self.config.near_trip_m:
+            self._cleared.append(edge_x_m)
+            return True
+        return False
+
     @property
     def edges(self) -> Edges:
         """The edges mapped so far (updated at each keyframe)."""
@@ -453,9 +462,13 @@ class SafetyMonitor:
         if motion is not None:
             hp = heel[None] + motion[:, :2]
             tp = toe[None] + motion[:, 2:]
+            # x extent of the poses (rounding is monotonic: the extreme displacement gives
+            # the extreme position)
+            m_lo, m_hi = motion.min(axis=0), motion.max(axis=0)
+            toe_x_max = float(toe[0] + m_hi[2])
             if math.isfinite(c.distance_m):
-                lo_x = float(min(hp[:, 0].min(), tp[:, 0].min()))
-                hi_x = float(max(hp[:, 0].max(), tp[:, 0].max()))
+                lo_x = float(min(heel[0] + m_lo[0], toe[0] + m_lo[2]))
+                hi_x = float(max(heel[0] + m_hi[0], toe_x_max))
                 w = cfg.window_m
                 swept = self._window(self._swept(lo_x, hi_x, lo_x - w, hi_x + w, c.distance_m))
                 pred = float(np.min(g.clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
@@ -464,7 +477,7 @@ class SafetyMonitor:
             fwd = (vp[:, 0] > cfg.warning_min_forward_speed_mps) & (vp[:, 1] > -vp[:, 0])
             # each predicted pose is tested against its own next edge (as the truth is)
             nxt = np.searchsorted(edges.xz_m[:, 0], tp[:, 0] - cfg.toe_pass_m, side="right")
-            for i, ee in enumerate(self._edges_reached(edges, e, float(tp[:, 0].max()))):
+            for i, ee in enumerate(self._edges_reached(edges, e, toe_x_max)):
                 dd = g.edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)
                 d = float(np.min(dd))
                 if math.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
@@ -492,8 +505,8 @@ class SafetyMonitor:
                 )
                 if math.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
                     pred_edge = float(d)
-                now = g.edge_clearance_many(heel, toe, ee, cfg.sole_thickness_m)
-                cleared = bool(np.any(self._approach(float(ee[0]), now)))  # (remembers it)
+                now = float(g.edge_clearance_many(heel, toe, ee, cfg.sole_thickness_m)[0])
+                cleared = self._approach_now(float(ee[0]), now)  # (remembers it)
                 if cleared and forward_motion(v, cfg) and math.isfinite(d) and not d >= risk:
                     risk = float(d)
         s = nsig if math.isfinite(nsig) else 0.0

@@ -150,13 +150,9 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
     return out
 
 
-def _psd_abs(M: NDArray[np.float64], scale: float = 1.0) -> list[list[float]]:
-    """|scale M| for a symmetric 2x2 M: its eigenvalues made non-negative (closed form)."""
-    return _psd_abs_entries(float(M[0, 0]), float((M[0, 1] + M[1, 0]) / 2), float(M[1, 1]), scale)
-
-
-def _psd_abs_entries(mxx: float, mxz: float, mzz: float, scale: float) -> list[list[float]]:
-    """:func:`_psd_abs` of [[mxx, mxz], [mxz, mzz]]."""
+def _psd_abs(mxx: float, mxz: float, mzz: float, scale: float = 1.0) -> list[list[float]]:
+    """|scale M| for the symmetric M = [[mxx, mxz], [mxz, mzz]]: its eigenvalues made
+    non-negative (closed form)."""
     a, b, c = scale * mxx, scale * mxz, scale * mzz
     m, r = (a + c) / 2, (((a - c) / 2) ** 2 + b * b) ** 0.5
     l1, l2 = m + r, m - r
@@ -340,7 +336,7 @@ class SafetyMonitor:
         saw bin ``b``: |P - their mean covariance|, scaled by ``relative_pose_scale``, m^2."""
         cxx, cxz, czz = self.map.bin_cov_mean(b)
         mxz = ((P[0][1] - cxz) + (P[1][0] - cxz)) / 2
-        return _psd_abs_entries(P[0][0] - cxx, mxz, P[1][1] - czz, self.config.relative_pose_scale)
+        return _psd_abs(P[0][0] - cxx, mxz, P[1][1] - czz, self.config.relative_pose_scale)
 
     def _window(self, x_range_m: tuple[float, float]) -> HeightProfile:
         """The map's used bins over an x range (min, max), m."""

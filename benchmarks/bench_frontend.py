@@ -32,6 +32,7 @@ from typing import Any
 import _common  # noqa: I001 - before numpy: pins the thread pools numpy reads on import
 import numpy as np
 
+import vio_graph.filter.fast_imu as fast_imu
 import vio_graph.frontend.icp as icp_module
 import vio_graph.frontend.tracker as tracker_module
 from vio_graph.config import PipelineConfig
@@ -161,12 +162,24 @@ def replay_once(rec: Recording, frames: list, timed_icp: _TimedIcp) -> dict[str,
 
 
 @contextlib.contextmanager
+def scalar_imu_path():
+    """The per-IMU-sample path in its Python closed forms instead of the numba kernels
+    (filter/compiled_imu.py, smoother/compiled_sampling.py); the compiled front end stays on."""
+    fast_imu.USE_COMPILED[0] = False
+    try:
+        yield
+    finally:
+        fast_imu.USE_COMPILED[0] = True
+
+
+@contextlib.contextmanager
 def reference_paths():
-    """Swap the numpy references back in for the per-sample closed forms, the compiled
-    front end (ICP, grid thinning, kNN smoothing) and the safety monitor's incremental map and
-    kernels (its map rebuilt per keyframe, numpy geometry): what the code did before them;
-    tests/test_fast_imu.py, tests/test_frontend_fastpaths.py and
-    tests/test_safety_incremental.py check both give the same answers."""
+    """Swap the numpy references back in for the per-sample closed forms, the filter's
+    closed-form updates, the compiled front end (ICP, grid thinning, kNN smoothing, terrain
+    levels, corner lines) and the safety monitor's incremental map and kernels (its map
+    rebuilt per keyframe, numpy geometry): what the code did before them;
+    tests/test_fast_imu.py, tests/test_filter_fastpaths.py, tests/test_frontend_fastpaths.py
+    and tests/test_safety_incremental.py check both give the same answers."""
     import functools
 
     import vio_graph.estimator as estimator_mod
@@ -174,11 +187,15 @@ def reference_paths():
     from vio_graph.filter.eskf import SagittalEskf, sagittal_rotation
     from vio_graph.filter.imu_faults import ImuFaultMonitor
     from vio_graph.filter.stance import StanceDetector
-    from vio_graph.filter.time_offset import ClockModel
+    from vio_graph.filter.time_offset import ClockModel, TimeOffsetEstimator
 
     swaps = [
         (SagittalEskf, "propagate", SagittalEskf.propagate_reference),
+        (SagittalEskf, "_correct", SagittalEskf._correct_reference),
+        (SagittalEskf, "displacement_d2", SagittalEskf.displacement_d2_reference),
+        (SagittalEskf, "_augment", SagittalEskf._augment_reference),
         (AttitudeTracker, "add", AttitudeTracker.add_reference),
+        (AttitudeTracker, "gyro_at", AttitudeTracker.gyro_at_reference),
         (StanceDetector, "add_imu", StanceDetector.add_imu_reference),
         (estimator_mod, "_sagittal_rotation", sagittal_rotation),
         (estimator_mod, "_pitch_offset_quat", estimator_mod.reference_pitch_offset_quat),
@@ -194,6 +211,7 @@ def reference_paths():
         ),
         (ImuFaultMonitor, "process", ImuFaultMonitor.process_reference),
         (ClockModel, "_fit", ClockModel._fit_reference),
+        (TimeOffsetEstimator, "update", TimeOffsetEstimator.update_reference),
         (
             estimator_mod,
             "SafetyMonitor",
@@ -373,15 +391,18 @@ def run(
     timed_icp = _TimedIcp(tracker_module.icp_translation_2d)
     tracker_module.icp_translation_2d = timed_icp
     try:
-        runs, ref_runs = [], []
+        runs, ref_runs, scalar_runs = [], [], []
         for _ in range(repeats):  # interleaved: the fast path and the numpy references
             runs.append(replay_once(rec, frames, timed_icp))
+            with scalar_imu_path():
+                scalar_runs.append(replay_once(rec, frames, timed_icp))
             with reference_paths():
                 ref_runs.append(replay_once(rec, frames, timed_icp))
     finally:
         tracker_module.icp_translation_2d = timed_icp.fn
     imu_fast = _common.stats_ms([u for rp in runs for u in rp["imu_us"]])
     imu_ref = _common.stats_ms([u for rp in ref_runs for u in rp["imu_us"]])
+    imu_scalar = _common.stats_ms([u for rp in scalar_runs for u in rp["imu_us"]])
     ref_rows = [r for rp in ref_runs for r in rp["timings"]]
     ref_stats = {s: _common.stats_ms([r[s] for r in ref_rows]) for s in STAGES}
     rows = [r for rp in runs for r in rp["timings"]]
@@ -421,6 +442,9 @@ def run(
             "fast": imu_fast,
             "reference": imu_ref,
             "ratio_median": imu_fast["median"] / imu_ref["median"],
+            # the per-sample path in Python closed forms (compiled front end still on): what a
+            # short recording runs by default (VIO_GRAPH_COMPILED unset)
+            "scalar": imu_scalar,
         },
         # whole replay loop (IMU, joints, frames; bookkeeping included) per depth frame: CPU
         # time of this process does not count the time other processes held the core
@@ -444,6 +468,9 @@ def run(
         "add_imu_cpu_us": _common.stats_ms([c for rp in runs for c in rp["imu_cpu_us"]]),
         "add_imu_cpu_us_reference": _common.stats_ms(
             [c for rp in ref_runs for c in rp["imu_cpu_us"]]
+        ),
+        "add_imu_cpu_us_scalar": _common.stats_ms(
+            [c for rp in scalar_runs for c in rp["imu_cpu_us"]]
         ),
         "ours_displacement": {
             "accepted_fraction": len(ours_err) / max(len(frames) - 1, 1),
@@ -675,6 +702,17 @@ def _speedup_lines(r: dict[str, Any]) -> list[str]:
             f(imu["ratio_median"], 3),
         ]
     ]
+    if "scalar" in imu:
+        sc = imu["scalar"]
+        rows.append(
+            [
+                "IMU sample, Python closed forms (no numba; short recordings), us",
+                f(imu["reference"]["median"], 1),
+                f(sc["median"], 1),
+                f(sc["p95"], 1),
+                f(sc["median"] / imu["reference"]["median"], 3),
+            ]
+        )
     for s in (
         "frontend_smoothing",
         "icp_solver",
@@ -696,15 +734,19 @@ def _speedup_lines(r: dict[str, Any]) -> list[str]:
             ]
         )
     return [
-        "IMU sample path in scalar closed forms (vio_graph/filter/fast_imu.py, the fault "
-        "monitor, the clock model) and the front end's ICP, grid thinning and kNN smoothing "
-        "compiled with numba (vio_graph/frontend/compiled.py), and the safety outputs from "
-        "the incremental height map with compiled geometry (vio_graph/safety/height_map.py, "
-        "compiled.py), against the numpy reference paths they replaced (kept in the code and "
-        "compared in tests/test_fast_imu.py, tests/test_frontend_fastpaths.py and "
-        "tests/test_safety_incremental.py: same answers to 1e-9 m), the same replays "
-        "interleaved (targets: <= 20 us per IMU sample, <= 0.2 ms per frame for the safety "
-        "outputs):",
+        "IMU sample path compiled with numba (vio_graph/filter/compiled_imu.py: SP-ESKF "
+        "propagation, attitude tracker, stance detector, fault monitor, clock line; the Python "
+        "closed forms of vio_graph/filter/fast_imu.py run instead without numba and on short "
+        "recordings), the SP-ESKF updates with the 2x2 innovation covariance inverted in "
+        "closed form and block-wise augmentation (vio_graph/filter/eskf.py), the front "
+        "end's ICP, grid thinning, kNN smoothing, terrain levels and corner lines compiled "
+        "(vio_graph/frontend/compiled.py), and the safety outputs from the incremental height "
+        "map with compiled geometry (vio_graph/safety/height_map.py, compiled.py), against "
+        "the numpy reference paths they replaced (kept in the code and compared in "
+        "tests/test_fast_imu.py, tests/test_filter_fastpaths.py, "
+        "tests/test_frontend_fastpaths.py and tests/test_safety_incremental.py: same answers "
+        "to 1e-9 m, the levels and corner lines bit for bit), the same replays interleaved "
+        "(targets: <= 20 us per IMU sample, <= 0.2 ms per frame for the safety outputs):",
         "",
         *(
             [

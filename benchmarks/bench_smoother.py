@@ -17,12 +17,17 @@ Writes benchmarks/results/smoother.json (threads pinned to 1 by ``_common``).
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 from typing import Any
 
 import _common  # noqa: I001 - first: pins thread pools before numpy is imported
 import numpy as np
+
+# the compiled step means (smoother/compiled_sampling.py), what a long recording uses; the
+# replay's 2 s window also runs once with the numpy sampler (``numpy_leg``)
+os.environ.setdefault("VIO_GRAPH_COMPILED", "1")
 
 from vio_graph.smoother.batch import BatchSmoother
 from vio_graph.smoother.config import SmootherConfig
@@ -141,38 +146,73 @@ def markdown_synthetic(fixed: list[dict], batch: list[dict], meta: dict) -> str:
     return "\n".join(lines)
 
 
-def bench_replay(recording: Path, windows_s: list[float]) -> dict[str, Any]:
-    """The smoother inside the real replay loop, one replay per window (batch on the first)."""
+def _timed_imu_input(sm: Any) -> list[float]:
+    """Wrap the smoother's ``add_imu`` (the per-sample preintegration input): CPU time (us) of
+    every call that completes no keyframe (those include the keyframe's factor building)."""
+    out: list[float] = []
+    inner = sm.add_imu
+
+    def add_imu(step: Any) -> None:
+        n = len(sm.build_times_ms)
+        c0 = time.process_time_ns()
+        inner(step)
+        if len(sm.build_times_ms) == n:
+            out.append((time.process_time_ns() - c0) * 1e-3)
+
+    sm.add_imu = add_imu
+    return out
+
+
+def _replay_smoother(rec: Any, w: float, modes: set[str], compiled: bool = True) -> dict[str, Any]:
+    """One replay with a fixed-lag window of ``w`` s; the smoother's per-keyframe times."""
     from vio_graph.config import PipelineConfig
-    from vio_graph.recording.reader import Recording
+    from vio_graph.filter import fast_imu
     from vio_graph.replay import Replay
     from vio_graph.viz.rerun_logger import NullVisualizer
 
+    base = PipelineConfig()
+    config = base.model_copy(update={"smoother": base.smoother.model_copy(update={"window_s": w})})
+    fast_imu.USE_COMPILED[0] = compiled
+    try:
+        replay = Replay(rec, config, modes, NullVisualizer())
+    finally:
+        fast_imu.USE_COMPILED[0] = True
+    sm = replay.estimators["smoother"]
+    imu_us = _timed_imu_input(sm)
+    t0 = time.perf_counter()
+    replay.run()
+    wall = time.perf_counter() - t0
+    k = min(len(sm.update_times_ms), len(sm.build_times_ms))
+    upd, build = np.asarray(sm.update_times_ms[:k]), np.asarray(sm.build_times_ms[:k])
+    return {
+        "window_s": w,
+        "keyframes": k,
+        "update_ms": _common.stats_ms(upd),
+        "build_ms": _common.stats_ms(build),
+        "update_plus_build_ms": _common.stats_ms(upd + build),
+        "imu_input_us_per_sample": _common.stats_ms(imu_us),
+        "replay_wall_s": wall,
+        "_replay": replay,
+    }
+
+
+def bench_replay(recording: Path, windows_s: list[float]) -> dict[str, Any]:
+    """The smoother inside the real replay loop, one replay per window (batch on the first);
+    the 2 s window (or the first) again with the numpy step means, right after it."""
+    from vio_graph.recording.reader import Recording
+
     rec = Recording.open(recording)
     rows, batch = [], {}
+    numpy_leg: dict[str, Any] = {}
+    leg_w = 2.0 if 2.0 in windows_s else windows_s[0]
     for n, w in enumerate(windows_s):
-        base = PipelineConfig()
-        config = base.model_copy(
-            update={"smoother": base.smoother.model_copy(update={"window_s": w})}
-        )
         modes = {"smoother", "batch"} if n == 0 else {"smoother"}
-        replay = Replay(rec, config, modes, NullVisualizer())
-        t0 = time.perf_counter()
-        replay.run()
-        wall = time.perf_counter() - t0
-        sm = replay.estimators["smoother"]
-        k = min(len(sm.update_times_ms), len(sm.build_times_ms))
-        upd, build = np.asarray(sm.update_times_ms[:k]), np.asarray(sm.build_times_ms[:k])
-        rows.append(
-            {
-                "window_s": w,
-                "keyframes": k,
-                "update_ms": _common.stats_ms(upd),
-                "build_ms": _common.stats_ms(build),
-                "update_plus_build_ms": _common.stats_ms(upd + build),
-                "replay_wall_s": wall,
-            }
-        )
+        row = _replay_smoother(rec, w, modes)
+        replay = row.pop("_replay")
+        rows.append(row)
+        if w == leg_w:
+            numpy_leg = _replay_smoother(rec, w, {"smoother"}, compiled=False)
+            numpy_leg.pop("_replay")
         if "batch" in replay.estimators:
             b = replay.estimators["batch"]
             batch = {
@@ -186,6 +226,9 @@ def bench_replay(recording: Path, windows_s: list[float]) -> dict[str, Any]:
         "recording": _common.display_path(str(recording)),
         "frames": rec.num_frames,
         "fixed_lag": rows,
+        # the same window with the numpy step means (imu_sampling.common_frame_samples) and the
+        # Python per-sample path: what a short recording runs without VIO_GRAPH_COMPILED=1
+        "numpy_sampler": numpy_leg,
         "batch": batch,
     }
 
@@ -223,6 +266,7 @@ def markdown(r: dict[str, Any]) -> str:
         for x in rp["fixed_lag"]
     ]
     b = rp["batch"]
+    leg = rp.get("numpy_sampler")
     lines = [
         f"Replay of the simulated upstair trial ({rp['frames']} frames) through "
         "`vio_graph.replay.Replay` (the smoother as `vio-graph run` uses it), per keyframe:",
@@ -242,6 +286,39 @@ def markdown(r: dict[str, Any]) -> str:
         ),
         "",
     ]
+    if leg:
+        same = [x for x in rp["fixed_lag"] if x["window_s"] == leg["window_s"]][0]
+        lines += [
+            f"Preintegration step means compiled with numba (smoother/compiled_sampling.py, "
+            f"`VIO_GRAPH_COMPILED=1` as on long recordings) against the numpy sampler "
+            f"(imu_sampling.common_frame_samples, the tested reference; short recordings), "
+            f"{leg['window_s']:g} s window, consecutive replays:",
+            "",
+            _common.md_table(
+                ["what", "compiled median", "compiled p95", "numpy median", "numpy p95"],
+                [
+                    [
+                        f"{name}, {unit}",
+                        f(same[key]["median"], nd),
+                        f(same[key]["p95"], nd),
+                        f(leg[key]["median"], nd),
+                        f(leg[key]["p95"], nd),
+                    ]
+                    for name, key, unit, nd in (
+                        ("factor building (incl. preintegration)", "build_ms", "ms", 2),
+                        ("smoother update", "update_ms", "ms", 2),
+                        ("update + building", "update_plus_build_ms", "ms", 2),
+                        (
+                            "IMU sample into the smoother (no keyframe completed)",
+                            "imu_input_us_per_sample",
+                            "us",
+                            1,
+                        ),
+                    )
+                ],
+            ),
+            "",
+        ]
     if b:
         lines += [
             f"Batch solve on the same replay: {b['trial_s']:.0f} s trial, {b['keyframes']} "

@@ -67,10 +67,17 @@ def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any], sc: dic
         *(
             [
                 [
-                    "IMU propagation per sample (attitude, SP-ESKF, stance detector)",
+                    "IMU propagation per sample (clock, fault monitor, attitude, SP-ESKF, "
+                    "stance detector; compiled)",
                     f"{f(imu['fast']['median'], 1)} / {f(imu['fast']['p95'], 1)} us",
                     f"target <= 20 us; numpy reference {f(imu['reference']['median'], 1)} us "
-                    f"(fast / reference = {f(imu['ratio_median'], 3)})",
+                    f"(fast / reference = {f(imu['ratio_median'], 3)})"
+                    + (
+                        f"; Python closed forms (short recordings) "
+                        f"{f(imu['scalar']['median'], 1)} us"
+                        if "scalar" in imu
+                        else ""
+                    ),
                 ]
             ]
             if imu
@@ -127,9 +134,25 @@ def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any], sc: dic
             f"fixed-lag smoother per keyframe, {sm_row['window_s']:g} s window (replay)",
             f"{f(sm_row['update_plus_build_ms']['median'])} / "
             f"{f(sm_row['update_plus_build_ms']['p95'])} ms",
-            "update + factor building",
+            f"target <= 1 ms; update {f(sm_row['update_ms']['median'])} + factor building "
+            f"{f(sm_row['build_ms']['median'])} ms"
+            + (
+                f" (numpy step means: {f(leg['build_ms']['median'])} ms)"
+                if (leg := sm["replay"].get("numpy_sampler"))
+                else ""
+            ),
         ],
     ]
+    if "imu_input_us_per_sample" in sm_row:
+        rows.insert(
+            1 if imu else 0,
+            [
+                "IMU sample into the smoother's preintegration buffer",
+                f"{f(sm_row['imu_input_us_per_sample']['median'], 1)} / "
+                f"{f(sm_row['imu_input_us_per_sample']['p95'], 1)} us",
+                "target <= 20 us (samples that complete no keyframe)",
+            ],
+        )
     if sm["replay"]["batch"]:
         b = sm["replay"]["batch"]
         rows.append(

@@ -192,7 +192,15 @@ def test_cheap_commands_run_as_written(tmp_path: Path) -> None:
     for name in ("depth/depth_mm.npy", "imu.csv", "groundtruth/toe.tum"):
         a, b = tmp_path / "data" / "sample" / name, ROOT / "data" / "sample" / name
         if name.endswith(".npy"):
-            assert np.array_equal(np.load(a), np.load(b)), name
+            # The ray cast (open3d / Embree) can round a pixel at a millimetre boundary the
+            # other way in another open3d release (open3d-cpu 0.20.0 against the release that
+            # wrote the committed sample: 14 of 1.0 M pixels by 1 mm): the same valid pixels,
+            # and at most 1 mm on at most 1 in 10^4 pixels.
+            new_mm, old_mm = np.load(a).astype(np.int64), np.load(b).astype(np.int64)
+            assert new_mm.shape == old_mm.shape, name
+            assert np.array_equal(new_mm == 0, old_mm == 0), name
+            diff = np.abs(new_mm - old_mm)
+            assert diff.max() <= 1 and np.count_nonzero(diff) <= 1e-4 * diff.size, name
         else:
             assert a.read_text() == b.read_text(), name
     assert (tmp_path / "results" / "sample" / "metrics.json").is_file()

@@ -114,6 +114,7 @@ def test_clock_fit_is_bit_for_bit_the_np_mean_formulation() -> None:
     stamps = 3.0 + np.cumsum(0.01 + rng.normal(0.0, 0.002, 700))
     stamps[400:] += 0.3
     model = ClockModel(0.01, 120, 5.0)
+    model._kernels = None  # the Python path (the compiled one sums x-y in another order)
     fitted = model._fit
     checked = []
 
@@ -128,7 +129,11 @@ def test_clock_fit_is_bit_for_bit_the_np_mean_formulation() -> None:
     assert min(checked) < 20 <= max(checked) == 120 and moved > 300
 
 
-def test_clock_fit_and_fault_monitor_equal_their_references() -> None:
+@pytest.mark.parametrize("compiled", ["0", "1"])
+def test_clock_fit_and_fault_monitor_equal_their_references(
+    compiled: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", compiled)  # scalar Python / numba kernels
     """The clock model's closed-form line fit against np.polyfit on jittered stamps with a gap,
     and the IMU fault monitor's scalar path against its numpy reference on a swinging shank
     with saturated and corrupted samples (both paths must fire)."""
@@ -141,6 +146,16 @@ def test_clock_fit_and_fault_monitor_equal_their_references() -> None:
     out_r = np.array([ref.correct(t) for t in stamps])
     assert fast.n_gaps == 1 and np.count_nonzero(out_f != stamps) > 1000  # the fit moved them
     np.testing.assert_allclose(out_f, out_r, rtol=0, atol=1e-12)
+    for model in (fast, ref):  # a stamp going backwards: dropped and reported by both
+        assert model.correct(stamps[-1] - 0.05) is None
+    rep_f, rep_r = fast.report(), ref.report()
+    assert (
+        rep_f["gap_list"] == rep_r["gap_list"]
+        and rep_f["backwards_list"] == rep_r["backwards_list"]
+    )
+    assert rep_f["correction_rms_s"] == pytest.approx(
+        rep_r["correction_rms_s"], rel=1e-9, abs=1e-15
+    )
 
     samples = _swinging_samples(400, seed=5)
     for k in (50, 51, 200):  # corrupt packets: gyro and accelerometer off
@@ -175,7 +190,11 @@ def _swinging_samples(n: int = 600, seed: int = 2) -> list[ImuSample]:
     return out
 
 
-def test_propagate_attitude_and_stance_equal_their_references() -> None:
+@pytest.mark.parametrize("compiled", ["0", "1"])
+def test_propagate_attitude_and_stance_equal_their_references(
+    compiled: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", compiled)  # scalar Python / numba kernels
     samples = _swinging_samples()
     T = np.eye(4)
     T[:3, 3] = (0.05, 0.02, -0.1)  # lever arm on, so the tangential / centripetal terms count
@@ -191,7 +210,12 @@ def test_propagate_attitude_and_stance_equal_their_references() -> None:
         att_f.add(s)
         att_r.add_reference(s)
         R2 = sagittal_rotation(s.quat_wxyz)
-        a_f = st_f.add_imu(s.timestamp_s, s.accel_mps2, s.gyro_radps, R2, (0.0, -9.81))
+        if st_f.compiled:
+            a_f = st_f.add_imu_quat(
+                s.timestamp_s, s.accel_mps2, s.gyro_radps, s.quat_wxyz, (0.0, -9.81)
+            )
+        else:
+            a_f = st_f.add_imu(s.timestamp_s, s.accel_mps2, s.gyro_radps, R2, (0.0, -9.81))
         a_r = st_r.add_imu_reference(s.timestamp_s, s.accel_mps2, s.gyro_radps, R2, (0.0, -9.81))
         assert a_f == pytest.approx(a_r, abs=1e-12)
     sf, sr = fast.state, ref.state
@@ -206,7 +230,8 @@ def test_a_whole_replay_equals_the_reference_path(
     short_upstair: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The filter, IMU-only and ICP-only answers of a replay (front end, level aiding and
-    stance anchor included) with the fast path and with every numpy reference swapped in.
+    stance anchor included) with the scalar fast path, with the compiled kernels
+    (filter/compiled_imu.py, numba) and with every numpy reference swapped in.
 
     A simulated trial, not the tiny synthetic recording: on the latter's noise-free, exactly
     level geometry a 2e-15 change of the attitude (the rounding difference of the two
@@ -222,7 +247,11 @@ def test_a_whole_replay_equals_the_reference_path(
         out["P"] = rp.online.filter.state.P
         return out
 
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "0")  # the scalar Python closed forms
     fast = run()
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")  # the compiled kernels (filter/compiled_imu)
+    compiled = run() if fast_imu.imu_kernels() is not None else None
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "0")
     monkeypatch.setattr(SagittalEskf, "propagate", SagittalEskf.propagate_reference)
     monkeypatch.setattr(AttitudeTracker, "add", AttitudeTracker.add_reference)
     monkeypatch.setattr(StanceDetector, "add_imu", StanceDetector.add_imu_reference)
@@ -245,8 +274,11 @@ def test_a_whole_replay_equals_the_reference_path(
     ref = run()
     assert set(fast) == set(ref) and {"filter", "imu_only", "icp_only"} <= set(fast)
     assert np.ptp(fast["filter"][:, 0]) > 0.05  # the camera moved
-    for name in fast:
-        if name == "P":
-            np.testing.assert_allclose(fast[name], ref[name], rtol=1e-9, atol=1e-15)
-        else:
-            np.testing.assert_allclose(fast[name], ref[name], atol=1e-9, err_msg=name)
+    for got in (fast, compiled):
+        if got is None:  # numba not installed
+            continue
+        for name in ref:
+            if name == "P":
+                np.testing.assert_allclose(got[name], ref[name], rtol=1e-9, atol=1e-15)
+            else:
+                np.testing.assert_allclose(got[name], ref[name], atol=1e-9, err_msg=name)

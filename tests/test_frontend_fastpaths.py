@@ -333,8 +333,12 @@ def _reference_find_levels(pts: np.ndarray, config) -> list:
 
 
 def test_find_levels_equals_the_numpy_formulation() -> None:
+    """The compiled levels (the fixture turns the kernels on) and the numpy path both equal
+    the original formulation, bit for bit."""
     from vio_graph.frontend.config import TerrainConfig
-    from vio_graph.frontend.terrain import find_levels
+    from vio_graph.frontend.terrain import find_levels, find_levels_reference
+
+    assert icp_module.compiled_kernels() is not None
 
     rng = np.random.default_rng(4)
     configs = [TerrainConfig(), TerrainConfig(min_level_points=3, level_gap_m=0.02)]
@@ -348,6 +352,7 @@ def test_find_levels_equals_the_numpy_formulation() -> None:
         for cfg in configs:
             levels = find_levels(pts, cfg)
             assert levels == _reference_find_levels(pts, cfg)
+            assert find_levels_reference(pts, cfg) == levels
             n_levels += len(levels)
     assert n_levels > 300
 
@@ -468,3 +473,58 @@ def test_level_tilt_means_are_np_mean_bit_for_bit(monkeypatch: pytest.MonkeyPatc
     ]
     assert sum(t is not None and t.n_lines >= 2 for t in fast) > 20
     assert fast == ref  # dataclass equality: every float the same
+
+
+def test_compiled_corner_lines_equal_the_numpy_path() -> None:
+    """The corners' horizontal-line RANSAC and largest run compiled and in numpy: the same
+    height, the same inlier mask, the same draws consumed, None in the same cases (no
+    candidate, every hypothesis excluded); the same run."""
+    from vio_graph.frontend import corners
+
+    assert icp_module.compiled_kernels() is not None
+    rng = np.random.default_rng(43)
+    n_none = n_lines = 0
+    for case in range(200):
+        pts = _stairs(rng, int(rng.integers(1, 300)), noise_m=0.003)
+        if case % 5 == 0:
+            pts = np.round(pts, 2)  # ties between the hypotheses' counts and in the runs
+        cand = None if case % 3 == 0 else rng.uniform(size=pts.shape[0]) < 0.7
+        if case % 13 == 0:
+            cand = np.zeros(pts.shape[0], bool)  # no candidate at all
+        exclude = () if case % 2 else (0.0, 0.15)
+        separation = 0.5 if case % 7 == 0 else 0.02  # 0.5: every hypothesis excluded
+        ra, rb = np.random.default_rng(case), np.random.default_rng(case)
+        got = corners.ransac_horizontal_line(pts, 0.01, 20, ra, exclude, separation, cand)
+        ref = corners.ransac_horizontal_line_reference(pts, 0.01, 20, rb, exclude, separation, cand)
+        assert (got is None) == (ref is None)
+        if ref is None:
+            n_none += 1
+        else:
+            assert got is not None
+            assert got.height_m == ref.height_m
+            assert np.array_equal(got.inliers, ref.inliers)
+            n_lines += 1
+            gap = 0.005 * (case % 4)
+            x = pts[ref.inliers, 0]
+            assert np.array_equal(
+                corners._largest_run(x, gap), corners._largest_run_reference(x, gap)
+            )
+        assert ra.integers(0, 1 << 30) == rb.integers(0, 1 << 30)
+    assert n_none > 20 and n_lines > 100
+
+
+def test_face_percentiles_and_medians_are_numpys_bit_for_bit() -> None:
+    """find_faces' percentile (linear) and median on sorted values equal np.percentile and
+    np.median exactly, for every size (odd, even, 1) and with ties."""
+    from vio_graph.frontend.terrain import _median_sorted, _percentile_sorted
+
+    rng = np.random.default_rng(47)
+    for n in [*range(1, 40), 97, 128, 301]:
+        for _ in range(5):
+            v = rng.normal(0.1, 0.05, n)
+            if n % 3 == 0:
+                v = np.round(v, 2)
+            s = np.sort(v).tolist()
+            for q in (5, 50, 95):
+                assert _percentile_sorted(s, q) == np.percentile(v, q)
+            assert _median_sorted(s, 0, n) == np.median(v)

@@ -72,6 +72,32 @@ def test_time_offset_from_tilt_against_pitch_rate(td_s: float) -> None:
         assert est.applied_s == est.td_s
 
 
+@pytest.mark.parametrize("td_s", [-0.03, 0.02])
+def test_scalar_update_equals_the_numpy_reference(td_s: float) -> None:
+    """TimeOffsetEstimator.update (Python floats) and update_reference (numpy) on the same
+    tilts, outliers included: the same gate decisions, latch and applied offset, the same
+    estimate and covariance to rounding."""
+    rng = np.random.default_rng(5)
+    fast = TimeOffsetEstimator(TimeOffsetConfig(), np.radians(3.0), np.radians(0.5))
+    ref = TimeOffsetEstimator(TimeOffsetConfig(), np.radians(3.0), np.radians(0.5))
+    outcomes = []
+    for k in range(200):
+        t = k / 30.0
+        w = 5.0 * np.sin(2 * np.pi * t / 1.1)
+        tilt = -w * (td_s - ref.applied_s) + rng.normal(0, np.radians(0.15))
+        if k % 17 == 16:
+            tilt += np.radians(5.0)  # an outlier the gate refuses
+        a = fast.update(t, tilt, np.radians(0.15), 0.0, w)
+        b = ref.update_reference(t, tilt, np.radians(0.15), 0.0, w)
+        assert a == b
+        outcomes.append(a)
+        assert fast.applied_s == pytest.approx(ref.applied_s, rel=1e-9, abs=1e-15)
+    assert False in outcomes and fast.latched and ref.latched
+    np.testing.assert_allclose(fast.x, ref.x, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(fast.P, ref.P, rtol=1e-9, atol=1e-20)
+    assert (fast.n_updates, fast.n_rejected) == (ref.n_updates, ref.n_rejected)
+
+
 def test_pipeline_estimates_a_camera_imu_offset_and_counts_saturation(tmp_path: Path) -> None:
     """End to end on a simulated upstair trial with a 20 ms camera offset and a 4 g
     accelerometer: td within 2 ms of the truth, the saturated samples counted, the metrics keys

@@ -143,6 +143,8 @@ def _print_ate_table(metrics: dict) -> None:
         pl = metrics["placement"][mode]["error_mm"]["median"]
         w1 = c.get("within_1sigma", float("nan"))
         sigma = f", within 1 sigma {w1:.2f}" if math.isfinite(w1) else ""
+        cs = c.get("pose_consistency_scale", {}).get("last", float("nan"))
+        sigma += f" (pose consistency scale {cs:.2f})" if math.isfinite(cs) else ""
         trips = (
             f"near-trips {nt['events']}, warnings {nt['warnings']}, recall {nt['recall']:.2f}, "
             f"min lead {nt['min_lead_ms']:.0f} ms"

@@ -88,7 +88,6 @@ from vio_graph.geometry import (
     quat_wxyz_from_matrix,
     remove_yaw,
     rot_y,
-    rotate_xz,
 )
 from vio_graph.health import HealthLimits, HealthMonitor
 from vio_graph.keyframes import KeyframeSelector
@@ -131,6 +130,20 @@ def reference_pitch_offset_quat(
 #: (``reference_pitch_offset_quat``, ``filter.eskf.sagittal_rotation``) and compare states.
 _pitch_offset_quat = pitch_offset_quat
 _sagittal_rotation = sagittal_rotation_fast
+
+
+def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float64]) -> ImuSample:
+    """``dataclasses.replace(sample, timestamp_s=..., quat_wxyz=...)`` without its field
+    introspection (a few microseconds on the per-sample path)."""
+    return ImuSample(
+        timestamp_s,
+        sample.accel_mps2,
+        sample.gyro_radps,
+        quat_wxyz,
+        sample.accel_extra_sigma_mps2,
+        sample.gyro_extra_sigma_radps,
+        sample.accel_held,
+    )
 
 
 @dataclass(frozen=True)
@@ -262,6 +275,8 @@ class OnlineEstimator:
             np.zeros(2) if initial_camera_xz_m is None else np.asarray(initial_camera_xz_m, float)
         )
         self._last_imu: ImuSample | None = None  # in shank axes, pitch offset applied
+        # R_world_imu's last answer: (t s, pitch offset rad, latest IMU sample, row-major R)
+        self._attitude_memo: tuple[float, float, ImuSample, Mat3] | None = None
         #: the latest sample the fault monitor did not repair (its gyro is a measurement)
         self._last_trusted_imu: ImuSample | None = None
         self._last_joints: JointAngles | None = None
@@ -416,7 +431,7 @@ class OnlineEstimator:
             if t_clock is None:
                 return None
             if t_clock != sample.timestamp_s:
-                sample = dataclasses.replace(sample, timestamp_s=t_clock)
+                sample = _replaced(sample, t_clock, sample.quat_wxyz)
         sample = self.imu_faults.process(sample)  # saturation marks, gyro repair (IMU axes)
         sample = shank = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
@@ -434,14 +449,24 @@ class OnlineEstimator:
         # re-stamped frame finds it at (not past) its capture time
         self._propagate_until(sample.timestamp_s - max(self.time_offset.applied_s, 0.0))
         if self.config.filter.stance_anchor:
-            self._stance.add_imu(
-                sample.timestamp_s,
-                sample.accel_mps2,
-                sample.gyro_radps,
-                _sagittal_rotation(sample.quat_wxyz),
-                self.config.filter.gravity_xz_mps2,
-                trusted=not sample.accel_held,
-            )
+            if self._stance.compiled:  # the sagittal rotation inside, compiled
+                self._stance.add_imu_quat(
+                    sample.timestamp_s,
+                    sample.accel_mps2,
+                    sample.gyro_radps,
+                    sample.quat_wxyz,
+                    self.config.filter.gravity_xz_mps2,
+                    trusted=not sample.accel_held,
+                )
+            else:
+                self._stance.add_imu(
+                    sample.timestamp_s,
+                    sample.accel_mps2,
+                    sample.gyro_radps,
+                    _sagittal_rotation(sample.quat_wxyz),
+                    self.config.filter.gravity_xz_mps2,
+                    trusted=not sample.accel_held,
+                )
         self._last_imu = sample
         if not sample.accel_held:
             self._last_trusted_imu = sample
@@ -483,8 +508,19 @@ class OnlineEstimator:
     def _with_tracked_attitude(self, sample: ImuSample) -> ImuSample:
         """``sample`` carrying the tracked attitude at its time (filter/attitude.py, heading
         removed, level-surface pitch offset applied) instead of the vendor orientation."""
-        q = mat3_quat(self._level_aided_attitude_mat3(sample.timestamp_s))
-        return dataclasses.replace(sample, quat_wxyz=q)
+        att = self.attitude
+        k = att._kernels
+        t = sample.timestamp_s
+        if k is not None and att.config.source != "vendor" and t >= att._t_s:
+            # compiled: the tracker's latest attitude extrapolated to t (0 s here), heading
+            # removed, level-surface offset applied, as a quaternion
+            R = att._R
+            assert R is not None
+            b = self.pitch_offset.offset_rad
+            q = np.array(k.tracked_quat(R, att._gyro_radps, t - att._t_s, b))
+        else:
+            q = mat3_quat(self._level_aided_attitude_mat3(t))
+        return _replaced(sample, t, q)
 
     def _with_tracked_attitude_reference(self, sample: ImuSample) -> ImuSample:
         """numpy reference of :meth:`_with_tracked_attitude` (the tests compare the two)."""
@@ -509,7 +545,13 @@ class OnlineEstimator:
         paper's ground frame); ``config.filter.attitude`` says how (filter/attitude.py)."""
         if self._last_imu is None:
             raise EstimationError("no IMU sample yet")
-        return self._level_aided_attitude(self._last_imu.timestamp_s if t_s is None else t_s)
+        t = self._last_imu.timestamp_s if t_s is None else t_s
+        # a frame asks for the same attitude up to four times: remembered while the time, the
+        # pitch offset and the latest IMU sample (the attitude tracker's input) are the same
+        b, last, memo = self.pitch_offset.offset_rad, self._last_imu, self._attitude_memo
+        if memo is None or memo[0] != t or memo[1] != b or memo[2] is not last:
+            memo = self._attitude_memo = (t, b, last, self._level_aided_attitude_mat3(t))
+        return np.array(memo[3]).reshape(3, 3)
 
     def R_world_imu_reference(self, t_s: float | None = None) -> NDArray[np.float64]:
         """numpy reference of :meth:`R_world_imu` (the tests compare the two)."""
@@ -575,8 +617,9 @@ class OnlineEstimator:
             t_prev, p_prev = self._prev_frame
             dt = t - t_prev
             pred_delta = p_pred - p_prev
-            P = self.filter.state.P
-            pred_cov = P[2:4, 2:4] * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
+            pred_cov = (
+                self.filter.cov_velocity_m2ps2() * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
+            )
         # 3. front end (eq. 1-4)
         result = self.frontend.process(
             frame, self.rig.K, R_ground_cam, pred_delta, pred_cov, self._ground_turn_rad
@@ -610,7 +653,6 @@ class OnlineEstimator:
                 # lock-out it counts like a refusal of the filter's gate
                 self._recover_if_locked_out(True)
         self._fuse_landmarks(t, result, R_world_imu)
-        state = self.filter.state
         camera_xz, velocity = self._position_at(t)
         if self.stamp_test is not None:
             self.stamp_test.end_frame(velocity)
@@ -623,7 +665,7 @@ class OnlineEstimator:
             self._in_stance,
             corner_seen,
             refused=refused,
-            velocity_sigma_x_mps=float(np.sqrt(max(state.P[2, 2], 0.0))),
+            velocity_sigma_x_mps=float(np.sqrt(max(self.filter.variance(2), 0.0))),
             distrusted_imu_samples=self.imu_faults.n_distrusted,
         )
         timings["fusion"] = (time.perf_counter() - t0) * 1e3
@@ -641,14 +683,14 @@ class OnlineEstimator:
             safety = self.safety.update(
                 t,
                 camera_xz,
-                state.cov_position_m2,
+                self.filter.cov_position_m2(),
                 pts.heel_xz_m[0],
                 pts.toe_xz_m[0],
                 self._in_stance,
                 result.profile_xz_m if is_kf else None,
             )
             timings["safety"] = (time.perf_counter() - t0) * 1e3
-        status = state.status
+        status = self.filter.status
         if result.displacement is None and status is EstimateStatus.FUSED:
             status = EstimateStatus.IMU_ONLY
         estimate = FrameEstimate(
@@ -656,7 +698,7 @@ class OnlineEstimator:
             status=status,
             camera_xz_m=camera_xz,
             velocity_xz_mps=velocity,
-            cov_position_m2=state.cov_position_m2,
+            cov_position_m2=self.filter.cov_position_m2(),
             knee_xz_m=pts.knee_xz_m[0],
             ankle_xz_m=pts.ankle_xz_m[0],
             heel_xz_m=pts.heel_xz_m[0],
@@ -741,7 +783,7 @@ class OnlineEstimator:
         # r_line = r_stamp - u: the other hypothesis moves the measurement by -u (or +u)
         moved = np.asarray(d.delta_xz_m, dtype=float) + (u if test.use_line else -u)
         d2 = self.filter.displacement_d2(d)
-        d2_other = self.filter.displacement_d2(dataclasses.replace(d, delta_xz_m=moved))
+        d2_other = self.filter.displacement_d2(d, delta_xz_m=moved)
         if d2 is not None and d2_other is not None:
             test.add(d2, d2_other)
         return d2
@@ -882,10 +924,12 @@ class OnlineEstimator:
         """ankle - camera through the shank (m, ground axes): R_shank (ankle_in_shank -
         camera_in_shank), and its derivative by the shank pitch."""
         theta = self.rig.shank_pitch_rad(R_world_imu)
-        u = self._ankle_from_camera_shank_m
-        lever = rotate_xz(theta, u)
-        # d lever/d theta = R'(theta) u = R(theta) (u_z, -u_x): the same products and sums
-        dlever = rotate_xz(theta, np.array([u[1], -u[0]]))
+        u0, u1 = self._ankle_from_camera_shank_m.tolist()
+        # geometry.rotate_xz written out on scalars (the same products and sums, no stack)
+        c, s = np.cos(theta), np.sin(theta)
+        lever = np.array([c * u0 + s * u1, -s * u0 + c * u1])
+        # d lever/d theta = R'(theta) u = R(theta) (u_z, -u_x)
+        dlever = np.array([c * u1 + s * -u0, -s * u1 + c * -u0])
         return lever, dlever
 
     def _fuse_stance(

@@ -8,6 +8,10 @@ The true clearance and placement per frame come from the ground-truth heel and t
 - ``error_mm``: estimated minus true clearance (median and p95 of |error|, mm), over frames
   where both exist;
 - ``within_1sigma`` / ``within_2sigma``: share of those frames with |error| <= 1 / 2 sigma;
+- ``pose_consistency_scale`` / ``map_consistency_scale``: median, max and last value over
+  the frames of the factors the keyframes' heights put on the sigma's pose and map terms
+  (vio_graph/safety/consistency.py; a pose scale above 1: the filter's covariance
+  understates its drift);
 - ``near_trip``: a true near-trip frame is a swing frame (ankle not still) with the true toe
   moving forward faster than ``warning_min_forward_speed_mps`` and at least as fast as it
   descends, and a true clearance to the next edge (nosing clearance) below ``near_trip_m``
@@ -209,6 +213,14 @@ def score_mode(
         z = np.abs(err[ok]) / sig[ok]
         block["within_1sigma"] = float(np.mean(z <= 1)) if z.size else float("nan")
         block["within_2sigma"] = float(np.mean(z <= 2)) if z.size else float("nan")
+        for term in ("pose", "map"):
+            sc = col(f"{term}_consistency_scale")
+            sc = sc[np.isfinite(sc)]
+            block[f"{term}_consistency_scale"] = {
+                "median": float(np.median(sc)) if sc.size else float("nan"),
+                "max": float(np.max(sc)) if sc.size else float("nan"),
+                "last": float(sc[-1]) if sc.size else float("nan"),
+            }
     warn = np.array([bool(s.near_trip_warning) if s is not None else False for s in est])
     block["near_trip"] = near_trip_scores(
         t_s, warn, truth["t_dense_s"], truth["near_trip"], truth["nosing_dense_m"]

@@ -29,6 +29,7 @@ The class is pure (no I/O) and keeps only the latest sample.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -38,6 +39,7 @@ from vio_graph.errors import EstimationError
 from vio_graph.filter.config import AttitudeConfig, LevelAidingConfig
 from vio_graph.filter.fast_imu import (
     Mat3,
+    imu_kernels,
     mat3_mul,
     mat3_rotvec,
     mat3_tmul,
@@ -66,6 +68,7 @@ class AttitudeTracker:
         self._recent: deque[tuple[float, Mat3, tuple[float, float, float]]] = deque(
             maxlen=_HISTORY_SAMPLES
         )
+        self._kernels = imu_kernels()  # compiled complementary step, or None
 
     def add(self, imu: ImuSample) -> None:
         """Advance to ``imu.timestamp_s`` with the sample's gyro rate and vendor orientation.
@@ -73,12 +76,21 @@ class AttitudeTracker:
         Scalar closed forms (filter/fast_imu.py); :meth:`add_reference` is the numpy / scipy
         version the tests compare it with.
         """
-        R_vendor = quat_matrix(imu.quat_wxyz)
         gx, gy, gz = np.asarray(imu.gyro_radps, dtype=float).tolist()
         t = float(imu.timestamp_s)
         if self._R is None or self.config.source != "complementary":
-            self._R = R_vendor
+            self._R = quat_matrix(imu.quat_wxyz)
+        elif self._kernels is not None:  # the same step compiled (filter/compiled_imu.py)
+            dt = t - self._t_s
+            if dt < 0:
+                raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
+            qw, qx, qy, qz = np.asarray(imu.quat_wxyz, dtype=float).tolist()
+            k = min(1.0, dt / self.config.time_constant_s)
+            self._R = self._kernels.attitude_step(
+                self._R, self._gyro_radps, (gx, gy, gz), (qw, qx, qy, qz), dt, k
+            )
         else:
+            R_vendor = quat_matrix(imu.quat_wxyz)
             dt = t - self._t_s
             if dt < 0:
                 raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
@@ -124,6 +136,36 @@ class AttitudeTracker:
     def gyro_at(self, t_s: float) -> NDArray[np.float64]:
         """Gyro rate (rad/s, IMU axes) at ``t_s``, interpolated over the recent samples (held
         beyond them)."""
+        recent = self._recent
+        if not recent:
+            return np.array(self._gyro_radps)
+        # np.interp per axis, written out on the few samples kept (same branches and
+        # arithmetic as numpy's: held beyond the ends, the sample itself on an exact stamp,
+        # else slope * (t - t_j) + g_j); :meth:`gyro_at_reference` is the numpy form
+        if t_s >= recent[-1][0]:
+            return np.array(recent[-1][2])
+        if t_s <= recent[0][0]:
+            return np.array(recent[0][2])
+        j = len(recent) - 2
+        while recent[j][0] > t_s:  # the latest sample at or before t_s (frames lag a few)
+            j -= 1
+        t0, _, g0 = recent[j]
+        if t0 == t_s:
+            return np.array(g0)
+        t1, _, g1 = recent[j + 1]
+        out = []
+        for a, b in zip(g0, g1, strict=True):
+            slope = (b - a) / (t1 - t0)
+            v = slope * (t_s - t0) + a
+            if math.isnan(v):
+                v = slope * (t_s - t1) + b
+                if math.isnan(v) and a == b:
+                    v = a
+            out.append(v)
+        return np.array(out)
+
+    def gyro_at_reference(self, t_s: float) -> NDArray[np.float64]:
+        """numpy reference of :meth:`gyro_at` (np.interp per axis)."""
         if not self._recent:
             return np.array(self._gyro_radps)
         ts = np.array([r[0] for r in self._recent])

@@ -76,8 +76,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
-from vio_graph.filter.fast_imu import sagittal_pitch
-from vio_graph.filter.gating import chi2_2dof_quantile
+from vio_graph.filter.fast_imu import imu_kernels, sagittal_pitch
+from vio_graph.filter.gating import chi2_2dof_quantile, mahalanobis2_2d
 from vio_graph.filter.lever_arm import angular_acceleration, lever_arm_terms
 from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw, rot_y_xz
 from vio_graph.types import Displacement2D, EstimateStatus, ImuSample, LandmarkKey
@@ -135,6 +135,11 @@ def sagittal_rotation(quat_wxyz: ArrayLike) -> NDArray[np.float64]:
     if R_w_i[1, 1] < 0.0:  # body y (lateral) points to world -y: the flipped ZYX solution
         R_w_i = np.diag([-1.0, -1.0, 1.0]) @ R_w_i
     return rot_y_xz(float(pitch_of(R_w_i)))
+
+
+def _f64(a: ArrayLike) -> NDArray[np.float64]:
+    """``a`` as a float64 array (itself if it is one)."""
+    return np.asarray(a, dtype=np.float64)
 
 
 class _ImuMemo(NamedTuple):
@@ -199,6 +204,10 @@ class SagittalEskf:
         self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0
         self._n_lm_acc = self._n_lm_rej = 0
         self._prev_xa = 0.0  # extra accel sigma of the previous IMU sample (m/s^2)
+        # compiled propagation (filter/compiled_imu.py): the previous sample's memory in one
+        # array instead of _prev / _prev_xa / _accel_w_mps2
+        self._kernels = imu_kernels()
+        self._mem = None if self._kernels is None else self._kernels.new_memory()
 
     # ------------------------------------------------------------------ set-up
     def initialise(
@@ -240,6 +249,10 @@ class SagittalEskf:
         self._aug_keys, self._aug_xz = [], {}
         self._prev = None
         self._accel_w_mps2 = np.zeros(2)
+        k = self._kernels
+        if self._mem is not None and k is not None:
+            self._mem[: k.MEM_PREV_XA] = 0.0  # no previous sample
+            self._mem[k.MEM_AW :] = 0.0
         self._history = deque([(self._t_s, x[:2].copy())])
         self._last_accept_s = -np.inf
         self._initialised = True
@@ -266,6 +279,9 @@ class SagittalEskf:
             raise EstimationError(
                 f"IMU sample at {t:.6f} s is older than the state at {self._t_s:.6f} s"
             )
+        if self._mem is not None:
+            self._propagate_compiled(imu, t, dt)
+            return
         ax, ay, az = np.asarray(imu.accel_mps2, dtype=float).tolist()
         gx, gy, gz = np.asarray(imu.gyro_radps, dtype=float).tolist()
         if not all(map(math.isfinite, (ax, ay, az, gx, gy, gz))):
@@ -348,6 +364,36 @@ class SagittalEskf:
         P[5, 5] += var_ab
         self._t_s = t
         self._remember(t, x[0:2])
+
+    def _propagate_compiled(self, imu: ImuSample, t: float, dt: float) -> None:
+        """The rest of :meth:`propagate` in one compiled call (filter/compiled_imu.py)."""
+        c = self.config
+        k, mem = self._kernels, self._mem
+        assert k is not None and mem is not None
+        moved = k.eskf_propagate(
+            self._x,
+            self._P,
+            mem,
+            t,
+            dt,
+            _f64(imu.accel_mps2),
+            _f64(imu.gyro_radps),
+            _f64(imu.quat_wxyz),
+            self._r_imu_cam_m,
+            c.lever_arm_compensation,
+            c.integration == "trapezoid",
+            c.accel_noise_sigma_mps2,
+            float(imu.accel_extra_sigma_mps2),
+            c.attitude_sigma_rad,
+            c.accel_bias_rw_mps2_per_sqrt_s**2,
+        )
+        if moved < 0:
+            raise EstimationError(f"IMU sample at {t:.6f} s holds NaN or inf")
+        self._accel_w_mps2 = mem[k.MEM_AW : k.MEM_AW + 2]  # a view: updated in place
+        self._n_imu += 1
+        if moved:
+            self._t_s = t
+            self._remember(t, self._x[0:2])
 
     def propagate_reference(self, imu: ImuSample) -> None:
         """The numpy reference of :meth:`propagate` (same state to rounding; the tests run both).
@@ -511,11 +557,51 @@ class SagittalEskf:
         self._P[2:4, 2:4] += float(sigma_mps) ** 2 * _I2
 
     def displacement_d2(
-        self, d: Displacement2D, extra_pv_cov: NDArray | None = None
+        self,
+        d: Displacement2D,
+        extra_pv_cov: NDArray | None = None,
+        delta_xz_m: ArrayLike | None = None,
     ) -> float | None:
         """Mahalanobis distance^2 the gate would see for displacement ``d`` (no update), with
-        ``extra_pv_cov`` (4x4, on dp, dv) added to the state covariance first. None if ``d``
-        is not a relative measurement on the current clone (nothing to test)."""
+        ``extra_pv_cov`` (4x4, on dp, dv) added to the state covariance first and
+        ``delta_xz_m`` (m), if given, in place of ``d.delta_xz_m``. None if ``d`` is not a
+        relative measurement on the current clone (nothing to test). The innovation
+        covariance's 2x2 inverse in closed form (as :meth:`_correct`); the LAPACK solve of
+        :meth:`displacement_d2_reference` agrees to rounding."""
+        self._require_init()
+        t1, t0 = float(d.t1_s), float(d.t0_s)
+        if (
+            self.config.measurement_model != "stochastic_cloning"
+            or _CLONE not in self._aug_xz
+            or abs(self._clone_t_s - t0) > _CLONE_TOL_S
+            or abs(t1 - self._t_s) > self.config.max_time_mismatch_s
+        ):
+            return None
+        dt1 = t1 - self._t_s
+        H = np.zeros((2, self._P.shape[0]))
+        H[:, 0:2] = _I2
+        H[:, 2:4] = dt1 * _I2
+        i = self._aug_index(_CLONE)
+        H[:, i : i + 2] = -_I2
+        delta = _vec2(d.delta_xz_m if delta_xz_m is None else delta_xz_m)
+        y = delta - (self._position_ahead(dt1) - self._aug_xz[_CLONE])
+        P = self._P
+        if extra_pv_cov is not None:
+            P = P.copy()
+            P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
+        V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
+        V = V + self.config.measurement_noise_floor_m**2 * _I2
+        return mahalanobis2_2d(H @ P @ H.T + V, y)
+
+    def displacement_d2_reference(
+        self,
+        d: Displacement2D,
+        extra_pv_cov: NDArray | None = None,
+        delta_xz_m: ArrayLike | None = None,
+    ) -> float | None:
+        """numpy reference of :meth:`displacement_d2` (a LAPACK solve)."""
+        if delta_xz_m is not None:
+            d = Displacement2D(d.t0_s, d.t1_s, np.asarray(delta_xz_m, dtype=float), d.cov_m2)
         self._require_init()
         t1, t0 = float(d.t1_s), float(d.t0_s)
         if (
@@ -701,14 +787,32 @@ class SagittalEskf:
         return self._t_s, self._x[0:2].copy(), self._x[2:4].copy()
 
     @property
+    def status(self) -> EstimateStatus:
+        """:attr:`state`'s status without the snapshot: FUSED while a measurement was accepted
+        within ``fused_timeout_s``, else IMU_ONLY (INITIALISING before :meth:`initialise`)."""
+        if not self._initialised:
+            return EstimateStatus.INITIALISING
+        if self._t_s - self._last_accept_s <= self.config.fused_timeout_s:
+            return EstimateStatus.FUSED
+        return EstimateStatus.IMU_ONLY
+
+    def cov_position_m2(self) -> NDArray[np.float64]:
+        """2x2 covariance of the position (m^2), a copy: :attr:`state`'s without the snapshot."""
+        return self._P[:2, :2].copy()
+
+    def cov_velocity_m2ps2(self) -> NDArray[np.float64]:
+        """2x2 covariance of the velocity ((m/s)^2), a copy."""
+        return self._P[2:4, 2:4].copy()
+
+    def variance(self, i: int) -> float:
+        """Variance of error-state component ``i`` (0-7: dp, dv, da_b, dg; x then z)."""
+        if not 0 <= i < ERROR_STATE_DIM:
+            raise EstimationError(f"error-state index {i} outside 0..{ERROR_STATE_DIM - 1}")
+        return float(self._P[i, i])
+
+    @property
     def state(self) -> FilterState:
         """Frozen snapshot of the current estimate."""
-        if not self._initialised:
-            status = EstimateStatus.INITIALISING
-        elif self._t_s - self._last_accept_s <= self.config.fused_timeout_s:
-            status = EstimateStatus.FUSED
-        else:
-            status = EstimateStatus.IMU_ONLY
         n = ERROR_STATE_DIM
         return FilterState(
             timestamp_s=self._t_s,
@@ -717,7 +821,7 @@ class SagittalEskf:
             accel_bias_xz_mps2=self._x[4:6].copy(),
             gravity_xz_mps2=self._x[6:8].copy(),
             P=self._P[:n, :n].copy(),
-            status=status,
+            status=self.status,
             n_imu=self._n_imu,
             n_accepted=self._n_acc,
             n_rejected=self._n_rej,
@@ -739,7 +843,77 @@ class SagittalEskf:
     ) -> bool:
         """Gate, Kalman gain, injection and reset (eq. 8). Returns False if gated out.
         ``landmark`` says which counters the outcome goes to; ``dof`` is the measurement's
-        dimension for the gate (2, or 1 for a height)."""
+        dimension for the gate (2, or 1 for a height).
+
+        Every measurement here is 1- or 2-dimensional, so S is inverted in closed form and
+        the covariance update is P - K H P, which equals the Joseph form of
+        :meth:`_correct_reference` (K = P H^T S^-1 makes its K S K^T and cross terms cancel);
+        the two differ by rounding only (tests/test_filter_fastpaths.py). This replaces two
+        LAPACK solves and four n x n products (n = 8 + 2 per clone / landmark) by small ones:
+        numpy's per-call overhead, not the flops, is what a 2-row update costs."""
+        m = H.shape[0]
+        if m > 2:
+            return self._correct_reference(innovation, H, V, gate, landmark, dof)
+        P = self._P
+        HP = H @ P
+        S = HP @ H.T + V
+        if m == 2:
+            s00, s11 = float(S[0, 0]), float(S[1, 1])
+            s01 = 0.5 * (float(S[0, 1]) + float(S[1, 0]))
+            det = s00 * s11 - s01 * s01
+            if det == 0.0 or not math.isfinite(det):
+                raise EstimationError("singular innovation covariance")
+            y0, y1 = float(innovation[0]), float(innovation[1])
+            # S^-1 = [[s11, -s01], [-s01, s00]] / det
+            u0, u1 = (s11 * y0 - s01 * y1) / det, (s00 * y1 - s01 * y0) / det
+            d2 = y0 * u0 + y1 * u1
+            S_inv = np.array([[s11 / det, -s01 / det], [-s01 / det, s00 / det]])
+        else:
+            s00 = float(S[0, 0])
+            if s00 == 0.0 or not math.isfinite(s00):
+                raise EstimationError("singular innovation covariance")
+            y0 = float(innovation[0])
+            d2 = y0 * y0 / s00
+            S_inv = np.array([[1.0 / s00]])
+        gate_d2 = self._gate_d2 if dof == 2 else self._gate_d2_1dof
+        if gate and d2 > gate_d2:
+            if landmark:
+                self._n_lm_rej += 1
+            else:
+                self._n_rej += 1
+            return False
+        K = (S_inv @ HP).T  # P H^T S^-1 (P, S symmetric)
+        dx = K @ innovation
+        P = P - K @ HP
+        self._P = 0.5 * (P + P.T)
+        self._inject(dx)
+        if landmark:
+            self._n_lm_acc += 1
+        else:
+            self._n_acc += 1
+        return True
+
+    def _inject(self, dx: NDArray[np.float64]) -> None:
+        """Add the error state ``dx`` to the nominal state and the augmented blocks; all
+        errors are additive, so the reset dx <- 0 leaves P unchanged (reset Jacobian G = I)."""
+        n = ERROR_STATE_DIM
+        self._x = self._x + dx[:n]
+        aug = self._aug_xz
+        for j, key in enumerate(self._aug_keys):
+            i = n + 2 * j
+            aug[key] = aug[key] + dx[i : i + 2]
+
+    def _correct_reference(
+        self,
+        innovation: NDArray,
+        H: NDArray,
+        V: NDArray,
+        gate: bool = True,
+        landmark: bool = False,
+        dof: int = 2,
+    ) -> bool:
+        """numpy reference of :meth:`_correct` (LAPACK solves, the Joseph form); any number
+        of measurement rows."""
         P = self._P
         S = H @ P @ H.T + V
         S = 0.5 * (S + S.T)
@@ -805,6 +979,30 @@ class SagittalEskf:
     ) -> None:
         """Append a static block x_new = p(t + dt) + e with error dp + dt dv + e, e ~ extra_cov
         independent of the state (the block's cross-covariance follows from J P J^T)."""
+        # J P J^T block by block, J = [[I], [I dt*I 0 ..]]: the old P, its new rows
+        # A = P[0:2] + dt P[2:4] (and their transpose), and the new block A J_b^T + extra
+        P = self._P
+        P = 0.5 * (P + P.T)  # (propagation leaves it symmetric only to rounding)
+        m = P.shape[0]
+        A = P[0:2] + dt_s * P[2:4]
+        Q = np.empty((m + 2, m + 2))
+        Q[:m, :m] = P
+        Q[m:, :m] = A
+        Q[:m, m:] = A.T
+        B = A[:, 0:2] + dt_s * A[:, 2:4] + extra_cov
+        Q[m:, m:] = 0.5 * (B + B.T)
+        self._P = Q
+        self._aug_keys.append(key)
+        self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+
+    def _augment_reference(
+        self,
+        key: LandmarkKey | str,
+        value_xz: NDArray[np.float64],
+        dt_s: float,
+        extra_cov: NDArray,
+    ) -> None:
+        """numpy reference of :meth:`_augment` (the full J P J^T)."""
         m = self._P.shape[0]
         J = np.zeros((m + 2, m))
         J[:m, :m] = np.eye(m)
@@ -852,14 +1050,17 @@ class SagittalEskf:
 
 
 def _vec2(v: ArrayLike) -> NDArray[np.float64]:
-    a = np.asarray(v, dtype=float).reshape(-1)
-    if a.shape != (2,) or not np.all(np.isfinite(a)):
+    """A finite (x, z) vector as a new float array (the finiteness test on Python floats:
+    np.all(np.isfinite(.)) costs more than the rest of a small update)."""
+    a = np.array(v, dtype=float).reshape(-1)
+    if a.shape != (2,) or not (math.isfinite(a[0]) and math.isfinite(a[1])):
         raise EstimationError(f"expected a finite (x, z) vector, got {np.asarray(v)!r}")
-    return a.copy()
+    return a
 
 
 def _cov2(c: ArrayLike) -> NDArray[np.float64]:
+    """A finite 2x2 covariance, symmetrised (new array)."""
     a = np.asarray(c, dtype=float)
-    if a.shape != (2, 2) or not np.all(np.isfinite(a)):
+    if a.shape != (2, 2) or not all(map(math.isfinite, a.ravel().tolist())):
         raise EstimationError(f"expected a finite 2x2 covariance, got shape {a.shape}")
     return 0.5 * (a + a.T)

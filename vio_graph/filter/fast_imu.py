@@ -22,6 +22,7 @@ calls (docs/performance.md, "IMU propagation"). Angles in radians, quaternions [
 from __future__ import annotations
 
 import math
+from types import ModuleType
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -243,3 +244,24 @@ def mat3_quat(m: Mat3) -> NDArray[np.float64]:
         w, x, y, z = -w, -x, -y, -z
     n = math.sqrt(w * w + x * x + y * y + z * z)
     return np.array([w / n, x / n, y / n, z / n])
+
+
+#: [False] keeps the per-sample path in Python even when the compiled front end is on (the
+#: benchmarks time both; benchmarks/bench_frontend.py)
+USE_COMPILED = [True]
+
+
+def imu_kernels() -> ModuleType | None:
+    """The compiled kernels of this path (``vio_graph.filter.compiled_imu``, numba), or None.
+
+    On exactly when the compiled front end is (``frontend.icp.compiled_kernels``: numba
+    installed, and ``VIO_GRAPH_COMPILED=1``, or unset on a recording long enough to win back
+    numba's start-up) and :data:`USE_COMPILED` says so. Decided once per filter / tracker /
+    detector / clock model / fault monitor / smoother graph builder, when it is built."""
+    from vio_graph.frontend.icp import compiled_kernels
+
+    if not USE_COMPILED[0] or compiled_kernels() is None:
+        return None
+    from vio_graph.filter import compiled_imu
+
+    return compiled_imu

@@ -50,7 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.filter.config import ImuFaultConfig
-from vio_graph.filter.fast_imu import Mat3, mat3_rotvec, mat3_tmul, quat_matrix
+from vio_graph.filter.fast_imu import Mat3, imu_kernels, mat3_rotvec, mat3_tmul, quat_matrix
 from vio_graph.filter.gating import chi2_quantile
 from vio_graph.geometry import matrix_from_quat_wxyz
 from vio_graph.types import ImuSample
@@ -96,6 +96,9 @@ class ImuFaultMonitor:
         self.n_gyro_saturated = 0  #: samples with a gyro axis at the rail
         self.n_gyro_repaired = 0  #: gyro samples replaced by the orientation's rate
         self.max_gyro_d2 = 0.0  #: largest test statistic seen (diagnostics)
+        self._kernels = imu_kernels()  # compiled process, or None
+        # its previous sample: [has one, t, R_world_imu (9, row-major), gyro (3)]
+        self._prev_arr = np.zeros(14)
 
     def _saturation_prior(
         self, accel_mps2: ArrayLike, acc_sat: bool, gyr_sat: bool, xa: float, xg: float
@@ -125,6 +128,8 @@ class ImuFaultMonitor:
         numpy arrays are only built when the sample changes)."""
         if not self.config.enabled:
             return sample
+        if self._kernels is not None:
+            return self._process_compiled(sample)
         acc_l = np.asarray(sample.accel_mps2, dtype=float).tolist()
         gx, gy, gz = gyr_l = np.asarray(sample.gyro_radps, dtype=float).tolist()
         xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
@@ -167,6 +172,65 @@ class ImuFaultMonitor:
             sample,
             accel_mps2=np.array(acc_l) if acc is None else acc,
             gyro_radps=np.array(gyr_l if repaired is None else repaired),
+            accel_extra_sigma_mps2=xa,
+            gyro_extra_sigma_radps=xg,
+            accel_held=held or sample.accel_held,
+        )
+
+    def _process_compiled(self, sample: ImuSample) -> ImuSample:
+        """:meth:`process` with its arithmetic in one compiled call (filter/compiled_imu.py)."""
+        acc = np.asarray(sample.accel_mps2, dtype=np.float64)
+        gyr = np.asarray(sample.gyro_radps, dtype=np.float64)
+        xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
+        t = float(sample.timestamp_s)
+        cfg = self.config
+        prev = self._prev_arr
+        assert self._kernels is not None
+        d2, px, py, pz, acc_sat, gyr_sat = self._kernels.fault_check(
+            prev,
+            t,
+            acc,
+            gyr,
+            np.asarray(sample.quat_wxyz, dtype=np.float64),
+            self._acc_lim,
+            self._gyr_lim,
+            cfg.gyro_ahrs_test,
+            cfg.gyro_ahrs_sigma_radps**2,
+        )
+        new_acc = None
+        if acc_sat or gyr_sat or self._acc_run:
+            new_acc, xa, xg = self._saturation_prior(acc, acc_sat, gyr_sat, xa, xg)
+        repaired = False
+        held = False  # accelerometer replaced by the last trusted one
+        if d2 >= 0.0:
+            if not gyr_sat:
+                self.max_gyro_d2 = max(self.max_gyro_d2, d2)
+            if d2 > self._gyro_d2:
+                self.n_gyro_repaired += 1
+                repaired = True
+                xg = max(xg, cfg.gyro_ahrs_sigma_radps) if not gyr_sat else xg
+                if self._last_acc is not None and not acc_sat:
+                    # the packet is corrupt: hold the last trusted specific force
+                    new_acc = np.array(self._last_acc)
+                    xa = max(xa, cfg.held_accel_sigma_mps2)
+                    held = True
+        if repaired:
+            prev[11], prev[12], prev[13] = px, py, pz
+        else:
+            prev[11:14] = gyr
+            if not acc_sat:
+                self._last_acc = tuple(acc.tolist())
+        if (
+            not repaired
+            and new_acc is None
+            and xa == sample.accel_extra_sigma_mps2
+            and xg == sample.gyro_extra_sigma_radps
+        ):
+            return sample
+        return dataclasses.replace(
+            sample,
+            accel_mps2=acc.copy() if new_acc is None else new_acc,
+            gyro_radps=np.array([px, py, pz]) if repaired else gyr.copy(),
             accel_extra_sigma_mps2=xa,
             gyro_extra_sigma_radps=xg,
             accel_held=held or sample.accel_held,

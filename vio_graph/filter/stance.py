@@ -23,6 +23,8 @@ from collections import deque
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.filter.fast_imu import imu_kernels
+from vio_graph.filter.gating import mahalanobis2_2d
 from vio_graph.filter.lever_arm import angular_acceleration, lever_arm_terms
 from vio_graph.types import Displacement2D
 
@@ -39,6 +41,11 @@ class StanceDetector:
         self._prev: tuple[float, tuple[float, float, float]] | None = None  # (t, gyro)
         self._r_xyz = tuple(self._r.tolist())
         self._recent: deque[tuple[float, float]] = deque()  # (t, |a_ankle|)
+        self._kernels = imu_kernels()  # compiled add_imu_quat, or None
+        #: True if :meth:`add_imu_quat` runs compiled (numba, ``fast_imu.imu_kernels``)
+        self.compiled = self._kernels is not None
+        # add_imu_quat's previous sample: [has one, t, gyro x, y, z]
+        self._prev_arr = np.zeros(5)
 
     def add_imu(
         self,
@@ -82,6 +89,35 @@ class StanceDetector:
         mag = math.hypot(r00 * fx + r01 * fz + gwx, r10 * fx + r11 * fz + gwz)
         self._recent.append((t, mag))
         while self._recent and self._recent[0][0] < t - self._window_s:
+            self._recent.popleft()
+        return mag
+
+    def add_imu_quat(
+        self,
+        timestamp_s: float,
+        accel_mps2: ArrayLike,
+        gyro_radps: ArrayLike,
+        quat_wxyz: ArrayLike,
+        gravity_xz_mps2: ArrayLike,
+        trusted: bool = True,
+    ) -> float | None:
+        """:meth:`add_imu` with the sagittal rotation of the vendor orientation ``quat_wxyz``
+        computed inside, compiled (filter/compiled_imu.py; needs ``compiled``)."""
+        t = float(timestamp_s)
+        if not trusted:
+            return None
+        assert self._kernels is not None, "add_imu_quat needs the compiled kernels"
+        mag = self._kernels.stance_ankle_accel(
+            t,
+            self._prev_arr,
+            np.asarray(accel_mps2, dtype=np.float64),
+            np.asarray(gyro_radps, dtype=np.float64),
+            np.asarray(quat_wxyz, dtype=np.float64),
+            self._r,
+            np.asarray(gravity_xz_mps2, dtype=np.float64),
+        )
+        self._recent.append((t, mag))
+        while self._recent[0][0] < t - self._window_s:
             self._recent.popleft()
         return mag
 
@@ -147,6 +183,8 @@ class StanceConsistencyTest:
         self._gate_d2 = float(gate_d2)
         self._lever_var = 2.0 * float(lever_sigma_m) ** 2  # two lever evaluations per test
         self._floor_var = float(floor_m) ** 2
+        self._lever_cov = np.eye(2) * self._lever_var  # (2, 2) m^2
+        self._floor_cov = np.eye(2) * self._floor_var
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, lever) last frame
         self._chain: tuple[NDArray, NDArray, NDArray] | None = None  # (lever0, sum d, sum C)
         self.last_d2: float = 0.0  #: largest Mahalanobis^2 of the last test (diagnostics)
@@ -176,10 +214,9 @@ class StanceConsistencyTest:
         self.tested = True
         prev_lever = prev[1]
         d = np.asarray(displacement.delta_xz_m, dtype=float)
-        C = np.asarray(displacement.cov_m2, dtype=float) + np.eye(2) * self._floor_var
-        S1 = C + np.eye(2) * self._lever_var
+        C = np.asarray(displacement.cov_m2, dtype=float) + self._floor_cov
         r1 = d - (prev_lever - lever)
-        d2_frame = float(r1 @ np.linalg.solve(S1, r1))
+        d2_frame = mahalanobis2_2d(C + self._lever_cov, r1)
         lever0, sum_d, sum_C = (
             (prev_lever, d, C)
             if self._chain is None
@@ -187,7 +224,7 @@ class StanceConsistencyTest:
         )
         self._chain = (lever0, sum_d, sum_C)
         r = sum_d - (lever0 - lever)
-        d2_chain = float(r @ np.linalg.solve(sum_C + np.eye(2) * self._lever_var, r))
+        d2_chain = mahalanobis2_2d(sum_C + self._lever_cov, r)
         self.last_d2 = max(d2_frame, d2_chain)
         return self.last_d2 <= self._gate_d2
 

@@ -56,6 +56,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vio_graph.filter.config import TimeOffsetConfig
+from vio_graph.filter.fast_imu import imu_kernels
 from vio_graph.filter.gating import chi2_quantile
 
 _add_reduce = np.add.reduce
@@ -94,11 +95,16 @@ class ClockModel:
         # (8 bytes a sample; a list of floats costs 32)
         self._corr = np.empty(1024)
         self._n_corr = 0
+        self._kernels = imu_kernels()  # compiled correct(), or None
+        # correct()'s state when compiled (compiled_imu.CLK_* slots) instead of the attributes
+        self._st = None if self._kernels is None else np.zeros(self._kernels.CLK_SIZE)
 
     def correct(self, stamp_s: float) -> float | None:
         """The time to use for a sample stamped ``stamp_s`` (s), or None if the stamp is at or
         before the previous one (the sample must be dropped)."""
         t = float(stamp_s)
+        if self._kernels is not None:
+            return self._correct_compiled(t)
         if self._last_stamp is not None and t <= self._last_stamp:
             self.n_backwards += 1
             if len(self.backwards) < _MAX_REPORTED:
@@ -138,11 +144,44 @@ class ClockModel:
         self._n_corr += 1
         return out
 
+    def _correct_compiled(self, t: float) -> float | None:
+        """:meth:`correct` in one compiled call (filter/compiled_imu.py); the reports here."""
+        k, st = self._kernels, self._st
+        assert k is not None and st is not None
+        if int(st[k.CLK_N_CORR]) == self._corr.size:
+            self._corr = np.concatenate([self._corr, np.empty(self._corr.size)])
+        out, code, dt, prev = k.clock_correct(
+            st,
+            self._buf,
+            self._corr,
+            t,
+            self.period_s,
+            self.gap_periods,
+            self.window,
+            self.smooth,
+            _MIN_FIT,
+            _KEEP_TOL_S,
+        )
+        if code < 0:
+            self.n_backwards += 1
+            if len(self.backwards) < _MAX_REPORTED:
+                self.backwards.append({"t_s": t, "jump_s": dt})
+            return None
+        if code > 0:
+            self.n_gaps += 1
+            self.gap_total_s += dt
+            if len(self.gaps) < _MAX_REPORTED:
+                self.gaps.append({"t_s": prev, "duration_s": dt})
+        return out
+
     def _fit(self, t: float) -> float:
         """The clock line's value at the newest sample: :meth:`_fit_reference` with the line
         fitted in closed form (the stamps sit at consecutive k, so the x sums are known);
         equal to rounding (tests/test_fast_imu.py)."""
         n = self._n
+        if self._kernels is not None:  # compiled (filter/compiled_imu.py)
+            icpt = self._kernels.clock_line(self._buf, self._pos, n, self.period_s, _MIN_FIT)
+            return t if abs(icpt - t) < _KEEP_TOL_S else float(icpt)
         ts = self._buf[self._pos - n : self._pos]
         # np.mean's value without its dispatch (~6 us a call): the same pairwise sum, then
         # one float64 division by n
@@ -170,7 +209,8 @@ class ClockModel:
         return t if abs(icpt - t) < _KEEP_TOL_S else float(icpt)
 
     def report(self) -> dict:
-        c = self._corr[: self._n_corr]
+        n = self._n_corr if self._st is None or self._kernels is None else int(self._st[-1])
+        c = self._corr[:n]
         return {
             "gaps": self.n_gaps,
             "gap_total_s": self.gap_total_s,
@@ -218,7 +258,50 @@ class TimeOffsetEstimator:
     ) -> bool:
         """One level-surface tilt ``tilt_rad`` measured on a slice rotated with the pitch
         offset ``offset_b_rad`` and re-stamped by :attr:`applied_s`; ``pitch_rate_radps`` the
-        shank pitch rate (ground frame) at the frame. Returns False if gated out."""
+        shank pitch rate (ground frame) at the frame. Returns False if gated out.
+
+        The 2-state update on Python floats (a scalar measurement, H = [1, -rate]); the
+        numpy form is :meth:`update_reference` (the same estimate to rounding, compared in
+        tests/test_time_offset.py)."""
+        p00, p01, p10, p11 = self.P.ravel().tolist()
+        if self._t_s is not None and t_s > self._t_s:
+            q0, q1 = self._q.tolist()
+            dt = t_s - self._t_s
+            p00 += q0 * dt
+            p11 += q1 * dt
+        self._t_s = t_s if self._t_s is None else max(self._t_s, t_s)
+        m = tilt_rad + offset_b_rad - pitch_rate_radps * self.applied_s
+        h = -pitch_rate_radps
+        x0, x1 = self.x.tolist()
+        y = m - (x0 + h * x1)
+        hp0, hp1 = p00 + h * p10, p01 + h * p11  # H P
+        s = float(hp0 + hp1 * h + tilt_sigma_rad**2)
+        if self.n_updates > 10 and y * y > self._gate * s:
+            self.P = np.array([[p00, p01], [p10, p11]])
+            self.n_rejected += 1
+            return False
+        k0, k1 = (p00 + p01 * h) / s, (p10 + p11 * h) / s  # K = P H^T / s
+        self.x = np.array([x0 + k0 * y, x1 + k1 * y])
+        a00, a01, a10, a11 = p00 - k0 * hp0, p01 - k0 * hp1, p10 - k1 * hp0, p11 - k1 * hp1
+        off = 0.5 * (a01 + a10)
+        self.P = np.array([[a00, off], [off, a11]])  # symmetrised, as 0.5 (P + P^T)
+        self.n_updates += 1
+        if self.config.estimate:
+            if not self._latched and abs(self.td_s) > self.config.apply_sigmas * self.sigma_s:
+                self._latched = True
+            if self._latched:
+                self.applied_s = self.td_s
+        return True
+
+    def update_reference(
+        self,
+        t_s: float,
+        tilt_rad: float,
+        tilt_sigma_rad: float,
+        offset_b_rad: float,
+        pitch_rate_radps: float,
+    ) -> bool:
+        """numpy reference of :meth:`update`."""
         if self._t_s is not None and t_s > self._t_s:
             self.P[np.diag_indices(2)] += self._q * (t_s - self._t_s)
         self._t_s = t_s if self._t_s is None else max(self._t_s, t_s)

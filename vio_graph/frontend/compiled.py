@@ -450,6 +450,143 @@ def best_line(x, z, i, j, max_slope, inlier_m):  # pragma: no cover - compiled
     return best_a, best_s
 
 
+# ----------------------------------------------------------------------------- corner lines
+
+
+@numba.njit(cache=True)
+def horizontal_line(z_all, mask, draws, exclude, min_sep, d):  # pragma: no cover - compiled
+    """``corners.ransac_horizontal_line_reference`` after its random draws (``draws``:
+    indices into the sorted heights of the ``mask`` points): the hypotheses not within
+    ``min_sep`` of an ``exclude`` height, the first with the most heights within ``d``, its
+    inliers' median height. Returns (height, inlier mask), or (nan, empty) when every
+    hypothesis is excluded. Comparisons and one (a + b) / 2 only: the same floats."""
+    z = np.sort(z_all[mask])
+    n = z.size
+    best_count = -1
+    best = 0.0
+    for q in range(draws.size):
+        h = z[draws[q]]
+        excluded = False
+        for e in range(exclude.size):
+            if not abs(h - exclude[e]) >= min_sep:
+                excluded = True
+                break
+        if excluded:
+            continue
+        c = np.searchsorted(z, h + d, side="right") - np.searchsorted(z, h - d)
+        if c > best_count:
+            best_count = c
+            best = h
+    if best_count < 0:
+        return np.nan, np.zeros(0, np.bool_)
+    lo = 0  # the inliers |z - best| <= d: one run of the sorted heights
+    while lo < n and not abs(z[lo] - best) <= d:
+        lo += 1
+    hi = lo
+    while hi < n and abs(z[hi] - best) <= d:
+        hi += 1
+    k = hi - lo
+    mid = lo + k // 2
+    height = z[mid] if k % 2 else (z[mid - 1] + z[mid]) / 2
+    inliers = np.empty(z_all.size, np.bool_)
+    for i in range(z_all.size):
+        inliers[i] = mask[i] and abs(z_all[i] - height) <= d
+    return height, inliers
+
+
+@numba.njit(cache=True)
+def largest_run(x, max_gap_m):  # pragma: no cover - compiled
+    """``corners._largest_run_reference``: the sorted x values of the run (no gap above
+    ``max_gap_m``) with the most points, the first of equals."""
+    xs = np.sort(x)
+    n = xs.size
+    best_lo = 0
+    best_hi = 0
+    start = 0
+    for end in range(1, n + 1):
+        if end < n and not xs[end] - xs[end - 1] > max_gap_m:
+            continue
+        if end - start > best_hi - best_lo:
+            best_lo = start
+            best_hi = end
+        start = end
+    return xs[best_lo:best_hi]
+
+
+# ----------------------------------------------------------------------------- terrain levels
+
+
+@numba.njit(cache=True)
+def find_levels(z, x, band, max_levels, min_points, gap_m, min_length_m):  # pragma: no cover
+    """``terrain.find_levels_reference`` on the profile sorted by height (``z`` ascending, ``x``
+    in the same order): the same bands in the same order (a stable sort of the counts), the
+    same medians and nearest-rank extents, so the same levels bit for bit (no sums: only
+    comparisons, one (a + b) / 2 and index arithmetic). Returns (L, 5) rows (height, x lo,
+    x hi, x median, points) in the order found."""
+    n = z.shape[0]
+    alive = np.ones(n, np.bool_)
+    out = np.empty((n // max(min_points, 1) + 1, 5))
+    n_out = 0
+    tried = np.empty(3)
+    for _ in range(max_levels):
+        idx_alive = np.flatnonzero(alive)
+        m = idx_alive.size
+        if m < min_points:
+            break
+        za = z[idx_alive]  # still sorted by z
+        xa = x[idx_alive]
+        counts = np.searchsorted(za, za + band, side="right") - np.searchsorted(za, za - band)
+        order = np.argsort(-counts, kind="mergesort")  # stable, as the reference's
+        found = False
+        n_tried = 0
+        for q in range(m):
+            i = order[q]
+            if counts[i] < min_points or n_tried >= 3:
+                break
+            zi = za[i]
+            near = False
+            for h in range(n_tried):
+                if abs(zi - tried[h]) <= band:
+                    near = True
+                    break
+            if near:
+                continue
+            tried[n_tried] = zi
+            n_tried += 1
+            a = np.searchsorted(za, zi - band)
+            b = np.searchsorted(za, zi + band)
+            mid = a + (b - a) // 2
+            height = za[mid] if (b - a) % 2 else (za[mid - 1] + za[mid]) / 2
+            lo = np.searchsorted(za, height - band)
+            hi = np.searchsorted(za, height + band)
+            xs = np.sort(xa[lo:hi])
+            size = xs.size
+            start = 0
+            for end in range(1, size + 1):  # runs of x split at gaps above gap_m
+                if end < size and not xs[end] - xs[end - 1] > gap_m:
+                    continue
+                if end - start >= min_points:
+                    last = end - start - 1
+                    x_lo = xs[start + int(0.05 * last)]
+                    x_med = xs[start + last // 2]
+                    x_hi = xs[start + int(np.ceil(0.95 * last))]
+                    if x_hi - x_lo >= min_length_m:
+                        out[n_out, 0] = height
+                        out[n_out, 1] = x_lo
+                        out[n_out, 2] = x_hi
+                        out[n_out, 3] = x_med
+                        out[n_out, 4] = end - start
+                        n_out += 1
+                        found = True
+                start = end
+            if found:
+                alive[idx_alive[lo:hi]] = False
+                break
+        if not found:
+            break
+    return out[:n_out]
+
+
 # ----------------------------------------------------------------------------- depth slice
 
 

@@ -64,6 +64,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vio_graph.frontend.config import CornerConfig
+from vio_graph.frontend.icp import compiled_kernels
 from vio_graph.types import TerrainKind
 
 
@@ -122,7 +123,51 @@ def ransac_horizontal_line(
 
     Returns:
         The line refined to the median height of its inliers, or None if no point is left.
+
+    Compiled after the random draws (``compiled.horizontal_line``, numba) when the front
+    end's kernels are on: the same draws, the same line bit for bit as
+    :func:`ransac_horizontal_line_reference`.
     """
+    kernels = compiled_kernels()
+    if kernels is None:
+        return ransac_horizontal_line_reference(
+            points_xz_m,
+            inlier_distance_m,
+            n_hypotheses,
+            rng,
+            exclude_heights_m,
+            min_separation_m,
+            candidates,
+        )
+    pts = np.asarray(points_xz_m, dtype=float)
+    mask = np.ones(pts.shape[0], bool) if candidates is None else np.asarray(candidates, bool)
+    n = int(np.count_nonzero(mask))
+    if n == 0:
+        return None
+    draws = rng.integers(0, n, size=n_hypotheses)
+    height, inliers = kernels.horizontal_line(
+        pts[:, 1],
+        mask,
+        draws,
+        np.asarray(exclude_heights_m, dtype=float).reshape(-1),
+        float(min_separation_m),
+        float(inlier_distance_m),
+    )
+    if inliers.shape[0] != pts.shape[0]:
+        return None
+    return HorizontalLine(height_m=float(height), inliers=inliers)
+
+
+def ransac_horizontal_line_reference(
+    points_xz_m: NDArray[np.float64],
+    inlier_distance_m: float,
+    n_hypotheses: int,
+    rng: np.random.Generator,
+    exclude_heights_m: tuple[float, ...] = (),
+    min_separation_m: float = 0.0,
+    candidates: NDArray[np.bool_] | None = None,
+) -> HorizontalLine | None:
+    """numpy path of :func:`ransac_horizontal_line`."""
     pts = np.asarray(points_xz_m, dtype=float)
     mask = np.ones(pts.shape[0], bool) if candidates is None else np.asarray(candidates, bool)
     z_all = pts[:, 1]
@@ -149,7 +194,16 @@ def _median_of_sorted(values: NDArray[np.float64]) -> float:
 
 
 def _largest_run(x: NDArray[np.float64], max_gap_m: float) -> NDArray[np.float64]:
-    """The longest (most points) run of sorted x values without a gap > max_gap_m."""
+    """The longest (most points) run of sorted x values without a gap > max_gap_m (compiled
+    when the front end's kernels are on: ``compiled.largest_run``, the same values)."""
+    kernels = compiled_kernels()
+    if kernels is None:
+        return _largest_run_reference(x, max_gap_m)
+    return kernels.largest_run(np.ascontiguousarray(x, dtype=float), float(max_gap_m))
+
+
+def _largest_run_reference(x: NDArray[np.float64], max_gap_m: float) -> NDArray[np.float64]:
+    """numpy path of :func:`_largest_run`."""
     xs = np.sort(x)
     breaks = np.flatnonzero(np.diff(xs) > max_gap_m) + 1
     starts = np.concatenate(([0], breaks))

@@ -21,6 +21,7 @@ Limitation: a ramp steeper than the gate of ``PitchOffsetFilter`` is rejected, a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -183,10 +184,11 @@ def measure_surface_tilt(
         idx = np.flatnonzero(remaining)
         if idx.size < min_points:
             break
-        m = _best_line(x[idx], z[idx], max_slope, inlier_m, rng)
+        xi, zi = x[idx], z[idx]
+        m = _best_line(xi, zi, max_slope, inlier_m, rng)
         if m is None:
             break
-        m = _refine(x[idx], z[idx], m, inlier_m)
+        m = _refine(xi, zi, m, inlier_m)
         sel = idx[m]
         if sel.size < min_points or _ptp(x[sel]) < min_extent_m:
             break
@@ -202,32 +204,37 @@ def measure_surface_tilt(
     # per line: centred x, z and its own noise variance (residuals of its own fit)
     szx = info = 0.0
     variances = []
-    for sel in lines:
-        xc = x[sel] - _mean(x[sel])
-        zc = z[sel] - _mean(z[sel])
+    # (each line's points gathered once; np.sum / np.sqrt of floats as add.reduce / math.sqrt:
+    # the same pairwise sum and the same correctly rounded root)
+    line_xz = [(x[sel], z[sel]) for sel in lines]
+    for xs, zs in line_xz:
+        xc = xs - _mean(xs)
+        zc = zs - _mean(zs)
         Sxx = float(xc @ xc)
-        s_k = float(xc @ zc) / max(Sxx, 1e-12)
-        var_k = max(float(np.sum((zc - s_k * xc) ** 2)) / max(1, sel.size - 2), 1e-8)
+        Szx = float(xc @ zc)
+        s_k = Szx / max(Sxx, 1e-12)
+        r = zc - s_k * xc
+        var_k = max(float(_add_reduce(r * r)) / max(1, xs.shape[0] - 2), 1e-8)
         variances.append(var_k)
-        szx += float(xc @ zc) / var_k
+        szx += Szx / var_k
         info += Sxx / var_k
     s = szx / info
     if abs(s) > max_slope:
         return None
-    sigma_slope = float(np.sqrt(correlated_points / info))
+    sigma_slope = math.sqrt(correlated_points / info)
     levels = []
-    for sel, var_k in zip(lines, variances, strict=True):
-        xs, zs = x[sel], z[sel]
+    extent = 0.0
+    for (xs, zs), var_k in zip(line_xz, variances, strict=True):
         x_mid = _mean(xs)
-        var_h = correlated_points * var_k / sel.size + (x_mid * sigma_slope) ** 2
-        levels.append(
-            LevelLine(_mean(zs - s * xs), float(np.sqrt(var_h)), float(xs.min()), float(xs.max()))
-        )
+        var_h = correlated_points * var_k / xs.shape[0] + (x_mid * sigma_slope) ** 2
+        x_lo, x_hi = float(_min_reduce(xs)), float(_max_reduce(xs))
+        extent += x_hi - x_lo
+        levels.append(LevelLine(_mean(zs - s * xs), math.sqrt(var_h), x_lo, x_hi))
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),
         sigma_rad=sigma_slope / (1.0 + s * s),
         n_inliers=int(sum(sel.size for sel in lines)),
-        extent_m=float(sum(_ptp(x[sel]) for sel in lines)),
+        extent_m=extent,
         n_lines=len(lines),
         lines=tuple(levels),
     )

@@ -55,6 +55,7 @@ box seen from above (camera past its near edge) looks like STAIR_DOWN.
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_left
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -64,6 +65,7 @@ from numpy.typing import NDArray
 
 from vio_graph.errors import FrontendError
 from vio_graph.frontend.config import TerrainConfig
+from vio_graph.frontend.icp import compiled_kernels
 from vio_graph.types import TerrainKind
 
 
@@ -90,6 +92,22 @@ def _median_sorted(values: list[float], lo: int, hi: int) -> float:
     return values[mid] if n % 2 else (values[mid - 1] + values[mid]) / 2
 
 
+def _percentile_sorted(values: list[float], q: float) -> float:
+    """np.percentile(values, q) (linear method) of sorted values, as numpy computes it:
+    virtual index (n - 1) * q / 100, the last value at or beyond the end, else the lerp
+    a + (b - a) g, or b - (b - a)(1 - g) when g >= 0.5. The same float, without the ~30 us
+    of np.percentile's dispatch."""
+    n = len(values)
+    virtual = (n - 1) * (q / 100)
+    if virtual >= n - 1:
+        return values[-1]
+    j = math.floor(virtual)
+    g = virtual - j
+    a, b = values[j], values[j + 1]
+    diff = b - a
+    return b - diff * (1 - g) if g >= 0.5 else a + diff * g
+
+
 def _robust_extent(xs: NDArray[np.float64]) -> tuple[float, float, float]:
     """5th, 50th and 95th percentile (nearest rank) of sorted values."""
     n = xs.size - 1
@@ -99,12 +117,35 @@ def _robust_extent(xs: NDArray[np.float64]) -> tuple[float, float, float]:
 def find_levels(profile_xz_m: NDArray[np.float64], config: TerrainConfig) -> list[Level]:
     """Greedy extraction of horizontal levels (rule step 1), sorted by median x.
 
+    Compiled (``compiled.find_levels``, numba) when the front end's kernels are on: the same
+    levels bit for bit as :func:`find_levels_reference` (tests/test_frontend_fastpaths.py).
+
     Args:
         profile_xz_m: (N, 2) smoothed profile, metres.
 
     Returns:
         Levels, near (small x) to far.
     """
+    kernels = compiled_kernels()
+    if kernels is None:
+        return find_levels_reference(profile_xz_m, config)
+    pts = np.asarray(profile_xz_m, dtype=float)
+    order = np.argsort(pts[:, 1])
+    rows = kernels.find_levels(
+        pts[order, 1],
+        pts[order, 0],
+        float(config.level_band_m),
+        int(config.max_levels),
+        int(config.min_level_points),
+        float(config.level_gap_m),
+        float(config.min_level_length_m),
+    ).tolist()
+    levels = [Level(h, x_lo, x_hi, x_med, int(n)) for h, x_lo, x_hi, x_med, n in rows]
+    return sorted(levels, key=lambda lv: lv.x_median_m)
+
+
+def find_levels_reference(profile_xz_m: NDArray[np.float64], config: TerrainConfig) -> list[Level]:
+    """numpy path of :func:`find_levels`."""
     pts = np.asarray(profile_xz_m, dtype=float)
     band = config.level_band_m
     order = np.argsort(pts[:, 1])
@@ -229,11 +270,12 @@ def find_faces(
         grp = rest[lo:hi]
         if grp.shape[0] < config.min_face_points:
             continue
-        x_med = float(np.median(grp[:, 0]))
+        x_med = _median_sorted(grp[:, 0].tolist(), 0, grp.shape[0])  # sorted by x
         core = grp[np.abs(grp[:, 0] - x_med) <= 0.5 * config.face_max_width_m]
         if core.shape[0] < config.min_face_points:
             continue
-        z_lo, z_hi = np.percentile(core[:, 1], [5, 95])
+        zs = np.sort(core[:, 1]).tolist()
+        z_lo, z_hi = _percentile_sorted(zs, 5), _percentile_sorted(zs, 95)
         if z_hi - z_lo < config.min_step_m:
             continue
         x_lo_g, x_hi_g = float(core[:, 0].min()), float(core[:, 0].max())
@@ -247,9 +289,9 @@ def find_faces(
         if z_hi - z_lo > config.max_step_m:
             direction = 0  # a wall, not a step
         elif before.size >= config.min_face_points:
-            direction = 1 if np.median(before) < mid else -1
+            direction = 1 if _median_sorted(np.sort(before).tolist(), 0, before.size) < mid else -1
         elif after.size >= config.min_face_points:
-            direction = 1 if np.median(after) > mid else -1
+            direction = 1 if _median_sorted(np.sort(after).tolist(), 0, after.size) > mid else -1
         found.append((float(x_med), float(z_lo), float(z_hi), direction))
     # A face with no surface beside it (a row of risers whose treads are seen too obliquely
     # to return, e.g. a level camera at tread height) takes its direction from the nearest

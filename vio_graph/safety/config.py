@@ -130,6 +130,24 @@ class SafetyConfig(BaseModel):
         "|P_now - P_keyframes| in the clearance variance (1: the random-walk model as it is; "
         "lower it where the filter's covariance is known to be conservative)",
     )
+    consistency_window_keyframes: int = Field(
+        default=30,
+        ge=0,
+        description="the sigmas' pose and map terms are scaled by how the last this many "
+        "keyframes' heights agreed with the map (their common offset against the filter's "
+        "covariance growth, the per-bin rest against the bins' sigma; safety/consistency.py); "
+        "0: not scaled (count)",
+    )
+    consistency_min_keyframes: int = Field(
+        default=5,
+        ge=1,
+        description="keyframes tested against the map before the consistency scale "
+        "leaves 1 (count)",
+    )
+    consistency_scale_range: tuple[float, float] = Field(
+        default=(0.25, 4.0),
+        description="the consistency scale is clipped to this range (lo <= 1 <= hi)",
+    )
     foot_sigma_m: float = Field(
         default=0.001,
         ge=0,
@@ -144,6 +162,12 @@ class SafetyConfig(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> SafetyConfig:
+        lo, hi = self.consistency_scale_range
+        if not 0 < lo <= 1 <= hi:
+            raise ValueError(
+                f"safety.consistency_scale_range must satisfy 0 < lo <= 1 <= hi, "
+                f"got {self.consistency_scale_range}"
+            )
         if self.tread_tolerance_m >= self.edge_min_rise_m:
             raise ValueError(
                 f"safety.tread_tolerance_m ({self.tread_tolerance_m} m) must be "

@@ -202,6 +202,16 @@ class OnlineHeightMap:
         c = self._cov[b - self._i0] / float(self._n[b - self._i0])
         return np.array([[c[0], c[1]], [c[1], c[2]]])
 
+    def bin_cov_rows(self, k: NDArray[np.int64]) -> NDArray[np.float64]:
+        """:meth:`bin_cov` of many bins of :meth:`profile` at once, as rows (Pxx, Pxz, Pzz),
+        (K, 3), m^2."""
+        return self.bin_cov_rows_at(self._profile_bins[k])
+
+    def bin_cov_rows_at(self, b: NDArray[np.int64]) -> NDArray[np.float64]:
+        """:meth:`bin_cov_at` of the bins with indices ``b`` (K,), as rows (K, 3), m^2."""
+        e = b - self._i0
+        return self._cov[e] / self._n[e][:, None]
+
     def bin_cov_mean(self, b: int) -> tuple[float, float, float]:
         """(xx, xz, zz) of :meth:`bin_cov_at`, m^2."""
         xx, xz, zz = (self._cov[b - self._i0] / float(self._n[b - self._i0])).tolist()

@@ -15,7 +15,8 @@ the filter: the terrain at the keyframes that saw it, the foot now. The drift be
 is modelled as a random walk, so its covariance is |P_now - P_keyframes| (eigenvalues made
 non-negative), weighted by ``relative_pose_scale``; projected on the distance's gradient,
 plus the bin's height scatter (standard error over keyframes, floored at ``map_sigma_m``) and
-``foot_sigma_m`` (docs/method.md).
+``foot_sigma_m`` (docs/method.md). The pose and map terms are multiplied by the consistency
+scales the keyframes' heights give against the map (safety/consistency.py).
 
 Motion model of the prediction (``motion_model``):
 
@@ -53,7 +54,8 @@ from vio_graph.safety.clearance import (
     placement_on_tread,
 )
 from vio_graph.safety.config import SafetyConfig
-from vio_graph.safety.height_map import IncrementalHeightMap, OnlineHeightMap
+from vio_graph.safety.consistency import MapConsistency
+from vio_graph.safety.height_map import IncrementalHeightMap, MapWindow, OnlineHeightMap
 
 NAN = float("nan")
 _NAN2, _NAN4 = np.full(2, NAN), np.full(4, NAN)
@@ -76,6 +78,9 @@ class SafetyEstimate:
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
     ``landing``: the foot landed at this frame; then ``placement`` (4,): heel and toe to the
     tread's nosing, heel and toe to its back edge (else NaN).
+    ``pose_consistency_scale`` / ``map_consistency_scale``: the factors the keyframes'
+    heights put on the sigmas' pose and map terms (safety/consistency.py; a pose scale above
+    1: the filter's covariance understates its drift).
     """
 
     clearance_m: float
@@ -95,6 +100,8 @@ class SafetyEstimate:
     placement: NDArray[np.float64]
     edge_xz_m: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.nan))
     near_trip_clearance_m: float = NAN
+    pose_consistency_scale: float = 1.0
+    map_consistency_scale: float = 1.0
 
 
 #: frames.csv columns of a SafetyEstimate, in order (docs/outputs.md)
@@ -116,6 +123,8 @@ CSV_COLUMNS = (
     "toe_to_nosing_m",
     "heel_to_back_m",
     "toe_to_back_m",
+    "pose_consistency_scale",
+    "map_consistency_scale",
 )
 
 
@@ -138,6 +147,8 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
         s.mean_tread_m,
         s.landing,
         *s.placement,
+        s.pose_consistency_scale,
+        s.map_consistency_scale,
     ]
     out = []
     for v in vals:
@@ -150,9 +161,13 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
     return out
 
 
-def _psd_abs(mxx: float, mxz: float, mzz: float, scale: float = 1.0) -> list[list[float]]:
-    """|scale M| for the symmetric M = [[mxx, mxz], [mxz, mzz]]: its eigenvalues made
-    non-negative (closed form)."""
+def _psd_abs(M: NDArray[np.float64], scale: float = 1.0) -> list[list[float]]:
+    """|scale M| for a symmetric 2x2 M: its eigenvalues made non-negative (closed form)."""
+    return _psd_abs_entries(float(M[0, 0]), float((M[0, 1] + M[1, 0]) / 2), float(M[1, 1]), scale)
+
+
+def _psd_abs_entries(mxx: float, mxz: float, mzz: float, scale: float) -> list[list[float]]:
+    """:func:`_psd_abs` of [[mxx, mxz], [mxz, mzz]]."""
     a, b, c = scale * mxx, scale * mxz, scale * mzz
     m, r = (a + c) / 2, (((a - c) / 2) ** 2 + b * b) ** 0.5
     l1, l2 = m + r, m - r
@@ -203,6 +218,11 @@ def compiled_kernels(force: bool = False) -> ModuleType | None:
             raise
         return None
     return compiled
+
+    def bin_cov_rows(self, k: NDArray[np.int64]) -> NDArray[np.float64]:
+        """:meth:`bin_cov` of many bins at once, as rows (Pxx, Pxz, Pzz), (K, 3), m^2."""
+        sums, n = self._cov_bins
+        return sums[k] / n[k][:, None]
 
 
 class SafetyMonitor:
@@ -264,6 +284,11 @@ class SafetyMonitor:
         self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
         #: the horizon's instants (s since now)
         self._h = np.linspace(0.0, config.horizon_s, config.horizon_steps + 1)
+        self.consistency = MapConsistency(
+            config.consistency_window_keyframes,
+            config.consistency_min_keyframes,
+            config.consistency_scale_range,
+        )
 
     def _track_swing(
         self,
@@ -331,12 +356,25 @@ class SafetyMonitor:
         d = max(clearance_now_m + self.config.sole_thickness_m, 0.0) + 1e-6  # m; 1 um rounding
         return max(search_lo_m, lo_x_m - d), min(search_hi_m, hi_x_m + d)
 
-    def _relative_cov(self, P: list[list[float]], b: int) -> list[list[float]]:
+    def _relative_cov(self, P: list[list[float]], b: int, scale: float) -> list[list[float]]:
         """The drift covariance between now (camera covariance ``P``) and the keyframes that
-        saw bin ``b``: |P - their mean covariance|, scaled by ``relative_pose_scale``, m^2."""
+        saw bin ``b``: |P - their mean covariance| times ``scale``, m^2."""
         cxx, cxz, czz = self.map.bin_cov_mean(b)
         mxz = ((P[0][1] - cxz) + (P[1][0] - cxz)) / 2
-        return _psd_abs(P[0][0] - cxx, mxz, P[1][1] - czz, self.config.relative_pose_scale)
+        return _psd_abs_entries(P[0][0] - cxx, mxz, P[1][1] - czz, scale)
+
+    def _keyframe_window(self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike) -> MapWindow | None:
+        """The map's used bins under a keyframe's profile (N, 2, camera-relative): all the
+        consistency test compares it with; None without a finite point."""
+        rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+        x = rel[np.all(np.isfinite(rel), axis=1), 0]
+        if x.size == 0:
+            return None
+        x0 = float(np.asarray(camera_xz_m, dtype=float)[0])
+        # (the points' x as the map places them: relative x plus the camera's)
+        return self.map.window(
+            float((x + x0).min()), float((x + x0).max()), self.config.map_sigma_m
+        )
 
     def _window(self, x_range_m: tuple[float, float]) -> HeightProfile:
         """The map's used bins over an x range (min, max), m."""
@@ -408,6 +446,18 @@ class SafetyMonitor:
         P = np.asarray(cov_position_m2, dtype=float)
         Pl = P.tolist()
         if keyframe_profile_xz_m is not None:
+            seen = self._keyframe_window(camera_xz_m, keyframe_profile_xz_m)
+            if seen is not None:  # the keyframe against the map, before it joins
+                self.consistency.observe_keyframe(
+                    camera_xz_m,
+                    keyframe_profile_xz_m,
+                    P,
+                    seen.profile,
+                    lambda k: self.map.bin_cov_rows_at(seen.bins[k]),
+                    cfg.bin_m,
+                    self.map.top_band_m,
+                    cfg.relative_pose_scale,
+                )
             self.map.add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
         heel = np.asarray(heel_xz_m, dtype=float)
         toe = np.asarray(toe_xz_m, dtype=float)
@@ -421,11 +471,13 @@ class SafetyMonitor:
         if g.coverage(heel, toe, win) < cfg.min_coverage:
             c = NO_CLEARANCE  # the terrain under the foot has not been seen
         sig = NAN
+        sp, sm = self.consistency.pose_scale, self.consistency.map_scale
+        pose_w = cfg.relative_pose_scale * sp * sp
         if c.bin >= 0:
             k = int(near.bins[c.bin])
-            rel = self._relative_cov(Pl, k)
+            rel = self._relative_cov(Pl, k, pose_w)
             sig = clearance_sigma(
-                c.normal_xz, rel, self.map.bin_sigma(k, cfg.map_sigma_m), cfg.foot_sigma_m
+                c.normal_xz, rel, sm * self.map.bin_sigma(k, cfg.map_sigma_m), cfg.foot_sigma_m
             )
         # the next edge ahead
         nc = nsig = ed = edsig = NAN
@@ -433,10 +485,10 @@ class SafetyMonitor:
         if e >= 0:
             ec = g.edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
             kb = self.map.bin_below(float(edges.xz_m[e, 0]))  # the bin at the edge
-            rel = self._relative_cov(Pl, kb)
+            rel = self._relative_cov(Pl, kb, pose_w)
             nc = ec.distance_m
             nsig = clearance_sigma(
-                ec.normal_xz, rel, self.map.bin_sigma(kb, cfg.map_sigma_m), cfg.foot_sigma_m
+                ec.normal_xz, rel, sm * self.map.bin_sigma(kb, cfg.map_sigma_m), cfg.foot_sigma_m
             )
             ed = float(edges.xz_m[e, 0] - toe[0])
             edsig = (rel[0][0] + cfg.foot_sigma_m**2 + (cfg.bin_m / 2) ** 2) ** 0.5
@@ -536,4 +588,6 @@ class SafetyMonitor:
             placement=placement,
             edge_xz_m=edges.xz_m[e].copy() if e >= 0 else _NAN2.copy(),
             near_trip_clearance_m=risk,
+            pose_consistency_scale=sp,
+            map_consistency_scale=sm,
         )

@@ -70,11 +70,12 @@ from gtsam.symbol_shorthand import B, L, V, X
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
-from vio_graph.geometry import matrix_from_quat_wxyz, remove_yaw, skew
+from vio_graph.geometry import cross3, matrix_from_quat_wxyz, remove_yaw, skew
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.imu_sampling import (
     SAMPLERS,
     TIME_TOL_S,
+    compiled_sampler,
     discretization_velocity_var,
     distrust_step_variances,
     distrust_variances,
@@ -93,6 +94,14 @@ from vio_graph.types import (
 
 #: Sigma used for "unconstrained" axes of a prior (tangent units).
 LOOSE_SIGMA = 1e4
+
+_EIGH_LO: np.ufunc | None
+try:  # the gufunc np.linalg.eigh calls (UPLO="L"); private, so looked up defensively
+    from numpy.linalg import _umath_linalg
+
+    _EIGH_LO = _umath_linalg.eigh_lo
+except (ImportError, AttributeError):  # pragma: no cover - other numpy layouts
+    _EIGH_LO = None
 
 __all__ = [
     "B",
@@ -135,12 +144,25 @@ def _cov3_from_xz(cov_xz_m2: ArrayLike, config: SmootherConfig) -> NDArray[np.fl
     c = np.asarray(cov_xz_m2, dtype=float).reshape(2, 2)
     c = 0.5 * (c + c.T)
     floor = config.min_measurement_sigma_m**2
-    w, U = np.linalg.eigh(c)
+    w, U = _eigh(c)
     c = (U * np.maximum(w, floor)) @ U.T
     C3 = np.zeros((3, 3))
-    C3[np.ix_([0, 2], [0, 2])] = c
+    _put_xz(C3, c)
     C3[1, 1] = config.lateral_measurement_sigma_m**2
     return C3
+
+
+def _put_xz(C3: NDArray[np.float64], c: NDArray[np.float64]) -> None:
+    """C3[np.ix_([0, 2], [0, 2])] = c, element by element (np.ix_ costs ~10 us a call)."""
+    C3[0, 0], C3[0, 2], C3[2, 0], C3[2, 2] = c[0, 0], c[0, 1], c[1, 0], c[1, 1]
+
+
+def _eigh(c: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``np.linalg.eigh(c)`` of a float64 matrix through the LAPACK gufunc it wraps: the same
+    call and result, without ~15 us of argument handling (two calls per keyframe)."""
+    if _EIGH_LO is None:
+        return np.linalg.eigh(c)
+    return _EIGH_LO(c, signature="d->dd")
 
 
 def _between_noise(C_trans: NDArray[np.float64], config: SmootherConfig) -> gtsam.noiseModel.Base:
@@ -184,7 +206,7 @@ def camera_xz_cov_from_pose_cov(
     px = skew(imu_p_cam_m)
     J = R_world_imu @ np.hstack([-px, np.eye(3)])
     C = J @ pose_cov @ J.T
-    return C[np.ix_([0, 2], [0, 2])]
+    return np.array([[C[0, 0], C[0, 2]], [C[2, 0], C[2, 2]]])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -246,6 +268,7 @@ class KeyframeGraphBuilder:
         self.config = config
         self.imu_p_cam_m = T[:3, 3].copy()
         self._params = make_preintegration_params(config)
+        self._compiled_steps = compiled_sampler(config.preintegration)  # numba, or None
         self._imu_t: list[float] = []
         self._imu_a: list[NDArray[np.float64]] = []
         self._imu_g: list[NDArray[np.float64]] = []
@@ -445,10 +468,20 @@ class KeyframeGraphBuilder:
         cfg = self.config
         assert self._last_kf_time_s is not None
         ts = np.asarray(self._imu_t)
-        sampler = SAMPLERS[cfg.preintegration]
-        a_mid, g_mid, dt = sampler(
-            ts, np.asarray(self._imu_a), np.asarray(self._imu_g), self._last_kf_time_s, t
-        )
+        if self._compiled_steps is not None and ts.size and t > self._last_kf_time_s:
+            a_mid, g_mid, dt = self._compiled_steps(
+                ts,
+                np.asarray(self._imu_a),
+                np.asarray(self._imu_g),
+                self._last_kf_time_s,
+                t,
+                TIME_TOL_S,
+            )
+        else:
+            sampler = SAMPLERS[cfg.preintegration]
+            a_mid, g_mid, dt = sampler(
+                ts, np.asarray(self._imu_a), np.asarray(self._imu_g), self._last_kf_time_s, t
+            )
         params = self._params
         x_vel, x_rot = distrust_variances(ts, self._imu_x, self._last_kf_time_s, t)
         per_step = cfg.distrust_noise == "per_step" and (x_vel > 0 or x_rot > 0)
@@ -496,7 +529,7 @@ class KeyframeGraphBuilder:
             cam_xz = np.asarray(pend.estimate.camera_xz_m, dtype=float).reshape(2)
             t_guess = imu_position_from_camera(cam_xz, R_i, p_ic)
             v_cam = _xz_to_3(pend.estimate.velocity_xz_mps)
-            v_guess = v_cam - R_i @ np.cross(self._gyro_at(t), p_ic)
+            v_guess = v_cam - R_i @ cross3(self._gyro_at(t), p_ic)
             v_guess[1] = 0.0
         else:
             assert pim is not None and self._latest_nav is not None
@@ -695,10 +728,10 @@ class KeyframeGraphBuilder:
         assert ob.camera_velocity_xz_mps is not None and ob.velocity_cov is not None
         omega = R_i @ self._gyro_at(t)
         imu_to_ankle = R_i @ self.imu_p_cam_m + _xz_to_3(ob.ankle_rel_xz_m)
-        v_imu = -np.cross(omega, imu_to_ankle)
+        v_imu = -cross3(omega, imu_to_ankle)
         vc = np.asarray(ob.velocity_cov, dtype=float).reshape(2, 2)
         cov3 = np.diag([0.0, 1.0, 0.0])
-        cov3[np.ix_([0, 2], [0, 2])] = vc
+        _put_xz(cov3, vc)
         batch.add(
             gtsam.PriorFactorVector(V(i), v_imu, gtsam.noiseModel.Gaussian.Covariance(cov3)),
             [V(i)],

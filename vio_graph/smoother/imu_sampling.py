@@ -30,6 +30,7 @@ __all__ = [
     "SAMPLERS",
     "TIME_TOL_S",
     "common_frame_samples",
+    "compiled_sampler",
     "discretization_velocity_var",
     "distrust_step_variances",
     "held_samples",
@@ -292,6 +293,20 @@ def make_preintegration_params(
     p.setBiasAccCovariance(np.eye(3) * config.accel_bias_rw_mps3_per_sqrt_hz**2)
     p.setBiasOmegaCovariance(np.eye(3) * config.gyro_bias_rw_radps2_per_sqrt_hz**2)
     return p
+
+
+def compiled_sampler(name: str) -> Callable[..., tuple] | None:
+    """The compiled version of sampler ``name`` (``SAMPLERS``), or None: only
+    "common_frame" has one (smoother/compiled_sampling.py, numba), used when the compiled
+    kernels are on (``filter.fast_imu.imu_kernels``). Called as ``f(t, a, g, t0, t1,
+    TIME_TOL_S)`` with float64 arrays; same outputs as the sampler to rounding."""
+    from vio_graph.filter.fast_imu import imu_kernels
+
+    if name != "common_frame" or imu_kernels() is None:
+        return None
+    from vio_graph.smoother.compiled_sampling import common_frame_steps
+
+    return common_frame_steps
 
 
 #: ``SmootherConfig.preintegration`` -> the step sampler it selects.

@@ -108,20 +108,24 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         if dead_landmarks:
             self._builder.forget_landmarks(dead_landmarks)
         i = u.index
+        pose = self._smoother.calculateEstimatePose3(X(i))
         self._builder.set_latest_state(
-            self._smoother.calculateEstimatePose3(X(i)),
+            pose,
             self._smoother.calculateEstimateVector(V(i)),
             self._smoother.calculateEstimateConstantBias(B(i)),
         )
         if self.config.marginal_covariance == "when_newest" and self._incremental:
-            self._newest_cov[i] = self._camera_estimate(i, with_covariance=True)[1]
+            self._newest_cov[i] = self._camera_estimate(i, with_covariance=True, pose=pose)[1]
         self.update_times_ms.append((time.perf_counter() - t0) * 1e3)
 
     def _camera_estimate(
-        self, i: int, with_covariance: bool
+        self, i: int, with_covariance: bool, pose: gtsam.Pose3 | None = None
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Camera x-z (m), its 2x2 covariance (NaN unless asked) and R_world_imu (3, 3)."""
-        R, cam = camera_from_pose(self._smoother.calculateEstimatePose3(X(i)), self.imu_p_cam_m)
+        """Camera x-z (m), its 2x2 covariance (NaN unless asked) and R_world_imu (3, 3);
+        ``pose``: X(i)'s estimate if already read since the last update."""
+        if pose is None:
+            pose = self._smoother.calculateEstimatePose3(X(i))
+        R, cam = camera_from_pose(pose, self.imu_p_cam_m)
         cov = _NAN2
         if with_covariance and isinstance(self._smoother, gtsam.IncrementalFixedLagSmoother):
             cov = camera_xz_cov_from_pose_cov(

@@ -1,0 +1,141 @@
+"""The SP-ESKF's closed-form update (2x2 inverse, P - K H P, block-wise augmentation) gives
+the results of the numpy reference it replaced (LAPACK solves, Joseph form, J P J^T): same
+accept / refuse decisions, the same state and covariance to rounding, over random sequences
+of every measurement kind; the closed-form gate distance equals the LAPACK one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vio_graph.errors import EstimationError
+from vio_graph.filter import FilterConfig, SagittalEskf
+from vio_graph.filter.gating import mahalanobis2_2d
+from vio_graph.geometry import GRAVITY_MPS2
+from vio_graph.types import Displacement2D, ImuSample, LandmarkKey
+
+UPRIGHT = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _imu(t: float, rng: np.random.Generator) -> ImuSample:
+    """An upright IMU with a little random acceleration and pitch rate."""
+    acc = np.array([rng.normal(0, 0.5), 0.0, GRAVITY_MPS2 + rng.normal(0, 0.5)])
+    return ImuSample(t, acc, np.array([0.0, rng.normal(0, 0.3), 0.0]), UPRIGHT)
+
+
+def _run(seed: int, reference: bool) -> tuple[SagittalEskf, list[bool]]:
+    """1 s at 100 Hz with a frame every 3 samples: a displacement (sometimes an outlier, so
+    the gate refuses), corner landmarks, height landmarks, a velocity, drops."""
+    rng = np.random.default_rng(seed)
+    f = SagittalEskf(FilterConfig())
+    if reference:  # the numpy reference paths on this instance only
+        f._correct = f._correct_reference  # type: ignore[method-assign]
+        f.displacement_d2 = f.displacement_d2_reference  # type: ignore[method-assign]
+        f._augment = f._augment_reference  # type: ignore[method-assign]
+    f.initialise(0.0, (0.0, 0.0))
+    outcomes: list[bool] = []
+    t_prev = 0.0
+    for k in range(1, 101):
+        t = k / 100.0
+        f.propagate(_imu(t, rng))
+        if k % 3:
+            continue
+        delta = rng.normal(0, 0.01, 2) + (0.3 if rng.uniform() < 0.15 else 0.0)
+        d = Displacement2D(t_prev, t, delta, np.diag(rng.uniform(1e-6, 1e-5, 2)))
+        d2 = f.displacement_d2(d)
+        d2_moved = f.displacement_d2(d, np.eye(4) * 1e-4, delta + 0.01)
+        outcomes.append(bool(d2 is not None and d2_moved is not None))
+        outcomes.append(f.update_displacement(d))
+        t_prev = t
+        for c in range(int(rng.integers(1, 4))):
+            key = LandmarkKey("corner", c)
+            rel = np.array([0.5 + 0.1 * c, -0.3]) - f.state.p_xz_m + rng.normal(0, 0.003, 2)
+            outcomes.append(f.update_landmark(key, rel, np.eye(2) * 1e-5, t))
+        h = LandmarkKey("level", k % 2)
+        rel_z = -0.4 - f.state.p_xz_m[1] + rng.normal(0, 0.002)
+        outcomes.append(f.update_height_landmark(h, float(rel_z), 4e-6, t))
+        outcomes.append(f.update_velocity(f.state.v_xz_mps + 0.01, np.eye(2) * 1e-3, t))
+        if k % 15 == 0:
+            f.drop_landmark(LandmarkKey("corner", 2))
+    return f, outcomes
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_closed_form_update_equals_the_reference(seed: int) -> None:
+    fast, out_fast = _run(seed, reference=False)
+    ref, out_ref = _run(seed, reference=True)
+    assert out_fast == out_ref
+    assert False in out_ref and True in out_ref  # the gate refused some, accepted others
+    assert fast._aug_keys == ref._aug_keys
+    np.testing.assert_allclose(fast._x, ref._x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast._P, ref._P, rtol=0, atol=1e-15)
+    for key in ref._aug_keys:
+        np.testing.assert_allclose(fast._aug_xz[key], ref._aug_xz[key], rtol=0, atol=1e-12)
+
+
+def test_gate_distance_equals_the_reference() -> None:
+    f, _ = _run(5, reference=False)
+    t = f.state.timestamp_s
+    f.clone_position(t - 0.02)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        d = Displacement2D(t - 0.02, t, rng.normal(0, 0.02, 2), np.diag(rng.uniform(1e-6, 1e-4, 2)))
+        extra = None if rng.uniform() < 0.5 else np.diag(rng.uniform(0, 1e-3, 4))
+        moved = None if rng.uniform() < 0.5 else rng.normal(0, 0.02, 2)
+        got = f.displacement_d2(d, extra, moved)
+        want = f.displacement_d2_reference(d, extra, moved)
+        assert got is not None and want is not None
+        assert got == pytest.approx(want, rel=1e-10)
+
+
+def test_non_finite_measurements_are_refused() -> None:
+    f = SagittalEskf()
+    f.initialise(0.0, (0.0, 0.0))
+    with pytest.raises(EstimationError, match="finite"):
+        f.update_landmark(LandmarkKey("corner", 0), (np.nan, 0.0), np.eye(2))
+    with pytest.raises(EstimationError, match="finite"):
+        f.update_landmark(LandmarkKey("corner", 0), (0.0, 0.0), np.diag([np.inf, 1.0]))
+
+
+def test_closed_form_mahalanobis_equals_the_solve() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        A = rng.normal(0, 1, (2, 2))
+        S = A @ A.T + np.eye(2) * 10.0 ** rng.uniform(-8, 0)
+        y = rng.normal(0, 1, 2)
+        assert mahalanobis2_2d(S, y) == pytest.approx(float(y @ np.linalg.solve(S, y)), rel=1e-9)
+    with pytest.raises(EstimationError, match="singular"):
+        mahalanobis2_2d(np.ones((2, 2)), np.ones(2))
+
+
+def test_gyro_interpolation_equals_np_interp() -> None:
+    """AttitudeTracker.gyro_at (np.interp written out) equals the numpy form bit for bit:
+    between samples, on their stamps, before the history and after the latest sample."""
+    from vio_graph.filter.attitude import AttitudeTracker
+
+    rng = np.random.default_rng(11)
+    tracker = AttitudeTracker()
+    stamps = np.cumsum(rng.uniform(0.008, 0.012, 40))
+    for t in stamps:
+        tracker.add(
+            ImuSample(float(t), np.array([0.0, 0.0, GRAVITY_MPS2]), rng.normal(0, 1, 3), UPRIGHT)
+        )
+        kept = np.array([r[0] for r in tracker._recent])
+        queries = [*kept, *rng.uniform(kept[0] - 0.02, kept[-1] + 0.02, 20)]
+        for q in queries:
+            assert np.array_equal(tracker.gyro_at(float(q)), tracker.gyro_at_reference(float(q)))
+
+
+def test_state_accessors_equal_the_snapshot() -> None:
+    """status, cov_position_m2, cov_velocity_m2ps2 and variance read what :attr:`state`
+    copies, without the snapshot."""
+    f = SagittalEskf()
+    assert f.status == f.state.status
+    f, _ = _run(2, reference=False)
+    state = f.state
+    assert f.status == state.status
+    assert np.array_equal(f.cov_position_m2(), state.cov_position_m2)
+    assert np.array_equal(f.cov_velocity_m2ps2(), state.P[2:4, 2:4])
+    assert [f.variance(i) for i in range(8)] == np.diag(state.P).tolist()
+    with pytest.raises(EstimationError, match="index"):
+        f.variance(8)

@@ -1,0 +1,187 @@
+"""Consistency of the clearance sigma with the data: does the height map predict what the
+next keyframe sees? (pure: arrays in, numbers out; no I/O)
+
+The clearance sigma's pose and map terms (docs/method.md, section 8) say how far a foot
+placed by the filter now can be from a terrain bin placed by the filter at the keyframes
+that saw it. A new keyframe is the same situation with the camera in place of the foot: its
+profile, placed at the filter's camera position now, lands on bins the map already holds.
+Per shared bin b the innovation r_b is the keyframe's height minus the map's. Two tests:
+
+- pose: the drift of the camera since the bins were mapped moves the whole profile, so the
+  keyframe's common offset o = median_b r_b observes it, with predicted variance
+  ``relative_pose_scale`` x median_b |P_now - P_bin|_zz (the filter's covariance growth,
+  projected on z) plus the variance of the median itself (1.2533^2 x the residuals' scaled
+  MAD^2 / the number of bins);
+- map: what is left per bin, r_b - o, against the bin's height variance sigma_bin^2 (its
+  standard error over keyframes with the floor ``map_sigma_m``).
+
+If the terms are right, each normalised square is chi-square with one degree of freedom; its
+median over the last ``window`` keyframes over 0.4549 (the median of chi-square(1)) is the
+squared scale the data put on that term. A median and not a mean: a ToF mixed pixel or a
+nosing bin shifted by a bin is one large value, not a sign that every bin is off.
+
+A pose scale above 1 says the filter's covariance grows less than its drift (the filter is
+overconfident: the estimator is in trouble and says so); below 1, that it is conservative.
+The map test sees the random scatter of the bins, not an error all keyframes share (a nosing
+placed up to a bin off, the strip hidden behind a nosing): the floor was there for those, and
+the map scale takes it down with the scatter (docs/method.md, docs/results.md). The monitor
+multiplies the pose and map terms of every sigma by their scales; the foot-outline term is
+seen by neither test.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vio_graph.safety.clearance import HeightProfile
+
+#: median of the chi-square distribution with one degree of freedom
+CHI2_1_MEDIAN = 0.4549364231195724
+
+
+def keyframe_bin_tops(
+    camera_xz_m: ArrayLike, profile_xz_m: ArrayLike, bin_m: float, top_band_m: float
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """The keyframe's height per x bin, as the map takes it: the profile (N, 2, relative to
+    the camera, world axes, m) placed at the camera; per bin ``floor(x / bin_m)`` the mean of
+    the points within ``top_band_m`` of the bin's highest point. Returns (bin indices, heights
+    m), sorted by bin; empty for a profile without finite points."""
+    rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+    rel = rel[np.all(np.isfinite(rel), axis=1)]
+    if rel.shape[0] == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    pts = rel + np.asarray(camera_xz_m, dtype=float)[None]
+    idx = np.floor(pts[:, 0] / bin_m).astype(np.int64)
+    order = np.lexsort((-pts[:, 1], idx))  # by bin, highest point first
+    idx, z = idx[order], pts[order, 1]
+    first = np.r_[True, idx[1:] != idx[:-1]]
+    grp = np.cumsum(first) - 1
+    band = z >= z[first][grp] - top_band_m
+    n_bins = int(first.sum())
+    top = np.bincount(grp[band], weights=z[band], minlength=n_bins) / np.bincount(
+        grp[band], minlength=n_bins
+    )
+    return idx[first], top
+
+
+def psd_abs_zz(dP_m2: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The zz element of |dP| (eigenvalues made non-negative) for symmetric 2x2 matrices
+    given as rows (xx, xz, zz), (B, 3) -> (B,), m^2."""
+    a, b, c = dP_m2[:, 0], dP_m2[:, 1], dP_m2[:, 2]
+    m, r = (a + c) / 2, np.sqrt(((a - c) / 2) ** 2 + b * b)
+    l1, l2 = m + r, m - r
+    # unit eigenvector of l1: its z component squared; the other's is 1 minus it
+    with np.errstate(invalid="ignore", divide="ignore"):
+        vz2 = np.where(r > 0, (l1 - a) / (2 * r), 0.5)
+    vz2 = np.clip(vz2, 0.0, 1.0)
+    return np.abs(l1) * vz2 + np.abs(l2) * (1.0 - vz2)
+
+
+class ChiSquareScale:
+    """Running scale of one sigma term from normalised squares (see module docstring).
+    ``window``: keyframes whose values are kept (0 disables: the scale stays 1);
+    ``min_keyframes``: keyframes observed before the scale leaves 1; ``scale_range``: the
+    scale is clipped to it (a bound against a degenerate map)."""
+
+    def __init__(
+        self,
+        window: int,
+        min_keyframes: int = 5,
+        scale_range: tuple[float, float] = (0.25, 4.0),
+    ) -> None:
+        if window < 0 or min_keyframes < 1:
+            raise ValueError(
+                f"window must be >= 0 and min_keyframes >= 1, got {window}, {min_keyframes}"
+            )
+        lo, hi = scale_range
+        if not 0 < lo <= 1 <= hi:
+            raise ValueError(f"scale_range must satisfy 0 < lo <= 1 <= hi, got {scale_range}")
+        self.window = window
+        self.min_keyframes = min_keyframes
+        self.scale_range = (float(lo), float(hi))
+        self._q: deque[NDArray[np.float64]] = deque(maxlen=max(window, 1))
+        self._scale = 1.0
+
+    @property
+    def scale(self) -> float:
+        """Factor on the sigma term (1 until ``min_keyframes`` keyframes were observed)."""
+        return self._scale
+
+    def observe(self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike) -> None:
+        """One keyframe's innovations (m) and their predicted variances (m^2); updates
+        :attr:`scale`."""
+        if self.window == 0:
+            return
+        r = np.asarray(innovation_m, dtype=float).reshape(-1)
+        v = np.asarray(predicted_var_m2, dtype=float).reshape(-1)
+        if r.shape != v.shape:
+            raise ValueError(f"innovations {r.shape} and variances {v.shape} differ in shape")
+        ok = np.isfinite(r) & np.isfinite(v) & (v > 0)
+        if not ok.any():
+            return
+        self._q.append(r[ok] ** 2 / v[ok])
+        if len(self._q) >= self.min_keyframes:
+            s2 = float(np.median(np.concatenate(self._q))) / CHI2_1_MEDIAN
+            self._scale = float(np.clip(np.sqrt(s2), *self.scale_range))
+
+
+class MapConsistency:
+    """The pose and map scales of the clearance sigma from each keyframe tested against the
+    map before it joins it (see module docstring); arguments as :class:`ChiSquareScale`."""
+
+    def __init__(
+        self,
+        window: int,
+        min_keyframes: int = 5,
+        scale_range: tuple[float, float] = (0.25, 4.0),
+    ) -> None:
+        self.pose = ChiSquareScale(window, min_keyframes, scale_range)
+        self.map = ChiSquareScale(window, min_keyframes, scale_range)
+
+    @property
+    def pose_scale(self) -> float:
+        """Factor on the sigmas' pose term."""
+        return self.pose.scale
+
+    @property
+    def map_scale(self) -> float:
+        """Factor on the sigmas' map term."""
+        return self.map.scale
+
+    def observe_keyframe(
+        self,
+        camera_xz_m: ArrayLike,
+        profile_xz_m: ArrayLike,
+        cov_position_m2: ArrayLike,
+        mapped: HeightProfile,
+        bin_cov_rows: Callable[[NDArray[np.int64]], NDArray[np.float64]],
+        bin_m: float,
+        top_band_m: float,
+        pose_scale: float,
+    ) -> None:
+        """Test a keyframe against the map: ``mapped`` is the map's profile (bins of width
+        ``bin_m`` in use), ``bin_cov_rows(k)`` the mean keyframe camera covariance of its
+        bins ``k`` as rows (Pxx, Pxz, Pzz), (K, 3); the keyframe's camera covariance
+        ``cov_position_m2`` (2, 2) is now's; ``pose_scale``: the config's
+        ``relative_pose_scale``."""
+        if self.pose.window == 0 or len(mapped) == 0:
+            return
+        bins, top = keyframe_bin_tops(camera_xz_m, profile_xz_m, bin_m, top_band_m)
+        mapped_bins = np.rint(mapped.x_lo_m / bin_m).astype(np.int64)
+        k = np.minimum(np.searchsorted(mapped_bins, bins), len(mapped) - 1)
+        hit = mapped_bins[k] == bins
+        if not hit.any():
+            return
+        k = k[hit]
+        r = top[hit] - mapped.z_m[k]
+        P = np.asarray(cov_position_m2, dtype=float)
+        dP = np.array([P[0, 0], (P[0, 1] + P[1, 0]) / 2, P[1, 1]])[None] - bin_cov_rows(k)
+        offset = float(np.median(r))
+        mad_sd = 1.4826 * float(np.median(np.abs(r - offset)))  # per-bin scatter, m
+        v_offset = pose_scale * float(np.median(psd_abs_zz(dP))) + (1.2533 * mad_sd) ** 2 / r.size
+        self.pose.observe(np.array([offset]), np.array([v_offset]))
+        self.map.observe(r - offset, mapped.sigma_m[k] ** 2)

@@ -363,6 +363,17 @@ class SafetyMonitor:
         mxz = ((P[0][1] - cxz) + (P[1][0] - cxz)) / 2
         return _psd_abs_entries(P[0][0] - cxx, mxz, P[1][1] - czz, scale)
 
+    def _keyframe_tops(
+        self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike
+    ) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+        """The keyframe's height per bin from the compiled kernel (None in numpy: the
+        consistency test bins it itself, the same numbers)."""
+        if self.geometry is clearance:
+            return None
+        rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+        cx, cz = (float(v) for v in np.asarray(camera_xz_m, dtype=float))
+        return self.geometry.keyframe_tops(rel, cx, cz, self.config.bin_m, self.map.top_band_m)
+
     def _keyframe_window(self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike) -> MapWindow | None:
         """The map's used bins under a keyframe's profile (N, 2, camera-relative): all the
         consistency test compares it with; None without a finite point."""
@@ -457,6 +468,7 @@ class SafetyMonitor:
                     cfg.bin_m,
                     self.map.top_band_m,
                     cfg.relative_pose_scale,
+                    self._keyframe_tops(camera_xz_m, keyframe_profile_xz_m),
                 )
             self.map.add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
         heel = np.asarray(heel_xz_m, dtype=float)

@@ -101,6 +101,16 @@ def summary(fe: dict[str, Any], sm: dict[str, Any], sim: dict[str, Any], sc: dic
             "less sensitive to other processes (see below)",
         ],
         [
+            "safety outputs per frame (toe clearance, prediction, placement)",
+            f"{f(ours['safety']['median'], 3)} / {f(ours['safety']['p95'], 3)} ms",
+            "target <= 0.2 ms"
+            + (
+                f"; numpy reference {f(fe['reference_ms']['safety']['median'], 3)} ms"
+                if "reference_ms" in fe
+                else ""
+            ),
+        ],
+        [
             "per frame incl. kinematics and IMU propagation",
             f"{f(ours['per_frame_total']['median'])} / {f(ours['per_frame_total']['p95'])} ms",
             "30 fps budget: 33 ms",

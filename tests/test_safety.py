@@ -444,7 +444,7 @@ def test_pruned_prediction_window_gives_the_same_minimum() -> None:
         win = prof.window(min(heel[0], toe[0]) - 0.3, max(heel[0], toe[0]) + 0.3)
         now = foot_clearance(heel, toe, win).distance_m
         full = clearance_many(hp, tp, prof.window(lo - 0.3, hi + 0.3))
-        pruned = clearance_many(hp, tp, mon._swept(prof, lo, hi, lo - 0.3, hi + 0.3, now))
+        pruned = clearance_many(hp, tp, prof.window(*mon._swept(lo, hi, lo - 0.3, hi + 0.3, now)))
         assert float(np.min(pruned)) == float(np.min(full))
 
 

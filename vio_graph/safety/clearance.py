@@ -20,6 +20,7 @@ is subtracted from the distance. Definitions (docs/method.md, "Foot-to-terrain s
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -209,6 +210,12 @@ def edge_clearance(
     )
 
 
+#: :func:`edge_runs`: a bin pair whose height changes by more than this is part of a riser, m
+SLOPE_STEP_M = 0.004
+#: :func:`edge_runs`: widest bin inside a transition, and the x span that joins two, m
+MAX_TRANSITION_BIN_M = 0.03
+
+
 @dataclass(frozen=True)
 class Edges:
     """Risers / edges of a height field: the edge point (E, 2) on the upper side of the
@@ -224,18 +231,20 @@ class Edges:
     def summary(self) -> tuple[int, float, float]:
         """(number of edges, mean |rise| m, mean spacing between consecutive edges m)."""
         n = len(self)
-        rise = float(np.mean(np.abs(self.rise_m))) if n else float("nan")
-        tread = float(np.mean(np.diff(self.xz_m[:, 0]))) if n >= 2 else float("nan")
+        # np.mean is np.add.reduce / n: the same numbers without its per-call set-up
+        rise = float(np.add.reduce(np.abs(self.rise_m))) / n if n else float("nan")
+        x = self.xz_m[:, 0]
+        tread = float(np.add.reduce(x[1:] - x[:-1])) / (n - 1) if n >= 2 else float("nan")
         return n, rise, tread
 
 
-def find_edges(
+def edge_runs(
     prof: HeightProfile,
     min_rise_m: float,
     max_gap_m: float,
-    slope_step_m: float = 0.004,
-    max_transition_bin_m: float = 0.03,
-) -> Edges:
+    slope_step_m: float = SLOPE_STEP_M,
+    max_transition_bin_m: float = MAX_TRANSITION_BIN_M,
+) -> tuple[Edges, NDArray[np.int64]]:
     """Height changes of at least ``min_rise_m`` between consecutive known bins.
 
     Consecutive bin pairs whose height changes by more than ``slope_step_m`` with the same
@@ -244,10 +253,14 @@ def find_edges(
     tread of the exact profile) ends the transition; two transitions of the same sign at most
     ``max_transition_bin_m`` apart are one (a riser with a noisy bin in it). The edge sits at
     the transition's largest jump, on its upper side, at the height of the transition's top.
+
+    Also returns, per edge, the index of the first bin of its transition (E,): the scan is
+    left to right, so the incremental map (safety/height_map.py) re-runs it on the changed
+    part of a map only.
     """
     n = len(prof)
     if n < 2:
-        return Edges(np.zeros((0, 2)), np.zeros(0))
+        return Edges(np.zeros((0, 2)), np.zeros(0)), np.zeros(0, np.int64)
     dz = np.diff(prof.z_m)
     gap = prof.x_lo_m[1:] - prof.x_hi_m[:-1]
     step = np.where(gap <= max_gap_m, np.sign(dz) * (np.abs(dz) > slope_step_m), 0)
@@ -272,7 +285,7 @@ def find_edges(
             runs[-1][1] = j
         else:
             runs.append([i, j, s])
-    out_xz, out_rise = [], []
+    out_xz, out_rise, out_first = [], [], []
     for i, j, s in runs:
         rise = float(prof.z_m[j + 1] - prof.z_m[i])
         if abs(rise) < min_rise_m:
@@ -283,9 +296,22 @@ def find_edges(
         else:  # falling: nosing at the right end of the upper bin
             out_xz.append((prof.x_hi_m[k], prof.z_m[i]))
         out_rise.append(rise)
+        out_first.append(i)
+    first = np.asarray(out_first, np.int64)
     if not out_xz:
-        return Edges(np.zeros((0, 2)), np.zeros(0))
-    return Edges(np.asarray(out_xz, float), np.asarray(out_rise, float))
+        return Edges(np.zeros((0, 2)), np.zeros(0)), first
+    return Edges(np.asarray(out_xz, float), np.asarray(out_rise, float)), first
+
+
+def find_edges(
+    prof: HeightProfile,
+    min_rise_m: float,
+    max_gap_m: float,
+    slope_step_m: float = SLOPE_STEP_M,
+    max_transition_bin_m: float = MAX_TRANSITION_BIN_M,
+) -> Edges:
+    """The edges of :func:`edge_runs` (height changes of at least ``min_rise_m``)."""
+    return edge_runs(prof, min_rise_m, max_gap_m, slope_step_m, max_transition_bin_m)[0]
 
 
 def next_edge_index(edges: Edges, x_m: float) -> int:
@@ -404,7 +430,7 @@ def clearance_sigma(
     (2, 2) projected on the distance's gradient ``normal_xz``, plus the terrain height's
     sigma along the normal's vertical part and the foot-outline sigma."""
     nx, nz = float(normal_xz[0]), float(normal_xz[1])
-    if not (np.isfinite(nx) and np.isfinite(nz)):
+    if not (math.isfinite(nx) and math.isfinite(nz)):
         return float("nan")
     C = cov_relative_m2
     var = (

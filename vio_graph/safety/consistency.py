@@ -162,15 +162,21 @@ class MapConsistency:
         bin_m: float,
         top_band_m: float,
         pose_scale: float,
+        bin_tops: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None,
     ) -> None:
         """Test a keyframe against the map: ``mapped`` is the map's profile (bins of width
         ``bin_m`` in use), ``bin_cov_rows(k)`` the mean keyframe camera covariance of its
         bins ``k`` as rows (Pxx, Pxz, Pzz), (K, 3); the keyframe's camera covariance
         ``cov_position_m2`` (2, 2) is now's; ``pose_scale``: the config's
-        ``relative_pose_scale``."""
+        ``relative_pose_scale``; ``bin_tops``: :func:`keyframe_bin_tops` of this keyframe
+        when the caller has it (the compiled path computes it in one call)."""
         if self.pose.window == 0 or len(mapped) == 0:
             return
-        bins, top = keyframe_bin_tops(camera_xz_m, profile_xz_m, bin_m, top_band_m)
+        bins, top = (
+            keyframe_bin_tops(camera_xz_m, profile_xz_m, bin_m, top_band_m)
+            if bin_tops is None
+            else bin_tops
+        )
         mapped_bins = np.rint(mapped.x_lo_m / bin_m).astype(np.int64)
         k = np.minimum(np.searchsorted(mapped_bins, bins), len(mapped) - 1)
         hit = mapped_bins[k] == bins

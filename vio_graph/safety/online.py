@@ -1,12 +1,14 @@
 """The per-frame safety monitor: a height map from what has been seen so far, and the foot's
 clearance, placement and the terrain ahead against it (no look-ahead, no I/O).
 
-Map. Each keyframe's sagittal profile (camera-relative, world axes) is placed at the
-keyframe's camera position; per x bin (``SafetyConfig.bin_m``) the keyframe's surface height
-is the mean of its points within 1 cm of the bin's highest point (a riser's bin keeps its
-top), averaged over keyframes. A bin is used once ``min_keyframes`` keyframes saw it. Each bin
-also keeps the mean camera position covariance of the keyframes that saw it, for the
-relative-pose part of the sigma.
+Map: vio_graph/safety/height_map.py (per x bin of ``SafetyConfig.bin_m``, the median over
+keyframes of the top of each keyframe's profile in the bin; each bin also keeps the mean
+camera position covariance of the keyframes that saw it, for the relative-pose part of the
+sigma). The monitor asks it about the bins near the foot and the edges. With the compiled
+kernels (vio_graph/safety/compiled.py) it answers from those bins only
+(``IncrementalHeightMap``); in numpy it is by default the reference map, which rebuilds its
+whole profile after each keyframe (on a trial of minutes no slower than the incremental
+map's bookkeeping in numpy). Same outputs either way (tests/test_safety_incremental.py).
 
 Sigma. The clearance is a function of the foot minus the terrain point. Both were placed by
 the filter: the terrain at the keyframes that saw it, the foot now. The drift between the two
@@ -33,32 +35,30 @@ Motion model of the prediction (``motion_model``):
 
 from __future__ import annotations
 
+import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from types import ModuleType
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.safety import clearance
 from vio_graph.safety.clearance import (
     NO_CLEARANCE,
     Edges,
     HeightProfile,
-    clearance_many,
     clearance_sigma,
-    coverage,
-    edge_clearance,
-    edge_clearance_many,
-    find_edges,
-    foot_clearance,
     next_edge_index,
     placement_on_tread,
-    predicted_min_clearance,
-    predicted_min_edge_clearance,
 )
 from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.consistency import MapConsistency
+from vio_graph.safety.height_map import IncrementalHeightMap, MapWindow, OnlineHeightMap
 
 NAN = float("nan")
+_NAN2, _NAN4 = np.full(2, NAN), np.full(4, NAN)
 
 
 @dataclass(frozen=True)
@@ -163,11 +163,12 @@ def csv_values(s: SafetyEstimate | None) -> list[str]:
 
 def _psd_abs(M: NDArray[np.float64], scale: float = 1.0) -> list[list[float]]:
     """|scale M| for a symmetric 2x2 M: its eigenvalues made non-negative (closed form)."""
-    a, b, c = (
-        scale * float(M[0, 0]),
-        scale * float((M[0, 1] + M[1, 0]) / 2),
-        scale * float(M[1, 1]),
-    )
+    return _psd_abs_entries(float(M[0, 0]), float((M[0, 1] + M[1, 0]) / 2), float(M[1, 1]), scale)
+
+
+def _psd_abs_entries(mxx: float, mxz: float, mzz: float, scale: float) -> list[list[float]]:
+    """:func:`_psd_abs` of [[mxx, mxz], [mxz, mzz]]."""
+    a, b, c = scale * mxx, scale * mxz, scale * mzz
     m, r = (a + c) / 2, (((a - c) / 2) ** 2 + b * b) ** 0.5
     l1, l2 = m + r, m - r
     if l2 >= 0 or r == 0:  # already non-negative (or a multiple of I)
@@ -183,7 +184,17 @@ def _psd_abs(M: NDArray[np.float64], scale: float = 1.0) -> list[list[float]]:
     ]
 
 
-def forward_motion(v_xz_mps: NDArray[np.float64], cfg: SafetyConfig) -> bool:
+def _gradient(f: NDArray[np.float64], dt_s: float) -> NDArray[np.float64]:
+    """``np.gradient(f, dt_s, axis=0)`` of (T >= 2, 2) samples: central differences inside,
+    one-sided at the ends (the same operations, without its generic set-up)."""
+    out = np.empty_like(f)
+    out[1:-1] = (f[2:] - f[:-2]) / (2.0 * dt_s)
+    out[0] = (f[1] - f[0]) / dt_s
+    out[-1] = (f[-1] - f[-2]) / dt_s
+    return out
+
+
+def forward_motion(v_xz_mps: Sequence[float] | NDArray[np.float64], cfg: SafetyConfig) -> bool:
     """The toe moves forward faster than ``warning_min_forward_speed_mps`` and at least as
     fast as it descends (a swing crossing an edge, not a landing)."""
     vx, vz = float(v_xz_mps[0]), float(v_xz_mps[1])
@@ -192,126 +203,21 @@ def forward_motion(v_xz_mps: NDArray[np.float64], cfg: SafetyConfig) -> bool:
     )
 
 
-class OnlineHeightMap:
-    """Per-x-bin terrain height from keyframe profiles (growable arrays, bin ``bin_m``).
+def compiled_kernels(force: bool = False) -> ModuleType | None:
+    """vio_graph/safety/compiled.py when the compiled paths are on: numba installed and the
+    front end's switch (``VIO_GRAPH_COMPILED``; "auto" as the replay sets it, see
+    :func:`vio_graph.frontend.icp.compiled_kernels`) or ``force``; else None (numpy)."""
+    from vio_graph.frontend.icp import compiled_kernels as frontend_kernels
 
-    Each keyframe contributes one height per bin it saw (the top of the bin, see the module
-    docstring); a bin keeps the last ``capacity`` of them. ``statistic``: ``"median"`` (the
-    bin's height is the median over keyframes, its scatter the scaled median absolute
-    deviation: robust to the mixed pixels a ToF camera leaves between a nosing and the
-    tread below it, which each keyframe puts into different bins) or ``"mean"`` (mean and
-    standard deviation).
-    """
-
-    def __init__(
-        self,
-        bin_m: float,
-        min_keyframes: int,
-        top_band_m: float = 0.01,
-        statistic: str = "median",
-        capacity: int = 24,
-    ) -> None:
-        if statistic not in ("median", "mean"):
-            raise ValueError(f"statistic must be 'median' or 'mean', got {statistic!r}")
-        self.bin_m = bin_m
-        self.top_band_m = top_band_m
-        self.min_keyframes = min_keyframes
-        self.statistic = statistic
-        self.capacity = max(int(capacity), min_keyframes)
-        self._i0 = 0  # bin index of array element 0
-        self._z = np.full((0, self.capacity), np.nan)  # per bin: the keyframes' heights, m
-        self._n = np.zeros(0, np.int64)  # keyframes that saw the bin (all, not only kept)
-        self._mid = np.zeros(0)  # per bin: the height over the kept keyframes, m
-        self._se2 = np.zeros(0)  # per bin: its squared standard error, m^2
-        self._cov = np.zeros((0, 3))  # sum of (Pxx, Pxz, Pzz)
-        self._profile: HeightProfile | None = None
-        self._cov_bins: tuple[NDArray, NDArray] = (np.zeros((0, 3)), np.zeros(0))
-
-    def _grow(self, i_min: int, i_max: int) -> None:
-        n = self._n.shape[0]
-        if n == 0:
-            self._i0 = i_min - int(np.ceil(1.0 / self.bin_m))
-        if n and self._i0 <= i_min and i_max < self._i0 + n:
-            return
-        # grow by at least 1 m at the side that needs it (amortised, not per keyframe)
-        margin = int(np.ceil(1.0 / self.bin_m))
-        lo = self._i0 if i_min >= self._i0 else i_min - margin
-        hi = self._i0 + n if i_max < self._i0 + n else i_max + 1 + margin
-        pad_l, pad_r = self._i0 - lo, hi - (self._i0 + n)
-        self._z = np.pad(self._z, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
-        self._n = np.pad(self._n, (pad_l, pad_r))
-        self._mid = np.pad(self._mid, (pad_l, pad_r))
-        self._se2 = np.pad(self._se2, (pad_l, pad_r))
-        self._cov = np.pad(self._cov, ((pad_l, pad_r), (0, 0)))
-        self._i0 = lo
-
-    def add_keyframe(
-        self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike, cov_position_m2: ArrayLike
-    ) -> None:
-        """Add one keyframe: its profile (N, 2) relative to the camera, world axes, m."""
-        rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
-        rel = rel[np.all(np.isfinite(rel), axis=1)]
-        if rel.shape[0] == 0:
-            return
-        pts = rel + np.asarray(camera_xz_m, dtype=float)[None]
-        idx = np.floor(pts[:, 0] / self.bin_m).astype(np.int64)
-        order = np.lexsort((-pts[:, 1], idx))  # by bin, highest point first
-        idx, z = idx[order], pts[order, 1]
-        first = np.r_[True, idx[1:] != idx[:-1]]
-        bins = idx[first]
-        grp = np.cumsum(first) - 1  # group of every point
-        top_each = z[first][grp]
-        band = z >= top_each - self.top_band_m  # points near the bin's top (riser bins)
-        top = np.bincount(grp[band], weights=z[band], minlength=bins.size) / np.bincount(
-            grp[band], minlength=bins.size
-        )
-        self._grow(int(bins.min()), int(bins.max()))
-        j = bins - self._i0
-        self._z[j, self._n[j] % self.capacity] = top  # the oldest height makes room
-        self._n[j] += 1
-        self._mid[j], self._se2[j] = self._bin_stats(self._z[j])
-        P = np.asarray(cov_position_m2, dtype=float)
-        self._cov[j] += np.array([P[0, 0], P[0, 1], P[1, 1]])
-        self._profile = None
-
-    def _bin_stats(self, Z: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
-        """Height and its squared standard error per row of ``Z`` (bins x kept keyframes,
-        NaN where empty; every row has at least one height)."""
-        n = np.sum(np.isfinite(Z), axis=1)
-        if self.statistic == "mean":
-            mid = np.nanmean(Z, axis=1)
-            return mid, np.nanvar(Z, axis=1) / n
-        r, lo, hi = np.arange(Z.shape[0]), (n - 1) // 2, n // 2
-        S = np.sort(Z, axis=1)  # NaN last
-        mid = (S[r, lo] + S[r, hi]) / 2
-        D = np.sort(np.abs(Z - mid[:, None]), axis=1)
-        # scaled MAD (a Gaussian's sigma) and the median's standard error (x1.2533)
-        sd = 1.4826 * (D[r, lo] + D[r, hi]) / 2
-        return mid, (1.2533 * sd) ** 2 / n
-
-    def profile(self, map_sigma_m: float) -> HeightProfile:
-        """The bins seen by ``min_keyframes`` keyframes (cached until the next keyframe)."""
-        if self._profile is not None:
-            return self._profile
-        ok = self._n >= self.min_keyframes
-        j = np.flatnonzero(ok)
-        n_all = self._n[j].astype(float)
-        mid, se2 = self._mid[j], self._se2[j]
-        sig = np.sqrt(se2 + map_sigma_m**2)
-        x_lo = ((j + self._i0) * self.bin_m).astype(np.float64)
-        self._profile = HeightProfile(
-            x_lo, x_lo + self.bin_m, np.asarray(mid, np.float64), np.asarray(sig, np.float64)
-        )
-        # (Pxx, Pxz, Pzz) sums and keyframe counts of the profile's bins; the mean is taken
-        # in bin_cov, for the one or two bins a frame asks for
-        self._cov_bins = (self._cov[j], n_all)
-        return self._profile
-
-    def bin_cov(self, k: int) -> NDArray[np.float64]:
-        """Mean keyframe camera covariance (2, 2) of bin ``k`` of :meth:`profile`."""
-        sums, n = self._cov_bins
-        c = sums[k] / n[k]
-        return np.array([[c[0], c[1]], [c[1], c[2]]])
+    if not force and frontend_kernels() is None:
+        return None
+    try:
+        from vio_graph.safety import compiled
+    except ImportError:  # numba not installed
+        if force:
+            raise
+        return None
+    return compiled
 
     def bin_cov_rows(self, k: NDArray[np.int64]) -> NDArray[np.float64]:
         """:meth:`bin_cov` of many bins at once, as rows (Pxx, Pxz, Pzz), (K, 3), m^2."""
@@ -321,24 +227,63 @@ class OnlineHeightMap:
 
 class SafetyMonitor:
     """Per-frame safety outputs from the estimate (camera, covariance, heel, toe, stance)
-    and the keyframe profiles seen so far."""
+    and the keyframe profiles seen so far.
 
-    def __init__(self, config: SafetyConfig) -> None:
+    ``compiled``: the compiled kernels (True), numpy (False), or as the compiled front end
+    (None: :func:`compiled_kernels`). ``incremental``: the map answers from the bins near the
+    foot (:class:`IncrementalHeightMap`, True) or is the reference (:class:`OnlineHeightMap`,
+    whole profile rebuilt per keyframe, False); None: incremental when compiled. The
+    compiled kernels need the incremental map. Same outputs in every combination."""
+
+    def __init__(
+        self,
+        config: SafetyConfig,
+        incremental: bool | None = None,
+        compiled: bool | None = None,
+    ) -> None:
+        if incremental is False and compiled:
+            raise ValueError("the compiled safety kernels run on the incremental map")
         self.config = config
-        self.map = OnlineHeightMap(
-            config.bin_m, config.min_keyframes, statistic=config.map_statistic
+        kernels = None
+        if incremental is not False and compiled is not False:
+            kernels = compiled_kernels(force=bool(compiled))
+            if kernels is not None:
+                kernels.warm_up()  # the kernels' one-time load here, not on the first frames
+        if incremental is None:
+            incremental = kernels is not None
+        #: the module computing the per-frame geometry: clearance (numpy) or compiled
+        self.geometry: ModuleType = clearance if kernels is None else kernels
+        self.map: OnlineHeightMap = (
+            IncrementalHeightMap(
+                config.bin_m,
+                config.min_keyframes,
+                statistic=config.map_statistic,
+                edge_min_rise_m=config.edge_min_rise_m,
+                edge_max_gap_m=config.edge_max_gap_m,
+                kernels=kernels,
+            )
+            if incremental
+            else OnlineHeightMap(
+                config.bin_m,
+                config.min_keyframes,
+                statistic=config.map_statistic,
+                edge_min_rise_m=config.edge_min_rise_m,
+                edge_max_gap_m=config.edge_max_gap_m,
+            )
         )
-        self._edges: Edges | None = None
-        self._edge_summary: tuple[int, float, float] = (0, NAN, NAN)
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, toe)
         self._in_stance = False
         # swing templates: (phase s (S,), heel and toe minus their lift-off positions (S, 4))
         self._templates: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = deque(
             maxlen=config.template_swings
         )
+        # the templates end to end for the compiled path: phases, displacements, row starts
+        self._templates_flat: tuple[NDArray, NDArray, NDArray] | None = None
         self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
         self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
         self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
+        #: the horizon's instants (s since now)
+        self._h = np.linspace(0.0, config.horizon_s, config.horizon_steps + 1)
         self.consistency = MapConsistency(
             config.consistency_window_keyframes,
             config.consistency_min_keyframes,
@@ -362,19 +307,20 @@ class SafetyMonitor:
         detector anchors only part of a stance)."""
         cfg = self.config
         lo, hi = cfg.template_swing_s
-        moving = np.isfinite(toe_speed_mps) and toe_speed_mps > cfg.swing_speed_mps
+        moving = math.isfinite(toe_speed_mps) and toe_speed_mps > cfg.swing_speed_mps
         if self._liftoff is None:
             if in_stance or not moving:
                 return NAN
             self._liftoff = (t_s, np.concatenate([heel, toe]))
             self._swing = []
         tau = t_s - self._liftoff[0]
-        slow = np.isfinite(toe_speed_mps) and toe_speed_mps < cfg.swing_speed_mps / 3
+        slow = math.isfinite(toe_speed_mps) and toe_speed_mps < cfg.swing_speed_mps / 3
         if in_stance or (slow and tau >= lo) or tau > hi:
             if len(self._swing) >= 3 and lo <= tau <= hi:
                 d = np.concatenate([heel, toe]) - self._liftoff[1]
                 a = np.asarray([*self._swing, (tau, *d.tolist())], dtype=float)
                 self._templates.append((a[:, 0], a[:, 1:]))
+                self._templates_flat = None
             self._liftoff = None
             return NAN
         d = np.concatenate([heel, toe]) - self._liftoff[1]
@@ -393,22 +339,57 @@ class SafetyMonitor:
 
     def _swept(
         self,
-        full: HeightProfile,
         lo_x_m: float,
         hi_x_m: float,
         search_lo_m: float,
         search_hi_m: float,
         clearance_now_m: float,
-    ) -> HeightProfile:
-        """The bins the predicted minimum clearance can come from, for foot poses spanning
-        x in [lo_x_m, hi_x_m] over the horizon (the first pose is the current foot): those
-        in the prediction's search range [search_lo_m, search_hi_m] and nearer in x to the
-        poses than the current clearance (plus the sole). A bin farther in x than that is
-        farther from every pose than the current foot is from the terrain, and the minimum
-        is at most that (the current pose is one of the poses, and the predicted distance
-        is never above :func:`foot_clearance`'s), so leaving it out changes only the time."""
+    ) -> tuple[float, float]:
+        """The x range (min, max, m) of the bins the predicted minimum clearance can come
+        from, for foot poses spanning x in [lo_x_m, hi_x_m] over the horizon (the first pose
+        is the current foot): the prediction's search range [search_lo_m, search_hi_m] cut
+        to the bins nearer in x to the poses than the current clearance (plus the sole). A
+        bin farther in x than that is farther from every pose than the current foot is from
+        the terrain, and the minimum is at most that (the current pose is one of the poses,
+        and the predicted distance is never above :func:`foot_clearance`'s), so leaving it
+        out changes only the time."""
         d = max(clearance_now_m + self.config.sole_thickness_m, 0.0) + 1e-6  # m; 1 um rounding
-        return full.window(max(search_lo_m, lo_x_m - d), min(search_hi_m, hi_x_m + d))
+        return max(search_lo_m, lo_x_m - d), min(search_hi_m, hi_x_m + d)
+
+    def _relative_cov(self, P: list[list[float]], b: int, scale: float) -> list[list[float]]:
+        """The drift covariance between now (camera covariance ``P``) and the keyframes that
+        saw bin ``b``: |P - their mean covariance| times ``scale``, m^2."""
+        cxx, cxz, czz = self.map.bin_cov_mean(b)
+        mxz = ((P[0][1] - cxz) + (P[1][0] - cxz)) / 2
+        return _psd_abs_entries(P[0][0] - cxx, mxz, P[1][1] - czz, scale)
+
+    def _keyframe_tops(
+        self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike
+    ) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+        """The keyframe's height per bin from the compiled kernel (None in numpy: the
+        consistency test bins it itself, the same numbers)."""
+        if self.geometry is clearance:
+            return None
+        rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+        cx, cz = (float(v) for v in np.asarray(camera_xz_m, dtype=float))
+        return self.geometry.keyframe_tops(rel, cx, cz, self.config.bin_m, self.map.top_band_m)
+
+    def _keyframe_window(self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike) -> MapWindow | None:
+        """The map's used bins under a keyframe's profile (N, 2, camera-relative): all the
+        consistency test compares it with; None without a finite point."""
+        rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+        x = rel[np.all(np.isfinite(rel), axis=1), 0]
+        if x.size == 0:
+            return None
+        x0 = float(np.asarray(camera_xz_m, dtype=float)[0])
+        # (the points' x as the map places them: relative x plus the camera's)
+        return self.map.window(
+            float((x + x0).min()), float((x + x0).max()), self.config.map_sigma_m
+        )
+
+    def _window(self, x_range_m: tuple[float, float]) -> HeightProfile:
+        """The map's used bins over an x range (min, max), m."""
+        return self.map.window(*x_range_m, self.config.map_sigma_m).profile
 
     def _approach(self, edge_x_m: float, d_m: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Per foot pose of a sequence starting now (clearances ``d_m`` to the edge at
@@ -425,16 +406,34 @@ class SafetyMonitor:
             self._cleared.append(edge_x_m)
         return clear
 
+    def _approach_now(self, edge_x_m: float, d_m: float) -> bool:
+        """:meth:`_approach` for the current pose alone (clearance ``d_m``)."""
+        if any(abs(x - edge_x_m) <= 2 * self.config.bin_m for x in self._cleared):
+            return True
+        if d_m >= self.config.near_trip_m:
+            self._cleared.append(edge_x_m)
+            return True
+        return False
+
     @property
     def edges(self) -> Edges:
         """The edges mapped so far (updated at each keyframe)."""
-        return self._edges if self._edges is not None else Edges(np.zeros((0, 2)), np.zeros(0))
+        return self.map.edges()
 
     def _template_motion(self, tau: float, h: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """Median displacement (H, 4) of heel and toe from phase tau to tau + h over the
         templates, None without a template."""
-        if not self._templates or not np.isfinite(tau):
+        if not self._templates or not math.isfinite(tau):
             return None
+        if self.geometry is not clearance:  # compiled
+            if self._templates_flat is None:
+                rows = np.cumsum([0] + [len(ph) for ph, _ in self._templates])
+                self._templates_flat = (
+                    np.concatenate([ph for ph, _ in self._templates]),
+                    np.concatenate([d for _, d in self._templates]),
+                    rows.astype(np.int64),
+                )
+            return self.geometry.template_motion(tau, h, *self._templates_flat)
         out = []
         q = np.concatenate([[tau], tau + h])  # now, then the horizon's instants
         for ph, d in self._templates:
@@ -454,137 +453,139 @@ class SafetyMonitor:
     ) -> SafetyEstimate:
         """The outputs of one frame; ``keyframe_profile_xz_m`` (N, 2, camera-relative) when
         the frame is a keyframe (it joins the map before the frame's outputs are computed)."""
-        cfg = self.config
+        cfg, g = self.config, self.geometry
         P = np.asarray(cov_position_m2, dtype=float)
+        Pl = P.tolist()
         if keyframe_profile_xz_m is not None:
-            self.consistency.observe_keyframe(  # the keyframe against the map, before it joins
-                camera_xz_m,
-                keyframe_profile_xz_m,
-                P,
-                self.map.profile(cfg.map_sigma_m),
-                self.map.bin_cov_rows,
-                cfg.bin_m,
-                self.map.top_band_m,
-                cfg.relative_pose_scale,
-            )
+            seen = self._keyframe_window(camera_xz_m, keyframe_profile_xz_m)
+            if seen is not None:  # the keyframe against the map, before it joins
+                self.consistency.observe_keyframe(
+                    camera_xz_m,
+                    keyframe_profile_xz_m,
+                    P,
+                    seen.profile,
+                    lambda k: self.map.bin_cov_rows_at(seen.bins[k]),
+                    cfg.bin_m,
+                    self.map.top_band_m,
+                    cfg.relative_pose_scale,
+                    self._keyframe_tops(camera_xz_m, keyframe_profile_xz_m),
+                )
             self.map.add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
-            self._edges = None
         heel = np.asarray(heel_xz_m, dtype=float)
         toe = np.asarray(toe_xz_m, dtype=float)
-        full = self.map.profile(cfg.map_sigma_m)
-        if self._edges is None:
-            self._edges = find_edges(full, cfg.edge_min_rise_m, cfg.edge_max_gap_m)
-            self._edge_summary = self._edges.summary()
-        edges = self._edges
-        x0, x1 = min(heel[0], toe[0]) - cfg.window_m, max(heel[0], toe[0]) + cfg.window_m
-        i0 = int(np.searchsorted(full.x_hi_m, x0, side="left"))
-        win = full.window(x0, x1)
+        hx, tx = float(heel[0]), float(toe[0])
+        edges = self.map.edges()
+        x0, x1 = min(hx, tx) - cfg.window_m, max(hx, tx) + cfg.window_m
+        near = self.map.window(x0, x1, cfg.map_sigma_m)
+        win = near.profile
         # clearance to the terrain and its sigma
-        c = foot_clearance(heel, toe, win, cfg.sole_thickness_m)
-        if coverage(heel, toe, win) < cfg.min_coverage:
+        c = g.foot_clearance(heel, toe, win, cfg.sole_thickness_m)
+        if g.coverage(heel, toe, win) < cfg.min_coverage:
             c = NO_CLEARANCE  # the terrain under the foot has not been seen
         sig = NAN
         sp, sm = self.consistency.pose_scale, self.consistency.map_scale
         pose_w = cfg.relative_pose_scale * sp * sp
         if c.bin >= 0:
-            k = i0 + c.bin
-            rel = _psd_abs(P - self.map.bin_cov(k), pose_w)
-            sig = clearance_sigma(c.normal_xz, rel, sm * float(full.sigma_m[k]), cfg.foot_sigma_m)
+            k = int(near.bins[c.bin])
+            rel = self._relative_cov(Pl, k, pose_w)
+            sig = clearance_sigma(
+                c.normal_xz, rel, sm * self.map.bin_sigma(k, cfg.map_sigma_m), cfg.foot_sigma_m
+            )
         # the next edge ahead
         nc = nsig = ed = edsig = NAN
-        e = next_edge_index(edges, float(toe[0]) - cfg.toe_pass_m)
+        e = next_edge_index(edges, tx - cfg.toe_pass_m)
         if e >= 0:
-            ec = edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
-            kb = int(np.clip(np.searchsorted(full.x_lo_m, edges.xz_m[e, 0]) - 1, 0, len(full) - 1))
-            rel = _psd_abs(P - self.map.bin_cov(kb), pose_w)
+            ec = g.edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
+            kb = self.map.bin_below(float(edges.xz_m[e, 0]))  # the bin at the edge
+            rel = self._relative_cov(Pl, kb, pose_w)
             nc = ec.distance_m
             nsig = clearance_sigma(
-                ec.normal_xz, rel, sm * float(full.sigma_m[kb]), cfg.foot_sigma_m
+                ec.normal_xz, rel, sm * self.map.bin_sigma(kb, cfg.map_sigma_m), cfg.foot_sigma_m
             )
             ed = float(edges.xz_m[e, 0] - toe[0])
             edsig = (rel[0][0] + cfg.foot_sigma_m**2 + (cfg.bin_m / 2) ** 2) ** 0.5
         # prediction over the horizon and the near-trip warning
-        v = np.full(2, np.nan)
+        v = (NAN, NAN)  # the toe's velocity (x, z), m/s
         if self._prev is not None and t_s > self._prev[0]:
-            v = (toe - self._prev[1]) / (t_s - self._prev[0])
+            dt, prev = t_s - self._prev[0], self._prev[1]
+            v = ((tx - float(prev[0])) / dt, (float(toe[1]) - float(prev[1])) / dt)
         self._prev = (t_s, toe)
-        tau = self._track_swing(t_s, heel, toe, bool(in_stance), float(np.hypot(*v)))
+        speed = float(np.hypot(v[0], v[1]))  # m/s, NaN without a previous frame
+        v_known = math.isfinite(v[0]) and math.isfinite(v[1])
+        tau = self._track_swing(t_s, heel, toe, bool(in_stance), speed)
         motion = None
-        if cfg.motion_model == "swing_template" and np.isfinite(tau):
-            h = np.linspace(0.0, cfg.horizon_s, cfg.horizon_steps + 1)
-            motion = self._template_motion(tau, h)
+        if cfg.motion_model == "swing_template" and math.isfinite(tau):
+            motion = self._template_motion(tau, self._h)
         if in_stance:
             self._cleared = []
         pred = pred_edge = risk = NAN  # risk: the minimum over near-trip candidates
         if motion is not None:
             hp = heel[None] + motion[:, :2]
             tp = toe[None] + motion[:, 2:]
-            if np.isfinite(c.distance_m):
-                lo_x = float(min(hp[:, 0].min(), tp[:, 0].min()))
-                hi_x = float(max(hp[:, 0].max(), tp[:, 0].max()))
+            # x extent of the poses (rounding is monotonic: the extreme displacement gives
+            # the extreme position)
+            m_lo, m_hi = motion.min(axis=0), motion.max(axis=0)
+            toe_x_max = float(toe[0] + m_hi[2])
+            if math.isfinite(c.distance_m):
+                lo_x = float(min(heel[0] + m_lo[0], toe[0] + m_lo[2]))
+                hi_x = float(max(heel[0] + m_hi[0], toe_x_max))
                 w = cfg.window_m
-                swept = self._swept(full, lo_x, hi_x, lo_x - w, hi_x + w, c.distance_m)
-                pred = float(np.min(clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
+                swept = self._window(self._swept(lo_x, hi_x, lo_x - w, hi_x + w, c.distance_m))
+                pred = float(np.min(g.clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
             # the predicted toe velocity: a near-trip needs forward motion at that instant
-            vp = np.gradient(tp, cfg.horizon_s / cfg.horizon_steps, axis=0)
+            vp = _gradient(tp, cfg.horizon_s / cfg.horizon_steps)
             fwd = (vp[:, 0] > cfg.warning_min_forward_speed_mps) & (vp[:, 1] > -vp[:, 0])
             # each predicted pose is tested against its own next edge (as the truth is)
             nxt = np.searchsorted(edges.xz_m[:, 0], tp[:, 0] - cfg.toe_pass_m, side="right")
-            for i, ee in enumerate(self._edges_reached(edges, e, float(tp[:, 0].max()))):
-                dd = edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)
+            for i, ee in enumerate(self._edges_reached(edges, e, toe_x_max)):
+                dd = g.edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)
                 d = float(np.min(dd))
-                if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
+                if math.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
                     pred_edge = d
                 ok = fwd & (nxt == e + i) & self._approach(float(ee[0]), dd)
                 if ok.any() and not float(np.min(dd[ok])) >= risk:
                     risk = float(np.min(dd[ok]))
         else:
-            if (
-                np.all(np.isfinite(v))
-                and np.isfinite(c.distance_m)
-                and float(np.hypot(*v)) * cfg.horizon_s < 1e-3
-            ):
+            if v_known and math.isfinite(c.distance_m) and speed * cfg.horizon_s < 1e-3:
                 pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
-            elif np.all(np.isfinite(v)) and np.isfinite(c.distance_m):
+            elif v_known and math.isfinite(c.distance_m):
                 dx = float(v[0]) * cfg.horizon_s  # the foot's x span over the horizon
                 lo_x = float(min(heel[0], toe[0])) + min(dx, 0.0)
                 hi_x = float(max(heel[0], toe[0])) + max(dx, 0.0)
-                swept = self._swept(full, lo_x, hi_x, x0 - abs(dx), x1 + abs(dx), c.distance_m)
-                pred = predicted_min_clearance(
+                swept = self._window(
+                    self._swept(lo_x, hi_x, x0 - abs(dx), x1 + abs(dx), c.distance_m)
+                )
+                pred = g.predicted_min_clearance(
                     heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
                 )
-            reach_x = (
-                float(toe[0] + max(float(v[0]), 0.0) * cfg.horizon_s)
-                if np.all(np.isfinite(v))
-                else float(toe[0])
-            )
+            reach_x = float(toe[0] + max(float(v[0]), 0.0) * cfg.horizon_s) if v_known else tx
             for ee in self._edges_reached(edges, e, reach_x):
-                d = predicted_min_edge_clearance(
+                d = g.predicted_min_edge_clearance(
                     heel, toe, v, cfg.horizon_s, cfg.horizon_steps, ee, cfg.sole_thickness_m
                 )
-                if np.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
+                if math.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
                     pred_edge = float(d)
-                now = edge_clearance_many(heel, toe, ee, cfg.sole_thickness_m)
-                cleared = bool(np.any(self._approach(float(ee[0]), now)))  # (remembers it)
-                if cleared and forward_motion(v, cfg) and np.isfinite(d) and not d >= risk:
+                now = float(g.edge_clearance_many(heel, toe, ee, cfg.sole_thickness_m)[0])
+                cleared = self._approach_now(float(ee[0]), now)  # (remembers it)
+                if cleared and forward_motion(v, cfg) and math.isfinite(d) and not d >= risk:
                     risk = float(d)
-        s = nsig if np.isfinite(nsig) else 0.0
+        s = nsig if math.isfinite(nsig) else 0.0
         warn = bool(
-            not in_stance and np.isfinite(risk) and risk - cfg.warning_sigma * s < cfg.near_trip_m
+            not in_stance and math.isfinite(risk) and risk - cfg.warning_sigma * s < cfg.near_trip_m
         )
         # landing: the stance starts at this frame
         landing = bool(in_stance and not self._in_stance)
         self._in_stance = bool(in_stance)
-        placement = np.full(4, np.nan)
+        placement = _NAN4.copy()
         if landing:
             placement = placement_on_tread(
                 heel, toe, win, cfg.tread_tolerance_m, cfg.edge_max_gap_m, cfg.edge_min_rise_m
             ).as_array()
-        n_steps, rise, tread = self._edge_summary
+        n_steps, rise, tread = self.map.edge_summary()
         return SafetyEstimate(
             clearance_m=c.distance_m,
             clearance_sigma_m=sig,
-            toe_line_xz_m=np.stack([c.foot_xz_m, c.terrain_xz_m]),
+            toe_line_xz_m=np.array([c.foot_xz_m, c.terrain_xz_m]),
             nosing_clearance_m=nc,
             nosing_sigma_m=nsig,
             predicted_min_clearance_m=pred,
@@ -597,7 +598,7 @@ class SafetyMonitor:
             mean_tread_m=tread,
             landing=landing,
             placement=placement,
-            edge_xz_m=edges.xz_m[e].copy() if e >= 0 else np.full(2, np.nan),
+            edge_xz_m=edges.xz_m[e].copy() if e >= 0 else _NAN2.copy(),
             near_trip_clearance_m=risk,
             pose_consistency_scale=sp,
             map_consistency_scale=sm,

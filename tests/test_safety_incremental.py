@@ -1,0 +1,219 @@
+"""The fast safety paths give the reference's answers: the incremental height map
+(vio_graph/safety/height_map.py) against the map that rebuilds its whole profile per keyframe,
+and the compiled kernels (vio_graph/safety/compiled.py) against the numpy geometry
+(vio_graph/safety/clearance.py), per frame over a filter replay of data/sample and on random
+stairs."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vio_graph.config import load_config
+from vio_graph.safety import clearance
+from vio_graph.safety.clearance import HeightProfile
+from vio_graph.safety.config import SafetyConfig
+from vio_graph.safety.height_map import IncrementalHeightMap, OnlineHeightMap
+from vio_graph.safety.online import SafetyEstimate, SafetyMonitor
+
+SAMPLE = Path(__file__).resolve().parents[1] / "data" / "sample"
+TOL_M = 1e-9  # compiled against numpy: rounding only
+
+
+def _compiled():
+    pytest.importorskip("numba")
+    from vio_graph.safety import compiled
+
+    return compiled
+
+
+@pytest.fixture(scope="module")
+def sample_frames() -> list[tuple]:
+    """The monitor's per-frame inputs on data/sample, as the online estimator gives them
+    (filter camera and covariance, heel and toe by kinematics, stance, keyframe profiles)."""
+    from vio_graph.pipeline import leg_trajectories
+    from vio_graph.recording.reader import Recording
+    from vio_graph.replay import Replay
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    cfg = load_config(None)
+    replay = Replay(Recording.open(SAMPLE), cfg, {"filter"}, NullVisualizer())
+    lg = replay.run()
+    use_enc = cfg.kinematics.shank_pitch_source == "encoders"
+    legs = leg_trajectories(replay.rig, lg.camera_xz["filter"], lg, use_enc)
+    return [
+        (
+            float(lg.t_s[k]),
+            legs["camera"][k],
+            lg.cov_position_m2[k],
+            legs["heel"][k],
+            legs["toe"][k],
+            bool(lg.in_stance[k]),
+            lg.profiles.get(k),
+        )
+        for k in range(len(lg.t_s))
+    ]
+
+
+def _replay(frames: list[tuple], cfg: SafetyConfig, **kw) -> list[np.ndarray]:
+    mon = SafetyMonitor(cfg, **kw)
+    return [_as_row(mon.update(*f)) for f in frames]
+
+
+def _as_row(s: SafetyEstimate) -> np.ndarray:
+    """Every field of an estimate as one float vector."""
+    return np.concatenate([np.ravel(np.asarray(getattr(s, f.name), float)) for f in fields(s)])
+
+
+@pytest.mark.parametrize("motion_model", ["swing_template", "constant_velocity"])
+def test_incremental_map_gives_the_reference_estimates_over_a_replay(
+    sample_frames, motion_model: str
+) -> None:
+    """Every output of every frame of data/sample is the same, to the bit, with the
+    incremental map as with the map rebuilt per keyframe (both numpy); the compiled kernels
+    agree within 1e-9 m."""
+    cfg = load_config(None).safety.model_copy(update={"motion_model": motion_model})
+    ref = _replay(sample_frames, cfg, incremental=False)
+    inc = _replay(sample_frames, cfg, incremental=True, compiled=False)
+    assert sum(f[6] is not None for f in sample_frames) > 20  # keyframes joined the map
+    assert np.isfinite(np.array(ref)[:, 0]).sum() > 50  # clearances were computed
+    for k, (a, b) in enumerate(zip(ref, inc, strict=True)):
+        np.testing.assert_array_equal(a, b, err_msg=f"frame {k}")
+    _compiled()
+    comp = _replay(sample_frames, cfg, compiled=True)
+    assert _replay(sample_frames[:5], cfg, compiled=False)  # numpy: the reference map
+    for k, (a, b) in enumerate(zip(ref, comp, strict=True)):
+        np.testing.assert_allclose(b, a, rtol=0, atol=TOL_M, err_msg=f"frame {k}")
+
+
+def _noisy_stairs(rng: np.random.Generator) -> np.ndarray:
+    """A polyline (P, 2) of stairs going up, then down, with a platform between, m. Half the
+    risers are two 1 cm ramps with a 1 cm landing between: two transitions the edge scan
+    joins into one edge."""
+    pts, x, z = [(-1.0, 0.0)], 0.0, 0.0
+    for k, rise in enumerate([*rng.uniform(0.1, 0.18, 6), *(-rng.uniform(0.1, 0.18, 6))]):
+        if k % 2:
+            pts += [(x, z), (x + 0.01, z + rise / 2), (x + 0.02, z + rise / 2)]
+            pts += [(x + 0.03, z + rise)]
+            x += 0.03
+        else:
+            pts += [(x, z), (x, z + rise)]
+        x, z = x + rng.uniform(0.22, 0.34), z + rise
+    pts.append((x + 1.0, z))
+    return np.asarray(pts)
+
+
+def _keyframe_profile(rng: np.random.Generator, stairs: np.ndarray, x0: float) -> np.ndarray:
+    """Points on the stairs over ~1.2 m from x0 with 2 mm noise, a few mixed pixels and an
+    occasional unseen stretch, relative to a camera at (x0, 0.5)."""
+    x = np.sort(rng.uniform(x0, x0 + 1.2, 400))
+    z = np.interp(x, stairs[:, 0] + 1e-9 * np.arange(len(stairs)), stairs[:, 1])
+    z = z + rng.normal(0, 0.002, x.size)
+    mixed = rng.random(x.size) < 0.02
+    z[mixed] -= rng.uniform(0.0, 0.15, mixed.sum())
+    if rng.random() < 0.3:  # an unseen stretch
+        a = rng.uniform(x0, x0 + 1.0)
+        keep = (x < a) | (x > a + rng.uniform(0.05, 0.3))
+        x, z = x[keep], z[keep]
+    return np.stack([x - x0, z - 0.5], 1)
+
+
+@pytest.mark.parametrize("statistic", ["median", "mean"])
+def test_incremental_map_queries_equal_the_reference_on_random_stairs(statistic: str) -> None:
+    """Keyframes walking up and down noisy stairs (forwards, back, and a jump that grows the
+    map on both sides): after each, the edges, windows at random ranges and the bin before an
+    x are those of the reference map, exactly; the compiled keyframe step and edge re-scan
+    agree within 1e-9 m."""
+    rng = np.random.default_rng(11)
+    stairs = _noisy_stairs(rng)
+    kw = {"statistic": statistic, "edge_min_rise_m": 0.04, "edge_max_gap_m": 0.15}
+    ref = OnlineHeightMap(0.005, 3, **kw)
+    inc = IncrementalHeightMap(0.005, 3, **kw)
+    comp = IncrementalHeightMap(0.005, 3, kernels=_compiled(), **kw)
+    xs = [*np.arange(-0.8, 3.5, 0.03), *np.arange(3.5, 0.5, -0.05), 4.5, -1.5, 1.0]
+    n_edges = 0
+    for x0 in xs:
+        P = np.diag(rng.uniform(1e-6, 1e-4, 2))
+        prof = _keyframe_profile(rng, stairs, float(x0))
+        for m in (ref, inc, comp):
+            m.add_keyframe([x0, 0.5], prof, P)
+        e_ref, e_inc, e_comp = ref.edges(), inc.edges(), comp.edges()
+        np.testing.assert_array_equal(e_inc.xz_m, e_ref.xz_m)
+        np.testing.assert_array_equal(e_inc.rise_m, e_ref.rise_m)
+        np.testing.assert_array_equal(inc.edge_summary(), ref.edge_summary())
+        np.testing.assert_allclose(e_comp.xz_m, e_ref.xz_m, rtol=0, atol=TOL_M)
+        np.testing.assert_allclose(e_comp.rise_m, e_ref.rise_m, rtol=0, atol=TOL_M)
+        n_edges = max(n_edges, len(e_ref))
+        for _ in range(5):
+            lo = float(rng.uniform(-2.0, 3.5))
+            hi = lo + float(rng.uniform(-0.01, 0.8))
+            w_ref, w_inc = ref.window(lo, hi, 0.003), inc.window(lo, hi, 0.003)
+            w_comp = comp.window(lo, hi, 0.003)
+            for name in ("x_lo_m", "x_hi_m", "z_m", "sigma_m"):
+                a = getattr(w_ref.profile, name)
+                np.testing.assert_array_equal(getattr(w_inc.profile, name), a)
+                np.testing.assert_allclose(getattr(w_comp.profile, name), a, rtol=0, atol=TOL_M)
+            np.testing.assert_array_equal(w_inc.bins, w_ref.bins)
+            np.testing.assert_array_equal(w_comp.bins, w_ref.bins)
+            for b in w_ref.bins[:3]:
+                np.testing.assert_array_equal(inc.bin_cov_at(b), ref.bin_cov_at(b))
+                assert inc.bin_sigma(b, 0.003) == ref.bin_sigma(b, 0.003)
+            x = float(rng.uniform(-2.0, 3.5))
+            assert inc.bin_below(x) == ref.bin_below(x) == comp.bin_below(x)
+    assert n_edges >= 10  # the stairs' edges were found, up and down
+
+
+def _random_case(rng: np.random.Generator):
+    """Random stairs (exact height field), a foot near them (penetrating at times), its
+    motion over a 0.3 s horizon and an edge."""
+    rise, tread = rng.uniform(-0.18, 0.18), rng.uniform(0.2, 0.35)
+    pts = [(-1.0, 0.0)]
+    for i in range(6):
+        pts += [(i * tread, i * rise), (i * tread, (i + 1) * rise)]
+    pts.append((6 * tread + 1.0, 6 * rise))
+    prof = HeightProfile.from_polyline(sorted(pts, key=lambda p: p[0]))
+    x = rng.uniform(-0.2, 1.4)
+    toe = np.array([x, np.interp(x, *np.array(sorted(pts)).T) + rng.uniform(-0.05, 0.2)])
+    heel = toe + [rng.uniform(-0.3, -0.15), rng.uniform(-0.08, 0.1)]
+    v = rng.uniform(-1.5, 1.5, 2)
+    edge = np.array([rng.uniform(-0.2, 1.5), rng.uniform(-0.3, 0.9)])
+    return prof.window(x - 0.6, x + 0.6), heel, toe, v, edge
+
+
+def test_compiled_geometry_equals_the_numpy_geometry() -> None:
+    """Clearance, its closest points, column and normal, the clearance of many poses, edge
+    clearances, coverage, the predictions and the edges: compiled within 1e-9 m of numpy."""
+    K = _compiled()
+    rng = np.random.default_rng(3)
+    inside = 0
+    for _ in range(400):
+        prof, heel, toe, v, edge = _random_case(rng)
+        a, b = (
+            clearance.foot_clearance(heel, toe, prof, 0.01),
+            K.foot_clearance(heel, toe, prof, 0.01),
+        )
+        inside += a.distance_m < -0.01
+        assert abs(a.distance_m - b.distance_m) <= TOL_M and a.bin == b.bin
+        for f in ("foot_xz_m", "terrain_xz_m", "normal_xz"):
+            np.testing.assert_allclose(getattr(b, f), getattr(a, f), rtol=0, atol=TOL_M)
+        steps = np.linspace(0, 0.3, 11)[:, None] * v[None]
+        hp, tp = heel[None] + steps, toe[None] + steps
+        for fn, args in [
+            ("clearance_many", (hp, tp, prof, 0.01)),
+            ("edge_clearance_many", (hp, tp, edge, 0.01)),
+            ("coverage", (heel, toe, prof)),
+            ("predicted_min_clearance", (heel, toe, v, 0.3, 10, prof, 0.01)),
+            ("predicted_min_edge_clearance", (heel, toe, v, 0.3, 10, edge, 0.01)),
+        ]:
+            want, got = getattr(clearance, fn)(*args), getattr(K, fn)(*args)
+            np.testing.assert_allclose(got, want, rtol=0, atol=TOL_M, err_msg=fn)
+        ea, eb = clearance.edge_clearance(heel, toe, edge), K.edge_clearance(heel, toe, edge)
+        assert abs(ea.distance_m - eb.distance_m) <= TOL_M
+        np.testing.assert_allclose(eb.normal_xz, ea.normal_xz, rtol=0, atol=TOL_M)
+        (e1, f1), (e2, f2) = clearance.edge_runs(prof, 0.04, 0.15), K.edge_runs(prof, 0.04, 0.15)
+        np.testing.assert_array_equal(e2.xz_m, e1.xz_m)
+        np.testing.assert_array_equal(f2, f1)
+    assert inside > 10  # penetrating feet were among the cases

@@ -1,0 +1,830 @@
+"""Compiled (numba) versions of the safety monitor's per-frame geometry and map updates: the
+same loops as the numpy reference (vio_graph/safety/clearance.py, height_map.py), without
+numpy's per-call overhead on a few hundred bins.
+
+The public functions here have the signatures and results of their reference namesakes
+(:func:`foot_clearance`, :func:`clearance_many`, :func:`edge_clearance_many`,
+:func:`coverage`, :func:`edge_runs`) or of the map's steps (:func:`keyframe_tops`,
+:func:`add_tops`). The arithmetic is the reference's, operation for operation; where numpy
+sums or multiplies in another order (its pairwise sums, BLAS products) the answers differ by
+rounding only (tests/test_safety_incremental.py: 1e-9 m).
+
+numba is imported only here, and this module only when the compiled paths are switched on
+(:func:`vio_graph.safety.online.compiled_geometry`); ``cache=True``: compiled once per
+machine, then loaded from ``__pycache__``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vio_graph.safety.clearance import (
+    MAX_TRANSITION_BIN_M,
+    NO_CLEARANCE,
+    SLOPE_STEP_M,
+    Clearance,
+    Edges,
+    HeightProfile,
+)
+
+# ---------------------------------------------------------------------------------------------
+# foot to terrain
+
+
+def _xz(p: ArrayLike) -> tuple[float, float]:
+    """An (x, z) point or vector as two floats."""
+    a = np.asarray(p, dtype=float)
+    return float(a[0]), float(a[1])
+
+
+@numba.njit(cache=True)
+def _point_to_columns(px, pz, lo, hi, z, d, cx, cz):  # pragma: no cover - compiled
+    """In place: signed distance ``d`` (B,) from (px, pz) to each column and the closest
+    column points ``cx``, ``cz`` (clearance._point_to_columns)."""
+    B = z.shape[0]
+    k = -1
+    for i in range(B):
+        x = min(max(px, lo[i]), hi[i])
+        zz = min(pz, z[i])
+        cx[i] = x
+        cz[i] = zz
+        d[i] = math.hypot(px - x, pz - zz)
+        if k < 0 and px >= lo[i] and px <= hi[i] and pz < z[i]:
+            k = i
+    if k < 0:
+        return
+    # the way out sideways (to where the terrain is lower than the point, or past the known
+    # bins' ends) and up (the nearest point of a column top above the point)
+    xl = lo[0]
+    xr = hi[B - 1]
+    best_up = np.inf
+    tx_best = 0.0
+    tz_best = 0.0
+    for i in range(B):
+        if z[i] <= pz:
+            if hi[i] <= px:
+                xl = max(xl, hi[i])
+            if lo[i] >= px:
+                xr = min(xr, lo[i])
+        else:
+            tx = min(max(px, lo[i]), hi[i])
+            up = math.hypot(tx - px, z[i] - pz)
+            if up < best_up:
+                best_up, tx_best, tz_best = up, tx, z[i]
+    for i in range(B):
+        if px >= lo[i] and px <= hi[i] and pz < z[i]:
+            d[i] = np.inf
+    depth0, depth1, depth2 = best_up, px - xl, xr - px
+    if depth1 < depth0 and depth1 <= depth2:
+        d[k], cx[k], cz[k] = -depth1, xl, pz
+    elif depth2 < depth0 and depth2 < depth1:
+        d[k], cx[k], cz[k] = -depth2, xr, pz
+    else:
+        d[k], cx[k], cz[k] = -depth0, tx_best, tz_best
+
+
+@numba.njit(cache=True)
+def _corner_distance(ax, az, bx, bz, ex, ez):  # pragma: no cover - compiled
+    """clearance._corners_to_segment for one corner: (signed distance, closest x, z)."""
+    dx, dz = bx - ax, bz - az
+    L2 = dx * dx + dz * dz
+    s = 0.0
+    if L2 != 0:
+        s = min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
+    qx, qz = ax + s * dx, az + s * dz
+    d = math.hypot(ex - qx, ez - qz)
+    x0, x1 = min(ax, bx), max(ax, bx)
+    if x1 - x0 > 1e-12:
+        z_line = az + (ex - ax) * dz / dx
+        if ex > x0 and ex < x1 and ez > z_line:
+            d = -min(ez - z_line, min(ex - x0, x1 - ex))
+    return d, qx, qz
+
+
+@numba.njit(cache=True)
+def _foot_clearance(ax, az, bx, bz, lo, hi, z):  # pragma: no cover - compiled
+    """(distance, foot x, z, terrain x, z, column) of clearance.foot_clearance (no sole)."""
+    B = z.shape[0]
+    dh, ch_x, ch_z = np.empty(B), np.empty(B), np.empty(B)
+    dt, ct_x, ct_z = np.empty(B), np.empty(B), np.empty(B)
+    _point_to_columns(ax, az, lo, hi, z, dh, ch_x, ch_z)
+    _point_to_columns(bx, bz, lo, hi, z, dt, ct_x, ct_z)
+    best = np.inf
+    out = (np.nan, np.nan, np.nan, np.nan, np.nan, -1)
+    for i in range(B):  # heel against the columns (first minimum wins, as np.argmin)
+        if dh[i] < best:
+            best = dh[i]
+            out = (best, ax, az, ch_x[i], ch_z[i], i)
+    for i in range(B):  # toe
+        if dt[i] < best:
+            best = dt[i]
+            out = (best, bx, bz, ct_x[i], ct_z[i], i)
+    for c in range(2 * B):  # column top corners: the left ones, then the right ones
+        i = c % B
+        ex = lo[i] if c < B else hi[i]
+        d, qx, qz = _corner_distance(ax, az, bx, bz, ex, z[i])
+        if d < best:
+            best = d
+            out = (best, qx, qz, ex, z[i], i)
+    return out
+
+
+def foot_clearance(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile, sole_thickness_m: float = 0.0
+) -> Clearance:
+    """:func:`vio_graph.safety.clearance.foot_clearance`, compiled."""
+    if len(prof) == 0:
+        return NO_CLEARANCE
+    (ax, az), (bx, bz) = _xz(heel_xz_m), _xz(toe_xz_m)
+    dist, fx, fz, tx, tz, col = _foot_clearance(ax, az, bx, bz, prof.x_lo_m, prof.x_hi_m, prof.z_m)
+    ddx, ddz = fx - tx, fz - tz
+    n = float(np.hypot(ddx, ddz))
+    nx, nz = (ddx / n, ddz / n) if n > 1e-9 else (0.0, 1.0)
+    if dist < 0:
+        nx, nz = (0.0, 1.0) if n <= 1e-9 else (-nx, -nz)
+    return Clearance(
+        dist - sole_thickness_m, np.array([fx, fz]), np.array([tx, tz]), col, np.array([nx, nz])
+    )
+
+
+@numba.njit(cache=True)
+def _clearance_many(a, b, lo, hi, z, sole):  # pragma: no cover - compiled
+    T, B = a.shape[0], z.shape[0]
+    out = np.empty(T)
+    for t in range(T):
+        ax, az, bx, bz = a[t, 0], a[t, 1], b[t, 0], b[t, 1]
+        best = np.inf
+        for px, pz in ((ax, az), (bx, bz)):  # heel and toe against the columns
+            for i in range(B):
+                if px >= lo[i] and px <= hi[i] and pz < z[i]:
+                    v = pz - z[i]
+                else:
+                    v = math.hypot(px - min(max(px, lo[i]), hi[i]), pz - min(pz, z[i]))
+                if v < best or v != v:
+                    best = v
+        abx, abz = bx - ax, bz - az
+        L2 = max(abx * abx + abz * abz, 1e-18)
+        x0, x1 = min(ax, bx), max(ax, bx)
+        slope = abz / abx if abs(abx) > 1e-12 else 0.0
+        for c in range(2 * B):  # column top corners against the segment
+            i = c % B
+            cx = lo[i] if c < B else hi[i]
+            cz = z[i]
+            s = min(max(((cx - ax) * abx + (cz - az) * abz) / L2, 0.0), 1.0)
+            v = math.hypot(cx - (ax + s * abx), cz - (az + s * abz))
+            z_line = az + (cx - ax) * slope
+            if cx > x0 and cx < x1 and cz > z_line and x1 - x0 > 1e-12:
+                v = z_line - cz
+            if v < best or v != v:
+                best = v
+        out[t] = best - sole
+    return out
+
+
+def clearance_many(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile, sole_thickness_m: float = 0.0
+) -> NDArray[np.float64]:
+    """:func:`vio_graph.safety.clearance.clearance_many`, compiled."""
+    a = np.ascontiguousarray(heel_xz_m, dtype=float).reshape(-1, 2)
+    b = np.ascontiguousarray(toe_xz_m, dtype=float).reshape(-1, 2)
+    if len(prof) == 0:
+        return np.full(a.shape[0], np.nan)
+    return _clearance_many(a, b, prof.x_lo_m, prof.x_hi_m, prof.z_m, float(sole_thickness_m))
+
+
+@numba.njit(cache=True)
+def _edge_clearance_many(a, b, ex, ez, sole):  # pragma: no cover - compiled
+    out = np.empty(a.shape[0])
+    for t in range(a.shape[0]):
+        ax, az, bx, bz = a[t, 0], a[t, 1], b[t, 0], b[t, 1]
+        dx, dz = bx - ax, bz - az
+        L2 = dx * dx + dz * dz
+        s = 0.0 if L2 == 0 else min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
+        qx, qz = ax + s * dx, az + s * dz
+        d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** 0.5
+        if abs(dx) > 1e-12 and min(ax, bx) < ex and ex < max(ax, bx):
+            z_line = az + (ex - ax) * dz / dx
+            if ez > z_line:
+                d = -min(ez - z_line, ex - min(ax, bx), max(ax, bx) - ex)
+        out[t] = d - sole
+    return out
+
+
+def edge_clearance_many(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, edge_xz_m: ArrayLike, sole_thickness_m: float = 0.0
+) -> NDArray[np.float64]:
+    """:func:`vio_graph.safety.clearance.edge_clearance_many`, compiled."""
+    a = np.ascontiguousarray(heel_xz_m, dtype=float).reshape(-1, 2)
+    b = np.ascontiguousarray(toe_xz_m, dtype=float).reshape(-1, 2)
+    e = np.asarray(edge_xz_m, dtype=float)
+    return _edge_clearance_many(a, b, float(e[0]), float(e[1]), float(sole_thickness_m))
+
+
+@numba.njit(cache=True)
+def _coverage(xa, xb, lo, hi):  # pragma: no cover - compiled
+    s = 0.0
+    for i in range(lo.shape[0]):
+        s += max(min(hi[i], xb) - max(lo[i], xa), 0.0)
+    return s / (xb - xa)
+
+
+def coverage(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile) -> float:
+    """:func:`vio_graph.safety.clearance.coverage`, compiled."""
+    h0, t0 = _xz(heel_xz_m)[0], _xz(toe_xz_m)[0]
+    xa, xb = min(h0, t0), max(h0, t0)
+    if len(prof) == 0 or xb <= xa:
+        return 0.0 if len(prof) == 0 else 1.0
+    return float(_coverage(xa, xb, prof.x_lo_m, prof.x_hi_m))
+
+
+# ---------------------------------------------------------------------------------------------
+# edges
+
+
+@numba.njit(cache=True)
+def _step(lo, hi, z, p, max_gap, slope_step):  # pragma: no cover - compiled
+    """Sign of the transition pair p (bins p, p + 1), 0 if it is none (clearance.edge_runs)."""
+    dz = z[p + 1] - z[p]
+    if lo[p + 1] - hi[p] <= max_gap and abs(dz) > slope_step:
+        return 1 if dz > 0 else -1
+    return 0
+
+
+@numba.njit(cache=True)
+def _edge_runs(lo, hi, z, min_rise, max_gap, slope_step, max_bin):  # pragma: no cover
+    n = z.shape[0]
+    xz = np.empty((n, 2))
+    rise = np.empty(n)
+    first = np.empty(n, np.int64)
+    m = 0
+    # runs: [first pair, last pair, sign]; only the last one can still change
+    r_i, r_j, r_s = -1, -1, 0
+    have = False
+    p = 0
+    while p < n - 1:
+        s = _step(lo, hi, z, p, max_gap, slope_step)
+        if s == 0:
+            p += 1
+            continue
+        i = j = p
+        while (
+            j + 1 < n - 1
+            and _step(lo, hi, z, j + 1, max_gap, slope_step) == s
+            and hi[j + 1] - lo[j + 1] <= max_bin
+        ):
+            j += 1
+        if have and r_s == s and hi[i] - lo[r_j + 1] <= max_bin:
+            r_j = j
+        else:
+            if have:
+                m = _emit(lo, hi, z, r_i, r_j, r_s, min_rise, xz, rise, first, m)
+            r_i, r_j, r_s, have = i, j, s, True
+        p = j + 1
+    if have:
+        m = _emit(lo, hi, z, r_i, r_j, r_s, min_rise, xz, rise, first, m)
+    return xz[:m], rise[:m], first[:m]
+
+
+@numba.njit(cache=True)
+def _emit(lo, hi, z, i, j, s, min_rise, xz, rise, first, m):  # pragma: no cover - compiled
+    """Write the edge of the run of pairs i..j (sign s) at row m if it rises enough."""
+    r = z[j + 1] - z[i]
+    if abs(r) < min_rise:
+        return m
+    k, best = i, -1.0
+    for q in range(i, j + 1):
+        dz = z[q + 1] - z[q]
+        sg = 1 if dz > 0 else (-1 if dz < 0 else 0)
+        v = abs(dz) * (1.0 if sg == s else 0.0)
+        if v > best:
+            k, best = q, v
+    if s > 0:
+        xz[m, 0], xz[m, 1] = lo[k + 1], z[j + 1]
+    else:
+        xz[m, 0], xz[m, 1] = hi[k], z[i]
+    rise[m] = r
+    first[m] = i
+    return m + 1
+
+
+def edge_runs(
+    prof: HeightProfile,
+    min_rise_m: float,
+    max_gap_m: float,
+    slope_step_m: float = SLOPE_STEP_M,
+    max_transition_bin_m: float = MAX_TRANSITION_BIN_M,
+) -> tuple[Edges, NDArray[np.int64]]:
+    """:func:`vio_graph.safety.clearance.edge_runs`, compiled."""
+    if len(prof) < 2:
+        return Edges(np.zeros((0, 2)), np.zeros(0)), np.zeros(0, np.int64)
+    xz, rise, first = _edge_runs(
+        prof.x_lo_m,
+        prof.x_hi_m,
+        prof.z_m,
+        float(min_rise_m),
+        float(max_gap_m),
+        float(slope_step_m),
+        float(max_transition_bin_m),
+    )
+    return Edges(xz, rise), first
+
+
+# ---------------------------------------------------------------------------------------------
+# the map's keyframe step
+
+
+@numba.njit(cache=True)
+def keyframe_tops(rel, cam_x, cam_z, bin_m, top_band_m):  # pragma: no cover - compiled
+    """Per bin a keyframe's points fall in (``rel`` (N, 2) camera-relative, placed at the
+    camera; non-finite rows skipped): the bin index (ascending) and the mean height of the
+    points within ``top_band_m`` of its highest, summed from the highest down (the order of
+    height_map.OnlineHeightMap.add_keyframe)."""
+    N0 = rel.shape[0]
+    px = np.empty(N0)
+    pz = np.empty(N0)
+    N = 0
+    for k in range(N0):
+        if np.isfinite(rel[k, 0]) and np.isfinite(rel[k, 1]):
+            px[N] = rel[k, 0] + cam_x
+            pz[N] = rel[k, 1] + cam_z
+            N += 1
+    idx = np.empty(N, np.int64)
+    for k in range(N):
+        idx[k] = np.int64(np.floor(px[k] / bin_m))
+    if N == 0:
+        return idx, px[:0]
+    # stable counting sort by bin (a profile spans a few hundred bins; a stable argsort if
+    # a stray point makes the span large)
+    i_min, i_max = idx.min(), idx.max()
+    if i_max - i_min > 4 * N + 4096:
+        order = np.argsort(idx, kind="mergesort")
+    else:
+        start = np.zeros(i_max - i_min + 2, np.int64)
+        for k in range(N):
+            start[idx[k] - i_min + 1] += 1
+        for r in range(1, start.shape[0]):
+            start[r] += start[r - 1]
+        order = np.empty(N, np.int64)
+        for k in range(N):
+            r = idx[k] - i_min
+            order[start[r]] = k
+            start[r] += 1
+    bins = np.empty(N, np.int64)
+    tops = np.empty(N)
+    zs = np.empty(N)
+    m = 0
+    g = 0
+    while g < N:
+        h = g
+        while h < N and idx[order[h]] == idx[order[g]]:
+            h += 1
+        # the group's heights, highest first, ties in input order (stable insertion sort)
+        c = 0
+        for q in range(g, h):
+            v = pz[order[q]]
+            r = c
+            while r > 0 and zs[r - 1] < v:
+                zs[r] = zs[r - 1]
+                r -= 1
+            zs[r] = v
+            c += 1
+        s, cnt = 0.0, 0
+        for r in range(c):
+            if zs[r] >= zs[0] - top_band_m:
+                s += zs[r]
+                cnt += 1
+        bins[m] = idx[order[g]]
+        tops[m] = s / cnt
+        m += 1
+        g = h
+    return bins[:m], tops[:m]
+
+
+@numba.njit(cache=True)
+def add_tops(Z, Zs, n, used, mid, se2, cov, j, tops, min_keyframes, median, P):  # pragma: no cover
+    """In place: the keyframe heights ``tops`` join bins at array elements ``j``, and those
+    bins' count, used flag, height, squared standard error and covariance sum are updated
+    (height_map.OnlineHeightMap.add_keyframe and _bin_stats). ``Zs``: each bin's kept
+    heights sorted (NaN after them), kept up to date here: the median is read off it and the
+    median absolute deviation found by walking out from the median (no sort per keyframe)."""
+    cap = Z.shape[1]
+    for q in range(j.shape[0]):
+        e = j[q]
+        slot = n[e] % cap
+        old = Z[e, slot]
+        c = min(n[e], cap)  # kept heights before this one
+        Z[e, slot] = tops[q]
+        n[e] += 1
+        used[e] = n[e] >= min_keyframes
+        if old == old:  # the oldest height leaves the sorted copy
+            r = 0
+            while Zs[e, r] != old:
+                r += 1
+            while r < c - 1:
+                Zs[e, r] = Zs[e, r + 1]
+                r += 1
+            c -= 1
+        r = c
+        while r > 0 and Zs[e, r - 1] > tops[q]:
+            Zs[e, r] = Zs[e, r - 1]
+            r -= 1
+        Zs[e, r] = tops[q]
+        c += 1
+        if median:
+            lo, hi = (c - 1) // 2, c // 2
+            m = (Zs[e, lo] + Zs[e, hi]) / 2
+            # the lo-th and hi-th smallest |height - m|: merge the deviations below and above
+            L = lo if Zs[e, lo] < m else lo - 1
+            R = L + 1
+            d_lo = d_hi = 0.0
+            for k in range(hi + 1):
+                if R >= c or (L >= 0 and m - Zs[e, L] <= Zs[e, R] - m):
+                    d = m - Zs[e, L]
+                    L -= 1
+                else:
+                    d = Zs[e, R] - m
+                    R += 1
+                if k == lo:
+                    d_lo = d
+                d_hi = d
+            sd = 1.4826 * (d_lo + d_hi) / 2
+            mid[e] = m
+            se2[e] = (1.2533 * sd) ** 2 / c
+        else:
+            m = 0.0
+            for r in range(cap):
+                if Z[e, r] == Z[e, r]:
+                    m += Z[e, r]
+            m /= c
+            v = 0.0
+            for r in range(cap):
+                if Z[e, r] == Z[e, r]:
+                    v += (Z[e, r] - m) ** 2
+            mid[e] = m
+            se2[e] = v / c / c
+        cov[e, 0] += P[0, 0]
+        cov[e, 1] += P[0, 1]
+        cov[e, 2] += P[1, 1]
+
+
+@numba.njit(cache=True)
+def window_bins(used, mid, se2, a0, a1, i0, bin_m, x_min, x_max, map_sigma):  # pragma: no cover
+    """The used bins among array elements [a0, a1) overlapping [x_min, x_max]: their x_lo,
+    x_hi, height, height sigma and bin index (height_map: _bins_profile of the window)."""
+    m = 0
+    for e in range(a0, a1):
+        if used[e]:
+            x_lo = (e + i0) * bin_m
+            if x_lo + bin_m >= x_min and x_lo <= x_max:
+                m += 1
+    lo, hi, z, sig = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    bins = np.empty(m, np.int64)
+    k = 0
+    s2 = map_sigma**2
+    for e in range(a0, a1):
+        if used[e]:
+            x_lo = (e + i0) * bin_m
+            if x_lo + bin_m >= x_min and x_lo <= x_max:
+                lo[k], hi[k], z[k] = x_lo, x_lo + bin_m, mid[e]
+                sig[k] = math.sqrt(se2[e] + s2)
+                bins[k] = e + i0
+                k += 1
+    return lo, hi, z, sig, bins
+
+
+# ---------------------------------------------------------------------------------------------
+# the swing-template prediction
+
+
+@numba.njit(cache=True)
+def template_motion(tau, h, phase, disp, starts):  # pragma: no cover - compiled
+    """Median displacement (H, 4) of heel and toe from phase tau to tau + h over the
+    templates (online.SafetyMonitor._template_motion): template k is ``phase`` (s) and
+    ``disp`` (., 4) rows ``starts[k]:starts[k + 1]``."""
+    T, H = starts.shape[0] - 1, h.shape[0]
+    q = np.empty(H + 1)
+    q[0] = tau
+    for i in range(H):
+        q[i + 1] = tau + h[i]
+    out = np.empty((T, H, 4))
+    for k in range(T):
+        ph = phase[starts[k] : starts[k + 1]]
+        for c in range(4):
+            at = np.interp(q, ph, np.ascontiguousarray(disp[starts[k] : starts[k + 1], c]))
+            for i in range(H):
+                out[k, i, c] = at[i + 1] - at[0]
+    if T == 1:
+        return out[0].copy()
+    med = np.empty((H, 4))
+    v = np.empty(T)
+    for i in range(H):
+        for c in range(4):
+            for k in range(T):
+                v[k] = out[k, i, c]
+            v.sort()
+            med[i, c] = v[T // 2] if T % 2 else (v[T // 2 - 1] + v[T // 2]) / 2
+    return med
+
+
+@numba.njit(cache=True)
+def _pair_changes(used_mid, p, q, i0, bin_m, max_gap, slope_step):  # pragma: no cover
+    """Used bins at array elements p < q form a transition pair (edge_runs' step != 0)."""
+    gap = (q + i0) * bin_m - ((p + i0) * bin_m + bin_m)
+    return gap <= max_gap and abs(used_mid[q] - used_mid[p]) > slope_step
+
+
+@numba.njit(cache=True)
+def rescan_edges(
+    used, mid, i0, bin_m, e_lo, e_hi, min_rise, max_gap, slope_step, max_bin, xz, rise, first
+):  # pragma: no cover - compiled
+    """height_map.IncrementalHeightMap._rescan_edges in one call: the map's edges (``xz``,
+    ``rise``, ``first`` bin index) after the bins at array elements [e_lo, e_hi] changed."""
+    n = used.shape[0]
+    # the scan's start: the right end of the first quiet stretch walking left from e_lo
+    start = -1
+    e = e_lo - 1
+    while e >= 0 and not used[e]:
+        e -= 1
+    if e >= 0:
+        v = w = e
+        u = w - 1
+        while True:
+            while u >= 0 and not used[u]:
+                u -= 1
+            if u < 0:
+                break
+            if _pair_changes(mid, u, w, i0, bin_m, max_gap, slope_step):
+                v = w = u
+            else:
+                w = u
+                if (v + i0) * bin_m + bin_m - (w + i0) * bin_m > max_bin:
+                    start = v
+                    break
+            u = w - 1
+    # its stop: the right end of the first quiet stretch walking right from e_hi
+    stop = -1
+    e = e_hi + 1
+    while e < n and not used[e]:
+        e += 1
+    if e < n:
+        w = v = e
+        u = v + 1
+        while True:
+            while u < n and not used[u]:
+                u += 1
+            if u >= n:
+                break
+            if _pair_changes(mid, v, u, i0, bin_m, max_gap, slope_step):
+                w = v = u
+            else:
+                v = u
+                if (v + i0) * bin_m + bin_m - (w + i0) * bin_m > max_bin:
+                    stop = v
+                    break
+            u = v + 1
+    lo = start if start >= 0 else 0
+    hi = stop if stop >= 0 else n - 1
+    m = 0
+    for e in range(lo, hi + 1):
+        if used[e]:
+            m += 1
+    sub = np.empty(m, np.int64)
+    x_lo, x_hi, z = np.empty(m), np.empty(m), np.empty(m)
+    k = 0
+    for e in range(lo, hi + 1):
+        if used[e]:
+            sub[k] = e
+            x_lo[k] = (e + i0) * bin_m
+            x_hi[k] = x_lo[k] + bin_m
+            z[k] = mid[e]
+            k += 1
+    new_xz, new_rise, new_first = _edge_runs(x_lo, x_hi, z, min_rise, max_gap, slope_step, max_bin)
+    # splice: the old edges whose scan starts before lo or from hi on stay
+    keep_l = 0
+    keep_r = 0
+    for q in range(first.shape[0]):
+        if start >= 0 and first[q] < lo + i0:
+            keep_l += 1
+        elif stop >= 0 and first[q] >= hi + i0:
+            keep_r += 1
+    E = keep_l + new_rise.shape[0] + keep_r
+    out_xz, out_rise, out_first = np.empty((E, 2)), np.empty(E), np.empty(E, np.int64)
+    k = 0
+    for q in range(first.shape[0]):
+        if start >= 0 and first[q] < lo + i0:
+            out_xz[k, 0], out_xz[k, 1], out_rise[k], out_first[k] = (
+                xz[q, 0],
+                xz[q, 1],
+                rise[q],
+                first[q],
+            )
+            k += 1
+    for q in range(new_rise.shape[0]):
+        out_xz[k, 0], out_xz[k, 1] = new_xz[q, 0], new_xz[q, 1]
+        out_rise[k], out_first[k] = new_rise[q], sub[new_first[q]] + i0
+        k += 1
+    for q in range(first.shape[0]):
+        if stop >= 0 and first[q] >= hi + i0:
+            out_xz[k, 0], out_xz[k, 1], out_rise[k], out_first[k] = (
+                xz[q, 0],
+                xz[q, 1],
+                rise[q],
+                first[q],
+            )
+            k += 1
+    return out_xz, out_rise, out_first
+
+
+@numba.njit(cache=True)
+def bin_below(used, i0, bin_m, x):  # pragma: no cover - compiled
+    """height_map.IncrementalHeightMap.bin_below: (found, bin index)."""
+    n = used.shape[0]
+    hi = min(max(np.int64(np.floor(x / bin_m)) + 2 - i0, 0), n)
+    for e in range(hi - 1, -1, -1):
+        if used[e] and (e + i0) * bin_m < x:
+            return True, e + i0
+    for e in range(n):
+        if used[e]:
+            return True, e + i0
+    return False, 0
+
+
+@numba.njit(cache=True)
+def _predicted_min(hx, hz, tx, tz, vx, vz, horizon, steps, lo, hi, z, sole):  # pragma: no cover
+    T = steps + 1
+    a, b = np.empty((T, 2)), np.empty((T, 2))
+    step = horizon / steps
+    for i in range(T):
+        tau = i * step + 0.0 if i < steps else horizon  # np.linspace(0, horizon, steps + 1)
+        a[i, 0], a[i, 1] = hx + vx * tau, hz + vz * tau
+        b[i, 0], b[i, 1] = tx + vx * tau, tz + vz * tau
+    d = _clearance_many(a, b, lo, hi, z, sole)
+    best = d[0]
+    for i in range(1, T):
+        if d[i] < best or d[i] != d[i]:
+            best = d[i]
+            if best != best:
+                break
+    return best
+
+
+def predicted_min_clearance(
+    heel_xz_m: ArrayLike,
+    toe_xz_m: ArrayLike,
+    velocity_xz_mps: ArrayLike,
+    horizon_s: float,
+    steps: int,
+    prof: HeightProfile,
+    sole_thickness_m: float = 0.0,
+) -> float:
+    """:func:`vio_graph.safety.clearance.predicted_min_clearance`, compiled."""
+    vx, vz = _xz(velocity_xz_mps)
+    if len(prof) == 0 or not (math.isfinite(vx) and math.isfinite(vz)):
+        return float("nan")
+    return float(
+        _predicted_min(
+            *_xz(heel_xz_m),
+            *_xz(toe_xz_m),
+            vx,
+            vz,
+            float(horizon_s),
+            int(steps),
+            prof.x_lo_m,
+            prof.x_hi_m,
+            prof.z_m,
+            float(sole_thickness_m),
+        )
+    )
+
+
+@numba.njit(cache=True)
+def _edge_distance(ax, az, bx, bz, ex, ez):  # pragma: no cover - compiled
+    """clearance._edge_distance: (signed distance, closest x, z)."""
+    dx, dz = bx - ax, bz - az
+    L2 = dx * dx + dz * dz
+    s = 0.0 if L2 == 0 else min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
+    qx, qz = ax + s * dx, az + s * dz
+    d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** 0.5
+    if abs(dx) > 1e-12 and min(ax, bx) < ex and ex < max(ax, bx):
+        z_line = az + (ex - ax) * dz / dx
+        if ez > z_line:
+            d = -min(ez - z_line, ex - min(ax, bx), max(ax, bx) - ex)
+    return d, qx, qz
+
+
+def edge_clearance(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, edge_xz_m: ArrayLike, sole_thickness_m: float = 0.0
+) -> Clearance:
+    """:func:`vio_graph.safety.clearance.edge_clearance`, compiled."""
+    ex, ez = _xz(edge_xz_m)
+    d, qx, qz = _edge_distance(
+        *_xz(heel_xz_m),
+        *_xz(toe_xz_m),
+        ex,
+        ez,
+    )
+    n = ((qx - ex) ** 2 + (qz - ez) ** 2) ** 0.5
+    nx, nz = ((qx - ex) / n, (qz - ez) / n) if n > 1e-9 else (0.0, 1.0)
+    if d < 0:
+        nx, nz = -nx, -nz
+    return Clearance(
+        d - sole_thickness_m, np.array([qx, qz]), np.array([ex, ez]), -1, np.array([nx, nz])
+    )
+
+
+@numba.njit(cache=True)
+def _point_segment(px, pz, ax, az, bx, bz):  # pragma: no cover - compiled
+    dx, dz = bx - ax, bz - az
+    L2 = dx * dx + dz * dz
+    s = 0.0 if L2 == 0 else min(max(((px - ax) * dx + (pz - az) * dz) / L2, 0.0), 1.0)
+    return ((px - ax - s * dx) ** 2 + (pz - az - s * dz) ** 2) ** 0.5
+
+
+@numba.njit(cache=True)
+def _orient(px, pz, qx, qz, rx, rz):  # pragma: no cover - compiled
+    return (qx - px) * (rz - pz) - (qz - pz) * (rx - px)
+
+
+@numba.njit(cache=True)
+def _predicted_min_edge(ax, az, bx, bz, vx, vz, horizon, ex, ez):  # pragma: no cover
+    fx, fz = ex - vx * horizon, ez - vz * horizon
+    d0 = _edge_distance(ax, az, bx, bz, ex, ez)[0]
+    d1 = _edge_distance(ax, az, bx, bz, fx, fz)[0]
+    best = min(
+        d0, d1, _point_segment(ax, az, ex, ez, fx, fz), _point_segment(bx, bz, ex, ez, fx, fz)
+    )
+    o1, o2 = _orient(ax, az, bx, bz, ex, ez), _orient(ax, az, bx, bz, fx, fz)
+    o3, o4 = _orient(ex, ez, fx, fz, ax, az), _orient(ex, ez, fx, fz, bx, bz)
+    if o1 * o2 < 0 and o3 * o4 < 0:
+        best = min(best, 0.0)
+    return best
+
+
+def predicted_min_edge_clearance(
+    heel_xz_m: ArrayLike,
+    toe_xz_m: ArrayLike,
+    velocity_xz_mps: ArrayLike,
+    horizon_s: float,
+    steps: int,
+    edge_xz_m: ArrayLike,
+    sole_thickness_m: float = 0.0,
+) -> float:
+    """:func:`vio_graph.safety.clearance.predicted_min_edge_clearance`, compiled."""
+    vx, vz = _xz(velocity_xz_mps)
+    if not (math.isfinite(vx) and math.isfinite(vz)):
+        return float("nan")
+    best = _predicted_min_edge(
+        *_xz(heel_xz_m),
+        *_xz(toe_xz_m),
+        vx,
+        vz,
+        float(horizon_s),
+        *_xz(edge_xz_m),
+    )
+    return float(best) - sole_thickness_m
+
+
+def warm_up() -> None:
+    """Call every kernel once on a small input, with the argument types the monitor uses:
+    numba loads their machine code (compiles it, on a machine's first run) at a kernel's
+    first call, which would otherwise land on the first frames."""
+    prof = HeightProfile(
+        np.array([0.0, 0.005, 0.01]), np.array([0.005, 0.01, 0.015]), np.zeros(3), np.zeros(3)
+    )
+    heel, toe, v = np.array([-0.2, 0.05]), np.array([0.0, 0.05]), (0.5, 0.0)
+    foot_clearance(heel, toe, prof)
+    coverage(heel, toe, prof)
+    clearance_many(heel[None], toe[None], prof)
+    edge_clearance(heel, toe, np.array([0.01, 0.0]))
+    edge_clearance_many(heel[None], toe[None], np.array([0.01, 0.0]))
+    predicted_min_clearance(heel, toe, v, 0.3, 10, prof)
+    predicted_min_edge_clearance(heel, toe, v, 0.3, 10, np.array([0.01, 0.0]))
+    edge_runs(prof, 0.04, 0.15)
+    bins, tops = keyframe_tops(np.zeros((2, 2)), 0.0, 0.0, 0.005, 0.01)
+    n, used = np.zeros(3, np.int64), np.zeros(3, bool)
+    mid, se2, cov = np.zeros(3), np.zeros(3), np.zeros((3, 3))
+    Z = np.full((3, 4), np.nan)
+    add_tops(Z, Z.copy(), n, used, mid, se2, cov, bins + 1, tops, 1, True, np.eye(2))
+    window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
+    rescan_edges(
+        used,
+        mid,
+        0,
+        0.005,
+        1,
+        1,
+        0.04,
+        0.15,
+        SLOPE_STEP_M,
+        MAX_TRANSITION_BIN_M,
+        np.zeros((0, 2)),
+        np.zeros(0),
+        np.zeros(0, np.int64),
+    )
+    bin_below(used, 0, 0.005, 0.01)
+    phase = np.array([0.0, 0.1, 0.2])
+    template_motion(0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]))

@@ -496,6 +496,9 @@ def map_figure(
         true_edges = np.asarray(terrain_info.edges_xz_m)
         ax.plot(true_edges[:, 0], true_edges[:, 1], "kx", ms=8, label="true edges")
     if cams.size:
+        from vio_graph.viz.plots import plot_indices
+
+        cams = cams[plot_indices(cams)]  # a long trial's keyframes: their envelope
         ax.plot(cams[:, 0], cams[:, 1], "-", color="tab:purple", lw=1, label="camera (keyframes)")
     if geometry is not None:
         _draw_geometry(ax, geometry)

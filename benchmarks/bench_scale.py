@@ -41,7 +41,7 @@ FLIGHTS_PER_S = 14 / 120.0  # configs/upstair_long.yaml: 14 flights in 120 s
 REPO_DIR = _common.BENCH_DIR.parent
 RECORDINGS_DIR = REPO_DIR / "results" / "scale" / "recordings"
 #: what issue 10 asks of the 600 s trial
-AIM_PEAK_RSS_MIB = 1024.0
+AIM_PEAK_RSS_MIB = 1e9 / 2**20  # 1 GB
 AIM_BATCH_S = 60.0
 STARTUP_RUNS = 5
 
@@ -224,8 +224,8 @@ def aims(r: dict) -> str:
     batch, online = row["batch"], row["online"]
     own = row.get("batch_extra_cpu_s")
     text = (
-        f"Aims of issue 10 for a 600 s trial, against the {d:g} s row: peak RSS < "
-        f"{AIM_PEAK_RSS_MIB:.0f} MiB in every stage: "
+        f"Aims of issue 10 for a 600 s trial, against the {d:g} s row: peak RSS < 1 GB "
+        f"({AIM_PEAK_RSS_MIB:.0f} MiB) in every stage: "
         + ", ".join(f"{s} {f(v, 0)}" for s, v in peaks.items())
         + f" MiB ({'met' if worst < AIM_PEAK_RSS_MIB else 'NOT met'}"
         + ("; simulate as measured when the recording was made" if sim_cached else "")

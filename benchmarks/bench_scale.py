@@ -15,10 +15,11 @@ Plus the start-up cost of the command line (item 1 of issue 10): ``vio-graph --h
 ``vio-graph info data/sample``, best of 5 processes.
 
 Recordings are simulated once and cached with the figures of the run that simulated them
-(``<name>.simulate.json``) in ``--recordings`` (default results/scale/recordings of the
-repository, git-ignored); a 600 s recording is ~2 GB of depth and confidence and takes ~5 min
-of CPU to simulate. Outputs go to the benchmark scratch folder (``VIO_GRAPH_BENCH_SCRATCH``,
-default the system temp folder) and are deleted after each stage.
+(``<name>.simulate.json``) in ``--recordings`` (default ``VIO_GRAPH_SCALE_RECORDINGS``, else
+results/scale/recordings of the repository, git-ignored); a 600 s recording is ~2 GB of
+depth and confidence and takes ~5 min of CPU to simulate. Outputs go to the benchmark
+scratch folder (``VIO_GRAPH_BENCH_SCRATCH``, default the system temp folder) and are deleted
+after each stage.
 Writes benchmarks/results/scale.json and prints a markdown table.
 Run: python benchmarks/bench_scale.py [--durations 10 60 600] [--recordings DIR]
 """
@@ -39,7 +40,9 @@ import _common  # noqa: I001 - first: pins thread pools before numpy is imported
 
 FLIGHTS_PER_S = 14 / 120.0  # configs/upstair_long.yaml: 14 flights in 120 s
 REPO_DIR = _common.BENCH_DIR.parent
-RECORDINGS_DIR = REPO_DIR / "results" / "scale" / "recordings"
+RECORDINGS_DIR = Path(
+    os.environ.get("VIO_GRAPH_SCALE_RECORDINGS", REPO_DIR / "results" / "scale" / "recordings")
+)
 #: what issue 10 asks of the 600 s trial
 AIM_PEAK_RSS_MIB = 1e9 / 2**20  # 1 GB
 AIM_BATCH_S = 60.0

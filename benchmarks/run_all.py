@@ -3,9 +3,11 @@
 Each benchmark runs in its own process with the BLAS / OpenMP pools pinned to one thread and
 writes benchmarks/results/<name>.json (gitignored); this script then renders the tables of all
 of them, the machine and the date into docs/performance.md. About 3-5 minutes on 2 cores (the
-first run also simulates the upstair trial into the system temp folder, ~20 s).
+first run also simulates the upstair trial into the system temp folder, ~20 s). The scaling
+table's recordings are simulated once into results/scale/recordings and reused (the 600 s one
+takes ~5 min of CPU to simulate; its online and batch runs ~15 min more).
 
-    python benchmarks/run_all.py [--quick] [--no-doc]
+    python benchmarks/run_all.py [--quick] [--no-doc] [--scale-durations 10 60 600]
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ BENCHMARKS = ("frontend", "smoother", "simulator", "scale")
 EXTRA_BENCHMARKS = ("end_to_end",)
 DOC = _common.BENCH_DIR.parent / "docs" / "performance.md"
 COMMAND = "python benchmarks/run_all.py"
-#: trial lengths of the scaling table; 600 s (18,000 frames) is
-#: ``python benchmarks/bench_scale.py --durations 10 60 600`` (about an hour on 2 busy cores)
+#: trial lengths of the scaling table; with 600 s (18,000 frames):
+#: ``--scale-durations 10 60 600`` (its recording simulated once, then reused)
 SCALE_DURATIONS_S = ("10", "60")
 
 
@@ -212,7 +214,12 @@ def render(
         "Do not edit by hand; rerun instead.",
         "",
         "Reproduce (from the repository root, about 10-15 minutes"
-        + (", plus about an hour for the 600 s trial" if "600" in scale_durations else "")
+        + (
+            ", plus ~20 minutes for the 600 s trial and ~5 more the first time, when it is "
+            "simulated into results/scale/recordings"
+            if "600" in scale_durations
+            else ""
+        )
         + "):",
         "",
         "```bash",
@@ -280,8 +287,8 @@ def render(
         *(
             [
                 "The 600 s (18,000 frames) row: `python benchmarks/run_all.py --scale-durations "
-                "10 60 600` (simulating and running it takes about an hour on this machine when "
-                "it is busy).",
+                "10 60 600` (the recording is simulated once into results/scale/recordings, "
+                "~5 min of CPU, and reused; its two runs take ~15 min more).",
                 "",
             ]
             if not any(row["duration_s"] >= 600 for row in sc["rows"])
@@ -321,7 +328,7 @@ def main() -> None:
         "--scale-durations",
         nargs="+",
         default=list(SCALE_DURATIONS_S),
-        help="trial lengths (s) of the scaling table; 600 adds about an hour",
+        help="trial lengths (s) of the scaling table; 600 adds ~20 min (reused recording)",
     )
     args = ap.parse_args()
     walls: dict[str, float] = {}

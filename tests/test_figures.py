@@ -114,3 +114,30 @@ def test_overview_names_every_line_and_separates_camera_and_toe() -> None:
     z0, z1 = toe_ax.get_ylim()
     toe_z = gt["toe"].position_m[:, 2]
     assert z1 - z0 < (toe_z.max() - toe_z.min()) + 1.0  # zoomed to the trial
+
+
+def test_plot_indices_keep_every_extreme_of_a_long_series() -> None:
+    """A 10-minute trial's toe height (18,000 frames, one 3-frame lift per step) drawn from
+    at most 4000 samples: every lift's peak, the global extremes, the first and last sample
+    stay; a short series is drawn whole."""
+    from vio_graph.viz.decimate import plot_indices
+
+    MAX_PLOT_POINTS = 4000  # one lift per bucket (the figures' default, 2000, merges pairs)
+
+    n = 18_000
+    z = np.zeros(n)
+    peaks = np.arange(40, n - 3, 33)
+    for k in peaks:
+        z[k : k + 3] = [0.05, 0.1 + 1e-6 * k, 0.05]
+    xz = np.column_stack([np.linspace(0.0, 80.0, n), z])
+    idx = plot_indices(xz, max_points=MAX_PLOT_POINTS)
+    assert idx.size <= MAX_PLOT_POINTS
+    assert np.all(np.diff(idx) > 0)
+    assert idx[0] == 0 and idx[-1] == n - 1
+    assert set((peaks + 1).tolist()) <= set(idx.tolist())  # every lift's top
+    np.testing.assert_array_equal(plot_indices(z[:300]), np.arange(300))
+    z_nan = z.copy()
+    z_nan[::7] = np.nan  # NaN samples never hide a peak
+    assert set((peaks + 1).tolist()) - set(np.flatnonzero(np.isnan(z_nan)).tolist()) <= set(
+        plot_indices(z_nan, max_points=MAX_PLOT_POINTS).tolist()
+    )

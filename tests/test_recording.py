@@ -232,3 +232,16 @@ def test_reader_never_modifies_input(tiny_recording: Path) -> None:
     assert n == rec.num_frames
     after = {p: p.stat().st_mtime_ns for p in tiny_recording.rglob("*") if p.is_file()}
     assert before == after
+
+
+def test_reader_median_equals_numpy_median() -> None:
+    """The reader's median (np.partition, no numpy.ma import) gives np.median's value."""
+    from vio_graph.recording.reader import _median
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 4, 7, 100, 101, 1000):
+        for scale in (1e-3, 1.0, 1e6):
+            x = rng.normal(size=n) * scale
+            assert _median(x) == np.median(x)
+    assert np.isnan(_median(np.array([1.0, np.nan, 2.0])))
+    assert np.isnan(_median(np.array([])))

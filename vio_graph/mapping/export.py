@@ -569,27 +569,32 @@ def map_figure(
     return fig
 
 
+#: steps numbered on the map figure; a longer trial (a 10-minute one maps ~800 steps) numbers
+#: every k-th step only, so the labels stay legible and the figure cheap
+MAX_NUMBERED_STEPS = 60
+
+
+def _segments(x: list[tuple[float, float]], z: list[tuple[float, float]]) -> tuple[Any, Any]:
+    """Many two-point segments as one NaN-separated polyline (one artist, not one each)."""
+    nan = np.full((len(x), 1), np.nan)
+    xs = np.hstack([np.asarray(x, float).reshape(-1, 2), nan]).ravel()
+    zs = np.hstack([np.asarray(z, float).reshape(-1, 2), nan]).ravel()
+    return xs, zs
+
+
 def _draw_geometry(ax: Any, geometry: TerrainGeometry) -> None:
-    for i, lv in enumerate(geometry.levels):
-        ax.plot(
-            [lv.x_start_edge_m, lv.x_end_edge_m],
-            [lv.z_m, lv.z_m],
-            "-",
-            color="tab:blue",
-            lw=2.5,
-            alpha=0.8,
-            label="levels (treads, floor)" if i == 0 else None,
+    if geometry.levels:
+        xs, zs = _segments(
+            [(lv.x_start_edge_m, lv.x_end_edge_m) for lv in geometry.levels],
+            [(lv.z_m, lv.z_m) for lv in geometry.levels],
         )
-    for i, r in enumerate(geometry.risers):
-        ax.plot(
-            [r.x_m, r.x_m],
-            [r.z_bottom_m, r.z_top_m],
-            "-",
-            color="tab:green",
-            lw=2.5,
-            alpha=0.8,
-            label="risers" if i == 0 else None,
+        ax.plot(xs, zs, "-", color="tab:blue", lw=2.5, alpha=0.8, label="levels (treads, floor)")
+    if geometry.risers:
+        xs, zs = _segments(
+            [(r.x_m, r.x_m) for r in geometry.risers],
+            [(r.z_bottom_m, r.z_top_m) for r in geometry.risers],
         )
+        ax.plot(xs, zs, "-", color="tab:green", lw=2.5, alpha=0.8, label="risers")
     if geometry.steps:  # one errorbar artist for every nosing
         nosing = np.array([s.nosing_xz_m for s in geometry.steps], dtype=float)
         sigma3 = 3 * np.array([s.nosing_std_xz_m for s in geometry.steps], dtype=float)
@@ -603,7 +608,10 @@ def _draw_geometry(ax: Any, geometry: TerrainGeometry) -> None:
             ms=5,
             label="nosings (3 sigma), numbered as in the table",
         )
+    every = -(-len(geometry.steps) // MAX_NUMBERED_STEPS) if geometry.steps else 1
     for i, s in enumerate(geometry.steps):
+        if i % every:
+            continue
         # the step number only, up and to the left of the nosing (above the riser, clear of
         # the tread): short labels do not collide, the numbers are in the table
         ax.annotate(

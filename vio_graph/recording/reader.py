@@ -120,7 +120,7 @@ class Recording:
         slack = DURATION_TOLERANCE * duration
         for rel, t in streams:
             span = float(t[-1] - t[0])
-            period = float(np.median(np.diff(t)))
+            period = _median(np.diff(t))
             if abs(span - duration) > slack + 2 * period:
                 raise RecordingError(
                     self.root / rel,
@@ -210,7 +210,7 @@ class Recording:
         _check_rate(path, imu.timestamp_s, meta.rate_hz, "imu.rate_hz")
         _check_unit_quaternions(path, imu.quat_wxyz)
         with np.errstate(over="ignore"):
-            acc_norm = np.median(np.linalg.norm(imu.accel_mps2, axis=1))
+            acc_norm = _median(np.linalg.norm(imu.accel_mps2, axis=1))
         # units check only (g or mg instead of m/s^2): a fast gait puts the shank median
         # near 2 g (cadence 1.5x in the simulator), so the upper bound is 3 g
         if not 0.5 * GRAVITY_MPS2 < acc_norm < 3.0 * GRAVITY_MPS2:
@@ -472,7 +472,21 @@ class Recording:
 
 
 def _rate(t: np.ndarray) -> float:
-    return float(1.0 / np.median(np.diff(t))) if t.shape[0] > 1 else 0.0
+    return float(1.0 / _median(np.diff(t))) if t.shape[0] > 1 else 0.0
+
+
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a 1-D array, the same value, without ``np.median``'s import of
+    ``numpy.ma`` (~50 ms of ``vio-graph info``); NaN if any value is NaN, as there."""
+    v = np.asarray(values, dtype=float).reshape(-1)
+    n = v.shape[0]
+    if n == 0 or np.isnan(v).any():
+        return float("nan")
+    half = n // 2
+    if n % 2:
+        return float(np.partition(v, half)[half])
+    part = np.partition(v, (half - 1, half))
+    return float((part[half - 1] + part[half]) / 2.0)
 
 
 def _check_timestamps(path: Path, t: np.ndarray) -> None:

@@ -140,6 +140,11 @@ class _ScaleBase:
         """Factor on the sigma term (1 until ``min_keyframes`` keyframes were observed)."""
         return self._scale
 
+    def observe(self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike) -> None:
+        """One keyframe's innovations (m) and their predicted variances (m^2); updates
+        :attr:`scale`."""
+        raise NotImplementedError
+
     def _normalised_squares(
         self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike
     ) -> NDArray[np.float64] | None:
@@ -179,8 +184,7 @@ class ChiSquareScale(_ScaleBase):
         self._sorted = np.zeros(0)
 
     def observe(self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike) -> None:
-        """One keyframe's innovations (m) and their predicted variances (m^2); updates
-        :attr:`scale`."""
+        """As :meth:`ChiSquareScaleReference.observe`, the median from the sorted window."""
         if self.window == 0:
             return
         q = self._normalised_squares(innovation_m, predicted_var_m2)
@@ -221,7 +225,8 @@ class ChiSquareScaleReference(_ScaleBase):
     against)."""
 
     def observe(self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike) -> None:
-        """As :meth:`ChiSquareScale.observe`."""
+        """One keyframe's innovations (m) and their predicted variances (m^2); updates
+        :attr:`scale`."""
         if self.window == 0:
             return
         q = self._normalised_squares(innovation_m, predicted_var_m2)

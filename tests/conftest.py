@@ -1,4 +1,5 @@
-"""Shared fixtures: a tiny hand-made recording (independent of the simulator)."""
+"""Shared fixtures: a tiny hand-made recording (independent of the simulator), and the safety
+monitor's per-frame inputs on data/sample."""
 
 from __future__ import annotations
 
@@ -113,3 +114,37 @@ def short_upstair(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     cfg = load_scenario("upstair").model_copy(update={"duration_s": 4.0})
     return simulate(cfg, seed=3, out_dir=tmp_path_factory.mktemp("rec") / "up")
+
+
+@pytest.fixture(scope="session")
+def sample_frames() -> list[tuple]:
+    """The monitor's per-frame inputs on data/sample, as the online estimator gives them
+    (filter camera and covariance, heel and toe by kinematics, stance, keyframe profiles)."""
+    from vio_graph.config import load_config
+    from vio_graph.pipeline import leg_trajectories
+    from vio_graph.recording.reader import Recording
+    from vio_graph.replay import Replay
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    cfg = load_config(None)
+    replay = Replay(
+        Recording.open(Path(__file__).resolve().parents[1] / "data" / "sample"),
+        cfg,
+        {"filter"},
+        NullVisualizer(),
+    )
+    lg = replay.run()
+    use_enc = cfg.kinematics.shank_pitch_source == "encoders"
+    legs = leg_trajectories(replay.rig, lg.camera_xz["filter"], lg, use_enc)
+    return [
+        (
+            float(lg.t_s[k]),
+            legs["camera"][k],
+            lg.cov_position_m2[k],
+            legs["heel"][k],
+            legs["toe"][k],
+            bool(lg.in_stance[k]),
+            lg.profiles.get(k),
+        )
+        for k in range(len(lg.t_s))
+    ]

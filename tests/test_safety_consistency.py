@@ -10,11 +10,13 @@ from vio_graph.safety.clearance import HeightProfile
 from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.consistency import (
     ChiSquareScale,
+    ChiSquareScaleReference,
     MapConsistency,
     keyframe_bin_tops,
+    median_selected,
     psd_abs_zz,
 )
-from vio_graph.safety.online import OnlineHeightMap, _psd_abs
+from vio_graph.safety.online import OnlineHeightMap, SafetyMonitor, _psd_abs
 
 
 @pytest.mark.parametrize("true_scale", [0.5, 1.0, 3.0])
@@ -173,3 +175,64 @@ def test_bin_cov_rows_match_bin_cov() -> None:
     rows = m.bin_cov_rows(k)
     ref = np.array([m.bin_cov(int(i)) for i in k])
     np.testing.assert_allclose(rows, np.stack([ref[:, 0, 0], ref[:, 0, 1], ref[:, 1, 1]], 1))
+
+
+def test_median_by_selection_is_numpys_median() -> None:
+    """Odd and even sizes, repeated values, infinities and NaN: the same float, bit for bit."""
+    rng = np.random.default_rng(5)
+    for n in [1, 2, 3, 4, 7, 10, 301, 1000]:
+        for _ in range(20):
+            a = rng.normal(0.0, 1.0, n) ** 3
+            a[rng.random(n) < 0.3] = a[0]  # ties
+            if n > 3 and rng.random() < 0.3:
+                a[rng.integers(n)] = rng.choice([np.inf, -np.inf, np.nan])
+            got, want = median_selected(a.copy()), float(np.median(a))
+            assert (np.isnan(got) and np.isnan(want)) or got == want, (n, got, want)
+    assert np.isnan(median_selected(np.zeros(0)))
+
+
+@pytest.mark.parametrize("window", [1, 3, 30])
+def test_sorted_window_scale_equals_the_reference(window: int) -> None:
+    """Keyframes of random sizes (some empty or all invalid, many repeated values) through
+    the sorted window and through the reference's median of the concatenated window: the
+    same scale after every keyframe, bit for bit."""
+    rng = np.random.default_rng(window)
+    a = ChiSquareScale(window, min_keyframes=2, scale_range=(0.1, 10.0))
+    b = ChiSquareScaleReference(window, min_keyframes=2, scale_range=(0.1, 10.0))
+    for k in range(200):
+        n = int(rng.integers(0, 60))
+        r = rng.normal(0.0, 1e-3, n).round(5)  # rounding: repeated normalised squares
+        v = np.full(n, 1e-6)
+        v[rng.random(n) < 0.1] = rng.choice([0.0, np.nan, -1.0])  # dropped values
+        a.observe(r, v)
+        b.observe(r, v)
+        assert a.scale == b.scale, k
+
+
+def test_consistency_equals_the_reference_over_a_replay(sample_frames) -> None:
+    """data/sample through the safety monitor with the reference map: at every keyframe
+    the default consistency test (sorted window, medians by selection) gives the pose and
+    map scales of the reference one, bit for bit."""
+    cfg = SafetyConfig()
+    mon = SafetyMonitor(cfg, incremental=False)
+    fast = MapConsistency(
+        cfg.consistency_window_keyframes,
+        cfg.consistency_min_keyframes,
+        cfg.consistency_scale_range,
+    )
+    observe = mon.consistency.observe_keyframe
+    seen: list[tuple[float, float, float, float]] = []
+
+    def both(*args, **kw) -> None:  # the reference as the monitor runs it, the default beside
+        observe(*args, **kw)
+        fast.observe_keyframe(*args, **kw)
+        c = mon.consistency
+        seen.append((c.pose_scale, fast.pose_scale, c.map_scale, fast.map_scale))
+
+    mon.consistency.observe_keyframe = both  # type: ignore[method-assign]
+    for f in sample_frames:
+        mon.update(*f)
+    assert len(seen) > 20
+    assert any(p != 1.0 for p, *_ in seen)  # the scales left 1
+    for k, (p_ref, p, m_ref, m) in enumerate(seen):
+        assert (p, m) == (p_ref, m_ref), k

@@ -7,7 +7,6 @@ stairs."""
 from __future__ import annotations
 
 from dataclasses import fields
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +18,6 @@ from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.height_map import IncrementalHeightMap, OnlineHeightMap
 from vio_graph.safety.online import SafetyEstimate, SafetyMonitor
 
-SAMPLE = Path(__file__).resolve().parents[1] / "data" / "sample"
 TOL_M = 1e-9  # compiled against numpy: rounding only
 
 
@@ -28,34 +26,6 @@ def _compiled():
     from vio_graph.safety import compiled
 
     return compiled
-
-
-@pytest.fixture(scope="module")
-def sample_frames() -> list[tuple]:
-    """The monitor's per-frame inputs on data/sample, as the online estimator gives them
-    (filter camera and covariance, heel and toe by kinematics, stance, keyframe profiles)."""
-    from vio_graph.pipeline import leg_trajectories
-    from vio_graph.recording.reader import Recording
-    from vio_graph.replay import Replay
-    from vio_graph.viz.rerun_logger import NullVisualizer
-
-    cfg = load_config(None)
-    replay = Replay(Recording.open(SAMPLE), cfg, {"filter"}, NullVisualizer())
-    lg = replay.run()
-    use_enc = cfg.kinematics.shank_pitch_source == "encoders"
-    legs = leg_trajectories(replay.rig, lg.camera_xz["filter"], lg, use_enc)
-    return [
-        (
-            float(lg.t_s[k]),
-            legs["camera"][k],
-            lg.cov_position_m2[k],
-            legs["heel"][k],
-            legs["toe"][k],
-            bool(lg.in_stance[k]),
-            lg.profiles.get(k),
-        )
-        for k in range(len(lg.t_s))
-    ]
 
 
 def _replay(frames: list[tuple], cfg: SafetyConfig, **kw) -> list[np.ndarray]:

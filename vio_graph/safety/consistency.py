@@ -31,6 +31,7 @@ seen by neither test.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Callable
 
@@ -81,11 +82,39 @@ def psd_abs_zz(dP_m2: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.abs(l1) * vz2 + np.abs(l2) * (1.0 - vz2)
 
 
-class ChiSquareScale:
-    """Running scale of one sigma term from normalised squares (see module docstring).
-    ``window``: keyframes whose values are kept (0 disables: the scale stays 1);
-    ``min_keyframes``: keyframes observed before the scale leaves 1; ``scale_range``: the
-    scale is clipped to it (a bound against a degenerate map)."""
+def median_selected(values: NDArray[np.float64]) -> float:
+    """``np.median`` of a 1-D float array by selection (``np.partition`` on the middle
+    elements), the same value bit for bit: the middle element, or the mean of the two middle
+    ones; NaN if any value is NaN. Skips ``np.median``'s generic axis handling, which costs
+    more than the selection on the few hundred values of a keyframe."""
+    n = values.size
+    if n == 0:
+        return float("nan")
+    h = n // 2
+    part = np.partition(values, [h - 1, h, n - 1] if n % 2 == 0 else [h, n - 1])
+    if np.isnan(part[n - 1]):
+        return float("nan")
+    if n % 2:
+        return float(part[h])
+    return float((part[h - 1] + part[h]) / 2)
+
+
+def _positions_of(sorted_values: NDArray[np.float64], sub: NDArray[np.float64]) -> NDArray:
+    """Distinct positions in ``sorted_values`` holding the values of ``sub`` (sorted, a
+    sub-multiset of it): equal values take consecutive positions from the first of theirs."""
+    at = np.searchsorted(sorted_values, sub, side="left")
+    if sub.size > 1:
+        new_run = np.empty(sub.size, bool)
+        new_run[0] = True
+        np.not_equal(sub[1:], sub[:-1], out=new_run[1:])
+        if not new_run.all():  # repeated values: count up within each run
+            idx = np.arange(sub.size)
+            at += idx - np.maximum.accumulate(np.where(new_run, idx, 0))
+    return at
+
+
+class _ScaleBase:
+    """Arguments, validation and the clipped scale shared by the two implementations."""
 
     def __init__(
         self,
@@ -114,24 +143,36 @@ class ChiSquareScale:
     def observe(self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike) -> None:
         """One keyframe's innovations (m) and their predicted variances (m^2); updates
         :attr:`scale`."""
-        if self.window == 0:
-            return
+        raise NotImplementedError
+
+    def _normalised_squares(
+        self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike
+    ) -> NDArray[np.float64] | None:
         r = np.asarray(innovation_m, dtype=float).reshape(-1)
         v = np.asarray(predicted_var_m2, dtype=float).reshape(-1)
         if r.shape != v.shape:
             raise ValueError(f"innovations {r.shape} and variances {v.shape} differ in shape")
         ok = np.isfinite(r) & np.isfinite(v) & (v > 0)
         if not ok.any():
-            return
-        self._q.append(r[ok] ** 2 / v[ok])
-        if len(self._q) >= self.min_keyframes:
-            s2 = float(np.median(np.concatenate(self._q))) / CHI2_1_MEDIAN
-            self._scale = float(np.clip(np.sqrt(s2), *self.scale_range))
+            return None
+        return r[ok] ** 2 / v[ok]
+
+    def _set_scale(self, median_sq: float) -> None:
+        # as float(np.clip(np.sqrt(s2), lo, hi)): sqrt is exact-rounded in both; NaN stays
+        lo, hi = self.scale_range
+        self._scale = min(max(math.sqrt(median_sq / CHI2_1_MEDIAN), lo), hi)
 
 
-class MapConsistency:
-    """The pose and map scales of the clearance sigma from each keyframe tested against the
-    map before it joins it (see module docstring); arguments as :class:`ChiSquareScale`."""
+class ChiSquareScale(_ScaleBase):
+    """Running scale of one sigma term from normalised squares (see module docstring).
+    ``window``: keyframes whose values are kept (0 disables: the scale stays 1);
+    ``min_keyframes``: keyframes observed before the scale leaves 1; ``scale_range``: the
+    scale is clipped to it (a bound against a degenerate map).
+
+    The window's values are also kept in one sorted array, updated per keyframe (the new
+    keyframe's values merged in, the oldest keyframe's taken out), so the median is read at
+    the middle index: the same value as :class:`ChiSquareScaleReference`'s median of the
+    concatenated window (tests/test_safety_consistency.py)."""
 
     def __init__(
         self,
@@ -139,8 +180,82 @@ class MapConsistency:
         min_keyframes: int = 5,
         scale_range: tuple[float, float] = (0.25, 4.0),
     ) -> None:
-        self.pose = ChiSquareScale(window, min_keyframes, scale_range)
-        self.map = ChiSquareScale(window, min_keyframes, scale_range)
+        super().__init__(window, min_keyframes, scale_range)
+        self._sorted = np.zeros(0)
+
+    def observe(self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike) -> None:
+        """As :meth:`ChiSquareScaleReference.observe`, the median from the sorted window."""
+        if self.window == 0:
+            return
+        q = self._normalised_squares(innovation_m, predicted_var_m2)
+        if q is None:
+            return
+        q = np.sort(q)
+        srt = self._sorted
+        if len(self._q) == self._q.maxlen:  # the oldest keyframe leaves the window
+            keep = np.ones(srt.size, bool)
+            keep[_positions_of(srt, self._q[0])] = False
+            srt = srt[keep]
+        # merge: q's slots in the merged array, the kept values in the others
+        m = q.size
+        slot = np.searchsorted(srt, q)
+        slot += np.arange(m)
+        merged = np.empty(srt.size + m)
+        merged[slot] = q
+        rest = np.ones(merged.size, bool)
+        rest[slot] = False
+        merged[rest] = srt
+        self._sorted = merged
+        self._q.append(q)
+        if len(self._q) >= self.min_keyframes:
+            n = merged.size
+            h = n // 2
+            if math.isnan(merged[n - 1]):  # never: the values are squares over v > 0
+                med = math.nan
+            elif n % 2:
+                med = float(merged[h])
+            else:
+                med = float((merged[h - 1] + merged[h]) / 2)
+            self._set_scale(med)
+
+
+class ChiSquareScaleReference(_ScaleBase):
+    """:class:`ChiSquareScale` as first written: the window's values concatenated and their
+    ``np.median`` taken at every keyframe (the reference the sorted window is tested
+    against)."""
+
+    def observe(self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike) -> None:
+        """One keyframe's innovations (m) and their predicted variances (m^2); updates
+        :attr:`scale`."""
+        if self.window == 0:
+            return
+        q = self._normalised_squares(innovation_m, predicted_var_m2)
+        if q is None:
+            return
+        self._q.append(q)
+        if len(self._q) >= self.min_keyframes:
+            self._set_scale(float(np.median(np.concatenate(self._q))))
+
+
+class MapConsistency:
+    """The pose and map scales of the clearance sigma from each keyframe tested against the
+    map before it joins it (see module docstring); arguments as :class:`ChiSquareScale`;
+    ``reference``: the implementation as first written (:class:`ChiSquareScaleReference`,
+    ``np.median``), which the default (sorted window, :func:`median_selected`) equals."""
+
+    def __init__(
+        self,
+        window: int,
+        min_keyframes: int = 5,
+        scale_range: tuple[float, float] = (0.25, 4.0),
+        reference: bool = False,
+    ) -> None:
+        scale = ChiSquareScaleReference if reference else ChiSquareScale
+        self.pose: _ScaleBase = scale(window, min_keyframes, scale_range)
+        self.map: _ScaleBase = scale(window, min_keyframes, scale_range)
+        self._median: Callable[[NDArray[np.float64]], float] = (
+            (lambda a: float(np.median(a))) if reference else median_selected
+        )
 
     @property
     def pose_scale(self) -> float:
@@ -186,8 +301,9 @@ class MapConsistency:
         r = top[hit] - mapped.z_m[k]
         P = np.asarray(cov_position_m2, dtype=float)
         dP = np.array([P[0, 0], (P[0, 1] + P[1, 0]) / 2, P[1, 1]])[None] - bin_cov_rows(k)
-        offset = float(np.median(r))
-        mad_sd = 1.4826 * float(np.median(np.abs(r - offset)))  # per-bin scatter, m
-        v_offset = pose_scale * float(np.median(psd_abs_zz(dP))) + (1.2533 * mad_sd) ** 2 / r.size
+        median = self._median
+        offset = median(r)
+        mad_sd = 1.4826 * median(np.abs(r - offset))  # per-bin scatter, m
+        v_offset = pose_scale * median(psd_abs_zz(dP)) + (1.2533 * mad_sd) ** 2 / r.size
         self.pose.observe(np.array([offset]), np.array([v_offset]))
         self.map.observe(r - offset, mapped.sigma_m[k] ** 2)

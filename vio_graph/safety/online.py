@@ -233,7 +233,9 @@ class SafetyMonitor:
     (None: :func:`compiled_kernels`). ``incremental``: the map answers from the bins near the
     foot (:class:`IncrementalHeightMap`, True) or is the reference (:class:`OnlineHeightMap`,
     whole profile rebuilt per keyframe, False); None: incremental when compiled. The
-    compiled kernels need the incremental map. Same outputs in every combination."""
+    compiled kernels need the incremental map; the reference map comes with the reference
+    consistency test (:class:`MapConsistency` ``reference``). Same outputs in every
+    combination."""
 
     def __init__(
         self,
@@ -288,6 +290,7 @@ class SafetyMonitor:
             config.consistency_window_keyframes,
             config.consistency_min_keyframes,
             config.consistency_scale_range,
+            reference=not incremental,  # the reference map with the reference medians
         )
 
     def _track_swing(

@@ -16,11 +16,15 @@ from vio_graph.evaluation.safety import approached, near_trip_scores
 from vio_graph.outputs import write_frames_csv
 from vio_graph.replay import FrameLog
 from vio_graph.safety.clearance import (
+    Edges,
     HeightProfile,
     clearance_many,
     edge_clearance,
+    edge_clearance_rows,
     find_edges,
     foot_clearance,
+    next_edge_index,
+    next_edge_indices,
     placement_on_tread,
     predicted_min_clearance,
     predicted_min_edge_clearance,
@@ -75,6 +79,29 @@ def test_penetration_is_the_shortest_way_out() -> None:
     c = foot_clearance([0.53, 0.13], [0.79, 0.13], up)
     assert c.distance_m == pytest.approx(-np.hypot(0.01, 0.02))  # toe to (0.78, 0.15)
     np.testing.assert_allclose(c.terrain_xz_m, [0.78, 0.15])
+
+
+def test_edge_clearance_over_many_poses_is_the_per_pose_value_bit_for_bit() -> None:
+    # the offline truth (evaluation/safety.py) scores all poses at once: same numbers as
+    # the per-pose function, including an edge above the foot's line, a vertical foot and a
+    # zero-length foot
+    rng = np.random.default_rng(3)
+    heel = rng.uniform(-0.3, 0.3, (4000, 2))
+    toe = heel + rng.uniform(-0.3, 0.3, (4000, 2))
+    toe[:5, 0] = heel[:5, 0]
+    toe[5:10] = heel[5:10]
+    edge = rng.uniform(-0.3, 0.3, (4000, 2))
+    got = edge_clearance_rows(heel, toe, edge, 0.01)
+    want = [
+        edge_clearance(h, o, e, 0.01).distance_m for h, o, e in zip(heel, toe, edge, strict=True)
+    ]
+    assert (got < -0.01).any()  # the edge pokes through the foot on some poses
+    np.testing.assert_array_equal(got, want)
+    edges = Edges(np.array([[0.1, 0.0], [0.4, 0.1], [0.7, 0.2]]), np.full(3, 0.1))
+    x = np.array([-1.0, 0.1, 0.1 + 1e-12, 0.5, 0.7, 0.9])
+    np.testing.assert_array_equal(next_edge_indices(edges, x), [0, 1, 1, 2, -1, -1])
+    assert next_edge_indices(edges, x).tolist() == [next_edge_index(edges, v) for v in x]
+    assert next_edge_indices(Edges(np.zeros((0, 2)), np.zeros(0)), x).tolist() == [-1] * 6
 
 
 def test_edges_and_placement_on_a_stair() -> None:

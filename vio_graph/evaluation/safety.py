@@ -40,9 +40,9 @@ from vio_graph.safety.clearance import (
     Edges,
     HeightProfile,
     Placement,
-    edge_clearance,
+    edge_clearance_rows,
     foot_clearance,
-    next_edge_index,
+    next_edge_indices,
     placement_on_tread,
 )
 from vio_graph.safety.config import SafetyConfig
@@ -72,31 +72,22 @@ def true_safety(
     edges = np.asarray(sorted(terrain.edges_xz_m), float).reshape(-1, 2)
     ed = Edges(edges, np.zeros(len(edges)))
     n = len(t)
-    clear, nosing = np.full(n, np.nan), np.full(n, np.nan)
+    clear = np.full(n, np.nan)
     placement = np.full((n, 4), np.nan)
     w = config.window_m
-    for k in range(n):
+    for k in range(n):  # the foot against the terrain near it: per frame (few frames)
         h, o = heel[k], toe[k]
         win = prof.window(min(h[0], o[0]) - w, max(h[0], o[0]) + w)
         clear[k] = foot_clearance(h, o, win, config.sole_thickness_m).distance_m
-        e = next_edge_index(ed, float(o[0]) - config.toe_pass_m)
-        if e >= 0:
-            nosing[k] = edge_clearance(h, o, edges[e], config.sole_thickness_m).distance_m
         if landing[k]:
             placement[k] = placement_on_tread(
                 h, o, win, config.tread_tolerance_m, config.edge_max_gap_m, config.edge_min_rise_m
             ).as_array()
+    nosing = _nosing_clearance(heel, toe, ed, config)[1]
     # near-trips on a dense time grid: the minimum over a nosing falls between frames
     td = np.arange(t[0], t[-1], TRUTH_STEP_S) if n > 1 else t.copy()
     heel_d, toe_d = gt.trajectories["heel"].xz_at(td), gt.trajectories["toe"].xz_at(td)
-    nos_d = np.full(len(td), np.nan)
-    edge_d = np.full(len(td), -1, np.int64)  # index of the next edge per sample
-    for k in range(len(td)):
-        e = edge_d[k] = next_edge_index(ed, float(toe_d[k, 0]) - config.toe_pass_m)
-        if e >= 0:
-            nos_d[k] = edge_clearance(
-                heel_d[k], toe_d[k], edges[e], config.sole_thickness_m
-            ).distance_m
+    edge_d, nos_d = _nosing_clearance(heel_d, toe_d, ed, config)
     dt = 0.01
     toe_traj = gt.trajectories["toe"]
     v_toe = (toe_traj.xz_at(td + dt) - toe_traj.xz_at(td - dt)) / (2 * dt)
@@ -112,6 +103,23 @@ def true_safety(
         "near_trip": near,
         "nosing_dense_m": nos_d,
     }
+
+
+def _nosing_clearance(
+    heel_xz_m: NDArray[np.float64],
+    toe_xz_m: NDArray[np.float64],
+    edges: Edges,
+    config: SafetyConfig,
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Per foot pose (heel, toe (T, 2)): the index of the next edge ahead of the toe (-1:
+    none) and the clearance to it (m, NaN without one), all poses at once."""
+    e = next_edge_indices(edges, toe_xz_m[:, 0] - config.toe_pass_m)
+    out = np.full(len(e), np.nan)
+    has = e >= 0
+    out[has] = edge_clearance_rows(
+        heel_xz_m[has], toe_xz_m[has], edges.xz_m[e[has]], config.sole_thickness_m
+    )
+    return e, out
 
 
 def approached(

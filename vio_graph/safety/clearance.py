@@ -322,6 +322,15 @@ def next_edge_index(edges: Edges, x_m: float) -> int:
     return k if k < len(edges) else -1
 
 
+def next_edge_indices(edges: Edges, x_m: ArrayLike) -> NDArray[np.int64]:
+    """:func:`next_edge_index` for many x (m) at once -> (N,) indices, -1 where none."""
+    x = np.asarray(x_m, dtype=float)
+    if len(edges) == 0:
+        return np.full(x.shape, -1, np.int64)
+    k = np.searchsorted(edges.xz_m[:, 0], x, side="right").astype(np.int64)
+    return np.where(k < len(edges), k, -1)
+
+
 @dataclass(frozen=True)
 class Placement:
     """Where the foot stands on its tread: x distances (m) of heel and toe to the tread's
@@ -530,6 +539,36 @@ def edge_clearance_many(
         [_edge_distance(a[k, 0], a[k, 1], b[k, 0], b[k, 1], ex, ez)[0] for k in range(len(a))]
     )
     return out - sole_thickness_m
+
+
+def edge_clearance_rows(
+    heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, edge_xz_m: ArrayLike, sole_thickness_m: float = 0.0
+) -> NDArray[np.float64]:
+    """:func:`edge_clearance`'s distance for T foot poses (heel, toe (T, 2)), each against its
+    own edge point (T, 2) -> (T,) m; the same numbers bit for bit (offline evaluation over a
+    whole trial at once). Squares and roots go through ``np.power`` with an array exponent:
+    that is the C library's ``pow``, as Python's ``**`` on floats in :func:`_edge_distance`;
+    numpy's ``x ** 2`` / ``np.sqrt`` round differently in the last bit on a few inputs."""
+    a = np.asarray(heel_xz_m, dtype=float).reshape(-1, 2)
+    b = np.asarray(toe_xz_m, dtype=float).reshape(-1, 2)
+    e = np.asarray(edge_xz_m, dtype=float).reshape(-1, 2)
+    ax, az, bx, bz, ex, ez = a[:, 0], a[:, 1], b[:, 0], b[:, 1], e[:, 0], e[:, 1]
+    two, half = np.full(len(a), 2.0), np.full(len(a), 0.5)
+    dx, dz = bx - ax, bz - az
+    L2 = dx * dx + dz * dz
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(
+            L2 == 0,
+            0.0,
+            np.minimum(np.maximum(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0),
+        )
+        qx, qz = ax + s * dx, az + s * dz
+        d = np.power(np.power(ex - qx, two) + np.power(ez - qz, two), half)
+        lo, hi = np.minimum(ax, bx), np.maximum(ax, bx)
+        z_line = az + (ex - ax) * dz / dx
+        above = (np.abs(dx) > 1e-12) & (lo < ex) & (ex < hi) & (ez > z_line)
+        depth = np.minimum(np.minimum(ez - z_line, ex - lo), hi - ex)
+    return np.where(above, -depth, d) - sole_thickness_m
 
 
 def clearance_many(

@@ -11,6 +11,7 @@ copy of ``data/`` and ``configs/`` with the installed ``vio-graph`` script.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import shlex
@@ -164,6 +165,26 @@ def _cheap(command: str) -> bool:
     return False
 
 
+def _assert_same_table(new: Path, committed: Path) -> None:
+    """The same text table (CSV or TUM) up to float rounding: the simulator's numbers move in
+    the ninth digit between numpy / scipy releases (IMU samples by ~1e-8 on a fresh install of
+    2026-12), so numbers are compared to 1e-6 relative and the rest as text."""
+    new_lines, old_lines = new.read_text().splitlines(), committed.read_text().splitlines()
+    assert len(new_lines) == len(old_lines), f"{committed.name}: line count"
+    for k, (ln_new, ln_old) in enumerate(zip(new_lines, old_lines, strict=True)):
+        t_new, t_old = ln_new.replace(",", " ").split(), ln_old.replace(",", " ").split()
+        assert len(t_new) == len(t_old), f"{committed.name} line {k + 1}"
+        for u, v in zip(t_new, t_old, strict=True):
+            try:
+                fu, fv = float(u), float(v)
+            except ValueError:
+                assert u == v, f"{committed.name} line {k + 1}: {u!r} != {v!r}"
+                continue
+            assert math.isclose(fu, fv, rel_tol=1e-6, abs_tol=1e-9), (
+                f"{committed.name} line {k + 1}: {u} != {v}"
+            )
+
+
 @pytest.mark.slow
 def test_cheap_commands_run_as_written(tmp_path: Path) -> None:
     for folder in ("data", "configs"):
@@ -202,5 +223,5 @@ def test_cheap_commands_run_as_written(tmp_path: Path) -> None:
             diff = np.abs(new_mm - old_mm)
             assert diff.max() <= 1 and np.count_nonzero(diff) <= 1e-4 * diff.size, name
         else:
-            assert a.read_text() == b.read_text(), name
+            _assert_same_table(a, b)
     assert (tmp_path / "results" / "sample" / "metrics.json").is_file()

@@ -177,3 +177,29 @@ def true_leg_paths(rec: Any, t: Any) -> dict[str, Any]:
     """The simulator's true camera, heel and toe (x-z, metres) at the times ``t`` (s)."""
     gt = rec.groundtruth.trajectories
     return {b: gt[b].xz_at(t) for b in ("camera", "heel", "toe")}
+
+
+def measure_process(args: list[str]) -> dict[str, float]:
+    """Run ``args`` as a single-threaded child process (BLAS / OpenMP threads = 1); its wall
+    (s), user + system CPU (s) and peak resident memory (MiB), from ``os.wait4``.
+
+    Raises:
+        RuntimeError: the process exited with a non-zero code (its stderr's end included).
+    """
+    import subprocess
+    import time
+
+    env = dict(os.environ, **{v: "1" for v in THREAD_VARIABLES})
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+    code = os.waitstatus_to_exitcode(status)
+    if code != 0:
+        raise RuntimeError(f"{' '.join(args)} failed ({code}):\n{err[-2000:]}")
+    return {
+        "wall_s": wall,
+        "cpu_s": usage.ru_utime + usage.ru_stime,
+        "peak_rss_mib": usage.ru_maxrss / 1024.0,
+    }

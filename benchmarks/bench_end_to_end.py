@@ -94,17 +94,7 @@ def recording() -> Path:
     return rec
 
 
-def _measure(args: list[str]) -> dict[str, float]:
-    """Run ``args`` as a child process: its wall and user + system CPU seconds."""
-    env = dict(os.environ, **{v: "1" for v in _common.THREAD_VARIABLES})
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
-    if os.waitstatus_to_exitcode(status) != 0:
-        raise RuntimeError(f"{' '.join(args)} failed:\n{err[-2000:]}")
-    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime}
+_measure = _common.measure_process
 
 
 def _run_args(rec: Path, out: Path, flags: list[str]) -> list[str]:

@@ -31,9 +31,7 @@ import json
 import math
 import os
 import shutil
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import _common  # noqa: I001 - first: pins thread pools before numpy is imported
@@ -49,22 +47,7 @@ AIM_BATCH_S = 60.0
 STARTUP_RUNS = 5
 
 
-def _measure(args: list[str]) -> dict:
-    """Run ``args`` as a child process; its wall (s), CPU (s) and peak RSS (MiB)."""
-    env = dict(os.environ, **{v: "1" for v in _common.THREAD_VARIABLES})
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(args)} failed ({proc.returncode}):\n{err[-2000:]}")
-    return {
-        "wall_s": wall,
-        "cpu_s": usage.ru_utime + usage.ru_stime,
-        "peak_rss_mib": usage.ru_maxrss / 1024.0,
-    }
+_measure = _common.measure_process
 
 
 def _scenario(duration_s: float, folder: Path) -> Path:

@@ -20,6 +20,7 @@ from vio_graph.safety.clearance import (
     HeightProfile,
     clearance_many,
     edge_clearance,
+    edge_clearance_many,
     edge_clearance_rows,
     find_edges,
     foot_clearance,
@@ -97,6 +98,10 @@ def test_edge_clearance_over_many_poses_is_the_per_pose_value_bit_for_bit() -> N
     ]
     assert (got < -0.01).any()  # the edge pokes through the foot on some poses
     np.testing.assert_array_equal(got, want)
+    # one edge for every pose (the online prediction's case)
+    one = [edge_clearance(h, o, edge[0], 0.01).distance_m for h, o in zip(heel, toe, strict=True)]
+    np.testing.assert_array_equal(edge_clearance_many(heel, toe, edge[0], 0.01), one)
+    assert edge_clearance_many(heel[:0], toe[:0], edge[0]).shape == (0,)
     edges = Edges(np.array([[0.1, 0.0], [0.4, 0.1], [0.7, 0.2]]), np.full(3, 0.1))
     x = np.array([-1.0, 0.1, 0.1 + 1e-12, 0.5, 0.7, 0.9])
     np.testing.assert_array_equal(next_edge_indices(edges, x), [0, 1, 1, 2, -1, -1])

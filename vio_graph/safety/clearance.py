@@ -531,14 +531,11 @@ def predicted_min_edge_clearance(
 def edge_clearance_many(
     heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, edge_xz_m: ArrayLike, sole_thickness_m: float = 0.0
 ) -> NDArray[np.float64]:
-    """:func:`edge_clearance`'s distance for T foot poses (heel, toe (T, 2)) -> (T,) m."""
+    """:func:`edge_clearance`'s distance for T foot poses (heel, toe (T, 2)) to one edge
+    point (2,) -> (T,) m: :func:`edge_clearance_rows` with that edge on every row."""
     a = np.asarray(heel_xz_m, dtype=float).reshape(-1, 2)
-    b = np.asarray(toe_xz_m, dtype=float).reshape(-1, 2)
-    ex, ez = (float(v) for v in np.asarray(edge_xz_m, dtype=float))
-    out = np.array(
-        [_edge_distance(a[k, 0], a[k, 1], b[k, 0], b[k, 1], ex, ez)[0] for k in range(len(a))]
-    )
-    return out - sole_thickness_m
+    e = np.broadcast_to(np.asarray(edge_xz_m, dtype=float).reshape(2), a.shape)
+    return edge_clearance_rows(a, toe_xz_m, e, sole_thickness_m)
 
 
 def edge_clearance_rows(

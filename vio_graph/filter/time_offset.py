@@ -285,12 +285,7 @@ class TimeOffsetEstimator:
         a00, a01, a10, a11 = p00 - k0 * hp0, p01 - k0 * hp1, p10 - k1 * hp0, p11 - k1 * hp1
         off = 0.5 * (a01 + a10)
         self.P = np.array([[a00, off], [off, a11]])  # symmetrised, as 0.5 (P + P^T)
-        self.n_updates += 1
-        if self.config.estimate:
-            if not self._latched and abs(self.td_s) > self.config.apply_sigmas * self.sigma_s:
-                self._latched = True
-            if self._latched:
-                self.applied_s = self.td_s
+        self._accepted()
         return True
 
     def update_reference(
@@ -317,13 +312,18 @@ class TimeOffsetEstimator:
         self.x = self.x + K * y
         self.P = self.P - np.outer(K, H @ self.P)
         self.P = 0.5 * (self.P + self.P.T)
+        self._accepted()
+        return True
+
+    def _accepted(self) -> None:
+        """Count an accepted update; td is applied once it is ``apply_sigmas`` from zero and
+        stays applied (latched), following the estimate from then on."""
         self.n_updates += 1
         if self.config.estimate:
             if not self._latched and abs(self.td_s) > self.config.apply_sigmas * self.sigma_s:
                 self._latched = True
             if self._latched:
                 self.applied_s = self.td_s
-        return True
 
     @property
     def latched(self) -> bool:

@@ -52,6 +52,7 @@ Per frame, in the paper's order (Section II):
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -916,9 +917,30 @@ class OnlineEstimator:
                 found.append((key, line))
         self._levels.forget(t, taken, self.filter)
         floor = self.config.filter.measurement_noise_floor_m
-        for key, line in found:
+        for key, _ in found:
             self._levels.saw(key, t)
-            self.filter.update_height_landmark(key, line.height_m, line.sigma_m**2 + floor**2, t)
+        if not self.config.filter.level_shared_tilt:
+            for key, line in found:
+                self.filter.update_height_landmark(
+                    key, line.height_m, line.sigma_m**2 + floor**2, t
+                )
+            return
+        if not found:
+            return
+        # the slope error the heights share (the fit's sigma as a slope, and the tilt floor
+        # the pitch aiding gives the same measurement), and each line's own noise
+        assert self.surface_tilt is not None  # lines come from it
+        st = self.surface_tilt
+        slope_sigma = st.sigma_rad * (1.0 + math.tan(st.tilt_rad) ** 2)
+        tilt_floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
+        self.filter.update_height_landmarks(
+            [key for key, _ in found],
+            [line.height_m for _, line in found],
+            [line.noise_sigma_m**2 + floor**2 for _, line in found],
+            [line.x_mid_m for _, line in found],
+            slope_sigma**2 + tilt_floor**2,
+            t,
+        )
 
     def _stance_lever(self, R_world_imu: NDArray[np.float64]):
         """ankle - camera through the shank (m, ground axes): R_shank (ankle_in_shank -

@@ -86,6 +86,8 @@ from vio_graph.types import Displacement2D, EstimateStatus, ImuSample, LandmarkK
 ERROR_STATE_DIM = 8
 _CLONE_TOL_S = 1e-3  # a displacement's t0 must match the clone time to 1 ms
 _CLONE = "clone"  # key of the stochastic clone among the augmented blocks (else LandmarkKey)
+#: key of the slice's tilt error while one frame's level surfaces are fused (never propagated)
+_TILT = "tilt"
 _I2 = np.eye(2)
 #: variance (m^2) of a height landmark's x: a copy of the camera x that nothing observes
 _FREE_X_VAR_M2 = 1.0
@@ -725,6 +727,82 @@ class SagittalEskf:
             self._record_correction(t)
         return accepted
 
+    def update_height_landmarks(
+        self,
+        keys: list[LandmarkKey],
+        rel_z_m: list[float],
+        var_m2: list[float],
+        lever_m: list[float],
+        tilt_var_rad2: float,
+        timestamp_s: float | None = None,
+    ) -> list[bool]:
+        """Fuse the level surfaces of one slice together: :meth:`update_height_landmark` per
+        surface, with the error the surfaces share. Each height was levelled by the slice's
+        common tilt, so a tilt error tau (variance ``tilt_var_rad2``, rad^2) moves surface j's
+        height by ``lever_m[j]`` x tau (its mean x from the camera, m) - the same tau for every
+        surface of the slice. Fused one by one as independent heights (``var_m2`` holding the
+        tilt term), a far surface and a near one would each count that error as new
+        information. Here tau is a state for the length of the frame: augmented with its
+        prior (independent of the rest), each surface is the scalar measurement
+        rel_z_j = L_j - p_z(t) + lever_j tau + n_j (n_j ~ ``var_m2[j]``, the surface's own noise),
+        gated alone (1 dof) as before; a first sight augments L_j = p_z(t) + rel_z_j -
+        lever_j tau, correlated with tau; tau is marginalised after the last surface. Exact
+        for the joint Gaussian (the same as one update with the covariance diag(var) +
+        tilt_var lever lever^T for the surfaces that pass their gates). Returns per surface
+        whether it was fused (False: first sight, gated out, or stale)."""
+        n = len(keys)
+        if not (len(rel_z_m) == len(var_m2) == len(lever_m) == n):
+            raise EstimationError("height landmarks: keys, heights, variances, levers differ")
+        timing = self._measurement_time(timestamp_s)
+        if timing is None:
+            return [False] * n
+        t, dt = timing
+        tilt_var = float(tilt_var_rad2)
+        if not (math.isfinite(tilt_var) and tilt_var >= 0.0):
+            raise EstimationError("the tilt variance must be finite and >= 0")
+        for z, v, lv in zip(rel_z_m, var_m2, lever_m, strict=True):
+            if not (math.isfinite(z) and math.isfinite(v) and v > 0.0 and math.isfinite(lv)):
+                raise EstimationError("height landmark needs a finite height and variance > 0")
+        # tau: a block (tau, unused) with no correlation to the state
+        m = self._P.shape[0]
+        P = np.zeros((m + 2, m + 2))
+        P[:m, :m] = self._P
+        P[m, m] = tilt_var
+        P[m + 1, m + 1] = _FREE_X_VAR_M2
+        self._P = P
+        self._aug_keys.append(_TILT)
+        self._aug_xz[_TILT] = np.zeros(2)
+        out = []
+        try:
+            for key, z, v, lv in zip(keys, rel_z_m, var_m2, lever_m, strict=True):
+                it = self._aug_index(_TILT)
+                tau = float(self._aug_xz[_TILT][0])
+                if key not in self._aug_xz:
+                    size = self._P.shape[0]
+                    J = np.zeros((2, size))
+                    J[0, 0], J[0, 2] = 1.0, dt
+                    J[1, 1], J[1, 3], J[1, it] = 1.0, dt, -float(lv)
+                    value = self._position_ahead(dt) + np.array([0.0, float(z) - float(lv) * tau])
+                    self._augment_rows(key, value, J, np.diag([_FREE_X_VAR_M2, float(v)]))
+                    out.append(False)
+                    continue
+                i = self._aug_index(key)
+                H = np.zeros((1, self._P.shape[0]))
+                H[0, 1] = -1.0
+                H[0, 3] = -dt
+                H[0, i + 1] = 1.0
+                H[0, it] = float(lv)
+                predicted = self._aug_xz[key][1] - self._position_ahead(dt)[1] + float(lv) * tau
+                innovation = np.array([float(z) - predicted])
+                ok = self._correct(innovation, H, np.array([[float(v)]]), True, True, dof=1)
+                if ok:
+                    self._last_accept_s = max(self._last_accept_s, t)
+                    self._record_correction(t)
+                out.append(ok)
+        finally:
+            self._marginalise(_TILT)
+        return out
+
     def update_velocity(
         self,
         v_xz_mps: ArrayLike,
@@ -765,18 +843,18 @@ class SagittalEskf:
 
     def drop_landmark(self, key: LandmarkKey) -> None:
         """Forget landmark ``key`` (marginalise it out of the state); no-op if unknown."""
-        if key == _CLONE:
-            raise EstimationError("the clone is not a landmark")
+        if key in (_CLONE, _TILT):
+            raise EstimationError(f"{key!r} is not a landmark")
         self._marginalise(key)
 
     @property
     def landmark_keys(self) -> tuple[LandmarkKey, ...]:
         """Keys of the landmarks currently in the state."""
-        return tuple(k for k in self._aug_keys if k != _CLONE)  # type: ignore[misc]
+        return tuple(k for k in self._aug_keys if k not in (_CLONE, _TILT))  # type: ignore[misc]
 
     def landmark_xz(self, key: LandmarkKey) -> NDArray[np.float64]:
         """Current estimate (m) of landmark ``key``."""
-        if key == _CLONE or key not in self._aug_xz:
+        if key in (_CLONE, _TILT) or key not in self._aug_xz:
             raise EstimationError(f"unknown landmark {key!r}")
         return self._aug_xz[key].copy()
 
@@ -990,6 +1068,29 @@ class SagittalEskf:
         Q[m:, :m] = A
         Q[:m, m:] = A.T
         B = A[:, 0:2] + dt_s * A[:, 2:4] + extra_cov
+        Q[m:, m:] = 0.5 * (B + B.T)
+        self._P = Q
+        self._aug_keys.append(key)
+        self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+
+    def _augment_rows(
+        self,
+        key: LandmarkKey | str,
+        value_xz: NDArray[np.float64],
+        J: NDArray[np.float64],
+        extra_cov: NDArray,
+    ) -> None:
+        """Append a static block whose error is J dx + e (J: 2 x n over the current error
+        state, e ~ extra_cov independent of it): rows J P, block J P J^T + extra."""
+        P = self._P
+        P = 0.5 * (P + P.T)
+        m = P.shape[0]
+        A = J @ P
+        Q = np.empty((m + 2, m + 2))
+        Q[:m, :m] = P
+        Q[m:, :m] = A
+        Q[:m, m:] = A.T
+        B = A @ J.T + extra_cov
         Q[m:, m:] = 0.5 * (B + B.T)
         self._P = Q
         self._aug_keys.append(key)

@@ -58,12 +58,17 @@ class LevelLine:
     relative to the camera (m, ground z, the slice levelled by the common tilt about the
     camera) with its sigma (m: the line's own residual noise over its points, correlated
     points counted as fewer, and the tilt's uncertainty at the line's distance), and its x
-    extent relative to the camera (m)."""
+    extent relative to the camera (m). ``x_mid_m`` is the mean x of its points (the lever of
+    the common tilt: a tilt error tau moves this height by x_mid_m * tau, the same tau for
+    every line of the slice) and ``noise_sigma_m`` the part of ``sigma_m`` that is the line's
+    own (residual noise only, without the tilt)."""
 
     height_m: float
     sigma_m: float
     x_min_m: float
     x_max_m: float
+    x_mid_m: float = 0.0
+    noise_sigma_m: float = 0.0
 
 
 def _best_line(
@@ -226,10 +231,15 @@ def measure_surface_tilt(
     extent = 0.0
     for (xs, zs), var_k in zip(line_xz, variances, strict=True):
         x_mid = _mean(xs)
-        var_h = correlated_points * var_k / xs.shape[0] + (x_mid * sigma_slope) ** 2
+        var_own = correlated_points * var_k / xs.shape[0]
+        var_h = var_own + (x_mid * sigma_slope) ** 2
         x_lo, x_hi = float(_min_reduce(xs)), float(_max_reduce(xs))
         extent += x_hi - x_lo
-        levels.append(LevelLine(_mean(zs - s * xs), math.sqrt(var_h), x_lo, x_hi))
+        levels.append(
+            LevelLine(
+                _mean(zs - s * xs), math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own)
+            )
+        )
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),
         sigma_rad=sigma_slope / (1.0 + s * s),

@@ -23,7 +23,12 @@ import vio_graph
 from vio_graph.config import PipelineConfig, dump_config
 from vio_graph.errors import OutputError
 from vio_graph.estimator import RigGeometry
-from vio_graph.evaluation.diagnostics import displacement_nees, stance_scores, true_stance
+from vio_graph.evaluation.diagnostics import (
+    displacement_nees,
+    position_nees,
+    stance_scores,
+    true_stance,
+)
 from vio_graph.evaluation.run_metrics import (
     evaluate_paths,
     shank_pitch_error_deg,
@@ -284,6 +289,12 @@ def _evaluate(
         metrics["frontend"]["displacement_nees"] = displacement_nees(
             lg.displacements, gt.trajectories["camera"], config.filter.measurement_noise_floor_m
         )
+        if "filter" in lg.camera_xz and len(lg.cov_position_m2) == len(t_s):
+            metrics["filter"]["position_nees"] = position_nees(
+                lg.camera_xz["filter"],
+                np.asarray(lg.cov_position_m2),
+                gt.trajectories["camera"].xz_at(t_s),
+            )
     return metrics
 
 

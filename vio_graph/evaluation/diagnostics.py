@@ -1,7 +1,8 @@
 """Evaluation of the estimator's internal decisions against ground truth.
 
 Pure functions on arrays (no I/O): stance detection against the true ankle motion, and the
-consistency (NEES) of the visual displacements the front end produced.
+consistency (NEES) of the visual displacements the front end produced and of the filter's own
+position covariance.
 """
 
 from __future__ import annotations
@@ -64,3 +65,34 @@ def displacement_nees(
         "within_95": float(np.mean(nees < chi2_2dof_quantile(0.95))),
         "error_p95_cm": float(100 * np.percentile(np.hypot(err[:, 0], err[:, 1]), 95)),
     }
+
+
+def position_nees(
+    est_xz_m: NDArray[np.float64],
+    cov_m2: NDArray[np.float64],
+    true_xz_m: NDArray[np.float64],
+) -> dict[str, dict[str, float]]:
+    """Consistency of the filter's position covariance per axis (x, z): the error (both
+    paths anchored at their first pose, as the ATE) squared over the filter's variance, per
+    frame. A consistent filter has a mean of 1 and 0.68 / 0.95 of the frames within 1 / 2
+    sigma; above 1 it is overconfident. ``est_xz_m``, ``true_xz_m`` (N, 2) m, ``cov_m2``
+    (N, 2, 2) m^2; frames with a zero variance are left out."""
+    est = np.asarray(est_xz_m, dtype=float)
+    true = np.asarray(true_xz_m, dtype=float)
+    var = np.asarray(cov_m2, dtype=float).reshape(-1, 2, 2)[:, [0, 1], [0, 1]]
+    err = (est - est[:1]) - (true - true[:1])
+    out = {}
+    for j, axis in enumerate("xz"):
+        ok = var[:, j] > 0
+        nees = err[ok, j] ** 2 / var[ok, j]
+        if nees.size == 0:
+            nan = float("nan")
+            out[axis] = {"n": 0, "mean": nan, "within_1sigma": nan, "within_2sigma": nan}
+            continue
+        out[axis] = {
+            "n": int(nees.size),
+            "mean": float(np.mean(nees)),
+            "within_1sigma": float(np.mean(nees <= 1.0)),
+            "within_2sigma": float(np.mean(nees <= 4.0)),
+        }
+    return out

@@ -236,9 +236,7 @@ def measure_surface_tilt(
         x_lo, x_hi = float(_min_reduce(xs)), float(_max_reduce(xs))
         extent += x_hi - x_lo
         levels.append(
-            LevelLine(
-                _mean(zs - s * xs), math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own)
-            )
+            LevelLine(_mean(zs - s * xs), math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own))
         )
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),

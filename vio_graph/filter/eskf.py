@@ -208,6 +208,12 @@ class SagittalEskf:
         # array instead of _prev / _prev_xa / _accel_w_mps2
         self._kernels = imu_kernels()
         self._mem = None if self._kernels is None else self._kernels.new_memory()
+        # compiled measurement updates (filter/compiled_update.py), with the propagation
+        self._update_kernels = None
+        if self._kernels is not None:
+            from vio_graph.filter import compiled_update
+
+            self._update_kernels = compiled_update
 
     # ------------------------------------------------------------------ set-up
     def initialise(
@@ -591,6 +597,11 @@ class SagittalEskf:
             P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
         V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
         V = V + self.config.measurement_noise_floor_m**2 * _I2
+        if self._update_kernels is not None:
+            d2 = self._update_kernels.gate_d2(P, H, V, y)
+            if math.isnan(d2):
+                raise EstimationError("singular innovation covariance")
+            return d2
         return mahalanobis2_2d(H @ P @ H.T + V, y)
 
     def displacement_d2_reference(
@@ -854,6 +865,8 @@ class SagittalEskf:
         m = H.shape[0]
         if m > 2:
             return self._correct_reference(innovation, H, V, gate, landmark, dof)
+        if self._update_kernels is not None:
+            return self._correct_compiled(innovation, H, V, gate, landmark, dof)
         P = self._P
         HP = H @ P
         S = HP @ H.T + V
@@ -886,6 +899,44 @@ class SagittalEskf:
         dx = K @ innovation
         P = P - K @ HP
         self._P = 0.5 * (P + P.T)
+        self._inject(dx)
+        if landmark:
+            self._n_lm_acc += 1
+        else:
+            self._n_acc += 1
+        return True
+
+    def _correct_compiled(
+        self,
+        innovation: NDArray,
+        H: NDArray,
+        V: NDArray,
+        gate: bool,
+        landmark: bool,
+        dof: int,
+    ) -> bool:
+        """:meth:`_correct` in one compiled call (``compiled_update.correct``: the same
+        formulas, products summed in index order; equal to rounding)."""
+        k = self._update_kernels
+        assert k is not None
+        gate_d2 = self._gate_d2 if dof == 2 else self._gate_d2_1dof
+        status, _, P, dx = k.correct(
+            self._P,
+            np.ascontiguousarray(H, dtype=float),
+            np.ascontiguousarray(V, dtype=float),
+            np.ascontiguousarray(innovation, dtype=float),
+            bool(gate),
+            float(gate_d2),
+        )
+        if status == k.SINGULAR:
+            raise EstimationError("singular innovation covariance")
+        if status == k.GATED:
+            if landmark:
+                self._n_lm_rej += 1
+            else:
+                self._n_rej += 1
+            return False
+        self._P = P
         self._inject(dx)
         if landmark:
             self._n_lm_acc += 1

@@ -864,6 +864,47 @@ def corner(
 
 
 @numba.njit(cache=True)
+def _band_counts(za, band):  # pragma: no cover - compiled
+    """np.searchsorted(za, za + band, "right") - np.searchsorted(za, za - band, "left") on
+    sorted ``za`` with two pointers that only move forward (the keys rise with i): the same
+    comparisons against the same keys, O(n) instead of O(n log n)."""
+    m = za.size
+    counts = np.empty(m, np.int64)
+    lo = 0
+    hi = 0
+    for i in range(m):
+        key_lo = za[i] - band
+        key_hi = za[i] + band
+        while lo < m and za[lo] < key_lo:
+            lo += 1
+        while hi < m and not za[hi] > key_hi:
+            hi += 1
+        counts[i] = hi - lo
+    return counts
+
+
+@numba.njit(cache=True)
+def _descending_stable(counts):  # pragma: no cover - compiled
+    """np.argsort(-counts, kind="stable") for counts in 0..n: a counting sort (largest count
+    first, equal counts in index order), O(n)."""
+    m = counts.size
+    top = 0
+    for i in range(m):
+        top = max(top, counts[i])
+    start = np.zeros(top + 2, np.int64)  # start[top - c]: first slot of count c
+    for i in range(m):
+        start[top - counts[i] + 1] += 1
+    for c in range(1, top + 2):
+        start[c] += start[c - 1]
+    order = np.empty(m, np.int64)
+    for i in range(m):
+        k = top - counts[i]
+        order[start[k]] = i
+        start[k] += 1
+    return order
+
+
+@numba.njit(cache=True)
 def find_levels(z, x, band, max_levels, min_points, gap_m, min_length_m):  # pragma: no cover
     """``terrain.find_levels_reference`` on the profile sorted by height (``z`` ascending, ``x``
     in the same order): the same bands in the same order (a stable sort of the counts), the
@@ -882,8 +923,8 @@ def find_levels(z, x, band, max_levels, min_points, gap_m, min_length_m):  # pra
             break
         za = z[idx_alive]  # still sorted by z
         xa = x[idx_alive]
-        counts = np.searchsorted(za, za + band, side="right") - np.searchsorted(za, za - band)
-        order = np.argsort(-counts, kind="mergesort")  # stable, as the reference's
+        counts = _band_counts(za, band)
+        order = _descending_stable(counts)
         found = False
         n_tried = 0
         for q in range(m):

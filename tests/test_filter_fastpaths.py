@@ -188,3 +188,27 @@ def test_state_accessors_equal_the_snapshot() -> None:
     assert [f.variance(i) for i in range(8)] == np.diag(state.P).tolist()
     with pytest.raises(EstimationError, match="index"):
         f.variance(8)
+
+
+def test_compiled_augment_and_marginalise_equal_the_numpy_blocks() -> None:
+    """The compiled augmentation covariance and block removal (filter/compiled_update.py)
+    equal _augment's block-wise numpy formulation and _marginalise's take, bit for bit."""
+    from vio_graph.filter import compiled_update
+
+    rng = np.random.default_rng(17)
+    for _ in range(300):
+        m = 8 + 2 * int(rng.integers(0, 8))
+        A = rng.normal(size=(m, m))
+        P = A @ A.T + 1e-9 * rng.normal(size=(m, m))  # symmetric to rounding only
+        dt = float(rng.uniform(-0.01, 0.01))
+        extra = rng.normal(size=(2, 2)) * 1e-4
+        Ps = 0.5 * (P + P.T)
+        rows = Ps[0:2] + dt * Ps[2:4]
+        want = np.empty((m + 2, m + 2))
+        want[:m, :m], want[m:, :m], want[:m, m:] = Ps, rows, rows.T
+        B = rows[:, 0:2] + dt * rows[:, 2:4] + extra
+        want[m:, m:] = 0.5 * (B + B.T)
+        assert np.array_equal(compiled_update.augmented(P, dt, extra), want)
+        i = 8 + 2 * int(rng.integers(0, (m - 8) // 2)) if m > 8 else 0
+        keep = np.concatenate((np.arange(i), np.arange(i + 2, m)))
+        assert np.array_equal(compiled_update.without_block(P, i), P.take(keep, 0).take(keep, 1))

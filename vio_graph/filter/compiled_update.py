@@ -139,3 +139,42 @@ def gate_d2(P, H, V, y):  # pragma: no cover - compiled
         return np.nan
     y0, y1 = y[0], y[1]
     return (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s01 * y0)) / det
+
+
+@numba.njit(cache=True)
+def without_block(P, i):  # pragma: no cover - compiled
+    """P without rows and columns i, i + 1 (``SagittalEskf._marginalise``'s take): a copy,
+    the same values."""
+    n = P.shape[0]
+    out = np.empty((n - 2, n - 2))
+    for a in range(n - 2):
+        ra = a if a < i else a + 2
+        for b in range(n - 2):
+            out[a, b] = P[ra, b if b < i else b + 2]
+    return out
+
+
+@numba.njit(cache=True)
+def augmented(P, dt_s, extra_cov):  # pragma: no cover - compiled
+    """``SagittalEskf._augment``'s covariance: P symmetrised, then the new block's rows
+    A = P[0:2] + dt P[2:4] and its own block B = A[:, 0:2] + dt A[:, 2:4] + extra,
+    symmetrised; element by element the same operations as the numpy path, so the same
+    floats."""
+    m = P.shape[0]
+    Q = np.empty((m + 2, m + 2))
+    for a in range(m):
+        for b in range(m):
+            Q[a, b] = 0.5 * (P[a, b] + P[b, a])
+    for r in range(2):
+        for c in range(m):
+            v = Q[r, c] + dt_s * Q[2 + r, c]
+            Q[m + r, c] = v
+            Q[c, m + r] = v
+    B = np.empty((2, 2))
+    for r in range(2):
+        for c in range(2):
+            B[r, c] = Q[m + r, c] + dt_s * Q[m + r, 2 + c] + extra_cov[r, c]
+    for r in range(2):
+        for c in range(2):
+            Q[m + r, m + c] = 0.5 * (B[r, c] + B[c, r])
+    return Q

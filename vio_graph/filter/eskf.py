@@ -1014,10 +1014,13 @@ class SagittalEskf:
         if key not in self._aug_xz:
             return
         i = self._aug_index(key)
-        # rows and columns 0:i and i+2: copied (take: the np.ix_ gather's values and C order
-        # without its index-grid overhead)
-        keep = np.concatenate((np.arange(i), np.arange(i + 2, self._P.shape[0])))
-        self._P = self._P.take(keep, 0).take(keep, 1)
+        if self._update_kernels is not None:
+            self._P = self._update_kernels.without_block(self._P, i)
+        else:
+            # rows and columns 0:i and i+2: copied (take: the np.ix_ gather's values and C
+            # order without its index-grid overhead)
+            keep = np.concatenate((np.arange(i), np.arange(i + 2, self._P.shape[0])))
+            self._P = self._P.take(keep, 0).take(keep, 1)
         self._aug_keys.remove(key)
         del self._aug_xz[key]
 
@@ -1032,6 +1035,13 @@ class SagittalEskf:
         independent of the state (the block's cross-covariance follows from J P J^T)."""
         # J P J^T block by block, J = [[I], [I dt*I 0 ..]]: the old P, its new rows
         # A = P[0:2] + dt P[2:4] (and their transpose), and the new block A J_b^T + extra
+        if self._update_kernels is not None:  # the same operations in one compiled call
+            self._P = self._update_kernels.augmented(
+                self._P, float(dt_s), np.asarray(extra_cov, dtype=float)
+            )
+            self._aug_keys.append(key)
+            self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+            return
         P = self._P
         P = 0.5 * (P + P.T)  # (propagation leaves it symmetric only to rounding)
         m = P.shape[0]

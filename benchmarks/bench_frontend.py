@@ -738,14 +738,18 @@ def _speedup_lines(r: dict[str, Any]) -> list[str]:
         "propagation, attitude tracker, stance detector, fault monitor, clock line; the Python "
         "closed forms of vio_graph/filter/fast_imu.py run instead without numba and on short "
         "recordings), the SP-ESKF updates with the 2x2 innovation covariance inverted in "
-        "closed form and block-wise augmentation (vio_graph/filter/eskf.py), the front "
-        "end's ICP, grid thinning, kNN smoothing, terrain levels and corner lines compiled "
-        "(vio_graph/frontend/compiled.py), and the safety outputs from the incremental height "
+        "closed form and block-wise augmentation (vio_graph/filter/eskf.py; with the compiled "
+        "IMU path each update, gate distance, augmentation and block removal in one numba call, "
+        "vio_graph/filter/compiled_update.py), the front end's ICP, grid thinning, kNN "
+        "smoothing, terrain levels, corner RANSAC and level-surface tilt compiled "
+        "(vio_graph/frontend/compiled.py; the corners and the tilt in one call each, their "
+        "random draws taken inside by numba from the same generator), and the safety outputs "
+        "from the incremental height "
         "map with compiled geometry (vio_graph/safety/height_map.py, compiled.py), against "
         "the numpy reference paths they replaced (kept in the code and compared in "
         "tests/test_fast_imu.py, tests/test_filter_fastpaths.py, "
         "tests/test_frontend_fastpaths.py and tests/test_safety_incremental.py: same answers "
-        "to 1e-9 m, the levels and corner lines bit for bit), the same replays interleaved "
+        "to 1e-9 m, the levels and corners bit for bit), the same replays interleaved "
         "(targets: <= 20 us per IMU sample, <= 0.2 ms per frame for the safety outputs):",
         "",
         *(

@@ -73,6 +73,55 @@ def test_closed_form_update_equals_the_reference(seed: int) -> None:
         np.testing.assert_allclose(fast._aug_xz[key], ref._aug_xz[key], rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_compiled_update_equals_the_reference(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The updates and gate distances compiled (filter/compiled_update.py, with the compiled
+    propagation: VIO_GRAPH_COMPILED=1) against the numpy references (LAPACK, Joseph form):
+    the same accept / refuse decisions, the same state and covariance to rounding."""
+    from vio_graph.frontend import icp as icp_module
+
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "1")
+    fast, out_fast = _run(seed, reference=False)
+    assert fast._update_kernels is not None
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "0")
+    ref, out_ref = _run(seed, reference=True)
+    assert ref._update_kernels is None
+    assert out_fast == out_ref
+    assert False in out_ref and True in out_ref
+    assert fast._aug_keys == ref._aug_keys
+    np.testing.assert_allclose(fast._x, ref._x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast._P, ref._P, rtol=0, atol=1e-15)
+    for key in ref._aug_keys:
+        np.testing.assert_allclose(fast._aug_xz[key], ref._aug_xz[key], rtol=0, atol=1e-12)
+
+
+def test_compiled_gate_distance_and_singular_covariance(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The compiled gate distance equals the LAPACK one; a singular innovation covariance
+    raises in the compiled update as in the numpy one."""
+    from vio_graph.frontend import icp as icp_module
+
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "1")
+    f, _ = _run(5, reference=False)
+    assert f._update_kernels is not None
+    t = f.state.timestamp_s
+    f.clone_position(t - 0.02)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        d = Displacement2D(t - 0.02, t, rng.normal(0, 0.02, 2), np.diag(rng.uniform(1e-6, 1e-4, 2)))
+        extra = None if rng.uniform() < 0.5 else np.diag(rng.uniform(0, 1e-3, 4))
+        moved = None if rng.uniform() < 0.5 else rng.normal(0, 0.02, 2)
+        got = f.displacement_d2(d, extra, moved)
+        want = f.displacement_d2_reference(d, extra, moved)
+        assert got is not None and want is not None
+        assert got == pytest.approx(want, rel=1e-10)
+    n = f._P.shape[0]
+    H = np.zeros((2, n))  # observes nothing: S = V = 0
+    with pytest.raises(EstimationError, match="singular"):
+        f._correct(np.ones(2), H, np.zeros((2, 2)))
+    with pytest.raises(EstimationError, match="singular"):
+        f._correct(np.ones(1), H[:1], np.zeros((1, 1)), dof=1)
+
+
 def test_gate_distance_equals_the_reference() -> None:
     f, _ = _run(5, reference=False)
     t = f.state.timestamp_s
@@ -139,3 +188,27 @@ def test_state_accessors_equal_the_snapshot() -> None:
     assert [f.variance(i) for i in range(8)] == np.diag(state.P).tolist()
     with pytest.raises(EstimationError, match="index"):
         f.variance(8)
+
+
+def test_compiled_augment_and_marginalise_equal_the_numpy_blocks() -> None:
+    """The compiled augmentation covariance and block removal (filter/compiled_update.py)
+    equal _augment's block-wise numpy formulation and _marginalise's take, bit for bit."""
+    from vio_graph.filter import compiled_update
+
+    rng = np.random.default_rng(17)
+    for _ in range(300):
+        m = 8 + 2 * int(rng.integers(0, 8))
+        A = rng.normal(size=(m, m))
+        P = A @ A.T + 1e-9 * rng.normal(size=(m, m))  # symmetric to rounding only
+        dt = float(rng.uniform(-0.01, 0.01))
+        extra = rng.normal(size=(2, 2)) * 1e-4
+        Ps = 0.5 * (P + P.T)
+        rows = Ps[0:2] + dt * Ps[2:4]
+        want = np.empty((m + 2, m + 2))
+        want[:m, :m], want[m:, :m], want[:m, m:] = Ps, rows, rows.T
+        B = rows[:, 0:2] + dt * rows[:, 2:4] + extra
+        want[m:, m:] = 0.5 * (B + B.T)
+        assert np.array_equal(compiled_update.augmented(P, dt, extra), want)
+        i = 8 + 2 * int(rng.integers(0, (m - 8) // 2)) if m > 8 else 0
+        keep = np.concatenate((np.arange(i), np.arange(i + 2, m)))
+        assert np.array_equal(compiled_update.without_block(P, i), P.take(keep, 0).take(keep, 1))

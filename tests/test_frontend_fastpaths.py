@@ -451,9 +451,10 @@ def test_speckle_test_at_the_slice_pixels_equals_the_whole_image_filter(
 def test_level_tilt_means_are_np_mean_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
     """measure_surface_tilt's means and extents taken without numpy's dispatch
     (level._mean, level._ptp) give the same SurfaceTilt, every float equal, as np.mean and
-    np.ptp, on stair-like profiles with 1-4 level lines."""
+    np.ptp, on stair-like profiles with 1-4 level lines (the numpy path)."""
     from vio_graph.frontend import level
 
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "0")
     rng = np.random.default_rng(8)
     profiles = []
     for case in range(60):
@@ -528,3 +529,136 @@ def test_face_percentiles_and_medians_are_numpys_bit_for_bit() -> None:
             for q in (5, 50, 95):
                 assert _percentile_sorted(s, q) == np.percentile(v, q)
             assert _median_sorted(s, 0, n) == np.median(v)
+
+
+def _level_profiles(rng: np.random.Generator, n_cases: int) -> list[np.ndarray]:
+    """Stair-like profiles with 1-4 treads, tilted, some too steep or rounded to a grid."""
+    out = []
+    for case in range(n_cases):
+        n_steps = int(rng.integers(1, 5))
+        x = np.sort(rng.uniform(-0.3, 0.3 * n_steps, int(rng.integers(20, 600))))
+        z = 0.15 * np.floor(x / 0.3) + rng.normal(0, 0.002, x.size) + 0.01 * x * (case % 3)
+        if case % 7 == 0:
+            z = 2.0 * x  # every line too steep
+        if case % 5 == 0:
+            x, z = np.round(x, 3), np.round(z, 3)  # ties between the hypotheses' counts
+        out.append(np.column_stack([x, z]))
+    return out
+
+
+def test_compiled_surface_tilt_equals_the_numpy_path() -> None:
+    """measure_surface_tilt in one compiled call (compiled.surface_tilt, the random draws
+    taken by numba's Generator.integers from the caller's generator) and its numpy path: the
+    same lines (count, points, extents bit for bit), the tilt, sigmas and heights to rounding
+    (the dot products are summed in another order than BLAS's), None in the same cases, the
+    same draws consumed."""
+    from vio_graph.frontend import level
+
+    assert icp_module.compiled_kernels() is not None
+    rng = np.random.default_rng(8)
+    n_none = n_multi = 0
+    for k, p in enumerate(_level_profiles(rng, 300)):
+        trim = 0.01 * (k % 2)
+        ra, rb = np.random.default_rng(k), np.random.default_rng(k)
+        got = level.measure_surface_tilt(p, ra, end_trim_m=trim)
+        ref = level._surface_tilt_numpy(p, rb, np.radians(5.0), 0.004, 25, 0.12, 4, 5.0, trim)
+        assert ra.integers(0, 1 << 30) == rb.integers(0, 1 << 30)
+        assert (got is None) == (ref is None)
+        if ref is None:
+            n_none += 1
+            continue
+        assert got is not None
+        assert (got.n_lines, got.n_inliers) == (ref.n_lines, ref.n_inliers)
+        n_multi += got.n_lines >= 2
+        np.testing.assert_allclose(
+            [got.tilt_rad, got.sigma_rad, got.extent_m],
+            [ref.tilt_rad, ref.sigma_rad, ref.extent_m],
+            rtol=1e-12,
+            atol=1e-15,
+        )
+        for a, b in zip(got.lines, ref.lines, strict=True):
+            assert (a.x_min_m, a.x_max_m) == (b.x_min_m, b.x_max_m)
+            np.testing.assert_allclose(
+                [a.height_m, a.sigma_m], [b.height_m, b.sigma_m], rtol=1e-12, atol=1e-12
+            )
+    assert n_none > 30 and n_multi > 100
+
+
+def test_compiled_pairwise_sum_is_np_add_reduce_bit_for_bit() -> None:
+    """The compiled means of the level kernel sum like np.add.reduce (pairwise, blocks of
+    128), every size up to a few blocks, so the same floats."""
+    from vio_graph.frontend import compiled
+
+    rng = np.random.default_rng(9)
+    for n in [*range(1, 300), 511, 1000, 4097]:
+        a = rng.normal(size=n) * 10.0 ** rng.uniform(-3, 3, n)
+        assert compiled._pairwise_sum(a, 0, n) == np.add.reduce(a)
+
+
+def test_compiled_corner_equals_the_numpy_path() -> None:
+    """extract_corner in one compiled call (compiled.corner, the draws taken by numba's
+    Generator.integers from the caller's generator) and its numpy path
+    (extract_corner_reference): the same CornerFeature bit for bit, None in the same cases,
+    the same draws consumed; every terrain class (near, far and median-decided ends), with
+    and without the face requirement, on noisy and grid-rounded steps."""
+    import dataclasses
+
+    from vio_graph.frontend import corners
+    from vio_graph.frontend.config import CornerConfig
+    from vio_graph.types import TerrainKind
+
+    assert icp_module.compiled_kernels() is not None
+    rng = np.random.default_rng(3)
+    kinds = list(TerrainKind)
+    n_found = n_face = n_far = 0
+    for case in range(400):
+        n = int(rng.integers(10, 500))
+        s = rng.uniform(0, 1, n)
+        rise = rng.uniform(0.1, 0.2)
+        x = np.where(s < 0.3, s, np.where(s < 0.45, 0.3, np.where(s < 0.75, s - 0.15, 0.6)))
+        z = np.where(
+            s < 0.3,
+            0.0,
+            np.where(s < 0.45, (s - 0.3) / 0.15 * rise, np.where(s < 0.75, rise, rise + s - 0.75)),
+        )
+        pts = np.column_stack([x + rng.uniform(-0.5, 0.5), z])
+        pts += rng.normal(0, rng.choice([0.001, 0.003, 0.01]), (n, 2))
+        if case % 6 == 0:
+            pts = np.round(pts, 2)
+        cfg = CornerConfig(
+            near_edge_needs_face=bool(case % 2), face_band_m=[0.02, 0.04][case % 3 % 2]
+        )
+        terrain = kinds[case % len(kinds)]
+        ra, rb = np.random.default_rng(case), np.random.default_rng(case)
+        got = corners.extract_corner(pts, ra, cfg, terrain)
+        ref = None
+        if pts.shape[0] >= 2 * cfg.min_line_inliers:
+            ref = corners.extract_corner_reference(pts, rb, cfg, terrain)
+        assert ra.integers(0, 1 << 30) == rb.integers(0, 1 << 30)
+        assert (got is None) == (ref is None)
+        if ref is None:
+            continue
+        assert got is not None
+        for f in dataclasses.fields(ref):
+            assert np.array_equal(getattr(got, f.name), getattr(ref, f.name)), f.name
+        n_found += 1
+        n_face += ref.has_face
+        n_far += ref.side == "far"
+    assert n_found > 250 and n_face > 100 and n_far > 40
+
+
+def test_compiled_level_band_counts_and_order_equal_numpys() -> None:
+    """find_levels' compiled band counts (two pointers) and their order (counting sort) equal
+    the searchsorted counts and the stable argsort of the numpy reference, ties included."""
+    from vio_graph.frontend import compiled
+
+    rng = np.random.default_rng(13)
+    for case in range(500):
+        za = np.sort(rng.normal(0.0, 0.1, int(rng.integers(1, 400))))
+        if case % 3 == 0:
+            za = np.round(za, 2)  # runs of equal heights and keys on the values
+        band = [0.005, 0.01, 0.0][case % 3]
+        want = np.searchsorted(za, za + band, "right") - np.searchsorted(za, za - band, "left")
+        counts = compiled._band_counts(za, band)
+        assert np.array_equal(counts, want)
+        assert np.array_equal(compiled._descending_stable(counts), np.argsort(-want, kind="stable"))

@@ -210,6 +210,12 @@ class SagittalEskf:
         # array instead of _prev / _prev_xa / _accel_w_mps2
         self._kernels = imu_kernels()
         self._mem = None if self._kernels is None else self._kernels.new_memory()
+        # compiled measurement updates (filter/compiled_update.py), with the propagation
+        self._update_kernels = None
+        if self._kernels is not None:
+            from vio_graph.filter import compiled_update
+
+            self._update_kernels = compiled_update
 
     # ------------------------------------------------------------------ set-up
     def initialise(
@@ -593,6 +599,11 @@ class SagittalEskf:
             P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
         V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
         V = V + self.config.measurement_noise_floor_m**2 * _I2
+        if self._update_kernels is not None:
+            d2 = self._update_kernels.gate_d2(P, H, V, y)
+            if math.isnan(d2):
+                raise EstimationError("singular innovation covariance")
+            return d2
         return mahalanobis2_2d(H @ P @ H.T + V, y)
 
     def displacement_d2_reference(
@@ -932,6 +943,8 @@ class SagittalEskf:
         m = H.shape[0]
         if m > 2:
             return self._correct_reference(innovation, H, V, gate, landmark, dof)
+        if self._update_kernels is not None:
+            return self._correct_compiled(innovation, H, V, gate, landmark, dof)
         P = self._P
         HP = H @ P
         S = HP @ H.T + V
@@ -964,6 +977,44 @@ class SagittalEskf:
         dx = K @ innovation
         P = P - K @ HP
         self._P = 0.5 * (P + P.T)
+        self._inject(dx)
+        if landmark:
+            self._n_lm_acc += 1
+        else:
+            self._n_acc += 1
+        return True
+
+    def _correct_compiled(
+        self,
+        innovation: NDArray,
+        H: NDArray,
+        V: NDArray,
+        gate: bool,
+        landmark: bool,
+        dof: int,
+    ) -> bool:
+        """:meth:`_correct` in one compiled call (``compiled_update.correct``: the same
+        formulas, products summed in index order; equal to rounding)."""
+        k = self._update_kernels
+        assert k is not None
+        gate_d2 = self._gate_d2 if dof == 2 else self._gate_d2_1dof
+        status, _, P, dx = k.correct(
+            self._P,
+            np.ascontiguousarray(H, dtype=float),
+            np.ascontiguousarray(V, dtype=float),
+            np.ascontiguousarray(innovation, dtype=float),
+            bool(gate),
+            float(gate_d2),
+        )
+        if status == k.SINGULAR:
+            raise EstimationError("singular innovation covariance")
+        if status == k.GATED:
+            if landmark:
+                self._n_lm_rej += 1
+            else:
+                self._n_rej += 1
+            return False
+        self._P = P
         self._inject(dx)
         if landmark:
             self._n_lm_acc += 1
@@ -1041,10 +1092,13 @@ class SagittalEskf:
         if key not in self._aug_xz:
             return
         i = self._aug_index(key)
-        # rows and columns 0:i and i+2: copied (take: the np.ix_ gather's values and C order
-        # without its index-grid overhead)
-        keep = np.concatenate((np.arange(i), np.arange(i + 2, self._P.shape[0])))
-        self._P = self._P.take(keep, 0).take(keep, 1)
+        if self._update_kernels is not None:
+            self._P = self._update_kernels.without_block(self._P, i)
+        else:
+            # rows and columns 0:i and i+2: copied (take: the np.ix_ gather's values and C
+            # order without its index-grid overhead)
+            keep = np.concatenate((np.arange(i), np.arange(i + 2, self._P.shape[0])))
+            self._P = self._P.take(keep, 0).take(keep, 1)
         self._aug_keys.remove(key)
         del self._aug_xz[key]
 
@@ -1059,6 +1113,13 @@ class SagittalEskf:
         independent of the state (the block's cross-covariance follows from J P J^T)."""
         # J P J^T block by block, J = [[I], [I dt*I 0 ..]]: the old P, its new rows
         # A = P[0:2] + dt P[2:4] (and their transpose), and the new block A J_b^T + extra
+        if self._update_kernels is not None:  # the same operations in one compiled call
+            self._P = self._update_kernels.augmented(
+                self._P, float(dt_s), np.asarray(extra_cov, dtype=float)
+            )
+            self._aug_keys.append(key)
+            self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+            return
         P = self._P
         P = 0.5 * (P + P.T)  # (propagation leaves it symmetric only to rounding)
         m = P.shape[0]

@@ -450,6 +450,207 @@ def best_line(x, z, i, j, max_slope, inlier_m):  # pragma: no cover - compiled
     return best_a, best_s
 
 
+@numba.njit(cache=True)
+def _block_sum(a, lo, n):  # pragma: no cover - compiled
+    """numpy's pairwise_sum of a[lo:lo + n] for n <= 128: in order below 8, else eight
+    accumulators combined as ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7)), then the
+    rest in order."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    m = n - n % 8
+    while i < m:
+        b = lo + i
+        r0 += a[b]
+        r1 += a[b + 1]
+        r2 += a[b + 2]
+        r3 += a[b + 3]
+        r4 += a[b + 4]
+        r5 += a[b + 5]
+        r6 += a[b + 6]
+        r7 += a[b + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@numba.njit(cache=True)
+def _pairwise_sum(a, lo, n):  # pragma: no cover - compiled
+    """np.add.reduce of a[lo:lo + n] (contiguous float64): numpy's pairwise summation (blocks
+    of at most 128 summed by :func:`_block_sum`, longer runs split in halves at a multiple of
+    8 and the halves' sums added), so the same float. The halving is walked with an explicit
+    stack: numba's cache does not load recursive functions reliably."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    los = np.empty(64, np.int64)
+    ns = np.empty(64, np.int64)
+    stage = np.zeros(64, np.int64)  # 0: left half next, 1: right half next, 2: add them
+    vals = np.empty(64)
+    los[0] = lo
+    ns[0] = n
+    sp = 1
+    nv = 0
+    while sp > 0:
+        top = sp - 1
+        cnt = ns[top]
+        if cnt <= 128:
+            vals[nv] = _block_sum(a, los[top], cnt)
+            nv += 1
+            sp -= 1
+            continue
+        n2 = cnt // 2
+        n2 -= n2 % 8
+        if stage[top] == 0:
+            stage[top] = 1
+            los[sp], ns[sp], stage[sp] = los[top], n2, 0
+            sp += 1
+        elif stage[top] == 1:
+            stage[top] = 2
+            los[sp], ns[sp], stage[sp] = los[top] + n2, cnt - n2, 0
+            sp += 1
+        else:
+            vals[nv - 2] = vals[nv - 2] + vals[nv - 1]
+            nv -= 1
+            sp -= 1
+    return vals[0]
+
+
+@numba.njit(cache=True)
+def _mean_of(a):  # pragma: no cover - compiled
+    """level._mean: the pairwise sum over the length, the same float."""
+    return _pairwise_sum(a, 0, a.shape[0]) / a.shape[0]
+
+
+@numba.njit(cache=True)
+def _dot(a, b):  # pragma: no cover - compiled
+    """a @ b summed in order (BLAS may sum in another order: equal to rounding)."""
+    s = 0.0
+    for k in range(a.shape[0]):
+        s += a[k] * b[k]
+    return s
+
+
+@numba.njit(cache=True)
+def _refine_line(x, z, mask, inlier_m):  # pragma: no cover - compiled
+    """``level._refine``: the least-squares line on the ``mask`` points, inliers reselected."""
+    n_in = 0
+    for k in range(mask.shape[0]):
+        if mask[k]:
+            n_in += 1
+    if n_in < 3:
+        return mask
+    xm = x[mask]
+    zm = z[mask]
+    x0 = _mean_of(xm)
+    z0 = _mean_of(zm)
+    xc = xm - x0
+    s = _dot(xc, zm - z0) / max(_dot(xc, xc), 1e-12)
+    return np.abs(z - z0 - s * (x - x0)) < inlier_m
+
+
+@numba.njit(cache=True)
+def surface_tilt(
+    x,
+    z,
+    rng,
+    n_hypotheses,
+    max_slope,
+    inlier_m,
+    min_points,
+    min_extent_m,
+    max_lines,
+    end_trim_m,
+    correlated_points,
+):  # pragma: no cover - compiled
+    """``level.measure_surface_tilt_reference`` after its input checks, in one call: the same
+    random draws from ``rng`` (numba's Generator.integers: numpy's algorithm on the same bit
+    generator), the same line searches (``best_line``, ``_refine_line``), the same means
+    (pairwise sums); the dot products summed in order (equal to BLAS's to rounding).
+
+    Returns (status, tilt slope s, sigma of the slope, points used, lines) with lines (L, 4):
+    height, sigma, x min, x max; status 0 = a tilt, 1 = no line or the shared slope too
+    steep (None)."""
+    n = x.shape[0]
+    remaining = np.ones(n, np.bool_)
+    starts = np.zeros(max_lines + 1, np.int64)
+    chosen = np.empty(n, np.int64)  # the lines' point indices, one after the other
+    n_lines = 0
+    for _ in range(max_lines):
+        idx = np.flatnonzero(remaining)
+        m = idx.size
+        if m < min_points:
+            break
+        xi = x[idx]
+        zi = z[idx]
+        i = rng.integers(0, m, n_hypotheses)
+        j = rng.integers(0, m, n_hypotheses)
+        a, s = best_line(xi, zi, i, j, max_slope, inlier_m)
+        if a < 0:
+            break
+        mask = np.abs(zi - zi[a] - s * (xi - xi[a])) < inlier_m
+        mask = _refine_line(xi, zi, mask, inlier_m)
+        sel = idx[mask]
+        if sel.size < min_points:
+            break
+        xs = x[sel]
+        if xs.max() - xs.min() < min_extent_m:
+            break
+        remaining[sel] = False
+        if end_trim_m > 0.0:
+            lo = xs.min() + end_trim_m
+            hi = xs.max() - end_trim_m
+            sel = sel[(xs > lo) & (xs < hi)]
+            if sel.size < 3:
+                continue
+        b = starts[n_lines]
+        chosen[b : b + sel.size] = sel
+        n_lines += 1
+        starts[n_lines] = b + sel.size
+    lines = np.empty((n_lines, 4))
+    if n_lines == 0:
+        return 1, 0.0, 0.0, 0, lines
+    variances = np.empty(n_lines)
+    szx = 0.0
+    info = 0.0
+    for q in range(n_lines):
+        sel = chosen[starts[q] : starts[q + 1]]
+        xs = x[sel]
+        zs = z[sel]
+        xc = xs - _mean_of(xs)
+        zc = zs - _mean_of(zs)
+        Sxx = _dot(xc, xc)
+        Szx = _dot(xc, zc)
+        s_k = Szx / max(Sxx, 1e-12)
+        r = zc - s_k * xc
+        var_k = max(_pairwise_sum(r * r, 0, r.size) / max(1, xs.shape[0] - 2), 1e-8)
+        variances[q] = var_k
+        szx += Szx / var_k
+        info += Sxx / var_k
+    s = szx / info
+    if abs(s) > max_slope:
+        return 1, 0.0, 0.0, 0, lines
+    sigma_slope = math.sqrt(correlated_points / info)
+    for q in range(n_lines):
+        sel = chosen[starts[q] : starts[q + 1]]
+        xs = x[sel]
+        zs = z[sel]
+        x_mid = _mean_of(xs)
+        var_h = correlated_points * variances[q] / xs.shape[0] + (x_mid * sigma_slope) ** 2
+        lines[q, 0] = _mean_of(zs - s * xs)
+        lines[q, 1] = math.sqrt(var_h)
+        lines[q, 2] = xs.min()
+        lines[q, 3] = xs.max()
+    return 0, s, sigma_slope, starts[n_lines], lines
+
+
 # ----------------------------------------------------------------------------- corner lines
 
 
@@ -513,7 +714,194 @@ def largest_run(x, max_gap_m):  # pragma: no cover - compiled
     return xs[best_lo:best_hi]
 
 
+@numba.njit(cache=True)
+def _median_sorted(v):  # pragma: no cover - compiled
+    """corners._median_of_sorted: the middle value, or (a + b) / 2 of the middle two."""
+    n = v.size
+    return v[n // 2] if n % 2 else (v[n // 2 - 1] + v[n // 2]) / 2
+
+
+@numba.njit(cache=True)
+def _surface_line(x, z, mask, rng, excl, n_hyp, d, min_sep, min_inliers, max_gap, min_length):
+    # pragma: no cover - compiled
+    """``corners._surface_line`` with the compiled line and run (``mask``: the candidates,
+    consumed). Returns (height, inliers, status): status 0 a line, 1 a line with too few
+    inliers (the caller's None), 2 None."""
+    n = x.size
+    for _ in range(3):
+        n_cand = 0
+        for k in range(n):
+            if mask[k]:
+                n_cand += 1
+        if n_cand == 0:
+            return 0.0, mask, 2
+        draws = rng.integers(0, n_cand, n_hyp)
+        height, inliers = horizontal_line(z, mask, draws, excl, min_sep, d)
+        if inliers.shape[0] != n:
+            return 0.0, mask, 2
+        n_in = 0
+        for k in range(n):
+            if inliers[k]:
+                n_in += 1
+        if n_in < min_inliers:
+            return height, inliers, 1
+        run = largest_run(x[inliers], max_gap)
+        if run[-1] - run[0] >= min_length:
+            return height, inliers, 0
+        mask = mask & ~inliers
+    return 0.0, mask, 2
+
+
+@numba.njit(cache=True)
+def _face_x(x, z, x_end, h, d, window, max_nosing_gap, top_margin, face_band, cluster, min_pts):
+    # pragma: no cover - compiled
+    """``corners._face_line_x``: x of the supported face line below the tread end, or nan."""
+    ahead = x_end - x
+    depth = h - z
+    near = (ahead <= max_nosing_gap) & (ahead >= -d) & (depth >= top_margin)
+    cand = near & (depth <= face_band)
+    if np.count_nonzero(cand) < min_pts:
+        cand = near & (depth <= window)
+        if np.count_nonzero(cand) < min_pts:
+            return np.nan
+    a = np.sort(ahead[cand])[::-1]  # foremost first
+    lo = 0
+    for hi in range(1, a.size + 1):
+        if hi < a.size and not -(a[hi] - a[hi - 1]) > cluster:
+            continue
+        if hi - lo >= min_pts:
+            return x_end - _median_sorted(a[lo:hi][::-1])
+        lo = hi
+    return np.nan
+
+
+@numba.njit(cache=True)
+def corner(
+    x,
+    z,
+    rng,
+    side_code,
+    n_hyp,
+    d,
+    window,
+    min_sep,
+    min_inliers,
+    max_gap,
+    min_length,
+    max_nosing_gap,
+    top_margin,
+    face_band,
+    cluster,
+    min_face_pts,
+    needs_face,
+    min_features,
+):  # pragma: no cover - compiled
+    """``corners.extract_corner_reference`` after its input checks, in one call: the same
+    draws from ``rng`` (numba's Generator.integers: numpy's algorithm on the same bit
+    generator), comparisons, medians and one (a + b) / 2 only, so the same floats.
+    ``side_code``: 0 the near end, 1 the far end, 2 the side of the lower line's median x.
+
+    Returns (status, edge x, edge z, upper height, lower height, upper inliers, lower
+    inliers, near side, has face, feature window mask); status 0 a corner, else None."""
+    n = x.size
+    none = np.zeros(0, np.bool_)
+    all_pts = np.ones(n, np.bool_)
+    no_excl = np.empty(0)
+    h1, in1, st = _surface_line(
+        x, z, all_pts, rng, no_excl, n_hyp, d, min_sep, min_inliers, max_gap, min_length
+    )
+    if st != 0:
+        return 1, 0.0, 0.0, 0.0, 0.0, 0, 0, True, False, none
+    excl = np.empty(1)
+    excl[0] = h1
+    h2, in2, st = _surface_line(
+        x, z, ~in1, rng, excl, n_hyp, d, min_sep, min_inliers, max_gap, min_length
+    )
+    if st != 0:
+        return 1, 0.0, 0.0, 0.0, 0.0, 0, 0, True, False, none
+    if h1 > h2:
+        hu, inu, hl, inl = h1, in1, h2, in2
+    else:
+        hu, inu, hl, inl = h2, in2, h1, in1
+    upper_x = x[inu]
+    if side_code == 0:
+        near_side = True
+    elif side_code == 1:
+        near_side = False
+    else:
+        near_side = _median_sorted(np.sort(x[inl])) < _median_sorted(np.sort(upper_x))
+    run = largest_run(upper_x, max_gap)
+    ex = run[0] if near_side else run[-1]
+    ez = hu
+    face = np.nan
+    if near_side:
+        face = _face_x(
+            x, z, ex, ez, d, window, max_nosing_gap, top_margin, face_band, cluster, min_face_pts
+        )
+        if math.isnan(face) and needs_face:
+            return 1, 0.0, 0.0, 0.0, 0.0, 0, 0, True, False, none
+    has_face = not math.isnan(face)
+    if has_face:
+        ex = face
+        tread = inu & (x - face > top_margin)
+        if np.count_nonzero(tread) >= min_face_pts:
+            ez = _median_sorted(np.sort(z[tread]))
+    elif not near_side:
+        below = (np.abs(x - ex) <= d) & (z < ez - d) & (z >= ez - window)
+        if np.count_nonzero(below) >= 3:
+            ex = _median_sorted(np.sort(x[below]))
+    dx = x - ex
+    band = max(0.0, run[0] - ex) if has_face else 0.0
+    in_window = (dx >= -window) & (dx <= window + band) & (np.abs(z - ez) <= window)
+    if np.count_nonzero(in_window) < min_features:
+        return 1, 0.0, 0.0, 0.0, 0.0, 0, 0, True, False, none
+    n_up = np.count_nonzero(inu)
+    n_lo = np.count_nonzero(inl)
+    return 0, ex, ez, hu, hl, n_up, n_lo, near_side, has_face, in_window
+
+
 # ----------------------------------------------------------------------------- terrain levels
+
+
+@numba.njit(cache=True)
+def _band_counts(za, band):  # pragma: no cover - compiled
+    """np.searchsorted(za, za + band, "right") - np.searchsorted(za, za - band, "left") on
+    sorted ``za`` with two pointers that only move forward (the keys rise with i): the same
+    comparisons against the same keys, O(n) instead of O(n log n)."""
+    m = za.size
+    counts = np.empty(m, np.int64)
+    lo = 0
+    hi = 0
+    for i in range(m):
+        key_lo = za[i] - band
+        key_hi = za[i] + band
+        while lo < m and za[lo] < key_lo:
+            lo += 1
+        while hi < m and not za[hi] > key_hi:
+            hi += 1
+        counts[i] = hi - lo
+    return counts
+
+
+@numba.njit(cache=True)
+def _descending_stable(counts):  # pragma: no cover - compiled
+    """np.argsort(-counts, kind="stable") for counts in 0..n: a counting sort (largest count
+    first, equal counts in index order), O(n)."""
+    m = counts.size
+    top = 0
+    for i in range(m):
+        top = max(top, counts[i])
+    start = np.zeros(top + 2, np.int64)  # start[top - c]: first slot of count c
+    for i in range(m):
+        start[top - counts[i] + 1] += 1
+    for c in range(1, top + 2):
+        start[c] += start[c - 1]
+    order = np.empty(m, np.int64)
+    for i in range(m):
+        k = top - counts[i]
+        order[start[k]] = i
+        start[k] += 1
+    return order
 
 
 @numba.njit(cache=True)
@@ -535,8 +923,8 @@ def find_levels(z, x, band, max_levels, min_points, gap_m, min_length_m):  # pra
             break
         za = z[idx_alive]  # still sorted by z
         xa = x[idx_alive]
-        counts = np.searchsorted(za, za + band, side="right") - np.searchsorted(za, za - band)
-        order = np.argsort(-counts, kind="mergesort")  # stable, as the reference's
+        counts = _band_counts(za, band)
+        order = _descending_stable(counts)
         found = False
         n_tried = 0
         for q in range(m):

@@ -267,6 +267,60 @@ def extract_corner(
     pts = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
     if pts.shape[0] < 2 * cfg.min_line_inliers:
         return None
+    kernels = compiled_kernels()
+    if kernels is None:
+        return extract_corner_reference(pts, rng, cfg, terrain)
+    # compiled: steps 1-5 below in one call (compiled.corner), the same draws from rng
+    if terrain in (TerrainKind.STAIR_UP, TerrainKind.OBSTACLE):
+        side_code = 0
+    elif terrain == TerrainKind.STAIR_DOWN:
+        side_code = 1
+    else:
+        side_code = 2
+    found, ex, ez, h_up, h_lo, n_up, n_lo, near, has_face, in_window = kernels.corner(
+        np.ascontiguousarray(pts[:, 0]),
+        np.ascontiguousarray(pts[:, 1]),
+        rng,
+        side_code,
+        cfg.n_hypotheses,
+        cfg.inlier_distance_m,
+        cfg.window_m,
+        cfg.min_line_separation_m,
+        cfg.min_line_inliers,
+        cfg.max_gap_m,
+        cfg.min_line_length_m,
+        cfg.max_nosing_gap_m,
+        cfg.face_top_margin_m,
+        cfg.face_band_m,
+        cfg.face_cluster_m,
+        cfg.min_face_points,
+        cfg.near_edge_needs_face,
+        cfg.min_feature_points,
+    )
+    if found != 0:
+        return None
+    features = pts[in_window]
+    return CornerFeature(
+        feature_points_xz_m=features,
+        mean_xz_m=features.mean(axis=0),
+        edge_xz_m=np.array([ex, ez]),
+        upper_height_m=float(h_up),
+        lower_height_m=float(h_lo),
+        upper_inliers=int(n_up),
+        lower_inliers=int(n_lo),
+        side="near" if near else "far",
+        has_face=bool(has_face),
+    )
+
+
+def extract_corner_reference(
+    pts: NDArray[np.float64],
+    rng: np.random.Generator,
+    cfg: CornerConfig,
+    terrain: TerrainKind = TerrainKind.UNKNOWN,
+) -> CornerFeature | None:
+    """numpy path of :func:`extract_corner` (the reference of ``compiled.corner``); ``pts``
+    (N, 2) with at least 2 ``min_line_inliers`` rows."""
     # 1. horizontal line with the most inliers
     first = _surface_line(pts, cfg, rng)
     if first is None or first.n_inliers < cfg.min_line_inliers:

@@ -181,6 +181,63 @@ def measure_surface_tilt(
     p = np.asarray(profile_xz_m, dtype=float)
     if p.ndim != 2 or p.shape[0] < min_points or p.shape[1] != 2:
         return None
+    kernels = compiled_kernels()
+    if kernels is None:
+        return _surface_tilt_numpy(
+            p,
+            rng,
+            max_tilt_rad,
+            inlier_m,
+            min_points,
+            min_extent_m,
+            max_lines,
+            correlated_points,
+            end_trim_m,
+        )
+    # compiled: the whole search in one call (compiled.surface_tilt), the same draws from rng
+    status, s, sigma_slope, n_inliers, rows = kernels.surface_tilt(
+        np.ascontiguousarray(p[:, 0]),
+        np.ascontiguousarray(p[:, 1]),
+        rng,
+        _N_HYPOTHESES,
+        float(np.tan(max_tilt_rad)),
+        float(inlier_m),
+        int(min_points),
+        float(min_extent_m),
+        int(max_lines),
+        float(end_trim_m),
+        float(correlated_points),
+    )
+    if status != 0:
+        return None
+    extent = 0.0
+    levels = []
+    for height, sigma, x_lo, x_hi in rows.tolist():
+        extent += x_hi - x_lo
+        levels.append(LevelLine(height, sigma, x_lo, x_hi))
+    return SurfaceTilt(
+        tilt_rad=float(np.arctan(s)),
+        sigma_rad=sigma_slope / (1.0 + s * s),
+        n_inliers=int(n_inliers),
+        extent_m=extent,
+        n_lines=len(levels),
+        lines=tuple(levels),
+    )
+
+
+def _surface_tilt_numpy(
+    p: NDArray[np.float64],
+    rng: np.random.Generator,
+    max_tilt_rad: float,
+    inlier_m: float,
+    min_points: int,
+    min_extent_m: float,
+    max_lines: int,
+    correlated_points: float,
+    end_trim_m: float,
+) -> SurfaceTilt | None:
+    """numpy path of :func:`measure_surface_tilt` (the reference of ``compiled.surface_tilt``;
+    ``p`` checked, at least ``min_points`` rows)."""
     x, z = p[:, 0], p[:, 1]
     max_slope = float(np.tan(max_tilt_rad))
     remaining = np.ones(x.shape[0], dtype=bool)

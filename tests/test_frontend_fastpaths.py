@@ -579,8 +579,12 @@ def test_compiled_surface_tilt_equals_the_numpy_path() -> None:
         for a, b in zip(got.lines, ref.lines, strict=True):
             assert (a.x_min_m, a.x_max_m) == (b.x_min_m, b.x_max_m)
             np.testing.assert_allclose(
-                [a.height_m, a.sigma_m], [b.height_m, b.sigma_m], rtol=1e-12, atol=1e-12
+                [a.height_m, a.sigma_m, a.x_mid_m, a.noise_sigma_m],
+                [b.height_m, b.sigma_m, b.x_mid_m, b.noise_sigma_m],
+                rtol=1e-12,
+                atol=1e-12,
             )
+            assert a.noise_sigma_m > 0.0 and a.x_mid_m != 0.0  # the shared-tilt fields are set
     assert n_none > 30 and n_multi > 100
 
 

@@ -575,8 +575,8 @@ def surface_tilt(
     generator), the same line searches (``best_line``, ``_refine_line``), the same means
     (pairwise sums); the dot products summed in order (equal to BLAS's to rounding).
 
-    Returns (status, tilt slope s, sigma of the slope, points used, lines) with lines (L, 4):
-    height, sigma, x min, x max; status 0 = a tilt, 1 = no line or the shared slope too
+    Returns (status, tilt slope s, sigma of the slope, points used, lines) with lines (L, 6):
+    height, sigma, x min, x max, mean x, own noise sigma (``LevelLine``'s fields); status 0 = a tilt, 1 = no line or the shared slope too
     steep (None)."""
     n = x.shape[0]
     remaining = np.ones(n, np.bool_)
@@ -614,7 +614,7 @@ def surface_tilt(
         chosen[b : b + sel.size] = sel
         n_lines += 1
         starts[n_lines] = b + sel.size
-    lines = np.empty((n_lines, 4))
+    lines = np.empty((n_lines, 6))
     if n_lines == 0:
         return 1, 0.0, 0.0, 0, lines
     variances = np.empty(n_lines)
@@ -643,11 +643,14 @@ def surface_tilt(
         xs = x[sel]
         zs = z[sel]
         x_mid = _mean_of(xs)
-        var_h = correlated_points * variances[q] / xs.shape[0] + (x_mid * sigma_slope) ** 2
+        var_own = correlated_points * variances[q] / xs.shape[0]
+        var_h = var_own + (x_mid * sigma_slope) ** 2
         lines[q, 0] = _mean_of(zs - s * xs)
         lines[q, 1] = math.sqrt(var_h)
         lines[q, 2] = xs.min()
         lines[q, 3] = xs.max()
+        lines[q, 4] = x_mid
+        lines[q, 5] = math.sqrt(var_own)
     return 0, s, sigma_slope, starts[n_lines], lines
 
 

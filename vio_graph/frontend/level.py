@@ -212,9 +212,9 @@ def measure_surface_tilt(
         return None
     extent = 0.0
     levels = []
-    for height, sigma, x_lo, x_hi in rows.tolist():
+    for height, sigma, x_lo, x_hi, x_mid, noise_sigma in rows.tolist():
         extent += x_hi - x_lo
-        levels.append(LevelLine(height, sigma, x_lo, x_hi))
+        levels.append(LevelLine(height, sigma, x_lo, x_hi, x_mid, noise_sigma))
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),
         sigma_rad=sigma_slope / (1.0 + s * s),

@@ -424,3 +424,31 @@ def test_saturation_scale_is_learnt_from_the_velocity_the_stance_measures() -> N
     assert v_on[0] == pytest.approx(v_off[0])
     assert all(abs(p) < 0.002 for p in p_on[1:])
     assert all(p < -0.015 for p in p_off)
+
+
+def test_saturation_evidence_nothing_measured_is_dropped() -> None:
+    from vio_graph.filter.imu_faults import SaturationScaleLearner
+
+    learner = SaturationScaleLearner(20.0, 0.1, 1.0)
+    R_xz = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    sign = np.array([1.0, 0.0, 0.0])  # x clipped at +range
+    put_back = 20.0 * np.sqrt(2 / np.pi) * sign  # the prior's mean at scale 20
+    zero = np.zeros(3)
+    corr = np.zeros(2)
+    for k in range(3):  # a clipped stretch: the velocity variance grows
+        learner.add_sample(0.01 * k, H, sign, put_back, R_xz, 0.01 + 0.1 * k, corr)
+    assert learner.active
+    # blind: the variance stays up and a correction arrives only after the window
+    for k in range(3, 120):
+        assert not learner.add_sample(0.01 * k, H, zero, zero, R_xz, 0.3, corr)
+    assert not learner.active and learner.n_dropped == 1 and learner.n_evidence == 0
+    assert learner.scales_mps2 == pytest.approx([20.0, 20.0, 20.0])
+    # the same stretch measured in time: the variance falls back and the corrections say the
+    # prior put back only half (0.48 of 0.96 m/s)
+    for k in range(3):
+        learner.add_sample(2.0 + 0.01 * k, H, sign, put_back, R_xz, 0.01 + 0.1 * k, corr)
+    learner.add_sample(2.03, H, zero, zero, R_xz, 0.21, corr)
+    assert learner.add_sample(2.1, H, zero, zero, R_xz, 0.02, np.array([0.48, 0.0]))
+    assert learner.n_evidence == 1
+    assert 30.0 < learner.scales_mps2[0] < 40.0  # towards 40, the prior holds a little back
+    assert learner.scales_mps2[1:] == pytest.approx([20.0, 20.0])

@@ -19,7 +19,10 @@ spikes to any such threshold):
   the sigma (``saturation_correlated``), which makes the variance of a stretch of n samples
   n^2 times one sample's. (A bridge by the rigid-shank kinematics, knee force held from the
   last good sample plus the gyro's rotational terms, was tried: the knee's own deceleration
-  dominates at heel strike and rises within a sample, so it bridged almost nothing.)
+  dominates at heel strike and rises within a sample, so it bridged almost nothing.) How far
+  the signal went beyond the rail depends on the gait and the axis, so the scale per IMU axis
+  is learnt from what the filter's measurements later say each stretch lost
+  (:class:`SaturationScaleLearner`); the configured scale is its prior.
 * **Gyro outliers** (:class:`ImuFaultMonitor`): the IMU gives two views of the rotation, the
   gyro and the vendor orientation. Over one sample period the mean rate w_k from
   consecutive orientations predicts the gyro, g_k ~ 2 w_k - g_{k-1}; a chi-square test (3

@@ -330,3 +330,125 @@ def test_distrusted_sample_noise_enters_at_its_own_time() -> None:
     assert position_var("spread", 30.0) - base == pytest.approx(
         pulse * 0.1**2 / 3 / 0.09**2, rel=0.15
     )
+
+
+def _clipped_pushes(learn: bool, n_pushes: int = 6) -> tuple[list[float], list[float], object]:
+    """A level IMU (z up) pushed along x by a pulse the accelerometer clips, then braked
+    smoothly to rest, where a still-foot velocity observation (a stance) follows 0.3 s after
+    the pulse. The pulse exceeds the 40 m/s^2 range by 50, 70, 50 m/s^2 (the lost velocity
+    is 1.7 m/s; the default prior puts back 0.48 of it). Returns, per push, the filter's x
+    velocity error just before the stance, the x position error the push added, measured
+    just after the stance, and the learner. The monitor, filter and learner are wired as
+    vio_graph/estimator.py wires them (a level, shank-aligned IMU: IMU x-z = world x-z)."""
+    from vio_graph.filter.imu_faults import SaturationScaleLearner
+
+    rng_ = 40.0
+    cfg = ImuFaultConfig()
+    mon = ImuFaultMonitor(cfg, accel_range_mps2=rng_, gyro_range_radps=35.0)
+    learner = SaturationScaleLearner(cfg.saturation_sigma_range * rng_, 0.1, 1.0)
+    f = SagittalEskf(FilterConfig(integration="zoh"))
+    f.initialise(0.0, (0.0, 0.0))
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    pulse = np.array([90.0, 110.0, 90.0])  # true specific force (m/s^2) over 3 samples
+    n_brake = 30  # then braked to rest at a constant rate over 0.3 s
+    brake = -pulse.sum() / n_brake
+    true_x, true_v, t = 0.0, 0.0, 0.0
+    v_err, p_err = [], []
+    R_xz = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    for _ in range(n_pushes):
+        profile = list(pulse) + [brake] * n_brake + [0.0] * 5
+        for _ in range(3):  # still before the push: its velocity is known
+            f.update_velocity((0.0, 0.0), np.eye(2) * 0.02**2)
+        p0 = f.position_velocity()[1][0] - true_x
+        for a_true in profile:
+            t += H
+            true_x += true_v * H + 0.5 * a_true * H**2
+            true_v += a_true * H
+            measured = np.clip(a_true, -rng_, rng_)
+            s = mon.process(ImuSample(t, np.array([measured, 0.0, GRAVITY_MPS2]), np.zeros(3), q))
+            f.propagate(s)
+            if learn and (learner.active or mon.last_rail_sign.any()):
+                changed = learner.add_sample(
+                    t,
+                    H,
+                    mon.last_rail_sign,
+                    mon.last_restored_mps2,
+                    R_xz,
+                    float(np.trace(f.cov_velocity_m2ps2())),
+                    f.velocity_corrections_mps,
+                )
+                if changed:
+                    mon.accel_scales_mps2 = learner.scales_mps2.copy()
+        v_err.append(f.position_velocity()[2][0] - true_v)
+        for _ in range(3):  # the stance: three frames of a still foot
+            f.update_velocity((0.0, 0.0), np.eye(2) * 0.02**2)
+        p_err.append(f.position_velocity()[1][0] - true_x - p0)  # what this push added
+        for _ in range(30):  # standing still, the velocity variance settles
+            t += H
+            true_x += true_v * H
+            s = mon.process(ImuSample(t, np.array([0.0, 0.0, GRAVITY_MPS2]), np.zeros(3), q))
+            f.propagate(s)
+            if learn and learner.active:
+                if learner.add_sample(
+                    t,
+                    H,
+                    mon.last_rail_sign,
+                    mon.last_restored_mps2,
+                    R_xz,
+                    float(np.trace(f.cov_velocity_m2ps2())),
+                    f.velocity_corrections_mps,
+                ):
+                    mon.accel_scales_mps2 = learner.scales_mps2.copy()
+        f.update_velocity((0.0, 0.0), np.eye(2) * 0.02**2)
+    return v_err, p_err, learner
+
+
+def test_saturation_scale_is_learnt_from_the_velocity_the_stance_measures() -> None:
+    v_off, p_off, _ = _clipped_pushes(learn=False)
+    v_on, p_on, learner = _clipped_pushes(learn=True)
+    c = np.sqrt(2 / np.pi)
+    # the configured prior (scale 20 m/s^2: mean excess 16) puts back 0.48 of the 1.7 m/s
+    # every push loses: the velocity is 1.2 m/s short until the stance, every time
+    assert all(-1.3 < v < -1.1 for v in v_off)
+    # learnt: the mean excess (56.7 m/s^2) / c on x, within 10 % after the first stance;
+    # z was never clipped and keeps the prior's scale
+    assert learner.n_evidence == 6 and learner.n_dropped == 0
+    assert learner.scales_mps2[0] * c == pytest.approx(170.0 / 3, rel=0.1)
+    assert learner.scales_mps2[2] == pytest.approx(20.0)
+    # so from the second push on the velocity after a clipped pulse is right within 0.1 m/s
+    # (instead of 1.2 m/s short) ...
+    assert all(abs(v) < 0.1 for v in v_on[1:])
+    # ... and the position error a push leaves after the stance is within 2 mm, where the
+    # stance alone (velocity corrected, position through the cross-covariance) leaves 2 cm
+    # per push; the first push, before any evidence, is as bad as without learning
+    assert v_on[0] == pytest.approx(v_off[0])
+    assert all(abs(p) < 0.002 for p in p_on[1:])
+    assert all(p < -0.015 for p in p_off)
+
+
+def test_saturation_evidence_nothing_measured_is_dropped() -> None:
+    from vio_graph.filter.imu_faults import SaturationScaleLearner
+
+    learner = SaturationScaleLearner(20.0, 0.1, 1.0)
+    R_xz = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    sign = np.array([1.0, 0.0, 0.0])  # x clipped at +range
+    put_back = 20.0 * np.sqrt(2 / np.pi) * sign  # the prior's mean at scale 20
+    zero = np.zeros(3)
+    corr = np.zeros(2)
+    for k in range(3):  # a clipped stretch: the velocity variance grows
+        learner.add_sample(0.01 * k, H, sign, put_back, R_xz, 0.01 + 0.1 * k, corr)
+    assert learner.active
+    # blind: the variance stays up and a correction arrives only after the window
+    for k in range(3, 120):
+        assert not learner.add_sample(0.01 * k, H, zero, zero, R_xz, 0.3, corr)
+    assert not learner.active and learner.n_dropped == 1 and learner.n_evidence == 0
+    assert learner.scales_mps2 == pytest.approx([20.0, 20.0, 20.0])
+    # the same stretch measured in time: the variance falls back and the corrections say the
+    # prior put back only half (0.48 of 0.96 m/s)
+    for k in range(3):
+        learner.add_sample(2.0 + 0.01 * k, H, sign, put_back, R_xz, 0.01 + 0.1 * k, corr)
+    learner.add_sample(2.03, H, zero, zero, R_xz, 0.21, corr)
+    assert learner.add_sample(2.1, H, zero, zero, R_xz, 0.02, np.array([0.48, 0.0]))
+    assert learner.n_evidence == 1
+    assert 30.0 < learner.scales_mps2[0] < 40.0  # towards 40, the prior holds a little back
+    assert learner.scales_mps2[1:] == pytest.approx([20.0, 20.0])

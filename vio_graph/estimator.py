@@ -76,7 +76,11 @@ from vio_graph.filter.fast_imu import (
     sagittal_rotation_fast,
 )
 from vio_graph.filter.gating import chi2_2dof_quantile, chi2_quantile
-from vio_graph.filter.imu_faults import ImuFaultMonitor, velocity_fault_cov
+from vio_graph.filter.imu_faults import (
+    ImuFaultMonitor,
+    SaturationScaleLearner,
+    velocity_fault_cov,
+)
 from vio_graph.filter.level_landmarks import LevelLandmarks
 from vio_graph.filter.stance import FootRotationTest, StanceConsistencyTest, StanceDetector
 from vio_graph.filter.time_offset import ClockModel, FrameStampTest, TimeOffsetEstimator
@@ -368,6 +372,16 @@ class OnlineEstimator:
         fc, rig = self.config.filter, self.rig
         to = fc.time_offset
         self.imu_faults = ImuFaultMonitor(fc.imu_faults, rig.accel_range_mps2, rig.gyro_range_radps)
+        fi = fc.imu_faults
+        self.saturation_learner = (
+            SaturationScaleLearner(
+                fi.saturation_sigma_range * rig.accel_range_mps2,
+                fi.saturation_explained_fraction,
+                fi.saturation_evidence_window_s,
+            )
+            if fi.enabled and fi.saturation_learn_scale and rig.accel_range_mps2
+            else None
+        )
         self.imu_clock = (
             ClockModel(1.0 / rig.imu_rate_hz, to.clock_window, to.gap_periods, to.imu_clock_model)
             if rig.imu_rate_hz
@@ -403,6 +417,25 @@ class OnlineEstimator:
         #: to the time-offset estimator (set by the retroactive re-run, vio_graph/replay.py)
         self.td_counted_until_s = -np.inf
 
+    def _learn_saturation(self, learner: SaturationScaleLearner, shank: ImuSample) -> None:
+        """Feed the saturation learner one sample (clipped, or in the evidence window after
+        a clipped stretch) and hand the monitor the scales it learnt."""
+        mon = self.imu_faults
+        prev = self._last_imu
+        h = 0.0 if prev is None else shank.timestamp_s - prev.timestamp_s
+        # IMU axes -> shank axes -> world x-z (the sagittal rotation of the shank's attitude)
+        R_xz = _sagittal_rotation(shank.quat_wxyz) @ self.rig.R_shank_imu[[0, 2], :]
+        if learner.add_sample(
+            shank.timestamp_s,
+            h,
+            mon.last_rail_sign,
+            mon.last_restored_mps2,
+            R_xz,
+            float(np.trace(self.filter.cov_velocity_m2ps2())),
+            self.filter.velocity_corrections_mps,
+        ):
+            mon.accel_scales_mps2 = learner.scales_mps2.copy()
+
     def fault_report(self) -> dict:
         """IMU faults, time offset and timestamp problems, for metrics.json."""
         rep: dict = {
@@ -413,6 +446,13 @@ class OnlineEstimator:
             "time_offset": self.time_offset.report(),
             "timestamps": {},
         }
+        learner = self.saturation_learner
+        if learner is not None and (learner.n_evidence or learner.n_dropped):
+            rep["imu_faults"]["saturation_scale_mps2"] = [
+                round(float(v), 3) for v in learner.scales_mps2
+            ]
+            rep["imu_faults"]["saturation_stretches_measured"] = learner.n_evidence
+            rep["imu_faults"]["saturation_stretches_unmeasured"] = learner.n_dropped
         for name, clock in (("imu", self.imu_clock), ("camera", self.frame_clock)):
             if clock is not None:
                 rep["timestamps"][name] = clock.report()
@@ -449,6 +489,9 @@ class OnlineEstimator:
         # camera stamps late by td > 0: the filter stays td behind the IMU stream, so that a
         # re-stamped frame finds it at (not past) its capture time
         self._propagate_until(sample.timestamp_s - max(self.time_offset.applied_s, 0.0))
+        learner = self.saturation_learner
+        if learner is not None and (learner.active or self.imu_faults.last_rail_sign.any()):
+            self._learn_saturation(learner, shank)
         if self.config.filter.stance_anchor:
             if self._stance.compiled:  # the sagittal rotation inside, compiled
                 self._stance.add_imu_quat(

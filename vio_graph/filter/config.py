@@ -122,6 +122,26 @@ class ImuFaultConfig(BaseModel):
         "sigma, so that the velocity variance a stretch of n samples adds is n^2 (fully "
         "correlated), not n, times one sample's. False: every sample the prior's sigma",
     )
+    saturation_learn_scale: bool = Field(
+        default=True,
+        description="learn the half-normal scale per IMU axis from what the filter's "
+        "measurements say each clipped stretch lost (imu_faults.SaturationScaleLearner); "
+        "saturation_sigma_range x range is its prior. False: the configured scale throughout",
+    )
+    saturation_explained_fraction: float = Field(
+        default=0.1,
+        gt=0,
+        lt=1,
+        description="a stretch's evidence is taken when the filter's velocity variance is "
+        "back within this fraction of what the stretch added (its loss measured to about "
+        "sqrt(0.1) = 0.3 of the prior's sigma)",
+    )
+    saturation_evidence_window_s: float = Field(
+        default=1.0,
+        gt=0,
+        description="evidence not in this long after a stretch is dropped (nothing measured "
+        "the velocity); longer than a swing (0.4-0.6 s) so the next stance counts",
+    )
     gyro_ahrs_test: bool = Field(
         default=True,
         description="test each gyro sample against the rate of the vendor orientation (two "

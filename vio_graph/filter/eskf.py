@@ -192,6 +192,9 @@ class SagittalEskf:
         self._initialised = False
         self._t_s = 0.0
         self._x = np.zeros(ERROR_STATE_DIM)  # nominal (p, v, a_b, g)
+        #: sum of the velocity corrections (m/s, x-z) the measurements made so far: what they
+        #: said the IMU got wrong (read by imu_faults.SaturationScaleLearner)
+        self.velocity_corrections_mps = np.zeros(2)
         self._P = np.zeros((ERROR_STATE_DIM, ERROR_STATE_DIM))
         # augmented static 2D blocks after the 8 core errors: the clone (key "clone") and
         # landmarks (LandmarkKey), in the order of ``_aug_keys``
@@ -1027,6 +1030,7 @@ class SagittalEskf:
         errors are additive, so the reset dx <- 0 leaves P unchanged (reset Jacobian G = I)."""
         n = ERROR_STATE_DIM
         self._x = self._x + dx[:n]
+        self.velocity_corrections_mps = self.velocity_corrections_mps + dx[2:4]
         aug = self._aug_xz
         for j, key in enumerate(self._aug_keys):
             i = n + 2 * j
@@ -1067,6 +1071,7 @@ class SagittalEskf:
         # reset dx <- 0 leaves P unchanged (reset Jacobian G = I)
         n = ERROR_STATE_DIM
         self._x = self._x + dx[:n]
+        self.velocity_corrections_mps = self.velocity_corrections_mps + dx[2:4]
         for j, key in enumerate(self._aug_keys):
             i = n + 2 * j
             self._aug_xz[key] = self._aug_xz[key] + dx[i : i + 2]

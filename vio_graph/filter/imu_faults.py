@@ -19,7 +19,10 @@ spikes to any such threshold):
   the sigma (``saturation_correlated``), which makes the variance of a stretch of n samples
   n^2 times one sample's. (A bridge by the rigid-shank kinematics, knee force held from the
   last good sample plus the gyro's rotational terms, was tried: the knee's own deceleration
-  dominates at heel strike and rises within a sample, so it bridged almost nothing.)
+  dominates at heel strike and rises within a sample, so it bridged almost nothing.) How far
+  the signal went beyond the rail depends on the gait and the axis, so the scale per IMU axis
+  is learnt from what the filter's measurements later say each stretch lost
+  (:class:`SaturationScaleLearner`); the configured scale is its prior.
 * **Gyro outliers** (:class:`ImuFaultMonitor`): the IMU gives two views of the rotation, the
   gyro and the vendor orientation. Over one sample period the mean rate w_k from
   consecutive orientations predicts the gyro, g_k ~ 2 w_k - g_{k-1}; a chi-square test (3
@@ -92,6 +95,13 @@ class ImuFaultMonitor:
         self._prev: tuple[float, Mat3, tuple[float, float, float]] | None = None
         self._last_acc: tuple[float, ...] | None = None  # last trusted specific force
         self._acc_run = 0  # consecutive samples with a saturated accelerometer axis
+        #: scale (m/s^2) of the half-normal prior per IMU axis: the configured one until a
+        #: SaturationScaleLearner has evidence (set_accel_scales)
+        self.accel_scales_mps2 = np.full(3, self._acc_sig)
+        #: the last sample's railed accelerometer axes (+1 / -1: the rail's side, 0: within
+        #: range) and the velocity rate the prior put back on them (m/s^2, IMU axes)
+        self.last_rail_sign = np.zeros(3)
+        self.last_restored_mps2 = np.zeros(3)
         self.n_accel_saturated = 0  #: samples with an accelerometer axis at the rail
         self.n_gyro_saturated = 0  #: samples with a gyro axis at the rail
         self.n_gyro_repaired = 0  #: gyro samples replaced by the orientation's rate
@@ -113,9 +123,15 @@ class ImuFaultMonitor:
             self.n_accel_saturated += 1
             a = np.asarray(accel_mps2, dtype=float)
             rail = np.abs(a) >= self._acc_lim
-            acc = np.where(rail, a + np.sign(a) * self._acc_sig * _HALF_NORMAL_MEAN, a)
+            scale = self.accel_scales_mps2
+            self.last_rail_sign = np.where(rail, np.sign(a), 0.0)
+            self.last_restored_mps2 = self.last_rail_sign * scale * _HALF_NORMAL_MEAN
+            acc = np.where(rail, a + np.sign(a) * scale * _HALF_NORMAL_MEAN, a)
             corr = np.sqrt(2.0 * self._acc_run - 1.0) if self.config.saturation_correlated else 1.0
-            xa = max(xa, self._acc_sig * _HALF_NORMAL_SD * corr)
+            xa = max(xa, float(np.max(scale[rail])) * _HALF_NORMAL_SD * corr)
+        elif self.last_rail_sign.any():
+            self.last_rail_sign = np.zeros(3)
+            self.last_restored_mps2 = np.zeros(3)
         if gyr_sat:
             self.n_gyro_saturated += 1
             xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
@@ -318,3 +334,105 @@ def velocity_fault_cov(sigma_mps: float, interval_s: float) -> NDArray[np.float6
     an interval of ``interval_s`` seconds ending now: dv = j, dp = (interval / 2) j."""
     J = np.vstack([0.5 * interval_s * np.eye(2), np.eye(2)])
     return sigma_mps**2 * (J @ J.T)
+
+
+@dataclasses.dataclass
+class _Episode:
+    """Clipped stretches close together and the evidence window after them."""
+
+    U: NDArray[np.float64]  # (2, 3) world x-z velocity per unit of scale on each IMU axis
+    restored_mps: NDArray[np.float64]  # (2,) velocity the prior put back (world x-z)
+    corrections0_mps: NDArray[np.float64]  # the filter's correction sum at the start
+    var_before: float  # the filter's velocity variance (trace) before the first stretch
+    in_stretch: bool = True
+    end_s: float = 0.0  # when the last stretch ended
+    var_peak: float = 0.0  # largest velocity variance since
+
+
+class SaturationScaleLearner:
+    """The half-normal scale of the clipped excess, per IMU axis, learnt from what the
+    filter's measurements say each clipped stretch lost (empirical Bayes, online).
+
+    How far the true specific force went beyond the rail depends on the gait and the mount:
+    on the simulated stairs a push-off clips the shank's x axis at 2-3 times the range, a
+    level-ground heel strike its z axis at a fraction of it, and one fixed scale over-corrects
+    one and under-corrects the other. The estimator does not need to guess: after a clipped
+    stretch, vision and the stance measure the velocity, and the sum of the filter's velocity
+    corrections since the stretch is what the prior got wrong. Per stretch j (stretches that
+    follow each other before the evidence is in are merged), the velocity it lost, in world
+    x-z, is linear in the axis scales s: ``m_j = U_j s``, U_j summing c h R_k e_a sign over its
+    clipped samples k and railed axes a (c = sqrt(2/pi), the half-normal mean; h the sample
+    period; R_k the sagittal rotation). The measured loss is what the prior put back plus the
+    corrections, ``m_j = restored_j + sum dv``. The evidence is taken when the measurements
+    have removed ``1 - explained_fraction`` of the velocity variance the stretch added
+    (weight: the filter's velocity covariance then), and dropped if that takes longer than
+    ``window_s`` (nothing measured the velocity). The scales are the least-squares solution
+    with the configured scale as a prior of its own size (sigma = s0): one well measured
+    stretch outweighs it.
+    """
+
+    def __init__(self, s0_mps2: float, explained_fraction: float, window_s: float) -> None:
+        self.s0 = float(s0_mps2)
+        self.explained_fraction = float(explained_fraction)
+        self.window_s = float(window_s)
+        self._A = np.eye(3) / self.s0**2  # normal equations, prior included
+        self._b = np.full(3, 1.0 / self.s0)
+        self.scales_mps2 = np.full(3, self.s0)
+        self._ep: _Episode | None = None
+        self.n_evidence = 0  #: stretches (merged) whose evidence was used
+        self.n_dropped = 0  #: stretches whose velocity was not measured within window_s
+
+    @property
+    def active(self) -> bool:
+        """A clipped stretch or its evidence window is open (feed every sample then)."""
+        return self._ep is not None
+
+    def add_sample(
+        self,
+        t_s: float,
+        h_s: float,
+        rail_sign: NDArray[np.float64],
+        restored_mps2: NDArray[np.float64],
+        R_xz_imu: NDArray[np.float64],
+        velocity_var: float,
+        corrections_mps: NDArray[np.float64],
+    ) -> bool:
+        """One IMU sample at ``t_s``, ``h_s`` after the previous one: its railed axes (+1 /
+        -1 / 0, IMU axes), the specific force the prior put back on them, the (2, 3) map from
+        IMU axes to world x-z, and the filter's velocity variance (trace) and correction sum
+        now. Returns True when the scales
+        changed."""
+        h = max(float(h_s), 0.0)
+        ep = self._ep
+        if rail_sign.any():
+            if ep is None:
+                ep = self._ep = _Episode(
+                    np.zeros((2, 3)), np.zeros(2), corrections_mps.copy(), velocity_var
+                )
+            ep.in_stretch = True
+            ep.U += (_HALF_NORMAL_MEAN * h) * (R_xz_imu * rail_sign)
+            ep.restored_mps += h * (R_xz_imu @ restored_mps2)
+            return False
+        if ep is None:
+            return False
+        if ep.in_stretch:  # the stretch just ended: the evidence window opens
+            ep.in_stretch = False
+            ep.end_s = t_s
+            ep.var_peak = velocity_var
+            return False
+        ep.var_peak = max(ep.var_peak, velocity_var)
+        added = ep.var_peak - ep.var_before
+        if added > 0.0 and velocity_var - ep.var_before <= self.explained_fraction * added:
+            self._ep = None
+            m = ep.restored_mps + (corrections_mps - ep.corrections0_mps)
+            W = 1.0 / max(velocity_var, 1e-12)  # the measured loss's remaining variance
+            self._A += W * (ep.U.T @ ep.U)
+            self._b += W * (ep.U.T @ m)
+            s = np.linalg.solve(self._A, self._b)
+            self.scales_mps2 = np.maximum(s, 1e-3 * self.s0)  # a scale, not a sign
+            self.n_evidence += 1
+            return True
+        if t_s - ep.end_s > self.window_s:
+            self._ep = None
+            self.n_dropped += 1
+        return False

@@ -61,6 +61,7 @@ All factors are GTSAM built-ins (no Python CustomFactor on the hot path).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -129,14 +130,19 @@ def robust_noise(
     configured ``robust_kernel`` / ``robust_threshold``."""
     kernel = config.robust_kernel if kernel is None else kernel
     threshold = config.robust_threshold if threshold is None else threshold
-    est: gtsam.noiseModel.mEstimator.Base
+    est = _m_estimator(kernel, float(threshold))
+    return base if est is None else gtsam.noiseModel.Robust.Create(est, base)
+
+
+@functools.lru_cache(maxsize=16)
+def _m_estimator(kernel: str, threshold: float) -> gtsam.noiseModel.mEstimator.Base | None:
+    """The M-estimator of ``kernel`` (None for none), one object per (kernel, threshold): it
+    holds only its threshold, so every robust noise model can share it."""
     if kernel == "huber":
-        est = gtsam.noiseModel.mEstimator.Huber.Create(threshold)
-    elif kernel == "cauchy":
-        est = gtsam.noiseModel.mEstimator.Cauchy.Create(threshold)
-    else:
-        return base
-    return gtsam.noiseModel.Robust.Create(est, base)
+        return gtsam.noiseModel.mEstimator.Huber.Create(threshold)
+    if kernel == "cauchy":
+        return gtsam.noiseModel.mEstimator.Cauchy.Create(threshold)
+    return None
 
 
 def _cov3_from_xz(cov_xz_m2: ArrayLike, config: SmootherConfig) -> NDArray[np.float64]:
@@ -505,7 +511,11 @@ class KeyframeGraphBuilder:
                 ts, np.asarray(self._imu_a), np.asarray(self._imu_g), self._last_kf_time_s, t
             )
         params = self._params
-        x_vel, x_rot = distrust_variances(ts, self._imu_x, self._last_kf_time_s, t)
+        # (every sample trusted, the usual case: skip the array work, the answer is (0, 0))
+        if any(xa > 0 or xg > 0 for xa, xg in self._imu_x):
+            x_vel, x_rot = distrust_variances(ts, self._imu_x, self._last_kf_time_s, t)
+        else:
+            x_vel = x_rot = 0.0
         per_step = cfg.distrust_noise == "per_step" and (x_vel > 0 or x_rot > 0)
         if cfg.imu_discretization_gain > 0 or x_vel > 0 or x_rot > 0:
             extra = cfg.imu_discretization_gain**2 * discretization_velocity_var(

@@ -239,7 +239,7 @@ def run(quick: bool = False, recording: Path | None = None) -> dict[str, Any]:
     fixed = bench_fixed_lag(fixed_trial, WINDOWS_S)
     batch = bench_batch(batch_trials)
     note = (
-        "update = smoother update + bookkeeping (newest marginal included); "
+        "update = smoother update + bookkeeping (no marginal: marginal_covariance none); "
         "build = preintegration + factor construction. Corners exist only for x < 12.5 m "
         "(the first ~14 s), after that only relative measurements constrain the drift."
     )

@@ -248,7 +248,7 @@ def test_imu_only_gap_is_bridged_with_bounded_error(use_filter_guess):
 
 def test_old_keyframes_leave_the_window_but_keep_their_estimates():
     tr = make_swinging_shank_trial(3.0, displacement_sigma_m=0.002, seed=4)
-    cfg = SmootherConfig(window_s=0.5, keyframe_period_s=0.1)
+    cfg = SmootherConfig(window_s=0.5, keyframe_period_s=0.1, marginal_covariance="when_newest")
     s = SlidingWindowSmoother(cfg, tr.imu_T_cam)
     feed(tr, s)
     live = s.live_keys()
@@ -270,6 +270,35 @@ def test_old_keyframes_leave_the_window_but_keep_their_estimates():
     s.feed_imu(ImuSample(10.0, tr.imu[-1].accel_mps2, tr.imu[-1].gyro_radps, tr.imu[-1].quat_wxyz))
     np.testing.assert_array_equal(s.keyframe_estimates()[0].camera_xz_m, first)
     assert len(s.update_times_ms) == n_kf
+
+
+def test_marginal_covariance_modes_change_only_the_frozen_covariances():
+    """at_exit / when_newest / none: the same estimates bit for bit; none leaves NaN on the
+    keyframes that left the window (live ones still get theirs on request); the filtering
+    marginal (when_newest) is wider than the smoothed one just before exit (at_exit)."""
+    tr = make_swinging_shank_trial(3.0, displacement_sigma_m=0.002, seed=4)
+    out = {}
+    for mode in ("at_exit", "when_newest", "none"):
+        cfg = SmootherConfig(window_s=0.5, marginal_covariance=mode)
+        s = SlidingWindowSmoother(cfg, tr.imu_T_cam)
+        feed(tr, s)
+        live_x = {gtsam.Symbol(k).index() for k in s.live_keys() if k >> 56 == ord("x")}
+        out[mode] = s.keyframe_estimates()
+    n = len(out["none"])
+    frozen = [i for i in range(n) if i not in live_x]
+    assert len(frozen) > 20 and len(live_x) == 6
+    for mode in ("at_exit", "when_newest"):
+        for a, b in zip(out[mode], out["none"], strict=True):
+            np.testing.assert_array_equal(a.camera_xz_m, b.camera_xz_m)
+            np.testing.assert_array_equal(a.R_world_imu, b.R_world_imu)
+        assert all(np.all(np.linalg.eigvalsh(e.cov_m2) > 0) for e in out[mode])
+    assert all(np.isnan(out["none"][i].cov_m2).all() for i in frozen)
+    for i in live_x:  # live keyframes: the current marginal whatever the mode
+        np.testing.assert_array_equal(out["none"][i].cov_m2, out["at_exit"][i].cov_m2)
+    ratio = [
+        np.trace(out["when_newest"][i].cov_m2) / np.trace(out["at_exit"][i].cov_m2) for i in frozen
+    ]
+    assert np.median(ratio) > 1.0
 
 
 @pytest.mark.parametrize("cls", [SlidingWindowSmoother, BatchSmoother])
@@ -663,7 +692,14 @@ def test_compiled_preintegration_gives_the_same_smoother_answer(
 
     def keyframes(compiled: str) -> dict[str, np.ndarray]:
         monkeypatch.setenv("VIO_GRAPH_COMPILED", compiled)
-        rp = Replay(rec, PipelineConfig(), {"smoother", "batch"}, NullVisualizer())
+        base = PipelineConfig()  # frozen keyframes' covariances compared too
+        sm_cfg = base.smoother.model_copy(update={"marginal_covariance": "when_newest"})
+        rp = Replay(
+            rec,
+            base.model_copy(update={"smoother": sm_cfg}),
+            {"smoother", "batch"},
+            NullVisualizer(),
+        )
         rp.run()
         out = {}
         for name in ("smoother", "batch"):

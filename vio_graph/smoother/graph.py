@@ -61,6 +61,7 @@ All factors are GTSAM built-ins (no Python CustomFactor on the hot path).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -129,14 +130,19 @@ def robust_noise(
     configured ``robust_kernel`` / ``robust_threshold``."""
     kernel = config.robust_kernel if kernel is None else kernel
     threshold = config.robust_threshold if threshold is None else threshold
-    est: gtsam.noiseModel.mEstimator.Base
+    est = _m_estimator(kernel, float(threshold))
+    return base if est is None else gtsam.noiseModel.Robust.Create(est, base)
+
+
+@functools.lru_cache(maxsize=16)
+def _m_estimator(kernel: str, threshold: float) -> gtsam.noiseModel.mEstimator.Base | None:
+    """The M-estimator of ``kernel`` (None for none), one object per (kernel, threshold): it
+    holds only its threshold, so every robust noise model can share it."""
     if kernel == "huber":
-        est = gtsam.noiseModel.mEstimator.Huber.Create(threshold)
-    elif kernel == "cauchy":
-        est = gtsam.noiseModel.mEstimator.Cauchy.Create(threshold)
-    else:
-        return base
-    return gtsam.noiseModel.Robust.Create(est, base)
+        return gtsam.noiseModel.mEstimator.Huber.Create(threshold)
+    if kernel == "cauchy":
+        return gtsam.noiseModel.mEstimator.Cauchy.Create(threshold)
+    return None
 
 
 def _cov3_from_xz(cov_xz_m2: ArrayLike, config: SmootherConfig) -> NDArray[np.float64]:
@@ -291,6 +297,26 @@ class KeyframeGraphBuilder:
         # latest refined state of the newest keyframe (set by the smoother after each update)
         self._latest_nav: gtsam.NavState | None = None
         self._latest_bias = gtsam.imuBias.ConstantBias()
+        # constant-sigma noise models, made once (keyed by their sigmas, so a changed config
+        # still gets its own): building one costs as much as the factor using it
+        self._noise_cache: dict[tuple[object, ...], gtsam.noiseModel.Base] = {}
+
+    def _diagonal(self, *sigmas: float) -> gtsam.noiseModel.Base:
+        """``noiseModel.Diagonal.Sigmas(sigmas)``, shared by every factor with these sigmas."""
+        nm = self._noise_cache.get(sigmas)
+        if nm is None:
+            nm = gtsam.noiseModel.Diagonal.Sigmas(np.array(sigmas, dtype=float))
+            self._noise_cache[sigmas] = nm
+        return nm
+
+    def _isotropic(self, sigma: float) -> gtsam.noiseModel.Base:
+        """``noiseModel.Isotropic.Sigma(3, sigma)``, shared likewise."""
+        key = ("isotropic3", sigma)
+        nm = self._noise_cache.get(key)
+        if nm is None:
+            nm = gtsam.noiseModel.Isotropic.Sigma(3, sigma)
+            self._noise_cache[key] = nm
+        return nm
 
     # ---- feedback from the smoother ------------------------------------------------------------
     def set_latest_state(
@@ -433,9 +459,11 @@ class KeyframeGraphBuilder:
         cam_xz, t_guess, v_guess = self._initial_guess(pend, t, R_i, pim)
         pose_guess = gtsam.Pose3(gtsam.Rot3.ClosestTo(R_i), t_guess)
         batch = _FactorBatch({X(i): t, V(i): t, B(i): t})
-        batch.values.insert(X(i), pose_guess)
+        # keyword overloads: pybind tries Values.insert's ~46 overloads in order, and the
+        # positional bias insert alone cost ~0.1 ms
+        batch.values.insert(X(i), pose3=pose_guess)
         batch.values.insert(V(i), v_guess)
-        batch.values.insert(B(i), self._latest_bias)
+        batch.values.insert(B(i), constant_bias=self._latest_bias)
 
         if i == 0:
             self._add_first_priors(batch, pose_guess, v_guess)
@@ -483,7 +511,11 @@ class KeyframeGraphBuilder:
                 ts, np.asarray(self._imu_a), np.asarray(self._imu_g), self._last_kf_time_s, t
             )
         params = self._params
-        x_vel, x_rot = distrust_variances(ts, self._imu_x, self._last_kf_time_s, t)
+        # (every sample trusted, the usual case: skip the array work, the answer is (0, 0))
+        if any(xa > 0 or xg > 0 for xa, xg in self._imu_x):
+            x_vel, x_rot = distrust_variances(ts, self._imu_x, self._last_kf_time_s, t)
+        else:
+            x_vel = x_rot = 0.0
         per_step = cfg.distrust_noise == "per_step" and (x_vel > 0 or x_rot > 0)
         if cfg.imu_discretization_gain > 0 or x_vel > 0 or x_rot > 0:
             extra = cfg.imu_discretization_gain**2 * discretization_velocity_var(
@@ -544,10 +576,8 @@ class KeyframeGraphBuilder:
     ) -> None:
         """First keyframe: tight pose prior, velocity prior at the guess, zero-bias prior."""
         cfg = self.config
-        sig = np.r_[[cfg.first_attitude_sigma_rad] * 3, [cfg.first_position_sigma_m] * 3]
-        batch.add(
-            gtsam.PriorFactorPose3(X(0), pose_guess, gtsam.noiseModel.Diagonal.Sigmas(sig)), [X(0)]
-        )
+        sig = self._diagonal(*[cfg.first_attitude_sigma_rad] * 3, *[cfg.first_position_sigma_m] * 3)
+        batch.add(gtsam.PriorFactorPose3(X(0), pose_guess, sig), [X(0)])
         batch.add(
             gtsam.PriorFactorVector(
                 V(0), v_guess, gtsam.noiseModel.Isotropic.Sigma(3, cfg.first_velocity_sigma_mps)
@@ -588,24 +618,17 @@ class KeyframeGraphBuilder:
                 )
             batch.add(f_imu, [X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i)])
         else:  # keep the bias chain connected without the IMU
-            bsig = np.r_[
-                [cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3
-            ]
+            bsig = self._diagonal(
+                *[cfg.accel_bias_prior_sigma_mps2] * 3, *[cfg.gyro_bias_prior_sigma_radps] * 3
+            )
             batch.add(
-                gtsam.BetweenFactorConstantBias(
-                    B(i - 1),
-                    B(i),
-                    gtsam.imuBias.ConstantBias(),
-                    gtsam.noiseModel.Diagonal.Sigmas(bsig),
-                ),
+                gtsam.BetweenFactorConstantBias(B(i - 1), B(i), gtsam.imuBias.ConstantBias(), bsig),
                 [B(i - 1), B(i)],
             )
             if not (fam.displacement and pend.displacement is not None):
                 # velocity otherwise unconstrained: weak random walk between keyframes
                 batch.add(
-                    gtsam.BetweenFactorVector(
-                        V(i - 1), V(i), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)
-                    ),
+                    gtsam.BetweenFactorVector(V(i - 1), V(i), np.zeros(3), self._isotropic(1.0)),
                     [V(i - 1), V(i)],
                 )
         if fam.displacement and pend.displacement is not None:
@@ -619,9 +642,7 @@ class KeyframeGraphBuilder:
             batch.add(gtsam.BetweenFactorPose3(X(i - 1), X(i), meas, noise), [X(i - 1), X(i)])
         if not fam.imu:
             batch.add(
-                gtsam.PriorFactorVector(
-                    V(i), v_guess, gtsam.noiseModel.Isotropic.Sigma(3, LOOSE_SIGMA)
-                ),
+                gtsam.PriorFactorVector(V(i), v_guess, self._isotropic(LOOSE_SIGMA)),
                 [V(i)],
             )
 
@@ -632,26 +653,18 @@ class KeyframeGraphBuilder:
         optional weak absolute x-z) and velocity."""
         cfg, fam = self.config, self.config.factors
         if fam.attitude and i > 0:
-            sig = np.r_[[cfg.attitude_sigma_rad] * 3, [LOOSE_SIGMA] * 3]
-            batch.add(
-                gtsam.PriorFactorPose3(X(i), pose_guess, gtsam.noiseModel.Diagonal.Sigmas(sig)),
-                [X(i)],
-            )
+            sig = self._diagonal(*[cfg.attitude_sigma_rad] * 3, *[LOOSE_SIGMA] * 3)
+            batch.add(gtsam.PriorFactorPose3(X(i), pose_guess, sig), [X(i)])
         if (fam.planar or fam.weak_position) and i > 0:
             s_xz = cfg.weak_position_sigma_m if fam.weak_position else LOOSE_SIGMA
             s_y = cfg.lateral_position_sigma_m if fam.planar else LOOSE_SIGMA
             batch.add(
-                gtsam.PoseTranslationPrior3D(
-                    X(i), t_guess, gtsam.noiseModel.Diagonal.Sigmas(np.array([s_xz, s_y, s_xz]))
-                ),
+                gtsam.PoseTranslationPrior3D(X(i), t_guess, self._diagonal(s_xz, s_y, s_xz)),
                 [X(i)],
             )
         if fam.planar:
-            sig = np.array([LOOSE_SIGMA, cfg.lateral_velocity_sigma_mps, LOOSE_SIGMA])
-            batch.add(
-                gtsam.PriorFactorVector(V(i), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(sig)),
-                [V(i)],
-            )
+            sig = self._diagonal(LOOSE_SIGMA, cfg.lateral_velocity_sigma_mps, LOOSE_SIGMA)
+            batch.add(gtsam.PriorFactorVector(V(i), np.zeros(3), sig), [V(i)])
 
     def _add_landmarks(
         self,
@@ -683,16 +696,14 @@ class KeyframeGraphBuilder:
                 lm = t_guess + R_i @ p_ic + o3
                 lm[1] = 0.0
                 lm_pose = gtsam.Pose3(gtsam.Rot3(), lm)
-                batch.values.insert(lk, lm_pose)
-                sig = np.r_[
-                    [cfg.landmark_rotation_sigma_rad] * 3,
+                batch.values.insert(lk, pose3=lm_pose)
+                sig = self._diagonal(
+                    *[cfg.landmark_rotation_sigma_rad] * 3,
                     cfg.landmark_position_sigma_m,
                     cfg.landmark_lateral_sigma_m,
                     cfg.landmark_position_sigma_m,
-                ]
-                batch.add(
-                    gtsam.PriorFactorPose3(lk, lm_pose, gtsam.noiseModel.Diagonal.Sigmas(sig)), [lk]
                 )
+                batch.add(gtsam.PriorFactorPose3(lk, lm_pose, sig), [lk])
             meas = gtsam.Pose3(rot_i.inverse(), R_i.T @ o3 + p_ic)
             noise = _between_noise(_cov3_from_xz(cov, cfg), cfg)
             batch.add(gtsam.BetweenFactorPose3(X(i), lk, meas, noise), [X(i), lk])

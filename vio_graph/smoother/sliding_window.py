@@ -30,6 +30,9 @@ from vio_graph.smoother.graph import (
 from vio_graph.smoother.interface import KeyframeEstimate, KeyframeSmootherBase
 
 _NAN2 = np.full((2, 2), np.nan)
+# gtsam.Symbol keys: the character in the top 8 bits, the index below
+_CHR_X, _CHR_L = ord("x"), ord("l")
+_INDEX_MASK = (1 << 56) - 1
 
 
 class SlidingWindowSmoother(KeyframeSmootherBase):
@@ -58,6 +61,7 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             p.setFactorization(config.fixed_lag_factorization)
             p.setRelinearizeThreshold(config.relinearize_threshold)
             p.relinearizeSkip = 1
+
             self._smoother = gtsam.IncrementalFixedLagSmoother(self.lag_s, p)
         self._incremental = not config.fixed_lag_batch_solver
         self._live: dict[int, float] = {}  # key -> timestamp (s), mirrors GTSAM's window
@@ -66,34 +70,43 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             int, tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
         ] = {}
         self._newest_cov: dict[int, NDArray[np.float64]] = {}
+        self._newest_s: float | None = None  # newest key time handed to GTSAM so far
         self.update_times_ms: list[float] = []
 
     # ---- one keyframe --------------------------------------------------------------------------
     def _consume(self, u: KeyframeUpdate) -> None:
         t0 = time.perf_counter()
+        live = self._live
         new_keys = set(u.values.keys())
         # drop factors that touch keys already marginalised (never re-add dead keys)
-        if any(not all(k in self._live or k in new_keys for k in ks) for ks in u.factor_keys):
+        if any(not all(k in live or k in new_keys for k in ks) for ks in u.factor_keys):
             kept = gtsam.NonlinearFactorGraph()
             for n, ks in enumerate(u.factor_keys):
-                if all(k in self._live or k in new_keys for k in ks):
+                if all(k in live or k in new_keys for k in ks):
                     kept.add(u.factors.at(n))
             factors = kept
         else:
             factors = u.factors
-        stamps = {k: s for k, s in u.timestamps.items() if k in self._live or k in new_keys}
+        stamps = {k: s for k, s in u.timestamps.items() if k in live or k in new_keys}
 
-        # keys that this update will marginalise (same rule as GTSAM: stamp < newest - lag)
-        newest = max([u.timestamp_s, *self._live.values()])
+        # keys that this update will marginalise (same rule as GTSAM: stamp < newest - lag);
+        # every key of an update is stamped with the keyframe time, so ``live`` (re-stamped
+        # keys moved to its end) stays ordered by time and the leaving keys are its head
+        newest = u.timestamp_s if self._newest_s is None else max(u.timestamp_s, self._newest_s)
         cutoff = newest - self.lag_s
-        merged = {**self._live, **stamps}
-        leaving = [k for k, s in merged.items() if s < cutoff and k in self._live]
+        in_order = all(s >= newest for s in stamps.values())
+        leaving: list[int] = []
+        for k, s in live.items():
+            if s >= cutoff and in_order:
+                break
+            if s < cutoff and k not in stamps:
+                leaving.append(k)
         for k in leaving:
-            if gtsam.Symbol(k).chr() == ord("x"):
-                i_old = gtsam.Symbol(k).index()
+            if k >> 56 == _CHR_X:
+                i_old = k & _INDEX_MASK
                 cov_now = self.config.marginal_covariance == "at_exit"
                 xz, cov, R = self._camera_estimate(i_old, with_covariance=cov_now)
-                cov = cov if cov_now else self._newest_cov.get(i_old, _NAN2)
+                cov = cov if cov_now else self._newest_cov.pop(i_old, _NAN2)
                 self._frozen[i_old] = (xz, cov, R)
 
         try:
@@ -103,8 +116,19 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             msg = f"fixed-lag update at {u.timestamp_s:.3f} s failed: {exc}"
             raise EstimationError(msg) from exc
 
-        self._live = {k: s for k, s in merged.items() if s >= cutoff}
-        dead_landmarks = [k for k in leaving if gtsam.Symbol(k).chr() == ord("l")]
+        if in_order:
+            for k in leaving:
+                del live[k]
+            for k, s in stamps.items():
+                live.pop(k, None)
+                live[k] = s
+        else:  # not ordered by time (never from KeyframeGraphBuilder): rebuild in time order
+            merged = {**live, **stamps}
+            self._live = {
+                k: s for k, s in sorted(merged.items(), key=lambda ks: ks[1]) if s >= cutoff
+            }
+        self._newest_s = newest
+        dead_landmarks = [k for k in leaving if k >> 56 == _CHR_L]
         if dead_landmarks:
             self._builder.forget_landmarks(dead_landmarks)
         i = u.index

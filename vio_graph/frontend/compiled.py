@@ -576,8 +576,8 @@ def surface_tilt(
     (pairwise sums); the dot products summed in order (equal to BLAS's to rounding).
 
     Returns (status, tilt slope s, sigma of the slope, points used, lines) with lines (L, 6):
-    height, sigma, x min, x max, mean x, own noise sigma (``LevelLine``'s fields); status 0 = a tilt, 1 = no line or the shared slope too
-    steep (None)."""
+    height, sigma, x min, x max, mean x, own noise sigma (``LevelLine``'s fields); status
+    0 = a tilt, 1 = no line or the shared slope too steep (None)."""
     n = x.shape[0]
     remaining = np.ones(n, np.bool_)
     starts = np.zeros(max_lines + 1, np.int64)

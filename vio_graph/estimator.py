@@ -737,6 +737,7 @@ class OnlineEstimator:
             is_keyframe=is_kf,
             timings_ms=timings,
             safety=safety,
+            cov_velocity_m2ps2=self.filter.cov_velocity_m2ps2(),
         )
         # the attitude the displacement and observations were built with (level-aided)
         R_world_imu = self.R_world_imu(t)

@@ -7,11 +7,13 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from vio_graph.filter.config import FilterConfig, ImuFaultConfig
 from vio_graph.filter.eskf import SagittalEskf
 from vio_graph.filter.imu_faults import ImuFaultMonitor, velocity_fault_cov
-from vio_graph.geometry import GRAVITY_MPS2, quat_wxyz_from_matrix, rot_y
+from vio_graph.filter.imu_repair import NextSampleRepair
+from vio_graph.geometry import GRAVITY_MPS2, matrix_from_quat_wxyz, quat_wxyz_from_matrix, rot_y
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.graph import KeyframeGraphBuilder, distrust_variances
 from vio_graph.types import Displacement2D, ImuSample
@@ -452,3 +454,83 @@ def test_saturation_evidence_nothing_measured_is_dropped() -> None:
     assert learner.n_evidence == 1
     assert 30.0 < learner.scales_mps2[0] < 40.0  # towards 40, the prior holds a little back
     assert learner.scales_mps2[1:] == pytest.approx([20.0, 20.0])
+
+
+def _estimator_after(samples: list[ImuSample], repair: bool):
+    """An online estimator (filter started at the first IMU sample, no frames) fed
+    ``samples``: its filter velocity (m/s) and tracked attitude at the last sample."""
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+
+    cfg = PipelineConfig.model_validate(
+        {
+            "filter": {
+                "start_at_first_frame": False,
+                "imu_faults": {"repair_from_next_sample": repair},
+            }
+        }
+    )
+    est = OnlineEstimator(cfg, RigGeometry.from_metadata(tiny_metadata()))
+    steps = [est.add_imu(s) for s in samples]
+    _, _, v = est.filter.position_velocity()
+    return v, est.attitude.R_world_imu_at(samples[-1].timestamp_s), est, steps
+
+
+def test_filter_repairs_a_corrupt_packet_from_the_next_sample() -> None:
+    # a swinging shank: pitch rate ramping by 20 rad/s per second, specific force ramping by
+    # 400 m/s^2 per second in x (heel-strike-like); the vendor orientation of the packet at
+    # 0.30 s is 1 mrad off in pitch (its usual noise), so the monitor's prediction of that
+    # packet's gyro (2 w_k - g_(k-1)) is 0.2 rad/s off. The packet carries a spike (30 m/s^2,
+    # 5 rad/s): the monitor flags it and holds the previous accelerometer, 4 m/s^2 short
+    n, k = 40, 30
+    truth = _pitching(n, lambda t: 20.0 * t)
+    truth = [dataclasses.replace(s, accel_mps2=s.accel_mps2 + [400.0 * s.timestamp_s, 0, 0])
+             for s in truth]  # fmt: skip
+    R_k = matrix_from_quat_wxyz(truth[k].quat_wxyz) @ rot_y(1e-3)
+    truth[k] = dataclasses.replace(truth[k], quat_wxyz=quat_wxyz_from_matrix(R_k))
+    spiked = list(truth)
+    spiked[k] = dataclasses.replace(
+        truth[k],
+        accel_mps2=truth[k].accel_mps2 + [30.0, 0, 0],
+        gyro_radps=truth[k].gyro_radps + [0, 5.0, 0],
+    )
+    v_true, R_true, est_clean, _ = _estimator_after(truth, repair=True)
+    assert est_clean.imu_faults.n_gyro_repaired == 0
+    v_on, R_on, est, steps = _estimator_after(spiked, repair=True)
+    v_off, R_off, _, _ = _estimator_after(spiked, repair=False)
+    assert est.imu_faults.n_gyro_repaired == 1 and est.imu_repair.n_repaired == 1
+    # the other estimators still get the monitor's packet (the smoothers interpolate it)
+    assert steps[k].shank.accel_held
+    # the rate and the added force are linear: the interpolated gyro is the true one, so the
+    # tracked attitude is the clean stream's; the interpolated specific force misses only the
+    # curvature of gravity seen from the turning shank (h^2/8 |f''|, 1.8e-4 m/s here)
+    assert np.linalg.norm(Rotation.from_matrix(R_true.T @ R_on).as_rotvec()) < 1e-9
+    assert np.max(np.abs(v_on - v_true)) < 5e-4
+    # the monitor's stand-ins alone: the held accelerometer loses ~4 m/s^2 over two
+    # trapezoid half-steps (0.04 m/s), the predicted gyro tilts the attitude by ~2 mrad
+    assert abs(v_off[0] - v_true[0]) > 0.02
+    assert np.linalg.norm(Rotation.from_matrix(R_true.T @ R_off).as_rotvec()) > 1e-3
+
+
+def test_next_sample_repair_waits_one_sample_at_most() -> None:
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+
+    def s(i: int, held: bool = False) -> ImuSample:
+        a = np.array([float(i), 0.0, GRAVITY_MPS2])
+        sig = 10.0 if held else 0.0
+        return ImuSample(i * H, a, np.zeros(3), q, sig, 0.5 if held else 0.0, held)
+
+    rep = NextSampleRepair(5.0)
+    assert [x.timestamp_s for x in rep.push(s(0))] == [0.0]
+    assert rep.push(s(1, held=True)) == [] and rep.pending is not None
+    # two corrupt packets in a row: both go out as the monitor left them (the second has no
+    # measured sample before it), so the filter is never more than one sample late
+    out = rep.push(s(2, held=True))
+    assert [x.timestamp_s for x in out] == [H, 2 * H] and rep.pending is None
+    assert all(x.accel_extra_sigma_mps2 == 10.0 for x in out) and out[0].accel_mps2[0] == 1
+    assert [x.timestamp_s for x in rep.push(s(3))] == [3 * H]
+    assert rep.push(s(4, held=True)) == []
+    out = rep.push(s(5))
+    assert out[0].accel_mps2[0] == pytest.approx(4.0) and out[0].accel_extra_sigma_mps2 == 5.0
+    assert out[0].accel_held and rep.n_repaired == 1

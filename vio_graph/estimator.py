@@ -81,6 +81,7 @@ from vio_graph.filter.imu_faults import (
     SaturationScaleLearner,
     velocity_fault_cov,
 )
+from vio_graph.filter.imu_repair import NextSampleRepair
 from vio_graph.filter.level_landmarks import LevelLandmarks
 from vio_graph.filter.stance import FootRotationTest, StanceConsistencyTest, StanceDetector
 from vio_graph.filter.time_offset import ClockModel, FrameStampTest, TimeOffsetEstimator
@@ -284,6 +285,7 @@ class OnlineEstimator:
         self._attitude_memo: tuple[float, float, ImuSample, Mat3] | None = None
         #: the latest sample the fault monitor did not repair (its gyro is a measurement)
         self._last_trusted_imu: ImuSample | None = None
+        self._last_taken_s: float | None = None  # stamp of the latest sample the filter took
         self._last_joints: JointAngles | None = None
         self._last_contact: ContactSample | None = None
         self._prev_frame: tuple[float, NDArray[np.float64]] | None = None  # (t, camera xz)
@@ -382,6 +384,11 @@ class OnlineEstimator:
             if fi.enabled and fi.saturation_learn_scale and rig.accel_range_mps2
             else None
         )
+        self.imu_repair = (
+            NextSampleRepair(fc.imu_faults.interpolated_accel_sigma_mps2)
+            if fc.imu_faults.enabled and fc.imu_faults.repair_from_next_sample
+            else None
+        )
         self.imu_clock = (
             ClockModel(1.0 / rig.imu_rate_hz, to.clock_window, to.gap_periods, to.imu_clock_model)
             if rig.imu_rate_hz
@@ -474,17 +481,38 @@ class OnlineEstimator:
             if t_clock != sample.timestamp_s:
                 sample = _replaced(sample, t_clock, sample.quat_wxyz)
         sample = self.imu_faults.process(sample)  # saturation marks, gyro repair (IMU axes)
-        sample = shank = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
-        self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
-        if self.config.filter.strapdown_attitude == "tracked":
-            sample = self._with_tracked_attitude(sample)
-        else:
-            sample = self.corrected_imu(sample)  # the offset applied once, for the strapdown
-        if self._last_imu is not None and sample.timestamp_s <= self._last_imu.timestamp_s:
+        shank = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
+        if self._last_imu is not None and shank.timestamp_s <= self._last_imu.timestamp_s:
             raise EstimationError(
-                f"IMU sample at {sample.timestamp_s:.6f} s is not after "
+                f"IMU sample at {shank.timestamp_s:.6f} s is not after "
                 f"{self._last_imu.timestamp_s:.6f} s"
             )
+        # a repaired packet waits for the next sample (filter/imu_repair.py)
+        ready = [shank] if self.imu_repair is None else self.imu_repair.push(shank)
+        corrected = None
+        for s in ready:
+            c = self._advance_imu(s)
+            if s is shank:
+                corrected = c
+        if corrected is None:  # held back: the attitude tracked up to the sample before it
+            corrected = self._as_corrected(shank)
+        self._last_imu = corrected
+        self._imu_ms += (time.perf_counter() - t0) * 1e3
+        return ImuStep(shank=shank, corrected=corrected)
+
+    def _as_corrected(self, sample: ImuSample) -> ImuSample:
+        """``sample`` (shank axes) with the attitude the strapdown uses at its time."""
+        if self.config.filter.strapdown_attitude == "tracked":
+            return self._with_tracked_attitude(sample)
+        return self.corrected_imu(sample)  # the offset applied once, for the strapdown
+
+    def _advance_imu(self, sample: ImuSample) -> ImuSample:
+        """Feed one sample (shank axes) to the attitude tracker, the filter's queue and the
+        stance detector; returns it as the filter propagates with it."""
+        shank = sample  # shank axes, before the strapdown's attitude (the saturation learner)
+        self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
+        self._last_taken_s = sample.timestamp_s
+        sample = self._as_corrected(sample)
         self._imu_queue.append(sample)
         # camera stamps late by td > 0: the filter stays td behind the IMU stream, so that a
         # re-stamped frame finds it at (not past) its capture time
@@ -511,11 +539,9 @@ class OnlineEstimator:
                     self.config.filter.gravity_xz_mps2,
                     trusted=not sample.accel_held,
                 )
-        self._last_imu = sample
         if not sample.accel_held:
             self._last_trusted_imu = sample
-        self._imu_ms += (time.perf_counter() - t0) * 1e3
-        return ImuStep(shank=shank, corrected=sample)
+        return sample
 
     def add_joints(self, sample: JointAngles) -> None:
         self._last_joints = sample
@@ -538,7 +564,12 @@ class OnlineEstimator:
 
     @property
     def last_imu_time_s(self) -> float | None:
-        """Stamp (s, IMU clock) of the latest IMU sample taken (None before the first)."""
+        """Stamp (s, IMU clock) of the latest IMU sample the filter has taken (None before
+        the first). A repaired packet held back for the next sample (filter/imu_repair.py) is
+        not taken yet: a frame captured after it waits for the next sample, so the filter
+        never extrapolates across the packet (its state there becomes the interpolation's)."""
+        if self.imu_repair is not None and self.imu_repair.pending is not None:
+            return self._last_taken_s
         return None if self._last_imu is None else self._last_imu.timestamp_s
 
     def corrected_imu(self, sample: ImuSample) -> ImuSample:
@@ -751,6 +782,7 @@ class OnlineEstimator:
             is_keyframe=is_kf,
             timings_ms=timings,
             safety=safety,
+            cov_velocity_m2ps2=self.filter.cov_velocity_m2ps2(),
         )
         # the attitude the displacement and observations were built with (level-aided)
         R_world_imu = self.R_world_imu(t)

@@ -172,3 +172,5 @@ class FrameEstimate:
     #: toe clearance, placement and terrain ahead (vio_graph/safety/online.SafetyEstimate);
     #: None when ``safety.enabled`` is off
     safety: Any = None
+    #: the filter's 2x2 velocity covariance ((m/s)^2) at the frame (None if not given)
+    cov_velocity_m2ps2: NDArray[np.float64] | None = None

@@ -186,6 +186,22 @@ class ImuFaultConfig(BaseModel):
         "(a 30 m/s^2 spike at 100 Hz: 0.3 m/s); a wrong corner association (a stair step in "
         "one frame, ~5 m/s over 33 ms) stays far outside it",
     )
+    repair_from_next_sample: bool = Field(
+        default=True,
+        description="hold a packet the gyro test repaired back from the filter, the attitude "
+        "tracker and the stance detector until the next sample arrives, and replace its held "
+        "accelerometer and predicted gyro by the interpolation between its measured neighbours "
+        "(filter/imu_repair.py; the filter runs one sample late over such a packet only). "
+        "False = the filter fuses the monitor's stand-ins at once",
+    )
+    interpolated_accel_sigma_mps2: float = Field(
+        default=5.0,
+        gt=0,
+        description="extra sigma (m/s^2, per axis) of an accelerometer sample the filter "
+        "interpolated (repair_from_next_sample): the smoothers' value "
+        "(smoother.interpolated_accel_sigma_mps2, the interpolation's error on the simulated "
+        "gaits: 1.2-1.8 m/s^2 RMS, 5-7 at the 99th percentile)",
+    )
 
 
 class TimeOffsetConfig(BaseModel):

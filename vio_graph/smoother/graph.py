@@ -466,7 +466,7 @@ class KeyframeGraphBuilder:
         batch.values.insert(B(i), constant_bias=self._latest_bias)
 
         if i == 0:
-            self._add_first_priors(batch, pose_guess, v_guess)
+            self._add_first_priors(batch, pose_guess, v_guess, pend.estimate)
         else:
             self._add_motion(batch, i, pend, R_i, pim, v_guess)
         self._add_attitude_and_plane(batch, i, pose_guess, t_guess)
@@ -572,18 +572,29 @@ class KeyframeGraphBuilder:
         return cam_xz, t_guess, v_guess
 
     def _add_first_priors(
-        self, batch: _FactorBatch, pose_guess: gtsam.Pose3, v_guess: NDArray[np.float64]
+        self,
+        batch: _FactorBatch,
+        pose_guess: gtsam.Pose3,
+        v_guess: NDArray[np.float64],
+        estimate: FrameEstimate | None = None,
     ) -> None:
-        """First keyframe: tight pose prior, velocity prior at the guess, zero-bias prior."""
+        """First keyframe: tight pose prior, velocity prior at the guess (as uncertain as the
+        filter says its guess is, ``first_velocity_filter_cov``), zero-bias prior."""
         cfg = self.config
         sig = self._diagonal(*[cfg.first_attitude_sigma_rad] * 3, *[cfg.first_position_sigma_m] * 3)
         batch.add(gtsam.PriorFactorPose3(X(0), pose_guess, sig), [X(0)])
-        batch.add(
-            gtsam.PriorFactorVector(
-                V(0), v_guess, gtsam.noiseModel.Isotropic.Sigma(3, cfg.first_velocity_sigma_mps)
-            ),
-            [V(0)],
+        noise: gtsam.noiseModel.Base = gtsam.noiseModel.Isotropic.Sigma(
+            3, cfg.first_velocity_sigma_mps
         )
+        if (
+            cfg.first_velocity_filter_cov
+            and estimate is not None
+            and estimate.cov_velocity_m2ps2 is not None
+        ):
+            cov = np.eye(3) * cfg.first_velocity_sigma_mps**2
+            cov[np.ix_([0, 2], [0, 2])] += np.asarray(estimate.cov_velocity_m2ps2, dtype=float)
+            noise = gtsam.noiseModel.Gaussian.Covariance(cov)
+        batch.add(gtsam.PriorFactorVector(V(0), v_guess, noise), [V(0)])
         bsig = np.r_[[cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3]
         batch.add(
             gtsam.PriorFactorConstantBias(

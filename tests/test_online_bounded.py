@@ -58,3 +58,47 @@ def test_clock_correction_report_over_a_long_stream() -> None:
     assert rep["correction_rms_s"] == float(np.sqrt(np.mean(corr**2)))
     assert rep["correction_max_s"] == float(np.max(np.abs(corr)))
     assert 0 < rep["correction_rms_s"] < 0.003  # smoothing removes part of the 2 ms jitter
+
+
+def test_map_cells_equal_merge_points_bit_for_bit() -> None:
+    """TerrainMap2D.cells merges keyframe by keyframe (vio_graph/mapping/local_map.py
+    merge_keyframes, for the peak memory of long trials): the same cells, counts and means,
+    bit for bit, as merge_points on all the points at once, also with empty and partly
+    non-finite profiles and keyframes that share cells."""
+    from vio_graph.mapping.config import MapConfig
+    from vio_graph.mapping.local_map import merge_points
+
+    rng = np.random.default_rng(3)
+    for cfg in (MapConfig(), MapConfig(min_keyframes_per_cell=1), MapConfig(cell_size_m=0.02)):
+        tmap = TerrainMap2D(cfg)
+        for k in range(80):
+            prof = _profile(rng) + rng.normal(0.0, 0.004, (40, 2))
+            if k % 7 == 0:
+                prof[rng.integers(0, 40, 3)] = np.nan
+            if k % 11 == 0:
+                prof = np.zeros((0, 2))
+            tmap.add_keyframe(0.1 * k, [0.03 * k - 2.0, rng.normal(0.0, 0.01)], prof)
+        raw, index = tmap.raw_points_xz_m()
+        ref = merge_points(raw, index, cfg)
+        got = tmap.cells
+        assert len(got) > 100
+        for name in ("points_xz_m", "point_counts", "keyframe_counts"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(ref, name))
+            assert getattr(got, name).dtype == getattr(ref, name).dtype
+    empty = TerrainMap2D()
+    empty.add_keyframe(0.0, [0.0, 0.0], np.zeros((0, 2)))
+    assert len(empty.cells) == 0 and empty.cells.points_xz_m.shape == (0, 2)
+
+
+def test_map_without_copy_shares_finite_profiles_only() -> None:
+    prof = np.column_stack([np.linspace(0.2, 1.0, 10), np.full(10, -0.4)])
+    tmap = TerrainMap2D()
+    tmap.add_keyframe(0.0, [0.0, 0.0], prof, copy=False)
+    tmap.add_keyframe(1.0, [0.0, 0.0], prof)
+    assert tmap.keyframes[0].profile_xz_m is prof
+    assert not np.shares_memory(tmap.keyframes[1].profile_xz_m, prof)
+    bad = prof.copy()
+    bad[3] = np.nan
+    tmap.add_keyframe(2.0, [0.0, 0.0], bad, copy=False)  # rows dropped: a new array
+    assert tmap.keyframes[2].profile_xz_m.shape == (9, 2)
+    assert not np.shares_memory(tmap.keyframes[2].profile_xz_m, bad)

@@ -91,3 +91,33 @@ def test_run_view_computes_nothing_for_the_null_visualizer_only(tmp_path: Path) 
     quiet.view.frame(0, None, None)  # returns before touching its arguments
     lg = quiet.run()
     assert np.array_equal(lg.camera_xz["filter"], replay.log.camera_xz["filter"])
+
+
+def test_growable_array_reads_like_the_list_it_replaces() -> None:
+    """FrameLog's numbers and the estimators' camera paths (vio_graph/growable.py): one
+    float64 buffer instead of a Python object per frame, read as the list was."""
+    from vio_graph.growable import GrowableArray
+
+    rng = np.random.default_rng(1)
+    floats = [float(v) for v in rng.normal(size=300)]  # past the first capacity, 3 times
+    rows = [rng.normal(size=(2, 2)) for _ in range(300)]
+    col, mats = GrowableArray(), GrowableArray((2, 2))
+    assert not col and len(col) == 0 and np.asarray(mats).shape == (0, 2, 2)
+    for v, m in zip(floats, rows, strict=True):
+        col.append(v)
+        mats.append(m)
+    assert col and len(col) == 300 and list(col) == floats
+    assert type(col[5]) is float and col[-1] == floats[-1]
+    np.testing.assert_array_equal(np.asarray(col), floats)
+    np.testing.assert_array_equal(col[10:20], floats[10:20])
+    np.testing.assert_array_equal(np.asarray(mats), np.stack(rows))
+    got = mats[7]
+    got[0, 0] = 99.0  # a copy: the store is unchanged
+    assert mats[7][0, 0] == rows[7][0, 0]
+    arr = np.asarray(col)
+    arr[0] = 99.0
+    assert col[0] == floats[0]
+    with pytest.raises(IndexError):
+        col[300]
+    with pytest.raises(ValueError):
+        mats.append(np.zeros(3))  # a row of another shape

@@ -121,3 +121,67 @@ def test_growable_array_reads_like_the_list_it_replaces() -> None:
         col[300]
     with pytest.raises(ValueError):
         mats.append(np.zeros(3))  # a row of another shape
+
+
+def test_safety_log_gives_back_the_estimates_appended() -> None:
+    """FrameLog.safety (vio_graph/safety/online.py SafetyLog): one float64 row a frame, read
+    back as SafetyEstimate objects equal field for field (bools, ints, NaN) or None, and
+    columns equal to the ones built from the objects."""
+    import dataclasses
+
+    from vio_graph.safety.online import SafetyEstimate, SafetyLog
+
+    rng = np.random.default_rng(2)
+    ests: list = []
+    for k in range(150):
+        if k % 9 == 0:
+            ests.append(None)
+            continue
+        ests.append(
+            SafetyEstimate(
+                float(rng.normal()),
+                float("nan") if k % 4 == 0 else float(rng.uniform()),
+                rng.normal(size=(2, 2)),
+                float(rng.normal()),
+                float(rng.normal()),
+                float(rng.normal()),
+                float(rng.normal()),
+                bool(k % 3 == 0),
+                float(rng.normal()),
+                float(rng.normal()),
+                int(k // 10),
+                float(rng.normal()),
+                float(rng.normal()),
+                bool(k % 5 == 0),
+                np.where(rng.uniform(size=4) < 0.3, np.nan, rng.normal(size=4)),
+                edge_xz_m=rng.normal(size=2),
+                near_trip_clearance_m=float(rng.normal()),
+                pose_consistency_scale=float(rng.uniform(1, 2)),
+            )
+        )
+    log = SafetyLog()
+    assert not log
+    for e in ests:
+        log.append(e)
+    assert len(log) == len(ests) and log[0] is None
+    for a, b in zip(ests, log, strict=True):
+        if a is None:
+            assert b is None
+            continue
+        for f in dataclasses.fields(SafetyEstimate):
+            va, vb = getattr(a, f.name), getattr(b, f.name)
+            assert type(va) is type(vb), f.name
+            np.testing.assert_array_equal(va, vb)  # NaN where NaN
+    for name in ("clearance_sigma_m", "steps_seen", "landing", "placement", "toe_line_xz_m"):
+        ref = np.array(
+            [
+                getattr(e, name)
+                if e is not None
+                else np.full(np.shape(getattr(ests[1], name)), np.nan)
+                for e in ests
+            ],
+            float,
+        )
+        np.testing.assert_array_equal(log.column(name), ref)
+    with pytest.raises(KeyError):
+        log.column("no_such_field")

@@ -32,6 +32,7 @@ from vio_graph.frontend.icp import AUTO_COMPILED_MIN_FRAMES, use_compiled_by_def
 from vio_graph.growable import GrowableArray
 from vio_graph.protocol import Estimator, FilterTrack, FrameRecord
 from vio_graph.recording.reader import Recording
+from vio_graph.safety.online import SafetyLog
 from vio_graph.types import Displacement2D
 from vio_graph.viz.run_view import RunView
 
@@ -113,7 +114,7 @@ class FrameLog:
     timings_ms: TimingTable = field(default_factory=TimingTable)
     in_stance: list[bool] = field(default_factory=list)  # stance anchor used at this frame
     displacements: list[Displacement2D] = field(default_factory=list)  # the front end's
-    safety: list[Any] = field(default_factory=list)  # SafetyEstimate | None (safety/online.py)
+    safety: SafetyLog = field(default_factory=SafetyLog)  # SafetyEstimate | None per frame
     cov_position_m2: GrowableArray = field(default_factory=_rows_2x2)  # filter, m^2
 
     def add(self, record: FrameRecord) -> None:

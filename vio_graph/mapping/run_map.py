@@ -31,7 +31,7 @@ class RunMap:
 
 
 def build_run_map(
-    frame_times_s: Sequence[float],
+    frame_times_s: Sequence[float] | NDArray[np.float64],
     profiles: Mapping[int, NDArray[np.float64]],
     camera_xz_m: NDArray[np.float64],
     config: MappingConfig,

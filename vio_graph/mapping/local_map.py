@@ -142,9 +142,9 @@ def merge_keyframes(keyframes: Sequence[KeyframeProfile], config: MapConfig) -> 
 
     ``merge_points`` on the concatenated points of a 10-minute trial (millions of points)
     makes the run's peak memory: the points, their cells, keys, the sort and the
-    (cell, keyframe) pairs side by side, ~150 bytes a point. Here the world points are
+    (cell, keyframe) pairs side by side, ~100 bytes a point. Here the world points are
     recomputed per keyframe where needed and only one int64 key and one cell index per
-    point are kept across the passes (~50 bytes a point at the peak). The per-cell sums are
+    point are kept across the passes (~47 bytes a point at the peak). The per-cell sums are
     ``np.bincount`` over all points in the same order as there, and the distinct keyframes
     per cell are counted per keyframe, so every output is the same.
     """

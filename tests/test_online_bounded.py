@@ -8,7 +8,10 @@ a float64 buffer instead of a list of Python floats. Both must behave as before.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from vio_graph.filter.time_offset import ClockModel
 from vio_graph.mapping.local_map import TerrainMap2D
@@ -58,3 +61,141 @@ def test_clock_correction_report_over_a_long_stream() -> None:
     assert rep["correction_rms_s"] == float(np.sqrt(np.mean(corr**2)))
     assert rep["correction_max_s"] == float(np.max(np.abs(corr)))
     assert 0 < rep["correction_rms_s"] < 0.003  # smoothing removes part of the 2 ms jitter
+
+
+def test_map_cells_equal_merge_points_bit_for_bit() -> None:
+    """TerrainMap2D.cells merges keyframe by keyframe (vio_graph/mapping/local_map.py
+    merge_keyframes, for the peak memory of long trials): the same cells, counts and means,
+    bit for bit, as merge_points on all the points at once, also with empty and partly
+    non-finite profiles and keyframes that share cells."""
+    from vio_graph.mapping.config import MapConfig
+    from vio_graph.mapping.local_map import merge_points
+
+    rng = np.random.default_rng(3)
+    for cfg in (MapConfig(), MapConfig(min_keyframes_per_cell=1), MapConfig(cell_size_m=0.02)):
+        tmap = TerrainMap2D(cfg)
+        for k in range(80):
+            prof = _profile(rng) + rng.normal(0.0, 0.004, (40, 2))
+            if k % 7 == 0:
+                prof[rng.integers(0, 40, 3)] = np.nan
+            if k % 11 == 0:
+                prof = np.zeros((0, 2))
+            tmap.add_keyframe(0.1 * k, [0.03 * k - 2.0, rng.normal(0.0, 0.01)], prof)
+        raw, index = tmap.raw_points_xz_m()
+        ref = merge_points(raw, index, cfg)
+        got = tmap.cells
+        assert len(got) > 100
+        for name in ("points_xz_m", "point_counts", "keyframe_counts"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(ref, name))
+            assert getattr(got, name).dtype == getattr(ref, name).dtype
+    empty = TerrainMap2D()
+    empty.add_keyframe(0.0, [0.0, 0.0], np.zeros((0, 2)))
+    assert len(empty.cells) == 0 and empty.cells.points_xz_m.shape == (0, 2)
+
+
+def test_map_without_copy_shares_finite_profiles_only() -> None:
+    prof = np.column_stack([np.linspace(0.2, 1.0, 10), np.full(10, -0.4)])
+    tmap = TerrainMap2D()
+    tmap.add_keyframe(0.0, [0.0, 0.0], prof, copy=False)
+    tmap.add_keyframe(1.0, [0.0, 0.0], prof)
+    assert tmap.keyframes[0].profile_xz_m is prof
+    assert not np.shares_memory(tmap.keyframes[1].profile_xz_m, prof)
+    bad = prof.copy()
+    bad[3] = np.nan
+    tmap.add_keyframe(2.0, [0.0, 0.0], bad, copy=False)  # rows dropped: a new array
+    assert tmap.keyframes[2].profile_xz_m.shape == (9, 2)
+    assert not np.shares_memory(tmap.keyframes[2].profile_xz_m, bad)
+
+
+# ------------------------------------------------------------------ the online estimator
+#: what may grow over a trial, and why: the safety monitor's height map is a grid along x
+#: (it grows with the distance walked, not with the frames), and the two clock models keep
+#: their corrections (8 bytes a sample in one float64 buffer) for metrics.json's RMS and max
+GROWS_WITH_DISTANCE = ("online.safety.map.", "online.safety.map[")
+COMPACT_PER_SAMPLE = ("online.imu_clock._corr", "online.frame_clock._corr")
+
+
+def _container_sizes(root: object, name: str) -> dict[str, tuple[str, int]]:
+    """Every list, tuple, dict, deque and set (("len", length)) and numpy array (("bytes",
+    nbytes)) reachable from ``root`` through vio_graph objects' attributes, by path."""
+    import collections
+
+    out: dict[str, tuple[str, int]] = {}
+    seen: set[int] = set()
+
+    def visit(obj: object, path: str, depth: int) -> None:
+        if id(obj) in seen or depth > 8:
+            return
+        seen.add(id(obj))
+        if isinstance(obj, np.ndarray):
+            out[path] = ("bytes", obj.nbytes)
+        elif isinstance(obj, list | tuple | collections.deque | set | frozenset):
+            out[path] = ("len", len(obj))
+            for i, v in enumerate(list(obj)[:3]):
+                visit(v, f"{path}[{i}]", depth + 1)
+        elif isinstance(obj, dict):
+            out[path] = ("len", len(obj))
+            for i, v in enumerate(list(obj.values())[:3]):
+                visit(v, f"{path}[{i}]", depth + 1)
+        elif type(obj).__module__.startswith("vio_graph") and hasattr(obj, "__dict__"):
+            for k, v in vars(obj).items():
+                visit(v, f"{path}.{k}", depth + 1)
+
+    visit(root, name, 0)
+    return out
+
+
+@pytest.fixture(scope="module")
+def upstair_10s(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from vio_graph.sim import load_scenario, simulate
+
+    cfg = load_scenario("upstair")  # 10 s, 300 frames
+    return simulate(cfg, seed=2, out_dir=tmp_path_factory.mktemp("bounded") / "up")
+
+
+@pytest.mark.slow
+def test_online_estimator_state_stays_bounded(upstair_10s: Path) -> None:
+    """Nothing the online estimator keeps grows with the number of frames: between frame
+    120 and the last (~180 frames later) no container reachable from it gains more than a
+    quarter entry per frame or 64 bytes per frame, except the height map (grows with the
+    distance) and the clock corrections (8 bytes a sample). The clock-model window is cut to
+    30 samples so that every window is full by frame 120 on a 10 s trial."""
+    from vio_graph.config import load_config
+    from vio_graph.recording import Recording
+    from vio_graph.replay import Replay
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    cfg = load_config(None)
+    to = cfg.filter.time_offset.model_copy(update={"clock_window": 30})
+    cfg = cfg.model_copy(update={"filter": cfg.filter.model_copy(update={"time_offset": to})})
+    rec = Recording.open(upstair_10s)
+    replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
+    first, snaps = 120, {}
+    run_frame = replay._frame
+
+    def frame(i: int) -> None:
+        run_frame(i)
+        if i in (first, rec.num_frames - 1):
+            snaps[i] = _container_sizes(replay.online, "online")
+
+    replay._frame = frame  # type: ignore[method-assign]
+    lg = replay.run()
+    last = rec.num_frames - 1
+    assert len(lg.t_s) == rec.num_frames and set(snaps) == {first, last}
+    n = last - first
+    mid, end = snaps[first], snaps[last]
+    assert len(end) > 100  # the walk reached the estimator's parts
+    grown = {}
+    for path, (kind, size) in end.items():
+        if path.startswith(GROWS_WITH_DISTANCE + COMPACT_PER_SAMPLE):
+            continue
+        before = mid.get(path, (kind, 0))[1]
+        if size - before > (64 * n if kind == "bytes" else 0.25 * n):
+            grown[path] = (before, size)
+    assert not grown, f"grows with the frames: {grown}"
+    # the height map does grow (the walk covers ~8 m): the allowance is not vacuous
+    assert any(
+        size > mid.get(p, ("", 0))[1]
+        for p, (_, size) in end.items()
+        if p.startswith(GROWS_WITH_DISTANCE)
+    )

@@ -91,3 +91,97 @@ def test_run_view_computes_nothing_for_the_null_visualizer_only(tmp_path: Path) 
     quiet.view.frame(0, None, None)  # returns before touching its arguments
     lg = quiet.run()
     assert np.array_equal(lg.camera_xz["filter"], replay.log.camera_xz["filter"])
+
+
+def test_growable_array_reads_like_the_list_it_replaces() -> None:
+    """FrameLog's numbers and the estimators' camera paths (vio_graph/growable.py): one
+    float64 buffer instead of a Python object per frame, read as the list was."""
+    from vio_graph.growable import GrowableArray
+
+    rng = np.random.default_rng(1)
+    floats = [float(v) for v in rng.normal(size=300)]  # past the first capacity, 3 times
+    rows = [rng.normal(size=(2, 2)) for _ in range(300)]
+    col, mats = GrowableArray(), GrowableArray((2, 2))
+    assert not col and len(col) == 0 and np.asarray(mats).shape == (0, 2, 2)
+    for v, m in zip(floats, rows, strict=True):
+        col.append(v)
+        mats.append(m)
+    assert col and len(col) == 300 and list(col) == floats
+    assert type(col[5]) is float and col[-1] == floats[-1]
+    np.testing.assert_array_equal(np.asarray(col), floats)
+    np.testing.assert_array_equal(col[10:20], floats[10:20])
+    np.testing.assert_array_equal(np.asarray(mats), np.stack(rows))
+    got = mats[7]
+    got[0, 0] = 99.0  # a copy: the store is unchanged
+    assert mats[7][0, 0] == rows[7][0, 0]
+    arr = np.asarray(col)
+    arr[0] = 99.0
+    assert col[0] == floats[0]
+    with pytest.raises(IndexError):
+        col[300]
+    with pytest.raises(ValueError):
+        mats.append(np.zeros(3))  # a row of another shape
+
+
+def test_safety_log_gives_back_the_estimates_appended() -> None:
+    """FrameLog.safety (vio_graph/safety/online.py SafetyLog): one float64 row a frame, read
+    back as SafetyEstimate objects equal field for field (bools, ints, NaN) or None, and
+    columns equal to the ones built from the objects."""
+    import dataclasses
+
+    from vio_graph.safety.online import SafetyEstimate, SafetyLog
+
+    rng = np.random.default_rng(2)
+    ests: list = []
+    for k in range(150):
+        if k % 9 == 0:
+            ests.append(None)
+            continue
+        ests.append(
+            SafetyEstimate(
+                float(rng.normal()),
+                float("nan") if k % 4 == 0 else float(rng.uniform()),
+                rng.normal(size=(2, 2)),
+                float(rng.normal()),
+                float(rng.normal()),
+                float(rng.normal()),
+                float(rng.normal()),
+                bool(k % 3 == 0),
+                float(rng.normal()),
+                float(rng.normal()),
+                int(k // 10),
+                float(rng.normal()),
+                float(rng.normal()),
+                bool(k % 5 == 0),
+                np.where(rng.uniform(size=4) < 0.3, np.nan, rng.normal(size=4)),
+                edge_xz_m=rng.normal(size=2),
+                near_trip_clearance_m=float(rng.normal()),
+                pose_consistency_scale=float(rng.uniform(1, 2)),
+            )
+        )
+    log = SafetyLog()
+    assert not log
+    for e in ests:
+        log.append(e)
+    assert len(log) == len(ests) and log[0] is None
+    for a, b in zip(ests, log, strict=True):
+        if a is None:
+            assert b is None
+            continue
+        for f in dataclasses.fields(SafetyEstimate):
+            va, vb = getattr(a, f.name), getattr(b, f.name)
+            assert type(va) is type(vb), f.name
+            np.testing.assert_array_equal(va, vb)  # NaN where NaN
+    for name in ("clearance_sigma_m", "steps_seen", "landing", "placement", "toe_line_xz_m"):
+        ref = np.array(
+            [
+                getattr(e, name)
+                if e is not None
+                else np.full(np.shape(getattr(ests[1], name)), np.nan)
+                for e in ests
+            ],
+            float,
+        )
+        np.testing.assert_array_equal(log.column(name), ref)
+    with pytest.raises(KeyError):
+        log.column("no_such_field")

@@ -192,7 +192,7 @@ def _run_into(
     # map, from the best refined keyframe poses available
     map_mode = "batch" if "batch" in camera else "smoother" if "smoother" in camera else "filter"
     run_map = build_run_map(
-        lg.t_s, lg.profiles, camera[map_mode], config.mapping, rec.metadata.terrain
+        t_s, lg.profiles, camera[map_mode], config.mapping, rec.metadata.terrain
     )
     metrics["map"] = {"source_mode": map_mode, **run_map.metrics}
 

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from vio_graph.growable import GrowableArray
 from vio_graph.types import (
     CornerObservation,
     Displacement2D,
@@ -148,7 +149,7 @@ class FilterTrack:
     name = "filter"
 
     def __init__(self) -> None:
-        self._path: list[NDArray[np.float64]] = []
+        self._path = GrowableArray((2,))  # camera x-z per frame
 
     def add_imu(self, step: ImuStep) -> None:
         pass
@@ -169,7 +170,7 @@ class FilterTrack:
 
 
 def path_of_frames(
-    path: Sequence[NDArray[np.float64]], n_frames: int, name: str
+    path: Sequence[NDArray[np.float64]] | GrowableArray, n_frames: int, name: str
 ) -> NDArray[np.float64]:
     """A per-frame path kept by an estimator, checked to cover all ``n_frames`` frames."""
     from vio_graph.errors import EstimationError

@@ -29,8 +29,10 @@ from vio_graph.errors import EstimationError
 from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
 from vio_graph.frontend.icp import AUTO_COMPILED_MIN_FRAMES, use_compiled_by_default
+from vio_graph.growable import GrowableArray
 from vio_graph.protocol import Estimator, FilterTrack, FrameRecord
 from vio_graph.recording.reader import Recording
+from vio_graph.safety.online import SafetyLog
 from vio_graph.types import Displacement2D
 from vio_graph.viz.run_view import RunView
 
@@ -85,19 +87,24 @@ class TimingTable:
         return np.full(self._n, np.nan) if col is None else col[: self._n].copy()
 
 
+def _rows_2x2() -> GrowableArray:
+    return GrowableArray((2, 2))
+
+
 @dataclass
 class FrameLog:
-    """Per-frame quantities collected during the replay (lists, one entry per depth frame);
-    ``camera_xz`` holds every estimator's camera path once the replay has finished."""
+    """Per-frame quantities collected during the replay (one entry per depth frame; the
+    numbers in float64 columns, vio_graph/growable.py, the rest in lists); ``camera_xz``
+    holds every estimator's camera path once the replay has finished."""
 
-    t_s: list[float] = field(default_factory=list)
+    t_s: GrowableArray = field(default_factory=GrowableArray)
     camera_xz: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     #: shank pitch (N,) rad of the modes whose leg kinematics use their own attitude
     #: (keyframe smoothers with ``smoother.leg_attitude: smoothed``); others use shank_pitch_imu
     shank_pitch_by_mode: dict[str, NDArray[np.float64]] = field(default_factory=dict)
-    shank_pitch_imu: list[float] = field(default_factory=list)
-    shank_pitch_chain: list[float] = field(default_factory=list)
-    ankle_rad: list[float] = field(default_factory=list)
+    shank_pitch_imu: GrowableArray = field(default_factory=GrowableArray)
+    shank_pitch_chain: GrowableArray = field(default_factory=GrowableArray)
+    ankle_rad: GrowableArray = field(default_factory=GrowableArray)
     status: list[str] = field(default_factory=list)
     terrain: list[str] = field(default_factory=list)
     displacement_ok: list[bool] = field(default_factory=list)
@@ -107,8 +114,8 @@ class FrameLog:
     timings_ms: TimingTable = field(default_factory=TimingTable)
     in_stance: list[bool] = field(default_factory=list)  # stance anchor used at this frame
     displacements: list[Displacement2D] = field(default_factory=list)  # the front end's
-    safety: list[Any] = field(default_factory=list)  # SafetyEstimate | None (safety/online.py)
-    cov_position_m2: list[NDArray[np.float64]] = field(default_factory=list)  # filter, m^2
+    safety: SafetyLog = field(default_factory=SafetyLog)  # SafetyEstimate | None per frame
+    cov_position_m2: GrowableArray = field(default_factory=_rows_2x2)  # filter, m^2
 
     def add(self, record: FrameRecord) -> None:
         est, res = record.estimate, record.frontend

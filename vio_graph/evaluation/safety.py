@@ -46,7 +46,7 @@ from vio_graph.safety.clearance import (
     placement_on_tread,
 )
 from vio_graph.safety.config import SafetyConfig
-from vio_graph.safety.online import SafetyEstimate, SafetyMonitor
+from vio_graph.safety.online import SafetyEstimate, SafetyLog, SafetyMonitor
 
 MAX_LEAD_S = 1.0  # a warning up to this long before a near-trip's minimum counts for it
 TRUTH_STEP_S = 0.002  # time step of the true near-trip search (the truth is interpolated)
@@ -197,7 +197,7 @@ def _mm_stats(err_m: NDArray[np.float64]) -> dict[str, float]:
 
 
 def score_mode(
-    est: list[SafetyEstimate | None],
+    est: list[SafetyEstimate | None] | SafetyLog,
     truth: dict[str, NDArray],
     t_s: NDArray[np.float64],
     with_sigma: bool,
@@ -206,6 +206,8 @@ def score_mode(
     n = len(t_s)
 
     def col(name: str) -> NDArray[np.float64]:
+        if isinstance(est, SafetyLog):  # the replay's compact log: no objects rebuilt
+            return est.column(name)
         return np.array([getattr(s, name) if s is not None else np.nan for s in est], float)
 
     c, sig = col("clearance_m"), col("clearance_sigma_m")
@@ -229,12 +231,15 @@ def score_mode(
                 "max": float(np.max(sc)) if sc.size else float("nan"),
                 "last": float(sc[-1]) if sc.size else float("nan"),
             }
-    warn = np.array([bool(s.near_trip_warning) if s is not None else False for s in est])
+    warn = col("near_trip_warning") == 1.0  # False without an estimate (NaN)
     block["near_trip"] = near_trip_scores(
         t_s, warn, truth["t_dense_s"], truth["near_trip"], truth["nosing_dense_m"]
     )
-    landing = np.array([bool(s.landing) if s is not None else False for s in est])
-    pl_est = np.array([s.placement if s is not None else np.full(4, np.nan) for s in est])
+    landing = col("landing") == 1.0
+    if isinstance(est, SafetyLog):
+        pl_est = est.column("placement")
+    else:
+        pl_est = np.array([s.placement if s is not None else np.full(4, np.nan) for s in est])
     pl_err = (pl_est - truth["placement"][:n])[landing][:, :2]
     per_landing = [
         float(np.nanmax(np.abs(r)) * 1e3) if np.isfinite(r).any() else None for r in pl_err
@@ -283,7 +288,7 @@ def safety_metrics(
     """metrics.json ``clearance`` and ``placement`` blocks for the run's modes (filter from
     the online outputs, smoother / batch replayed on their paths) and the per-frame truth."""
     t = np.asarray(lg.t_s, dtype=float)
-    landing = np.array([bool(s.landing) if s is not None else False for s in lg.safety])
+    landing = lg.safety.column("landing") == 1.0  # False without an estimate (NaN)
     truth = true_safety(gt, terrain, t, landing, config)
     if truth is None or not lg.safety or lg.safety[0] is None:
         return {}, truth

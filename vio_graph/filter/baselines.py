@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
 from vio_graph.filter.eskf import ERROR_STATE_DIM, FilterState, SagittalEskf
+from vio_graph.growable import GrowableArray
 from vio_graph.protocol import EstimatorReport, FrameRecord, ImuStep, path_of_frames
 from vio_graph.types import Displacement2D, EstimateStatus, ImuSample
 
@@ -32,7 +33,7 @@ class PathKeeper:
             else np.asarray(initial_camera_xz_m, dtype=float)
         )
         self._started = False
-        self._path: list[NDArray[np.float64]] = []
+        self._path = GrowableArray((2,))  # camera x-z per frame
 
     def initialise(
         self, timestamp_s: float, p_xz: ArrayLike, v_xz: ArrayLike = (0.0, 0.0), **kwargs: object

@@ -19,7 +19,7 @@ Pure module: no file I/O.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,13 +72,16 @@ def _as_xz(value: ArrayLike, name: str) -> NDArray[np.float64]:
     return arr.copy()
 
 
-def _as_profile(value: ArrayLike) -> NDArray[np.float64]:
+def _as_profile(value: ArrayLike, copy: bool = True) -> NDArray[np.float64]:
     arr = np.asarray(value, dtype=np.float64)
     if arr.size == 0:
         return np.zeros((0, 2))
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise MappingError(f"profile_xz_m must have shape (N, 2), got {arr.shape}")
-    return arr[np.all(np.isfinite(arr), axis=1)].copy()
+    finite = np.all(np.isfinite(arr), axis=1)
+    if not copy and finite.all():
+        return arr
+    return arr[finite]  # boolean indexing copies
 
 
 def merge_points(
@@ -133,6 +136,76 @@ def merge_points(
     )
 
 
+def merge_keyframes(keyframes: Sequence[KeyframeProfile], config: MapConfig) -> MapCells:
+    """:func:`merge_points` of the keyframes' world points, bit for bit, without holding
+    every point in several forms at once.
+
+    ``merge_points`` on the concatenated points of a 10-minute trial (millions of points)
+    makes the run's peak memory: the points, their cells, keys, the sort and the
+    (cell, keyframe) pairs side by side, ~100 bytes a point. Here the world points are
+    recomputed per keyframe where needed and only one int64 key and one cell index per
+    point are kept across the passes (~47 bytes a point at the peak). The per-cell sums are
+    ``np.bincount`` over all points in the same order as there, and the distinct keyframes
+    per cell are counted per keyframe, so every output is the same.
+    """
+    cell = config.cell_size_m
+    sizes = np.array([kf.profile_xz_m.shape[0] for kf in keyframes], dtype=np.int64)
+    n_points = int(sizes.sum()) if sizes.size else 0
+    if n_points == 0:
+        return MapCells(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), cell)
+    # 1. extent of the integer cells (for the key layout of merge_points)
+    lo = np.full(2, np.iinfo(np.int64).max, dtype=np.int64)
+    hi_z = np.iinfo(np.int64).min
+    for kf in keyframes:
+        if kf.profile_xz_m.shape[0]:
+            ij = np.floor(kf.world_points_xz_m() / cell).astype(np.int64)
+            lo = np.minimum(lo, ij.min(axis=0))
+            hi_z = max(hi_z, int(ij[:, 1].max()))
+    n_z = hi_z - int(lo[1]) + 1
+    # 2. one key per point, ordered by (x cell, z cell), as in merge_points
+    key = np.empty(n_points, dtype=np.int64)
+    start = 0
+    for kf, n in zip(keyframes, sizes.tolist(), strict=True):
+        if n:
+            ij = np.floor(kf.world_points_xz_m() / cell).astype(np.int64)
+            ij -= lo
+            key[start : start + n] = ij[:, 0] * n_z + ij[:, 1]
+            start += n
+    cell_keys, cell_of_point = np.unique(key, return_inverse=True)
+    del key
+    n_cells = cell_keys.shape[0]
+    del cell_keys
+    # 3. per-cell sums (one coordinate at a time) and counts
+    point_counts = np.bincount(cell_of_point, minlength=n_cells)
+    sums = []
+    for axis in (0, 1):
+        coord = np.empty(n_points)
+        start = 0
+        for kf, n in zip(keyframes, sizes.tolist(), strict=True):
+            if n:
+                coord[start : start + n] = kf.world_points_xz_m()[:, axis]
+                start += n
+        sums.append(np.bincount(cell_of_point, weights=coord, minlength=n_cells))
+        del coord
+    # 4. distinct keyframes per cell: each keyframe counts once in every cell it touches
+    keyframe_counts = np.zeros(n_cells, dtype=np.int64)
+    start = 0
+    for n in sizes.tolist():
+        if n:
+            keyframe_counts[np.unique(cell_of_point[start : start + n])] += 1
+            start += n
+    keep = (keyframe_counts >= config.min_keyframes_per_cell) & (
+        point_counts >= config.min_points_per_cell
+    )
+    means = np.stack([sums[0][keep], sums[1][keep]], axis=1) / point_counts[keep, None]
+    return MapCells(
+        points_xz_m=means,
+        point_counts=point_counts[keep].astype(np.int64),
+        keyframe_counts=keyframe_counts[keep].astype(np.int64),
+        cell_size_m=cell,
+    )
+
+
 class TerrainMap2D:
     """Accumulates keyframe profiles into a thinned 2D terrain map.
 
@@ -154,17 +227,23 @@ class TerrainMap2D:
 
     # -- building --------------------------------------------------------------------------
     def add_keyframe(
-        self, timestamp_s: float, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike
+        self,
+        timestamp_s: float,
+        camera_xz_m: ArrayLike,
+        profile_xz_m: ArrayLike,
+        copy: bool = True,
     ) -> None:
         """Add one keyframe (camera position (2,) world, profile (N, 2) relative to camera).
 
         Non-finite profile rows are dropped. A keyframe with the timestamp of a stored one
-        replaces it. With ``max_keyframes`` set, the oldest keyframes are forgotten.
+        replaces it. With ``max_keyframes`` set, the oldest keyframes are forgotten. With
+        ``copy=False`` a finite float64 (N, 2) profile is stored as given, not copied (the
+        caller promises not to change it: a run's map shares the replay's profiles).
         """
         keyframe = KeyframeProfile(
             timestamp_s=float(timestamp_s),
             camera_xz_m=_as_xz(camera_xz_m, "camera_xz_m"),
-            profile_xz_m=_as_profile(profile_xz_m),
+            profile_xz_m=_as_profile(profile_xz_m, copy),
         )
         existing = self._find(keyframe.timestamp_s)
         times = self._times  # sorted timestamps, valid after _find; kept valid when cheap
@@ -260,8 +339,7 @@ class TerrainMap2D:
     def cells(self) -> MapCells:
         """The merged, thinned map (recomputed after any change)."""
         if self._cells is None:
-            points, index = self.raw_points_xz_m()
-            self._cells = merge_points(points, index, self.config)
+            self._cells = merge_keyframes(self._keyframes, self.config)
         return self._cells
 
     @property

@@ -31,7 +31,7 @@ class RunMap:
 
 
 def build_run_map(
-    frame_times_s: Sequence[float],
+    frame_times_s: Sequence[float] | NDArray[np.float64],
     profiles: Mapping[int, NDArray[np.float64]],
     camera_xz_m: NDArray[np.float64],
     config: MappingConfig,
@@ -42,7 +42,7 @@ def build_run_map(
     tmap = TerrainMap2D(config.map)
     for k, prof in profiles.items():
         if prof.shape[0]:
-            tmap.add_keyframe(frame_times_s[k], camera_xz_m[k], prof)
+            tmap.add_keyframe(frame_times_s[k], camera_xz_m[k], prof, copy=False)
     pts = tmap.points_xz_m
     metrics: dict[str, Any] = {"keyframes": len(profiles), "points": int(pts.shape[0])}
     if pts.shape[0] < 10:

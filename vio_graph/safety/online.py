@@ -37,13 +37,14 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field, fields
 from types import ModuleType
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.growable import GrowableArray
 from vio_graph.safety import clearance
 from vio_graph.safety.clearance import (
     NO_CLEARANCE,
@@ -126,6 +127,73 @@ CSV_COLUMNS = (
     "pose_consistency_scale",
     "map_consistency_scale",
 )
+
+
+#: SafetyEstimate's array fields and their shapes; its bool and int fields (SafetyLog)
+_ARRAY_FIELDS = {"toe_line_xz_m": (2, 2), "placement": (4,), "edge_xz_m": (2,)}
+_BOOL_FIELDS = ("near_trip_warning", "landing")
+_INT_FIELDS = ("steps_seen",)
+
+
+class SafetyLog:
+    """The SafetyEstimate (or None) of every frame of a replay, as one float64 row a frame
+    (27 numbers, 8 bytes each) instead of an object with three small arrays (~1 KB).
+    Reads like the list it replaces: ``len``, truthiness, ``log[k]`` and iteration give
+    SafetyEstimate objects equal field for field to the ones appended (bools and ints
+    restored; every float, NaN included, stored exactly), or None."""
+
+    def __init__(self) -> None:
+        names = [f.name for f in fields(SafetyEstimate)]
+        self._scalars = [n for n in names if n not in _ARRAY_FIELDS]
+        self._arrays = [(n, _ARRAY_FIELDS[n]) for n in names if n in _ARRAY_FIELDS]
+        width = len(self._scalars) + sum(math.prod(s) for _, s in self._arrays) + 1
+        self._rows = GrowableArray((width,))  # last column: 1 = an estimate, 0 = None
+
+    def append(self, s: SafetyEstimate | None) -> None:
+        if s is None:
+            row = np.full(self._rows.row_shape, NAN)
+            row[-1] = 0.0
+        else:
+            parts = [np.array([float(getattr(s, n)) for n in self._scalars])]
+            parts += [np.asarray(getattr(s, n), float).reshape(-1) for n, _ in self._arrays]
+            row = np.concatenate([*parts, [1.0]])
+        self._rows.append(row)
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def __getitem__(self, k: int) -> SafetyEstimate | None:
+        row = self._rows[k]
+        if row[-1] == 0.0:
+            return None
+        values: dict = {}
+        for i, n in enumerate(self._scalars):
+            v = float(row[i])
+            values[n] = bool(v) if n in _BOOL_FIELDS else int(v) if n in _INT_FIELDS else v
+        j = len(self._scalars)
+        for n, shape in self._arrays:
+            size = math.prod(shape)
+            values[n] = row[j : j + size].reshape(shape).copy()
+            j += size
+        return SafetyEstimate(**values)
+
+    def __iter__(self) -> Iterator[SafetyEstimate | None]:
+        return (self[k] for k in range(len(self)))
+
+    def column(self, name: str) -> NDArray[np.float64]:
+        """Field ``name`` of every frame as floats, (N,) or (N, *shape) for an array field,
+        NaN at frames without an estimate (bools as 0 / 1): without rebuilding the
+        objects."""
+        rows = self._rows.view()
+        if name in self._scalars:
+            return rows[:, self._scalars.index(name)].copy()
+        j = len(self._scalars)
+        for n, shape in self._arrays:
+            size = math.prod(shape)
+            if n == name:
+                return rows[:, j : j + size].reshape(-1, *shape).copy()
+            j += size
+        raise KeyError(name)
 
 
 def csv_values(s: SafetyEstimate | None) -> list[str]:

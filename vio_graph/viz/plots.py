@@ -304,13 +304,16 @@ def plot_batch_summary(path: Path, rows: list[dict[str, Any]]) -> Path:
 def plot_clearance(
     path: Path,
     t_s: NDArray[np.float64],
-    safety: list[Any],
+    safety: Any,
     truth: dict[str, NDArray[np.float64]] | None,
 ) -> Path:
     """plots/clearance.png: the online toe clearance (cm) with its 1-sigma band, the predicted
     minimum clearance, the truth when known, near-trip warnings and landings."""
 
     def col(name: str) -> NDArray[np.float64]:
+        column = getattr(safety, "column", None)  # the replay's SafetyLog: no objects rebuilt
+        if column is not None:
+            return column(name)
         return np.array([getattr(s, name) if s is not None else np.nan for s in safety], float)
 
     t = np.asarray(t_s, dtype=float)[: len(safety)]
@@ -336,8 +339,8 @@ def plot_clearance(
     ax.plot(tk, pred[keep], color="tab:orange", lw=0.8, label="predicted minimum over the horizon")
     if truth is not None:
         ax.plot(tk, true_c[keep], color="k", lw=1.0, ls="--", label="truth")
-    warn = np.array([bool(s.near_trip_warning) if s is not None else False for s in safety])
-    land = np.array([bool(s.landing) if s is not None else False for s in safety])
+    warn = col("near_trip_warning") == 1.0  # False without an estimate (NaN)
+    land = col("landing") == 1.0
     if warn.any():
         ax.plot(t[warn], np.zeros(int(warn.sum())), "rv", ms=4, label="near-trip warning")
     if land.any():  # one collection of full-height lines instead of one axvline per landing

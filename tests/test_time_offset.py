@@ -346,3 +346,42 @@ def test_frames_with_early_stamps_see_the_sensor_samples_up_to_their_capture_tim
     k -= np.asarray(replay.log.t_s) - t_clean[k - 1] < t_clean[k] - np.asarray(replay.log.t_s)
     same = np.asarray(replay.log.ankle_rad) == np.asarray(clean.log.ankle_rad)[k]
     assert np.mean(same) > 0.8
+
+
+def test_stance_detection_follows_the_filter_when_camera_stamps_are_late(
+    tmp_path: Path,
+) -> None:
+    """Camera stamps 30 ms late (td = +30 ms) and td applied exactly: the filter runs 30 ms
+    behind the IMU stream, and so must the stance detector and the stance's pitch rate. The
+    frames are then re-stamped to their capture times and the stance anchors must be those
+    of the same walk without the offset (the detector's quiet window and gyro read the IMU
+    stream's newest sample, 30 ms after the frame, and the anchors and stance velocities
+    moved with it)."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.recording.reader import Recording
+    from vio_graph.replay import Replay
+    from vio_graph.sim import load_scenario, simulate
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    base = load_scenario("downstair").model_copy(update={"duration_s": 4.0})
+    late = base.model_copy(
+        update={"faults": base.faults.model_copy(update={"camera_time_offset_s": 0.03})}
+    )
+    cfg = PipelineConfig()
+    to = cfg.filter.time_offset.model_copy(update={"estimate": False, "rerun_window_s": 0.0})
+    cfg = cfg.model_copy(update={"filter": cfg.filter.model_copy(update={"time_offset": to})})
+
+    def stance_of(sim_cfg, name: str, td_s: float):
+        rec = Recording.open(simulate(sim_cfg, seed=3, out_dir=tmp_path / name))
+        replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
+        replay.online.time_offset.applied_s = td_s  # the offset known from the start
+        replay.online.time_offset._latched = td_s != 0.0
+        lg = replay.run()
+        return np.asarray(lg.t_s), np.asarray(lg.in_stance), replay.online.stance_stats
+
+    t_clean, stance_clean, stats_clean = stance_of(base, "clean", 0.0)
+    t_late, stance_late, stats_late = stance_of(late, "late", 0.03)
+    np.testing.assert_allclose(t_late, t_clean, atol=1e-9)  # the same capture times
+    assert stance_clean.sum() > 20
+    np.testing.assert_array_equal(stance_late, stance_clean)
+    assert stats_late["velocity_fused"] == stats_clean["velocity_fused"]

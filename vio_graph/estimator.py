@@ -396,6 +396,7 @@ class OnlineEstimator:
         self._joint_hist: deque[JointAngles] = deque(maxlen=32)
         self._frame_joints: JointAngles | None = None  # joints at a re-stamped frame time
         self._imu_queue: deque[ImuSample] = deque()  # received, not yet propagated
+        self._stance_queue: deque[ImuSample] = deque()  # received, not yet in the detector
         self._filter_started = False
         self._last_frame_t: float | None = None  # previous frame time on the IMU clock
         #: frames stamped (camera clock, s) at or before this have already given their tilt
@@ -447,29 +448,14 @@ class OnlineEstimator:
         self._imu_queue.append(sample)
         # camera stamps late by td > 0: the filter stays td behind the IMU stream, so that a
         # re-stamped frame finds it at (not past) its capture time
-        self._propagate_until(sample.timestamp_s - max(self.time_offset.applied_s, 0.0))
-        if self.config.filter.stance_anchor:
-            if self._stance.compiled:  # the sagittal rotation inside, compiled
-                self._stance.add_imu_quat(
-                    sample.timestamp_s,
-                    sample.accel_mps2,
-                    sample.gyro_radps,
-                    sample.quat_wxyz,
-                    self.config.filter.gravity_xz_mps2,
-                    trusted=not sample.accel_held,
-                )
-            else:
-                self._stance.add_imu(
-                    sample.timestamp_s,
-                    sample.accel_mps2,
-                    sample.gyro_radps,
-                    _sagittal_rotation(sample.quat_wxyz),
-                    self.config.filter.gravity_xz_mps2,
-                    trusted=not sample.accel_held,
-                )
+        t_filter = sample.timestamp_s - max(self.time_offset.applied_s, 0.0)
+        self._propagate_until(t_filter)
+        # the stance detector and the stance's pitch rate follow the filter, not the IMU
+        # stream: with late camera stamps a frame's quiet window and gyro would otherwise end
+        # td after its capture time
+        self._stance_queue.append(sample)
+        self._advance_stance_until(t_filter)
         self._last_imu = sample
-        if not sample.accel_held:
-            self._last_trusted_imu = sample
         self._imu_ms += (time.perf_counter() - t0) * 1e3
         return ImuStep(shank=shank, corrected=sample)
 
@@ -599,6 +585,7 @@ class OnlineEstimator:
         frame = self._restamp(frame)
         t = frame.timestamp_s
         self._propagate_until(t)
+        self._advance_stance_until(t)
         if self.config.filter.start_at_first_frame:
             self._start_filter_at(t)
         if not self._filter_started:
@@ -723,6 +710,35 @@ class OnlineEstimator:
             ankle_rad=ankle,
             in_stance=self._in_stance,
         )
+
+    def _advance_stance_until(self, t_s: float) -> None:
+        """Feed the stance detector the queued IMU samples stamped at or before ``t_s`` and
+        keep the latest trusted one (its gyro gives the stance's pitch rate)."""
+        q = self._stance_queue
+        anchor = self.config.filter.stance_anchor
+        while q and q[0].timestamp_s <= t_s + 1e-9:
+            sample = q.popleft()
+            if anchor:
+                if self._stance.compiled:  # the sagittal rotation inside, compiled
+                    self._stance.add_imu_quat(
+                        sample.timestamp_s,
+                        sample.accel_mps2,
+                        sample.gyro_radps,
+                        sample.quat_wxyz,
+                        self.config.filter.gravity_xz_mps2,
+                        trusted=not sample.accel_held,
+                    )
+                else:
+                    self._stance.add_imu(
+                        sample.timestamp_s,
+                        sample.accel_mps2,
+                        sample.gyro_radps,
+                        _sagittal_rotation(sample.quat_wxyz),
+                        self.config.filter.gravity_xz_mps2,
+                        trusted=not sample.accel_held,
+                    )
+            if not sample.accel_held:
+                self._last_trusted_imu = sample
 
     def _propagate_until(self, t_s: float) -> None:
         """Propagate the filter with the queued IMU samples stamped at or before ``t_s``."""

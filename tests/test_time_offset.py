@@ -385,3 +385,28 @@ def test_stance_detection_follows_the_filter_when_camera_stamps_are_late(
     assert stance_clean.sum() > 20
     np.testing.assert_array_equal(stance_late, stance_clean)
     assert stats_late["velocity_fused"] == stats_clean["velocity_fused"]
+
+
+def test_a_sample_before_the_first_frame_arriving_after_it_does_not_stop_the_filter() -> None:
+    """The filter starts at the first frame. Under stamp jitter with a re-stamped frame the
+    IMU sample after the frame by its raw stamp can lie before it by its clock-line time
+    (downstair, 2 ms jitter, seed 3: a sample at 18.579 ms after a frame at 18.908 ms). It is
+    a sample before the start, like the others: the filter must not be asked to go back
+    (it raised "older than the state" and stopped the run), and the next one propagates."""
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.types import ImuSample
+
+    est = OnlineEstimator(PipelineConfig(), RigGeometry.from_metadata(tiny_metadata()))
+    assert est.config.filter.start_at_first_frame
+
+    def sample(t: float) -> ImuSample:
+        return ImuSample(t, np.array([0.0, 0.0, 9.81]), np.zeros(3), np.array([1.0, 0, 0, 0]))
+
+    est._start_filter_at(0.018908)
+    est._imu_queue.extend([sample(0.018579), sample(0.028579)])
+    est._propagate_until(0.02)
+    assert est.filter.position_velocity()[0] == pytest.approx(0.018908)
+    est._propagate_until(0.03)
+    assert est.filter.position_velocity()[0] == pytest.approx(0.028579)

@@ -398,6 +398,7 @@ class OnlineEstimator:
         self._imu_queue: deque[ImuSample] = deque()  # received, not yet propagated
         self._stance_queue: deque[ImuSample] = deque()  # received, not yet in the detector
         self._filter_started = False
+        self._filter_start_s = -np.inf  # the filter's first time (s, IMU clock)
         self._last_frame_t: float | None = None  # previous frame time on the IMU clock
         #: frames stamped (camera clock, s) at or before this have already given their tilt
         #: to the time-offset estimator (set by the retroactive re-run, vio_graph/replay.py)
@@ -747,7 +748,11 @@ class OnlineEstimator:
         while q and q[0].timestamp_s <= t_s + 1e-9:
             s = q.popleft()
             if self._filter_started:
-                self.filter.propagate(s)
+                # a sample whose clock-line time is before the first frame although its raw
+                # stamp came after it (stamp jitter with a re-stamped frame) is a sample
+                # before the start: it only feeds the attitude, as the others before it
+                if s.timestamp_s >= self._filter_start_s - 1e-9:
+                    self.filter.propagate(s)
             elif not at_frame:
                 self.filter.initialise(s.timestamp_s, self._p0)
                 self._filter_started = True
@@ -759,6 +764,7 @@ class OnlineEstimator:
         if not self._filter_started:
             self.filter.initialise(t_s, self._p0)
             self._filter_started = True
+            self._filter_start_s = t_s
 
     def _restamp(self, frame: DepthFrame) -> DepthFrame:
         """The frame on the IMU clock: stamp minus the applied camera-IMU offset (and the

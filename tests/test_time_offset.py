@@ -290,3 +290,123 @@ def test_frame_stamp_test_lets_vision_choose_between_stamps_and_the_clock_line()
         exact = _stamp_test_on(stamps_jitter=False, seed=seed)
         assert not exact.use_line and exact.n_switches == 0
         assert exact.llr < -exact.threshold
+
+
+def test_frames_with_early_stamps_see_the_sensor_samples_up_to_their_capture_time(
+    tmp_path: Path,
+) -> None:
+    """Camera stamps 30 ms early (td = -30 ms): a frame waits until the IMU reaches its
+    capture time. It must then see exactly the IMU and joint samples stamped at or before
+    that time, as a frame in the recorded order does. (Released once the IMU was within one
+    period of it, it got the IMU sample but not the joint sample of the same stamp, next in
+    the event order: the ankle encoder lagged the shank attitude by up to two periods and
+    the toe's foot-angle error doubled.) The frames after the offset is applied are checked;
+    the joints each took are also those of the offset-free run of the same walk."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.recording.reader import Recording
+    from vio_graph.replay import Replay
+    from vio_graph.sim import load_scenario, simulate
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    base = load_scenario("downstair").model_copy(update={"duration_s": 3.0})
+    early = base.model_copy(
+        update={"faults": base.faults.model_copy(update={"camera_time_offset_s": -0.03})}
+    )
+    seen: list[tuple[float, float, float]] = []  # (capture time, last IMU, last joints)
+
+    def replay_of(cfg, name: str, watch: bool) -> Replay:
+        rec = Recording.open(simulate(cfg, seed=1, out_dir=tmp_path / name))
+        replay = Replay(rec, PipelineConfig(), {"filter"}, NullVisualizer())
+        if watch:
+            frame = replay._frame
+
+            def watched(i: int) -> None:
+                online = replay.online
+                if online.time_offset.latched:
+                    t_cap = rec.frame_timestamps_s[i] - online.time_offset.applied_s
+                    seen.append((t_cap, online.last_imu_time_s, online._joint_hist[-1].timestamp_s))
+                frame(i)
+
+            replay._frame = watched  # type: ignore[method-assign]
+        replay.run()
+        return replay
+
+    replay = replay_of(early, "early", True)
+    assert replay.rerun is not None and len(seen) > 60
+    imu_t = replay.rec.imu.timestamp_s  # joints share the IMU's stamps in the simulator
+    for t_cap, last_imu, last_joint in seen:
+        expected = imu_t[np.searchsorted(imu_t, t_cap, side="right") - 1]
+        assert last_imu == expected and last_joint == expected
+    # the same walk without the offset: the same joint sample at (almost) every frame
+    # (matched by capture time; while td is still 1-2 ms off, a frame near a sample's stamp
+    # may take its neighbour)
+    clean = replay_of(base, "clean", False)
+    t_clean = np.asarray(clean.log.t_s)
+    k = np.searchsorted(t_clean, np.asarray(replay.log.t_s)).clip(1, t_clean.size - 1)
+    k -= np.asarray(replay.log.t_s) - t_clean[k - 1] < t_clean[k] - np.asarray(replay.log.t_s)
+    same = np.asarray(replay.log.ankle_rad) == np.asarray(clean.log.ankle_rad)[k]
+    assert np.mean(same) > 0.8
+
+
+def test_stance_detection_follows_the_filter_when_camera_stamps_are_late(
+    tmp_path: Path,
+) -> None:
+    """Camera stamps 30 ms late (td = +30 ms) and td applied exactly: the filter runs 30 ms
+    behind the IMU stream, and so must the stance detector and the stance's pitch rate. The
+    frames are then re-stamped to their capture times and the stance anchors must be those
+    of the same walk without the offset (the detector's quiet window and gyro read the IMU
+    stream's newest sample, 30 ms after the frame, and the anchors and stance velocities
+    moved with it)."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.recording.reader import Recording
+    from vio_graph.replay import Replay
+    from vio_graph.sim import load_scenario, simulate
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    base = load_scenario("downstair").model_copy(update={"duration_s": 4.0})
+    late = base.model_copy(
+        update={"faults": base.faults.model_copy(update={"camera_time_offset_s": 0.03})}
+    )
+    cfg = PipelineConfig()
+    to = cfg.filter.time_offset.model_copy(update={"estimate": False, "rerun_window_s": 0.0})
+    cfg = cfg.model_copy(update={"filter": cfg.filter.model_copy(update={"time_offset": to})})
+
+    def stance_of(sim_cfg, name: str, td_s: float):
+        rec = Recording.open(simulate(sim_cfg, seed=3, out_dir=tmp_path / name))
+        replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
+        replay.online.time_offset.applied_s = td_s  # the offset known from the start
+        replay.online.time_offset._latched = td_s != 0.0
+        lg = replay.run()
+        return np.asarray(lg.t_s), np.asarray(lg.in_stance), replay.online.stance_stats
+
+    t_clean, stance_clean, stats_clean = stance_of(base, "clean", 0.0)
+    t_late, stance_late, stats_late = stance_of(late, "late", 0.03)
+    np.testing.assert_allclose(t_late, t_clean, atol=1e-9)  # the same capture times
+    assert stance_clean.sum() > 20
+    np.testing.assert_array_equal(stance_late, stance_clean)
+    assert stats_late["velocity_fused"] == stats_clean["velocity_fused"]
+
+
+def test_a_sample_before_the_first_frame_arriving_after_it_does_not_stop_the_filter() -> None:
+    """The filter starts at the first frame. Under stamp jitter with a re-stamped frame the
+    IMU sample after the frame by its raw stamp can lie before it by its clock-line time
+    (downstair, 2 ms jitter, seed 3: a sample at 18.579 ms after a frame at 18.908 ms). It is
+    a sample before the start, like the others: the filter must not be asked to go back
+    (it raised "older than the state" and stopped the run), and the next one propagates."""
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.types import ImuSample
+
+    est = OnlineEstimator(PipelineConfig(), RigGeometry.from_metadata(tiny_metadata()))
+    assert est.config.filter.start_at_first_frame
+
+    def sample(t: float) -> ImuSample:
+        return ImuSample(t, np.array([0.0, 0.0, 9.81]), np.zeros(3), np.array([1.0, 0, 0, 0]))
+
+    est._start_filter_at(0.018908)
+    est._imu_queue.extend([sample(0.018579), sample(0.028579)])
+    est._propagate_until(0.02)
+    assert est.filter.position_velocity()[0] == pytest.approx(0.018908)
+    est._propagate_until(0.03)
+    assert est.filter.position_velocity()[0] == pytest.approx(0.028579)

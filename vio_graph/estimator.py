@@ -418,7 +418,9 @@ class OnlineEstimator:
         self._joint_hist: deque[JointAngles] = deque(maxlen=32)
         self._frame_joints: JointAngles | None = None  # joints at a re-stamped frame time
         self._imu_queue: deque[ImuSample] = deque()  # received, not yet propagated
+        self._stance_queue: deque[ImuSample] = deque()  # received, not yet in the detector
         self._filter_started = False
+        self._filter_start_s = -np.inf  # the filter's first time (s, IMU clock)
         self._last_frame_t: float | None = None  # previous frame time on the IMU clock
         #: frames stamped (camera clock, s) at or before this have already given their tilt
         #: to the time-offset estimator (set by the retroactive re-run, vio_graph/replay.py)
@@ -516,31 +518,16 @@ class OnlineEstimator:
         self._imu_queue.append(sample)
         # camera stamps late by td > 0: the filter stays td behind the IMU stream, so that a
         # re-stamped frame finds it at (not past) its capture time
-        self._propagate_until(sample.timestamp_s - max(self.time_offset.applied_s, 0.0))
+        t_filter = sample.timestamp_s - max(self.time_offset.applied_s, 0.0)
+        self._propagate_until(t_filter)
         learner = self.saturation_learner
         if learner is not None and (learner.active or self.imu_faults.last_rail_sign.any()):
             self._learn_saturation(learner, shank)
-        if self.config.filter.stance_anchor:
-            if self._stance.compiled:  # the sagittal rotation inside, compiled
-                self._stance.add_imu_quat(
-                    sample.timestamp_s,
-                    sample.accel_mps2,
-                    sample.gyro_radps,
-                    sample.quat_wxyz,
-                    self.config.filter.gravity_xz_mps2,
-                    trusted=not sample.accel_held,
-                )
-            else:
-                self._stance.add_imu(
-                    sample.timestamp_s,
-                    sample.accel_mps2,
-                    sample.gyro_radps,
-                    _sagittal_rotation(sample.quat_wxyz),
-                    self.config.filter.gravity_xz_mps2,
-                    trusted=not sample.accel_held,
-                )
-        if not sample.accel_held:
-            self._last_trusted_imu = sample
+        # the stance detector and the stance's pitch rate follow the filter, not the IMU
+        # stream: with late camera stamps a frame's quiet window and gyro would otherwise end
+        # td after its capture time
+        self._stance_queue.append(sample)
+        self._advance_stance_until(t_filter)
         return sample
 
     def add_joints(self, sample: JointAngles) -> None:
@@ -674,6 +661,7 @@ class OnlineEstimator:
         frame = self._restamp(frame)
         t = frame.timestamp_s
         self._propagate_until(t)
+        self._advance_stance_until(t)
         if self.config.filter.start_at_first_frame:
             self._start_filter_at(t)
         if not self._filter_started:
@@ -800,6 +788,35 @@ class OnlineEstimator:
             in_stance=self._in_stance,
         )
 
+    def _advance_stance_until(self, t_s: float) -> None:
+        """Feed the stance detector the queued IMU samples stamped at or before ``t_s`` and
+        keep the latest trusted one (its gyro gives the stance's pitch rate)."""
+        q = self._stance_queue
+        anchor = self.config.filter.stance_anchor
+        while q and q[0].timestamp_s <= t_s + 1e-9:
+            sample = q.popleft()
+            if anchor:
+                if self._stance.compiled:  # the sagittal rotation inside, compiled
+                    self._stance.add_imu_quat(
+                        sample.timestamp_s,
+                        sample.accel_mps2,
+                        sample.gyro_radps,
+                        sample.quat_wxyz,
+                        self.config.filter.gravity_xz_mps2,
+                        trusted=not sample.accel_held,
+                    )
+                else:
+                    self._stance.add_imu(
+                        sample.timestamp_s,
+                        sample.accel_mps2,
+                        sample.gyro_radps,
+                        _sagittal_rotation(sample.quat_wxyz),
+                        self.config.filter.gravity_xz_mps2,
+                        trusted=not sample.accel_held,
+                    )
+            if not sample.accel_held:
+                self._last_trusted_imu = sample
+
     def _propagate_until(self, t_s: float) -> None:
         """Propagate the filter with the queued IMU samples stamped at or before ``t_s``."""
         q = self._imu_queue
@@ -807,7 +824,11 @@ class OnlineEstimator:
         while q and q[0].timestamp_s <= t_s + 1e-9:
             s = q.popleft()
             if self._filter_started:
-                self.filter.propagate(s)
+                # a sample whose clock-line time is before the first frame although its raw
+                # stamp came after it (stamp jitter with a re-stamped frame) is a sample
+                # before the start: it only feeds the attitude, as the others before it
+                if s.timestamp_s >= self._filter_start_s - 1e-9:
+                    self.filter.propagate(s)
             elif not at_frame:
                 self.filter.initialise(s.timestamp_s, self._p0)
                 self._filter_started = True
@@ -819,6 +840,7 @@ class OnlineEstimator:
         if not self._filter_started:
             self.filter.initialise(t_s, self._p0)
             self._filter_started = True
+            self._filter_start_s = t_s
 
     def _restamp(self, frame: DepthFrame) -> DepthFrame:
         """The frame on the IMU clock: stamp minus the applied camera-IMU offset (and the

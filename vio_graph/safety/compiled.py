@@ -589,6 +589,22 @@ def consistency_squares(
 
 
 @numba.njit(cache=True)
+def profile_x_range(rel, cam_x):  # pragma: no cover - compiled
+    """The smallest and largest x (m) of a keyframe's finite points placed at the camera
+    (``rel`` (N, 2) camera-relative, x plus ``cam_x``), NaN, NaN without one."""
+    lo, hi = np.inf, -np.inf
+    found = False
+    for k in range(rel.shape[0]):
+        if np.isfinite(rel[k, 0]) and np.isfinite(rel[k, 1]):
+            x = rel[k, 0] + cam_x
+            lo, hi = min(lo, x), max(hi, x)
+            found = True
+    if not found:
+        return np.nan, np.nan
+    return lo, hi
+
+
+@numba.njit(cache=True)
 def window_merge(srt, old, q):  # pragma: no cover - compiled
     """consistency.ChiSquareScale's sorted window after a keyframe: ``srt`` (sorted) without
     the values of ``old`` (sorted, a sub-multiset of it; empty while the window fills) and
@@ -946,3 +962,4 @@ def warm_up() -> None:
     b3 = np.arange(3, dtype=np.int64)
     consistency_squares(b3, x3, x3, x3, x3 + 1.0, b3, cov, n + 1, 0, 0.005, 1.0, 0.0, 0.0, 1.0)
     window_merge(x3, x3[:1], x3)
+    profile_x_range(np.zeros((2, 2)), 0.0)

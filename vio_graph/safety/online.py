@@ -464,7 +464,13 @@ class SafetyMonitor:
         rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
         cx, cz = (float(v) for v in np.asarray(camera_xz_m, dtype=float))
         tops = self.geometry.keyframe_tops(rel, cx, cz, cfg.bin_m, self.map.top_band_m)
-        seen = self._keyframe_window(camera_xz_m, rel)
+        seen: MapWindow | None = None
+        if math.isfinite(cx):
+            x_lo, x_hi = self.geometry.profile_x_range(rel, cx)
+            if x_lo == x_lo:  # a finite point: the map's bins under the profile
+                seen = self.map.window(x_lo, x_hi, cfg.map_sigma_m)
+        else:  # (NaN bounds, as numpy gives them)
+            seen = self._keyframe_window(camera_xz_m, rel)
         if seen is not None:
             self.consistency.observe_bin_tops(
                 tops,

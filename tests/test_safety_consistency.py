@@ -236,3 +236,118 @@ def test_consistency_equals_the_reference_over_a_replay(sample_frames) -> None:
     assert any(p != 1.0 for p, *_ in seen)  # the scales left 1
     for k, (p_ref, p, m_ref, m) in enumerate(seen):
         assert (p, m) == (p_ref, m_ref), k
+
+
+def _kernels():
+    pytest.importorskip("numba")
+    from vio_graph.safety import compiled
+
+    return compiled
+
+
+@pytest.mark.parametrize("window", [1, 3, 30])
+def test_compiled_window_merge_equals_the_numpy_merge(window: int) -> None:
+    """The sorted window merged by the compiled kernel (one pass: the oldest keyframe's
+    values out, the new ones in) holds the numpy merge's values and gives its scale after
+    every keyframe, bit for bit, on keyframes of random sizes with many repeated values."""
+    K = _kernels()
+    rng = np.random.default_rng(10 + window)
+    a = ChiSquareScale(window, min_keyframes=2, scale_range=(0.1, 10.0))
+    b = ChiSquareScale(window, min_keyframes=2, scale_range=(0.1, 10.0), kernels=K)
+    ref = ChiSquareScaleReference(window, min_keyframes=2, scale_range=(0.1, 10.0))
+    for k in range(200):
+        n = int(rng.integers(0, 60))
+        r = rng.normal(0.0, 1e-3, n).round(5)  # rounding: repeated normalised squares
+        v = np.full(n, 1e-6)
+        v[rng.random(n) < 0.1] = rng.choice([0.0, np.nan, -1.0])  # dropped values
+        for c in (a, b, ref):
+            c.observe(r, v)
+        np.testing.assert_array_equal(b._sorted, a._sorted, err_msg=str(k))
+        assert a.scale == b.scale == ref.scale, k
+    assert a.scale != 1.0 or window < 2  # (a window of 1 never reaches min_keyframes)
+
+
+def _random_keyframe(rng: np.random.Generator, x0: float) -> np.ndarray:
+    """A noisy stair profile (N, 2) relative to a camera at (x0, 0.5): mixed pixels, a few
+    NaN points, heights rounded to 0.1 mm (ties)."""
+    x = np.sort(rng.uniform(x0 - 0.3, x0 + 0.9, 300))
+    z = 0.15 * np.floor(x / 0.28) + rng.normal(0, 0.002, x.size).round(4)
+    z[rng.random(x.size) < 0.02] -= 0.1  # mixed pixels
+    rel = np.stack([x - x0, z - 0.5], 1)
+    rel[rng.random(x.size) < 0.01] = np.nan
+    return rel
+
+
+def test_compiled_keyframe_test_equals_the_numpy_test_on_random_stairs() -> None:
+    """Keyframes walking over noisy stairs with growing covariances: the compiled
+    consistency test (one kernel per keyframe, the compiled windows) gives the numpy test's
+    pose and map scales after every keyframe, bit for bit."""
+    from vio_graph.safety.height_map import IncrementalHeightMap
+
+    K = _kernels()
+    cfg = SafetyConfig()
+    rng = np.random.default_rng(4)
+    m = IncrementalHeightMap(cfg.bin_m, cfg.min_keyframes)
+    args = (cfg.consistency_window_keyframes, 2, (0.1, 10.0))
+    ref, comp = MapConsistency(*args), MapConsistency(*args, kernels=K)
+    n_scaled = 0
+    for k, x0 in enumerate(np.arange(-0.5, 3.0, 0.02)):
+        P = np.array([[1e-6 + 4e-7 * k, 2e-7 * k], [2e-7 * k, 1e-6 + 3e-7 * k]])
+        cam = np.array([x0 + rng.normal(0, 0.003), 0.5 + rng.normal(0, 0.003)])
+        rel = _random_keyframe(rng, float(x0))
+        fin = rel[np.all(np.isfinite(rel), axis=1)]
+        seen = m.window(float(fin[:, 0].min() + cam[0]), float(fin[:, 0].max() + cam[0]), 0.003)
+        ref.observe_keyframe(
+            cam,
+            rel,
+            P,
+            seen.profile,
+            lambda j, bins=seen.bins: m.bin_cov_rows_at(bins[j]),
+            cfg.bin_m,
+            m.top_band_m,
+            cfg.relative_pose_scale,
+        )
+        tops = K.keyframe_tops(rel, float(cam[0]), float(cam[1]), cfg.bin_m, m.top_band_m)
+        comp.observe_bin_tops(
+            tops, seen.profile, seen.bins, *m.bin_cov_sums(), P, cfg.bin_m, cfg.relative_pose_scale
+        )
+        assert (comp.pose_scale, comp.map_scale) == (ref.pose_scale, ref.map_scale), k
+        n_scaled += comp.pose_scale != 1.0 and comp.map_scale != 1.0
+        m.add_keyframe(cam, rel, P)
+    assert n_scaled > 50  # the scales left 1 on most keyframes
+
+
+def test_compiled_consistency_equals_the_reference_over_a_replay(sample_frames) -> None:
+    """data/sample through the compiled monitor: at every keyframe its consistency test
+    gives the pose and map scales of the reference test run beside it, bit for bit."""
+    K = _kernels()
+    cfg = SafetyConfig()
+    mon = SafetyMonitor(cfg, compiled=True)
+    assert mon.consistency._kernels is K
+    ref = MapConsistency(
+        cfg.consistency_window_keyframes,
+        cfg.consistency_min_keyframes,
+        cfg.consistency_scale_range,
+        reference=True,
+    )
+    observe = mon.consistency.observe_bin_tops
+    seen: list[tuple[float, float, float, float]] = []
+
+    def both(tops, prof, bins, cov, n, i0, P, bin_m, pose_scale) -> None:
+        rows = cov[bins - i0] / n[bins - i0][:, None]
+        ref.observe_keyframe(None, None, P, prof, lambda k: rows[k], bin_m, 0.0, pose_scale, tops)
+        observe(tops, prof, bins, cov, n, i0, P, bin_m, pose_scale)
+        c = mon.consistency
+        seen.append((ref.pose_scale, c.pose_scale, ref.map_scale, c.map_scale))
+
+    mon.consistency.observe_bin_tops = both  # type: ignore[method-assign]
+    for f in sample_frames:
+        mon.update(*f)
+    assert len(seen) > 20
+    assert any(p != 1.0 for p, *_ in seen)
+    for k, (p_ref, p, m_ref, m) in enumerate(seen):
+        assert (p, m) == (p_ref, m_ref), k
+    with pytest.raises(ValueError, match="compiled"):
+        MapConsistency(5, reference=True, kernels=K)
+    with pytest.raises(ValueError, match="compiled kernels"):
+        MapConsistency(5).observe_bin_tops(*([None] * 9))

@@ -497,6 +497,136 @@ def window_bins(used, mid, se2, a0, a1, i0, bin_m, x_min, x_max, map_sigma):  # 
 
 
 # ---------------------------------------------------------------------------------------------
+# the keyframe consistency test
+
+
+@numba.njit(cache=True)
+def _median_sorted(a):  # pragma: no cover - compiled
+    """np.median of a 1-D array: sorted copy, the middle element or the mean of the two
+    middle ones (the same float as numpy's partition-based median); NaN if any is NaN."""
+    n = a.shape[0]
+    if n == 0:
+        return np.nan
+    for i in range(n):
+        if a[i] != a[i]:
+            return np.nan
+    s = np.sort(a)
+    h = n // 2
+    if n % 2:
+        return s[h]
+    return (s[h - 1] + s[h]) / 2
+
+
+@numba.njit(cache=True)
+def consistency_squares(
+    bins, top, x_lo, z, sigma, wbins, cov, n, i0, bin_m, P00, P01, P10, P11
+):  # pragma: no cover - compiled
+    """consistency.MapConsistency.observe_keyframe up to the two scales' inputs: the
+    keyframe's bins ``bins`` / heights ``top`` against the map window (``x_lo``, ``z``,
+    ``sigma``, bin indices ``wbins``), the map's covariance sums ``cov`` and counts ``n``
+    (array element = bin index - ``i0``). Returns (any bin shared, the common offset o, the
+    residuals' scaled MAD, the median of |dP|_zz, the bins shared, the map test's
+    normalised squares sorted (finite, positive variance: what ChiSquareScale keeps)); the
+    offset's variance is left to the caller (Python's ``**`` differs from x*x in the last
+    bit at times, and the reference squares with it)."""
+    K = x_lo.shape[0]
+    empty = np.zeros(0)
+    if K == 0:
+        return False, np.nan, np.nan, np.nan, 0, empty
+    mapped = np.empty(K, np.int64)
+    for i in range(K):
+        mapped[i] = np.int64(np.rint(x_lo[i] / bin_m))
+    # the keyframe's bins the map holds (both sorted): their heights' innovations
+    M = bins.shape[0]
+    r = np.empty(M)
+    kk = np.empty(M, np.int64)
+    m = 0
+    j = 0
+    for i in range(M):
+        while j < K and mapped[j] < bins[i]:
+            j += 1
+        k = min(j, K - 1)
+        if mapped[k] == bins[i]:
+            r[m] = top[i] - z[k]
+            kk[m] = k
+            m += 1
+    if m == 0:
+        return False, np.nan, np.nan, np.nan, 0, empty
+    r = r[:m]
+    offset = _median_sorted(r)
+    dev = np.empty(m)
+    res = np.empty(m)
+    zz = np.empty(m)
+    pxz = (P01 + P10) / 2
+    for q in range(m):
+        res[q] = r[q] - offset
+        dev[q] = abs(res[q])
+        e = wbins[kk[q]] - i0
+        c = float(n[e])
+        a = P00 - cov[e, 0] / c
+        b = pxz - cov[e, 1] / c
+        d = P11 - cov[e, 2] / c
+        # consistency.psd_abs_zz of (a, b, d)
+        mm = (a + d) / 2
+        h = (a - d) / 2
+        rr = np.sqrt(h * h + b * b)
+        l1, l2 = mm + rr, mm - rr
+        vz2 = (l1 - a) / (2 * rr) if rr > 0 else 0.5
+        if vz2 < 0.0:
+            vz2 = 0.0
+        elif vz2 > 1.0:
+            vz2 = 1.0
+        zz[q] = abs(l1) * vz2 + abs(l2) * (1.0 - vz2)
+    mad_sd = 1.4826 * _median_sorted(dev)
+    sq = np.empty(m)
+    c = 0
+    for q in range(m):
+        v = sigma[kk[q]] * sigma[kk[q]]
+        if np.isfinite(res[q]) and np.isfinite(v) and v > 0:
+            sq[c] = res[q] * res[q] / v
+            c += 1
+    return True, offset, mad_sd, _median_sorted(zz), m, np.sort(sq[:c])
+
+
+@numba.njit(cache=True)
+def profile_x_range(rel, cam_x):  # pragma: no cover - compiled
+    """The smallest and largest x (m) of a keyframe's finite points placed at the camera
+    (``rel`` (N, 2) camera-relative, x plus ``cam_x``), NaN, NaN without one."""
+    lo, hi = np.inf, -np.inf
+    found = False
+    for k in range(rel.shape[0]):
+        if np.isfinite(rel[k, 0]) and np.isfinite(rel[k, 1]):
+            x = rel[k, 0] + cam_x
+            lo, hi = min(lo, x), max(hi, x)
+            found = True
+    if not found:
+        return np.nan, np.nan
+    return lo, hi
+
+
+@numba.njit(cache=True)
+def window_merge(srt, old, q):  # pragma: no cover - compiled
+    """consistency.ChiSquareScale's sorted window after a keyframe: ``srt`` (sorted) without
+    the values of ``old`` (sorted, a sub-multiset of it; empty while the window fills) and
+    with those of ``q`` (sorted) merged in, one pass."""
+    out = np.empty(srt.shape[0] - old.shape[0] + q.shape[0])
+    i = j = k = m = 0
+    while i < srt.shape[0] or k < q.shape[0]:
+        if i < srt.shape[0] and j < old.shape[0] and srt[i] == old[j]:
+            i += 1  # the oldest keyframe's value leaves
+            j += 1
+        elif k >= q.shape[0] or (i < srt.shape[0] and srt[i] <= q[k]):
+            out[m] = srt[i]
+            i += 1
+            m += 1
+        else:
+            out[m] = q[k]
+            k += 1
+            m += 1
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
 # the swing-template prediction
 
 
@@ -828,3 +958,8 @@ def warm_up() -> None:
     bin_below(used, 0, 0.005, 0.01)
     phase = np.array([0.0, 0.1, 0.2])
     template_motion(0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]))
+    x3 = np.array([0.0, 0.005, 0.01])
+    b3 = np.arange(3, dtype=np.int64)
+    consistency_squares(b3, x3, x3, x3, x3 + 1.0, b3, cov, n + 1, 0, 0.005, 1.0, 0.0, 0.0, 1.0)
+    window_merge(x3, x3[:1], x3)
+    profile_x_range(np.zeros((2, 2)), 0.0)

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
+from types import ModuleType
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -42,6 +43,8 @@ from vio_graph.safety.clearance import HeightProfile
 
 #: median of the chi-square distribution with one degree of freedom
 CHI2_1_MEDIAN = 0.4549364231195724
+
+_NONE = np.zeros(0)  # an empty window part
 
 
 def keyframe_bin_tops(
@@ -172,16 +175,19 @@ class ChiSquareScale(_ScaleBase):
     The window's values are also kept in one sorted array, updated per keyframe (the new
     keyframe's values merged in, the oldest keyframe's taken out), so the median is read at
     the middle index: the same value as :class:`ChiSquareScaleReference`'s median of the
-    concatenated window (tests/test_safety_consistency.py)."""
+    concatenated window (tests/test_safety_consistency.py). ``kernels``: the compiled module
+    (vio_graph/safety/compiled.py) merging in one pass, or None (numpy); the same values."""
 
     def __init__(
         self,
         window: int,
         min_keyframes: int = 5,
         scale_range: tuple[float, float] = (0.25, 4.0),
+        kernels: ModuleType | None = None,
     ) -> None:
         super().__init__(window, min_keyframes, scale_range)
         self._sorted = np.zeros(0)
+        self._kernels = kernels
 
     def observe(self, innovation_m: ArrayLike, predicted_var_m2: ArrayLike) -> None:
         """As :meth:`ChiSquareScaleReference.observe`, the median from the sorted window."""
@@ -190,7 +196,33 @@ class ChiSquareScale(_ScaleBase):
         q = self._normalised_squares(innovation_m, predicted_var_m2)
         if q is None:
             return
-        q = np.sort(q)
+        self.observe_sorted(np.sort(q))
+
+    def observe_sorted(self, q: NDArray[np.float64]) -> None:
+        """One keyframe's normalised squares, already filtered (finite, positive variance)
+        and sorted: the window and :attr:`scale` updated (nothing for an empty ``q``)."""
+        if self.window == 0 or q.size == 0:
+            return
+        merged = self._merge(q)
+        self._sorted = merged
+        self._q.append(q)
+        if len(self._q) >= self.min_keyframes:
+            n = merged.size
+            h = n // 2
+            if math.isnan(merged[n - 1]):  # never: the values are squares over v > 0
+                med = math.nan
+            elif n % 2:
+                med = float(merged[h])
+            else:
+                med = float((merged[h - 1] + merged[h]) / 2)
+            self._set_scale(med)
+
+    def _merge(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The sorted window with the oldest keyframe's values out (when the window is full)
+        and ``q``'s in."""
+        if self._kernels is not None:
+            full = len(self._q) == self._q.maxlen
+            return self._kernels.window_merge(self._sorted, self._q[0] if full else _NONE, q)
         srt = self._sorted
         if len(self._q) == self._q.maxlen:  # the oldest keyframe leaves the window
             keep = np.ones(srt.size, bool)
@@ -205,18 +237,7 @@ class ChiSquareScale(_ScaleBase):
         rest = np.ones(merged.size, bool)
         rest[slot] = False
         merged[rest] = srt
-        self._sorted = merged
-        self._q.append(q)
-        if len(self._q) >= self.min_keyframes:
-            n = merged.size
-            h = n // 2
-            if math.isnan(merged[n - 1]):  # never: the values are squares over v > 0
-                med = math.nan
-            elif n % 2:
-                med = float(merged[h])
-            else:
-                med = float((merged[h - 1] + merged[h]) / 2)
-            self._set_scale(med)
+        return merged
 
 
 class ChiSquareScaleReference(_ScaleBase):
@@ -241,7 +262,9 @@ class MapConsistency:
     """The pose and map scales of the clearance sigma from each keyframe tested against the
     map before it joins it (see module docstring); arguments as :class:`ChiSquareScale`;
     ``reference``: the implementation as first written (:class:`ChiSquareScaleReference`,
-    ``np.median``), which the default (sorted window, :func:`median_selected`) equals."""
+    ``np.median``), which the default (sorted window, :func:`median_selected`) equals;
+    ``kernels``: the compiled module (vio_graph/safety/compiled.py) for
+    :meth:`observe_bin_tops` and the sorted windows, the same values again."""
 
     def __init__(
         self,
@@ -249,10 +272,19 @@ class MapConsistency:
         min_keyframes: int = 5,
         scale_range: tuple[float, float] = (0.25, 4.0),
         reference: bool = False,
+        kernels: ModuleType | None = None,
     ) -> None:
-        scale = ChiSquareScaleReference if reference else ChiSquareScale
-        self.pose: _ScaleBase = scale(window, min_keyframes, scale_range)
-        self.map: _ScaleBase = scale(window, min_keyframes, scale_range)
+        if reference and kernels is not None:
+            raise ValueError("the reference consistency test has no compiled path")
+        self.pose: _ScaleBase
+        self.map: _ScaleBase
+        if reference:
+            self.pose = ChiSquareScaleReference(window, min_keyframes, scale_range)
+            self.map = ChiSquareScaleReference(window, min_keyframes, scale_range)
+        else:
+            self.pose = ChiSquareScale(window, min_keyframes, scale_range, kernels)
+            self.map = ChiSquareScale(window, min_keyframes, scale_range, kernels)
+        self._kernels = kernels
         self._median: Callable[[NDArray[np.float64]], float] = (
             (lambda a: float(np.median(a))) if reference else median_selected
         )
@@ -307,3 +339,53 @@ class MapConsistency:
         v_offset = pose_scale * median(psd_abs_zz(dP)) + (1.2533 * mad_sd) ** 2 / r.size
         self.pose.observe(np.array([offset]), np.array([v_offset]))
         self.map.observe(r - offset, mapped.sigma_m[k] ** 2)
+
+    def observe_bin_tops(
+        self,
+        bin_tops: tuple[NDArray[np.int64], NDArray[np.float64]],
+        mapped: HeightProfile,
+        mapped_bins: NDArray[np.int64],
+        cov_sums: NDArray[np.float64],
+        counts: NDArray[np.int64],
+        i0: int,
+        cov_position_m2: NDArray[np.float64],
+        bin_m: float,
+        pose_scale: float,
+    ) -> None:
+        """:meth:`observe_keyframe` in one compiled call (needs ``kernels``): the keyframe's
+        :func:`keyframe_bin_tops`, the map window ``mapped`` with its bin indices
+        ``mapped_bins``, the map's per-bin covariance sums (B, 3) and keyframe counts (B,)
+        with bin index ``i0`` at element 0 (the mean keyframe covariance of a bin is their
+        ratio); other arguments as :meth:`observe_keyframe`. The same scales, bit for bit
+        (tests/test_safety_consistency.py)."""
+        if self._kernels is None:
+            raise ValueError("observe_bin_tops needs the compiled kernels")
+        if self.pose.window == 0 or len(mapped) == 0:
+            return
+        P = cov_position_m2
+        hit, offset, mad_sd, med_zz, m, sq = self._kernels.consistency_squares(
+            bin_tops[0],
+            bin_tops[1],
+            mapped.x_lo_m,
+            mapped.z_m,
+            mapped.sigma_m,
+            mapped_bins,
+            cov_sums,
+            counts,
+            i0,
+            bin_m,
+            float(P[0, 0]),
+            float(P[0, 1]),
+            float(P[1, 0]),
+            float(P[1, 1]),
+        )
+        if not hit:
+            return
+        # the offset's variance and square as observe_keyframe computes them (Python's
+        # power, numpy's square)
+        v_offset = pose_scale * med_zz + (1.2533 * mad_sd) ** 2 / m
+        if math.isfinite(offset) and math.isfinite(v_offset) and v_offset > 0:
+            assert isinstance(self.pose, ChiSquareScale)
+            self.pose.observe_sorted(np.array([offset * offset / v_offset]))
+        assert isinstance(self.map, ChiSquareScale)
+        self.map.observe_sorted(sq)

@@ -212,6 +212,11 @@ class OnlineHeightMap:
         e = b - self._i0
         return self._cov[e] / self._n[e][:, None]
 
+    def bin_cov_sums(self) -> tuple[NDArray[np.float64], NDArray[np.int64], int]:
+        """The per-bin covariance sums (B, 3), keyframe counts (B,) and the bin index of
+        element 0: :meth:`bin_cov_at` of bin b is sums[b - i0] / counts[b - i0]."""
+        return self._cov, self._n, self._i0
+
     def bin_cov_mean(self, b: int) -> tuple[float, float, float]:
         """(xx, xz, zz) of :meth:`bin_cov_at`, m^2."""
         xx, xz, zz = (self._cov[b - self._i0] / float(self._n[b - self._i0])).tolist()
@@ -292,26 +297,40 @@ class IncrementalHeightMap(OnlineHeightMap):
         self._edge_first = np.zeros(0, np.int64)  # bin index where each edge's scan starts
 
     def add_keyframe(
-        self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike, cov_position_m2: ArrayLike
+        self,
+        camera_xz_m: ArrayLike,
+        profile_xz_m: ArrayLike,
+        cov_position_m2: ArrayLike,
+        bin_tops: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None,
     ) -> tuple[int, int] | None:
+        """As :meth:`OnlineHeightMap.add_keyframe`; ``bin_tops``: the compiled
+        ``keyframe_tops`` of this keyframe when the caller has it (compiled path only)."""
         if self._kernels is None:
             changed = super().add_keyframe(camera_xz_m, profile_xz_m, cov_position_m2)
         else:
-            changed = self._add_keyframe_compiled(camera_xz_m, profile_xz_m, cov_position_m2)
+            changed = self._add_keyframe_compiled(
+                camera_xz_m, profile_xz_m, cov_position_m2, bin_tops
+            )
         if changed is not None:
             self._rescan_edges(*changed)
         return changed
 
     def _add_keyframe_compiled(
-        self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike, cov_position_m2: ArrayLike
+        self,
+        camera_xz_m: ArrayLike,
+        profile_xz_m: ArrayLike,
+        cov_position_m2: ArrayLike,
+        bin_tops: tuple[NDArray[np.int64], NDArray[np.float64]] | None,
     ) -> tuple[int, int] | None:
         """:meth:`OnlineHeightMap.add_keyframe` through the compiled kernels."""
         assert self._kernels is not None
-        rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
-        cam = np.asarray(camera_xz_m, dtype=float)
-        bins, tops = self._kernels.keyframe_tops(
-            rel, float(cam[0]), float(cam[1]), self.bin_m, self.top_band_m
-        )
+        if bin_tops is None:
+            rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+            cam = np.asarray(camera_xz_m, dtype=float)
+            bin_tops = self._kernels.keyframe_tops(
+                rel, float(cam[0]), float(cam[1]), self.bin_m, self.top_band_m
+            )
+        bins, tops = bin_tops
         if bins.shape[0] == 0:
             return None
         self._grow(int(bins[0]), int(bins[-1]))

@@ -359,6 +359,7 @@ class SafetyMonitor:
             config.consistency_min_keyframes,
             config.consistency_scale_range,
             reference=not incremental,  # the reference map with the reference medians
+            kernels=kernels,
         )
 
     def _track_swing(
@@ -434,16 +435,54 @@ class SafetyMonitor:
         mxz = ((P[0][1] - cxz) + (P[1][0] - cxz)) / 2
         return _psd_abs_entries(P[0][0] - cxx, mxz, P[1][1] - czz, scale)
 
-    def _keyframe_tops(
-        self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike
-    ) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
-        """The keyframe's height per bin from the compiled kernel (None in numpy: the
-        consistency test bins it itself, the same numbers)."""
-        if self.geometry is clearance:
-            return None
+    def _add_keyframe(
+        self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike, P: NDArray[np.float64]
+    ) -> None:
+        """A keyframe (profile (N, 2), camera-relative) tested against the map, then joining
+        it (numpy)."""
+        cfg = self.config
+        seen = self._keyframe_window(camera_xz_m, profile_xz_m)
+        if seen is not None:  # the keyframe against the map, before it joins
+            self.consistency.observe_keyframe(
+                camera_xz_m,
+                profile_xz_m,
+                P,
+                seen.profile,
+                lambda k: self.map.bin_cov_rows_at(seen.bins[k]),
+                cfg.bin_m,
+                self.map.top_band_m,
+                cfg.relative_pose_scale,
+            )
+        self.map.add_keyframe(camera_xz_m, profile_xz_m, P)
+
+    def _add_keyframe_compiled(
+        self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike, P: NDArray[np.float64]
+    ) -> None:
+        """:meth:`_add_keyframe` through the compiled kernels: the keyframe binned once for
+        the test and the map, the test in one call."""
+        cfg = self.config
         rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
         cx, cz = (float(v) for v in np.asarray(camera_xz_m, dtype=float))
-        return self.geometry.keyframe_tops(rel, cx, cz, self.config.bin_m, self.map.top_band_m)
+        tops = self.geometry.keyframe_tops(rel, cx, cz, cfg.bin_m, self.map.top_band_m)
+        seen: MapWindow | None = None
+        if math.isfinite(cx):
+            x_lo, x_hi = self.geometry.profile_x_range(rel, cx)
+            if x_lo == x_lo:  # a finite point: the map's bins under the profile
+                seen = self.map.window(x_lo, x_hi, cfg.map_sigma_m)
+        else:  # (NaN bounds, as numpy gives them)
+            seen = self._keyframe_window(camera_xz_m, rel)
+        if seen is not None:
+            self.consistency.observe_bin_tops(
+                tops,
+                seen.profile,
+                seen.bins,
+                *self.map.bin_cov_sums(),
+                P,
+                cfg.bin_m,
+                cfg.relative_pose_scale,
+            )
+        assert isinstance(self.map, IncrementalHeightMap)
+        self.map.add_keyframe(camera_xz_m, rel, P, tops)
 
     def _keyframe_window(self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike) -> MapWindow | None:
         """The map's used bins under a keyframe's profile (N, 2, camera-relative): all the
@@ -528,20 +567,10 @@ class SafetyMonitor:
         P = np.asarray(cov_position_m2, dtype=float)
         Pl = P.tolist()
         if keyframe_profile_xz_m is not None:
-            seen = self._keyframe_window(camera_xz_m, keyframe_profile_xz_m)
-            if seen is not None:  # the keyframe against the map, before it joins
-                self.consistency.observe_keyframe(
-                    camera_xz_m,
-                    keyframe_profile_xz_m,
-                    P,
-                    seen.profile,
-                    lambda k: self.map.bin_cov_rows_at(seen.bins[k]),
-                    cfg.bin_m,
-                    self.map.top_band_m,
-                    cfg.relative_pose_scale,
-                    self._keyframe_tops(camera_xz_m, keyframe_profile_xz_m),
-                )
-            self.map.add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
+            if self.geometry is clearance:
+                self._add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
+            else:
+                self._add_keyframe_compiled(camera_xz_m, keyframe_profile_xz_m, P)
         heel = np.asarray(heel_xz_m, dtype=float)
         toe = np.asarray(toe_xz_m, dtype=float)
         hx, tx = float(heel[0]), float(toe[0])

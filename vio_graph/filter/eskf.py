@@ -971,21 +971,13 @@ class SagittalEskf:
             S_inv = np.array([[1.0 / s00]])
         gate_d2 = self._gate_d2 if dof == 2 else self._gate_d2_1dof
         if gate and d2 > gate_d2:
-            if landmark:
-                self._n_lm_rej += 1
-            else:
-                self._n_rej += 1
-            return False
+            return self._counted(False, landmark)
         K = (S_inv @ HP).T  # P H^T S^-1 (P, S symmetric)
         dx = K @ innovation
         P = P - K @ HP
         self._P = 0.5 * (P + P.T)
         self._inject(dx)
-        if landmark:
-            self._n_lm_acc += 1
-        else:
-            self._n_acc += 1
-        return True
+        return self._counted(True, landmark)
 
     def _correct_compiled(
         self,
@@ -1012,18 +1004,23 @@ class SagittalEskf:
         if status == k.SINGULAR:
             raise EstimationError("singular innovation covariance")
         if status == k.GATED:
-            if landmark:
-                self._n_lm_rej += 1
-            else:
-                self._n_rej += 1
-            return False
+            return self._counted(False, landmark)
         self._P = P
         self._inject(dx)
+        return self._counted(True, landmark)
+
+    def _counted(self, accepted: bool, landmark: bool) -> bool:
+        """Count an update's outcome (landmark or displacement counters); returns ``accepted``."""
         if landmark:
-            self._n_lm_acc += 1
-        else:
+            if accepted:
+                self._n_lm_acc += 1
+            else:
+                self._n_lm_rej += 1
+        elif accepted:
             self._n_acc += 1
-        return True
+        else:
+            self._n_rej += 1
+        return accepted
 
     def _inject(self, dx: NDArray[np.float64]) -> None:
         """Add the error state ``dx`` to the nominal state and the augmented blocks; all
@@ -1056,11 +1053,7 @@ class SagittalEskf:
             raise EstimationError(f"singular innovation covariance: {exc}") from None
         gate_d2 = self._gate_d2 if dof == 2 else self._gate_d2_1dof
         if gate and float(innovation @ S_inv_y) > gate_d2:
-            if landmark:
-                self._n_lm_rej += 1
-            else:
-                self._n_rej += 1
-            return False
+            return self._counted(False, landmark)
         K = np.linalg.solve(S, H @ P).T  # K = P H^T S^-1 (S, P symmetric)
         dx = K @ innovation
         # Joseph form of P <- (I - K H) P: same value, stays symmetric positive definite
@@ -1075,11 +1068,7 @@ class SagittalEskf:
         for j, key in enumerate(self._aug_keys):
             i = n + 2 * j
             self._aug_xz[key] = self._aug_xz[key] + dx[i : i + 2]
-        if landmark:
-            self._n_lm_acc += 1
-        else:
-            self._n_acc += 1
-        return True
+        return self._counted(True, landmark)
 
     def _set_clone(self, t_s: float) -> None:
         """Augment the state with p(t_s) = p + v (t_s - t), replacing any previous clone."""

@@ -589,14 +589,16 @@ def test_compiled_surface_tilt_equals_the_numpy_path() -> None:
 
 
 def test_compiled_pairwise_sum_is_np_add_reduce_bit_for_bit() -> None:
-    """The compiled means of the level kernel sum like np.add.reduce (pairwise, blocks of
-    128), every size up to a few blocks, so the same floats."""
-    from vio_graph.frontend import compiled
+    """The compiled means of the level kernel and the clock line sum like np.add.reduce
+    (pairwise, blocks of 128), every size up to a few blocks, so the same floats."""
+    from vio_graph import compiled_sums
 
     rng = np.random.default_rng(9)
     for n in [*range(1, 300), 511, 1000, 4097]:
         a = rng.normal(size=n) * 10.0 ** rng.uniform(-3, 3, n)
-        assert compiled._pairwise_sum(a, 0, n) == np.add.reduce(a)
+        assert compiled_sums.pairwise_sum(a, 0, n) == np.add.reduce(a)
+        assert compiled_sums.add_reduce(a) == np.add.reduce(a)
+        assert compiled_sums.pairwise_sum(np.r_[1.0, a], 1, n) == np.add.reduce(a)
 
 
 def test_compiled_corner_equals_the_numpy_path() -> None:

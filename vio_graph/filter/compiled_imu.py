@@ -24,6 +24,8 @@ import math
 import numba
 import numpy as np
 
+from vio_graph.compiled_sums import add_reduce
+
 # eskf_propagate's memory of the previous sample (``SagittalEskf._mem``)
 MEM_HAS_PREV = 0  # 1.0 once a sample was propagated since initialise()
 MEM_T = 1  # its time (s)
@@ -361,73 +363,6 @@ def fault_check(prev, t, acc, gyr, q, acc_lim, gyr_lim, test, sigma2):
     for i in range(9):
         prev[2 + i] = R[i]
     return d2, px, py, pz, acc_sat, gyr_sat
-
-
-@numba.njit(cache=True)
-def _pairwise_block(a, lo, n):
-    """numpy's pairwise summation of a[lo:lo + n] for n <= 128: a plain loop below 8 values,
-    else eight accumulators."""
-    if n < 8:
-        res = -0.0
-        for i in range(lo, lo + n):
-            res += a[i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    m = n - n % 8
-    for i in range(8, m, 8):
-        j = lo + i
-        r0 += a[j]
-        r1 += a[j + 1]
-        r2 += a[j + 2]
-        r3 += a[j + 3]
-        r4 += a[j + 4]
-        r5 += a[j + 5]
-        r6 += a[j + 6]
-        r7 += a[j + 7]
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    for i in range(lo + m, lo + n):
-        res += a[i]
-    return res
-
-
-@numba.njit(cache=True)
-def add_reduce(a):
-    """``np.add.reduce`` of a 1-D contiguous float64 array, the same float: numpy's pairwise
-    summation (blocks of at most 128 values; above that the two halves, the first a multiple
-    of 8 long, summed separately and added), its recursion unrolled on a stack."""
-    if a.size <= 128:
-        return _pairwise_block(a, 0, a.size)
-    # post-order walk of the halving tree: (start, length, children done) and partial sums
-    los = np.empty(64, np.int64)
-    ns = np.empty(64, np.int64)
-    phase = np.empty(64, np.int64)
-    vals = np.empty(64)
-    sp, nv = 1, 0
-    los[0], ns[0], phase[0] = 0, a.size, 0
-    while sp > 0:
-        top = sp - 1
-        lo, n = los[top], ns[top]
-        if n <= 128:
-            vals[nv] = _pairwise_block(a, lo, n)
-            nv += 1
-            sp -= 1
-            continue
-        n2 = n // 2
-        n2 -= n2 % 8
-        if phase[top] == 0:  # left half first
-            phase[top] = 1
-            los[sp], ns[sp], phase[sp] = lo, n2, 0
-            sp += 1
-        elif phase[top] == 1:  # then the right half
-            phase[top] = 2
-            los[sp], ns[sp], phase[sp] = lo + n2, n - n2, 0
-            sp += 1
-        else:  # both done: left + right
-            vals[nv - 2] = vals[nv - 2] + vals[nv - 1]
-            nv -= 1
-            sp -= 1
-    return vals[0]
 
 
 @numba.njit(cache=True)

@@ -26,6 +26,11 @@ Models (the monitor re-run on the same filter run, numpy reference map):
   (so its pose scale is the data's ratio to this model);
 - ``clone_unscaled``: the cross-covariance term with no pose scale (map scale kept).
 
+With ``--frames-above MM`` it lists, per recording, the frames whose clearance error (today's
+model) exceeds MM millimetres: the error, the true clearance, which foot point is closest,
+the camera's error now and at the keyframes that mapped the nearest terrain bin (their mean),
+and their age (docs/method.md: why downstair seeds 4 and 5 miss the 1 cm p95).
+
     VIO_GRAPH_COMPILED=0 python benchmarks/safety_cross_covariance.py REC [REC ...]
 """
 
@@ -233,8 +238,9 @@ class CloneMonitor(SafetyMonitor):
         self.map.add_keyframe(camera_xz_m, profile_xz_m, P)
 
 
-def calibration(path: Path) -> dict[str, tuple[float, float]]:
-    """Share of frames within 1 and 2 sigma per model on one recording."""
+def calibration(path: Path, frames_above_mm: float | None = None) -> dict[str, tuple[float, float]]:
+    """Share of frames within 1 and 2 sigma per model on one recording (and the listing of
+    ``--frames-above``)."""
     cfg = load_config(None)
     rec = Recording.open(path)
     records: dict[str, list] = {"X": [], "pairs": [], "P_jj": [], "keyframes": []}
@@ -250,9 +256,23 @@ def calibration(path: Path) -> dict[str, tuple[float, float]]:
     for model in MODELS:
         mon = CloneMonitor(cfg.safety, records, model)
         c, s = np.full(len(t), np.nan), np.full(len(t), np.nan)
+        lines = []
         for k in range(len(t)):
             r = _common.monitor_update(mon, lg, est, k)
             c[k], s[k] = r.clearance_m, r.clearance_sigma_m
+            err = c[k] - truth["clearance_m"][k]
+            if (
+                model == "marginal"
+                and frames_above_mm is not None
+                and abs(err) * 1e3 > frames_above_mm
+            ):
+                lines.append(_frame_line(mon, k, t, err, truth, est, rec, r))
+        if lines:
+            print(
+                f"{_common.display_path(path)}: frames with |clearance error| > "
+                f"{frames_above_mm} mm"
+            )
+            print("\n".join(lines))
         e = c - truth["clearance_m"][: len(t)]
         ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
         z = np.abs(e[ok]) / s[ok]
@@ -260,14 +280,45 @@ def calibration(path: Path) -> dict[str, tuple[float, float]]:
     return out
 
 
+def _frame_line(
+    mon: CloneMonitor, k: int, t: Any, err: float, truth: Any, est: Any, rec: Any, r: Any
+) -> str:
+    """One frame of the ``--frames-above`` listing (mm, s)."""
+    cam_err = est["camera"] - _common.true_leg_paths(rec, t)["camera"]
+    foot, terrain = r.toe_line_xz_m
+    point = min(("heel", "toe"), key=lambda b: float(np.hypot(*(foot - est[b][k]))))
+    if min(np.hypot(*(foot - est[b][k])) for b in ("heel", "toe")) > 1e-6:
+        point = "mid"
+    b = int(np.floor(terrain[0] / mon.config.bin_m))
+    frames = [mon.records["keyframes"][j] for j in mon.bin_keyframes.get(b, [])]
+    kf = cam_err[frames].mean(axis=0) * 1e3 if frames else np.full(2, np.nan)
+    age = float(np.mean(t[k] - t[frames])) if frames else float("nan")
+    now = cam_err[k] * 1e3
+    return (
+        f"  frame {k} t {t[k]:.2f} s: error {err * 1e3:+.1f},"
+        f" true {truth['clearance_m'][k] * 1e3:.1f},"
+        f" sigma {r.clearance_sigma_m * 1e3:.1f}, {point}; camera error x / z now"
+        f" {now[0]:+.1f} / {now[1]:+.1f}, at the bin's {len(frames)} keyframes {kf[0]:+.1f} /"
+        f" {kf[1]:+.1f} ({age:.2f} s before);"
+        f" relative {now[0] - kf[0]:+.1f} / {now[1] - kf[1]:+.1f}"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("recordings", nargs="+", type=Path, help="simulated recording folders")
+    ap.add_argument(
+        "--frames-above",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="list frames with |error| > MM mm",
+    )
     args = ap.parse_args()
     print("| recording | " + " | ".join(f"{m}: within 1 / 2 sigma" for m in MODELS) + " |")
     print("|---" * (len(MODELS) + 1) + "|")
     for path in args.recordings:
-        res = calibration(path)
+        res = calibration(path, args.frames_above)
         cells = " | ".join(f"{res[m][0]:.2f} / {res[m][1]:.2f}" for m in MODELS)
         print(f"| {_common.display_path(path)} | {cells} |", flush=True)
 

@@ -187,3 +187,43 @@ def test_compiled_geometry_equals_the_numpy_geometry() -> None:
         np.testing.assert_array_equal(e2.xz_m, e1.xz_m)
         np.testing.assert_array_equal(f2, f1)
     assert inside > 10  # penetrating feet were among the cases
+
+
+def test_compiled_swing_edge_loop_equals_the_numpy_loop() -> None:
+    """The swing template's edge loop (SafetyMonitor._swing_edges): the minimum clearance to
+    the edges reached, the near-trip candidates' minimum and the edges remembered as cleared,
+    the same bits from the compiled kernel as from numpy, over random swings across random
+    stairs (also with NaN poses, no next edge, and edges already cleared)."""
+    _compiled()
+    cfg = load_config(None).safety
+    rng = np.random.default_rng(11)
+    found = {"risk": 0, "cleared": 0, "nan": 0}
+    for n in range(600):
+        E = int(rng.integers(1, 6))
+        x = np.sort(rng.uniform(0.0, 1.5, E))
+        edges = clearance.Edges(
+            np.stack([x, rng.uniform(-0.3, 0.5, E)], 1), rng.uniform(-0.2, 0.2, E)
+        )
+        H = cfg.horizon_steps + 1
+        start = np.array([rng.uniform(-0.3, 1.2), rng.uniform(-0.1, 0.6)])
+        vel = np.array([rng.uniform(-0.5, 2.5), rng.uniform(-1.5, 1.5)])
+        tp = start[None] + np.linspace(0.0, cfg.horizon_s, H)[:, None] * vel[None]
+        tp = tp + rng.normal(0.0, 0.005, tp.shape)
+        hp = tp + [rng.uniform(-0.26, -0.18), rng.uniform(-0.06, 0.06)]
+        if n % 17 == 0:
+            tp[int(rng.integers(H)), :] = np.nan
+            found["nan"] += 1
+        e = int(rng.integers(-1, E))
+        cleared = [float(c) for c in x[rng.random(E) < 0.3]]
+        out = []
+        for compiled in (False, True):
+            mon = SafetyMonitor(cfg, incremental=True, compiled=compiled)
+            mon._cleared = list(cleared)
+            pe, risk = mon._swing_edges(hp.copy(), tp.copy(), edges, e, float(np.nanmax(tp[:, 0])))
+            out.append((pe, risk, mon._cleared))
+        (pa, ra, ca), (pb, rb, cb) = out
+        np.testing.assert_array_equal([pb, rb], [pa, ra], err_msg=f"case {n}")
+        assert cb == ca, f"case {n}"
+        found["risk"] += bool(np.isfinite(ra))
+        found["cleared"] += len(ca) > len(cleared)
+    assert found["risk"] > 30 and found["cleared"] > 30 and found["nan"] > 20

@@ -918,6 +918,108 @@ def predicted_min_edge_clearance(
     return float(best) - sole_thickness_m
 
 
+@numba.njit(cache=True)
+def swing_edge_risk(
+    hp, tp, edges_xz, e, toe_x_max, toe_pass, sole, dt, min_fwd, near_trip, tol, cleared
+):  # pragma: no cover - compiled
+    """The swing-template branch's edge loop of ``online.SafetyMonitor.update`` in one call:
+    over the predicted heel / toe poses ``hp``, ``tp`` (H, 2), the minimum clearance to the
+    edges the toe reaches from the next one (index ``e``; ``_edges_reached``) and the
+    near-trip candidates' minimum (forward toe velocity by central differences of ``tp``
+    with step ``dt``, the pose's own next edge, the foot clear of that edge first:
+    ``_approach`` against the edges already ``cleared`` (x, m, within ``tol``)). The same
+    operations in the same order as the numpy loop, NaN as numpy's minimum propagates it.
+    Returns (pred_edge, risk, the x of the edges newly cleared (K,))."""
+    H = tp.shape[0]
+    E = edges_xz.shape[0]
+    pred_edge = np.nan
+    risk = np.nan
+    new = np.empty(max(E - max(e, 0), 0))
+    n_new = 0
+    if e < 0:
+        return pred_edge, risk, new[:0]
+    # forward motion per pose (np.gradient of tp, one-sided at the ends)
+    fwd = np.empty(H, np.bool_)
+    for t in range(H):
+        if t == 0:
+            vx = (tp[1, 0] - tp[0, 0]) / dt
+            vz = (tp[1, 1] - tp[0, 1]) / dt
+        elif t == H - 1:
+            vx = (tp[H - 1, 0] - tp[H - 2, 0]) / dt
+            vz = (tp[H - 1, 1] - tp[H - 2, 1]) / dt
+        else:
+            vx = (tp[t + 1, 0] - tp[t - 1, 0]) / (2.0 * dt)
+            vz = (tp[t + 1, 1] - tp[t - 1, 1]) / (2.0 * dt)
+        fwd[t] = vx > min_fwd and vz > -vx
+    # each pose's next edge: searchsorted(edge x, toe x - toe_pass, side="right")
+    nxt = np.empty(H, np.int64)
+    for t in range(H):
+        v = tp[t, 0] - toe_pass
+        if v != v:
+            nxt[t] = E  # NaN sorts last
+            continue
+        lo, hi = 0, E
+        while lo < hi:
+            m = (lo + hi) // 2
+            if edges_xz[m, 0] <= v:
+                lo = m + 1
+            else:
+                hi = m
+        nxt[t] = lo
+    # the edges reached: from e to the last with x <= toe_x_max + toe_pass (at least one)
+    lim = toe_x_max + toe_pass
+    n = 0
+    for j in range(e, E):
+        if edges_xz[j, 0] <= lim:
+            n = j - e + 1
+        else:
+            break
+    if lim != lim:  # searchsorted puts NaN after every edge
+        n = E - e
+    n = max(1, n)
+    for i in range(n):
+        ex, ez = edges_xz[e + i, 0], edges_xz[e + i, 1]
+        dd = _edge_clearance_many(hp, tp, ex, ez, sole)
+        d = np.inf
+        for t in range(H):
+            if dd[t] != dd[t]:
+                d = np.nan
+                break
+            d = min(d, dd[t])
+        if d == d and abs(d) < np.inf and not d >= pred_edge:
+            pred_edge = d
+        known = False
+        for c in cleared:
+            if abs(c - ex) <= tol:
+                known = True
+                break
+        for k in range(n_new):
+            if abs(new[k] - ex) <= tol:
+                known = True
+                break
+        clear = np.empty(H, np.bool_)
+        acc = False
+        for t in range(H):
+            acc = acc or dd[t] >= near_trip
+            clear[t] = True if known else acc
+        if not known and clear[0]:
+            new[n_new] = ex
+            n_new += 1
+        m = np.inf
+        any_ok = False
+        for t in range(H):
+            if fwd[t] and nxt[t] == e + i and clear[t]:
+                if not any_ok:
+                    any_ok = True
+                if dd[t] != dd[t]:
+                    m = np.nan
+                elif m == m:
+                    m = min(m, dd[t])
+        if any_ok and not m >= risk:
+            risk = m
+    return pred_edge, risk, new[:n_new].copy()
+
+
 def warm_up() -> None:
     """Call every kernel once on a small input, with the argument types the monitor uses:
     numba loads their machine code (compiles it, on a machine's first run) at a kernel's
@@ -963,3 +1065,17 @@ def warm_up() -> None:
     consistency_squares(b3, x3, x3, x3, x3 + 1.0, b3, cov, n + 1, 0, 0.005, 1.0, 0.0, 0.0, 1.0)
     window_merge(x3, x3[:1], x3)
     profile_x_range(np.zeros((2, 2)), 0.0)
+    swing_edge_risk(
+        heel[None] + np.zeros((3, 1)),
+        toe[None] + np.zeros((3, 1)),
+        np.array([[0.01, 0.0]]),
+        0,
+        0.0,
+        0.05,
+        0.0,
+        0.03,
+        0.1,
+        0.02,
+        0.01,
+        np.zeros(0),
+    )

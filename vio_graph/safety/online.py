@@ -551,6 +551,55 @@ class SafetyMonitor:
             out.append(at[1:] - at[:1])
         return np.median(np.stack(out), axis=0) if len(out) > 1 else out[0]
 
+    def _swing_edges(
+        self,
+        hp: NDArray[np.float64],
+        tp: NDArray[np.float64],
+        edges: Edges,
+        e: int,
+        toe_x_max: float,
+    ) -> tuple[float, float]:
+        """Over the predicted heel / toe poses ``hp``, ``tp`` (H, 2) of the swing template:
+        the minimum clearance to the edges the toe reaches from the next one (index ``e``)
+        and the minimum over the near-trip candidates (NaN if none): poses with the toe
+        moving forward, tested against their own next edge, the foot clear of it first
+        (:meth:`_approach`, which remembers the edges cleared). Compiled: one kernel
+        (``swing_edge_risk``), the same operations."""
+        cfg, g = self.config, self.geometry
+        dt = cfg.horizon_s / cfg.horizon_steps
+        if g is not clearance:
+            pred_edge, risk, new = g.swing_edge_risk(
+                hp,
+                tp,
+                edges.xz_m,
+                e,
+                toe_x_max,
+                cfg.toe_pass_m,
+                cfg.sole_thickness_m,
+                dt,
+                cfg.warning_min_forward_speed_mps,
+                cfg.near_trip_m,
+                2 * cfg.bin_m,
+                np.asarray(self._cleared, dtype=float),
+            )
+            self._cleared.extend(new.tolist())  # as _approach remembers them
+            return float(pred_edge), float(risk)
+        pred_edge = risk = NAN
+        # the predicted toe velocity: a near-trip needs forward motion at that instant
+        vp = _gradient(tp, dt)
+        fwd = (vp[:, 0] > cfg.warning_min_forward_speed_mps) & (vp[:, 1] > -vp[:, 0])
+        # each predicted pose is tested against its own next edge (as the truth is)
+        nxt = np.searchsorted(edges.xz_m[:, 0], tp[:, 0] - cfg.toe_pass_m, side="right")
+        for i, ee in enumerate(self._edges_reached(edges, e, toe_x_max)):
+            dd = g.edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)
+            d = float(np.min(dd))
+            if math.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
+                pred_edge = d
+            ok = fwd & (nxt == e + i) & self._approach(float(ee[0]), dd)
+            if ok.any() and not float(np.min(dd[ok])) >= risk:
+                risk = float(np.min(dd[ok]))
+        return pred_edge, risk
+
     def update(
         self,
         t_s: float,
@@ -579,9 +628,9 @@ class SafetyMonitor:
         near = self.map.window(x0, x1, cfg.map_sigma_m)
         win = near.profile
         # clearance to the terrain and its sigma
-        c = g.foot_clearance(heel, toe, win, cfg.sole_thickness_m)
-        if g.coverage(heel, toe, win) < cfg.min_coverage:
-            c = NO_CLEARANCE  # the terrain under the foot has not been seen
+        c = NO_CLEARANCE  # unless the terrain under the foot has been seen
+        if not g.coverage(heel, toe, win) < cfg.min_coverage:
+            c = g.foot_clearance(heel, toe, win, cfg.sole_thickness_m)
         sig = NAN
         sp, sm = self.consistency.pose_scale, self.consistency.map_scale
         pose_w = cfg.relative_pose_scale * sp * sp
@@ -632,19 +681,7 @@ class SafetyMonitor:
                 w = cfg.window_m
                 swept = self._window(self._swept(lo_x, hi_x, lo_x - w, hi_x + w, c.distance_m))
                 pred = float(np.min(g.clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
-            # the predicted toe velocity: a near-trip needs forward motion at that instant
-            vp = _gradient(tp, cfg.horizon_s / cfg.horizon_steps)
-            fwd = (vp[:, 0] > cfg.warning_min_forward_speed_mps) & (vp[:, 1] > -vp[:, 0])
-            # each predicted pose is tested against its own next edge (as the truth is)
-            nxt = np.searchsorted(edges.xz_m[:, 0], tp[:, 0] - cfg.toe_pass_m, side="right")
-            for i, ee in enumerate(self._edges_reached(edges, e, toe_x_max)):
-                dd = g.edge_clearance_many(hp, tp, ee, cfg.sole_thickness_m)
-                d = float(np.min(dd))
-                if math.isfinite(d) and not d >= pred_edge:  # NaN-safe minimum
-                    pred_edge = d
-                ok = fwd & (nxt == e + i) & self._approach(float(ee[0]), dd)
-                if ok.any() and not float(np.min(dd[ok])) >= risk:
-                    risk = float(np.min(dd[ok]))
+            pred_edge, risk = self._swing_edges(hp, tp, edges, e, toe_x_max)
         else:
             if v_known and math.isfinite(c.distance_m) and speed * cfg.horizon_s < 1e-3:
                 pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now

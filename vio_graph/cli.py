@@ -679,7 +679,8 @@ def robustness(
         typer.Option(
             help="'all' faults, or 'imu': clean, IMU spikes / saturation, "
             "camera-IMU offsets -30..30 ms, clock jitter; or 'offsets': clean and the "
-            "camera-IMU offsets only."
+            "camera-IMU offsets only; or 'saturation': clean and the 4 g accelerometer "
+            "saturation only."
         ),
     ] = "all",
 ) -> None:
@@ -693,14 +694,20 @@ def robustness(
         FAULT_CASES,
         IMU_CASES,
         OFFSET_CASES,
+        SATURATION_CASES,
         run_sweep,
         write_outputs,
     )
     from vio_graph.viz.progress import progress_bar
 
-    case_sets = {"all": FAULT_CASES, "imu": IMU_CASES, "offsets": OFFSET_CASES}
+    case_sets = {
+        "all": FAULT_CASES,
+        "imu": IMU_CASES,
+        "offsets": OFFSET_CASES,
+        "saturation": SATURATION_CASES,
+    }
     if cases not in case_sets:
-        raise VioGraphError(f"--cases: unknown {cases!r}; use all, imu or offsets")
+        raise VioGraphError(f"--cases: unknown {cases!r}; use all, imu, offsets or saturation")
     case_list = case_sets[cases]
     cfg = load_config(config)
     seed_list = list(range(1, seeds + 1))

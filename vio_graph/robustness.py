@@ -87,6 +87,12 @@ OFFSET_CASES: tuple[FaultCase, ...] = tuple(
     c for c in IMU_CASES if c.name in ("clean", "camera-IMU time offset")
 )
 
+#: the accelerometer saturation row of IMU_CASES with its clean reference
+#: (``vio-graph robustness --cases saturation``)
+SATURATION_CASES: tuple[FaultCase, ...] = tuple(
+    c for c in IMU_CASES if c.name in ("clean", "IMU accel saturation")
+)
+
 
 def _slug(case: FaultCase) -> str:
     text = f"{case.name}_{case.severity}".lower()

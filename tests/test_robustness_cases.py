@@ -1,0 +1,24 @@
+"""Case sets of ``vio-graph robustness --cases``."""
+
+from __future__ import annotations
+
+from typer.testing import CliRunner
+
+from vio_graph.cli import app
+from vio_graph.robustness import IMU_CASES, SATURATION_CASES
+
+
+def test_saturation_cases_are_the_clean_and_saturation_rows_of_the_imu_sweep() -> None:
+    names = [(c.name, c.severity) for c in SATURATION_CASES]
+    assert names == [("clean", "-"), ("IMU accel saturation", "4 g")]
+    assert SATURATION_CASES[0].sim_faults == {}
+    # the same fault (4 g = 39.2 m/s^2) as the row of the full IMU sweep
+    assert SATURATION_CASES[1] in IMU_CASES
+    assert SATURATION_CASES[1].sim_faults == {"imu_accel_saturation_mps2": 39.2}
+
+
+def test_unknown_case_set_is_refused(tmp_path) -> None:
+    res = CliRunner().invoke(app, ["robustness", "--cases", "satur", "--out", str(tmp_path)])
+    assert res.exit_code != 0
+    assert "use all, imu, offsets or saturation" in str(res.exception)
+    assert not any(tmp_path.iterdir())  # nothing simulated

@@ -198,7 +198,7 @@ def test_one_level_frame_is_classified_against_the_stand_surface() -> None:
         -0.17 - 0.002: TerrainKind.LEVEL,  # the foot stands on this tread
         -0.17 - 0.147: TerrainKind.STAIR_UP,  # one rise below: the tread is the next step up
         -0.17 + 0.147: TerrainKind.STAIR_DOWN,  # one rise above: the view is a step down
-        -0.17 - 0.45: TerrainKind.LEVEL,  # taller than max_step_m: no step, frame decides
+        -0.17 - 0.36: TerrainKind.STAIR_UP,  # step over step: two 18 cm rises above
     }
     for stand, kind in cases.items():
         assert classify_terrain(tread, cfg, stand)[0] == kind, stand

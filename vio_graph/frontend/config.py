@@ -114,7 +114,7 @@ class TerrainConfig(_Strict):
         True,
         description="a frame that shows only one level height (LEVEL) is compared with the "
         "surface the instrumented foot last stood on (the estimator's heel / toe at stance): "
-        "at least min_step_m lower -> STAIR_DOWN, higher (up to max_step_m) -> STAIR_UP (or "
+        "at least min_step_m lower -> STAIR_DOWN, higher -> STAIR_UP (or "
         "OBSTACLE by the short raised level rule); False = the frame alone decides",
     )
 

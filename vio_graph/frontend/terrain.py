@@ -52,9 +52,8 @@ Rule
    compared with the surface the instrumented foot last stood on (the estimator's heel / toe
    at stance, relative to the predicted camera; ``stand_level``): the nearest level at least
    ``min_step_m`` below it -> STAIR_DOWN (the view is the floor or tread below the step the
-   foot stands on, its drop out of view or in the nosing's shadow), above it by at most
-   ``max_step_m`` -> STAIR_UP (or OBSTACLE by the short raised level rule of step 3), else
-   LEVEL. The front end looks for corners on the class of steps 1-4 only: the stand surface
+   foot stands on, its drop out of view or in the nosing's shadow), above it -> STAIR_UP (or
+   OBSTACLE by the short raised level rule of step 3), else LEVEL. The front end looks for corners on the class of steps 1-4 only: the stand surface
    says which way the terrain goes, it puts no edge in the frame.
 
 Known limits: a floor and one rising face (an obstacle whose top is out of view) is called
@@ -392,13 +391,15 @@ def classify_against_stand(
 
     The nearest level decides: within ``min_step_m`` of the stand surface -> LEVEL; lower ->
     STAIR_DOWN (the frame sees the floor or tread below the step the foot stands on, whose
-    drop is out of view or in the shadow of the nosing); higher by at most ``max_step_m`` ->
-    STAIR_UP, or OBSTACLE by the short raised level rule of step 3; higher than that ->
-    LEVEL (no step that tall: the frame alone decides)."""
+    drop is out of view or in the shadow of the nosing); higher -> STAIR_UP, or OBSTACLE by
+    the short raised level rule of step 3. No ``max_step_m`` here: the stand surface and the
+    level seen need not be neighbours (step over step, the swinging foot looks at the tread
+    two rises above the one it left, 36 cm on 18 cm stairs), and a level seen from above is
+    below the camera, which bounds the difference anyway."""
     if kind is not TerrainKind.LEVEL or not config.stand_level or not levels:
         return kind
     rise = levels[0].height_m - stand_height_m
-    if abs(rise) < config.min_step_m or rise > config.max_step_m:
+    if abs(rise) < config.min_step_m:
         return TerrainKind.LEVEL
     if rise < 0:
         return TerrainKind.STAIR_DOWN

@@ -53,8 +53,9 @@ Rule
    at stance, relative to the predicted camera; ``stand_level``): the nearest level at least
    ``min_step_m`` below it -> STAIR_DOWN (the view is the floor or tread below the step the
    foot stands on, its drop out of view or in the nosing's shadow), above it -> STAIR_UP (or
-   OBSTACLE by the short raised level rule of step 3), else LEVEL. The front end looks for corners on the class of steps 1-4 only: the stand surface
-   says which way the terrain goes, it puts no edge in the frame.
+   OBSTACLE by the short raised level rule of step 3), else LEVEL. The front end looks for
+   corners on the class of steps 1-4 only: the stand surface says which way the terrain
+   goes, it puts no edge in the frame.
 
 Known limits: a floor and one rising face (an obstacle whose top is out of view) is called
 STAIR_UP; a stair tread cut short by the field of view can look like an obstacle top; a

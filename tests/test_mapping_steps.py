@@ -125,6 +125,22 @@ def test_level_ground_has_no_steps() -> None:
     assert level.x_end_edge_m == pytest.approx(1.5, abs=0.004)
 
 
+def test_edge_of_a_densely_seen_end_stays_near_the_last_cell() -> None:
+    """A level whose first 1.5 cm hold ten times the weight per metre of its interior (its
+    end seen from many more keyframes): the 50 % rule alone puts the edge 13.5 cm before the
+    first cell; kept within edge_blur_m of it (camera 20 cm below the knee, seed 1000: a
+    nosing 54 mm off, now 17 mm)."""
+    x = np.arange(0.0, 0.3, 0.005) + 0.0025
+    w = np.where(x < 0.015, 10.0, 1.0)
+    points = np.column_stack([x, np.zeros_like(x)])
+    (level,) = estimate_terrain_geometry(points, w).levels
+    blur = StepConfig().edge_blur_m
+    assert level.x_start_edge_m == pytest.approx(x.min() - blur, abs=1e-9)
+    # uniform weights: the rule is inside the clamp and unchanged
+    (plain,) = estimate_terrain_geometry(points, np.ones_like(x)).levels
+    assert x.min() - blur < plain.x_start_edge_m == pytest.approx(0.0, abs=0.004)
+
+
 def test_spurious_points_do_not_create_steps() -> None:
     terrain = stair_profile(0.147, 0.28, 5, up=True)
     cams = camera_track(terrain, -0.3, 1.8, step_m=KEYFRAME_STEP_M)

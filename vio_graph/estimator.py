@@ -317,6 +317,11 @@ class OnlineEstimator:
             fc.level_reidentify_m, fc.level_memory_s, fc.max_level_landmarks
         )
         self._in_stance = False
+        # the surface the foot last stood on (world z, m): the median over the stance's frames
+        # of the lower of heel and toe; the terrain classifier compares one-level frames with
+        # it (frontend.terrain.stand_level)
+        self._stand_z_m: float | None = None
+        self._stance_sole_z_m: list[float] = []
         self._refused_in_row = 0  # displacements refused by the gate in a row
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
         self.health = HealthMonitor(HealthLimits(floor_m=fc.measurement_noise_floor_m))
@@ -684,8 +689,17 @@ class OnlineEstimator:
                 self.filter.cov_velocity_m2ps2() * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
             )
         # 3. front end (eq. 1-4)
+        stand_rel = None
+        if self._stand_z_m is not None and self.config.frontend.terrain.stand_level:
+            stand_rel = self._stand_z_m - float(p_pred[1])
         result = self.frontend.process(
-            frame, self.rig.K, R_ground_cam, pred_delta, pred_cov, self._ground_turn_rad
+            frame,
+            self.rig.K,
+            R_ground_cam,
+            pred_delta,
+            pred_cov,
+            self._ground_turn_rad,
+            stand_rel,
         )
         self._ground_turn_rad = 0.0
         timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
@@ -735,6 +749,7 @@ class OnlineEstimator:
         # 5. kinematics (Fig. 3)
         t0 = time.perf_counter()
         pts = self.leg_points(camera_xz, R_world_imu)
+        self._note_stand_surface(pts)
         timings["kinematics"] = (time.perf_counter() - t0) * 1e3
         # 6. keyframes
         is_kf = self.keyframes.is_keyframe(t, camera_xz)
@@ -787,6 +802,16 @@ class OnlineEstimator:
             ankle_rad=ankle,
             in_stance=self._in_stance,
         )
+
+    def _note_stand_surface(self, pts) -> None:
+        """Height of the surface under the foot while it stands: the lower of heel and toe
+        (at heel strike and heel-off only one of them touches), median over the stance so
+        far; kept after the stance ends until the next one."""
+        if not self._in_stance:
+            self._stance_sole_z_m.clear()
+            return
+        self._stance_sole_z_m.append(min(float(pts.heel_xz_m[0][1]), float(pts.toe_xz_m[0][1])))
+        self._stand_z_m = float(np.median(self._stance_sole_z_m))
 
     def _advance_stance_until(self, t_s: float) -> None:
         """Feed the stance detector the queued IMU samples stamped at or before ``t_s`` and

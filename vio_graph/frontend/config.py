@@ -110,6 +110,13 @@ class TerrainConfig(_Strict):
         0.06, gt=0, description="surface points this close before / after a face orient it, m"
     )
     min_face_points: int = Field(5, ge=2, description="a face needs at least this many points")
+    stand_level: bool = Field(
+        True,
+        description="a frame that shows only one level height (LEVEL) is compared with the "
+        "surface the instrumented foot last stood on (the estimator's heel / toe at stance): "
+        "at least min_step_m lower -> STAIR_DOWN, higher -> STAIR_UP (or "
+        "OBSTACLE by the short raised level rule); False = the frame alone decides",
+    )
 
 
 class CornerConfig(_Strict):

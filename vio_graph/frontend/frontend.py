@@ -20,7 +20,7 @@ from vio_graph.frontend.corners import CornerFeature, extract_corner
 from vio_graph.frontend.icp import IcpResult
 from vio_graph.frontend.projection import sagittal_slice_from_depth
 from vio_graph.frontend.smoothing import smooth_profile
-from vio_graph.frontend.terrain import classify_terrain
+from vio_graph.frontend.terrain import classify_against_stand, classify_terrain
 from vio_graph.frontend.tracker import CornerTracker
 from vio_graph.types import CornerObservation, DepthFrame, Displacement2D, TerrainKind
 
@@ -70,6 +70,7 @@ class VisualFrontend:
         predicted_delta_xz_m: NDArray[np.float64] | None = None,
         predicted_cov_m2: NDArray[np.float64] | None = None,
         ground_turn_rad: float = 0.0,
+        stand_height_m: float | None = None,
     ) -> FrontendResult:
         """Process one depth frame.
 
@@ -83,6 +84,9 @@ class VisualFrontend:
             ground_turn_rad: the caller turned its ground frame by rot_y(``ground_turn_rad``)
                 since the previous frame (a pitch correction, rad); the previous frame is
                 re-expressed in the turned frame before ICP compares the two.
+            stand_height_m: height of the surface the foot last stood on relative to the
+                camera (ground axes), m; decides frames that show one level only (terrain
+                rule step 5); None = the frame alone decides.
         """
         if np.shape(R_ground_cam) != (3, 3):
             raise FrontendError(f"R_ground_cam must be 3x3, got {np.shape(R_ground_cam)}")
@@ -110,12 +114,19 @@ class VisualFrontend:
         profile = smooth_profile(points_xz, sc.k_neighbours, sc.grid_cell_m, sc.min_points)
         t.append(time.perf_counter())
         # terrain class (replaces the paper's CNN)
-        terrain, _ = classify_terrain(profile, cfg.terrain)
+        # the frame's own class decides whether a corner is looked for: the stand surface
+        # (rule step 5) says which way the terrain goes, it adds no edge to this frame
+        frame_terrain, levels = classify_terrain(profile, cfg.terrain)
+        terrain = frame_terrain
+        if stand_height_m is not None:
+            terrain = classify_against_stand(
+                profile, frame_terrain, levels, stand_height_m, cfg.terrain
+            )
         t.append(time.perf_counter())
         # Fig. 2: RANSAC lines, feature points at the higher line's edge (stairs / obstacles)
         corner = None
-        if terrain in self._corner_terrains:
-            corner = extract_corner(profile, self._rng, cfg.corners, terrain)
+        if frame_terrain in self._corner_terrains:
+            corner = extract_corner(profile, self._rng, cfg.corners, frame_terrain)
         t.append(time.perf_counter())
         # eq. 3-4: ICP against the previous frame, seeded and gated by the IMU prediction
         tracked = self._tracker.update(

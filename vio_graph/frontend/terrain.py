@@ -48,6 +48,15 @@ Rule
    decision uses only the geometry of the frame (levels separated by a rise, a vertical
    segment between them), no proportions.
 
+5. **Stand surface.** A frame that still holds one level height only (LEVEL by steps 1-4) is
+   compared with the surface the instrumented foot last stood on (the estimator's heel / toe
+   at stance, relative to the predicted camera; ``stand_level``): the nearest level at least
+   ``min_step_m`` below it -> STAIR_DOWN (the view is the floor or tread below the step the
+   foot stands on, its drop out of view or in the nosing's shadow), above it -> STAIR_UP (or
+   OBSTACLE by the short raised level rule of step 3), else LEVEL. The front end looks for
+   corners on the class of steps 1-4 only: the stand surface says which way the terrain
+   goes, it puts no edge in the frame.
+
 Known limits: a floor and one rising face (an obstacle whose top is out of view) is called
 STAIR_UP; a stair tread cut short by the field of view can look like an obstacle top; a
 box seen from above (camera past its near edge) looks like STAIR_DOWN.
@@ -327,12 +336,16 @@ def classify_faces(faces: Sequence[Face]) -> TerrainKind:
 
 
 def classify_terrain(
-    profile_xz_m: NDArray[np.float64], config: TerrainConfig | None = None
+    profile_xz_m: NDArray[np.float64],
+    config: TerrainConfig | None = None,
+    stand_height_m: float | None = None,
 ) -> tuple[TerrainKind, list[Level]]:
     """Terrain class of a smoothed sagittal profile and the levels it was decided from.
 
     Args:
         profile_xz_m: (N, 2) smoothed profile relative to the camera, ground axes, metres.
+        stand_height_m: height of the surface the foot last stood on, relative to the camera
+            (ground axes), metres; None = unknown (rule step 5 off).
 
     Returns:
         (kind, levels sorted near to far).
@@ -342,11 +355,7 @@ def classify_terrain(
     if pts.shape[0] < config.min_points:
         return TerrainKind.UNKNOWN, []
     levels = find_levels(pts, config)
-    lower_beyond = False
-    if levels:
-        last = levels[-1]
-        beyond = pts[:, 0] > last.x_max_m + config.level_gap_m
-        lower_beyond = bool(np.any(pts[beyond, 1] < last.height_m - config.min_step_m))
+    lower_beyond = _lower_beyond(pts, levels, config)
     kind = classify_levels(levels, pts.shape[0], config, lower_beyond)
     if (
         kind in (TerrainKind.LEVEL, TerrainKind.UNKNOWN)
@@ -356,7 +365,53 @@ def classify_terrain(
         by_faces = classify_faces(find_faces(pts, levels, config))
         if by_faces != TerrainKind.UNKNOWN:
             kind = by_faces
+    if stand_height_m is not None:
+        kind = classify_against_stand(pts, kind, levels, stand_height_m, config)
     return kind, levels
+
+
+def _lower_beyond(pts: NDArray[np.float64], levels: Sequence[Level], config: TerrainConfig) -> bool:
+    """Profile points beyond the farthest level, lower than it by at least ``min_step_m``."""
+    if not levels:
+        return False
+    last = levels[-1]
+    beyond = pts[:, 0] > last.x_max_m + config.level_gap_m
+    return bool(np.any(pts[beyond, 1] < last.height_m - config.min_step_m))
+
+
+def classify_against_stand(
+    profile_xz_m: NDArray[np.float64],
+    kind: TerrainKind,
+    levels: Sequence[Level],
+    stand_height_m: float,
+    config: TerrainConfig,
+) -> TerrainKind:
+    """Rule step 5: a frame whose levels are all at one height (``kind`` LEVEL by steps 1-4)
+    against the surface the foot last stood on (``stand_height_m``, relative to the camera);
+    any other ``kind`` is returned as it is, and so is every kind with ``stand_level`` off.
+
+    The nearest level decides: within ``min_step_m`` of the stand surface -> LEVEL; lower ->
+    STAIR_DOWN (the frame sees the floor or tread below the step the foot stands on, whose
+    drop is out of view or in the shadow of the nosing); higher -> STAIR_UP, or OBSTACLE by
+    the short raised level rule of step 3. No ``max_step_m`` here: the stand surface and the
+    level seen need not be neighbours (step over step, the swinging foot looks at the tread
+    two rises above the one it left, 36 cm on 18 cm stairs), and a level seen from above is
+    below the camera, which bounds the difference anyway."""
+    if kind is not TerrainKind.LEVEL or not config.stand_level or not levels:
+        return kind
+    rise = levels[0].height_m - stand_height_m
+    if abs(rise) < config.min_step_m:
+        return TerrainKind.LEVEL
+    if rise < 0:
+        return TerrainKind.STAIR_DOWN
+    top = levels[-1]
+    if (
+        len(levels) == 1
+        and top.length_m < config.obstacle_max_depth_m
+        and _lower_beyond(np.asarray(profile_xz_m, dtype=float).reshape(-1, 2), levels, config)
+    ):
+        return TerrainKind.OBSTACLE
+    return TerrainKind.STAIR_UP
 
 
 def _has_wall(levels: Sequence[Level], config: TerrainConfig) -> bool:

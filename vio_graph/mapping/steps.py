@@ -206,6 +206,12 @@ def _edge(
     weight per metre as a fitted line ``rho(x)`` (the density of a real scan drifts along a
     tread). The edge is ``split + L`` with ``W = integral of rho over [split, split + L]``.
     Its error is ``L`` times the relative error of ``rho`` (column scatter / sqrt(columns)).
+
+    The rule assumes the end is observed as densely as the interior. Where it is not (the
+    end of a tread seen from many more keyframes than its middle, as from a camera low on
+    the shank that passes over it), ``W`` over ``rho`` can reach centimetres past the last
+    cell; the edge is kept within ``beyond_m`` of the outermost cell, the width the blurred
+    edge is defined to occupy.
     """
     if not at_end:
         edge, std = _edge(-x, w, column_m, beyond_m, reference_m, at_end=True)
@@ -242,7 +248,8 @@ def _edge(
                 length = float((-rho0 + np.sqrt(disc)) / slope)
     rel_err = float(np.std(rho) / mean_rho) / np.sqrt(n_ref)
     std = float(np.hypot(length * rel_err, column_m / np.sqrt(12.0)))
-    return split + length, std
+    outer = float(x.max())
+    return min(max(split + length, outer - beyond_m), outer + beyond_m), std
 
 
 def _as_points(

@@ -357,6 +357,32 @@ class OnlineEstimator:
             "velocity_fused": 0,
         }
         self._init_fault_handling()
+        self._init_fused_sample_step()
+
+    def _init_fused_sample_step(self) -> None:
+        """The compiled one-call path of :meth:`_advance_imu` (``compiled_imu.sample_step``):
+        set up when the attitude tracker, the filter's propagation and the stance detector
+        all run compiled, with the tracked attitude as the strapdown's (the defaults on long
+        recordings); None otherwise. :attr:`n_fused_samples` counts the samples it took."""
+        fc = self.config.filter
+        att, k = self.attitude, self.attitude._kernels
+        params = self.filter.compiled_propagation_params()
+        self._fused = None
+        self.n_fused_samples = 0
+        if (
+            k is None
+            or params is None
+            or not self._stance.compiled
+            or att.config.source != "complementary"
+            or fc.strapdown_attitude != "tracked"
+        ):
+            return
+        self._fused = (
+            k.sample_step,
+            params,
+            np.asarray(fc.gravity_xz_mps2, dtype=np.float64),
+            bool(fc.stance_anchor),
+        )
 
     def health_report(self) -> dict:
         """Is the estimate in trouble? Shares of refused displacements and of stance frames,
@@ -511,6 +537,10 @@ class OnlineEstimator:
     def _advance_imu(self, sample: ImuSample) -> ImuSample:
         """Feed one sample (shank axes) to the attitude tracker, the filter's queue and the
         stance detector; returns it as the filter propagates with it."""
+        if self._fused is not None:
+            corrected = self._advance_imu_fused(sample)
+            if corrected is not None:
+                return corrected
         shank = sample  # shank axes, before the strapdown's attitude (the saturation learner)
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
         self._last_taken_s = sample.timestamp_s
@@ -529,6 +559,72 @@ class OnlineEstimator:
         self._stance_queue.append(sample)
         self._advance_stance_until(t_filter)
         return sample
+
+    def _advance_imu_fused(self, sample: ImuSample) -> ImuSample | None:
+        """:meth:`_advance_imu` in one compiled call (``compiled_imu.sample_step``) when the
+        sample is propagated and handed to the stance detector at once: the tracker has an
+        attitude, no sample is queued, no camera-IMU offset holds the filter back and the
+        filter has started. Returns None (nothing changed) otherwise; the caller then takes
+        the general path. The same kernels in the same order, so the same bits."""
+        att, filt = self.attitude, self.filter
+        t = sample.timestamp_s
+        dt = t - att._t_s
+        if (
+            att._R is None
+            or dt < 0.0
+            or self._imu_queue
+            or self._stance_queue
+            or self.time_offset.applied_s > 0.0
+            or not self._filter_started
+            or t < self._filter_start_s - 1e-9
+        ):
+            return None
+        dt_filter = t - filt._t_s
+        if dt_filter < -1e-9 or not math.isfinite(t):
+            return None  # propagate() raises there: the general path says so
+        step, params, gravity, anchor = self._fused
+        b = self.pitch_offset.offset_rad
+        gyr = np.asarray(sample.gyro_radps, dtype=np.float64)
+        q = np.empty(4)
+        trusted = not sample.accel_held
+        R, moved, mag = step(
+            att._R,
+            att._gyro_radps,
+            np.asarray(sample.accel_mps2, dtype=np.float64),
+            gyr,
+            np.asarray(sample.quat_wxyz, dtype=np.float64),
+            t,
+            dt,
+            min(1.0, dt / att.config.time_constant_s),
+            b,
+            q,
+            filt._x,
+            filt._P,
+            filt._mem,
+            dt_filter,
+            filt._r_imu_cam_m,
+            params,
+            float(sample.accel_extra_sigma_mps2),
+            anchor and trusted,
+            self._stance._prev_arr,
+            self._stance._r,
+            gravity,
+        )
+        g = tuple(gyr.tolist())
+        att._R, att._t_s, att._gyro_radps = R, t, g
+        att._recent.append((t, R, g))
+        self._last_taken_s = t
+        corrected = _replaced(sample, t, q)
+        filt.propagated_compiled(t, moved)
+        learner = self.saturation_learner
+        if learner is not None and (learner.active or any(self.imu_faults.last_rail_sign.tolist())):
+            self._learn_saturation(learner, sample)
+        if anchor and trusted:
+            self._stance.record(t, mag)
+        if trusted:
+            self._last_trusted_imu = corrected
+        self.n_fused_samples += 1
+        return corrected
 
     def add_joints(self, sample: JointAngles) -> None:
         self._last_joints = sample

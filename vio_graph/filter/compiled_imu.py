@@ -438,3 +438,61 @@ def clock_correct(st, buf, corr, t, period_s, gap_periods, window, smooth, min_f
     corr[nc] = out - t
     st[CLK_N_CORR] = nc + 1
     return out, code, gap, prev
+
+
+@numba.njit(cache=True)
+def sample_step(
+    R,
+    g_prev,
+    acc,
+    gyr,
+    q_vendor,
+    t,
+    dt,
+    k_att,
+    offset_rad,
+    q_out,
+    x,
+    P,
+    mem,
+    dt_filter,
+    r_cam,
+    prop_params,
+    xa_now,
+    stance,
+    stance_prev,
+    r_ankle,
+    gravity_xz,
+):
+    """One IMU sample through ``OnlineEstimator._advance_imu`` in one call, for the common case
+    (the sample is propagated and fed to the stance detector at once): :func:`attitude_step`
+    on the tracker's attitude ``R`` (9-tuple) with the previous gyro ``g_prev`` (3-tuple),
+    :func:`tracked_quat` at the sample's time into ``q_out`` (4,), :func:`eskf_propagate` with
+    that orientation (``prop_params`` = [lever, trapezoid, accel sigma, attitude sigma, accel
+    bias rate variance]) and, if ``stance``, :func:`stance_ankle_accel`. The same calls in the
+    same order as the separate kernels, so the same bits. Returns (new R, propagation code,
+    |a_ankle| or NaN)."""
+    R = attitude_step(R, g_prev, gyr, q_vendor, dt, k_att)
+    w, qx, qy, qz = tracked_quat(R, gyr, 0.0, offset_rad)
+    q_out[0], q_out[1], q_out[2], q_out[3] = w, qx, qy, qz
+    moved = eskf_propagate(
+        x,
+        P,
+        mem,
+        t,
+        dt_filter,
+        acc,
+        gyr,
+        q_out,
+        r_cam,
+        prop_params[0] != 0.0,
+        prop_params[1] != 0.0,
+        prop_params[2],
+        xa_now,
+        prop_params[3],
+        prop_params[4],
+    )
+    mag = np.nan
+    if stance and moved >= 0:
+        mag = stance_ankle_accel(t, stance_prev, acc, gyr, q_out, r_ankle, gravity_xz)
+    return R, moved, mag

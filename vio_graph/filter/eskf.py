@@ -406,6 +406,37 @@ class SagittalEskf:
             self._t_s = t
             self._remember(t, self._x[0:2])
 
+    def compiled_propagation_params(self) -> NDArray[np.float64] | None:
+        """The constant inputs of the compiled propagation (``compiled_imu.sample_step``'s
+        ``prop_params``: lever arm on, trapezoid, accel sigma, attitude sigma, accel-bias
+        variance rate), or None without the compiled kernels."""
+        if self._mem is None:
+            return None
+        c = self.config
+        return np.array(
+            [
+                float(c.lever_arm_compensation),
+                float(c.integration == "trapezoid"),
+                c.accel_noise_sigma_mps2,
+                c.attitude_sigma_rad,
+                c.accel_bias_rw_mps2_per_sqrt_s**2,
+            ]
+        )
+
+    def propagated_compiled(self, t: float, moved: int) -> None:
+        """The bookkeeping of :meth:`_propagate_compiled` after a caller ran the kernel on
+        ``_x``, ``_P`` and ``_mem`` itself (``compiled_imu.sample_step``; the caller checked
+        :meth:`propagate`'s preconditions)."""
+        if moved < 0:
+            raise EstimationError(f"IMU sample at {t:.6f} s holds NaN or inf")
+        k = self._kernels
+        assert k is not None and self._mem is not None
+        self._accel_w_mps2 = self._mem[k.MEM_AW : k.MEM_AW + 2]
+        self._n_imu += 1
+        if moved:
+            self._t_s = t
+            self._remember(t, self._x[0:2])
+
     def propagate_reference(self, imu: ImuSample) -> None:
         """The numpy reference of :meth:`propagate` (same state to rounding; the tests run both).
 

@@ -140,16 +140,38 @@ _sagittal_rotation = sagittal_rotation_fast
 
 def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float64]) -> ImuSample:
     """``dataclasses.replace(sample, timestamp_s=..., quat_wxyz=...)`` without its field
-    introspection (a few microseconds on the per-sample path)."""
-    return ImuSample(
-        timestamp_s,
-        sample.accel_mps2,
-        sample.gyro_radps,
-        quat_wxyz,
-        sample.accel_extra_sigma_mps2,
-        sample.gyro_extra_sigma_radps,
-        sample.accel_held,
-    )
+    introspection and without the frozen dataclass's ``object.__setattr__`` per field (~3 us
+    together on the per-sample path): the instance's dict filled directly, which is all the
+    generated ``__init__`` does (ImuSample has no ``__post_init__``)."""
+    new = _object_new(ImuSample)
+    d = new.__dict__
+    d.update(sample.__dict__)
+    d["timestamp_s"] = timestamp_s
+    d["quat_wxyz"] = quat_wxyz
+    return new
+
+
+_F64 = np.dtype(np.float64)
+
+
+def _f64(a: ArrayLike) -> NDArray[np.float64]:
+    """``a`` as a float64 array: itself if it is one (``np.asarray``'s own check costs ~0.5 us
+    a call, three times a sample)."""
+    if a.__class__ is np.ndarray and a.dtype is _F64:  # type: ignore[union-attr]
+        return a  # type: ignore[return-value]
+    return np.asarray(a, dtype=np.float64)
+
+
+def _imu_step(shank: ImuSample, corrected: ImuSample) -> ImuStep:
+    """``ImuStep(shank, corrected)`` built as :func:`_replaced` builds its sample."""
+    new = _object_new(ImuStep)
+    d = new.__dict__
+    d["shank"] = shank
+    d["corrected"] = corrected
+    return new
+
+
+_object_new = object.__new__
 
 
 @dataclass(frozen=True)
@@ -363,26 +385,30 @@ class OnlineEstimator:
         """The compiled one-call path of :meth:`_advance_imu` (``compiled_imu.sample_step``):
         set up when the attitude tracker, the filter's propagation and the stance detector
         all run compiled, with the tracked attitude as the strapdown's (the defaults on long
-        recordings); None otherwise. :attr:`n_fused_samples` counts the samples it took."""
+        recordings). :attr:`n_fused_samples` counts the samples it took."""
         fc = self.config.filter
         att, k = self.attitude, self.attitude._kernels
-        params = self.filter.compiled_propagation_params()
-        self._fused = None
+        self._fused_ws: NDArray[np.float64] | None = None
+        # the tracker's (R, gyro) tuples last copied into the workspace
+        self._fused_att: tuple = (None, None)
         self.n_fused_samples = 0
         if (
             k is None
-            or params is None
             or not self._stance.compiled
             or att.config.source != "complementary"
             or fc.strapdown_attitude != "tracked"
         ):
             return
-        self._fused = (
-            k.sample_step,
-            params,
-            np.asarray(fc.gravity_xz_mps2, dtype=np.float64),
-            bool(fc.stance_anchor),
-        )
+        ws = np.zeros(k.WS_SIZE)
+        if not self.filter.compiled_propagation_constants(ws):
+            return
+        ws[k.WS_GRAVITY : k.WS_GRAVITY + 2] = fc.gravity_xz_mps2
+        ws[k.WS_R_ANKLE : k.WS_R_ANKLE + 3] = self._stance._r
+        self._fused_ws = ws
+        self._fused_step = k.sample_step
+        # the workspace's slots: the tracker's R and gyro, the quaternion out, |a_ankle| out
+        self._fused_slots = (slice(k.WS_R, k.WS_GYRO + 3), slice(k.WS_Q, k.WS_Q + 4), k.WS_MAG)
+        self._fused_anchor = bool(fc.stance_anchor)
 
     def health_report(self) -> dict:
         """Is the estimate in trouble? Shares of refused displacements and of stance frames,
@@ -526,7 +552,7 @@ class OnlineEstimator:
             corrected = self._as_corrected(shank)
         self._last_imu = corrected
         self._imu_ms += (time.perf_counter() - t0) * 1e3
-        return ImuStep(shank=shank, corrected=corrected)
+        return _imu_step(shank, corrected)
 
     def _as_corrected(self, sample: ImuSample) -> ImuSample:
         """``sample`` (shank axes) with the attitude the strapdown uses at its time."""
@@ -537,7 +563,7 @@ class OnlineEstimator:
     def _advance_imu(self, sample: ImuSample) -> ImuSample:
         """Feed one sample (shank axes) to the attitude tracker, the filter's queue and the
         stance detector; returns it as the filter propagates with it."""
-        if self._fused is not None:
+        if self._fused_ws is not None:
             corrected = self._advance_imu_fused(sample)
             if corrected is not None:
                 return corrected
@@ -566,7 +592,8 @@ class OnlineEstimator:
         attitude, no sample is queued, no camera-IMU offset holds the filter back and the
         filter has started. Returns None (nothing changed) otherwise; the caller then takes
         the general path. The same kernels in the same order, so the same bits."""
-        att, filt = self.attitude, self.filter
+        att, filt, ws = self.attitude, self.filter, self._fused_ws
+        assert ws is not None
         t = sample.timestamp_s
         dt = t - att._t_s
         if (
@@ -582,46 +609,41 @@ class OnlineEstimator:
         dt_filter = t - filt._t_s
         if dt_filter < -1e-9 or not math.isfinite(t):
             return None  # propagate() raises there: the general path says so
-        step, params, gravity, anchor = self._fused
-        b = self.pitch_offset.offset_rad
-        gyr = np.asarray(sample.gyro_radps, dtype=np.float64)
-        q = np.empty(4)
-        trusted = not sample.accel_held
-        R, moved, mag = step(
-            att._R,
-            att._gyro_radps,
-            np.asarray(sample.accel_mps2, dtype=np.float64),
-            gyr,
-            np.asarray(sample.quat_wxyz, dtype=np.float64),
-            t,
-            dt,
-            min(1.0, dt / att.config.time_constant_s),
-            b,
-            q,
+        att_slots, q_slots, mag_slot = self._fused_slots
+        if att._R is not self._fused_att[0] or att._gyro_radps is not self._fused_att[1]:
+            ws[att_slots] = att._R + att._gyro_radps  # the general path moved the tracker
+        gyr = _f64(sample.gyro_radps)
+        stance = self._fused_anchor and not sample.accel_held
+        R, moved = self._fused_step(
+            ws,
             filt._x,
             filt._P,
             filt._mem,
-            dt_filter,
-            filt._r_imu_cam_m,
-            params,
-            float(sample.accel_extra_sigma_mps2),
-            anchor and trusted,
             self._stance._prev_arr,
-            self._stance._r,
-            gravity,
+            _f64(sample.accel_mps2),
+            gyr,
+            _f64(sample.quat_wxyz),
+            t,
+            dt,
+            min(1.0, dt / att.config.time_constant_s),
+            self.pitch_offset.offset_rad,
+            dt_filter,
+            float(sample.accel_extra_sigma_mps2),
+            stance,
         )
         g = tuple(gyr.tolist())
         att._R, att._t_s, att._gyro_radps = R, t, g
         att._recent.append((t, R, g))
+        self._fused_att = (R, g)
         self._last_taken_s = t
-        corrected = _replaced(sample, t, q)
+        corrected = _replaced(sample, t, ws[q_slots].copy())
         filt.propagated_compiled(t, moved)
         learner = self.saturation_learner
         if learner is not None and (learner.active or any(self.imu_faults.last_rail_sign.tolist())):
             self._learn_saturation(learner, sample)
-        if anchor and trusted:
-            self._stance.record(t, mag)
-        if trusted:
+        if stance:
+            self._stance.record(t, float(ws[mag_slot]))
+        if not sample.accel_held:
             self._last_trusted_imu = corrected
         self.n_fused_samples += 1
         return corrected

@@ -440,10 +440,29 @@ def clock_correct(st, buf, corr, t, period_s, gap_periods, window, smooth, min_f
     return out, code, gap, prev
 
 
+# sample_step's workspace (one float64 array, so that a call passes few arguments: numba's
+# dispatcher spends ~0.3 us on each): the attitude tracker's R (row-major) and gyro, the
+# tracked quaternion out, the constants (propagation switches and noise, gravity, lever arms)
+# and the stance detector's |a_ankle| out
+WS_R = 0  # 0:9 R_world_imu of the attitude tracker, row-major
+WS_GYRO = 9  # 9:12 its latest gyro (rad/s)
+WS_Q = 12  # 12:16 the tracked quaternion at the sample (out)
+WS_LEVER, WS_TRAPEZOID = 16, 17  # 1.0 / 0.0 switches of the propagation
+WS_ACCEL_SIGMA, WS_ATT_SIGMA, WS_VAR_AB_RATE = 18, 19, 20
+WS_GRAVITY = 21  # 21:23 gravity in the ground x-z plane (m/s^2)
+WS_R_CAM = 23  # 23:26 camera in the IMU frame (m), the propagation's lever arm
+WS_R_ANKLE = 26  # 26:29 ankle in the IMU frame (m), the stance detector's lever arm
+WS_MAG = 29  # |a_ankle| (m/s^2, out; NaN if the detector was not fed)
+WS_SIZE = 30
+
+
 @numba.njit(cache=True)
 def sample_step(
-    R,
-    g_prev,
+    ws,
+    x,
+    P,
+    mem,
+    stance_prev,
     acc,
     gyr,
     q_vendor,
@@ -451,30 +470,28 @@ def sample_step(
     dt,
     k_att,
     offset_rad,
-    q_out,
-    x,
-    P,
-    mem,
     dt_filter,
-    r_cam,
-    prop_params,
     xa_now,
     stance,
-    stance_prev,
-    r_ankle,
-    gravity_xz,
 ):
     """One IMU sample through ``OnlineEstimator._advance_imu`` in one call, for the common case
     (the sample is propagated and fed to the stance detector at once): :func:`attitude_step`
-    on the tracker's attitude ``R`` (9-tuple) with the previous gyro ``g_prev`` (3-tuple),
-    :func:`tracked_quat` at the sample's time into ``q_out`` (4,), :func:`eskf_propagate` with
-    that orientation (``prop_params`` = [lever, trapezoid, accel sigma, attitude sigma, accel
-    bias rate variance]) and, if ``stance``, :func:`stance_ankle_accel`. The same calls in the
-    same order as the separate kernels, so the same bits. Returns (new R, propagation code,
-    |a_ankle| or NaN)."""
-    R = attitude_step(R, g_prev, gyr, q_vendor, dt, k_att)
+    on the tracker's attitude and previous gyro (in ``ws``, WS_* slots; both become the
+    sample's), :func:`tracked_quat` at the sample's time into ``ws[WS_Q:WS_Q + 4]``,
+    :func:`eskf_propagate` on ``x``, ``P``, ``mem`` with that orientation and, if ``stance``,
+    :func:`stance_ankle_accel` on ``stance_prev`` into ``ws[WS_MAG]``. The same calls in the
+    same order as the separate kernels, so the same bits. Returns the new R (9-tuple) and the
+    propagation's code (see :func:`eskf_propagate`)."""
+    R0 = (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6], ws[7], ws[8])
+    g0 = (ws[WS_GYRO], ws[WS_GYRO + 1], ws[WS_GYRO + 2])
+    R = attitude_step(R0, g0, gyr, q_vendor, dt, k_att)
+    for i in range(9):
+        ws[WS_R + i] = R[i]
+    for i in range(3):
+        ws[WS_GYRO + i] = gyr[i]
     w, qx, qy, qz = tracked_quat(R, gyr, 0.0, offset_rad)
-    q_out[0], q_out[1], q_out[2], q_out[3] = w, qx, qy, qz
+    q = ws[WS_Q : WS_Q + 4]
+    q[0], q[1], q[2], q[3] = w, qx, qy, qz
     moved = eskf_propagate(
         x,
         P,
@@ -483,16 +500,24 @@ def sample_step(
         dt_filter,
         acc,
         gyr,
-        q_out,
-        r_cam,
-        prop_params[0] != 0.0,
-        prop_params[1] != 0.0,
-        prop_params[2],
+        q,
+        ws[WS_R_CAM : WS_R_CAM + 3],
+        ws[WS_LEVER] != 0.0,
+        ws[WS_TRAPEZOID] != 0.0,
+        ws[WS_ACCEL_SIGMA],
         xa_now,
-        prop_params[3],
-        prop_params[4],
+        ws[WS_ATT_SIGMA],
+        ws[WS_VAR_AB_RATE],
     )
-    mag = np.nan
+    ws[WS_MAG] = np.nan
     if stance and moved >= 0:
-        mag = stance_ankle_accel(t, stance_prev, acc, gyr, q_out, r_ankle, gravity_xz)
-    return R, moved, mag
+        ws[WS_MAG] = stance_ankle_accel(
+            t,
+            stance_prev,
+            acc,
+            gyr,
+            q,
+            ws[WS_R_ANKLE : WS_R_ANKLE + 3],
+            ws[WS_GRAVITY : WS_GRAVITY + 2],
+        )
+    return R, moved

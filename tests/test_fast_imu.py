@@ -315,3 +315,56 @@ def test_replaced_sample_and_step_equal_the_dataclass_constructors() -> None:
     step = estimator_mod._imu_step(s, got)
     assert type(step) is ImuStep and step.shank is s and step.corrected is got
     assert step == ImuStep(shank=s, corrected=got)
+
+
+def test_the_one_call_sample_path_equals_the_separate_kernels_on_faulty_imu(
+    short_upstair: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """OnlineEstimator._advance_imu_fused (compiled_imu.sample_step) against the general path
+    with the separate kernels, bit for bit, on an IMU stream with corrupted packets (the fault
+    monitor repairs the gyro, holds the accelerometer and NextSampleRepair holds the packet
+    back) and a clipped accelerometer (saturation prior and scale learner): the fused path
+    must hand every sample it cannot take to the general path unchanged."""
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")
+    if fast_imu.imu_kernels() is None:
+        pytest.skip("numba not installed")
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.replay import replay_order
+
+    rec = Recording.open(short_upstair)
+    rig = dataclasses.replace(RigGeometry.from_metadata(rec.metadata), accel_range_mps2=14.0)
+    kinds, idx = replay_order(rec)
+
+    def sample(i: int) -> ImuSample:
+        s = rec.imu.sample(i)
+        acc = np.clip(s.accel_mps2, -14.0, 14.0)  # clipped at the declared range
+        if i in (120, 121, 250):  # corrupt packets
+            return dataclasses.replace(s, gyro_radps=s.gyro_radps + 3.0, accel_mps2=-acc)
+        return dataclasses.replace(s, accel_mps2=acc)
+
+    def run() -> tuple[OnlineEstimator, list[np.ndarray], list[np.ndarray]]:
+        est = OnlineEstimator(PipelineConfig(), rig)
+        cams, quats = [], []
+        for kind, i in zip(kinds, idx, strict=True):
+            if kind == 0:
+                step = est.add_imu(sample(int(i)))
+                if step is not None:
+                    quats.append(step.corrected.quat_wxyz)
+            elif kind == 1:
+                est.add_joints(rec.joints.sample(int(i)))
+            elif est.initialised:
+                cams.append(est.add_frame(rec.frame(int(i)))[0].camera_xz_m)
+        return est, cams, quats
+
+    fused, cams_f, quats_f = run()
+    with monkeypatch.context() as m:
+        m.setattr(OnlineEstimator, "_advance_imu_fused", lambda self, s: None)
+        separate, cams_s, quats_s = run()
+    assert fused.imu_faults.n_gyro_repaired >= 3 and fused.imu_faults.n_accel_saturated > 10
+    assert fused.imu_repair is not None and fused.imu_repair.n_repaired >= 1
+    assert 0 < fused.n_fused_samples < len(quats_f) and separate.n_fused_samples == 0
+    np.testing.assert_array_equal(np.array(cams_f), np.array(cams_s))
+    np.testing.assert_array_equal(np.array(quats_f), np.array(quats_s))
+    np.testing.assert_array_equal(fused.filter.state.P, separate.filter.state.P)
+    assert fused.fault_report() == separate.fault_report()
+    assert fused.health_report() == separate.health_report()

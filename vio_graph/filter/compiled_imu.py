@@ -345,8 +345,9 @@ def fault_check(prev, t, acc, gyr, q, acc_lim, gyr_lim, test, sigma2):
     ``acc`` and gyro ``gyr`` (|v| >= limit on any axis) and the chi-square statistic d2 of the
     gyro against the rate predicted from consecutive vendor orientations (-1 if not tested:
     ``test`` off, or no previous sample older than ``t``), with the prediction (px, py, pz).
-    ``prev`` = [has one, t, R (9, row-major), gyro (3)] is the previous sample; its R and t
-    become this sample's here, its gyro is left to the caller (the gyro or its repair)."""
+    ``prev`` = [has one, t, R (9, row-major), gyro (3)] is the previous sample; its R, t and
+    gyro become this sample's here (the caller overwrites the gyro with its repair if it
+    repairs it: a numpy slice assignment there costs more than this whole kernel's call)."""
     acc_sat = abs(acc[0]) >= acc_lim or abs(acc[1]) >= acc_lim or abs(acc[2]) >= acc_lim
     gyr_sat = abs(gyr[0]) >= gyr_lim or abs(gyr[1]) >= gyr_lim or abs(gyr[2]) >= gyr_lim
     R = _quat_matrix(q[0], q[1], q[2], q[3])
@@ -362,6 +363,7 @@ def fault_check(prev, t, acc, gyr, q, acc_lim, gyr_lim, test, sigma2):
     prev[0], prev[1] = 1.0, t
     for i in range(9):
         prev[2 + i] = R[i]
+    prev[11], prev[12], prev[13] = gyr[0], gyr[1], gyr[2]
     return d2, px, py, pz, acc_sat, gyr_sat
 
 

@@ -297,26 +297,6 @@ def test_a_whole_replay_equals_the_reference_path(
                 np.testing.assert_allclose(got[name], ref[name], atol=1e-9, err_msg=name)
 
 
-def test_replaced_sample_and_step_equal_the_dataclass_constructors() -> None:
-    """The estimator builds its per-sample ImuSample / ImuStep without the frozen dataclass
-    __init__ (estimator._replaced, _imu_step): the same fields, the same type, still frozen."""
-    from vio_graph.protocol import ImuStep
-
-    s = ImuSample(1.0, np.array([0.1, 0.2, 9.8]), np.array([0.3, -0.2, 0.1]), np.ones(4) / 2, 0.5)
-    q = np.array([1.0, 0.0, 0.0, 0.0])
-    got = estimator_mod._replaced(s, 2.5, q)
-    want = dataclasses.replace(s, timestamp_s=2.5, quat_wxyz=q)
-    assert type(got) is ImuSample
-    for f in dataclasses.fields(ImuSample):
-        assert getattr(got, f.name) is getattr(want, f.name), f.name
-    with pytest.raises(dataclasses.FrozenInstanceError):
-        got.timestamp_s = 3.0  # type: ignore[misc]
-    assert s.timestamp_s == 1.0 and s.quat_wxyz is not q  # the original is untouched
-    step = estimator_mod._imu_step(s, got)
-    assert type(step) is ImuStep and step.shank is s and step.corrected is got
-    assert step == ImuStep(shank=s, corrected=got)
-
-
 def test_the_one_call_sample_path_equals_the_separate_kernels_on_faulty_imu(
     short_upstair: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

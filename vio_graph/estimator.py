@@ -141,27 +141,16 @@ _sagittal_rotation = sagittal_rotation_fast
 
 def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float64]) -> ImuSample:
     """``dataclasses.replace(sample, timestamp_s=..., quat_wxyz=...)`` without its field
-    introspection and without the frozen dataclass's ``object.__setattr__`` per field (~3 us
-    together on the per-sample path): the instance's dict filled directly, which is all the
-    generated ``__init__`` does (ImuSample has no ``__post_init__``)."""
-    new = _object_new(ImuSample)
-    d = new.__dict__
-    d.update(sample.__dict__)
-    d["timestamp_s"] = timestamp_s
-    d["quat_wxyz"] = quat_wxyz
-    return new
-
-
-def _imu_step(shank: ImuSample, corrected: ImuSample) -> ImuStep:
-    """``ImuStep(shank, corrected)`` built as :func:`_replaced` builds its sample."""
-    new = _object_new(ImuStep)
-    d = new.__dict__
-    d["shank"] = shank
-    d["corrected"] = corrected
-    return new
-
-
-_object_new = object.__new__
+    introspection (a few microseconds on the per-sample path)."""
+    return ImuSample(
+        timestamp_s,
+        sample.accel_mps2,
+        sample.gyro_radps,
+        quat_wxyz,
+        sample.accel_extra_sigma_mps2,
+        sample.gyro_extra_sigma_radps,
+        sample.accel_held,
+    )
 
 
 @dataclass(frozen=True)
@@ -542,7 +531,7 @@ class OnlineEstimator:
             corrected = self._as_corrected(shank)
         self._last_imu = corrected
         self._imu_ms += (time.perf_counter() - t0) * 1e3
-        return _imu_step(shank, corrected)
+        return ImuStep(shank=shank, corrected=corrected)
 
     def _as_corrected(self, sample: ImuSample) -> ImuSample:
         """``sample`` (shank axes) with the attitude the strapdown uses at its time."""

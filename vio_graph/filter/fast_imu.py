@@ -252,8 +252,8 @@ _F64 = np.dtype(np.float64)
 def as_f64(a: ArrayLike) -> NDArray[np.float64]:
     """``np.asarray(a, dtype=np.float64)``, returning a float64 array itself without numpy's
     own checks (~0.5 us a call, several times an IMU sample on the compiled path)."""
-    if a.__class__ is np.ndarray and a.dtype is _F64:  # type: ignore[union-attr]
-        return a  # type: ignore[return-value]
+    if a.__class__ is np.ndarray and a.dtype is _F64:
+        return a
     return np.asarray(a, dtype=np.float64)
 
 

@@ -735,7 +735,8 @@ def _speedup_lines(r: dict[str, Any]) -> list[str]:
         )
     return [
         "IMU sample path compiled with numba (vio_graph/filter/compiled_imu.py: SP-ESKF "
-        "propagation, attitude tracker, stance detector, fault monitor, clock line; the Python "
+        "propagation, attitude tracker, stance detector, fault monitor, clock line; the first "
+        "three in one call per sample, `sample_step`; the Python "
         "closed forms of vio_graph/filter/fast_imu.py run instead without numba and on short "
         "recordings), the SP-ESKF updates with the 2x2 innovation covariance inverted in "
         "closed form and block-wise augmentation (vio_graph/filter/eskf.py; with the compiled "

@@ -245,12 +245,25 @@ def test_a_whole_replay_equals_the_reference_path(
         log = rp.run()
         out = dict(log.camera_xz)
         out["P"] = rp.online.filter.state.P
+        fused.append(rp.online.n_fused_samples)
         return out
 
+    fused: list[int] = []
     monkeypatch.setenv("VIO_GRAPH_COMPILED", "0")  # the scalar Python closed forms
     fast = run()
+    assert fused[-1] == 0
     monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")  # the compiled kernels (filter/compiled_imu)
     compiled = run() if fast_imu.imu_kernels() is not None else None
+    if compiled is not None:
+        # nearly every sample took the one-call path (compiled_imu.sample_step); the
+        # separate kernels it fuses give the same bits
+        n_imu = int(np.sum(rec.imu.timestamp_s <= rec.frame_timestamps_s[-1]))
+        assert fused[-1] > 0.9 * n_imu
+        with monkeypatch.context() as m:
+            m.setattr(estimator_mod.OnlineEstimator, "_advance_imu_fused", lambda self, s: None)
+            separate = run()
+        for name in compiled:
+            np.testing.assert_array_equal(separate[name], compiled[name], err_msg=name)
     monkeypatch.setenv("VIO_GRAPH_COMPILED", "0")
     monkeypatch.setattr(SagittalEskf, "propagate", SagittalEskf.propagate_reference)
     monkeypatch.setattr(AttitudeTracker, "add", AttitudeTracker.add_reference)
@@ -282,3 +295,56 @@ def test_a_whole_replay_equals_the_reference_path(
                 np.testing.assert_allclose(got[name], ref[name], rtol=1e-9, atol=1e-15)
             else:
                 np.testing.assert_allclose(got[name], ref[name], atol=1e-9, err_msg=name)
+
+
+def test_the_one_call_sample_path_equals_the_separate_kernels_on_faulty_imu(
+    short_upstair: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """OnlineEstimator._advance_imu_fused (compiled_imu.sample_step) against the general path
+    with the separate kernels, bit for bit, on an IMU stream with corrupted packets (the fault
+    monitor repairs the gyro, holds the accelerometer and NextSampleRepair holds the packet
+    back) and a clipped accelerometer (saturation prior and scale learner): the fused path
+    must hand every sample it cannot take to the general path unchanged."""
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")
+    if fast_imu.imu_kernels() is None:
+        pytest.skip("numba not installed")
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.replay import replay_order
+
+    rec = Recording.open(short_upstair)
+    rig = dataclasses.replace(RigGeometry.from_metadata(rec.metadata), accel_range_mps2=14.0)
+    kinds, idx = replay_order(rec)
+
+    def sample(i: int) -> ImuSample:
+        s = rec.imu.sample(i)
+        acc = np.clip(s.accel_mps2, -14.0, 14.0)  # clipped at the declared range
+        if i in (120, 121, 250):  # corrupt packets
+            return dataclasses.replace(s, gyro_radps=s.gyro_radps + 3.0, accel_mps2=-acc)
+        return dataclasses.replace(s, accel_mps2=acc)
+
+    def run() -> tuple[OnlineEstimator, list[np.ndarray], list[np.ndarray]]:
+        est = OnlineEstimator(PipelineConfig(), rig)
+        cams, quats = [], []
+        for kind, i in zip(kinds, idx, strict=True):
+            if kind == 0:
+                step = est.add_imu(sample(int(i)))
+                if step is not None:
+                    quats.append(step.corrected.quat_wxyz)
+            elif kind == 1:
+                est.add_joints(rec.joints.sample(int(i)))
+            elif est.initialised:
+                cams.append(est.add_frame(rec.frame(int(i)))[0].camera_xz_m)
+        return est, cams, quats
+
+    fused, cams_f, quats_f = run()
+    with monkeypatch.context() as m:
+        m.setattr(OnlineEstimator, "_advance_imu_fused", lambda self, s: None)
+        separate, cams_s, quats_s = run()
+    assert fused.imu_faults.n_gyro_repaired >= 3 and fused.imu_faults.n_accel_saturated > 10
+    assert fused.imu_repair is not None and fused.imu_repair.n_repaired >= 1
+    assert 0 < fused.n_fused_samples < len(quats_f) and separate.n_fused_samples == 0
+    np.testing.assert_array_equal(np.array(cams_f), np.array(cams_s))
+    np.testing.assert_array_equal(np.array(quats_f), np.array(quats_s))
+    np.testing.assert_array_equal(fused.filter.state.P, separate.filter.state.P)
+    assert fused.fault_report() == separate.fault_report()
+    assert fused.health_report() == separate.health_report()

@@ -68,6 +68,7 @@ from vio_graph.filter.corner_landmarks import CornerLandmarks
 from vio_graph.filter.eskf import SagittalEskf
 from vio_graph.filter.fast_imu import (
     Mat3,
+    as_f64,
     mat3_mul,
     mat3_quat,
     pitch_offset_quat,
@@ -362,6 +363,36 @@ class OnlineEstimator:
             "velocity_fused": 0,
         }
         self._init_fault_handling()
+        self._init_fused_sample_step()
+
+    def _init_fused_sample_step(self) -> None:
+        """The compiled one-call path of :meth:`_advance_imu` (``compiled_imu.sample_step``):
+        set up when the attitude tracker, the filter's propagation and the stance detector
+        all run compiled, with the tracked attitude as the strapdown's (the defaults on long
+        recordings). :attr:`n_fused_samples` counts the samples it took."""
+        fc = self.config.filter
+        att, k = self.attitude, self.attitude._kernels
+        self._fused_ws: NDArray[np.float64] | None = None
+        # the tracker's (R, gyro) tuples last copied into the workspace
+        self._fused_att: tuple = (None, None)
+        self.n_fused_samples = 0
+        if (
+            k is None
+            or not self._stance.compiled
+            or att.config.source != "complementary"
+            or fc.strapdown_attitude != "tracked"
+        ):
+            return
+        ws = np.zeros(k.WS_SIZE)
+        if not self.filter.compiled_propagation_constants(ws):
+            return
+        ws[k.WS_GRAVITY : k.WS_GRAVITY + 2] = fc.gravity_xz_mps2
+        ws[k.WS_R_ANKLE : k.WS_R_ANKLE + 3] = self._stance._r
+        self._fused_ws = ws
+        self._fused_step = k.sample_step
+        # the workspace's slots: the tracker's R and gyro, the quaternion out, |a_ankle| out
+        self._fused_slots = (slice(k.WS_R, k.WS_GYRO + 3), slice(k.WS_Q, k.WS_Q + 4), k.WS_MAG)
+        self._fused_anchor = bool(fc.stance_anchor)
 
     def health_report(self) -> dict:
         """Is the estimate in trouble? Shares of refused displacements and of stance frames,
@@ -516,6 +547,10 @@ class OnlineEstimator:
     def _advance_imu(self, sample: ImuSample) -> ImuSample:
         """Feed one sample (shank axes) to the attitude tracker, the filter's queue and the
         stance detector; returns it as the filter propagates with it."""
+        if self._fused_ws is not None:
+            corrected = self._advance_imu_fused(sample)
+            if corrected is not None:
+                return corrected
         shank = sample  # shank axes, before the strapdown's attitude (the saturation learner)
         self.attitude.add(sample)  # vendor orientation; R_world_imu applies the pitch offset
         self._last_taken_s = sample.timestamp_s
@@ -526,7 +561,8 @@ class OnlineEstimator:
         t_filter = sample.timestamp_s - max(self.time_offset.applied_s, 0.0)
         self._propagate_until(t_filter)
         learner = self.saturation_learner
-        if learner is not None and (learner.active or self.imu_faults.last_rail_sign.any()):
+        # any() of the list: ndarray.any() costs a few microseconds a sample
+        if learner is not None and (learner.active or any(self.imu_faults.last_rail_sign.tolist())):
             self._learn_saturation(learner, shank)
         # the stance detector and the stance's pitch rate follow the filter, not the IMU
         # stream: with late camera stamps a frame's quiet window and gyro would otherwise end
@@ -534,6 +570,68 @@ class OnlineEstimator:
         self._stance_queue.append(sample)
         self._advance_stance_until(t_filter)
         return sample
+
+    def _advance_imu_fused(self, sample: ImuSample) -> ImuSample | None:
+        """:meth:`_advance_imu` in one compiled call (``compiled_imu.sample_step``) when the
+        sample is propagated and handed to the stance detector at once: the tracker has an
+        attitude, no sample is queued, no camera-IMU offset holds the filter back and the
+        filter has started. Returns None (nothing changed) otherwise; the caller then takes
+        the general path. The same kernels in the same order, so the same bits."""
+        att, filt, ws = self.attitude, self.filter, self._fused_ws
+        assert ws is not None
+        t = sample.timestamp_s
+        dt = t - att._t_s
+        if (
+            att._R is None
+            or dt < 0.0
+            or self._imu_queue
+            or self._stance_queue
+            or self.time_offset.applied_s > 0.0
+            or not self._filter_started
+            or t < self._filter_start_s - 1e-9
+        ):
+            return None
+        dt_filter = t - filt._t_s
+        if dt_filter < -1e-9 or not math.isfinite(t):
+            return None  # propagate() raises there: the general path says so
+        att_slots, q_slots, mag_slot = self._fused_slots
+        if att._R is not self._fused_att[0] or att._gyro_radps is not self._fused_att[1]:
+            ws[att_slots] = att._R + att._gyro_radps  # the general path moved the tracker
+        gyr = as_f64(sample.gyro_radps)
+        stance = self._fused_anchor and not sample.accel_held
+        R, moved = self._fused_step(
+            ws,
+            filt._x,
+            filt._P,
+            filt._mem,
+            self._stance._prev_arr,
+            as_f64(sample.accel_mps2),
+            gyr,
+            as_f64(sample.quat_wxyz),
+            t,
+            dt,
+            min(1.0, dt / att.config.time_constant_s),
+            self.pitch_offset.offset_rad,
+            dt_filter,
+            float(sample.accel_extra_sigma_mps2),
+            stance,
+        )
+        g = tuple(gyr.tolist())
+        att._R, att._t_s, att._gyro_radps = R, t, g
+        att._recent.append((t, R, g))
+        self._fused_att = (R, g)
+        self._last_taken_s = t
+        corrected = _replaced(sample, t, ws[q_slots].copy())
+        filt.propagated_compiled(t, moved)
+        learner = self.saturation_learner
+        if learner is not None and (learner.active or any(self.imu_faults.last_rail_sign.tolist())):
+            self._learn_saturation(learner, sample)
+        if stance:
+            self._stance.record(t, float(ws[mag_slot]))
+        if not sample.accel_held:
+            self._last_trusted_imu = corrected
+        self.n_fused_samples += 1
+        return corrected
 
     def add_joints(self, sample: JointAngles) -> None:
         self._last_joints = sample

@@ -345,8 +345,9 @@ def fault_check(prev, t, acc, gyr, q, acc_lim, gyr_lim, test, sigma2):
     ``acc`` and gyro ``gyr`` (|v| >= limit on any axis) and the chi-square statistic d2 of the
     gyro against the rate predicted from consecutive vendor orientations (-1 if not tested:
     ``test`` off, or no previous sample older than ``t``), with the prediction (px, py, pz).
-    ``prev`` = [has one, t, R (9, row-major), gyro (3)] is the previous sample; its R and t
-    become this sample's here, its gyro is left to the caller (the gyro or its repair)."""
+    ``prev`` = [has one, t, R (9, row-major), gyro (3)] is the previous sample; its R, t and
+    gyro become this sample's here (the caller overwrites the gyro with its repair if it
+    repairs it: a numpy slice assignment there costs more than this whole kernel's call)."""
     acc_sat = abs(acc[0]) >= acc_lim or abs(acc[1]) >= acc_lim or abs(acc[2]) >= acc_lim
     gyr_sat = abs(gyr[0]) >= gyr_lim or abs(gyr[1]) >= gyr_lim or abs(gyr[2]) >= gyr_lim
     R = _quat_matrix(q[0], q[1], q[2], q[3])
@@ -362,6 +363,7 @@ def fault_check(prev, t, acc, gyr, q, acc_lim, gyr_lim, test, sigma2):
     prev[0], prev[1] = 1.0, t
     for i in range(9):
         prev[2 + i] = R[i]
+    prev[11], prev[12], prev[13] = gyr[0], gyr[1], gyr[2]
     return d2, px, py, pz, acc_sat, gyr_sat
 
 
@@ -438,3 +440,86 @@ def clock_correct(st, buf, corr, t, period_s, gap_periods, window, smooth, min_f
     corr[nc] = out - t
     st[CLK_N_CORR] = nc + 1
     return out, code, gap, prev
+
+
+# sample_step's workspace (one float64 array, so that a call passes few arguments: numba's
+# dispatcher spends ~0.3 us on each): the attitude tracker's R (row-major) and gyro, the
+# tracked quaternion out, the constants (propagation switches and noise, gravity, lever arms)
+# and the stance detector's |a_ankle| out
+WS_R = 0  # 0:9 R_world_imu of the attitude tracker, row-major
+WS_GYRO = 9  # 9:12 its latest gyro (rad/s)
+WS_Q = 12  # 12:16 the tracked quaternion at the sample (out)
+WS_LEVER, WS_TRAPEZOID = 16, 17  # 1.0 / 0.0 switches of the propagation
+WS_ACCEL_SIGMA, WS_ATT_SIGMA, WS_VAR_AB_RATE = 18, 19, 20
+WS_GRAVITY = 21  # 21:23 gravity in the ground x-z plane (m/s^2)
+WS_R_CAM = 23  # 23:26 camera in the IMU frame (m), the propagation's lever arm
+WS_R_ANKLE = 26  # 26:29 ankle in the IMU frame (m), the stance detector's lever arm
+WS_MAG = 29  # |a_ankle| (m/s^2, out; NaN if the detector was not fed)
+WS_SIZE = 30
+
+
+@numba.njit(cache=True)
+def sample_step(
+    ws,
+    x,
+    P,
+    mem,
+    stance_prev,
+    acc,
+    gyr,
+    q_vendor,
+    t,
+    dt,
+    k_att,
+    offset_rad,
+    dt_filter,
+    xa_now,
+    stance,
+):
+    """One IMU sample through ``OnlineEstimator._advance_imu`` in one call, for the common case
+    (the sample is propagated and fed to the stance detector at once): :func:`attitude_step`
+    on the tracker's attitude and previous gyro (in ``ws``, WS_* slots; both become the
+    sample's), :func:`tracked_quat` at the sample's time into ``ws[WS_Q:WS_Q + 4]``,
+    :func:`eskf_propagate` on ``x``, ``P``, ``mem`` with that orientation and, if ``stance``,
+    :func:`stance_ankle_accel` on ``stance_prev`` into ``ws[WS_MAG]``. The same calls in the
+    same order as the separate kernels, so the same bits. Returns the new R (9-tuple) and the
+    propagation's code (see :func:`eskf_propagate`)."""
+    R0 = (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6], ws[7], ws[8])
+    g0 = (ws[WS_GYRO], ws[WS_GYRO + 1], ws[WS_GYRO + 2])
+    R = attitude_step(R0, g0, gyr, q_vendor, dt, k_att)
+    for i in range(9):
+        ws[WS_R + i] = R[i]
+    for i in range(3):
+        ws[WS_GYRO + i] = gyr[i]
+    w, qx, qy, qz = tracked_quat(R, gyr, 0.0, offset_rad)
+    q = ws[WS_Q : WS_Q + 4]
+    q[0], q[1], q[2], q[3] = w, qx, qy, qz
+    moved = eskf_propagate(
+        x,
+        P,
+        mem,
+        t,
+        dt_filter,
+        acc,
+        gyr,
+        q,
+        ws[WS_R_CAM : WS_R_CAM + 3],
+        ws[WS_LEVER] != 0.0,
+        ws[WS_TRAPEZOID] != 0.0,
+        ws[WS_ACCEL_SIGMA],
+        xa_now,
+        ws[WS_ATT_SIGMA],
+        ws[WS_VAR_AB_RATE],
+    )
+    ws[WS_MAG] = np.nan
+    if stance and moved >= 0:
+        ws[WS_MAG] = stance_ankle_accel(
+            t,
+            stance_prev,
+            acc,
+            gyr,
+            q,
+            ws[WS_R_ANKLE : WS_R_ANKLE + 3],
+            ws[WS_GRAVITY : WS_GRAVITY + 2],
+        )
+    return R, moved

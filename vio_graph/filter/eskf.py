@@ -213,6 +213,10 @@ class SagittalEskf:
         # array instead of _prev / _prev_xa / _accel_w_mps2
         self._kernels = imu_kernels()
         self._mem = None if self._kernels is None else self._kernels.new_memory()
+        # its last ground-frame acceleration, a view (what _accel_w_mps2 is when compiled)
+        self._mem_aw = None
+        if self._kernels is not None and self._mem is not None:
+            self._mem_aw = self._mem[self._kernels.MEM_AW : self._kernels.MEM_AW + 2]
         # compiled measurement updates (filter/compiled_update.py), with the propagation
         self._update_kernels = None
         if self._kernels is not None:
@@ -405,6 +409,42 @@ class SagittalEskf:
         if moved:
             self._t_s = t
             self._remember(t, self._x[0:2])
+
+    def compiled_propagation_constants(self, ws: NDArray[np.float64]) -> bool:
+        """Write the constant inputs of the compiled propagation into the workspace ``ws`` of
+        ``compiled_imu.sample_step`` (lever arm, switches, noise); False (nothing written)
+        without the compiled kernels."""
+        k = self._kernels
+        if self._mem is None or k is None:
+            return False
+        c = self.config
+        ws[k.WS_LEVER] = float(c.lever_arm_compensation)
+        ws[k.WS_TRAPEZOID] = float(c.integration == "trapezoid")
+        ws[k.WS_ACCEL_SIGMA] = c.accel_noise_sigma_mps2
+        ws[k.WS_ATT_SIGMA] = c.attitude_sigma_rad
+        ws[k.WS_VAR_AB_RATE] = c.accel_bias_rw_mps2_per_sqrt_s**2
+        ws[k.WS_R_CAM : k.WS_R_CAM + 3] = self._r_imu_cam_m
+        return True
+
+    def propagated_compiled(self, t: float, moved: int) -> None:
+        """The bookkeeping of :meth:`_propagate_compiled` after a caller ran the kernel on
+        ``_x``, ``_P`` and ``_mem`` itself (``compiled_imu.sample_step``; the caller checked
+        :meth:`propagate`'s preconditions)."""
+        if moved < 0:
+            raise EstimationError(f"IMU sample at {t:.6f} s holds NaN or inf")
+        assert self._mem_aw is not None
+        self._accel_w_mps2 = self._mem_aw
+        self._n_imu += 1
+        if moved:
+            self._t_s = t
+            # _remember(t, p), written out (one call less a sample)
+            h = self._history
+            while h and h[-1][0] >= t:
+                h.pop()
+            h.append((t, self._x[0:2].copy()))
+            t_old = t - self.config.history_s
+            while h[0][0] < t_old:
+                h.popleft()
 
     def propagate_reference(self, imu: ImuSample) -> None:
         """The numpy reference of :meth:`propagate` (same state to rounding; the tests run both).

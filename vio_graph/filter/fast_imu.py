@@ -246,6 +246,17 @@ def mat3_quat(m: Mat3) -> NDArray[np.float64]:
     return np.array([w / n, x / n, y / n, z / n])
 
 
+_F64 = np.dtype(np.float64)
+
+
+def as_f64(a: ArrayLike) -> NDArray[np.float64]:
+    """``np.asarray(a, dtype=np.float64)``, returning a float64 array itself without numpy's
+    own checks (~0.5 us a call, several times an IMU sample on the compiled path)."""
+    if a.__class__ is np.ndarray and a.dtype is _F64:
+        return a
+    return np.asarray(a, dtype=np.float64)
+
+
 #: [False] keeps the per-sample path in Python even when the compiled front end is on (the
 #: benchmarks time both; benchmarks/bench_frontend.py)
 USE_COMPILED = [True]

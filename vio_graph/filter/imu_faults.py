@@ -53,7 +53,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.filter.config import ImuFaultConfig
-from vio_graph.filter.fast_imu import Mat3, imu_kernels, mat3_rotvec, mat3_tmul, quat_matrix
+from vio_graph.filter.fast_imu import (
+    Mat3,
+    as_f64,
+    imu_kernels,
+    mat3_rotvec,
+    mat3_tmul,
+    quat_matrix,
+)
 from vio_graph.filter.gating import chi2_quantile
 from vio_graph.geometry import matrix_from_quat_wxyz
 from vio_graph.types import ImuSample
@@ -195,8 +202,8 @@ class ImuFaultMonitor:
 
     def _process_compiled(self, sample: ImuSample) -> ImuSample:
         """:meth:`process` with its arithmetic in one compiled call (filter/compiled_imu.py)."""
-        acc = np.asarray(sample.accel_mps2, dtype=np.float64)
-        gyr = np.asarray(sample.gyro_radps, dtype=np.float64)
+        acc = as_f64(sample.accel_mps2)
+        gyr = as_f64(sample.gyro_radps)
         xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
         t = float(sample.timestamp_s)
         cfg = self.config
@@ -207,7 +214,7 @@ class ImuFaultMonitor:
             t,
             acc,
             gyr,
-            np.asarray(sample.quat_wxyz, dtype=np.float64),
+            as_f64(sample.quat_wxyz),
             self._acc_lim,
             self._gyr_lim,
             cfg.gyro_ahrs_test,
@@ -232,10 +239,8 @@ class ImuFaultMonitor:
                     held = True
         if repaired:
             prev[11], prev[12], prev[13] = px, py, pz
-        else:
-            prev[11:14] = gyr
-            if not acc_sat:
-                self._last_acc = tuple(acc.tolist())
+        elif not acc_sat:  # (fault_check stored the gyro)
+            self._last_acc = tuple(acc.tolist())
         if (
             not repaired
             and new_acc is None

@@ -121,6 +121,14 @@ class StanceDetector:
             self._recent.popleft()
         return mag
 
+    def record(self, t_s: float, mag: float) -> None:
+        """Append |a_ankle| ``mag`` (m/s^2) at ``t_s`` to the window, as :meth:`add_imu_quat`
+        does after its kernel (for a caller that ran ``compiled_imu.stance_ankle_accel`` on
+        ``_prev_arr`` itself: ``compiled_imu.sample_step``)."""
+        self._recent.append((t_s, mag))
+        while self._recent[0][0] < t_s - self._window_s:
+            self._recent.popleft()
+
     def add_imu_reference(
         self,
         timestamp_s: float,

@@ -297,7 +297,10 @@ class Replay:
         the IMU was within one period of it gave it the IMU sample but not the joint sample
         of the same stamp, which comes next in the event order: the ankle encoder lagged the
         shank attitude by up to two periods, and at -30 ms the toe's foot-angle error doubled,
-        downstair s1 0.80 -> 1.98 deg sd.) False if a retroactive re-run is due."""
+        downstair s1 0.80 -> 1.98 deg sd.) A frame captured after a repaired IMU packet that
+        is still held back for the next sample (filter/imu_repair.py) waits for that sample
+        too, instead of seeing the filter extrapolated across the packet. False if a
+        retroactive re-run is due."""
         online = self.online
         while waiting:
             t_imu = online.last_imu_time_s

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from vio_graph.filter.config import FilterConfig, ImuFaultConfig
 from vio_graph.filter.eskf import SagittalEskf
 from vio_graph.filter.imu_faults import ImuFaultMonitor, velocity_fault_cov
-from vio_graph.filter.imu_repair import NextSampleRepair
+from vio_graph.filter.imu_repair import NextSampleRepair, keep_consistent_axes
 from vio_graph.geometry import GRAVITY_MPS2, matrix_from_quat_wxyz, quat_wxyz_from_matrix, rot_y
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.graph import KeyframeGraphBuilder, distrust_variances
@@ -456,7 +456,7 @@ def test_saturation_evidence_nothing_measured_is_dropped() -> None:
     assert learner.scales_mps2[1:] == pytest.approx([20.0, 20.0])
 
 
-def _estimator_after(samples: list[ImuSample], repair: bool):
+def _estimator_after(samples: list[ImuSample], repair: bool, per_axis: bool = True):
     """An online estimator (filter started at the first IMU sample, no frames) fed
     ``samples``: its filter velocity (m/s) and tracked attitude at the last sample."""
     from tests.conftest import tiny_metadata
@@ -467,7 +467,10 @@ def _estimator_after(samples: list[ImuSample], repair: bool):
         {
             "filter": {
                 "start_at_first_frame": False,
-                "imu_faults": {"repair_from_next_sample": repair},
+                "imu_faults": {
+                    "repair_from_next_sample": repair,
+                    "keep_consistent_axes": per_axis,
+                },
             }
         }
     )
@@ -534,3 +537,137 @@ def test_next_sample_repair_waits_one_sample_at_most() -> None:
     out = rep.push(s(5))
     assert out[0].accel_mps2[0] == pytest.approx(4.0) and out[0].accel_extra_sigma_mps2 == 5.0
     assert out[0].accel_held and rep.n_repaired == 1
+
+
+def test_keep_consistent_axes_replaces_only_the_axes_that_disagree() -> None:
+    interp = np.array([-40.5, 0.0, -26.4])
+    # a 30 m/s^2 spike on x; y and z 0 and 2.2 m/s^2 off the interpolation (a heel strike's
+    # transient the interpolation misses): with sigma 5 and p = 0.999 (3.29 sigma, 16.4)
+    # only x goes
+    got = keep_consistent_axes([-10.9, 0.0, -28.6], interp, 5.0, 0.999)
+    np.testing.assert_array_equal(got, [-40.5, 0.0, -28.6])
+    # an axis 17 m/s^2 off fails the test too; nothing measured: the stand-in throughout
+    got = keep_consistent_axes([-23.5, 0.0, -28.6], interp, 5.0, 0.999)
+    np.testing.assert_array_equal(got, [-40.5, 0.0, -28.6])
+    np.testing.assert_array_equal(keep_consistent_axes(None, interp, 5.0, 0.999), interp)
+
+
+def _heel_strike_with_one_axis_spike(n: int, k: int) -> tuple[list, list]:
+    """A swinging shank whose specific force peaks at sample ``k`` (a heel-strike transient
+    the interpolation between its neighbours misses by 8 m/s^2 in x and 6 in z), and the
+    same stream with a spike on one accelerometer axis (y, 30 m/s^2) and one gyro axis (x,
+    5 rad/s) of packet ``k`` (the simulator's spikes hit one axis of each sensor)."""
+    truth = _pitching(n, lambda t: 20.0 * t)
+    peak = np.zeros((n, 3))
+    peak[k] = (8.0, 0.0, 6.0)
+    truth = [dataclasses.replace(s, accel_mps2=s.accel_mps2 + peak[i])
+             for i, s in enumerate(truth)]  # fmt: skip
+    spiked = list(truth)
+    spiked[k] = dataclasses.replace(
+        truth[k],
+        accel_mps2=truth[k].accel_mps2 + [0, 30.0, 0],
+        gyro_radps=truth[k].gyro_radps + [5.0, 0, 0],
+    )
+    return truth, spiked
+
+
+def test_filter_keeps_the_axes_of_a_repaired_packet_that_agree_with_its_neighbours() -> None:
+    n, k = 40, 30
+    truth, spiked = _heel_strike_with_one_axis_spike(n, k)
+    v_true, R_true, _, _ = _estimator_after(truth, repair=True)
+    v_on, R_on, est, steps = _estimator_after(spiked, repair=True)
+    v_off, R_off, _, _ = _estimator_after(spiked, repair=True, per_axis=False)
+    assert est.imu_faults.n_gyro_repaired == 1 and est.imu_repair.n_repaired == 1
+    # the packet's own x, z force and pitch rate agree with the neighbours: kept, so the
+    # velocity and the attitude are the clean stream's; the spiked y and roll are replaced
+    assert est.imu_repair.n_axes_kept == 4
+    np.testing.assert_allclose(v_on, v_true, atol=1e-9)
+    assert np.linalg.norm(Rotation.from_matrix(R_true.T @ R_on).as_rotvec()) < 1e-9
+    # the whole packet interpolated misses the peak: 8 m/s^2 over a trapezoid step in x
+    assert abs(v_off[0] - v_true[0]) > 0.03
+    # the smoothers get the monitor's stand-in with what the packet measured beside it
+    np.testing.assert_allclose(steps[k].shank.measured_accel_mps2, spiked[k].accel_mps2)
+    np.testing.assert_allclose(steps[k].shank.measured_gyro_radps, spiked[k].gyro_radps)
+
+
+def test_smoothers_keep_the_axes_of_a_held_packet_that_agree_with_its_neighbours() -> None:
+    import gtsam
+
+    n, k = 25, 10
+    truth, spiked = _heel_strike_with_one_axis_spike(n, k)
+    # the monitor's stand-in: the previous force held, the gyro predicted (0.5 rad/s off in
+    # pitch), the measurement carried beside it
+    held = dataclasses.replace(
+        spiked[k],
+        accel_mps2=truth[k - 1].accel_mps2,
+        gyro_radps=truth[k].gyro_radps + [0.0, 0.5, 0.0],
+        accel_extra_sigma_mps2=ImuFaultConfig().held_accel_sigma_mps2,
+        gyro_extra_sigma_radps=0.5,
+        accel_held=True,
+        measured_accel_mps2=spiked[k].accel_mps2,
+        measured_gyro_radps=spiked[k].gyro_radps,
+    )
+    faulty = [*truth[:k], held, *truth[k + 1 :]]
+    on = SmootherConfig()
+    off = SmootherConfig(held_keep_consistent_axes=False)
+    dv_true, _, r_true = _imu_factor_delta_v(truth, on)
+    dv_on, _, r_on = _imu_factor_delta_v(faulty, on)
+    dv_off, _, r_off = _imu_factor_delta_v(faulty, off)
+    # kept: the clean stream's delta v and rotation; the interpolation misses the 8 m/s^2
+    # peak (0.08 m/s over one sample) and the predicted gyro tilts the rotation by 5 mrad
+    np.testing.assert_allclose(dv_on, dv_true, atol=1e-9)
+    assert np.linalg.norm(gtsam.Rot3.Logmap(r_true.between(r_on))) < 1e-9
+    assert np.linalg.norm(dv_off - dv_true) > 0.03
+    assert np.linalg.norm(gtsam.Rot3.Logmap(r_true.between(r_off))) > 1e-3
+
+
+def test_a_frame_after_a_repaired_packet_waits_for_its_repair(tmp_path) -> None:
+    """IMU spikes at 10 Hz on a 2 s downstair walk: a repaired packet is held back until the
+    next sample (filter/imu_repair.py), and a frame captured between the two waits with it,
+    so every frame sees the filter at the last IMU sample before its capture time (the
+    packet included) instead of extrapolating across the packet (two periods at a heel
+    strike's 40 m/s^2 is 8 mm). Without the wait, the frames after a repaired packet are
+    processed while it is still held."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.recording.reader import Recording
+    from vio_graph.replay import Replay
+    from vio_graph.sim import load_scenario, simulate
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    cfg = load_scenario("downstair").model_copy(update={"duration_s": 2.0})
+    cfg = cfg.model_copy(
+        update={"faults": cfg.faults.model_copy(update={"imu_spike_rate_hz": 10.0})}
+    )
+    rec = Recording.open(simulate(cfg, seed=1, out_dir=tmp_path / "spikes"))
+    replay = Replay(rec, PipelineConfig(), {"filter"}, NullVisualizer())
+    seen: list[tuple[float, float, float | None]] = []  # capture time, last IMU, held packet
+    frame = replay._frame
+
+    def watched(i: int) -> None:
+        online = replay.online
+        seen.append((rec.frame_timestamps_s[i], online.last_imu_time_s, online.imu_held_back_s))
+        frame(i)
+
+    replay._frame = watched  # type: ignore[method-assign]
+    repaired: list[float] = []
+    repair = replay.online.imu_repair
+    interpolate = repair.interpolate
+
+    def noted(before, held, after):
+        repaired.append(held.timestamp_s)
+        return interpolate(before, held, after)
+
+    repair.interpolate = noted  # type: ignore[method-assign]
+    replay.run()
+    assert replay.rerun is None and len(repaired) >= 10
+    imu_t = rec.imu.timestamp_s
+    waited = 0
+    for t_cap, last_imu, held in seen:
+        assert held is None or held > t_cap
+        expected = imu_t[np.searchsorted(imu_t, t_cap, side="right") - 1]
+        # the filter is at the sample before the capture or later (the one after a repaired
+        # packet has been taken: it released the packet; the filter propagates only up to
+        # the capture time)
+        assert last_imu >= expected
+        waited += expected in repaired  # the last sample before the capture was repaired
+    assert waited >= 2

@@ -150,6 +150,8 @@ def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float
         sample.accel_extra_sigma_mps2,
         sample.gyro_extra_sigma_radps,
         sample.accel_held,
+        sample.measured_accel_mps2,
+        sample.measured_gyro_radps,
     )
 
 
@@ -216,11 +218,14 @@ class RigGeometry:
             return sample
         R = self.R_shank_imu
         q = quat_wxyz_from_matrix(matrix_from_quat_wxyz(sample.quat_wxyz) @ R.T)
+        ma, mg = sample.measured_accel_mps2, sample.measured_gyro_radps
         return dataclasses.replace(
             sample,
             accel_mps2=R @ np.asarray(sample.accel_mps2, dtype=float),
             gyro_radps=R @ np.asarray(sample.gyro_radps, dtype=float),
             quat_wxyz=q,
+            measured_accel_mps2=None if ma is None else R @ np.asarray(ma, dtype=float),
+            measured_gyro_radps=None if mg is None else R @ np.asarray(mg, dtype=float),
         )
 
     @property
@@ -420,10 +425,20 @@ class OnlineEstimator:
             if fi.enabled and fi.saturation_learn_scale and rig.accel_range_mps2
             else None
         )
+        per_axis = fi.keep_consistent_axes
         self.imu_repair = (
-            NextSampleRepair(fc.imu_faults.interpolated_accel_sigma_mps2)
-            if fc.imu_faults.enabled and fc.imu_faults.repair_from_next_sample
+            NextSampleRepair(
+                fi.interpolated_accel_sigma_mps2,
+                fi.gyro_ahrs_sigma_radps if per_axis else None,
+                fi.consistent_axis_probability if per_axis else None,
+            )
+            if fi.enabled and fi.repair_from_next_sample
             else None
+        )
+        #: a held packet carries its measurement for the per-axis repair (the filter's and
+        #: the smoothers', ``smoother.held_keep_consistent_axes``)
+        self.keep_measured_axes = fi.enabled and (
+            per_axis or self.config.smoother.held_keep_consistent_axes
         )
         self.imu_clock = (
             ClockModel(1.0 / rig.imu_rate_hz, to.clock_window, to.gap_periods, to.imu_clock_model)
@@ -518,7 +533,16 @@ class OnlineEstimator:
                 return None
             if t_clock != sample.timestamp_s:
                 sample = _replaced(sample, t_clock, sample.quat_wxyz)
+        measured = sample
         sample = self.imu_faults.process(sample)  # saturation marks, gyro repair (IMU axes)
+        if sample.accel_held and sample is not measured and self.keep_measured_axes:
+            # a stand-in for a corrupt packet: keep what the packet said, so that the
+            # repair from the next sample can keep its axes that agree with the neighbours
+            sample = dataclasses.replace(
+                sample,
+                measured_accel_mps2=np.asarray(measured.accel_mps2, dtype=float),
+                measured_gyro_radps=np.asarray(measured.gyro_radps, dtype=float),
+            )
         shank = self.rig.imu_in_shank_axes(sample)  # any IMU mount -> shank axes
         if self._last_imu is not None and shank.timestamp_s <= self._last_imu.timestamp_s:
             raise EstimationError(
@@ -661,6 +685,14 @@ class OnlineEstimator:
         if self.imu_repair is not None and self.imu_repair.pending is not None:
             return self._last_taken_s
         return None if self._last_imu is None else self._last_imu.timestamp_s
+
+    @property
+    def imu_held_back_s(self) -> float | None:
+        """Stamp (s, IMU clock) of a repaired packet held back for the next sample
+        (filter/imu_repair.py), None if there is none: a frame captured after it should wait
+        for the next sample (:class:`vio_graph.replay.Replay` does)."""
+        pending = None if self.imu_repair is None else self.imu_repair.pending
+        return None if pending is None else pending.timestamp_s
 
     def corrected_imu(self, sample: ImuSample) -> ImuSample:
         """``sample`` with its vendor orientation turned by the level-surface pitch offset

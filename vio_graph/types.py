@@ -25,6 +25,10 @@ class ImuSample:
     the smoothers to the preintegration covariance. ``accel_held``: the accelerometer value is
     a stand-in (the previous trusted sample, held over a corrupted packet), not a measurement;
     an estimator that sees the next sample may replace it (the smoothers interpolate it).
+    ``measured_accel_mps2`` / ``measured_gyro_radps``: on such a stand-in, what the packet
+    itself said (same axes as the sample), so that an estimator which sees the next sample
+    can keep the axes that agree with its neighbours (filter/imu_repair.py
+    :func:`keep_consistent_axes`); None on a measured sample.
     """
 
     timestamp_s: float
@@ -34,6 +38,8 @@ class ImuSample:
     accel_extra_sigma_mps2: float = 0.0
     gyro_extra_sigma_radps: float = 0.0
     accel_held: bool = False
+    measured_accel_mps2: NDArray[np.float64] | None = None
+    measured_gyro_radps: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)

@@ -202,6 +202,22 @@ class ImuFaultConfig(BaseModel):
         "(smoother.interpolated_accel_sigma_mps2, the interpolation's error on the simulated "
         "gaits: 1.2-1.8 m/s^2 RMS, 5-7 at the 99th percentile)",
     )
+    keep_consistent_axes: bool = Field(
+        default=True,
+        description="with repair_from_next_sample: an axis of the repaired packet (accelerometer "
+        "or gyro) whose measured value agrees with the interpolation between its neighbours "
+        "(within the consistent_axis_probability quantile of a 1-dof chi-square, sigma "
+        "interpolated_accel_sigma_mps2 / gyro_ahrs_sigma_radps) keeps its measurement; only the "
+        "axes that disagree are interpolated (filter/imu_repair.py keep_consistent_axes). "
+        "False = the whole packet is interpolated",
+    )
+    consistent_axis_probability: float = Field(
+        default=0.999,
+        gt=0,
+        lt=1,
+        description="probability of the per-axis test of keep_consistent_axes (0.999: 3.3 "
+        "sigma, 16 m/s^2 and 1.6 rad/s; a 30 m/s^2 / 5 rad/s spike fails it)",
+    )
 
 
 class TimeOffsetConfig(BaseModel):

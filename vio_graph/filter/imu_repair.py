@@ -27,8 +27,27 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.filter.gating import chi2_quantile
 from vio_graph.types import ImuSample
+
+
+def keep_consistent_axes(
+    measured: ArrayLike | None, stand_in: ArrayLike, sigma: float, probability: float
+) -> NDArray[np.float64]:
+    """Per axis, the measured value where it agrees with the stand-in (the interpolation
+    between the packet's measured neighbours) within the ``probability`` quantile of a 1-dof
+    chi-square with sigma ``sigma``, else the stand-in. A spike on one axis (a bit error, a
+    shock on one channel) then costs that axis only, while a heel strike's true transient on
+    the others, which the interpolation misses by a few m/s^2, stays measured. None: the
+    stand-in throughout."""
+    s = np.array(stand_in, dtype=float)
+    if measured is None:
+        return s
+    m = np.asarray(measured, dtype=float)
+    ok = (m - s) ** 2 <= chi2_quantile(probability, 1) * sigma**2
+    return np.where(ok, m, s)
 
 
 def _measured(sample: ImuSample) -> bool:
@@ -47,8 +66,18 @@ class NextSampleRepair:
     samples ready for the filter (0, 1 or 2).
     """
 
-    def __init__(self, interpolated_accel_sigma_mps2: float) -> None:
+    def __init__(
+        self,
+        interpolated_accel_sigma_mps2: float,
+        gyro_sigma_radps: float | None = None,
+        axis_probability: float | None = None,
+    ) -> None:
         self.accel_sigma_mps2 = float(interpolated_accel_sigma_mps2)
+        #: per-axis test of the packet's measurement against the interpolation
+        #: (:func:`keep_consistent_axes`); None = the whole packet interpolated
+        self.gyro_sigma_radps = gyro_sigma_radps
+        self.axis_probability = axis_probability
+        self.n_axes_kept = 0  #: axes (accelerometer and gyro) of repaired packets left measured
         self._prev: ImuSample | None = None  # the latest released sample, if measured
         self._pending: ImuSample | None = None  # a repaired packet waiting for its successor
         self.n_repaired = 0  #: packets replaced by the interpolation
@@ -77,9 +106,10 @@ class NextSampleRepair:
 
     def interpolate(self, before: ImuSample, held: ImuSample, after: ImuSample) -> ImuSample:
         """``held`` with accelerometer and gyro linearly interpolated in time between its
-        measured neighbours; the accelerometer carries ``accel_sigma_mps2`` as its extra
-        sigma (still marked ``accel_held``: it is not a measurement), the gyro keeps the
-        monitor's."""
+        measured neighbours (with ``axis_probability``: only on the axes whose measurement
+        disagrees with the interpolation, :func:`keep_consistent_axes`); the accelerometer
+        carries ``accel_sigma_mps2`` as its extra sigma (still marked ``accel_held``), the
+        gyro keeps the monitor's."""
         t0, t1 = before.timestamp_s, after.timestamp_s
         w = (held.timestamp_s - t0) / (t1 - t0)
         acc = (1.0 - w) * np.asarray(before.accel_mps2, float) + w * np.asarray(
@@ -88,6 +118,12 @@ class NextSampleRepair:
         gyr = (1.0 - w) * np.asarray(before.gyro_radps, float) + w * np.asarray(
             after.gyro_radps, float
         )
+        p, sg = self.axis_probability, self.gyro_sigma_radps
+        if p is not None and sg is not None and held.measured_accel_mps2 is not None:
+            ma, mg = held.measured_accel_mps2, held.measured_gyro_radps
+            acc = keep_consistent_axes(ma, acc, self.accel_sigma_mps2, p)
+            gyr = keep_consistent_axes(mg, gyr, sg, p)
+            self.n_axes_kept += int(np.sum(acc == ma) + np.sum(gyr == mg))
         return dataclasses.replace(
             held, accel_mps2=acc, gyro_radps=gyr, accel_extra_sigma_mps2=self.accel_sigma_mps2
         )

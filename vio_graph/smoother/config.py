@@ -122,6 +122,19 @@ class SmootherConfig(BaseModel):
         "RMS per axis off on the simulated gaits) by the interpolation between its "
         "neighbours (0.07 rad/s RMS in pitch); extra gyro sigma interpolated_gyro_sigma_radps",
     )
+    held_keep_consistent_axes: bool = Field(
+        default=True,
+        description="with held_accel_interpolation: an axis of that corrupted packet whose "
+        "measurement agrees with the interpolation between its neighbours (within the "
+        "held_axis_probability quantile of a 1-dof chi-square, sigma "
+        "interpolated_accel_sigma_mps2 / interpolated_gyro_sigma_radps) keeps the measurement "
+        "(ImuSample.measured_accel_mps2 / measured_gyro_radps), the others get the "
+        "interpolation (accelerometer) or the monitor's stand-in (gyro, unless "
+        "held_gyro_interpolation); filter.imu_faults.keep_consistent_axes is the filter's",
+    )
+    held_axis_probability: float = Field(
+        default=0.999, gt=0, lt=1, description="probability of that per-axis test"
+    )
     interpolated_gyro_sigma_radps: float = Field(
         default=0.3,
         gt=0,
@@ -226,6 +239,17 @@ class SmootherConfig(BaseModel):
     )
     first_velocity_sigma_mps: float = Field(
         default=0.1, gt=0, description="prior sigma (m/s) on the first keyframe velocity"
+    )
+    first_velocity_kernel: Literal["huber", "cauchy", "none"] = Field(
+        default="none",
+        description="robust kernel on the first keyframe's velocity prior (the filter's v = 0 "
+        "at its start, 7-9 sigma off on a trial starting mid-stride): 'huber' lets the IMU "
+        "chain and the displacements outvote it. Off: 2 Hz spikes seeds 1-3 downstair "
+        "smoother / batch toe x 0.96 / 0.84 -> 0.75 / 0.64 cm, but obstacle 0.51 / 0.52 -> "
+        "0.59 / 0.61 cm; clean trials within -8 .. +1 % (docs/method.md, IMU faults)",
+    )
+    first_velocity_kernel_threshold: float = Field(
+        default=1.345, gt=0, description="its threshold (whitened; 95 % Gaussian efficiency)"
     )
     first_velocity_filter_cov: bool = Field(
         default=False,

@@ -71,6 +71,7 @@ from gtsam.symbol_shorthand import B, L, V, X
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
+from vio_graph.filter.imu_repair import keep_consistent_axes
 from vio_graph.geometry import cross3, matrix_from_quat_wxyz, remove_yaw, skew
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.imu_sampling import (
@@ -281,6 +282,8 @@ class KeyframeGraphBuilder:
         self._imu_q: list[NDArray[np.float64]] = []
         self._imu_x: list[tuple[float, float]] = []  # extra (accel, gyro) sigma per sample
         self._imu_h: list[bool] = []  # accelerometer held over a corrupted packet (not measured)
+        # what a held packet measured (accel, gyro), for the per-axis keep; None otherwise
+        self._imu_m: list[tuple[NDArray[np.float64], NDArray[np.float64]] | None] = []
         #: wrap IMU factors in SmootherConfig.imu_robust_kernel (the batch smoother sets it;
         #: iSAM2 keeps a factor's first linearisation, and a poor initial guess would leave
         #: good IMU factors down-weighted: upstair s1 smoother toe x 1.33 -> 1.6-2.0 cm)
@@ -346,6 +349,12 @@ class KeyframeGraphBuilder:
             (float(sample.accel_extra_sigma_mps2), float(sample.gyro_extra_sigma_radps))
         )
         self._imu_h.append(bool(sample.accel_held))
+        ma, mg = sample.measured_accel_mps2, sample.measured_gyro_radps
+        self._imu_m.append(
+            None
+            if ma is None or mg is None
+            else (np.asarray(ma, dtype=float).reshape(3), np.asarray(mg, dtype=float).reshape(3))
+        )
         if self.config.held_accel_interpolation and not sample.accel_held:
             self._interpolate_held()
         if self._pending is not None and t >= self._pending.timestamp_s - TIME_TOL_S:
@@ -594,6 +603,9 @@ class KeyframeGraphBuilder:
             cov = np.eye(3) * cfg.first_velocity_sigma_mps**2
             cov[np.ix_([0, 2], [0, 2])] += np.asarray(estimate.cov_velocity_m2ps2, dtype=float)
             noise = gtsam.noiseModel.Gaussian.Covariance(cov)
+        est = _m_estimator(cfg.first_velocity_kernel, float(cfg.first_velocity_kernel_threshold))
+        if est is not None:
+            noise = gtsam.noiseModel.Robust.Create(est, noise)
         batch.add(gtsam.PriorFactorVector(V(0), v_guess, noise), [V(0)])
         bsig = np.r_[[cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3]
         batch.add(
@@ -775,15 +787,24 @@ class KeyframeGraphBuilder:
         t0, a0 = self._imu_t[j - 1], self._imu_a[j - 1]
         t1, a1 = self._imu_t[k], self._imu_a[k]
         g0, g1 = self._imu_g[j - 1], self._imu_g[k]
-        sig = self.config.interpolated_accel_sigma_mps2
-        gyro = self.config.held_gyro_interpolation
+        cfg = self.config
+        sig = cfg.interpolated_accel_sigma_mps2
+        gyro = cfg.held_gyro_interpolation
         for m in range(j, k):
             w = (self._imu_t[m] - t0) / (t1 - t0)
             self._imu_a[m] = (1.0 - w) * a0 + w * a1
             sig_g = self._imu_x[m][1]
+            g_interp = (1.0 - w) * g0 + w * g1
             if gyro:
-                self._imu_g[m] = (1.0 - w) * g0 + w * g1
-                sig_g = self.config.interpolated_gyro_sigma_radps
+                self._imu_g[m] = g_interp
+                sig_g = cfg.interpolated_gyro_sigma_radps
+            measured = self._imu_m[m]
+            if cfg.held_keep_consistent_axes and measured is not None:
+                # axes whose measurement agrees with the neighbours keep it (one-axis spike)
+                p, sg = cfg.held_axis_probability, cfg.interpolated_gyro_sigma_radps
+                self._imu_a[m] = keep_consistent_axes(measured[0], self._imu_a[m], sig, p)
+                ok = keep_consistent_axes(measured[1], g_interp, sg, p) == measured[1]
+                self._imu_g[m] = np.where(ok, measured[1], self._imu_g[m])
             self._imu_x[m] = (sig, sig_g)
             self._imu_h[m] = False
 
@@ -794,4 +815,4 @@ class KeyframeGraphBuilder:
         ts = np.asarray(self._imu_t)
         k0 = max(0, int(np.searchsorted(ts, t - TIME_TOL_S, side="right")) - 4)
         del self._imu_t[:k0], self._imu_a[:k0], self._imu_g[:k0], self._imu_q[:k0]
-        del self._imu_x[:k0], self._imu_h[:k0]
+        del self._imu_x[:k0], self._imu_h[:k0], self._imu_m[:k0]

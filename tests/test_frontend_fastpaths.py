@@ -247,6 +247,57 @@ def test_compiled_icp_hands_an_exact_tie_back() -> None:
     assert np.array_equal(got.translation_xz_m, ref.translation_xz_m)
 
 
+def _scan_order_neighbours(src: np.ndarray, rank: np.ndarray, i: int, kk: int) -> list[int]:
+    """The kk nearest source points of point i in the order a scan outwards in x from it keeps
+    them (by distance, then |dx|, left before right, outwards on each side), brute force."""
+    px, pz = src[i]
+    pos = rank[i]
+
+    def key(m: int) -> tuple:
+        dx, dz = src[m, 0] - px, src[m, 1] - pz
+        left = rank[m] < pos
+        return (dx * dx + dz * dz, abs(px - src[m, 0]), not left, -rank[m] if left else rank[m])
+
+    return sorted(range(src.shape[0]), key=key)[:kk]
+
+
+def test_grid_neighbour_search_equals_the_x_scan_order() -> None:
+    """The ICP kernel's bucket-grid searches (compiled._nearest, compiled._normal) pick the
+    points, ties and neighbour order of a scan of the x-sorted source (what the kernel did
+    before the grid, and the order its sums depend on): the nearest point within reach (the
+    first in x order among equally near ones), and a normal's k nearest in scan order."""
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(41)
+    for case in range(12):
+        src = _smoothed(rng)[: int(rng.integers(5, 400))]
+        if case % 3 == 2:  # coarse: exact duplicates and equal distances
+            src = np.round(src, 2)
+        src = np.ascontiguousarray(src)
+        rank = np.empty(src.shape[0], np.int64)
+        rank[np.argsort(src[:, 0], kind="mergesort")] = np.arange(src.shape[0])
+        grid = kernels._grid(src, 0.01)
+        reach = 0.03 * (1.0 + 1e-9) + 1e-12
+        for q in src[rng.integers(0, src.shape[0], 30)] + rng.normal(0, 0.01, (30, 2)):
+            best2, bi, tie = kernels._nearest(src, grid, rank, q[0], q[1], reach, 0.03**2)
+            d2 = (q[0] - src[:, 0]) ** 2 + (q[1] - src[:, 1]) ** 2
+            near = np.abs(src - q).max(axis=1) <= reach
+            if not near.any():
+                assert bi == src.shape[0] and best2 == np.inf
+                continue
+            assert best2 == d2[near].min()
+            at = np.flatnonzero(near & (d2 == best2))
+            assert bi == at[np.argmin(rank[at])]
+            distinct = np.abs(src[at] - src[bi]).max(axis=1) > 1e-12
+            assert tie == (bool(distinct.any()) and best2 < 0.03**2)
+        for k in (3, 6, 15):
+            kk = min(k + 1, src.shape[0])
+            best_d, best_i = np.empty(kk), np.empty(kk, np.int64)
+            for i in rng.integers(0, src.shape[0], 20):
+                kernels._normal(src, grid, rank, int(i), k, best_d, best_i)
+                assert list(best_i) == _scan_order_neighbours(src, rank, int(i), kk)
+
+
 def test_nearest_source_on_small_and_sparse_sets() -> None:
     rng = np.random.default_rng(11)
     for _ in range(100):

@@ -34,6 +34,9 @@ import math
 
 import numba
 import numpy as np
+from numba.core import types as nb_types
+from numba.core.extending import overload_method
+from numba.experimental import structref
 
 from vio_graph.compiled_sums import pairwise_sum
 
@@ -44,6 +47,56 @@ _TIE_NORMAL = 3  # a distinct point as near as a normal's k-th neighbour
 #: points closer than this (m, per axis) count as the same point: kNN smoothing leaves near
 #: duplicates one rounding step apart, and either gives the same answer to ~1e-18 m
 _SAME_M = 1e-12
+
+
+# ------------------------------------------------------------------ random generator handle
+
+
+@structref.register
+class _RngRefType(nb_types.StructRef):
+    """numba type of :class:`RngRef`."""
+
+    def preprocess_fields(self, fields):
+        return tuple((name, nb_types.unliteral(typ)) for name, typ in fields)
+
+
+class RngRef(structref.StructRefProxy):
+    """A numpy Generator as the kernels see it, unboxed once. Passing the Generator itself
+    costs every call ~25-45 us (numba types it in Python and unboxes its bit generator through
+    three ``ctypes.cast`` calls); this handle costs a few us. It draws from the same bit
+    generator state as the Generator (``integers`` forwards to it), so the draws and the
+    Generator's later ones are the same as with the Generator passed directly."""
+
+
+structref.define_proxy(RngRef, _RngRefType, ["rng"])
+
+
+@overload_method(_RngRefType, "integers")
+def _rng_ref_integers(self, low, high, size):  # pragma: no cover - compiled
+    def impl(self, low, high, size):
+        return self.rng.integers(low, high, size)
+
+    return impl
+
+
+@numba.njit(cache=True)
+def _new_rng_ref(rng):  # pragma: no cover - compiled
+    return RngRef(rng)
+
+
+_RNG_REFS: list = []  # (Generator, its RngRef), the latest few
+
+
+def rng_ref(rng: np.random.Generator) -> RngRef:
+    """The :class:`RngRef` of ``rng`` (made on first use, kept for the latest 8 generators;
+    each holds its Generator alive)."""
+    for g, ref in _RNG_REFS:
+        if g is rng:
+            return ref
+    ref = _new_rng_ref(rng)
+    _RNG_REFS.append((rng, ref))
+    del _RNG_REFS[:-8]
+    return ref
 
 
 @numba.njit(cache=True)
@@ -518,6 +571,37 @@ def icp_loop(
         if _fill_normal(src, grid, rank, normal_neighbours, normals, have, m, best_d, best_i):
             return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
     return tx, tz, iterations, converged, keep, j, normals, _OK
+
+
+@numba.njit(cache=True)
+def icp_pairs(src, tgt, tx, tz, keep, j, normals):  # pragma: no cover - compiled
+    """What :func:`vio_graph.frontend.icp.icp_translation_2d` makes of ``icp_loop``'s kept
+    pairs, in one call: (target points ``tgt[keep]``, matched source points
+    ``src[j[keep]]``, residuals ``tgt - T - src``, their source normals, RMS). The same
+    floats as numpy's: residuals (t - T) - s, the RMS ``sqrt(mean(rx^2 + rz^2))`` with the
+    mean as np.add.reduce's pairwise sum over n."""
+    n = keep.size
+    pairs_t = np.empty((n, 2))
+    pairs_s = np.empty((n, 2))
+    residual = np.empty((n, 2))
+    nrm = np.empty((n, 2))
+    sq = np.empty(n)
+    for c in range(n):
+        i = keep[c]
+        m = j[i]
+        pairs_t[c, 0] = tgt[i, 0]
+        pairs_t[c, 1] = tgt[i, 1]
+        pairs_s[c, 0] = src[m, 0]
+        pairs_s[c, 1] = src[m, 1]
+        rx = (tgt[i, 0] - tx) - src[m, 0]
+        rz = (tgt[i, 1] - tz) - src[m, 1]
+        residual[c, 0] = rx
+        residual[c, 1] = rz
+        nrm[c, 0] = normals[m, 0]
+        nrm[c, 1] = normals[m, 1]
+        sq[c] = rx * rx + rz * rz
+    rms = math.sqrt(pairwise_sum(sq, 0, n) / n)
+    return pairs_t, pairs_s, residual, nrm, rms
 
 
 # ----------------------------------------------------------------------------- smoothing

@@ -609,6 +609,53 @@ class SagittalEskf:
             return d2
         return mahalanobis2_2d(H @ P @ H.T + V, y)
 
+    def displacement_d2_pair(
+        self, d: Displacement2D, other_delta_xz_m: ArrayLike
+    ) -> tuple[float, float] | None:
+        """(``displacement_d2(d)``, ``displacement_d2(d, delta_xz_m=other_delta_xz_m)``) with
+        the state's part (H, V, the predicted relative position) built once: the same two
+        floats. None when ``d`` is not a relative measurement on the current clone."""
+        self._require_init()
+        t1, t0 = float(d.t1_s), float(d.t0_s)
+        if (
+            self.config.measurement_model != "stochastic_cloning"
+            or _CLONE not in self._aug_xz
+            or abs(self._clone_t_s - t0) > _CLONE_TOL_S
+            or abs(t1 - self._t_s) > self.config.max_time_mismatch_s
+        ):
+            return None
+        dt1 = t1 - self._t_s
+        H = np.zeros((2, self._P.shape[0]))
+        H[:, 0:2] = _I2
+        H[:, 2:4] = dt1 * _I2
+        i = self._aug_index(_CLONE)
+        H[:, i : i + 2] = -_I2
+        predicted = self._position_ahead(dt1) - self._aug_xz[_CLONE]
+        y = _vec2(d.delta_xz_m) - predicted
+        y_other = _vec2(other_delta_xz_m) - predicted
+        V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
+        V = V + self.config.measurement_noise_floor_m**2 * _I2
+        P = self._P
+        if self._update_kernels is not None:
+            d2 = self._update_kernels.gate_d2(P, H, V, y)
+            d2_other = self._update_kernels.gate_d2(P, H, V, y_other)
+            if math.isnan(d2) or math.isnan(d2_other):
+                raise EstimationError("singular innovation covariance")
+            return d2, d2_other
+        S = H @ P @ H.T + V
+        return mahalanobis2_2d(S, y), mahalanobis2_2d(S, y_other)
+
+    def displacement_d2_pair_reference(
+        self, d: Displacement2D, other_delta_xz_m: ArrayLike
+    ) -> tuple[float, float] | None:
+        """numpy reference of :meth:`displacement_d2_pair`: two
+        :meth:`displacement_d2_reference` calls."""
+        d2 = self.displacement_d2_reference(d)
+        d2_other = self.displacement_d2_reference(d, delta_xz_m=other_delta_xz_m)
+        if d2 is None or d2_other is None:
+            return None
+        return d2, d2_other
+
     def displacement_d2_reference(
         self,
         d: Displacement2D,

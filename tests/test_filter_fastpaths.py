@@ -239,3 +239,18 @@ def test_compiled_augment_and_marginalise_equal_the_numpy_blocks() -> None:
         i = 8 + 2 * int(rng.integers(0, (m - 8) // 2)) if m > 8 else 0
         keep = np.concatenate((np.arange(i), np.arange(i + 2, m)))
         assert np.array_equal(compiled_update.without_block(P, i), P.take(keep, 0).take(keep, 1))
+
+
+def test_position_ahead_is_the_array_formula_bit_for_bit() -> None:
+    """_position_ahead on Python floats: p + dt v + (dt^2 / 2) a as the array expression it
+    replaced computes it, whether the acceleration is an array, a tuple or a view."""
+    f = SagittalEskf(FilterConfig())
+    f.initialise(0.0, (0.1, 0.2))
+    rng = np.random.default_rng(4)
+    for accel in (np.array([0.3, -9.1]), (0.3, -9.1), np.arange(4.0)[1:3]):
+        f._accel_w_mps2 = accel
+        for _ in range(200):
+            f._x[:4] = rng.normal(0, 1, 4)
+            dt = float(rng.normal(0, 0.01))
+            want = f._x[0:2] + dt * f._x[2:4] + 0.5 * dt**2 * np.asarray(accel)
+            assert np.array_equal(f._position_ahead(dt), want)

@@ -113,68 +113,6 @@ def _eig_sym2(a, b, c):  # pragma: no cover - compiled
     return half_trace - radius, half_trace + radius, -sin_t, cos_t, cos_t, sin_t
 
 
-@numba.njit(cache=True)
-def _scan_nearest(pts, order, sxs, px, pz, pos, best_d, best_i):  # pragma: no cover - compiled
-    """Fill ``best_d`` / ``best_i`` (squared distances, indices; preset to inf / -1) with the
-    len(best_d) points of ``pts`` nearest to (px, pz), in distance order, scanning outwards
-    in x from sorted position ``pos`` (``sxs`` = x sorted, ``order`` the sort) and stopping
-    when every point left is farther in x alone than the last kept one. Returns the scanned
-    sorted range [lo, hi)."""
-    n = pts.shape[0]
-    kk = best_d.shape[0]
-    lo = pos  # next candidates: lo - 1 on the left, hi on the right
-    hi = pos
-    while True:
-        dl = px - sxs[lo - 1] if lo > 0 else np.inf
-        dr = sxs[hi] - px if hi < n else np.inf
-        if dl <= dr:
-            if dl * dl > best_d[kk - 1]:
-                break  # every point left is farther in x alone than the (k+1)-th
-            lo -= 1
-            m = order[lo]
-        else:
-            if dr * dr > best_d[kk - 1]:
-                break
-            m = order[hi]
-            hi += 1
-        dx = pts[m, 0] - px
-        dz = pts[m, 1] - pz
-        d2 = dx * dx + dz * dz
-        if d2 < best_d[kk - 1]:
-            q = kk - 1
-            while q > 0 and best_d[q - 1] > d2:
-                best_d[q] = best_d[q - 1]
-                best_i[q] = best_i[q - 1]
-                q -= 1
-            best_d[q] = d2
-            best_i[q] = m
-    return lo, hi
-
-
-@numba.njit(cache=True)
-def _tie_outside(pts, order, lo, hi, px, pz, best_d, best_i, k):  # pragma: no cover - compiled
-    """True if a point distinct from the chosen k nearest (``best_i[:k]``) lies at the k-th
-    distance: the KD-tree of the numpy path may pick it instead. Every point at that
-    distance lies in the scanned sorted range [lo, hi) (:func:`_scan_nearest`)."""
-    dk = best_d[k - 1]
-    for r in range(lo, hi):
-        m = order[r]
-        dx = pts[m, 0] - px
-        dz = pts[m, 1] - pz
-        if dx * dx + dz * dz == dk:
-            inside = False
-            same = False
-            for t in range(k):
-                b = best_i[t]
-                if b == m:
-                    inside = True
-                elif best_d[t] == dk and _same(pts[b, 0], pts[b, 1], pts[m, 0], pts[m, 1]):
-                    same = True
-            if not inside and not same:
-                return True
-    return False
-
-
 #: cell of the ICP source's bucket grid (m): a few smoothed profile points (~2 mm apart) per
 #: cell, so a query looks at tens of points instead of the whole x window (a riser holds
 #: every point at the same x)
@@ -286,8 +224,8 @@ def _nearest(src, grid, rank, qx, qz, window, max2):  # pragma: no cover - compi
 def _before(d2, m, e2, e, px, pos, src, rank):  # pragma: no cover - compiled
     """True if point m at squared distance d2 comes before point e at e2 in the order of a
     scan outwards in x from sorted position ``pos`` (x ``px``) that keeps the nearest in
-    arrival order (:func:`_scan_nearest`): by distance, then by |x - px|, left before right,
-    and outwards in x order on each side."""
+    arrival order (the scan the kernels used before the grid, and the order their sums keep):
+    by distance, then by |x - px|, left before right, and outwards in x order on each side."""
     if d2 != e2:
         return d2 < e2
     am = abs(px - src[m, 0])
@@ -302,17 +240,14 @@ def _before(d2, m, e2, e, px, pos, src, rank):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _normal(src, grid, rank, i, k, best_d, best_i):  # pragma: no cover - compiled
-    """Unit normal at source point i from its k nearest source points (itself included),
-    the same neighbours in the same order as the x scan of :func:`_scan_nearest` (searched
-    in growing squares of grid cells); returns (nx, nz, tie). ``best_d`` / ``best_i``:
-    scratch of length min(k + 1, n)."""
+def _knn(src, grid, rank, i, kk, best_d, best_i):  # pragma: no cover - compiled
+    """The kk nearest source points of source point i (itself included) into ``best_d`` /
+    ``best_i`` (squared distances, indices), the same points in the same order as a scan
+    outwards in x that keeps the nearest (``_before``), searched in growing squares of grid
+    cells."""
     x0, z0, cell, nx, nz, start, items = grid
-    n = src.shape[0]
     px, pz = src[i, 0], src[i, 1]
     pos = rank[i]
-    kk = min(k + 1, n)  # one more than needed: a tie at the k-th place is detected
-    kn = min(k, n)
     best_d[:kk] = np.inf
     best_i[:kk] = -1
     cx = min(int((px - x0) / cell), nx - 1)
@@ -360,29 +295,49 @@ def _normal(src, grid, rank, i, k, best_d, best_i):  # pragma: no cover - compil
         if best_i[kk - 1] >= 0 and out > 0.0 and out * out > best_d[kk - 1]:
             break
         r += 1
-    tie = False
-    if kk > kn:  # a point distinct from the k kept ones at the k-th distance
-        dk = best_d[kn - 1]
-        reach = math.sqrt(dk) + margin
-        ilo, ihi = _cell_range(px, x0, cell, nx, reach)
-        klo, khi = _cell_range(pz, z0, cell, nz, reach)
-        for ix in range(ilo, ihi + 1):
-            for s in range(start[ix * nz + klo], start[ix * nz + khi + 1]):
-                m = items[s]
-                dx = src[m, 0] - px
-                dz = src[m, 1] - pz
-                if dx * dx + dz * dz != dk:
-                    continue
-                inside = False
-                same = False
-                for t in range(kn):
-                    b = best_i[t]
-                    if b == m:
-                        inside = True
-                    elif best_d[t] == dk and _same(src[b, 0], src[b, 1], src[m, 0], src[m, 1]):
-                        same = True
-                if not inside and not same:
-                    tie = True
+
+
+@numba.njit(cache=True)
+def _tie_at_kth(src, grid, i, best_d, best_i, k):  # pragma: no cover - compiled
+    """True if a point distinct from the k nearest of point i (``best_i[:k]``, from
+    :func:`_knn`) lies at the k-th distance: the KD-tree of the numpy path may pick it."""
+    x0, z0, cell, nx, nz, start, items = grid
+    px, pz = src[i, 0], src[i, 1]
+    dk = best_d[k - 1]
+    reach = math.sqrt(dk) + 1e-9 * cell + 1e-12
+    ilo, ihi = _cell_range(px, x0, cell, nx, reach)
+    klo, khi = _cell_range(pz, z0, cell, nz, reach)
+    for ix in range(ilo, ihi + 1):
+        for s in range(start[ix * nz + klo], start[ix * nz + khi + 1]):
+            m = items[s]
+            dx = src[m, 0] - px
+            dz = src[m, 1] - pz
+            if dx * dx + dz * dz != dk:
+                continue
+            inside = False
+            same = False
+            for t in range(k):
+                b = best_i[t]
+                if b == m:
+                    inside = True
+                elif best_d[t] == dk and _same(src[b, 0], src[b, 1], src[m, 0], src[m, 1]):
+                    same = True
+            if not inside and not same:
+                return True
+    return False
+
+
+@numba.njit(cache=True)
+def _normal(src, grid, rank, i, k, best_d, best_i):  # pragma: no cover - compiled
+    """Unit normal at source point i from its k nearest source points (itself included),
+    the same neighbours in the same order as the x scan (:func:`_knn`); returns (nx, nz,
+    tie). ``best_d`` / ``best_i``: scratch of length min(k + 1, n)."""
+    n = src.shape[0]
+    kk = min(k + 1, n)  # one more than needed: a tie at the k-th place is detected
+    kn = min(k, n)
+    _knn(src, grid, rank, i, kk, best_d, best_i)
+    # a point distinct from the k kept ones at the k-th distance (only if the (k+1)-th is)
+    tie = kk > kn and best_d[kn] == best_d[kn - 1] and _tie_at_kth(src, grid, i, best_d, best_i, kn)
     sx = 0.0
     sz = 0.0
     for r in range(kn):
@@ -672,29 +627,23 @@ def grid_thin(pts, cell_m, max_dense_cells):  # pragma: no cover - compiled
 @numba.njit(cache=True)
 def knn_smooth(pts, k):  # pragma: no cover - compiled
     """``smoothing.knn_smooth_reference`` (2 <= k <= N): every point replaced by the mean of
-    its k nearest points (itself included), summed in distance order. Returns (out, status):
-    status 1 when a distinct point ties with a k-th neighbour (the KD-tree's pick decides:
-    run the numpy path)."""
+    its k nearest points (itself included), summed in distance order (the order of the x
+    scan, :func:`_knn` on a grid of the points). Returns (out, status): status 1 when a
+    distinct point ties with a k-th neighbour (the KD-tree's pick decides: run the numpy
+    path)."""
     n = pts.shape[0]
     order = np.argsort(pts[:, 0], kind="mergesort")
-    sxs = pts[order, 0].copy()
     rank = np.empty(n, np.int64)
     for r in range(n):
         rank[order[r]] = r
+    grid = _grid(pts, _GRID_CELL_M)
     out = np.empty((n, 2))
     kk = min(k + 1, n)
     best_d = np.empty(kk)
     best_i = np.empty(kk, np.int64)
     for i in range(n):
-        px, pz = pts[i, 0], pts[i, 1]
-        best_d[:] = np.inf
-        best_i[:] = -1
-        lo, hi = _scan_nearest(pts, order, sxs, px, pz, rank[i], best_d, best_i)
-        if (
-            kk > k
-            and best_d[k] == best_d[k - 1]
-            and _tie_outside(pts, order, lo, hi, px, pz, best_d, best_i, k)
-        ):
+        _knn(pts, grid, rank, i, kk, best_d, best_i)
+        if kk > k and best_d[k] == best_d[k - 1] and _tie_at_kth(pts, grid, i, best_d, best_i, k):
             return out, _TIE
         sx = pts[best_i[0], 0]
         sz = pts[best_i[0], 1]

@@ -193,6 +193,7 @@ def reference_paths():
         (SagittalEskf, "propagate", SagittalEskf.propagate_reference),
         (SagittalEskf, "_correct", SagittalEskf._correct_reference),
         (SagittalEskf, "displacement_d2", SagittalEskf.displacement_d2_reference),
+        (SagittalEskf, "displacement_d2_pair", SagittalEskf.displacement_d2_pair_reference),
         (SagittalEskf, "_augment", SagittalEskf._augment_reference),
         (AttitudeTracker, "add", AttitudeTracker.add_reference),
         (AttitudeTracker, "gyro_at", AttitudeTracker.gyro_at_reference),

@@ -137,6 +137,33 @@ def test_gate_distance_equals_the_reference() -> None:
         assert got == pytest.approx(want, rel=1e-10)
 
 
+@pytest.mark.parametrize("compiled", ["0", "1"])
+def test_gate_distance_pair_is_two_gate_distances(
+    compiled: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """displacement_d2_pair (the frame-stamp test's two hypotheses) gives the floats of two
+    displacement_d2 calls, with and without the compiled updates, and the reference's to
+    rounding; None where displacement_d2 says None."""
+    from vio_graph.frontend import icp as icp_module
+
+    monkeypatch.setenv(icp_module.COMPILED_ENV, compiled)
+    f, _ = _run(6, reference=False)
+    assert (f._update_kernels is not None) == (compiled == "1")
+    t = f.state.timestamp_s
+    f.clone_position(t - 0.02)
+    rng = np.random.default_rng(9)
+    for _ in range(20):
+        d = Displacement2D(t - 0.02, t, rng.normal(0, 0.02, 2), np.diag(rng.uniform(1e-6, 1e-4, 2)))
+        moved = rng.normal(0, 0.02, 2)
+        pair = f.displacement_d2_pair(d, moved)
+        assert pair == (f.displacement_d2(d), f.displacement_d2(d, delta_xz_m=moved))
+        ref = f.displacement_d2_pair_reference(d, moved)
+        assert ref is not None and pair == pytest.approx(ref, rel=1e-10)
+    stale = Displacement2D(t - 0.5, t, np.zeros(2), np.eye(2) * 1e-6)  # not on the clone
+    assert f.displacement_d2_pair(stale, np.zeros(2)) is None
+    assert f.displacement_d2(stale) is None
+
+
 def test_non_finite_measurements_are_refused() -> None:
     f = SagittalEskf()
     f.initialise(0.0, (0.0, 0.0))
@@ -212,3 +239,18 @@ def test_compiled_augment_and_marginalise_equal_the_numpy_blocks() -> None:
         i = 8 + 2 * int(rng.integers(0, (m - 8) // 2)) if m > 8 else 0
         keep = np.concatenate((np.arange(i), np.arange(i + 2, m)))
         assert np.array_equal(compiled_update.without_block(P, i), P.take(keep, 0).take(keep, 1))
+
+
+def test_position_ahead_is_the_array_formula_bit_for_bit() -> None:
+    """_position_ahead on Python floats: p + dt v + (dt^2 / 2) a as the array expression it
+    replaced computes it, whether the acceleration is an array, a tuple or a view."""
+    f = SagittalEskf(FilterConfig())
+    f.initialise(0.0, (0.1, 0.2))
+    rng = np.random.default_rng(4)
+    for accel in (np.array([0.3, -9.1]), (0.3, -9.1), np.arange(4.0)[1:3]):
+        f._accel_w_mps2 = accel
+        for _ in range(200):
+            f._x[:4] = rng.normal(0, 1, 4)
+            dt = float(rng.normal(0, 0.01))
+            want = f._x[0:2] + dt * f._x[2:4] + 0.5 * dt**2 * np.asarray(accel)
+            assert np.array_equal(f._position_ahead(dt), want)

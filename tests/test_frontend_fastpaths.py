@@ -247,6 +247,85 @@ def test_compiled_icp_hands_an_exact_tie_back() -> None:
     assert np.array_equal(got.translation_xz_m, ref.translation_xz_m)
 
 
+def _scan_order_neighbours(src: np.ndarray, rank: np.ndarray, i: int, kk: int) -> list[int]:
+    """The kk nearest source points of point i in the order a scan outwards in x from it keeps
+    them (by distance, then |dx|, left before right, outwards on each side), brute force."""
+    px, pz = src[i]
+    pos = rank[i]
+
+    def key(m: int) -> tuple:
+        dx, dz = src[m, 0] - px, src[m, 1] - pz
+        left = rank[m] < pos
+        return (dx * dx + dz * dz, abs(px - src[m, 0]), not left, -rank[m] if left else rank[m])
+
+    return sorted(range(src.shape[0]), key=key)[:kk]
+
+
+def test_grid_neighbour_search_equals_the_x_scan_order() -> None:
+    """The ICP kernel's bucket-grid searches (compiled._nearest, compiled._normal) pick the
+    points, ties and neighbour order of a scan of the x-sorted source (what the kernel did
+    before the grid, and the order its sums depend on): the nearest point within reach (the
+    first in x order among equally near ones), and a normal's k nearest in scan order."""
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(41)
+    for case in range(12):
+        src = _smoothed(rng)[: int(rng.integers(5, 400))]
+        if case % 3 == 2:  # coarse: exact duplicates and equal distances
+            src = np.round(src, 2)
+        src = np.ascontiguousarray(src)
+        rank = np.empty(src.shape[0], np.int64)
+        rank[np.argsort(src[:, 0], kind="mergesort")] = np.arange(src.shape[0])
+        grid = kernels._grid(src, 0.01)
+        reach = 0.03 * (1.0 + 1e-9) + 1e-12
+        for q in src[rng.integers(0, src.shape[0], 30)] + rng.normal(0, 0.01, (30, 2)):
+            best2, bi, tie = kernels._nearest(src, grid, rank, q[0], q[1], reach, 0.03**2)
+            d2 = (q[0] - src[:, 0]) ** 2 + (q[1] - src[:, 1]) ** 2
+            near = np.abs(src - q).max(axis=1) <= reach
+            if not near.any():
+                assert bi == src.shape[0] and best2 == np.inf
+                continue
+            assert best2 == d2[near].min()
+            at = np.flatnonzero(near & (d2 == best2))
+            assert bi == at[np.argmin(rank[at])]
+            distinct = np.abs(src[at] - src[bi]).max(axis=1) > 1e-12
+            assert tie == (bool(distinct.any()) and best2 < 0.03**2)
+        for k in (3, 6, 15):
+            kk = min(k + 1, src.shape[0])
+            best_d, best_i = np.empty(kk), np.empty(kk, np.int64)
+            for i in rng.integers(0, src.shape[0], 20):
+                kernels._normal(src, grid, rank, int(i), k, best_d, best_i)
+                assert list(best_i) == _scan_order_neighbours(src, rank, int(i), kk)
+
+
+def test_compiled_icp_pairs_are_numpys_bit_for_bit() -> None:
+    """compiled.icp_pairs (the kept pairs, residuals, normals and RMS of one ICP) gives the
+    floats of the numpy formulation it replaced in icp_translation_2d, RMS included (numpy's
+    pairwise mean), so the covariance from them is the same too."""
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    cfg = IcpConfig()
+    rng = np.random.default_rng(8)
+    for n_tgt in (1, 7, 60, 300):  # below, at and beyond numpy's 8-wide and 128 blocks
+        src = _smoothed(rng)
+        tgt = src[rng.integers(0, src.shape[0], n_tgt)] + 0.004
+        tgt = np.ascontiguousarray(tgt + rng.normal(0, 0.001, tgt.shape))  # no exact ties
+        tx, tz, _, _, keep, j, normals, status = kernels.icp_loop(
+            src, tgt, 0.004, 0.004, 20, 1e-6, 0.03, 0.1, 15, True, cfg.degenerate_ratio
+        )
+        assert status == 0 and keep.size > 0
+        pairs_t, pairs_s, residual, pair_normals, rms = kernels.icp_pairs(
+            src, tgt, tx, tz, keep, j, normals
+        )
+        T = np.array([tx, tz])
+        assert np.array_equal(pairs_t, tgt[keep]) and np.array_equal(pairs_s, src[j[keep]])
+        assert np.array_equal(residual, tgt[keep] - T - src[j[keep]])
+        assert np.array_equal(pair_normals, normals[j[keep]])
+        assert rms == float(np.sqrt((residual**2).sum(axis=1).mean()))
+        ref_cov = icp_module._covariance(normals[j[keep]], tgt[keep] - T - src[j[keep]], cfg)
+        assert np.array_equal(icp_module._covariance(pair_normals, residual, cfg), ref_cov)
+
+
 def test_nearest_source_on_small_and_sparse_sets() -> None:
     rng = np.random.default_rng(11)
     for _ in range(100):
@@ -668,3 +747,21 @@ def test_compiled_level_band_counts_and_order_equal_numpys() -> None:
         counts = compiled._band_counts(za, band)
         assert np.array_equal(counts, want)
         assert np.array_equal(compiled._descending_stable(counts), np.argsort(-want, kind="stable"))
+
+
+def test_rng_handle_draws_what_the_generator_draws() -> None:
+    """compiled.rng_ref: the kernels' handle on a Generator draws the same integers as the
+    Generator itself and advances the same state (the Generator's next draw in Python is the
+    one it would have made after the kernel's), and one handle is kept per Generator."""
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    x = np.linspace(0.0, 1.0, 200)
+    z = np.where(x < 0.5, 0.0, 0.15) + np.random.default_rng(0).normal(0, 0.001, 200)
+    args = (400, 0.09, 0.004, 25, 0.12, 4, 0.0, 5.0)
+    a, b = np.random.default_rng(7), np.random.default_rng(7)
+    via_handle = kernels.surface_tilt(x, z, kernels.rng_ref(a), *args)
+    direct = kernels.surface_tilt(x, z, b, *args)
+    assert via_handle[0] == direct[0] == 0
+    assert np.array_equal(via_handle[4], direct[4]) and via_handle[1] == direct[1]
+    assert np.array_equal(a.integers(0, 10**9, 5), b.integers(0, 10**9, 5))
+    assert kernels.rng_ref(a) is kernels.rng_ref(a)

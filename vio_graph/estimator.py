@@ -1035,11 +1035,11 @@ class OnlineEstimator:
             return None
         # r_line = r_stamp - u: the other hypothesis moves the measurement by -u (or +u)
         moved = np.asarray(d.delta_xz_m, dtype=float) + (u if test.use_line else -u)
-        d2 = self.filter.displacement_d2(d)
-        d2_other = self.filter.displacement_d2(d, delta_xz_m=moved)
-        if d2 is not None and d2_other is not None:
-            test.add(d2, d2_other)
-        return d2
+        pair = self.filter.displacement_d2_pair(d, moved)  # one H, V for both hypotheses
+        if pair is None:
+            return None
+        test.add(*pair)
+        return pair[0]
 
     def _joints_at(self, t_s: float) -> JointAngles | None:
         """Joint angles interpolated at ``t_s`` from the recent samples (held beyond them)."""

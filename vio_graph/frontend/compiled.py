@@ -5,11 +5,17 @@ Same algorithm and arithmetic as the numpy path (``icp._icp_numpy``, the tested 
 
 - nearest source point of each target point moved back by T (eq. 3), squared distances as
   the KD-tree computes them, ``(x - x')^2 + (z - z')^2``; a pair counts when that is below
-  ``max_correspondence_m^2``. The source is sorted by x once and each query scans only the x
-  window ``|x - x'| < max_correspondence_m`` (the others cannot be within range);
+  ``max_correspondence_m^2``. The source is bucketed once per call in a grid of 1 cm cells
+  (``_grid``); a query looks only at the cells within reach: 5 mm in the first iteration
+  (the whole correspondence distance if no point is surely that near), after it the distance
+  of the point the same target matched in the previous iteration (T moves by millimetres,
+  so a few cells). Among equally near points the one
+  first in x order is kept, as the earlier scan of the x-sorted source did, so the pairs are
+  the same bit for bit;
 - the trimmed ICP, the point-to-line step and its eigen-decomposition, and the source normals
-  (PCA of the ``normal_neighbours`` nearest source points, summed over the neighbours in
-  distance order like ``icp._source_normals``).
+  (PCA of the ``normal_neighbours`` nearest source points, found in growing squares of grid
+  cells and summed over the neighbours in distance order like ``icp._source_normals``; equal
+  distances in the order of an outward scan in x, ``_before``).
 
 Where the two could pick different points -- two distinct source points at exactly the same
 distance from a target point, a distinct point tied with the k-th neighbour of a normal, or
@@ -28,6 +34,9 @@ import math
 
 import numba
 import numpy as np
+from numba.core import types as nb_types
+from numba.core.extending import overload_method
+from numba.experimental import structref
 
 from vio_graph.compiled_sums import pairwise_sum
 
@@ -38,6 +47,56 @@ _TIE_NORMAL = 3  # a distinct point as near as a normal's k-th neighbour
 #: points closer than this (m, per axis) count as the same point: kNN smoothing leaves near
 #: duplicates one rounding step apart, and either gives the same answer to ~1e-18 m
 _SAME_M = 1e-12
+
+
+# ------------------------------------------------------------------ random generator handle
+
+
+@structref.register
+class _RngRefType(nb_types.StructRef):
+    """numba type of :class:`RngRef`."""
+
+    def preprocess_fields(self, fields):
+        return tuple((name, nb_types.unliteral(typ)) for name, typ in fields)
+
+
+class RngRef(structref.StructRefProxy):
+    """A numpy Generator as the kernels see it, unboxed once. Passing the Generator itself
+    costs every call ~25-45 us (numba types it in Python and unboxes its bit generator through
+    three ``ctypes.cast`` calls); this handle costs a few us. It draws from the same bit
+    generator state as the Generator (``integers`` forwards to it), so the draws and the
+    Generator's later ones are the same as with the Generator passed directly."""
+
+
+structref.define_proxy(RngRef, _RngRefType, ["rng"])
+
+
+@overload_method(_RngRefType, "integers")
+def _rng_ref_integers(self, low, high, size):  # pragma: no cover - compiled
+    def impl(self, low, high, size):
+        return self.rng.integers(low, high, size)
+
+    return impl
+
+
+@numba.njit(cache=True)
+def _new_rng_ref(rng):  # pragma: no cover - compiled
+    return RngRef(rng)
+
+
+_RNG_REFS: list = []  # (Generator, its RngRef), the latest few
+
+
+def rng_ref(rng: np.random.Generator) -> RngRef:
+    """The :class:`RngRef` of ``rng`` (made on first use, kept for the latest 8 generators;
+    each holds its Generator alive)."""
+    for g, ref in _RNG_REFS:
+        if g is rng:
+            return ref
+    ref = _new_rng_ref(rng)
+    _RNG_REFS.append((rng, ref))
+    del _RNG_REFS[:-8]
+    return ref
 
 
 @numba.njit(cache=True)
@@ -54,62 +113,214 @@ def _eig_sym2(a, b, c):  # pragma: no cover - compiled
     return half_trace - radius, half_trace + radius, -sin_t, cos_t, cos_t, sin_t
 
 
+#: cell of the ICP source's bucket grid (m): a few smoothed profile points (~2 mm apart) per
+#: cell, so a query looks at tens of points instead of the whole x window (a riser holds
+#: every point at the same x)
+_GRID_CELL_M = 0.01
+#: first ICP iteration: each target's nearest source point is searched within this reach (m)
+#: first, and within the whole correspondence distance only if none is surely that near
+_FIRST_REACH_M = 0.005
+
+
 @numba.njit(cache=True)
-def _scan_nearest(pts, order, sxs, px, pz, pos, best_d, best_i):  # pragma: no cover - compiled
-    """Fill ``best_d`` / ``best_i`` (squared distances, indices; preset to inf / -1) with the
-    len(best_d) points of ``pts`` nearest to (px, pz), in distance order, scanning outwards
-    in x from sorted position ``pos`` (``sxs`` = x sorted, ``order`` the sort) and stopping
-    when every point left is farther in x alone than the last kept one. Returns the scanned
-    sorted range [lo, hi)."""
+def _grid(pts, cell):  # pragma: no cover - compiled
+    """Bucket grid of ``pts``: cell (ix, iz) = floor((p - origin) / cell), cells numbered
+    ix * nz + iz, and the points of cell c at ``items[start[c]:start[c + 1]]`` (input order).
+    The cell grows (doubles) until the grid has at most 4 N + 1024 cells. Returns
+    (x0, z0, cell, nx, nz, start, items)."""
     n = pts.shape[0]
-    kk = best_d.shape[0]
-    lo = pos  # next candidates: lo - 1 on the left, hi on the right
-    hi = pos
+    x0 = pts[0, 0]
+    x1 = x0
+    z0 = pts[0, 1]
+    z1 = z0
+    for i in range(1, n):
+        x0 = min(x0, pts[i, 0])
+        x1 = max(x1, pts[i, 0])
+        z0 = min(z0, pts[i, 1])
+        z1 = max(z1, pts[i, 1])
     while True:
-        dl = px - sxs[lo - 1] if lo > 0 else np.inf
-        dr = sxs[hi] - px if hi < n else np.inf
-        if dl <= dr:
-            if dl * dl > best_d[kk - 1]:
-                break  # every point left is farther in x alone than the (k+1)-th
-            lo -= 1
-            m = order[lo]
-        else:
-            if dr * dr > best_d[kk - 1]:
-                break
-            m = order[hi]
-            hi += 1
-        dx = pts[m, 0] - px
-        dz = pts[m, 1] - pz
-        d2 = dx * dx + dz * dz
-        if d2 < best_d[kk - 1]:
-            q = kk - 1
-            while q > 0 and best_d[q - 1] > d2:
-                best_d[q] = best_d[q - 1]
-                best_i[q] = best_i[q - 1]
-                q -= 1
-            best_d[q] = d2
-            best_i[q] = m
-    return lo, hi
+        nx = int((x1 - x0) / cell) + 1
+        nz = int((z1 - z0) / cell) + 1
+        if nx * nz <= 4 * n + 1024:
+            break
+        cell *= 2.0
+    cid = np.empty(n, np.int64)
+    start = np.zeros(nx * nz + 1, np.int64)
+    for i in range(n):
+        ix = min(int((pts[i, 0] - x0) / cell), nx - 1)
+        iz = min(int((pts[i, 1] - z0) / cell), nz - 1)
+        cid[i] = ix * nz + iz
+        start[cid[i] + 1] += 1
+    for c in range(nx * nz):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    items = np.empty(n, np.int64)
+    for i in range(n):
+        items[fill[cid[i]]] = i
+        fill[cid[i]] += 1
+    return x0, z0, cell, nx, nz, start, items
 
 
 @numba.njit(cache=True)
-def _tie_outside(pts, order, lo, hi, px, pz, best_d, best_i, k):  # pragma: no cover - compiled
-    """True if a point distinct from the chosen k nearest (``best_i[:k]``) lies at the k-th
-    distance: the KD-tree of the numpy path may pick it instead. Every point at that
-    distance lies in the scanned sorted range [lo, hi) (:func:`_scan_nearest`)."""
+def _cell_range(q, origin, cell, n_cells, reach):  # pragma: no cover - compiled
+    """Cells [lo, hi] (clipped; lo > hi when none) holding every point within ``reach`` of
+    coordinate ``q`` along one axis."""
+    a = (q - reach - origin) / cell
+    b = (q + reach - origin) / cell
+    if not (b >= 0.0 and a < n_cells):  # also NaN
+        return 1, 0
+    lo = int(math.floor(a)) if a > 0.0 else 0
+    hi = int(math.floor(b)) if b < n_cells else n_cells - 1
+    return lo, min(hi, n_cells - 1)
+
+
+@numba.njit(cache=True)
+def _nearest(src, grid, rank, qx, qz, window, max2):  # pragma: no cover - compiled
+    """Nearest source point of (qx, qz) among those within ``window`` per axis: (squared
+    distance, index (n_src: none), tie). Squared distances as the KD-tree computes them;
+    among points at the same distance the one first in x order (``rank``), as a scan of the
+    x-sorted source would keep; ``tie`` when a distinct point (not within ``_SAME_M``) is as
+    near as the kept one and within ``max2``."""
+    x0, z0, cell, nx, nz, start, items = grid
+    ns = src.shape[0]
+    ilo, ihi = _cell_range(qx, x0, cell, nx, window)
+    klo, khi = _cell_range(qz, z0, cell, nz, window)
+    best2 = np.inf
+    bi = ns
+    n_equal = 0
+    if klo > khi:
+        return best2, bi, False
+    for ix in range(ilo, ihi + 1):  # the cells klo..khi of a column are contiguous
+        for s in range(start[ix * nz + klo], start[ix * nz + khi + 1]):
+            m = items[s]
+            dx = qx - src[m, 0]
+            dz = qz - src[m, 1]
+            d2 = dx * dx + dz * dz
+            if d2 < best2:
+                best2 = d2
+                bi = m
+                n_equal = 0
+            elif d2 == best2:
+                n_equal += 1
+                if rank[m] < rank[bi]:
+                    bi = m
+    tie = False
+    if n_equal > 0 and best2 < max2:
+        for ix in range(ilo, ihi + 1):
+            for s in range(start[ix * nz + klo], start[ix * nz + khi + 1]):
+                m = items[s]
+                dx = qx - src[m, 0]
+                dz = qz - src[m, 1]
+                if (
+                    m != bi
+                    and dx * dx + dz * dz == best2
+                    and not _same(src[m, 0], src[m, 1], src[bi, 0], src[bi, 1])
+                ):
+                    tie = True
+    return best2, bi, tie
+
+
+@numba.njit(cache=True)
+def _before(d2, m, e2, e, px, pos, src, rank):  # pragma: no cover - compiled
+    """True if point m at squared distance d2 comes before point e at e2 in the order of a
+    scan outwards in x from sorted position ``pos`` (x ``px``) that keeps the nearest in
+    arrival order (the scan the kernels used before the grid, and the order their sums keep):
+    by distance, then by |x - px|, left before right, and outwards in x order on each side."""
+    if d2 != e2:
+        return d2 < e2
+    am = abs(px - src[m, 0])
+    ae = abs(px - src[e, 0])
+    if am != ae:
+        return am < ae
+    rm, re = rank[m], rank[e]
+    left_m, left_e = rm < pos, re < pos
+    if left_m != left_e:
+        return left_m
+    return rm > re if left_m else rm < re
+
+
+@numba.njit(cache=True)
+def _knn(src, grid, rank, i, kk, best_d, best_i):  # pragma: no cover - compiled
+    """The kk nearest source points of source point i (itself included) into ``best_d`` /
+    ``best_i`` (squared distances, indices), the same points in the same order as a scan
+    outwards in x that keeps the nearest (``_before``), searched in growing squares of grid
+    cells."""
+    x0, z0, cell, nx, nz, start, items = grid
+    px, pz = src[i, 0], src[i, 1]
+    pos = rank[i]
+    best_d[:kk] = np.inf
+    best_i[:kk] = -1
+    cx = min(int((px - x0) / cell), nx - 1)
+    cz = min(int((pz - z0) / cell), nz - 1)
+    margin = 1e-9 * cell + 1e-12  # cell assignment rounding
+    r = 0
+    while True:
+        for ix in range(max(cx - r, 0), min(cx + r, nx - 1) + 1):
+            edge = ix == cx - r or ix == cx + r
+            for iz in range(max(cz - r, 0), min(cz + r, nz - 1) + 1):
+                if not (edge or iz == cz - r or iz == cz + r):
+                    continue  # inside: visited with a smaller square
+                c = ix * nz + iz
+                for s in range(start[c], start[c + 1]):
+                    m = items[s]
+                    dx = src[m, 0] - px
+                    dz = src[m, 1] - pz
+                    d2 = dx * dx + dz * dz
+                    last = best_i[kk - 1]
+                    if last >= 0 and not _before(d2, m, best_d[kk - 1], last, px, pos, src, rank):
+                        continue
+                    q = kk - 1
+                    while q > 0 and (
+                        best_i[q - 1] < 0
+                        or _before(d2, m, best_d[q - 1], best_i[q - 1], px, pos, src, rank)
+                    ):
+                        best_d[q] = best_d[q - 1]
+                        best_i[q] = best_i[q - 1]
+                        q -= 1
+                    best_d[q] = d2
+                    best_i[q] = m
+        # distance from (px, pz) to the nearest point outside the square searched so far
+        out = np.inf
+        if cx - r > 0:
+            out = min(out, px - (x0 + (cx - r) * cell))
+        if cx + r < nx - 1:
+            out = min(out, x0 + (cx + r + 1) * cell - px)
+        if cz - r > 0:
+            out = min(out, pz - (z0 + (cz - r) * cell))
+        if cz + r < nz - 1:
+            out = min(out, z0 + (cz + r + 1) * cell - pz)
+        if out == np.inf:
+            break  # the whole grid searched
+        out -= margin
+        if best_i[kk - 1] >= 0 and out > 0.0 and out * out > best_d[kk - 1]:
+            break
+        r += 1
+
+
+@numba.njit(cache=True)
+def _tie_at_kth(src, grid, i, best_d, best_i, k):  # pragma: no cover - compiled
+    """True if a point distinct from the k nearest of point i (``best_i[:k]``, from
+    :func:`_knn`) lies at the k-th distance: the KD-tree of the numpy path may pick it."""
+    x0, z0, cell, nx, nz, start, items = grid
+    px, pz = src[i, 0], src[i, 1]
     dk = best_d[k - 1]
-    for r in range(lo, hi):
-        m = order[r]
-        dx = pts[m, 0] - px
-        dz = pts[m, 1] - pz
-        if dx * dx + dz * dz == dk:
+    reach = math.sqrt(dk) + 1e-9 * cell + 1e-12
+    ilo, ihi = _cell_range(px, x0, cell, nx, reach)
+    klo, khi = _cell_range(pz, z0, cell, nz, reach)
+    for ix in range(ilo, ihi + 1):
+        for s in range(start[ix * nz + klo], start[ix * nz + khi + 1]):
+            m = items[s]
+            dx = src[m, 0] - px
+            dz = src[m, 1] - pz
+            if dx * dx + dz * dz != dk:
+                continue
             inside = False
             same = False
             for t in range(k):
                 b = best_i[t]
                 if b == m:
                     inside = True
-                elif best_d[t] == dk and _same(pts[b, 0], pts[b, 1], pts[m, 0], pts[m, 1]):
+                elif best_d[t] == dk and _same(src[b, 0], src[b, 1], src[m, 0], src[m, 1]):
                     same = True
             if not inside and not same:
                 return True
@@ -117,19 +328,16 @@ def _tie_outside(pts, order, lo, hi, px, pz, best_d, best_i, k):  # pragma: no c
 
 
 @numba.njit(cache=True)
-def _normal(src, order, sxs, pos, k):  # pragma: no cover - compiled
-    """Unit normal at source point ``order[pos]`` from its k nearest source points (itself
-    included), scanning outwards in x from it (``sxs`` = source x sorted, ``order`` the
-    sort); returns (nx, nz, tie)."""
+def _normal(src, grid, rank, i, k, best_d, best_i):  # pragma: no cover - compiled
+    """Unit normal at source point i from its k nearest source points (itself included),
+    the same neighbours in the same order as the x scan (:func:`_knn`); returns (nx, nz,
+    tie). ``best_d`` / ``best_i``: scratch of length min(k + 1, n)."""
     n = src.shape[0]
-    i = order[pos]
-    px, pz = src[i, 0], src[i, 1]
     kk = min(k + 1, n)  # one more than needed: a tie at the k-th place is detected
     kn = min(k, n)
-    best_d = np.full(kk, np.inf)
-    best_i = np.full(kk, -1, np.int64)
-    lo, hi = _scan_nearest(src, order, sxs, px, pz, pos, best_d, best_i)
-    tie = kk > kn and _tie_outside(src, order, lo, hi, px, pz, best_d, best_i, kn)
+    _knn(src, grid, rank, i, kk, best_d, best_i)
+    # a point distinct from the k kept ones at the k-th distance (only if the (k+1)-th is)
+    tie = kk > kn and best_d[kn] == best_d[kn - 1] and _tie_at_kth(src, grid, i, best_d, best_i, kn)
     sx = 0.0
     sz = 0.0
     for r in range(kn):
@@ -154,12 +362,12 @@ def _normal(src, order, sxs, pos, k):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _fill_normal(src, order, sxs, rank, k, normals, have, m):  # pragma: no cover - compiled
+def _fill_normal(src, grid, rank, k, normals, have, m, best_d, best_i):  # pragma: no cover
     """Compute source point m's normal into ``normals`` once (``have`` marks it); True if a
     distance tie makes it ambiguous (the caller hands the case to the numpy path)."""
     if have[m]:
         return False
-    nx, nz, tie = _normal(src, order, sxs, rank[m], k)
+    nx, nz, tie = _normal(src, grid, rank, m, k, best_d, best_i)
     if tie:
         return True
     normals[m, 0] = nx
@@ -189,10 +397,13 @@ def icp_loop(
     ns = src.shape[0]
     nt = tgt.shape[0]
     order = np.argsort(src[:, 0], kind="mergesort")
-    sxs = src[order, 0].copy()
     rank = np.empty(ns, np.int64)  # position of each source point in the x order
     for r in range(ns):
         rank[order[r]] = r
+    grid = _grid(src, max(_GRID_CELL_M, max_correspondence_m / 8.0))
+    kk = min(normal_neighbours + 1, ns)
+    best_d = np.empty(kk)  # scratch of the normals' neighbour search
+    best_i = np.empty(kk, np.int64)
     max2 = max_correspondence_m * max_correspondence_m
     normals = np.full((ns, 2), np.nan)
     have = np.zeros(ns, np.bool_)
@@ -210,22 +421,20 @@ def icp_loop(
         for i in range(nt):
             qx = tgt[i, 0] - tx
             qz = tgt[i, 1] - tz
-            lo = np.searchsorted(sxs, qx - window, side="left")
-            hi = np.searchsorted(sxs, qx + window, side="right")
-            best2 = np.inf
-            bi = ns
-            tie = False
-            for r in range(lo, hi):
-                m = order[r]
+            # T moves by millimetres between iterations: the point matched last time bounds
+            # the search (every point at least as near lies within its distance per axis)
+            reach = min(_FIRST_REACH_M, window)
+            m = j[i]
+            if m < ns:
                 dx = qx - src[m, 0]
                 dz = qz - src[m, 1]
                 d2 = dx * dx + dz * dz
-                if d2 < best2:
-                    best2 = d2
-                    bi = m
-                    tie = False
-                elif d2 == best2 and not _same(src[m, 0], src[m, 1], src[bi, 0], src[bi, 1]):
-                    tie = True
+                if d2 < max2:
+                    reach = math.sqrt(d2) * (1.0 + 1e-9) + 1e-12
+            best2, bi, tie = _nearest(src, grid, rank, qx, qz, reach, max2)
+            if reach < window and not best2 * (1.0 + 1e-9) + 1e-24 < reach * reach:
+                # nothing surely this near within the reach: the whole window
+                best2, bi, tie = _nearest(src, grid, rank, qx, qz, window, max2)
             if best2 < max2:
                 if tie:
                     return tx, tz, iterations, converged, keep, j, normals, _TIE
@@ -280,7 +489,9 @@ def icp_loop(
             for c in range(nk):
                 i = keep[c]
                 m = j[i]
-                if _fill_normal(src, order, sxs, rank, normal_neighbours, normals, have, m):
+                if _fill_normal(
+                    src, grid, rank, normal_neighbours, normals, have, m, best_d, best_i
+                ):
                     return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
                 nx = normals[m, 0]
                 nz = normals[m, 1]
@@ -312,9 +523,40 @@ def icp_loop(
     # the normals the covariance needs (the numpy path computes them for the kept pairs)
     for c in range(keep.size):
         m = j[keep[c]]
-        if _fill_normal(src, order, sxs, rank, normal_neighbours, normals, have, m):
+        if _fill_normal(src, grid, rank, normal_neighbours, normals, have, m, best_d, best_i):
             return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
     return tx, tz, iterations, converged, keep, j, normals, _OK
+
+
+@numba.njit(cache=True)
+def icp_pairs(src, tgt, tx, tz, keep, j, normals):  # pragma: no cover - compiled
+    """What :func:`vio_graph.frontend.icp.icp_translation_2d` makes of ``icp_loop``'s kept
+    pairs, in one call: (target points ``tgt[keep]``, matched source points
+    ``src[j[keep]]``, residuals ``tgt - T - src``, their source normals, RMS). The same
+    floats as numpy's: residuals (t - T) - s, the RMS ``sqrt(mean(rx^2 + rz^2))`` with the
+    mean as np.add.reduce's pairwise sum over n."""
+    n = keep.size
+    pairs_t = np.empty((n, 2))
+    pairs_s = np.empty((n, 2))
+    residual = np.empty((n, 2))
+    nrm = np.empty((n, 2))
+    sq = np.empty(n)
+    for c in range(n):
+        i = keep[c]
+        m = j[i]
+        pairs_t[c, 0] = tgt[i, 0]
+        pairs_t[c, 1] = tgt[i, 1]
+        pairs_s[c, 0] = src[m, 0]
+        pairs_s[c, 1] = src[m, 1]
+        rx = (tgt[i, 0] - tx) - src[m, 0]
+        rz = (tgt[i, 1] - tz) - src[m, 1]
+        residual[c, 0] = rx
+        residual[c, 1] = rz
+        nrm[c, 0] = normals[m, 0]
+        nrm[c, 1] = normals[m, 1]
+        sq[c] = rx * rx + rz * rz
+    rms = math.sqrt(pairwise_sum(sq, 0, n) / n)
+    return pairs_t, pairs_s, residual, nrm, rms
 
 
 # ----------------------------------------------------------------------------- smoothing
@@ -385,29 +627,23 @@ def grid_thin(pts, cell_m, max_dense_cells):  # pragma: no cover - compiled
 @numba.njit(cache=True)
 def knn_smooth(pts, k):  # pragma: no cover - compiled
     """``smoothing.knn_smooth_reference`` (2 <= k <= N): every point replaced by the mean of
-    its k nearest points (itself included), summed in distance order. Returns (out, status):
-    status 1 when a distinct point ties with a k-th neighbour (the KD-tree's pick decides:
-    run the numpy path)."""
+    its k nearest points (itself included), summed in distance order (the order of the x
+    scan, :func:`_knn` on a grid of the points). Returns (out, status): status 1 when a
+    distinct point ties with a k-th neighbour (the KD-tree's pick decides: run the numpy
+    path)."""
     n = pts.shape[0]
     order = np.argsort(pts[:, 0], kind="mergesort")
-    sxs = pts[order, 0].copy()
     rank = np.empty(n, np.int64)
     for r in range(n):
         rank[order[r]] = r
+    grid = _grid(pts, _GRID_CELL_M)
     out = np.empty((n, 2))
     kk = min(k + 1, n)
     best_d = np.empty(kk)
     best_i = np.empty(kk, np.int64)
     for i in range(n):
-        px, pz = pts[i, 0], pts[i, 1]
-        best_d[:] = np.inf
-        best_i[:] = -1
-        lo, hi = _scan_nearest(pts, order, sxs, px, pz, rank[i], best_d, best_i)
-        if (
-            kk > k
-            and best_d[k] == best_d[k - 1]
-            and _tie_outside(pts, order, lo, hi, px, pz, best_d, best_i, k)
-        ):
+        _knn(pts, grid, rank, i, kk, best_d, best_i)
+        if kk > k and best_d[k] == best_d[k - 1] and _tie_at_kth(pts, grid, i, best_d, best_i, k):
             return out, _TIE
         sx = pts[best_i[0], 0]
         sz = pts[best_i[0], 1]

@@ -280,7 +280,7 @@ def extract_corner(
     found, ex, ez, h_up, h_lo, n_up, n_lo, near, has_face, in_window = kernels.corner(
         np.ascontiguousarray(pts[:, 0]),
         np.ascontiguousarray(pts[:, 1]),
-        rng,
+        kernels.rng_ref(rng),  # a handle: much cheaper to pass than the Generator
         side_code,
         cfg.n_hypotheses,
         cfg.inlier_distance_m,

@@ -234,10 +234,11 @@ def icp_translation_2d(
     T = np.array([tx, tz])
     if keep.size == 0:
         return _no_correspondence(T, iterations, cfg)
-    pairs_t, pairs_s = tgt[keep], src[j[keep]]
-    residual = pairs_t - T - pairs_s
-    rms = float(np.sqrt((residual**2).sum(axis=1).mean()))
-    cov = _covariance(normals[j[keep]], residual, cfg)
+    # the pairs, residuals and RMS of the numpy path below, in one compiled call
+    pairs_t, pairs_s, residual, pair_normals, rms = kernels.icp_pairs(
+        src, tgt, tx, tz, keep, j, normals
+    )
+    cov = _covariance(pair_normals, residual, cfg)
     return IcpResult(T, cov, iterations, converged, rms, int(keep.size), pairs_t, pairs_s)
 
 

@@ -198,7 +198,7 @@ def measure_surface_tilt(
     status, s, sigma_slope, n_inliers, rows = kernels.surface_tilt(
         np.ascontiguousarray(p[:, 0]),
         np.ascontiguousarray(p[:, 1]),
-        rng,
+        kernels.rng_ref(rng),  # a handle: much cheaper to pass than the Generator
         _N_HYPOTHESES,
         float(np.tan(max_tilt_rad)),
         float(inlier_m),

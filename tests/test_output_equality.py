@@ -109,3 +109,32 @@ def test_shared_association_gives_every_mode_its_own_numbers() -> None:
 def test_safety_cells_of_tiny_logs(n: int) -> None:
     log = SafetyLog()
     assert _safety_cells(log, n) == [",".join(csv_values(None))] * n
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_true_clearance_is_the_same_with_the_compiled_geometry(
+    seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The evaluation's true clearance per frame (true_safety) takes the compiled foot
+    geometry when the run uses the compiled kernels: the same numbers, bit for bit."""
+    pytest.importorskip("numba")
+    from pathlib import Path
+
+    from vio_graph.evaluation.safety import true_safety
+    from vio_graph.recording.reader import Recording
+    from vio_graph.safety.config import SafetyConfig
+
+    rec = Recording.open(Path(__file__).resolve().parents[1] / "data" / "sample")
+    t = np.asarray(rec.frame_timestamps_s, dtype=float)
+    # the frame times and random times between them
+    t = np.sort(np.r_[t, np.random.default_rng(seed).uniform(t[0], t[-1], 200)])
+    landing = np.arange(t.size) % 17 == 0
+    cfg = SafetyConfig(sole_thickness_m=0.05 * seed)
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "0")
+    ref = true_safety(rec.groundtruth, rec.metadata.terrain, t, landing, cfg)
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")
+    got = true_safety(rec.groundtruth, rec.metadata.terrain, t, landing, cfg)
+    assert ref is not None and got is not None
+    assert np.isfinite(ref["clearance_m"]).all()
+    for key, value in ref.items():
+        np.testing.assert_array_equal(got[key], value, err_msg=key)

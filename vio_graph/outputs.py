@@ -4,6 +4,7 @@ atomically (temporary name, then rename)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -18,6 +19,7 @@ from vio_graph.recording.tum import write_tum
 
 if TYPE_CHECKING:
     from vio_graph.replay import FrameLog, Replay
+    from vio_graph.safety.online import SafetyLog
 
 
 def write_trajectories(
@@ -38,22 +40,58 @@ def write_frames_csv(path: Path, lg: FrameLog) -> Path:
     """One row per frame: time, status, terrain, displacement, rejection reason, keyframe,
     front-end time (ms), stance, then the safety outputs (vio_graph/safety/online.CSV_COLUMNS,
     empty cells where unknown; docs/outputs.md)."""
-    from vio_graph.safety.online import CSV_COLUMNS, csv_values
+    from vio_graph.safety.online import CSV_COLUMNS
 
     rows = [
         "frame,timestamp_s,status,terrain,displacement,rejection,keyframe,frontend_ms,"
         "stance," + ",".join(CSV_COLUMNS)
     ]
-    fe_ms = lg.timings_ms.column("frontend_total")
-    for k, t in enumerate(lg.t_s):
-        safety = lg.safety[k] if k < len(lg.safety) else None
+    fe_ms = lg.timings_ms.column("frontend_total").tolist()
+    times = np.asarray(lg.t_s, dtype=float).tolist()
+    safety = _safety_cells(lg.safety, len(times))
+    for k, t in enumerate(times):
         rows.append(
             f"{k},{t:.6f},{lg.status[k]},{lg.terrain[k]},{int(lg.displacement_ok[k])},"
             f"{lg.rejection[k].replace(',', ';')},{int(lg.is_keyframe[k])},"
-            f"{fe_ms[k]:.4f},{int(lg.in_stance[k])}," + ",".join(csv_values(safety))
+            f"{fe_ms[k]:.4f},{int(lg.in_stance[k])}," + safety[k]
         )
     atomic_write_text(path, "\n".join(rows) + "\n")
     return path
+
+
+#: frames.csv safety columns taken from SafetyEstimate.placement (its entries in order)
+_PLACEMENT_COLUMNS = ("heel_to_nosing_m", "toe_to_nosing_m", "heel_to_back_m", "toe_to_back_m")
+#: frames.csv safety columns written as integers (the bool and int fields)
+_INTEGER_COLUMNS = ("near_trip_warning", "steps_seen", "landing")
+
+
+def _safety_cells(log: SafetyLog | list, n: int) -> list[str]:
+    """Per frame (``n``), the frames.csv safety cells joined by commas: the text
+    ``safety.online.csv_values`` gives for that frame's SafetyEstimate (or None beyond the
+    log), made column by column from the log's float64 rows instead of rebuilding one
+    object a frame."""
+    from vio_graph.safety.online import CSV_COLUMNS, SafetyLog, csv_values
+
+    if not isinstance(log, SafetyLog):
+        return [",".join(csv_values(log[k] if k < len(log) else None)) for k in range(n)]
+    m = min(len(log), n)
+    placement = log.column("placement")[:m]
+    columns = []
+    for name in CSV_COLUMNS:
+        if name in _PLACEMENT_COLUMNS:
+            values = placement[:, _PLACEMENT_COLUMNS.index(name)].tolist()
+        else:
+            values = log.column(name)[:m].tolist()
+        if name in _INTEGER_COLUMNS:  # finite wherever the frame has an estimate
+            columns.append([str(int(v)) if math.isfinite(v) else "" for v in values])
+        else:
+            columns.append([f"{v:.5f}" if math.isfinite(v) else "" for v in values])
+    # a frame without an estimate: NaN in every column, the landing flag included
+    present = np.isfinite(log.column("landing")[:m]).tolist()
+    empty = ",".join([""] * len(CSV_COLUMNS))
+    rows = zip(*columns, strict=True)
+    cells = [",".join(row) if ok else empty for row, ok in zip(rows, present, strict=True)]
+    return cells + [empty] * (n - m)
 
 
 def count(values: list[str]) -> dict[str, int]:

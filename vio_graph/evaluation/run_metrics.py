@@ -52,30 +52,43 @@ def evaluate_paths(
         "ape_se3_cm": {},
         "rpe_cm": {"0.1s": {}, "1.0s": {}},
     }
+    # every mode shares the frame times, so a body's association with the ground truth (which
+    # frames have truth on both sides, the truth interpolated there, the visible mask) is
+    # the same for every mode: made once per body, the modes only pick their kept rows
+    shared: dict[str, tuple[Any, NDArray[np.bool_] | None]] = {}
     for mode, bodies in paths.items():
         for key in out:
             (out[key] if key != "rpe_cm" else out[key]["0.1s"]).setdefault(mode, {})
         out["rpe_cm"]["1.0s"].setdefault(mode, {})
         for body, xz in bodies.items():
             est = Trajectory.from_xz(t_s, xz)
-            pair = associate(est, groundtruth.trajectories[body], max_diff_s=0.02)
-            e, r = pair.est, pair.ref
+            if body not in shared:
+                pair = associate(est, groundtruth.trajectories[body], max_diff_s=0.02)
+                keep_visible = None
+                if visible is not None:
+                    t_kept = pair.est.timestamp_s
+                    keep_visible = np.interp(t_kept, t_s, visible.astype(float)) > 0.5
+                shared[body] = (pair, keep_visible)
+            pair, keep = shared[body]
+            rows = pair.est_indices
+            e = Trajectory(  # what associate() keeps of this mode's estimate
+                pair.est.timestamp_s.copy(), est.position_m[rows], est.quat_wxyz[rows]
+            )
+            r = pair.ref
             a = ate_per_axis(e, r, anchor="first")
             out["ate_cm"][mode][body] = {
                 "x": a.rmse_x_cm,
                 "z": a.rmse_z_cm,
                 "total": a.rmse_total_cm,
             }
-            if visible is not None:
-                keep = np.interp(e.timestamp_s, t_s, visible.astype(float)) > 0.5
-                if keep.any():
-                    av = ate_per_axis(e, r, anchor="first", mask=keep)
-                    out["ate_cm_visible"][mode][body] = {
-                        "x": av.rmse_x_cm,
-                        "z": av.rmse_z_cm,
-                        "total": av.rmse_total_cm,
-                        "fraction": float(keep.mean()),
-                    }
+            if keep is not None and keep.any():
+                av = ate_per_axis(e, r, anchor="first", mask=keep)
+                out["ate_cm_visible"][mode][body] = {
+                    "x": av.rmse_x_cm,
+                    "z": av.rmse_z_cm,
+                    "total": av.rmse_total_cm,
+                    "fraction": float(keep.mean()),
+                }
             ap = ape(e, r, alignment="translation")
             out["ape_se3_cm"][mode][body] = {"x": 100 * ap.rmse_x_m, "z": 100 * ap.rmse_z_m}
             for d in ("0.1s", "1.0s"):

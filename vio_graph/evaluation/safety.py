@@ -36,17 +36,17 @@ from numpy.typing import NDArray
 from vio_graph.evaluation.diagnostics import true_stance
 from vio_graph.recording.metadata import TerrainInfo
 from vio_graph.recording.streams import GroundTruth
+from vio_graph.safety import clearance
 from vio_graph.safety.clearance import (
     Edges,
     HeightProfile,
     Placement,
     edge_clearance_rows,
-    foot_clearance,
     next_edge_indices,
     placement_on_tread,
 )
 from vio_graph.safety.config import SafetyConfig
-from vio_graph.safety.online import SafetyEstimate, SafetyLog, SafetyMonitor
+from vio_graph.safety.online import SafetyEstimate, SafetyLog, SafetyMonitor, compiled_kernels
 
 MAX_LEAD_S = 1.0  # a warning up to this long before a near-trip's minimum counts for it
 TRUTH_STEP_S = 0.002  # time step of the true near-trip search (the truth is interpolated)
@@ -75,10 +75,13 @@ def true_safety(
     clear = np.full(n, np.nan)
     placement = np.full((n, 4), np.nan)
     w = config.window_m
-    for k in range(n):  # the foot against the terrain near it: per frame (few frames)
+    # the compiled foot geometry when the run uses the compiled kernels (the same distances
+    # bit for bit, ~5x faster a frame: a 10-minute trial has 18,000 frames), else numpy
+    geometry = compiled_kernels() or clearance
+    for k in range(n):  # the foot against the terrain near it: per frame
         h, o = heel[k], toe[k]
         win = prof.window(min(h[0], o[0]) - w, max(h[0], o[0]) + w)
-        clear[k] = foot_clearance(h, o, win, config.sole_thickness_m).distance_m
+        clear[k] = geometry.foot_clearance(h, o, win, config.sole_thickness_m).distance_m
         if landing[k]:
             placement[k] = placement_on_tread(
                 h, o, win, config.tread_tolerance_m, config.edge_max_gap_m, config.edge_min_rise_m

@@ -253,9 +253,15 @@ _AUTO = [False]  # what "auto" (VIO_GRAPH_COMPILED unset) means now; see use_com
 COMPILED_ENV = "VIO_GRAPH_COMPILED"
 
 #: recordings with at least this many depth frames replay with the compiled kernels under
-#: "auto": measured on the 2-core Xeon, the kernels save ~1-1.5 ms of CPU a frame and cost a
-#: process ~1-2 s once, so they pay off from about 1000-1500 frames (50 s at 30 fps)
-AUTO_COMPILED_MIN_FRAMES = 1500
+#: "auto" (15 s at 30 fps). Measured on the 2-core EPYC (`vio-graph run --no-rerun
+#: --no-plots`, numba's cache warm, CPU seconds of the process, the two interleaved): a 30 s
+#: trial (900 frames) takes 37 % less with the kernels in filter mode and 41 % less with
+#: ``--mode all`` (three safety monitors, two smoothers' step means), the 105-frame sample
+#: recording +20 % (filter) and -4 % (all); so they pay off from ~200 frames in filter mode,
+#: ~100 with every mode. The threshold keeps the 10 s trials of the paper's experiments
+#: (300 frames) and the sample on the numpy paths, whose answers the compiled ones match to
+#: ~1e-12 m, not bit for bit.
+AUTO_COMPILED_MIN_FRAMES = 450
 
 
 def use_compiled_by_default(enabled: bool = True) -> None:

@@ -41,10 +41,10 @@ def format_tum(traj: Trajectory) -> str:
     """TUM text for a trajectory (9 decimals on time, 6 on position and quaternion)."""
     q = traj.quat_wxyz
     rows = np.column_stack([traj.timestamp_s, traj.position_m, q[:, 1], q[:, 2], q[:, 3], q[:, 0]])
-    lines = [
-        f"{r[0]:.9f} {r[1]:.6f} {r[2]:.6f} {r[3]:.6f} {r[4]:.6f} {r[5]:.6f} {r[6]:.6f} {r[7]:.6f}"
-        for r in rows
-    ]
+    # Python floats and one %-format per row: the same digits as formatting each numpy
+    # scalar with an f-string (both round through the same double-to-string), ~4x faster
+    line = "%.9f %.6f %.6f %.6f %.6f %.6f %.6f %.6f".__mod__
+    lines = map(line, map(tuple, rows.tolist()))
     return "# timestamp tx ty tz qx qy qz qw\n" + "\n".join(lines) + "\n"
 
 

@@ -459,9 +459,13 @@ class FilterConfig(BaseModel):
         ),
     )
     corner_landmark_sigma_m: float = Field(
-        default=0.01,
+        default=0.0,
         ge=0,
-        description="sigma (m) added in quadrature per axis to a corner observation covariance",
+        description="sigma (m) added in quadrature per axis to a corner observation covariance. "
+        "0: the front end's corner covariance alone (frontend.corners.edge_sigma_m, 1 cm, "
+        "already ~9x the corners' measured error), as in the smoothers; a misplaced corner "
+        "is the gate's to refuse. The earlier 0.01 (1.4 cm in all) let the visual "
+        "displacements' random walk carry x on long trials (docs/method.md section 2)",
     )
     corner_reidentify_radius_m: float | None = Field(
         default=0.08,

@@ -677,6 +677,29 @@ def test_compiled_step_means_equal_the_numpy_sampler() -> None:
         np.testing.assert_allclose(c, r, rtol=1e-12, atol=1e-12)
 
 
+def test_compiled_discretization_var_is_the_numpy_float() -> None:
+    """compiled_sampling.discretization_var against imu_sampling.discretization_velocity_var:
+    the same float (same differences, numpy's summation order), for intervals inside, at
+    the ends of and beyond the samples, too few samples, and an interval no window touches;
+    and it is not trivially zero."""
+    pytest.importorskip("numba")
+    from vio_graph.smoother.compiled_sampling import discretization_var
+    from vio_graph.smoother.imu_sampling import TIME_TOL_S, discretization_velocity_var
+
+    t, a, _ = _jittered_shank_imu(60, seed=11)
+    cases = [(t[3] + 0.004, t[14] - 0.003), (t[0], t[-1]), (t[50], t[-1] + 0.02)]
+    cases += [(t[5] - 0.001, t[5] + 0.002), (t[-1] + 1.0, t[-1] + 2.0), (t[0] - 1.0, t[0])]
+    values = []
+    for t0, t1 in cases:
+        ref = discretization_velocity_var(t, a, t0, t1)
+        got = discretization_var(t, a, t0, t1, TIME_TOL_S)
+        assert got == ref, (t0, t1)  # bit for bit
+        values.append(ref)
+    assert values[1] > values[0] > 0.0 and values[4] == 0.0
+    for n in range(5):  # fewer than five samples: no window
+        assert discretization_var(t[:n], a[:n], t[0], t[-1], TIME_TOL_S) == 0.0
+
+
 def test_compiled_preintegration_gives_the_same_smoother_answer(
     short_upstair, monkeypatch: pytest.MonkeyPatch
 ) -> None:

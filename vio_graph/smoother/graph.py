@@ -82,6 +82,7 @@ from vio_graph.smoother.imu_sampling import (
     distrust_step_variances,
     distrust_variances,
     make_preintegration_params,
+    set_white_noise,
     so3_exp,
 )
 from vio_graph.types import (
@@ -283,6 +284,12 @@ class KeyframeGraphBuilder:
         self.config = config
         self.imu_p_cam_m = T[:3, 3].copy()
         self._params = make_preintegration_params(config)
+        # the parameters of the keyframe interval being integrated when its noise differs from
+        # ``_params``: one object, its two white-noise covariances set anew per interval (a
+        # fresh object per keyframe cost ~40 us). Reusing it is safe because GTSAM reads the
+        # covariances only while integrating: a CombinedImuFactor takes its noise model from
+        # the finished preintegration when it is built
+        self._interval_params = make_preintegration_params(config)
         self._compiled_steps = compiled_sampler(config.preintegration)  # numba, or None
         self._compiled_dvar = compiled_discretization_var()  # numba, or None
         self._imu_t: list[float] = []
@@ -305,7 +312,8 @@ class KeyframeGraphBuilder:
         self._landmark_of: dict[LandmarkKey, int] = {}
         self._n_landmarks = 0
         # latest refined state of the newest keyframe (set by the smoother after each update)
-        self._latest_nav: gtsam.NavState | None = None
+        # (pose, velocity): made into a gtsam.NavState only when a prediction needs it
+        self._latest_nav: tuple[gtsam.Pose3, NDArray[np.float64]] | None = None
         self._latest_bias = gtsam.imuBias.ConstantBias()
         # constant-sigma noise models, made once (keyed by their sigmas, so a changed config
         # still gets its own): building one costs as much as the factor using it
@@ -333,7 +341,7 @@ class KeyframeGraphBuilder:
         self, pose: gtsam.Pose3, velocity_mps: NDArray[np.float64], bias: gtsam.imuBias.ConstantBias
     ) -> None:
         """Latest estimate of the newest keyframe: used to predict when no filter guess exists."""
-        self._latest_nav = gtsam.NavState(pose, np.asarray(velocity_mps, dtype=float))
+        self._latest_nav = (pose, np.asarray(velocity_mps, dtype=float))
         self._latest_bias = bias
 
     def forget_landmarks(self, landmark_keys: Sequence[int]) -> None:
@@ -488,7 +496,7 @@ class KeyframeGraphBuilder:
         self._last_kf_R = R_i
         self._trim_imu(t)
         if self._latest_nav is None or pend.estimate is not None:
-            self._latest_nav = gtsam.NavState(pose_guess, v_guess)
+            self._latest_nav = (pose_guess, v_guess)
         return KeyframeUpdate(
             index=i,
             timestamp_s=t,
@@ -529,7 +537,8 @@ class KeyframeGraphBuilder:
                 dvar = discretization_velocity_var(ts, acc, t0, t)
             extra = cfg.imu_discretization_gain**2 * dvar
             spread_vel, spread_rot = (0.0, 0.0) if per_step else (x_vel, x_rot)
-            params = make_preintegration_params(cfg, extra + spread_vel, t - t0, spread_rot)
+            params = self._interval_params
+            set_white_noise(params, cfg, extra + spread_vel, t - t0, spread_rot)
         pim = gtsam.PreintegratedCombinedMeasurements(params, self._latest_bias)
         if per_step:
             # GTSAM adds (accelerometer covariance) x dt of velocity variance per step and
@@ -571,7 +580,7 @@ class KeyframeGraphBuilder:
             v_guess[1] = 0.0
         else:
             assert pim is not None and self._latest_nav is not None
-            nav = pim.predict(self._latest_nav, self._latest_bias)
+            nav = pim.predict(gtsam.NavState(*self._latest_nav), self._latest_bias)
             t_guess = np.asarray(nav.pose().translation(), dtype=float).copy()
             v_guess = np.asarray(nav.velocity(), dtype=float).copy()
             cam_xz = (t_guess + R_i @ p_ic)[[0, 2]]

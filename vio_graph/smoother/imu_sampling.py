@@ -38,6 +38,7 @@ __all__ = [
     "held_samples",
     "make_preintegration_params",
     "midpoint_samples",
+    "set_white_noise",
     "so3_exp",
 ]
 
@@ -291,11 +292,7 @@ def make_preintegration_params(
     accelerometer white noise; ``extra_rotation_var_rad2`` likewise as gyro noise.
     """
     p = gtsam.PreintegrationCombinedParams.MakeSharedU(config.gravity_mps2)
-    acc_var = config.accel_noise_density_mps2_per_sqrt_hz**2 + extra_velocity_var_m2ps2 / duration_s
-    # (one shared identity: a fresh np.eye per setter was most of this function's ~80 us)
-    p.setAccelerometerCovariance(_EYE3 * acc_var)
-    gyr_var = config.gyro_noise_density_radps_per_sqrt_hz**2 + extra_rotation_var_rad2 / duration_s
-    p.setGyroscopeCovariance(_EYE3 * gyr_var)
+    set_white_noise(p, config, extra_velocity_var_m2ps2, duration_s, extra_rotation_var_rad2)
     integ, bias_acc, bias_omega = _constant_covariances(
         config.integration_sigma_m,
         config.accel_bias_rw_mps3_per_sqrt_hz,
@@ -305,6 +302,22 @@ def make_preintegration_params(
     p.setBiasAccCovariance(bias_acc)
     p.setBiasOmegaCovariance(bias_omega)
     return p
+
+
+def set_white_noise(
+    p: gtsam.PreintegrationCombinedParams,
+    config: SmootherConfig,
+    extra_velocity_var_m2ps2: float = 0.0,
+    duration_s: float = 1.0,
+    extra_rotation_var_rad2: float = 0.0,
+) -> None:
+    """Set the accelerometer and gyro covariances of ``p`` as
+    :func:`make_preintegration_params` does (the only two that change between keyframes)."""
+    acc_var = config.accel_noise_density_mps2_per_sqrt_hz**2 + extra_velocity_var_m2ps2 / duration_s
+    # (one shared identity: a fresh np.eye per setter was most of this function's ~80 us)
+    p.setAccelerometerCovariance(_EYE3 * acc_var)
+    gyr_var = config.gyro_noise_density_radps_per_sqrt_hz**2 + extra_rotation_var_rad2 / duration_s
+    p.setGyroscopeCovariance(_EYE3 * gyr_var)
 
 
 @functools.lru_cache(maxsize=8)

@@ -12,6 +12,7 @@ from vio_graph.geometry import GRAVITY_MPS2, pitch_of, rot_y
 from vio_graph.smoother.batch import BatchSmoother
 from vio_graph.smoother.config import FactorFamilies, SmootherConfig
 from vio_graph.smoother.graph import (
+    B,
     KeyframeGraphBuilder,
     L,
     V,
@@ -406,6 +407,33 @@ def test_discretization_term_inflates_only_the_imu_noise() -> None:
     acc0 = cfg.accel_noise_density_mps2_per_sqrt_hz**2
     assert np.diag(p.getAccelerometerCovariance()) == pytest.approx([acc0 + 1e-3] * 3)
     assert np.allclose(p.getGyroscopeCovariance(), base.getGyroscopeCovariance())
+
+
+def test_imu_factor_noise_is_fixed_when_built() -> None:
+    """The builder reuses one parameters object across keyframe intervals (set_white_noise):
+    that is exact only because a CombinedImuFactor takes its noise model from the finished
+    preintegration. Changing the parameters afterwards leaves the factor's noise as built,
+    and a later interval integrated with the reused object equals one with fresh ones."""
+    from vio_graph.smoother.imu_sampling import set_white_noise
+
+    cfg = SmootherConfig()
+    acc, gyr, dt = np.array([0.3, -0.2, 9.9]), np.array([0.1, 2.5, -0.3]), 0.01
+
+    def factor(params: gtsam.PreintegrationCombinedParams) -> gtsam.CombinedImuFactor:
+        pim = gtsam.PreintegratedCombinedMeasurements(params, gtsam.imuBias.ConstantBias())
+        for _ in range(10):
+            pim.integrateMeasurement(acc, gyr, dt)
+        return gtsam.CombinedImuFactor(X(0), V(0), X(1), V(1), B(0), B(1), pim)
+
+    shared = make_preintegration_params(cfg, 1e-4, 0.1)
+    first = factor(shared)
+    cov_first = first.noiseModel().covariance().copy()
+    set_white_noise(shared, cfg, 5e-2, 0.1, 1e-3)  # the next interval, much noisier
+    np.testing.assert_array_equal(first.noiseModel().covariance(), cov_first)
+    second = factor(shared)
+    fresh = factor(make_preintegration_params(cfg, 5e-2, 0.1, 1e-3))
+    np.testing.assert_array_equal(second.noiseModel().covariance(), fresh.noiseModel().covariance())
+    assert second.noiseModel().covariance()[6, 6] > 10 * cov_first[6, 6]  # velocity block
 
 
 def test_builder_maps_measurements_with_the_given_attitude() -> None:

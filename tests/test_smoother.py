@@ -12,6 +12,7 @@ from vio_graph.geometry import GRAVITY_MPS2, pitch_of, rot_y
 from vio_graph.smoother.batch import BatchSmoother
 from vio_graph.smoother.config import FactorFamilies, SmootherConfig
 from vio_graph.smoother.graph import (
+    B,
     KeyframeGraphBuilder,
     L,
     V,
@@ -408,6 +409,33 @@ def test_discretization_term_inflates_only_the_imu_noise() -> None:
     assert np.allclose(p.getGyroscopeCovariance(), base.getGyroscopeCovariance())
 
 
+def test_imu_factor_noise_is_fixed_when_built() -> None:
+    """The builder reuses one parameters object across keyframe intervals (set_white_noise):
+    that is exact only because a CombinedImuFactor takes its noise model from the finished
+    preintegration. Changing the parameters afterwards leaves the factor's noise as built,
+    and a later interval integrated with the reused object equals one with fresh ones."""
+    from vio_graph.smoother.imu_sampling import set_white_noise
+
+    cfg = SmootherConfig()
+    acc, gyr, dt = np.array([0.3, -0.2, 9.9]), np.array([0.1, 2.5, -0.3]), 0.01
+
+    def factor(params: gtsam.PreintegrationCombinedParams) -> gtsam.CombinedImuFactor:
+        pim = gtsam.PreintegratedCombinedMeasurements(params, gtsam.imuBias.ConstantBias())
+        for _ in range(10):
+            pim.integrateMeasurement(acc, gyr, dt)
+        return gtsam.CombinedImuFactor(X(0), V(0), X(1), V(1), B(0), B(1), pim)
+
+    shared = make_preintegration_params(cfg, 1e-4, 0.1)
+    first = factor(shared)
+    cov_first = first.noiseModel().covariance().copy()
+    set_white_noise(shared, cfg, 5e-2, 0.1, 1e-3)  # the next interval, much noisier
+    np.testing.assert_array_equal(first.noiseModel().covariance(), cov_first)
+    second = factor(shared)
+    fresh = factor(make_preintegration_params(cfg, 5e-2, 0.1, 1e-3))
+    np.testing.assert_array_equal(second.noiseModel().covariance(), fresh.noiseModel().covariance())
+    assert second.noiseModel().covariance()[6, 6] > 10 * cov_first[6, 6]  # velocity block
+
+
 def test_builder_maps_measurements_with_the_given_attitude() -> None:
     """A frame attitude passed by the caller (the filter's) is the keyframe's rotation, not the
     IMU stream's AHRS."""
@@ -675,6 +703,29 @@ def test_compiled_step_means_equal_the_numpy_sampler() -> None:
     one = (t[:1], a[:1], g[:1], t[0] - 0.01, t[0] + 0.01)
     for r, c in zip(common_frame_samples(*one), common_frame_steps(*one, TIME_TOL_S), strict=True):
         np.testing.assert_allclose(c, r, rtol=1e-12, atol=1e-12)
+
+
+def test_compiled_discretization_var_is_the_numpy_float() -> None:
+    """compiled_sampling.discretization_var against imu_sampling.discretization_velocity_var:
+    the same float (same differences, numpy's summation order), for intervals inside, at
+    the ends of and beyond the samples, too few samples, and an interval no window touches;
+    and it is not trivially zero."""
+    pytest.importorskip("numba")
+    from vio_graph.smoother.compiled_sampling import discretization_var
+    from vio_graph.smoother.imu_sampling import TIME_TOL_S, discretization_velocity_var
+
+    t, a, _ = _jittered_shank_imu(60, seed=11)
+    cases = [(t[3] + 0.004, t[14] - 0.003), (t[0], t[-1]), (t[50], t[-1] + 0.02)]
+    cases += [(t[5] - 0.001, t[5] + 0.002), (t[-1] + 1.0, t[-1] + 2.0), (t[0] - 1.0, t[0])]
+    values = []
+    for t0, t1 in cases:
+        ref = discretization_velocity_var(t, a, t0, t1)
+        got = discretization_var(t, a, t0, t1, TIME_TOL_S)
+        assert got == ref, (t0, t1)  # bit for bit
+        values.append(ref)
+    assert values[1] > values[0] > 0.0 and values[4] == 0.0
+    for n in range(5):  # fewer than five samples: no window
+        assert discretization_var(t[:n], a[:n], t[0], t[-1], TIME_TOL_S) == 0.0
 
 
 def test_compiled_preintegration_gives_the_same_smoother_answer(

@@ -20,6 +20,8 @@ import math
 import numba
 import numpy as np
 
+from vio_graph.compiled_sums import add_reduce
+
 
 @numba.njit(cache=True)
 def _interp(x, xp, fp, col):
@@ -174,3 +176,31 @@ def common_frame_steps(t, a, g, t0, t1, tol):
                 + R_knot[k, 2, c] * F_mean[k, 2]
             )
     return a_in, g_mid, dt
+
+
+@numba.njit(cache=True)
+def discretization_var(t, a, t0, t1, tol):
+    """``imu_sampling.discretization_velocity_var(t, a, t0, t1)`` (tol = ``TIME_TOL_S``): the
+    same fourth differences and window periods, element by element in numpy's order, and
+    their squares summed as ``np.sum`` sums them (numpy's pairwise order over the touching
+    windows' rows, C order), so the same float."""
+    n = t.size
+    if n < 5:
+        return 0.0
+    sq = np.empty(3 * (n - 4))
+    m = 0
+    for j in range(n - 4):
+        if t[j + 4] > t0 - tol and t[j] < t1 + tol:
+            h = (t[j + 4] - t[j]) / 4.0
+            for c in range(3):
+                d4 = (
+                    a[j, c]
+                    - 4.0 * a[j + 1, c]
+                    + 6.0 * a[j + 2, c]
+                    - 4.0 * a[j + 3, c]
+                    + a[j + 4, c]
+                )
+                v = h * d4
+                sq[m] = v * v
+                m += 1
+    return add_reduce(sq[:m])

@@ -77,11 +77,13 @@ from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.imu_sampling import (
     SAMPLERS,
     TIME_TOL_S,
+    compiled_discretization_var,
     compiled_sampler,
     discretization_velocity_var,
     distrust_step_variances,
     distrust_variances,
     make_preintegration_params,
+    set_white_noise,
     so3_exp,
 )
 from vio_graph.types import (
@@ -175,9 +177,17 @@ def _eigh(c: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float
 def _between_noise(C_trans: NDArray[np.float64], config: SmootherConfig) -> gtsam.noiseModel.Base:
     """6x6 Gaussian [rotation, translation] for a BetweenFactorPose3, robustified."""
     cov = np.zeros((6, 6))
-    cov[:3, :3] = np.eye(3) * config.measurement_rotation_sigma_rad**2
+    cov[:3, :3] = _rotation_block(config.measurement_rotation_sigma_rad)
     cov[3:, 3:] = 0.5 * (C_trans + C_trans.T)
     return robust_noise(config, gtsam.noiseModel.Gaussian.Covariance(cov))
+
+
+@functools.lru_cache(maxsize=8)
+def _rotation_block(sigma_rad: float) -> NDArray[np.float64]:
+    """The rotation block (3x3, read-only) of :func:`_between_noise`, made once per sigma."""
+    m = np.eye(3) * sigma_rad**2
+    m.flags.writeable = False
+    return m
 
 
 def _xz_to_3(v_xz: ArrayLike, y: float = 0.0) -> NDArray[np.float64]:
@@ -275,7 +285,14 @@ class KeyframeGraphBuilder:
         self.config = config
         self.imu_p_cam_m = T[:3, 3].copy()
         self._params = make_preintegration_params(config)
+        # the parameters of the keyframe interval being integrated when its noise differs from
+        # ``_params``: one object, its two white-noise covariances set anew per interval (a
+        # fresh object per keyframe cost ~40 us). Reusing it is safe because GTSAM reads the
+        # covariances only while integrating: a CombinedImuFactor takes its noise model from
+        # the finished preintegration when it is built
+        self._interval_params = make_preintegration_params(config)
         self._compiled_steps = compiled_sampler(config.preintegration)  # numba, or None
+        self._compiled_dvar = compiled_discretization_var()  # numba, or None
         self._imu_t: list[float] = []
         self._imu_a: list[NDArray[np.float64]] = []
         self._imu_g: list[NDArray[np.float64]] = []
@@ -298,7 +315,8 @@ class KeyframeGraphBuilder:
         self._landmark_of: dict[LandmarkKey, int] = {}
         self._n_landmarks = 0
         # latest refined state of the newest keyframe (set by the smoother after each update)
-        self._latest_nav: gtsam.NavState | None = None
+        # (pose, velocity): made into a gtsam.NavState only when a prediction needs it
+        self._latest_nav: tuple[gtsam.Pose3, NDArray[np.float64]] | None = None
         self._latest_bias = gtsam.imuBias.ConstantBias()
         # constant-sigma noise models, made once (keyed by their sigmas, so a changed config
         # still gets its own): building one costs as much as the factor using it
@@ -326,7 +344,7 @@ class KeyframeGraphBuilder:
         self, pose: gtsam.Pose3, velocity_mps: NDArray[np.float64], bias: gtsam.imuBias.ConstantBias
     ) -> None:
         """Latest estimate of the newest keyframe: used to predict when no filter guess exists."""
-        self._latest_nav = gtsam.NavState(pose, np.asarray(velocity_mps, dtype=float))
+        self._latest_nav = (pose, np.asarray(velocity_mps, dtype=float))
         self._latest_bias = bias
 
     def forget_landmarks(self, landmark_keys: Sequence[int]) -> None:
@@ -487,7 +505,7 @@ class KeyframeGraphBuilder:
         self._last_kf_R = R_i
         self._trim_imu(t)
         if self._latest_nav is None or pend.estimate is not None:
-            self._latest_nav = gtsam.NavState(pose_guess, v_guess)
+            self._latest_nav = (pose_guess, v_guess)
         return KeyframeUpdate(
             index=i,
             timestamp_s=t,
@@ -505,35 +523,31 @@ class KeyframeGraphBuilder:
         cfg = self.config
         assert self._last_kf_time_s is not None
         ts = np.asarray(self._imu_t)
-        if self._compiled_steps is not None and ts.size and t > self._last_kf_time_s:
+        acc = np.asarray(self._imu_a)  # (one conversion for the sampler and the model error)
+        t0 = self._last_kf_time_s
+        if self._compiled_steps is not None and ts.size and t > t0:
             a_mid, g_mid, dt = self._compiled_steps(
-                ts,
-                np.asarray(self._imu_a),
-                np.asarray(self._imu_g),
-                self._last_kf_time_s,
-                t,
-                TIME_TOL_S,
+                ts, acc, np.asarray(self._imu_g), t0, t, TIME_TOL_S
             )
         else:
             sampler = SAMPLERS[cfg.preintegration]
-            a_mid, g_mid, dt = sampler(
-                ts, np.asarray(self._imu_a), np.asarray(self._imu_g), self._last_kf_time_s, t
-            )
+            a_mid, g_mid, dt = sampler(ts, acc, np.asarray(self._imu_g), t0, t)
         params = self._params
         # (every sample trusted, the usual case: skip the array work, the answer is (0, 0))
         if any(xa > 0 or xg > 0 for xa, xg in self._imu_x):
-            x_vel, x_rot = distrust_variances(ts, self._imu_x, self._last_kf_time_s, t)
+            x_vel, x_rot = distrust_variances(ts, self._imu_x, t0, t)
         else:
             x_vel = x_rot = 0.0
         per_step = cfg.distrust_noise == "per_step" and (x_vel > 0 or x_rot > 0)
         if cfg.imu_discretization_gain > 0 or x_vel > 0 or x_rot > 0:
-            extra = cfg.imu_discretization_gain**2 * discretization_velocity_var(
-                ts, np.asarray(self._imu_a), self._last_kf_time_s, t
-            )
+            if self._compiled_dvar is not None and ts.size:
+                dvar = self._compiled_dvar(ts, acc, t0, t, TIME_TOL_S)
+            else:
+                dvar = discretization_velocity_var(ts, acc, t0, t)
+            extra = cfg.imu_discretization_gain**2 * dvar
             spread_vel, spread_rot = (0.0, 0.0) if per_step else (x_vel, x_rot)
-            params = make_preintegration_params(
-                cfg, extra + spread_vel, t - self._last_kf_time_s, spread_rot
-            )
+            params = self._interval_params
+            set_white_noise(params, cfg, extra + spread_vel, t - t0, spread_rot)
         pim = gtsam.PreintegratedCombinedMeasurements(params, self._latest_bias)
         if per_step:
             # GTSAM adds (accelerometer covariance) x dt of velocity variance per step and
@@ -543,17 +557,18 @@ class KeyframeGraphBuilder:
             # copies: the getters return views of the params' own matrices
             acc0 = np.array(params.getAccelerometerCovariance(), dtype=float, copy=True)
             gyr0 = np.array(params.getGyroscopeCovariance(), dtype=float, copy=True)
-        else:
-            vel_var = rot_var = np.zeros(len(dt))
-        for a_k, g_k, dt_k, vv, rv in zip(a_mid, g_mid, dt, vel_var, rot_var, strict=True):
-            distrusted = vv > 0 or rv > 0
-            if distrusted:
-                params.setAccelerometerCovariance(acc0 + np.eye(3) * (vv / dt_k))
-                params.setGyroscopeCovariance(gyr0 + np.eye(3) * (rv / dt_k))
-            pim.integrateMeasurement(a_k, g_k, float(dt_k))
-            if distrusted:
-                params.setAccelerometerCovariance(acc0)
-                params.setGyroscopeCovariance(gyr0)
+            for a_k, g_k, dt_k, vv, rv in zip(a_mid, g_mid, dt, vel_var, rot_var, strict=True):
+                distrusted = vv > 0 or rv > 0
+                if distrusted:
+                    params.setAccelerometerCovariance(acc0 + np.eye(3) * (vv / dt_k))
+                    params.setGyroscopeCovariance(gyr0 + np.eye(3) * (rv / dt_k))
+                pim.integrateMeasurement(a_k, g_k, float(dt_k))
+                if distrusted:
+                    params.setAccelerometerCovariance(acc0)
+                    params.setGyroscopeCovariance(gyr0)
+        else:  # the usual case: the same steps, without the per-step checks
+            for k, dt_k in enumerate(dt.tolist()):
+                pim.integrateMeasurement(a_mid[k], g_mid[k], dt_k)
         return pim
 
     def _initial_guess(
@@ -574,7 +589,7 @@ class KeyframeGraphBuilder:
             v_guess[1] = 0.0
         else:
             assert pim is not None and self._latest_nav is not None
-            nav = pim.predict(self._latest_nav, self._latest_bias)
+            nav = pim.predict(gtsam.NavState(*self._latest_nav), self._latest_bias)
             t_guess = np.asarray(nav.pose().translation(), dtype=float).copy()
             v_guess = np.asarray(nav.velocity(), dtype=float).copy()
             cam_xz = (t_guess + R_i @ p_ic)[[0, 2]]
@@ -701,6 +716,8 @@ class KeyframeGraphBuilder:
         """Corner landmarks and stance anchors (long-span constraints): a new landmark gets
         its node at the observed position and a weak prior; every observation a robust
         BetweenFactorPose3 from X(i)."""
+        if not observations:  # (most keyframes: skip the rotation below)
+            return
         cfg = self.config
         p_ic = self.imu_p_cam_m
         rot_i = gtsam.Rot3.ClosestTo(R_i)

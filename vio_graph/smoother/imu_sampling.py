@@ -14,6 +14,7 @@ error that sampling leaves around gait events is estimated by
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 
 import gtsam
@@ -30,12 +31,14 @@ __all__ = [
     "SAMPLERS",
     "TIME_TOL_S",
     "common_frame_samples",
+    "compiled_discretization_var",
     "compiled_sampler",
     "discretization_velocity_var",
     "distrust_step_variances",
     "held_samples",
     "make_preintegration_params",
     "midpoint_samples",
+    "set_white_noise",
     "so3_exp",
 ]
 
@@ -289,15 +292,48 @@ def make_preintegration_params(
     accelerometer white noise; ``extra_rotation_var_rad2`` likewise as gyro noise.
     """
     p = gtsam.PreintegrationCombinedParams.MakeSharedU(config.gravity_mps2)
+    set_white_noise(p, config, extra_velocity_var_m2ps2, duration_s, extra_rotation_var_rad2)
+    integ, bias_acc, bias_omega = _constant_covariances(
+        config.integration_sigma_m,
+        config.accel_bias_rw_mps3_per_sqrt_hz,
+        config.gyro_bias_rw_radps2_per_sqrt_hz,
+    )
+    p.setIntegrationCovariance(integ)
+    p.setBiasAccCovariance(bias_acc)
+    p.setBiasOmegaCovariance(bias_omega)
+    return p
+
+
+def set_white_noise(
+    p: gtsam.PreintegrationCombinedParams,
+    config: SmootherConfig,
+    extra_velocity_var_m2ps2: float = 0.0,
+    duration_s: float = 1.0,
+    extra_rotation_var_rad2: float = 0.0,
+) -> None:
+    """Set the accelerometer and gyro covariances of ``p`` as
+    :func:`make_preintegration_params` does (the only two that change between keyframes)."""
     acc_var = config.accel_noise_density_mps2_per_sqrt_hz**2 + extra_velocity_var_m2ps2 / duration_s
     # (one shared identity: a fresh np.eye per setter was most of this function's ~80 us)
     p.setAccelerometerCovariance(_EYE3 * acc_var)
     gyr_var = config.gyro_noise_density_radps_per_sqrt_hz**2 + extra_rotation_var_rad2 / duration_s
     p.setGyroscopeCovariance(_EYE3 * gyr_var)
-    p.setIntegrationCovariance(_EYE3 * config.integration_sigma_m**2)
-    p.setBiasAccCovariance(_EYE3 * config.accel_bias_rw_mps3_per_sqrt_hz**2)
-    p.setBiasOmegaCovariance(_EYE3 * config.gyro_bias_rw_radps2_per_sqrt_hz**2)
-    return p
+
+
+@functools.lru_cache(maxsize=8)
+def _constant_covariances(
+    integration_sigma: float, accel_bias_rw: float, gyro_bias_rw: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The three covariances of :func:`make_preintegration_params` that do not change from
+    one keyframe to the next (the same products, made once; read-only, the setters copy)."""
+    out = (
+        _EYE3 * integration_sigma**2,
+        _EYE3 * accel_bias_rw**2,
+        _EYE3 * gyro_bias_rw**2,
+    )
+    for m in out:
+        m.flags.writeable = False
+    return out
 
 
 def compiled_sampler(name: str) -> Callable[..., tuple] | None:
@@ -312,6 +348,19 @@ def compiled_sampler(name: str) -> Callable[..., tuple] | None:
     from vio_graph.smoother.compiled_sampling import common_frame_steps
 
     return common_frame_steps
+
+
+def compiled_discretization_var() -> Callable[..., float] | None:
+    """The compiled :func:`discretization_velocity_var` (smoother/compiled_sampling.py, numba;
+    the same float), or None when the compiled kernels are off. Called as ``f(t, a, t0, t1,
+    TIME_TOL_S)`` with float64 arrays."""
+    from vio_graph.filter.fast_imu import imu_kernels
+
+    if imu_kernels() is None:
+        return None
+    from vio_graph.smoother.compiled_sampling import discretization_var
+
+    return discretization_var
 
 
 #: ``SmootherConfig.preintegration`` -> the step sampler it selects.

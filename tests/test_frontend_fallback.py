@@ -137,7 +137,8 @@ def test_a_straight_noisy_floor_gives_no_x_and_keeps_z() -> None:
             if ratio is None:
                 sx_without.append(np.sqrt(d.cov_m2[0, 0]))
                 continue
-            assert abs(d.delta_xz_m[0] - pred[0]) < 1e-3  # along the floor: the seed
+            # along the floor: the seed (up to the tilt of the normals' mean times z's move),
+            assert abs(d.delta_xz_m[0] - pred[0]) < 0.02  # and a claim that says nothing
             assert d.cov_m2[0, 0] > 0.9 * cap  # sigma x > 0.95 m
             assert abs(d.delta_xz_m[1] - delta[1]) < 0.02  # z still from the floor:
             info = np.linalg.inv(d.cov_m2)  # its variance given x (the line's fitted tilt

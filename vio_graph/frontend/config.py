@@ -336,11 +336,11 @@ class TrackerConfig(_Strict):
         description="profile fallback: if the matched points of both frames lie on one straight "
         "line (mean squared distance to their total-least-squares line below this many times "
         "half the mean squared pair residual along its normal), a translation along the line "
-        "is unobservable: the displacement keeps the seed along it with variance "
-        "max_variance_m2. PCA normals of a noisy flat floor tilt at random and otherwise read "
-        "as x information (obstacle s1: a level floor claiming 1.7 mm in x, 1 cm off). Flat "
-        "floors measured 1-15 on upstair / downstair / obstacle s1, frames with a riser 240 "
-        "and up. None = trust the point-to-line covariance",
+        "is unobservable: along the covariance's least-informed direction the displacement "
+        "keeps the seed, with variance max_variance_m2. PCA normals of a noisy flat floor "
+        "tilt at random and otherwise read as x information (obstacle s1: a level floor "
+        "claiming 1.7 mm in x, 1 cm off). Flat floors measured 1-15 on upstair / downstair "
+        "/ obstacle s1, frames with a riser 240 and up. None = trust the point-to-line covariance",
     )
     fallback_restart_check: bool = Field(
         True,

@@ -418,9 +418,8 @@ class CornerTracker:
         if bad is not None:
             return TrackerOutput(None, None, icp, f"profile ICP: {bad}", None, False, d2)
         T, C = icp.translation_xz_m, icp.cov_m2
-        u = _straight_direction(icp, cfg.fallback_straight_ratio)
-        if u is not None:  # one straight line: nothing fixes the slide along it
-            T, C = _drop_along(T, C, T0, u, self._fallback_icp_cfg.max_variance_m2)
+        if _is_straight(icp, cfg.fallback_straight_ratio):  # nothing fixes the slide along it
+            T, C = _drop_weakest(T, C, T0, self._fallback_icp_cfg.max_variance_m2)
         elif cfg.fallback_restart_check:
             C = self._restart_check(src, target, T0, P, tree, icp)
         disp = Displacement2D(prev.timestamp_s, t, -T, C)
@@ -506,42 +505,37 @@ class CornerTracker:
         return TrackerOutput(None, obs, icp, reason, track_id, False)
 
 
-def _straight_direction(icp: IcpResult, ratio: float | None) -> NDArray[np.float64] | None:
-    """Unit direction of the line the matched points lie on, or None if they do not lie on
-    one (or the test is off, ``ratio`` None). Both frames' matched points (the source moved
-    by T) get one total-least-squares line; its mean squared perpendicular distance is
-    compared with the noise the pairs show along its normal (half the mean squared pair
-    residual: two noisy points per pair). A straight profile (a floor, a ramp, one tread)
-    leaves those close; a riser or a step edge puts points centimetres off the line."""
+def _is_straight(icp: IcpResult, ratio: float | None) -> bool:
+    """Do the matched points lie on one straight line (False if the test is off, ``ratio``
+    None)? Both frames' matched points (the source moved by T) get one total-least-squares
+    line; its mean squared perpendicular distance is compared with the noise the pairs show
+    along its normal (half the mean squared pair residual: two noisy points per pair). A
+    straight profile (a floor, a ramp, one tread) leaves those close; a riser or a step edge
+    puts points centimetres off the line."""
     if ratio is None or icp.n_correspondences < 3:
-        return None
+        return False
     pt = icp.target_points_xz_m
     ps = icp.matched_source_xz_m + icp.translation_xz_m
     pts = np.vstack([pt, ps])
     c = pts - pts.mean(axis=0)
     w, V = np.linalg.eigh(c.T @ c / pts.shape[0])
-    n = V[:, 0]
-    r = (pt - ps) @ n
+    r = (pt - ps) @ V[:, 0]
     noise = max(float(r @ r) / (2 * r.size), 1e-12)
-    return V[:, 1] if float(w[0]) <= ratio * noise else None
+    return float(w[0]) <= ratio * noise
 
 
-def _drop_along(
-    T: NDArray[np.float64],
-    C: NDArray[np.float64],
-    T0: NDArray[np.float64],
-    u: NDArray[np.float64],
-    max_variance_m2: float,
+def _drop_weakest(
+    T: NDArray[np.float64], C: NDArray[np.float64], T0: NDArray[np.float64], cap_m2: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """T with its component along the unit vector ``u`` put back to the seed ``T0``'s, and the
-    covariance with variance ``max_variance_m2`` along ``u`` (unobservable) and, across it,
-    the variance C's information gives that direction (what the line does fix; C's own
-    variance there would leak ICP's capped axis when the two axes differ by a small tilt)."""
-    n = np.array([-u[1], u[0]])
-    T_new = T + u * float(u @ (T0 - T))
-    var_n = min(1.0 / max(float(n @ np.linalg.solve(C, n)), 1e-30), max_variance_m2)
-    C_new = var_n * np.outer(n, n) + max_variance_m2 * np.outer(u, u)
-    return T_new, C_new
+    """T and C with the least-informed direction u of C (along a straight profile: the
+    normals' mean is its normal) declared unobservable, as ICP treats a degenerate one: T
+    keeps the seed ``T0``'s component along u, C gets ``cap_m2`` along u and keeps its own
+    variance across it. Unchanged if C already has the cap along u."""
+    w, V = np.linalg.eigh(C)
+    if float(w[1]) >= cap_m2:
+        return T, C
+    u, n = V[:, 1], V[:, 0]
+    return T + u * float(u @ (T0 - T)), float(w[0]) * np.outer(n, n) + cap_m2 * np.outer(u, u)
 
 
 def _source_tree(pts: NDArray[np.float64]) -> cKDTree | None:

@@ -26,6 +26,9 @@ from vio_graph.types import Displacement2D
 #: chi^2 95 % quantiles, 1 and 2 dof
 _CHI2_95_1DOF = 3.841
 _CHI2_95_2DOF = 5.991
+#: a displacement "claims x" when its x sigma is below this (m); the rest carry the capped
+#: variance of an unobservable direction and say nothing about x
+CLAIMS_X_M = 0.1
 
 
 def nees_by_class(
@@ -35,7 +38,8 @@ def nees_by_class(
     floor_m: float = 0.0,
 ) -> dict[str, dict[str, float]]:
     """Per class label: n, 2-dof NEES mean / share within 95 %, x-only NEES mean / share
-    within 95 %, claimed x sigma median (mm) and x error RMS (mm). ``true_delta_xz_m`` (N, 2):
+    within 95 %, the same x NEES over the displacements that claim x (x sigma below
+    ``CLAIMS_X_M``), claimed x sigma median (mm) and x error RMS (mm). ``true_delta_xz_m`` (N, 2):
     the true camera displacement of each displacement's interval; ``floor_m`` is added to both
     axes' sigma as the filter does."""
     est = np.array([d.delta_xz_m for d in displacements], dtype=float).reshape(-1, 2)
@@ -49,12 +53,18 @@ def nees_by_class(
         e, C = err[m], cov[m]
         n2 = np.einsum("ni,ni->n", e, np.linalg.solve(C, e[..., None])[..., 0])
         nx = e[:, 0] ** 2 / C[:, 0, 0]
+        claim = C[:, 0, 0] < CLAIMS_X_M**2
         out[c] = {
             "n": int(m.sum()),
             "nees2_mean": float(np.mean(n2)),
             "nees2_within95": float(np.mean(n2 < _CHI2_95_2DOF)),
             "neesx_mean": float(np.mean(nx)),
             "neesx_within95": float(np.mean(nx < _CHI2_95_1DOF)),
+            "n_claim_x": int(claim.sum()),
+            "neesx_claim_mean": float(np.mean(nx[claim])) if claim.any() else float("nan"),
+            "neesx_claim_within95": float(np.mean(nx[claim] < _CHI2_95_1DOF))
+            if claim.any()
+            else float("nan"),
             "sigx_med_mm": float(1e3 * np.median(np.sqrt(C[:, 0, 0]))),
             "errx_rms_mm": float(1e3 * np.sqrt(np.mean(e[:, 0] ** 2))),
         }
@@ -111,16 +121,18 @@ def main(argv: list[str] | None = None) -> None:
             per[key][1] += lab
             per[key][2].append(true)
     print(
-        "| set | class | n | NEES 2-dof mean / <95 % | x NEES mean / <95 % | x sigma med mm "
-        "| x err rms mm |"
+        "| set | class | n | NEES 2-dof mean / <95 % | x NEES mean / <95 % | claim x: n | "
+        "x NEES mean / <95 % | x sigma med mm | x err rms mm |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for key, (d, lab, trues) in per.items():
         for k, v in nees_by_class(d, lab, np.concatenate(trues), floor).items():
             print(
                 f"| {key} | {k} | {v['n']} | {v['nees2_mean']:.2f} / "
                 f"{100 * v['nees2_within95']:.0f} % | {v['neesx_mean']:.2f} / "
-                f"{100 * v['neesx_within95']:.0f} % | {v['sigx_med_mm']:.2f} | "
+                f"{100 * v['neesx_within95']:.0f} % | {v['n_claim_x']} | "
+                f"{v['neesx_claim_mean']:.2f} / {100 * v['neesx_claim_within95']:.0f} % | "
+                f"{v['sigx_med_mm']:.2f} | "
                 f"{v['errx_rms_mm']:.2f} |"
             )
 

@@ -340,7 +340,8 @@ class TrackerConfig(_Strict):
         "keeps the seed, with variance max_variance_m2. PCA normals of a noisy flat floor "
         "tilt at random and otherwise read as x information (obstacle s1: a level floor "
         "claiming 1.7 mm in x, 1 cm off). Level frames of upstair / downstair / obstacle s1: "
-        "median 4.2-5.9, p95 7.4-13.4; frames with a riser 240 and up. None = trust the point-to-line covariance",
+        "median 4.2-5.9, p95 7.4-13.4; frames with a riser 240 and up. None = trust the "
+        "point-to-line covariance",
     )
     fallback_restart_check: bool = Field(
         True,

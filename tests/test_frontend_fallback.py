@@ -93,7 +93,8 @@ def test_a_result_that_follows_its_seed_does_not_claim_x() -> None:
     """Forty frame pairs of such a floor, IMU seed 7 mm off per axis (sigma 7 mm). The x of
     the profile ICP is the seed's plus noise; the point-to-line covariance reads the tilted
     normals as x information. With the restart check a result that moves with its seed gets
-    that spread as covariance: x errors beyond 3 claimed sigmas 4 of 40 -> at most 1."""
+    that spread as covariance: x errors beyond 3 claimed sigmas 4 of 40 -> at most 1 (the
+    straight-line test, which drops x from such a floor altogether, off)."""
     delta = np.array([-0.024, -0.045])
     beyond = {}
     for check in (True, False):
@@ -101,7 +102,8 @@ def test_a_result_that_follows_its_seed_does_not_claim_x() -> None:
         for seed in range(40):
             rng = np.random.default_rng(1000 + seed)
             pred = delta + rng.normal(0.0, 0.007, 2)
-            tracker = CornerTracker(TrackerConfig(fallback_restart_check=check))
+            cfg = TrackerConfig(fallback_restart_check=check, fallback_straight_ratio=None)
+            tracker = CornerTracker(cfg)
             tracker.update(0.0, _far_floor(np.zeros(2), 2 * seed), None)
             out = tracker.update(
                 1 / 30, _far_floor(delta, 2 * seed + 1), None, pred, np.eye(2) * 0.007**2
@@ -112,3 +114,66 @@ def test_a_result_that_follows_its_seed_does_not_claim_x() -> None:
         beyond[check] = int(np.sum(np.abs(z) > 3.0))
     assert beyond[False] >= 3  # the overconfidence exists
     assert beyond[True] <= 1 < beyond[False]
+
+
+def test_a_straight_noisy_floor_gives_no_x_and_keeps_z() -> None:
+    """The same forty noisy far-floor pairs with the straight-line test (default): every
+    displacement keeps the seed's x with the capped variance, z stays measured. Without it
+    (restart check on) some claim x to a few mm."""
+    delta = np.array([-0.024, -0.045])
+    cap = IcpConfig().max_variance_m2
+    sx_without = []
+    for seed in range(40):
+        rng = np.random.default_rng(1000 + seed)
+        pred = delta + rng.normal(0.0, 0.007, 2)
+        for ratio in (TrackerConfig().fallback_straight_ratio, None):
+            tracker = CornerTracker(TrackerConfig(fallback_straight_ratio=ratio))
+            tracker.update(0.0, _far_floor(np.zeros(2), 2 * seed), None)
+            out = tracker.update(
+                1 / 30, _far_floor(delta, 2 * seed + 1), None, pred, np.eye(2) * 0.007**2
+            )
+            d = out.displacement
+            assert d is not None, out.reason
+            if ratio is None:
+                sx_without.append(np.sqrt(d.cov_m2[0, 0]))
+                continue
+            # along the floor: the seed (up to the tilt of the normals' mean times z's move),
+            assert abs(d.delta_xz_m[0] - pred[0]) < 0.02  # and a claim that says nothing
+            assert d.cov_m2[0, 0] > 0.9 * cap  # sigma x > 0.95 m
+            assert abs(d.delta_xz_m[1] - delta[1]) < 0.02  # z still from the floor:
+            info = np.linalg.inv(d.cov_m2)  # its variance given x (the line's fitted tilt
+            assert 1.0 / info[1, 1] < 0.01**2  # correlates z with the unknown x)
+    assert min(sx_without) < 0.01  # the overconfidence the test removes
+
+
+def _step(camera_xz: np.ndarray, seed: int) -> np.ndarray:
+    """A floor at z = 0, an 18 cm riser at x = 1 m and the tread above, seen from
+    ``camera_xz``: points relative to the camera, 2 mm noise."""
+    rng = np.random.default_rng(seed)
+    x0 = np.linspace(0.7, 1.0, 120)
+    z_riser = np.linspace(0.0, 0.18, 72)
+    x1 = np.linspace(1.0, 1.3, 120)
+    pts = np.vstack(
+        [
+            np.column_stack([x0, np.zeros_like(x0)]),
+            np.column_stack([np.full_like(z_riser, 1.0), z_riser]),
+            np.column_stack([x1, np.full_like(x1, 0.18)]),
+        ]
+    )
+    return pts + rng.normal(0.0, 0.002, pts.shape) - camera_xz
+
+
+def test_a_profile_with_a_riser_keeps_its_x() -> None:
+    """Floor, riser and tread (no corner given): the riser fixes x, the straight-line test
+    leaves it alone, and the profile ICP recovers x from a seed 12 mm off to within 2 mm,
+    claiming a few millimetres."""
+    c0, delta = np.array([-0.2, 0.5]), np.array([0.04, 0.01])
+    pred = delta + np.array([0.012, -0.004])
+    tracker = CornerTracker()
+    tracker.update(0.0, _step(c0, 1), None)
+    out = tracker.update(1 / 30, _step(c0 + delta, 2), None, pred, np.eye(2) * 0.01**2)
+    d = out.displacement
+    assert d is not None, out.reason
+    assert abs(d.delta_xz_m[0] - delta[0]) < 0.002
+    assert np.sqrt(d.cov_m2[0, 0]) < 0.005
+    assert abs(d.delta_xz_m[1] - delta[1]) < 0.002

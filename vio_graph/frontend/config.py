@@ -337,6 +337,19 @@ class TrackerConfig(_Strict):
         description="1-sigma of one nosing position placed from its face line, per axis, for "
         "corner_check (synthetic noisy stairs with 0-6 cm bands: median 1 mm, p90 2-3 mm), m",
     )
+    fallback_straight_ratio: float | None = Field(
+        25.0,
+        gt=0,
+        description="profile fallback: if the matched points of both frames lie on one straight "
+        "line (mean squared distance to their total-least-squares line below this many times "
+        "half the mean squared pair residual along its normal), a translation along the line "
+        "is unobservable: along the covariance's least-informed direction the displacement "
+        "keeps the seed, with variance max_variance_m2. PCA normals of a noisy flat floor "
+        "tilt at random and otherwise read as x information (obstacle s1: a level floor "
+        "claiming 1.7 mm in x, 1 cm off). Level frames of upstair / downstair / obstacle s1: "
+        "median 4.2-5.9, p95 7.4-13.4; frames with a riser 240 and up. None = trust the "
+        "point-to-line covariance",
+    )
     fallback_restart_check: bool = Field(
         True,
         description="profile fallback: run ICP a second time from the seed moved by two "

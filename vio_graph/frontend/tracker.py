@@ -48,6 +48,10 @@ IMU-seeded mode (the default whenever the caller passes a prediction):
    Only surface the previous frame saw takes part (``fallback_overlap_margin_m``): in a fast
    swing the far end of the new profile is new terrain, which would pair with the end of the
    previous profile and pull the result towards zero motion.
+   A floor can still look informative in x: the PCA normals of a noisy flat profile tilt at
+   random and the point-to-line covariance reads them as x information. When the matched
+   points of both frames lie on one straight line (``fallback_straight_ratio``) the slide
+   along that line is dropped: the seed's component, with ``max_variance_m2``.
 8. Corner ICP rejected (quality, gate or nosing check): the whole-profile ICP of step 7 is
    tried before giving up, and the corner observation is kept. In fast swings the 10 cm
    window can lose its counterpart while the profile still registers; without this, a frame
@@ -413,10 +417,12 @@ class CornerTracker:
         bad = bad or gate
         if bad is not None:
             return TrackerOutput(None, None, icp, f"profile ICP: {bad}", None, False, d2)
-        C = icp.cov_m2
-        if cfg.fallback_restart_check:
+        T, C = icp.translation_xz_m, icp.cov_m2
+        if _is_straight(icp, cfg.fallback_straight_ratio):  # nothing fixes the slide along it
+            T, C = _drop_weakest(T, C, T0, self._fallback_icp_cfg.max_variance_m2)
+        elif cfg.fallback_restart_check:
             C = self._restart_check(src, target, T0, P, tree, icp)
-        disp = Displacement2D(prev.timestamp_s, t, -icp.translation_xz_m, C)
+        disp = Displacement2D(prev.timestamp_s, t, -T, C)
         return TrackerOutput(disp, None, icp, None, None, False, d2)
 
     def _restart_check(
@@ -497,6 +503,39 @@ class CornerTracker:
         track_id = self._new_id()
         obs = CornerObservation(t, track_id, corner.edge_xz_m.copy(), self._edge_cov(corner))
         return TrackerOutput(None, obs, icp, reason, track_id, False)
+
+
+def _is_straight(icp: IcpResult, ratio: float | None) -> bool:
+    """Do the matched points lie on one straight line (False if the test is off, ``ratio``
+    None)? Both frames' matched points (the source moved by T) get one total-least-squares
+    line; its mean squared perpendicular distance is compared with the noise the pairs show
+    along its normal (half the mean squared pair residual: two noisy points per pair). A
+    straight profile (a floor, a ramp, one tread) leaves those close; a riser or a step edge
+    puts points centimetres off the line."""
+    if ratio is None or icp.n_correspondences < 3:
+        return False
+    pt = icp.target_points_xz_m
+    ps = icp.matched_source_xz_m + icp.translation_xz_m
+    pts = np.vstack([pt, ps])
+    c = pts - pts.mean(axis=0)
+    w, V = np.linalg.eigh(c.T @ c / pts.shape[0])
+    r = (pt - ps) @ V[:, 0]
+    noise = max(float(r @ r) / (2 * r.size), 1e-12)
+    return float(w[0]) <= ratio * noise
+
+
+def _drop_weakest(
+    T: NDArray[np.float64], C: NDArray[np.float64], T0: NDArray[np.float64], cap_m2: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """T and C with the least-informed direction u of C (along a straight profile: the
+    normals' mean is its normal) declared unobservable, as ICP treats a degenerate one: T
+    keeps the seed ``T0``'s component along u, C gets ``cap_m2`` along u and keeps its own
+    variance across it. Unchanged if C already has the cap along u."""
+    w, V = np.linalg.eigh(C)
+    if float(w[1]) >= cap_m2:
+        return T, C
+    u, n = V[:, 1], V[:, 0]
+    return T + u * float(u @ (T0 - T)), float(w[0]) * np.outer(n, n) + cap_m2 * np.outer(u, u)
 
 
 def _source_tree(pts: NDArray[np.float64]) -> cKDTree | None:

@@ -126,7 +126,7 @@ def test_a_straight_noisy_floor_gives_no_x_and_keeps_z() -> None:
     for seed in range(40):
         rng = np.random.default_rng(1000 + seed)
         pred = delta + rng.normal(0.0, 0.007, 2)
-        for ratio in (TrackerConfig().fallback_straight_ratio, None):
+        for ratio in (25.0, None):
             tracker = CornerTracker(TrackerConfig(fallback_straight_ratio=ratio))
             tracker.update(0.0, _far_floor(np.zeros(2), 2 * seed), None)
             out = tracker.update(
@@ -169,7 +169,7 @@ def test_a_profile_with_a_riser_keeps_its_x() -> None:
     claiming a few millimetres."""
     c0, delta = np.array([-0.2, 0.5]), np.array([0.04, 0.01])
     pred = delta + np.array([0.012, -0.004])
-    tracker = CornerTracker()
+    tracker = CornerTracker(TrackerConfig(fallback_straight_ratio=25.0))
     tracker.update(0.0, _step(c0, 1), None)
     out = tracker.update(1 / 30, _step(c0 + delta, 2), None, pred, np.eye(2) * 0.01**2)
     d = out.displacement

@@ -338,9 +338,11 @@ class TrackerConfig(_Strict):
         "corner_check (synthetic noisy stairs with 0-6 cm bands: median 1 mm, p90 2-3 mm), m",
     )
     fallback_straight_ratio: float | None = Field(
-        25.0,
+        None,
         gt=0,
-        description="profile fallback: if the matched points of both frames lie on one straight "
+        description="off (None) by default until checked on the generalisation sweep; 25 is the "
+        "measured value (docs/method.md section 1). Profile fallback: if the matched points "
+        "of both frames lie on one straight "
         "line (mean squared distance to their total-least-squares line below this many times "
         "half the mean squared pair residual along its normal), a translation along the line "
         "is unobservable: along the covariance's least-informed direction the displacement "

@@ -607,54 +607,10 @@ class SagittalEskf:
         self._require_init()
         self._P[2:4, 2:4] += float(sigma_mps) ** 2 * _I2
 
-    def displacement_d2(
-        self,
-        d: Displacement2D,
-        extra_pv_cov: NDArray | None = None,
-        delta_xz_m: ArrayLike | None = None,
-    ) -> float | None:
-        """Mahalanobis distance^2 the gate would see for displacement ``d`` (no update), with
-        ``extra_pv_cov`` (4x4, on dp, dv) added to the state covariance first and
-        ``delta_xz_m`` (m), if given, in place of ``d.delta_xz_m``. None if ``d`` is not a
-        relative measurement on the current clone (nothing to test). The innovation
-        covariance's 2x2 inverse in closed form (as :meth:`_correct`); the LAPACK solve of
-        :meth:`displacement_d2_reference` agrees to rounding."""
-        self._require_init()
-        t1, t0 = float(d.t1_s), float(d.t0_s)
-        if (
-            self.config.measurement_model != "stochastic_cloning"
-            or _CLONE not in self._aug_xz
-            or abs(self._clone_t_s - t0) > _CLONE_TOL_S
-            or abs(t1 - self._t_s) > self.config.max_time_mismatch_s
-        ):
-            return None
-        dt1 = t1 - self._t_s
-        H = np.zeros((2, self._P.shape[0]))
-        H[:, 0:2] = _I2
-        H[:, 2:4] = dt1 * _I2
-        i = self._aug_index(_CLONE)
-        H[:, i : i + 2] = -_I2
-        delta = _vec2(d.delta_xz_m if delta_xz_m is None else delta_xz_m)
-        y = delta - (self._position_ahead(dt1) - self._aug_xz[_CLONE])
-        P = self._P
-        if extra_pv_cov is not None:
-            P = P.copy()
-            P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
-        V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
-        V = V + self.config.measurement_noise_floor_m**2 * _I2
-        if self._update_kernels is not None:
-            d2 = self._update_kernels.gate_d2(P, H, V, y)
-            if math.isnan(d2):
-                raise EstimationError("singular innovation covariance")
-            return d2
-        return mahalanobis2_2d(H @ P @ H.T + V, y)
-
-    def displacement_d2_pair(
-        self, d: Displacement2D, other_delta_xz_m: ArrayLike
-    ) -> tuple[float, float] | None:
-        """(``displacement_d2(d)``, ``displacement_d2(d, delta_xz_m=other_delta_xz_m)``) with
-        the state's part (H, V, the predicted relative position) built once: the same two
-        floats. None when ``d`` is not a relative measurement on the current clone."""
+    def _displacement_setup(self, d: Displacement2D) -> tuple[NDArray, NDArray, NDArray] | None:
+        """The state's part of the gate test of displacement ``d``: (H, the measurement noise
+        V, the predicted relative position in m), or None if ``d`` is not a relative
+        measurement on the current clone."""
         self._require_init()
         t1, t0 = float(d.t1_s), float(d.t0_s)
         if (
@@ -671,10 +627,50 @@ class SagittalEskf:
         i = self._aug_index(_CLONE)
         H[:, i : i + 2] = -_I2
         predicted = self._position_ahead(dt1) - self._aug_xz[_CLONE]
-        y = _vec2(d.delta_xz_m) - predicted
-        y_other = _vec2(other_delta_xz_m) - predicted
         V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
         V = V + self.config.measurement_noise_floor_m**2 * _I2
+        return H, V, predicted
+
+    def displacement_d2(
+        self,
+        d: Displacement2D,
+        extra_pv_cov: NDArray | None = None,
+        delta_xz_m: ArrayLike | None = None,
+    ) -> float | None:
+        """Mahalanobis distance^2 the gate would see for displacement ``d`` (no update), with
+        ``extra_pv_cov`` (4x4, on dp, dv) added to the state covariance first and
+        ``delta_xz_m`` (m), if given, in place of ``d.delta_xz_m``. None if ``d`` is not a
+        relative measurement on the current clone (nothing to test). The innovation
+        covariance's 2x2 inverse in closed form (as :meth:`_correct`); the LAPACK solve of
+        :meth:`displacement_d2_reference` agrees to rounding."""
+        setup = self._displacement_setup(d)
+        if setup is None:
+            return None
+        H, V, predicted = setup
+        y = _vec2(d.delta_xz_m if delta_xz_m is None else delta_xz_m) - predicted
+        P = self._P
+        if extra_pv_cov is not None:
+            P = P.copy()
+            P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
+        if self._update_kernels is not None:
+            d2 = self._update_kernels.gate_d2(P, H, V, y)
+            if math.isnan(d2):
+                raise EstimationError("singular innovation covariance")
+            return d2
+        return mahalanobis2_2d(H @ P @ H.T + V, y)
+
+    def displacement_d2_pair(
+        self, d: Displacement2D, other_delta_xz_m: ArrayLike
+    ) -> tuple[float, float] | None:
+        """(``displacement_d2(d)``, ``displacement_d2(d, delta_xz_m=other_delta_xz_m)``) with
+        the state's part (H, V, the predicted relative position) built once: the same two
+        floats. None when ``d`` is not a relative measurement on the current clone."""
+        setup = self._displacement_setup(d)
+        if setup is None:
+            return None
+        H, V, predicted = setup
+        y = _vec2(d.delta_xz_m) - predicted
+        y_other = _vec2(other_delta_xz_m) - predicted
         P = self._P
         if self._update_kernels is not None:
             d2 = self._update_kernels.gate_d2(P, H, V, y)

@@ -209,8 +209,10 @@ class Replay:
         self.rec = rec
         self.config = config
         self.modes = modes
-        if rec.num_frames >= AUTO_COMPILED_MIN_FRAMES:  # long enough to win numba's start back
-            use_compiled_by_default()
+        # "auto": the compiled kernels for recordings long enough to win numba's start back,
+        # decided per replay (not sticky), so that a run's answer never depends on what the
+        # same process replayed before (serial and cluster studies give the same bits)
+        use_compiled_by_default(rec.num_frames >= AUTO_COMPILED_MIN_FRAMES)
         self.rig = RigGeometry.from_metadata(rec.metadata)
         gt = rec.groundtruth
         p0 = None

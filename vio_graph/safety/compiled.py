@@ -1065,6 +1065,23 @@ def warm_up() -> None:
     consistency_squares(b3, x3, x3, x3, x3 + 1.0, b3, cov, n + 1, 0, 0.005, 1.0, 0.0, 0.0, 1.0)
     window_merge(x3, x3[:1], x3)
     profile_x_range(np.zeros((2, 2)), 0.0)
+    z0 = np.zeros(0)
+    keyframe_step(
+        np.zeros((2, 2)), 0.0, 0.0, np.eye(2), 0.005, 0.01, 0.003, Z, Z.copy(), n, used, mid,
+        se2, cov, 0, 1, True, True, 1.0, z0, z0, z0, z0, 0.04, 0.15, SLOPE_STEP_M,
+        MAX_TRANSITION_BIN_M, np.zeros((0, 2)), z0, np.zeros(0, np.int64),
+    )  # fmt: skip
+    used[:] = True
+    n[:] = 1
+    frame_terrain(
+        used, mid, se2, cov, n, 0, 0.005, np.array([[0.01, 0.0]]), -0.2, 0.05, 0.0, 0.05,
+        1e-4, 0.0, 0.0, 1e-4, 0.3, 0.5, 0.0, 0.003, 0.005, 0.05, 1.0, 1.0, 0.5,
+    )  # fmt: skip
+    swing_prediction(
+        0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]),
+        -0.2, 0.05, 0.0, 0.05, 0.01, 0.3, 0.0, used, mid, se2, 0, 0.005, 0.003,
+        np.array([[0.01, 0.0]]), 0, 0.05, 0.03, 0.1, 0.02, 0.01, np.zeros(0),
+    )  # fmt: skip
     swing_edge_risk(
         heel[None] + np.zeros((3, 1)),
         toe[None] + np.zeros((3, 1)),
@@ -1079,3 +1096,339 @@ def warm_up() -> None:
         0.01,
         np.zeros(0),
     )
+
+
+# ---------------------------------------------------------------------------------------------
+# the monitor's per-frame step, fused
+#
+# The kernels below do in one call what SafetyMonitor.update did through several kernels and
+# the Python between them (the same operations in the same order). Where the Python code
+# takes a square root as ``x ** 0.5`` (the C library's pow), the kernels take ``x ** half``
+# with ``half`` = 0.5 passed at run time: a constant exponent lets LLVM replace pow by sqrt,
+# which rounds differently in the last bit on about one input in a thousand.
+
+
+@numba.njit(cache=True)
+def _psd_abs(mxx, mxz, mzz, scale, half):  # pragma: no cover - compiled
+    """online._psd_abs_entries: (xx, xz, zz) of |scale M|, M = [[mxx, mxz], [mxz, mzz]]."""
+    a, b, c = scale * mxx, scale * mxz, scale * mzz
+    m, r = (a + c) / 2, (((a - c) / 2) ** 2 + b * b) ** half
+    l1, l2 = m + r, m - r
+    if l2 >= 0:
+        return a, b, c
+    if r == 0:
+        return abs(a), 0.0, abs(c)
+    if abs(b) > 1e-30 or abs(l1 - a) > 1e-30:
+        vx, vz = b, l1 - a
+    else:
+        vx, vz = 1.0, 0.0
+    nrm = (vx * vx + vz * vz) ** half
+    vx, vz = vx / nrm, vz / nrm
+    s1, s2 = abs(l1), abs(l2)
+    return s1 * vx * vx + s2 * vz * vz, (s1 - s2) * vx * vz, s1 * vz * vz + s2 * vx * vx
+
+
+@numba.njit(cache=True)
+def _relative_cov(cov, n, i0, b, P00, P01, P10, P11, scale, half):  # pragma: no cover
+    """online.SafetyMonitor._relative_cov of the bin with index ``b``: (xx, xz, zz), m^2."""
+    e = b - i0
+    c = float(n[e])
+    cxx, cxz, czz = cov[e, 0] / c, cov[e, 1] / c, cov[e, 2] / c
+    mxz = ((P01 - cxz) + (P10 - cxz)) / 2
+    return _psd_abs(P00 - cxx, mxz, P11 - czz, scale, half)
+
+
+@numba.njit(cache=True)
+def _sigma(nx, nz, cxx, cxz, czz, map_sigma, foot_sigma, half):  # pragma: no cover
+    """clearance.clearance_sigma."""
+    if not (math.isfinite(nx) and math.isfinite(nz)):
+        return np.nan
+    var = nx * nx * cxx + 2 * nx * nz * cxz + nz * nz * czz + (map_sigma * nz) ** 2 + foot_sigma**2
+    if 0.0 > var:  # max(var, 0.0), NaN kept
+        var = 0.0
+    return var**half
+
+
+@numba.njit(cache=True)
+def _window_any(used, mid, se2, i0, bin_m, x_min, x_max, map_sigma):  # pragma: no cover
+    """height_map.IncrementalHeightMap.window for any bounds (a NaN or infinite one as the
+    reference map's searchsorted takes it): (x_lo, x_hi, z, sigma, bin index)."""
+    n = used.shape[0]
+    if x_min != x_min:  # NaN sorts last: nothing from it on
+        return window_bins(used, mid, se2, 0, 0, i0, bin_m, x_min, x_max, map_sigma)
+    if x_max != x_max:
+        x_max = np.inf
+    if math.isfinite(x_min) and math.isfinite(x_max):
+        a0 = min(max(np.int64(math.floor(x_min / bin_m)) - 2 - i0, 0), n)
+        a1 = min(max(np.int64(math.floor(x_max / bin_m)) + 3 - i0, a0), n)
+    else:
+        a0, a1 = 0, n
+    return window_bins(used, mid, se2, a0, a1, i0, bin_m, x_min, x_max, map_sigma)
+
+
+@numba.njit(cache=True)
+def frame_terrain(
+    used,
+    mid,
+    se2,
+    cov,
+    n,
+    i0,
+    bin_m,
+    edges_xz,
+    hx,
+    hz,
+    tx,
+    tz,
+    P00,
+    P01,
+    P10,
+    P11,
+    window_m,
+    min_coverage,
+    sole,
+    map_sigma,
+    foot_sigma,
+    toe_pass,
+    pose_w,
+    map_w,
+    half,
+):  # pragma: no cover - compiled
+    """The first half of online.SafetyMonitor.update for a finite heel (hx, hz) and toe
+    (tx, tz): the clearance to the map's bins near the foot (``window_m``; NaN unless
+    ``min_coverage`` of the foot's span is mapped), its sigma, and the next edge ahead of
+    the toe with the clearance to it, its sigma, the x distance and its sigma. The map:
+    its bin arrays (``used``, ``mid``, ``se2``, ``cov`` sums, counts ``n``, bin index ``i0``
+    at element 0) and edges (E, 2); ``pose_w``, ``map_w``: the sigma's pose and map weights
+    (config times consistency scales). Returns (clearance, foot x, z, terrain x, z, sigma,
+    next edge index or -1, edge clearance, its sigma, edge x distance, its sigma)."""
+    nan = np.nan
+    x0, x1 = min(hx, tx) - window_m, max(hx, tx) + window_m
+    lo, hi, z, _, bins = _window_any(used, mid, se2, i0, bin_m, x0, x1, map_sigma)
+    B = z.shape[0]
+    c_d = fx = fz = qx = qz = sig = nan
+    # coverage of the foot's x span (clearance.coverage)
+    xa, xb = min(hx, tx), max(hx, tx)
+    cover = 0.0
+    if B > 0:
+        cover = 1.0 if xb <= xa else _coverage(xa, xb, lo, hi)
+    if not cover < min_coverage:
+        d, fx, fz, qx, qz, col = _foot_clearance(hx, hz, tx, tz, lo, hi, z)
+        ddx, ddz = fx - qx, fz - qz
+        nrm = math.hypot(ddx, ddz)
+        if nrm > 1e-9:
+            nx, nz = ddx / nrm, ddz / nrm
+        else:
+            nx, nz = 0.0, 1.0
+        if d < 0:
+            if nrm <= 1e-9:
+                nx, nz = 0.0, 1.0
+            else:
+                nx, nz = -nx, -nz
+        c_d = d - sole
+        if col >= 0:
+            b = bins[col]
+            rxx, rxz, rzz = _relative_cov(cov, n, i0, b, P00, P01, P10, P11, pose_w, half)
+            bs = math.sqrt(se2[b - i0] + map_sigma**2)
+            sig = _sigma(nx, nz, rxx, rxz, rzz, map_w * bs, foot_sigma, half)
+    # the next edge ahead (clearance.next_edge_index)
+    E = edges_xz.shape[0]
+    e = -1
+    nc = nsig = ed = edsig = nan
+    if E > 0:
+        v = tx - toe_pass
+        a, c = 0, E
+        if v != v:
+            a = E
+        while a < c:
+            m = (a + c) // 2
+            if edges_xz[m, 0] <= v:
+                a = m + 1
+            else:
+                c = m
+        e = a if a < E else -1
+    if e >= 0:
+        ex, ez = edges_xz[e, 0], edges_xz[e, 1]
+        d, qx2, qz2 = _edge_distance(hx, hz, tx, tz, ex, ez)
+        nrm = ((qx2 - ex) ** 2 + (qz2 - ez) ** 2) ** half
+        if nrm > 1e-9:
+            nx, nz = (qx2 - ex) / nrm, (qz2 - ez) / nrm
+        else:
+            nx, nz = 0.0, 1.0
+        if d < 0:
+            nx, nz = -nx, -nz
+        found, kb = bin_below(used, i0, bin_m, ex)
+        if not found:
+            kb = -1
+        rxx, rxz, rzz = _relative_cov(cov, n, i0, kb, P00, P01, P10, P11, pose_w, half)
+        nc = d - sole
+        bs = math.sqrt(se2[kb - i0] + map_sigma**2)
+        nsig = _sigma(nx, nz, rxx, rxz, rzz, map_w * bs, foot_sigma, half)
+        ed = ex - tx
+        edsig = (rxx + foot_sigma**2 + (bin_m / 2) ** 2) ** half
+    return c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig
+
+
+@numba.njit(cache=True)
+def swing_prediction(
+    tau,
+    h,
+    phase,
+    disp,
+    starts,
+    hx,
+    hz,
+    tx,
+    tz,
+    c_d,
+    window_m,
+    sole,
+    used,
+    mid,
+    se2,
+    i0,
+    bin_m,
+    map_sigma,
+    edges_xz,
+    e,
+    toe_pass,
+    dt,
+    min_fwd,
+    near_trip,
+    tol,
+    cleared,
+):  # pragma: no cover - compiled
+    """The swing-template branch of online.SafetyMonitor.update in one call: the template
+    motion from phase ``tau`` over the horizon instants ``h`` (:func:`template_motion`),
+    the minimum clearance of the predicted poses to the bins they can reach (NaN when the
+    current clearance ``c_d`` is), and :func:`swing_edge_risk` against the edges from the
+    next one (index ``e``). Returns (predicted clearance, predicted edge clearance,
+    near-trip clearance, the x of the edges newly cleared)."""
+    motion = template_motion(tau, h, phase, disp, starts)
+    H = motion.shape[0]
+    hp, tp = np.empty((H, 2)), np.empty((H, 2))
+    m_lo, m_hi = np.empty(4), np.empty(4)
+    for c in range(4):  # motion.min / max over the poses, NaN propagated
+        lo_c = hi_c = motion[0, c]
+        for i in range(1, H):
+            v = motion[i, c]
+            if v != v or lo_c != lo_c:
+                lo_c = hi_c = np.nan
+            else:
+                lo_c, hi_c = min(lo_c, v), max(hi_c, v)
+        m_lo[c], m_hi[c] = lo_c, hi_c
+    for i in range(H):
+        hp[i, 0], hp[i, 1] = hx + motion[i, 0], hz + motion[i, 1]
+        tp[i, 0], tp[i, 1] = tx + motion[i, 2], tz + motion[i, 3]
+    toe_x_max = tx + m_hi[2]
+    pred = np.nan
+    if math.isfinite(c_d):
+        a, b = hx + m_lo[0], tx + m_lo[2]
+        lo_x = b if b < a else a  # Python's min / max: the first unless the second wins
+        a = hx + m_hi[0]
+        hi_x = toe_x_max if toe_x_max > a else a
+        # online.SafetyMonitor._swept
+        d = c_d + sole
+        if 0.0 > d:
+            d = 0.0
+        d += 1e-6
+        s_lo, s_hi = lo_x - window_m, hi_x + window_m
+        a, b = lo_x - d, hi_x + d
+        x_min = a if a > s_lo else s_lo
+        x_max = b if b < s_hi else s_hi
+        lo, hi, z, _, _ = _window_any(used, mid, se2, i0, bin_m, x_min, x_max, map_sigma)
+        if z.shape[0] > 0:
+            dd = _clearance_many(hp, tp, lo, hi, z, sole)
+            pred = dd[0]
+            for i in range(1, H):  # np.min: NaN propagates
+                if dd[i] != dd[i] or pred != pred:
+                    pred = np.nan
+                    break
+                pred = min(pred, dd[i])
+    pred_edge, risk, new = swing_edge_risk(
+        hp, tp, edges_xz, e, toe_x_max, toe_pass, sole, dt, min_fwd, near_trip, tol, cleared
+    )
+    return pred, pred_edge, risk, new
+
+
+@numba.njit(cache=True)
+def keyframe_step(
+    rel,
+    cam_x,
+    cam_z,
+    P,
+    bin_m,
+    top_band,
+    map_sigma,
+    Z,
+    Zs,
+    n,
+    used,
+    mid,
+    se2,
+    cov,
+    i0,
+    min_keyframes,
+    median,
+    test,
+    pose_scale,
+    pose_sorted,
+    pose_old,
+    map_sorted,
+    map_old,
+    min_rise,
+    max_gap,
+    slope_step,
+    max_bin,
+    edge_xz,
+    edge_rise,
+    edge_first,
+):  # pragma: no cover - compiled
+    """A keyframe (``rel`` (N, 2) camera-relative, camera at the finite (cam_x, cam_z),
+    covariance ``P``) tested against the map and joining it, in one call: what
+    online.SafetyMonitor._add_keyframe_compiled does with :func:`keyframe_tops`,
+    :func:`profile_x_range`, :func:`window_bins`, :func:`consistency_squares`,
+    :func:`window_merge` (both scales), :func:`add_tops` and :func:`rescan_edges`, the same
+    operations in the same order. The map's arrays are updated in place. ``test``: the
+    consistency test is on; ``pose_scale``: the config's ``relative_pose_scale``;
+    ``*_sorted``: each scale's sorted window, ``*_old``: the values leaving it (the oldest
+    keyframe's when it is full, else empty).
+
+    Returns (status, first bin, last bin, pose values, pose window, map values, map window,
+    edges xz, rise, first bin): status 0: no finite point (nothing changed); 1: the bins
+    [first, last] fall outside the arrays (nothing changed: grow them and call again); 2:
+    done. The values of a scale are empty when the keyframe gave it none (window unchanged).
+    """
+    none = np.zeros(0)
+    bins, tops = keyframe_tops(rel, cam_x, cam_z, bin_m, top_band)
+    B = n.shape[0]
+    if bins.shape[0] == 0:
+        return 0, 0, 0, none, pose_sorted, none, map_sorted, edge_xz, edge_rise, edge_first
+    b_lo, b_hi = bins[0], bins[bins.shape[0] - 1]
+    if B == 0 or b_lo < i0 or b_hi >= i0 + B:
+        return 1, b_lo, b_hi, none, pose_sorted, none, map_sorted, edge_xz, edge_rise, edge_first
+    pose_q, map_q = none, none
+    pose_new, map_new = pose_sorted, map_sorted
+    if test:  # the keyframe against the map's bins under it, before it joins
+        x_lo, x_hi = profile_x_range(rel, cam_x)
+        w_lo, _, w_z, w_sig, w_bins = _window_any(used, mid, se2, i0, bin_m, x_lo, x_hi, map_sigma)
+        if w_z.shape[0] > 0:
+            hit, offset, mad_sd, med_zz, m, sq = consistency_squares(
+                bins, tops, w_lo, w_z, w_sig, w_bins, cov, n, i0, bin_m,
+                P[0, 0], P[0, 1], P[1, 0], P[1, 1],
+            )  # fmt: skip
+            if hit:
+                v_offset = pose_scale * med_zz + (1.2533 * mad_sd) ** 2 / m
+                if math.isfinite(offset) and math.isfinite(v_offset) and v_offset > 0:
+                    pose_q = np.empty(1)
+                    pose_q[0] = offset * offset / v_offset
+                    pose_new = window_merge(pose_sorted, pose_old, pose_q)
+                if sq.shape[0] > 0:
+                    map_q = sq
+                    map_new = window_merge(map_sorted, map_old, sq)
+    add_tops(Z, Zs, n, used, mid, se2, cov, bins - i0, tops, min_keyframes, median, P)
+    e_xz, e_rise, e_first = rescan_edges(
+        used, mid, i0, bin_m, b_lo - i0, b_hi - i0, min_rise, max_gap, slope_step, max_bin,
+        edge_xz, edge_rise, edge_first,
+    )  # fmt: skip
+    return 2, b_lo, b_hi, pose_q, pose_new, map_q, map_new, e_xz, e_rise, e_first

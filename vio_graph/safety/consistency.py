@@ -203,7 +203,16 @@ class ChiSquareScale(_ScaleBase):
         and sorted: the window and :attr:`scale` updated (nothing for an empty ``q``)."""
         if self.window == 0 or q.size == 0:
             return
-        merged = self._merge(q)
+        self.accept_merged(q, self._merge(q))
+
+    def leaving(self) -> NDArray[np.float64]:
+        """The values the next keyframe takes out of the window: the oldest keyframe's when
+        the window is full, else none (for a caller merging with the compiled kernels)."""
+        return self._q[0] if len(self._q) == self._q.maxlen else _NONE
+
+    def accept_merged(self, q: NDArray[np.float64], merged: NDArray[np.float64]) -> None:
+        """:meth:`observe_sorted` with the merge done by the caller: ``merged`` is the
+        sorted window without :meth:`leaving` and with ``q`` (non-empty)."""
         self._sorted = merged
         self._q.append(q)
         if len(self._q) >= self.min_keyframes:
@@ -221,8 +230,7 @@ class ChiSquareScale(_ScaleBase):
         """The sorted window with the oldest keyframe's values out (when the window is full)
         and ``q``'s in."""
         if self._kernels is not None:
-            full = len(self._q) == self._q.maxlen
-            return self._kernels.window_merge(self._sorted, self._q[0] if full else _NONE, q)
+            return self._kernels.window_merge(self._sorted, self.leaving(), q)
         srt = self._sorted
         if len(self._q) == self._q.maxlen:  # the oldest keyframe leaves the window
             keep = np.ones(srt.size, bool)

@@ -352,6 +352,16 @@ class IncrementalHeightMap(OnlineHeightMap):
         self.version += 1
         return int(bins[0]), int(bins[-1])
 
+    def joined_compiled(
+        self, edge_xz_m: NDArray[np.float64], edge_rise_m: NDArray, edge_first: NDArray
+    ) -> None:
+        """After the compiled ``keyframe_step`` updated the bin arrays in place: the
+        re-scanned edges (xz (E, 2), rise (E,), first bin index (E,)) and the caches'
+        version."""
+        self._edge_xz, self._edge_rise, self._edge_first = edge_xz_m, edge_rise_m, edge_first
+        self._profile = None
+        self.version += 1
+
     def window(self, x_min_m: float, x_max_m: float, map_sigma_m: float) -> MapWindow:
         if not (math.isfinite(x_min_m) and math.isfinite(x_max_m)):
             return super().window(x_min_m, x_max_m, map_sigma_m)

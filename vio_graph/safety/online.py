@@ -47,7 +47,9 @@ from numpy.typing import ArrayLike, NDArray
 from vio_graph.growable import GrowableArray
 from vio_graph.safety import clearance
 from vio_graph.safety.clearance import (
+    MAX_TRANSITION_BIN_M,
     NO_CLEARANCE,
+    SLOPE_STEP_M,
     Edges,
     HeightProfile,
     clearance_sigma,
@@ -55,7 +57,7 @@ from vio_graph.safety.clearance import (
     placement_on_tread,
 )
 from vio_graph.safety.config import SafetyConfig
-from vio_graph.safety.consistency import MapConsistency
+from vio_graph.safety.consistency import ChiSquareScale, MapConsistency
 from vio_graph.safety.height_map import IncrementalHeightMap, MapWindow, OnlineHeightMap
 
 NAN = float("nan")
@@ -458,11 +460,36 @@ class SafetyMonitor:
     def _add_keyframe_compiled(
         self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike, P: NDArray[np.float64]
     ) -> None:
-        """:meth:`_add_keyframe` through the compiled kernels: the keyframe binned once for
-        the test and the map, the test in one call."""
+        """:meth:`_add_keyframe` through the compiled kernels: with a finite camera, one
+        call (``keyframe_step``: the keyframe binned, tested against the map and joining it,
+        the edges re-scanned); else the keyframe binned once for the test and the map."""
         cfg = self.config
         rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
         cx, cz = (float(v) for v in np.asarray(camera_xz_m, dtype=float))
+        m = self.map
+        assert isinstance(m, IncrementalHeightMap)
+        if math.isfinite(cx) and math.isfinite(cz):
+            pose, mp = self.consistency.pose, self.consistency.map
+            assert isinstance(pose, ChiSquareScale) and isinstance(mp, ChiSquareScale)
+            while True:
+                out = self.geometry.keyframe_step(
+                    rel, cx, cz, P, cfg.bin_m, m.top_band_m, cfg.map_sigma_m,
+                    m._z, m._zs, m._n, m._used, m._mid, m._se2, m._cov, m._i0,
+                    m.min_keyframes, m.statistic == "median", pose.window != 0,
+                    cfg.relative_pose_scale, pose._sorted, pose.leaving(), mp._sorted,
+                    mp.leaving(), m.edge_min_rise_m, m.edge_max_gap_m, SLOPE_STEP_M,
+                    MAX_TRANSITION_BIN_M, m._edge_xz, m._edge_rise, m._edge_first,
+                )  # fmt: skip
+                if out[0] != 1:
+                    break
+                m._grow(int(out[1]), int(out[2]))  # (rare: by a metre or more)
+            if out[0] == 2:
+                if out[3].size:
+                    pose.accept_merged(out[3], out[4])
+                if out[5].size:
+                    mp.accept_merged(out[5], out[6])
+                m.joined_compiled(out[7], out[8], out[9])
+            return
         tops = self.geometry.keyframe_tops(rel, cx, cz, cfg.bin_m, self.map.top_band_m)
         seen: MapWindow | None = None
         if math.isfinite(cx):
@@ -536,14 +563,7 @@ class SafetyMonitor:
         if not self._templates or not math.isfinite(tau):
             return None
         if self.geometry is not clearance:  # compiled
-            if self._templates_flat is None:
-                rows = np.cumsum([0] + [len(ph) for ph, _ in self._templates])
-                self._templates_flat = (
-                    np.concatenate([ph for ph, _ in self._templates]),
-                    np.concatenate([d for _, d in self._templates]),
-                    rows.astype(np.int64),
-                )
-            return self.geometry.template_motion(tau, h, *self._templates_flat)
+            return self.geometry.template_motion(tau, h, *self._flat_templates())
         out = []
         q = np.concatenate([[tau], tau + h])  # now, then the horizon's instants
         for ph, d in self._templates:
@@ -614,84 +634,82 @@ class SafetyMonitor:
         the frame is a keyframe (it joins the map before the frame's outputs are computed)."""
         cfg, g = self.config, self.geometry
         P = np.asarray(cov_position_m2, dtype=float)
-        Pl = P.tolist()
+        compiled = g is not clearance
         if keyframe_profile_xz_m is not None:
-            if self.geometry is clearance:
-                self._add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
-            else:
+            if compiled:
                 self._add_keyframe_compiled(camera_xz_m, keyframe_profile_xz_m, P)
+            else:
+                self._add_keyframe(camera_xz_m, keyframe_profile_xz_m, P)
         heel = np.asarray(heel_xz_m, dtype=float)
         toe = np.asarray(toe_xz_m, dtype=float)
-        hx, tx = float(heel[0]), float(toe[0])
+        hx, hz = heel.tolist()
+        tx, tz = toe.tolist()
         edges = self.map.edges()
-        x0, x1 = min(hx, tx) - cfg.window_m, max(hx, tx) + cfg.window_m
-        near = self.map.window(x0, x1, cfg.map_sigma_m)
-        win = near.profile
-        # clearance to the terrain and its sigma
-        c = NO_CLEARANCE  # unless the terrain under the foot has been seen
-        if not g.coverage(heel, toe, win) < cfg.min_coverage:
-            c = g.foot_clearance(heel, toe, win, cfg.sole_thickness_m)
-        sig = NAN
         sp, sm = self.consistency.pose_scale, self.consistency.map_scale
         pose_w = cfg.relative_pose_scale * sp * sp
-        if c.bin >= 0:
-            k = int(near.bins[c.bin])
-            rel = self._relative_cov(Pl, k, pose_w)
-            sig = clearance_sigma(
-                c.normal_xz, rel, sm * self.map.bin_sigma(k, cfg.map_sigma_m), cfg.foot_sigma_m
+        # clearance to the terrain and its sigma; the next edge ahead, the clearance to it
+        if compiled and math.isfinite(hx + hz + tx + tz):  # (one kernel call)
+            m = self.map
+            c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = g.frame_terrain(
+                m._used, m._mid, m._se2, m._cov, m._n, m._i0, cfg.bin_m, edges.xz_m,
+                hx, hz, tx, tz, *P.ravel().tolist(), cfg.window_m, cfg.min_coverage,
+                cfg.sole_thickness_m, cfg.map_sigma_m, cfg.foot_sigma_m, cfg.toe_pass_m,
+                pose_w, sm, 0.5,
+            )  # fmt: skip
+        else:
+            c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = self._terrain_now(
+                heel, toe, P.tolist(), edges, pose_w, sm
             )
-        # the next edge ahead
-        nc = nsig = ed = edsig = NAN
-        e = next_edge_index(edges, tx - cfg.toe_pass_m)
-        if e >= 0:
-            ec = g.edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
-            kb = self.map.bin_below(float(edges.xz_m[e, 0]))  # the bin at the edge
-            rel = self._relative_cov(Pl, kb, pose_w)
-            nc = ec.distance_m
-            nsig = clearance_sigma(
-                ec.normal_xz, rel, sm * self.map.bin_sigma(kb, cfg.map_sigma_m), cfg.foot_sigma_m
-            )
-            ed = float(edges.xz_m[e, 0] - toe[0])
-            edsig = (rel[0][0] + cfg.foot_sigma_m**2 + (cfg.bin_m / 2) ** 2) ** 0.5
         # prediction over the horizon and the near-trip warning
         v = (NAN, NAN)  # the toe's velocity (x, z), m/s
         if self._prev is not None and t_s > self._prev[0]:
-            dt, prev = t_s - self._prev[0], self._prev[1]
-            v = ((tx - float(prev[0])) / dt, (float(toe[1]) - float(prev[1])) / dt)
-        self._prev = (t_s, toe)
+            dt, (px, pz) = t_s - self._prev[0], self._prev[1]
+            v = ((tx - px) / dt, (tz - pz) / dt)
+        self._prev = (t_s, (tx, tz))
         speed = float(np.hypot(v[0], v[1]))  # m/s, NaN without a previous frame
         v_known = math.isfinite(v[0]) and math.isfinite(v[1])
         tau = self._track_swing(t_s, heel, toe, bool(in_stance), speed)
-        motion = None
-        if cfg.motion_model == "swing_template" and math.isfinite(tau):
-            motion = self._template_motion(tau, self._h)
+        use_template = (
+            cfg.motion_model == "swing_template" and bool(self._templates) and math.isfinite(tau)
+        )
         if in_stance:
             self._cleared = []
         pred = pred_edge = risk = NAN  # risk: the minimum over near-trip candidates
-        if motion is not None:
+        if use_template and compiled:
+            pred, pred_edge, risk, new = g.swing_prediction(
+                tau, self._h, *self._flat_templates(), hx, hz, tx, tz, c_d, cfg.window_m,
+                cfg.sole_thickness_m, self.map._used, self.map._mid, self.map._se2,
+                self.map._i0, cfg.bin_m, cfg.map_sigma_m, edges.xz_m, e, cfg.toe_pass_m,
+                cfg.horizon_s / cfg.horizon_steps, cfg.warning_min_forward_speed_mps,
+                cfg.near_trip_m, 2 * cfg.bin_m, np.array(self._cleared, dtype=float),
+            )  # fmt: skip
+            if new.size:
+                self._cleared.extend(new.tolist())  # as _approach remembers them
+        elif use_template:
+            motion = self._template_motion(tau, self._h)
+            assert motion is not None
             hp = heel[None] + motion[:, :2]
             tp = toe[None] + motion[:, 2:]
             # x extent of the poses (rounding is monotonic: the extreme displacement gives
             # the extreme position)
             m_lo, m_hi = motion.min(axis=0), motion.max(axis=0)
             toe_x_max = float(toe[0] + m_hi[2])
-            if math.isfinite(c.distance_m):
+            if math.isfinite(c_d):
                 lo_x = float(min(heel[0] + m_lo[0], toe[0] + m_lo[2]))
                 hi_x = float(max(heel[0] + m_hi[0], toe_x_max))
                 w = cfg.window_m
-                swept = self._window(self._swept(lo_x, hi_x, lo_x - w, hi_x + w, c.distance_m))
+                swept = self._window(self._swept(lo_x, hi_x, lo_x - w, hi_x + w, c_d))
                 pred = float(np.min(g.clearance_many(hp, tp, swept, cfg.sole_thickness_m)))
             pred_edge, risk = self._swing_edges(hp, tp, edges, e, toe_x_max)
         else:
-            if v_known and math.isfinite(c.distance_m) and speed * cfg.horizon_s < 1e-3:
-                pred = c.distance_m  # the foot moves < 1 mm over the horizon: within 1 mm of now
-            elif v_known and math.isfinite(c.distance_m):
+            x0, x1 = min(hx, tx) - cfg.window_m, max(hx, tx) + cfg.window_m
+            if v_known and math.isfinite(c_d) and speed * cfg.horizon_s < 1e-3:
+                pred = c_d  # the foot moves < 1 mm over the horizon: within 1 mm of now
+            elif v_known and math.isfinite(c_d):
                 dx = float(v[0]) * cfg.horizon_s  # the foot's x span over the horizon
                 lo_x = float(min(heel[0], toe[0])) + min(dx, 0.0)
                 hi_x = float(max(heel[0], toe[0])) + max(dx, 0.0)
-                swept = self._window(
-                    self._swept(lo_x, hi_x, x0 - abs(dx), x1 + abs(dx), c.distance_m)
-                )
+                swept = self._window(self._swept(lo_x, hi_x, x0 - abs(dx), x1 + abs(dx), c_d))
                 pred = g.predicted_min_clearance(
                     heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
                 )
@@ -715,14 +733,20 @@ class SafetyMonitor:
         self._in_stance = bool(in_stance)
         placement = _NAN4.copy()
         if landing:
+            x0, x1 = min(hx, tx) - cfg.window_m, max(hx, tx) + cfg.window_m
             placement = placement_on_tread(
-                heel, toe, win, cfg.tread_tolerance_m, cfg.edge_max_gap_m, cfg.edge_min_rise_m
+                heel,
+                toe,
+                self._window((x0, x1)),
+                cfg.tread_tolerance_m,
+                cfg.edge_max_gap_m,
+                cfg.edge_min_rise_m,
             ).as_array()
         n_steps, rise, tread = self.map.edge_summary()
         return SafetyEstimate(
-            clearance_m=c.distance_m,
+            clearance_m=c_d,
             clearance_sigma_m=sig,
-            toe_line_xz_m=np.array([c.foot_xz_m, c.terrain_xz_m]),
+            toe_line_xz_m=np.array([[fx, fz], [qx, qz]]),
             nosing_clearance_m=nc,
             nosing_sigma_m=nsig,
             predicted_min_clearance_m=pred,
@@ -740,3 +764,59 @@ class SafetyMonitor:
             pose_consistency_scale=sp,
             map_consistency_scale=sm,
         )
+
+    def _terrain_now(
+        self,
+        heel: NDArray[np.float64],
+        toe: NDArray[np.float64],
+        Pl: list[list[float]],
+        edges: Edges,
+        pose_w: float,
+        map_w: float,
+    ) -> tuple[float, float, float, float, float, float, int, float, float, float, float]:
+        """The clearance to the map's bins near the foot and its sigma, and the next edge
+        ahead with the clearance to it, its sigma, the x distance to it and that sigma
+        (``pose_w``, ``map_w``: the sigmas' pose and map weights). Returns (clearance, foot
+        x, z, terrain x, z, sigma, edge index or -1, edge clearance, sigma, x distance,
+        sigma); NaN where unknown. Compiled: ``frame_terrain``, one call."""
+        cfg, g = self.config, self.geometry
+        hx, tx = float(heel[0]), float(toe[0])
+        x0, x1 = min(hx, tx) - cfg.window_m, max(hx, tx) + cfg.window_m
+        near = self.map.window(x0, x1, cfg.map_sigma_m)
+        win = near.profile
+        c = NO_CLEARANCE  # unless the terrain under the foot has been seen
+        if not g.coverage(heel, toe, win) < cfg.min_coverage:
+            c = g.foot_clearance(heel, toe, win, cfg.sole_thickness_m)
+        sig = NAN
+        if c.bin >= 0:
+            k = int(near.bins[c.bin])
+            rel = self._relative_cov(Pl, k, pose_w)
+            sig = clearance_sigma(
+                c.normal_xz, rel, map_w * self.map.bin_sigma(k, cfg.map_sigma_m), cfg.foot_sigma_m
+            )
+        nc = nsig = ed = edsig = NAN
+        e = next_edge_index(edges, tx - cfg.toe_pass_m)
+        if e >= 0:
+            ec = g.edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
+            kb = self.map.bin_below(float(edges.xz_m[e, 0]))  # the bin at the edge
+            rel = self._relative_cov(Pl, kb, pose_w)
+            nc = ec.distance_m
+            nsig = clearance_sigma(
+                ec.normal_xz, rel, map_w * self.map.bin_sigma(kb, cfg.map_sigma_m), cfg.foot_sigma_m
+            )
+            ed = float(edges.xz_m[e, 0] - toe[0])
+            edsig = (rel[0][0] + cfg.foot_sigma_m**2 + (cfg.bin_m / 2) ** 2) ** 0.5
+        (fx, fz), (qx, qz) = c.foot_xz_m.tolist(), c.terrain_xz_m.tolist()
+        return c.distance_m, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig
+
+    def _flat_templates(self) -> tuple[NDArray, NDArray, NDArray]:
+        """The templates end to end (compiled path): phases (S,), displacements (S, 4) and
+        each template's first row (T + 1,)."""
+        if self._templates_flat is None:
+            rows = np.cumsum([0] + [len(ph) for ph, _ in self._templates])
+            self._templates_flat = (
+                np.concatenate([ph for ph, _ in self._templates]),
+                np.concatenate([d for _, d in self._templates]),
+                rows.astype(np.int64),
+            )
+        return self._templates_flat

@@ -318,8 +318,9 @@ def test_compiled_keyframe_test_equals_the_numpy_test_on_random_stairs() -> None
 
 
 def test_compiled_consistency_equals_the_reference_over_a_replay(sample_frames) -> None:
-    """data/sample through the compiled monitor: at every keyframe its consistency test
-    gives the pose and map scales of the reference test run beside it, bit for bit."""
+    """data/sample through the compiled monitor (keyframe step fused in one kernel,
+    ``keyframe_step``): at every keyframe its consistency test gives the pose and map scales
+    of the reference test run beside it on the same map, bit for bit."""
     K = _kernels()
     cfg = SafetyConfig()
     mon = SafetyMonitor(cfg, compiled=True)
@@ -330,19 +331,22 @@ def test_compiled_consistency_equals_the_reference_over_a_replay(sample_frames) 
         cfg.consistency_scale_range,
         reference=True,
     )
-    observe = mon.consistency.observe_bin_tops
     seen: list[tuple[float, float, float, float]] = []
-
-    def both(tops, prof, bins, cov, n, i0, P, bin_m, pose_scale) -> None:
-        rows = cov[bins - i0] / n[bins - i0][:, None]
-        ref.observe_keyframe(None, None, P, prof, lambda k: rows[k], bin_m, 0.0, pose_scale, tops)
-        observe(tops, prof, bins, cov, n, i0, P, bin_m, pose_scale)
-        c = mon.consistency
-        seen.append((ref.pose_scale, c.pose_scale, ref.map_scale, c.map_scale))
-
-    mon.consistency.observe_bin_tops = both  # type: ignore[method-assign]
     for f in sample_frames:
-        mon.update(*f)
+        _, cam, P, _, _, _, prof = f
+        w = None if prof is None else mon._keyframe_window(cam, prof)
+        if w is not None:  # the reference test on the map before the keyframe joins it
+            rows = mon.map.bin_cov_rows_at(w.bins)
+            rel = np.asarray(prof, dtype=float).reshape(-1, 2)
+            tops = K.keyframe_tops(rel, *map(float, cam), cfg.bin_m, mon.map.top_band_m)
+            ref.observe_keyframe(
+                None, None, P, w.profile, lambda k, rows=rows: rows[k], cfg.bin_m, 0.0,
+                cfg.relative_pose_scale, tops,
+            )  # fmt: skip
+        mon.update(*f)  # (the compiled keyframe step: test, merges and map in one call)
+        if w is not None:
+            c = mon.consistency
+            seen.append((ref.pose_scale, c.pose_scale, ref.map_scale, c.map_scale))
     assert len(seen) > 20
     assert any(p != 1.0 for p, *_ in seen)
     for k, (p_ref, p, m_ref, m) in enumerate(seen):

@@ -197,7 +197,7 @@ def clearance_many(
 
 
 @numba.njit(cache=True)
-def _edge_clearance_many(a, b, ex, ez, sole):  # pragma: no cover - compiled
+def _edge_clearance_many(a, b, ex, ez, sole, half):  # pragma: no cover - compiled
     out = np.empty(a.shape[0])
     for t in range(a.shape[0]):
         ax, az, bx, bz = a[t, 0], a[t, 1], b[t, 0], b[t, 1]
@@ -205,7 +205,7 @@ def _edge_clearance_many(a, b, ex, ez, sole):  # pragma: no cover - compiled
         L2 = dx * dx + dz * dz
         s = 0.0 if L2 == 0 else min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
         qx, qz = ax + s * dx, az + s * dz
-        d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** 0.5
+        d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** half
         if abs(dx) > 1e-12 and min(ax, bx) < ex and ex < max(ax, bx):
             z_line = az + (ex - ax) * dz / dx
             if ez > z_line:
@@ -221,7 +221,7 @@ def edge_clearance_many(
     a = np.ascontiguousarray(heel_xz_m, dtype=float).reshape(-1, 2)
     b = np.ascontiguousarray(toe_xz_m, dtype=float).reshape(-1, 2)
     e = np.asarray(edge_xz_m, dtype=float)
-    return _edge_clearance_many(a, b, float(e[0]), float(e[1]), float(sole_thickness_m))
+    return _edge_clearance_many(a, b, float(e[0]), float(e[1]), float(sole_thickness_m), 0.5)
 
 
 @numba.njit(cache=True)
@@ -832,13 +832,13 @@ def predicted_min_clearance(
 
 
 @numba.njit(cache=True)
-def _edge_distance(ax, az, bx, bz, ex, ez):  # pragma: no cover - compiled
+def _edge_distance(ax, az, bx, bz, ex, ez, half):  # pragma: no cover - compiled
     """clearance._edge_distance: (signed distance, closest x, z)."""
     dx, dz = bx - ax, bz - az
     L2 = dx * dx + dz * dz
     s = 0.0 if L2 == 0 else min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
     qx, qz = ax + s * dx, az + s * dz
-    d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** 0.5
+    d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** half
     if abs(dx) > 1e-12 and min(ax, bx) < ex and ex < max(ax, bx):
         z_line = az + (ex - ax) * dz / dx
         if ez > z_line:
@@ -856,6 +856,7 @@ def edge_clearance(
         *_xz(toe_xz_m),
         ex,
         ez,
+        0.5,
     )
     n = ((qx - ex) ** 2 + (qz - ez) ** 2) ** 0.5
     nx, nz = ((qx - ex) / n, (qz - ez) / n) if n > 1e-9 else (0.0, 1.0)
@@ -867,11 +868,11 @@ def edge_clearance(
 
 
 @numba.njit(cache=True)
-def _point_segment(px, pz, ax, az, bx, bz):  # pragma: no cover - compiled
+def _point_segment(px, pz, ax, az, bx, bz, half):  # pragma: no cover - compiled
     dx, dz = bx - ax, bz - az
     L2 = dx * dx + dz * dz
     s = 0.0 if L2 == 0 else min(max(((px - ax) * dx + (pz - az) * dz) / L2, 0.0), 1.0)
-    return ((px - ax - s * dx) ** 2 + (pz - az - s * dz) ** 2) ** 0.5
+    return ((px - ax - s * dx) ** 2 + (pz - az - s * dz) ** 2) ** half
 
 
 @numba.njit(cache=True)
@@ -880,12 +881,15 @@ def _orient(px, pz, qx, qz, rx, rz):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _predicted_min_edge(ax, az, bx, bz, vx, vz, horizon, ex, ez):  # pragma: no cover
+def _predicted_min_edge(ax, az, bx, bz, vx, vz, horizon, ex, ez, half):  # pragma: no cover
     fx, fz = ex - vx * horizon, ez - vz * horizon
-    d0 = _edge_distance(ax, az, bx, bz, ex, ez)[0]
-    d1 = _edge_distance(ax, az, bx, bz, fx, fz)[0]
+    d0 = _edge_distance(ax, az, bx, bz, ex, ez, half)[0]
+    d1 = _edge_distance(ax, az, bx, bz, fx, fz, half)[0]
     best = min(
-        d0, d1, _point_segment(ax, az, ex, ez, fx, fz), _point_segment(bx, bz, ex, ez, fx, fz)
+        d0,
+        d1,
+        _point_segment(ax, az, ex, ez, fx, fz, half),
+        _point_segment(bx, bz, ex, ez, fx, fz, half),
     )
     o1, o2 = _orient(ax, az, bx, bz, ex, ez), _orient(ax, az, bx, bz, fx, fz)
     o3, o4 = _orient(ex, ez, fx, fz, ax, az), _orient(ex, ez, fx, fz, bx, bz)
@@ -914,13 +918,14 @@ def predicted_min_edge_clearance(
         vz,
         float(horizon_s),
         *_xz(edge_xz_m),
+        0.5,
     )
     return float(best) - sole_thickness_m
 
 
 @numba.njit(cache=True)
 def swing_edge_risk(
-    hp, tp, edges_xz, e, toe_x_max, toe_pass, sole, dt, min_fwd, near_trip, tol, cleared
+    hp, tp, edges_xz, e, toe_x_max, toe_pass, sole, dt, min_fwd, near_trip, tol, cleared, half
 ):  # pragma: no cover - compiled
     """The swing-template branch's edge loop of ``online.SafetyMonitor.update`` in one call:
     over the predicted heel / toe poses ``hp``, ``tp`` (H, 2), the minimum clearance to the
@@ -979,7 +984,7 @@ def swing_edge_risk(
     n = max(1, n)
     for i in range(n):
         ex, ez = edges_xz[e + i, 0], edges_xz[e + i, 1]
-        dd = _edge_clearance_many(hp, tp, ex, ez, sole)
+        dd = _edge_clearance_many(hp, tp, ex, ez, sole, half)
         d = np.inf
         for t in range(H):
             if dd[t] != dd[t]:
@@ -1080,7 +1085,7 @@ def warm_up() -> None:
     swing_prediction(
         0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]),
         -0.2, 0.05, 0.0, 0.05, 0.01, 0.3, 0.0, used, mid, se2, 0, 0.005, 0.003,
-        np.array([[0.01, 0.0]]), 0, 0.05, 0.03, 0.1, 0.02, 0.01, np.zeros(0),
+        np.array([[0.01, 0.0]]), 0, 0.05, 0.03, 0.1, 0.02, 0.01, np.zeros(0), 0.5,
     )  # fmt: skip
     swing_edge_risk(
         heel[None] + np.zeros((3, 1)),
@@ -1095,6 +1100,7 @@ def warm_up() -> None:
         0.02,
         0.01,
         np.zeros(0),
+        0.5,
     )
 
 
@@ -1249,7 +1255,7 @@ def frame_terrain(
         e = a if a < E else -1
     if e >= 0:
         ex, ez = edges_xz[e, 0], edges_xz[e, 1]
-        d, qx2, qz2 = _edge_distance(hx, hz, tx, tz, ex, ez)
+        d, qx2, qz2 = _edge_distance(hx, hz, tx, tz, ex, ez, half)
         nrm = ((qx2 - ex) ** 2 + (qz2 - ez) ** 2) ** half
         if nrm > 1e-9:
             nx, nz = (qx2 - ex) / nrm, (qz2 - ez) / nrm
@@ -1297,6 +1303,7 @@ def swing_prediction(
     near_trip,
     tol,
     cleared,
+    half,
 ):  # pragma: no cover - compiled
     """The swing-template branch of online.SafetyMonitor.update in one call: the template
     motion from phase ``tau`` over the horizon instants ``h`` (:func:`template_motion`),
@@ -1346,7 +1353,7 @@ def swing_prediction(
                     break
                 pred = min(pred, dd[i])
     pred_edge, risk, new = swing_edge_risk(
-        hp, tp, edges_xz, e, toe_x_max, toe_pass, sole, dt, min_fwd, near_trip, tol, cleared
+        hp, tp, edges_xz, e, toe_x_max, toe_pass, sole, dt, min_fwd, near_trip, tol, cleared, half
     )
     return pred, pred_edge, risk, new
 

@@ -601,6 +601,7 @@ class SafetyMonitor:
                 cfg.near_trip_m,
                 2 * cfg.bin_m,
                 np.asarray(self._cleared, dtype=float),
+                0.5,  # (the square roots as the C library's pow, as numpy's here)
             )
             self._cleared.extend(new.tolist())  # as _approach remembers them
             return float(pred_edge), float(risk)
@@ -681,7 +682,7 @@ class SafetyMonitor:
                 cfg.sole_thickness_m, self.map._used, self.map._mid, self.map._se2,
                 self.map._i0, cfg.bin_m, cfg.map_sigma_m, edges.xz_m, e, cfg.toe_pass_m,
                 cfg.horizon_s / cfg.horizon_steps, cfg.warning_min_forward_speed_mps,
-                cfg.near_trip_m, 2 * cfg.bin_m, np.array(self._cleared, dtype=float),
+                cfg.near_trip_m, 2 * cfg.bin_m, np.array(self._cleared, dtype=float), 0.5,
             )  # fmt: skip
             if new.size:
                 self._cleared.extend(new.tolist())  # as _approach remembers them

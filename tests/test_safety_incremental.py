@@ -227,3 +227,23 @@ def test_compiled_swing_edge_loop_equals_the_numpy_loop() -> None:
         found["risk"] += bool(np.isfinite(ra))
         found["cleared"] += len(ca) > len(cleared)
     assert found["risk"] > 30 and found["cleared"] > 30 and found["nan"] > 20
+
+
+def test_compiled_clearance_near_the_foot_equals_every_column() -> None:
+    """The compiled clearance of many poses searching only the columns near each pose
+    (``_clearance_many_near``, the predictions' kernel) gives the plain loop over every
+    column, bit for bit: random stairs and swept feet, some poses far off or NaN."""
+    K = _compiled()
+    rng = np.random.default_rng(5)
+    for n in range(3000):
+        prof, heel, toe, v, _ = _random_case(rng)
+        tau = np.linspace(0.0, 0.3, 11)[:, None]
+        a, b = heel[None] + v[None] * tau, toe[None] + v[None] * tau
+        if n % 7 == 0:
+            a = a + rng.normal(0.0, 0.3, a.shape)
+        if n % 101 == 0:
+            b[int(rng.integers(11)), 1] = np.nan
+        args = (a, b, prof.x_lo_m, prof.x_hi_m, prof.z_m, 0.01)
+        np.testing.assert_array_equal(
+            K._clearance_many_near(*args), K._clearance_many(*args), err_msg=f"case {n}"
+        )

@@ -185,6 +185,79 @@ def _clearance_many(a, b, lo, hi, z, sole):  # pragma: no cover - compiled
     return out
 
 
+#: :func:`_pose_clearance`: margin on the x gap that ends its search, m (rounding is ~1e-16)
+NEAR_MARGIN_M = 1e-9
+
+
+@numba.njit(cache=True)
+def _pose_clearance(ax, az, bx, bz, lo, hi, z, k0, best):  # pragma: no cover - compiled
+    """The minimum of :func:`_clearance_many`'s candidates for one pose over the columns from
+    ``k0`` up and below it down (``best``: the minimum so far), each side stopped at the
+    first column apart from the foot's x span by a gap above the minimum (and above 0):
+    every candidate of such a column is at least that gap (heel, toe and the segment's
+    closest points lie in the span; the inside and above cases need an overlap), and the
+    gaps only grow outwards, so the columns left out cannot lower it. ``NEAR_MARGIN_M``
+    covers the rounding of the gap and of the closest points. The same minimum as visiting
+    every column (a minimum does not depend on the order; no candidate is -0.0)."""
+    B = z.shape[0]
+    abx, abz = bx - ax, bz - az
+    L2 = max(abx * abx + abz * abz, 1e-18)
+    x0, x1 = min(ax, bx), max(ax, bx)
+    slope = abz / abx if abs(abx) > 1e-12 else 0.0
+    for side in range(2):
+        i = k0 if side == 0 else k0 - 1
+        while 0 <= i < B:
+            gap = lo[i] - x1 if side == 0 else x0 - hi[i]
+            if gap > NEAR_MARGIN_M and gap - NEAR_MARGIN_M > best:
+                break
+            for px, pz in ((ax, az), (bx, bz)):  # heel and toe against the column
+                if px >= lo[i] and px <= hi[i] and pz < z[i]:
+                    v = pz - z[i]
+                else:
+                    v = math.hypot(px - min(max(px, lo[i]), hi[i]), pz - min(pz, z[i]))
+                if v < best or v != v:
+                    best = v
+            for cx in (lo[i], hi[i]):  # the column top's corners against the segment
+                cz = z[i]
+                s = min(max(((cx - ax) * abx + (cz - az) * abz) / L2, 0.0), 1.0)
+                v = math.hypot(cx - (ax + s * abx), cz - (az + s * abz))
+                z_line = az + (cx - ax) * slope
+                if cx > x0 and cx < x1 and cz > z_line and x1 - x0 > 1e-12:
+                    v = z_line - cz
+                if v < best or v != v:
+                    best = v
+            i += 1 if side == 0 else -1
+    return best
+
+
+@numba.njit(cache=True)
+def _clearance_many_near(a, b, lo, hi, z, sole):  # pragma: no cover - compiled
+    """:func:`_clearance_many` visiting per pose only the columns near the foot (from the
+    one under it outwards, :func:`_pose_clearance`): the same values when every input is
+    finite (else the plain loop, which propagates NaN as numpy does)."""
+    T, B = a.shape[0], z.shape[0]
+    finite = True
+    for t in range(T):
+        finite = finite and math.isfinite(a[t, 0] + a[t, 1] + b[t, 0] + b[t, 1])
+    for i in range(B):
+        finite = finite and math.isfinite(lo[i] + hi[i] + z[i])
+    if not finite:
+        return _clearance_many(a, b, lo, hi, z, sole)
+    out = np.empty(T)
+    for t in range(T):
+        ax, az, bx, bz = a[t, 0], a[t, 1], b[t, 0], b[t, 1]
+        x0 = min(ax, bx)
+        k0, k1 = 0, B  # the first column whose right end reaches the foot's span
+        while k0 < k1:
+            m = (k0 + k1) // 2
+            if hi[m] < x0:
+                k0 = m + 1
+            else:
+                k1 = m
+        out[t] = _pose_clearance(ax, az, bx, bz, lo, hi, z, k0, np.inf) - sole
+    return out
+
+
 def clearance_many(
     heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile, sole_thickness_m: float = 0.0
 ) -> NDArray[np.float64]:
@@ -193,7 +266,7 @@ def clearance_many(
     b = np.ascontiguousarray(toe_xz_m, dtype=float).reshape(-1, 2)
     if len(prof) == 0:
         return np.full(a.shape[0], np.nan)
-    return _clearance_many(a, b, prof.x_lo_m, prof.x_hi_m, prof.z_m, float(sole_thickness_m))
+    return _clearance_many_near(a, b, prof.x_lo_m, prof.x_hi_m, prof.z_m, float(sole_thickness_m))
 
 
 @numba.njit(cache=True)
@@ -792,7 +865,7 @@ def _predicted_min(hx, hz, tx, tz, vx, vz, horizon, steps, lo, hi, z, sole):  # 
         tau = i * step + 0.0 if i < steps else horizon  # np.linspace(0, horizon, steps + 1)
         a[i, 0], a[i, 1] = hx + vx * tau, hz + vz * tau
         b[i, 0], b[i, 1] = tx + vx * tau, tz + vz * tau
-    d = _clearance_many(a, b, lo, hi, z, sole)
+    d = _clearance_many_near(a, b, lo, hi, z, sole)
     best = d[0]
     for i in range(1, T):
         if d[i] < best or d[i] != d[i]:
@@ -1345,7 +1418,7 @@ def swing_prediction(
         x_max = b if b < s_hi else s_hi
         lo, hi, z, _, _ = _window_any(used, mid, se2, i0, bin_m, x_min, x_max, map_sigma)
         if z.shape[0] > 0:
-            dd = _clearance_many(hp, tp, lo, hi, z, sole)
+            dd = _clearance_many_near(hp, tp, lo, hi, z, sole)
             pred = dd[0]
             for i in range(1, H):  # np.min: NaN propagates
                 if dd[i] != dd[i] or pred != pred:

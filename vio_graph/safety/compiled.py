@@ -1160,6 +1160,10 @@ def warm_up() -> None:
         -0.2, 0.05, 0.0, 0.05, 0.01, 0.3, 0.0, used, mid, se2, 0, 0.005, 0.003,
         np.array([[0.01, 0.0]]), 0, 0.05, 0.03, 0.1, 0.02, 0.01, np.zeros(0), 0.5,
     )  # fmt: skip
+    cv_prediction(
+        True, -0.3, 0.3, -0.2, 0.05, 0.0, 0.05, 0.5, 0.0, 0.3, 10, used, mid, se2, 0, 0.005,
+        0.003, 0.0, np.array([[0.01, 0.0]]), 0, 0.2, 0.05, 0.02, 0.01, 0.1, np.zeros(0), 0.5,
+    )  # fmt: skip
     swing_edge_risk(
         heel[None] + np.zeros((3, 1)),
         toe[None] + np.zeros((3, 1)),
@@ -1512,3 +1516,93 @@ def keyframe_step(
         edge_xz, edge_rise, edge_first,
     )  # fmt: skip
     return 2, b_lo, b_hi, pose_q, pose_new, map_q, map_new, e_xz, e_rise, e_first
+
+
+@numba.njit(cache=True)
+def cv_prediction(
+    swept,
+    x_min,
+    x_max,
+    hx,
+    hz,
+    tx,
+    tz,
+    vx,
+    vz,
+    horizon,
+    steps,
+    used,
+    mid,
+    se2,
+    i0,
+    bin_m,
+    map_sigma,
+    sole,
+    edges_xz,
+    e,
+    reach_x,
+    toe_pass,
+    near_trip,
+    tol,
+    min_fwd,
+    cleared,
+    half,
+):  # pragma: no cover - compiled
+    """The constant-velocity branch of online.SafetyMonitor.update in one call: with
+    ``swept``, the minimum clearance over the horizon (:func:`predicted_min_clearance`) to
+    the bins over [x_min, x_max] (else NaN); then, over the edges from the next one (index
+    ``e``) to the last the toe reaches (x up to ``reach_x`` plus ``toe_pass``; at least
+    one), the minimum of :func:`predicted_min_edge_clearance` and the near-trip candidates'
+    minimum: the edges the foot is clear of now (``_approach_now`` against ``cleared``,
+    within ``tol``) while the toe moves forward (``forward_motion``). Returns (predicted
+    clearance, predicted edge clearance, near-trip clearance, the x of the edges newly
+    cleared)."""
+    pred = np.nan
+    v_ok = math.isfinite(vx) and math.isfinite(vz)
+    if swept:
+        lo, hi, z, _, _ = _window_any(used, mid, se2, i0, bin_m, x_min, x_max, map_sigma)
+        if z.shape[0] > 0 and v_ok:
+            pred = _predicted_min(hx, hz, tx, tz, vx, vz, horizon, steps, lo, hi, z, sole)
+    E = edges_xz.shape[0]
+    pred_edge = np.nan
+    risk = np.nan
+    new = np.empty(max(E - max(e, 0), 0))
+    n_new = 0
+    if e < 0:
+        return pred, pred_edge, risk, new[:0]
+    lim = reach_x + toe_pass  # online.SafetyMonitor._edges_reached
+    n = 0
+    for j in range(e, E):
+        if edges_xz[j, 0] <= lim:
+            n = j - e + 1
+        else:
+            break
+    if lim != lim:
+        n = E - e
+    n = max(1, n)
+    fwd = v_ok and vx > min_fwd and vz > -vx
+    for i in range(n):
+        ex, ez = edges_xz[e + i, 0], edges_xz[e + i, 1]
+        d = np.nan
+        if v_ok:
+            d = _predicted_min_edge(hx, hz, tx, tz, vx, vz, horizon, ex, ez, half) - sole
+        if math.isfinite(d) and not d >= pred_edge:
+            pred_edge = d
+        # the clearance to the edge now (edge_clearance_many of the current pose)
+        now = _edge_distance(hx, hz, tx, tz, ex, ez, half)[0] - sole
+        known = False
+        for c in cleared:
+            if abs(c - ex) <= tol:
+                known = True
+                break
+        for k in range(n_new):
+            if abs(new[k] - ex) <= tol:
+                known = True
+                break
+        if not known and now >= near_trip:
+            new[n_new] = ex
+            n_new += 1
+            known = True
+        if known and fwd and math.isfinite(d) and not d >= risk:
+            risk = d
+    return pred, pred_edge, risk, new[:n_new].copy()

@@ -62,6 +62,7 @@ from vio_graph.safety.height_map import IncrementalHeightMap, MapWindow, OnlineH
 
 NAN = float("nan")
 _NAN2, _NAN4 = np.full(2, NAN), np.full(4, NAN)
+_NO_EDGES = np.zeros((0, 2))
 
 
 @dataclass(frozen=True)
@@ -704,18 +705,43 @@ class SafetyMonitor:
             pred_edge, risk = self._swing_edges(hp, tp, edges, e, toe_x_max)
         else:
             x0, x1 = min(hx, tx) - cfg.window_m, max(hx, tx) + cfg.window_m
+            sweep = None  # the x range of the bins the prediction searches
             if v_known and math.isfinite(c_d) and speed * cfg.horizon_s < 1e-3:
                 pred = c_d  # the foot moves < 1 mm over the horizon: within 1 mm of now
             elif v_known and math.isfinite(c_d):
                 dx = float(v[0]) * cfg.horizon_s  # the foot's x span over the horizon
                 lo_x = float(min(heel[0], toe[0])) + min(dx, 0.0)
                 hi_x = float(max(heel[0], toe[0])) + max(dx, 0.0)
-                swept = self._window(self._swept(lo_x, hi_x, x0 - abs(dx), x1 + abs(dx), c_d))
-                pred = g.predicted_min_clearance(
-                    heel, toe, v, cfg.horizon_s, cfg.horizon_steps, swept, cfg.sole_thickness_m
-                )
+                sweep = self._swept(lo_x, hi_x, x0 - abs(dx), x1 + abs(dx), c_d)
             reach_x = float(toe[0] + max(float(v[0]), 0.0) * cfg.horizon_s) if v_known else tx
-            for ee in self._edges_reached(edges, e, reach_x):
+            if compiled and math.isfinite(hx + hz + tx + tz):  # (one kernel call)
+                m = self.map
+                p, pred_edge, risk, new = g.cv_prediction(
+                    sweep is not None, *(sweep or (NAN, NAN)), hx, hz, tx, tz, *v,
+                    cfg.horizon_s, cfg.horizon_steps, m._used, m._mid, m._se2, m._i0,
+                    cfg.bin_m, cfg.map_sigma_m, cfg.sole_thickness_m, edges.xz_m, e, reach_x,
+                    cfg.toe_pass_m, cfg.near_trip_m, 2 * cfg.bin_m,
+                    cfg.warning_min_forward_speed_mps, np.array(self._cleared, dtype=float),
+                    0.5,
+                )  # fmt: skip
+                if sweep is not None:
+                    pred = p
+                if new.size:
+                    self._cleared.extend(new.tolist())  # as _approach_now remembers them
+                e_reached: NDArray[np.float64] = _NO_EDGES
+            else:
+                if sweep is not None:
+                    pred = g.predicted_min_clearance(
+                        heel,
+                        toe,
+                        v,
+                        cfg.horizon_s,
+                        cfg.horizon_steps,
+                        self._window(sweep),
+                        cfg.sole_thickness_m,
+                    )
+                e_reached = self._edges_reached(edges, e, reach_x)
+            for ee in e_reached:
                 d = g.predicted_min_edge_clearance(
                     heel, toe, v, cfg.horizon_s, cfg.horizon_steps, ee, cfg.sole_thickness_m
                 )

@@ -247,3 +247,26 @@ def test_compiled_clearance_near_the_foot_equals_every_column() -> None:
         np.testing.assert_array_equal(
             K._clearance_many_near(*args), K._clearance_many(*args), err_msg=f"case {n}"
         )
+
+
+@pytest.mark.parametrize("motion_model", ["swing_template", "constant_velocity"])
+def test_fused_compiled_steps_equal_the_per_operation_kernels(
+    sample_frames, motion_model: str
+) -> None:
+    """The compiled monitor with each step of a frame in one kernel call (``fused``: the
+    keyframe step, the clearance and next edge, either prediction) gives every output of
+    every frame of data/sample, to the bit, as the kernels of the single operations with
+    the Python between them; over the frames the cleared edges and the map agree too."""
+    _compiled()
+    cfg = load_config(None).safety.model_copy(update={"motion_model": motion_model})
+    fused = SafetyMonitor(cfg, compiled=True)
+    steps = SafetyMonitor(cfg, compiled=True)
+    steps.fused = False
+    assert fused.fused
+    for k, f in enumerate(sample_frames):
+        a, b = _as_row(fused.update(*f)), _as_row(steps.update(*f))
+        np.testing.assert_array_equal(a, b, err_msg=f"frame {k}")
+        assert fused._cleared == steps._cleared, k
+    for name in ("_z", "_n", "_mid", "_se2", "_cov", "_edge_xz", "_edge_first"):
+        np.testing.assert_array_equal(getattr(fused.map, name), getattr(steps.map, name))
+    assert fused.consistency.pose_scale == steps.consistency.pose_scale != 1.0

@@ -326,6 +326,11 @@ class SafetyMonitor:
             incremental = kernels is not None
         #: the module computing the per-frame geometry: clearance (numpy) or compiled
         self.geometry: ModuleType = clearance if kernels is None else kernels
+        #: compiled: each step of a frame in one kernel call (``frame_terrain``,
+        #: ``swing_prediction``, ``cv_prediction``, ``keyframe_step``); False: the kernels of
+        #: the single operations with Python between them (the same numbers, bit for bit;
+        #: tests/test_safety_incremental.py)
+        self.fused = kernels is not None
         self.map: OnlineHeightMap = (
             IncrementalHeightMap(
                 config.bin_m,
@@ -469,7 +474,7 @@ class SafetyMonitor:
         cx, cz = (float(v) for v in np.asarray(camera_xz_m, dtype=float))
         m = self.map
         assert isinstance(m, IncrementalHeightMap)
-        if math.isfinite(cx) and math.isfinite(cz):
+        if self.fused and math.isfinite(cx) and math.isfinite(cz):
             pose, mp = self.consistency.pose, self.consistency.map
             assert isinstance(pose, ChiSquareScale) and isinstance(mp, ChiSquareScale)
             while True:
@@ -637,6 +642,7 @@ class SafetyMonitor:
         cfg, g = self.config, self.geometry
         P = np.asarray(cov_position_m2, dtype=float)
         compiled = g is not clearance
+        fused = compiled and self.fused
         if keyframe_profile_xz_m is not None:
             if compiled:
                 self._add_keyframe_compiled(camera_xz_m, keyframe_profile_xz_m, P)
@@ -650,7 +656,7 @@ class SafetyMonitor:
         sp, sm = self.consistency.pose_scale, self.consistency.map_scale
         pose_w = cfg.relative_pose_scale * sp * sp
         # clearance to the terrain and its sigma; the next edge ahead, the clearance to it
-        if compiled and math.isfinite(hx + hz + tx + tz):  # (one kernel call)
+        if fused and math.isfinite(hx + hz + tx + tz):  # (one kernel call)
             m = self.map
             c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = g.frame_terrain(
                 m._used, m._mid, m._se2, m._cov, m._n, m._i0, cfg.bin_m, edges.xz_m,
@@ -677,7 +683,7 @@ class SafetyMonitor:
         if in_stance:
             self._cleared = []
         pred = pred_edge = risk = NAN  # risk: the minimum over near-trip candidates
-        if use_template and compiled:
+        if use_template and fused:
             pred, pred_edge, risk, new = g.swing_prediction(
                 tau, self._h, *self._flat_templates(), hx, hz, tx, tz, c_d, cfg.window_m,
                 cfg.sole_thickness_m, self.map._used, self.map._mid, self.map._se2,
@@ -714,7 +720,7 @@ class SafetyMonitor:
                 hi_x = float(max(heel[0], toe[0])) + max(dx, 0.0)
                 sweep = self._swept(lo_x, hi_x, x0 - abs(dx), x1 + abs(dx), c_d)
             reach_x = float(toe[0] + max(float(v[0]), 0.0) * cfg.horizon_s) if v_known else tx
-            if compiled and math.isfinite(hx + hz + tx + tz):  # (one kernel call)
+            if fused and math.isfinite(hx + hz + tx + tz):  # (one kernel call)
                 m = self.map
                 p, pred_edge, risk, new = g.cv_prediction(
                     sweep is not None, *(sweep or (NAN, NAN)), hx, hz, tx, tz, *v,

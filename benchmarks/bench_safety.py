@@ -3,8 +3,11 @@ vio_graph/safety/online.py), single thread, per configuration (today's, the cons
 motion model, and the configuration before 2026-12) and per implementation: the compiled
 kernels on the incremental map (what a long run and bench_frontend use), the same in numpy,
 and the numpy reference whose map rebuilds its whole profile and edges at each keyframe (the
-numpy default; tests/test_safety_incremental.py: all three give the same outputs). Target:
-0.2 ms per frame.
+numpy default; tests/test_safety_incremental.py: all of them give the same outputs). The
+compiled monitor runs each step of a frame in one kernel call (keyframe step, clearance and
+next edge, prediction: ``fused``); "per-operation kernels" is the same monitor calling the
+kernels of the single operations with Python between them, as before they were fused.
+Target: 0.2 ms per frame.
 
 The filter is replayed once on each recording to collect the monitor's inputs (camera,
 covariance, heel, toe, stance, keyframe profiles); then only the monitor is run over those
@@ -16,6 +19,7 @@ average is written beside the numbers (benchmarks/results/safety.json): the mach
 on is shared, so the median is the figure to read.
 
     python benchmarks/bench_safety.py data/recordings/upstair_s1 data/recordings/downstair_s1
+    python benchmarks/bench_safety.py data/recordings/upstair_s1 --compiled-only --repeats 10
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from vio_graph.safety.online import SafetyMonitor
 
 PATHS = {  # label: SafetyMonitor arguments
     "compiled, incremental map": {"compiled": True},
+    "compiled, per-operation kernels": {"compiled": True, "fused": False},
     "numpy, incremental map": {"incremental": True, "compiled": False},
     "numpy reference (map rebuilt per keyframe)": {"incremental": False},
 }
@@ -51,7 +56,7 @@ VARIANTS = {  # label: SafetyConfig overrides
 }
 
 
-def bench(path: Path, repeats: int) -> list[dict]:
+def bench(path: Path, repeats: int, paths: dict[str, dict]) -> list[dict]:
     cfg = load_config(None)
     rec = Recording.open(path)
     lg, est = _common.filter_leg_run(rec, cfg)
@@ -61,15 +66,15 @@ def bench(path: Path, repeats: int) -> list[dict]:
     rows = []
     for label, over in VARIANTS.items():
         sc = SafetyConfig(**{**cfg.safety.model_dump(), **over})
-        ms: dict[str, list[float]] = {p: [] for p in PATHS}
+        ms: dict[str, list[float]] = {p: [] for p in paths}
         for _ in range(repeats):
-            for p, kw in PATHS.items():
+            for p, kw in paths.items():
                 mon = SafetyMonitor(sc, **kw)
                 for k in range(len(t)):
                     t0 = time.process_time_ns()
                     _common.monitor_update(mon, lg, est, k)
                     ms[p].append((time.process_time_ns() - t0) * 1e-6)
-        for p in PATHS:
+        for p in paths:
             a = np.asarray(ms[p]).reshape(repeats, -1)
             rows.append(
                 {
@@ -88,8 +93,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("recordings", nargs="+", type=Path, help="recording folders")
     ap.add_argument("--repeats", type=int, default=5, help="monitor replays per recording")
+    ap.add_argument("--compiled-only", action="store_true", help="only the compiled paths")
     args = ap.parse_args()
-    rows = [r for p in args.recordings for r in bench(p, args.repeats)]
+    paths = {p: kw for p, kw in PATHS.items() if kw.get("compiled") or not args.compiled_only}
+    rows = [r for p in args.recordings for r in bench(p, args.repeats, paths)]
     out = _common.write_result(
         "safety", {"repeats": args.repeats, "target_ms": TARGET_MS, "rows": rows}
     )

@@ -260,9 +260,8 @@ def test_fused_compiled_steps_equal_the_per_operation_kernels(
     _compiled()
     cfg = load_config(None).safety.model_copy(update={"motion_model": motion_model})
     fused = SafetyMonitor(cfg, compiled=True)
-    steps = SafetyMonitor(cfg, compiled=True)
-    steps.fused = False
-    assert fused.fused
+    steps = SafetyMonitor(cfg, compiled=True, fused=False)
+    assert fused.fused and not steps.fused
     for k, f in enumerate(sample_frames):
         a, b = _as_row(fused.update(*f)), _as_row(steps.update(*f))
         np.testing.assert_array_equal(a, b, err_msg=f"frame {k}")

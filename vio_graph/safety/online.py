@@ -305,14 +305,17 @@ class SafetyMonitor:
     foot (:class:`IncrementalHeightMap`, True) or is the reference (:class:`OnlineHeightMap`,
     whole profile rebuilt per keyframe, False); None: incremental when compiled. The
     compiled kernels need the incremental map; the reference map comes with the reference
-    consistency test (:class:`MapConsistency` ``reference``). Same outputs in every
-    combination."""
+    consistency test (:class:`MapConsistency` ``reference``). ``fused`` (compiled only): each
+    step of a frame in one kernel call, else the kernels of the single operations (the
+    previous compiled path, kept for the equality test and the benchmark). Same outputs in
+    every combination."""
 
     def __init__(
         self,
         config: SafetyConfig,
         incremental: bool | None = None,
         compiled: bool | None = None,
+        fused: bool = True,
     ) -> None:
         if incremental is False and compiled:
             raise ValueError("the compiled safety kernels run on the incremental map")
@@ -330,7 +333,7 @@ class SafetyMonitor:
         #: ``swing_prediction``, ``cv_prediction``, ``keyframe_step``); False: the kernels of
         #: the single operations with Python between them (the same numbers, bit for bit;
         #: tests/test_safety_incremental.py)
-        self.fused = kernels is not None
+        self.fused = kernels is not None and fused
         self.map: OnlineHeightMap = (
             IncrementalHeightMap(
                 config.bin_m,

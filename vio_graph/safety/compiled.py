@@ -574,6 +574,27 @@ def window_bins(used, mid, se2, a0, a1, i0, bin_m, x_min, x_max, map_sigma):  # 
 
 
 @numba.njit(cache=True)
+def _median_select(a):  # pragma: no cover - compiled
+    """:func:`_median_sorted` by selection (np.partition at the middle; for an even count
+    the largest value below it is the other middle one): the same float, without sorting
+    the whole array."""
+    n = a.shape[0]
+    if n == 0:
+        return np.nan
+    for i in range(n):
+        if a[i] != a[i]:
+            return np.nan
+    h = n // 2
+    part = np.partition(a, h)
+    if n % 2:
+        return part[h]
+    below = part[0]
+    for i in range(1, h):
+        below = max(below, part[i])
+    return (below + part[h]) / 2
+
+
+@numba.njit(cache=True)
 def _median_sorted(a):  # pragma: no cover - compiled
     """np.median of a 1-D array: sorted copy, the middle element or the mean of the two
     middle ones (the same float as numpy's partition-based median); NaN if any is NaN."""
@@ -626,7 +647,7 @@ def consistency_squares(
     if m == 0:
         return False, np.nan, np.nan, np.nan, 0, empty
     r = r[:m]
-    offset = _median_sorted(r)
+    offset = _median_select(r)
     dev = np.empty(m)
     res = np.empty(m)
     zz = np.empty(m)
@@ -650,7 +671,7 @@ def consistency_squares(
         elif vz2 > 1.0:
             vz2 = 1.0
         zz[q] = abs(l1) * vz2 + abs(l2) * (1.0 - vz2)
-    mad_sd = 1.4826 * _median_sorted(dev)
+    mad_sd = 1.4826 * _median_select(dev)
     sq = np.empty(m)
     c = 0
     for q in range(m):
@@ -658,7 +679,7 @@ def consistency_squares(
         if np.isfinite(res[q]) and np.isfinite(v) and v > 0:
             sq[c] = res[q] * res[q] / v
             c += 1
-    return True, offset, mad_sd, _median_sorted(zz), m, np.sort(sq[:c])
+    return True, offset, mad_sd, _median_select(zz), m, np.sort(sq[:c])
 
 
 @numba.njit(cache=True)

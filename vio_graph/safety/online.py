@@ -352,7 +352,7 @@ class SafetyMonitor:
                 edge_max_gap_m=config.edge_max_gap_m,
             )
         )
-        self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, toe)
+        self._prev: tuple[float, tuple[float, float]] | None = None  # (t, toe x, z)
         self._in_stance = False
         # swing templates: (phase s (S,), heel and toe minus their lift-off positions (S, 4))
         self._templates: deque[tuple[NDArray[np.float64], NDArray[np.float64]]] = deque(

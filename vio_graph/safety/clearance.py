@@ -201,7 +201,7 @@ def edge_clearance(
     bx, bz = (float(v) for v in np.asarray(toe_xz_m, dtype=float))
     ex, ez = (float(v) for v in np.asarray(edge_xz_m, dtype=float))
     d, qx, qz = _edge_distance(ax, az, bx, bz, ex, ez)
-    n = ((qx - ex) ** 2 + (qz - ez) ** 2) ** 0.5
+    n = math.sqrt((qx - ex) * (qx - ex) + (qz - ez) * (qz - ez))
     nx, nz = ((qx - ex) / n, (qz - ez) / n) if n > 1e-9 else (0.0, 1.0)
     if d < 0:
         nx, nz = -nx, -nz
@@ -470,7 +470,7 @@ def _edge_distance(
     L2 = dx * dx + dz * dz
     s = 0.0 if L2 == 0 else min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
     qx, qz = ax + s * dx, az + s * dz
-    d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** 0.5
+    d = math.sqrt((ex - qx) * (ex - qx) + (ez - qz) * (ez - qz))
     if abs(dx) > 1e-12 and min(ax, bx) < ex < max(ax, bx):
         z_line = az + (ex - ax) * dz / dx
         if ez > z_line:
@@ -482,7 +482,8 @@ def _point_segment(px: float, pz: float, ax: float, az: float, bx: float, bz: fl
     dx, dz = bx - ax, bz - az
     L2 = dx * dx + dz * dz
     s = 0.0 if L2 == 0 else min(max(((px - ax) * dx + (pz - az) * dz) / L2, 0.0), 1.0)
-    return ((px - ax - s * dx) ** 2 + (pz - az - s * dz) ** 2) ** 0.5
+    ux, uz = px - ax - s * dx, pz - az - s * dz
+    return math.sqrt(ux * ux + uz * uz)
 
 
 def _segments_cross(
@@ -543,14 +544,14 @@ def edge_clearance_rows(
 ) -> NDArray[np.float64]:
     """:func:`edge_clearance`'s distance for T foot poses (heel, toe (T, 2)), each against its
     own edge point (T, 2) -> (T,) m; the same numbers bit for bit (offline evaluation over a
-    whole trial at once). Squares and roots go through ``np.power`` with an array exponent:
-    that is the C library's ``pow``, as Python's ``**`` on floats in :func:`_edge_distance`;
-    numpy's ``x ** 2`` / ``np.sqrt`` round differently in the last bit on a few inputs."""
+    whole trial at once). Squares are products and roots ``sqrt`` here, in
+    :func:`_edge_distance` and in the compiled kernels: both are correctly rounded in IEEE
+    arithmetic, so every path gives the same bits whatever the numpy or C library version
+    (``pow`` / ``np.power`` are not correctly rounded and differ between them)."""
     a = np.asarray(heel_xz_m, dtype=float).reshape(-1, 2)
     b = np.asarray(toe_xz_m, dtype=float).reshape(-1, 2)
     e = np.asarray(edge_xz_m, dtype=float).reshape(-1, 2)
     ax, az, bx, bz, ex, ez = a[:, 0], a[:, 1], b[:, 0], b[:, 1], e[:, 0], e[:, 1]
-    two, half = np.full(len(a), 2.0), np.full(len(a), 0.5)
     dx, dz = bx - ax, bz - az
     L2 = dx * dx + dz * dz
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -560,7 +561,7 @@ def edge_clearance_rows(
             np.minimum(np.maximum(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0),
         )
         qx, qz = ax + s * dx, az + s * dz
-        d = np.power(np.power(ex - qx, two) + np.power(ez - qz, two), half)
+        d = np.sqrt((ex - qx) * (ex - qx) + (ez - qz) * (ez - qz))
         lo, hi = np.minimum(ax, bx), np.maximum(ax, bx)
         z_line = az + (ex - ax) * dz / dx
         above = (np.abs(dx) > 1e-12) & (lo < ex) & (ex < hi) & (ez > z_line)

@@ -278,7 +278,7 @@ def _edge_clearance_many(a, b, ex, ez, sole, half):  # pragma: no cover - compil
         L2 = dx * dx + dz * dz
         s = 0.0 if L2 == 0 else min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
         qx, qz = ax + s * dx, az + s * dz
-        d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** half
+        d = math.sqrt((ex - qx) * (ex - qx) + (ez - qz) * (ez - qz))
         if abs(dx) > 1e-12 and min(ax, bx) < ex and ex < max(ax, bx):
             z_line = az + (ex - ax) * dz / dx
             if ez > z_line:
@@ -932,7 +932,7 @@ def _edge_distance(ax, az, bx, bz, ex, ez, half):  # pragma: no cover - compiled
     L2 = dx * dx + dz * dz
     s = 0.0 if L2 == 0 else min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
     qx, qz = ax + s * dx, az + s * dz
-    d = ((ex - qx) ** 2 + (ez - qz) ** 2) ** half
+    d = math.sqrt((ex - qx) * (ex - qx) + (ez - qz) * (ez - qz))
     if abs(dx) > 1e-12 and min(ax, bx) < ex and ex < max(ax, bx):
         z_line = az + (ex - ax) * dz / dx
         if ez > z_line:
@@ -952,7 +952,7 @@ def edge_clearance(
         ez,
         0.5,
     )
-    n = ((qx - ex) ** 2 + (qz - ez) ** 2) ** 0.5
+    n = math.sqrt((qx - ex) * (qx - ex) + (qz - ez) * (qz - ez))
     nx, nz = ((qx - ex) / n, (qz - ez) / n) if n > 1e-9 else (0.0, 1.0)
     if d < 0:
         nx, nz = -nx, -nz
@@ -966,7 +966,8 @@ def _point_segment(px, pz, ax, az, bx, bz, half):  # pragma: no cover - compiled
     dx, dz = bx - ax, bz - az
     L2 = dx * dx + dz * dz
     s = 0.0 if L2 == 0 else min(max(((px - ax) * dx + (pz - az) * dz) / L2, 0.0), 1.0)
-    return ((px - ax - s * dx) ** 2 + (pz - az - s * dz) ** 2) ** half
+    ux, uz = px - ax - s * dx, pz - az - s * dz
+    return math.sqrt(ux * ux + uz * uz)
 
 
 @numba.njit(cache=True)
@@ -1209,7 +1210,9 @@ def warm_up() -> None:
 # the Python between them (the same operations in the same order). Where the Python code
 # takes a square root as ``x ** 0.5`` (the C library's pow), the kernels take ``x ** half``
 # with ``half`` = 0.5 passed at run time: a constant exponent lets LLVM replace pow by sqrt,
-# which rounds differently in the last bit on about one input in a thousand.
+# which rounds differently in the last bit on about one input in a thousand. Edge and
+# segment distances take ``sqrt`` of explicit products in every path (Python, numpy and
+# here): those are correctly rounded, so numpy's own ``np.power`` never enters.
 
 
 @numba.njit(cache=True)
@@ -1354,7 +1357,7 @@ def frame_terrain(
     if e >= 0:
         ex, ez = edges_xz[e, 0], edges_xz[e, 1]
         d, qx2, qz2 = _edge_distance(hx, hz, tx, tz, ex, ez, half)
-        nrm = ((qx2 - ex) ** 2 + (qz2 - ez) ** 2) ** half
+        nrm = math.sqrt((qx2 - ex) * (qx2 - ex) + (qz2 - ez) * (qz2 - ez))
         if nrm > 1e-9:
             nx, nz = (qx2 - ex) / nrm, (qz2 - ez) / nrm
         else:

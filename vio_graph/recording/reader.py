@@ -341,9 +341,12 @@ class Recording:
         else:
             d = raw.astype(np.float32) * np.float32(scale)
         cam = self.metadata.camera
+        # shares of the valid pixels (d > 0) beyond the range checks, counted without copying
+        # the valid pixels out (a frame's check was ~0.3 ms, a third of reading it)
         valid = d > 0
-        if valid.any():
-            too_far = np.mean(d[valid] > 1.5 * cam.max_range_m)
+        n_valid = np.count_nonzero(valid)
+        if n_valid:
+            too_far = np.count_nonzero(d > 1.5 * cam.max_range_m) / n_valid
             if too_far > 0.5:
                 raise RecordingError(
                     path,
@@ -351,7 +354,7 @@ class Recording:
                     f"range {cam.max_range_m} m (wrong depth unit?)",
                     field="camera.depth_unit_m",
                 )
-            too_near = np.mean(d[valid] < 0.5 * cam.min_range_m)
+            too_near = np.count_nonzero(valid & (d < 0.5 * cam.min_range_m)) / n_valid
             if too_near > 0.5:
                 raise RecordingError(
                     path,

@@ -14,6 +14,7 @@ from vio_graph.mapping.steps import (
     estimate_terrain_geometry,
     find_levels,
     find_levels_reference,
+    fit_riser,
 )
 from vio_graph.recording.metadata import TerrainInfo
 from vio_graph.types import TerrainKind
@@ -249,6 +250,20 @@ def test_find_levels_equals_the_reference_search(seed: int, up: bool) -> None:
         assert levels == find_levels_reference(points, weights)
     capped = StepConfig(max_levels=3)
     assert find_levels(points, counts, capped) == find_levels_reference(points, counts, capped)
+    # risers: the x window found by bisection in the x order gives the scan's answer
+    cfg = StepConfig()
+    by_x = np.argsort(points[:, 0], kind="stable")
+    levels = sorted(find_levels(points, counts), key=lambda lv: lv.x_start_m)
+    risers = [
+        (
+            fit_riser(points, counts, a, b, cfg),
+            fit_riser(points, counts, a, b, cfg, (by_x, points[by_x, 0])),
+        )
+        for a, b in zip(levels[:-1], levels[1:], strict=True)
+    ]
+    if up:  # fit_riser measures rising transitions only
+        assert sum(r is not None for r, _ in risers) >= 7
+    assert all(scan == fast for scan, fast in risers)
 
 
 def test_find_levels_on_a_height_grid_ends() -> None:

@@ -474,19 +474,27 @@ def fit_riser(
     before: LevelSegment,
     after: LevelSegment,
     config: StepConfig,
+    x_order: tuple[NDArray[np.intp], NDArray[np.float64]] | None = None,
 ) -> RiserSegment | None:
     """Robust x of the vertical face between two x-neighbouring levels, or None if too few
-    map cells lie between them (``riser_margin_m`` away from both heights)."""
+    map cells lie between them (``riser_margin_m`` away from both heights).
+
+    ``x_order``: the points' order by x (stable argsort) and their x in that order, if the
+    caller has them: the cells in the x window are then found by bisection instead of a scan
+    of every point (the same cells, in the same order, so the same answer)."""
     z_lo, z_hi = sorted((before.z_m, after.z_m))
     x_lo = min(before.x_end_m, after.x_start_m) - config.riser_x_window_m
     x_hi = max(before.x_end_m, after.x_start_m) + config.riser_x_window_m
-    box = (
-        (points_xz_m[:, 0] >= x_lo)
-        & (points_xz_m[:, 0] <= x_hi)
-        & (points_xz_m[:, 1] > z_lo + config.riser_margin_m)
-        & (points_xz_m[:, 1] < z_hi - config.riser_margin_m)
-    )
-    if int(box.sum()) < config.min_riser_cells:
+    if x_order is None:
+        cand = np.flatnonzero((points_xz_m[:, 0] >= x_lo) & (points_xz_m[:, 0] <= x_hi))
+    else:
+        order, x_sorted = x_order
+        i0 = int(np.searchsorted(x_sorted, x_lo, side="left"))
+        i1 = int(np.searchsorted(x_sorted, x_hi, side="right"))
+        cand = np.sort(order[i0:i1])
+    z_cand = points_xz_m[cand, 1]
+    box = cand[(z_cand > z_lo + config.riser_margin_m) & (z_cand < z_hi - config.riser_margin_m)]
+    if box.size < config.min_riser_cells:
         return None
     x_m, x_std_m, keep = _robust_mean(points_xz_m[box, 0], weights[box], floor_m=0.003)
     if int(keep.sum()) < config.min_riser_cells:
@@ -516,10 +524,11 @@ def _transition(
     pts: NDArray[np.float64],
     w: NDArray[np.float64],
     cfg: StepConfig,
+    x_order: tuple[NDArray[np.intp], NDArray[np.float64]] | None = None,
 ) -> _Transition:
     a, b = levels[i], levels[i + 1]
     up = b.z_m > a.z_m
-    riser = fit_riser(pts, w, a, b, cfg) if up else None
+    riser = fit_riser(pts, w, a, b, cfg, x_order) if up else None
     if up:
         top = b
         if riser is not None:
@@ -562,7 +571,9 @@ def estimate_terrain_geometry(
     levels = _merge_levels(find_levels(pts, w, cfg), cfg)
     if not levels:
         return TerrainGeometry(TerrainKind.UNKNOWN, (), (), (), ())
-    transitions = [_transition(i, levels, pts, w, cfg) for i in range(len(levels) - 1)]
+    by_x = np.argsort(pts[:, 0], kind="stable")
+    x_order = (by_x, pts[by_x, 0])
+    transitions = [_transition(i, levels, pts, w, cfg, x_order) for i in range(len(levels) - 1)]
     risers = tuple(t.riser for t in transitions if t.riser is not None)
 
     # obstacles: a plateau higher than both neighbours and not too deep

@@ -269,6 +269,11 @@ def _as_points(
 
 # ---------------------------------------------------------------------------------------------
 # step 1: horizontal levels
+#: positions per block of find_levels' window counts (the block maxima make the search for the
+#: best window cost ~sqrt of the points instead of all of them)
+_LEVEL_BLOCK = 512
+
+
 def find_levels(
     points_xz_m: ArrayLike, weights: ArrayLike | None = None, config: StepConfig | None = None
 ) -> tuple[LevelSegment, ...]:
@@ -298,14 +303,21 @@ def find_levels(
     # counts[p]: remaining points at positions >= p with height <= z[p] + 2 tol (the sliding
     # window of the reference over the remaining heights); -1 once p is removed
     hi = np.searchsorted(z, z + 2 * tol, side="right")
-    counts = hi - np.arange(n)
+    # padded to whole blocks, with each block's maximum kept: the best window is the first
+    # maximum of the block maxima, then of that block (as a scan of all counts finds it)
+    n_blocks = max(1, -(-n // _LEVEL_BLOCK))
+    counts = np.full(n_blocks * _LEVEL_BLOCK, -1, dtype=np.int64)
+    counts[:n] = hi - np.arange(n)
+    blocks = counts.reshape(n_blocks, _LEVEL_BLOCK)
+    block_max = blocks.max(axis=1)
     levels: list[LevelSegment] = []
     n_searches = 0
     while cfg.max_levels is None or n_searches < cfg.max_levels:
         n_searches += 1
         if n_remaining < cfg.min_level_cells or n_remaining == 0:
             break
-        best = int(np.argmax(counts))  # first maximum in height order, as the reference
+        blk = int(np.argmax(block_max))
+        best = blk * _LEVEL_BLOCK + int(np.argmax(blocks[blk]))  # first maximum, height order
         if counts[best] < cfg.min_level_cells:
             break
         z_centre = z[best] + tol
@@ -334,6 +346,8 @@ def find_levels(
         lo = np.clip(ps, a_rm, b_rm) - a_rm
         up = np.clip(hi[ps], a_rm, b_rm) - a_rm
         counts[ps] -= gone[up] - gone[lo]
+        b0, b1 = p0 // _LEVEL_BLOCK, (b_rm - 1) // _LEVEL_BLOCK + 1  # blocks touched
+        block_max[b0:b1] = blocks[b0:b1].max(axis=1)
         members = np.sort(by_z[removed])  # original index order, as the reference
         # split along x at gaps, keep long enough pieces
         members = members[np.argsort(pts[members, 0], kind="stable")]

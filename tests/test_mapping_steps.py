@@ -13,6 +13,8 @@ from vio_graph.mapping.steps import (
     TerrainGeometry,
     estimate_terrain_geometry,
     find_levels,
+    find_levels_reference,
+    fit_riser,
 )
 from vio_graph.recording.metadata import TerrainInfo
 from vio_graph.types import TerrainKind
@@ -225,3 +227,54 @@ def test_pose_noise_blurs_but_does_not_invent_levels(up: bool) -> None:
         StepConfig(min_level_contrast=1.0),
     )
     assert len(loose.levels) > 6
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("up", [True, False])
+def test_find_levels_equals_the_reference_search(seed: int, up: bool) -> None:
+    """The incremental search returns the reference's levels bit for bit (same floats), with
+    the map's counts, unit and fractional weights, on a map with flying pixels."""
+    terrain = stair_profile(0.147, 0.28, 8, up=up)
+    terrain_map = _map(terrain, 2.6, seed)
+    rng = np.random.default_rng(seed)
+    points = np.vstack(
+        [
+            terrain_map.points_xz_m,
+            np.column_stack([rng.uniform(0, 2.5, 40), rng.uniform(-1, 1, 40)]),
+        ]
+    )
+    counts = np.concatenate([terrain_map.point_counts, np.ones(40)])
+    for weights in (counts, None, rng.uniform(0.1, 2.0, points.shape[0])):
+        levels = find_levels(points, weights)
+        assert len(levels) >= 8
+        assert levels == find_levels_reference(points, weights)
+    capped = StepConfig(max_levels=3)
+    assert find_levels(points, counts, capped) == find_levels_reference(points, counts, capped)
+    # risers: the x window found by bisection in the x order gives the scan's answer
+    cfg = StepConfig()
+    by_x = np.argsort(points[:, 0], kind="stable")
+    levels = sorted(find_levels(points, counts), key=lambda lv: lv.x_start_m)
+    risers = [
+        (
+            fit_riser(points, counts, a, b, cfg),
+            fit_riser(points, counts, a, b, cfg, (by_x, points[by_x, 0])),
+        )
+        for a, b in zip(levels[:-1], levels[1:], strict=True)
+    ]
+    if up:  # fit_riser measures rising transitions only
+        assert sum(r is not None for r, _ in risers) >= 7
+    assert all(scan == fast for scan, fast in risers)
+
+
+def test_find_levels_on_a_height_grid_ends() -> None:
+    """Heights on a 5 mm grid (ties, window ends a rounding error outside the band): the
+    search still ends and finds the 3 planted levels, each once."""
+    x = np.arange(0, 0.6, 0.005)
+    points = np.vstack(
+        [np.column_stack([x + 0.7 * k, np.full(x.size, 0.15 * k)]) for k in range(3)]
+    )
+    levels = find_levels(np.round(points / 0.005) * 0.005)
+    assert [round(lv.z_m, 3) for lv in levels] == [0.0, 0.15, 0.3]
+    # random points on the grid: the reference searches one window forever here
+    grid = np.round(np.random.default_rng(0).random((5000, 2)) * [3, 0.5] / 0.005) * 0.005
+    assert len(find_levels(grid)) > 0

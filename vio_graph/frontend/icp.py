@@ -32,13 +32,16 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from vio_graph.errors import FrontendError
 from vio_graph.frontend.config import IcpConfig
+
+if TYPE_CHECKING:  # scipy is imported where a KD-tree is built (numpy paths only)
+    from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True)
@@ -335,6 +338,8 @@ def icp_translation_2d_reference(
 ) -> IcpResult:
     """numpy path of :func:`icp_translation_2d` (KD-tree queries; the tested reference)."""
     cfg, src, tgt, T = _icp_inputs(source_xz_m, target_xz_m, initial_translation_xz_m, config)
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(src) if source_tree is None else source_tree
     normals = _NormalCache(src, tree, cfg.normal_neighbours)
     nearest = _NearestSource(src, tree, tgt, cfg.max_correspondence_m)

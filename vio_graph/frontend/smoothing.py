@@ -13,11 +13,15 @@ when the camera sees the riser head-on).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from vio_graph.frontend.icp import compiled_kernels
+
+if TYPE_CHECKING:  # scipy is imported where a KD-tree is built (numpy paths only)
+    from scipy.spatial import cKDTree
 
 #: above this many cells in the bounding box, grid_thin sorts the keys instead of counting
 #: into a dense array (memory bound: 4e6 cells = 3 arrays of 32 MB at most)
@@ -116,6 +120,8 @@ def knn_smooth_reference(
     k = min(int(k), pts.shape[0])
     if k <= 1:
         return pts.copy()
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(pts) if tree is None else tree
     _, idx = tree.query(pts, k=k)
     # mean over the neighbours, summed in the query's order (bit-identical to

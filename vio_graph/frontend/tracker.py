@@ -62,10 +62,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from vio_graph.frontend.config import IcpConfig, TrackerConfig
 from vio_graph.frontend.corners import CornerFeature
@@ -73,6 +73,9 @@ from vio_graph.frontend.icp import IcpResult, compiled_kernels, icp_translation_
 from vio_graph.frontend.smoothing import grid_thin
 from vio_graph.geometry import rot_y_xz
 from vio_graph.types import CornerObservation, Displacement2D
+
+if TYPE_CHECKING:  # scipy is imported where a KD-tree is built (numpy paths only)
+    from scipy.spatial import cKDTree
 
 
 def _mahalanobis2(v: NDArray[np.float64], cov: NDArray[np.float64], floor_m2: float) -> float:
@@ -540,4 +543,8 @@ def _drop_weakest(
 
 def _source_tree(pts: NDArray[np.float64]) -> cKDTree | None:
     """KD-tree of the ICP source for the numpy ICP path; None when the compiled one runs."""
-    return None if compiled_kernels() is not None else cKDTree(pts)
+    if compiled_kernels() is not None:
+        return None
+    from scipy.spatial import cKDTree
+
+    return cKDTree(pts)

@@ -269,10 +269,117 @@ def _as_points(
 
 # ---------------------------------------------------------------------------------------------
 # step 1: horizontal levels
+#: positions per block of find_levels' window counts (the block maxima make the search for the
+#: best window cost ~sqrt of the points instead of all of them)
+_LEVEL_BLOCK = 512
+
+
 def find_levels(
     points_xz_m: ArrayLike, weights: ArrayLike | None = None, config: StepConfig | None = None
 ) -> tuple[LevelSegment, ...]:
     """Horizontal levels of a map, sorted by x start (method step 1 in the module docstring).
+
+    The same levels, bit for bit, as :func:`find_levels_reference` (the plain statement of the
+    search, kept as the tested reference), at a cost that grows with the points near each level
+    instead of with all points per level: the window counts are kept over the heights sorted
+    once and updated only where a removed band touches them, and the points in a piece's x span
+    come from the x order (a 10-minute trial's map has ~1000 levels).
+
+    Args:
+        points_xz_m: (M, 2) map points, world frame, metres.
+        weights: (M,) non-negative weights (raw point counts per map cell), default ones.
+        config: thresholds.
+    """
+    cfg = config if config is not None else StepConfig()
+    pts, w = _as_points(points_xz_m, weights)
+    tol = cfg.level_tolerance_m
+    n = pts.shape[0]
+    by_z = np.argsort(pts[:, 1], kind="stable")
+    z = pts[by_z, 1]  # heights in sorted order; position p holds point by_z[p]
+    by_x = np.argsort(pts[:, 0], kind="stable")
+    x_by_x = pts[by_x, 0]
+    remaining = np.ones(n, dtype=bool)  # by sorted position
+    n_remaining = n
+    # counts[p]: remaining points at positions >= p with height <= z[p] + 2 tol (the sliding
+    # window of the reference over the remaining heights); -1 once p is removed
+    hi = np.searchsorted(z, z + 2 * tol, side="right")
+    # padded to whole blocks, with each block's maximum kept: the best window is the first
+    # maximum of the block maxima, then of that block (as a scan of all counts finds it)
+    n_blocks = max(1, -(-n // _LEVEL_BLOCK))
+    counts = np.full(n_blocks * _LEVEL_BLOCK, -1, dtype=np.int64)
+    counts[:n] = hi - np.arange(n)
+    blocks = counts.reshape(n_blocks, _LEVEL_BLOCK)
+    block_max = blocks.max(axis=1)
+    levels: list[LevelSegment] = []
+    n_searches = 0
+    while cfg.max_levels is None or n_searches < cfg.max_levels:
+        n_searches += 1
+        if n_remaining < cfg.min_level_cells or n_remaining == 0:
+            break
+        blk = int(np.argmax(block_max))
+        best = blk * _LEVEL_BLOCK + int(np.argmax(blocks[blk]))  # first maximum, height order
+        if counts[best] < cfg.min_level_cells:
+            break
+        z_centre = z[best] + tol
+        # the band |z - z_centre| <= tol is contiguous in height order (z - z_centre is
+        # monotone); the exact test on a slightly wider slice finds it
+        a = int(np.searchsorted(z, z_centre - 2 * tol, side="left"))
+        b = int(np.searchsorted(z, z_centre + 2 * tol, side="right"))
+        in_band = (np.abs(z[a:b] - z_centre) <= tol) & remaining[a:b]
+        removed = np.flatnonzero(in_band) + a  # positions
+        if removed.size == 0:
+            # heights on a grid can put every point of the window a rounding error outside
+            # the band (the reference then searches the same window forever): take the window
+            window = np.arange(best, hi[best])
+            removed = window[remaining[window]]
+        remaining[removed] = False
+        n_remaining -= removed.size
+        counts[removed] = -1
+        # windows that reach into the removed positions lose them: p < b_rm, hi[p] > a_rm
+        a_rm, b_rm = int(removed[0]), int(removed[-1]) + 1
+        p0 = int(np.searchsorted(hi, a_rm, side="right"))
+        mark = np.zeros(b_rm - a_rm, dtype=np.int64)
+        mark[removed - a_rm] = 1
+        gone = np.concatenate(([0], np.cumsum(mark)))  # removed positions before a_rm + i
+        ps = np.arange(p0, b_rm)
+        ps = ps[remaining[ps]]
+        lo = np.clip(ps, a_rm, b_rm) - a_rm
+        up = np.clip(hi[ps], a_rm, b_rm) - a_rm
+        counts[ps] -= gone[up] - gone[lo]
+        b0, b1 = p0 // _LEVEL_BLOCK, (b_rm - 1) // _LEVEL_BLOCK + 1  # blocks touched
+        block_max[b0:b1] = blocks[b0:b1].max(axis=1)
+        members = np.sort(by_z[removed])  # original index order, as the reference
+        # split along x at gaps, keep long enough pieces
+        members = members[np.argsort(pts[members, 0], kind="stable")]
+        breaks = np.flatnonzero(np.diff(pts[members, 0]) > cfg.max_gap_m) + 1
+        for piece in np.split(members, breaks):
+            if piece.size < cfg.min_level_cells:
+                continue
+            x_piece = pts[piece, 0]
+            if x_piece[-1] - x_piece[0] < cfg.min_level_length_m:
+                continue
+            # flatness: a level is a z peak; a (blurred) vertical face continues above/below
+            z_piece = pts[piece, 1]
+            z_med = float(np.median(z_piece))
+            half = max(tol, 2.5 * _ROBUST_SIGMA_PER_MAD * float(np.median(np.abs(z_piece - z_med))))
+            i0 = int(np.searchsorted(x_by_x, x_piece[0], side="left"))
+            i1 = int(np.searchsorted(x_by_x, x_piece[-1], side="right"))
+            in_x = np.sort(by_x[i0:i1])  # x_piece[0] <= x <= x_piece[-1], original order
+            dz, w_x = pts[in_x, 1] - z_med, w[in_x]
+            above = float(w_x[(dz > half) & (dz <= half + 2 * tol)].sum())
+            below = float(w_x[(dz < -half) & (dz >= -half - 2 * tol)].sum())
+            if float(w[piece].sum()) < cfg.min_level_contrast * max(above, below):
+                continue
+            levels.append(_make_level(pts[piece], w[piece], cfg))
+    levels.sort(key=lambda lv: lv.x_start_m)
+    return tuple(levels)
+
+
+def find_levels_reference(
+    points_xz_m: ArrayLike, weights: ArrayLike | None = None, config: StepConfig | None = None
+) -> tuple[LevelSegment, ...]:
+    """:func:`find_levels` as first written: every search scans all remaining points (the
+    tested reference of the incremental version).
 
     Args:
         points_xz_m: (M, 2) map points, world frame, metres.
@@ -381,19 +488,27 @@ def fit_riser(
     before: LevelSegment,
     after: LevelSegment,
     config: StepConfig,
+    x_order: tuple[NDArray[np.intp], NDArray[np.float64]] | None = None,
 ) -> RiserSegment | None:
     """Robust x of the vertical face between two x-neighbouring levels, or None if too few
-    map cells lie between them (``riser_margin_m`` away from both heights)."""
+    map cells lie between them (``riser_margin_m`` away from both heights).
+
+    ``x_order``: the points' order by x (stable argsort) and their x in that order, if the
+    caller has them: the cells in the x window are then found by bisection instead of a scan
+    of every point (the same cells, in the same order, so the same answer)."""
     z_lo, z_hi = sorted((before.z_m, after.z_m))
     x_lo = min(before.x_end_m, after.x_start_m) - config.riser_x_window_m
     x_hi = max(before.x_end_m, after.x_start_m) + config.riser_x_window_m
-    box = (
-        (points_xz_m[:, 0] >= x_lo)
-        & (points_xz_m[:, 0] <= x_hi)
-        & (points_xz_m[:, 1] > z_lo + config.riser_margin_m)
-        & (points_xz_m[:, 1] < z_hi - config.riser_margin_m)
-    )
-    if int(box.sum()) < config.min_riser_cells:
+    if x_order is None:
+        cand = np.flatnonzero((points_xz_m[:, 0] >= x_lo) & (points_xz_m[:, 0] <= x_hi))
+    else:
+        order, x_sorted = x_order
+        i0 = int(np.searchsorted(x_sorted, x_lo, side="left"))
+        i1 = int(np.searchsorted(x_sorted, x_hi, side="right"))
+        cand = np.sort(order[i0:i1])
+    z_cand = points_xz_m[cand, 1]
+    box = cand[(z_cand > z_lo + config.riser_margin_m) & (z_cand < z_hi - config.riser_margin_m)]
+    if box.size < config.min_riser_cells:
         return None
     x_m, x_std_m, keep = _robust_mean(points_xz_m[box, 0], weights[box], floor_m=0.003)
     if int(keep.sum()) < config.min_riser_cells:
@@ -423,10 +538,11 @@ def _transition(
     pts: NDArray[np.float64],
     w: NDArray[np.float64],
     cfg: StepConfig,
+    x_order: tuple[NDArray[np.intp], NDArray[np.float64]] | None = None,
 ) -> _Transition:
     a, b = levels[i], levels[i + 1]
     up = b.z_m > a.z_m
-    riser = fit_riser(pts, w, a, b, cfg) if up else None
+    riser = fit_riser(pts, w, a, b, cfg, x_order) if up else None
     if up:
         top = b
         if riser is not None:
@@ -469,7 +585,9 @@ def estimate_terrain_geometry(
     levels = _merge_levels(find_levels(pts, w, cfg), cfg)
     if not levels:
         return TerrainGeometry(TerrainKind.UNKNOWN, (), (), (), ())
-    transitions = [_transition(i, levels, pts, w, cfg) for i in range(len(levels) - 1)]
+    by_x = np.argsort(pts[:, 0], kind="stable")
+    x_order = (by_x, pts[by_x, 0])
+    transitions = [_transition(i, levels, pts, w, cfg, x_order) for i in range(len(levels) - 1)]
     risers = tuple(t.riser for t in transitions if t.riser is not None)
 
     # obstacles: a plateau higher than both neighbours and not too deep

@@ -1154,15 +1154,16 @@ def _present(depth, conf, r, c):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def slice_keep(
-    depth, conf, c0, c1, lower, upper, min_conf, rel_tol, abs_tol, min_agree
+def slice_cam_points(
+    depth, conf, c0, c1, lower, upper, min_conf, rel_tol, abs_tol, min_agree, x_grid, y_grid
 ):  # pragma: no cover - compiled
-    """``projection.sagittal_slice_from_depth``'s pixel mask over columns c0:c1 (float32
-    depth, uint8 confidence): depth in [lower, upper[column]] (float32 bounds), confidence
-    >= ``min_conf``, and, with ``min_agree`` > 0, ``projection.drop_speckles``' test at those
-    pixels only (float32 ``rel_tol`` / ``abs_tol``: the same float32 operations as numpy's)."""
+    """:func:`slice_keep` and :func:`slice_points` in one pass: the camera-frame points (M, 3)
+    of the pixels ``slice_keep`` keeps, row-major order, the same products. The speckle test
+    stops counting neighbours once ``min_agree`` of them agree (its need is at most that, so
+    the decision is known then): the same decisions, a third of the neighbour tests."""
     h, w = depth.shape
-    keep = np.zeros((h, c1 - c0), np.bool_)
+    out = np.empty((h * (c1 - c0), 3))
+    m = 0
     for r in range(h):
         for c in range(c0, c1):
             d = depth[r, c]
@@ -1172,43 +1173,26 @@ def slice_keep(
                 tol = abs_tol + rel_tol * d
                 n_valid = 0
                 agree = 0
-                for dy in range(-1, 2):
-                    rr = r + dy
-                    if rr < 0 or rr >= h:
+                for k in range(8):  # the row's neighbours first, then the column's
+                    rr = r + _NB_DY[k]
+                    cc = c + _NB_DX[k]
+                    if rr < 0 or rr >= h or cc < 0 or cc >= w:
                         continue
-                    for dx in range(-1, 2):
-                        cc = c + dx
-                        if (dy == 0 and dx == 0) or cc < 0 or cc >= w:
-                            continue
-                        if _present(depth, conf, rr, cc):
-                            n_valid += 1
-                            if abs(depth[rr, cc] - d) <= tol:
-                                agree += 1
-                need = min(max(n_valid, 1), min_agree)
-                if agree < need:
+                    if _present(depth, conf, rr, cc):
+                        n_valid += 1
+                        if abs(depth[rr, cc] - d) <= tol:
+                            agree += 1
+                            if agree >= min_agree:
+                                break
+                if agree < min(max(n_valid, 1), min_agree):
                     continue
-            keep[r, c - c0] = True
-    return keep
+            z = np.float64(d)
+            out[m, 0] = z * x_grid[r, c - c0]
+            out[m, 1] = z * y_grid[r, c - c0]
+            out[m, 2] = z
+            m += 1
+    return out[:m]
 
 
-@numba.njit(cache=True)
-def slice_points(depth, keep, c0, x_grid, y_grid):  # pragma: no cover - compiled
-    """Camera-frame points (M, 3) of the ``keep`` pixels (columns c0:, row-major order):
-    z = depth (float64), x = z x_grid, y = z y_grid, the numpy path's products."""
-    h, w = keep.shape
-    m = 0
-    for r in range(h):
-        for c in range(w):
-            if keep[r, c]:
-                m += 1
-    out = np.empty((m, 3))
-    k = 0
-    for r in range(h):
-        for c in range(w):
-            if keep[r, c]:
-                z = np.float64(depth[r, c0 + c])
-                out[k, 0] = z * x_grid[r, c]
-                out[k, 1] = z * y_grid[r, c]
-                out[k, 2] = z
-                k += 1
-    return out
+_NB_DY = np.array([0, 0, -1, 1, -1, -1, 1, 1])
+_NB_DX = np.array([-1, 1, 0, 0, -1, 1, -1, 1])

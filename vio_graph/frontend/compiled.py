@@ -34,8 +34,10 @@ import math
 
 import numba
 import numpy as np
+from llvmlite import ir as llvm_ir
+from numba.core import cgutils
 from numba.core import types as nb_types
-from numba.core.extending import overload_method
+from numba.core.extending import intrinsic, overload_method
 from numba.experimental import structref
 
 from vio_graph.compiled_sums import pairwise_sum
@@ -1153,16 +1155,41 @@ def _present(depth, conf, r, c):  # pragma: no cover - compiled
     return conf[r, c] > 0 and math.isfinite(d) and d > 0
 
 
+@intrinsic
+def _fma(typingctx, a, b, c):  # pragma: no cover - compiled
+    """a * b + c rounded once (LLVM's ``llvm.fma.f64``, exact on any target)."""
+    sig = nb_types.float64(nb_types.float64, nb_types.float64, nb_types.float64)
+
+    def codegen(context, builder, signature, args):
+        d = llvm_ir.DoubleType()
+        fn = cgutils.get_or_insert_function(
+            builder.module, llvm_ir.FunctionType(d, [d, d, d]), "llvm.fma.f64"
+        )
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
 @numba.njit(cache=True)
-def slice_cam_points(
-    depth, conf, c0, c1, lower, upper, min_conf, rel_tol, abs_tol, min_agree, x_grid, y_grid
+def slice_xz(
+    depth, conf, c0, c1, lower, upper, min_conf, rel_tol, abs_tol, min_agree, x_grid, y_grid, R_xz
 ):  # pragma: no cover - compiled
-    """:func:`slice_keep` and :func:`slice_points` in one pass: the camera-frame points (M, 3)
-    of the pixels ``slice_keep`` keeps, row-major order, the same products. The speckle test
-    stops counting neighbours once ``min_agree`` of them agree (its need is at most that, so
-    the decision is known then): the same decisions, a third of the neighbour tests."""
+    """``projection.sagittal_slice_from_depth``'s compiled pass: the pixels of columns c0:c1
+    with depth in [lower, upper[column]] (float32 bounds) and confidence >= ``min_conf``,
+    with ``min_agree`` > 0 also passing ``projection.drop_speckles``' test (float32
+    ``rel_tol`` / ``abs_tol``, the same float32 operations as numpy's), back-projected
+    (z = depth as float64, x = z x_grid, y = z y_grid) and rotated by ``R_xz`` (2, 3): the
+    (M, 2) slice in row-major pixel order.
+
+    The speckle test stops counting neighbours once ``min_agree`` of them agree (its need is
+    at most that, so the decision is known then). The rotation is summed as the BLAS kernel
+    numpy's ``points @ R_xz.T`` calls here does (OpenBLAS, Haswell and later): a product,
+    then two fused multiply-adds, so the same floats on this BLAS, and within an ulp on
+    another."""
     h, w = depth.shape
-    out = np.empty((h * (c1 - c0), 3))
+    out = np.empty((h * (c1 - c0), 2))
+    r00, r01, r02 = R_xz[0, 0], R_xz[0, 1], R_xz[0, 2]
+    r10, r11, r12 = R_xz[1, 0], R_xz[1, 1], R_xz[1, 2]
     m = 0
     for r in range(h):
         for c in range(c0, c1):
@@ -1187,9 +1214,10 @@ def slice_cam_points(
                 if agree < min(max(n_valid, 1), min_agree):
                     continue
             z = np.float64(d)
-            out[m, 0] = z * x_grid[r, c - c0]
-            out[m, 1] = z * y_grid[r, c - c0]
-            out[m, 2] = z
+            x = z * x_grid[r, c - c0]
+            y = z * y_grid[r, c - c0]
+            out[m, 0] = _fma(z, r02, _fma(y, r01, x * r00))
+            out[m, 1] = _fma(z, r12, _fma(y, r11, x * r10))
             m += 1
     return out[:m]
 

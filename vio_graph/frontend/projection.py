@@ -215,10 +215,11 @@ def sagittal_slice_from_depth(
     c0, c1, lower, upper, x_grid, y_grid = tables
     if c1 == c0:
         return np.empty((0, 2))
+    R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
     kernels = _compiled_slice_kernels(depth_m, confidence, min_confidence)
-    if kernels is not None:  # the tests, the speckle test and the points in one compiled pass
+    if kernels is not None:  # the tests, the speckle test, eq. 2 in one compiled pass
         rel, abs_m, agree = (0.0, 0.0, 0) if speckle is None else speckle
-        points_cam = kernels.slice_cam_points(
+        return kernels.slice_xz(
             depth_m,
             confidence,
             c0,
@@ -231,12 +232,11 @@ def sagittal_slice_from_depth(
             int(agree),
             x_grid,
             y_grid,
+            R_xz,
         )
-    else:
-        points_cam = _slice_cam_points_numpy(
-            depth_m, confidence, c0, c1, lower, upper, min_confidence, speckle, x_grid, y_grid
-        )
-    R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
+    points_cam = _slice_cam_points_numpy(
+        depth_m, confidence, c0, c1, lower, upper, min_confidence, speckle, x_grid, y_grid
+    )
     return points_cam @ R_xz.T  # eq. 2
 
 

@@ -952,11 +952,7 @@ class SagittalEskf:
     def landmark_keys_of_kind(self, kind: str) -> list[LandmarkKey]:
         """Keys of the landmarks of ``kind`` ("corner", "ankle", "level") in the state, in
         its order (:attr:`landmark_keys` filtered, without building the whole tuple)."""
-        return [
-            k
-            for k in self._aug_keys
-            if k not in (_CLONE, _TILT) and k.kind == kind  # type: ignore[union-attr]
-        ]
+        return [k for k in self._aug_keys if isinstance(k, LandmarkKey) and k.kind == kind]
 
     def has_landmark(self, key: LandmarkKey) -> bool:
         """True if landmark ``key`` is in the state (``key in landmark_keys``, one lookup)."""

@@ -31,6 +31,7 @@ per machine, then loaded from ``__pycache__``).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
@@ -1156,7 +1157,7 @@ def _present(depth, conf, r, c):  # pragma: no cover - compiled
 
 
 @intrinsic
-def _fma(typingctx, a, b, c):  # pragma: no cover - compiled
+def _fma_intrinsic(typingctx, a, b, c):  # pragma: no cover - compiled
     """a * b + c rounded once (LLVM's ``llvm.fma.f64``, exact on any target)."""
     sig = nb_types.float64(nb_types.float64, nb_types.float64, nb_types.float64)
 
@@ -1168,6 +1169,11 @@ def _fma(typingctx, a, b, c):  # pragma: no cover - compiled
         return builder.call(fn, args)
 
     return sig, codegen
+
+
+#: a * b + c rounded once, callable from compiled code (typed as Any: mypy would read the
+#: intrinsic's typing signature as its call signature)
+_fma: Any = _fma_intrinsic
 
 
 @numba.njit(cache=True)

@@ -259,3 +259,26 @@ def test_corner_landmarks_hold_x_against_visual_odometry_drift() -> None:
     assert FilterConfig().corner_landmark_sigma_m == 0.0
     assert err_default < 0.08
     assert err_default < 0.8 * err_extra
+
+
+def test_landmark_lookups_by_kind_and_key_agree_with_landmark_keys() -> None:
+    """landmark_keys_of_kind and has_landmark (the landmark memories' per-frame lookups)
+    give what filtering ``landmark_keys`` gives, with the clone and other kinds in the state,
+    before and after a landmark in the middle is dropped."""
+    f = SagittalEskf()
+    f.initialise(0.0, (0.0, 0.0))
+    keys = [LandmarkKey("corner", 3), LandmarkKey("level", 1), LandmarkKey("corner", 1)]
+    keys.append(LandmarkKey("ankle", 0))
+    f.clone_position(0.0)
+    for j, key in enumerate(keys):
+        f.update_landmark(key, (0.1 * j, -0.2), np.eye(2) * 1e-4)
+    for dropped in (None, keys[0]):
+        if dropped is not None:
+            f.drop_landmark(dropped)
+        for kind in ("corner", "level", "ankle"):
+            want = [k for k in f.landmark_keys if k.kind == kind]
+            assert f.landmark_keys_of_kind(kind) == want
+        for key in [*keys, LandmarkKey("corner", 9)]:
+            assert f.has_landmark(key) == (key in f.landmark_keys)
+    assert f.landmark_keys_of_kind("corner") == [LandmarkKey("corner", 1)]
+    assert not f.has_landmark("clone")  # the clone is not a landmark

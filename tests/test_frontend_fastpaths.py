@@ -765,3 +765,67 @@ def test_rng_handle_draws_what_the_generator_draws() -> None:
     assert np.array_equal(via_handle[4], direct[4]) and via_handle[1] == direct[1]
     assert np.array_equal(a.integers(0, 10**9, 5), b.integers(0, 10**9, 5))
     assert kernels.rng_ref(a) is kernels.rng_ref(a)
+
+
+def _blas_matmul_is_forward_fma() -> bool:
+    """Whether numpy's (N, 3) @ (3, 2) here sums as a product then two fused multiply-adds
+    in index order (OpenBLAS on Haswell and later), checked exactly with fractions."""
+    from fractions import Fraction
+
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(64, 3))
+    R = rng.normal(size=(2, 3))
+    got = p @ R.T
+
+    def fma(a: float, b: float, c: float) -> float:
+        return float(Fraction(a) * Fraction(b) + Fraction(c))
+
+    want = [[fma(a[2], r[2], fma(a[1], r[1], a[0] * r[0])) for r in R] for a in p]
+    return bool(np.array_equal(got, np.array(want)))
+
+
+def test_compiled_slice_equals_the_numpy_path_at_every_agreement_count() -> None:
+    """The compiled slice (the pixel tests, the speckle test stopping once ``min_agree``
+    neighbours agree, back-projection and eq. 2 in one pass) against the numpy path on the
+    same tables, for every ``min_agree`` of 0..8, with neighbours exactly at the tolerance and
+    the column band reaching the image borders: the same pixels, and the same floats where
+    numpy's matrix product sums as the kernel does (else within 1e-12 m)."""
+    from vio_graph.frontend import projection
+
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    exact = _blas_matmul_is_forward_fma()
+    K = np.array([[210.6, 0.0, 111.5], [0.0, 212.9, 85.5], [0.0, 0.0, 1.0]])
+    rng = np.random.default_rng(8)
+    for trial in range(27):
+        min_agree = trial % 9
+        rows = np.arange(172, dtype=np.float32)[:, None]
+        depth = (0.3 + 0.0002 * rows + np.zeros((1, 224))).astype(np.float32)
+        # neighbours at exactly abs_tol + rel_tol * d of each other along rows
+        step = np.float32(0.01) + np.float32(0.03) * depth[:, :1]
+        depth[:, 1::2] = depth[:, :1] + step
+        depth[:, ::2] = depth[:, :1]
+        noisy = rng.random(depth.shape) < 0.1
+        depth[noisy] = rng.uniform(0.05, 4.0, int(noisy.sum())).astype(np.float32)
+        depth[rng.random(depth.shape) < 0.02] = np.nan
+        conf = np.where(rng.random(depth.shape) < 0.1, 0, 200).astype(np.uint8)
+        half_width = float(rng.choice([0.05, 0.5]))  # 0.5: the band reaches the borders
+        tables = projection._slice_tables(
+            K.tobytes(), depth.shape, depth.dtype, half_width, 0.1, 4.0
+        )
+        c0, c1, lower, upper, x_grid, y_grid = tables
+        R_xz = np.linalg.qr(rng.normal(size=(3, 3)))[0][[0, 2], :]
+        speckle = (np.float32(0.03), np.float32(0.01), min_agree)
+        fast = kernels.slice_xz(
+            depth, conf, c0, c1, lower, upper, 1, *speckle, x_grid, y_grid, R_xz
+        )
+        cam = projection._slice_cam_points_numpy(
+            depth, conf, c0, c1, lower, upper, 1, speckle if min_agree else None, x_grid, y_grid
+        )
+        ref = cam @ R_xz.T
+        assert ref.shape[0] > 20
+        assert fast.shape == ref.shape
+        if exact:
+            assert np.array_equal(fast, ref)
+        else:
+            assert np.allclose(fast, ref, rtol=0, atol=1e-12)

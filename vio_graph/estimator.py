@@ -1242,7 +1242,7 @@ class OnlineEstimator:
             fc.stance_attitude_reanchor
             and stance
             and self._in_stance
-            and key in self.filter.landmark_keys
+            and self.filter.has_landmark(key)
         ):
             # the anchor holds the ankle seen through the attitude of its onset; the level
             # surfaces have turned that attitude since (pitch offset) by more than the anchor's
@@ -1257,7 +1257,7 @@ class OnlineEstimator:
                 stats["attitude_reanchors"] += 1
         self._stance_observation = None
         if stance:
-            first = key not in self.filter.landmark_keys
+            first = not self.filter.has_landmark(key)
             if first:
                 self._stance_offset_rad = self.pitch_offset.offset_rad
             fused = self.filter.update_landmark(key, lever, np.eye(2) * sig2, t, fc.stance_gate)

@@ -54,6 +54,8 @@ class CornerLandmarks(LandmarkMemory):
     def forget(self, t_s: float, current: LandmarkKey | None, eskf: SagittalEskf) -> None:
         """Marginalise from ``eskf`` the corner landmarks unseen for ``memory_s`` at ``t_s``
         (s), and the oldest beyond ``max_landmarks`` (never ``current``)."""
-        kept = self._forget(t_s, set() if current is None else {current}, eskf)
+        self._forget(t_s, set() if current is None else {current}, eskf)
         # ended tracks whose landmark is gone are never looked up again (ids only increase)
-        self._alias = {tid: k for tid, k in self._alias.items() if k in kept}
+        self._alias = {
+            tid: k for tid, k in self._alias.items() if k == current or eskf.has_landmark(k)
+        }

@@ -949,6 +949,15 @@ class SagittalEskf:
         """Keys of the landmarks currently in the state."""
         return tuple(k for k in self._aug_keys if k not in (_CLONE, _TILT))  # type: ignore[misc]
 
+    def landmark_keys_of_kind(self, kind: str) -> list[LandmarkKey]:
+        """Keys of the landmarks of ``kind`` ("corner", "ankle", "level") in the state, in
+        its order (:attr:`landmark_keys` filtered, without building the whole tuple)."""
+        return [k for k in self._aug_keys if isinstance(k, LandmarkKey) and k.kind == kind]
+
+    def has_landmark(self, key: LandmarkKey) -> bool:
+        """True if landmark ``key`` is in the state (``key in landmark_keys``, one lookup)."""
+        return key in self._aug_xz and key not in (_CLONE, _TILT)
+
     def landmark_xz(self, key: LandmarkKey) -> NDArray[np.float64]:
         """Current estimate (m) of landmark ``key``."""
         if key in (_CLONE, _TILT) or key not in self._aug_xz:

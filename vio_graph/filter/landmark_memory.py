@@ -26,23 +26,25 @@ class LandmarkMemory:
     @classmethod
     def keys(cls, eskf: SagittalEskf) -> list[LandmarkKey]:
         """The landmarks of this kind in the filter state, in its order."""
-        return [k for k in eskf.landmark_keys if k.kind == cls.kind]
+        return eskf.landmark_keys_of_kind(cls.kind)
 
     def saw(self, key: LandmarkKey, t_s: float) -> None:
         """The landmark ``key`` was observed at ``t_s`` (s)."""
         self._seen[key] = t_s
 
-    def _forget(self, t_s: float, current: Set[LandmarkKey], eskf: SagittalEskf) -> set:
+    def _forget(self, t_s: float, current: Set[LandmarkKey], eskf: SagittalEskf) -> None:
         """Marginalise from ``eskf`` the landmarks of this kind unseen for ``memory_s`` at
-        ``t_s`` (s), and the oldest beyond ``max_landmarks`` (never one in ``current``);
-        returns the keys still remembered (the state's and ``current``)."""
+        ``t_s`` (s), and the oldest beyond ``max_landmarks`` (never one in ``current``); the
+        last sights kept are those of the landmarks still in the state or in ``current``."""
+        alive = []
         for k in self.keys(eskf):
             if k not in current and t_s - self._seen.get(k, t_s) > self.memory_s:
                 eskf.drop_landmark(k)
-        kept_kind = sorted(self.keys(eskf), key=lambda k: self._seen.get(k, t_s))
+            else:
+                alive.append(k)
+        # the state's order is kept by the drops, so ``alive`` is keys(eskf) now
+        kept_kind = sorted(alive, key=lambda k: self._seen.get(k, t_s))
         for k in kept_kind[: max(0, len(kept_kind) - self.max_landmarks)]:
             if k not in current:
                 eskf.drop_landmark(k)
-        kept = set(eskf.landmark_keys) | set(current)
-        self._seen = {k: v for k, v in self._seen.items() if k in kept}
-        return kept
+        self._seen = {k: v for k, v in self._seen.items() if k in current or eskf.has_landmark(k)}

@@ -31,11 +31,14 @@ per machine, then loaded from ``__pycache__``).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
+from llvmlite import ir as llvm_ir
+from numba.core import cgutils
 from numba.core import types as nb_types
-from numba.core.extending import overload_method
+from numba.core.extending import intrinsic, overload_method
 from numba.experimental import structref
 
 from vio_graph.compiled_sums import pairwise_sum
@@ -1153,16 +1156,47 @@ def _present(depth, conf, r, c):  # pragma: no cover - compiled
     return conf[r, c] > 0 and math.isfinite(d) and d > 0
 
 
+@intrinsic
+def _fma_intrinsic(typingctx, a, b, c):  # pragma: no cover - compiled
+    """a * b + c rounded once (LLVM's ``llvm.fma.f64``, exact on any target)."""
+    sig = nb_types.float64(nb_types.float64, nb_types.float64, nb_types.float64)
+
+    def codegen(context, builder, signature, args):
+        d = llvm_ir.DoubleType()
+        fn = cgutils.get_or_insert_function(
+            builder.module, llvm_ir.FunctionType(d, [d, d, d]), "llvm.fma.f64"
+        )
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
+#: a * b + c rounded once, callable from compiled code (typed as Any: mypy would read the
+#: intrinsic's typing signature as its call signature)
+_fma: Any = _fma_intrinsic
+
+
 @numba.njit(cache=True)
-def slice_keep(
-    depth, conf, c0, c1, lower, upper, min_conf, rel_tol, abs_tol, min_agree
+def slice_xz(
+    depth, conf, c0, c1, lower, upper, min_conf, rel_tol, abs_tol, min_agree, x_grid, y_grid, R_xz
 ):  # pragma: no cover - compiled
-    """``projection.sagittal_slice_from_depth``'s pixel mask over columns c0:c1 (float32
-    depth, uint8 confidence): depth in [lower, upper[column]] (float32 bounds), confidence
-    >= ``min_conf``, and, with ``min_agree`` > 0, ``projection.drop_speckles``' test at those
-    pixels only (float32 ``rel_tol`` / ``abs_tol``: the same float32 operations as numpy's)."""
+    """``projection.sagittal_slice_from_depth``'s compiled pass: the pixels of columns c0:c1
+    with depth in [lower, upper[column]] (float32 bounds) and confidence >= ``min_conf``,
+    with ``min_agree`` > 0 also passing ``projection.drop_speckles``' test (float32
+    ``rel_tol`` / ``abs_tol``, the same float32 operations as numpy's), back-projected
+    (z = depth as float64, x = z x_grid, y = z y_grid) and rotated by ``R_xz`` (2, 3): the
+    (M, 2) slice in row-major pixel order.
+
+    The speckle test stops counting neighbours once ``min_agree`` of them agree (its need is
+    at most that, so the decision is known then). The rotation is summed as the BLAS kernel
+    numpy's ``points @ R_xz.T`` calls here does (OpenBLAS, Haswell and later): a product,
+    then two fused multiply-adds, so the same floats on this BLAS, and within an ulp on
+    another."""
     h, w = depth.shape
-    keep = np.zeros((h, c1 - c0), np.bool_)
+    out = np.empty((h * (c1 - c0), 2))
+    r00, r01, r02 = R_xz[0, 0], R_xz[0, 1], R_xz[0, 2]
+    r10, r11, r12 = R_xz[1, 0], R_xz[1, 1], R_xz[1, 2]
+    m = 0
     for r in range(h):
         for c in range(c0, c1):
             d = depth[r, c]
@@ -1172,43 +1206,27 @@ def slice_keep(
                 tol = abs_tol + rel_tol * d
                 n_valid = 0
                 agree = 0
-                for dy in range(-1, 2):
-                    rr = r + dy
-                    if rr < 0 or rr >= h:
+                for k in range(8):  # the row's neighbours first, then the column's
+                    rr = r + _NB_DY[k]
+                    cc = c + _NB_DX[k]
+                    if rr < 0 or rr >= h or cc < 0 or cc >= w:
                         continue
-                    for dx in range(-1, 2):
-                        cc = c + dx
-                        if (dy == 0 and dx == 0) or cc < 0 or cc >= w:
-                            continue
-                        if _present(depth, conf, rr, cc):
-                            n_valid += 1
-                            if abs(depth[rr, cc] - d) <= tol:
-                                agree += 1
-                need = min(max(n_valid, 1), min_agree)
-                if agree < need:
+                    if _present(depth, conf, rr, cc):
+                        n_valid += 1
+                        if abs(depth[rr, cc] - d) <= tol:
+                            agree += 1
+                            if agree >= min_agree:
+                                break
+                if agree < min(max(n_valid, 1), min_agree):
                     continue
-            keep[r, c - c0] = True
-    return keep
+            z = np.float64(d)
+            x = z * x_grid[r, c - c0]
+            y = z * y_grid[r, c - c0]
+            out[m, 0] = _fma(z, r02, _fma(y, r01, x * r00))
+            out[m, 1] = _fma(z, r12, _fma(y, r11, x * r10))
+            m += 1
+    return out[:m]
 
 
-@numba.njit(cache=True)
-def slice_points(depth, keep, c0, x_grid, y_grid):  # pragma: no cover - compiled
-    """Camera-frame points (M, 3) of the ``keep`` pixels (columns c0:, row-major order):
-    z = depth (float64), x = z x_grid, y = z y_grid, the numpy path's products."""
-    h, w = keep.shape
-    m = 0
-    for r in range(h):
-        for c in range(w):
-            if keep[r, c]:
-                m += 1
-    out = np.empty((m, 3))
-    k = 0
-    for r in range(h):
-        for c in range(w):
-            if keep[r, c]:
-                z = np.float64(depth[r, c0 + c])
-                out[k, 0] = z * x_grid[r, c]
-                out[k, 1] = z * y_grid[r, c]
-                out[k, 2] = z
-                k += 1
-    return out
+_NB_DY = np.array([0, 0, -1, 1, -1, -1, 1, 1])
+_NB_DX = np.array([-1, 1, 0, 0, -1, 1, -1, 1])

@@ -215,11 +215,11 @@ def sagittal_slice_from_depth(
     c0, c1, lower, upper, x_grid, y_grid = tables
     if c1 == c0:
         return np.empty((0, 2))
-    depth = depth_m[:, c0:c1]
+    R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
     kernels = _compiled_slice_kernels(depth_m, confidence, min_confidence)
-    if kernels is not None:  # the tests below and the speckle test in one compiled pass
+    if kernels is not None:  # the tests, the speckle test, eq. 2 in one compiled pass
         rel, abs_m, agree = (0.0, 0.0, 0) if speckle is None else speckle
-        keep = kernels.slice_keep(
+        return kernels.slice_xz(
             depth_m,
             confidence,
             c0,
@@ -230,12 +230,35 @@ def sagittal_slice_from_depth(
             np.float32(rel),
             np.float32(abs_m),
             int(agree),
+            x_grid,
+            y_grid,
+            R_xz,
         )
-        speckle = None
-    else:
-        keep = depth <= upper  # max depth and eq. 1 per pixel (NaN fails)
-        keep &= depth >= lower
-        keep &= confidence[:, c0:c1] >= min_confidence
+    points_cam = _slice_cam_points_numpy(
+        depth_m, confidence, c0, c1, lower, upper, min_confidence, speckle, x_grid, y_grid
+    )
+    return points_cam @ R_xz.T  # eq. 2
+
+
+def _slice_cam_points_numpy(
+    depth_m: NDArray,
+    confidence: NDArray[np.uint8],
+    c0: int,
+    c1: int,
+    lower,
+    upper: NDArray,
+    min_confidence: int,
+    speckle: tuple[float, float, int] | None,
+    x_grid: NDArray[np.float64],
+    y_grid: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Camera-frame points (M, 3) of the slice's pixels of columns c0:c1 (row-major), numpy:
+    the per-column depth interval, the confidence and, if given, the speckle test on the
+    bounding box of the pixels that pass the others."""
+    depth = depth_m[:, c0:c1]
+    keep = depth <= upper  # max depth and eq. 1 per pixel (NaN fails)
+    keep &= depth >= lower
+    keep &= confidence[:, c0:c1] >= min_confidence
     if speckle is not None:  # drop_speckles on the bounding box of the slice's pixels
         in_rows = np.flatnonzero(keep.any(axis=1))
         in_cols = np.flatnonzero(keep.any(axis=0))
@@ -244,16 +267,12 @@ def sagittal_slice_from_depth(
             k0, k1 = int(in_cols[0]), int(in_cols[-1]) + 1
             drops = _speckle_drops_in_box(depth_m, confidence, r0, r1, c0 + k0, c0 + k1, *speckle)
             keep[r0:r1, k0:k1] &= ~drops
-    if kernels is not None:
-        points_cam = kernels.slice_points(depth_m, keep, c0, x_grid, y_grid)
-    else:
-        z = depth[keep].astype(np.float64)
-        points_cam = np.empty((z.size, 3))
-        np.multiply(z, x_grid[keep], out=points_cam[:, 0])
-        np.multiply(z, y_grid[keep], out=points_cam[:, 1])
-        points_cam[:, 2] = z
-    R_xz = np.asarray(R_ground_cam, dtype=float)[[0, 2], :]
-    return points_cam @ R_xz.T  # eq. 2
+    z = depth[keep].astype(np.float64)
+    points_cam = np.empty((z.size, 3))
+    np.multiply(z, x_grid[keep], out=points_cam[:, 0])
+    np.multiply(z, y_grid[keep], out=points_cam[:, 1])
+    points_cam[:, 2] = z
+    return points_cam
 
 
 def _compiled_slice_kernels(depth_m: NDArray, confidence: NDArray, min_confidence: int):

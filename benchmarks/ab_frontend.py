@@ -1,0 +1,111 @@
+"""Before / after of the per-frame front end and fusion in one run: two source trees (a git
+revision and the working tree) replayed alternately, each in its own process.
+
+Per process: the compiled kernels loaded (``bench_frontend.compiled_startup_s``), one warm-up
+replay, then ``--replays`` replays of the simulated upstair trial through
+``bench_frontend.replay_once`` with ``VIO_GRAPH_COMPILED=1`` (the numba paths, what long
+recordings run): the estimator's stage times per frame (wall clock) and the CPU time of every
+``OnlineEstimator.add_frame`` call. The processes alternate base, working tree, base, ...
+``--rounds`` times, so machine load hits both alike; medians and p95 pool all frames of all
+replays of all rounds.
+
+    python benchmarks/ab_frontend.py --base f239660~1 [--rounds 3] [--replays 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import _common  # noqa: I001 - before numpy: pins the thread pools numpy reads on import
+import numpy as np
+from ab_imu_sample import _extract
+
+STAGES = (
+    "frontend_projection",
+    "frontend_smoothing",
+    "frontend_terrain",
+    "frontend_corners",
+    "frontend_icp",
+    "frontend_total",
+    "fusion",
+    "frontend_plus_fusion",
+)
+
+_CHILD = r"""
+import json, os, sys
+tree, replays = sys.argv[1], int(sys.argv[2])
+sys.path[:0] = [tree, os.path.join(tree, "benchmarks")]
+os.environ["VIO_GRAPH_COMPILED"] = "1"
+import _common  # noqa
+import bench_frontend as bf
+import vio_graph
+assert os.path.realpath(vio_graph.__file__).startswith(os.path.realpath(tree))
+from vio_graph.recording.reader import Recording
+rec = Recording.open(bf.ensure_recording(None))
+frames = [rec.frame(i) for i in range(rec.num_frames)]
+bf.compiled_startup_s()
+timed = bf._TimedIcp(bf.tracker_module.icp_translation_2d)
+bf.tracker_module.icp_translation_2d = timed
+bf.replay_once(rec, frames, timed)  # warm-up
+rows, cpu = [], []
+for _ in range(replays):
+    run = bf.replay_once(rec, frames, timed)
+    rows += run["timings"]
+    cpu += run["frame_cpu_ms"]
+print("RESULT" + json.dumps({"rows": rows, "add_frame_cpu_ms": cpu}))
+"""
+
+
+def _child(tree: Path, replays: int) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    out = subprocess.run(
+        [sys.executable, "-c", _CHILD, str(tree), str(replays)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tree,
+    )
+    lines = [x for x in out.stdout.splitlines() if x.startswith("RESULT")]
+    if not lines:
+        raise RuntimeError(f"replay in {tree} failed:\n{out.stderr[-3000:]}")
+    return json.loads(lines[0][len("RESULT") :])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", required=True, help="git revision to compare against")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--replays", type=int, default=2, help="timed replays per process")
+    args = ap.parse_args()
+    new = Path(__file__).resolve().parent.parent
+    pooled: dict[str, dict[str, list[float]]] = {
+        name: {s: [] for s in (*STAGES, "add_frame_cpu")} for name in ("base", "new")
+    }
+    with tempfile.TemporaryDirectory() as tmp:
+        base = _extract(args.base, Path(tmp))
+        for r in range(args.rounds):
+            for name, tree in (("base", base), ("new", new)):
+                d = _child(tree, args.replays)
+                for s in STAGES:
+                    pooled[name][s] += [row[s] for row in d["rows"]]
+                pooled[name]["add_frame_cpu"] += d["add_frame_cpu_ms"]
+                ff = np.median([row["frontend_plus_fusion"] for row in d["rows"]])
+                print(f"round {r} {name}: front end + fusion median {ff:.3f} ms", flush=True)
+    print("| ms per frame | base median | base p95 | new median | new p95 | ratio of medians |")
+    print("|---|---|---|---|---|---|")
+    for s in (*STAGES, "add_frame_cpu"):
+        b, n = _common.stats_ms(pooled["base"][s]), _common.stats_ms(pooled["new"][s])
+        print(
+            f"| {s} | {b['median']:.3f} | {b['p95']:.3f} | {n['median']:.3f} | "
+            f"{n['p95']:.3f} | {n['median'] / b['median']:.3f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -246,24 +246,30 @@ def test_a_whole_replay_equals_the_reference_path(
         out = dict(log.camera_xz)
         out["P"] = rp.online.filter.state.P
         fused.append(rp.online.n_fused_samples)
+        one_call.append(rp.online.n_one_call_samples)
         return out
 
     fused: list[int] = []
+    one_call: list[int] = []
     monkeypatch.setenv("VIO_GRAPH_COMPILED", "0")  # the scalar Python closed forms
     fast = run()
-    assert fused[-1] == 0
+    assert fused[-1] == 0 and one_call[-1] == 0
     monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")  # the compiled kernels (filter/compiled_imu)
     compiled = run() if fast_imu.imu_kernels() is not None else None
     if compiled is not None:
-        # nearly every sample took the one-call path (compiled_imu.sample_step); the
-        # separate kernels it fuses give the same bits
+        # nearly every sample took the one-call paths (compiled_imu.sample_step inside
+        # compiled_imu.imu_input); the separate kernels they fuse give the same bits
         n_imu = int(np.sum(rec.imu.timestamp_s <= rec.frame_timestamps_s[-1]))
-        assert fused[-1] > 0.9 * n_imu
+        assert fused[-1] > 0.9 * n_imu and one_call[-1] > 0.9 * n_imu
         with monkeypatch.context() as m:
+            m.setattr(estimator_mod.OnlineEstimator, "_init_one_call_input", lambda self: None)
+            fused_step_only = run()
+            assert one_call[-1] == 0 and fused[-1] > 0.9 * n_imu
             m.setattr(estimator_mod.OnlineEstimator, "_advance_imu_fused", lambda self, s: None)
             separate = run()
         for name in compiled:
             np.testing.assert_array_equal(separate[name], compiled[name], err_msg=name)
+            np.testing.assert_array_equal(fused_step_only[name], compiled[name], err_msg=name)
     monkeypatch.setenv("VIO_GRAPH_COMPILED", "0")
     monkeypatch.setattr(SagittalEskf, "propagate", SagittalEskf.propagate_reference)
     monkeypatch.setattr(AttitudeTracker, "add", AttitudeTracker.add_reference)
@@ -338,6 +344,7 @@ def test_the_one_call_sample_path_equals_the_separate_kernels_on_faulty_imu(
 
     fused, cams_f, quats_f = run()
     with monkeypatch.context() as m:
+        m.setattr(OnlineEstimator, "_init_one_call_input", lambda self: None)
         m.setattr(OnlineEstimator, "_advance_imu_fused", lambda self, s: None)
         separate, cams_s, quats_s = run()
     assert fused.imu_faults.n_gyro_repaired >= 3 and fused.imu_faults.n_accel_saturated > 10
@@ -348,3 +355,95 @@ def test_the_one_call_sample_path_equals_the_separate_kernels_on_faulty_imu(
     np.testing.assert_array_equal(fused.filter.state.P, separate.filter.state.P)
     assert fused.fault_report() == separate.fault_report()
     assert fused.health_report() == separate.health_report()
+
+
+def test_the_one_call_input_equals_the_separate_calls_on_faulty_imu_and_clock(
+    short_upstair: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """OnlineEstimator._add_imu_one_call (compiled_imu.imu_input: IMU clock model, fault check
+    and the fused sample step in one call) against the separate calls, bit for bit, on an IMU
+    stream with stamp jitter, a gap, stamps that go backwards, corrupted packets and a clipped
+    accelerometer: every sample the kernel cannot finish must continue on the general path
+    exactly where it stopped (clock and fault reports included)."""
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")
+    if fast_imu.imu_kernels() is None:
+        pytest.skip("numba not installed")
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.replay import replay_order
+
+    rec = Recording.open(short_upstair)
+    rig = dataclasses.replace(RigGeometry.from_metadata(rec.metadata), accel_range_mps2=14.0)
+    kinds, idx = replay_order(rec)
+    jitter = np.random.default_rng(3).uniform(-1.5e-3, 1.5e-3, rec.imu.timestamp_s.size)
+
+    def sample(i: int) -> ImuSample | None:
+        if 400 <= i < 406:  # a gap of six samples
+            return None
+        s = rec.imu.sample(i)
+        t = s.timestamp_s + jitter[i]
+        if i in (300, 301):  # stamps at or before the previous one (dropped)
+            t = rec.imu.timestamp_s[299] + jitter[299] - 1e-3 * (i - 299)
+        acc = np.clip(s.accel_mps2, -14.0, 14.0)  # clipped at the declared range
+        if i in (120, 121, 250):  # corrupt packets
+            return dataclasses.replace(
+                s, timestamp_s=t, gyro_radps=s.gyro_radps + 3.0, accel_mps2=-acc
+            )
+        return dataclasses.replace(s, timestamp_s=t, accel_mps2=acc)
+
+    def run() -> tuple[OnlineEstimator, list[np.ndarray], list[np.ndarray]]:
+        est = OnlineEstimator(PipelineConfig(), rig)
+        cams, steps = [], []
+        for kind, i in zip(kinds, idx, strict=True):
+            if kind == 0:
+                s = sample(int(i))
+                step = None if s is None else est.add_imu(s)
+                if step is not None:
+                    steps.append(
+                        np.r_[
+                            step.shank.timestamp_s,
+                            step.shank.accel_mps2,
+                            step.shank.gyro_radps,
+                            step.corrected.timestamp_s,
+                            step.corrected.quat_wxyz,
+                            step.corrected.accel_extra_sigma_mps2,
+                            step.corrected.gyro_extra_sigma_radps,
+                        ]
+                    )
+            elif kind == 1:
+                est.add_joints(rec.joints.sample(int(i)))
+            elif est.initialised:
+                cams.append(est.add_frame(rec.frame(int(i)))[0].camera_xz_m)
+        return est, cams, steps
+
+    one_call, cams_o, steps_o = run()
+    with monkeypatch.context() as m:
+        m.setattr(OnlineEstimator, "_init_one_call_input", lambda self: None)
+        m.setattr(OnlineEstimator, "_advance_imu_fused", lambda self, s: None)
+        separate, cams_s, steps_s = run()
+    rep = one_call.fault_report()
+    assert rep["timestamps"]["imu"]["gaps"] >= 1 and rep["timestamps"]["imu"]["backwards"] == 2
+    assert rep["timestamps"]["imu"]["correction_rms_s"] > 1e-4  # the clock line smoothed
+    assert one_call.imu_faults.n_gyro_repaired >= 3 and one_call.imu_faults.n_accel_saturated > 10
+    assert 0 < one_call.n_one_call_samples < len(steps_o) and separate.n_one_call_samples == 0
+    np.testing.assert_array_equal(np.array(steps_o), np.array(steps_s))
+    np.testing.assert_array_equal(np.array(cams_o), np.array(cams_s))
+    np.testing.assert_array_equal(one_call.filter.state.P, separate.filter.state.P)
+    assert rep == separate.fault_report()
+    assert one_call.health_report() == separate.health_report()
+    assert one_call.imu_faults.max_gyro_d2 == separate.imu_faults.max_gyro_d2
+
+
+def test_the_fast_sample_constructors_equal_the_dataclass_ones() -> None:
+    """estimator._replaced and _imu_step (the frozen __init__ skipped) build the same objects
+    as dataclasses.replace and ImuStep(...)."""
+    from vio_graph.protocol import ImuStep
+
+    s = ImuSample(1.0, np.ones(3), np.zeros(3), np.array([1.0, 0, 0, 0]), 0.5, 0.1, True)
+    q = np.array([0.0, 1.0, 0.0, 0.0])
+    r = estimator_mod._replaced(s, 2.0, q)
+    assert type(r) is ImuSample and r == dataclasses.replace(s, timestamp_s=2.0, quat_wxyz=q)
+    assert r.__dict__.keys() == s.__dict__.keys() and s.timestamp_s == 1.0
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        r.timestamp_s = 3.0  # type: ignore[misc]
+    st = estimator_mod._imu_step(s, r)
+    assert type(st) is ImuStep and st == ImuStep(shank=s, corrected=r)

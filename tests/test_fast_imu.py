@@ -431,19 +431,3 @@ def test_the_one_call_input_equals_the_separate_calls_on_faulty_imu_and_clock(
     assert rep == separate.fault_report()
     assert one_call.health_report() == separate.health_report()
     assert one_call.imu_faults.max_gyro_d2 == separate.imu_faults.max_gyro_d2
-
-
-def test_the_fast_sample_constructors_equal_the_dataclass_ones() -> None:
-    """estimator._replaced and _imu_step (the frozen __init__ skipped) build the same objects
-    as dataclasses.replace and ImuStep(...)."""
-    from vio_graph.protocol import ImuStep
-
-    s = ImuSample(1.0, np.ones(3), np.zeros(3), np.array([1.0, 0, 0, 0]), 0.5, 0.1, True)
-    q = np.array([0.0, 1.0, 0.0, 0.0])
-    r = estimator_mod._replaced(s, 2.0, q)
-    assert type(r) is ImuSample and r == dataclasses.replace(s, timestamp_s=2.0, quat_wxyz=q)
-    assert r.__dict__.keys() == s.__dict__.keys() and s.timestamp_s == 1.0
-    with pytest.raises(dataclasses.FrozenInstanceError):
-        r.timestamp_s = 3.0  # type: ignore[misc]
-    st = estimator_mod._imu_step(s, r)
-    assert type(st) is ImuStep and st == ImuStep(shank=s, corrected=r)

@@ -129,6 +129,43 @@ def test_clock_fit_is_bit_for_bit_the_np_mean_formulation() -> None:
     assert min(checked) < 20 <= max(checked) == 120 and moved > 300
 
 
+@pytest.mark.parametrize("jitter_s", [0.0, 1e-9, 3e-8, 1e-7, 2e-3])
+def test_compiled_clock_skips_the_fit_only_where_it_keeps_the_stamp(
+    jitter_s: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """compiled_imu.clock_correct skips the O(window) line fit when the steps between the
+    line's stamps are close enough to the nominal period that the fit must keep the stamp:
+    every output equals what the full fit (compiled_imu.clock_line at every stamp) gives,
+    bit for bit, on stamps on the nominal line (float rounding only), with jitter below,
+    around and above the skip bound, across a gap and after the window fills."""
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")
+    k = fast_imu.imu_kernels()
+    if k is None:
+        pytest.skip("numba not installed")
+    rng = np.random.default_rng(8)
+    period, window, tol = 0.01, 200, 1e-6
+    stamps = 1234.5 + period * np.arange(1200) + rng.uniform(-jitter_s, jitter_s, 1200)
+    stamps[700:] += 0.5  # a gap: the line starts over
+    model = ClockModel(period, window, 5.0)
+    assert model._st is not None
+    last, kept = None, 0
+    for t in stamps:
+        out = model.correct(float(t))
+        pos, n = int(model._st[k.CLK_POS]), int(model._st[k.CLK_N])
+        icpt = k.clock_line(model._buf, pos, n, period, 20)
+        want = t if abs(icpt - t) < tol else icpt
+        if last is not None and want <= last:
+            want = t if t > last else last + 0.5 * period
+        assert out == want
+        kept += out == t
+        last = out
+    assert model.n_gaps == 1
+    if jitter_s <= 3e-8:
+        assert kept == stamps.size  # the skip's answer: the stamps as recorded
+    if jitter_s >= 2e-3:
+        assert kept < stamps.size / 10
+
+
 @pytest.mark.parametrize("compiled", ["0", "1"])
 def test_clock_fit_and_fault_monitor_equal_their_references(
     compiled: str, monkeypatch: pytest.MonkeyPatch

@@ -388,9 +388,10 @@ def clock_line(buf, pos, n, period_s, min_fit):
 
 
 # ClockModel's state in compiled mode (``ClockModel._st``; CLK_N_CORR stays the last slot,
-# ClockModel.report reads it there)
-CLK_HAS_LAST, CLK_LAST, CLK_K, CLK_POS, CLK_N, CLK_HAS_OUT, CLK_OUT, CLK_N_CORR = range(8)
-CLK_SIZE = 8
+# ClockModel.report reads it there). CLK_DEV: the sum over the line's stamps of how far each
+# step between consecutive stamps is from the nominal period (s), see clock_correct.
+CLK_HAS_LAST, CLK_LAST, CLK_K, CLK_POS, CLK_N, CLK_HAS_OUT, CLK_OUT, CLK_DEV, CLK_N_CORR = range(9)
+CLK_SIZE = 9
 
 
 @numba.njit(cache=True)
@@ -417,6 +418,16 @@ def clock_correct(st, buf, corr, t, period_s, gap_periods, window, smooth, min_f
     st[CLK_HAS_LAST] = 1.0
     st[CLK_LAST] = t
     pos = int(st[CLK_POS])
+    n_old = int(st[CLK_N])
+    # deviation sum of the steps inside the line's window: the oldest stamp's step leaves
+    # when the window is full, the new one's enters
+    dev = st[CLK_DEV] if n_old > 0 else 0.0
+    if n_old == window:
+        lo = pos - n_old
+        dev -= abs(buf[lo + 1] - buf[lo] - period_s)
+    if n_old > 0:
+        dev += abs(t - buf[pos - 1] - period_s)
+    st[CLK_DEV] = dev
     if pos == buf.size:  # keep the newest window - 1 stamps, at the front
         keep = window - 1
         for i in range(keep):
@@ -425,10 +436,17 @@ def clock_correct(st, buf, corr, t, period_s, gap_periods, window, smooth, min_f
     buf[pos] = t
     pos += 1
     st[CLK_POS] = pos
-    n = min(int(st[CLK_N]) + 1, window)
+    n = min(n_old + 1, window)
     st[CLK_N] = n
     out = t
-    if smooth:
+    # Stamps on a line of the nominal slope through the newest one leave the fit there (a
+    # least-squares line, or the nominal-period mean below MIN_FIT stamps) at the newest
+    # stamp: both reproduce a line exactly. Each stamp is off that line by at most the sum
+    # of its steps' deviations (``dev``), and the fit's value at the newest stamp weighs the
+    # stamps with |w_i| <= 4 / n, so it is within 4 dev of the newest stamp. Far below the
+    # keep tolerance (1/16 of it: 4 dev <= tol / 4 leaves 3/4 of it for rounding, ~1e-11 s),
+    # the fit keeps the stamp anyway: skip its O(window) sums (same output, bit for bit).
+    if smooth and not dev <= keep_tol_s / 16.0:
         icpt = clock_line(buf, pos, n, period_s, min_fit)
         if not abs(icpt - t) < keep_tol_s:
             out = icpt

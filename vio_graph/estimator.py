@@ -384,7 +384,8 @@ class OnlineEstimator:
         # the tracker's (R, gyro) tuples last copied into the workspace
         self._fused_att: tuple = (None, None)
         self.n_fused_samples = 0
-        self._input_consts = None
+        # compiled_imu.imu_input's constants, when add_imu takes it (_init_one_call_input)
+        self._input_consts: NDArray[np.float64] | None = None
         self.n_one_call_samples = 0
         if (
             k is None
@@ -410,7 +411,7 @@ class OnlineEstimator:
         clock model, fault check and :meth:`_advance_imu_fused`'s kernel in one call): set up
         when all three run compiled and the IMU is mounted shank-aligned (the defaults on long
         recordings). :attr:`n_one_call_samples` counts the samples it took to the end."""
-        self._input_consts: NDArray[np.float64] | None = None
+        self._input_consts = None
         self.n_one_call_samples = 0
         k = self.attitude._kernels
         clock = self.imu_clock
@@ -587,7 +588,7 @@ class OnlineEstimator:
         separate calls."""
         att, filt, mon, ws = self.attitude, self.filter, self.imu_faults, self._fused_ws
         clock = self.imu_clock
-        assert ws is not None and clock is not None
+        assert ws is not None and clock is not None and att._R is not None
         if att._R is not self._fused_att[0] or att._gyro_radps is not self._fused_att[1]:
             ws[self._fused_slots[0]] = att._R + att._gyro_radps  # the general path moved it
         acc, gyr = as_f64(sample.accel_mps2), as_f64(sample.gyro_radps)

@@ -129,6 +129,43 @@ def test_clock_fit_is_bit_for_bit_the_np_mean_formulation() -> None:
     assert min(checked) < 20 <= max(checked) == 120 and moved > 300
 
 
+@pytest.mark.parametrize("jitter_s", [0.0, 1e-9, 3e-8, 1e-7, 2e-3])
+def test_compiled_clock_skips_the_fit_only_where_it_keeps_the_stamp(
+    jitter_s: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """compiled_imu.clock_correct skips the O(window) line fit when the steps between the
+    line's stamps are close enough to the nominal period that the fit must keep the stamp:
+    every output equals what the full fit (compiled_imu.clock_line at every stamp) gives,
+    bit for bit, on stamps on the nominal line (float rounding only), with jitter below,
+    around and above the skip bound, across a gap and after the window fills."""
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")
+    k = fast_imu.imu_kernels()
+    if k is None:
+        pytest.skip("numba not installed")
+    rng = np.random.default_rng(8)
+    period, window, tol = 0.01, 200, 1e-6
+    stamps = 1234.5 + period * np.arange(1200) + rng.uniform(-jitter_s, jitter_s, 1200)
+    stamps[700:] += 0.5  # a gap: the line starts over
+    model = ClockModel(period, window, 5.0)
+    assert model._st is not None
+    last, kept = None, 0
+    for t in stamps:
+        out = model.correct(float(t))
+        pos, n = int(model._st[k.CLK_POS]), int(model._st[k.CLK_N])
+        icpt = k.clock_line(model._buf, pos, n, period, 20)
+        want = t if abs(icpt - t) < tol else icpt
+        if last is not None and want <= last:
+            want = t if t > last else last + 0.5 * period
+        assert out == want
+        kept += out == t
+        last = out
+    assert model.n_gaps == 1
+    if jitter_s <= 3e-8:
+        assert kept == stamps.size  # the skip's answer: the stamps as recorded
+    if jitter_s >= 2e-3:
+        assert kept < stamps.size / 10
+
+
 @pytest.mark.parametrize("compiled", ["0", "1"])
 def test_clock_fit_and_fault_monitor_equal_their_references(
     compiled: str, monkeypatch: pytest.MonkeyPatch
@@ -246,24 +283,30 @@ def test_a_whole_replay_equals_the_reference_path(
         out = dict(log.camera_xz)
         out["P"] = rp.online.filter.state.P
         fused.append(rp.online.n_fused_samples)
+        one_call.append(rp.online.n_one_call_samples)
         return out
 
     fused: list[int] = []
+    one_call: list[int] = []
     monkeypatch.setenv("VIO_GRAPH_COMPILED", "0")  # the scalar Python closed forms
     fast = run()
-    assert fused[-1] == 0
+    assert fused[-1] == 0 and one_call[-1] == 0
     monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")  # the compiled kernels (filter/compiled_imu)
     compiled = run() if fast_imu.imu_kernels() is not None else None
     if compiled is not None:
-        # nearly every sample took the one-call path (compiled_imu.sample_step); the
-        # separate kernels it fuses give the same bits
+        # nearly every sample took the one-call paths (compiled_imu.sample_step inside
+        # compiled_imu.imu_input); the separate kernels they fuse give the same bits
         n_imu = int(np.sum(rec.imu.timestamp_s <= rec.frame_timestamps_s[-1]))
-        assert fused[-1] > 0.9 * n_imu
+        assert fused[-1] > 0.9 * n_imu and one_call[-1] > 0.9 * n_imu
         with monkeypatch.context() as m:
+            m.setattr(estimator_mod.OnlineEstimator, "_init_one_call_input", lambda self: None)
+            fused_step_only = run()
+            assert one_call[-1] == 0 and fused[-1] > 0.9 * n_imu
             m.setattr(estimator_mod.OnlineEstimator, "_advance_imu_fused", lambda self, s: None)
             separate = run()
         for name in compiled:
             np.testing.assert_array_equal(separate[name], compiled[name], err_msg=name)
+            np.testing.assert_array_equal(fused_step_only[name], compiled[name], err_msg=name)
     monkeypatch.setenv("VIO_GRAPH_COMPILED", "0")
     monkeypatch.setattr(SagittalEskf, "propagate", SagittalEskf.propagate_reference)
     monkeypatch.setattr(AttitudeTracker, "add", AttitudeTracker.add_reference)
@@ -338,6 +381,7 @@ def test_the_one_call_sample_path_equals_the_separate_kernels_on_faulty_imu(
 
     fused, cams_f, quats_f = run()
     with monkeypatch.context() as m:
+        m.setattr(OnlineEstimator, "_init_one_call_input", lambda self: None)
         m.setattr(OnlineEstimator, "_advance_imu_fused", lambda self, s: None)
         separate, cams_s, quats_s = run()
     assert fused.imu_faults.n_gyro_repaired >= 3 and fused.imu_faults.n_accel_saturated > 10
@@ -348,3 +392,79 @@ def test_the_one_call_sample_path_equals_the_separate_kernels_on_faulty_imu(
     np.testing.assert_array_equal(fused.filter.state.P, separate.filter.state.P)
     assert fused.fault_report() == separate.fault_report()
     assert fused.health_report() == separate.health_report()
+
+
+def test_the_one_call_input_equals_the_separate_calls_on_faulty_imu_and_clock(
+    short_upstair: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """OnlineEstimator._add_imu_one_call (compiled_imu.imu_input: IMU clock model, fault check
+    and the fused sample step in one call) against the separate calls, bit for bit, on an IMU
+    stream with stamp jitter, a gap, stamps that go backwards, corrupted packets and a clipped
+    accelerometer: every sample the kernel cannot finish must continue on the general path
+    exactly where it stopped (clock and fault reports included)."""
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", "1")
+    if fast_imu.imu_kernels() is None:
+        pytest.skip("numba not installed")
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.replay import replay_order
+
+    rec = Recording.open(short_upstair)
+    rig = dataclasses.replace(RigGeometry.from_metadata(rec.metadata), accel_range_mps2=14.0)
+    kinds, idx = replay_order(rec)
+    jitter = np.random.default_rng(3).uniform(-1.5e-3, 1.5e-3, rec.imu.timestamp_s.size)
+
+    def sample(i: int) -> ImuSample | None:
+        if 400 <= i < 406:  # a gap of six samples
+            return None
+        s = rec.imu.sample(i)
+        t = s.timestamp_s + jitter[i]
+        if i in (300, 301):  # stamps at or before the previous one (dropped)
+            t = rec.imu.timestamp_s[299] + jitter[299] - 1e-3 * (i - 299)
+        acc = np.clip(s.accel_mps2, -14.0, 14.0)  # clipped at the declared range
+        if i in (120, 121, 250):  # corrupt packets
+            return dataclasses.replace(
+                s, timestamp_s=t, gyro_radps=s.gyro_radps + 3.0, accel_mps2=-acc
+            )
+        return dataclasses.replace(s, timestamp_s=t, accel_mps2=acc)
+
+    def run() -> tuple[OnlineEstimator, list[np.ndarray], list[np.ndarray]]:
+        est = OnlineEstimator(PipelineConfig(), rig)
+        cams, steps = [], []
+        for kind, i in zip(kinds, idx, strict=True):
+            if kind == 0:
+                s = sample(int(i))
+                step = None if s is None else est.add_imu(s)
+                if step is not None:
+                    steps.append(
+                        np.r_[
+                            step.shank.timestamp_s,
+                            step.shank.accel_mps2,
+                            step.shank.gyro_radps,
+                            step.corrected.timestamp_s,
+                            step.corrected.quat_wxyz,
+                            step.corrected.accel_extra_sigma_mps2,
+                            step.corrected.gyro_extra_sigma_radps,
+                        ]
+                    )
+            elif kind == 1:
+                est.add_joints(rec.joints.sample(int(i)))
+            elif est.initialised:
+                cams.append(est.add_frame(rec.frame(int(i)))[0].camera_xz_m)
+        return est, cams, steps
+
+    one_call, cams_o, steps_o = run()
+    with monkeypatch.context() as m:
+        m.setattr(OnlineEstimator, "_init_one_call_input", lambda self: None)
+        m.setattr(OnlineEstimator, "_advance_imu_fused", lambda self, s: None)
+        separate, cams_s, steps_s = run()
+    rep = one_call.fault_report()
+    assert rep["timestamps"]["imu"]["gaps"] >= 1 and rep["timestamps"]["imu"]["backwards"] == 2
+    assert rep["timestamps"]["imu"]["correction_rms_s"] > 1e-4  # the clock line smoothed
+    assert one_call.imu_faults.n_gyro_repaired >= 3 and one_call.imu_faults.n_accel_saturated > 10
+    assert 0 < one_call.n_one_call_samples < len(steps_o) and separate.n_one_call_samples == 0
+    np.testing.assert_array_equal(np.array(steps_o), np.array(steps_s))
+    np.testing.assert_array_equal(np.array(cams_o), np.array(cams_s))
+    np.testing.assert_array_equal(one_call.filter.state.P, separate.filter.state.P)
+    assert rep == separate.fault_report()
+    assert one_call.health_report() == separate.health_report()
+    assert one_call.imu_faults.max_gyro_d2 == separate.imu_faults.max_gyro_d2

@@ -141,7 +141,10 @@ _sagittal_rotation = sagittal_rotation_fast
 
 def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float64]) -> ImuSample:
     """``dataclasses.replace(sample, timestamp_s=..., quat_wxyz=...)`` without its field
-    introspection (a few microseconds on the per-sample path)."""
+    introspection (a few microseconds on the per-sample path). (Skipping the frozen
+    ``__init__`` by filling the instance's ``__dict__`` builds it 3x faster, but a
+    materialised ``__dict__`` makes every later attribute read ~3x slower, and every
+    estimator reads the sample: tried and measured, not kept.)"""
     return ImuSample(
         timestamp_s,
         sample.accel_mps2,
@@ -381,6 +384,9 @@ class OnlineEstimator:
         # the tracker's (R, gyro) tuples last copied into the workspace
         self._fused_att: tuple = (None, None)
         self.n_fused_samples = 0
+        # compiled_imu.imu_input's constants, when add_imu takes it (_init_one_call_input)
+        self._input_consts: NDArray[np.float64] | None = None
+        self.n_one_call_samples = 0
         if (
             k is None
             or not self._stance.compiled
@@ -398,6 +404,31 @@ class OnlineEstimator:
         # the workspace's slots: the tracker's R and gyro, the quaternion out, |a_ankle| out
         self._fused_slots = (slice(k.WS_R, k.WS_GYRO + 3), slice(k.WS_Q, k.WS_Q + 4), k.WS_MAG)
         self._fused_anchor = bool(fc.stance_anchor)
+        self._init_one_call_input()
+
+    def _init_one_call_input(self) -> None:
+        """The compiled one-call path of :meth:`add_imu` (``compiled_imu.imu_input``: IMU
+        clock model, fault check and :meth:`_advance_imu_fused`'s kernel in one call): set up
+        when all three run compiled and the IMU is mounted shank-aligned (the defaults on long
+        recordings). :attr:`n_one_call_samples` counts the samples it took to the end."""
+        self._input_consts = None
+        self.n_one_call_samples = 0
+        k = self.attitude._kernels
+        clock = self.imu_clock
+        if (
+            k is None
+            or self._fused_ws is None
+            or clock is None
+            or not self.rig.imu_is_shank_aligned
+        ):
+            return
+        c = np.zeros(k.IN_SIZE)
+        if not clock.compiled_constants(c, k) or not self.imu_faults.compiled_constants(c, k):
+            return
+        c[k.IN_TIME_CONSTANT] = self.attitude.config.time_constant_s
+        self._input_consts = c
+        self._input_kernel = k.imu_input
+        self._input_outcomes = (k.IN_FAULT, k.IN_CLEAN)
 
     def health_report(self) -> dict:
         """Is the estimate in trouble? Shares of refused displacements and of stance frames,
@@ -527,6 +558,17 @@ class OnlineEstimator:
         if its stamp is at or before the previous one (dropped and reported in
         :meth:`fault_report`, never fused, not passed on)."""
         t0 = time.perf_counter()
+        if (
+            self._input_consts is not None
+            and not sample.accel_held
+            and self._filter_started
+            and self.attitude._R is not None
+            and not self._imu_queue
+            and not self._stance_queue
+            and self.time_offset.applied_s <= 0.0
+            and (self.imu_repair is None or self.imu_repair.pending is None)
+        ):
+            return self._add_imu_one_call(sample, t0)
         if self.imu_clock is not None:  # jitter smoothing and gap / backward-stamp report
             t_clock = self.imu_clock.correct(sample.timestamp_s)
             if t_clock is None:
@@ -535,6 +577,75 @@ class OnlineEstimator:
                 sample = _replaced(sample, t_clock, sample.quat_wxyz)
         measured = sample
         sample = self.imu_faults.process(sample)  # saturation marks, gyro repair (IMU axes)
+        return self._add_checked(measured, sample, t0)
+
+    def _add_imu_one_call(self, sample: ImuSample, t0: float) -> ImuStep | None:
+        """:meth:`add_imu` with the IMU clock model, the fault check and, for a clean sample,
+        :meth:`_advance_imu_fused`'s kernel in one compiled call (``compiled_imu.imu_input``;
+        the caller checked the preconditions that do not depend on the sample's time).
+        Whatever the kernel leaves undone (a fault to handle, a time the fused step does not
+        take) continues on the general path from where it stopped, so the same bits as the
+        separate calls."""
+        att, filt, mon, ws = self.attitude, self.filter, self.imu_faults, self._fused_ws
+        clock = self.imu_clock
+        assert ws is not None and clock is not None and att._R is not None
+        if att._R is not self._fused_att[0] or att._gyro_radps is not self._fused_att[1]:
+            ws[self._fused_slots[0]] = att._R + att._gyro_radps  # the general path moved it
+        acc, gyr = as_f64(sample.accel_mps2), as_f64(sample.gyro_radps)
+        stamp = float(sample.timestamp_s)
+        last = self._last_imu
+        outcome, t, code, gap, prev, d2, px, py, pz, acc_sat, gyr_sat, moved, R = (
+            self._input_kernel(
+                clock._st,
+                clock._buf,
+                clock.compiled_corrections(),
+                mon._prev_arr,
+                ws,
+                filt._x,
+                filt._P,
+                filt._mem,
+                self._stance._prev_arr,
+                acc,
+                gyr,
+                as_f64(sample.quat_wxyz),
+                self._input_consts,
+                stamp,
+                mon._acc_run,
+                att._t_s,
+                filt._t_s,
+                self._filter_start_s,
+                -math.inf if last is None else last.timestamp_s,
+                self.pitch_offset.offset_rad,
+                float(sample.accel_extra_sigma_mps2),
+                self._fused_anchor,
+            )
+        )
+        if code:  # a gap, or a stamp at or before the previous one (dropped)
+            clock.compiled_event(stamp, code, gap, prev)
+            if code < 0:
+                return None
+        if t != sample.timestamp_s:
+            sample = _replaced(sample, t, sample.quat_wxyz)
+        fault, clean = self._input_outcomes
+        if outcome == fault:
+            checked = mon.finish_compiled(sample, acc, gyr, d2, px, py, pz, acc_sat, gyr_sat)
+            return self._add_checked(sample, checked, t0)
+        mon.clean_compiled(acc, d2)
+        if outcome == clean:
+            return self._add_checked(sample, sample, t0)
+        # the fused step ran: what push() does with a sample that passes straight through
+        if self.imu_repair is not None:
+            self.imu_repair.passed(sample)
+        corrected = self._fused_done(sample, t, R, moved, gyr, self._fused_anchor)
+        self.n_one_call_samples += 1
+        self._last_imu = corrected
+        self._imu_ms += (time.perf_counter() - t0) * 1e3
+        return ImuStep(shank=sample, corrected=corrected)
+
+    def _add_checked(self, measured: ImuSample, sample: ImuSample, t0: float) -> ImuStep:
+        """:meth:`add_imu` from the fault monitor's output ``sample`` (``measured``: its input,
+        after the clock model) on: IMU axes to shank axes, the repair from the next sample,
+        the filter and the stance detector."""
         if sample.accel_held and sample is not measured and self.keep_measured_axes:
             # a stand-in for a corrupt packet: keep what the packet said, so that the
             # repair from the next sample can keep its axes that agree with the neighbours
@@ -618,7 +729,7 @@ class OnlineEstimator:
         dt_filter = t - filt._t_s
         if dt_filter < -1e-9 or not math.isfinite(t):
             return None  # propagate() raises there: the general path says so
-        att_slots, q_slots, mag_slot = self._fused_slots
+        att_slots = self._fused_slots[0]
         if att._R is not self._fused_att[0] or att._gyro_radps is not self._fused_att[1]:
             ws[att_slots] = att._R + att._gyro_radps  # the general path moved the tracker
         gyr = as_f64(sample.gyro_radps)
@@ -640,13 +751,30 @@ class OnlineEstimator:
             float(sample.accel_extra_sigma_mps2),
             stance,
         )
+        return self._fused_done(sample, t, R, moved, gyr, stance)
+
+    def _fused_done(
+        self,
+        sample: ImuSample,
+        t: float,
+        R: Mat3,
+        moved: int,
+        gyr: NDArray[np.float64],
+        stance: bool,
+    ) -> ImuSample:
+        """The bookkeeping after ``compiled_imu.sample_step`` ran on ``sample`` (shank axes)
+        at ``t`` and returned the tracker's new ``R`` and the propagation's code ``moved``
+        (``stance``: it fed the stance detector); returns the sample as propagated."""
+        att, ws = self.attitude, self._fused_ws
+        assert ws is not None
+        _, q_slots, mag_slot = self._fused_slots
         g = tuple(gyr.tolist())
         att._R, att._t_s, att._gyro_radps = R, t, g
         att._recent.append((t, R, g))
         self._fused_att = (R, g)
         self._last_taken_s = t
         corrected = _replaced(sample, t, ws[q_slots].copy())
-        filt.propagated_compiled(t, moved)
+        self.filter.propagated_compiled(t, moved)
         learner = self.saturation_learner
         if learner is not None and (learner.active or any(self.imu_faults.last_rail_sign.tolist())):
             self._learn_saturation(learner, sample)

@@ -388,9 +388,10 @@ def clock_line(buf, pos, n, period_s, min_fit):
 
 
 # ClockModel's state in compiled mode (``ClockModel._st``; CLK_N_CORR stays the last slot,
-# ClockModel.report reads it there)
-CLK_HAS_LAST, CLK_LAST, CLK_K, CLK_POS, CLK_N, CLK_HAS_OUT, CLK_OUT, CLK_N_CORR = range(8)
-CLK_SIZE = 8
+# ClockModel.report reads it there). CLK_DEV: the sum over the line's stamps of how far each
+# step between consecutive stamps is from the nominal period (s), see clock_correct.
+CLK_HAS_LAST, CLK_LAST, CLK_K, CLK_POS, CLK_N, CLK_HAS_OUT, CLK_OUT, CLK_DEV, CLK_N_CORR = range(9)
+CLK_SIZE = 9
 
 
 @numba.njit(cache=True)
@@ -417,6 +418,16 @@ def clock_correct(st, buf, corr, t, period_s, gap_periods, window, smooth, min_f
     st[CLK_HAS_LAST] = 1.0
     st[CLK_LAST] = t
     pos = int(st[CLK_POS])
+    n_old = int(st[CLK_N])
+    # deviation sum of the steps inside the line's window: the oldest stamp's step leaves
+    # when the window is full, the new one's enters
+    dev = st[CLK_DEV] if n_old > 0 else 0.0
+    if n_old == window:
+        lo = pos - n_old
+        dev -= abs(buf[lo + 1] - buf[lo] - period_s)
+    if n_old > 0:
+        dev += abs(t - buf[pos - 1] - period_s)
+    st[CLK_DEV] = dev
     if pos == buf.size:  # keep the newest window - 1 stamps, at the front
         keep = window - 1
         for i in range(keep):
@@ -425,10 +436,17 @@ def clock_correct(st, buf, corr, t, period_s, gap_periods, window, smooth, min_f
     buf[pos] = t
     pos += 1
     st[CLK_POS] = pos
-    n = min(int(st[CLK_N]) + 1, window)
+    n = min(n_old + 1, window)
     st[CLK_N] = n
     out = t
-    if smooth:
+    # Stamps on a line of the nominal slope through the newest one leave the fit there (a
+    # least-squares line, or the nominal-period mean below MIN_FIT stamps) at the newest
+    # stamp: both reproduce a line exactly. Each stamp is off that line by at most the sum
+    # of its steps' deviations (``dev``), and the fit's value at the newest stamp weighs the
+    # stamps with |w_i| <= 4 / n, so it is within 4 dev of the newest stamp. Far below the
+    # keep tolerance (1/16 of it: 4 dev <= tol / 4 leaves 3/4 of it for rounding, ~1e-11 s),
+    # the fit keeps the stamp anyway: skip its O(window) sums (same output, bit for bit).
+    if smooth and not dev <= keep_tol_s / 16.0:
         icpt = clock_line(buf, pos, n, period_s, min_fit)
         if not abs(icpt - t) < keep_tol_s:
             out = icpt
@@ -523,3 +541,106 @@ def sample_step(
             ws[WS_GRAVITY : WS_GRAVITY + 2],
         )
     return R, moved
+
+
+# imu_input's constants (one float64 array, built once per estimator): the IMU clock model's,
+# the fault monitor's and the attitude tracker's time constant
+IN_PERIOD, IN_GAP_PERIODS, IN_WINDOW, IN_SMOOTH, IN_MIN_FIT, IN_KEEP_TOL = range(6)
+IN_ACC_LIM, IN_GYR_LIM, IN_TEST, IN_SIGMA2, IN_GYRO_D2 = range(6, 11)
+IN_TIME_CONSTANT = 11
+IN_SIZE = 12
+# imu_input's outcome
+IN_BACKWARD = -1  # the clock dropped the stamp (at or before the previous one); nothing else ran
+IN_FUSED = 0  # clock model, fault check and sample_step all ran
+IN_FAULT = 1  # clock model and fault check ran; the check found a saturated axis, a gyro
+# outlier or an open clipped stretch (the caller finishes the monitor's work in Python)
+IN_CLEAN = 2  # clock model and fault check ran, the sample is clean, sample_step's
+# preconditions on the time failed (the caller takes the general path from there)
+
+
+@numba.njit(cache=True)
+def imu_input(
+    clk,
+    clk_buf,
+    clk_corr,
+    fault_prev,
+    ws,
+    x,
+    P,
+    mem,
+    stance_prev,
+    acc,
+    gyr,
+    q,
+    c,
+    stamp,
+    acc_run,
+    att_t,
+    filt_t,
+    filt_start,
+    last_t,
+    offset_rad,
+    xa_now,
+    stance,
+):
+    """``OnlineEstimator.add_imu`` for a sample in shank-aligned IMU axes, in one call: the IMU
+    clock model (:func:`clock_correct` on ``clk``, ``clk_buf``, ``clk_corr``), the fault
+    monitor's check (:func:`fault_check` on ``fault_prev``) at the corrected time and, if the
+    sample is clean (no saturated axis, no open clipped stretch: ``acc_run`` 0, the gyro
+    test passed), :func:`sample_step` when its preconditions on the time hold: not before
+    the attitude tracker's time ``att_t``, the filter's ``filt_t`` (1e-9 s tolerance) or its
+    start ``filt_start``, after the previous sample's ``last_t``, finite. Constants in ``c``
+    (IN_* slots). The same kernels in the same order as the separate calls, so the same bits.
+
+    Returns (outcome (IN_*), corrected time, the clock's code, gap or jump (s), previous
+    stamp (see :func:`clock_correct`), then :func:`fault_check`'s d2, px, py, pz, acc_sat,
+    gyr_sat, then :func:`sample_step`'s code and R (the tracker's R unchanged unless
+    IN_FUSED))."""
+    t, code, gap, prev = clock_correct(
+        clk,
+        clk_buf,
+        clk_corr,
+        stamp,
+        c[IN_PERIOD],
+        c[IN_GAP_PERIODS],
+        int(c[IN_WINDOW]),
+        c[IN_SMOOTH] != 0.0,
+        int(c[IN_MIN_FIT]),
+        c[IN_KEEP_TOL],
+    )
+    R = (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6], ws[7], ws[8])
+    if code < 0:
+        return IN_BACKWARD, t, code, gap, prev, -1.0, 0.0, 0.0, 0.0, False, False, 0, R
+    d2, px, py, pz, acc_sat, gyr_sat = fault_check(
+        fault_prev, t, acc, gyr, q, c[IN_ACC_LIM], c[IN_GYR_LIM], c[IN_TEST] != 0.0, c[IN_SIGMA2]
+    )
+    if acc_sat or gyr_sat or acc_run != 0 or d2 > c[IN_GYRO_D2]:
+        return IN_FAULT, t, code, gap, prev, d2, px, py, pz, acc_sat, gyr_sat, 0, R
+    dt = t - att_t
+    dt_filter = t - filt_t
+    if (
+        not t > last_t
+        or dt < 0.0
+        or t < filt_start - 1e-9
+        or dt_filter < -1e-9
+        or not math.isfinite(t)
+    ):
+        return IN_CLEAN, t, code, gap, prev, d2, px, py, pz, acc_sat, gyr_sat, 0, R
+    R, moved = sample_step(
+        ws,
+        x,
+        P,
+        mem,
+        stance_prev,
+        acc,
+        gyr,
+        q,
+        t,
+        dt,
+        min(1.0, dt / c[IN_TIME_CONSTANT]),
+        offset_rad,
+        dt_filter,
+        xa_now,
+        stance,
+    )
+    return IN_FUSED, t, code, gap, prev, d2, px, py, pz, acc_sat, gyr_sat, moved, R

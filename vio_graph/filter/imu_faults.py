@@ -48,6 +48,7 @@ spikes to any such threshold):
 from __future__ import annotations
 
 import dataclasses
+from types import ModuleType
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -204,14 +205,11 @@ class ImuFaultMonitor:
         """:meth:`process` with its arithmetic in one compiled call (filter/compiled_imu.py)."""
         acc = as_f64(sample.accel_mps2)
         gyr = as_f64(sample.gyro_radps)
-        xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
-        t = float(sample.timestamp_s)
         cfg = self.config
-        prev = self._prev_arr
         assert self._kernels is not None
         d2, px, py, pz, acc_sat, gyr_sat = self._kernels.fault_check(
-            prev,
-            t,
+            self._prev_arr,
+            float(sample.timestamp_s),
             acc,
             gyr,
             as_f64(sample.quat_wxyz),
@@ -220,6 +218,47 @@ class ImuFaultMonitor:
             cfg.gyro_ahrs_test,
             cfg.gyro_ahrs_sigma_radps**2,
         )
+        return self.finish_compiled(sample, acc, gyr, d2, px, py, pz, acc_sat, gyr_sat)
+
+    def compiled_constants(self, c: NDArray[np.float64], k: ModuleType) -> bool:
+        """Write the check's constants into ``c`` (``compiled_imu.IN_*`` slots of the module
+        ``k``) for a caller that runs ``compiled_imu.fault_check`` itself on
+        ``_prev_arr`` (``compiled_imu.imu_input``); False (nothing written) if the monitor is
+        off or not compiled."""
+        if not self.config.enabled or self._kernels is None:
+            return False
+        cfg = self.config
+        c[k.IN_ACC_LIM], c[k.IN_GYR_LIM] = self._acc_lim, self._gyr_lim
+        c[k.IN_TEST] = 1.0 if cfg.gyro_ahrs_test else 0.0
+        c[k.IN_SIGMA2] = cfg.gyro_ahrs_sigma_radps**2
+        c[k.IN_GYRO_D2] = self._gyro_d2
+        return True
+
+    def clean_compiled(self, acc: NDArray[np.float64], d2: float) -> None:
+        """:meth:`finish_compiled` for a sample the check found clean (no saturated axis,
+        ``_acc_run`` 0, d2 at most the gate): only the bookkeeping, the sample stays as it is."""
+        if d2 >= 0.0:
+            self.max_gyro_d2 = max(self.max_gyro_d2, d2)
+        self._last_acc = tuple(acc.tolist())
+
+    def finish_compiled(
+        self,
+        sample: ImuSample,
+        acc: NDArray[np.float64],
+        gyr: NDArray[np.float64],
+        d2: float,
+        px: float,
+        py: float,
+        pz: float,
+        acc_sat: bool,
+        gyr_sat: bool,
+    ) -> ImuSample:
+        """:meth:`process`'s work after ``compiled_imu.fault_check`` ran on ``_prev_arr`` with
+        the sample's time, its ``acc``, ``gyr`` (float64 arrays) and orientation, and returned
+        (d2, px, py, pz, acc_sat, gyr_sat)."""
+        xa, xg = sample.accel_extra_sigma_mps2, sample.gyro_extra_sigma_radps
+        cfg = self.config
+        prev = self._prev_arr
         new_acc = None
         if acc_sat or gyr_sat or self._acc_run:
             new_acc, xa, xg = self._saturation_prior(acc, acc_sat, gyr_sat, xa, xg)

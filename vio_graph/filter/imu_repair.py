@@ -104,6 +104,11 @@ class NextSampleRepair:
         self._prev = sample if _measured(sample) else None
         return out
 
+    def passed(self, sample: ImuSample) -> None:
+        """:meth:`push` of a sample that goes straight through (nothing pending, the sample
+        not held), for a caller that hands it to the filter itself."""
+        self._prev = sample if _measured(sample) else None
+
     def interpolate(self, before: ImuSample, held: ImuSample, after: ImuSample) -> ImuSample:
         """``held`` with accelerometer and gyro linearly interpolated in time between its
         measured neighbours (with ``axis_probability``: only on the axes whose measurement

@@ -51,6 +51,7 @@ clamped to twice that, so either switch stays possible). Stamps as recorded unti
 from __future__ import annotations
 
 from collections import deque
+from types import ModuleType
 
 import numpy as np
 from numpy.typing import NDArray
@@ -148,12 +149,11 @@ class ClockModel:
         """:meth:`correct` in one compiled call (filter/compiled_imu.py); the reports here."""
         k, st = self._kernels, self._st
         assert k is not None and st is not None
-        if int(st[k.CLK_N_CORR]) == self._corr.size:
-            self._corr = np.concatenate([self._corr, np.empty(self._corr.size)])
+        corr = self.compiled_corrections()
         out, code, dt, prev = k.clock_correct(
             st,
             self._buf,
-            self._corr,
+            corr,
             t,
             self.period_s,
             self.gap_periods,
@@ -162,17 +162,43 @@ class ClockModel:
             _MIN_FIT,
             _KEEP_TOL_S,
         )
+        if code:
+            self.compiled_event(t, code, dt, prev)
+        return None if code < 0 else out
+
+    def compiled_constants(self, c: NDArray[np.float64], k: ModuleType) -> bool:
+        """Write :meth:`correct`'s constants into ``c`` (``compiled_imu.IN_*`` slots of the
+        module ``k``) for a caller that runs ``compiled_imu.clock_correct`` itself on
+        ``_st``, ``_buf`` and :meth:`compiled_corrections` (``compiled_imu.imu_input``);
+        False (nothing written) if the model is not compiled."""
+        if self._kernels is None or self._st is None:
+            return False
+        c[k.IN_PERIOD], c[k.IN_GAP_PERIODS] = self.period_s, self.gap_periods
+        c[k.IN_WINDOW], c[k.IN_SMOOTH] = self.window, 1.0 if self.smooth else 0.0
+        c[k.IN_MIN_FIT], c[k.IN_KEEP_TOL] = _MIN_FIT, _KEEP_TOL_S
+        return True
+
+    def compiled_corrections(self) -> NDArray[np.float64]:
+        """The corrections buffer with room for one more (grown by doubling): what
+        ``compiled_imu.clock_correct`` writes into."""
+        assert self._st is not None and self._kernels is not None
+        if int(self._st[self._kernels.CLK_N_CORR]) == self._corr.size:
+            self._corr = np.concatenate([self._corr, np.empty(self._corr.size)])
+        return self._corr
+
+    def compiled_event(self, t: float, code: int, dt: float, prev: float) -> None:
+        """Report what ``compiled_imu.clock_correct`` found at the stamp ``t`` (s): code -1 a
+        stamp ``dt`` s at or before the previous one, 1 a gap of ``dt`` s after the stamp
+        ``prev``, 0 nothing."""
         if code < 0:
             self.n_backwards += 1
             if len(self.backwards) < _MAX_REPORTED:
                 self.backwards.append({"t_s": t, "jump_s": dt})
-            return None
-        if code > 0:
+        elif code > 0:
             self.n_gaps += 1
             self.gap_total_s += dt
             if len(self.gaps) < _MAX_REPORTED:
                 self.gaps.append({"t_s": prev, "duration_s": dt})
-        return out
 
     def _fit(self, t: float) -> float:
         """The clock line's value at the newest sample: :meth:`_fit_reference` with the line

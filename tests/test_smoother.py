@@ -828,10 +828,11 @@ def test_a_robust_kernel_lets_the_imu_chain_outvote_a_wrong_first_velocity(cls) 
     assert err["none"] > 1.5 * err["huber"]
 
 
-def _start_mid_stride_trial(v0_guess_wrong: bool, corrupt_packet: bool):
+def _start_mid_stride_trial(v0_guess_wrong: bool, corrupt_packet: str | None):
     """The trial of the two tests above: 1.7 m/s at the start, the filter's start guess v = 0
     with 0.5 m/s of sigma (or, ``v0_guess_wrong`` False, its true velocity), and a packet
-    50 ms in that the fault monitor distrusted (``corrupt_packet``)."""
+    50 ms in that the fault monitor repaired (``corrupt_packet`` 'repaired': held, extra
+    sigma) or only distrusted ('saturated': extra sigma, the saturation prior's mark)."""
     import dataclasses
 
     tr = make_swinging_shank_trial(1.0, displacement_sigma_m=0.001, corners=False, seed=2)
@@ -840,8 +841,9 @@ def _start_mid_stride_trial(v0_guess_wrong: bool, corrupt_packet: bool):
     tr.filter_estimates[0] = dataclasses.replace(
         f0, velocity_xz_mps=v0, cov_velocity_m2ps2=np.eye(2) * 0.5**2
     )
-    if corrupt_packet:
-        tr.imu[5] = dataclasses.replace(tr.imu[5], accel_extra_sigma_mps2=5.0)
+    if corrupt_packet is not None:
+        held = corrupt_packet == "repaired"
+        tr.imu[5] = dataclasses.replace(tr.imu[5], accel_extra_sigma_mps2=5.0, accel_held=held)
     return tr
 
 
@@ -852,13 +854,13 @@ def _first_pose_anchored_error(tr, s) -> np.ndarray:
 
 
 @pytest.mark.parametrize("cls", [BatchSmoother, SlidingWindowSmoother])
-def test_a_distrusted_packet_near_the_start_puts_the_first_velocity_prior_to_the_test(cls) -> None:
-    """``first_velocity_test`` (default): the distrusted packet 50 ms in loosens the IMU
+def test_a_repaired_packet_near_the_start_puts_the_first_velocity_prior_to_the_test(cls) -> None:
+    """``first_velocity_test`` (default): the repaired packet 50 ms in loosens the IMU
     chain, so the first velocity prior is tested at the estimate; 17 sigma off, it fails and
     is given the filter's covariance, and the displacements place the first keyframes (the
     answer of ``first_velocity_filter_cov``); without the test the first motion comes out
     short by more than 8 mm."""
-    tr = _start_mid_stride_trial(v0_guess_wrong=True, corrupt_packet=True)
+    tr = _start_mid_stride_trial(v0_guess_wrong=True, corrupt_packet="repaired")
     s_on = cls(SmootherConfig(), tr.imu_T_cam)
     feed(tr, s_on)
     s_off = cls(SmootherConfig(first_velocity_test=False), tr.imu_T_cam)
@@ -873,14 +875,17 @@ def test_a_distrusted_packet_near_the_start_puts_the_first_velocity_prior_to_the
 
 @pytest.mark.parametrize("cls", [BatchSmoother, SlidingWindowSmoother])
 @pytest.mark.parametrize(
-    ("v0_guess_wrong", "corrupt_packet"), [(True, False), (False, True)], ids=["clean", "right_v0"]
+    ("v0_guess_wrong", "corrupt_packet"),
+    [(True, None), (True, "saturated"), (False, "repaired")],
+    ids=["clean", "saturated", "right_v0"],
 )
-def test_the_first_velocity_test_leaves_a_trusted_chain_or_a_right_prior_alone(
-    cls, v0_guess_wrong: bool, corrupt_packet: bool
+def test_the_first_velocity_test_leaves_a_chain_without_repairs_or_a_right_prior_alone(
+    cls, v0_guess_wrong: bool, corrupt_packet: str | None
 ) -> None:
-    """No distrusted sample (a clean trial, with the same wrong start guess): the test is never
-    run and the answer is bit for bit the one without it. A distrusted packet but a start
-    guess that is right: the prior passes its test and stays as built."""
+    """No repaired packet (a clean trial, or a saturated sample, with the same wrong start
+    guess): the test is never run and the answer is bit for bit the one without it. A
+    repaired packet but a start guess that is right: the prior passes its test and stays as
+    built."""
     tr = _start_mid_stride_trial(v0_guess_wrong, corrupt_packet)
     out = {}
     for on in (True, False):

@@ -265,12 +265,12 @@ class SmootherConfig(BaseModel):
     first_velocity_test: bool = Field(
         default=True,
         description="when a keyframe interval within the fixed-lag window of the first "
-        "keyframe spans IMU samples the fault monitor distrusted (a repaired or saturated "
-        "packet loosens the IMU chain that normally outvotes the filter's start guess v = 0), "
+        "keyframe spans an IMU packet the fault monitor repaired (its extra sigma loosens the "
+        "IMU chain that normally outvotes the filter's start guess v = 0), "
         "test the first keyframe's velocity prior at the estimate (chi-square, 3 dof) and, if "
         "it fails, give it the filter's velocity covariance (first_velocity_filter_cov's "
-        "prior) and solve again. Never acts on a trial without distrusted samples. 2 Hz "
-        "spikes, downstair seed 2: docs/method.md, IMU faults and clocks",
+        "prior) and solve again. Never acts on a trial without repaired packets (clean, "
+        "saturated, offset, jitter). 2 Hz spikes: docs/method.md, IMU faults and clocks",
     )
     first_velocity_test_probability: float = Field(
         default=0.999,

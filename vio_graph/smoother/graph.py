@@ -247,7 +247,7 @@ class KeyframeUpdate:
     filter_camera_xz_m: NDArray[np.float64]
     factor_keys: list[list[int]] = field(default_factory=list)
     #: position in ``factors`` of the IMU factor from keyframe index-1 if its interval holds
-    #: samples the fault monitor distrusted (repaired or saturated packets), else None
+    #: a packet the fault monitor repaired (``ImuSample.accel_held``), else None
     flagged_imu_factor: int | None = None
 
 
@@ -259,7 +259,7 @@ class _FactorBatch:
     graph: gtsam.NonlinearFactorGraph = field(default_factory=gtsam.NonlinearFactorGraph)
     values: gtsam.Values = field(default_factory=gtsam.Values)
     keys: list[list[int]] = field(default_factory=list)
-    flagged_imu: int | None = None  # position of an IMU factor over distrusted samples
+    flagged_imu: int | None = None  # position of an IMU factor over a repaired packet
 
     def add(self, factor: gtsam.NonlinearFactor, factor_keys: list[int]) -> None:
         self.graph.add(factor)
@@ -273,6 +273,19 @@ class _Pending:
     displacement: tuple[NDArray[np.float64], NDArray[np.float64]] | None
     observations: list[LandmarkObservation]
     R_world_imu: NDArray[np.float64] | None = None
+
+
+def repaired_in(
+    times_s: NDArray[np.float64], repaired: Sequence[bool], t0_s: float, t1_s: float
+) -> bool:
+    """Whether a repaired packet (``ImuSample.accel_held`` on arrival) touches the interval
+    [t0_s, t1_s]: its sample period overlaps it (the touch rule of ``distrust_variances``)."""
+    if not any(repaired):
+        return False
+    r = np.asarray(repaired, dtype=bool)
+    h = float(np.median(np.diff(times_s))) if times_s.size > 1 else t1_s - t0_s
+    touch = (times_s > t0_s - h + TIME_TOL_S) & (times_s < t1_s + h - TIME_TOL_S)
+    return bool(np.any(r & touch))
 
 
 @dataclass
@@ -322,6 +335,7 @@ class KeyframeGraphBuilder:
         self._imu_q: list[NDArray[np.float64]] = []
         self._imu_x: list[tuple[float, float]] = []  # extra (accel, gyro) sigma per sample
         self._imu_h: list[bool] = []  # accelerometer held over a corrupted packet (not measured)
+        self._imu_r: list[bool] = []  # a corrupted packet the monitor repaired (stays marked)
         # what a held packet measured (accel, gyro), for the per-axis keep; None otherwise
         self._imu_m: list[tuple[NDArray[np.float64], NDArray[np.float64]] | None] = []
         #: wrap IMU factors in SmootherConfig.imu_robust_kernel (the batch smoother sets it;
@@ -330,7 +344,7 @@ class KeyframeGraphBuilder:
         self.robust_imu = False
         self._pending: _Pending | None = None
         self._n_keyframes = 0
-        #: keyframe indices i whose IMU interval (i-1 -> i) holds distrusted samples
+        #: keyframe indices i whose IMU interval (i-1 -> i) holds a repaired packet
         self.flagged_intervals: list[int] = []
         #: the first keyframe's velocity prior (set with keyframe 0) and that keyframe's time
         self.first_velocity_prior: FirstVelocityPrior | None = None
@@ -396,6 +410,7 @@ class KeyframeGraphBuilder:
             (float(sample.accel_extra_sigma_mps2), float(sample.gyro_extra_sigma_radps))
         )
         self._imu_h.append(bool(sample.accel_held))
+        self._imu_r.append(bool(sample.accel_held))
         ma, mg = sample.measured_accel_mps2, sample.measured_gyro_radps
         self._imu_m.append(
             None
@@ -569,7 +584,9 @@ class KeyframeGraphBuilder:
             x_vel, x_rot = distrust_variances(ts, self._imu_x, t0, t)
         else:
             x_vel = x_rot = 0.0
-        self._interval_flagged = x_vel > 0 or x_rot > 0
+        # a repaired packet among the distrusted samples touching the interval (saturated
+        # stretches are the saturation prior's business, imu_faults.py)
+        self._interval_flagged = (x_vel > 0 or x_rot > 0) and repaired_in(ts, self._imu_r, t0, t)
         per_step = cfg.distrust_noise == "per_step" and (x_vel > 0 or x_rot > 0)
         if cfg.imu_discretization_gain > 0 or x_vel > 0 or x_rot > 0:
             if self._compiled_dvar is not None and ts.size:
@@ -688,7 +705,7 @@ class KeyframeGraphBuilder:
 
     def first_velocity_testable(self, update: KeyframeUpdate) -> bool:
         """Whether ``update`` calls for the first velocity prior's test: its IMU factor spans
-        samples the fault monitor distrusted, within the fixed-lag window of the first
+        a packet the fault monitor repaired, within the fixed-lag window of the first
         keyframe (``smoother.first_velocity_test``). A clean trial never calls for it."""
         fv = self.first_velocity_prior
         return (
@@ -703,7 +720,7 @@ class KeyframeGraphBuilder:
         """Chi-square test (3 dof, ``smoother.first_velocity_test_probability``) of the first
         velocity prior at the estimate ``v0_mps`` of V(0): the prior is the filter's start
         guess, which the IMU chain to the later keyframes normally outvotes; when that chain
-        spans distrusted samples, what the chain and vision say about V(0) decides instead
+        spans a repaired packet, what the chain and vision say about V(0) decides instead
         (docs/method.md, IMU faults and clocks)."""
         fv = self.first_velocity_prior
         assert fv is not None
@@ -917,4 +934,4 @@ class KeyframeGraphBuilder:
         ts = np.asarray(self._imu_t)
         k0 = max(0, int(np.searchsorted(ts, t - TIME_TOL_S, side="right")) - 4)
         del self._imu_t[:k0], self._imu_a[:k0], self._imu_g[:k0], self._imu_q[:k0]
-        del self._imu_x[:k0], self._imu_h[:k0], self._imu_m[:k0]
+        del self._imu_x[:k0], self._imu_h[:k0], self._imu_m[:k0], self._imu_r[:k0]

@@ -161,7 +161,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             return
         k = self._first_velocity_index
         if (
-            self.first_velocity_relaxed
+            u.flagged_imu_factor is None  # (most keyframes: nothing to test)
+            or self.first_velocity_relaxed
             or k is None
             or fv is None
             or V(0) not in self._live

@@ -107,6 +107,7 @@ class BatchSmoother(KeyframeSmootherBase):
             opt = self._optimize(params)
         self.solve_time_ms = (time.perf_counter() - t0) * 1e3
         self.solve_iterations = int(opt.iterations())
+        assert self._result is not None
         return self._result
 
     def _optimize(

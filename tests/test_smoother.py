@@ -787,7 +787,9 @@ def test_first_velocity_prior_is_as_uncertain_as_the_filter_says(cls) -> None:
     tr.imu[5] = dataclasses.replace(tr.imu[5], accel_extra_sigma_mps2=5.0)
     err = {}
     for on in (True, False):
-        s = cls(SmootherConfig(first_velocity_filter_cov=on), tr.imu_T_cam)
+        s = cls(
+            SmootherConfig(first_velocity_filter_cov=on, first_velocity_test=False), tr.imu_T_cam
+        )
         feed(tr, s)
         xz = np.array([e.camera_xz_m for e in s.keyframe_estimates(with_covariance=False)])
         idx = np.flatnonzero(tr.is_keyframe)
@@ -814,7 +816,9 @@ def test_a_robust_kernel_lets_the_imu_chain_outvote_a_wrong_first_velocity(cls) 
     tr.imu[5] = dataclasses.replace(tr.imu[5], accel_extra_sigma_mps2=5.0)
     err = {}
     for kernel in ("huber", "none"):
-        s = cls(SmootherConfig(first_velocity_kernel=kernel), tr.imu_T_cam)
+        s = cls(
+            SmootherConfig(first_velocity_kernel=kernel, first_velocity_test=False), tr.imu_T_cam
+        )
         feed(tr, s)
         xz = np.array([e.camera_xz_m for e in s.keyframe_estimates(with_covariance=False)])
         idx = np.flatnonzero(tr.is_keyframe)
@@ -822,3 +826,71 @@ def test_a_robust_kernel_lets_the_imu_chain_outvote_a_wrong_first_velocity(cls) 
         err[kernel] = np.max(np.abs(e - e[0]))
     assert err["huber"] < 0.006
     assert err["none"] > 1.5 * err["huber"]
+
+
+def _start_mid_stride_trial(v0_guess_wrong: bool, corrupt_packet: str | None):
+    """The trial of the two tests above: 1.7 m/s at the start, the filter's start guess v = 0
+    with 0.5 m/s of sigma (or, ``v0_guess_wrong`` False, its true velocity), and a packet
+    50 ms in that the fault monitor repaired (``corrupt_packet`` 'repaired': held, extra
+    sigma) or only distrusted ('saturated': extra sigma, the saturation prior's mark)."""
+    import dataclasses
+
+    tr = make_swinging_shank_trial(1.0, displacement_sigma_m=0.001, corners=False, seed=2)
+    f0 = tr.filter_estimates[0]
+    v0 = np.zeros(2) if v0_guess_wrong else f0.velocity_xz_mps
+    tr.filter_estimates[0] = dataclasses.replace(
+        f0, velocity_xz_mps=v0, cov_velocity_m2ps2=np.eye(2) * 0.5**2
+    )
+    if corrupt_packet is not None:
+        held = corrupt_packet == "repaired"
+        tr.imu[5] = dataclasses.replace(tr.imu[5], accel_extra_sigma_mps2=5.0, accel_held=held)
+    return tr
+
+
+def _first_pose_anchored_error(tr, s) -> np.ndarray:
+    xz = np.array([e.camera_xz_m for e in s.keyframe_estimates(with_covariance=False)])
+    e = xz - tr.camera_xz_true_m[np.flatnonzero(tr.is_keyframe)]
+    return e - e[0]
+
+
+@pytest.mark.parametrize("cls", [BatchSmoother, SlidingWindowSmoother])
+def test_a_repaired_packet_near_the_start_puts_the_first_velocity_prior_to_the_test(cls) -> None:
+    """``first_velocity_test`` (default): the repaired packet 50 ms in loosens the IMU
+    chain, so the first velocity prior is tested at the estimate; 17 sigma off, it fails and
+    is given the filter's covariance, and the displacements place the first keyframes (the
+    answer of ``first_velocity_filter_cov``); without the test the first motion comes out
+    short by more than 8 mm."""
+    tr = _start_mid_stride_trial(v0_guess_wrong=True, corrupt_packet="repaired")
+    s_on = cls(SmootherConfig(), tr.imu_T_cam)
+    feed(tr, s_on)
+    s_off = cls(SmootherConfig(first_velocity_test=False), tr.imu_T_cam)
+    feed(tr, s_off)
+    e_on = np.max(np.abs(_first_pose_anchored_error(tr, s_on)))
+    e_off = np.max(np.abs(_first_pose_anchored_error(tr, s_off)))
+    s_on.keyframe_estimates(with_covariance=False)  # (the batch solves here)
+    assert s_on.first_velocity_relaxed and not s_off.first_velocity_relaxed
+    assert e_on < 0.006
+    assert e_off > 0.008 and e_off > 1.5 * e_on
+
+
+@pytest.mark.parametrize("cls", [BatchSmoother, SlidingWindowSmoother])
+@pytest.mark.parametrize(
+    ("v0_guess_wrong", "corrupt_packet"),
+    [(True, None), (True, "saturated"), (False, "repaired")],
+    ids=["clean", "saturated", "right_v0"],
+)
+def test_the_first_velocity_test_leaves_a_chain_without_repairs_or_a_right_prior_alone(
+    cls, v0_guess_wrong: bool, corrupt_packet: str | None
+) -> None:
+    """No repaired packet (a clean trial, or a saturated sample, with the same wrong start
+    guess): the test is never run and the answer is bit for bit the one without it. A
+    repaired packet but a start guess that is right: the prior passes its test and stays as
+    built."""
+    tr = _start_mid_stride_trial(v0_guess_wrong, corrupt_packet)
+    out = {}
+    for on in (True, False):
+        s = cls(SmootherConfig(first_velocity_test=on), tr.imu_T_cam)
+        feed(tr, s)
+        out[on] = _first_pose_anchored_error(tr, s)
+        assert not s.first_velocity_relaxed
+    np.testing.assert_array_equal(out[True], out[False])

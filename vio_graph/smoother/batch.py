@@ -19,6 +19,7 @@ from vio_graph.protocol import EstimatorReport
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.graph import (
     KeyframeUpdate,
+    V,
     X,
     camera_from_pose,
     camera_xz_cov_from_pose_cov,
@@ -51,6 +52,11 @@ class BatchSmoother(KeyframeSmootherBase):
         self.solve_time_ms = float("nan")
         self.solve_iterations = 0
         self.finish_s = float("nan")
+        # the first velocity prior's position in ``graph``; whether a keyframe called for its
+        # test (KeyframeGraphBuilder.first_velocity_testable) and whether it was relaxed
+        self._first_velocity_index: int | None = None
+        self._first_velocity_test = False
+        self.first_velocity_relaxed = False
 
     def finish(self) -> None:
         """Flush the pending keyframe and solve the whole graph (timed in ``finish_s``)."""
@@ -70,9 +76,16 @@ class BatchSmoother(KeyframeSmootherBase):
                 rep.metrics["batch_robust"] = self.robust_outliers()
             except EstimationError as exc:
                 log.warning("batch robust statistics unavailable: %s", exc)
+        if self.first_velocity_relaxed:
+            rep.metrics["batch_first_velocity_relaxed"] = True
         return rep
 
     def _consume(self, u: KeyframeUpdate) -> None:
+        fv = self._builder.first_velocity_prior
+        if u.index == 0 and fv is not None:
+            self._first_velocity_index = self.graph.size() + fv.position
+        if self._builder.first_velocity_testable(u):
+            self._first_velocity_test = True
         self.graph.push_back(u.factors)
         self.initial.insert(u.values)
         self._result = None
@@ -89,14 +102,40 @@ class BatchSmoother(KeyframeSmootherBase):
         params.setMaxIterations(self.config.batch_max_iterations)
         params.setRelativeErrorTol(self.config.batch_relative_error_tol)
         t0 = time.perf_counter()
+        opt = self._optimize(params)
+        if self._relax_first_velocity():  # the prior failed its test: solve again without it
+            opt = self._optimize(params)
+        self.solve_time_ms = (time.perf_counter() - t0) * 1e3
+        self.solve_iterations = int(opt.iterations())
+        assert self._result is not None
+        return self._result
+
+    def _optimize(
+        self, params: gtsam.LevenbergMarquardtParams
+    ) -> gtsam.LevenbergMarquardtOptimizer:
+        """LM over the whole graph from the initial values; the answer in ``_result``."""
         opt = gtsam.LevenbergMarquardtOptimizer(self.graph, self.initial, params)
         try:
             self._result = opt.optimize()
         except RuntimeError as exc:
             raise EstimationError(f"batch optimisation failed: {exc}") from exc
-        self.solve_time_ms = (time.perf_counter() - t0) * 1e3
-        self.solve_iterations = int(opt.iterations())
-        return self._result
+        return opt
+
+    def _relax_first_velocity(self) -> bool:
+        """If a keyframe called for it and the first velocity prior fails its test at the
+        solution, replace the prior by its relaxed form (``smoother.first_velocity_test``);
+        True if replaced."""
+        fv = self._builder.first_velocity_prior
+        k = self._first_velocity_index
+        if self.first_velocity_relaxed or not self._first_velocity_test or fv is None or k is None:
+            return False
+        assert self._result is not None
+        relaxed = fv.relaxed_factor()
+        if relaxed is None or not self._builder.first_velocity_fails(self._result.atVector(V(0))):
+            return False
+        self.graph.replace(k, relaxed)
+        self.first_velocity_relaxed = True
+        return True
 
     def robust_outliers(self) -> dict[str, float]:
         """How many robust (Huber/Cauchy) factors the solution down-weights: whitened error

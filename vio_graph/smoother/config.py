@@ -262,6 +262,22 @@ class SmootherConfig(BaseModel):
         "trials (seeds 1-3) it cost the batch smoother 0.27 -> 0.33 cm in x "
         "(docs/method.md, IMU faults and clocks)",
     )
+    first_velocity_test: bool = Field(
+        default=True,
+        description="when a keyframe interval within the fixed-lag window of the first "
+        "keyframe spans an IMU packet the fault monitor repaired (its extra sigma loosens the "
+        "IMU chain that normally outvotes the filter's start guess v = 0), "
+        "test the first keyframe's velocity prior at the estimate (chi-square, 3 dof) and, if "
+        "it fails, give it the filter's velocity covariance (first_velocity_filter_cov's "
+        "prior) and solve again. Never acts on a trial without repaired packets (clean, "
+        "saturated, offset, jitter). 2 Hz spikes: docs/method.md, IMU faults and clocks",
+    )
+    first_velocity_test_probability: float = Field(
+        default=0.999,
+        gt=0,
+        lt=1,
+        description="quantile of the first velocity prior's chi-square test (3 dof)",
+    )
     first_attitude_sigma_rad: float = Field(
         default=0.01, gt=0, description="prior sigma (rad) on the first keyframe attitude"
     )

@@ -71,6 +71,7 @@ from gtsam.symbol_shorthand import B, L, V, X
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
+from vio_graph.filter.gating import chi2_quantile
 from vio_graph.filter.imu_repair import keep_consistent_axes
 from vio_graph.geometry import cross3, matrix_from_quat_wxyz, remove_yaw, skew
 from vio_graph.smoother.config import SmootherConfig
@@ -245,6 +246,9 @@ class KeyframeUpdate:
     R_world_imu: NDArray[np.float64]
     filter_camera_xz_m: NDArray[np.float64]
     factor_keys: list[list[int]] = field(default_factory=list)
+    #: position in ``factors`` of the IMU factor from keyframe index-1 if its interval holds
+    #: a packet the fault monitor repaired (``ImuSample.accel_held``), else None
+    flagged_imu_factor: int | None = None
 
 
 @dataclass
@@ -255,6 +259,7 @@ class _FactorBatch:
     graph: gtsam.NonlinearFactorGraph = field(default_factory=gtsam.NonlinearFactorGraph)
     values: gtsam.Values = field(default_factory=gtsam.Values)
     keys: list[list[int]] = field(default_factory=list)
+    flagged_imu: int | None = None  # position of an IMU factor over a repaired packet
 
     def add(self, factor: gtsam.NonlinearFactor, factor_keys: list[int]) -> None:
         self.graph.add(factor)
@@ -268,6 +273,37 @@ class _Pending:
     displacement: tuple[NDArray[np.float64], NDArray[np.float64]] | None
     observations: list[LandmarkObservation]
     R_world_imu: NDArray[np.float64] | None = None
+
+
+def repaired_in(
+    times_s: NDArray[np.float64], repaired: Sequence[bool], t0_s: float, t1_s: float
+) -> bool:
+    """Whether a repaired packet (``ImuSample.accel_held`` on arrival) touches the interval
+    [t0_s, t1_s]: its sample period overlaps it (the touch rule of ``distrust_variances``)."""
+    if not any(repaired):
+        return False
+    r = np.asarray(repaired, dtype=bool)
+    h = float(np.median(np.diff(times_s))) if times_s.size > 1 else t1_s - t0_s
+    touch = (times_s > t0_s - h + TIME_TOL_S) & (times_s < t1_s + h - TIME_TOL_S)
+    return bool(np.any(r & touch))
+
+
+@dataclass
+class FirstVelocityPrior:
+    """The first keyframe's velocity prior as built (its position in keyframe 0's factors,
+    value and noise) and the relaxed noise it is given if it fails the test of
+    :meth:`KeyframeGraphBuilder.first_velocity_fails`."""
+
+    position: int
+    value: NDArray[np.float64]
+    noise: gtsam.noiseModel.Base
+    relaxed_noise: gtsam.noiseModel.Base | None
+
+    def relaxed_factor(self) -> gtsam.PriorFactorVector | None:
+        """The same prior with the relaxed noise (None if there is none)."""
+        if self.relaxed_noise is None:
+            return None
+        return gtsam.PriorFactorVector(V(0), self.value, self.relaxed_noise)
 
 
 class KeyframeGraphBuilder:
@@ -299,6 +335,7 @@ class KeyframeGraphBuilder:
         self._imu_q: list[NDArray[np.float64]] = []
         self._imu_x: list[tuple[float, float]] = []  # extra (accel, gyro) sigma per sample
         self._imu_h: list[bool] = []  # accelerometer held over a corrupted packet (not measured)
+        self._imu_r: list[bool] = []  # a corrupted packet the monitor repaired (stays marked)
         # what a held packet measured (accel, gyro), for the per-axis keep; None otherwise
         self._imu_m: list[tuple[NDArray[np.float64], NDArray[np.float64]] | None] = []
         #: wrap IMU factors in SmootherConfig.imu_robust_kernel (the batch smoother sets it;
@@ -307,6 +344,12 @@ class KeyframeGraphBuilder:
         self.robust_imu = False
         self._pending: _Pending | None = None
         self._n_keyframes = 0
+        #: keyframe indices i whose IMU interval (i-1 -> i) holds a repaired packet
+        self.flagged_intervals: list[int] = []
+        #: the first keyframe's velocity prior (set with keyframe 0) and that keyframe's time
+        self.first_velocity_prior: FirstVelocityPrior | None = None
+        self._first_kf_time_s: float | None = None
+        self._interval_flagged = False  # set by _preintegrate for the interval it integrated
         self._last_kf_time_s: float | None = None
         self._last_kf_R: NDArray[np.float64] | None = None
         # chained displacement since the last keyframe: start, end, sum (2,), cov (2, 2)
@@ -367,6 +410,7 @@ class KeyframeGraphBuilder:
             (float(sample.accel_extra_sigma_mps2), float(sample.gyro_extra_sigma_radps))
         )
         self._imu_h.append(bool(sample.accel_held))
+        self._imu_r.append(bool(sample.accel_held))
         ma, mg = sample.measured_accel_mps2, sample.measured_gyro_radps
         self._imu_m.append(
             None
@@ -493,6 +537,7 @@ class KeyframeGraphBuilder:
         batch.values.insert(B(i), constant_bias=self._latest_bias)
 
         if i == 0:
+            self._first_kf_time_s = t
             self._add_first_priors(batch, pose_guess, v_guess, pend.estimate)
         else:
             self._add_motion(batch, i, pend, R_i, pim, v_guess)
@@ -515,6 +560,7 @@ class KeyframeGraphBuilder:
             R_world_imu=R_i,
             filter_camera_xz_m=np.asarray(cam_xz, dtype=float).reshape(2),
             factor_keys=batch.keys,
+            flagged_imu_factor=batch.flagged_imu,
         )
 
     def _preintegrate(self, t: float) -> gtsam.PreintegratedCombinedMeasurements:
@@ -538,6 +584,9 @@ class KeyframeGraphBuilder:
             x_vel, x_rot = distrust_variances(ts, self._imu_x, t0, t)
         else:
             x_vel = x_rot = 0.0
+        # a repaired packet among the distrusted samples touching the interval (saturated
+        # stretches are the saturation prior's business, imu_faults.py)
+        self._interval_flagged = (x_vel > 0 or x_rot > 0) and repaired_in(ts, self._imu_r, t0, t)
         per_step = cfg.distrust_noise == "per_step" and (x_vel > 0 or x_rot > 0)
         if cfg.imu_discretization_gain > 0 or x_vel > 0 or x_rot > 0:
             if self._compiled_dvar is not None and ts.size:
@@ -621,6 +670,12 @@ class KeyframeGraphBuilder:
         est = _m_estimator(cfg.first_velocity_kernel, float(cfg.first_velocity_kernel_threshold))
         if est is not None:
             noise = gtsam.noiseModel.Robust.Create(est, noise)
+        self.first_velocity_prior = FirstVelocityPrior(
+            len(batch.keys),
+            np.asarray(v_guess, dtype=float).copy(),
+            noise,
+            self._relaxed_velocity_noise(estimate),
+        )
         batch.add(gtsam.PriorFactorVector(V(0), v_guess, noise), [V(0)])
         bsig = np.r_[[cfg.accel_bias_prior_sigma_mps2] * 3, [cfg.gyro_bias_prior_sigma_radps] * 3]
         batch.add(
@@ -629,6 +684,50 @@ class KeyframeGraphBuilder:
             ),
             [B(0)],
         )
+
+    def _relaxed_velocity_noise(
+        self, estimate: FrameEstimate | None
+    ) -> gtsam.noiseModel.Base | None:
+        """The first velocity prior's noise with the filter's velocity covariance at that frame
+        added in x-z (what the guess is really worth), for :meth:`first_velocity_fails`;
+        None if the prior already carries it or the filter gave none."""
+        cfg = self.config
+        if (
+            not cfg.first_velocity_test
+            or cfg.first_velocity_filter_cov
+            or estimate is None
+            or estimate.cov_velocity_m2ps2 is None
+        ):
+            return None
+        cov = np.eye(3) * cfg.first_velocity_sigma_mps**2
+        cov[np.ix_([0, 2], [0, 2])] += np.asarray(estimate.cov_velocity_m2ps2, dtype=float)
+        return gtsam.noiseModel.Gaussian.Covariance(cov)
+
+    def first_velocity_testable(self, update: KeyframeUpdate) -> bool:
+        """Whether ``update`` calls for the first velocity prior's test: its IMU factor spans
+        a packet the fault monitor repaired, within the fixed-lag window of the first
+        keyframe (``smoother.first_velocity_test``). A clean trial never calls for it."""
+        fv = self.first_velocity_prior
+        return (
+            fv is not None
+            and fv.relaxed_noise is not None
+            and update.flagged_imu_factor is not None
+            and self._first_kf_time_s is not None
+            and update.timestamp_s - self._first_kf_time_s <= self.config.smoother_lag_s()
+        )
+
+    def first_velocity_fails(self, v0_mps: ArrayLike) -> bool:
+        """Chi-square test (3 dof, ``smoother.first_velocity_test_probability``) of the first
+        velocity prior at the estimate ``v0_mps`` of V(0): the prior is the filter's start
+        guess, which the IMU chain to the later keyframes normally outvotes; when that chain
+        spans a repaired packet, what the chain and vision say about V(0) decides instead
+        (docs/method.md, IMU faults and clocks)."""
+        fv = self.first_velocity_prior
+        assert fv is not None
+        base = fv.noise.noise() if isinstance(fv.noise, gtsam.noiseModel.Robust) else fv.noise
+        w = base.whiten(np.asarray(v0_mps, dtype=float).reshape(3) - fv.value)
+        d2 = float(w @ w)
+        return d2 > chi2_quantile(self.config.first_velocity_test_probability, 3)
 
     def _add_motion(
         self,
@@ -654,6 +753,9 @@ class KeyframeGraphBuilder:
                         cfg, f_imu.noiseModel(), cfg.imu_robust_kernel, cfg.imu_robust_threshold
                     )
                 )
+            if self._interval_flagged:
+                batch.flagged_imu = len(batch.keys)
+                self.flagged_intervals.append(i)
             batch.add(f_imu, [X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i)])
         else:  # keep the bias chain connected without the IMU
             bsig = self._diagonal(
@@ -832,4 +934,4 @@ class KeyframeGraphBuilder:
         ts = np.asarray(self._imu_t)
         k0 = max(0, int(np.searchsorted(ts, t - TIME_TOL_S, side="right")) - 4)
         del self._imu_t[:k0], self._imu_a[:k0], self._imu_g[:k0], self._imu_q[:k0]
-        del self._imu_x[:k0], self._imu_h[:k0], self._imu_m[:k0]
+        del self._imu_x[:k0], self._imu_h[:k0], self._imu_m[:k0], self._imu_r[:k0]

@@ -71,6 +71,10 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         ] = {}
         self._newest_cov: dict[int, NDArray[np.float64]] = {}
         self._newest_s: float | None = None  # newest key time handed to GTSAM so far
+        # the first velocity prior's index in iSAM2 and whether it was relaxed
+        # (KeyframeGraphBuilder.first_velocity_fails)
+        self._first_velocity_index: int | None = None
+        self.first_velocity_relaxed = False
         self.update_times_ms: list[float] = []
 
     # ---- one keyframe --------------------------------------------------------------------------
@@ -128,6 +132,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
                 k: s for k, s in sorted(merged.items(), key=lambda ks: ks[1]) if s >= cutoff
             }
         self._newest_s = newest
+        if self._incremental:
+            self._test_first_velocity(u)
         dead_landmarks = [k for k in leaving if k >> 56 == _CHR_L]
         if dead_landmarks:
             self._builder.forget_landmarks(dead_landmarks)
@@ -141,6 +147,41 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         if self.config.marginal_covariance == "when_newest" and self._incremental:
             self._newest_cov[i] = self._camera_estimate(i, with_covariance=True, pose=pose)[1]
         self.update_times_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _test_first_velocity(self, u: KeyframeUpdate) -> None:
+        """Remember the first velocity prior's iSAM2 index (keyframe 0); after a keyframe
+        that calls for it, test the prior at the estimate and, if it fails, replace it by its
+        relaxed form in one more update (``smoother.first_velocity_test``)."""
+        smoother = cast(gtsam.IncrementalFixedLagSmoother, self._smoother)
+        fv = self._builder.first_velocity_prior
+        if u.index == 0 and fv is not None:
+            self._first_velocity_index = int(
+                smoother.getISAM2Result().getNewFactorsIndices()[fv.position]
+            )
+            return
+        k = self._first_velocity_index
+        if (
+            u.flagged_imu_factor is None  # (most keyframes: nothing to test)
+            or self.first_velocity_relaxed
+            or k is None
+            or fv is None
+            or V(0) not in self._live
+            or not self._builder.first_velocity_testable(u)
+        ):
+            return
+        relaxed = fv.relaxed_factor()
+        if relaxed is None or not self._builder.first_velocity_fails(
+            smoother.calculateEstimateVector(V(0))
+        ):
+            return
+        graph = gtsam.NonlinearFactorGraph()
+        graph.add(relaxed)
+        try:
+            smoother.update(graph, gtsam.Values(), {}, [k])
+        except RuntimeError as exc:
+            msg = f"fixed-lag update at {u.timestamp_s:.3f} s (first velocity prior) failed: {exc}"
+            raise EstimationError(msg) from exc
+        self.first_velocity_relaxed = True
 
     def _camera_estimate(
         self, i: int, with_covariance: bool, pose: gtsam.Pose3 | None = None
@@ -178,7 +219,10 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         """Per-keyframe latency (update + factor building, ms) as ``smoother_update``."""
         n = min(len(self.update_times_ms), len(self.build_times_ms))
         per_kf = np.asarray(self.update_times_ms[:n]) + np.asarray(self.build_times_ms[:n])
-        return EstimatorReport(latency_ms={"smoother_update": stats_ms(per_kf)})
+        rep = EstimatorReport(latency_ms={"smoother_update": stats_ms(per_kf)})
+        if self.first_velocity_relaxed:
+            rep.metrics["smoother_first_velocity_relaxed"] = True
+        return rep
 
     def live_keys(self) -> set[int]:
         """Keys currently inside the window (our mirror of GTSAM's key-timestamp map)."""

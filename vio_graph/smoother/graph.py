@@ -94,6 +94,7 @@ from vio_graph.types import (
     LandmarkKey,
     LandmarkObservation,
     StanceObservation,
+    VelocityObservation,
 )
 
 #: Sigma used for "unconstrained" axes of a prior (tangent units).
@@ -722,6 +723,10 @@ class KeyframeGraphBuilder:
         p_ic = self.imu_p_cam_m
         rot_i = gtsam.Rot3.ClosestTo(R_i)
         for ob in observations:
+            if isinstance(ob, VelocityObservation):
+                if cfg.factors.saturation_bridge:
+                    self._add_bridge_velocity(batch, i, t, ob, R_i)
+                continue
             cov = np.asarray(ob.cov_m2, dtype=float).reshape(2, 2)
             if isinstance(ob, StanceObservation):
                 lkey = LandmarkKey("ankle", ob.stance_id)
@@ -783,6 +788,26 @@ class KeyframeGraphBuilder:
         vc = np.asarray(ob.velocity_cov, dtype=float).reshape(2, 2)
         cov3 = np.diag([0.0, 1.0, 0.0])
         _put_xz(cov3, vc)
+        batch.add(
+            gtsam.PriorFactorVector(V(i), v_imu, gtsam.noiseModel.Gaussian.Covariance(cov3)),
+            [V(i)],
+        )
+
+    def _add_bridge_velocity(
+        self,
+        batch: _FactorBatch,
+        i: int,
+        t: float,
+        ob: VelocityObservation,
+        R_i: NDArray[np.float64],
+    ) -> None:
+        """V(i) from the leg-chain bridge's camera velocity after a saturated stretch
+        (filter/leg_bridge.py): v_imu = v_cam - omega x (R p_cam), with the gyro
+        interpolated to the keyframe time; loose laterally."""
+        omega = R_i @ self._gyro_at(t)
+        v_imu = _xz_to_3(ob.camera_velocity_xz_mps) - cross3(omega, R_i @ self.imu_p_cam_m)
+        cov3 = np.diag([0.0, 1.0, 0.0])
+        _put_xz(cov3, np.asarray(ob.cov, dtype=float).reshape(2, 2))
         batch.add(
             gtsam.PriorFactorVector(V(i), v_imu, gtsam.noiseModel.Gaussian.Covariance(cov3)),
             [V(i)],

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 import pytest
+from gtsam.symbol_shorthand import V
 
 from vio_graph.filter.leg_bridge import LegChainBridge, chain_velocity_xz
 from vio_graph.geometry import rotate_xz
-from vio_graph.types import JointAngles
+from vio_graph.smoother.config import FactorFamilies, SmootherConfig
+from vio_graph.smoother.graph import KeyframeGraphBuilder
+from vio_graph.smoother.synthetic import make_swinging_shank_trial
+from vio_graph.types import ImuSample, JointAngles, VelocityObservation
 
 THIGH_M = 0.43
 CAM_IN_SHANK = np.array([0.07, -0.05])
@@ -96,3 +101,37 @@ def test_bridge_without_joints_gives_up() -> None:
         bridge.after_trusted(k / RATE_HZ, np.zeros(2), np.zeros(2))
         assert bridge.observation([], np.zeros(2), np.zeros(2)) is None
     assert not bridge.active and bridge.n_unbridged == 1
+
+
+def test_smoothers_put_the_bridge_velocity_on_the_keyframe() -> None:
+    """A keyframe carrying the bridge's camera velocity gets one prior on its IMU velocity,
+    v_cam - omega x (R p_cam) with the gyro at the keyframe time; switched off by
+    ``smoother.factors.saturation_bridge``."""
+    T = np.eye(4)
+    T[:3, 3] = [0.02, 0.0, 0.05]  # camera in IMU axes, m
+    v_cam = np.array([2.4, 1.1])
+    counts = {}
+    for on in (True, False):
+        cfg = SmootherConfig(factors=FactorFamilies(saturation_bridge=on))
+        b = KeyframeGraphBuilder(cfg, T)
+        q = np.array([1.0, 0.0, 0.0, 0.0])
+        for k in range(12):
+            gyro = np.array([0.0, 3.0, 0.0])
+            b.add_imu(ImuSample(0.01 * k, np.array([0.0, 0.0, 9.81]), gyro, q))
+        est = make_swinging_shank_trial(0.2).filter_estimates[0]
+        assert b.add_frame(0.05, True, est, None, None, np.eye(3))
+        ob = VelocityObservation(0.1, v_cam, np.eye(2) * 0.2**2)
+        ups = b.add_frame(0.1, True, est, None, [ob], np.eye(3))
+        g = ups[0].factors
+        priors = [
+            g.at(k).prior()
+            for k in range(g.size())
+            if isinstance(g.at(k), gtsam.PriorFactorVector)
+            and g.at(k).keys()[0] == V(1)
+            and np.linalg.norm(g.at(k).prior()) > 0
+        ]
+        counts[on] = len(priors)
+        if on:
+            expected = np.r_[v_cam[0], 0.0, v_cam[1]] - np.cross([0.0, 3.0, 0.0], T[:3, 3])
+            np.testing.assert_allclose(priors[0], expected, atol=1e-9)
+    assert counts == {True: 1, False: 0}

@@ -649,12 +649,12 @@ class OnlineEstimator:
         dt_filter = t - filt._t_s
         if dt_filter < -1e-9 or not math.isfinite(t):
             return None  # propagate() raises there: the general path says so
-        att_slots, q_slots, mag_slot = self._fused_slots
-        if att._R is not self._fused_att[0] or att._gyro_radps is not self._fused_att[1]:
-            ws[att_slots] = att._R + att._gyro_radps  # the general path moved the tracker
         bridge = self.saturation_bridge
         if bridge is not None and (bridge.active or _saturated(sample)):
             return None  # the general path, which feeds the bridge (same kernels, same bits)
+        att_slots, q_slots, mag_slot = self._fused_slots
+        if att._R is not self._fused_att[0] or att._gyro_radps is not self._fused_att[1]:
+            ws[att_slots] = att._R + att._gyro_radps  # the general path moved the tracker
         gyr = as_f64(sample.gyro_radps)
         stance = self._fused_anchor and not sample.accel_held
         R, moved = self._fused_step(

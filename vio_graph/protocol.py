@@ -30,8 +30,8 @@ from vio_graph.types import (
     CornerObservation,
     Displacement2D,
     FrameEstimate,
+    FrameObservation,
     ImuSample,
-    LandmarkObservation,
     StanceObservation,
     VelocityObservation,
 )
@@ -96,14 +96,10 @@ class FrameRecord:
     def is_keyframe(self) -> bool:
         return self.estimate.is_keyframe
 
-    def observations(
-        self, stance_anchors: bool = True
-    ) -> list[LandmarkObservation | VelocityObservation]:
+    def observations(self, stance_anchors: bool = True) -> list[FrameObservation]:
         """The observations of this frame: the corner, then (``stance_anchors``) the stance
         anchor, then the bridge's velocity, each if present."""
-        obs: list[LandmarkObservation | VelocityObservation] = (
-            [] if self.corner is None else [self.corner]
-        )
+        obs: list[FrameObservation] = [] if self.corner is None else [self.corner]
         if stance_anchors and self.stance is not None:
             obs.append(self.stance)
         if self.velocity is not None:

@@ -161,6 +161,10 @@ class VelocityObservation:
 #: A landmark seen from the camera: a terrain corner or the stance ankle.
 LandmarkObservation: TypeAlias = CornerObservation | StanceObservation
 
+#: What a frame hands the smoothers besides its displacement: landmarks and the bridge's
+#: velocity.
+FrameObservation: TypeAlias = CornerObservation | StanceObservation | VelocityObservation
+
 
 class LandmarkKey(NamedTuple):
     """Key of a landmark in the filter state: a corner (``id`` = its landmark's track id),

@@ -90,9 +90,9 @@ from vio_graph.types import (
     CornerObservation,
     Displacement2D,
     FrameEstimate,
+    FrameObservation,
     ImuSample,
     LandmarkKey,
-    LandmarkObservation,
     StanceObservation,
     VelocityObservation,
 )
@@ -267,7 +267,7 @@ class _Pending:
     timestamp_s: float
     estimate: FrameEstimate | None
     displacement: tuple[NDArray[np.float64], NDArray[np.float64]] | None
-    observations: list[LandmarkObservation]
+    observations: list[FrameObservation]
     R_world_imu: NDArray[np.float64] | None = None
 
 
@@ -386,7 +386,7 @@ class KeyframeGraphBuilder:
         is_keyframe: bool,
         filter_estimate: FrameEstimate | None,
         displacement: Displacement2D | None,
-        observation: LandmarkObservation | Sequence[LandmarkObservation] | None,
+        observation: FrameObservation | Sequence[FrameObservation] | None,
         R_world_imu: ArrayLike | None = None,
     ) -> list[KeyframeUpdate]:
         """Ingest one depth frame's outputs; returns completed keyframes (0, 1 or 2).
@@ -419,8 +419,8 @@ class KeyframeGraphBuilder:
             disp = (self._chain[2], self._chain[3])
         self._chain = (t, t, np.zeros(2), np.zeros((2, 2)))
         if observation is None:
-            obs: list[LandmarkObservation] = []
-        elif isinstance(observation, (CornerObservation, StanceObservation)):
+            obs: list[FrameObservation] = []
+        elif isinstance(observation, (CornerObservation, StanceObservation, VelocityObservation)):
             obs = [observation]
         else:
             obs = list(observation)
@@ -710,7 +710,7 @@ class KeyframeGraphBuilder:
         batch: _FactorBatch,
         i: int,
         t: float,
-        observations: list[LandmarkObservation],
+        observations: list[FrameObservation],
         R_i: NDArray[np.float64],
         t_guess: NDArray[np.float64],
     ) -> None:

@@ -83,6 +83,7 @@ from vio_graph.filter.imu_faults import (
     velocity_fault_cov,
 )
 from vio_graph.filter.imu_repair import NextSampleRepair
+from vio_graph.filter.leg_bridge import LegChainBridge
 from vio_graph.filter.level_landmarks import LevelLandmarks
 from vio_graph.filter.stance import FootRotationTest, StanceConsistencyTest, StanceDetector
 from vio_graph.filter.time_offset import ClockModel, FrameStampTest, TimeOffsetEstimator
@@ -119,6 +120,7 @@ from vio_graph.types import (
     JointAngles,
     LandmarkKey,
     StanceObservation,
+    VelocityObservation,
 )
 
 #: what the front end's tracker says when ICP disagrees with the IMU prediction
@@ -137,6 +139,12 @@ def reference_pitch_offset_quat(
 #: (``reference_pitch_offset_quat``, ``filter.eskf.sagittal_rotation``) and compare states.
 _pitch_offset_quat = pitch_offset_quat
 _sagittal_rotation = sagittal_rotation_fast
+
+
+def _saturated(sample: ImuSample) -> bool:
+    """The fault monitor marked an accelerometer axis of ``sample`` at its rail (an extra
+    sigma on a measured, not held, accelerometer)."""
+    return sample.accel_extra_sigma_mps2 > 0.0 and not sample.accel_held
 
 
 def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float64]) -> ImuSample:
@@ -456,6 +464,21 @@ class OnlineEstimator:
             if fi.enabled and fi.saturation_learn_scale and rig.accel_range_mps2
             else None
         )
+        #: leg-chain velocity bridge across saturated accelerometer stretches, or None
+        self.saturation_bridge = (
+            LegChainBridge(
+                rig.leg.thigh_length_m,
+                rig.camera_in_shank_xz_m,
+                fi.saturation_bridge_hip_accel_mps2,
+                fi.saturation_bridge_rate_sigma_mps,
+            )
+            if fi.enabled and fi.saturation_bridge and rig.accel_range_mps2
+            else None
+        )
+        self.n_bridge_fused = 0  # bridge observations the filter took (gate passed)
+        #: the latest fused bridge observation not yet given to a keyframe: (velocity, cov,
+        #: the filter's velocity and summed corrections just before it was fused)
+        self._bridge_carry: tuple[NDArray, NDArray, NDArray, NDArray] | None = None
         per_axis = fi.keep_consistent_axes
         self.imu_repair = (
             NextSampleRepair(
@@ -544,6 +567,14 @@ class OnlineEstimator:
             ]
             rep["imu_faults"]["saturation_stretches_measured"] = learner.n_evidence
             rep["imu_faults"]["saturation_stretches_unmeasured"] = learner.n_dropped
+        bridge = self.saturation_bridge
+        if bridge is not None and bridge.n_stretches:
+            rep["imu_faults"]["saturation_bridge"] = {
+                "stretches": bridge.n_stretches,
+                "observations": bridge.n_observations,
+                "fused": self.n_bridge_fused,
+                "unbridged": bridge.n_unbridged,
+            }
         for name, clock in (("imu", self.imu_clock), ("camera", self.frame_clock)):
             if clock is not None:
                 rep["timestamps"][name] = clock.report()
@@ -567,6 +598,7 @@ class OnlineEstimator:
             and not self._stance_queue
             and self.time_offset.applied_s <= 0.0
             and (self.imu_repair is None or self.imu_repair.pending is None)
+            and (self.saturation_bridge is None or not self.saturation_bridge.active)
         ):
             return self._add_imu_one_call(sample, t0)
         if self.imu_clock is not None:  # jitter smoothing and gap / backward-stamp report
@@ -729,6 +761,9 @@ class OnlineEstimator:
         dt_filter = t - filt._t_s
         if dt_filter < -1e-9 or not math.isfinite(t):
             return None  # propagate() raises there: the general path says so
+        bridge = self.saturation_bridge
+        if bridge is not None and (bridge.active or _saturated(sample)):
+            return None  # the general path, which feeds the bridge (same kernels, same bits)
         att_slots = self._fused_slots[0]
         if att._R is not self._fused_att[0] or att._gyro_radps is not self._fused_att[1]:
             ws[att_slots] = att._R + att._gyro_radps  # the general path moved the tracker
@@ -1012,6 +1047,14 @@ class OnlineEstimator:
         # 6. keyframes
         is_kf = self.keyframes.is_keyframe(t, camera_xz)
         self._prev_frame = (t, camera_xz)
+        bridge_velocity = None
+        if is_kf and self._bridge_carry is not None:
+            # the bridge's velocity carried to this frame by the IMU alone: the filter's
+            # velocity change since minus what its measurements corrected
+            v_obs, cov_obs, v_before, corr_before = self._bridge_carry
+            imu_change = velocity - v_before - (self.filter.velocity_corrections_mps - corr_before)
+            bridge_velocity = VelocityObservation(t, v_obs + imu_change, cov_obs)
+            self._bridge_carry = None
         # 7. safety outputs: the foot against the terrain seen so far (safety/online.py)
         safety = None
         if self.safety is not None:
@@ -1059,6 +1102,7 @@ class OnlineEstimator:
             shank_pitch_chain_rad=chain_pitch,
             ankle_rad=ankle,
             in_stance=self._in_stance,
+            velocity=bridge_velocity,
         )
 
     def _note_stand_surface(self, pts) -> None:
@@ -1111,11 +1155,41 @@ class OnlineEstimator:
                 # stamp came after it (stamp jitter with a re-stamped frame) is a sample
                 # before the start: it only feeds the attitude, as the others before it
                 if s.timestamp_s >= self._filter_start_s - 1e-9:
-                    self.filter.propagate(s)
+                    bridge = self.saturation_bridge
+                    if bridge is None:
+                        self.filter.propagate(s)
+                    else:
+                        self._propagate_bridged(bridge, s)
             elif not at_frame:
                 self.filter.initialise(s.timestamp_s, self._p0)
                 self._filter_started = True
             # else: before the first frame the samples only feed the attitude and detectors
+
+    def _propagate_bridged(self, bridge: LegChainBridge, s: ImuSample) -> None:
+        """:meth:`SagittalEskf.propagate` with the leg-chain bridge fed: a saturated sample
+        opens a stretch (the filter's velocity before it), the first trusted one after it
+        closes it, and once the joints cover its end the chain's observation of the
+        velocity is fused, gated (filter/leg_bridge.py). Nothing is done on a clean stream
+        beyond the test of the sample's mark."""
+        filt = self.filter
+        saturated = _saturated(s)
+        if saturated:
+            t, _, v = filt.position_velocity()
+            bridge.before_saturated(t, v, filt.cov_velocity_m2ps2())
+            self._bridge_carry = None  # its IMU-only carry would cross this stretch
+        filt.propagate(s)
+        if saturated or not bridge.active:
+            return
+        t, _, v = filt.position_velocity()
+        bridge.after_trusted(t, v, filt.velocity_corrections_mps)
+        obs = bridge.observation(self._joint_hist, v, filt.velocity_corrections_mps)
+        if obs is not None:
+            gate = self.config.filter.imu_faults.saturation_bridge_gate
+            before = (v, filt.velocity_corrections_mps.copy())
+            if filt.update_velocity(obs.velocity_xz_mps, obs.cov, obs.timestamp_s, gate):
+                self.n_bridge_fused += 1
+                # for the smoothers, at the next keyframe (process_frame)
+                self._bridge_carry = (obs.velocity_xz_mps, obs.cov, *before)
 
     def _start_filter_at(self, t_s: float) -> None:
         """Start the filter at the first frame's time (``filter.start_at_first_frame``): the

@@ -30,9 +30,10 @@ from vio_graph.types import (
     CornerObservation,
     Displacement2D,
     FrameEstimate,
+    FrameObservation,
     ImuSample,
-    LandmarkObservation,
     StanceObservation,
+    VelocityObservation,
 )
 
 if TYPE_CHECKING:
@@ -83,6 +84,9 @@ class FrameRecord:
     shank_pitch_chain_rad: float
     ankle_rad: float
     in_stance: bool
+    #: the leg-chain bridge's camera velocity after a saturated stretch, on the first
+    #: keyframe after it (vio_graph/filter/leg_bridge.py), else None
+    velocity: VelocityObservation | None = None
 
     @property
     def timestamp_s(self) -> float:
@@ -92,12 +96,14 @@ class FrameRecord:
     def is_keyframe(self) -> bool:
         return self.estimate.is_keyframe
 
-    def observations(self, stance_anchors: bool = True) -> list[LandmarkObservation]:
-        """The landmark observations of this frame: the corner, then (``stance_anchors``) the
-        stance anchor, each if present."""
-        obs: list[LandmarkObservation] = [] if self.corner is None else [self.corner]
+    def observations(self, stance_anchors: bool = True) -> list[FrameObservation]:
+        """The observations of this frame: the corner, then (``stance_anchors``) the stance
+        anchor, then the bridge's velocity, each if present."""
+        obs: list[FrameObservation] = [] if self.corner is None else [self.corner]
         if stance_anchors and self.stance is not None:
             obs.append(self.stance)
+        if self.velocity is not None:
+            obs.append(self.velocity)
         return obs
 
 

@@ -146,8 +146,24 @@ class StanceObservation:
     velocity_cov: NDArray[np.float64] | None = None
 
 
+@dataclass(frozen=True)
+class VelocityObservation:
+    """The camera velocity (m/s, ground axes) at a keyframe from a second source, and its
+    covariance ((m/s)^2): the leg-chain bridge across a saturated accelerometer stretch
+    (vio_graph/filter/leg_bridge.py), carried by the filter's IMU propagation from the
+    stretch's end to the frame. The smoothers put it on the keyframe's velocity."""
+
+    timestamp_s: float
+    camera_velocity_xz_mps: NDArray[np.float64]
+    cov: NDArray[np.float64]
+
+
 #: A landmark seen from the camera: a terrain corner or the stance ankle.
 LandmarkObservation: TypeAlias = CornerObservation | StanceObservation
+
+#: What a frame hands the smoothers besides its displacement: landmarks and the bridge's
+#: velocity.
+FrameObservation: TypeAlias = CornerObservation | StanceObservation | VelocityObservation
 
 
 class LandmarkKey(NamedTuple):

@@ -142,6 +142,37 @@ class ImuFaultConfig(BaseModel):
         description="evidence not in this long after a stretch is dropped (nothing measured "
         "the velocity); longer than a swing (0.4-0.6 s) so the next stance counts",
     )
+    saturation_bridge: bool = Field(
+        default=True,
+        description="after a saturated accelerometer stretch, observe the camera velocity "
+        "through the leg chain with the hip's velocity held across the stretch "
+        "(filter/leg_bridge.py; needs the joints stream: thigh pitch and knee encoder)",
+    )
+    saturation_bridge_hip_accel_mps2: float = Field(
+        default=5.0,
+        gt=0,
+        description="sigma of the hip's acceleration across a clipped stretch (from the "
+        "last trusted sample before it to the first after it): the bridge's sigma per axis "
+        "grows by it times that window. Simulated 4 g, seeds 1-3, the chain's velocity "
+        "change misses the camera's by 0.08-0.21 m/s RMS per axis on upstair and obstacle "
+        "(1.4-4.2 m/s^2 RMS divided by the 30-90 ms window) and 0.12-0.41 on "
+        "prosthesis_upstair (2.3-5.5 m/s^2). Toe x mean of 3 seeds, 3 -> 5 m/s^2, filter / "
+        "smoother / batch: upstair 1.81 / 0.81 / 0.83 -> 1.75 / 0.66 / 0.67, obstacle "
+        "3.31 / 2.47 / 2.66 -> 3.52 / 1.23 / 2.50, prosthesis_upstair 1.55 / 1.23 / 1.21 -> "
+        "1.31 / 0.88 / 0.79",
+    )
+    saturation_bridge_rate_sigma_mps: float = Field(
+        default=0.1,
+        ge=0,
+        description="sigma per axis (m/s) of the chain's velocity from the encoders' "
+        "central differences (0.05 deg encoder noise over 20 ms through 0.4 m: 0.03 m/s, "
+        "and the interpolation between joint samples)",
+    )
+    saturation_bridge_gate: bool = Field(
+        default=True,
+        description="chi-square gate the bridge's observation (the filter's gate "
+        "probability): vision, the saturation prior and the chain arbitrate",
+    )
     gyro_ahrs_test: bool = Field(
         default=True,
         description="test each gyro sample against the rate of the vendor orientation (two "

@@ -19,7 +19,8 @@ spikes to any such threshold):
   the sigma (``saturation_correlated``), which makes the variance of a stretch of n samples
   n^2 times one sample's. (A bridge by the rigid-shank kinematics, knee force held from the
   last good sample plus the gyro's rotational terms, was tried: the knee's own deceleration
-  dominates at heel strike and rises within a sample, so it bridged almost nothing.) How far
+  dominates at heel strike and rises within a sample, so it bridged almost nothing; the
+  leg chain with the hip's velocity held does bridge a stretch, filter/leg_bridge.py.) How far
   the signal went beyond the rail depends on the gait and the axis, so the scale per IMU axis
   is learnt from what the filter's measurements later say each stretch lost
   (:class:`SaturationScaleLearner`); the configured scale is its prior.

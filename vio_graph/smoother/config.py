@@ -46,6 +46,12 @@ class FactorFamilies(BaseModel):
         "turned 90 deg 2.06 / 1.16 -> 0.62 / 0.62 (the smoother's x ran away on the final "
         "level landing, where the filter, with the velocity, did not)",
     )
+    saturation_bridge: bool = Field(
+        default=True,
+        description="the first keyframe after a saturated accelerometer stretch gets the "
+        "filter's leg-chain bridge velocity (filter/leg_bridge.py, moved from the camera to "
+        "the IMU with the gyro) as a prior on its velocity; no effect without saturation",
+    )
     attitude: bool = Field(default=True, description="vendor AHRS attitude prior per keyframe")
     planar: bool = Field(
         default=True, description="sagittal-plane priors: lateral position and velocity = 0"

@@ -91,10 +91,11 @@ from vio_graph.types import (
     CornerObservation,
     Displacement2D,
     FrameEstimate,
+    FrameObservation,
     ImuSample,
     LandmarkKey,
-    LandmarkObservation,
     StanceObservation,
+    VelocityObservation,
 )
 
 #: Sigma used for "unconstrained" axes of a prior (tangent units).
@@ -271,7 +272,7 @@ class _Pending:
     timestamp_s: float
     estimate: FrameEstimate | None
     displacement: tuple[NDArray[np.float64], NDArray[np.float64]] | None
-    observations: list[LandmarkObservation]
+    observations: list[FrameObservation]
     R_world_imu: NDArray[np.float64] | None = None
 
 
@@ -429,7 +430,7 @@ class KeyframeGraphBuilder:
         is_keyframe: bool,
         filter_estimate: FrameEstimate | None,
         displacement: Displacement2D | None,
-        observation: LandmarkObservation | Sequence[LandmarkObservation] | None,
+        observation: FrameObservation | Sequence[FrameObservation] | None,
         R_world_imu: ArrayLike | None = None,
     ) -> list[KeyframeUpdate]:
         """Ingest one depth frame's outputs; returns completed keyframes (0, 1 or 2).
@@ -462,8 +463,8 @@ class KeyframeGraphBuilder:
             disp = (self._chain[2], self._chain[3])
         self._chain = (t, t, np.zeros(2), np.zeros((2, 2)))
         if observation is None:
-            obs: list[LandmarkObservation] = []
-        elif isinstance(observation, (CornerObservation, StanceObservation)):
+            obs: list[FrameObservation] = []
+        elif isinstance(observation, (CornerObservation, StanceObservation, VelocityObservation)):
             obs = [observation]
         else:
             obs = list(observation)
@@ -811,7 +812,7 @@ class KeyframeGraphBuilder:
         batch: _FactorBatch,
         i: int,
         t: float,
-        observations: list[LandmarkObservation],
+        observations: list[FrameObservation],
         R_i: NDArray[np.float64],
         t_guess: NDArray[np.float64],
     ) -> None:
@@ -824,6 +825,10 @@ class KeyframeGraphBuilder:
         p_ic = self.imu_p_cam_m
         rot_i = gtsam.Rot3.ClosestTo(R_i)
         for ob in observations:
+            if isinstance(ob, VelocityObservation):
+                if cfg.factors.saturation_bridge:
+                    self._add_bridge_velocity(batch, i, t, ob, R_i)
+                continue
             cov = np.asarray(ob.cov_m2, dtype=float).reshape(2, 2)
             if isinstance(ob, StanceObservation):
                 lkey = LandmarkKey("ankle", ob.stance_id)
@@ -885,6 +890,26 @@ class KeyframeGraphBuilder:
         vc = np.asarray(ob.velocity_cov, dtype=float).reshape(2, 2)
         cov3 = np.diag([0.0, 1.0, 0.0])
         _put_xz(cov3, vc)
+        batch.add(
+            gtsam.PriorFactorVector(V(i), v_imu, gtsam.noiseModel.Gaussian.Covariance(cov3)),
+            [V(i)],
+        )
+
+    def _add_bridge_velocity(
+        self,
+        batch: _FactorBatch,
+        i: int,
+        t: float,
+        ob: VelocityObservation,
+        R_i: NDArray[np.float64],
+    ) -> None:
+        """V(i) from the leg-chain bridge's camera velocity after a saturated stretch
+        (filter/leg_bridge.py): v_imu = v_cam - omega x (R p_cam), with the gyro
+        interpolated to the keyframe time; loose laterally."""
+        omega = R_i @ self._gyro_at(t)
+        v_imu = _xz_to_3(ob.camera_velocity_xz_mps) - cross3(omega, R_i @ self.imu_p_cam_m)
+        cov3 = np.diag([0.0, 1.0, 0.0])
+        _put_xz(cov3, np.asarray(ob.cov, dtype=float).reshape(2, 2))
         batch.add(
             gtsam.PriorFactorVector(V(i), v_imu, gtsam.noiseModel.Gaussian.Covariance(cov3)),
             [V(i)],

@@ -23,7 +23,7 @@ from vio_graph.errors import EstimationError
 from vio_graph.protocol import EstimatorReport, FrameRecord, ImuStep
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.graph import KeyframeGraphBuilder, KeyframeUpdate
-from vio_graph.types import Displacement2D, FrameEstimate, ImuSample, LandmarkObservation
+from vio_graph.types import Displacement2D, FrameEstimate, FrameObservation, ImuSample
 
 
 class KeyframeEstimate(NamedTuple):
@@ -104,7 +104,7 @@ class KeyframeSmootherBase(ABC):
         is_keyframe: bool,
         filter_estimate: FrameEstimate | None,
         displacement: Displacement2D | None,
-        observation: LandmarkObservation | Sequence[LandmarkObservation] | None,
+        observation: FrameObservation | Sequence[FrameObservation] | None,
         R_world_imu: ArrayLike | None = None,
     ) -> None:
         """Feed one depth frame's outputs.

@@ -1,0 +1,137 @@
+"""Leg-chain velocity bridge across a saturated accelerometer stretch (filter/leg_bridge.py)."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+from gtsam.symbol_shorthand import V
+
+from vio_graph.filter.leg_bridge import LegChainBridge, chain_velocity_xz
+from vio_graph.geometry import rotate_xz
+from vio_graph.smoother.config import FactorFamilies, SmootherConfig
+from vio_graph.smoother.graph import KeyframeGraphBuilder
+from vio_graph.smoother.synthetic import make_swinging_shank_trial
+from vio_graph.types import ImuSample, JointAngles, VelocityObservation
+
+THIGH_M = 0.43
+CAM_IN_SHANK = np.array([0.07, -0.05])
+RATE_HZ = 100.0
+
+
+def _angles(t):
+    """A push-off-like swing: hip flexion and knee flexion (rad) as smooth functions of t."""
+    thigh = 0.2 + 0.5 * np.sin(2.0 * t)
+    knee = 0.3 + 0.9 * np.sin(3.0 * t + 0.4)
+    return thigh, knee
+
+
+def _joints(t0: float, t1: float) -> list[JointAngles]:
+    ts = np.arange(round(t0 * RATE_HZ), round(t1 * RATE_HZ) + 1) / RATE_HZ
+    return [JointAngles(float(t), *map(float, _angles(t)), 0.0) for t in ts]
+
+
+def _camera_rel_hip(t):
+    thigh, knee = _angles(t)
+    return rotate_xz(-thigh, np.array([0.0, -THIGH_M])) + rotate_xz(knee - thigh, CAM_IN_SHANK)
+
+
+def _true_rel_velocity(t: float) -> np.ndarray:
+    h = 1e-6
+    return (_camera_rel_hip(t + h) - _camera_rel_hip(t - h)) / (2 * h)
+
+
+def test_chain_velocity_is_the_derivative_of_the_chain() -> None:
+    joints = _joints(0.0, 1.0)
+    for t in (0.2, 0.505, 0.8):
+        v = chain_velocity_xz(joints, t, THIGH_M, CAM_IN_SHANK)
+        assert v is not None
+        # central difference over 10 ms of angles changing at up to 2.7 rad/s
+        np.testing.assert_allclose(v, _true_rel_velocity(t), atol=5e-3)
+    # not covered by a joint sample a period after t: no answer yet
+    assert chain_velocity_xz(joints, 0.995, THIGH_M, CAM_IN_SHANK) is None
+
+
+def test_bridge_restores_the_velocity_a_clipped_stretch_lost() -> None:
+    """The hip moves at a constant 1.0 m/s; the filter tracks the camera exactly until a
+    5-sample stretch clips 1.5 m/s of x velocity away. The bridge's observation after the
+    stretch is the true camera velocity (to the central difference), with the covariance
+    of the filter before the stretch plus the hip and rate terms."""
+    v_hip = np.array([1.0, 0.0])
+    bridge = LegChainBridge(THIGH_M, CAM_IN_SHANK, hip_accel_sigma_mps2=3.0, rate_sigma_mps=0.1)
+    joints = _joints(0.0, 1.0)
+    P0 = np.eye(2) * 0.02**2
+    lost = np.zeros(2)
+    corrections = np.zeros(2)
+    ts = np.arange(40, 52) / RATE_HZ  # samples 0.40 .. 0.51 s
+    clipped = {0.43, 0.44, 0.45, 0.46, 0.47}
+    obs = None
+    for t in ts:
+        sat = round(t, 2) in clipped
+        if sat:
+            # the filter's velocity before propagating with the sample
+            bridge.before_saturated(t - 0.01, v_hip + _true_rel_velocity(t - 0.01) + lost, P0)
+            lost = lost + np.array([-0.3, 0.0])
+            continue
+        assert not sat
+        v_filter = v_hip + _true_rel_velocity(t) + lost
+        if bridge.active:
+            bridge.after_trusted(t, v_filter, corrections)
+            obs = bridge.observation(joints, v_filter, corrections) or obs
+    assert obs is not None and bridge.n_observations == 1
+    assert obs.timestamp_s == pytest.approx(0.48)
+    np.testing.assert_allclose(obs.velocity_xz_mps, v_hip + _true_rel_velocity(0.48), atol=0.01)
+    # window: the last trusted sample before (0.42 s) to the first after (0.48 s)
+    expected_var = 0.02**2 + (3.0 * 0.06) ** 2 + 0.1**2
+    np.testing.assert_allclose(obs.cov, np.eye(2) * expected_var, atol=1e-12)
+
+
+def test_bridge_does_nothing_without_saturation() -> None:
+    bridge = LegChainBridge(THIGH_M, CAM_IN_SHANK, 3.0, 0.1)
+    joints = _joints(0.0, 1.0)
+    assert not bridge.active
+    assert bridge.observation(joints, np.zeros(2), np.zeros(2)) is None
+    assert bridge.n_stretches == 0
+
+
+def test_bridge_without_joints_gives_up() -> None:
+    bridge = LegChainBridge(THIGH_M, CAM_IN_SHANK, 3.0, 0.1, max_wait_s=0.1)
+    bridge.before_saturated(0.40, np.zeros(2), np.eye(2))
+    for k in range(41, 60):
+        bridge.after_trusted(k / RATE_HZ, np.zeros(2), np.zeros(2))
+        assert bridge.observation([], np.zeros(2), np.zeros(2)) is None
+    assert not bridge.active and bridge.n_unbridged == 1
+
+
+def test_smoothers_put_the_bridge_velocity_on_the_keyframe() -> None:
+    """A keyframe carrying the bridge's camera velocity gets one prior on its IMU velocity,
+    v_cam - omega x (R p_cam) with the gyro at the keyframe time; switched off by
+    ``smoother.factors.saturation_bridge``."""
+    T = np.eye(4)
+    T[:3, 3] = [0.02, 0.0, 0.05]  # camera in IMU axes, m
+    v_cam = np.array([2.4, 1.1])
+    counts = {}
+    for on in (True, False):
+        cfg = SmootherConfig(factors=FactorFamilies(saturation_bridge=on))
+        b = KeyframeGraphBuilder(cfg, T)
+        q = np.array([1.0, 0.0, 0.0, 0.0])
+        for k in range(12):
+            gyro = np.array([0.0, 3.0, 0.0])
+            b.add_imu(ImuSample(0.01 * k, np.array([0.0, 0.0, 9.81]), gyro, q))
+        est = make_swinging_shank_trial(0.2).filter_estimates[0]
+        assert b.add_frame(0.05, True, est, None, None, np.eye(3))
+        ob = VelocityObservation(0.1, v_cam, np.eye(2) * 0.2**2)
+        ups = b.add_frame(0.1, True, est, None, [ob], np.eye(3))
+        g = ups[0].factors
+        priors = [
+            g.at(k).prior()
+            for k in range(g.size())
+            if isinstance(g.at(k), gtsam.PriorFactorVector)
+            and g.at(k).keys()[0] == V(1)
+            and np.linalg.norm(g.at(k).prior()) > 0
+        ]
+        counts[on] = len(priors)
+        if on:
+            expected = np.r_[v_cam[0], 0.0, v_cam[1]] - np.cross([0.0, 3.0, 0.0], T[:3, 3])
+            np.testing.assert_allclose(priors[0], expected, atol=1e-9)
+    assert counts == {True: 1, False: 0}

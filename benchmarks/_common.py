@@ -203,3 +203,39 @@ def measure_process(args: list[str]) -> dict[str, float]:
         "cpu_s": usage.ru_utime + usage.ru_stime,
         "peak_rss_mib": usage.ru_maxrss / 1024.0,
     }
+
+
+def extract_revision(rev: str, out: Path) -> Path:
+    """The source tree of git revision ``rev`` (``git archive``) unpacked below ``out``:
+    the baseline side of the A/B benchmarks."""
+    import subprocess
+    import tarfile
+
+    repo = Path(__file__).resolve().parent.parent
+    tar = out / "base.tar"
+    with tar.open("wb") as f:
+        subprocess.run(["git", "-C", str(repo), "archive", rev], stdout=f, check=True)
+    dest = out / "base"
+    with tarfile.open(tar) as t:
+        t.extractall(dest, filter="data")
+    return dest
+
+
+def run_in_tree(code: str, tree: Path, *args: str) -> dict:
+    """Run the Python ``code`` in a fresh process with ``tree`` first on the import path
+    and return the JSON object it prints on a line starting with ``RESULT``."""
+    import subprocess
+    import sys
+
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(tree), *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tree,
+    )
+    lines = [x for x in out.stdout.splitlines() if x.startswith("RESULT")]
+    if not lines:
+        raise RuntimeError(f"replay in {tree} failed:\n{out.stderr[-3000:]}")
+    return json.loads(lines[0][len("RESULT") :])

@@ -15,16 +15,11 @@ replays of all rounds.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import _common  # noqa: I001 - before numpy: pins the thread pools numpy reads on import
 import numpy as np
-from ab_imu_sample import _extract
 
 STAGES = (
     "frontend_projection",
@@ -62,21 +57,6 @@ print("RESULT" + json.dumps({"rows": rows, "add_frame_cpu_ms": cpu}))
 """
 
 
-def _child(tree: Path, replays: int) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    out = subprocess.run(
-        [sys.executable, "-c", _CHILD, str(tree), str(replays)],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=tree,
-    )
-    lines = [x for x in out.stdout.splitlines() if x.startswith("RESULT")]
-    if not lines:
-        raise RuntimeError(f"replay in {tree} failed:\n{out.stderr[-3000:]}")
-    return json.loads(lines[0][len("RESULT") :])
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="git revision to compare against")
@@ -88,10 +68,10 @@ def main() -> None:
         name: {s: [] for s in (*STAGES, "add_frame_cpu")} for name in ("base", "new")
     }
     with tempfile.TemporaryDirectory() as tmp:
-        base = _extract(args.base, Path(tmp))
+        base = _common.extract_revision(args.base, Path(tmp))
         for r in range(args.rounds):
             for name, tree in (("base", base), ("new", new)):
-                d = _child(tree, args.replays)
+                d = _common.run_in_tree(_CHILD, tree, str(args.replays))
                 for s in STAGES:
                     pooled[name][s] += [row[s] for row in d["rows"]]
                 pooled[name]["add_frame_cpu"] += d["add_frame_cpu_ms"]

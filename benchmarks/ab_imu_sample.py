@@ -17,11 +17,6 @@ medians pool all samples of all rounds.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import subprocess
-import sys
-import tarfile
 import tempfile
 from pathlib import Path
 
@@ -54,33 +49,6 @@ print("RESULT" + json.dumps({"add_imu_us": imu, "smoother_us": sm["imu_input_us_
 """
 
 
-def _extract(rev: str, out: Path) -> Path:
-    """The tree of git revision ``rev`` (``git archive``) below ``out``."""
-    repo = Path(__file__).resolve().parent.parent
-    tar = out / "base.tar"
-    with tar.open("wb") as f:
-        subprocess.run(["git", "-C", str(repo), "archive", rev], stdout=f, check=True)
-    dest = out / "base"
-    with tarfile.open(tar) as t:
-        t.extractall(dest, filter="data")
-    return dest
-
-
-def _child(tree: Path, replays: int) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    out = subprocess.run(
-        [sys.executable, "-c", _CHILD, str(tree), str(replays)],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=tree,
-    )
-    lines = [x for x in out.stdout.splitlines() if x.startswith("RESULT")]
-    if not lines:
-        raise RuntimeError(f"replay in {tree} failed:\n{out.stderr[-3000:]}")
-    return json.loads(lines[0][len("RESULT") :])
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="git revision to compare against")
@@ -89,13 +57,13 @@ def main() -> None:
     args = ap.parse_args()
     new = Path(__file__).resolve().parent.parent
     with tempfile.TemporaryDirectory() as tmp:
-        base = _extract(args.base, Path(tmp))
+        base = _common.extract_revision(args.base, Path(tmp))
         res: dict[str, dict[str, list]] = {
             name: {"add_imu_us": [], "smoother_us": []} for name in ("base", "new")
         }
         for r in range(args.rounds):
             for name, tree in (("base", base), ("new", new)):
-                d = _child(tree, args.replays)
+                d = _common.run_in_tree(_CHILD, tree, str(args.replays))
                 res[name]["add_imu_us"] += d["add_imu_us"]
                 res[name]["smoother_us"].append(d["smoother_us"]["median"])
                 print(

@@ -668,11 +668,13 @@ class OnlineEstimator:
         # the fused step ran: what push() does with a sample that passes straight through
         if self.imu_repair is not None:
             self.imu_repair.passed(sample)
-        corrected = self._fused_done(sample, t, R, moved, gyr, self._fused_anchor)
+        q = self._fused_done(sample, t, R, moved, gyr, self._fused_anchor)
         self.n_one_call_samples += 1
-        self._last_imu = corrected
+        # the latest sample: only its time (and, trusted, its gyro) is read, which the
+        # sample in shank axes shares with the corrected one (built when a consumer asks)
+        self._last_imu = sample
         self._imu_ms += (time.perf_counter() - t0) * 1e3
-        return ImuStep(shank=sample, corrected=corrected)
+        return ImuStep.with_quat(sample, q)
 
     def _add_checked(self, measured: ImuSample, sample: ImuSample, t0: float) -> ImuStep:
         """:meth:`add_imu` from the fault monitor's output ``sample`` (``measured``: its input,
@@ -786,7 +788,7 @@ class OnlineEstimator:
             float(sample.accel_extra_sigma_mps2),
             stance,
         )
-        return self._fused_done(sample, t, R, moved, gyr, stance)
+        return _replaced(sample, t, self._fused_done(sample, t, R, moved, gyr, stance))
 
     def _fused_done(
         self,
@@ -796,10 +798,11 @@ class OnlineEstimator:
         moved: int,
         gyr: NDArray[np.float64],
         stance: bool,
-    ) -> ImuSample:
+    ) -> NDArray[np.float64]:
         """The bookkeeping after ``compiled_imu.sample_step`` ran on ``sample`` (shank axes)
         at ``t`` and returned the tracker's new ``R`` and the propagation's code ``moved``
-        (``stance``: it fed the stance detector); returns the sample as propagated."""
+        (``stance``: it fed the stance detector); returns the orientation the sample was
+        propagated with (its corrected quaternion, a new array)."""
         att, ws = self.attitude, self._fused_ws
         assert ws is not None
         _, q_slots, mag_slot = self._fused_slots
@@ -808,7 +811,7 @@ class OnlineEstimator:
         att._recent.append((t, R, g))
         self._fused_att = (R, g)
         self._last_taken_s = t
-        corrected = _replaced(sample, t, ws[q_slots].copy())
+        q = ws[q_slots].copy()
         self.filter.propagated_compiled(t, moved)
         learner = self.saturation_learner
         if learner is not None and (learner.active or any(self.imu_faults.last_rail_sign.tolist())):
@@ -816,9 +819,9 @@ class OnlineEstimator:
         if stance:
             self._stance.record(t, float(ws[mag_slot]))
         if not sample.accel_held:
-            self._last_trusted_imu = corrected
+            self._last_trusted_imu = sample  # its gyro is read (the corrected one's too)
         self.n_fused_samples += 1
-        return corrected
+        return q
 
     def add_joints(self, sample: JointAngles) -> None:
         self._last_joints = sample

@@ -204,7 +204,8 @@ class SagittalEskf:
         self._prev: _ImuMemo | None = None
         # last ground-frame acceleration (m/s^2), for p(t); propagate() stores a tuple
         self._accel_w_mps2: NDArray[np.float64] | tuple[float, float] = np.zeros(2)
-        self._history: deque[tuple[float, NDArray[np.float64]]] = deque()
+        # (t s, camera x-z m: an array, or a list of its floats on the compiled path)
+        self._history: deque[tuple[float, NDArray[np.float64] | list[float]]] = deque()
         self._last_accept_s = -np.inf
         self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0
         self._n_lm_acc = self._n_lm_rej = 0
@@ -437,11 +438,12 @@ class SagittalEskf:
         self._n_imu += 1
         if moved:
             self._t_s = t
-            # _remember(t, p), written out (one call less a sample)
+            # _remember(t, p), written out (one call less a sample); the position as a
+            # tuple of its floats (the history's readers take either, same values)
             h = self._history
             while h and h[-1][0] >= t:
                 h.pop()
-            h.append((t, self._x[0:2].copy()))
+            h.append((t, self._x[0:2].tolist()))
             t_old = t - self.config.history_s
             while h[0][0] < t_old:
                 h.popleft()

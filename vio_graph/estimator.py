@@ -147,6 +147,18 @@ def _saturated(sample: ImuSample) -> bool:
     return sample.accel_extra_sigma_mps2 > 0.0 and not sample.accel_held
 
 
+def _pooled(
+    pool: NDArray[np.float64], at: int, size: int, arr: NDArray[np.float64] | None
+) -> NDArray[np.float64]:
+    """The view ``pool[at:at + size]`` holding the values of ``arr`` (size ``size``): a state
+    array moved into the one-call kernel's pool (``compiled_imu.POOL_*``)."""
+    if arr is None or arr.shape != (size,):
+        raise EstimationError(f"state array of shape {size} expected for the kernel's pool")
+    view = pool[at : at + size]
+    view[:] = arr
+    return view
+
+
 def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float64]) -> ImuSample:
     """``dataclasses.replace(sample, timestamp_s=..., quat_wxyz=...)`` without its field
     introspection (a few microseconds on the per-sample path). (Skipping the frozen
@@ -402,7 +414,7 @@ class OnlineEstimator:
             or fc.strapdown_attitude != "tracked"
         ):
             return
-        ws = np.zeros(k.WS_SIZE)
+        ws = np.zeros(k.POOL_SIZE)  # the workspace, then imu_input's pool (POOL_* slots)
         if not self.filter.compiled_propagation_constants(ws):
             return
         ws[k.WS_GRAVITY : k.WS_GRAVITY + 2] = fc.gravity_xz_mps2
@@ -430,10 +442,18 @@ class OnlineEstimator:
             or not self.rig.imu_is_shank_aligned
         ):
             return
-        c = np.zeros(k.IN_SIZE)
+        pool = self._fused_ws
+        c = pool[k.POOL_IN : k.POOL_IN + k.IN_SIZE]
         if not clock.compiled_constants(c, k) or not self.imu_faults.compiled_constants(c, k):
             return
         c[k.IN_TIME_CONSTANT] = self.attitude.config.time_constant_s
+        # the small state arrays the kernel updates become views of its pool, their values
+        # kept: one argument instead of five (the other paths update the same memory)
+        mon, stance = self.imu_faults, self._stance
+        clock._st = _pooled(pool, k.POOL_CLK, k.CLK_SIZE, clock._st)
+        mon._prev_arr = _pooled(pool, k.POOL_FAULT, k.FAULT_PREV_SIZE, mon._prev_arr)
+        stance._prev_arr = _pooled(pool, k.POOL_STANCE, k.STANCE_PREV_SIZE, stance._prev_arr)
+        self.filter.adopt_memory(_pooled(pool, k.POOL_MEM, k.MEM_SIZE, self.filter._mem))
         self._input_consts = c
         self._input_kernel = k.imu_input
         self._input_outcomes = (k.IN_FAULT, k.IN_CLEAN)
@@ -628,19 +648,14 @@ class OnlineEstimator:
         last = self._last_imu
         outcome, t, code, gap, prev, d2, px, py, pz, acc_sat, gyr_sat, moved, R = (
             self._input_kernel(
-                clock._st,
+                ws,  # with the clock's, the monitor's, the stance's and the filter's state
                 clock._buf,
                 clock.compiled_corrections(),
-                mon._prev_arr,
-                ws,
                 filt._x,
                 filt._P,
-                filt._mem,
-                self._stance._prev_arr,
                 acc,
                 gyr,
                 as_f64(sample.quat_wxyz),
-                self._input_consts,
                 stamp,
                 mon._acc_run,
                 att._t_s,

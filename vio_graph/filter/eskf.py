@@ -427,6 +427,17 @@ class SagittalEskf:
         ws[k.WS_R_CAM : k.WS_R_CAM + 3] = self._r_imu_cam_m
         return True
 
+    def adopt_memory(self, mem: NDArray[np.float64]) -> None:
+        """Keep the compiled propagation's memory of the previous sample in ``mem`` (same
+        size and values: a view of a caller's larger state array) from now on."""
+        k = self._kernels
+        assert k is not None and self._mem is not None and mem.shape == self._mem.shape
+        old_aw = self._mem_aw
+        self._mem = mem
+        self._mem_aw = mem[k.MEM_AW : k.MEM_AW + 2]
+        if self._accel_w_mps2 is old_aw:
+            self._accel_w_mps2 = self._mem_aw
+
     def propagated_compiled(self, t: float, moved: int) -> None:
         """The bookkeeping of :meth:`_propagate_compiled` after a caller ran the kernel on
         ``_x``, ``_P`` and ``_mem`` itself (``compiled_imu.sample_step``; the caller checked

@@ -229,6 +229,13 @@ def camera_xz_cov_from_pose_cov(
     return np.array([[C[0, 0], C[0, 2]], [C[2, 0], C[2, 2]]])
 
 
+def _vec(v: ArrayLike, n: int) -> NDArray[np.float64]:
+    """``np.asarray(v, dtype=float).reshape(n)``: ``v`` itself if it is a float64 array of
+    shape (n,) (the reshape would be a view of it)."""
+    a = as_f64(v)
+    return a if a.shape == (n,) else a.reshape(n)
+
+
 # ----------------------------------------------------------------------------------------------
 # incremental graph builder shared by the fixed-lag and the batch smoother
 # ----------------------------------------------------------------------------------------------
@@ -410,17 +417,19 @@ class KeyframeGraphBuilder:
         if imu_t and t <= imu_t[-1]:
             raise EstimationError(f"IMU timestamps not increasing: {t} after {imu_t[-1]}")
         imu_t.append(t)
-        # as_f64(v).reshape(n) == np.asarray(v, dtype=float).reshape(n) (a view of the same
-        # float64 array), without numpy's conversion checks: ~1 us a sample
-        self._imu_a.append(as_f64(sample.accel_mps2).reshape(3))
-        self._imu_g.append(as_f64(sample.gyro_radps).reshape(3))
-        q = sample.quat_wxyz if quat_wxyz is None else quat_wxyz
-        self._imu_q.append(as_f64(q).reshape(4))
+        # np.asarray(v, dtype=float).reshape(n) without numpy's conversion checks (~1 us a
+        # sample): the float64 array itself when it has that shape, as the view did
+        self._imu_a.append(_vec(sample.accel_mps2, 3))
+        self._imu_g.append(_vec(sample.gyro_radps, 3))
+        self._imu_q.append(_vec(sample.quat_wxyz if quat_wxyz is None else quat_wxyz, 4))
         self._imu_x.append(
             (float(sample.accel_extra_sigma_mps2), float(sample.gyro_extra_sigma_radps))
         )
         held = bool(sample.accel_held)
-        self._imu_h.append(held)
+        h = self._imu_h
+        # a held run just before this measured sample (what _interpolate_held looks for)
+        after_held = not held and self._interpolate_held_on and bool(h) and h[-1]
+        h.append(held)
         self._imu_r.append(held)
         ma, mg = sample.measured_accel_mps2, sample.measured_gyro_radps
         self._imu_m.append(
@@ -428,7 +437,7 @@ class KeyframeGraphBuilder:
             if ma is None or mg is None
             else (np.asarray(ma, dtype=float).reshape(3), np.asarray(mg, dtype=float).reshape(3))
         )
-        if not held and self._interpolate_held_on:
+        if after_held:
             self._interpolate_held()
         pending = self._pending
         if pending is not None and t >= pending.timestamp_s - TIME_TOL_S:

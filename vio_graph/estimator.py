@@ -457,6 +457,8 @@ class OnlineEstimator:
         self._input_consts = c
         self._input_kernel = k.imu_input
         self._input_outcomes = (k.IN_FAULT, k.IN_CLEAN)
+        self._input_out = pool[k.POOL_OUT : k.POOL_OUT + 7]
+        assert (k.OUT_GAP, k.OUT_PREV, k.OUT_PX, k.OUT_GYR_SAT) == (0, 1, 2, 6)
 
     def health_report(self) -> dict:
         """Is the estimate in trouble? Shares of refused displacements and of stance frames,
@@ -646,36 +648,38 @@ class OnlineEstimator:
         acc, gyr = as_f64(sample.accel_mps2), as_f64(sample.gyro_radps)
         stamp = float(sample.timestamp_s)
         last = self._last_imu
-        outcome, t, code, gap, prev, d2, px, py, pz, acc_sat, gyr_sat, moved, R = (
-            self._input_kernel(
-                ws,  # with the clock's, the monitor's, the stance's and the filter's state
-                clock._buf,
-                clock.compiled_corrections(),
-                filt._x,
-                filt._P,
-                acc,
-                gyr,
-                as_f64(sample.quat_wxyz),
-                stamp,
-                mon._acc_run,
-                att._t_s,
-                filt._t_s,
-                self._filter_start_s,
-                -math.inf if last is None else last.timestamp_s,
-                self.pitch_offset.offset_rad,
-                float(sample.accel_extra_sigma_mps2),
-                self._fused_anchor,
-            )
+        outcome, t, code, d2, moved, R = self._input_kernel(
+            ws,  # with the clock's, the monitor's, the stance's and the filter's state
+            clock._buf,
+            clock.compiled_corrections(),
+            filt._x,
+            filt._P,
+            acc,
+            gyr,
+            as_f64(sample.quat_wxyz),
+            stamp,
+            mon._acc_run,
+            att._t_s,
+            filt._t_s,
+            self._filter_start_s,
+            -math.inf if last is None else last.timestamp_s,
+            self.pitch_offset.offset_rad,
+            float(sample.accel_extra_sigma_mps2),
+            self._fused_anchor,
         )
+        out = self._input_out  # the kernel's outputs for the rare paths (OUT_* slots)
         if code:  # a gap, or a stamp at or before the previous one (dropped)
-            clock.compiled_event(stamp, code, gap, prev)
+            clock.compiled_event(stamp, code, float(out[0]), float(out[1]))
             if code < 0:
                 return None
         if t != sample.timestamp_s:
             sample = _replaced(sample, t, sample.quat_wxyz)
         fault, clean = self._input_outcomes
         if outcome == fault:
-            checked = mon.finish_compiled(sample, acc, gyr, d2, px, py, pz, acc_sat, gyr_sat)
+            px, py, pz, acc_sat, gyr_sat = out[2:7].tolist()
+            checked = mon.finish_compiled(
+                sample, acc, gyr, d2, px, py, pz, acc_sat != 0.0, gyr_sat != 0.0
+            )
             return self._add_checked(sample, checked, t0)
         mon.clean_compiled(acc, d2)
         if outcome == clean:

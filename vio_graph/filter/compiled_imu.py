@@ -562,7 +562,12 @@ FAULT_PREV_SIZE = 14
 POOL_STANCE = POOL_FAULT + FAULT_PREV_SIZE  # STANCE_PREV_SIZE
 STANCE_PREV_SIZE = 5
 POOL_MEM = POOL_STANCE + STANCE_PREV_SIZE  # MEM_SIZE
-POOL_SIZE = POOL_MEM + MEM_SIZE
+# imu_input's outputs the caller reads only on the rare paths (a clock event, a fault), in
+# the pool instead of the returned tuple (each boxed value costs the call): the clock's gap or
+# jump and previous stamp, fault_check's predicted gyro and saturation flags (1.0 / 0.0)
+POOL_OUT = POOL_MEM + MEM_SIZE
+OUT_GAP, OUT_PREV, OUT_PX, OUT_PY, OUT_PZ, OUT_ACC_SAT, OUT_GYR_SAT = range(7)
+POOL_SIZE = POOL_OUT + 7
 # imu_input's outcome
 IN_BACKWARD = -1  # the clock dropped the stamp (at or before the previous one); nothing else ran
 IN_FUSED = 0  # clock model, fault check and sample_step all ran
@@ -603,10 +608,11 @@ def imu_input(
     layout, constants at POOL_IN (IN_* slots). The same kernels in the same order as the
     separate calls, so the same bits.
 
-    Returns (outcome (IN_*), corrected time, the clock's code, gap or jump (s), previous
-    stamp (see :func:`clock_correct`), then :func:`fault_check`'s d2, px, py, pz, acc_sat,
-    gyr_sat, then :func:`sample_step`'s code and R (the tracker's R unchanged unless
-    IN_FUSED))."""
+    Returns (outcome (IN_*), corrected time, the clock's code (see :func:`clock_correct`),
+    :func:`fault_check`'s d2 (-1.0 if it did not run), :func:`sample_step`'s code and R (the
+    tracker's R unchanged unless IN_FUSED)); the clock's gap or jump (s) and previous stamp
+    and :func:`fault_check`'s px, py, pz, acc_sat, gyr_sat go to the pool (POOL_OUT + OUT_*,
+    written on every call that gets that far)."""
     c = pool[POOL_IN : POOL_IN + IN_SIZE]
     t, code, gap, prev = clock_correct(
         pool[POOL_CLK : POOL_CLK + CLK_SIZE],
@@ -621,8 +627,10 @@ def imu_input(
         c[IN_KEEP_TOL],
     )
     R = (pool[0], pool[1], pool[2], pool[3], pool[4], pool[5], pool[6], pool[7], pool[8])
+    out = pool[POOL_OUT : POOL_OUT + 7]
+    out[OUT_GAP], out[OUT_PREV] = gap, prev
     if code < 0:
-        return IN_BACKWARD, t, code, gap, prev, -1.0, 0.0, 0.0, 0.0, False, False, 0, R
+        return IN_BACKWARD, t, code, -1.0, 0, R
     d2, px, py, pz, acc_sat, gyr_sat = fault_check(
         pool[POOL_FAULT : POOL_FAULT + FAULT_PREV_SIZE],
         t,
@@ -634,8 +642,11 @@ def imu_input(
         c[IN_TEST] != 0.0,
         c[IN_SIGMA2],
     )
+    out[OUT_PX], out[OUT_PY], out[OUT_PZ] = px, py, pz
+    out[OUT_ACC_SAT] = 1.0 if acc_sat else 0.0
+    out[OUT_GYR_SAT] = 1.0 if gyr_sat else 0.0
     if acc_sat or gyr_sat or acc_run != 0 or d2 > c[IN_GYRO_D2]:
-        return IN_FAULT, t, code, gap, prev, d2, px, py, pz, acc_sat, gyr_sat, 0, R
+        return IN_FAULT, t, code, d2, 0, R
     dt = t - att_t
     dt_filter = t - filt_t
     if (
@@ -645,7 +656,7 @@ def imu_input(
         or dt_filter < -1e-9
         or not math.isfinite(t)
     ):
-        return IN_CLEAN, t, code, gap, prev, d2, px, py, pz, acc_sat, gyr_sat, 0, R
+        return IN_CLEAN, t, code, d2, 0, R
     R, moved = sample_step(
         pool,
         x,
@@ -663,4 +674,4 @@ def imu_input(
         xa_now,
         stance,
     )
-    return IN_FUSED, t, code, gap, prev, d2, px, py, pz, acc_sat, gyr_sat, moved, R
+    return IN_FUSED, t, code, d2, moved, R

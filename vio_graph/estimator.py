@@ -309,7 +309,9 @@ class OnlineEstimator:
         self._p0 = (
             np.zeros(2) if initial_camera_xz_m is None else np.asarray(initial_camera_xz_m, float)
         )
-        self._last_imu: ImuSample | None = None  # in shank axes, pitch offset applied
+        # the latest sample taken, in shank axes (its time and gyro are read): the corrected one
+        # (pitch offset applied), or on the one-call path the measured one (same time, gyro)
+        self._last_imu: ImuSample | None = None
         # R_world_imu's last answer: (t s, pitch offset rad, latest IMU sample, row-major R)
         self._attitude_memo: tuple[float, float, ImuSample, Mat3] | None = None
         #: the latest sample the fault monitor did not repair (its gyro is a measurement)

@@ -147,6 +147,18 @@ def _saturated(sample: ImuSample) -> bool:
     return sample.accel_extra_sigma_mps2 > 0.0 and not sample.accel_held
 
 
+def _pooled(
+    pool: NDArray[np.float64], at: int, size: int, arr: NDArray[np.float64] | None
+) -> NDArray[np.float64]:
+    """The view ``pool[at:at + size]`` holding the values of ``arr`` (size ``size``): a state
+    array moved into the one-call kernel's pool (``compiled_imu.POOL_*``)."""
+    if arr is None or arr.shape != (size,):
+        raise EstimationError(f"state array of shape {size} expected for the kernel's pool")
+    view = pool[at : at + size]
+    view[:] = arr
+    return view
+
+
 def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float64]) -> ImuSample:
     """``dataclasses.replace(sample, timestamp_s=..., quat_wxyz=...)`` without its field
     introspection (a few microseconds on the per-sample path). (Skipping the frozen
@@ -297,7 +309,9 @@ class OnlineEstimator:
         self._p0 = (
             np.zeros(2) if initial_camera_xz_m is None else np.asarray(initial_camera_xz_m, float)
         )
-        self._last_imu: ImuSample | None = None  # in shank axes, pitch offset applied
+        # the latest sample taken, in shank axes (its time and gyro are read): the corrected one
+        # (pitch offset applied), or on the one-call path the measured one (same time, gyro)
+        self._last_imu: ImuSample | None = None
         # R_world_imu's last answer: (t s, pitch offset rad, latest IMU sample, row-major R)
         self._attitude_memo: tuple[float, float, ImuSample, Mat3] | None = None
         #: the latest sample the fault monitor did not repair (its gyro is a measurement)
@@ -402,7 +416,7 @@ class OnlineEstimator:
             or fc.strapdown_attitude != "tracked"
         ):
             return
-        ws = np.zeros(k.WS_SIZE)
+        ws = np.zeros(k.POOL_SIZE)  # the workspace, then imu_input's pool (POOL_* slots)
         if not self.filter.compiled_propagation_constants(ws):
             return
         ws[k.WS_GRAVITY : k.WS_GRAVITY + 2] = fc.gravity_xz_mps2
@@ -430,13 +444,23 @@ class OnlineEstimator:
             or not self.rig.imu_is_shank_aligned
         ):
             return
-        c = np.zeros(k.IN_SIZE)
+        pool = self._fused_ws
+        c = pool[k.POOL_IN : k.POOL_IN + k.IN_SIZE]
         if not clock.compiled_constants(c, k) or not self.imu_faults.compiled_constants(c, k):
             return
         c[k.IN_TIME_CONSTANT] = self.attitude.config.time_constant_s
+        # the small state arrays the kernel updates become views of its pool, their values
+        # kept: one argument instead of five (the other paths update the same memory)
+        mon, stance = self.imu_faults, self._stance
+        clock._st = _pooled(pool, k.POOL_CLK, k.CLK_SIZE, clock._st)
+        mon._prev_arr = _pooled(pool, k.POOL_FAULT, k.FAULT_PREV_SIZE, mon._prev_arr)
+        stance._prev_arr = _pooled(pool, k.POOL_STANCE, k.STANCE_PREV_SIZE, stance._prev_arr)
+        self.filter.adopt_memory(_pooled(pool, k.POOL_MEM, k.MEM_SIZE, self.filter._mem))
         self._input_consts = c
         self._input_kernel = k.imu_input
         self._input_outcomes = (k.IN_FAULT, k.IN_CLEAN)
+        self._input_out = pool[k.POOL_OUT : k.POOL_OUT + 7]
+        assert (k.OUT_GAP, k.OUT_PREV, k.OUT_PX, k.OUT_GYR_SAT) == (0, 1, 2, 6)
 
     def health_report(self) -> dict:
         """Is the estimate in trouble? Shares of refused displacements and of stance frames,
@@ -626,41 +650,38 @@ class OnlineEstimator:
         acc, gyr = as_f64(sample.accel_mps2), as_f64(sample.gyro_radps)
         stamp = float(sample.timestamp_s)
         last = self._last_imu
-        outcome, t, code, gap, prev, d2, px, py, pz, acc_sat, gyr_sat, moved, R = (
-            self._input_kernel(
-                clock._st,
-                clock._buf,
-                clock.compiled_corrections(),
-                mon._prev_arr,
-                ws,
-                filt._x,
-                filt._P,
-                filt._mem,
-                self._stance._prev_arr,
-                acc,
-                gyr,
-                as_f64(sample.quat_wxyz),
-                self._input_consts,
-                stamp,
-                mon._acc_run,
-                att._t_s,
-                filt._t_s,
-                self._filter_start_s,
-                -math.inf if last is None else last.timestamp_s,
-                self.pitch_offset.offset_rad,
-                float(sample.accel_extra_sigma_mps2),
-                self._fused_anchor,
-            )
+        outcome, t, code, d2, moved, R = self._input_kernel(
+            ws,  # with the clock's, the monitor's, the stance's and the filter's state
+            clock._buf,
+            clock.compiled_corrections(),
+            filt._x,
+            filt._P,
+            acc,
+            gyr,
+            as_f64(sample.quat_wxyz),
+            stamp,
+            mon._acc_run,
+            att._t_s,
+            filt._t_s,
+            self._filter_start_s,
+            -math.inf if last is None else last.timestamp_s,
+            self.pitch_offset.offset_rad,
+            float(sample.accel_extra_sigma_mps2),
+            self._fused_anchor,
         )
+        out = self._input_out  # the kernel's outputs for the rare paths (OUT_* slots)
         if code:  # a gap, or a stamp at or before the previous one (dropped)
-            clock.compiled_event(stamp, code, gap, prev)
+            clock.compiled_event(stamp, code, float(out[0]), float(out[1]))
             if code < 0:
                 return None
         if t != sample.timestamp_s:
             sample = _replaced(sample, t, sample.quat_wxyz)
         fault, clean = self._input_outcomes
         if outcome == fault:
-            checked = mon.finish_compiled(sample, acc, gyr, d2, px, py, pz, acc_sat, gyr_sat)
+            px, py, pz, acc_sat, gyr_sat = out[2:7].tolist()
+            checked = mon.finish_compiled(
+                sample, acc, gyr, d2, px, py, pz, acc_sat != 0.0, gyr_sat != 0.0
+            )
             return self._add_checked(sample, checked, t0)
         mon.clean_compiled(acc, d2)
         if outcome == clean:
@@ -668,11 +689,13 @@ class OnlineEstimator:
         # the fused step ran: what push() does with a sample that passes straight through
         if self.imu_repair is not None:
             self.imu_repair.passed(sample)
-        corrected = self._fused_done(sample, t, R, moved, gyr, self._fused_anchor)
+        q = self._fused_done(sample, t, R, moved, gyr, self._fused_anchor)
         self.n_one_call_samples += 1
-        self._last_imu = corrected
+        # the latest sample: only its time (and, trusted, its gyro) is read, which the
+        # sample in shank axes shares with the corrected one (built when a consumer asks)
+        self._last_imu = sample
         self._imu_ms += (time.perf_counter() - t0) * 1e3
-        return ImuStep(shank=sample, corrected=corrected)
+        return ImuStep.with_quat(sample, q)
 
     def _add_checked(self, measured: ImuSample, sample: ImuSample, t0: float) -> ImuStep:
         """:meth:`add_imu` from the fault monitor's output ``sample`` (``measured``: its input,
@@ -786,7 +809,7 @@ class OnlineEstimator:
             float(sample.accel_extra_sigma_mps2),
             stance,
         )
-        return self._fused_done(sample, t, R, moved, gyr, stance)
+        return _replaced(sample, t, self._fused_done(sample, t, R, moved, gyr, stance))
 
     def _fused_done(
         self,
@@ -796,10 +819,11 @@ class OnlineEstimator:
         moved: int,
         gyr: NDArray[np.float64],
         stance: bool,
-    ) -> ImuSample:
+    ) -> NDArray[np.float64]:
         """The bookkeeping after ``compiled_imu.sample_step`` ran on ``sample`` (shank axes)
         at ``t`` and returned the tracker's new ``R`` and the propagation's code ``moved``
-        (``stance``: it fed the stance detector); returns the sample as propagated."""
+        (``stance``: it fed the stance detector); returns the orientation the sample was
+        propagated with (its corrected quaternion, a new array)."""
         att, ws = self.attitude, self._fused_ws
         assert ws is not None
         _, q_slots, mag_slot = self._fused_slots
@@ -808,7 +832,7 @@ class OnlineEstimator:
         att._recent.append((t, R, g))
         self._fused_att = (R, g)
         self._last_taken_s = t
-        corrected = _replaced(sample, t, ws[q_slots].copy())
+        q = ws[q_slots].copy()
         self.filter.propagated_compiled(t, moved)
         learner = self.saturation_learner
         if learner is not None and (learner.active or any(self.imu_faults.last_rail_sign.tolist())):
@@ -816,9 +840,9 @@ class OnlineEstimator:
         if stance:
             self._stance.record(t, float(ws[mag_slot]))
         if not sample.accel_held:
-            self._last_trusted_imu = corrected
+            self._last_trusted_imu = sample  # its gyro is read (the corrected one's too)
         self.n_fused_samples += 1
-        return corrected
+        return q
 
     def add_joints(self, sample: JointAngles) -> None:
         self._last_joints = sample

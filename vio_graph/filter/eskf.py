@@ -204,7 +204,8 @@ class SagittalEskf:
         self._prev: _ImuMemo | None = None
         # last ground-frame acceleration (m/s^2), for p(t); propagate() stores a tuple
         self._accel_w_mps2: NDArray[np.float64] | tuple[float, float] = np.zeros(2)
-        self._history: deque[tuple[float, NDArray[np.float64]]] = deque()
+        # (t s, camera x-z m: an array, or a list of its floats on the compiled path)
+        self._history: deque[tuple[float, NDArray[np.float64] | list[float]]] = deque()
         self._last_accept_s = -np.inf
         self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0
         self._n_lm_acc = self._n_lm_rej = 0
@@ -426,6 +427,17 @@ class SagittalEskf:
         ws[k.WS_R_CAM : k.WS_R_CAM + 3] = self._r_imu_cam_m
         return True
 
+    def adopt_memory(self, mem: NDArray[np.float64]) -> None:
+        """Keep the compiled propagation's memory of the previous sample in ``mem`` (same
+        size and values: a view of a caller's larger state array) from now on."""
+        k = self._kernels
+        assert k is not None and self._mem is not None and mem.shape == self._mem.shape
+        old_aw = self._mem_aw
+        self._mem = mem
+        self._mem_aw = mem[k.MEM_AW : k.MEM_AW + 2]
+        if self._accel_w_mps2 is old_aw:
+            self._accel_w_mps2 = self._mem_aw
+
     def propagated_compiled(self, t: float, moved: int) -> None:
         """The bookkeeping of :meth:`_propagate_compiled` after a caller ran the kernel on
         ``_x``, ``_P`` and ``_mem`` itself (``compiled_imu.sample_step``; the caller checked
@@ -437,11 +449,12 @@ class SagittalEskf:
         self._n_imu += 1
         if moved:
             self._t_s = t
-            # _remember(t, p), written out (one call less a sample)
+            # _remember(t, p), written out (one call less a sample); the position as a
+            # tuple of its floats (the history's readers take either, same values)
             h = self._history
             while h and h[-1][0] >= t:
                 h.pop()
-            h.append((t, self._x[0:2].copy()))
+            h.append((t, self._x[0:2].tolist()))
             t_old = t - self.config.history_s
             while h[0][0] < t_old:
                 h.popleft()

@@ -71,6 +71,7 @@ from gtsam.symbol_shorthand import B, L, V, X
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import EstimationError
+from vio_graph.filter.fast_imu import as_f64
 from vio_graph.filter.gating import chi2_quantile
 from vio_graph.filter.imu_repair import keep_consistent_axes
 from vio_graph.geometry import cross3, matrix_from_quat_wxyz, remove_yaw, skew
@@ -228,6 +229,13 @@ def camera_xz_cov_from_pose_cov(
     return np.array([[C[0, 0], C[0, 2]], [C[2, 0], C[2, 2]]])
 
 
+def _vec(v: ArrayLike, n: int) -> NDArray[np.float64]:
+    """``np.asarray(v, dtype=float).reshape(n)``: ``v`` itself if it is a float64 array of
+    shape (n,) (the reshape would be a view of it)."""
+    a = as_f64(v)
+    return a if a.shape == (n,) else a.reshape(n)
+
+
 # ----------------------------------------------------------------------------------------------
 # incremental graph builder shared by the fixed-lag and the batch smoother
 # ----------------------------------------------------------------------------------------------
@@ -339,6 +347,7 @@ class KeyframeGraphBuilder:
         self._imu_r: list[bool] = []  # a corrupted packet the monitor repaired (stays marked)
         # what a held packet measured (accel, gyro), for the per-axis keep; None otherwise
         self._imu_m: list[tuple[NDArray[np.float64], NDArray[np.float64]] | None] = []
+        self._interpolate_held_on = bool(config.held_accel_interpolation)
         #: wrap IMU factors in SmootherConfig.imu_robust_kernel (the batch smoother sets it;
         #: iSAM2 keeps a factor's first linearisation, and a poor initial guess would leave
         #: good IMU factors down-weighted: upstair s1 smoother toe x 1.33 -> 1.6-2.0 cm)
@@ -398,29 +407,40 @@ class KeyframeGraphBuilder:
         self._landmark_of = {lk: k for lk, k in self._landmark_of.items() if k not in dead}
 
     # ---- ingestion -----------------------------------------------------------------------------
-    def add_imu(self, sample: ImuSample) -> list[KeyframeUpdate]:
-        """Buffer one IMU sample; returns the keyframe it completes, if any."""
+    def add_imu(
+        self, sample: ImuSample, quat_wxyz: NDArray[np.float64] | None = None
+    ) -> list[KeyframeUpdate]:
+        """Buffer one IMU sample (with the orientation ``quat_wxyz`` instead of its own, if
+        given); returns the keyframe it completes, if any."""
         t = float(sample.timestamp_s)
-        if self._imu_t and t <= self._imu_t[-1]:
-            raise EstimationError(f"IMU timestamps not increasing: {t} after {self._imu_t[-1]}")
-        self._imu_t.append(t)
-        self._imu_a.append(np.asarray(sample.accel_mps2, dtype=float).reshape(3))
-        self._imu_g.append(np.asarray(sample.gyro_radps, dtype=float).reshape(3))
-        self._imu_q.append(np.asarray(sample.quat_wxyz, dtype=float).reshape(4))
+        imu_t = self._imu_t
+        if imu_t and t <= imu_t[-1]:
+            raise EstimationError(f"IMU timestamps not increasing: {t} after {imu_t[-1]}")
+        imu_t.append(t)
+        # np.asarray(v, dtype=float).reshape(n) without numpy's conversion checks (~1 us a
+        # sample): the float64 array itself when it has that shape, as the view did
+        self._imu_a.append(_vec(sample.accel_mps2, 3))
+        self._imu_g.append(_vec(sample.gyro_radps, 3))
+        self._imu_q.append(_vec(sample.quat_wxyz if quat_wxyz is None else quat_wxyz, 4))
         self._imu_x.append(
             (float(sample.accel_extra_sigma_mps2), float(sample.gyro_extra_sigma_radps))
         )
-        self._imu_h.append(bool(sample.accel_held))
-        self._imu_r.append(bool(sample.accel_held))
+        held = bool(sample.accel_held)
+        h = self._imu_h
+        # a held run just before this measured sample (what _interpolate_held looks for)
+        after_held = not held and self._interpolate_held_on and bool(h) and h[-1]
+        h.append(held)
+        self._imu_r.append(held)
         ma, mg = sample.measured_accel_mps2, sample.measured_gyro_radps
         self._imu_m.append(
             None
             if ma is None or mg is None
             else (np.asarray(ma, dtype=float).reshape(3), np.asarray(mg, dtype=float).reshape(3))
         )
-        if self.config.held_accel_interpolation and not sample.accel_held:
+        if after_held:
             self._interpolate_held()
-        if self._pending is not None and t >= self._pending.timestamp_s - TIME_TOL_S:
+        pending = self._pending
+        if pending is not None and t >= pending.timestamp_s - TIME_TOL_S:
             return [self._complete_pending()]
         return []
 

@@ -63,7 +63,13 @@ class KeyframeSmootherBase(ABC):
     # ---- the estimator protocol ----------------------------------------------------------------
     def add_imu(self, step: ImuStep) -> None:
         """One IMU sample: the level-aided sample in shank axes (what the filter used)."""
-        self.feed_imu(step.corrected)
+        if step.shank_but_quat:  # the corrected sample's fields without building it
+            t0 = time.perf_counter()
+            updates = self._builder.add_imu(step.shank, step.corrected_quat_wxyz)
+            if updates:
+                self._dispatch(updates, t0)
+        else:
+            self.feed_imu(step.corrected)
 
     def add_frame(self, record: FrameRecord) -> None:
         """One depth frame: the filter's estimate, displacement, corner and (if

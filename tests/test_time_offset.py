@@ -410,3 +410,87 @@ def test_a_sample_before_the_first_frame_arriving_after_it_does_not_stop_the_fil
     assert est.filter.position_velocity()[0] == pytest.approx(0.018908)
     est._propagate_until(0.03)
     assert est.filter.position_velocity()[0] == pytest.approx(0.028579)
+
+
+def test_smoothers_take_imu_on_the_clock_line_and_keyframes_at_the_frames_times(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """What the fixed-lag and batch smoothers are given when the clocks are off (issue 11,
+    "Time"): a 3 s upstair trial with 2 ms of jitter on every stamp and camera stamps 20 ms
+    late, replayed with the retroactive re-run. Known answers: the smoothers' IMU samples
+    carry the IMU clock line's times (a ``ClockModel`` run over the recorded stamps), not the
+    jittered stamps; their keyframes sit at the filter's re-stamped frame times (stamp minus
+    the applied offset, or the camera line's time), every one of them from the first frame on
+    (the re-run rebuilt the smoothers, so none kept a keyframe of the first pass); and every
+    keyframe after the first whose frames since the previous keyframe all carried a
+    displacement gets the chained displacement (the chain is never broken by re-stamping)."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.recording.reader import Recording
+    from vio_graph.replay import Replay
+    from vio_graph.sim import load_scenario, simulate
+    from vio_graph.smoother import graph as graph_mod
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    cfg = load_scenario("upstair").model_copy(update={"duration_s": 3.0})
+    cfg = cfg.model_copy(
+        update={
+            "faults": cfg.faults.model_copy(
+                update={"clock_jitter_s": 0.002, "camera_time_offset_s": 0.02}
+            )
+        }
+    )
+    rec = Recording.open(simulate(cfg, seed=2, out_dir=tmp_path / "rec"))
+
+    seen: dict[int, dict] = {}  # per graph builder: IMU times, keyframes, chain checks
+    builder = graph_mod.KeyframeGraphBuilder
+    add_imu, add_frame = builder.add_imu, builder.add_frame
+
+    def spy_imu(self, sample):
+        seen.setdefault(id(self), {"imu": [], "kf": [], "broken": 0, "with_disp": 0, "run": True})
+        seen[id(self)]["imu"].append(float(sample.timestamp_s))
+        return add_imu(self, sample)
+
+    made = []  # the displacement each new keyframe was given (None: no factor)
+    pending = graph_mod._Pending
+
+    def spy_pending(t, est, disp, *rest):
+        made.append(disp)
+        return pending(t, est, disp, *rest)
+
+    def spy_frame(self, t, is_kf, est, disp, obs, R=None):
+        s = seen[id(self)]
+        s["run"] = s["run"] and disp is not None
+        first = not s["kf"]
+        out = add_frame(self, t, is_kf, est, disp, obs, R)
+        if is_kf:
+            s["with_disp"] += made[-1] is not None
+            s["broken"] += not first and s["run"] and made[-1] is None
+            s["kf"].append(float(t))
+            s["run"] = True
+        return out
+
+    monkeypatch.setattr(graph_mod, "_Pending", spy_pending)
+    monkeypatch.setattr(builder, "add_imu", spy_imu)
+    monkeypatch.setattr(builder, "add_frame", spy_frame)
+    replay = Replay(rec, PipelineConfig(), {"filter", "smoother", "batch"}, NullVisualizer())
+    lg = replay.run()
+    assert replay.rerun is not None  # td was applied early: every estimator ran again
+
+    clock = ClockModel(0.01, 200, 1.9)
+    line = np.array([clock.correct(t) for t in rec.imu.timestamp_s])
+    jitter_ms = 1e3 * np.sqrt(np.mean((line - rec.imu.timestamp_s) ** 2))
+    assert 1.0 < jitter_ms < 3.0  # the stamps are jittered, the line moves them
+    frame_t = np.asarray(lg.t_s)
+    last_two = list(seen.values())[-2:]  # the re-run's fixed-lag and batch builders
+    for s in last_two:
+        np.testing.assert_allclose(s["imu"], line[: len(s["imu"])], rtol=0, atol=1e-9)
+        assert len(s["imu"]) >= line.size - 1
+        kf = np.asarray(s["kf"])
+        assert kf.size > 20 and np.all(np.isin(kf, frame_t))
+        assert kf[0] == frame_t[0]  # from the first frame, with td applied from the start
+        assert s["broken"] == 0 and s["with_disp"] >= kf.size - 3
+    # the re-run's frame times: stamp minus the applied offset (within the camera line's
+    # correction when the stamp test switched to it)
+    td = replay.rerun["applied_s"]
+    assert td == pytest.approx(0.02, abs=0.003)
+    assert frame_t[0] == pytest.approx(rec.frame_timestamps_s[0] - td, abs=0.01)

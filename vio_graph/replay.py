@@ -28,10 +28,10 @@ from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
 from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
+from vio_graph.filter.time_offset import centred_clock_line
 from vio_graph.frontend.icp import AUTO_COMPILED_MIN_FRAMES, use_compiled_by_default
 from vio_graph.growable import GrowableArray
 from vio_graph.protocol import Estimator, FilterTrack, FrameRecord
-from vio_graph.filter.time_offset import centred_clock_line
 from vio_graph.recording.reader import Recording
 from vio_graph.recording.streams import ImuTable
 from vio_graph.safety.online import SafetyLog

@@ -199,17 +199,6 @@ def make_estimators(
     return {e.name: e for e in estimators}
 
 
-class _WithImu:
-    """A recording seen with another IMU table (the rest delegated, nothing copied)."""
-
-    def __init__(self, rec: Recording, imu: ImuTable) -> None:
-        self._rec = rec
-        self.imu = imu
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._rec, name)
-
-
 def retimed_imu(rec: Recording, config: PipelineConfig) -> ImuTable | None:
     """The recording's IMU table with its stamps on their offline clock line
     (``filter.time_offset.imu_clock_offline_half_window``, filter/time_offset.py
@@ -256,7 +245,9 @@ class Replay:
                 "rms_s": float(np.sqrt(np.mean(moved**2))),
                 "max_s": float(np.max(np.abs(moved))),
             }
-            rec = _WithImu(rec, imu)  # type: ignore[assignment]
+        # the samples are fed with these times, in the recorded order of the stamps (what a
+        # receiver gets; ordering them by the line instead moved single gate decisions)
+        self._imu = rec.imu if imu is None else imu
         self.rec = rec
         self.config = config
         self.modes = modes
@@ -314,7 +305,7 @@ class Replay:
             if kind != 2 and waiting and not self._release_frames(waiting, progress, b):
                 return False
             if kind == 0:
-                step = online.add_imu(rec.imu.sample(int(i)))
+                step = online.add_imu(self._imu.sample(int(i)))
                 if step is None:
                     continue  # stamp at or before the previous one: reported, not fused
                 if self._first_imu_s is None:

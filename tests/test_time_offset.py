@@ -489,15 +489,16 @@ def test_smoothers_take_imu_on_the_clock_line_and_keyframes_at_the_frames_times(
     """What the fixed-lag and batch smoothers are given when the clocks are off (issue 11,
     "Time"): a 3 s upstair trial with 2 ms of jitter on every stamp and camera stamps 20 ms
     late, replayed with the retroactive re-run. Known answers: the smoothers' IMU samples
-    carry the IMU clock line's times (a ``ClockModel`` run over the recorded stamps), not the
-    jittered stamps; their keyframes sit at the filter's re-stamped frame times (stamp minus
-    the applied offset, or the camera line's time), every one of them from the first frame on
+    carry the IMU clock line's times, not the jittered stamps (the offline line fitted on
+    both sides of each sample, ``replay.retimed_imu``, not the online ``ClockModel``'s);
+    their keyframes sit at the filter's re-stamped frame times (stamp minus the applied
+    offset, or the camera line's time), every one of them from the first frame on
     (the re-run rebuilt the smoothers, so none kept a keyframe of the first pass); and every
     keyframe after the first whose frames since the previous keyframe all carried a
     displacement gets the chained displacement (the chain is never broken by re-stamping)."""
     from vio_graph.config import PipelineConfig
     from vio_graph.recording.reader import Recording
-    from vio_graph.replay import Replay
+    from vio_graph.replay import Replay, retimed_imu
     from vio_graph.sim import load_scenario, simulate
     from vio_graph.smoother import graph as graph_mod
     from vio_graph.viz.rerun_logger import NullVisualizer
@@ -548,9 +549,12 @@ def test_smoothers_take_imu_on_the_clock_line_and_keyframes_at_the_frames_times(
     assert replay.rerun is not None  # td was applied early: every estimator ran again
 
     clock = ClockModel(0.01, 200, 1.9)
-    line = np.array([clock.correct(t) for t in rec.imu.timestamp_s])
-    jitter_ms = 1e3 * np.sqrt(np.mean((line - rec.imu.timestamp_s) ** 2))
+    online = np.array([clock.correct(t) for t in rec.imu.timestamp_s])
+    jitter_ms = 1e3 * np.sqrt(np.mean((online - rec.imu.timestamp_s) ** 2))
     assert 1.0 < jitter_ms < 3.0  # the stamps are jittered, the line moves them
+    # the smoothers take the offline line (both sides of each sample), not the online one
+    line = retimed_imu(rec, PipelineConfig()).timestamp_s
+    assert 1e3 * np.sqrt(np.mean((line - online) ** 2)) > 0.1
     frame_t = np.asarray(lg.t_s)
     last_two = list(seen.values())[-2:]  # the re-run's fixed-lag and batch builders
     for s in last_two:

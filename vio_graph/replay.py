@@ -31,7 +31,7 @@ from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
 from vio_graph.filter.time_offset import centred_clock_line
 from vio_graph.frontend.icp import AUTO_COMPILED_MIN_FRAMES, use_compiled_by_default
 from vio_graph.growable import GrowableArray
-from vio_graph.protocol import Estimator, FilterTrack, FrameRecord
+from vio_graph.protocol import Estimator, FilterTrack, FrameRecord, ImuStep
 from vio_graph.recording.reader import Recording
 from vio_graph.recording.streams import ImuTable
 from vio_graph.safety.online import SafetyLog
@@ -199,6 +199,20 @@ def make_estimators(
     return {e.name: e for e in estimators}
 
 
+#: the estimators given the IMU samples at their offline clock-line times (:func:`retimed_imu`):
+#: the smoothers, which are not causal; the filter, an online estimate, and the baselines keep
+#: the online clock model's times
+OFFLINE_CLOCK_MODES = ("smoother", "batch")
+
+
+def _at_time(step: ImuStep, t_s: float) -> ImuStep:
+    """``step`` with both its samples at time ``t_s`` (s)."""
+    return ImuStep(
+        shank=dataclasses.replace(step.shank, timestamp_s=t_s),
+        corrected=dataclasses.replace(step.corrected, timestamp_s=t_s),
+    )
+
+
 def retimed_imu(rec: Recording, config: PipelineConfig) -> ImuTable | None:
     """The recording's IMU table with its stamps on their offline clock line
     (``filter.time_offset.imu_clock_offline_half_window``, filter/time_offset.py
@@ -211,8 +225,9 @@ def retimed_imu(rec: Recording, config: PipelineConfig) -> ImuTable | None:
     run; with the true times given to the clock model, the clean run's; docs/robustness.md
     "Clock jitter in the smoothers"). A recording is replayed as a whole, so each stamp can
     take the line fitted on both sides of it (0.07-0.1 ms off the true times on the
-    simulated trials). An online consumer has only the one-sided line; this is the
-    replay's look-ahead, like the retroactive re-run's."""
+    simulated trials). The smoothers (:data:`OFFLINE_CLOCK_MODES`) take these times; the
+    filter, whose per-frame answer is what an online consumer gets, keeps the one-sided
+    line, so its answer does not change."""
     half = config.filter.time_offset.imu_clock_offline_half_window
     rate = rec.metadata.imu.rate_hz
     if half <= 0 or not rate or not config.filter.time_offset.imu_clock_model:
@@ -245,9 +260,9 @@ class Replay:
                 "rms_s": float(np.sqrt(np.mean(moved**2))),
                 "max_s": float(np.max(np.abs(moved))),
             }
-        # the samples are fed with these times, in the recorded order of the stamps (what a
-        # receiver gets; ordering them by the line instead moved single gate decisions)
-        self._imu = rec.imu if imu is None else imu
+        # the smoothers' IMU times (OFFLINE_CLOCK_MODES); the online estimator keeps its
+        # one-sided clock line, and every event keeps its recorded order
+        self._imu_line = None if imu is None else imu.timestamp_s
         self.rec = rec
         self.config = config
         self.modes = modes
@@ -305,13 +320,17 @@ class Replay:
             if kind != 2 and waiting and not self._release_frames(waiting, progress, b):
                 return False
             if kind == 0:
-                step = online.add_imu(self._imu.sample(int(i)))
+                step = online.add_imu(rec.imu.sample(int(i)))
                 if step is None:
                     continue  # stamp at or before the previous one: reported, not fused
                 if self._first_imu_s is None:
                     self._first_imu_s = step.timestamp_s
+                offline = None if self._imu_line is None else self._imu_line[i]
                 for e in self._running():
-                    self._guard(e, step.timestamp_s, e.add_imu, step)
+                    fed = step
+                    if offline is not None and e.name in OFFLINE_CLOCK_MODES:
+                        fed = _at_time(step, offline)
+                    self._guard(e, step.timestamp_s, e.add_imu, fed)
                 # a frame held for a repaired packet (below) goes once this sample released it
                 if waiting and not self._release_frames(waiting, progress, b):
                     return False

@@ -49,6 +49,77 @@ def test_clock_model_removes_jitter_keeps_exact_stamps_and_reports_gaps() -> Non
     assert rep["backwards"] == 1 and rep["backwards_list"][0]["jump_s"] == pytest.approx(-0.005)
 
 
+def test_centred_clock_line_halves_the_online_lines_error_and_keeps_clean_stamps() -> None:
+    """2 ms of stamp jitter on a 100 Hz clock with 50 ppm drift and a 0.3 s gap: the offline
+    line (both sides of each sample) is within 0.2 ms RMS of the true times everywhere,
+    including the first second where the online one-sided line is 0.3-0.6 ms off; the
+    gap starts a new line; stamps on their line (or going backwards) come back as None."""
+    from vio_graph.filter.time_offset import centred_clock_line
+
+    T = 0.01
+    k = np.arange(1500)
+    true = 2.0 + T * k * (1 + 50e-6)
+    true[800:] += 0.3  # a gap after sample 799: the clock restarts, a new line
+    errs_off, errs_on, errs_on_start, errs_off_start = [], [], [], []
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        stamps = true + np.clip(rng.normal(0, 0.002, true.size), -0.004, 0.004)
+        off = centred_clock_line(stamps, T, 1000, 1.9)
+        assert off is not None and np.all(np.diff(off) > 0)
+        clock = ClockModel(T, 200, 1.9)
+        on = np.array([clock.correct(s) for s in stamps])
+        errs_off.append(np.sqrt(np.mean((off - true) ** 2)))
+        errs_on.append(np.sqrt(np.mean((on - true) ** 2)))
+        errs_off_start.append(np.sqrt(np.mean((off[:100] - true[:100]) ** 2)))
+        errs_on_start.append(np.sqrt(np.mean((on[:100] - true[:100]) ** 2)))
+    assert max(errs_off) < 0.2e-3 and max(errs_off_start) < 0.3e-3
+    assert np.mean(errs_off) < 0.6 * np.mean(errs_on)
+    assert np.mean(errs_on_start) > 0.4e-3 > 2 * np.mean(errs_off_start)
+    # clean stamps (on a drifting line, with the gap) stay as they are; so do stamps that go
+    # backwards (the online model drops and reports them)
+    assert centred_clock_line(true, T, 1000, 1.9) is None
+    assert centred_clock_line(2.0 + T * k, T, 1000, 1.9) is None
+    back = true.copy()
+    back[10] = back[9] - 1e-3
+    assert centred_clock_line(back + 1e-3 * (k % 2), T, 1000, 1.9) is None
+
+
+def test_replay_puts_jittered_imu_stamps_on_the_offline_line_and_leaves_clean_ones(
+    tmp_path: Path,
+) -> None:
+    """The replay (vio_graph/replay.py ``retimed_imu``): a 3 s upstair trial with 2 ms of
+    jitter on every stamp gets IMU times within 0.2 ms RMS of the clean trial's (same seed,
+    same samples; 1.9 ms as recorded), the estimators are fed those times, and the run
+    reports the move; the clean trial's stamps are left as they are (None)."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.recording.reader import Recording
+    from vio_graph.replay import retimed_imu
+    from vio_graph.sim import load_scenario, simulate
+
+    cfg = load_scenario("upstair").model_copy(update={"duration_s": 3.0})
+    clean = Recording.open(simulate(cfg, seed=3, out_dir=tmp_path / "clean"))
+    jit_cfg = cfg.model_copy(
+        update={"faults": cfg.faults.model_copy(update={"clock_jitter_s": 0.002})}
+    )
+    jit = Recording.open(simulate(jit_cfg, seed=3, out_dir=tmp_path / "jit"))
+    base = PipelineConfig()
+    assert retimed_imu(clean, base) is None
+    imu = retimed_imu(jit, base)
+    assert imu is not None
+    np.testing.assert_array_equal(imu.accel_mps2, clean.imu.accel_mps2)  # same samples
+    as_recorded = np.sqrt(np.mean((jit.imu.timestamp_s - clean.imu.timestamp_s) ** 2))
+    offline = np.sqrt(np.mean((imu.timestamp_s - clean.imu.timestamp_s) ** 2))
+    assert as_recorded > 1.5e-3 and offline < 0.2e-3
+    fc = base.filter.model_copy(
+        update={
+            "time_offset": base.filter.time_offset.model_copy(
+                update={"imu_clock_offline_half_window": 0}
+            )
+        }
+    )
+    assert retimed_imu(jit, base.model_copy(update={"filter": fc})) is None  # option off
+
+
 @pytest.mark.parametrize("td_s", [-0.03, 0.0, 0.01, 0.03])
 def test_time_offset_from_tilt_against_pitch_rate(td_s: float) -> None:
     """m = b - w td + noise with a drifting b and a swinging shank: td within 1 ms; a zero
@@ -410,3 +481,91 @@ def test_a_sample_before_the_first_frame_arriving_after_it_does_not_stop_the_fil
     assert est.filter.position_velocity()[0] == pytest.approx(0.018908)
     est._propagate_until(0.03)
     assert est.filter.position_velocity()[0] == pytest.approx(0.028579)
+
+
+def test_smoothers_take_imu_on_the_clock_line_and_keyframes_at_the_frames_times(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """What the fixed-lag and batch smoothers are given when the clocks are off (issue 11,
+    "Time"): a 3 s upstair trial with 2 ms of jitter on every stamp and camera stamps 20 ms
+    late, replayed with the retroactive re-run. Known answers: the smoothers' IMU samples
+    carry the IMU clock line's times, not the jittered stamps (the offline line fitted on
+    both sides of each sample, ``replay.retimed_imu``, not the online ``ClockModel``'s);
+    their keyframes sit at the filter's re-stamped frame times (stamp minus the applied
+    offset, or the camera line's time), every one of them from the first frame on
+    (the re-run rebuilt the smoothers, so none kept a keyframe of the first pass); and every
+    keyframe after the first whose frames since the previous keyframe all carried a
+    displacement gets the chained displacement (the chain is never broken by re-stamping)."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.recording.reader import Recording
+    from vio_graph.replay import Replay, retimed_imu
+    from vio_graph.sim import load_scenario, simulate
+    from vio_graph.smoother import graph as graph_mod
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    cfg = load_scenario("upstair").model_copy(update={"duration_s": 3.0})
+    cfg = cfg.model_copy(
+        update={
+            "faults": cfg.faults.model_copy(
+                update={"clock_jitter_s": 0.002, "camera_time_offset_s": 0.02}
+            )
+        }
+    )
+    rec = Recording.open(simulate(cfg, seed=2, out_dir=tmp_path / "rec"))
+
+    seen: dict[int, dict] = {}  # per graph builder: IMU times, keyframes, chain checks
+    builder = graph_mod.KeyframeGraphBuilder
+    add_imu, add_frame = builder.add_imu, builder.add_frame
+
+    def spy_imu(self, sample):
+        seen.setdefault(id(self), {"imu": [], "kf": [], "broken": 0, "with_disp": 0, "run": True})
+        seen[id(self)]["imu"].append(float(sample.timestamp_s))
+        return add_imu(self, sample)
+
+    made = []  # the displacement each new keyframe was given (None: no factor)
+    pending = graph_mod._Pending
+
+    def spy_pending(t, est, disp, *rest):
+        made.append(disp)
+        return pending(t, est, disp, *rest)
+
+    def spy_frame(self, t, is_kf, est, disp, obs, R=None):
+        s = seen[id(self)]
+        s["run"] = s["run"] and disp is not None
+        first = not s["kf"]
+        out = add_frame(self, t, is_kf, est, disp, obs, R)
+        if is_kf:
+            s["with_disp"] += made[-1] is not None
+            s["broken"] += not first and s["run"] and made[-1] is None
+            s["kf"].append(float(t))
+            s["run"] = True
+        return out
+
+    monkeypatch.setattr(graph_mod, "_Pending", spy_pending)
+    monkeypatch.setattr(builder, "add_imu", spy_imu)
+    monkeypatch.setattr(builder, "add_frame", spy_frame)
+    replay = Replay(rec, PipelineConfig(), {"filter", "smoother", "batch"}, NullVisualizer())
+    lg = replay.run()
+    assert replay.rerun is not None  # td was applied early: every estimator ran again
+
+    clock = ClockModel(0.01, 200, 1.9)
+    online = np.array([clock.correct(t) for t in rec.imu.timestamp_s])
+    jitter_ms = 1e3 * np.sqrt(np.mean((online - rec.imu.timestamp_s) ** 2))
+    assert 1.0 < jitter_ms < 3.0  # the stamps are jittered, the line moves them
+    # the smoothers take the offline line (both sides of each sample), not the online one
+    line = retimed_imu(rec, PipelineConfig()).timestamp_s
+    assert 1e3 * np.sqrt(np.mean((line - online) ** 2)) > 0.1
+    frame_t = np.asarray(lg.t_s)
+    last_two = list(seen.values())[-2:]  # the re-run's fixed-lag and batch builders
+    for s in last_two:
+        np.testing.assert_allclose(s["imu"], line[: len(s["imu"])], rtol=0, atol=1e-9)
+        assert len(s["imu"]) >= line.size - 1
+        kf = np.asarray(s["kf"])
+        assert kf.size > 20 and np.all(np.isin(kf, frame_t))
+        assert kf[0] == frame_t[0]  # from the first frame, with td applied from the start
+        assert s["broken"] == 0 and s["with_disp"] >= kf.size - 3
+    # the re-run's frame times: stamp minus the applied offset (within the camera line's
+    # correction when the stamp test switched to it)
+    td = replay.rerun["applied_s"]
+    assert td == pytest.approx(0.02, abs=0.003)
+    assert frame_t[0] == pytest.approx(rec.frame_timestamps_s[0] - td, abs=0.01)

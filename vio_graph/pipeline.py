@@ -277,6 +277,9 @@ def _evaluate(
     metrics["filter"] = filter_summary(replay)
     metrics["health"] = replay.online.health_report()
     metrics.update(replay.online.fault_report())  # imu_faults, time_offset, timestamps
+    if replay.imu_retimed is not None and "imu" in metrics["timestamps"]:
+        # the stamps the online clock model saw were already on the offline line
+        metrics["timestamps"]["imu"]["offline_line"] = replay.imu_retimed
     if replay.rerun is not None:
         metrics["time_offset"]["rerun"] = rerun_report(replay, gt)
     if gt is not None:

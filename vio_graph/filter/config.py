@@ -304,6 +304,16 @@ class TimeOffsetConfig(BaseModel):
     clock_window: int = Field(
         default=200, ge=10, description="samples the clock-model line fit remembers"
     )
+    imu_clock_offline_half_window: int = Field(
+        default=1000,
+        ge=0,
+        description="replaying a recording (vio_graph/replay.py), IMU stamps that scatter "
+        "about their clock line (jitter) reach the smoothers (fixed-lag and batch) at a "
+        "line fitted over this many samples on either side of each "
+        "(time_offset.centred_clock_line; 1000 = 10 s at 100 Hz, over which a crystal's "
+        "rate is constant); the filter keeps the online one-sided clock model; stamps on "
+        "their line are left bit for bit; 0: off",
+    )
     gap_periods: float = Field(
         default=1.9,
         gt=1,

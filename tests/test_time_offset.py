@@ -84,6 +84,33 @@ def test_centred_clock_line_halves_the_online_lines_error_and_keeps_clean_stamps
     assert centred_clock_line(back + 1e-3 * (k % 2), T, 1000, 1.9) is None
 
 
+def test_lagged_clock_line_uses_no_stamp_beyond_its_lookahead() -> None:
+    """The fixed-lag smoother's line (``ahead`` = its lag in samples) is causal up to the lag:
+    changing the stamps more than ``ahead`` samples after sample j leaves j's time as it was,
+    while the whole-recording line (no cap) moves; and the lagged line still averages the
+    jitter to well under the 2 ms it had."""
+    from vio_graph.filter.time_offset import centred_clock_line
+
+    T, ahead = 0.01, 205
+    k = np.arange(1500)
+    true = 2.0 + T * k
+    rng = np.random.default_rng(3)
+    stamps = true + np.clip(rng.normal(0, 0.002, true.size), -0.004, 0.004)
+    later = stamps.copy()
+    later[900:] = true[900:] + np.clip(rng.normal(0, 0.002, 600), -0.004, 0.004)  # from 900 on
+    a = centred_clock_line(stamps, T, 1000, 1.9, ahead=ahead)
+    b = centred_clock_line(later, T, 1000, 1.9, ahead=ahead)
+    assert a is not None and b is not None
+    j = 900 - ahead - 1  # the last sample whose window ends before sample 900
+    np.testing.assert_array_equal(a[: j + 1], b[: j + 1])
+    assert not np.array_equal(a[j + 1 : 900], b[j + 1 : 900])
+    full_a = centred_clock_line(stamps, T, 1000, 1.9)
+    full_b = centred_clock_line(later, T, 1000, 1.9)
+    assert full_a is not None and full_b is not None
+    assert not np.array_equal(full_a[: j + 1], full_b[: j + 1])
+    assert np.sqrt(np.mean((a - true) ** 2)) < 0.3e-3
+
+
 def test_replay_puts_jittered_imu_stamps_on_the_offline_line_and_leaves_clean_ones(
     tmp_path: Path,
 ) -> None:
@@ -555,10 +582,14 @@ def test_smoothers_take_imu_on_the_clock_line_and_keyframes_at_the_frames_times(
     # the smoothers take the offline line (both sides of each sample), not the online one
     line = retimed_imu(rec, PipelineConfig()).timestamp_s
     assert 1e3 * np.sqrt(np.mean((line - online) ** 2)) > 0.1
+    # the fixed-lag smoother's line looks ahead by its lag only
+    lag_s = PipelineConfig().smoother.smoother_lag_s()
+    lagged = retimed_imu(rec, PipelineConfig(), lag_s).timestamp_s
+    assert np.max(np.abs(lagged - line)) > 1e-6
     frame_t = np.asarray(lg.t_s)
     last_two = list(seen.values())[-2:]  # the re-run's fixed-lag and batch builders
-    for s in last_two:
-        np.testing.assert_allclose(s["imu"], line[: len(s["imu"])], rtol=0, atol=1e-9)
+    for s, times in zip(last_two, (lagged, line), strict=True):
+        np.testing.assert_allclose(s["imu"], times[: len(s["imu"])], rtol=0, atol=1e-9)
         assert len(s["imu"]) >= line.size - 1
         kf = np.asarray(s["kf"])
         assert kf.size > 20 and np.all(np.isin(kf, frame_t))

@@ -199,8 +199,9 @@ def make_estimators(
     return {e.name: e for e in estimators}
 
 
-#: the estimators given the IMU samples at their offline clock-line times (:func:`retimed_imu`):
-#: the smoothers, which are not causal; the filter, an online estimate, and the baselines keep
+#: the estimators given the IMU samples at their offline clock-line times (:func:`retimed_imu`;
+#: the batch smoother's line over the whole recording, the fixed-lag smoother's looking ahead
+#: by its lag only): the smoothers; the filter, an online estimate, and the baselines keep
 #: the online clock model's times
 OFFLINE_CLOCK_MODES = ("smoother", "batch")
 
@@ -213,7 +214,9 @@ def _at_time(step: ImuStep, t_s: float) -> ImuStep:
     )
 
 
-def retimed_imu(rec: Recording, config: PipelineConfig) -> ImuTable | None:
+def retimed_imu(
+    rec: Recording, config: PipelineConfig, lookahead_s: float | None = None
+) -> ImuTable | None:
     """The recording's IMU table with its stamps on their offline clock line
     (``filter.time_offset.imu_clock_offline_half_window``, filter/time_offset.py
     :func:`centred_clock_line`), or None when the stamps stay as recorded (no jitter, the
@@ -227,14 +230,17 @@ def retimed_imu(rec: Recording, config: PipelineConfig) -> ImuTable | None:
     take the line fitted on both sides of it (0.07-0.1 ms off the true times on the
     simulated trials). The smoothers (:data:`OFFLINE_CLOCK_MODES`) take these times; the
     filter, whose per-frame answer is what an online consumer gets, keeps the one-sided
-    line, so its answer does not change."""
+    line, so its answer does not change. ``lookahead_s`` (s) caps the stamps used after each
+    sample: the fixed-lag smoother's lag, since its estimate of a keyframe is frozen one lag
+    after it; None for the batch smoother, which sees the whole recording."""
     half = config.filter.time_offset.imu_clock_offline_half_window
     rate = rec.metadata.imu.rate_hz
     if half <= 0 or not rate or not config.filter.time_offset.imu_clock_model:
         return None
     imu = rec.imu
+    ahead = None if lookahead_s is None else int(lookahead_s * rate)
     line = centred_clock_line(
-        imu.timestamp_s, 1.0 / rate, half, config.filter.time_offset.gap_periods
+        imu.timestamp_s, 1.0 / rate, half, config.filter.time_offset.gap_periods, ahead=ahead
     )
     if line is None:
         return None
@@ -260,9 +266,15 @@ class Replay:
                 "rms_s": float(np.sqrt(np.mean(moved**2))),
                 "max_s": float(np.max(np.abs(moved))),
             }
-        # the smoothers' IMU times (OFFLINE_CLOCK_MODES); the online estimator keeps its
-        # one-sided clock line, and every event keeps its recorded order
-        self._imu_line = None if imu is None else imu.timestamp_s
+        # the smoothers' IMU times (OFFLINE_CLOCK_MODES): the batch smoother's line uses the
+        # whole recording, the fixed-lag smoother's looks ahead by its lag only; the online
+        # estimator keeps its one-sided clock line, and every event keeps its recorded order
+        self._imu_lines: dict[str, NDArray[np.float64]] = {}
+        if imu is not None:
+            self._imu_lines["batch"] = imu.timestamp_s
+            lagged = retimed_imu(rec, config, config.smoother.smoother_lag_s())
+            if lagged is not None:
+                self._imu_lines["smoother"] = lagged.timestamp_s
         self.rec = rec
         self.config = config
         self.modes = modes
@@ -325,11 +337,11 @@ class Replay:
                     continue  # stamp at or before the previous one: reported, not fused
                 if self._first_imu_s is None:
                     self._first_imu_s = step.timestamp_s
-                offline = None if self._imu_line is None else self._imu_line[i]
+                lines = self._imu_lines
                 for e in self._running():
                     fed = step
-                    if offline is not None and e.name in OFFLINE_CLOCK_MODES:
-                        fed = _at_time(step, offline)
+                    if lines and e.name in lines:
+                        fed = _at_time(step, float(lines[e.name][i]))
                     self._guard(e, step.timestamp_s, e.add_imu, fed)
                 # a frame held for a repaired packet (below) goes once this sample released it
                 if waiting and not self._release_frames(waiting, progress, b):

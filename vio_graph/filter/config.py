@@ -309,7 +309,8 @@ class TimeOffsetConfig(BaseModel):
         ge=0,
         description="replaying a recording (vio_graph/replay.py), IMU stamps that scatter "
         "about their clock line (jitter) reach the smoothers (fixed-lag and batch) at a "
-        "line fitted over this many samples on either side of each "
+        "line fitted over this many samples on either side of each (the fixed-lag "
+        "smoother's looking ahead by its lag only) "
         "(time_offset.centred_clock_line; 1000 = 10 s at 100 Hz, over which a crystal's "
         "rate is constant); the filter keeps the online one-sided clock model; stamps on "
         "their line are left bit for bit; 0: off",

@@ -254,6 +254,7 @@ def centred_clock_line(
     half_window: int,
     gap_periods: float,
     keep_tol_s: float = _KEEP_TOL_S,
+    ahead: int | None = None,
 ) -> NDArray[np.float64] | None:
     """Each stamp replaced by a clock line fitted around it (offline, both sides).
 
@@ -268,11 +269,14 @@ def centred_clock_line(
     gaps (more than ``gap_periods`` periods, as online). Returns None (the stamps stay as they
     are, bit for bit) when every stamp is within ``keep_tol_s`` of its line, i.e. the stamps
     have no jitter, or when a stamp is at or before its predecessor (left to the online
-    model, which drops and reports it).
+    model, which drops and reports it). ``ahead`` (samples) caps the samples used after j
+    (default ``half_window``): a fixed-lag smoother, whose estimate of a time is final one
+    lag later, may look that far ahead and no further.
     """
     t = np.asarray(stamps_s, dtype=float)
     if t.size < 3 or half_window < 1:
         return None
+    ahead = half_window if ahead is None else max(0, min(ahead, half_window))
     dt = np.diff(t)
     if np.any(dt <= 0):
         return None
@@ -289,7 +293,7 @@ def centred_clock_line(
         cr = np.concatenate([zero, np.cumsum(r)])
         cxr = np.concatenate([zero, np.cumsum(x * r)])
         lo = np.maximum(np.arange(n_seg) - half_window, 0)
-        hi = np.minimum(np.arange(n_seg) + half_window, n_seg - 1) + 1
+        hi = np.minimum(np.arange(n_seg) + ahead, n_seg - 1) + 1
         m = (hi - lo).astype(float)
         sx, sxx = cx[hi] - cx[lo], cxx[hi] - cxx[lo]
         sr, sxr = cr[hi] - cr[lo], cxr[hi] - cxr[lo]

@@ -926,6 +926,35 @@ def predicted_min_clearance(
 
 
 @numba.njit(cache=True)
+def _edges_reached(edges_xz, e, lim):  # pragma: no cover - compiled
+    """How many edges from index ``e`` on have x <= ``lim`` (m), at least one; all of them
+    when ``lim`` is NaN (searchsorted puts NaN after every edge)."""
+    E = edges_xz.shape[0]
+    n = 0
+    for j in range(e, E):
+        if edges_xz[j, 0] <= lim:
+            n = j - e + 1
+        else:
+            break
+    if lim != lim:
+        n = E - e
+    return max(1, n)
+
+
+@numba.njit(cache=True)
+def _edge_known(cleared, new, n_new, ex, tol):  # pragma: no cover - compiled
+    """Whether the edge at x = ``ex`` (m) is within ``tol`` of an edge already cleared, in
+    ``cleared`` or among the first ``n_new`` of ``new``."""
+    for c in cleared:
+        if abs(c - ex) <= tol:
+            return True
+    for k in range(n_new):
+        if abs(new[k] - ex) <= tol:
+            return True
+    return False
+
+
+@numba.njit(cache=True)
 def _edge_distance(ax, az, bx, bz, ex, ez, half):  # pragma: no cover - compiled
     """clearance._edge_distance: (signed distance, closest x, z)."""
     dx, dz = bx - ax, bz - az
@@ -1067,16 +1096,7 @@ def swing_edge_risk(
                 hi = m
         nxt[t] = lo
     # the edges reached: from e to the last with x <= toe_x_max + toe_pass (at least one)
-    lim = toe_x_max + toe_pass
-    n = 0
-    for j in range(e, E):
-        if edges_xz[j, 0] <= lim:
-            n = j - e + 1
-        else:
-            break
-    if lim != lim:  # searchsorted puts NaN after every edge
-        n = E - e
-    n = max(1, n)
+    n = _edges_reached(edges_xz, e, toe_x_max + toe_pass)
     for i in range(n):
         ex, ez = edges_xz[e + i, 0], edges_xz[e + i, 1]
         dd = _edge_clearance_many(hp, tp, ex, ez, sole, half)
@@ -1088,15 +1108,7 @@ def swing_edge_risk(
             d = min(d, dd[t])
         if d == d and abs(d) < np.inf and not d >= pred_edge:
             pred_edge = d
-        known = False
-        for c in cleared:
-            if abs(c - ex) <= tol:
-                known = True
-                break
-        for k in range(n_new):
-            if abs(new[k] - ex) <= tol:
-                known = True
-                break
+        known = _edge_known(cleared, new, n_new, ex, tol)
         clear = np.empty(H, np.bool_)
         acc = False
         for t in range(H):
@@ -1594,16 +1606,7 @@ def cv_prediction(
     n_new = 0
     if e < 0:
         return pred, pred_edge, risk, new[:0]
-    lim = reach_x + toe_pass  # online.SafetyMonitor._edges_reached
-    n = 0
-    for j in range(e, E):
-        if edges_xz[j, 0] <= lim:
-            n = j - e + 1
-        else:
-            break
-    if lim != lim:
-        n = E - e
-    n = max(1, n)
+    n = _edges_reached(edges_xz, e, reach_x + toe_pass)  # online.SafetyMonitor._edges_reached
     fwd = v_ok and vx > min_fwd and vz > -vx
     for i in range(n):
         ex, ez = edges_xz[e + i, 0], edges_xz[e + i, 1]
@@ -1614,15 +1617,7 @@ def cv_prediction(
             pred_edge = d
         # the clearance to the edge now (edge_clearance_many of the current pose)
         now = _edge_distance(hx, hz, tx, tz, ex, ez, half)[0] - sole
-        known = False
-        for c in cleared:
-            if abs(c - ex) <= tol:
-                known = True
-                break
-        for k in range(n_new):
-            if abs(new[k] - ex) <= tol:
-                known = True
-                break
+        known = _edge_known(cleared, new, n_new, ex, tol)
         if not known and now >= near_trip:
             new[n_new] = ex
             n_new += 1

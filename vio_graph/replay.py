@@ -199,13 +199,6 @@ def make_estimators(
     return {e.name: e for e in estimators}
 
 
-#: the estimators given the IMU samples at their offline clock-line times (:func:`retimed_imu`;
-#: the batch smoother's line over the whole recording, the fixed-lag smoother's looking ahead
-#: by its lag only): the smoothers; the filter, an online estimate, and the baselines keep
-#: the online clock model's times
-OFFLINE_CLOCK_MODES = ("smoother", "batch")
-
-
 def _at_time(step: ImuStep, t_s: float) -> ImuStep:
     """``step`` with both its samples at time ``t_s`` (s)."""
     return ImuStep(
@@ -228,7 +221,7 @@ def retimed_imu(
     run; with the true times given to the clock model, the clean run's; docs/robustness.md
     "Clock jitter in the smoothers"). A recording is replayed as a whole, so each stamp can
     take the line fitted on both sides of it (0.07-0.1 ms off the true times on the
-    simulated trials). The smoothers (:data:`OFFLINE_CLOCK_MODES`) take these times; the
+    simulated trials). The smoothers (fixed-lag and batch) take these times; the
     filter, whose per-frame answer is what an online consumer gets, keeps the one-sided
     line, so its answer does not change. ``lookahead_s`` (s) caps the stamps used after each
     sample: the fixed-lag smoother's lag, since its estimate of a keyframe is frozen one lag
@@ -266,7 +259,7 @@ class Replay:
                 "rms_s": float(np.sqrt(np.mean(moved**2))),
                 "max_s": float(np.max(np.abs(moved))),
             }
-        # the smoothers' IMU times (OFFLINE_CLOCK_MODES): the batch smoother's line uses the
+        # the smoothers' IMU times, by estimator name: the batch smoother's line uses the
         # whole recording, the fixed-lag smoother's looks ahead by its lag only; the online
         # estimator keeps its one-sided clock line, and every event keeps its recorded order
         self._imu_lines: dict[str, NDArray[np.float64]] = {}

@@ -29,6 +29,7 @@ from vio_graph.safety.clearance import (
     placement_on_tread,
     predicted_min_clearance,
     predicted_min_edge_clearance,
+    unseen_distance,
 )
 from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.online import CSV_COLUMNS, OnlineHeightMap, SafetyEstimate, SafetyMonitor
@@ -513,3 +514,58 @@ def test_constant_velocity_warning_needs_an_approached_edge() -> None:
         s = cross.update(5.0 + dt, [0, 0.5], np.eye(2) * 1e-6, toe - [0.25, 0.0], toe, False)
     assert s.near_trip_clearance_m == pytest.approx(0.012, abs=0.004)
     assert s.near_trip_warning
+
+
+def _bins(edges_m: list[tuple[float, float]]) -> HeightProfile:
+    lo = np.array([a for a, _ in edges_m])
+    hi = np.array([b for _, b in edges_m])
+    return HeightProfile(lo, hi, np.zeros(len(lo)), np.zeros(len(lo)))
+
+
+def test_unseen_distance_counts_open_gaps_from_the_heel_forward() -> None:
+    """Foot span [0.4, 0.6], window [0.1, 0.9]: the unseen x nearest the foot, ahead of the
+    heel; narrow gaps between bins are seen (a nosing's hidden strip), wide ones are not."""
+    w = (0.4, 0.6, 0.1, 0.9)
+    assert unseen_distance(0.4, 0.6, _bins([(0.1, 0.9)]), 0.1, 0.9) == np.inf
+    # the map ends 5 cm past the toe
+    assert unseen_distance(*w[:2], _bins([(0.1, 0.65)]), *w[2:]) == pytest.approx(0.05)
+    # nothing mapped behind the heel: the foot walked out of there; under it: unknown
+    assert unseen_distance(*w[:2], _bins([(0.4, 0.9)]), *w[2:]) == np.inf
+    assert unseen_distance(*w[:2], _bins([(0.45, 0.9)]), *w[2:]) == 0.0
+    # a 10 cm gap 3 cm ahead of the toe: bridged up to max_gap_m, unseen beyond
+    gap = _bins([(0.1, 0.63), (0.73, 0.9)])
+    assert unseen_distance(*w[:2], gap, *w[2:], max_gap_m=0.15) == np.inf
+    assert unseen_distance(*w[:2], gap, *w[2:], max_gap_m=0.05) == pytest.approx(0.03)
+    # an unseen strip under the foot: distance 0
+    assert unseen_distance(*w[:2], _bins([(0.1, 0.5), (0.7, 0.9)]), *w[2:]) == 0.0
+    assert unseen_distance(*w[:2], _bins([]), *w[2:]) == 0.0
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_clearance_is_unknown_where_unseen_terrain_could_be_closer(compiled: bool) -> None:
+    """The map holds the floor and the first tread up to x = 0.70 m; the foot swings 15 cm
+    above that tread with its toe 5 cm short of the unseen part, where the next riser (x =
+    0.78 m, 15 cm higher) stands: the mapped bins alone say 15 cm, so the clearance is
+    unknown; seen to 0.8 m the map gives the truth (the next nosing, 13 cm from the toe)."""
+    if compiled:
+        pytest.importorskip("numba")
+    heel, toe = [0.40, 0.30], [0.65, 0.30]
+    for seen_to_m, check, expected in [
+        (0.70, True, np.nan),
+        (0.70, False, 0.15),
+        (0.80, True, 0.13),
+    ]:
+        cfg = SafetyConfig(bin_m=0.005, min_keyframes=2, unseen_terrain_check=check)
+        mon = SafetyMonitor(cfg, compiled=compiled)
+        xs = np.linspace(-0.2, seen_to_m, 400)
+        prof = HeightProfile.from_polyline(STEP)
+        z = prof.z_m[np.clip(np.searchsorted(prof.x_hi_m, xs), 0, len(prof) - 1)]
+        cam = np.array([0.0, 0.5])
+        for k in range(3):
+            mon.update(0.01 * k, cam, np.eye(2) * 1e-6, [-0.5, 0.2], [-0.25, 0.2], False,
+                       np.stack([xs, z], 1) - cam)  # fmt: skip
+        s = mon.update(1.0, cam, np.eye(2) * 1e-6, heel, toe, False)
+        if np.isnan(expected):
+            assert np.isnan(s.clearance_m) and np.isnan(s.clearance_sigma_m)
+        else:
+            assert s.clearance_m == pytest.approx(expected, abs=0.006)

@@ -269,3 +269,23 @@ def test_fused_compiled_steps_equal_the_per_operation_kernels(
     for name in ("_z", "_n", "_mid", "_se2", "_cov", "_edge_xz", "_edge_first"):
         np.testing.assert_array_equal(getattr(fused.map, name), getattr(steps.map, name))
     assert fused.consistency.pose_scale == steps.consistency.pose_scale != 1.0
+
+
+def test_compiled_unseen_distance_equals_the_numpy_one() -> None:
+    """The compiled unseen-terrain distance (frame_terrain's check) equals
+    clearance.unseen_distance on random bin layouts, spans and gap bridges."""
+    from vio_graph.safety.clearance import HeightProfile, unseen_distance
+
+    K = _compiled()
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        idx = np.sort(rng.choice(200, size=rng.integers(0, 120), replace=False))
+        lo, hi = idx * 0.005, (idx + 1) * 0.005
+        prof = HeightProfile(lo, hi, np.zeros(len(lo)), np.zeros(len(lo)))
+        xa = rng.uniform(0.0, 0.8)
+        xb = xa + rng.uniform(0.0, 0.3)
+        x0, x1 = xa - 0.3, xb + 0.3
+        gap = float(rng.choice([0.0, 0.02, 0.15]))
+        a = unseen_distance(xa, xb, prof, x0, x1, gap)
+        b = K._unseen_distance(xa, xb, lo, hi, x0, x1, gap)
+        assert a == b or abs(a - b) <= TOL_M

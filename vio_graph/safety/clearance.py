@@ -27,6 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+#: bins closer than this (m) are contiguous (their bounds are products of the bin size)
+UNSEEN_TOLERANCE_M = 1e-9
+
 
 @dataclass(frozen=True)
 class HeightProfile:
@@ -460,6 +463,33 @@ def coverage(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile) -> 
         return 0.0 if len(prof) == 0 else 1.0
     ov = np.minimum(prof.x_hi_m, xb) - np.maximum(prof.x_lo_m, xa)
     return float(np.sum(np.maximum(ov, 0.0)) / (xb - xa))
+
+
+def unseen_distance(
+    x_a_m: float,
+    x_b_m: float,
+    prof: HeightProfile,
+    x_min_m: float,
+    x_max_m: float,
+    max_gap_m: float = 0.0,
+) -> float:
+    """Horizontal distance (m) from the foot's x span [``x_a_m``, ``x_b_m``] to the nearest x
+    in [``x_min_m``, ``x_max_m``] that the bins of ``prof`` leave unseen, from the heel
+    forward (x >= ``x_a_m``: the foot walks forward, out of the terrain behind it); inf if
+    none. Gaps between bins up to ``max_gap_m`` wide count as seen (the strip a nosing hides
+    from a camera above it, bridged like the edges are); the window beyond the first and last
+    bin does not. Terrain the map has not seen can be anywhere in height, so it can come no
+    closer to the foot than this: a clearance larger than it is not known."""
+    gap = math.inf
+    edge = float(x_min_m)  # the x up to which the bins so far cover the window
+    first = True
+    for lo, hi in zip(prof.x_lo_m.tolist(), prof.x_hi_m.tolist(), strict=True):
+        if lo > max(edge, x_a_m) + UNSEEN_TOLERANCE_M and (first or lo - edge > max_gap_m):
+            gap = min(gap, max(0.0, edge - x_b_m))  # (edge, lo) is unseen
+        edge, first = max(edge, hi), False
+    if edge < x_max_m - UNSEEN_TOLERANCE_M:
+        gap = min(gap, max(0.0, edge - x_b_m))
+    return gap
 
 
 def _edge_distance(

@@ -26,6 +26,7 @@ from vio_graph.safety.clearance import (
     MAX_TRANSITION_BIN_M,
     NO_CLEARANCE,
     SLOPE_STEP_M,
+    UNSEEN_TOLERANCE_M,
     Clearance,
     Edges,
     HeightProfile,
@@ -303,6 +304,20 @@ def _coverage(xa, xb, lo, hi):  # pragma: no cover - compiled
     for i in range(lo.shape[0]):
         s += max(min(hi[i], xb) - max(lo[i], xa), 0.0)
     return s / (xb - xa)
+
+
+@numba.njit(cache=True)
+def _unseen_distance(xa, xb, lo, hi, x_min, x_max, max_gap):  # pragma: no cover - compiled
+    """clearance.unseen_distance on the window's bin bounds."""
+    gap = np.inf
+    edge = x_min
+    for i in range(lo.shape[0]):
+        if lo[i] > max(edge, xa) + UNSEEN_TOLERANCE_M and (i == 0 or lo[i] - edge > max_gap):
+            gap = min(gap, max(0.0, edge - xb))
+        edge = max(edge, hi[i])
+    if edge < x_max - UNSEEN_TOLERANCE_M:
+        gap = min(gap, max(0.0, edge - xb))
+    return gap
 
 
 def coverage(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile) -> float:
@@ -1187,7 +1202,7 @@ def warm_up() -> None:
     n[:] = 1
     frame_terrain(
         used, mid, se2, cov, n, 0, 0.005, np.array([[0.01, 0.0]]), -0.2, 0.05, 0.0, 0.05,
-        1e-4, 0.0, 0.0, 1e-4, 0.3, 0.5, 0.0, 0.003, 0.005, 0.05, 1.0, 1.0, 0.5,
+        1e-4, 0.0, 0.0, 1e-4, 0.3, 0.5, True, 0.15, 0.0, 0.003, 0.005, 0.05, 1.0, 1.0, 0.5,
     )  # fmt: skip
     swing_prediction(
         0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]),
@@ -1305,6 +1320,8 @@ def frame_terrain(
     P11,
     window_m,
     min_coverage,
+    unseen_check,
+    max_gap,
     sole,
     map_sigma,
     foot_sigma,
@@ -1333,6 +1350,9 @@ def frame_terrain(
         cover = 1.0 if xb <= xa else _coverage(xa, xb, lo, hi)
     if not cover < min_coverage:
         d, fx, fz, qx, qz, col = _foot_clearance(hx, hz, tx, tz, lo, hi, z)
+        if unseen_check and d > _unseen_distance(xa, xb, lo, hi, x0, x1, max_gap):
+            col = -1  # unseen terrain could be closer than the mapped (clearance.py)
+            d = fx = fz = qx = qz = nan
         ddx, ddz = fx - qx, fz - qz
         nrm = math.hypot(ddx, ddz)
         if nrm > 1e-9:

@@ -87,6 +87,14 @@ class SafetyConfig(BaseModel):
         description="the clearance is reported (else NaN) when the "
         "terrain under at least this share of the foot's x span has been mapped",
     )
+    unseen_terrain_check: bool = Field(
+        default=True,
+        description="the clearance is reported (else NaN) only when every x within "
+        "window_m of the foot that the map has not seen is horizontally at least as far "
+        "from the foot as the clearance the mapped terrain gives (unseen terrain could be "
+        "that close: the mapped bins alone would overstate the clearance); off: the mapped "
+        "bins alone decide",
+    )
     edge_min_rise_m: float = Field(
         default=0.04, gt=0, description="a height change of at least this is a riser/edge, m"
     )

@@ -55,6 +55,7 @@ from vio_graph.safety.clearance import (
     clearance_sigma,
     next_edge_index,
     placement_on_tread,
+    unseen_distance,
 )
 from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.consistency import ChiSquareScale, MapConsistency
@@ -664,8 +665,8 @@ class SafetyMonitor:
             c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = g.frame_terrain(
                 m._used, m._mid, m._se2, m._cov, m._n, m._i0, cfg.bin_m, edges.xz_m,
                 hx, hz, tx, tz, *P.ravel().tolist(), cfg.window_m, cfg.min_coverage,
-                cfg.sole_thickness_m, cfg.map_sigma_m, cfg.foot_sigma_m, cfg.toe_pass_m,
-                pose_w, sm, 0.5,
+                cfg.unseen_terrain_check, cfg.edge_max_gap_m, cfg.sole_thickness_m,
+                cfg.map_sigma_m, cfg.foot_sigma_m, cfg.toe_pass_m, pose_w, sm, 0.5,
             )  # fmt: skip
         else:
             c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = self._terrain_now(
@@ -823,6 +824,10 @@ class SafetyMonitor:
         c = NO_CLEARANCE  # unless the terrain under the foot has been seen
         if not g.coverage(heel, toe, win) < cfg.min_coverage:
             c = g.foot_clearance(heel, toe, win, cfg.sole_thickness_m)
+            if cfg.unseen_terrain_check and c.distance_m + cfg.sole_thickness_m > (
+                unseen_distance(min(hx, tx), max(hx, tx), win, x0, x1, cfg.edge_max_gap_m)
+            ):  # unseen terrain could be closer than the mapped terrain
+                c = NO_CLEARANCE
         sig = NAN
         if c.bin >= 0:
             k = int(near.bins[c.bin])

@@ -129,9 +129,7 @@ def test_other_imus_run_end_to_end(condition: str, tmp_path) -> None:
     from vio_graph.sim import simulate
     from vio_graph.sweep import condition_by_name, condition_scenario
 
-    scen = condition_scenario(condition_by_name(condition)).model_copy(
-        update={"duration_s": 4.0}
-    )
+    scen = condition_scenario(condition_by_name(condition)).model_copy(update={"duration_s": 4.0})
     rec = simulate(scen, seed=1000, out_dir=tmp_path / "rec")
     base = PipelineConfig()
     cfg = base.model_copy(update={"output": base.output.model_copy(update={"plots": False})})

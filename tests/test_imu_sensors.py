@@ -131,6 +131,14 @@ def test_other_imus_run_end_to_end(condition: str, tmp_path) -> None:
 
     scen = condition_scenario(condition_by_name(condition)).model_copy(update={"duration_s": 4.0})
     rec = simulate(scen, seed=1000, out_dir=tmp_path / "rec")
+    # the estimator's gyro test takes the IMU rate from the recording's metadata
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.recording import Recording
+
+    rig = RigGeometry.from_metadata(Recording.open(rec).metadata)
+    est = OnlineEstimator(PipelineConfig(), rig, np.zeros(2))
+    sigma = ImuFaultConfig().gyro_ahrs_sigma_radps * np.sqrt(scen.imu.rate_hz / 100.0)
+    assert est.imu_faults.gyro_sigma_radps == pytest.approx(sigma)
     base = PipelineConfig()
     cfg = base.model_copy(update={"output": base.output.model_copy(update={"plots": False})})
     out = tmp_path / "out"

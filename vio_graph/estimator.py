@@ -477,7 +477,9 @@ class OnlineEstimator:
         (filter/imu_faults.py, filter/time_offset.py)."""
         fc, rig = self.config.filter, self.rig
         to = fc.time_offset
-        self.imu_faults = ImuFaultMonitor(fc.imu_faults, rig.accel_range_mps2, rig.gyro_range_radps)
+        self.imu_faults = ImuFaultMonitor(
+            fc.imu_faults, rig.accel_range_mps2, rig.gyro_range_radps, rig.imu_rate_hz
+        )
         fi = fc.imu_faults
         self.saturation_learner = (
             SaturationScaleLearner(

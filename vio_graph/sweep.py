@@ -66,6 +66,27 @@ _SLOW_STS = {
     "rig": {"camera_in_shank_xz_m": (0.07, -0.15)},
 }
 
+#: consumer-grade MEMS IMU (the sensor of a low-cost rig), from datasheets: accelerometer
+#: noise density 180 ug/sqrt(Hz) (Bosch BMI160) to 400 ug/sqrt(Hz) (InvenSense MPU-6050) ->
+#: 3e-3 m/s^2/sqrt(Hz); gyro 0.007 deg/s/sqrt(Hz) (BMI160) to 0.014 deg/s/sqrt(Hz) (Bosch
+#: BMI088) -> 2.4e-4 rad/s/sqrt(Hz); zero-g offset +-40 mg (BMI160) -> turn-on bias sd
+#: 0.3 m/s^2; gyro zero-rate offset after the usual at-rest calibration ~1 deg/s -> 0.015
+#: rad/s; bias random walks 10x the MTi-1 values [U]; attitude of a host-side fusion
+#: (Madgwick / Mahony on the raw data) 2 deg RMS roll/pitch, 5 deg heading [U]
+_CONSUMER_IMU = {
+    "accel_noise_density": 3e-3,
+    "gyro_noise_density": 2.4e-4,
+    "accel_turn_on_bias_mps2": 0.3,
+    "gyro_turn_on_bias_radps": 0.015,
+    "accel_bias_rw": 3e-4,
+    "gyro_bias_rw": 5e-5,
+    "orientation_rms_deg": 2.0,
+    "heading_rms_deg": 5.0,
+}
+#: twice the pico flexx2's axial noise model (Cai 2024, Mode 5 @30 fps: a, b, c, d of
+#: sigma_z(z, theta)); lateral jitter 2 x 0.86 px
+_FLEXX2_AXIAL_2X = (2 * 0.002362, 2 * -0.001041, 2 * 0.000753, 2 * 0.000185)
+
 SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
     SweepCondition(
         "reference",
@@ -180,6 +201,31 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
         "imu",
         "IMU turned 90 deg about the shank axis",
         overrides={"rig": {"imu_rotation_rpy_deg": (0.0, 0.0, 90.0)}},
+    ),
+    SweepCondition(
+        "imu_200hz",
+        "imu",
+        "IMU (and joint sensors) at 200 Hz, same noise densities",
+        overrides={"imu": {"rate_hz": 200.0}},
+    ),
+    SweepCondition(
+        "imu_50hz",
+        "imu",
+        "IMU (and joint sensors) at 50 Hz, e.g. a low-cost IMU polled over I2C",
+        overrides={"imu": {"rate_hz": 50.0}},
+    ),
+    SweepCondition(
+        "imu_consumer",
+        "imu",
+        "consumer MEMS IMU: accel 3e-3 m/s^2/sqrt(Hz), gyro 2.4e-4 rad/s/sqrt(Hz), turn-on "
+        "bias sd 0.3 m/s^2 / 0.015 rad/s, 10x bias walk, 2 deg attitude (_CONSUMER_IMU)",
+        overrides={"imu": _CONSUMER_IMU},
+    ),
+    SweepCondition(
+        "tof_noise_2x",
+        "depth",
+        "ToF depth noise doubled: axial sigma and lateral jitter 2x the pico flexx2's",
+        overrides={"camera": {"axial_coeffs": _FLEXX2_AXIAL_2X, "lateral_noise_px": 1.72}},
     ),
     SweepCondition(
         "tof_gaps",

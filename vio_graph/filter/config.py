@@ -183,8 +183,21 @@ class ImuFaultConfig(BaseModel):
         default=0.5,
         gt=0,
         description="sigma (rad/s, per axis) of the test residual g_k - (2 w_k - g_{k-1}), w_k "
-        "the mean rate from consecutive vendor orientations: their error drift (MTi-1: "
-        "1-2 deg RMS, correlated over seconds) and the gyro noise",
+        "the mean rate from consecutive vendor orientations, at an IMU rate of 100 Hz: their "
+        "error drift (MTi-1: 1-2 deg RMS, correlated over seconds) and the gyro noise. Both "
+        "are white per sample, so at the recording's rate r (metadata imu.rate_hz) the test "
+        "uses sigma sqrt(r / 100 Hz); the floor under the learnt sigma "
+        "(gyro_ahrs_learn_time_s)",
+    )
+    gyro_ahrs_learn_time_s: float | None = Field(
+        default=5.0,
+        gt=0,
+        description="the test's variance follows what this IMU's two outputs show: an "
+        "exponentially weighted mean (time constant in s) of the squared residual per axis "
+        "over the samples that pass; the test uses the larger of it and the (rate-scaled) "
+        "gyro_ahrs_sigma_radps^2. An IMU whose orientation output is noisier than the MTi-1's "
+        "(a consumer MEMS with a host-side fusion: 2 deg roll/pitch, 5 deg heading) otherwise "
+        "fails the test on a third of its samples. None: the configured sigma only",
     )
     gyro_ahrs_probability: float = Field(
         default=0.999999,

@@ -35,7 +35,19 @@ spikes to any such threshold):
   sample before they preintegrate, replace it by the interpolation between its trusted
   neighbours (vio_graph/smoother/graph.py; on the simulated gaits 3x closer to the true
   specific force than the held value). An accelerometer-only outlier is left to vision
-  (below).
+  (below). The test's variance follows the sensor, not the MTi-1 at 100 Hz it was set on:
+  (1) both noise sources of the residual, the gyro's white noise and the sample-to-sample
+  change of the orientation's error, are white per sample, so the variance grows with the
+  rate: ``gyro_ahrs_sigma_radps`` holds at 100 Hz and a recording at rate r (metadata
+  ``imu.rate_hz``) is tested with sigma sqrt(r / 100 Hz); (2) that sigma is a floor under
+  the variance the IMU's residuals actually show (a running mean of |r|^2 / 3 over
+  ``gyro_ahrs_learn_time_s``, each statistic clipped at the gate): a consumer IMU's host-side
+  orientation is several times noisier; (3) a repaired gyro is a prediction with the test's
+  sigma and the next prediction is built on it, so after n repairs in a row the next test's
+  variance is (1 + n) times the sigma^2. Without (1)-(3) one false alarm locked the test in
+  (each repair's error fed the next prediction with its sign flipped): 60-90 % of the
+  samples of a 200 Hz trial or a consumer IMU were repaired and the filter was off by metres
+  (sweep imu_200hz, imu_consumer).
 * **Accelerometer outliers** (:func:`velocity_fault_cov`, used by the estimator): vision
   arbitrates. When the filter's chi-square gate refuses a displacement, the hypothesis "one
   corrupted IMU sample in this interval" -- a velocity jump of sigma
@@ -49,12 +61,13 @@ spikes to any such threshold):
 from __future__ import annotations
 
 import dataclasses
+import math
 from types import ModuleType
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from vio_graph.filter.config import ImuFaultConfig
+from vio_graph.filter.config import PAPER_IMU_RATE_HZ, ImuFaultConfig
 from vio_graph.filter.fast_imu import (
     Mat3,
     as_f64,
@@ -84,9 +97,33 @@ class ImuFaultMonitor:
     """
 
     def __init__(
-        self, config: ImuFaultConfig, accel_range_mps2: float | None, gyro_range_radps: float | None
+        self,
+        config: ImuFaultConfig,
+        accel_range_mps2: float | None,
+        gyro_range_radps: float | None,
+        imu_rate_hz: float | None = None,
     ) -> None:
         self.config = config
+        #: the gyro test's sigma at this IMU's rate (rad/s per axis; the configured one at
+        #: 100 Hz or an unknown rate) and its variance for the next sample (grows along a run
+        #: of repairs: module docstring)
+        rate_scale = 1.0 if imu_rate_hz is None else math.sqrt(imu_rate_hz / PAPER_IMU_RATE_HZ)
+        self.gyro_sigma_radps = config.gyro_ahrs_sigma_radps * rate_scale
+        self._gyro_sigma = self.gyro_sigma_radps  # for the next sample
+        self._gyro_sigma2 = self._gyro_sigma**2
+        self._repair_run = 0  # repairs in a row up to the previous sample
+        # the residual's variance per axis learnt from the samples that pass (rad^2/s^2),
+        # starting at the configured one, and the weight of each sample (one nominal
+        # period over the learning time constant; 0: not learnt)
+        self._floor_var = self._gyro_sigma2
+        self._learnt_var = self._floor_var
+        self._above_floor = False
+        learn_s = config.gyro_ahrs_learn_time_s
+        period_s = 1.0 / (imu_rate_hz or PAPER_IMU_RATE_HZ)
+        self._learn_rate = 0.0 if learn_s is None else min(1.0, period_s / learn_s)
+        self._n_learnt = 1  # the configured variance counts as one sample
+        self._consts: NDArray[np.float64] | None = None  # imu_input's constants, if it runs
+        self._sigma2_slot = 0
         m = config.saturation_margin
         self._acc_lim = np.inf if accel_range_mps2 is None else m * float(accel_range_mps2)
         self._gyr_lim = np.inf if gyro_range_radps is None else m * float(gyro_range_radps)
@@ -146,6 +183,36 @@ class ImuFaultMonitor:
             xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
         return acc, xa, xg
 
+    def _after_test(self, repaired: bool, d2: float = -1.0) -> None:
+        """Learn the residual's spread from a tested sample (statistic ``d2`` >= 0 under
+        this sample's variance; not right after a repair, whose error is in the
+        prediction), count a run of repairs, and set the test's variance for the next
+        sample: (1 + repairs in a row) times the larger of the configured sigma^2 and the
+        learnt one (in imu_input's constants too when that kernel runs the test)."""
+        run = self._repair_run + 1 if repaired else 0
+        changed = run != self._repair_run
+        if d2 >= 0.0 and self._repair_run == 0 and self._learn_rate > 0.0:
+            # the mean of |r|^2 / 3 (the variance per axis), each sample's statistic clipped
+            # at the gate (a spike counts as a gate-sized residual), the configured
+            # variance its first sample, exponentially weighted once the learning time is full
+            self._n_learnt += 1
+            w = max(self._learn_rate, 1.0 / self._n_learnt)
+            r2 = min(d2, self._gyro_d2) * self._gyro_sigma2
+            self._learnt_var += w * (r2 / 3.0 - self._learnt_var)
+            changed = changed or self._learnt_var > self._floor_var or self._above_floor
+        if not changed:
+            return
+        self._repair_run = run
+        self._above_floor = self._learnt_var > self._floor_var
+        if self._above_floor:
+            self._gyro_sigma2 = self._learnt_var * (1.0 + run)
+            self._gyro_sigma = math.sqrt(self._gyro_sigma2)
+        else:
+            self._gyro_sigma = self.gyro_sigma_radps * math.sqrt(1.0 + run)
+            self._gyro_sigma2 = self._gyro_sigma**2
+        if self._consts is not None:
+            self._consts[self._sigma2_slot] = self._gyro_sigma2
+
     def process(self, sample: ImuSample) -> ImuSample:
         """The sample with its extra sigmas set (and its gyro replaced if it failed the test).
 
@@ -166,24 +233,27 @@ class ImuFaultMonitor:
         R = quat_matrix(sample.quat_wxyz)  # row-major tuple (geometry.matrix_from_quat_wxyz)
         repaired: tuple[float, float, float] | None = None
         held = False  # accelerometer replaced by the last trusted one
+        d2 = -1.0
         if self.config.gyro_ahrs_test and self._prev is not None and t > self._prev[0]:
             t0, R0, (g0x, g0y, g0z) = self._prev
             h = t - t0
             wx, wy, wz = self._relative_rotvec(R0, R)  # over h: the mean rate, IMU axes
             px, py, pz = 2.0 * (wx / h) - g0x, 2.0 * (wy / h) - g0y, 2.0 * (wz / h) - g0z
             rx, ry, rz = gx - px, gy - py, gz - pz
-            d2 = (rx * rx + ry * ry + rz * rz) / self.config.gyro_ahrs_sigma_radps**2
+            sigma = self._gyro_sigma
+            d2 = (rx * rx + ry * ry + rz * rz) / self._gyro_sigma2
             self.max_gyro_d2 = max(self.max_gyro_d2, d2) if not gyr_sat else self.max_gyro_d2
             if d2 > self._gyro_d2:
                 self.n_gyro_repaired += 1
                 repaired = (px, py, pz)
-                xg = max(xg, self.config.gyro_ahrs_sigma_radps) if not gyr_sat else xg
+                xg = max(xg, sigma) if not gyr_sat else xg
                 if self._last_acc is not None and not acc_sat:
                     # the packet is corrupt: hold the last trusted specific force
                     acc = np.array(self._last_acc)
                     xa = max(xa, self.config.held_accel_sigma_mps2)
                     held = True
         self._prev = (t, R, (gx, gy, gz) if repaired is None else repaired)
+        self._after_test(repaired is not None, -1.0 if gyr_sat else d2)
         if repaired is None and not acc_sat:
             self._last_acc = tuple(acc_l)
         if (
@@ -217,7 +287,7 @@ class ImuFaultMonitor:
             self._acc_lim,
             self._gyr_lim,
             cfg.gyro_ahrs_test,
-            cfg.gyro_ahrs_sigma_radps**2,
+            self._gyro_sigma2,
         )
         return self.finish_compiled(sample, acc, gyr, d2, px, py, pz, acc_sat, gyr_sat)
 
@@ -231,8 +301,10 @@ class ImuFaultMonitor:
         cfg = self.config
         c[k.IN_ACC_LIM], c[k.IN_GYR_LIM] = self._acc_lim, self._gyr_lim
         c[k.IN_TEST] = 1.0 if cfg.gyro_ahrs_test else 0.0
-        c[k.IN_SIGMA2] = cfg.gyro_ahrs_sigma_radps**2
+        c[k.IN_SIGMA2] = self._gyro_sigma2
         c[k.IN_GYRO_D2] = self._gyro_d2
+        # the kernel reads the test's variance from c: _after_test keeps it current
+        self._consts, self._sigma2_slot = c, k.IN_SIGMA2
         return True
 
     def clean_compiled(self, acc: NDArray[np.float64], d2: float) -> None:
@@ -240,6 +312,8 @@ class ImuFaultMonitor:
         ``_acc_run`` 0, d2 at most the gate): only the bookkeeping, the sample stays as it is."""
         if d2 >= 0.0:
             self.max_gyro_d2 = max(self.max_gyro_d2, d2)
+        if d2 >= 0.0 or self._repair_run:
+            self._after_test(False, d2)
         self._last_acc = tuple(acc.tolist())
 
     def finish_compiled(
@@ -271,12 +345,14 @@ class ImuFaultMonitor:
             if d2 > self._gyro_d2:
                 self.n_gyro_repaired += 1
                 repaired = True
-                xg = max(xg, cfg.gyro_ahrs_sigma_radps) if not gyr_sat else xg
+                xg = max(xg, self._gyro_sigma) if not gyr_sat else xg
                 if self._last_acc is not None and not acc_sat:
                     # the packet is corrupt: hold the last trusted specific force
                     new_acc = np.array(self._last_acc)
                     xa = max(xa, cfg.held_accel_sigma_mps2)
                     held = True
+        if d2 >= 0.0 or self._repair_run:
+            self._after_test(repaired, -1.0 if gyr_sat else d2)
         if repaired:
             prev[11], prev[12], prev[13] = px, py, pz
         elif not acc_sat:  # (fault_check stored the gyro)
@@ -312,23 +388,26 @@ class ImuFaultMonitor:
         R = matrix_from_quat_wxyz(sample.quat_wxyz)
         repaired = gyr
         held = False  # accelerometer replaced by the last trusted one
+        d2 = -1.0
         if self.config.gyro_ahrs_test and self._prev is not None and t > self._prev[0]:
             t0, R0, g0 = self._prev
             w = np.array(self._relative_rotvec_reference(R0, _as_mat3(R))) / (t - t0)
             pred = 2.0 * w - np.asarray(g0)
             r = gyr - pred
-            d2 = float(r @ r) / self.config.gyro_ahrs_sigma_radps**2
+            sigma = self._gyro_sigma
+            d2 = float(r @ r) / self._gyro_sigma2
             self.max_gyro_d2 = max(self.max_gyro_d2, d2) if not gyr_sat else self.max_gyro_d2
             if d2 > self._gyro_d2:
                 self.n_gyro_repaired += 1
                 repaired = pred
-                xg = max(xg, self.config.gyro_ahrs_sigma_radps) if not gyr_sat else xg
+                xg = max(xg, sigma) if not gyr_sat else xg
                 if self._last_acc is not None and not acc_sat:
                     acc = np.array(self._last_acc)
                     xa = max(xa, self.config.held_accel_sigma_mps2)
                     held = True
         gx, gy, gz = repaired.tolist()
         self._prev = (t, _as_mat3(R), (gx, gy, gz))
+        self._after_test(repaired is not gyr, -1.0 if gyr_sat else d2)
         if repaired is gyr and not acc_sat:
             self._last_acc = tuple(acc.tolist())
         if (

@@ -320,7 +320,17 @@ class SmootherConfig(BaseModel):
         description="ISAM2 factorisation in the fixed-lag smoother. Cholesky is ~2x faster at the "
         "p95 (measured on synthetic data) but raised IndeterminantLinearSystem on a simulated "
         "trial with 5 % spurious depth points; QR did not (QR factorises the Jacobian itself, "
-        "Cholesky its normal equations, whose condition number is the square)",
+        "Cholesky its normal equations, whose condition number is the square). With "
+        "fixed_lag_qr_fallback such a failure rebuilds the window in QR instead of ending the "
+        "smoother",
+    )
+    fixed_lag_qr_fallback: bool = Field(
+        default=True,
+        description="with CHOLESKY: when an update finds the system indeterminate, rebuild the "
+        "window (its factors, marginals of the keyframes already gone, linearisation point "
+        "and key times) in a QR smoother and continue in QR for the rest of the run "
+        "(metrics.json: smoother_qr_fallback_at_s); off: the smoother stops there as any "
+        "failed update does",
     )
     batch_factorization: Literal["QR", "CHOLESKY"] = Field(
         default="QR",

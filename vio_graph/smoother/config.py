@@ -82,6 +82,18 @@ class SmootherConfig(BaseModel):
     keyframe_period_s: float = Field(
         default=0.1, gt=0, description="nominal keyframe spacing (s), used only to set the lag"
     )
+    marginalization_slack_s: float = Field(
+        default=0.0,
+        ge=0,
+        description="fixed-lag smoother: keys leave the window in batches, once the oldest is "
+        "older than lag + slack (s); the window then holds between lag and lag + slack. 0: "
+        "every update marginalises what is older than the lag. An update that marginalises "
+        "makes GTSAM's IncrementalFixedLagSmoother order the re-eliminated variables with "
+        "only the leaving keys constrained (first), which lets the Bayes tree's root drift "
+        "away from the newest keyframe (then every update re-eliminates the path from the "
+        "newest keyframe to that root); updates that marginalise nothing keep iSAM2's own "
+        "rule (the new keys last, at the root)",
+    )
 
     # --- IMU (continuous-time densities, MTi-1 datasheet) ---
     gravity_mps2: float = Field(default=GRAVITY_MPS2, gt=0, description="gravity magnitude m/s^2")

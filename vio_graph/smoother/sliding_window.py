@@ -30,6 +30,8 @@ from vio_graph.smoother.graph import (
 from vio_graph.smoother.interface import KeyframeEstimate, KeyframeSmootherBase
 
 _NAN2 = np.full((2, 2), np.nan)
+#: the lag (s) given to GTSAM for an update that marginalises nothing (marginalization_slack_s)
+_HOLD_LAG_S = 1e9
 # gtsam.Symbol keys: the character in the top 8 bits, the index below
 _CHR_X, _CHR_L = ord("x"), ord("l")
 _INDEX_MASK = (1 << 56) - 1
@@ -83,6 +85,7 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
                 self.lag_s, isam2_params(config, config.fixed_lag_factorization)
             )
         self._incremental = not config.fixed_lag_batch_solver
+        self._gtsam_lag_s = self.lag_s  # the lag GTSAM holds now (_marginalisation_lag)
         #: keyframe time (s) at which a Cholesky update failed and the window was rebuilt in
         #: QR (``smoother.fixed_lag_qr_fallback``), None if it never happened
         self.qr_fallback_at_s: float | None = None
@@ -119,7 +122,7 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         # every key of an update is stamped with the keyframe time, so ``live`` (re-stamped
         # keys moved to its end) stays ordered by time and the leaving keys are its head
         newest = u.timestamp_s if self._newest_s is None else max(u.timestamp_s, self._newest_s)
-        cutoff = newest - self.lag_s
+        cutoff = newest - self._marginalisation_lag(live, stamps, newest)
         in_order = all(s >= newest for s in stamps.values())
         leaving: list[int] = []
         for k, s in live.items():
@@ -164,6 +167,24 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         if self.config.marginal_covariance == "when_newest" and self._incremental:
             self._newest_cov[i] = self._camera_estimate(i, with_covariance=True, pose=pose)[1]
         self.update_times_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _marginalisation_lag(
+        self, live: dict[int, float], stamps: dict[int, float], newest_s: float
+    ) -> float:
+        """The lag (s) of this update: ``lag_s`` when keys leave the window now, else one so
+        long that none does (``smoother.marginalization_slack_s``: keys leave in batches,
+        once the oldest one not re-stamped by this update is older than lag + slack). Sets it
+        in GTSAM when it changes."""
+        slack = self.config.marginalization_slack_s
+        if slack <= 0 or not self._incremental:
+            return self.lag_s
+        oldest = next((s for k, s in live.items() if k not in stamps), None)
+        due = oldest is not None and oldest < newest_s - self.lag_s - slack
+        lag = self.lag_s if due else _HOLD_LAG_S
+        if lag != self._gtsam_lag_s:
+            self._smoother.setSmootherLag(lag)
+            self._gtsam_lag_s = lag
+        return lag
 
     def _test_first_velocity(self, u: KeyframeUpdate) -> None:
         """Remember the first velocity prior's iSAM2 index (keyframe 0); after a keyframe
@@ -271,7 +292,7 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         times = {int(k): float(t) for k, t in old.timestamps().items()}
         times.update(stamps)
         self._smoother = gtsam.IncrementalFixedLagSmoother(
-            self.lag_s, isam2_params(self.config, "QR")
+            self._gtsam_lag_s, isam2_params(self.config, "QR")
         )
         self._smoother.update(graph, theta, cast(dict[Any, Any], times))
         if self._first_velocity_index is not None:

@@ -28,7 +28,6 @@ import _common  # noqa: I001 - first: pins thread pools before numpy is imported
 import numpy as np
 import yaml
 
-from vio_graph.smoother.graph import KeyframeGraphBuilder
 from vio_graph.smoother.sliding_window import SlidingWindowSmoother
 
 _CALLS = ("add_imu", "add_frame", "finish")
@@ -115,7 +114,9 @@ def run(recordings: list[Path], a: dict[str, Any], b: dict[str, Any], rounds: in
         cfg = {"A": config.model_copy(update=a), "B": config.model_copy(update=b)}
         for k, c in cfg.items():  # validated like a config file
             cfg[k] = type(config).model_validate(c.model_dump())
-        res: dict[str, dict[str, list]] = {k: {"update": [], "build": [], "reelim": []} for k in cfg}
+        res: dict[str, dict[str, list]] = {
+            k: {"update": [], "build": [], "reelim": []} for k in cfg
+        }
         xz: dict[str, np.ndarray] = {}
         fallback: dict[str, Any] = {}
         for r in range(rounds):

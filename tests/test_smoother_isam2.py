@@ -133,7 +133,7 @@ def test_marginalization_in_batches_keeps_the_window_between_lag_and_lag_plus_sl
         spans, leaving_updates = [], 0
         consume = s._consume
 
-        def checked(u, s=s, consume=consume):
+        def checked(u, s=s, consume=consume, spans=spans):
             nonlocal leaving_updates
             before = s.live_keys()
             consume(u)

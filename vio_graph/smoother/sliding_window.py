@@ -4,6 +4,13 @@ Per keyframe: build its factors (graph.py), drop any factor touching a key that 
 the window (GTSAM would raise and the batch variant would stay broken), store the last
 estimate (and marginal) of keyframes about to be marginalised, update the smoother, re-read
 the newest state for the next prediction.
+
+Keys leave the window in batches (``smoother.marginalization_slack_s``): GTSAM's lag is set
+per update, to the configured lag when the oldest key is older than lag + slack and to "never"
+otherwise, because an update that marginalises constrains iSAM2's ordering in a way that
+lets the Bayes tree's root drift away from the newest keyframe (docs/method.md section 4).
+A Cholesky update that finds the system indeterminate is redone by rebuilding the window in
+QR (``smoother.fixed_lag_qr_fallback``).
 """
 
 from __future__ import annotations

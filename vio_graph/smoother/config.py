@@ -85,7 +85,8 @@ class SmootherConfig(BaseModel):
     marginalization_slack_s: float = Field(
         default=0.2,
         ge=0,
-        description="fixed-lag smoother: keys leave the window in batches, once the oldest is "
+        description="fixed-lag smoother (the incremental one; fixed_lag_batch_solver "
+        "marginalises at every update): keys leave the window in batches, once the oldest is "
         "older than lag + slack (s); the window then holds between lag and lag + slack. 0: "
         "every update marginalises what is older than the lag. An update that marginalises "
         "makes GTSAM's IncrementalFixedLagSmoother order the re-eliminated variables with "

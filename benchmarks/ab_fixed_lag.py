@@ -10,8 +10,8 @@ otherwise count another process's slice. Reported: medians (and means, p95) per 
 pooled over rounds, the ratios B / A, the iSAM2 variables re-eliminated per update, and the
 largest difference of the keyframe camera positions between A and B.
 
-    python benchmarks/ab_fixed_lag.py --b fixed_lag_factorization=CHOLESKY [--a ...]
-        [--recording REC ...] [--rounds 5]
+    python benchmarks/ab_fixed_lag.py --a fixed_lag_factorization=QR marginalization_slack_s=0
+        [--b ...] [--recording REC ...] [--rounds 5]
 
 ``--a`` / ``--b`` take ``field=value`` items of ``SmootherConfig`` (values parsed as YAML);
 ``--a`` defaults to the configuration as it is.

@@ -249,7 +249,12 @@ def test_imu_only_gap_is_bridged_with_bounded_error(use_filter_guess):
 
 def test_old_keyframes_leave_the_window_but_keep_their_estimates():
     tr = make_swinging_shank_trial(3.0, displacement_sigma_m=0.002, seed=4)
-    cfg = SmootherConfig(window_s=0.5, keyframe_period_s=0.1, marginal_covariance="when_newest")
+    cfg = SmootherConfig(
+        window_s=0.5,
+        keyframe_period_s=0.1,
+        marginal_covariance="when_newest",
+        marginalization_slack_s=0.0,  # (every update marginalises: the window is exact)
+    )
     s = SlidingWindowSmoother(cfg, tr.imu_T_cam)
     feed(tr, s)
     live = s.live_keys()
@@ -280,7 +285,7 @@ def test_marginal_covariance_modes_change_only_the_frozen_covariances():
     tr = make_swinging_shank_trial(3.0, displacement_sigma_m=0.002, seed=4)
     out = {}
     for mode in ("at_exit", "when_newest", "none"):
-        cfg = SmootherConfig(window_s=0.5, marginal_covariance=mode)
+        cfg = SmootherConfig(window_s=0.5, marginal_covariance=mode, marginalization_slack_s=0.0)
         s = SlidingWindowSmoother(cfg, tr.imu_T_cam)
         feed(tr, s)
         live_x = {gtsam.Symbol(k).index() for k in s.live_keys() if k >> 56 == ord("x")}
@@ -345,7 +350,10 @@ def test_batch_fixed_lag_variant_agrees_with_incremental():
     tr = make_swinging_shank_trial(3.0, displacement_sigma_m=0.002, seed=4)
     out = {}
     for batch_solver in (True, False):
-        cfg = SmootherConfig(window_s=0.5, fixed_lag_batch_solver=batch_solver)
+        # (the same window in both: the batch solver marginalises at every update)
+        cfg = SmootherConfig(
+            window_s=0.5, fixed_lag_batch_solver=batch_solver, marginalization_slack_s=0.0
+        )
         s = SlidingWindowSmoother(cfg, tr.imu_T_cam)
         feed(tr, s)
         assert s.live_keys() == s.smoother_keys()
@@ -665,10 +673,14 @@ def test_smoothed_pitch_corrects_the_filters_attitude_errors(cls) -> None:
     before = np.degrees(filter_pitch - true_pitch)[kf]
     after = np.degrees(smoothed - true_pitch)[kf]
     assert rms(before) == pytest.approx(0.53, abs=0.05)  # the premise: the filter's error
-    # measured: batch 0.16 deg rms, first keyframe -0.24; fixed-lag 0.29, -0.47 (its first
-    # keyframes leave the window after 2 s, and the first pose's prior is the tighter one)
+    # measured: batch 0.16 deg rms, first keyframe -0.24; fixed-lag 0.25, -0.85 (its first
+    # keyframes leave the window after 2-2.2 s, and the first pose's prior is the tighter one)
     assert rms(after) < 0.55 * rms(before)
-    assert abs(after[0]) < 0.5  # the anchor frame: 1.5 deg in the filter's attitude
+    # the anchor frame: 1.5 deg in the filter's attitude. The fixed-lag smoother keeps the
+    # value read as the keyframe leaves the window; in this trial the window's estimate of
+    # it moves between -0.26 deg at 2.0 s (the exit of an exact 2 s window) and -0.85 deg at
+    # 2.2 s (the exit with smoother.marginalization_slack_s = 0.2, the default)
+    assert abs(after[0]) < (0.5 if isinstance(sm, BatchSmoother) else 1.0)
     with pytest.raises(EstimationError, match="filter pitches"):
         sm.shank_pitch_path(tr.frame_times_s, filter_pitch[:-1], pitch_of)
 

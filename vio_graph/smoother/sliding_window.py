@@ -4,6 +4,13 @@ Per keyframe: build its factors (graph.py), drop any factor touching a key that 
 the window (GTSAM would raise and the batch variant would stay broken), store the last
 estimate (and marginal) of keyframes about to be marginalised, update the smoother, re-read
 the newest state for the next prediction.
+
+Keys leave the window in batches (``smoother.marginalization_slack_s``): GTSAM's lag is set
+per update, to the configured lag when the oldest key is older than lag + slack and to "never"
+otherwise, because an update that marginalises constrains iSAM2's ordering in a way that
+lets the Bayes tree's root drift away from the newest keyframe (docs/method.md section 4).
+A Cholesky update that finds the system indeterminate is redone by rebuilding the window in
+QR (``smoother.fixed_lag_qr_fallback``).
 """
 
 from __future__ import annotations
@@ -30,9 +37,33 @@ from vio_graph.smoother.graph import (
 from vio_graph.smoother.interface import KeyframeEstimate, KeyframeSmootherBase
 
 _NAN2 = np.full((2, 2), np.nan)
+#: the lag (s) given to GTSAM for an update that marginalises nothing (marginalization_slack_s)
+_HOLD_LAG_S = 1e9
 # gtsam.Symbol keys: the character in the top 8 bits, the index below
 _CHR_X, _CHR_L = ord("x"), ord("l")
 _INDEX_MASK = (1 << 56) - 1
+
+
+def isam2_params(config: SmootherConfig, factorization: str) -> gtsam.ISAM2Params:
+    """iSAM2 settings of the fixed-lag smoother with the given factorisation ("QR" or
+    "CHOLESKY"): the configured relinearisation threshold, checked at every update."""
+    p = gtsam.ISAM2Params()
+    p.setFactorization(factorization)
+    p.setRelinearizeThreshold(config.relinearize_threshold)
+    p.relinearizeSkip = 1
+    return p
+
+
+def _tail_equals(graph: gtsam.NonlinearFactorGraph, tail: gtsam.NonlinearFactorGraph) -> bool:
+    """Whether the last ``tail.size()`` factors of ``graph`` equal those of ``tail``."""
+    m, n = tail.size(), graph.size()
+    if m > n:
+        return False
+    for j in range(m):
+        f = graph.at(n - m + j)
+        if f is None or not f.equals(tail.at(j), 0.0):
+            return False
+    return True
 
 
 class SlidingWindowSmoother(KeyframeSmootherBase):
@@ -57,13 +88,14 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
                 gtsam.BatchFixedLagSmoother(self.lag_s, lm)
             )
         else:
-            p = gtsam.ISAM2Params()
-            p.setFactorization(config.fixed_lag_factorization)
-            p.setRelinearizeThreshold(config.relinearize_threshold)
-            p.relinearizeSkip = 1
-
-            self._smoother = gtsam.IncrementalFixedLagSmoother(self.lag_s, p)
+            self._smoother = gtsam.IncrementalFixedLagSmoother(
+                self.lag_s, isam2_params(config, config.fixed_lag_factorization)
+            )
         self._incremental = not config.fixed_lag_batch_solver
+        self._gtsam_lag_s = self.lag_s  # the lag GTSAM holds now (_marginalisation_lag)
+        #: keyframe time (s) at which a Cholesky update failed and the window was rebuilt in
+        #: QR (``smoother.fixed_lag_qr_fallback``), None if it never happened
+        self.qr_fallback_at_s: float | None = None
         self._live: dict[int, float] = {}  # key -> timestamp (s), mirrors GTSAM's window
         # keyframe -> (camera x-z, its covariance, R_world_imu) read just before it left
         self._frozen: dict[
@@ -97,7 +129,7 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         # every key of an update is stamped with the keyframe time, so ``live`` (re-stamped
         # keys moved to its end) stays ordered by time and the leaving keys are its head
         newest = u.timestamp_s if self._newest_s is None else max(u.timestamp_s, self._newest_s)
-        cutoff = newest - self.lag_s
+        cutoff = newest - self._marginalisation_lag(live, stamps, newest)
         in_order = all(s >= newest for s in stamps.values())
         leaving: list[int] = []
         for k, s in live.items():
@@ -113,12 +145,7 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
                 cov = cov if cov_now else self._newest_cov.pop(i_old, _NAN2)
                 self._frozen[i_old] = (xz, cov, R)
 
-        try:
-            # (the stubs type the key -> time map with invariant protocol keys; ints are fine)
-            self._smoother.update(factors, u.values, cast(dict[Any, Any], stamps))
-        except RuntimeError as exc:  # GTSAM's exceptions surface as RuntimeError
-            msg = f"fixed-lag update at {u.timestamp_s:.3f} s failed: {exc}"
-            raise EstimationError(msg) from exc
+        self._update(factors, u.values, stamps, (), f"fixed-lag update at {u.timestamp_s:.3f} s")
 
         if in_order:
             for k in leaving:
@@ -148,6 +175,24 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             self._newest_cov[i] = self._camera_estimate(i, with_covariance=True, pose=pose)[1]
         self.update_times_ms.append((time.perf_counter() - t0) * 1e3)
 
+    def _marginalisation_lag(
+        self, live: dict[int, float], stamps: dict[int, float], newest_s: float
+    ) -> float:
+        """The lag (s) of this update: ``lag_s`` when keys leave the window now, else one so
+        long that none does (``smoother.marginalization_slack_s``: keys leave in batches,
+        once the oldest one not re-stamped by this update is older than lag + slack). Sets it
+        in GTSAM when it changes."""
+        slack = self.config.marginalization_slack_s
+        if slack <= 0 or not self._incremental:
+            return self.lag_s
+        oldest = next((s for k, s in live.items() if k not in stamps), None)
+        due = oldest is not None and oldest < newest_s - self.lag_s - slack
+        lag = self.lag_s if due else _HOLD_LAG_S
+        if lag != self._gtsam_lag_s:
+            self._smoother.setSmootherLag(lag)
+            self._gtsam_lag_s = lag
+        return lag
+
     def _test_first_velocity(self, u: KeyframeUpdate) -> None:
         """Remember the first velocity prior's iSAM2 index (keyframe 0); after a keyframe
         that calls for it, test the prior at the estimate and, if it fails, replace it by its
@@ -176,12 +221,89 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             return
         graph = gtsam.NonlinearFactorGraph()
         graph.add(relaxed)
-        try:
-            smoother.update(graph, gtsam.Values(), {}, [k])
-        except RuntimeError as exc:
-            msg = f"fixed-lag update at {u.timestamp_s:.3f} s (first velocity prior) failed: {exc}"
-            raise EstimationError(msg) from exc
+        what = f"fixed-lag update at {u.timestamp_s:.3f} s (first velocity prior)"
+        self._update(graph, gtsam.Values(), {}, (k,), what)
         self.first_velocity_relaxed = True
+
+    def _update(
+        self,
+        factors: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        stamps: dict[int, float],
+        remove: tuple[int, ...],
+        what: str,
+    ) -> None:
+        """One GTSAM update; a Cholesky update that finds the system indeterminate is redone
+        by rebuilding the window in QR (:meth:`_rebuild_in_qr`) if
+        ``smoother.fixed_lag_qr_fallback``; any other failure raises EstimationError."""
+        try:
+            # (the stubs type the key -> time map with invariant protocol keys; ints are fine)
+            if remove:
+                self._smoother.update(factors, values, cast(dict[Any, Any], stamps), list(remove))
+            else:
+                self._smoother.update(factors, values, cast(dict[Any, Any], stamps))
+        except RuntimeError as exc:  # GTSAM's exceptions surface as RuntimeError
+            if not self._falls_back(exc):
+                raise EstimationError(f"{what} failed: {exc}") from exc
+            try:
+                self._rebuild_in_qr(factors, values, stamps, remove)
+            except RuntimeError as exc2:
+                raise EstimationError(f"{what} failed: {exc}; in QR: {exc2}") from exc2
+            self.qr_fallback_at_s = self._newest_s if not stamps else max(stamps.values())
+
+    def _falls_back(self, exc: RuntimeError) -> bool:
+        """Whether ``exc`` is the Cholesky failure :meth:`_rebuild_in_qr` answers."""
+        return (
+            self._incremental
+            and self.config.fixed_lag_qr_fallback
+            and self.qr_fallback_at_s is None
+            and self.config.fixed_lag_factorization == "CHOLESKY"
+            and "indeterminant" in str(exc).lower()
+        )
+
+    def _rebuild_in_qr(
+        self,
+        factors: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        stamps: dict[int, float],
+        remove: tuple[int, ...],
+    ) -> None:
+        """A new incremental smoother with QR factorisation holding what the failed one held:
+        its factors (the marginals of keyframes already marginalised included), its
+        linearisation point and key times, plus the failed update (if iSAM2 had not taken it
+        in yet), solved in one batch step; it replaces the failed smoother for the rest of the
+        run. The first velocity prior's factor index follows the re-numbering."""
+        old = cast(gtsam.IncrementalFixedLagSmoother, self._smoother)
+        held = old.getFactors()
+        theta = gtsam.Values(old.getLinearizationPoint())
+        # iSAM2 adds the new factors and values before it eliminates; a failure earlier (or
+        # a test's) leaves them out, then they are added here. New keys tell; an update
+        # without any (the relaxed first velocity prior) is told by its factors at the end
+        new_keys = values.keys()
+        if len(new_keys):
+            taken = all(theta.exists(k) for k in new_keys)
+        else:
+            taken = _tail_equals(held, factors)
+        graph = gtsam.NonlinearFactorGraph()
+        renumbered: dict[int, int] = {}
+        for n in range(held.size()):
+            f = held.at(n)
+            if f is None or (not taken and n in remove):
+                continue
+            renumbered[n] = graph.size()
+            graph.add(f)
+        if not taken:
+            for n in range(factors.size()):
+                graph.add(factors.at(n))
+            theta.insert(values)
+        times = {int(k): float(t) for k, t in old.timestamps().items()}
+        times.update(stamps)
+        self._smoother = gtsam.IncrementalFixedLagSmoother(
+            self._gtsam_lag_s, isam2_params(self.config, "QR")
+        )
+        self._smoother.update(graph, theta, cast(dict[Any, Any], times))
+        if self._first_velocity_index is not None:
+            self._first_velocity_index = renumbered.get(self._first_velocity_index)
 
     def _camera_estimate(
         self, i: int, with_covariance: bool, pose: gtsam.Pose3 | None = None
@@ -222,6 +344,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         rep = EstimatorReport(latency_ms={"smoother_update": stats_ms(per_kf)})
         if self.first_velocity_relaxed:
             rep.metrics["smoother_first_velocity_relaxed"] = True
+        if self.qr_fallback_at_s is not None:
+            rep.metrics["smoother_qr_fallback_at_s"] = self.qr_fallback_at_s
         return rep
 
     def live_keys(self) -> set[int]:
@@ -244,4 +368,4 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         )
 
 
-__all__ = ["SlidingWindowSmoother"]
+__all__ = ["SlidingWindowSmoother", "isam2_params"]

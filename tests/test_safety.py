@@ -15,6 +15,7 @@ from vio_graph.errors import ConfigError
 from vio_graph.evaluation.safety import approached, near_trip_scores
 from vio_graph.outputs import write_frames_csv
 from vio_graph.replay import FrameLog
+from vio_graph.safety import clearance as clearance_module
 from vio_graph.safety.clearance import (
     Edges,
     HeightProfile,
@@ -81,6 +82,24 @@ def test_penetration_is_the_shortest_way_out() -> None:
     c = foot_clearance([0.53, 0.13], [0.79, 0.13], up)
     assert c.distance_m == pytest.approx(-np.hypot(0.01, 0.02))  # toe to (0.78, 0.15)
     np.testing.assert_allclose(c.terrain_xz_m, [0.78, 0.15])
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_an_unmapped_gap_is_a_way_out_of_a_penetration(compiled: bool) -> None:
+    """Descent, the strip behind the upper nosing (x 0.50-0.62 m) unmapped and the lower tread
+    mapped from 0.62 m a few mm above the foot's estimate: a heel 3 mm behind the nosing is
+    3 mm in the terrain (out into the gap), not 12 cm (out past the lower tread's start)."""
+    geometry = clearance_module
+    if compiled:
+        pytest.importorskip("numba")
+        from vio_graph.safety import compiled as geometry
+    upper = HeightProfile.from_polyline([(0.0, 0.30), (0.50, 0.30)])
+    lower = HeightProfile.from_polyline([(0.62, 0.153), (1.2, 0.153)])
+    prof = HeightProfile(*(np.concatenate([a, b]) for a, b in zip(
+        (upper.x_lo_m, upper.x_hi_m, upper.z_m, upper.sigma_m),
+        (lower.x_lo_m, lower.x_hi_m, lower.z_m, lower.sigma_m), strict=True)))  # fmt: skip
+    c = geometry.foot_clearance([0.497, 0.15], [0.75, 0.15], prof)
+    assert c.distance_m == pytest.approx(-0.003, abs=1e-9)
 
 
 def test_edge_clearance_over_many_poses_is_the_per_pose_value_bit_for_bit() -> None:

@@ -96,8 +96,8 @@ def _point_to_columns(p: NDArray[np.float64], prof: HeightProfile):
     """Signed distance (B,) from point ``p`` (2,) to each column and the closest column
     points (B, 2): outside, the Euclidean distance; inside, minus the distance to the nearest
     way out of the terrain (to the nearest point of a column top above the point, or sideways
-    to where the terrain is lower than the point, or past the known bins' ends), set on the
-    column holding the point."""
+    to where the terrain is lower than the point, into an unmapped gap between bins, or past
+    the known bins' ends), set on the column holding the point."""
     px, pz = float(p[0]), float(p[1])
     cx = np.minimum(np.maximum(px, prof.x_lo_m), prof.x_hi_m)
     cz = np.minimum(pz, prof.z_m)
@@ -107,8 +107,16 @@ def _point_to_columns(p: NDArray[np.float64], prof: HeightProfile):
         return d, np.stack([cx, cz], axis=1)
     k = int(np.flatnonzero(inside)[0])
     low = prof.z_m <= pz
-    left = np.concatenate([prof.x_hi_m[low & (prof.x_hi_m <= px)], [prof.x_lo_m[0]]])
-    right = np.concatenate([prof.x_lo_m[low & (prof.x_lo_m >= px)], [prof.x_hi_m[-1]]])
+    # an unmapped gap between bins is a way out too: its terrain is not known to hold the
+    # point in (a foot placed a few cm behind the hidden strip of a nosing is not 10 cm deep)
+    gap = prof.x_lo_m[1:] > prof.x_hi_m[:-1] + UNSEEN_TOLERANCE_M
+    gap_lo, gap_hi = prof.x_hi_m[:-1][gap], prof.x_lo_m[1:][gap]
+    left = np.concatenate(
+        [prof.x_hi_m[low & (prof.x_hi_m <= px)], gap_hi[gap_hi <= px], [prof.x_lo_m[0]]]
+    )
+    right = np.concatenate(
+        [prof.x_lo_m[low & (prof.x_lo_m >= px)], gap_lo[gap_lo >= px], [prof.x_hi_m[-1]]]
+    )
     xl, xr = float(left.max()), float(right.min())
     # up: the nearest point on the tops of the columns higher than the point
     high = np.flatnonzero(prof.z_m > pz)

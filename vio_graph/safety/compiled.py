@@ -58,14 +58,19 @@ def _point_to_columns(px, pz, lo, hi, z, d, cx, cz):  # pragma: no cover - compi
             k = i
     if k < 0:
         return
-    # the way out sideways (to where the terrain is lower than the point, or past the known
-    # bins' ends) and up (the nearest point of a column top above the point)
+    # the way out sideways (to where the terrain is lower than the point, into an unmapped
+    # gap, or past the known bins' ends) and up (the nearest point of a column top above the point)
     xl = lo[0]
     xr = hi[B - 1]
     best_up = np.inf
     tx_best = 0.0
     tz_best = 0.0
     for i in range(B):
+        if i + 1 < B and lo[i + 1] > hi[i] + UNSEEN_TOLERANCE_M:  # an unmapped gap: a way out
+            if lo[i + 1] <= px:
+                xl = max(xl, lo[i + 1])
+            if hi[i] >= px:
+                xr = min(xr, hi[i])
         if z[i] <= pz:
             if hi[i] <= px:
                 xl = max(xl, hi[i])

@@ -13,6 +13,12 @@ a calibrated sigma meets the 10 % band (0.61-0.75 and 0.86-1.00); then the same 
 each scenario's trials and the expected number of trials in the band.
 
     python benchmarks/safety_sigma_null.py results/safety [--recordings data/recordings]
+
+With ``--direction`` it prints instead the shares split by the direction of the clearance
+(|n_x| of the unit vector from the nearest terrain point to the foot: a tread below ~0, a
+riser ~1), with the pose consistency scale on the pose term's vertical part only (today) and
+on the whole term (``safety.pose_scale_on_x: true``, before 2026-12-03): the filter is
+replayed on each recording and the monitor run with both settings (docs/method.md section 8).
 """
 
 from __future__ import annotations
@@ -76,6 +82,57 @@ def trial_series(run_dir: Path, recordings: Path | None = None) -> dict[str, Any
     }
 
 
+DIRECTION_BANDS = ((0.0, 0.3), (0.3, 0.7), (0.7, 1.01))  # |n_x| bands of --direction
+
+
+def direction_split(series: list[dict[str, Any]]) -> str:
+    """Markdown table: per |n_x| band and setting of ``pose_scale_on_x``, frames, shares
+    within 1 / 2 sigma, rms error and median sigma (mm), pooled over the trials."""
+    from vio_graph.safety.online import SafetyMonitor
+
+    pooled: dict[bool, list[tuple[np.ndarray, ...]]] = {False: [], True: []}
+    for s in series:
+        rec = Recording.open(Path(s["metrics"]["recording"]))
+        cfg = load_config(None)
+        lg, est = _common.filter_leg_run(rec, cfg)
+        truth = true_safety(
+            rec.groundtruth, rec.metadata.terrain, lg.t_s, np.zeros(len(lg.t_s), bool), cfg.safety
+        )
+        for on_x in (False, True):
+            mon = SafetyMonitor(cfg.safety.model_copy(update={"pose_scale_on_x": on_x}))
+            out = [_common.monitor_update(mon, lg, est, k) for k in range(len(lg.t_s))]
+            c = np.array([o.clearance_m for o in out])
+            sig = np.array([o.clearance_sigma_m for o in out])
+            d = np.array([o.toe_line_xz_m[0] - o.toe_line_xz_m[1] for o in out])
+            nrm = np.hypot(d[:, 0], d[:, 1])
+            nx = np.abs(d[:, 0]) / np.where(nrm > 1e-9, nrm, np.inf)
+            e = c - truth["clearance_m"][: len(c)]
+            ok = np.isfinite(e) & np.isfinite(sig) & (sig > 0)
+            pooled[on_x].append((e[ok], sig[ok], nx[ok]))
+        print(f"replayed {s['name']}", flush=True)
+    lines = [
+        "| clearance direction abs(n_x) | frames | within 1 / 2 sigma, scale on z only "
+        "(today) | within 1 / 2 sigma, scale on x and z (before) | rms error (mm) | median "
+        "sigma today / before (mm) |",
+        "|---|---|---|---|---|---|",
+    ]
+    cat = {k: [np.concatenate(x) for x in zip(*v, strict=True)] for k, v in pooled.items()}
+    for lo, hi in DIRECTION_BANDS:
+        cells = []
+        for on_x in (False, True):
+            e, sig, nx = cat[on_x]
+            m = (nx >= lo) & (nx < hi)
+            z = np.abs(e[m]) / sig[m]
+            cells.append((m.sum(), np.mean(z <= 1), np.mean(z <= 2), e[m], np.median(sig[m])))
+        (n, a1, a2, e, s_new), (_, b1, b2, _, s_old) = cells
+        rms = float(np.sqrt(np.mean(e**2))) * 1e3
+        lines.append(
+            f"| {lo:.1f}-{min(hi, 1.0):.1f} | {n} | {a1:.2f} / {a2:.2f} | {b1:.2f} / {b2:.2f} | "
+            f"{rms:.1f} | {s_new * 1e3:.1f} / {s_old * 1e3:.1f} |"
+        )
+    return "\n".join(lines)
+
+
 def _z(s: dict[str, Any]) -> np.ndarray:
     return standardised_error(s["clearance_m"] - s["true_m"], s["sigma_m"])
 
@@ -108,12 +165,25 @@ def main() -> None:
     ap.add_argument("roots", nargs="+", type=Path, help="results folders or their parents")
     ap.add_argument("--recordings", type=Path, default=None, help="folder of the recordings")
     ap.add_argument("--draws", type=int, default=2000, help="synthetic series per trial")
+    ap.add_argument(
+        "--direction",
+        action="store_true",
+        help="split the shares by the clearance's direction (replays the filter)",
+    )
     args = ap.parse_args()
     runs = sorted(
         {p.parent for root in args.roots for p in root.rglob("metrics.json")},
         key=lambda p: p.name,
     )
     series = [trial_series(r, args.recordings) for r in runs]
+    if args.direction:
+        if args.recordings is not None:
+            for s in series:
+                s["metrics"]["recording"] = str(
+                    args.recordings / Path(s["metrics"]["recording"]).name
+                )
+        print(direction_split(series))
+        return
     print(HEAD.format(what="trial"))
     by_scenario: dict[str, list[np.ndarray]] = defaultdict(list)
     met = expected = 0.0

@@ -15,8 +15,10 @@ the filter: the terrain at the keyframes that saw it, the foot now. The drift be
 is modelled as a random walk, so its covariance is |P_now - P_keyframes| (eigenvalues made
 non-negative), weighted by ``relative_pose_scale``; projected on the distance's gradient,
 plus the bin's height scatter (standard error over keyframes, floored at ``map_sigma_m``) and
-``foot_sigma_m`` (docs/method.md). The pose and map terms are multiplied by the consistency
-scales the keyframes' heights give against the map (safety/consistency.py).
+``foot_sigma_m`` (docs/method.md). The pose term's vertical part and the map term are
+multiplied by the consistency scales the keyframes' heights give against the map
+(safety/consistency.py); the pose term's x part keeps the filter's growth, which no test
+observes (``pose_scale_on_x``).
 
 Motion model of the prediction (``motion_model``):
 

@@ -205,9 +205,11 @@ class CloneMonitor(SafetyMonitor):
         R = Pk + V - Xs - Xs.T
         return 0.5 * (R + R.T)
 
-    def _relative_cov(self, P: Any, b: int, scale: float) -> list[list[float]]:
+    def _relative_cov(
+        self, P: Any, b: int, scale: float, x_factor: float = 1.0
+    ) -> list[list[float]]:
         if self.model == "marginal":
-            return super()._relative_cov(P, b, scale)
+            return super()._relative_cov(P, b, scale, x_factor)
         R = self.clone_cov(P, b)
         s = 1.0 if self.model == "clone_unscaled" else scale
         return _psd_abs_entries(R[0, 0], R[0, 1], R[1, 1], s)
@@ -238,9 +240,12 @@ class CloneMonitor(SafetyMonitor):
         self.map.add_keyframe(camera_xz_m, profile_xz_m, P)
 
 
-def calibration(path: Path, frames_above_mm: float | None = None) -> dict[str, tuple[float, float]]:
+def calibration(
+    path: Path, frames_above_mm: float | None = None, save: Path | None = None
+) -> dict[str, tuple[float, float]]:
     """Share of frames within 1 and 2 sigma per model on one recording (and the listing of
-    ``--frames-above``)."""
+    ``--frames-above``); with ``save``, the per-frame standardised errors per model go to
+    ``save / <recording name>.npz`` (for benchmarks/safety_sigma_null.py ``--npz``)."""
     cfg = load_config(None)
     rec = Recording.open(path)
     records: dict[str, list] = {"X": [], "pairs": [], "P_jj": [], "keyframes": []}
@@ -253,6 +258,7 @@ def calibration(path: Path, frames_above_mm: float | None = None) -> dict[str, t
     if truth is None:
         raise SystemExit(f"{path}: no true terrain / foot (a simulated recording is needed)")
     out = {}
+    series: dict[str, np.ndarray] = {"scenario": np.array(str(rec.metadata.provenance.scenario))}
     for model in MODELS:
         mon = CloneMonitor(cfg.safety, records, model)
         c, s = np.full(len(t), np.nan), np.full(len(t), np.nan)
@@ -277,6 +283,10 @@ def calibration(path: Path, frames_above_mm: float | None = None) -> dict[str, t
         ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
         z = np.abs(e[ok]) / s[ok]
         out[model] = (float(np.mean(z <= 1)), float(np.mean(z <= 2)))
+        series[model] = np.where(ok, e / np.where(ok, s, 1.0), np.nan)
+    if save is not None:
+        save.mkdir(parents=True, exist_ok=True)
+        np.savez(save / f"{path.name}.npz", **series)
     return out
 
 
@@ -314,11 +324,14 @@ def main() -> None:
         metavar="MM",
         help="list frames with |error| > MM mm",
     )
+    ap.add_argument(
+        "--save", type=Path, default=None, metavar="DIR", help="per-frame z per model (npz)"
+    )
     args = ap.parse_args()
     print("| recording | " + " | ".join(f"{m}: within 1 / 2 sigma" for m in MODELS) + " |")
     print("|---" * (len(MODELS) + 1) + "|")
     for path in args.recordings:
-        res = calibration(path, args.frames_above)
+        res = calibration(path, args.frames_above, args.save)
         cells = " | ".join(f"{res[m][0]:.2f} / {res[m][1]:.2f}" for m in MODELS)
         print(f"| {_common.display_path(path)} | {cells} |", flush=True)
 

@@ -355,3 +355,36 @@ def test_compiled_consistency_equals_the_reference_over_a_replay(sample_frames) 
         MapConsistency(5, reference=True, kernels=K)
     with pytest.raises(ValueError, match="compiled kernels"):
         MapConsistency(5).observe_bin_tops(*([None] * 9))
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_pose_scale_acts_on_the_vertical_part_only(compiled: bool) -> None:
+    """Known answer: the pose consistency scale comes from the keyframes' common *height*
+    offset, so it multiplies the pose term's vertical part; the horizontal part keeps the
+    filter's own covariance growth (``pose_scale_on_x: false``, the default). A foot 1 cm
+    before a riser (horizontal normal) has the sigma sqrt(dP_xx) whatever the scale; over
+    the tread (vertical normal) the scale acts as before. ``pose_scale_on_x: true`` is the
+    old behaviour: the scale on both."""
+    if compiled and _kernels() is None:
+        pytest.skip("numba not available")
+    xs = np.arange(0.0, 0.6, 0.001)
+    zs = np.where(xs < 0.3025, 0.0, 0.15)  # the riser face at the bin edge x = 0.300
+    cam = np.array([0.0, 0.5])
+    profile = np.stack([xs, zs], 1) - cam
+    P_kf = np.diag([1e-6, 1e-6])
+    P_now = P_kf + np.diag([4e-6, 9e-6])  # growth since the keyframes: 2 mm x, 3 mm z
+    sp = 2.0  # the pose scale the keyframes are taken to have read
+    for on_x in (False, True):
+        cfg = SafetyConfig(foot_sigma_m=0.0, map_sigma_m=0.001, pose_scale_on_x=on_x)
+        mon = SafetyMonitor(cfg, compiled=compiled)
+        for k in range(6):
+            mon.update(0.1 * k, cam, P_kf, [0.05, 0.05], [0.25, 0.05], False, profile)
+        mon.consistency.pose._scale = sp
+        mon.consistency.map._scale = 1.0
+        riser = mon.update(1.0, cam, P_now, [0.10, 0.05], [0.29, 0.05], False)
+        tread = mon.update(1.1, cam, P_now, [0.02, 0.05], [0.22, 0.05], False)
+        assert riser.clearance_m == pytest.approx(0.01, abs=1e-9)
+        assert tread.clearance_m == pytest.approx(0.05, abs=1e-9)
+        x_weight = sp if on_x else 1.0
+        assert riser.clearance_sigma_m == pytest.approx(x_weight * 0.002, rel=1e-9)
+        assert tread.clearance_sigma_m == pytest.approx(np.hypot(sp * 0.003, 0.001), rel=1e-9)

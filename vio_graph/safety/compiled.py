@@ -1207,7 +1207,8 @@ def warm_up() -> None:
     n[:] = 1
     frame_terrain(
         used, mid, se2, cov, n, 0, 0.005, np.array([[0.01, 0.0]]), -0.2, 0.05, 0.0, 0.05,
-        1e-4, 0.0, 0.0, 1e-4, 0.3, 0.5, True, 0.15, 0.0, 0.003, 0.005, 0.05, 1.0, 1.0, 0.5,
+        1e-4, 0.0, 0.0, 1e-4, 0.3, 0.5, True, 0.15, 0.0, 0.003, 0.005, 0.05, 1.0, 1.0, 1.0,
+        0.5,
     )  # fmt: skip
     swing_prediction(
         0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]),
@@ -1268,13 +1269,16 @@ def _psd_abs(mxx, mxz, mzz, scale, half):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _relative_cov(cov, n, i0, b, P00, P01, P10, P11, scale, half):  # pragma: no cover
+def _relative_cov(cov, n, i0, b, P00, P01, P10, P11, scale, x_factor, half):  # pragma: no cover
     """online.SafetyMonitor._relative_cov of the bin with index ``b``: (xx, xz, zz), m^2."""
     e = b - i0
     c = float(n[e])
     cxx, cxz, czz = cov[e, 0] / c, cov[e, 1] / c, cov[e, 2] / c
     mxz = ((P01 - cxz) + (P10 - cxz)) / 2
-    return _psd_abs(P00 - cxx, mxz, P11 - czz, scale, half)
+    rxx, rxz, rzz = _psd_abs(P00 - cxx, mxz, P11 - czz, scale, half)
+    if x_factor != 1.0:
+        return rxx * x_factor * x_factor, rxz * x_factor, rzz
+    return rxx, rxz, rzz
 
 
 @numba.njit(cache=True)
@@ -1332,6 +1336,7 @@ def frame_terrain(
     foot_sigma,
     toe_pass,
     pose_w,
+    pose_xf,
     map_w,
     half,
 ):  # pragma: no cover - compiled
@@ -1341,7 +1346,8 @@ def frame_terrain(
     the toe with the clearance to it, its sigma, the x distance and its sigma. The map:
     its bin arrays (``used``, ``mid``, ``se2``, ``cov`` sums, counts ``n``, bin index ``i0``
     at element 0) and edges (E, 2); ``pose_w``, ``map_w``: the sigma's pose and map weights
-    (config times consistency scales). Returns (clearance, foot x, z, terrain x, z, sigma,
+    (config times consistency scales), ``pose_xf`` the factor on the pose term's x row and
+    column. Returns (clearance, foot x, z, terrain x, z, sigma,
     next edge index or -1, edge clearance, its sigma, edge x distance, its sigma)."""
     nan = np.nan
     x0, x1 = min(hx, tx) - window_m, max(hx, tx) + window_m
@@ -1372,7 +1378,7 @@ def frame_terrain(
         c_d = d - sole
         if col >= 0:
             b = bins[col]
-            rxx, rxz, rzz = _relative_cov(cov, n, i0, b, P00, P01, P10, P11, pose_w, half)
+            rxx, rxz, rzz = _relative_cov(cov, n, i0, b, P00, P01, P10, P11, pose_w, pose_xf, half)
             bs = math.sqrt(se2[b - i0] + map_sigma**2)
             sig = _sigma(nx, nz, rxx, rxz, rzz, map_w * bs, foot_sigma, half)
     # the next edge ahead (clearance.next_edge_index)
@@ -1404,7 +1410,7 @@ def frame_terrain(
         found, kb = bin_below(used, i0, bin_m, ex)
         if not found:
             kb = -1
-        rxx, rxz, rzz = _relative_cov(cov, n, i0, kb, P00, P01, P10, P11, pose_w, half)
+        rxx, rxz, rzz = _relative_cov(cov, n, i0, kb, P00, P01, P10, P11, pose_w, pose_xf, half)
         nc = d - sole
         bs = math.sqrt(se2[kb - i0] + map_sigma**2)
         nsig = _sigma(nx, nz, rxx, rxz, rzz, map_w * bs, foot_sigma, half)

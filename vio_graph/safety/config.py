@@ -156,6 +156,14 @@ class SafetyConfig(BaseModel):
         default=(0.25, 4.0),
         description="the consistency scale is clipped to this range (lo <= 1 <= hi)",
     )
+    pose_scale_on_x: bool = Field(
+        default=False,
+        description="the pose consistency scale also on the pose term's horizontal (x) part; "
+        "off: only on its vertical part, which is what the keyframes' common height offset "
+        "observes, the x part keeping the filter's own covariance growth (the xz covariance "
+        "takes the scale once). On is the behaviour before 2026-12-03 (docs/method.md "
+        "section 8, docs/results.md)",
+    )
     foot_sigma_m: float = Field(
         default=0.001,
         ge=0,

@@ -25,8 +25,9 @@ overconfident: the estimator is in trouble and says so); below 1, that it is con
 The map test sees the random scatter of the bins, not an error all keyframes share (a nosing
 placed up to a bin off, the strip hidden behind a nosing): the floor was there for those, and
 the map scale takes it down with the scatter (docs/method.md, docs/results.md). The monitor
-multiplies the pose and map terms of every sigma by their scales; the foot-outline term is
-seen by neither test.
+multiplies the map term and the pose term's vertical part of every sigma by their scales (the
+pose test sees heights only: the x part keeps the filter's growth unless
+``pose_scale_on_x``); the foot-outline term is seen by neither test.
 """
 
 from __future__ import annotations

@@ -15,8 +15,10 @@ the filter: the terrain at the keyframes that saw it, the foot now. The drift be
 is modelled as a random walk, so its covariance is |P_now - P_keyframes| (eigenvalues made
 non-negative), weighted by ``relative_pose_scale``; projected on the distance's gradient,
 plus the bin's height scatter (standard error over keyframes, floored at ``map_sigma_m``) and
-``foot_sigma_m`` (docs/method.md). The pose and map terms are multiplied by the consistency
-scales the keyframes' heights give against the map (safety/consistency.py).
+``foot_sigma_m`` (docs/method.md). The pose term's vertical part and the map term are
+multiplied by the consistency scales the keyframes' heights give against the map
+(safety/consistency.py); the pose term's x part keeps the filter's growth, which no test
+observes (``pose_scale_on_x``).
 
 Motion model of the prediction (``motion_model``):
 
@@ -440,12 +442,20 @@ class SafetyMonitor:
         d = max(clearance_now_m + self.config.sole_thickness_m, 0.0) + 1e-6  # m; 1 um rounding
         return max(search_lo_m, lo_x_m - d), min(search_hi_m, hi_x_m + d)
 
-    def _relative_cov(self, P: list[list[float]], b: int, scale: float) -> list[list[float]]:
+    def _relative_cov(
+        self, P: list[list[float]], b: int, scale: float, x_factor: float = 1.0
+    ) -> list[list[float]]:
         """The drift covariance between now (camera covariance ``P``) and the keyframes that
-        saw bin ``b``: |P - their mean covariance| times ``scale``, m^2."""
+        saw bin ``b``: |P - their mean covariance| times ``scale``, its x row and column
+        times ``x_factor`` (the pose consistency scale's inverse when that scale acts on the
+        vertical part only), m^2."""
         cxx, cxz, czz = self.map.bin_cov_mean(b)
         mxz = ((P[0][1] - cxz) + (P[1][0] - cxz)) / 2
-        return _psd_abs_entries(P[0][0] - cxx, mxz, P[1][1] - czz, scale)
+        R = _psd_abs_entries(P[0][0] - cxx, mxz, P[1][1] - czz, scale)
+        if x_factor != 1.0:
+            f = x_factor
+            return [[R[0][0] * f * f, R[0][1] * f], [R[1][0] * f, R[1][1]]]
+        return R
 
     def _add_keyframe(
         self, camera_xz_m: ArrayLike, profile_xz_m: ArrayLike, P: NDArray[np.float64]
@@ -659,6 +669,9 @@ class SafetyMonitor:
         edges = self.map.edges()
         sp, sm = self.consistency.pose_scale, self.consistency.map_scale
         pose_w = cfg.relative_pose_scale * sp * sp
+        # the scale is what the keyframes' vertical offsets observed: x keeps the filter's
+        # growth unless configured otherwise (sp >= the clip's lower end > 0)
+        pose_xf = 1.0 if cfg.pose_scale_on_x else 1.0 / sp
         # clearance to the terrain and its sigma; the next edge ahead, the clearance to it
         if fused and math.isfinite(hx + hz + tx + tz):  # (one kernel call)
             m = self.map
@@ -666,11 +679,11 @@ class SafetyMonitor:
                 m._used, m._mid, m._se2, m._cov, m._n, m._i0, cfg.bin_m, edges.xz_m,
                 hx, hz, tx, tz, *P.ravel().tolist(), cfg.window_m, cfg.min_coverage,
                 cfg.unseen_terrain_check, cfg.edge_max_gap_m, cfg.sole_thickness_m,
-                cfg.map_sigma_m, cfg.foot_sigma_m, cfg.toe_pass_m, pose_w, sm, 0.5,
+                cfg.map_sigma_m, cfg.foot_sigma_m, cfg.toe_pass_m, pose_w, pose_xf, sm, 0.5,
             )  # fmt: skip
         else:
             c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = self._terrain_now(
-                heel, toe, P.tolist(), edges, pose_w, sm
+                heel, toe, P.tolist(), edges, pose_w, sm, pose_xf
             )
         # prediction over the horizon and the near-trip warning
         v = (NAN, NAN)  # the toe's velocity (x, z), m/s
@@ -810,10 +823,12 @@ class SafetyMonitor:
         edges: Edges,
         pose_w: float,
         map_w: float,
+        pose_xf: float = 1.0,
     ) -> tuple[float, float, float, float, float, float, int, float, float, float, float]:
         """The clearance to the map's bins near the foot and its sigma, and the next edge
         ahead with the clearance to it, its sigma, the x distance to it and that sigma
-        (``pose_w``, ``map_w``: the sigmas' pose and map weights). Returns (clearance, foot
+        (``pose_w``, ``map_w``: the sigmas' pose and map weights; ``pose_xf``: the factor on
+        the pose term's x row and column, :meth:`_relative_cov`). Returns (clearance, foot
         x, z, terrain x, z, sigma, edge index or -1, edge clearance, sigma, x distance,
         sigma); NaN where unknown. Compiled: ``frame_terrain``, one call."""
         cfg, g = self.config, self.geometry
@@ -831,7 +846,7 @@ class SafetyMonitor:
         sig = NAN
         if c.bin >= 0:
             k = int(near.bins[c.bin])
-            rel = self._relative_cov(Pl, k, pose_w)
+            rel = self._relative_cov(Pl, k, pose_w, pose_xf)
             sig = clearance_sigma(
                 c.normal_xz, rel, map_w * self.map.bin_sigma(k, cfg.map_sigma_m), cfg.foot_sigma_m
             )
@@ -840,7 +855,7 @@ class SafetyMonitor:
         if e >= 0:
             ec = g.edge_clearance(heel, toe, edges.xz_m[e], cfg.sole_thickness_m)
             kb = self.map.bin_below(float(edges.xz_m[e, 0]))  # the bin at the edge
-            rel = self._relative_cov(Pl, kb, pose_w)
+            rel = self._relative_cov(Pl, kb, pose_w, pose_xf)
             nc = ec.distance_m
             nsig = clearance_sigma(
                 ec.normal_xz, rel, map_w * self.map.bin_sigma(kb, cfg.map_sigma_m), cfg.foot_sigma_m

@@ -92,7 +92,9 @@ class TerrainConfig(_Section):
         "floor finish), m; None: like the others",
     )
     last_rise_m: float | None = Field(
-        None, gt=0, description="stairs: height of the last riser of the stair, m; None: like the others"
+        None,
+        gt=0,
+        description="stairs: height of the last riser of the stair, m; None: like the others",
     )
     open_risers: bool = Field(
         False,

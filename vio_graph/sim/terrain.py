@@ -28,6 +28,7 @@ class Terrain:
     ``profile_xz_m`` (nosing overhang: risers set back under the treads; open risers: the
     floor under the flight, the tread slabs being extra parts of the mesh), else None.
     ``irregular``: stairs whose rises / treads differ step to step (``stair_steps``).
+    ``mesh_parts_xz_m``: closed outlines extruded besides the profile (open-riser treads).
     """
 
     kind: str
@@ -39,6 +40,7 @@ class Terrain:
     params: dict[str, float | int | str]
     mesh_profile_xz_m: NDArray[np.float64] | None = None  # extruded profile (nosing undercut)
     irregular: bool = False  # stairs whose steps differ (jitter, first / last rise)
+    mesh_parts_xz_m: tuple[NDArray[np.float64], ...] = ()  # closed outlines (open-riser treads)
 
     def height_at(self, x_m: NDArray[np.float64]) -> NDArray[np.float64]:
         """Terrain height (N,) under x (N,): the top of the profile (max over vertical risers).
@@ -359,4 +361,5 @@ def build_terrain(cfg: TerrainConfig, rng: np.random.Generator | None = None) ->
         params=params,
         mesh_profile_xz_m=None if mesh_profile is profile else mesh_profile,
         irregular=cfg.kind in ("stair_up", "stair_down") and is_irregular(cfg),
+        mesh_parts_xz_m=tuple(parts),
     )

@@ -159,6 +159,13 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
         overrides={"terrain": _IRREGULAR},
     ),
     SweepCondition(
+        "downstair",
+        "stairs",
+        "the simulated downstair trial (regular 14.7 x 28 cm): the reference of the descent "
+        "conditions below",
+        scenario="downstair",
+    ),
+    SweepCondition(
         "irregular_descent",
         "stairs",
         "descent over the same irregular stairs",

@@ -146,3 +146,46 @@ def test_open_riser_map_gives_each_step(seed: int) -> None:
     report = compare_to_truth(geometry, info)
     assert report["n_steps_matched"] == 5
     assert report["rise_mae_mm"] < 3.0 and report["tread_mae_mm"] < 3.0
+
+
+@pytest.mark.parametrize("open_risers", [False, True], ids=["closed", "open"])
+def test_frontend_profile_is_the_walking_surface(open_risers: bool) -> None:
+    """A rendered frame of a stair (camera 45 cm above the first tread, pitched 60 deg down:
+    two treads in view and, with open risers, the floor under them): the front end's profile
+    loses that floor and the frame is a stair up; with closed risers the profile is every
+    smoothed slice point. (Frames whose upper tread is out of view show a tread and the floor
+    beyond it, as a ledge would: docs/method.md section 1.)"""
+    from vio_graph.frontend.frontend import VisualFrontend
+    from vio_graph.frontend.projection import sagittal_slice_from_depth
+    from vio_graph.sim.config import CameraConfig
+    from vio_graph.sim.tof import TofCamera
+    from vio_graph.sim.trial import R_shank_cam
+    from vio_graph.types import DepthFrame
+
+    terrain = build_terrain(TerrainConfig(n_steps=5, open_risers=open_risers))
+    cam = TofCamera(CameraConfig(noise=False), terrain)
+    R = R_shank_cam(60.0)
+    pos = np.array([terrain.feature_x_m + 0.1, 0.0, 0.147 + 0.45])
+    depth, conf = cam.render(pos, R, np.random.default_rng(0))
+    K = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1.0]])
+    fe = VisualFrontend()
+    res = fe.process(DepthFrame(0, 0.0, depth, conf), K, R)
+    world = res.profile_xz_m + pos[[0, 2]]
+    below = world[:, 1] < terrain.height_at(world[:, 0]) - 0.04
+    assert not below.any()
+    assert res.terrain is TerrainKind.STAIR_UP
+    cfg = fe.config
+    pc = cfg.projection
+    raw = sagittal_slice_from_depth(
+        depth, conf, K, R, pc.half_width_m, pc.min_depth_m, pc.max_depth_m, pc.min_confidence
+    )
+    full = smooth_profile(
+        raw, cfg.smoothing.k_neighbours, cfg.smoothing.grid_cell_m, cfg.smoothing.min_points
+    )
+    full_world = full + pos[[0, 2]]
+    full_below = full_world[:, 1] < terrain.height_at(full_world[:, 0]) - 0.04
+    if open_risers:
+        assert full_below.sum() > 10  # the floor under the flight was in the slice
+        assert res.profile_xz_m.shape[0] < full.shape[0]
+    else:
+        np.testing.assert_array_equal(res.profile_xz_m, full)

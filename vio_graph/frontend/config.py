@@ -121,10 +121,11 @@ class TerrainConfig(_Strict):
         0.05,
         gt=0,
         description="points beneath a level of the same frame (at least min_step_m below it "
-        "and more than this inside its robust x extent on both sides) are not the walking "
-        "surface: the floor seen under open-riser treads or through gaps. They are dropped "
-        "from the frame's profile (terrain, corners, ICP, keyframes) when any occur, m; None: "
-        "keep every point",
+        "and more than this inside its robust x extent on both sides, or seen along a line of "
+        "sight that passed under it, or on a lower level it overlaps by more than this; "
+        "vio_graph/surface.py) are not the walking surface: the floor seen under open-riser "
+        "treads or through gaps. They are dropped from the frame's profile (terrain, corners, "
+        "ICP, keyframes) when any occur, m; None: keep every point",
     )
 
 

@@ -87,6 +87,10 @@ _CONSUMER_IMU = {
 #: sigma_z(z, theta)); lateral jitter 2 x 0.86 px
 _FLEXX2_AXIAL_2X = (2 * 0.002362, 2 * -0.001041, 2 * 0.000753, 2 * 0.000185)
 
+#: irregular stairs (conditions irregular_rise_1.5cm, irregular_descent): each rise and tread
+#: drawn per step from the trial's seed
+_IRREGULAR = {"rise_jitter_m": 0.015, "tread_jitter_m": 0.02}
+
 SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
     SweepCondition(
         "reference",
@@ -168,6 +172,45 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
             "duration_s": 12.0,
             "terrain": {"n_steps": 6, "n_flights": 2, "landing_length_m": 8.0},
         },
+    ),
+    SweepCondition(
+        "irregular_rise_1.5cm",
+        "stairs",
+        "irregular stairs: every rise 14.7 +- 1.5 cm and tread 28 +- 2 cm (uniform, per step)",
+        overrides={"terrain": _IRREGULAR},
+    ),
+    SweepCondition(
+        "downstair",
+        "stairs",
+        "the simulated downstair trial (regular 14.7 x 28 cm): the reference of the descent "
+        "conditions below",
+        scenario="downstair",
+    ),
+    SweepCondition(
+        "irregular_descent",
+        "stairs",
+        "descent over the same irregular stairs",
+        scenario="downstair",
+        overrides={"terrain": _IRREGULAR},
+    ),
+    SweepCondition(
+        "first_step_high",
+        "stairs",
+        "first riser 18.5 cm, the others 14.7 cm",
+        overrides={"terrain": {"first_rise_m": 0.185}},
+    ),
+    SweepCondition(
+        "open_risers",
+        "stairs",
+        "open risers: 3 cm tread slabs, the floor seen under each nosing",
+        overrides={"terrain": {"open_risers": True}},
+    ),
+    SweepCondition(
+        "open_risers_descent",
+        "stairs",
+        "descent over open risers (the lower floor seen through every gap)",
+        scenario="downstair",
+        overrides={"terrain": {"open_risers": True}},
     ),
     SweepCondition(
         "camera_8cm_0deg",

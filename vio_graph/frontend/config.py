@@ -117,6 +117,16 @@ class TerrainConfig(_Strict):
         "at least min_step_m lower -> STAIR_DOWN, higher -> STAIR_UP (or "
         "OBSTACLE by the short raised level rule); False = the frame alone decides",
     )
+    under_level_margin_m: float | None = Field(
+        0.05,
+        gt=0,
+        description="points beneath a level of the same frame (at least min_step_m below it "
+        "and more than this inside its robust x extent on both sides, or seen along a line of "
+        "sight that passed under it, or on a lower level it overlaps by more than this; "
+        "vio_graph/surface.py) are not the walking surface: the floor seen under open-riser "
+        "treads or through gaps. They are dropped from the frame's profile (terrain, corners, "
+        "ICP, keyframes) when any occur, m; None: keep every point",
+    )
 
 
 class CornerConfig(_Strict):

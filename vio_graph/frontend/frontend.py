@@ -20,7 +20,11 @@ from vio_graph.frontend.corners import CornerFeature, extract_corner
 from vio_graph.frontend.icp import IcpResult
 from vio_graph.frontend.projection import sagittal_slice_from_depth
 from vio_graph.frontend.smoothing import smooth_profile
-from vio_graph.frontend.terrain import classify_against_stand, classify_terrain
+from vio_graph.frontend.terrain import (
+    classify_against_stand,
+    classify_terrain,
+    points_under_levels,
+)
 from vio_graph.frontend.tracker import CornerTracker
 from vio_graph.types import CornerObservation, DepthFrame, Displacement2D, TerrainKind
 
@@ -117,6 +121,12 @@ class VisualFrontend:
         # the frame's own class decides whether a corner is looked for: the stand surface
         # (rule step 5) says which way the terrain goes, it adds no edge to this frame
         frame_terrain, levels = classify_terrain(profile, cfg.terrain)
+        if levels:
+            # the walking surface only: returns beneath a level of this frame (open risers)
+            under = points_under_levels(profile, levels, cfg.terrain)
+            if under.any():
+                profile = profile[~under]
+                frame_terrain, levels = classify_terrain(profile, cfg.terrain)
         terrain = frame_terrain
         if stand_height_m is not None:
             terrain = classify_against_stand(

@@ -75,6 +75,7 @@ from numpy.typing import NDArray
 from vio_graph.errors import FrontendError
 from vio_graph.frontend.config import TerrainConfig
 from vio_graph.frontend.icp import compiled_kernels
+from vio_graph.surface import under_levels_mask
 from vio_graph.types import TerrainKind
 
 
@@ -368,6 +369,29 @@ def classify_terrain(
     if stand_height_m is not None:
         kind = classify_against_stand(pts, kind, levels, stand_height_m, config)
     return kind, levels
+
+
+def points_under_levels(
+    profile_xz_m: NDArray[np.float64], levels: Sequence[Level], config: TerrainConfig
+) -> NDArray[np.bool_]:
+    """(N,) True for points beneath a level of the same profile (``vio_graph.surface``,
+    camera at the origin): at least ``min_step_m`` below the level and more than
+    ``under_level_margin_m`` inside its robust x extent, a line of sight that passes at least
+    ``min_step_m`` under it more than ``level_band_m`` inside that extent, or a point within
+    ``min_step_m`` of a lower level that the level overlaps."""
+    margin = config.under_level_margin_m
+    if margin is None or not levels:
+        return np.zeros(np.shape(profile_xz_m)[0], dtype=bool)
+    return under_levels_mask(
+        profile_xz_m,
+        [lv.height_m for lv in levels],
+        [lv.x_min_m for lv in levels],
+        [lv.x_max_m for lv in levels],
+        margin,
+        config.min_step_m,
+        config.min_step_m,
+        sight_margin_m=config.level_band_m,
+    )
 
 
 def _lower_beyond(pts: NDArray[np.float64], levels: Sequence[Level], config: TerrainConfig) -> bool:

@@ -69,6 +69,14 @@ class StepConfig(_Frozen):
         gt=0,
         description="levels closer in height than this are merged, not a step, metres",
     )
+    under_level_margin_m: float | None = Field(
+        default=0.05,
+        gt=0,
+        description="map points beneath a level (at least min_rise_m + level_tolerance_m "
+        "below it and more than this inside its x extent on both sides: the floor seen under "
+        "open-riser treads, a wall under a landing) are not the walking surface; when any "
+        "occur they are dropped and the levels found again, metres; None: keep every point",
+    )
     riser_margin_m: float = Field(
         default=0.015,
         ge=0,

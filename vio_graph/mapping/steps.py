@@ -49,6 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import MappingError
 from vio_graph.mapping.config import StepConfig
+from vio_graph.surface import under_levels_mask
 from vio_graph.types import TerrainKind
 
 _ROBUST_SIGMA_PER_MAD = 1.4826
@@ -561,6 +562,11 @@ def _transition(
     )
 
 
+#: passes of the walking-surface rule: dropping the floor under a flight can leave pieces of
+#: it that form levels of their own, found under the treads on the next pass
+_UNDER_LEVEL_PASSES = 3
+
+
 def estimate_terrain_geometry(
     points_xz_m: ArrayLike,
     weights: ArrayLike | None = None,
@@ -583,6 +589,22 @@ def estimate_terrain_geometry(
     cfg = config if config is not None else StepConfig()
     pts, w = _as_points(points_xz_m, weights)
     levels = _merge_levels(find_levels(pts, w, cfg), cfg)
+    for _ in range(_UNDER_LEVEL_PASSES if cfg.under_level_margin_m is not None else 0):
+        drop = cfg.min_rise_m + cfg.level_tolerance_m
+        under = under_levels_mask(
+            pts,
+            [lv.z_m for lv in levels],
+            [lv.x_start_m for lv in levels],
+            [lv.x_end_m for lv in levels],
+            cfg.under_level_margin_m,
+            drop,
+            drop,
+        )
+        if not under.any():
+            break
+        # the walking surface only (open risers): find the levels again without them
+        pts, w = pts[~under], w[~under]
+        levels = _merge_levels(find_levels(pts, w, cfg), cfg)
     if not levels:
         return TerrainGeometry(TerrainKind.UNKNOWN, (), (), (), ())
     by_x = np.argsort(pts[:, 0], kind="stable")

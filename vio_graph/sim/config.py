@@ -70,6 +70,39 @@ class TerrainConfig(_Section):
         "the top (ascent) / last (descent) nosing of one flight to the first nosing of the "
         "next, m (must hold a foot: >= ~0.35 m)",
     )
+    rise_jitter_m: float = Field(
+        0.0,
+        ge=0,
+        le=0.05,
+        description="stairs: each riser's height is stair_rise_m plus a deviation drawn "
+        "uniformly in [-j, j] per riser from the trial's seed, m (building codes allow ~0.01 m "
+        "between risers of a flight, old and outdoor stairs exceed it); 0: all rises equal",
+    )
+    tread_jitter_m: float = Field(
+        0.0,
+        ge=0,
+        le=0.08,
+        description="stairs: each tread's depth (nosing to nosing) is stair_tread_m plus a "
+        "deviation drawn uniformly in [-j, j] per tread from the trial's seed, m; 0: all equal",
+    )
+    first_rise_m: float | None = Field(
+        None,
+        gt=0,
+        description="stairs: height of the first riser of the stair (a raised or lowered "
+        "floor finish), m; None: like the others",
+    )
+    last_rise_m: float | None = Field(
+        None,
+        gt=0,
+        description="stairs: height of the last riser of the stair, m; None: like the others",
+    )
+    open_risers: bool = Field(
+        False,
+        description="stairs: no riser faces; each tread is a slab of nosing_thickness_m from "
+        "its nosing to the next riser line, with the floor (ascent) or the lower floor "
+        "(descent) continuing underneath, so depth rays pass under the nosings. The walking "
+        "surface (metadata profile) is the same as with closed risers",
+    )
 
 
 class GaitConfig(_Section):

@@ -192,28 +192,35 @@ def _plan_steps(
     if terrain.kind in ("stair_up", "stair_down"):
         t, n = float(prm["tread_m"]), int(prm["n_steps"])
         n_fl = int(prm.get("n_flights", 1))
-        span = (n - 1) * t + float(prm.get("flight_landing_m", 0.0))
         up = terrain.kind == "stair_up"
+        # footholds from the actual nosings (irregular stairs: drawn treads; regular: the
+        # same numbers as x0 + i t)
+        nosing_x = terrain.edges_xz_m[:, 0].reshape(n_fl, n)
         for f in range(n_fl):
-            x0 = xf + f * span
+            xs = nosing_x[f]
             if f > 0:  # landing between flights: level steps up to the next flight
                 _landing_steps(
                     toes,
-                    x0 - (gait.stair_toe_margin_m if up else 0.02),
-                    x0 - span + (n - 1) * t,
+                    xs[0] - (gait.stair_toe_margin_m if up else 0.02),
+                    float(nosing_x[f - 1, -1]),
                     foot_len,
                     step,
                 )
             if up:
-                toes.append(x0 - gait.stair_toe_margin_m)
-                toes += [x0 + (i + 1) * t - gait.stair_toe_margin_m for i in range(n - 1)]
-                toes.append(x0 + (n - 1) * t + foot_len + _EXIT_HEEL_MARGIN_M)  # heel past edge
+                toes.append(xs[0] - gait.stair_toe_margin_m)
+                toes += [xs[i + 1] - gait.stair_toe_margin_m for i in range(n - 1)]
+                toes.append(xs[n - 1] + foot_len + _EXIT_HEEL_MARGIN_M)  # heel past edge
             else:
-                toes.append(x0 - 0.02)
+                toes.append(xs[0] - 0.02)
                 # treads shorter than the foot: heel closer to the riser, toe over the nosing
-                m = min(gait.stair_heel_margin_m, max(0.005, t + _MAX_TOE_OVERHANG_M - foot_len))
-                toes += [x0 + (i - 1) * t + m + foot_len for i in range(1, n)]
-                toes.append(x0 + (n - 1) * t + _EXIT_HEEL_MARGIN_M + foot_len)
+                treads = np.diff(xs) if terrain.irregular else np.full(n - 1, t)
+                for i in range(1, n):
+                    m = min(
+                        gait.stair_heel_margin_m,
+                        max(0.005, float(treads[i - 1]) + _MAX_TOE_OVERHANG_M - foot_len),
+                    )
+                    toes.append(xs[i - 1] + m + foot_len)
+                toes.append(xs[n - 1] + _EXIT_HEEL_MARGIN_M + foot_len)
         toes.append(toes[-1] + _EXIT_STEP_M)  # short transition step onto the landing
     elif terrain.kind == "obstacle":
         d = float(prm["depth_m"])

@@ -25,7 +25,10 @@ class Terrain:
     ``vertices_m`` (V, 3) / ``triangles`` (T, 3) int32: the extruded mesh, world frame.
     ``feature_x_m``: x of the first feature (first riser / edge / obstacle front face).
     ``mesh_profile_xz_m``: the profile that was extruded when it differs from
-    ``profile_xz_m`` (nosing overhang: risers set back under the treads), else None.
+    ``profile_xz_m`` (nosing overhang: risers set back under the treads; open risers: the
+    floor under the flight, the tread slabs being extra parts of the mesh), else None.
+    ``irregular``: stairs whose rises / treads differ step to step (``stair_steps``).
+    ``mesh_parts_xz_m``: closed outlines extruded besides the profile (open-riser treads).
     """
 
     kind: str
@@ -36,6 +39,8 @@ class Terrain:
     feature_x_m: float
     params: dict[str, float | int | str]
     mesh_profile_xz_m: NDArray[np.float64] | None = None  # extruded profile (nosing undercut)
+    irregular: bool = False  # stairs whose steps differ (jitter, first / last rise)
+    mesh_parts_xz_m: tuple[NDArray[np.float64], ...] = ()  # closed outlines (open-riser treads)
 
     def height_at(self, x_m: NDArray[np.float64]) -> NDArray[np.float64]:
         """Terrain height (N,) under x (N,): the top of the profile (max over vertical risers).
@@ -89,70 +94,158 @@ class Terrain:
         return np.stack([p[:-1, 0][keep], p[1:, 0][keep], p[:-1, 1][keep]], axis=1)
 
 
-def build_profile(cfg: TerrainConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def build_profile(
+    cfg: TerrainConfig, rng: np.random.Generator | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The true sagittal profile (P, 2) and convex edges (E, 2) for ``cfg``.
 
     The profile is the walking surface seen from above (x non-decreasing): with a nosing
     overhang the riser is drawn at the nosing tip, i.e. the space under the nosing counts as
-    solid (what the feet and the map see). ``build_mesh_profile`` gives the undercut.
+    solid (what the feet and the map see); open risers likewise. ``build_mesh_profile`` gives
+    the undercut. ``rng`` draws the per-step deviations of irregular stairs
+    (``rise_jitter_m``, ``tread_jitter_m``); it is needed only when they are set.
     """
-    return _profiles(cfg)[:2]
+    return _profiles(cfg, rng)[:2]
 
 
-def build_mesh_profile(cfg: TerrainConfig) -> NDArray[np.float64]:
+def build_mesh_profile(
+    cfg: TerrainConfig, rng: np.random.Generator | None = None
+) -> NDArray[np.float64]:
     """The profile that is extruded into the mesh (P', 2): equal to ``build_profile`` without
     overhang; with ``nosing_overhang_m`` > 0 each riser is set back under a protruding tread
-    slab of ``nosing_thickness_m`` (x then steps back, so it is not monotonic)."""
-    return _profiles(cfg)[2]
+    slab of ``nosing_thickness_m`` (x then steps back, so it is not monotonic). With open
+    risers it is the floor under the stair (the tread slabs are separate parts)."""
+    return _profiles(cfg, rng)[2]
+
+
+def is_irregular(cfg: TerrainConfig) -> bool:
+    """True if the stair's steps are not all alike (jitter or a different first/last rise)."""
+    return (
+        cfg.rise_jitter_m > 0
+        or cfg.tread_jitter_m > 0
+        or cfg.first_rise_m is not None
+        or cfg.last_rise_m is not None
+    )
+
+
+def stair_steps(
+    cfg: TerrainConfig, rng: np.random.Generator | None = None
+) -> list[tuple[float, float, float]]:
+    """Per riser in walking order (all flights): nosing x, upper z, lower z (m).
+
+    Regular stairs keep the closed-form positions (x0 + i t, z0 +- i r). Irregular stairs
+    (``is_irregular``) accumulate drawn rises and treads: riser k's height is
+    ``stair_rise_m`` + U(-rise_jitter_m, rise_jitter_m) (``first_rise_m`` / ``last_rise_m``
+    replace the first / last), each nosing-to-nosing tread ``stair_tread_m`` +
+    U(-tread_jitter_m, tread_jitter_m), and the next flight starts ``flight_landing_m`` past
+    the last nosing of the previous one. Rises are drawn first, then treads, from ``rng``.
+    """
+    xf = cfg.approach_length_m
+    r, t, n, nf = cfg.stair_rise_m, cfg.stair_tread_m, cfg.n_steps, cfg.n_flights
+    up = cfg.kind == "stair_up"
+    out: list[tuple[float, float, float]] = []
+    if not is_irregular(cfg):
+        span = (n - 1) * t + cfg.flight_landing_m
+        for f in range(nf):
+            x0 = xf + f * span
+            z0 = f * n * r if up else -f * n * r
+            for i in range(n):
+                if up:
+                    out.append((x0 + i * t, z0 + (i + 1) * r, z0 + i * r))
+                else:
+                    out.append((x0 + i * t, z0 - i * r, z0 - (i + 1) * r))
+        return out
+    if (cfg.rise_jitter_m > 0 or cfg.tread_jitter_m > 0) and rng is None:
+        raise SimulationError("irregular stairs (rise / tread jitter) need a random generator")
+    m = n * nf
+    rises = np.full(m, r)
+    if cfg.rise_jitter_m > 0:
+        rises = rises + rng.uniform(-cfg.rise_jitter_m, cfg.rise_jitter_m, m)
+    if cfg.first_rise_m is not None:
+        rises[0] = cfg.first_rise_m
+    if cfg.last_rise_m is not None:
+        rises[-1] = cfg.last_rise_m
+    treads = np.full(m, t)  # treads[k]: nosing k to nosing k + 1 (within a flight)
+    if cfg.tread_jitter_m > 0:
+        treads = treads + rng.uniform(-cfg.tread_jitter_m, cfg.tread_jitter_m, m)
+    if np.any(rises <= 0.02) or np.any(treads <= 0.05):
+        raise ConfigError(
+            "terrain: rise_jitter_m / tread_jitter_m / first_rise_m / last_rise_m leave a "
+            f"rise of {rises.min():.3f} m or a tread of {treads.min():.3f} m"
+        )
+    x, z = xf, 0.0
+    for k in range(m):
+        if k > 0:
+            x += cfg.flight_landing_m if k % n == 0 else float(treads[k - 1])
+        zn = z + float(rises[k]) if up else z - float(rises[k])
+        out.append((x, zn, z) if up else (x, z, zn))
+        z = zn
+    return out
 
 
 def _profiles(
-    cfg: TerrainConfig,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    cfg: TerrainConfig, rng: np.random.Generator | None = None
+) -> tuple[
+    NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], list[NDArray[np.float64]]
+]:
+    """Profile, edges, extruded profile and the separately extruded closed parts (open-riser
+    tread slabs)."""
     xf = cfg.approach_length_m
-    r, t, n = cfg.stair_rise_m, cfg.stair_tread_m, cfg.n_steps
     pts: list[tuple[float, float]] = [(-_BACK_MARGIN_M, 0.0), (xf, 0.0)]
     mesh: list[tuple[float, float]] = [(-_BACK_MARGIN_M, 0.0)]
+    parts: list[NDArray[np.float64]] = []
     edges: list[tuple[float, float]] = []
     o = cfg.nosing_overhang_m
     stair = cfg.kind in ("stair_up", "stair_down")
-    if stair and o > 0 and cfg.nosing_thickness_m >= r:
-        raise ConfigError(
-            f"terrain.nosing_thickness_m ({cfg.nosing_thickness_m} m) must be below "
-            f"terrain.stair_rise_m ({r} m)"
-        )
     th = cfg.nosing_thickness_m
-    span = (n - 1) * t + cfg.flight_landing_m  # first nosing to first nosing of the next flight
+    steps = stair_steps(cfg, rng) if stair else []
+    rise_min = min((zh - zl for _, zh, zl in steps), default=cfg.stair_rise_m)
+    if stair and (o > 0 or cfg.open_risers) and th >= rise_min:
+        raise ConfigError(
+            f"terrain.nosing_thickness_m ({th} m) must be below the lowest riser "
+            f"({rise_min:.3f} m, terrain.stair_rise_m {cfg.stair_rise_m} m)"
+        )
+    if stair and o > 0 and cfg.open_risers:
+        raise ConfigError("terrain: open_risers and nosing_overhang_m > 0 cannot be combined")
     if cfg.kind == "stair_up":
-        for f in range(cfg.n_flights):
-            x0, z0 = xf + f * span, f * n * r
-            for i in range(n):
-                x, zl, ze = x0 + i * t, z0 + i * r, z0 + (i + 1) * r
-                pts += [(x, ze)] if (i == 0 and f == 0) else [(x, zl), (x, ze)]
-                edges.append((x, ze))
-                if o > 0:  # riser set back by o under the nosing
-                    mesh += [(x + o, zl), (x + o, ze - th), (x, ze - th), (x, ze)]
-                else:
-                    mesh += [(x, zl), (x, ze)]
+        for k, (x, ze, zl) in enumerate(steps):
+            pts += [(x, ze)] if k == 0 else [(x, zl), (x, ze)]
+            edges.append((x, ze))
+            if o > 0:  # riser set back by o under the nosing
+                mesh += [(x + o, zl), (x + o, ze - th), (x, ze - th), (x, ze)]
+            elif not cfg.open_risers:
+                mesh += [(x, zl), (x, ze)]
         x_top, z_top = edges[-1]
         pts.append((x_top + cfg.landing_length_m, z_top))
+        if cfg.open_risers:
+            # floor under the whole flight; treads are slabs from each nosing to the next
+            # riser line; the top landing is a slab over a wall one tread behind its edge
+            back = x_top + cfg.stair_tread_m
+            mesh += [(back, 0.0), (back, z_top - th), (x_top, z_top - th), (x_top, z_top)]
+            for (x, ze, _), (x_next, _, _) in zip(steps[:-1], steps[1:], strict=True):
+                parts.append(_slab(x, x_next, ze, th))
         mesh.append((x_top + cfg.landing_length_m, z_top))
     elif cfg.kind == "stair_down":
-        for f in range(cfg.n_flights):
-            x0, z0 = xf + f * span, -f * n * r
-            for i in range(n):
-                x, ze, zl = x0 + i * t, z0 - i * r, z0 - (i + 1) * r
-                if i > 0 or f > 0:
-                    pts.append((x, ze))
-                pts.append((x, zl))
-                edges.append((x, ze))
-                if o > 0:  # riser set back by o under the nosing (towards -x)
-                    mesh += [(x, ze), (x, ze - th), (x - o, ze - th), (x - o, zl)]
-                else:
-                    mesh += [(x, ze), (x, zl)]
+        for k, (x, ze, zl) in enumerate(steps):
+            if k > 0:
+                pts.append((x, ze))
+            pts.append((x, zl))
+            edges.append((x, ze))
+            if o > 0:  # riser set back by o under the nosing (towards -x)
+                mesh += [(x, ze), (x, ze - th), (x - o, ze - th), (x - o, zl)]
+            elif not cfg.open_risers:
+                mesh += [(x, ze), (x, zl)]
         x_bot = edges[-1][0]
         z_bot = pts[-1][1]
         pts.append((x_bot + cfg.landing_length_m, z_bot))
+        if cfg.open_risers:
+            # upper landing: a slab over a wall one tread behind its edge; the lower floor
+            # runs under the whole flight; treads are slabs from the riser line to the nosing
+            x0 = steps[0][0]
+            back = x0 - cfg.stair_tread_m
+            mesh += [(x0, 0.0), (x0, -th), (back, -th), (back, z_bot)]
+            for (x_prev, _, _), (x, ze, _) in zip(steps[:-1], steps[1:], strict=True):
+                parts.append(_slab(x_prev, x, ze, th))
         mesh.append((x_bot + cfg.landing_length_m, z_bot))
     elif cfg.kind == "obstacle":
         h, d = cfg.obstacle_height_m, cfg.obstacle_depth_m
@@ -165,8 +258,22 @@ def _profiles(
     profile = np.asarray(pts, dtype=float)
     if np.any(np.diff(profile[:, 0]) < -1e-12):
         raise SimulationError("terrain profile x must be non-decreasing")
-    mesh_profile = np.asarray(mesh, dtype=float) if (stair and o > 0) else profile
-    return profile, np.asarray(edges, dtype=float).reshape(-1, 2), mesh_profile
+    undercut = stair and (o > 0 or cfg.open_risers)
+    mesh_profile = np.asarray(mesh, dtype=float) if undercut else profile
+    return profile, np.asarray(edges, dtype=float).reshape(-1, 2), mesh_profile, parts
+
+
+def _slab(x_a: float, x_b: float, z_top: float, thickness: float) -> NDArray[np.float64]:
+    """Closed outline (5, 2) of a tread slab from x_a to x_b with its top at z_top."""
+    return np.array(
+        [
+            (x_a, z_top),
+            (x_b, z_top),
+            (x_b, z_top - thickness),
+            (x_a, z_top - thickness),
+            (x_a, z_top),
+        ]
+    )
 
 
 def extrude_profile(
@@ -213,10 +320,15 @@ def _wall_quads(a: NDArray, b: NDArray, y: float, height: float) -> NDArray[np.f
     return q
 
 
-def build_terrain(cfg: TerrainConfig) -> Terrain:
-    """Profile, edges and extruded mesh for a terrain configuration."""
-    profile, edges, mesh_profile = _profiles(cfg)
+def build_terrain(cfg: TerrainConfig, rng: np.random.Generator | None = None) -> Terrain:
+    """Profile, edges and extruded mesh for a terrain configuration. ``rng`` draws the steps
+    of irregular stairs (``stair_steps``); regular terrain does not use it."""
+    profile, edges, mesh_profile, parts = _profiles(cfg, rng)
     vertices, tris = extrude_profile(mesh_profile, cfg.width_m, cfg.side_walls, cfg.wall_height_m)
+    for part in parts:  # open-riser tread slabs (no side walls of their own)
+        v, tr = extrude_profile(part, cfg.width_m, False, cfg.wall_height_m)
+        tris = np.concatenate([tris, tr + vertices.shape[0]]).astype(np.int32)
+        vertices = np.concatenate([vertices, v])
     params: dict[str, float | int | str] = {"approach_length_m": cfg.approach_length_m}
     if cfg.kind in ("stair_up", "stair_down"):
         params.update(
@@ -231,6 +343,12 @@ def build_terrain(cfg: TerrainConfig) -> Terrain:
             params.update(
                 nosing_overhang_m=cfg.nosing_overhang_m, nosing_thickness_m=cfg.nosing_thickness_m
             )
+        if cfg.open_risers:
+            params.update(open_risers=1, nosing_thickness_m=cfg.nosing_thickness_m)
+        for key in ("rise_jitter_m", "tread_jitter_m", "first_rise_m", "last_rise_m"):
+            value = getattr(cfg, key)
+            if value:  # irregular stairs: the drawn steps are in the profile and edges
+                params[key] = value
     elif cfg.kind == "obstacle":
         params.update(height_m=cfg.obstacle_height_m, depth_m=cfg.obstacle_depth_m)
     return Terrain(
@@ -242,4 +360,6 @@ def build_terrain(cfg: TerrainConfig) -> Terrain:
         feature_x_m=cfg.approach_length_m,
         params=params,
         mesh_profile_xz_m=None if mesh_profile is profile else mesh_profile,
+        irregular=cfg.kind in ("stair_up", "stair_down") and is_irregular(cfg),
+        mesh_parts_xz_m=tuple(parts),
     )

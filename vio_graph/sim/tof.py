@@ -64,7 +64,10 @@ class TofCamera:
         self._u, self._v = u.astype(float), v.astype(float)
         self._terrain = terrain
         mesh = terrain.mesh_profile_xz_m
-        self._surface_xz = terrain.profile_xz_m if mesh is None else mesh
+        # edge-gap bands are placed on this outline; with open risers the mesh outline is the
+        # floor under the flight, so they use the walking surface (the treads) instead
+        open_risers = bool(terrain.params.get("open_risers", 0))
+        self._surface_xz = terrain.profile_xz_m if mesh is None or open_risers else mesh
 
     def camera_model(self) -> CameraModel:
         c = self.cfg

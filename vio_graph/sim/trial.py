@@ -121,7 +121,7 @@ def _rng(seed: int, stream: str) -> np.random.Generator:
 
 def simulate_trial(config: ScenarioConfig, seed: int) -> SimulatedTrial:
     """Simulate one trial in memory (frames are rendered on demand)."""
-    terrain = build_terrain(config.terrain)
+    terrain = build_terrain(config.terrain, _rng(seed, "terrain"))
     motion = simulate_gait(terrain, config.gait, config.rig, config.duration_s, _rng(seed, "gait"))
     knee_T_cam, knee_T_imu, imu_xz = rig_transforms(config.rig)
     cam_xz = np.asarray(config.rig.camera_in_shank_xz_m, dtype=float)
@@ -256,13 +256,36 @@ def _metadata(
             scenario=config.name,
             seed=seed,
             # without a contact sensor the saved config is the same as before the section
-            config=config.model_dump(mode="json", exclude={"contact"} if contact is None else None),
+            config=provenance_config(config),
             software=f"vio_graph {vio_graph.__version__}",
             created_utc=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             notes=notes,
         ),
         contact=contact,
     )
+
+
+#: terrain fields added after recordings were published: left out of the saved config at
+#: their defaults, so a scenario that does not use them saves the same metadata as before
+_LATER_TERRAIN_FIELDS = (
+    "rise_jitter_m",
+    "tread_jitter_m",
+    "first_rise_m",
+    "last_rise_m",
+    "open_risers",
+)
+
+
+def provenance_config(config: ScenarioConfig) -> dict:
+    """The scenario as saved in ``metadata.provenance.config`` (JSON-ready): the whole
+    config, without the contact section when there is no contact sensor and without the
+    later terrain fields (``_LATER_TERRAIN_FIELDS``) at their defaults."""
+    default = type(config.terrain)()
+    later = {k for k in _LATER_TERRAIN_FIELDS if getattr(config.terrain, k) == getattr(default, k)}
+    exclude: dict = {"terrain": later} if later else {}
+    if config.contact.kind == "none":
+        exclude["contact"] = True
+    return config.model_dump(mode="json", exclude=exclude or None)
 
 
 def simulate(

@@ -1,0 +1,71 @@
+"""The walking surface of a sagittal profile: which points lie beneath it (pure numpy).
+
+A profile or map seen from above has one walking surface per x. Returns from beneath a
+horizontal level come from surfaces the foot cannot reach from there: the floor under
+open-riser treads seen through the gap between two treads, a wall under a landing. Stairs
+with closed risers have none: a riser stands at a level's end, between the two levels it
+joins, and the underside of a nosing is a slab thinner than the drop asked for. The front end
+(``vio_graph.frontend.frontend``) and the step extraction (``vio_graph.mapping.steps``) drop
+such points only when some occur, so closed stairs give the same results as without the rule.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def under_levels_mask(
+    points_xz_m: ArrayLike,
+    level_z_m: ArrayLike,
+    level_x_lo_m: ArrayLike,
+    level_x_hi_m: ArrayLike,
+    margin_m: float,
+    drop_m: float,
+    band_m: float,
+    sight_margin_m: float | None = None,
+) -> NDArray[np.bool_]:
+    """(N,) True for points beneath a level (L levels: height, x extent).
+
+    A point is beneath level A when
+
+    - it is at least ``drop_m`` below A and more than ``margin_m`` inside A's x extent on both
+      sides (any point: a face under a landing, returns under a tread); with
+      ``sight_margin_m`` (a single frame's profile, camera at the origin) also when its line
+      of sight passes at least ``drop_m`` under A more than ``sight_margin_m`` inside A's
+      extent and the point is more than ``margin_m`` past A's start: seen through a gap
+      under A (the floor under the treads ahead; a riser set back under a nosing overhang
+      is nearer A's start); or
+    - within A's x extent, at least ``drop_m`` below A and within ``band_m`` of a lower level
+      B that overlaps A in x by more than ``margin_m`` (B is a surface under A: the floor
+      under a flight of open-riser treads; its points up to A's ends go, a riser's points are
+      on no such level).
+    """
+    pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
+    z = np.asarray(level_z_m, dtype=float).ravel()
+    lo = np.asarray(level_x_lo_m, dtype=float).ravel()
+    hi = np.asarray(level_x_hi_m, dtype=float).ravel()
+    x, pz = pts[:, 0], pts[:, 1]
+    under = np.zeros(pts.shape[0], dtype=bool)
+    ahead = x > 1e-6
+    slope = np.where(ahead, pz / np.where(ahead, x, 1.0), 0.0)
+    for a in range(z.size):
+        a_lo, a_hi = lo[a] + margin_m, hi[a] - margin_m
+        if a_hi > a_lo:
+            under |= (x > a_lo) & (x < a_hi) & (pz < z[a] - drop_m)
+        if sight_margin_m is not None and hi[a] - lo[a] > 2 * sight_margin_m:
+            # the lowest point of the line of sight over A's inner extent (straight from the
+            # camera to the point): at the nearer of A's inner far end and the point
+            s_lo, s_hi = lo[a] + sight_margin_m, hi[a] - sight_margin_m
+            x_eval = np.minimum(x, s_hi)
+            # the point lies beyond the undercut a nosing may have (margin_m past A's start)
+            beyond = ahead & (x > lo[a] + margin_m) & (x_eval > s_lo)
+            under |= beyond & (slope * x_eval < z[a] - drop_m)
+        inside = (pz < z[a] - drop_m) & (x >= lo[a]) & (x <= hi[a])
+        if not inside.any():
+            continue
+        for b in range(z.size):
+            overlap = min(hi[a], hi[b]) - max(lo[a], lo[b])
+            if b != a and z[b] < z[a] - drop_m and overlap > margin_m:
+                under |= inside & (np.abs(pz - z[b]) <= band_m)
+    return under

@@ -60,6 +60,7 @@ from vio_graph.safety.clearance import (
 from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.consistency import ChiSquareScale, MapConsistency
 from vio_graph.safety.height_map import IncrementalHeightMap, MapWindow, OnlineHeightMap
+from vio_graph.safety.prediction_error import PredictionErrors
 
 NAN = float("nan")
 _NAN2, _NAN4 = np.full(2, NAN), np.full(4, NAN)
@@ -366,6 +367,11 @@ class SafetyMonitor:
         self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
         #: the horizon's instants (s since now)
         self._h = np.linspace(0.0, config.horizon_s, config.horizon_steps + 1)
+        #: the template predictions' own errors in the current swing, measured when their
+        #: instants arrive (0 earlier swings: pooled with the last 3, the one-step first
+        #: swing onto the stair also discounted the next swing's prediction, whose
+        #: near-trip the half-right template did warn 222 ms ahead; upstair_near_trip s1)
+        self.prediction_errors = PredictionErrors(self._h, 0)
         self.consistency = MapConsistency(
             config.consistency_window_keyframes,
             config.consistency_min_keyframes,
@@ -397,6 +403,7 @@ class SafetyMonitor:
                 return NAN
             self._liftoff = (t_s, np.concatenate([heel, toe]))
             self._swing = []
+            self.prediction_errors.start_swing()
         tau = t_s - self._liftoff[0]
         slow = math.isfinite(toe_speed_mps) and toe_speed_mps < cfg.swing_speed_mps / 3
         if in_stance or (slow and tau >= lo) or tau > hi:
@@ -680,6 +687,9 @@ class SafetyMonitor:
         self._prev = (t_s, (tx, tz))
         speed = float(np.hypot(v[0], v[1]))  # m/s, NaN without a previous frame
         v_known = math.isfinite(v[0]) and math.isfinite(v[1])
+        check = cfg.warning_error_check and cfg.motion_model == "swing_template"
+        if check:  # the earlier predictions against where the foot went
+            self.prediction_errors.observe(t_s, np.array([hx, hz, tx, tz]))
         tau = self._track_swing(t_s, heel, toe, bool(in_stance), speed)
         use_template = (
             cfg.motion_model == "swing_template" and bool(self._templates) and math.isfinite(tau)
@@ -761,6 +771,8 @@ class SafetyMonitor:
                 cleared = self._approach_now(float(ee[0]), now)  # (remembers it)
                 if cleared and forward_motion(v, cfg) and math.isfinite(d) and not d >= risk:
                     risk = float(d)
+        if use_template and check:
+            risk = self._trusted_risk(t_s, tau, heel, toe, edges, e, risk)
         s = nsig if math.isfinite(nsig) else 0.0
         warn = bool(
             not in_stance and math.isfinite(risk) and risk - cfg.warning_sigma * s < cfg.near_trip_m
@@ -801,6 +813,35 @@ class SafetyMonitor:
             pose_consistency_scale=sp,
             map_consistency_scale=sm,
         )
+
+    def _trusted_risk(
+        self,
+        t_s: float,
+        tau: float,
+        heel: NDArray[np.float64],
+        toe: NDArray[np.float64],
+        edges: Edges,
+        e: int,
+        risk: float,
+    ) -> float:
+        """The near-trip candidates' minimum clearance (``risk`` over the whole horizon)
+        restricted to the horizon steps whose measured prediction error is at most
+        ``near_trip_m`` (:class:`PredictionErrors`); keeps this frame's prediction for the
+        measurement. NaN when not even the first step is trusted."""
+        cfg = self.config
+        motion = self._template_motion(tau, self._h)
+        assert motion is not None
+        m = self.prediction_errors.trusted_steps(cfg.near_trip_m)
+        self.prediction_errors.predict(
+            t_s, np.concatenate([heel[None] + motion[:, :2], toe[None] + motion[:, 2:]], 1)
+        )
+        if m >= cfg.horizon_steps:
+            return risk  # every step trusted: the whole horizon, as computed
+        if m < 1:
+            return NAN
+        mo = motion[: m + 1]
+        hp, tp = heel[None] + mo[:, :2], toe[None] + mo[:, 2:]
+        return self._swing_edges(hp, tp, edges, e, float(toe[0] + mo[:, 2].max()))[1]
 
     def _terrain_now(
         self,

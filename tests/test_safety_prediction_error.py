@@ -22,13 +22,13 @@ def test_known_prediction_errors_are_measured_exactly() -> None:
     """A prediction that the foot stands still while it moves at 0.1 m/s in x is wrong by
     0.1 m/s x h at each horizon step; the steps up to 2 cm of error are trusted."""
     h = np.linspace(0.0, 0.3, 11)  # steps of 30 ms
-    pe = PredictionErrors(h, 0)
+    pe = PredictionErrors(h, capacity=4)  # (grows: 10 predictions kept at once)
     pe.start_swing()
     foot0 = np.array([0.0, 0.0, 0.25, 0.0])
     for k in range(25):
         t = k * DT
         foot = foot0 + np.array([0.1, 0.0, 0.1, 0.0]) * t
-        pe.observe(t, foot)
+        pe.observe(t, tuple(foot.tolist()))
         pe.predict(t, np.repeat(foot[None], len(h), 0))  # "the foot stays where it is"
     rms = pe.rms()
     assert np.isnan(rms[0])  # the current pose is never scored

@@ -368,10 +368,10 @@ class SafetyMonitor:
         #: the horizon's instants (s since now)
         self._h = np.linspace(0.0, config.horizon_s, config.horizon_steps + 1)
         #: the template predictions' own errors in the current swing, measured when their
-        #: instants arrive (0 earlier swings: pooled with the last 3, the one-step first
-        #: swing onto the stair also discounted the next swing's prediction, whose
-        #: near-trip the half-right template did warn 222 ms ahead; upstair_near_trip s1)
-        self.prediction_errors = PredictionErrors(self._h, 0)
+        #: instants arrive (this swing's only: pooled with the last 3 swings', the one-step
+        #: first swing onto the stair also silenced the next swing's warning of a true
+        #: near-trip, 222 ms ahead from a half-right template; upstair_near_trip s1)
+        self.prediction_errors = PredictionErrors(self._h)
         self.consistency = MapConsistency(
             config.consistency_window_keyframes,
             config.consistency_min_keyframes,
@@ -689,7 +689,7 @@ class SafetyMonitor:
         v_known = math.isfinite(v[0]) and math.isfinite(v[1])
         check = cfg.warning_error_check and cfg.motion_model == "swing_template"
         if check:  # the earlier predictions against where the foot went
-            self.prediction_errors.observe(t_s, np.array([hx, hz, tx, tz]))
+            self.prediction_errors.observe(t_s, (hx, hz, tx, tz))
         tau = self._track_swing(t_s, heel, toe, bool(in_stance), speed)
         use_template = (
             cfg.motion_model == "swing_template" and bool(self._templates) and math.isfinite(tau)

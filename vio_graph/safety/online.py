@@ -78,7 +78,9 @@ class SafetyEstimate:
     ``predicted_min_nosing_clearance_m``: the same to the edges the toe reaches over the
     horizon from the next one on; ``near_trip_clearance_m``: its minimum over the predicted
     poses that could be a near-trip (each pose against its own next edge, the toe moving
-    forward, the foot clear of that edge before), which the ``near_trip_warning`` tests.
+    forward, the foot clear of that edge before; with ``warning_error_check``, the swing
+    template's poses only up to the last horizon step its measured error in this swing
+    allows), which the ``near_trip_warning`` tests.
     ``edge_distance_m`` / ``edge_distance_sigma_m``: x from the toe to the next edge ahead,
     ``edge_xz_m`` (2,): that edge's point;
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
@@ -827,7 +829,9 @@ class SafetyMonitor:
         """The near-trip candidates' minimum clearance (``risk`` over the whole horizon)
         restricted to the horizon steps whose measured prediction error is at most
         ``near_trip_m`` (:class:`PredictionErrors`); keeps this frame's prediction for the
-        measurement. NaN when not even the first step is trusted."""
+        measurement. NaN when not even the first step is trusted; never below ``risk`` (the
+        check only removes warnings: the last trusted pose's velocity, a one-sided
+        difference, could otherwise make it a candidate the whole horizon did not have)."""
         cfg = self.config
         motion = self._template_motion(tau, self._h)
         assert motion is not None
@@ -837,11 +841,12 @@ class SafetyMonitor:
         )
         if m >= cfg.horizon_steps:
             return risk  # every step trusted: the whole horizon, as computed
-        if m < 1:
+        if m < 1 or not math.isfinite(risk):
             return NAN
         mo = motion[: m + 1]
         hp, tp = heel[None] + mo[:, :2], toe[None] + mo[:, 2:]
-        return self._swing_edges(hp, tp, edges, e, float(toe[0] + mo[:, 2].max()))[1]
+        r = self._swing_edges(hp, tp, edges, e, float(toe[0] + mo[:, 2].max()))[1]
+        return r if not r < risk else risk
 
     def _terrain_now(
         self,

@@ -127,6 +127,15 @@ class SafetyConfig(BaseModel):
         "this and at least as fast as it descends (excludes the landing, where the clearance "
         "goes to zero by design), m/s",
     )
+    warning_error_check: bool = Field(
+        default=True,
+        description="the warning tests the swing template's predicted poses only up to the "
+        "horizon step at which the monitor's own measured prediction error (rms over the "
+        "current swing's earlier predictions of the larger of the heel's and toe's errors, "
+        "checked at t + h against the estimated foot) is at most near_trip_m: a prediction "
+        "wrong by more than the margin it tests cannot resolve a near-trip (steps not yet "
+        "measured count as accurate); off: every pose over horizon_s (before 2026-12-03)",
+    )
     map_sigma_m: float = Field(
         default=0.003, ge=0, description="1-sigma floor of a map bin's height, m"
     )

@@ -62,6 +62,7 @@ from vio_graph.safety.clearance import (
 from vio_graph.safety.config import SafetyConfig
 from vio_graph.safety.consistency import ChiSquareScale, MapConsistency
 from vio_graph.safety.height_map import IncrementalHeightMap, MapWindow, OnlineHeightMap
+from vio_graph.safety.prediction_error import PredictionErrors
 
 NAN = float("nan")
 _NAN2, _NAN4 = np.full(2, NAN), np.full(4, NAN)
@@ -79,7 +80,9 @@ class SafetyEstimate:
     ``predicted_min_nosing_clearance_m``: the same to the edges the toe reaches over the
     horizon from the next one on; ``near_trip_clearance_m``: its minimum over the predicted
     poses that could be a near-trip (each pose against its own next edge, the toe moving
-    forward, the foot clear of that edge before), which the ``near_trip_warning`` tests.
+    forward, the foot clear of that edge before; with ``warning_error_check``, the swing
+    template's poses only up to the last horizon step its measured error in this swing
+    allows), which the ``near_trip_warning`` tests.
     ``edge_distance_m`` / ``edge_distance_sigma_m``: x from the toe to the next edge ahead,
     ``edge_xz_m`` (2,): that edge's point;
     ``steps_seen``, ``mean_rise_m``, ``mean_tread_m``: the edges mapped so far.
@@ -368,6 +371,11 @@ class SafetyMonitor:
         self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
         #: the horizon's instants (s since now)
         self._h = np.linspace(0.0, config.horizon_s, config.horizon_steps + 1)
+        #: the template predictions' own errors in the current swing, measured when their
+        #: instants arrive (this swing's only: pooled with the last 3 swings', the one-step
+        #: first swing onto the stair also silenced the next swing's warning of a true
+        #: near-trip, 222 ms ahead from a half-right template; upstair_near_trip s1)
+        self.prediction_errors = PredictionErrors(self._h)
         self.consistency = MapConsistency(
             config.consistency_window_keyframes,
             config.consistency_min_keyframes,
@@ -399,6 +407,7 @@ class SafetyMonitor:
                 return NAN
             self._liftoff = (t_s, np.concatenate([heel, toe]))
             self._swing = []
+            self.prediction_errors.start_swing()
         tau = t_s - self._liftoff[0]
         slow = math.isfinite(toe_speed_mps) and toe_speed_mps < cfg.swing_speed_mps / 3
         if in_stance or (slow and tau >= lo) or tau > hi:
@@ -693,6 +702,9 @@ class SafetyMonitor:
         self._prev = (t_s, (tx, tz))
         speed = float(np.hypot(v[0], v[1]))  # m/s, NaN without a previous frame
         v_known = math.isfinite(v[0]) and math.isfinite(v[1])
+        check = cfg.warning_error_check and cfg.motion_model == "swing_template"
+        if check:  # the earlier predictions against where the foot went
+            self.prediction_errors.observe(t_s, (hx, hz, tx, tz))
         tau = self._track_swing(t_s, heel, toe, bool(in_stance), speed)
         use_template = (
             cfg.motion_model == "swing_template" and bool(self._templates) and math.isfinite(tau)
@@ -774,6 +786,8 @@ class SafetyMonitor:
                 cleared = self._approach_now(float(ee[0]), now)  # (remembers it)
                 if cleared and forward_motion(v, cfg) and math.isfinite(d) and not d >= risk:
                     risk = float(d)
+        if use_template and check:
+            risk = self._trusted_risk(t_s, tau, heel, toe, edges, e, risk)
         s = nsig if math.isfinite(nsig) else 0.0
         warn = bool(
             not in_stance and math.isfinite(risk) and risk - cfg.warning_sigma * s < cfg.near_trip_m
@@ -814,6 +828,38 @@ class SafetyMonitor:
             pose_consistency_scale=sp,
             map_consistency_scale=sm,
         )
+
+    def _trusted_risk(
+        self,
+        t_s: float,
+        tau: float,
+        heel: NDArray[np.float64],
+        toe: NDArray[np.float64],
+        edges: Edges,
+        e: int,
+        risk: float,
+    ) -> float:
+        """The near-trip candidates' minimum clearance (``risk`` over the whole horizon)
+        restricted to the horizon steps whose measured prediction error is at most
+        ``near_trip_m`` (:class:`PredictionErrors`); keeps this frame's prediction for the
+        measurement. NaN when not even the first step is trusted; never below ``risk`` (the
+        check only removes warnings: the last trusted pose's velocity, a one-sided
+        difference, could otherwise make it a candidate the whole horizon did not have)."""
+        cfg = self.config
+        motion = self._template_motion(tau, self._h)
+        assert motion is not None
+        m = self.prediction_errors.trusted_steps(cfg.near_trip_m)
+        self.prediction_errors.predict(
+            t_s, np.concatenate([heel[None] + motion[:, :2], toe[None] + motion[:, 2:]], 1)
+        )
+        if m >= cfg.horizon_steps:
+            return risk  # every step trusted: the whole horizon, as computed
+        if m < 1 or not math.isfinite(risk):
+            return NAN
+        mo = motion[: m + 1]
+        hp, tp = heel[None] + mo[:, :2], toe[None] + mo[:, 2:]
+        r = self._swing_edges(hp, tp, edges, e, float(toe[0] + mo[:, 2].max()))[1]
+        return r if not r < risk else risk
 
     def _terrain_now(
         self,

@@ -233,8 +233,8 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
         remove: tuple[int, ...],
         what: str,
     ) -> None:
-        """One GTSAM update; a Cholesky update that finds the system indeterminate is redone
-        by rebuilding the window in QR (:meth:`_rebuild_in_qr`) if
+        """One GTSAM update; a Cholesky update that fails (e.g. finds the system
+        indeterminate) is redone by rebuilding the window in QR (:meth:`_rebuild_in_qr`) if
         ``smoother.fixed_lag_qr_fallback``; any other failure raises EstimationError."""
         try:
             # (the stubs type the key -> time map with invariant protocol keys; ints are fine)
@@ -252,13 +252,15 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             self.qr_fallback_at_s = self._newest_s if not stamps else max(stamps.values())
 
     def _falls_back(self, exc: RuntimeError) -> bool:
-        """Whether ``exc`` is the Cholesky failure :meth:`_rebuild_in_qr` answers."""
+        """Whether ``exc`` is a Cholesky failure :meth:`_rebuild_in_qr` answers: any GTSAM
+        error of a Cholesky update (an indeterminate system says so; on a weakly constrained
+        window, e.g. displacements without landmarks or stance anchors on a descent, GTSAM
+        4.3 has also raised with an empty message), once per smoother."""
         return (
             self._incremental
             and self.config.fixed_lag_qr_fallback
             and self.qr_fallback_at_s is None
             and self.config.fixed_lag_factorization == "CHOLESKY"
-            and "indeterminant" in str(exc).lower()
         )
 
     def _rebuild_in_qr(

@@ -341,7 +341,8 @@ class SmootherConfig(BaseModel):
     )
     fixed_lag_qr_fallback: bool = Field(
         default=True,
-        description="with CHOLESKY: when an update finds the system indeterminate, rebuild the "
+        description="with CHOLESKY: when an update fails (finds the system indeterminate, or "
+        "any other GTSAM error), rebuild the "
         "window (its factors, marginals of the keyframes already gone, linearisation point "
         "and key times) in a QR smoother and continue in QR for the rest of the run "
         "(metrics.json: smoother_qr_fallback_at_s); off: the smoother stops there as any "

@@ -9,8 +9,8 @@ Keys leave the window in batches (``smoother.marginalization_slack_s``): GTSAM's
 per update, to the configured lag when the oldest key is older than lag + slack and to "never"
 otherwise, because an update that marginalises constrains iSAM2's ordering in a way that
 lets the Bayes tree's root drift away from the newest keyframe (docs/method.md section 4).
-A Cholesky update that finds the system indeterminate is redone by rebuilding the window in
-QR (``smoother.fixed_lag_qr_fallback``).
+A Cholesky update that fails (an indeterminate system, or any other GTSAM error) is redone by
+rebuilding the window in QR (``smoother.fixed_lag_qr_fallback``).
 """
 
 from __future__ import annotations

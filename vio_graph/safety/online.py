@@ -712,6 +712,7 @@ class SafetyMonitor:
         if in_stance:
             self._cleared = []
         pred = pred_edge = risk = NAN  # risk: the minimum over near-trip candidates
+        template_motion: NDArray[np.float64] | None = None  # (numpy path: for the check)
         if use_template and fused:
             pred, pred_edge, risk, new = g.swing_prediction(
                 tau, self._h, *self._flat_templates(), hx, hz, tx, tz, c_d, cfg.window_m,
@@ -725,6 +726,7 @@ class SafetyMonitor:
         elif use_template:
             motion = self._template_motion(tau, self._h)
             assert motion is not None
+            template_motion = motion
             hp = heel[None] + motion[:, :2]
             tp = toe[None] + motion[:, 2:]
             # x extent of the poses (rounding is monotonic: the extreme displacement gives
@@ -787,7 +789,7 @@ class SafetyMonitor:
                 if cleared and forward_motion(v, cfg) and math.isfinite(d) and not d >= risk:
                     risk = float(d)
         if use_template and check:
-            risk = self._trusted_risk(t_s, tau, heel, toe, edges, e, risk)
+            risk = self._trusted_risk(t_s, tau, heel, toe, edges, e, risk, template_motion)
         s = nsig if math.isfinite(nsig) else 0.0
         warn = bool(
             not in_stance and math.isfinite(risk) and risk - cfg.warning_sigma * s < cfg.near_trip_m
@@ -838,6 +840,7 @@ class SafetyMonitor:
         edges: Edges,
         e: int,
         risk: float,
+        motion: NDArray[np.float64] | None = None,
     ) -> float:
         """The near-trip candidates' minimum clearance (``risk`` over the whole horizon)
         restricted to the horizon steps whose measured prediction error is at most
@@ -846,7 +849,8 @@ class SafetyMonitor:
         check only removes warnings: the last trusted pose's velocity, a one-sided
         difference, could otherwise make it a candidate the whole horizon did not have)."""
         cfg = self.config
-        motion = self._template_motion(tau, self._h)
+        if motion is None:  # (the numpy path passes the template motion it computed)
+            motion = self._template_motion(tau, self._h)
         assert motion is not None
         m = self.prediction_errors.trusted_steps(cfg.near_trip_m)
         self.prediction_errors.predict(

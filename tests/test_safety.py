@@ -514,6 +514,34 @@ def test_map_bin_covariance_is_the_mean_over_its_keyframes() -> None:
         np.testing.assert_allclose(m.bin_cov(k), (P1 + P2) / 2, rtol=1e-12)
 
 
+def test_map_bin_is_used_early_only_when_its_views_agree() -> None:
+    """min_keyframes 4, agreement after 2 views within 8.5 mm (3 sigma of the difference of
+    two views with 2 mm each): a floor seen twice at heights 1 mm apart is used after the
+    second view; a strip seen twice 5 cm apart (a mixed pixel and the
+    surface) is not, until 4 views; agreement off: nothing before 4 views."""
+    cfg = SafetyConfig(min_keyframes=4, agreement_keyframes=2, map_sigma_m=0.002)
+    assert cfg.agreement_tolerance_m == pytest.approx(3 * 2**0.5 * 0.002)
+    x = np.linspace(0.0, 0.2, 41)
+    floor = lambda dz: np.stack([x, np.full(x.size, -0.5 + dz)], 1)  # noqa: E731
+    P = np.eye(2) * 1e-6
+    on = OnlineHeightMap(0.01, 4, agree_keyframes=2, agree_m=cfg.agreement_tolerance_m)
+    off = OnlineHeightMap(0.01, 4)
+    for m in (on, off):
+        m.add_keyframe([0.0, 0.5], floor(0.0), P)
+        assert len(m.profile(0.002)) == 0  # one view: never used
+        m.add_keyframe([0.0, 0.5], floor(0.001), P)
+    n_bins = len(on.profile(0.002))
+    assert n_bins >= 20 and len(off.profile(0.002)) == 0
+    split = OnlineHeightMap(0.01, 4, agree_keyframes=2, agree_m=cfg.agreement_tolerance_m)
+    for dz in (0.0, 0.05, 0.0):
+        split.add_keyframe([0.0, 0.5], floor(dz), P)
+        assert len(split.profile(0.002)) == 0  # the views disagree: wait for 4
+    split.add_keyframe([0.0, 0.5], floor(0.0), P)
+    prof = split.profile(0.002)
+    assert len(prof) == n_bins
+    np.testing.assert_allclose(prof.z_m, 0.0, atol=1e-12)  # the median of 0, 0, 0, 5 cm
+
+
 def test_constant_velocity_warning_needs_an_approached_edge() -> None:
     """Constant-velocity fallback (no swing template): the toe leaving the nosing it stood
     on at 1 m/s (clearance ~0 to it, never cleared) is no near-trip; the foot passing 1.2 cm

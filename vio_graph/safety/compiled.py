@@ -498,10 +498,12 @@ def keyframe_tops(rel, cam_x, cam_z, bin_m, top_band_m):  # pragma: no cover - c
 
 
 @numba.njit(cache=True)
-def add_tops(Z, Zs, n, used, mid, se2, cov, j, tops, min_keyframes, median, P):  # pragma: no cover
+def add_tops(
+    Z, Zs, n, used, mid, se2, cov, j, tops, min_keyframes, agree_keyframes, agree_m, median, P
+):  # pragma: no cover
     """In place: the keyframe heights ``tops`` join bins at array elements ``j``, and those
     bins' count, used flag, height, squared standard error and covariance sum are updated
-    (height_map.OnlineHeightMap.add_keyframe and _bin_stats). ``Zs``: each bin's kept
+    (height_map.OnlineHeightMap.add_keyframe, _used_rule and _bin_stats). ``Zs``: each bin's kept
     heights sorted (NaN after them), kept up to date here: the median is read off it and the
     median absolute deviation found by walking out from the median (no sort per keyframe)."""
     cap = Z.shape[1]
@@ -512,7 +514,6 @@ def add_tops(Z, Zs, n, used, mid, se2, cov, j, tops, min_keyframes, median, P): 
         c = min(n[e], cap)  # kept heights before this one
         Z[e, slot] = tops[q]
         n[e] += 1
-        used[e] = n[e] >= min_keyframes
         if old == old:  # the oldest height leaves the sorted copy
             r = 0
             while Zs[e, r] != old:
@@ -527,6 +528,10 @@ def add_tops(Z, Zs, n, used, mid, se2, cov, j, tops, min_keyframes, median, P): 
             r -= 1
         Zs[e, r] = tops[q]
         c += 1
+        # used: seen often enough, or seen by fewer keyframes whose heights agree
+        used[e] = n[e] >= min_keyframes or (
+            n[e] >= agree_keyframes and Zs[e, c - 1] - Zs[e, 0] <= agree_m
+        )
         if median:
             lo, hi = (c - 1) // 2, c // 2
             m = (Zs[e, lo] + Zs[e, hi]) / 2
@@ -1172,7 +1177,7 @@ def warm_up() -> None:
     n, used = np.zeros(3, np.int64), np.zeros(3, bool)
     mid, se2, cov = np.zeros(3), np.zeros(3), np.zeros((3, 3))
     Z = np.full((3, 4), np.nan)
-    add_tops(Z, Z.copy(), n, used, mid, se2, cov, bins + 1, tops, 1, True, np.eye(2))
+    add_tops(Z, Z.copy(), n, used, mid, se2, cov, bins + 1, tops, 1, 1, 0.0, True, np.eye(2))
     window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
     rescan_edges(
         used,
@@ -1200,7 +1205,7 @@ def warm_up() -> None:
     z0 = np.zeros(0)
     keyframe_step(
         np.zeros((2, 2)), 0.0, 0.0, np.eye(2), 0.005, 0.01, 0.003, Z, Z.copy(), n, used, mid,
-        se2, cov, 0, 1, True, True, 1.0, z0, z0, z0, z0, 0.04, 0.15, SLOPE_STEP_M,
+        se2, cov, 0, 1, 1, 0.0, True, True, 1.0, z0, z0, z0, z0, 0.04, 0.15, SLOPE_STEP_M,
         MAX_TRANSITION_BIN_M, np.zeros((0, 2)), z0, np.zeros(0, np.int64),
     )  # fmt: skip
     used[:] = True
@@ -1520,6 +1525,8 @@ def keyframe_step(
     cov,
     i0,
     min_keyframes,
+    agree_keyframes,
+    agree_m,
     median,
     test,
     pose_scale,
@@ -1577,7 +1584,10 @@ def keyframe_step(
                 if sq.shape[0] > 0:
                     map_q = sq
                     map_new = window_merge(map_sorted, map_old, sq)
-    add_tops(Z, Zs, n, used, mid, se2, cov, bins - i0, tops, min_keyframes, median, P)
+    add_tops(
+        Z, Zs, n, used, mid, se2, cov, bins - i0, tops, min_keyframes, agree_keyframes, agree_m,
+        median, P,
+    )  # fmt: skip
     e_xz, e_rise, e_first = rescan_edges(
         used, mid, i0, bin_m, b_lo - i0, b_hi - i0, min_rise, max_gap, slope_step, max_bin,
         edge_xz, edge_rise, edge_first,

@@ -31,6 +31,20 @@ class SafetyConfig(BaseModel):
     min_keyframes: int = Field(
         default=4, ge=1, description="a map bin is used once this many keyframes saw it"
     )
+    agreement_keyframes: int = Field(
+        default=2,
+        ge=1,
+        description="a map bin is used before min_keyframes views once this many keyframes "
+        "saw it and their heights agree (spread <= agreement_sigmas x sqrt(2) x map_sigma_m): "
+        "a surface seen twice at one height is terrain, the ToF mixed pixels scatter from view "
+        "to view and still need min_keyframes views; >= min_keyframes: off (before 2026-12-03)",
+    )
+    agreement_sigmas: float = Field(
+        default=3.0,
+        gt=0,
+        description="the agreement test's width in map_sigma_m of a height difference "
+        "between two views (count)",
+    )
     sole_thickness_m: float = Field(
         default=0.0,
         ge=0,
@@ -199,3 +213,10 @@ class SafetyConfig(BaseModel):
                 f"below safety.edge_min_rise_m ({self.edge_min_rise_m} m)"
             )
         return self
+
+    @property
+    def agreement_tolerance_m(self) -> float:
+        """Largest spread of a bin's keyframe heights that counts as agreement (m): two
+        independent views of one surface, each with ``map_sigma_m``, differ by at most
+        ``agreement_sigmas`` standard deviations of their difference."""
+        return self.agreement_sigmas * 2.0**0.5 * self.map_sigma_m

@@ -6,7 +6,10 @@ keyframe's camera position; per x bin (width ``bin_m``, bin ``b`` spans
 ``[b bin_m, b bin_m + bin_m]``) the keyframe's surface height is the mean of its points
 within ``top_band_m`` of the bin's highest point (a riser's bin keeps its top). A bin keeps
 the last ``capacity`` keyframe heights; its height is their median (or mean) and it is *used*
-once ``min_keyframes`` keyframes saw it. Each bin also keeps the mean camera position
+once ``min_keyframes`` keyframes saw it, or earlier, once ``agree_keyframes`` keyframes saw it
+and their heights agree (all kept heights within ``agree_m`` of each other): a surface seen
+twice at the same height is terrain, while the mixed pixels of a ToF camera scatter over
+heights from view to view and wait for ``min_keyframes`` views and the median. Each bin also keeps the mean camera position
 covariance of the keyframes that saw it (the relative-pose part of the clearance sigma).
 
 Queries. The monitor asks the map, per frame, for the used bins overlapping an x range
@@ -69,7 +72,9 @@ class OnlineHeightMap:
     the scaled median absolute deviation: robust to the mixed pixels a ToF camera leaves
     between a nosing and the tread below it, which each keyframe puts into different bins) or
     ``"mean"`` (mean and standard deviation). ``edge_min_rise_m`` / ``edge_max_gap_m``: the
-    edges' parameters (:func:`~vio_graph.safety.clearance.edge_runs`).
+    edges' parameters (:func:`~vio_graph.safety.clearance.edge_runs`). ``agree_keyframes`` /
+    ``agree_m``: the early use of bins whose views agree (module docstring; off when
+    ``agree_keyframes >= min_keyframes``).
     """
 
     def __init__(
@@ -81,12 +86,16 @@ class OnlineHeightMap:
         capacity: int = 24,
         edge_min_rise_m: float = 0.04,
         edge_max_gap_m: float = 0.15,
+        agree_keyframes: int | None = None,
+        agree_m: float = 0.0,
     ) -> None:
         if statistic not in ("median", "mean"):
             raise ValueError(f"statistic must be 'median' or 'mean', got {statistic!r}")
         self.bin_m = bin_m
         self.top_band_m = top_band_m
         self.min_keyframes = min_keyframes
+        self.agree_keyframes = min_keyframes if agree_keyframes is None else agree_keyframes
+        self.agree_m = agree_m
         self.statistic = statistic
         self.capacity = max(int(capacity), min_keyframes)
         self.edge_min_rise_m = edge_min_rise_m
@@ -98,7 +107,7 @@ class OnlineHeightMap:
         # the same sorted, NaN after them (kept by the compiled keyframe step only)
         self._zs = np.full((0, self.capacity), np.nan)
         self._n = np.zeros(0, np.int64)  # keyframes that saw the bin (all, not only kept)
-        self._used = np.zeros(0, bool)  # _n >= min_keyframes
+        self._used = np.zeros(0, bool)  # _used_rule
         self._mid = np.zeros(0)  # per bin: the height over the kept keyframes, m
         self._se2 = np.zeros(0)  # per bin: its squared standard error, m^2
         self._cov = np.zeros((0, 3))  # sum of (Pxx, Pxz, Pzz)
@@ -151,13 +160,20 @@ class OnlineHeightMap:
         j = bins - self._i0
         self._z[j, self._n[j] % self.capacity] = top  # the oldest height makes room
         self._n[j] += 1
-        self._used[j] = self._n[j] >= self.min_keyframes
+        self._used[j] = self._used_rule(self._n[j], self._z[j])
         self._mid[j], self._se2[j] = self._bin_stats(self._z[j])
         P = np.asarray(cov_position_m2, dtype=float)
         self._cov[j] += np.array([P[0, 0], P[0, 1], P[1, 1]])
         self._profile = None
         self.version += 1
         return int(bins[0]), int(bins[-1])
+
+    def _used_rule(self, n: NDArray[np.int64], Z: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Per bin (count ``n``, kept heights ``Z`` as in :meth:`_bin_stats`): used once
+        ``min_keyframes`` keyframes saw it, or ``agree_keyframes`` whose heights agree within
+        ``agree_m``."""
+        spread = np.nanmax(Z, axis=1) - np.nanmin(Z, axis=1)
+        return (n >= self.min_keyframes) | ((n >= self.agree_keyframes) & (spread <= self.agree_m))
 
     def _bin_stats(self, Z: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
         """Height and its squared standard error per row of ``Z`` (bins x kept keyframes,
@@ -280,6 +296,8 @@ class IncrementalHeightMap(OnlineHeightMap):
         edge_min_rise_m: float = 0.04,
         edge_max_gap_m: float = 0.15,
         kernels: ModuleType | None = None,
+        agree_keyframes: int | None = None,
+        agree_m: float = 0.0,
     ) -> None:
         super().__init__(
             bin_m,
@@ -289,6 +307,8 @@ class IncrementalHeightMap(OnlineHeightMap):
             capacity,
             edge_min_rise_m,
             edge_max_gap_m,
+            agree_keyframes,
+            agree_m,
         )
         self._kernels = kernels
         self._geometry = clearance if kernels is None else kernels
@@ -345,6 +365,8 @@ class IncrementalHeightMap(OnlineHeightMap):
             bins - self._i0,
             tops,
             self.min_keyframes,
+            self.agree_keyframes,
+            self.agree_m,
             self.statistic == "median",
             np.asarray(cov_position_m2, dtype=float),
         )

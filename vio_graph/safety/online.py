@@ -348,6 +348,8 @@ class SafetyMonitor:
                 edge_min_rise_m=config.edge_min_rise_m,
                 edge_max_gap_m=config.edge_max_gap_m,
                 kernels=kernels,
+                agree_keyframes=config.agreement_keyframes,
+                agree_m=config.agreement_tolerance_m,
             )
             if incremental
             else OnlineHeightMap(
@@ -356,6 +358,8 @@ class SafetyMonitor:
                 statistic=config.map_statistic,
                 edge_min_rise_m=config.edge_min_rise_m,
                 edge_max_gap_m=config.edge_max_gap_m,
+                agree_keyframes=config.agreement_keyframes,
+                agree_m=config.agreement_tolerance_m,
             )
         )
         self._prev: tuple[float, tuple[float, float]] | None = None  # (t, toe x, z)
@@ -504,7 +508,8 @@ class SafetyMonitor:
                 out = self.geometry.keyframe_step(
                     rel, cx, cz, P, cfg.bin_m, m.top_band_m, cfg.map_sigma_m,
                     m._z, m._zs, m._n, m._used, m._mid, m._se2, m._cov, m._i0,
-                    m.min_keyframes, m.statistic == "median", pose.window != 0,
+                    m.min_keyframes, m.agree_keyframes, m.agree_m, m.statistic == "median",
+                    pose.window != 0,
                     cfg.relative_pose_scale, pose._sorted, pose.leaving(), mp._sorted,
                     mp.leaving(), m.edge_min_rise_m, m.edge_max_gap_m, SLOPE_STEP_M,
                     MAX_TRANSITION_BIN_M, m._edge_xz, m._edge_rise, m._edge_first,

@@ -9,8 +9,9 @@ the last ``capacity`` keyframe heights; its height is their median (or mean) and
 once ``min_keyframes`` keyframes saw it, or earlier, once ``agree_keyframes`` keyframes saw it
 and their heights agree (all kept heights within ``agree_m`` of each other): a surface seen
 twice at the same height is terrain, while the mixed pixels of a ToF camera scatter over
-heights from view to view and wait for ``min_keyframes`` views and the median. Each bin also keeps the mean camera position
-covariance of the keyframes that saw it (the relative-pose part of the clearance sigma).
+heights from view to view and wait for ``min_keyframes`` views and the median. Each bin also
+keeps the mean camera position covariance of the keyframes that saw it (the relative-pose part
+of the clearance sigma).
 
 Queries. The monitor asks the map, per frame, for the used bins overlapping an x range
 (:meth:`OnlineHeightMap.window`), the height sigma and camera covariance of one bin (by its

@@ -33,6 +33,7 @@ from vio_graph.safety.clearance import (
     unseen_distance,
 )
 from vio_graph.safety.config import SafetyConfig
+from vio_graph.safety.height_map import IncrementalHeightMap
 from vio_graph.safety.online import CSV_COLUMNS, OnlineHeightMap, SafetyEstimate, SafetyMonitor
 
 FLAT = HeightProfile.from_polyline([(-1.0, 0.0), (3.0, 0.0)])
@@ -540,6 +541,37 @@ def test_map_bin_is_used_early_only_when_its_views_agree() -> None:
     prof = split.profile(0.002)
     assert len(prof) == n_bins
     np.testing.assert_allclose(prof.z_m, 0.0, atol=1e-12)  # the median of 0, 0, 0, 5 cm
+
+
+def test_foot_contact_lowers_a_raised_strip_but_not_a_step() -> None:
+    """A floor at z = 0 seen by 4 keyframes, with a strip 2 cm too high (mixed pixels) and a
+    10 cm step: a foot standing on the floor over both (sole at 0, margin 6 mm) lowers the
+    strip to 6 mm and leaves the step (excess >= 4 cm: a step the foot estimate overlaps);
+    a later keyframe seeing the strip high again keeps the cap; a foot in the air above
+    changes nothing; unseen bins under the foot stay unseen."""
+    x = np.arange(0.0, 0.4, 0.001)
+    z = np.where((x > 0.1) & (x < 0.15), 0.02, 0.0)
+    z = np.where(x > 0.3, 0.1, z)
+    pts = np.stack([x, z - 0.5], 1)
+    P = np.eye(2) * 1e-6
+    for m in (OnlineHeightMap(0.01, 4), IncrementalHeightMap(0.01, 4)):
+        for _ in range(4):
+            m.add_keyframe([0.0, 0.5], pts, P)
+        assert m.add_contact([0.02, 0.2], [0.38, 0.2], 0.006, 0.04) is None  # in the air
+        assert m.add_contact([0.02, 0.0], [0.38, 0.0], 0.006, 0.04) is not None
+        prof = m.profile(0.003)
+        xc = (prof.x_lo_m + prof.x_hi_m) / 2
+        strip = (xc > 0.1) & (xc < 0.15)
+        np.testing.assert_allclose(prof.z_m[strip], 0.006, atol=1e-12)
+        np.testing.assert_allclose(prof.z_m[xc > 0.3], 0.1, atol=1e-12)
+        np.testing.assert_allclose(prof.z_m[xc < 0.1], 0.0, atol=1e-12)
+        m.add_keyframe([0.0, 0.5], pts, P)
+        np.testing.assert_allclose(m.profile(0.003).z_m[strip], 0.006, atol=1e-12)
+        if isinstance(m, IncrementalHeightMap):
+            assert len(m.edges()) == 1  # the step's edge is still there
+        before = len(m.profile(0.003))
+        m.add_contact([0.5, 0.1], [0.75, 0.1], 0.006, 0.04)  # unseen terrain under the foot
+        assert len(m.profile(0.003)) == before
 
 
 def test_constant_velocity_warning_needs_an_approached_edge() -> None:

@@ -100,7 +100,9 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
     map on both sides): after each, the edges, windows at random ranges and the bin before an
     x are those of the reference map, exactly; the compiled keyframe step and edge re-scan
     agree within 1e-9 m. ``agreement``: bins used after 2 agreeing views (with mixed pixels
-    in the profiles, some bins pass the test and some wait for the 3 views)."""
+    in the profiles, some bins pass the test and some wait for the 3 views), and a foot
+    standing on the stairs after every other keyframe (its contact caps the bins under it,
+    on treads and across risers)."""
     rng = np.random.default_rng(11)
     stairs = _noisy_stairs(rng)
     kw = {"statistic": statistic, "edge_min_rise_m": 0.04, "edge_max_gap_m": 0.15}
@@ -110,12 +112,20 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
     inc = IncrementalHeightMap(0.005, 3, **kw)
     comp = IncrementalHeightMap(0.005, 3, kernels=_compiled(), **kw)
     xs = [*np.arange(-0.8, 3.5, 0.03), *np.arange(3.5, 0.5, -0.05), 4.5, -1.5, 1.0]
-    n_edges = 0
+    n_edges = n_contacts = 0
     for x0 in xs:
         P = np.diag(rng.uniform(1e-6, 1e-4, 2))
         prof = _keyframe_profile(rng, stairs, float(x0))
         for m in (ref, inc, comp):
             m.add_keyframe([x0, 0.5], prof, P)
+        if agreement is not None and rng.random() < 0.5:
+            hx = float(x0 + rng.uniform(0.0, 1.0))
+            hz = float(np.interp(hx, stairs[:, 0] + 1e-9 * np.arange(len(stairs)), stairs[:, 1]))
+            heel = np.array([hx, hz + rng.normal(0.0, 0.003)])
+            toe = heel + [0.25, rng.normal(0.0, 0.01)]
+            changed = [m.add_contact(heel, toe, 0.006, 0.04) for m in (ref, inc, comp)]
+            assert changed[0] == changed[1] == changed[2]
+            n_contacts += changed[0] is not None
         e_ref, e_inc, e_comp = ref.edges(), inc.edges(), comp.edges()
         np.testing.assert_array_equal(e_inc.xz_m, e_ref.xz_m)
         np.testing.assert_array_equal(e_inc.rise_m, e_ref.rise_m)
@@ -140,6 +150,7 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
             x = float(rng.uniform(-2.0, 3.5))
             assert inc.bin_below(x) == ref.bin_below(x) == comp.bin_below(x)
     assert n_edges >= 10  # the stairs' edges were found, up and down
+    assert agreement is None or n_contacts >= 20  # contacts lowered bins
 
 
 def _random_case(rng: np.random.Generator):

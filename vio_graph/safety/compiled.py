@@ -499,13 +499,30 @@ def keyframe_tops(rel, cam_x, cam_z, bin_m, top_band_m):  # pragma: no cover - c
 
 @numba.njit(cache=True)
 def add_tops(
-    Z, Zs, n, used, mid, se2, cov, j, tops, min_keyframes, agree_keyframes, agree_m, median, P
+    Z,
+    Zs,
+    n,
+    used,
+    mid,
+    se2,
+    cov,
+    j,
+    tops,
+    min_keyframes,
+    agree_keyframes,
+    agree_m,
+    median,
+    P,
+    zcap,
+    max_excess,
 ):  # pragma: no cover
     """In place: the keyframe heights ``tops`` join bins at array elements ``j``, and those
     bins' count, used flag, height, squared standard error and covariance sum are updated
-    (height_map.OnlineHeightMap.add_keyframe, _used_rule and _bin_stats). ``Zs``: each bin's kept
-    heights sorted (NaN after them), kept up to date here: the median is read off it and the
-    median absolute deviation found by walking out from the median (no sort per keyframe)."""
+    (height_map.OnlineHeightMap.add_keyframe, _used_rule, _bin_stats and _capped: ``zcap``
+    the bins' foot-contact caps, ``max_excess`` the largest excess they remove). ``Zs``: each
+    bin's kept heights sorted (NaN after them), kept up to date here: the median is read off
+    it and the median absolute deviation found by walking out from the median (no sort per
+    keyframe)."""
     cap = Z.shape[1]
     for q in range(j.shape[0]):
         e = j[q]
@@ -564,6 +581,8 @@ def add_tops(
                     v += (Z[e, r] - m) ** 2
             mid[e] = m
             se2[e] = v / c / c
+        if mid[e] > zcap[e] and mid[e] < zcap[e] + max_excess:  # a foot stood lower here
+            mid[e] = zcap[e]
         cov[e, 0] += P[0, 0]
         cov[e, 1] += P[0, 1]
         cov[e, 2] += P[1, 1]
@@ -1177,7 +1196,10 @@ def warm_up() -> None:
     n, used = np.zeros(3, np.int64), np.zeros(3, bool)
     mid, se2, cov = np.zeros(3), np.zeros(3), np.zeros((3, 3))
     Z = np.full((3, 4), np.nan)
-    add_tops(Z, Z.copy(), n, used, mid, se2, cov, bins + 1, tops, 1, 1, 0.0, True, np.eye(2))
+    add_tops(
+        Z, Z.copy(), n, used, mid, se2, cov, bins + 1, tops, 1, 1, 0.0, True, np.eye(2),
+        np.full(3, np.inf), 0.0,
+    )  # fmt: skip
     window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
     rescan_edges(
         used,
@@ -1205,7 +1227,8 @@ def warm_up() -> None:
     z0 = np.zeros(0)
     keyframe_step(
         np.zeros((2, 2)), 0.0, 0.0, np.eye(2), 0.005, 0.01, 0.003, Z, Z.copy(), n, used, mid,
-        se2, cov, 0, 1, 1, 0.0, True, True, 1.0, z0, z0, z0, z0, 0.04, 0.15, SLOPE_STEP_M,
+        se2, cov, 0, 1, 1, 0.0, True, np.full(3, np.inf), 0.0, True, 1.0, z0, z0, z0, z0,
+        0.04, 0.15, SLOPE_STEP_M,
         MAX_TRANSITION_BIN_M, np.zeros((0, 2)), z0, np.zeros(0, np.int64),
     )  # fmt: skip
     used[:] = True
@@ -1528,6 +1551,8 @@ def keyframe_step(
     agree_keyframes,
     agree_m,
     median,
+    zcap,
+    max_excess,
     test,
     pose_scale,
     pose_sorted,
@@ -1586,7 +1611,7 @@ def keyframe_step(
                     map_new = window_merge(map_sorted, map_old, sq)
     add_tops(
         Z, Zs, n, used, mid, se2, cov, bins - i0, tops, min_keyframes, agree_keyframes, agree_m,
-        median, P,
+        median, P, zcap, max_excess,
     )  # fmt: skip
     e_xz, e_rise, e_first = rescan_edges(
         used, mid, i0, bin_m, b_lo - i0, b_hi - i0, min_rise, max_gap, slope_step, max_bin,

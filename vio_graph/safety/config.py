@@ -39,6 +39,19 @@ class SafetyConfig(BaseModel):
         "a surface seen twice at one height is terrain, the ToF mixed pixels scatter from view "
         "to view and still need min_keyframes views; >= min_keyframes: off (before 2026-12-03)",
     )
+    contact_map: bool = Field(
+        default=True,
+        description="a foot in stance is a measurement of the terrain: the map's bins under "
+        "its sole are lowered to the sole (+ contact_sigmas x the foot-to-map sigma) when "
+        "above it by less than edge_min_rise_m (mixed pixels of a hidden strip, not a step "
+        "the foot estimate overlaps); off: the map is the camera's alone (before 2026-12-03)",
+    )
+    contact_sigmas: float = Field(
+        default=2.0,
+        gt=0,
+        description="the contact margin above the sole in sigmas of the sole-to-map height "
+        "difference, sqrt(foot_sigma_m^2 + map_sigma_m^2) (count)",
+    )
     agreement_sigmas: float = Field(
         default=3.0,
         gt=0,

@@ -13,6 +13,13 @@ heights from view to view and wait for ``min_keyframes`` views and the median. E
 keeps the mean camera position covariance of the keyframes that saw it (the relative-pose part
 of the clearance sigma).
 
+Foot contact. A foot standing on the terrain is a measurement of it too: no terrain is above
+its sole. :meth:`OnlineHeightMap.add_contact` (called on stance frames) lowers each bin under
+the sole to the sole's height plus a margin when the bin's height exceeds that by less than
+``max_excess_m`` (the mixed pixels of a hidden strip, not a step the foot estimate overlaps);
+the bin keeps that *cap* (the lowest contact so far) for the keyframes that see it later. A
+contact never raises a bin and never marks an unseen bin as seen.
+
 Queries. The monitor asks the map, per frame, for the used bins overlapping an x range
 (:meth:`OnlineHeightMap.window`), the height sigma and camera covariance of one bin (by its
 bin index ``b``), the bin just before an x (:meth:`OnlineHeightMap.bin_below`) and the edges
@@ -112,6 +119,8 @@ class OnlineHeightMap:
         self._mid = np.zeros(0)  # per bin: the height over the kept keyframes, m
         self._se2 = np.zeros(0)  # per bin: its squared standard error, m^2
         self._cov = np.zeros((0, 3))  # sum of (Pxx, Pxz, Pzz)
+        self._cap = np.zeros(0)  # per bin: the lowest foot-contact height (+inf: none), m
+        self.max_excess_m = 0.0  # excess over a cap that contact removes (0: none yet)
         self._profile: tuple[float, HeightProfile] | None = None  # (map_sigma_m, profile)
         self._profile_bins = np.zeros(0, np.int64)  # bin index of each profile bin
         self._edges: tuple[int, Edges, tuple[int, float, float]] | None = None
@@ -134,6 +143,7 @@ class OnlineHeightMap:
         self._mid = np.pad(self._mid, (pad_l, pad_r))
         self._se2 = np.pad(self._se2, (pad_l, pad_r))
         self._cov = np.pad(self._cov, ((pad_l, pad_r), (0, 0)))
+        self._cap = np.pad(self._cap, (pad_l, pad_r), constant_values=np.inf)
         self._i0 = lo
 
     def add_keyframe(
@@ -163,11 +173,59 @@ class OnlineHeightMap:
         self._n[j] += 1
         self._used[j] = self._used_rule(self._n[j], self._z[j])
         self._mid[j], self._se2[j] = self._bin_stats(self._z[j])
+        self._mid[j] = self._capped(self._mid[j], self._cap[j])
         P = np.asarray(cov_position_m2, dtype=float)
         self._cov[j] += np.array([P[0, 0], P[0, 1], P[1, 1]])
         self._profile = None
         self.version += 1
         return int(bins[0]), int(bins[-1])
+
+    def _capped(self, mid: NDArray[np.float64], cap: NDArray[np.float64]) -> NDArray:
+        """Bin heights with the foot-contact caps applied (module docstring)."""
+        lower = (mid > cap) & (mid < cap + self.max_excess_m)
+        return np.where(lower, cap, mid)
+
+    def add_contact(
+        self, heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, margin_m: float, max_excess_m: float
+    ) -> tuple[int, int] | None:
+        """A foot standing with its sole on the heel-toe line (world, m): caps the bins
+        under it at the sole's height (at the bin's centre) + ``margin_m``; bins above
+        that by ``max_excess_m`` or more keep their height. Returns the first and last bin
+        index whose height changed (None: none did)."""
+        h = np.asarray(heel_xz_m, dtype=float)
+        o = np.asarray(toe_xz_m, dtype=float)
+        if not (np.all(np.isfinite(h)) and np.all(np.isfinite(o))) or o[0] == h[0]:
+            return None
+        self.max_excess_m = max_excess_m
+        b0 = int(math.floor(min(h[0], o[0]) / self.bin_m))
+        b1 = int(math.floor(max(h[0], o[0]) / self.bin_m))
+        self._grow(b0, b1)
+        b = np.arange(b0, b1 + 1)
+        j = b - self._i0
+        xc = (b + 0.5) * self.bin_m
+        zc = h[1] + (o[1] - h[1]) * (xc - h[0]) / (o[0] - h[0]) + margin_m
+        lower = zc < self._cap[j]
+        j, zc = j[lower], zc[lower]
+        old_cap = self._cap[j]
+        self._cap[j] = zc
+        seen = self._n[j] > 0
+        j, zc, old_cap = j[seen], zc[seen], old_cap[seen]
+        if j.size == 0:
+            return None
+        stat = self._bin_stats(self._z[j])[0]
+        apply = (stat > zc) & (stat < zc + max_excess_m)
+        # a bin the old cap held whose excess over the new one is a step's: its own height
+        # (only these take the statistic again, so the compiled map's heights stay its own)
+        was_capped = self._mid[j] == old_cap
+        mid = np.where(apply, zc, np.where(was_capped, stat, self._mid[j]))
+        moved = mid != self._mid[j]
+        if not moved.any():
+            return None
+        j = j[moved]
+        self._mid[j] = mid[moved]
+        self._profile = None
+        self.version += 1
+        return int(j[0]) + self._i0, int(j[-1]) + self._i0
 
     def _used_rule(self, n: NDArray[np.int64], Z: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Per bin (count ``n``, kept heights ``Z`` as in :meth:`_bin_stats`): used once
@@ -336,6 +394,16 @@ class IncrementalHeightMap(OnlineHeightMap):
             self._rescan_edges(*changed)
         return changed
 
+    def add_contact(
+        self, heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, margin_m: float, max_excess_m: float
+    ) -> tuple[int, int] | None:
+        """As :meth:`OnlineHeightMap.add_contact`, with the edges of the changed bins
+        scanned again."""
+        changed = super().add_contact(heel_xz_m, toe_xz_m, margin_m, max_excess_m)
+        if changed is not None:
+            self._rescan_edges(*changed)
+        return changed
+
     def _add_keyframe_compiled(
         self,
         camera_xz_m: ArrayLike,
@@ -370,6 +438,8 @@ class IncrementalHeightMap(OnlineHeightMap):
             self.agree_m,
             self.statistic == "median",
             np.asarray(cov_position_m2, dtype=float),
+            self._cap,
+            self.max_excess_m,
         )
         self._profile = None
         self.version += 1

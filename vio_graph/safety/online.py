@@ -509,7 +509,7 @@ class SafetyMonitor:
                     rel, cx, cz, P, cfg.bin_m, m.top_band_m, cfg.map_sigma_m,
                     m._z, m._zs, m._n, m._used, m._mid, m._se2, m._cov, m._i0,
                     m.min_keyframes, m.agree_keyframes, m.agree_m, m.statistic == "median",
-                    pose.window != 0,
+                    m._cap, m.max_excess_m, pose.window != 0,
                     cfg.relative_pose_scale, pose._sorted, pose.leaving(), mp._sorted,
                     mp.leaving(), m.edge_min_rise_m, m.edge_max_gap_m, SLOPE_STEP_M,
                     MAX_TRANSITION_BIN_M, m._edge_xz, m._edge_rise, m._edge_first,
@@ -814,6 +814,9 @@ class SafetyMonitor:
                 cfg.edge_min_rise_m,
             ).as_array()
         n_steps, rise, tread = self.map.edge_summary()
+        if in_stance and cfg.contact_map:  # the standing foot joins the map (next frames)
+            margin = cfg.contact_sigmas * math.hypot(cfg.foot_sigma_m, cfg.map_sigma_m)
+            self.map.add_contact(heel, toe, margin, cfg.edge_min_rise_m)
         return SafetyEstimate(
             clearance_m=c_d,
             clearance_sigma_m=sig,

@@ -46,6 +46,7 @@ TARGET_MS = 0.2
 VARIANTS = {  # label: SafetyConfig overrides
     "default (swing template)": {},
     "default without the warning's prediction check": {"warning_error_check": False},
+    "default without foot contact in the map": {"contact_map": False},
     "constant velocity": {"motion_model": "constant_velocity"},
     "before 2026-12 (mean map, 1 cm bins, constant velocity, 0.2 s)": {
         "motion_model": "constant_velocity",

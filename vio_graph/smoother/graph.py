@@ -81,6 +81,7 @@ from vio_graph.smoother.imu_sampling import (
     TIME_TOL_S,
     compiled_discretization_var,
     compiled_sampler,
+    discretization_rotation_var,
     discretization_velocity_var,
     distrust_step_variances,
     distrust_variances,
@@ -609,15 +610,23 @@ class KeyframeGraphBuilder:
         # stretches are the saturation prior's business, imu_faults.py)
         self._interval_flagged = (x_vel > 0 or x_rot > 0) and repaired_in(ts, self._imu_r, t0, t)
         per_step = cfg.distrust_noise == "per_step" and (x_vel > 0 or x_rot > 0)
-        if cfg.imu_discretization_gain > 0 or x_vel > 0 or x_rot > 0:
+        gain_a, gain_g = cfg.imu_discretization_gain, cfg.gyro_discretization_gain
+        if gain_a > 0 or gain_g > 0 or x_vel > 0 or x_rot > 0:
+            dvar = rvar = 0.0
+            gyr = np.asarray(self._imu_g) if gain_g > 0 else None
             if self._compiled_dvar is not None and ts.size:
                 dvar = self._compiled_dvar(ts, acc, t0, t, TIME_TOL_S)
+                if gyr is not None:
+                    rvar = self._compiled_dvar(ts, gyr, t0, t, TIME_TOL_S)
             else:
                 dvar = discretization_velocity_var(ts, acc, t0, t)
-            extra = cfg.imu_discretization_gain**2 * dvar
+                if gyr is not None:
+                    rvar = discretization_rotation_var(ts, gyr, t0, t)
+            extra = gain_a**2 * dvar
+            extra_rot = gain_g**2 * rvar
             spread_vel, spread_rot = (0.0, 0.0) if per_step else (x_vel, x_rot)
             params = self._interval_params
-            set_white_noise(params, cfg, extra + spread_vel, t - t0, spread_rot)
+            set_white_noise(params, cfg, extra + spread_vel, t - t0, extra_rot + spread_rot)
         pim = gtsam.PreintegratedCombinedMeasurements(params, self._latest_bias)
         if per_step:
             # GTSAM adds (accelerometer covariance) x dt of velocity variance per step and

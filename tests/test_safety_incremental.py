@@ -306,3 +306,33 @@ def test_compiled_unseen_distance_equals_the_numpy_one() -> None:
         a = unseen_distance(xa, xb, prof, x0, x1, gap)
         b = K._unseen_distance(xa, xb, lo, hi, x0, x1, gap)
         assert a == b or abs(a - b) <= TOL_M
+
+
+def test_fused_warm_up_loads_the_kernels_a_fused_monitor_calls() -> None:
+    """``warm_up(fused=True)`` (what a fused monitor runs at construction) loads the kernels
+    the monitor calls frame by frame (the edge re-scan too: foot contacts call it) and
+    leaves the single-operation kernels, which it reaches only on rare branches, to their
+    first call (checked in a fresh interpreter: here other tests have loaded them
+    already)."""
+    _compiled()
+    import json
+    import subprocess
+    import sys
+
+    probe = (
+        "import json; from vio_graph.safety import compiled as c; c.warm_up(fused=True); "
+        "print(json.dumps({n: bool(getattr(c, n).signatures) for n in dir(c) "
+        "if hasattr(getattr(c, n), 'signatures')}))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, check=True, timeout=600
+    )
+    loaded = json.loads(out.stdout.strip().splitlines()[-1])
+    for name in (
+        "keyframe_step", "frame_terrain", "swing_prediction", "cv_prediction",
+        "swing_edge_risk", "_foot_clearance", "window_bins", "template_motion",
+        "rescan_edges",  # (a standing foot's contact lowering map bins)
+    ):  # fmt: skip
+        assert loaded[name], name
+    for name in ("consistency_squares", "add_tops", "keyframe_tops", "_coverage"):
+        assert not loaded[name], name

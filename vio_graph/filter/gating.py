@@ -16,8 +16,46 @@ def chi2_2dof_quantile(probability: float) -> float:
     return float(-2.0 * np.log1p(-probability))
 
 
+#: chi-square quantiles of the usual gate probabilities, (probability, dof) -> the value
+#: scipy's ``2 * gammaincinv(dof / 2, probability)`` gives, stored exactly (``float.hex``):
+#: with the default configuration a run then needs no scipy.special, whose import is
+#: ~0.3 s of CPU a process (tests/test_gating_table.py compares every entry with scipy)
+KNOWN_CHI2_QUANTILES: dict[tuple[float, int], float] = {
+    key: float.fromhex(value)
+    for key, value in {
+        (0.95, 1): "0x1.ebb4ec31e7ef5p+1",
+        (0.95, 2): "0x1.7f7427b73e38ep+2",
+        (0.95, 3): "0x1.f4248080e68edp+2",
+        (0.99, 1): "0x1.a8a2255a6e924p+2",
+        (0.99, 2): "0x1.26bb1bbb55514p+3",
+        (0.99, 3): "0x1.6b0925f3ee5a7p+3",
+        (0.999, 1): "0x1.5a7b6c0cc8b77p+3",
+        (0.999, 2): "0x1.ba18a998fffa0p+3",
+        (0.999, 3): "0x1.044280e2bdaadp+4",
+        (0.9999, 1): "0x1.e45fe3a3b14d1p+3",
+        (0.9999, 2): "0x1.26bb1bbb55553p+4",
+        (0.9999, 3): "0x1.51b8600a509e9p+4",
+        (0.99999, 1): "0x1.382ec7bfdbafbp+4",
+        (0.99999, 2): "0x1.7069e2aa2b45dp+4",
+        (0.99999, 3): "0x1.9e6d91242d5dbp+4",
+        (0.999999, 1): "0x1.7ed99bac43b90p+4",
+        (0.999999, 2): "0x1.ba18a998fc064p+4",
+        (0.999999, 3): "0x1.eaa339720b014p+4",
+    }.items()
+}
+
+
 def chi2_quantile(probability: float, dof: int) -> float:
-    """Quantile of the chi-square distribution with ``dof`` degrees of freedom (1, 3, ...)."""
+    """Quantile of the chi-square distribution with ``dof`` degrees of freedom (1, 3, ...):
+    from :data:`KNOWN_CHI2_QUANTILES` when listed there, else computed with scipy."""
+    known = KNOWN_CHI2_QUANTILES.get((float(probability), int(dof)))
+    if known is not None:
+        return known
+    return chi2_quantile_scipy(probability, dof)
+
+
+def chi2_quantile_scipy(probability: float, dof: int) -> float:
+    """:func:`chi2_quantile` computed (scipy.special.gammaincinv), the reference of the table."""
     from scipy.special import gammaincinv
 
     return float(2.0 * gammaincinv(0.5 * dof, probability))

@@ -1176,54 +1176,50 @@ def swing_edge_risk(
     return pred_edge, risk, new[:n_new].copy()
 
 
-def warm_up() -> None:
-    """Call every kernel once on a small input, with the argument types the monitor uses:
-    numba loads their machine code (compiles it, on a machine's first run) at a kernel's
-    first call, which would otherwise land on the first frames."""
+def warm_up(fused: bool = False) -> None:
+    """Call the monitor's kernels once on a small input, with the argument types the monitor
+    uses: numba loads their machine code (compiles it, on a machine's first run) at a
+    kernel's first call, which would otherwise land on the first frames.
+
+    ``fused``: only the kernels a fused monitor (``SafetyMonitor(fused=True)``, the default)
+    calls frame by frame: the fused steps (``keyframe_step``, ``frame_terrain``,
+    ``swing_prediction``, ``cv_prediction``, ``swing_edge_risk``) and ``foot_clearance``,
+    ``window_bins``, ``template_motion``, ``rescan_edges`` (a standing foot's contact lowering
+    map bins, height_map.IncrementalHeightMap.add_contact). The kernels of the single
+    operations, which it reaches only on rare branches (a non-finite camera), load at their
+    first call instead of costing every process ~0.15-0.2 s of CPU. Otherwise every
+    kernel."""
     prof = HeightProfile(
         np.array([0.0, 0.005, 0.01]), np.array([0.005, 0.01, 0.015]), np.zeros(3), np.zeros(3)
     )
     heel, toe, v = np.array([-0.2, 0.05]), np.array([0.0, 0.05]), (0.5, 0.0)
     foot_clearance(heel, toe, prof)
-    coverage(heel, toe, prof)
-    clearance_many(heel[None], toe[None], prof)
-    edge_clearance(heel, toe, np.array([0.01, 0.0]))
-    edge_clearance_many(heel[None], toe[None], np.array([0.01, 0.0]))
-    predicted_min_clearance(heel, toe, v, 0.3, 10, prof)
-    predicted_min_edge_clearance(heel, toe, v, 0.3, 10, np.array([0.01, 0.0]))
-    edge_runs(prof, 0.04, 0.15)
-    bins, tops = keyframe_tops(np.zeros((2, 2)), 0.0, 0.0, 0.005, 0.01)
+    if not fused:
+        coverage(heel, toe, prof)
+        clearance_many(heel[None], toe[None], prof)
+        edge_clearance(heel, toe, np.array([0.01, 0.0]))
+        edge_clearance_many(heel[None], toe[None], np.array([0.01, 0.0]))
+        predicted_min_clearance(heel, toe, v, 0.3, 10, prof)
+        predicted_min_edge_clearance(heel, toe, v, 0.3, 10, np.array([0.01, 0.0]))
+        edge_runs(prof, 0.04, 0.15)
     n, used = np.zeros(3, np.int64), np.zeros(3, bool)
     mid, se2, cov = np.zeros(3), np.zeros(3), np.zeros((3, 3))
     Z = np.full((3, 4), np.nan)
-    add_tops(
-        Z, Z.copy(), n, used, mid, se2, cov, bins + 1, tops, 1, 1, 0.0, True, np.eye(2),
-        np.full(3, np.inf), 0.0,
-    )  # fmt: skip
+    if not fused:
+        bins, tops = keyframe_tops(np.zeros((2, 2)), 0.0, 0.0, 0.005, 0.01)
+        add_tops(
+            Z, Z.copy(), n, used, mid, se2, cov, bins + 1, tops, 1, 1, 0.0, True, np.eye(2),
+            np.full(3, np.inf), 0.0,
+        )  # fmt: skip
     window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
-    rescan_edges(
-        used,
-        mid,
-        0,
-        0.005,
-        1,
-        1,
-        0.04,
-        0.15,
-        SLOPE_STEP_M,
-        MAX_TRANSITION_BIN_M,
-        np.zeros((0, 2)),
-        np.zeros(0),
-        np.zeros(0, np.int64),
-    )
-    bin_below(used, 0, 0.005, 0.01)
     phase = np.array([0.0, 0.1, 0.2])
     template_motion(0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]))
-    x3 = np.array([0.0, 0.005, 0.01])
-    b3 = np.arange(3, dtype=np.int64)
-    consistency_squares(b3, x3, x3, x3, x3 + 1.0, b3, cov, n + 1, 0, 0.005, 1.0, 0.0, 0.0, 1.0)
-    window_merge(x3, x3[:1], x3)
-    profile_x_range(np.zeros((2, 2)), 0.0)
+    rescan_edges(
+        used, mid, 0, 0.005, 1, 1, 0.04, 0.15, SLOPE_STEP_M, MAX_TRANSITION_BIN_M,
+        np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64),
+    )  # fmt: skip
+    if not fused:
+        _warm_up_single_operations(used, mid, cov, n)
     z0 = np.zeros(0)
     keyframe_step(
         np.zeros((2, 2)), 0.0, 0.0, np.eye(2), 0.005, 0.01, 0.003, Z, Z.copy(), n, used, mid,
@@ -1262,6 +1258,16 @@ def warm_up() -> None:
         np.zeros(0),
         0.5,
     )
+
+
+def _warm_up_single_operations(used, mid, cov, n) -> None:
+    """The map and consistency kernels of the single operations (:func:`warm_up`)."""
+    bin_below(used, 0, 0.005, 0.01)
+    x3 = np.array([0.0, 0.005, 0.01])
+    b3 = np.arange(3, dtype=np.int64)
+    consistency_squares(b3, x3, x3, x3, x3 + 1.0, b3, cov, n + 1, 0, 0.005, 1.0, 0.0, 0.0, 1.0)
+    window_merge(x3, x3[:1], x3)
+    profile_x_range(np.zeros((2, 2)), 0.0)
 
 
 # ---------------------------------------------------------------------------------------------

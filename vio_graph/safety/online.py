@@ -330,7 +330,7 @@ class SafetyMonitor:
         if incremental is not False and compiled is not False:
             kernels = compiled_kernels(force=bool(compiled))
             if kernels is not None:
-                kernels.warm_up()  # the kernels' one-time load here, not on the first frames
+                kernels.warm_up(fused=fused)  # the one-time load here, not on the first frames
         if incremental is None:
             incremental = kernels is not None
         #: the module computing the per-frame geometry: clearance (numpy) or compiled

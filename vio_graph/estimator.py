@@ -175,6 +175,7 @@ def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float
         sample.accel_held,
         sample.measured_accel_mps2,
         sample.measured_gyro_radps,
+        sample.accel_extra_cov_m2ps4,
     )
 
 
@@ -242,6 +243,7 @@ class RigGeometry:
         R = self.R_shank_imu
         q = quat_wxyz_from_matrix(matrix_from_quat_wxyz(sample.quat_wxyz) @ R.T)
         ma, mg = sample.measured_accel_mps2, sample.measured_gyro_radps
+        xc = sample.accel_extra_cov_m2ps4
         return dataclasses.replace(
             sample,
             accel_mps2=R @ np.asarray(sample.accel_mps2, dtype=float),
@@ -249,6 +251,7 @@ class RigGeometry:
             quat_wxyz=q,
             measured_accel_mps2=None if ma is None else R @ np.asarray(ma, dtype=float),
             measured_gyro_radps=None if mg is None else R @ np.asarray(mg, dtype=float),
+            accel_extra_cov_m2ps4=None if xc is None else R @ np.asarray(xc, dtype=float) @ R.T,
         )
 
     @property

@@ -792,6 +792,8 @@ class OnlineEstimator:
         bridge = self.saturation_bridge
         if bridge is not None and (bridge.active or _saturated(sample)):
             return None  # the general path, which feeds the bridge (same kernels, same bits)
+        if sample.accel_extra_cov_m2ps4 is not None or filt._prev_xc is not None:
+            return None  # the general path adds the clipped axes' variance (ESKF.propagate)
         att_slots = self._fused_slots[0]
         if att._R is not self._fused_att[0] or att._gyro_radps is not self._fused_att[1]:
             ws[att_slots] = att._R + att._gyro_radps  # the general path moved the tracker

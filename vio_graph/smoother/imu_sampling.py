@@ -301,7 +301,7 @@ def distrust_step_covariances(
         frac = np.clip(np.minimum(ends, hi) - np.maximum(starts, lo), 0.0, None) / h
         if not np.any(frac > 0):
             continue
-        c = extra_covs[j]
+        c = extra_covs[int(j)]
         if c is not None:
             touched = True
         cov_j = np.eye(3) * x[j, 0] ** 2 if c is None else np.asarray(c, dtype=float)

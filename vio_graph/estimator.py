@@ -175,6 +175,7 @@ def _replaced(sample: ImuSample, timestamp_s: float, quat_wxyz: NDArray[np.float
         sample.accel_held,
         sample.measured_accel_mps2,
         sample.measured_gyro_radps,
+        sample.accel_extra_cov_m2ps4,
     )
 
 
@@ -242,6 +243,7 @@ class RigGeometry:
         R = self.R_shank_imu
         q = quat_wxyz_from_matrix(matrix_from_quat_wxyz(sample.quat_wxyz) @ R.T)
         ma, mg = sample.measured_accel_mps2, sample.measured_gyro_radps
+        xc = sample.accel_extra_cov_m2ps4
         return dataclasses.replace(
             sample,
             accel_mps2=R @ np.asarray(sample.accel_mps2, dtype=float),
@@ -249,6 +251,7 @@ class RigGeometry:
             quat_wxyz=q,
             measured_accel_mps2=None if ma is None else R @ np.asarray(ma, dtype=float),
             measured_gyro_radps=None if mg is None else R @ np.asarray(mg, dtype=float),
+            accel_extra_cov_m2ps4=None if xc is None else R @ np.asarray(xc, dtype=float) @ R.T,
         )
 
     @property
@@ -789,6 +792,8 @@ class OnlineEstimator:
         bridge = self.saturation_bridge
         if bridge is not None and (bridge.active or _saturated(sample)):
             return None  # the general path, which feeds the bridge (same kernels, same bits)
+        if sample.accel_extra_cov_m2ps4 is not None or filt._prev_xc is not None:
+            return None  # the general path adds the clipped axes' variance (ESKF.propagate)
         att_slots = self._fused_slots[0]
         if att._R is not self._fused_att[0] or att._gyro_radps is not self._fused_att[1]:
             ws[att_slots] = att._R + att._gyro_radps  # the general path moved the tracker

@@ -90,6 +90,7 @@ class ImuStep:
                 s.accel_held,
                 s.measured_accel_mps2,
                 s.measured_gyro_radps,
+                s.accel_extra_cov_m2ps4,
             )
         return c
 

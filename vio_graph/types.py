@@ -29,6 +29,10 @@ class ImuSample:
     itself said (same axes as the sample), so that an estimator which sees the next sample
     can keep the axes that agree with its neighbours (filter/imu_repair.py
     :func:`keep_consistent_axes`); None on a measured sample.
+    ``accel_extra_cov_m2ps4``: on a saturated sample, the saturation prior's extra
+    accelerometer covariance (3, 3; same axes as the sample) with its variance on the clipped
+    axes only (the others measured as usual), whose largest sigma is
+    ``accel_extra_sigma_mps2``; None: the extra sigma applies to every axis.
     """
 
     timestamp_s: float
@@ -40,6 +44,7 @@ class ImuSample:
     accel_held: bool = False
     measured_accel_mps2: NDArray[np.float64] | None = None
     measured_gyro_radps: NDArray[np.float64] | None = None
+    accel_extra_cov_m2ps4: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)

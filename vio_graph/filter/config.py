@@ -122,6 +122,17 @@ class ImuFaultConfig(BaseModel):
         "sigma, so that the velocity variance a stretch of n samples adds is n^2 (fully "
         "correlated), not n, times one sample's. False: every sample the prior's sigma",
     )
+    saturation_axis_distrust: bool = Field(
+        default=False,
+        description="the filter adds a saturated sample's extra accelerometer variance on "
+        "its clipped axes only (ImuSample.accel_extra_cov_m2ps4, rotated to the ground by the "
+        "sample's pitch): the other axes are measured. False: the largest clipped axis's "
+        "sigma on both ground axes. No effect without saturation. Off: 4 g saturation seeds "
+        "1-3 filter toe x obstacle 3.52 -> 1.51, upstair 1.75 -> 1.43 cm, but downstair 1.84 "
+        "-> 1.94, prosthesis_upstair 1.32 -> 1.48, and the smoothers, which take the front "
+        "end's displacements, the bridge and the learnt scales from the filter, lose (smoother "
+        "toe x obstacle 0.61 -> 1.19, upstair 0.51 -> 0.72 cm): docs/robustness.md",
+    )
     saturation_learn_scale: bool = Field(
         default=True,
         description="learn the half-normal scale per IMU axis from what the filter's "

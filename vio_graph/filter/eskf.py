@@ -65,6 +65,7 @@ sample and the depth frame.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -210,6 +211,9 @@ class SagittalEskf:
         self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0
         self._n_lm_acc = self._n_lm_rej = 0
         self._prev_xa = 0.0  # extra accel sigma of the previous IMU sample (m/s^2)
+        # the previous sample's saturation covariance on its clipped axes (body x-z, 2x2) and
+        # pitch (rad), when imu_faults.saturation_axis_distrust applies it (None otherwise)
+        self._prev_xc: tuple[NDArray[np.float64], float] | None = None
         # compiled propagation (filter/compiled_imu.py): the previous sample's memory in one
         # array instead of _prev / _prev_xa / _accel_w_mps2
         self._kernels = imu_kernels()
@@ -277,6 +281,45 @@ class SagittalEskf:
 
     # ------------------------------------------------------------- propagation
     def propagate(self, imu: ImuSample) -> None:
+        """Propagate nominal state (eq. 6) and covariance (eq. 7) to ``imu.timestamp_s``
+        (:meth:`_propagate`, plus the saturation covariance of :meth:`_axis_distrust_split`)."""
+        imu, now = self._axis_distrust_split(imu)
+        t_before = self._t_s
+        self._propagate(imu)
+        self._axis_distrust_add(now, self._t_s - t_before)
+
+    def _axis_distrust_split(
+        self, imu: ImuSample
+    ) -> tuple[ImuSample, tuple[NDArray[np.float64], float] | None]:
+        """With ``imu_faults.saturation_axis_distrust``, a saturated sample's extra
+        accelerometer variance goes on its clipped axes only (``accel_extra_cov_m2ps4``, the
+        sample's axes; its x-z block here): the sample without its isotropic extra sigma and
+        (that 2x2 block, its pitch). Otherwise the sample as it is and None."""
+        xc = imu.accel_extra_cov_m2ps4
+        if xc is None or not self.config.imu_faults.saturation_axis_distrust:
+            return imu, None
+        c = np.asarray(xc, dtype=float)[np.ix_([0, 2], [0, 2])]
+        pitch = sagittal_pitch(imu.quat_wxyz)
+        return dataclasses.replace(imu, accel_extra_sigma_mps2=0.0), (c, pitch)
+
+    def _axis_distrust_add(self, now: tuple[NDArray[np.float64], float] | None, dt: float) -> None:
+        """Add the clipped axes' velocity variance of this step (dt s): the step leans on
+        this sample and, with the trapezoid, on the previous one (as the isotropic extra
+        sigma does), so the larger of their body covariances per axis, rotated to the ground
+        by their mean attitude (R_bar of eq. 7)."""
+        prev, self._prev_xc = self._prev_xc, now
+        if dt <= 0.0 or (now is None and prev is None):
+            return
+        lean = [x for x in (now, prev if self.config.integration == "trapezoid" else None) if x]
+        if not lean:
+            return
+        C = np.maximum.reduce([x[0] for x in lean])
+        rc = float(np.mean([math.cos(x[1]) for x in lean]))
+        rs = float(np.mean([math.sin(x[1]) for x in lean]))
+        R = np.array([[rc, rs], [-rs, rc]])  # body x-z -> ground, as in _propagate
+        self._P[2:4, 2:4] += (R @ C @ R.T) * dt**2
+
+    def _propagate(self, imu: ImuSample) -> None:
         """Propagate nominal state (eq. 6) and covariance (eq. 7) to ``imu.timestamp_s``.
 
         dt is the time since the previous IMU sample (or since :meth:`initialise`).
@@ -460,7 +503,15 @@ class SagittalEskf:
                 h.popleft()
 
     def propagate_reference(self, imu: ImuSample) -> None:
-        """The numpy reference of :meth:`propagate` (same state to rounding; the tests run both).
+        """The numpy reference of :meth:`propagate` (same state to rounding; the tests run
+        both), with the same saturation covariance (:meth:`_axis_distrust_split`)."""
+        imu, now = self._axis_distrust_split(imu)
+        t_before = self._t_s
+        self._propagate_reference(imu)
+        self._axis_distrust_add(now, self._t_s - t_before)
+
+    def _propagate_reference(self, imu: ImuSample) -> None:
+        """The numpy reference of :meth:`_propagate`.
 
         Propagate nominal state (eq. 6) and covariance (eq. 7) to ``imu.timestamp_s``.
 

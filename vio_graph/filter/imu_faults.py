@@ -148,6 +148,7 @@ class ImuFaultMonitor:
         #: range) and the velocity rate the prior put back on them (m/s^2, IMU axes)
         self.last_rail_sign = np.zeros(3)
         self.last_restored_mps2 = np.zeros(3)
+        self.last_extra_cov = np.zeros((3, 3))
         self.n_accel_saturated = 0  #: samples with an accelerometer axis at the rail
         self.n_gyro_saturated = 0  #: samples with a gyro axis at the rail
         self.n_gyro_repaired = 0  #: gyro samples replaced by the orientation's rate
@@ -174,7 +175,10 @@ class ImuFaultMonitor:
             self.last_restored_mps2 = self.last_rail_sign * scale * _HALF_NORMAL_MEAN
             acc = np.where(rail, a + np.sign(a) * scale * _HALF_NORMAL_MEAN, a)
             corr = np.sqrt(2.0 * self._acc_run - 1.0) if self.config.saturation_correlated else 1.0
-            xa = max(xa, float(np.max(scale[rail])) * _HALF_NORMAL_SD * corr)
+            sig_axes = np.where(rail, scale * _HALF_NORMAL_SD * corr, 0.0)
+            xa = max(xa, float(np.max(sig_axes)))
+            #: the prior's covariance on the clipped axes only (ImuSample.accel_extra_cov_m2ps4)
+            self.last_extra_cov = np.diag(sig_axes**2)
         elif self.last_rail_sign.any():
             self.last_rail_sign = np.zeros(3)
             self.last_restored_mps2 = np.zeros(3)
@@ -270,6 +274,7 @@ class ImuFaultMonitor:
             accel_extra_sigma_mps2=xa,
             gyro_extra_sigma_radps=xg,
             accel_held=held or sample.accel_held,
+            accel_extra_cov_m2ps4=self.last_extra_cov if acc_sat else sample.accel_extra_cov_m2ps4,
         )
 
     def _process_compiled(self, sample: ImuSample) -> ImuSample:
@@ -371,6 +376,7 @@ class ImuFaultMonitor:
             accel_extra_sigma_mps2=xa,
             gyro_extra_sigma_radps=xg,
             accel_held=held or sample.accel_held,
+            accel_extra_cov_m2ps4=self.last_extra_cov if acc_sat else sample.accel_extra_cov_m2ps4,
         )
 
     def process_reference(self, sample: ImuSample) -> ImuSample:
@@ -423,6 +429,7 @@ class ImuFaultMonitor:
             accel_extra_sigma_mps2=xa,
             gyro_extra_sigma_radps=xg,
             accel_held=held or sample.accel_held,
+            accel_extra_cov_m2ps4=self.last_extra_cov if acc_sat else sample.accel_extra_cov_m2ps4,
         )
 
     @staticmethod

@@ -204,6 +204,14 @@ class SmootherConfig(BaseModel):
         "as extra white noise (before 2026-12-02; upstair s1 4 g saturation batch toe x "
         "4.29 cm)",
     )
+    saturation_axis_distrust: bool = Field(
+        default=True,
+        description="a saturated sample's extra accelerometer variance on its clipped axes "
+        "only (ImuSample.accel_extra_cov_m2ps4): the other axes are measured, so the "
+        "velocity a clipped stretch lost is unknown along one body axis, and what vision "
+        "measures of it (z on a level floor) fixes its share on the blind axis (x). Off: on "
+        "every axis. No effect without saturation",
+    )
     robust_kernel: Literal["huber", "cauchy", "none"] = Field(
         default="huber", description="M-estimator on displacement and landmark factors"
     )

@@ -83,6 +83,7 @@ from vio_graph.smoother.imu_sampling import (
     compiled_sampler,
     discretization_rotation_var,
     discretization_velocity_var,
+    distrust_step_covariances,
     distrust_step_variances,
     distrust_variances,
     make_preintegration_params,
@@ -344,6 +345,9 @@ class KeyframeGraphBuilder:
         self._imu_g: list[NDArray[np.float64]] = []
         self._imu_q: list[NDArray[np.float64]] = []
         self._imu_x: list[tuple[float, float]] = []  # extra (accel, gyro) sigma per sample
+        # a saturated sample's extra accelerometer covariance on its clipped axes (3, 3), or
+        # None (the extra accel sigma on every axis); kept only with saturation_axis_distrust
+        self._imu_c: list[NDArray[np.float64] | None] = []
         self._imu_h: list[bool] = []  # accelerometer held over a corrupted packet (not measured)
         self._imu_r: list[bool] = []  # a corrupted packet the monitor repaired (stays marked)
         # what a held packet measured (accel, gyro), for the per-axis keep; None otherwise
@@ -425,6 +429,10 @@ class KeyframeGraphBuilder:
         self._imu_q.append(_vec(sample.quat_wxyz if quat_wxyz is None else quat_wxyz, 4))
         self._imu_x.append(
             (float(sample.accel_extra_sigma_mps2), float(sample.gyro_extra_sigma_radps))
+        )
+        xc = sample.accel_extra_cov_m2ps4
+        self._imu_c.append(
+            None if xc is None or not self.config.saturation_axis_distrust else np.asarray(xc)
         )
         held = bool(sample.accel_held)
         h = self._imu_h
@@ -633,13 +641,19 @@ class KeyframeGraphBuilder:
             # reads the covariance from the (shared) params at every step: raise it for the
             # steps the distrusted samples fall in, then put it back
             vel_var, rot_var = distrust_step_variances(ts, self._imu_x, self._last_kf_time_s, dt)
+            vel_cov = distrust_step_covariances(
+                ts, self._imu_x, self._imu_c, self._last_kf_time_s, dt
+            )
             # copies: the getters return views of the params' own matrices
             acc0 = np.array(params.getAccelerometerCovariance(), dtype=float, copy=True)
             gyr0 = np.array(params.getGyroscopeCovariance(), dtype=float, copy=True)
-            for a_k, g_k, dt_k, vv, rv in zip(a_mid, g_mid, dt, vel_var, rot_var, strict=True):
+            for k, (a_k, g_k, dt_k, vv, rv) in enumerate(
+                zip(a_mid, g_mid, dt, vel_var, rot_var, strict=True)
+            ):
                 distrusted = vv > 0 or rv > 0
                 if distrusted:
-                    params.setAccelerometerCovariance(acc0 + np.eye(3) * (vv / dt_k))
+                    cov_k = np.eye(3) * vv if vel_cov is None else vel_cov[k]
+                    params.setAccelerometerCovariance(acc0 + cov_k / dt_k)
                     params.setGyroscopeCovariance(gyr0 + np.eye(3) * (rv / dt_k))
                 pim.integrateMeasurement(a_k, g_k, float(dt_k))
                 if distrusted:
@@ -979,6 +993,7 @@ class KeyframeGraphBuilder:
                 ok = keep_consistent_axes(measured[1], g_interp, sg, p) == measured[1]
                 self._imu_g[m] = np.where(ok, measured[1], self._imu_g[m])
             self._imu_x[m] = (sig, sig_g)
+            self._imu_c[m] = None
             self._imu_h[m] = False
 
     def _trim_imu(self, t: float) -> None:
@@ -989,3 +1004,4 @@ class KeyframeGraphBuilder:
         k0 = max(0, int(np.searchsorted(ts, t - TIME_TOL_S, side="right")) - 4)
         del self._imu_t[:k0], self._imu_a[:k0], self._imu_g[:k0], self._imu_q[:k0]
         del self._imu_x[:k0], self._imu_h[:k0], self._imu_m[:k0], self._imu_r[:k0]
+        del self._imu_c[:k0]

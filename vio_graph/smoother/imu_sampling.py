@@ -293,6 +293,41 @@ def distrust_step_variances(
     return vel, rot
 
 
+def distrust_step_covariances(
+    times_s: ArrayLike,
+    extra_sigmas: Sequence[tuple[float, float]],
+    extra_covs: Sequence[NDArray[np.float64] | None],
+    t0_s: float,
+    dt_s: ArrayLike,
+) -> NDArray[np.float64] | None:
+    """:func:`distrust_step_variances`'s velocity variance per step as a (K, 3, 3) covariance
+    in the sample axes, with a saturated sample's variance on its clipped axes only
+    (``extra_covs``, ``ImuSample.accel_extra_cov_m2ps4``; None: its sigma on every axis).
+    None when no sample touching the steps carries a covariance (then the isotropic
+    variances are the answer)."""
+    dt = np.asarray(dt_s, dtype=float).reshape(-1)
+    if dt.size == 0 or all(c is None for c in extra_covs):
+        return None
+    x = np.asarray(extra_sigmas, dtype=float).reshape(-1, 2)
+    t = np.asarray(times_s, dtype=float)
+    h = float(np.median(np.diff(t))) if t.size > 1 else float(dt.sum())
+    ends = t0_s + np.cumsum(dt)
+    starts = ends - dt
+    out = np.zeros((dt.size, 3, 3))
+    touched = False
+    for j in np.flatnonzero(x[:, 0] > 0):
+        lo, hi = t[j] - 0.5 * h, t[j] + 0.5 * h
+        frac = np.clip(np.minimum(ends, hi) - np.maximum(starts, lo), 0.0, None) / h
+        if not np.any(frac > 0):
+            continue
+        c = extra_covs[int(j)]
+        if c is not None:
+            touched = True
+        cov_j = np.eye(3) * x[j, 0] ** 2 if c is None else np.asarray(c, dtype=float)
+        out += frac[:, None, None] * (h * h) * cov_j
+    return out if touched else None
+
+
 _EYE3 = np.eye(3)
 _EYE3.flags.writeable = False
 

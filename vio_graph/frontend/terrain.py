@@ -75,7 +75,7 @@ from numpy.typing import NDArray
 from vio_graph.errors import FrontendError
 from vio_graph.frontend.config import TerrainConfig
 from vio_graph.frontend.icp import compiled_kernels
-from vio_graph.surface import under_levels_mask
+from vio_graph.surface import floor_beyond_slab_mask, seen_under_mask, under_levels_mask
 from vio_graph.types import TerrainKind
 
 
@@ -378,11 +378,33 @@ def points_under_levels(
     camera at the origin): at least ``min_step_m`` below the level and more than
     ``under_level_margin_m`` inside its robust x extent, a line of sight that passes at least
     ``min_step_m`` under it more than ``level_band_m`` inside that extent, or a point within
-    ``min_step_m`` of a lower level that the level overlaps."""
+    ``min_step_m`` of a lower level that the level overlaps; with ``under_sight_min_points``
+    also a point whose line of sight passed ``min_step_m`` under that many profile points
+    more than the margin nearer (``vio_graph.surface.seen_under_mask``: seen through a gap
+    under a surface that is no level, e.g. the front of a tread whose top is out of view)."""
     margin = config.under_level_margin_m
-    if margin is None or not levels:
-        return np.zeros(np.shape(profile_xz_m)[0], dtype=bool)
-    return under_levels_mask(
+    n = np.shape(profile_xz_m)[0]
+    if margin is None:
+        return np.zeros(n, dtype=bool)
+    under = np.zeros(n, dtype=bool)
+    if config.under_sight_min_points is not None:
+        under = seen_under_mask(
+            profile_xz_m, margin, config.min_step_m, config.under_sight_min_points
+        )
+    if not levels:
+        return under
+    if config.under_sight_min_points is not None:
+        under |= floor_beyond_slab_mask(
+            profile_xz_m,
+            [lv.height_m for lv in levels],
+            [lv.x_min_m for lv in levels],
+            [lv.x_max_m for lv in levels],
+            margin,
+            config.min_step_m,
+            config.min_step_m,
+            config.min_level_points,
+        )
+    return under | under_levels_mask(
         profile_xz_m,
         [lv.height_m for lv in levels],
         [lv.x_min_m for lv in levels],
@@ -395,12 +417,18 @@ def points_under_levels(
 
 
 def _lower_beyond(pts: NDArray[np.float64], levels: Sequence[Level], config: TerrainConfig) -> bool:
-    """Profile points beyond the farthest level, lower than it by at least ``min_step_m``."""
+    """Profile points beyond the farthest level, lower than it by at least ``min_step_m``,
+    that are a surface behind it, not only a face: they span at least ``min_level_length_m``
+    in x (the floor behind an obstacle; a face seen through a gap under a tread that is out
+    of view, e.g. a landing's front under open risers, is a vertical strip)."""
     if not levels:
         return False
     last = levels[-1]
     beyond = pts[:, 0] > last.x_max_m + config.level_gap_m
-    return bool(np.any(pts[beyond, 1] < last.height_m - config.min_step_m))
+    lower = pts[beyond][pts[beyond, 1] < last.height_m - config.min_step_m]
+    if lower.shape[0] == 0:
+        return False
+    return bool(lower[:, 0].max() - lower[:, 0].min() >= config.min_level_length_m)
 
 
 def classify_against_stand(

@@ -10,7 +10,7 @@ import pytest
 from vio_graph.evaluation.map_accuracy import compare_to_truth
 from vio_graph.frontend.config import TerrainConfig as FrontTerrainConfig
 from vio_graph.frontend.smoothing import smooth_profile
-from vio_graph.frontend.terrain import classify_terrain, points_under_levels
+from vio_graph.frontend.terrain import classify_terrain, points_seen_under, points_under_levels
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.mapping.steps import estimate_terrain_geometry
 from vio_graph.recording.metadata import TerrainInfo
@@ -73,6 +73,7 @@ def test_closed_risers_lose_no_point(kind: str, overhang_m: float) -> None:
     for _, prof in frames:
         _, levels = classify_terrain(prof, cfg)
         assert not points_under_levels(prof, levels, cfg).any()
+        assert not points_seen_under(prof, levels, cfg).any()
 
 
 def test_open_risers_floor_seen_under_the_treads_is_dropped_and_the_frame_is_a_stair() -> None:

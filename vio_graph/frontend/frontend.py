@@ -24,6 +24,7 @@ from vio_graph.frontend.smoothing import smooth_profile
 from vio_graph.frontend.terrain import (
     classify_against_stand,
     classify_terrain,
+    points_seen_under,
     points_under_levels,
 )
 from vio_graph.frontend.tracker import CornerTracker
@@ -148,9 +149,14 @@ class VisualFrontend:
         # the walking surface only: returns beneath a level or another surface of this
         # frame (open risers)
         under = points_under_levels(profile, levels, cfg.terrain)
-        if under.any():
-            profile = profile[~under]
-            frame_terrain, levels = classify_terrain(profile, cfg.terrain)
+        seen_under = points_seen_under(profile, levels, cfg.terrain)
+        walk = profile
+        if under.any() or seen_under.any():
+            walk = profile[~(under | seen_under)]
+            frame_terrain, levels = classify_terrain(walk, cfg.terrain)
+            # the points seen under a surface that is no level leave the class only, unless
+            # under_sight_profile: they are static returns, which ICP uses as well
+            profile = walk if cfg.terrain.under_sight_profile else profile[~under]
         if self._noise is not None:  # the next frame's thinning cell
             residuals = level_residuals(
                 points_xz,
@@ -162,7 +168,7 @@ class VisualFrontend:
         terrain = frame_terrain
         if stand_height_m is not None:
             terrain = classify_against_stand(
-                profile, frame_terrain, levels, stand_height_m, cfg.terrain
+                walk, frame_terrain, levels, stand_height_m, cfg.terrain
             )
         t.append(time.perf_counter())
         # Fig. 2: RANSAC lines, feature points at the higher line's edge (stairs / obstacles)

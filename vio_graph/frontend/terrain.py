@@ -378,22 +378,36 @@ def points_under_levels(
     camera at the origin): at least ``min_step_m`` below the level and more than
     ``under_level_margin_m`` inside its robust x extent, a line of sight that passes at least
     ``min_step_m`` under it more than ``level_band_m`` inside that extent, or a point within
-    ``min_step_m`` of a lower level that the level overlaps; with ``under_sight_min_points``
-    also a point whose line of sight passed ``min_step_m`` under that many profile points
-    more than the margin nearer (``vio_graph.surface.seen_under_mask``: seen through a gap
-    under a surface that is no level, e.g. the front of a tread whose top is out of view)."""
+    ``min_step_m`` of a lower level that the level overlaps."""
+    margin = config.under_level_margin_m
+    if margin is None or not levels:
+        return np.zeros(np.shape(profile_xz_m)[0], dtype=bool)
+    return under_levels_mask(
+        profile_xz_m,
+        [lv.height_m for lv in levels],
+        [lv.x_min_m for lv in levels],
+        [lv.x_max_m for lv in levels],
+        margin,
+        config.min_step_m,
+        config.min_step_m,
+        sight_margin_m=config.level_band_m,
+    )
+
+
+def points_seen_under(
+    profile_xz_m: NDArray[np.float64], levels: Sequence[Level], config: TerrainConfig
+) -> NDArray[np.bool_]:
+    """(N,) True for points seen beneath a surface of the same profile that is no level, with
+    ``under_sight_min_points`` (``vio_graph.surface``): a line of sight that passed
+    ``min_step_m`` under that many profile points more than ``under_level_margin_m`` nearer
+    (``seen_under_mask``: e.g. under the front of a tread whose top is out of view), or the
+    floor beyond a level that it runs under and lies in front of (``floor_beyond_slab_mask``)."""
     margin = config.under_level_margin_m
     n = np.shape(profile_xz_m)[0]
-    if margin is None:
+    if margin is None or config.under_sight_min_points is None:
         return np.zeros(n, dtype=bool)
-    under = np.zeros(n, dtype=bool)
-    if config.under_sight_min_points is not None:
-        under = seen_under_mask(
-            profile_xz_m, margin, config.min_step_m, config.under_sight_min_points
-        )
-    if not levels:
-        return under
-    if config.under_sight_min_points is not None:
+    under = seen_under_mask(profile_xz_m, margin, config.min_step_m, config.under_sight_min_points)
+    if levels:
         under |= floor_beyond_slab_mask(
             profile_xz_m,
             [lv.height_m for lv in levels],
@@ -404,16 +418,7 @@ def points_under_levels(
             config.min_step_m,
             config.min_level_points,
         )
-    return under | under_levels_mask(
-        profile_xz_m,
-        [lv.height_m for lv in levels],
-        [lv.x_min_m for lv in levels],
-        [lv.x_max_m for lv in levels],
-        margin,
-        config.min_step_m,
-        config.min_step_m,
-        sight_margin_m=config.level_band_m,
-    )
+    return under
 
 
 def _lower_beyond(pts: NDArray[np.float64], levels: Sequence[Level], config: TerrainConfig) -> bool:

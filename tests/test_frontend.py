@@ -208,11 +208,11 @@ def test_one_level_frame_is_classified_against_the_stand_surface() -> None:
     stairs, _ = _profile("stair_up", 0.0)
     for stand in (-1.0, -0.45, 0.2):
         assert classify_terrain(stairs, cfg, stand)[0] == TerrainKind.STAIR_UP
-    # a short raised top with a few lower points beyond it, seen from the floor: obstacle
+    # a short raised top with a few lower points beyond it (the floor behind, over 6 cm; a
+    # strip at one x would be a face seen through a gap), seen from the floor: obstacle
     top_x = np.linspace(0.30, 0.43, 40)
-    box = np.vstack(
-        [np.c_[top_x, np.full(top_x.size, -0.31)], np.c_[np.full(4, 0.62), np.full(4, -0.45)]]
-    )
+    floor_x = np.linspace(0.60, 0.66, 4)
+    box = np.vstack([np.c_[top_x, np.full(top_x.size, -0.31)], np.c_[floor_x, np.full(4, -0.45)]])
     assert classify_terrain(box)[0] == TerrainKind.LEVEL
     assert classify_terrain(box, cfg, -0.45)[0] == TerrainKind.OBSTACLE
 

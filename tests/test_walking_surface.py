@@ -10,13 +10,13 @@ import pytest
 from vio_graph.evaluation.map_accuracy import compare_to_truth
 from vio_graph.frontend.config import TerrainConfig as FrontTerrainConfig
 from vio_graph.frontend.smoothing import smooth_profile
-from vio_graph.frontend.terrain import classify_terrain, points_under_levels
+from vio_graph.frontend.terrain import classify_terrain, points_seen_under, points_under_levels
 from vio_graph.mapping.local_map import TerrainMap2D
 from vio_graph.mapping.steps import estimate_terrain_geometry
 from vio_graph.recording.metadata import TerrainInfo
 from vio_graph.sim.config import TerrainConfig
 from vio_graph.sim.terrain import build_terrain
-from vio_graph.surface import under_levels_mask
+from vio_graph.surface import floor_beyond_slab_mask, seen_under_mask, under_levels_mask
 from vio_graph.types import TerrainKind
 
 
@@ -73,6 +73,7 @@ def test_closed_risers_lose_no_point(kind: str, overhang_m: float) -> None:
     for _, prof in frames:
         _, levels = classify_terrain(prof, cfg)
         assert not points_under_levels(prof, levels, cfg).any()
+        assert not points_seen_under(prof, levels, cfg).any()
 
 
 def test_open_risers_floor_seen_under_the_treads_is_dropped_and_the_frame_is_a_stair() -> None:
@@ -189,3 +190,55 @@ def test_frontend_profile_is_the_walking_surface(open_risers: bool) -> None:
         assert res.profile_xz_m.shape[0] < full.shape[0]
     else:
         np.testing.assert_array_equal(res.profile_xz_m, full)
+
+
+def test_seen_under_mask_known_answers() -> None:
+    # camera at the origin; the 3 cm front of a tread at x 0.7 (z -0.18 .. -0.15, its top out
+    # of view), a tread at z -0.3 over x [0.4, 0.69] and the floor at z -0.45 beyond
+    front = np.column_stack([np.full(7, 0.7), np.linspace(-0.18, -0.15, 7)])
+    tread = np.column_stack([np.linspace(0.4, 0.69, 30), np.full(30, -0.3)])
+    floor = np.array([[1.3, -0.45], [1.5, -0.45]])  # line of sight passes 6-8 cm under front
+    mask = seen_under_mask(np.vstack([front, tread, floor]), 0.05, 0.04, 3)
+    assert not mask[:37].any() and mask[37:].all()
+    # with two points of the front only, no occluder count of 3
+    mask = seen_under_mask(np.vstack([front[:2], tread, floor]), 0.05, 0.04, 3)
+    assert not mask.any()
+    # a box top at z -0.3 over x [0.5, 0.63] and the floor behind it seen over its top
+    box = np.column_stack([np.linspace(0.5, 0.63, 20), np.full(20, -0.3)])
+    behind = np.column_stack([np.linspace(1.2, 1.5, 10), np.full(10, -0.45)])
+    assert not seen_under_mask(np.vstack([box, behind]), 0.05, 0.04, 3).any()
+
+
+def test_floor_beyond_slab_mask_known_answers() -> None:
+    # levels near to far: floor (z -0.41) in front of and under a tread (z -0.265) over
+    # x [0.33, 0.59], the floor again beyond it (x 0.98 .. 1.5)
+    z, lo, hi = [-0.41, -0.265, -0.41], [0.26, 0.33, 0.98], [0.45, 0.59, 1.5]
+    near = np.column_stack([np.linspace(0.26, 0.32, 12), np.full(12, -0.41)])
+    under = np.column_stack([np.linspace(0.4, 0.45, 10), np.full(10, -0.41)])
+    tread = np.column_stack([np.linspace(0.33, 0.59, 40), np.full(40, -0.265)])
+    far = np.column_stack([np.linspace(0.98, 1.5, 40), np.full(40, -0.41)])
+    pts = np.vstack([near, under, tread, far])
+    mask = floor_beyond_slab_mask(pts, z, lo, hi, 0.05, 0.04, 0.04, 8)
+    assert mask[-40:].all() and not mask[:-40].any()
+    # descent: the floor nearer than the lowest tread lies under the tread above it (a level
+    # at -0.2 over [0.0, 0.3]): not the walking surface in front, nothing is dropped
+    upper = np.column_stack([np.linspace(0.0, 0.3, 40), np.full(40, -0.2)])
+    pts = np.vstack([upper, near - [0.2, 0.0], under, tread, far])
+    z2, lo2, hi2 = [-0.2, -0.41, -0.265, -0.41], [0.0, 0.06, 0.33, 0.98], [0.3, 0.45, 0.59, 1.5]
+    assert not floor_beyond_slab_mask(pts, z2, lo2, hi2, 0.05, 0.04, 0.04, 8).any()
+
+
+def test_face_seen_beyond_a_tread_is_no_floor_behind_an_obstacle() -> None:
+    # two treads (z -0.28 over x [0.22, 0.37], z -0.135 over [0.38, 0.5]) and, far beyond, a
+    # vertical strip seen through the gap under the next tread (z -0.3 .. -0.22 at x 1.5)
+    cfg = FrontTerrainConfig()
+    t1 = np.column_stack([np.linspace(0.22, 0.37, 30), np.full(30, -0.28)])
+    t2 = np.column_stack([np.linspace(0.385, 0.5, 24), np.full(24, -0.135)])
+    strip = np.column_stack([np.full(12, 1.5), np.linspace(-0.3, -0.22, 12)])
+    kind, _ = classify_terrain(np.vstack([t1, t2, strip]), cfg)
+    assert kind is TerrainKind.STAIR_UP
+    # the same raised level with a glimpse of floor behind it (6 points over 10 cm, too few
+    # for a level): an obstacle
+    floor = np.column_stack([np.linspace(0.8, 0.9, 6), np.full(6, -0.28)])
+    kind, _ = classify_terrain(np.vstack([t1, t2, floor]), cfg)
+    assert kind is TerrainKind.OBSTACLE

@@ -69,3 +69,78 @@ def under_levels_mask(
             if b != a and z[b] < z[a] - drop_m and overlap > margin_m:
                 under |= inside & (np.abs(pz - z[b]) <= band_m)
     return under
+
+
+def seen_under_mask(
+    points_xz_m: ArrayLike, margin_m: float, drop_m: float, min_occluders: int
+) -> NDArray[np.bool_]:
+    """(N,) True for points of a single frame's profile (camera at the origin) seen beneath
+    another surface of the same profile.
+
+    A terrain seen from above is a height over x: every point the camera sees is seen along a
+    line of sight that passes above the terrain nearer to the camera. A point P is seen
+    beneath a surface when at least ``min_occluders`` profile points Q more than ``margin_m``
+    nearer than P in x lie at least ``drop_m`` above P's line of sight at their x: the line
+    passed under them, through a gap (the floor under open-riser treads, seen under the 3 cm
+    front of a tread whose top is out of view, so that no level of the frame covers it). The
+    margin leaves out a riser set back under its own nosing; closed stairs, obstacles seen
+    from above and floors give no such point.
+    """
+    pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
+    x, z = pts[:, 0], pts[:, 1]
+    under = np.zeros(pts.shape[0], dtype=bool)
+    ahead = np.flatnonzero(x > 1e-6)
+    if ahead.size <= min_occluders:
+        return under
+    xq, zq = x[ahead], z[ahead]
+    for start in range(0, ahead.size, 256):  # (chunk, M) blocks: bounded memory
+        idx = ahead[start : start + 256]
+        xp, zp = x[idx, None], z[idx, None]
+        nearer = xq[None, :] < xp - margin_m
+        above = zq[None, :] > zp / xp * xq[None, :] + drop_m
+        under[idx] = np.count_nonzero(nearer & above, axis=1) >= min_occluders
+    return under
+
+
+def floor_beyond_slab_mask(
+    points_xz_m: ArrayLike,
+    level_z_m: ArrayLike,
+    level_x_lo_m: ArrayLike,
+    level_x_hi_m: ArrayLike,
+    margin_m: float,
+    drop_m: float,
+    band_m: float,
+    min_points: int,
+) -> NDArray[np.bool_]:
+    """(N,) True for the points of a floor beyond a slab it runs under (L levels: height, x
+    extent; a single frame's profile, near to far).
+
+    A level A is a slab over a lower level B when B overlaps A in x by more than ``margin_m``
+    (B is seen under A: an open-riser tread over the floor) and B is also the walking surface
+    in front of A (at least ``min_points`` of B's points, within ``band_m`` of its height, lie
+    nearer than A's start and beneath no level). Then B's points beyond A's far end are the
+    same floor running on under the flight (seen under the next treads, whose tops are out of
+    view), not a surface the foot reaches after A: low-high-low is no obstacle there. A box
+    hides the floor under its top; on a descent the floor nearer than the lowest tread lies
+    under the treads above it, so neither gives such points.
+    """
+    pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
+    z = np.asarray(level_z_m, dtype=float).ravel()
+    lo = np.asarray(level_x_lo_m, dtype=float).ravel()
+    hi = np.asarray(level_x_hi_m, dtype=float).ravel()
+    x, pz = pts[:, 0], pts[:, 1]
+    out = np.zeros(pts.shape[0], dtype=bool)
+    # beneath a level: more than margin_m inside its extent and drop_m below it
+    beneath = np.zeros(pts.shape[0], dtype=bool)
+    for a in range(z.size):
+        beneath |= (x > lo[a] + margin_m) & (x < hi[a] - margin_m) & (pz < z[a] - drop_m)
+    for a in range(z.size):
+        for b in range(z.size):
+            overlap = min(hi[a], hi[b]) - max(lo[a], lo[b])
+            if b == a or z[b] >= z[a] - drop_m or overlap <= margin_m:
+                continue
+            on_b = np.abs(pz - z[b]) <= band_m
+            in_front = on_b & (x < lo[a]) & ~beneath
+            if int(in_front.sum()) >= min_points:
+                out |= on_b & (x > hi[a] + margin_m)
+    return out

@@ -61,6 +61,37 @@ class SmoothingConfig(_Strict):
     min_points: int = Field(
         10, ge=1, description="profiles with fewer points (after thinning) are not smoothed"
     )
+    noise_cell_ratio: float | None = Field(
+        2.0,
+        gt=0,
+        description="adaptive thinning cell: the cell is this many times the depth noise "
+        "measured on the recording's own profiles (vertical scatter of the raw points about "
+        "line fits of the levels, vio_graph.frontend.noise), never below grid_cell_m nor above "
+        "noise_max_cell_m; None = grid_cell_m always",
+    )
+    noise_max_range_m: float = Field(
+        0.6,
+        gt=0,
+        description="adaptive thinning cell: the noise is measured on points nearer than this "
+        "to the camera (where the corners are tracked; ToF noise grows with range), m",
+    )
+    noise_max_cell_m: float = Field(
+        0.015, gt=0, description="adaptive thinning cell: upper bound, m"
+    )
+    noise_warmup_frames: int = Field(
+        30,
+        ge=1,
+        description="adaptive thinning cell: frames with a noise value before the cell may change",
+    )
+    noise_window_frames: int = Field(
+        60, ge=1, description="adaptive thinning cell: median over this many recent frame values"
+    )
+    noise_hysteresis: float = Field(
+        0.6,
+        ge=0,
+        description="adaptive thinning cell: the cell changes only when the asked cell differs "
+        "from it by more than this share",
+    )
 
 
 class TerrainConfig(_Strict):
@@ -126,6 +157,24 @@ class TerrainConfig(_Strict):
         "vio_graph/surface.py) are not the walking surface: the floor seen under open-riser "
         "treads or through gaps. They are dropped from the frame's profile (terrain, corners, "
         "ICP, keyframes) when any occur, m; None: keep every point",
+    )
+    under_sight_min_points: int | None = Field(
+        3,
+        ge=1,
+        description="a point is also beneath the walking surface when at least this many "
+        "profile points more than under_level_margin_m nearer in x lie min_step_m or more "
+        "above its line of sight (seen through a gap under a surface that is no level of the "
+        "frame, e.g. under the front of an open-riser tread whose top is out of view; "
+        "vio_graph.surface.seen_under_mask), and so is the floor beyond a level that it runs "
+        "under and lies in front of (floor_beyond_slab_mask); they leave the terrain class "
+        "(and, with under_sight_profile, the profile); None: levels only",
+    )
+    under_sight_profile: bool = Field(
+        False,
+        description="the points under_sight_min_points finds also leave the profile the "
+        "corners, ICP, keyframes and map see (open_risers, 3 seeds: toe clearance p95 9.7 -> "
+        "6.1 mm, but smoother / batch toe x 0.40 / 0.38 -> 0.50 / 0.58 cm and seed 1000's map "
+        "lost a step); False: the terrain class only (clearance 9.7, toe x 0.40 / 0.38 cm)",
     )
 
 

@@ -18,11 +18,13 @@ from vio_graph.errors import FrontendError
 from vio_graph.frontend.config import FrontendConfig
 from vio_graph.frontend.corners import CornerFeature, extract_corner
 from vio_graph.frontend.icp import IcpResult
+from vio_graph.frontend.noise import DepthNoiseTracker, level_residuals, robust_sigma
 from vio_graph.frontend.projection import sagittal_slice_from_depth
 from vio_graph.frontend.smoothing import smooth_profile
 from vio_graph.frontend.terrain import (
     classify_against_stand,
     classify_terrain,
+    points_seen_under,
     points_under_levels,
 )
 from vio_graph.frontend.tracker import CornerTracker
@@ -61,9 +63,31 @@ class VisualFrontend:
             self.config.tracker, self.config.icp, self.config.corners.edge_sigma_m
         )
         self._corner_terrains = {TerrainKind(k) for k in self.config.corner_terrains}
+        sc = self.config.smoothing
+        self._noise: DepthNoiseTracker | None = None
+        if sc.noise_cell_ratio is not None and sc.grid_cell_m > 0:
+            self._noise = DepthNoiseTracker(
+                sc.grid_cell_m,
+                sc.noise_cell_ratio,
+                sc.noise_max_cell_m,
+                sc.noise_warmup_frames,
+                sc.noise_window_frames,
+                sc.noise_hysteresis,
+            )
+
+    @property
+    def grid_cell_m(self) -> float:
+        """The thinning cell the next frame uses, m (adaptive with ``noise_cell_ratio``)."""
+        return self.config.smoothing.grid_cell_m if self._noise is None else self._noise.cell_m
+
+    @property
+    def depth_noise_m(self) -> float:
+        """Depth noise measured on the recent profiles, m (nan when not measured)."""
+        return float("nan") if self._noise is None else self._noise.sigma_m
 
     def reset(self) -> None:
-        """Forget the previous frame (e.g. after a gap in the recording)."""
+        """Forget the previous frame (e.g. after a gap in the recording); the measured depth
+        noise is kept (the camera did not change)."""
         self._tracker.reset()
 
     def process(
@@ -115,22 +139,36 @@ class VisualFrontend:
         t.append(time.perf_counter())
         # kNN smoothing (after grid thinning)
         sc = cfg.smoothing
-        profile = smooth_profile(points_xz, sc.k_neighbours, sc.grid_cell_m, sc.min_points)
+        cell_m = self.grid_cell_m
+        profile = smooth_profile(points_xz, sc.k_neighbours, cell_m, sc.min_points)
         t.append(time.perf_counter())
         # terrain class (replaces the paper's CNN)
         # the frame's own class decides whether a corner is looked for: the stand surface
         # (rule step 5) says which way the terrain goes, it adds no edge to this frame
         frame_terrain, levels = classify_terrain(profile, cfg.terrain)
-        if levels:
-            # the walking surface only: returns beneath a level of this frame (open risers)
-            under = points_under_levels(profile, levels, cfg.terrain)
-            if under.any():
-                profile = profile[~under]
-                frame_terrain, levels = classify_terrain(profile, cfg.terrain)
+        # the walking surface only: returns beneath a level or another surface of this
+        # frame (open risers)
+        under = points_under_levels(profile, levels, cfg.terrain)
+        seen_under = points_seen_under(profile, levels, cfg.terrain)
+        walk = profile
+        if under.any() or seen_under.any():
+            walk = profile[~(under | seen_under)]
+            frame_terrain, levels = classify_terrain(walk, cfg.terrain)
+            # the points seen under a surface that is no level leave the class only, unless
+            # under_sight_profile: they are static returns, which ICP uses as well
+            profile = walk if cfg.terrain.under_sight_profile else profile[~under]
+        if self._noise is not None:  # the next frame's thinning cell
+            residuals = level_residuals(
+                points_xz,
+                [(lv.height_m, lv.x_min_m, lv.x_max_m) for lv in levels],
+                cfg.terrain.level_band_m,
+                max_range_m=sc.noise_max_range_m,
+            )
+            self._noise.update(robust_sigma(residuals))
         terrain = frame_terrain
         if stand_height_m is not None:
             terrain = classify_against_stand(
-                profile, frame_terrain, levels, stand_height_m, cfg.terrain
+                walk, frame_terrain, levels, stand_height_m, cfg.terrain
             )
         t.append(time.perf_counter())
         # Fig. 2: RANSAC lines, feature points at the higher line's edge (stairs / obstacles)

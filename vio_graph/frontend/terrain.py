@@ -75,7 +75,7 @@ from numpy.typing import NDArray
 from vio_graph.errors import FrontendError
 from vio_graph.frontend.config import TerrainConfig
 from vio_graph.frontend.icp import compiled_kernels
-from vio_graph.surface import under_levels_mask
+from vio_graph.surface import floor_beyond_slab_mask, seen_under_mask, under_levels_mask
 from vio_graph.types import TerrainKind
 
 
@@ -394,13 +394,46 @@ def points_under_levels(
     )
 
 
+def points_seen_under(
+    profile_xz_m: NDArray[np.float64], levels: Sequence[Level], config: TerrainConfig
+) -> NDArray[np.bool_]:
+    """(N,) True for points seen beneath a surface of the same profile that is no level, with
+    ``under_sight_min_points`` (``vio_graph.surface``): a line of sight that passed
+    ``min_step_m`` under that many profile points more than ``under_level_margin_m`` nearer
+    (``seen_under_mask``: e.g. under the front of a tread whose top is out of view), or the
+    floor beyond a level that it runs under and lies in front of (``floor_beyond_slab_mask``)."""
+    margin = config.under_level_margin_m
+    n = np.shape(profile_xz_m)[0]
+    if margin is None or config.under_sight_min_points is None:
+        return np.zeros(n, dtype=bool)
+    under = seen_under_mask(profile_xz_m, margin, config.min_step_m, config.under_sight_min_points)
+    if levels:
+        under |= floor_beyond_slab_mask(
+            profile_xz_m,
+            [lv.height_m for lv in levels],
+            [lv.x_min_m for lv in levels],
+            [lv.x_max_m for lv in levels],
+            margin,
+            config.min_step_m,
+            config.min_step_m,
+            config.min_level_points,
+        )
+    return under
+
+
 def _lower_beyond(pts: NDArray[np.float64], levels: Sequence[Level], config: TerrainConfig) -> bool:
-    """Profile points beyond the farthest level, lower than it by at least ``min_step_m``."""
+    """Profile points beyond the farthest level, lower than it by at least ``min_step_m``,
+    that are a surface behind it, not only a face: they span at least ``min_level_length_m``
+    in x (the floor behind an obstacle; a face seen through a gap under a tread that is out
+    of view, e.g. a landing's front under open risers, is a vertical strip)."""
     if not levels:
         return False
     last = levels[-1]
     beyond = pts[:, 0] > last.x_max_m + config.level_gap_m
-    return bool(np.any(pts[beyond, 1] < last.height_m - config.min_step_m))
+    lower = pts[beyond][pts[beyond, 1] < last.height_m - config.min_step_m]
+    if lower.shape[0] == 0:
+        return False
+    return bool(lower[:, 0].max() - lower[:, 0].min() >= config.min_level_length_m)
 
 
 def classify_against_stand(

@@ -1,0 +1,125 @@
+"""The recording's depth noise, measured on its own profiles, and the thinning cell it asks for.
+
+The grid thinning (``vio_graph.frontend.smoothing``) keeps one centroid per ``grid_cell_m``
+cell. A cell much smaller than the profile's noise band spreads one surface over several rows
+of cells: the thinned profile keeps a noisy band instead of a line, kNN smoothing averages
+within the band, and ICP counts every occupied cell as an independent pair. The 5 mm default
+is about twice the pico flexx2's profile noise (2-3 mm); a camera twice as noisy needs about
+twice the cell (``docs/generalisation.md``, ``tof_noise_2x``).
+
+Measurement (pure numpy, per frame). The levels the terrain classifier found on the smoothed
+profile say where the horizontal surfaces are; the RAW slice points within ``band_m`` of a
+level (inside its x extent) are fitted by a straight line z = a + b x (a slightly tilted
+attitude tilts the level, which the line takes out), and the residuals about the lines of all
+levels, pooled, give the frame's noise as 1.4826 x their median absolute deviation (robust to
+the points of a riser foot or a nosing that fall in the band). The vertical scatter of a
+horizontal surface is the profile noise the cell is compared with.
+
+Tracking (:class:`DepthNoiseTracker`). The per-frame values are noisy and a frame may have no
+level; the tracker keeps the median of the last ``window`` frame values and, once it has
+``warmup`` of them, asks for the cell ``ratio`` x sigma, never below the configured cell (a
+cleaner camera than the one the defaults were set on keeps them) nor above ``max_cell_m``.
+The cell in use changes only when the asked cell differs from it by more than
+``hysteresis`` (relative), so a recording whose noise is steady keeps one cell.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: MAD -> standard deviation of a normal distribution
+_MAD_TO_SIGMA = 1.4826
+
+
+def level_residuals(
+    points_xz_m: NDArray[np.float64],
+    levels: Iterable[tuple[float, float, float]],
+    band_m: float,
+    min_points: int = 20,
+    max_range_m: float = np.inf,
+) -> NDArray[np.float64]:
+    """z residuals of the points about a straight line fitted to each level's band.
+
+    Args:
+        points_xz_m: (N, 2) raw (unthinned, unsmoothed) profile points, metres.
+        levels: (height_m, x_min_m, x_max_m) of each horizontal level.
+        band_m: points within this of a level's height (and inside its x extent) are its own.
+        min_points: levels with fewer points in their band are skipped.
+        max_range_m: only points nearer the camera (the origin) than this count, m.
+
+    Returns:
+        (M,) residuals z - (a + b x), metres, pooled over the levels (empty if none).
+    """
+    pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
+    if np.isfinite(max_range_m):
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) < max_range_m]
+    out: list[NDArray[np.float64]] = []
+    for height, x_lo, x_hi in levels:
+        x, z = pts[:, 0], pts[:, 1]
+        own = (np.abs(z - height) <= band_m) & (x >= x_lo) & (x <= x_hi)
+        if int(own.sum()) < max(min_points, 3):
+            continue
+        xs, zs = x[own], z[own]
+        xc = xs - xs.mean()
+        sxx = float(xc @ xc)
+        slope = float(xc @ (zs - zs.mean())) / sxx if sxx > 0 else 0.0
+        out.append(zs - zs.mean() - slope * xc)
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def robust_sigma(residuals_m: NDArray[np.float64]) -> float:
+    """1.4826 x median absolute deviation (nan for an empty input)."""
+    r = np.asarray(residuals_m, dtype=float).ravel()
+    if r.size == 0:
+        return float("nan")
+    return float(_MAD_TO_SIGMA * np.median(np.abs(r - np.median(r))))
+
+
+class DepthNoiseTracker:
+    """Median of the recent per-frame noise values and the thinning cell they ask for."""
+
+    def __init__(
+        self,
+        base_cell_m: float,
+        ratio: float,
+        max_cell_m: float,
+        warmup: int,
+        window: int,
+        hysteresis: float,
+    ) -> None:
+        self.base_cell_m = float(base_cell_m)
+        self.ratio = float(ratio)
+        self.max_cell_m = max(float(max_cell_m), self.base_cell_m)
+        self.warmup = int(warmup)
+        self.hysteresis = float(hysteresis)
+        self._values: deque[float] = deque(maxlen=max(int(window), 1))
+        self.cell_m = self.base_cell_m
+
+    def reset(self) -> None:
+        """Forget the measurements and go back to the configured cell."""
+        self._values.clear()
+        self.cell_m = self.base_cell_m
+
+    @property
+    def sigma_m(self) -> float:
+        """Median of the recent frame values, metres (nan before the first one)."""
+        return float(np.median(self._values)) if self._values else float("nan")
+
+    def asked_cell_m(self) -> float:
+        """The cell the current noise asks for (the configured cell before the warm-up)."""
+        if len(self._values) < self.warmup:
+            return self.base_cell_m
+        return min(max(self.ratio * self.sigma_m, self.base_cell_m), self.max_cell_m)
+
+    def update(self, sigma_m: float) -> float:
+        """Add one frame's noise value (nan = no measurement) and return the cell to use."""
+        if np.isfinite(sigma_m):
+            self._values.append(float(sigma_m))
+        asked = self.asked_cell_m()
+        if abs(asked - self.cell_m) > self.hysteresis * self.cell_m:
+            self.cell_m = asked
+        return self.cell_m

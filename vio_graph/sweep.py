@@ -282,6 +282,64 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
         "2-minute ascent over 14 flights of 12 steps with landings (configs/upstair_long.yaml)",
         scenario="upstair_long",
     ),
+    SweepCondition(
+        "obstacle_20x30",
+        "obstacle",
+        "the obstacle trial (configs/obstacle.yaml) with a higher and longer obstacle: "
+        "20 cm high, 30 cm deep (14 x 13 cm in the paper)",
+        scenario="obstacle",
+        overrides={"terrain": {"obstacle_height_m": 0.20, "obstacle_depth_m": 0.30}},
+    ),
+    SweepCondition(
+        "level_standing",
+        "level",
+        "level walking (configs/level.yaml) for 25 s, standing 3-8 s once per stride with "
+        "weight shifts",
+        scenario="level",
+        overrides={"duration_s": 25.0, "gait": {"pause_range_s": (3.0, 8.0)}},
+    ),
+    SweepCondition(
+        "approach_3m",
+        "start",
+        "the trial starts 3 m before the stair, walking: the camera sees only floor for the "
+        "first ~3 s",
+        overrides={
+            "duration_s": 13.0,
+            "terrain": {"approach_length_m": 4.0, "landing_length_m": 8.0},
+            "gait": {"start_distance_m": 3.0},
+        },
+    ),
+    SweepCondition(
+        "dropped_frames",
+        "depth",
+        "8 % of the depth frames dropped at random and a 0.3 s camera blackout on the stair "
+        "(at 4 s)",
+        overrides={
+            "faults": {
+                "dropped_frame_probability": 0.08,
+                "camera_blackout_start_s": 4.0,
+                "camera_blackout_duration_s": 0.3,
+            }
+        },
+    ),
+    SweepCondition(
+        "user_1.55m",
+        "user",
+        "a shorter user: body height 1.55 m (shank 38 cm), level stride 1.10 m, the camera "
+        "5 cm below the knee",
+        overrides={"rig": {"body_height_m": 1.55}, "gait": {"level_stride_length_m": 1.10}},
+    ),
+    SweepCondition(
+        "prosthesis_low_camera",
+        "prosthesis",
+        "the powered-prosthesis trial (configs/prosthesis_upstair.yaml) with the camera 15 cm "
+        "below the knee, pitched 30 deg down, on 17 x 27 cm stairs",
+        scenario="prosthesis_upstair",
+        overrides={
+            "terrain": {"stair_rise_m": 0.17, "stair_tread_m": 0.27},
+            "rig": {"camera_in_shank_xz_m": (0.08, -0.15), "camera_pitch_down_deg": 30.0},
+        },
+    ),
 )
 
 

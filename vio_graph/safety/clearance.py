@@ -500,6 +500,45 @@ def unseen_distance(
     return gap
 
 
+def gap_terrain(
+    prof: HeightProfile,
+    bins: NDArray[np.int64],
+    max_gap_m: float,
+    riser_from_x_m: float = math.inf,
+) -> tuple[HeightProfile, NDArray[np.int64], HeightProfile, NDArray[np.int64]]:
+    """What the strips between consecutive bins of ``prof`` hold, for the strips the map
+    bridges (gaps wider than :data:`UNSEEN_TOLERANCE_M` and at most ``max_gap_m``, which
+    :func:`unseen_distance` counts seen): there a nosing hid the terrain from the camera,
+    and the walking surface runs on between the heights of the surfaces seen either side.
+    Returns (floors, their bins, risers, their bins); each column takes the height and the
+    bin index (from ``bins``) of the neighbour it comes from.
+
+    - floors: every strip holds terrain at least as high as its lower neighbour (a column
+      at that height over the whole strip);
+    - risers: a strip that rises (lower neighbour before it) holds a riser up to its higher
+      neighbour somewhere inside it, at or beyond ``riser_from_x_m`` (where the foot ends:
+      the foot is not inside the terrain); the column at the higher neighbour's height from
+      there to the strip's end is the nearest that unseen riser can be. A strip that drops
+      (higher neighbour before it) is the shadow of the nosing that ends the higher surface:
+      the drop starts where the camera saw that surface end, no riser column."""
+    lo, hi, z, sg = prof.x_lo_m, prof.x_hi_m, prof.z_m, prof.sigma_m
+    b = np.asarray(bins)
+    if len(prof) < 2:
+        empty = HeightProfile(lo[:0], hi[:0], z[:0], sg[:0])
+        return empty, b[:0], empty, b[:0]
+    gap = lo[1:] - hi[:-1]
+    i = np.flatnonzero((gap > UNSEEN_TOLERANCE_M) & (gap <= max_gap_m))
+    rises = z[i] <= z[i + 1]
+    low = np.where(rises, i, i + 1)
+    floors = HeightProfile(hi[i], lo[i + 1], z[low], sg[low])
+    r = i[rises]
+    r_lo = np.maximum(hi[r], riser_from_x_m)
+    keep = r_lo < lo[r + 1]
+    r, r_lo = r[keep], r_lo[keep]
+    risers = HeightProfile(r_lo, lo[r + 1], z[r + 1], sg[r + 1])
+    return floors, b[low], risers, b[r + 1]
+
+
 def _edge_distance(
     ax: float, az: float, bx: float, bz: float, ex: float, ez: float
 ) -> tuple[float, float, float]:

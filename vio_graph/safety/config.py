@@ -122,6 +122,16 @@ class SafetyConfig(BaseModel):
         "that close: the mapped bins alone would overstate the clearance); off: the mapped "
         "bins alone decide",
     )
+    gap_floor_check: bool = Field(
+        default=True,
+        description="the strips between mapped bins that the map bridges (at most "
+        "edge_max_gap_m wide: what a nosing hid from the camera) hold terrain between the "
+        "heights seen either side (clearance.gap_terrain): the clearance is at most the "
+        "foot's distance to a floor at the lower height, and it is not known (NaN) when the "
+        "riser a rising strip holds could be nearer than that by more than its sigma; off: "
+        "a strip is empty space, and a foot over it is reported as high as the bins beside "
+        "it are far",
+    )
     edge_min_rise_m: float = Field(
         default=0.04, gt=0, description="a height change of at least this is a riser/edge, m"
     )

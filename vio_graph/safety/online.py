@@ -52,9 +52,11 @@ from vio_graph.safety.clearance import (
     MAX_TRANSITION_BIN_M,
     NO_CLEARANCE,
     SLOPE_STEP_M,
+    Clearance,
     Edges,
     HeightProfile,
     clearance_sigma,
+    gap_terrain,
     next_edge_index,
     placement_on_tread,
     unseen_distance,
@@ -699,6 +701,10 @@ class SafetyMonitor:
             c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = self._terrain_now(
                 heel, toe, P.tolist(), edges, pose_w, sm, pose_xf
             )
+        if math.isfinite(c_d) and cfg.gap_floor_check:
+            c_d, fx, fz, qx, qz, sig = self._checked_clearance(
+                heel, toe, P.tolist(), (c_d, fx, fz, qx, qz, sig), pose_w, sm, pose_xf
+            )
         # prediction over the horizon and the near-trip warning
         v = (NAN, NAN)  # the toe's velocity (x, z), m/s
         if self._prev is not None and t_s > self._prev[0]:
@@ -922,6 +928,62 @@ class SafetyMonitor:
             edsig = (rel[0][0] + cfg.foot_sigma_m**2 + (cfg.bin_m / 2) ** 2) ** 0.5
         (fx, fz), (qx, qz) = c.foot_xz_m.tolist(), c.terrain_xz_m.tolist()
         return c.distance_m, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig
+
+    def _checked_clearance(
+        self,
+        heel: NDArray[np.float64],
+        toe: NDArray[np.float64],
+        Pl: list[list[float]],
+        now: tuple[float, float, float, float, float, float],
+        pose_w: float,
+        map_w: float,
+        pose_xf: float,
+    ) -> tuple[float, float, float, float, float, float]:
+        """``now`` = (clearance, foot x, z, terrain x, z, sigma) from the mapped bins within
+        ``window_m`` of the foot, checked against the strips the map bridges there
+        (:func:`~vio_graph.safety.clearance.gap_terrain`, config ``gap_floor_check``): the
+        clearance to their floors replaces it when smaller, and when an unseen riser in a
+        rising strip could be nearer than that by more than its sigma, the clearance is
+        not known (NaN). The same numpy geometry on the numpy and compiled paths."""
+        cfg = self.config
+        sole = cfg.sole_thickness_m
+        x_a, x_b = float(min(heel[0], toe[0])), float(max(heel[0], toe[0]))
+        near = self.map.window(x_a - cfg.window_m, x_b + cfg.window_m, cfg.map_sigma_m)
+        floors, f_bins, risers, r_bins = gap_terrain(
+            near.profile, near.bins, cfg.edge_max_gap_m, x_b + sole
+        )
+        if len(floors):
+            c = clearance.foot_clearance(heel, toe, floors, sole)
+            if c.distance_m < now[0]:
+                now = self._clearance_tuple(c, f_bins, Pl, pose_w, map_w, pose_xf)
+        if len(risers):
+            c = clearance.foot_clearance(heel, toe, risers, sole)
+            sig = now[5] if math.isfinite(now[5]) else 0.0
+            if c.distance_m < now[0] - sig:
+                return (NAN, NAN, NAN, NAN, NAN, NAN)
+        return now
+
+    def _clearance_tuple(
+        self,
+        c: Clearance,
+        bins: NDArray[np.int64],
+        Pl: list[list[float]],
+        pose_w: float,
+        map_w: float,
+        pose_xf: float,
+    ) -> tuple[float, float, float, float, float, float]:
+        """(clearance, foot x, z, terrain x, z, sigma) of ``c`` (its column ``c.bin`` indexes
+        ``bins``, the map's bin indices), the sigma as :meth:`_terrain_now` gives it."""
+        sig = NAN
+        if c.bin >= 0:
+            k = int(bins[c.bin])
+            rel = self._relative_cov(Pl, k, pose_w, pose_xf)
+            sig = clearance_sigma(
+                c.normal_xz, rel, map_w * self.map.bin_sigma(k, self.config.map_sigma_m),
+                self.config.foot_sigma_m,
+            )  # fmt: skip
+        (fx, fz), (qx, qz) = c.foot_xz_m.tolist(), c.terrain_xz_m.tolist()
+        return c.distance_m, fx, fz, qx, qz, sig
 
     def _flat_templates(self) -> tuple[NDArray, NDArray, NDArray]:
         """The templates end to end (compiled path): phases (S,), displacements (S, 4) and

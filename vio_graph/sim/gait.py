@@ -196,6 +196,11 @@ def _plan_steps(
         # footholds from the actual nosings (irregular stairs: drawn treads; regular: the
         # same numbers as x0 + i t)
         nosing_x = terrain.edges_xz_m[:, 0].reshape(n_fl, n)
+        x_first = nosing_x[0, 0] - (gait.stair_toe_margin_m if up else 0.02)
+        if x_first - toes[0] > step:  # a long level approach: walk to the stair
+            k = int(np.ceil((x_first - toes[0]) / step))
+            k += 1 - k % 2  # odd: the same leg steps onto the stair as from a short start
+            toes += list(toes[0] + (x_first - toes[0]) * np.arange(1, k) / k)
         for f in range(n_fl):
             xs = nosing_x[f]
             if f > 0:  # landing between flights: level steps up to the next flight

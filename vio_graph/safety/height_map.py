@@ -13,6 +13,17 @@ heights from view to view and wait for ``min_keyframes`` views and the median. E
 keeps the mean camera position covariance of the keyframes that saw it (the relative-pose part
 of the clearance sigma).
 
+View ceilings (``view_ceilings``). A keyframe's height in a bin says there is a surface at
+that height and free space above it only as high as the keyframe's view reached over the bin:
+the top of its field of view (the steepest upward line of sight to any of its points,
+:func:`view_ceilings`). A camera low in front of a stair whose nosing overhangs sees the lower
+tread under the nosing and its set-back riser, while the lip is above its field of view; most
+keyframes of an approach are such views, and their median put the nosing edge at the riser,
+3 cm too far forward. A kept height whose ceiling is below the bin's highest kept height less
+``top_band_m`` therefore takes no part in the bin's statistic (it still counts as a view for
+:meth:`OnlineHeightMap._used_rule`). The highest height's own ceiling is never below it, so
+a bin always keeps a statistic.
+
 Foot contact. A foot standing on the terrain is a measurement of it too: no terrain is above
 its sole. :meth:`OnlineHeightMap.add_contact` (called on stance frames) lowers each bin under
 the sole to the sole's height plus a margin when the bin's height exceeds that by less than

@@ -648,3 +648,62 @@ def test_clearance_is_unknown_where_unseen_terrain_could_be_closer(compiled: boo
             assert np.isnan(s.clearance_m) and np.isnan(s.clearance_sigma_m)
         else:
             assert s.clearance_m == pytest.approx(expected, abs=0.006)
+
+
+def _overhang_views(closed: bool) -> list[tuple[list[float], np.ndarray]]:
+    """Keyframes (camera xz, profile relative to it) of one step up whose lip is at x = 1.0
+    (tread top 0.30 m): a 3 cm thick nosing slab over a riser set back to x = 1.03
+    (``closed``: the riser under the lip, no overhang). Six low views (camera 0.45 m high at
+    x 0.38-0.43) see the lower tread up to the riser, under the nosing, and the riser's lower
+    part: the top of their field of view passes under the slab. Four high views (0.75 m at
+    x 0.69-0.72) see the lip's face and the upper tread."""
+    x_riser = 1.0 if closed else 1.03
+    views = []
+    for k in range(6):
+        cam = np.array([0.38 + 0.01 * k, 0.45])
+        xs = np.arange(0.6, x_riser, 0.002)
+        low = np.column_stack([xs, np.full(xs.size, 0.15)])
+        riser = np.column_stack([np.full(26, x_riser), np.linspace(0.15, 0.25, 26)])
+        views.append((cam.tolist(), np.vstack([low, riser]) - cam))
+    for k in range(4):
+        cam = np.array([0.69 + 0.01 * k, 0.75])
+        low = np.column_stack([np.arange(0.8, 1.0, 0.002), np.full(100, 0.15)])
+        face_lo = 0.15 if closed else 0.27
+        face = np.column_stack([np.full(16, 1.0), np.linspace(face_lo, 0.30, 16)])
+        top = np.column_stack([np.arange(1.0, 1.4, 0.002), np.full(200, 0.30)])
+        views.append((cam.tolist(), np.vstack([low, face, top]) - cam))
+    return views
+
+
+@pytest.mark.parametrize("kind", ["reference", "incremental", "compiled"])
+def test_map_keeps_an_overhanging_nosing_seen_from_below_by_most_views(kind: str) -> None:
+    """Known answer (issue 12, sweep condition overhang_3cm): most keyframes see the lower
+    tread under a nosing overhang and only a few see the lip; with the view ceilings the
+    map's step rises in the bin of the lip (x = 1.0), without them the median of the views
+    puts it at or past the set-back riser (x >= 1.03: the nosing 3 cm too far forward). A closed
+    riser under the same views: its bin takes the tread's height with the ceilings, the top of
+    the part the low views saw (0.25 m) without (the step one bin late)."""
+    bins: dict[tuple[bool, bool], float] = {}
+    for closed in (False, True):
+        for ceilings in (True, False):
+            kw: dict = {"view_ceilings": ceilings}
+            if kind == "reference":
+                m = OnlineHeightMap(0.005, 4, **kw)
+            elif kind == "incremental":
+                m = IncrementalHeightMap(0.005, 4, **kw)
+            else:
+                pytest.importorskip("numba")
+                from vio_graph.safety import compiled
+
+                m = IncrementalHeightMap(0.005, 4, kernels=compiled, **kw)
+            for cam, rel in _overhang_views(closed):
+                m.add_keyframe(cam, rel, np.eye(2) * 1e-6)
+            p = m.profile(0.003)
+            up = p.z_m > 0.29  # the upper tread (and the lip)
+            bins[closed, ceilings] = float(p.x_lo_m[up].min())
+            # the lower tread keeps its height up to the step
+            assert np.allclose(p.z_m[(p.x_hi_m <= 0.995) & (p.x_lo_m >= 0.6)], 0.15)
+    assert bins[False, True] == pytest.approx(1.0)  # the lip's bin [1.000, 1.005]
+    assert bins[False, False] >= 1.03 - 1e-9  # the failure the ceilings remove
+    assert bins[True, True] == pytest.approx(1.0)
+    assert bins[True, False] == pytest.approx(1.005)  # the riser's bin: its seen part's top

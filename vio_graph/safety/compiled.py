@@ -498,6 +498,65 @@ def keyframe_tops(rel, cam_x, cam_z, bin_m, top_band_m):  # pragma: no cover - c
 
 
 @numba.njit(cache=True)
+def view_ceilings(rel, cam_x, cam_z, bins, bin_m, tops):  # pragma: no cover - compiled
+    """height_map.view_ceilings (``rel`` (N, 2), non-finite rows skipped)."""
+    slope = -np.inf
+    for k in range(rel.shape[0]):
+        x, z = rel[k, 0], rel[k, 1]
+        if np.isfinite(x) and np.isfinite(z) and x > 1e-6:
+            slope = max(slope, z / x)
+    u = np.empty(bins.shape[0])
+    for q in range(bins.shape[0]):
+        if slope == -np.inf:
+            u[q] = np.inf
+            continue
+        x_lo = bins[q] * bin_m
+        v = cam_z + max(slope * (x_lo - cam_x), slope * (x_lo + bin_m - cam_x))
+        u[q] = max(v, tops[q])
+    return u
+
+
+@numba.njit(cache=True)
+def _censored_stats(Z, U, e, top_band, median):  # pragma: no cover - compiled
+    """height_map.OnlineHeightMap._bin_stats of bin element ``e`` when some kept height's
+    view ceiling is below the bin's highest height less ``top_band`` (else (NaN, NaN)):
+    the statistic over the other heights."""
+    cap = Z.shape[1]
+    top = -np.inf
+    for r in range(cap):
+        if Z[e, r] == Z[e, r]:
+            top = max(top, Z[e, r])
+    v = np.empty(cap)
+    c = 0
+    for r in range(cap):
+        if Z[e, r] == Z[e, r] and not U[e, r] < top - top_band:
+            v[c] = Z[e, r]
+            c += 1
+    full = 0
+    for r in range(cap):
+        if Z[e, r] == Z[e, r]:
+            full += 1
+    if c == full:  # (c >= 1: the highest height's ceiling is never below it)
+        return np.nan, np.nan
+    v = v[:c]
+    if median:
+        S = np.sort(v)
+        lo, hi = (c - 1) // 2, c // 2
+        m = (S[lo] + S[hi]) / 2
+        D = np.sort(np.abs(v - m))
+        sd = 1.4826 * (D[lo] + D[hi]) / 2
+        return m, (1.2533 * sd) ** 2 / c
+    m = 0.0
+    for r in range(c):
+        m += v[r]
+    m /= c
+    s = 0.0
+    for r in range(c):
+        s += (v[r] - m) ** 2
+    return m, s / c / c
+
+
+@numba.njit(cache=True)
 def add_tops(
     Z,
     Zs,
@@ -515,6 +574,9 @@ def add_tops(
     P,
     zcap,
     max_excess,
+    U,
+    ceilings,
+    top_band,
 ):  # pragma: no cover
     """In place: the keyframe heights ``tops`` join bins at array elements ``j``, and those
     bins' count, used flag, height, squared standard error and covariance sum are updated
@@ -522,7 +584,8 @@ def add_tops(
     the bins' foot-contact caps, ``max_excess`` the largest excess they remove). ``Zs``: each
     bin's kept heights sorted (NaN after them), kept up to date here: the median is read off
     it and the median absolute deviation found by walking out from the median (no sort per
-    keyframe)."""
+    keyframe). ``U``: the kept heights' view ceilings, ``ceilings`` this keyframe's (per
+    bin of ``j``; _censored_stats, ``top_band`` the map's top_band_m)."""
     cap = Z.shape[1]
     for q in range(j.shape[0]):
         e = j[q]
@@ -530,6 +593,7 @@ def add_tops(
         old = Z[e, slot]
         c = min(n[e], cap)  # kept heights before this one
         Z[e, slot] = tops[q]
+        U[e, slot] = ceilings[q]
         n[e] += 1
         if old == old:  # the oldest height leaves the sorted copy
             r = 0
@@ -581,6 +645,9 @@ def add_tops(
                     v += (Z[e, r] - m) ** 2
             mid[e] = m
             se2[e] = v / c / c
+        cm, cs = _censored_stats(Z, U, e, top_band, median)
+        if cm == cm:  # some kept heights were seen from below a higher one
+            mid[e], se2[e] = cm, cs
         if mid[e] > zcap[e] and mid[e] < zcap[e] + max_excess:  # a foot stood lower here
             mid[e] = zcap[e]
         cov[e, 0] += P[0, 0]
@@ -1209,7 +1276,9 @@ def warm_up(fused: bool = False) -> None:
         bins, tops = keyframe_tops(np.zeros((2, 2)), 0.0, 0.0, 0.005, 0.01)
         add_tops(
             Z, Z.copy(), n, used, mid, se2, cov, bins + 1, tops, 1, 1, 0.0, True, np.eye(2),
-            np.full(3, np.inf), 0.0,
+            np.full(3, np.inf), 0.0, np.full((3, 4), np.inf), view_ceilings(
+                np.zeros((2, 2)), 0.0, 0.0, bins, 0.005, tops
+            ), 0.01,
         )  # fmt: skip
     window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
     phase = np.array([0.0, 0.1, 0.2])
@@ -1226,6 +1295,7 @@ def warm_up(fused: bool = False) -> None:
         se2, cov, 0, 1, 1, 0.0, True, np.full(3, np.inf), 0.0, True, 1.0, z0, z0, z0, z0,
         0.04, 0.15, SLOPE_STEP_M,
         MAX_TRANSITION_BIN_M, np.zeros((0, 2)), z0, np.zeros(0, np.int64),
+        np.full((3, 4), np.inf), True,
     )  # fmt: skip
     used[:] = True
     n[:] = 1
@@ -1572,6 +1642,8 @@ def keyframe_step(
     edge_xz,
     edge_rise,
     edge_first,
+    U,
+    ceilings,
 ):  # pragma: no cover - compiled
     """A keyframe (``rel`` (N, 2) camera-relative, camera at the finite (cam_x, cam_z),
     covariance ``P``) tested against the map and joining it, in one call: what
@@ -1587,6 +1659,8 @@ def keyframe_step(
     edges xz, rise, first bin): status 0: no finite point (nothing changed); 1: the bins
     [first, last] fall outside the arrays (nothing changed: grow them and call again); 2:
     done. The values of a scale are empty when the keyframe gave it none (window unchanged).
+    ``U``: the map's view ceilings (updated in place), ``ceilings``: the map's
+    view_ceilings flag (False: this keyframe's are +inf).
     """
     none = np.zeros(0)
     bins, tops = keyframe_tops(rel, cam_x, cam_z, bin_m, top_band)
@@ -1615,9 +1689,13 @@ def keyframe_step(
                 if sq.shape[0] > 0:
                     map_q = sq
                     map_new = window_merge(map_sorted, map_old, sq)
+    if ceilings:
+        ceil = view_ceilings(rel, cam_x, cam_z, bins, bin_m, tops)
+    else:
+        ceil = np.full(bins.shape[0], np.inf)
     add_tops(
         Z, Zs, n, used, mid, se2, cov, bins - i0, tops, min_keyframes, agree_keyframes, agree_m,
-        median, P, zcap, max_excess,
+        median, P, zcap, max_excess, U, ceil, top_band,
     )  # fmt: skip
     e_xz, e_rise, e_first = rescan_edges(
         used, mid, i0, bin_m, b_lo - i0, b_hi - i0, min_rise, max_gap, slope_step, max_bin,

@@ -39,6 +39,14 @@ class SafetyConfig(BaseModel):
         "a surface seen twice at one height is terrain, the ToF mixed pixels scatter from view "
         "to view and still need min_keyframes views; >= min_keyframes: off (before 2026-12-03)",
     )
+    view_ceilings: bool = Field(
+        default=True,
+        description="a keyframe's height in a map bin counts only if its view reached the "
+        "bin's highest kept height (less the 1 cm top band): a view that passed under a "
+        "nosing overhang, or whose field of view ends below the top of a riser, is no "
+        "evidence against the higher surface others saw there; False: every view counts "
+        "(before 2026-12-03, fourth session)",
+    )
     contact_map: bool = Field(
         default=True,
         description="a foot in stance is a measurement of the terrain: the map's bins under "

@@ -13,6 +13,17 @@ heights from view to view and wait for ``min_keyframes`` views and the median. E
 keeps the mean camera position covariance of the keyframes that saw it (the relative-pose part
 of the clearance sigma).
 
+View ceilings (``view_ceilings``). A keyframe's height in a bin says there is a surface at
+that height and free space above it only as high as the keyframe's view reached over the bin:
+the top of its field of view (the steepest upward line of sight to any of its points,
+:func:`view_ceilings`). A camera low in front of a stair whose nosing overhangs sees the lower
+tread under the nosing and its set-back riser, while the lip is above its field of view; most
+keyframes of an approach are such views, and their median put the nosing edge at the riser,
+3 cm too far forward. A kept height whose ceiling is below the bin's highest kept height less
+``top_band_m`` therefore takes no part in the bin's statistic (it still counts as a view for
+:meth:`OnlineHeightMap._used_rule`). The highest height's own ceiling is never below it, so
+a bin always keeps a statistic.
+
 Foot contact. A foot standing on the terrain is a measurement of it too: no terrain is above
 its sole. :meth:`OnlineHeightMap.add_contact` (called on stance frames) lowers each bin under
 the sole to the sole's height plus a margin when the bin's height exceeds that by less than
@@ -96,6 +107,7 @@ class OnlineHeightMap:
         edge_max_gap_m: float = 0.15,
         agree_keyframes: int | None = None,
         agree_m: float = 0.0,
+        view_ceilings: bool = True,
     ) -> None:
         if statistic not in ("median", "mean"):
             raise ValueError(f"statistic must be 'median' or 'mean', got {statistic!r}")
@@ -108,12 +120,15 @@ class OnlineHeightMap:
         self.capacity = max(int(capacity), min_keyframes)
         self.edge_min_rise_m = edge_min_rise_m
         self.edge_max_gap_m = edge_max_gap_m
+        self.view_ceilings = view_ceilings
         #: keyframes added so far (the caches below are of this version)
         self.version = 0
         self._i0 = 0  # bin index of array element 0
         self._z = np.full((0, self.capacity), np.nan)  # per bin: the keyframes' heights, m
         # the same sorted, NaN after them (kept by the compiled keyframe step only)
         self._zs = np.full((0, self.capacity), np.nan)
+        # per bin and kept height: the keyframe's view ceiling there (view_ceilings), m
+        self._u = np.full((0, self.capacity), np.inf)
         self._n = np.zeros(0, np.int64)  # keyframes that saw the bin (all, not only kept)
         self._used = np.zeros(0, bool)  # _used_rule
         self._mid = np.zeros(0)  # per bin: the height over the kept keyframes, m
@@ -138,6 +153,7 @@ class OnlineHeightMap:
         pad_l, pad_r = self._i0 - lo, hi - (self._i0 + n)
         self._z = np.pad(self._z, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
         self._zs = np.pad(self._zs, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
+        self._u = np.pad(self._u, ((pad_l, pad_r), (0, 0)), constant_values=np.inf)
         self._n = np.pad(self._n, (pad_l, pad_r))
         self._used = np.pad(self._used, (pad_l, pad_r))
         self._mid = np.pad(self._mid, (pad_l, pad_r))
@@ -169,10 +185,16 @@ class OnlineHeightMap:
         )
         self._grow(int(bins[0]), int(bins[-1]))
         j = bins - self._i0
-        self._z[j, self._n[j] % self.capacity] = top  # the oldest height makes room
+        slot = self._n[j] % self.capacity  # the oldest height makes room
+        self._z[j, slot] = top
+        if self.view_ceilings:
+            cam = np.asarray(camera_xz_m, dtype=float)
+            self._u[j, slot] = view_ceilings(
+                rel, float(cam[0]), float(cam[1]), bins, self.bin_m, top
+            )
         self._n[j] += 1
         self._used[j] = self._used_rule(self._n[j], self._z[j])
-        self._mid[j], self._se2[j] = self._bin_stats(self._z[j])
+        self._mid[j], self._se2[j] = self._bin_stats(self._z[j], self._u[j])
         self._mid[j] = self._capped(self._mid[j], self._cap[j])
         P = np.asarray(cov_position_m2, dtype=float)
         self._cov[j] += np.array([P[0, 0], P[0, 1], P[1, 1]])
@@ -212,7 +234,7 @@ class OnlineHeightMap:
         j, zc, old_cap = j[seen], zc[seen], old_cap[seen]
         if j.size == 0:
             return None
-        stat = self._bin_stats(self._z[j])[0]
+        stat = self._bin_stats(self._z[j], self._u[j])[0]
         apply = (stat > zc) & (stat < zc + max_excess_m)
         # a bin the old cap held whose excess over the new one is a step's: its own height
         # (only these take the statistic again, so the compiled map's heights stay its own)
@@ -234,9 +256,17 @@ class OnlineHeightMap:
         spread = np.nanmax(Z, axis=1) - np.nanmin(Z, axis=1)
         return (n >= self.min_keyframes) | ((n >= self.agree_keyframes) & (spread <= self.agree_m))
 
-    def _bin_stats(self, Z: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
+    def _bin_stats(
+        self, Z: NDArray[np.float64], U: NDArray[np.float64] | None = None
+    ) -> tuple[NDArray, NDArray]:
         """Height and its squared standard error per row of ``Z`` (bins x kept keyframes,
-        NaN where empty; every row has at least one height)."""
+        NaN where empty; every row has at least one height), over the heights whose view
+        ceiling (``U``, same shape) reaches the row's highest height less ``top_band_m``
+        (module docstring: a keyframe that could not see that high is no evidence against
+        a surface there)."""
+        if U is not None:
+            top = np.nanmax(Z, axis=1)
+            Z = np.where(U < top[:, None] - self.top_band_m, np.nan, Z)
         n = np.sum(np.isfinite(Z), axis=1)
         if self.statistic == "mean":
             mid = np.nanmean(Z, axis=1)
@@ -357,6 +387,7 @@ class IncrementalHeightMap(OnlineHeightMap):
         kernels: ModuleType | None = None,
         agree_keyframes: int | None = None,
         agree_m: float = 0.0,
+        view_ceilings: bool = True,
     ) -> None:
         super().__init__(
             bin_m,
@@ -368,6 +399,7 @@ class IncrementalHeightMap(OnlineHeightMap):
             edge_max_gap_m,
             agree_keyframes,
             agree_m,
+            view_ceilings,
         )
         self._kernels = kernels
         self._geometry = clearance if kernels is None else kernels
@@ -423,6 +455,12 @@ class IncrementalHeightMap(OnlineHeightMap):
         if bins.shape[0] == 0:
             return None
         self._grow(int(bins[0]), int(bins[-1]))
+        ceil = np.full(bins.shape[0], np.inf)
+        if self.view_ceilings:
+            rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+            rel = rel[np.all(np.isfinite(rel), axis=1)]
+            cam = np.asarray(camera_xz_m, dtype=float)
+            ceil = view_ceilings(rel, float(cam[0]), float(cam[1]), bins, self.bin_m, tops)
         self._kernels.add_tops(
             self._z,
             self._zs,
@@ -440,6 +478,9 @@ class IncrementalHeightMap(OnlineHeightMap):
             np.asarray(cov_position_m2, dtype=float),
             self._cap,
             self.max_excess_m,
+            self._u,
+            ceil,
+            self.top_band_m,
         )
         self._profile = None
         self.version += 1
@@ -578,3 +619,29 @@ class IncrementalHeightMap(OnlineHeightMap):
         self._edge_first = np.concatenate(
             [self._edge_first[keep_l], first_b, self._edge_first[keep_r]]
         )
+
+
+def view_ceilings(
+    rel_xz_m: NDArray[np.float64],
+    cam_x_m: float,
+    cam_z_m: float,
+    bins: NDArray[np.int64],
+    bin_m: float,
+    tops_m: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Per bin a keyframe saw (index ``bins``, its height ``tops_m``): the highest its view
+    reaches over the bin, m. The keyframe's steepest upward (least downward) line of sight
+    is that to the point of its profile (``rel_xz_m``, camera-relative, finite rows) with the
+    largest z / x ahead of the camera; over the bin it reaches the camera's height plus that
+    slope times the x offset of the bin's nearer (for a downward slope) end. A surface higher
+    than that over the bin (a nosing above the lower tread seen under it, or the part of a
+    riser above the top of the camera's field of view) was out of this keyframe's sight.
+    Never below the keyframe's own height there; +inf without a point ahead."""
+    x, z = rel_xz_m[:, 0], rel_xz_m[:, 1]
+    ahead = x > 1e-6
+    if not ahead.any():
+        return np.full(bins.shape[0], np.inf)
+    slope = float(np.max(z[ahead] / x[ahead]))
+    x_lo = bins * bin_m
+    u = cam_z_m + np.maximum(slope * (x_lo - cam_x_m), slope * (x_lo + bin_m - cam_x_m))
+    return np.maximum(u, tops_m)

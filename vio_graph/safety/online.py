@@ -352,6 +352,7 @@ class SafetyMonitor:
                 kernels=kernels,
                 agree_keyframes=config.agreement_keyframes,
                 agree_m=config.agreement_tolerance_m,
+                view_ceilings=config.view_ceilings,
             )
             if incremental
             else OnlineHeightMap(
@@ -362,6 +363,7 @@ class SafetyMonitor:
                 edge_max_gap_m=config.edge_max_gap_m,
                 agree_keyframes=config.agreement_keyframes,
                 agree_m=config.agreement_tolerance_m,
+                view_ceilings=config.view_ceilings,
             )
         )
         self._prev: tuple[float, tuple[float, float]] | None = None  # (t, toe x, z)
@@ -515,6 +517,7 @@ class SafetyMonitor:
                     cfg.relative_pose_scale, pose._sorted, pose.leaving(), mp._sorted,
                     mp.leaving(), m.edge_min_rise_m, m.edge_max_gap_m, SLOPE_STEP_M,
                     MAX_TRANSITION_BIN_M, m._edge_xz, m._edge_rise, m._edge_first,
+                    m._u, m.view_ceilings,
                 )  # fmt: skip
                 if out[0] != 1:
                     break

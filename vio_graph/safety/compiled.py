@@ -519,13 +519,19 @@ def view_ceilings(rel, cam_x, cam_z, bins, bin_m, tops):  # pragma: no cover - c
 @numba.njit(cache=True)
 def _censored_stats(Z, U, e, top_band, median):  # pragma: no cover - compiled
     """height_map.OnlineHeightMap._bin_stats of bin element ``e`` when some kept height's
-    view ceiling is below the bin's highest height less ``top_band`` (else (NaN, NaN)):
-    the statistic over the other heights."""
+    view ceiling is below the bin's second-highest height (its highest when it has one)
+    less ``top_band`` (else (NaN, NaN)): the statistic over the other heights."""
     cap = Z.shape[1]
-    top = -np.inf
+    top1 = -np.inf
+    top2 = -np.inf
     for r in range(cap):
         if Z[e, r] == Z[e, r]:
-            top = max(top, Z[e, r])
+            if Z[e, r] > top1:
+                top2 = top1
+                top1 = Z[e, r]
+            elif Z[e, r] > top2:
+                top2 = Z[e, r]
+    top = top2 if top2 > -np.inf else top1
     v = np.empty(cap)
     c = 0
     for r in range(cap):
@@ -536,7 +542,7 @@ def _censored_stats(Z, U, e, top_band, median):  # pragma: no cover - compiled
     for r in range(cap):
         if Z[e, r] == Z[e, r]:
             full += 1
-    if c == full:  # (c >= 1: the highest height's ceiling is never below it)
+    if c == full:  # (c >= 1: the two highest heights' ceilings are never below them)
         return np.nan, np.nan
     v = v[:c]
     if median:

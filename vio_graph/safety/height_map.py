@@ -19,9 +19,12 @@ the top of its field of view (the steepest upward line of sight to any of its po
 :func:`view_ceilings`). A camera low in front of a stair whose nosing overhangs sees the lower
 tread under the nosing and its set-back riser, while the lip is above its field of view; most
 keyframes of an approach are such views, and their median put the nosing edge at the riser,
-3 cm too far forward. A kept height whose ceiling is below the bin's highest kept height less
+3 cm too far forward. A kept height whose ceiling is below the bin's reference height less
 ``top_band_m`` therefore takes no part in the bin's statistic (it still counts as a view for
-:meth:`OnlineHeightMap._used_rule`). The highest height's own ceiling is never below it, so
+:meth:`OnlineHeightMap._used_rule`). The reference is the bin's second-highest kept height
+(the highest when the bin has one): a surface must be reported by two keyframes before it
+censors the others, so one view's mixed pixel at the edge of its field of view does not
+outvote the views below it. The two highest heights' own ceilings are never below them, so
 a bin always keeps a statistic.
 
 Foot contact. A foot standing on the terrain is a measurement of it too: no terrain is above
@@ -261,11 +264,14 @@ class OnlineHeightMap:
     ) -> tuple[NDArray, NDArray]:
         """Height and its squared standard error per row of ``Z`` (bins x kept keyframes,
         NaN where empty; every row has at least one height), over the heights whose view
-        ceiling (``U``, same shape) reaches the row's highest height less ``top_band_m``
-        (module docstring: a keyframe that could not see that high is no evidence against
-        a surface there)."""
+        ceiling (``U``, same shape) reaches the row's second-highest height (its highest
+        when it has one) less ``top_band_m`` (module docstring: a keyframe that could not see
+        that high is no evidence against a surface there)."""
         if U is not None:
-            top = np.nanmax(Z, axis=1)
+            # the reference: the second-highest kept height (the highest when the row has
+            # one), so that a single view's height (a mixed pixel) censors no other view
+            k = np.sum(np.isfinite(Z), axis=1)
+            top = np.sort(Z, axis=1)[np.arange(Z.shape[0]), np.maximum(k - 2, 0)]
             Z = np.where(U < top[:, None] - self.top_band_m, np.nan, Z)
         n = np.sum(np.isfinite(Z), axis=1)
         if self.statistic == "mean":

@@ -481,8 +481,18 @@ def test_stance_detection_follows_the_filter_when_camera_stamps_are_late(
     t_late, stance_late, stats_late = stance_of(late, "late", 0.03)
     np.testing.assert_allclose(t_late, t_clean, atol=1e-9)  # the same capture times
     assert stance_clean.sum() > 20
-    np.testing.assert_array_equal(stance_late, stance_clean)
-    assert stats_late["velocity_fused"] == stats_clean["velocity_fused"]
+    # The same stance frames, but for at most one frame at the edge of a stance: the late
+    # run's attitude and velocities match the clean run's to ~1e-8, not to the bit (the
+    # level-surface pitch updates land on other IMU sample boundaries), and the foot-still
+    # and speed tests at a stance's last frame sit at their thresholds (seen on one CPU
+    # type, not another). A detector reading the IMU 30 ms late moves every onset and end
+    # by a frame: 2 frames per stance here.
+    differ = np.flatnonzero(stance_late != stance_clean)
+    edges = np.flatnonzero(np.diff(stance_clean.astype(int)) != 0)
+    edge_frames = np.union1d(edges, edges + 1)
+    assert differ.size <= 1, differ
+    assert np.isin(differ, edge_frames).all(), (differ, edge_frames)
+    assert abs(stats_late["velocity_fused"] - stats_clean["velocity_fused"]) <= 1
 
 
 def test_a_sample_before_the_first_frame_arriving_after_it_does_not_stop_the_filter() -> None:

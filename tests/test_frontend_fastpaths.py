@@ -829,3 +829,41 @@ def test_compiled_slice_equals_the_numpy_path_at_every_agreement_count() -> None
             assert np.array_equal(fast, ref)
         else:
             assert np.allclose(fast, ref, rtol=0, atol=1e-12)
+
+
+def test_compiled_seen_under_equals_the_numpy_mask() -> None:
+    """surface.seen_under_mask compiled (``compiled.seen_under``: sorted prefix, blocks
+    skipped by a bound, the count stopped at the threshold) against its numpy form: the same
+    mask on open-riser scenes (points that are seen under), random clouds with ties on a
+    grid, NaNs and points behind the camera, for several margins, drops and counts."""
+    from vio_graph.surface import seen_under_mask
+
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    front = np.column_stack([np.full(7, 0.7), np.linspace(-0.18, -0.15, 7)])
+    tread = np.column_stack([np.linspace(0.4, 0.69, 30), np.full(30, -0.3)])
+    floor = np.column_stack([np.linspace(1.0, 1.6, 60), np.full(60, -0.45)])
+    rng = np.random.default_rng(12)
+    n_seen = 0
+    for case in range(200):
+        n = int(rng.integers(0, 300))
+        pts = np.column_stack([rng.uniform(-0.1, 2.0, n), rng.uniform(-0.8, 0.4, n)])
+        if case % 2 == 0:  # an open-riser scene with noise, some points seen under
+            scene = np.vstack([front, tread, floor])
+            pts = np.vstack([pts[: n // 8], scene + rng.normal(0, 0.003, scene.shape)])
+        if case % 5 == 0:
+            pts = np.round(pts, 2)  # ties in x and on the line of sight
+        if case % 7 == 0 and pts.shape[0]:
+            pts[rng.integers(0, pts.shape[0]), int(rng.integers(0, 2))] = np.nan
+        for margin, drop, count in ((0.05, 0.04, 3), (0.0, 0.0, 1), (0.2, 0.1, 5), (0.05, 0.04, 0)):
+            ref = seen_under_mask(pts, margin, drop, count)
+            fast = kernels.seen_under(
+                np.ascontiguousarray(pts[:, 0]),
+                np.ascontiguousarray(pts[:, 1]),
+                margin,
+                drop,
+                count,
+            )
+            assert np.array_equal(fast, ref)
+            n_seen += int(ref.sum())
+    assert n_seen > 1000

@@ -1031,6 +1031,73 @@ def corner(
     return 0, ex, ez, hu, hl, n_up, n_lo, near_side, has_face, in_window
 
 
+# ----------------------------------------------------------------------------- walking surface
+
+#: points per block of the x-sorted profile in :func:`seen_under`'s bound test
+_SEEN_BLOCK = 16
+
+
+@numba.njit(cache=True)
+def seen_under(x, z, margin, drop, min_occluders):  # pragma: no cover - compiled
+    """``vio_graph.surface.seen_under_mask`` (its numpy form is the reference): True for a
+    point P (x > 1e-6) when at least ``min_occluders`` points Q with ``xq < xp - margin`` lie
+    above P's line of sight, ``zq > zp / xp * xq + drop``, the same comparisons of the same
+    floats. The points ahead are sorted by x once, so the Q of a P are a prefix; the count
+    stops at ``min_occluders``. The prefix is scanned in blocks of ``_SEEN_BLOCK`` sorted
+    points, and a block whose highest z is at most the lower of the line's rounded heights at
+    the block's two x ends (rounded products and sums are monotone, so no Q inside can pass
+    the test) is skipped without looking at its points."""
+    n = x.shape[0]
+    under = np.zeros(n, np.bool_)
+    m = 0
+    for i in range(n):
+        if x[i] > 1e-6:
+            m += 1
+    if m <= min_occluders:
+        return under
+    idx = np.empty(m, np.int64)
+    k = 0
+    for i in range(n):
+        if x[i] > 1e-6:
+            idx[k] = i
+            k += 1
+    order = idx[np.argsort(x[idx])]
+    xs = x[order]
+    zs = z[order]
+    nb = (m + _SEEN_BLOCK - 1) // _SEEN_BLOCK
+    top = np.full(nb, -np.inf)  # highest z per block (NaN never passes the test: left out)
+    for q in range(m):
+        b = q // _SEEN_BLOCK
+        if zs[q] > top[b]:
+            top[b] = zs[q]
+    for a in range(m):
+        xp = xs[a]
+        lim = xp - margin
+        s = zs[a] / xp
+        cnt = 0
+        q = 0
+        while q < m and xs[q] < lim and cnt < min_occluders:
+            end = min(q + _SEEN_BLOCK, m)
+            b = q // _SEEN_BLOCK
+            last = end - 1
+            if not xs[last] < lim:
+                last = q  # the block's x end inside the prefix: bound from its first point
+                while last + 1 < end and xs[last + 1] < lim:
+                    last += 1
+            if top[b] <= min(s * xs[q], s * xs[last]) + drop:
+                q = last + 1
+                continue
+            for j in range(q, last + 1):
+                if zs[j] > s * xs[j] + drop:
+                    cnt += 1
+                    if cnt >= min_occluders:
+                        break
+            q = last + 1
+        if cnt >= min_occluders:
+            under[order[a]] = True
+    return under
+
+
 # ----------------------------------------------------------------------------- terrain levels
 
 

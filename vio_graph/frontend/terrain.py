@@ -406,7 +406,20 @@ def points_seen_under(
     n = np.shape(profile_xz_m)[0]
     if margin is None or config.under_sight_min_points is None:
         return np.zeros(n, dtype=bool)
-    under = seen_under_mask(profile_xz_m, margin, config.min_step_m, config.under_sight_min_points)
+    kernels = compiled_kernels()
+    if kernels is None:
+        under = seen_under_mask(
+            profile_xz_m, margin, config.min_step_m, config.under_sight_min_points
+        )
+    else:  # the same mask bit for bit (tests/test_frontend_fastpaths.py)
+        pts = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+        under = kernels.seen_under(
+            np.ascontiguousarray(pts[:, 0]),
+            np.ascontiguousarray(pts[:, 1]),
+            float(margin),
+            float(config.min_step_m),
+            int(config.under_sight_min_points),
+        )
     if levels:
         under |= floor_beyond_slab_mask(
             profile_xz_m,

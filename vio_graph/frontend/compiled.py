@@ -1098,6 +1098,76 @@ def seen_under(x, z, margin, drop, min_occluders):  # pragma: no cover - compile
     return under
 
 
+# ----------------------------------------------------------------------------- depth noise
+
+
+@numba.njit(cache=True)
+def level_bands(x, z, max_range, check_range, heights, lo, hi, band):  # pragma: no cover
+    """The points of each level's band as ``noise.level_residuals_reference`` selects them:
+    with ``check_range``, only points with ``hypot(x, z) < max_range`` (decided on
+    ``x * x + z * z`` against ``max_range**2`` when that is more than 1e-12 relative away, else
+    by libm's ``hypot`` as numpy calls it: the same points); then per level ``|z - height| <=
+    band`` and ``lo <= x <= hi``. Returns (L, M) x and z of each level's points in input order
+    and the (L,) counts."""
+    n = x.shape[0]
+    keep = np.empty(n, np.int64)
+    m = 0
+    if check_range:
+        r2 = max_range * max_range
+        r2_in = r2 * (1.0 - 1e-12)
+        r2_out = r2 * (1.0 + 1e-12)
+        for i in range(n):
+            d2 = x[i] * x[i] + z[i] * z[i]
+            if d2 < r2_in or (not d2 > r2_out and math.hypot(x[i], z[i]) < max_range):
+                keep[m] = i
+                m += 1
+    else:
+        for i in range(n):
+            keep[i] = i
+        m = n
+    n_levels = heights.shape[0]
+    bx = np.empty((n_levels, m))
+    bz = np.empty((n_levels, m))
+    counts = np.zeros(n_levels, np.int64)
+    for k in range(m):
+        xi = x[keep[k]]
+        zi = z[keep[k]]
+        for lv in range(n_levels):
+            if abs(zi - heights[lv]) <= band and xi >= lo[lv] and xi <= hi[lv]:
+                c = counts[lv]
+                bx[lv, c] = xi
+                bz[lv, c] = zi
+                counts[lv] = c + 1
+    return bx, bz, counts
+
+
+@numba.njit(cache=True)
+def median_abs_deviation_sorted(s):  # pragma: no cover - compiled
+    """``np.median(np.abs(r - np.median(r)))`` of the values ``s`` (sorted ascending, finite,
+    at least one): the median is the middle value (the mean of the two middle ones for an
+    even count, ``(a + b) / 2`` as numpy's mean of two), and the deviations ``|s - med|``,
+    falling to the left of the median and rising to its right, are merged from the middle
+    outwards up to the middle rank: the same order statistics, the same floats."""
+    n = s.shape[0]
+    h = n // 2
+    med = s[h] if n % 2 == 1 else (s[h - 1] + s[h]) / 2
+    j = 0
+    while j < n and s[j] < med:
+        j += 1
+    i = j - 1
+    prev = 0.0
+    cur = 0.0
+    for _ in range(h + 1):  # ranks 0 .. h of the merged deviations
+        prev = cur
+        if i >= 0 and (j >= n or abs(s[i] - med) <= abs(s[j] - med)):
+            cur = abs(s[i] - med)
+            i -= 1
+        else:
+            cur = abs(s[j] - med)
+            j += 1
+    return cur if n % 2 == 1 else (prev + cur) / 2
+
+
 # ----------------------------------------------------------------------------- terrain levels
 
 

@@ -1098,6 +1098,52 @@ def seen_under(x, z, margin, drop, min_occluders):  # pragma: no cover - compile
     return under
 
 
+@numba.njit(cache=True)
+def under_levels(x, pz, z, lo, hi, margin, drop, band, sight_margin, use_sight):  # pragma: no cover
+    """``vio_graph.surface.under_levels_mask`` (its numpy form is the reference) point by
+    point: the same comparisons of the same floats (the slope ``pz / x`` of a point ahead,
+    ``min(x, s_hi)`` as ``np.minimum`` takes it for a point ahead, whose x is not NaN), so the
+    same mask. ``use_sight``: ``sight_margin`` given."""
+    n = x.shape[0]
+    n_levels = z.shape[0]
+    under = np.zeros(n, np.bool_)
+    # the lower levels B each level A overlaps by more than margin (the third rule)
+    pairs = np.zeros((n_levels, n_levels), np.bool_)
+    for a in range(n_levels):
+        for b in range(n_levels):
+            overlap = min(hi[a], hi[b]) - max(lo[a], lo[b])
+            pairs[a, b] = b != a and z[b] < z[a] - drop and overlap > margin
+    for i in range(n):
+        xi = x[i]
+        zi = pz[i]
+        ahead = xi > 1e-6
+        slope = zi / xi if ahead else 0.0
+        hit = False
+        for a in range(n_levels):
+            za = z[a] - drop
+            a_lo = lo[a] + margin
+            a_hi = hi[a] - margin
+            if a_hi > a_lo and xi > a_lo and xi < a_hi and zi < za:
+                hit = True
+                break
+            if use_sight and ahead and hi[a] - lo[a] > 2 * sight_margin:
+                s_lo = lo[a] + sight_margin
+                s_hi = hi[a] - sight_margin
+                x_eval = min(xi, s_hi)
+                if xi > lo[a] + margin and x_eval > s_lo and slope * x_eval < za:
+                    hit = True
+                    break
+            if zi < za and xi >= lo[a] and xi <= hi[a]:
+                for b in range(n_levels):
+                    if pairs[a, b] and abs(zi - z[b]) <= band:
+                        hit = True
+                        break
+                if hit:
+                    break
+        under[i] = hit
+    return under
+
+
 # ----------------------------------------------------------------------------- depth noise
 
 

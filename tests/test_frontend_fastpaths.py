@@ -829,3 +829,128 @@ def test_compiled_slice_equals_the_numpy_path_at_every_agreement_count() -> None
             assert np.array_equal(fast, ref)
         else:
             assert np.allclose(fast, ref, rtol=0, atol=1e-12)
+
+
+def test_compiled_seen_under_equals_the_numpy_mask() -> None:
+    """surface.seen_under_mask compiled (``compiled.seen_under``: sorted prefix, blocks
+    skipped by a bound, the count stopped at the threshold) against its numpy form: the same
+    mask on open-riser scenes (points that are seen under), random clouds with ties on a
+    grid, NaNs and points behind the camera, for several margins, drops and counts."""
+    from vio_graph.surface import seen_under_mask
+
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    front = np.column_stack([np.full(7, 0.7), np.linspace(-0.18, -0.15, 7)])
+    tread = np.column_stack([np.linspace(0.4, 0.69, 30), np.full(30, -0.3)])
+    floor = np.column_stack([np.linspace(1.0, 1.6, 60), np.full(60, -0.45)])
+    rng = np.random.default_rng(12)
+    n_seen = 0
+    for case in range(200):
+        n = int(rng.integers(0, 300))
+        pts = np.column_stack([rng.uniform(-0.1, 2.0, n), rng.uniform(-0.8, 0.4, n)])
+        if case % 2 == 0:  # an open-riser scene with noise, some points seen under
+            scene = np.vstack([front, tread, floor])
+            pts = np.vstack([pts[: n // 8], scene + rng.normal(0, 0.003, scene.shape)])
+        if case % 5 == 0:
+            pts = np.round(pts, 2)  # ties in x and on the line of sight
+        if case % 7 == 0 and pts.shape[0]:
+            pts[rng.integers(0, pts.shape[0]), int(rng.integers(0, 2))] = np.nan
+        for margin, drop, count in ((0.05, 0.04, 3), (0.0, 0.0, 1), (0.2, 0.1, 5), (0.05, 0.04, 0)):
+            ref = seen_under_mask(pts, margin, drop, count)
+            fast = kernels.seen_under(
+                np.ascontiguousarray(pts[:, 0]),
+                np.ascontiguousarray(pts[:, 1]),
+                margin,
+                drop,
+                count,
+            )
+            assert np.array_equal(fast, ref)
+            n_seen += int(ref.sum())
+    assert n_seen > 1000
+
+
+def test_compiled_depth_noise_equals_the_numpy_path() -> None:
+    """level_residuals and robust_sigma with the kernels on (``compiled.level_bands``,
+    ``compiled.median_abs_deviation_sorted``) against their numpy references: the same
+    residuals and sigma bit for bit, with points exactly on the range circle and on a band's
+    edges, ties, NaNs, no level, overlapping bands, and even and odd counts."""
+    from vio_graph.frontend import noise
+
+    assert icp_module.compiled_kernels() is not None
+    rng = np.random.default_rng(5)
+    for case in range(150):
+        n = int(rng.integers(0, 1500))
+        pts = np.column_stack([rng.uniform(-0.2, 1.0, n), rng.uniform(-0.6, 0.2, n)])
+        if case % 4 == 0:
+            pts = np.round(pts, 2)  # on the bands' edges
+        if case % 9 == 0 and n:
+            pts[0, 1] = np.nan
+        ang = rng.uniform(-1.5, 0.2, 40)
+        pts = np.vstack([pts, 0.6 * np.column_stack([np.cos(ang), np.sin(ang)])])
+        heights = rng.uniform(-0.6, 0.2, int(rng.integers(0, 5)))
+        levels = [
+            (h, lo, lo + rng.uniform(0.05, 0.6))
+            for h, lo in zip(heights, rng.uniform(-0.2, 0.8, heights.size), strict=True)
+        ]
+        for max_range in (0.6, np.inf):
+            for band in (0.02, 0.0):
+                fast = noise.level_residuals(pts, levels, band, min_points=5, max_range_m=max_range)
+                ref = noise.level_residuals_reference(pts, levels, band, 5, max_range)
+                assert np.array_equal(fast, ref, equal_nan=True)
+    sizes = 0
+    for case in range(400):
+        r = rng.normal(0.0, 0.003, int(rng.integers(0, 80)))
+        if case % 3 == 0:
+            r = np.round(r, 3)  # ties, zero deviations
+        if case % 5 == 0 and r.size:
+            r[: r.size // 2] = r[0]
+        if case % 17 == 0 and r.size:
+            r[0] = np.nan
+        fast, ref = noise.robust_sigma(r), noise.robust_sigma_reference(r)
+        assert fast == ref or (np.isnan(fast) and np.isnan(ref))
+        sizes += r.size % 2
+    assert 0 < sizes < 400  # odd and even counts
+
+
+def test_compiled_under_levels_equals_the_numpy_mask() -> None:
+    """surface.under_levels_mask compiled (``compiled.under_levels``, point by point) against
+    its numpy form: the same mask for random levels (overlapping, nested, shorter than the
+    margins) over open-riser scenes and random clouds with ties, NaNs and points behind the
+    camera, with and without the line-of-sight rule."""
+    from vio_graph.surface import under_levels_mask
+
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(21)
+    n_under = 0
+    for case in range(300):
+        n = int(rng.integers(0, 400))
+        pts = np.column_stack([rng.uniform(-0.1, 2.0, n), rng.uniform(-0.8, 0.2, n)])
+        if case % 3 == 0:
+            pts = np.round(pts, 2)  # on the levels' ends and heights
+        if case % 7 == 0 and n:
+            pts[rng.integers(0, n), int(rng.integers(0, 2))] = np.nan
+        n_levels = int(rng.integers(0, 5))
+        z = np.round(rng.uniform(-0.8, 0.2, n_levels), 2)
+        lo = np.round(rng.uniform(-0.1, 1.5, n_levels), 2)
+        hi = lo + np.round(rng.uniform(0.0, 0.8, n_levels), 2)
+        for margin, drop, band, sight in ((0.05, 0.04, 0.04, 0.01), (0.0, 0.0, 0.0, 0.0)):
+            for use_sight in (True, False):
+                ref = under_levels_mask(
+                    pts, z, lo, hi, margin, drop, band, sight if use_sight else None
+                )
+                fast = kernels.under_levels(
+                    np.ascontiguousarray(pts[:, 0]),
+                    np.ascontiguousarray(pts[:, 1]),
+                    z,
+                    lo,
+                    hi,
+                    margin,
+                    drop,
+                    band,
+                    sight,
+                    use_sight,
+                )
+                assert np.array_equal(fast, ref)
+                n_under += int(ref.sum())
+    assert n_under > 1000

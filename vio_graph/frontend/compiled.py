@@ -1031,6 +1031,189 @@ def corner(
     return 0, ex, ez, hu, hl, n_up, n_lo, near_side, has_face, in_window
 
 
+# ----------------------------------------------------------------------------- walking surface
+
+#: points per block of the x-sorted profile in :func:`seen_under`'s bound test
+_SEEN_BLOCK = 16
+
+
+@numba.njit(cache=True)
+def seen_under(x, z, margin, drop, min_occluders):  # pragma: no cover - compiled
+    """``vio_graph.surface.seen_under_mask`` (its numpy form is the reference): True for a
+    point P (x > 1e-6) when at least ``min_occluders`` points Q with ``xq < xp - margin`` lie
+    above P's line of sight, ``zq > zp / xp * xq + drop``, the same comparisons of the same
+    floats. The points ahead are sorted by x once, so the Q of a P are a prefix; the count
+    stops at ``min_occluders``. The prefix is scanned in blocks of ``_SEEN_BLOCK`` sorted
+    points, and a block whose highest z is at most the lower of the line's rounded heights at
+    the block's two x ends (rounded products and sums are monotone, so no Q inside can pass
+    the test) is skipped without looking at its points."""
+    n = x.shape[0]
+    under = np.zeros(n, np.bool_)
+    m = 0
+    for i in range(n):
+        if x[i] > 1e-6:
+            m += 1
+    if m <= min_occluders:
+        return under
+    idx = np.empty(m, np.int64)
+    k = 0
+    for i in range(n):
+        if x[i] > 1e-6:
+            idx[k] = i
+            k += 1
+    order = idx[np.argsort(x[idx])]
+    xs = x[order]
+    zs = z[order]
+    nb = (m + _SEEN_BLOCK - 1) // _SEEN_BLOCK
+    top = np.full(nb, -np.inf)  # highest z per block (NaN never passes the test: left out)
+    for q in range(m):
+        b = q // _SEEN_BLOCK
+        if zs[q] > top[b]:
+            top[b] = zs[q]
+    for a in range(m):
+        xp = xs[a]
+        lim = xp - margin
+        s = zs[a] / xp
+        cnt = 0
+        q = 0
+        while q < m and xs[q] < lim and cnt < min_occluders:
+            end = min(q + _SEEN_BLOCK, m)
+            b = q // _SEEN_BLOCK
+            last = end - 1
+            if not xs[last] < lim:
+                last = q  # the block's x end inside the prefix: bound from its first point
+                while last + 1 < end and xs[last + 1] < lim:
+                    last += 1
+            if top[b] <= min(s * xs[q], s * xs[last]) + drop:
+                q = last + 1
+                continue
+            for j in range(q, last + 1):
+                if zs[j] > s * xs[j] + drop:
+                    cnt += 1
+                    if cnt >= min_occluders:
+                        break
+            q = last + 1
+        if cnt >= min_occluders:
+            under[order[a]] = True
+    return under
+
+
+@numba.njit(cache=True)
+def under_levels(x, pz, z, lo, hi, margin, drop, band, sight_margin, use_sight):  # pragma: no cover
+    """``vio_graph.surface.under_levels_mask`` (its numpy form is the reference) point by
+    point: the same comparisons of the same floats (the slope ``pz / x`` of a point ahead,
+    ``min(x, s_hi)`` as ``np.minimum`` takes it for a point ahead, whose x is not NaN), so the
+    same mask. ``use_sight``: ``sight_margin`` given."""
+    n = x.shape[0]
+    n_levels = z.shape[0]
+    under = np.zeros(n, np.bool_)
+    # the lower levels B each level A overlaps by more than margin (the third rule)
+    pairs = np.zeros((n_levels, n_levels), np.bool_)
+    for a in range(n_levels):
+        for b in range(n_levels):
+            overlap = min(hi[a], hi[b]) - max(lo[a], lo[b])
+            pairs[a, b] = b != a and z[b] < z[a] - drop and overlap > margin
+    for i in range(n):
+        xi = x[i]
+        zi = pz[i]
+        ahead = xi > 1e-6
+        slope = zi / xi if ahead else 0.0
+        hit = False
+        for a in range(n_levels):
+            za = z[a] - drop
+            a_lo = lo[a] + margin
+            a_hi = hi[a] - margin
+            if a_hi > a_lo and xi > a_lo and xi < a_hi and zi < za:
+                hit = True
+                break
+            if use_sight and ahead and hi[a] - lo[a] > 2 * sight_margin:
+                s_lo = lo[a] + sight_margin
+                s_hi = hi[a] - sight_margin
+                x_eval = min(xi, s_hi)
+                if xi > lo[a] + margin and x_eval > s_lo and slope * x_eval < za:
+                    hit = True
+                    break
+            if zi < za and xi >= lo[a] and xi <= hi[a]:
+                for b in range(n_levels):
+                    if pairs[a, b] and abs(zi - z[b]) <= band:
+                        hit = True
+                        break
+                if hit:
+                    break
+        under[i] = hit
+    return under
+
+
+# ----------------------------------------------------------------------------- depth noise
+
+
+@numba.njit(cache=True)
+def level_bands(x, z, max_range, check_range, heights, lo, hi, band):  # pragma: no cover
+    """The points of each level's band as ``noise.level_residuals_reference`` selects them:
+    with ``check_range``, only points with ``hypot(x, z) < max_range`` (decided on
+    ``x * x + z * z`` against ``max_range**2`` when that is more than 1e-12 relative away, else
+    by libm's ``hypot`` as numpy calls it: the same points); then per level ``|z - height| <=
+    band`` and ``lo <= x <= hi``. Returns (L, M) x and z of each level's points in input order
+    and the (L,) counts."""
+    n = x.shape[0]
+    keep = np.empty(n, np.int64)
+    m = 0
+    if check_range:
+        r2 = max_range * max_range
+        r2_in = r2 * (1.0 - 1e-12)
+        r2_out = r2 * (1.0 + 1e-12)
+        for i in range(n):
+            d2 = x[i] * x[i] + z[i] * z[i]
+            if d2 < r2_in or (not d2 > r2_out and math.hypot(x[i], z[i]) < max_range):
+                keep[m] = i
+                m += 1
+    else:
+        for i in range(n):
+            keep[i] = i
+        m = n
+    n_levels = heights.shape[0]
+    bx = np.empty((n_levels, m))
+    bz = np.empty((n_levels, m))
+    counts = np.zeros(n_levels, np.int64)
+    for k in range(m):
+        xi = x[keep[k]]
+        zi = z[keep[k]]
+        for lv in range(n_levels):
+            if abs(zi - heights[lv]) <= band and xi >= lo[lv] and xi <= hi[lv]:
+                c = counts[lv]
+                bx[lv, c] = xi
+                bz[lv, c] = zi
+                counts[lv] = c + 1
+    return bx, bz, counts
+
+
+@numba.njit(cache=True)
+def median_abs_deviation_sorted(s):  # pragma: no cover - compiled
+    """``np.median(np.abs(r - np.median(r)))`` of the values ``s`` (sorted ascending, finite,
+    at least one): the median is the middle value (the mean of the two middle ones for an
+    even count, ``(a + b) / 2`` as numpy's mean of two), and the deviations ``|s - med|``,
+    falling to the left of the median and rising to its right, are merged from the middle
+    outwards up to the middle rank: the same order statistics, the same floats."""
+    n = s.shape[0]
+    h = n // 2
+    med = s[h] if n % 2 == 1 else (s[h - 1] + s[h]) / 2
+    j = 0
+    while j < n and s[j] < med:
+        j += 1
+    i = j - 1
+    prev = 0.0
+    cur = 0.0
+    for _ in range(h + 1):  # ranks 0 .. h of the merged deviations
+        prev = cur
+        if i >= 0 and (j >= n or abs(s[i] - med) <= abs(s[j] - med)):
+            cur = abs(s[i] - med)
+            i -= 1
+        else:
+            cur = abs(s[j] - med)
+            j += 1
+    return cur if n % 2 == 1 else (prev + cur) / 2
+
+
 # ----------------------------------------------------------------------------- terrain levels
 
 

@@ -7,13 +7,13 @@ within the band, and ICP counts every occupied cell as an independent pair. The 
 is about twice the pico flexx2's profile noise (2-3 mm); a camera twice as noisy needs about
 twice the cell (``docs/generalisation.md``, ``tof_noise_2x``).
 
-Measurement (pure numpy, per frame). The levels the terrain classifier found on the smoothed
-profile say where the horizontal surfaces are; the RAW slice points within ``band_m`` of a
-level (inside its x extent) are fitted by a straight line z = a + b x (a slightly tilted
-attitude tilts the level, which the line takes out), and the residuals about the lines of all
-levels, pooled, give the frame's noise as 1.4826 x their median absolute deviation (robust to
-the points of a riser foot or a nosing that fall in the band). The vertical scatter of a
-horizontal surface is the profile noise the cell is compared with.
+Measurement (per frame; numpy, or numba kernels with the same answers). The levels the terrain
+classifier found on the smoothed profile say where the horizontal surfaces are; the RAW slice
+points within ``band_m`` of a level (inside its x extent) are fitted by a straight line z = a +
+b x (a slightly tilted attitude tilts the level, which the line takes out), and the residuals
+about the lines of all levels, pooled, give the frame's noise as 1.4826 x their median absolute
+deviation (robust to the points of a riser foot or a nosing that fall in the band). The
+vertical scatter of a horizontal surface is the profile noise the cell is compared with.
 
 Tracking (:class:`DepthNoiseTracker`). The per-frame values are noisy and a frame may have no
 level; the tracker keeps the median of the last ``window`` frame values and, once it has
@@ -30,6 +30,8 @@ from collections.abc import Iterable
 
 import numpy as np
 from numpy.typing import NDArray
+
+from vio_graph.frontend.icp import compiled_kernels
 
 #: MAD -> standard deviation of a normal distribution
 _MAD_TO_SIGMA = 1.4826
@@ -53,7 +55,50 @@ def level_residuals(
 
     Returns:
         (M,) residuals z - (a + b x), metres, pooled over the levels (empty if none).
+
+    With the front end's kernels on, the points of each band are picked in one compiled pass
+    (``compiled.level_bands``) and the lines fitted by the same numpy calls as
+    :func:`level_residuals_reference`: the same residuals bit for bit.
     """
+    kernels = compiled_kernels()
+    if kernels is None:
+        return level_residuals_reference(points_xz_m, levels, band_m, min_points, max_range_m)
+    pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
+    lv = np.asarray(list(levels), dtype=float).reshape(-1, 3)
+    bx, bz, counts = kernels.level_bands(
+        np.ascontiguousarray(pts[:, 0]),
+        np.ascontiguousarray(pts[:, 1]),
+        float(max_range_m),
+        bool(np.isfinite(max_range_m)),
+        np.ascontiguousarray(lv[:, 0]),
+        np.ascontiguousarray(lv[:, 1]),
+        np.ascontiguousarray(lv[:, 2]),
+        float(band_m),
+    )
+    out: list[NDArray[np.float64]] = []
+    for k, n_own in enumerate(counts.tolist()):
+        if n_own < max(min_points, 3):
+            continue
+        out.append(_line_residuals(bx[k, :n_own], bz[k, :n_own]))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def _line_residuals(xs: NDArray[np.float64], zs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """z residuals about the least-squares line z = a + b x of the points (contiguous)."""
+    xc = xs - xs.mean()
+    sxx = float(xc @ xc)
+    slope = float(xc @ (zs - zs.mean())) / sxx if sxx > 0 else 0.0
+    return zs - zs.mean() - slope * xc
+
+
+def level_residuals_reference(
+    points_xz_m: NDArray[np.float64],
+    levels: Iterable[tuple[float, float, float]],
+    band_m: float,
+    min_points: int = 20,
+    max_range_m: float = np.inf,
+) -> NDArray[np.float64]:
+    """numpy path of :func:`level_residuals`."""
     pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
     if np.isfinite(max_range_m):
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) < max_range_m]
@@ -63,16 +108,28 @@ def level_residuals(
         own = (np.abs(z - height) <= band_m) & (x >= x_lo) & (x <= x_hi)
         if int(own.sum()) < max(min_points, 3):
             continue
-        xs, zs = x[own], z[own]
-        xc = xs - xs.mean()
-        sxx = float(xc @ xc)
-        slope = float(xc @ (zs - zs.mean())) / sxx if sxx > 0 else 0.0
-        out.append(zs - zs.mean() - slope * xc)
+        out.append(_line_residuals(x[own], z[own]))
     return np.concatenate(out) if out else np.zeros(0)
 
 
 def robust_sigma(residuals_m: NDArray[np.float64]) -> float:
-    """1.4826 x median absolute deviation (nan for an empty input)."""
+    """1.4826 x median absolute deviation (nan for an empty input).
+
+    Compiled (``compiled.median_abs_deviation_sorted`` on the sorted values, O(n) after the
+    sort) when the front end's kernels are on and the values are finite: the same float as
+    :func:`robust_sigma_reference` (tests/test_frontend_fastpaths.py)."""
+    r = np.asarray(residuals_m, dtype=float).ravel()
+    kernels = compiled_kernels()
+    if kernels is None or r.size == 0:
+        return robust_sigma_reference(r)
+    s = np.sort(r)
+    if not (np.isfinite(s[0]) and np.isfinite(s[-1])):  # NaN sorts last
+        return robust_sigma_reference(r)
+    return float(_MAD_TO_SIGMA * kernels.median_abs_deviation_sorted(s))
+
+
+def robust_sigma_reference(residuals_m: NDArray[np.float64]) -> float:
+    """numpy path of :func:`robust_sigma`."""
     r = np.asarray(residuals_m, dtype=float).ravel()
     if r.size == 0:
         return float("nan")

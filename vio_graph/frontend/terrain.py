@@ -382,15 +382,33 @@ def points_under_levels(
     margin = config.under_level_margin_m
     if margin is None or not levels:
         return np.zeros(np.shape(profile_xz_m)[0], dtype=bool)
-    return under_levels_mask(
-        profile_xz_m,
-        [lv.height_m for lv in levels],
-        [lv.x_min_m for lv in levels],
-        [lv.x_max_m for lv in levels],
-        margin,
-        config.min_step_m,
-        config.min_step_m,
-        sight_margin_m=config.level_band_m,
+    heights = [lv.height_m for lv in levels]
+    x_lo = [lv.x_min_m for lv in levels]
+    x_hi = [lv.x_max_m for lv in levels]
+    kernels = compiled_kernels()
+    if kernels is None:
+        return under_levels_mask(
+            profile_xz_m,
+            heights,
+            x_lo,
+            x_hi,
+            margin,
+            config.min_step_m,
+            config.min_step_m,
+            sight_margin_m=config.level_band_m,
+        )
+    pts = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+    return kernels.under_levels(  # the same mask bit for bit (tests/test_frontend_fastpaths.py)
+        np.ascontiguousarray(pts[:, 0]),
+        np.ascontiguousarray(pts[:, 1]),
+        np.array(heights, dtype=float),
+        np.array(x_lo, dtype=float),
+        np.array(x_hi, dtype=float),
+        float(margin),
+        float(config.min_step_m),
+        float(config.min_step_m),
+        float(config.level_band_m),
+        True,
     )
 
 
@@ -406,7 +424,20 @@ def points_seen_under(
     n = np.shape(profile_xz_m)[0]
     if margin is None or config.under_sight_min_points is None:
         return np.zeros(n, dtype=bool)
-    under = seen_under_mask(profile_xz_m, margin, config.min_step_m, config.under_sight_min_points)
+    kernels = compiled_kernels()
+    if kernels is None:
+        under = seen_under_mask(
+            profile_xz_m, margin, config.min_step_m, config.under_sight_min_points
+        )
+    else:  # the same mask bit for bit (tests/test_frontend_fastpaths.py)
+        pts = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+        under = kernels.seen_under(
+            np.ascontiguousarray(pts[:, 0]),
+            np.ascontiguousarray(pts[:, 1]),
+            float(margin),
+            float(config.min_step_m),
+            int(config.under_sight_min_points),
+        )
     if levels:
         under |= floor_beyond_slab_mask(
             profile_xz_m,

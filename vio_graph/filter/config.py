@@ -141,7 +141,7 @@ class ImuFaultConfig(BaseModel):
         "spread of the next one's: downstair 4 g learns an x scale of 0.02 m/s^2 from "
         "stretches that lost little, after which a clipped x stretch added no velocity "
         "variance and its 0.26 m/s loss, found at the stance, was taken as an old velocity "
-        "error and moved the position 7 cm the wrong way. 4 g seeds 1-5 filter / smoother / "
+        "error and moved the position 6.4 cm the wrong way. 4 g seeds 1-5 filter / smoother / "
         "batch toe x cm: downstair 2.64 / 1.46 / 1.27 -> 1.48 / 1.19 / 1.02, obstacle 4.00 / "
         "0.73 / 0.82 -> 3.48 / 0.91 / 0.92, upstair and prosthesis_upstair within 0.05; "
         "nothing changes without a clipped sample (docs/robustness.md)",

@@ -671,3 +671,62 @@ def test_a_frame_after_a_repaired_packet_waits_for_its_repair(tmp_path) -> None:
         assert last_imu >= expected
         waited += expected in repaired  # the last sample before the capture was repaired
     assert waited >= 2
+
+
+def _push_after_small_learnt_scale(floor: bool) -> tuple[float, float, float, float]:
+    """A level IMU (z up) pushed along x by a 3-sample pulse the accelerometer clips (60, 70,
+    60 m/s^2 against a 40 m/s^2 range: 0.7 m/s lost), then braked smoothly to rest over 0.3 s,
+    where a still foot (three velocity observations, 0.02 m/s) follows. The monitor's x scale
+    is the one a learner ends with after stretches that lost nothing (0.02 m/s^2, as on
+    downstair 4 g), so the prior's mean puts back nothing. Returns the filter's x velocity
+    sigma at the end of the clipped stretch and just before it, and the x velocity and
+    position errors after the stance."""
+    rng_ = 40.0
+    cfg = ImuFaultConfig(saturation_sigma_prior_floor=floor)
+    mon = ImuFaultMonitor(cfg, accel_range_mps2=rng_, gyro_range_radps=35.0)
+    mon.accel_scales_mps2 = np.array([0.02, 20.0, 20.0])
+    f = SagittalEskf(FilterConfig(integration="zoh"))
+    f.initialise(0.0, (0.0, 0.0))
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    for _ in range(3):
+        f.update_velocity((0.0, 0.0), np.eye(2) * 0.02**2)
+    pulse = [60.0, 70.0, 60.0]
+    profile = pulse + [-sum(pulse) / 30] * 30 + [0.0] * 5
+    true_x, true_v, t = 0.0, 0.0, 0.0
+    sig_before = float(np.sqrt(f.cov_velocity_m2ps2()[0, 0]))
+    sig_clipped = sig_before
+    for k, a_true in enumerate(profile):
+        t += H
+        true_x += true_v * H + 0.5 * a_true * H**2
+        true_v += a_true * H
+        s = mon.process(
+            ImuSample(t, np.array([np.clip(a_true, -rng_, rng_), 0.0, GRAVITY_MPS2]),
+                      np.zeros(3), q)
+        )  # fmt: skip
+        f.propagate(s)
+        if k == len(pulse):  # the step after the stretch has leant on its last sample
+            sig_clipped = float(np.sqrt(f.cov_velocity_m2ps2()[0, 0]))
+    for _ in range(3):
+        f.update_velocity((0.0, 0.0), np.eye(2) * 0.02**2)
+    _, p, v = f.position_velocity()
+    return sig_before, sig_clipped, v[0] - true_v, p[0] - true_x
+
+
+def test_clipped_stretch_keeps_the_prior_sigma_when_the_learnt_scale_is_small() -> None:
+    # the learnt scale is a mean loss of past stretches: with it as the sigma too, a clipped
+    # stretch adds almost no velocity variance, the 0.7 m/s it lost is a 27-sigma innovation
+    # at the stance, the gate refuses it and the filter keeps the wrong velocity: 26 cm of
+    # position error by the end of the stance
+    before, clipped, v_err, p_err = _push_after_small_learnt_scale(floor=False)
+    assert clipped < 2 * before
+    assert v_err < -0.6 and p_err < -0.2
+    # with the prior's sigma as a floor (20 m/s^2 scale: 12 m/s^2 for the first sample, the
+    # k-th sqrt(2k - 1) times it: the 3-sample stretch adds 9 times one sample's variance,
+    # 3 x 12 x 10 ms = 0.36 m/s, up to twice that variance as each sample also enters the
+    # next step, trapezoid memory) the variance grows while clipped, the stance is taken,
+    # and the cross-covariance the stretch built carries the correction back to the position
+    before, clipped, v_err, p_err = _push_after_small_learnt_scale(floor=True)
+    sd = 20.0 * np.sqrt(1 - 2 / np.pi)
+    assert 3 * sd * H <= clipped <= np.hypot(before, np.sqrt(2) * 3 * sd * H)
+    assert abs(v_err) < 0.01
+    assert abs(p_err) < 0.02

@@ -23,7 +23,12 @@ spikes to any such threshold):
   leg chain with the hip's velocity held does bridge a stretch, filter/leg_bridge.py.) How far
   the signal went beyond the rail depends on the gait and the axis, so the scale per IMU axis
   is learnt from what the filter's measurements later say each stretch lost
-  (:class:`SaturationScaleLearner`); the configured scale is its prior.
+  (:class:`SaturationScaleLearner`); the configured scale is its prior. The learnt scale
+  sets the mean only: with ``saturation_sigma_prior_floor`` the sigma is that of the larger
+  of the learnt and the configured scale, since past stretches' mean loss says little about
+  how far the next one goes (a learnt x scale of 0.02 m/s^2 on the simulated descent made a
+  stretch that lost 0.26 m/s look certain, and the stance's correction went to the position
+  the wrong way).
 * **Gyro outliers** (:class:`ImuFaultMonitor`): the IMU gives two views of the rotation, the
   gyro and the vendor orientation. Over one sample period the mean rate w_k from
   consecutive orientations predicts the gyro, g_k ~ 2 w_k - g_{k-1}; a chi-square test (3
@@ -175,6 +180,8 @@ class ImuFaultMonitor:
             self.last_restored_mps2 = self.last_rail_sign * scale * _HALF_NORMAL_MEAN
             acc = np.where(rail, a + np.sign(a) * scale * _HALF_NORMAL_MEAN, a)
             corr = np.sqrt(2.0 * self._acc_run - 1.0) if self.config.saturation_correlated else 1.0
+            if self.config.saturation_sigma_prior_floor:
+                scale = np.maximum(scale, self._acc_sig)
             sig_axes = np.where(rail, scale * _HALF_NORMAL_SD * corr, 0.0)
             xa = max(xa, float(np.max(sig_axes)))
             #: the prior's covariance on the clipped axes only (ImuSample.accel_extra_cov_m2ps4)

@@ -49,6 +49,31 @@ class ProjectionConfig(_Strict):
     )
 
 
+class CameraFixedConfig(_Strict):
+    """Pixels that move with the camera (an occluding foot close to the lens) leave the slice
+    (vio_graph/frontend/camera_fixed.py): the previous frame saw the same depth at the same
+    pixel, and the world-static hypothesis under the IMU-predicted camera motion is refused."""
+
+    enabled: bool = Field(
+        True,
+        description="drop slice pixels that move with the camera; False = every valid pixel is "
+        "terrain (the behaviour before; upstair s1-2 with a 1 s occluding foot: filter toe "
+        "17.6x / 15.1x the clean error)",
+    )
+    k_sigma: float = Field(
+        3.0, gt=0, description="both hypotheses are tested at this many depth-noise sigmas"
+    )
+    depth_sigma_floor_m: float = Field(
+        0.003,
+        gt=0,
+        description="depth noise sd of one pixel, m: the larger of this and the noise the "
+        "front end measures on level surfaces",
+    )
+    rot_sigma_rad: float = Field(
+        0.005, ge=0, description="sd of the IMU's rotation between two frames, rad"
+    )
+
+
 class SmoothingConfig(_Strict):
     """Grid thinning followed by kNN smoothing of the 2D profile (end of Section II.A.1)."""
 
@@ -430,6 +455,7 @@ class FrontendConfig(_Strict):
     """Everything the visual front end needs; defaults reproduce the paper where it is explicit."""
 
     projection: ProjectionConfig = ProjectionConfig()
+    camera_fixed: CameraFixedConfig = CameraFixedConfig()
     smoothing: SmoothingConfig = SmoothingConfig()
     terrain: TerrainConfig = TerrainConfig()
     corners: CornerConfig = CornerConfig()

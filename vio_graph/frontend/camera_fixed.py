@@ -1,0 +1,184 @@
+"""Depth pixels that move with the camera: an object fixed to the rig, not terrain.
+
+A foot (the other leg) swinging past a shank-mounted camera, a trouser leg or a strap close to
+the lens stays at the same pixels and the same depth while the camera moves. In the sagittal
+slice such an object is a rounded surface that ICP registers with zero motion, which pulls
+the displacement towards zero, and the terrain rules can read it as a step or a floor.
+
+Two hypotheses are tested at every slice pixel p of the current frame, each against the
+previous depth image, with the camera motion between the frames that the IMU predicts
+(rotation from the attitude, translation from the filter's velocity):
+
+* camera-fixed: the previous frame saw the same depth at the same pixel,
+  ``r_fixed = |d_k(p) - d_{k-1}(p)|``;
+* world-static: the point ``Q = d_k(p) K^-1 p`` moved into the previous camera frame,
+  ``Q' = R_prev_cur Q + t_prev_cur``, is seen there, ``r_world = min |d_{k-1}(p' + e) - Q'_z|``
+  over the 3x3 pixels ``e`` around its projection ``p'`` (pixel quantisation on slanted
+  surfaces).
+
+A pixel moves with the camera when the first hypothesis holds (``r_fixed`` within the depth
+noise) and the second is refused (``r_world`` beyond the noise plus what the predicted motion's
+own uncertainty can explain). When the predicted motion is too small to tell the two apart
+(stance; a floor under a camera moving parallel to it) both hold and the pixel is kept: the
+test only removes what the IMU says cannot be terrain. A pixel once found camera-fixed stays
+so while its depth does not change (``r_fixed`` within the noise), so the object is not
+re-admitted when the camera pauses. Pure functions plus a small per-frame state; no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class CameraMotion:
+    """Camera motion between two frames in the PREVIOUS camera's optical frame:
+    ``p_prev = R_prev_cur @ p_cur + t_prev_cur_m``, with the translation's (3, 3)
+    covariance in m^2 and the rotation's sd in rad."""
+
+    R_prev_cur: NDArray[np.float64]
+    t_prev_cur_m: NDArray[np.float64]
+    t_cov_m2: NDArray[np.float64]
+    rot_sigma_rad: float = 0.0
+
+
+def motion_from_ground(
+    R_ground_cam_prev: NDArray[np.float64],
+    R_ground_cam_cur: NDArray[np.float64],
+    delta_xz_m: NDArray[np.float64],
+    delta_cov_m2: NDArray[np.float64],
+    rot_sigma_rad: float = 0.0,
+) -> CameraMotion:
+    """The camera motion of :class:`CameraMotion` from the two frames' camera -> ground
+    rotations (3, 3) and the predicted camera displacement in ground x-z (m) with its
+    (2, 2) covariance (m^2); the ground's lateral axis is y."""
+    Rp = np.asarray(R_ground_cam_prev, dtype=float)
+    Rc = np.asarray(R_ground_cam_cur, dtype=float)
+    g = np.array([delta_xz_m[0], 0.0, delta_xz_m[1]], dtype=float)
+    cov_g = np.zeros((3, 3))
+    cov_g[np.ix_([0, 2], [0, 2])] = np.asarray(delta_cov_m2, dtype=float)
+    return CameraMotion(Rp.T @ Rc, Rp.T @ g, Rp.T @ cov_g @ Rp, float(rot_sigma_rad))
+
+
+def camera_fixed_mask(
+    depth_prev_m: NDArray,
+    depth_cur_m: NDArray,
+    candidates: NDArray[np.bool_],
+    K: NDArray[np.float64],
+    motion: CameraMotion,
+    depth_sigma_m: float,
+    k_sigma: float = 3.0,
+    held: NDArray[np.bool_] | None = None,
+) -> NDArray[np.bool_]:
+    """(H, W) mask of the ``candidates`` pixels that move with the camera (module docstring).
+
+    Args:
+        depth_prev_m, depth_cur_m: (H, W) depth images, m; 0 (or non-finite) = invalid.
+        candidates: (H, W) pixels to test (e.g. the valid pixels of the sagittal slice).
+        K: (3, 3) intrinsics, pixels.
+        motion: the predicted camera motion between the frames.
+        depth_sigma_m: depth noise sd of one pixel, m.
+        k_sigma: both tests at this many sigmas.
+        held: (H, W) the previous frame's camera-fixed mask; such a pixel stays camera-fixed
+            while its depth is unchanged, whatever the motion.
+    """
+    dp = np.asarray(depth_prev_m, dtype=np.float64)
+    dc = np.asarray(depth_cur_m, dtype=np.float64)
+    h, w = dc.shape
+    out = np.zeros((h, w), dtype=bool)
+    prev_ok = np.isfinite(dp) & (dp > 0)
+    rows, cols = np.nonzero(candidates & prev_ok & np.isfinite(dc) & (dc > 0))
+    if rows.size == 0:
+        return out
+    z = dc[rows, cols]
+    tol_fixed = k_sigma * np.sqrt(2.0) * depth_sigma_m
+    same = np.abs(z - dp[rows, cols]) <= tol_fixed
+    if held is not None:
+        keep = same & held[rows, cols]
+        out[rows[keep], cols[keep]] = True
+    # world-static hypothesis, for the pixels whose depth did not change
+    idx = np.flatnonzero(same)
+    if idx.size == 0:
+        return out
+    r, c, z = rows[idx], cols[idx], z[idx]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    Q = np.column_stack([z * (c - cx) / fx, z * (r - cy) / fy, z])
+    Qp = Q @ np.asarray(motion.R_prev_cur, dtype=float).T + motion.t_prev_cur_m
+    zp = Qp[:, 2]
+    front = zp > 1e-3
+    up = np.where(front, fx * Qp[:, 0] / np.where(front, zp, 1.0) + cx, -10.0)
+    vp = np.where(front, fy * Qp[:, 1] / np.where(front, zp, 1.0) + cy, -10.0)
+    ui, vi = np.rint(up).astype(np.int64), np.rint(vp).astype(np.int64)
+    best = np.full(idx.size, np.inf)
+    seen = np.zeros(idx.size, dtype=bool)
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            uu, vv = ui + du, vi + dv
+            inside = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
+            uu, vv = np.clip(uu, 0, w - 1), np.clip(vv, 0, h - 1)
+            ok = inside & prev_ok[vv, uu]
+            seen |= ok
+            best = np.where(ok, np.minimum(best, np.abs(dp[vv, uu] - zp)), best)
+    # what the predicted motion's own uncertainty can move a point along the optical axis
+    var_t = float(np.asarray(motion.t_cov_m2)[2, 2])
+    var_rot = (np.linalg.norm(Q[:, :2], axis=1) * motion.rot_sigma_rad) ** 2
+    tol_world = k_sigma * np.sqrt(2.0 * depth_sigma_m**2 + var_t + var_rot)
+    # a point that would leave the previous view cannot be tested: kept (not seen = unknown)
+    fixed = seen & (best > tol_world)
+    out[r[fixed], c[fixed]] = True
+    return out
+
+
+class CameraFixedFilter:
+    """Per-frame state of :func:`camera_fixed_mask`: the previous depth image, its camera ->
+    ground rotation and camera-fixed mask. :meth:`update` returns the current mask."""
+
+    def __init__(self, k_sigma: float = 3.0) -> None:
+        self.k_sigma = float(k_sigma)
+        self._prev: tuple[NDArray, NDArray[np.float64]] | None = None
+        self._held: NDArray[np.bool_] | None = None
+
+    def reset(self) -> None:
+        self._prev = None
+        self._held = None
+
+    def update(
+        self,
+        depth_m: NDArray,
+        candidates: NDArray[np.bool_],
+        K: NDArray[np.float64],
+        R_ground_cam: NDArray[np.float64],
+        predicted_delta_xz_m: NDArray[np.float64] | None,
+        predicted_cov_m2: NDArray[np.float64] | None,
+        depth_sigma_m: float,
+        rot_sigma_rad: float = 0.0,
+    ) -> NDArray[np.bool_]:
+        """Camera-fixed pixels of this frame (all False without a previous frame or a
+        prediction); remembers this frame for the next call."""
+        depth = np.asarray(depth_m)
+        mask = np.zeros(depth.shape, dtype=bool)
+        if (
+            self._prev is not None
+            and predicted_delta_xz_m is not None
+            and predicted_cov_m2 is not None
+            and self._prev[0].shape == depth.shape
+        ):
+            motion = motion_from_ground(
+                self._prev[1], R_ground_cam, predicted_delta_xz_m, predicted_cov_m2, rot_sigma_rad
+            )
+            mask = camera_fixed_mask(
+                self._prev[0],
+                depth,
+                candidates,
+                K,
+                motion,
+                depth_sigma_m,
+                self.k_sigma,
+                self._held,
+            )
+        self._prev = (depth, np.asarray(R_ground_cam, dtype=float))
+        self._held = mask
+        return mask

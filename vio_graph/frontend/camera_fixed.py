@@ -72,6 +72,7 @@ def camera_fixed_mask(
     depth_sigma_m: float,
     k_sigma: float = 3.0,
     held: NDArray[np.bool_] | None = None,
+    same_out: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.bool_]:
     """(H, W) mask of the ``candidates`` pixels that move with the camera (module docstring).
 
@@ -84,6 +85,7 @@ def camera_fixed_mask(
         k_sigma: both tests at this many sigmas.
         held: (H, W) the previous frame's camera-fixed mask; such a pixel stays camera-fixed
             while its depth is unchanged, whatever the motion.
+        same_out: (H, W) if given, set to the tested pixels whose depth is unchanged.
     """
     dp = np.asarray(depth_prev_m, dtype=np.float64)
     dc = np.asarray(depth_cur_m, dtype=np.float64)
@@ -96,6 +98,8 @@ def camera_fixed_mask(
     z = dc[rows, cols]
     tol_fixed = k_sigma * np.sqrt(2.0) * depth_sigma_m
     same = np.abs(z - dp[rows, cols]) <= tol_fixed
+    if same_out is not None:
+        same_out[rows[same], cols[same]] = True
     if held is not None:
         keep = same & held[rows, cols]
         out[rows[keep], cols[keep]] = True
@@ -132,12 +136,66 @@ def camera_fixed_mask(
     return out
 
 
+def surface_majority(
+    mask: NDArray[np.bool_],
+    depth_m: NDArray,
+    same: NDArray[np.bool_],
+    rel_tol: float,
+    abs_tol_m: float,
+    min_pixels: int,
+) -> NDArray[np.bool_]:
+    """Decide per surface as well as per pixel. The pixels of ``same`` (depth unchanged since
+    the previous frame) are split into surfaces at depth edges (a 4-neighbour differing by
+    more than ``rel_tol * depth + abs_tol_m``, the speckle test's agreement). A surface with
+    fewer than ``min_pixels`` pixels of ``mask`` is no object (an odd pixel that passed the
+    test by chance): none of them is kept. A surface at least half in ``mask`` is camera-fixed
+    as a whole (a pixel of the object whose own test was ambiguous, its warped point having
+    landed on the object again, goes with its surface); in any other surface only the
+    pixels of ``mask`` are. Pixels at a depth edge go with the camera-fixed surface next to
+    them (the object's rim). (H, W) bool."""
+    from scipy import ndimage
+
+    d = np.asarray(depth_m, dtype=np.float64)
+    tol = rel_tol * d + abs_tol_m
+    smooth = same.copy()
+    for axis in (0, 1):  # a pixel at a depth edge separates two surfaces
+        jump = np.abs(np.diff(d, axis=axis))
+        if axis == 0:
+            edge = jump > np.minimum(tol[:-1, :], tol[1:, :])
+            smooth[:-1, :] &= ~edge
+            smooth[1:, :] &= ~edge
+        else:
+            edge = jump > np.minimum(tol[:, :-1], tol[:, 1:])
+            smooth[:, :-1] &= ~edge
+            smooth[:, 1:] &= ~edge
+    labels, n = ndimage.label(smooth)
+    size = np.bincount(labels.ravel(), minlength=n + 1)
+    hits = np.bincount(labels.ravel(), weights=mask.ravel(), minlength=n + 1)
+    counts = hits >= min_pixels
+    whole = counts & (hits >= 0.5 * size)
+    counts[0] = whole[0] = False
+    out = whole[labels] | (counts[labels] & mask)
+    rim = same & ~smooth
+    if out.any() and rim.any():
+        out |= rim & ndimage.binary_dilation(out)
+    return out
+
+
 class CameraFixedFilter:
     """Per-frame state of :func:`camera_fixed_mask`: the previous depth image, its camera ->
     ground rotation and camera-fixed mask. :meth:`update` returns the current mask."""
 
-    def __init__(self, k_sigma: float = 3.0) -> None:
+    def __init__(
+        self,
+        k_sigma: float = 3.0,
+        edge_rel_tol: float = 0.03,
+        edge_abs_tol_m: float = 0.01,
+        min_pixels: int = 20,
+    ) -> None:
         self.k_sigma = float(k_sigma)
+        self.min_pixels = int(min_pixels)
+        self.edge_rel_tol = float(edge_rel_tol)
+        self.edge_abs_tol_m = float(edge_abs_tol_m)
         self._prev: tuple[NDArray, NDArray[np.float64]] | None = None
         self._held: NDArray[np.bool_] | None = None
 
@@ -169,6 +227,7 @@ class CameraFixedFilter:
             motion = motion_from_ground(
                 self._prev[1], R_ground_cam, predicted_delta_xz_m, predicted_cov_m2, rot_sigma_rad
             )
+            same = np.zeros(depth.shape, dtype=bool)
             mask = camera_fixed_mask(
                 self._prev[0],
                 depth,
@@ -178,7 +237,12 @@ class CameraFixedFilter:
                 depth_sigma_m,
                 self.k_sigma,
                 self._held,
+                same,
             )
+            if mask.any():
+                mask = surface_majority(
+                    mask, depth, same, self.edge_rel_tol, self.edge_abs_tol_m, self.min_pixels
+                )
         self._prev = (depth, np.asarray(R_ground_cam, dtype=float))
         self._held = mask
         return mask

@@ -72,6 +72,14 @@ class CameraFixedConfig(_Strict):
     rot_sigma_rad: float = Field(
         0.005, ge=0, description="sd of the IMU's rotation between two frames, rad"
     )
+    min_pixels: int = Field(
+        20,
+        ge=1,
+        description="a surface (pixels of unchanged depth between depth edges) needs at least "
+        "this many pixels that pass the test to count as an object; fewer are chance passes "
+        "of terrain pixels (clean upstair s1-2: at most 12 a frame, 1-3 in one surface; the "
+        "1 s occluding foot: ~6700 in one surface)",
+    )
 
 
 class SmoothingConfig(_Strict):

@@ -69,7 +69,13 @@ class VisualFrontend:
         self._corner_terrains = {TerrainKind(k) for k in self.config.corner_terrains}
         self._camera_fixed: CameraFixedFilter | None = None
         if self.config.camera_fixed.enabled:
-            self._camera_fixed = CameraFixedFilter(self.config.camera_fixed.k_sigma)
+            pc = self.config.projection
+            self._camera_fixed = CameraFixedFilter(
+                self.config.camera_fixed.k_sigma,
+                pc.speckle_rel_tol,
+                pc.speckle_abs_tol_m,
+                self.config.camera_fixed.min_pixels,
+            )
         sc = self.config.smoothing
         self._noise: DepthNoiseTracker | None = None
         if sc.noise_cell_ratio is not None and sc.grid_cell_m > 0:

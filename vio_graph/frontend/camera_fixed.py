@@ -213,9 +213,16 @@ class CameraFixedFilter:
         predicted_cov_m2: NDArray[np.float64] | None,
         depth_sigma_m: float,
         rot_sigma_rad: float = 0.0,
+        ground_turn_rad: float = 0.0,
     ) -> NDArray[np.bool_]:
         """Camera-fixed pixels of this frame (all False without a previous frame or a
-        prediction); remembers this frame for the next call."""
+        prediction); remembers this frame for the next call. ``ground_turn_rad``: the caller
+        turned its ground frame by rot_y(``ground_turn_rad``) since the previous frame (a
+        pitch correction); the previous rotation is re-expressed in the turned frame."""
+        if self._prev is not None and ground_turn_rad != 0.0:
+            c, s = np.cos(ground_turn_rad), np.sin(ground_turn_rad)
+            turn = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+            self._prev = (self._prev[0], turn @ self._prev[1])
         depth = np.asarray(depth_m)
         mask = np.zeros(depth.shape, dtype=bool)
         if (

@@ -141,7 +141,7 @@ class VisualFrontend:
         n_fixed = 0
         if self._camera_fixed is not None:  # pixels that move with the camera are no terrain
             fixed = self._camera_fixed_pixels(
-                frame, K, R_ground_cam, predicted_delta_xz_m, predicted_cov_m2
+                frame, K, R_ground_cam, predicted_delta_xz_m, predicted_cov_m2, ground_turn_rad
             )
             n_fixed = int(np.count_nonzero(fixed))
             if n_fixed:
@@ -233,6 +233,7 @@ class VisualFrontend:
         R_ground_cam: NDArray[np.float64],
         predicted_delta_xz_m: NDArray[np.float64] | None,
         predicted_cov_m2: NDArray[np.float64] | None,
+        ground_turn_rad: float,
     ) -> NDArray[np.bool_]:
         """(H, W) slice pixels that move with the camera (camera_fixed.py); all False on the
         first frame and without an IMU prediction."""
@@ -260,4 +261,5 @@ class VisualFrontend:
             predicted_cov_m2,
             sigma,
             cf.rot_sigma_rad,
+            ground_turn_rad,
         )

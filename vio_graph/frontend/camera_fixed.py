@@ -116,16 +116,17 @@ def camera_fixed_mask(
     up = np.where(front, fx * Qp[:, 0] / np.where(front, zp, 1.0) + cx, -10.0)
     vp = np.where(front, fy * Qp[:, 1] / np.where(front, zp, 1.0) + cy, -10.0)
     ui, vi = np.rint(up).astype(np.int64), np.rint(vp).astype(np.int64)
+    # the previous depth padded by 2 invalid (inf) pixels: the 3 x 3 lookups need no bounds
+    # test; a projection further out than one pixel is not seen
+    far = (ui < -1) | (ui > w) | (vi < -1) | (vi > h)
+    pad = np.full((h + 4, w + 4), np.inf)
+    pad[2:-2, 2:-2] = np.where(prev_ok, dp, np.inf)
+    ui, vi = np.clip(ui, -1, w) + 2, np.clip(vi, -1, h) + 2
     best = np.full(idx.size, np.inf)
-    seen = np.zeros(idx.size, dtype=bool)
     for dv in (-1, 0, 1):
         for du in (-1, 0, 1):
-            uu, vv = ui + du, vi + dv
-            inside = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
-            uu, vv = np.clip(uu, 0, w - 1), np.clip(vv, 0, h - 1)
-            ok = inside & prev_ok[vv, uu]
-            seen |= ok
-            best = np.where(ok, np.minimum(best, np.abs(dp[vv, uu] - zp)), best)
+            np.minimum(best, np.abs(pad[vi + dv, ui + du] - zp), out=best)
+    seen = np.isfinite(best) & ~far
     # what the predicted motion's own uncertainty can move a point along the optical axis
     var_t = float(np.asarray(motion.t_cov_m2)[2, 2])
     var_rot = (np.linalg.norm(Q[:, :2], axis=1) * motion.rot_sigma_rad) ** 2
@@ -246,10 +247,22 @@ class CameraFixedFilter:
                 self._held,
                 same,
             )
-            if mask.any():
-                mask = surface_majority(
-                    mask, depth, same, self.edge_rel_tol, self.edge_abs_tol_m, self.min_pixels
+            if mask.any():  # on the candidates' bounding box (the slice band), a pixel of
+                # margin for the depth edges
+                rr, cc = np.nonzero(same)
+                r0, r1 = max(rr.min() - 1, 0), rr.max() + 2
+                c0, c1 = max(cc.min() - 1, 0), cc.max() + 2
+                box = (slice(r0, r1), slice(c0, c1))
+                decided = surface_majority(
+                    mask[box],
+                    depth[box],
+                    same[box],
+                    self.edge_rel_tol,
+                    self.edge_abs_tol_m,
+                    self.min_pixels,
                 )
+                mask = np.zeros(depth.shape, dtype=bool)
+                mask[box] = decided
         self._prev = (depth, np.asarray(R_ground_cam, dtype=float))
         self._held = mask
         return mask

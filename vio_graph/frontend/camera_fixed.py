@@ -73,6 +73,8 @@ def camera_fixed_mask(
     k_sigma: float = 3.0,
     held: NDArray[np.bool_] | None = None,
     same_out: NDArray[np.bool_] | None = None,
+    stats: dict | None = None,
+    view_step_px: int = 4,
 ) -> NDArray[np.bool_]:
     """(H, W) mask of the ``candidates`` pixels that move with the camera (module docstring).
 
@@ -86,6 +88,8 @@ def camera_fixed_mask(
         held: (H, W) the previous frame's camera-fixed mask; such a pixel stays camera-fixed
             while its depth is unchanged, whatever the motion.
         same_out: (H, W) if given, set to the tested pixels whose depth is unchanged.
+        stats: if given, receives the view test's counts ("confirm", "refute").
+        view_step_px: the view test uses every this-many-th pixel in both directions.
     """
     dp = np.asarray(depth_prev_m, dtype=np.float64)
     dc = np.asarray(depth_cur_m, dtype=np.float64)
@@ -103,11 +107,54 @@ def camera_fixed_mask(
     if held is not None:
         keep = same & held[rows, cols]
         out[rows[keep], cols[keep]] = True
-    # world-static hypothesis, for the pixels whose depth did not change
+    pad = np.full((h + 4, w + 4), np.inf)  # previous depth, 2 invalid (inf) pixels around
+    pad[2:-2, 2:-2] = np.where(prev_ok, dp, np.inf)
+    # the motion the IMU predicts must show in the view: over the whole image (every
+    # ``view_step_px``-th pixel), the pixels whose depth changed as that motion says must be
+    # at least as many as the unchanged ones it refuses. A camera that stood still while the
+    # filter's velocity was wrong changes no depth, and its whole view would otherwise read
+    # as moving with the camera; an object close to the lens fills the slice band but not the
+    # image, and the terrain around it confirms the motion.
+    gr, gc = np.nonzero(
+        prev_ok[::view_step_px, ::view_step_px] & (dc[::view_step_px, ::view_step_px] > 0)
+    )
+    gr, gc = gr * view_step_px, gc * view_step_px
+    gz = dc[gr, gc]
+    g_same = np.abs(gz - dp[gr, gc]) <= tol_fixed
+    g_seen, g_world = _world_test(pad, gr, gc, gz, K, motion, depth_sigma_m, k_sigma)
+    n_confirm = int(np.count_nonzero(g_seen & ~g_same & g_world))
+    n_refute = int(np.count_nonzero(g_seen & g_same & ~g_world))
+    if stats is not None:
+        stats.update(confirm=n_confirm, refute=n_refute)
+    if n_confirm < n_refute:
+        return out
+    # world-static hypothesis at the candidates whose depth did not change
     idx = np.flatnonzero(same)
     if idx.size == 0:
         return out
-    r, c, z = rows[idx], cols[idx], z[idx]
+    r, c = rows[idx], cols[idx]
+    seen, world = _world_test(pad, r, c, z[idx], K, motion, depth_sigma_m, k_sigma)
+    # a point that would leave the previous view cannot be tested: kept (not seen = unknown)
+    fixed = seen & ~world
+    out[r[fixed], c[fixed]] = True
+    return out
+
+
+def _world_test(
+    pad: NDArray[np.float64],
+    r: NDArray[np.int64],
+    c: NDArray[np.int64],
+    z: NDArray[np.float64],
+    K: NDArray[np.float64],
+    motion: CameraMotion,
+    depth_sigma_m: float,
+    k_sigma: float,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """World-static hypothesis at pixels (r, c) of depth z (m): (seen, consistent). The point
+    moved into the previous camera frame by ``motion`` is looked up in the previous depth
+    (``pad``: padded by 2 invalid (inf) pixels, so the 3 x 3 lookups need no bounds test);
+    a projection further out than one pixel, or onto no valid pixel, is not seen."""
+    h, w = pad.shape[0] - 4, pad.shape[1] - 4
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     Q = np.column_stack([z * (c - cx) / fx, z * (r - cy) / fy, z])
     Qp = Q @ np.asarray(motion.R_prev_cur, dtype=float).T + motion.t_prev_cur_m
@@ -116,13 +163,9 @@ def camera_fixed_mask(
     up = np.where(front, fx * Qp[:, 0] / np.where(front, zp, 1.0) + cx, -10.0)
     vp = np.where(front, fy * Qp[:, 1] / np.where(front, zp, 1.0) + cy, -10.0)
     ui, vi = np.rint(up).astype(np.int64), np.rint(vp).astype(np.int64)
-    # the previous depth padded by 2 invalid (inf) pixels: the 3 x 3 lookups need no bounds
-    # test; a projection further out than one pixel is not seen
     far = (ui < -1) | (ui > w) | (vi < -1) | (vi > h)
-    pad = np.full((h + 4, w + 4), np.inf)
-    pad[2:-2, 2:-2] = np.where(prev_ok, dp, np.inf)
     ui, vi = np.clip(ui, -1, w) + 2, np.clip(vi, -1, h) + 2
-    best = np.full(idx.size, np.inf)
+    best = np.full(z.shape, np.inf)
     for dv in (-1, 0, 1):
         for du in (-1, 0, 1):
             np.minimum(best, np.abs(pad[vi + dv, ui + du] - zp), out=best)
@@ -131,10 +174,7 @@ def camera_fixed_mask(
     var_t = float(np.asarray(motion.t_cov_m2)[2, 2])
     var_rot = (np.linalg.norm(Q[:, :2], axis=1) * motion.rot_sigma_rad) ** 2
     tol_world = k_sigma * np.sqrt(2.0 * depth_sigma_m**2 + var_t + var_rot)
-    # a point that would leave the previous view cannot be tested: kept (not seen = unknown)
-    fixed = seen & (best > tol_world)
-    out[r[fixed], c[fixed]] = True
-    return out
+    return seen, best <= tol_world
 
 
 def surface_majority(

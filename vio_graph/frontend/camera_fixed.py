@@ -109,25 +109,6 @@ def camera_fixed_mask(
         out[rows[keep], cols[keep]] = True
     pad = np.full((h + 4, w + 4), np.inf)  # previous depth, 2 invalid (inf) pixels around
     pad[2:-2, 2:-2] = np.where(prev_ok, dp, np.inf)
-    # the motion the IMU predicts must show in the view: over the whole image (every
-    # ``view_step_px``-th pixel), the pixels whose depth changed as that motion says must be
-    # at least as many as the unchanged ones it refuses. A camera that stood still while the
-    # filter's velocity was wrong changes no depth, and its whole view would otherwise read
-    # as moving with the camera; an object close to the lens fills the slice band but not the
-    # image, and the terrain around it confirms the motion.
-    gr, gc = np.nonzero(
-        prev_ok[::view_step_px, ::view_step_px] & (dc[::view_step_px, ::view_step_px] > 0)
-    )
-    gr, gc = gr * view_step_px, gc * view_step_px
-    gz = dc[gr, gc]
-    g_same = np.abs(gz - dp[gr, gc]) <= tol_fixed
-    g_seen, g_world = _world_test(pad, gr, gc, gz, K, motion, depth_sigma_m, k_sigma)
-    n_confirm = int(np.count_nonzero(g_seen & ~g_same & g_world))
-    n_refute = int(np.count_nonzero(g_seen & g_same & ~g_world))
-    if stats is not None:
-        stats.update(confirm=n_confirm, refute=n_refute)
-    if n_confirm < n_refute:
-        return out
     # world-static hypothesis at the candidates whose depth did not change
     idx = np.flatnonzero(same)
     if idx.size == 0:
@@ -136,7 +117,26 @@ def camera_fixed_mask(
     seen, world = _world_test(pad, r, c, z[idx], K, motion, depth_sigma_m, k_sigma)
     # a point that would leave the previous view cannot be tested: kept (not seen = unknown)
     fixed = seen & ~world
-    out[r[fixed], c[fixed]] = True
+    if not fixed.any():
+        return out
+    # the motion the IMU predicts must show in the view: over the whole image (every
+    # ``view_step_px``-th pixel), the pixels whose depth changed as that motion says must be
+    # at least as many as the unchanged ones it refuses. A camera that stood still while the
+    # filter's velocity was wrong changes no depth, and its whole view would otherwise read
+    # as moving with the camera; an object close to the lens fills the slice band but not the
+    # image, and the terrain around it confirms the motion.
+    k = view_step_px
+    gr, gc = np.nonzero(prev_ok[::k, ::k] & (dc[::k, ::k] > 0))
+    gr, gc = gr * k, gc * k
+    gz = dc[gr, gc]
+    g_same = np.abs(gz - dp[gr, gc]) <= tol_fixed
+    g_seen, g_world = _world_test(pad, gr, gc, gz, K, motion, depth_sigma_m, k_sigma)
+    n_confirm = int(np.count_nonzero(g_seen & ~g_same & g_world))
+    n_refute = int(np.count_nonzero(g_seen & g_same & ~g_world))
+    if stats is not None:
+        stats.update(confirm=n_confirm, refute=n_refute)
+    if n_confirm >= n_refute:
+        out[r[fixed], c[fixed]] = True
     return out
 
 

@@ -75,6 +75,7 @@ def camera_fixed_mask(
     same_out: NDArray[np.bool_] | None = None,
     stats: dict | None = None,
     view_step_px: int = 4,
+    view_share: float = 0.05,
 ) -> NDArray[np.bool_]:
     """(H, W) mask of the ``candidates`` pixels that move with the camera (module docstring).
 
@@ -90,6 +91,7 @@ def camera_fixed_mask(
         same_out: (H, W) if given, set to the tested pixels whose depth is unchanged.
         stats: if given, receives the view test's counts ("confirm", "refute").
         view_step_px: the view test uses every this-many-th pixel in both directions.
+        view_share: ... or needs this share of its valid pixels confirming the motion.
     """
     dp = np.asarray(depth_prev_m, dtype=np.float64)
     dc = np.asarray(depth_cur_m, dtype=np.float64)
@@ -121,10 +123,11 @@ def camera_fixed_mask(
         return out
     # the motion the IMU predicts must show in the view: over the whole image (every
     # ``view_step_px``-th pixel), the pixels whose depth changed as that motion says must be
-    # at least as many as the unchanged ones it refuses. A camera that stood still while the
-    # filter's velocity was wrong changes no depth, and its whole view would otherwise read
-    # as moving with the camera; an object close to the lens fills the slice band but not the
-    # image, and the terrain around it confirms the motion.
+    # at least as many as the unchanged ones it refuses, or ``view_share`` of the view. A
+    # camera that stood still while the filter's velocity was wrong changes no depth (noise
+    # and depth edges change 0.5-1.2 % of the pixels), and its whole view would otherwise
+    # read as moving with the camera; the terrain around an object close to the lens
+    # confirms the motion, even where the object covers most of the valid pixels.
     k = view_step_px
     gr, gc = np.nonzero(prev_ok[::k, ::k] & (dc[::k, ::k] > 0))
     gr, gc = gr * k, gc * k
@@ -134,8 +137,11 @@ def camera_fixed_mask(
     n_confirm = int(np.count_nonzero(g_seen & ~g_same & g_world))
     n_refute = int(np.count_nonzero(g_seen & g_same & ~g_world))
     if stats is not None:
-        stats.update(confirm=n_confirm, refute=n_refute)
-    if n_confirm >= n_refute:
+        stats.update(
+            confirm=n_confirm, refute=n_refute, changed=int(np.count_nonzero(g_seen & ~g_same))
+        )
+    n_seen = int(np.count_nonzero(g_seen))
+    if n_confirm >= n_refute or n_confirm >= view_share * n_seen:
         out[r[fixed], c[fixed]] = True
     return out
 

@@ -51,16 +51,23 @@ def motion_from_ground(
     delta_xz_m: NDArray[np.float64],
     delta_cov_m2: NDArray[np.float64],
     rot_sigma_rad: float = 0.0,
+    motion_share_sigma: float = 0.0,
 ) -> CameraMotion:
     """The camera motion of :class:`CameraMotion` from the two frames' camera -> ground
     rotations (3, 3) and the predicted camera displacement in ground x-z (m) with its
-    (2, 2) covariance (m^2); the ground's lateral axis is y."""
+    (2, 2) covariance (m^2); the ground's lateral axis is y. ``motion_share_sigma``: a
+    further sd of the motion as a share of itself (the frame stamps' jitter over the frame
+    interval), added to the translation's covariance and the rotation's sd."""
     Rp = np.asarray(R_ground_cam_prev, dtype=float)
     Rc = np.asarray(R_ground_cam_cur, dtype=float)
     g = np.array([delta_xz_m[0], 0.0, delta_xz_m[1]], dtype=float)
     cov_g = np.zeros((3, 3))
     cov_g[np.ix_([0, 2], [0, 2])] = np.asarray(delta_cov_m2, dtype=float)
-    return CameraMotion(Rp.T @ Rc, Rp.T @ g, Rp.T @ cov_g @ Rp, float(rot_sigma_rad))
+    cov_g += np.eye(3) * (motion_share_sigma * float(np.linalg.norm(g))) ** 2
+    R = Rp.T @ Rc
+    angle = float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+    rot_sigma = float(np.hypot(rot_sigma_rad, motion_share_sigma * angle))
+    return CameraMotion(R, Rp.T @ g, Rp.T @ cov_g @ Rp, rot_sigma)
 
 
 def camera_fixed_mask(
@@ -244,10 +251,12 @@ class CameraFixedFilter:
         self.edge_rel_tol = float(edge_rel_tol)
         self.edge_abs_tol_m = float(edge_abs_tol_m)
         self._prev: tuple[NDArray, NDArray[np.float64]] | None = None
+        self._prev_t: float | None = None
         self._held: NDArray[np.bool_] | None = None
 
     def reset(self) -> None:
         self._prev = None
+        self._prev_t = None
         self._held = None
 
     def update(
@@ -261,11 +270,21 @@ class CameraFixedFilter:
         depth_sigma_m: float,
         rot_sigma_rad: float = 0.0,
         ground_turn_rad: float = 0.0,
+        timestamp_s: float | None = None,
+        stamp_sigma_s: float = 0.0,
     ) -> NDArray[np.bool_]:
         """Camera-fixed pixels of this frame (all False without a previous frame or a
         prediction); remembers this frame for the next call. ``ground_turn_rad``: the caller
         turned its ground frame by rot_y(``ground_turn_rad``) since the previous frame (a
-        pitch correction); the previous rotation is re-expressed in the turned frame."""
+        pitch correction); the previous rotation is re-expressed in the turned frame.
+        ``timestamp_s``, ``stamp_sigma_s``: the frame's stamp and the sd of a stamp's jitter
+        (s); the predicted motion is uncertain by sqrt(2) sd / (frame interval) of itself."""
+        share = 0.0
+        if timestamp_s is not None and self._prev_t is not None:
+            dt = float(timestamp_s) - self._prev_t
+            if dt > 0:
+                share = np.sqrt(2.0) * stamp_sigma_s / dt
+        self._prev_t = None if timestamp_s is None else float(timestamp_s)
         if self._prev is not None and ground_turn_rad != 0.0:
             c, s = np.cos(ground_turn_rad), np.sin(ground_turn_rad)
             turn = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
@@ -279,7 +298,12 @@ class CameraFixedFilter:
             and self._prev[0].shape == depth.shape
         ):
             motion = motion_from_ground(
-                self._prev[1], R_ground_cam, predicted_delta_xz_m, predicted_cov_m2, rot_sigma_rad
+                self._prev[1],
+                R_ground_cam,
+                predicted_delta_xz_m,
+                predicted_cov_m2,
+                rot_sigma_rad,
+                share,
             )
             same = np.zeros(depth.shape, dtype=bool)
             mask = camera_fixed_mask(

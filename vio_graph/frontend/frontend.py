@@ -262,4 +262,6 @@ class VisualFrontend:
             sigma,
             cf.rot_sigma_rad,
             ground_turn_rad,
+            frame.timestamp_s,
+            cf.stamp_sigma_s,
         )

@@ -98,6 +98,14 @@ def test_an_imu_that_reports_no_motion_removes_nothing() -> None:
     assert not _update(f, b_unturned, [0.0, 0.0]).any()
 
 
+def test_the_shipped_config_turns_the_test_on() -> None:
+    from vio_graph.config import load_config
+
+    assert not PipelineConfig().frontend.camera_fixed.enabled  # off by default
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "camera_fixed.yaml")
+    assert cfg.frontend.camera_fixed.enabled
+
+
 def test_front_end_drops_the_near_lens_blob_from_the_profile() -> None:
     a, b = _frame(*POSE_A, seed=1), _frame(*POSE_B, seed=2)
     delta = np.subtract(POSE_B[0], POSE_A[0])
@@ -160,10 +168,11 @@ def test_filter_error_over_an_occluding_foot_stays_bounded(
     from vio_graph.recording.reader import Recording
     from vio_graph.recording.tum import read_tum
 
+    cfg = PipelineConfig.model_validate({"frontend": {"camera_fixed": {"enabled": True}}})
     res = run_recording(
         occluded_upstair,
         tmp_path / "r",
-        PipelineConfig(),
+        cfg,
         modes=("filter",),
         visualize=False,
         progress=False,

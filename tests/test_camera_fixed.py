@@ -101,9 +101,10 @@ def test_an_imu_that_reports_no_motion_removes_nothing() -> None:
 def test_the_shipped_config_turns_the_test_on() -> None:
     from vio_graph.config import load_config
 
-    assert not PipelineConfig().frontend.camera_fixed.enabled  # off by default
+    default = PipelineConfig().frontend.camera_fixed
+    assert default.enabled and not default.drop_pixels  # counted, not dropped, by default
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "camera_fixed.yaml")
-    assert cfg.frontend.camera_fixed.enabled
+    assert cfg.frontend.camera_fixed.drop_pixels
 
 
 def test_front_end_drops_the_near_lens_blob_from_the_profile() -> None:
@@ -111,12 +112,12 @@ def test_front_end_drops_the_near_lens_blob_from_the_profile() -> None:
     delta = np.subtract(POSE_B[0], POSE_A[0])
     profiles = {}
     for enabled in (True, False):
-        cfg = FrontendConfig.model_validate({"camera_fixed": {"enabled": enabled}})
+        cfg = FrontendConfig.model_validate({"camera_fixed": {"drop_pixels": enabled}})
         fe = VisualFrontend(cfg)
         fe.process(DepthFrame(0, 0.0, a[0], a[1]), K, a[2], None, None)
         res = fe.process(DepthFrame(1, 1 / 30, b[0], b[1]), K, b[2], delta, COV)
         profiles[enabled] = res.profile_xz_m
-        assert (res.n_camera_fixed > 1000) is enabled
+        assert res.n_camera_fixed > 1000  # found either way, dropped with drop_pixels
     near = {k: np.linalg.norm(p, axis=1) < 0.32 for k, p in profiles.items()}
     assert near[False].sum() > 20  # the blob is in the slice without the test ...
     assert not near[True].any()  # ... and gone with it
@@ -168,7 +169,7 @@ def test_filter_error_over_an_occluding_foot_stays_bounded(
     from vio_graph.recording.reader import Recording
     from vio_graph.recording.tum import read_tum
 
-    cfg = PipelineConfig.model_validate({"frontend": {"camera_fixed": {"enabled": True}}})
+    cfg = PipelineConfig.model_validate({"frontend": {"camera_fixed": {"drop_pixels": True}}})
     res = run_recording(
         occluded_upstair,
         tmp_path / "r",
@@ -186,3 +187,27 @@ def test_filter_error_over_an_occluding_foot_stays_bounded(
     cf = res.metrics["health"]["camera_fixed"]
     assert cf["frames"] > 20 and 0.9 < cf["first_s"] < 1.2 and 1.9 < cf["last_s"] < 2.1
     assert any("moved with the camera" in w for w in res.metrics["health"]["warnings"])
+
+
+def test_by_default_the_occluder_is_reported_not_removed(
+    occluded_upstair: Path, tmp_path: Path
+) -> None:
+    """The default configuration counts the camera-fixed pixels and warns, and leaves the
+    estimate as it was without the test (drop_pixels off)."""
+    from vio_graph.pipeline import run_recording
+
+    metrics = {}
+    for name, cf in (("default", {}), ("off", {"enabled": False})):
+        cfg = PipelineConfig.model_validate({"frontend": {"camera_fixed": cf}})
+        metrics[name] = run_recording(
+            occluded_upstair,
+            tmp_path / name,
+            cfg,
+            modes=("filter",),
+            visualize=False,
+            progress=False,
+        ).metrics
+    assert metrics["default"]["health"]["camera_fixed"]["frames"] > 20
+    assert any("moved with the camera" in w for w in metrics["default"]["health"]["warnings"])
+    assert metrics["off"]["health"]["camera_fixed"]["frames"] == 0
+    assert metrics["default"]["ate_cm"]["filter"] == metrics["off"]["ate_cm"]["filter"]

@@ -55,13 +55,19 @@ class CameraFixedConfig(_Strict):
     pixel, and the world-static hypothesis under the IMU-predicted camera motion is refused."""
 
     enabled: bool = Field(
+        True,
+        description="look for slice pixels that move with the camera and count them "
+        "(FrontendResult.n_camera_fixed, metrics.json health.camera_fixed with a warning); "
+        "the estimate is unchanged unless drop_pixels",
+    )
+    drop_pixels: bool = Field(
         False,
-        description="drop slice pixels that move with the camera (configs/camera_fixed.yaml "
-        "turns it on). Off by default: with it, a filter velocity knocked 0.6 m/s off with a "
-        "tiny covariance (tests/test_filter_lockout.py) makes the terrain read as moving with "
-        "the camera, and the gate lock-out recovery no longer fires. On: upstair s1-2 with a "
-        "1 s occluding foot, filter toe 17.6x / 15.1x -> 1.29x / 1.08x the clean error; "
-        "clean trials unchanged",
+        description="also drop those pixels from the slice (configs/camera_fixed.yaml turns "
+        "it on). Off by default: with it, a filter velocity knocked 0.6 m/s off with a tiny "
+        "covariance (tests/test_filter_lockout.py) makes the terrain read as moving with the "
+        "camera, and the gate lock-out recovery no longer fires. On: upstair s1-2 with a 1 s "
+        "occluding foot, filter toe 17.6x / 15.1x -> 1.29x / 1.08x the clean error; clean "
+        "trials unchanged",
     )
     k_sigma: float = Field(
         3.0, gt=0, description="both hypotheses are tested at this many depth-noise sigmas"

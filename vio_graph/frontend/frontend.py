@@ -41,8 +41,9 @@ class FrontendResult:
     ``rejection_reason``. ``observation``: the corner relative to the camera (track id kept for
     the same physical corner). ``icp``: the ICP run (matched points for visualisation).
     ``timings_ms``: "projection", "smoothing", "terrain", "corners", "icp", "total".
-    ``n_camera_fixed``: slice pixels dropped because they move with the camera
-    (vio_graph/frontend/camera_fixed.py).
+    ``n_camera_fixed``: slice pixels found to move with the camera
+    (vio_graph/frontend/camera_fixed.py); dropped from the slice with
+    ``camera_fixed.drop_pixels``, only counted otherwise.
     """
 
     timestamp_s: float
@@ -68,7 +69,7 @@ class VisualFrontend:
         )
         self._corner_terrains = {TerrainKind(k) for k in self.config.corner_terrains}
         self._camera_fixed: CameraFixedFilter | None = None
-        if self.config.camera_fixed.enabled:
+        if self.config.camera_fixed.enabled or self.config.camera_fixed.drop_pixels:
             pc = self.config.projection
             self._camera_fixed = CameraFixedFilter(
                 self.config.camera_fixed.k_sigma,
@@ -144,7 +145,7 @@ class VisualFrontend:
                 frame, K, R_ground_cam, predicted_delta_xz_m, predicted_cov_m2, ground_turn_rad
             )
             n_fixed = int(np.count_nonzero(fixed))
-            if n_fixed:
+            if n_fixed and cfg.camera_fixed.drop_pixels:
                 confidence = np.where(fixed, 0, confidence).astype(frame.confidence.dtype)
         speckle = None
         if pc.speckle_min_agree > 0:  # drop_speckles, evaluated at the slice's pixels only

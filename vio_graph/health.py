@@ -7,9 +7,9 @@ with no look-ahead (pure algorithm, no I/O):
 
 - the share of visual displacements the filter's chi-square gate refused;
 - the share of frames anchored in stance;
-- frames on which the front end removed pixels that move with the camera (an occluding
-  foot or strap, vio_graph/frontend/camera_fixed.py): reported, with a warning, because the
-  displacements of those frames rest on the rest of the view only;
+- frames on which the front end found pixels that move with the camera (an occluding
+  foot or strap, vio_graph/frontend/camera_fixed.py): reported, with a warning, because
+  such an object is taken for terrain unless ``frontend.camera_fixed.drop_pixels`` removes it;
 - the departure of the fused path from visual odometry: over windows of ``window_s`` the
   filter's camera displacement is compared with the sum of the visual displacements over the
   same frames, as a chi-square test (2 dof) with the displacements' own covariances. A
@@ -309,8 +309,9 @@ class HealthMonitor:
                 f"to the lens?) on {self.n_camera_fixed_frames} frames between "
                 f"{self.camera_fixed_first_s:.2f} s and {self.camera_fixed_last_s:.2f} s (up to "
                 f"{self.max_camera_fixed_pixels} pixels, longest run "
-                f"{self.max_camera_fixed_run_s:.2f} s): the front end left it out of the "
-                f"terrain, and those frames' displacements rest on the rest of the view."
+                f"{self.max_camera_fixed_run_s:.2f} s): unless frontend.camera_fixed."
+                f"drop_pixels removed it, it was taken for terrain there, and the estimate "
+                f"may have jumped (configs/camera_fixed.yaml removes it)."
             )
         return {
             "frames": self.n_frames,

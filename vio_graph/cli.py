@@ -680,7 +680,7 @@ def robustness(
             help="'all' faults, or 'imu': clean, IMU spikes / saturation, "
             "camera-IMU offsets -30..30 ms, clock jitter; or 'offsets': clean and the "
             "camera-IMU offsets only; or 'saturation': clean and the 4 g accelerometer "
-            "saturation only."
+            "saturation only; or 'occluder': clean and the occluding foot only."
         ),
     ] = "all",
 ) -> None:
@@ -693,6 +693,7 @@ def robustness(
     from vio_graph.robustness import (
         FAULT_CASES,
         IMU_CASES,
+        OCCLUDER_CASES,
         OFFSET_CASES,
         SATURATION_CASES,
         run_sweep,
@@ -705,9 +706,12 @@ def robustness(
         "imu": IMU_CASES,
         "offsets": OFFSET_CASES,
         "saturation": SATURATION_CASES,
+        "occluder": OCCLUDER_CASES,
     }
     if cases not in case_sets:
-        raise VioGraphError(f"--cases: unknown {cases!r}; use all, imu, offsets or saturation")
+        raise VioGraphError(
+            f"--cases: unknown {cases!r}; use all, imu, offsets, saturation or occluder"
+        )
     case_list = case_sets[cases]
     cfg = load_config(config)
     seed_list = list(range(1, seeds + 1))

@@ -1068,6 +1068,7 @@ class OnlineEstimator:
             refused=refused,
             velocity_sigma_x_mps=float(np.sqrt(max(self.filter.variance(2), 0.0))),
             distrusted_imu_samples=self.imu_faults.n_distrusted,
+            camera_fixed_pixels=result.n_camera_fixed,
         )
         timings["fusion"] = (time.perf_counter() - t0) * 1e3
         # 5. kinematics (Fig. 3)

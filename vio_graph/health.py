@@ -7,6 +7,9 @@ with no look-ahead (pure algorithm, no I/O):
 
 - the share of visual displacements the filter's chi-square gate refused;
 - the share of frames anchored in stance;
+- frames on which the front end found pixels that move with the camera (an occluding
+  foot or strap, vio_graph/frontend/camera_fixed.py): reported, with a warning, because
+  such an object is taken for terrain unless ``frontend.camera_fixed.drop_pixels`` removes it;
 - the departure of the fused path from visual odometry: over windows of ``window_s`` the
   filter's camera displacement is compared with the sum of the visual displacements over the
   same frames, as a chi-square test (2 dof) with the displacements' own covariances. A
@@ -99,6 +102,13 @@ class HealthMonitor:
         self.max_distrusted_drift_sigma_m = 0.0
         self.max_distrusted_drift_at_s = 0.0
         self._n_distrusted = 0
+        # pixels that moved with the camera (an occluder), removed by the front end
+        self.n_camera_fixed_frames = 0
+        self.max_camera_fixed_pixels = 0
+        self.camera_fixed_first_s: float | None = None
+        self.camera_fixed_last_s: float | None = None
+        self._cf_run_start: float | None = None
+        self.max_camera_fixed_run_s = 0.0
 
     def add_frame(
         self,
@@ -111,6 +121,7 @@ class HealthMonitor:
         refused: bool | None = None,
         velocity_sigma_x_mps: float | None = None,
         distrusted_imu_samples: int = 0,
+        camera_fixed_pixels: int = 0,
     ) -> None:
         """One depth frame: the fused camera position after the update, the front end's
         displacement (None: none), whether the filter accepted it, whether it was anchored,
@@ -119,8 +130,10 @@ class HealthMonitor:
         a displacement it could not relate to its state, e.g. across a frame gap).
         ``velocity_sigma_x_mps``: the filter's 1-sigma of the forward velocity after the
         update (None: not tracked); ``distrusted_imu_samples``: how many IMU samples the
-        fault monitor has distrusted so far (saturated, repaired)."""
+        fault monitor has distrusted so far (saturated, repaired); ``camera_fixed_pixels``:
+        pixels the front end removed from this frame as moving with the camera."""
         p = np.asarray(fused_camera_xz_m, dtype=float)
+        self._track_camera_fixed(float(t_s), int(camera_fixed_pixels))
         self.n_frames += 1
         self.n_stance += int(in_stance)
         if self._t_first_s is None:
@@ -162,6 +175,19 @@ class HealthMonitor:
             self.max_departure_m = max(self.max_departure_m, float(np.hypot(*r)))
             self.max_departure_d2 = max(self.max_departure_d2, d2)
             self._window = _Window(float(t_s), p.copy())
+
+    def _track_camera_fixed(self, t_s: float, n_pixels: int) -> None:
+        if n_pixels <= 0:
+            self._cf_run_start = None
+            return
+        self.n_camera_fixed_frames += 1
+        self.max_camera_fixed_pixels = max(self.max_camera_fixed_pixels, n_pixels)
+        if self.camera_fixed_first_s is None:
+            self.camera_fixed_first_s = t_s
+        self.camera_fixed_last_s = t_s
+        if self._cf_run_start is None:
+            self._cf_run_start = t_s
+        self.max_camera_fixed_run_s = max(self.max_camera_fixed_run_s, t_s - self._cf_run_start)
 
     def _track_x_blind(self, t_s: float, x_seen: bool) -> None:
         if not x_seen:
@@ -277,6 +303,16 @@ class HealthMonitor:
                 f"forward motion (level floor, no edge in view); the smoothers correct it "
                 f"once a stance or an edge follows."
             )
+        if self.n_camera_fixed_frames:
+            warnings.append(
+                f"WARNING: something moved with the camera (an occluding foot or strap close "
+                f"to the lens?) on {self.n_camera_fixed_frames} frames between "
+                f"{self.camera_fixed_first_s:.2f} s and {self.camera_fixed_last_s:.2f} s (up to "
+                f"{self.max_camera_fixed_pixels} pixels, longest run "
+                f"{self.max_camera_fixed_run_s:.2f} s): unless frontend.camera_fixed."
+                f"drop_pixels removed it, it was taken for terrain there, and the estimate "
+                f"may have jumped (configs/camera_fixed.yaml removes it)."
+            )
         return {
             "frames": self.n_frames,
             "visual_displacements": self.n_displacements,
@@ -300,6 +336,13 @@ class HealthMonitor:
                 "max_drift_at_s": self.max_drift_at_s,
                 "max_drift_sigma_after_distrusted_imu_cm": 100 * drift_m,
                 "drift_warned": drift,
+            },
+            "camera_fixed": {
+                "frames": self.n_camera_fixed_frames,
+                "max_pixels": self.max_camera_fixed_pixels,
+                "first_s": self.camera_fixed_first_s,
+                "last_s": self.camera_fixed_last_s,
+                "longest_run_s": self.max_camera_fixed_run_s,
             },
             "pitch_offset_deg": float(pitch_offset_deg),
             "ok": not (trouble or weak_x or drift),

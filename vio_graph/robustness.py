@@ -94,6 +94,12 @@ SATURATION_CASES: tuple[FaultCase, ...] = tuple(
 )
 
 
+#: the occluding-foot row with its clean reference (``vio-graph robustness --cases occluder``)
+OCCLUDER_CASES: tuple[FaultCase, ...] = tuple(
+    c for c in FAULT_CASES if c.name in ("clean", "occluding foot in view")
+)
+
+
 def _slug(case: FaultCase) -> str:
     text = f"{case.name}_{case.severity}".lower()
     return "".join(c if c.isalnum() else "_" for c in text).strip("_")

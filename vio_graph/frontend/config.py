@@ -49,6 +49,56 @@ class ProjectionConfig(_Strict):
     )
 
 
+class CameraFixedConfig(_Strict):
+    """Pixels that move with the camera (an occluding foot close to the lens) leave the slice
+    (vio_graph/frontend/camera_fixed.py): the previous frame saw the same depth at the same
+    pixel, and the world-static hypothesis under the IMU-predicted camera motion is refused."""
+
+    enabled: bool = Field(
+        True,
+        description="look for slice pixels that move with the camera and count them "
+        "(FrontendResult.n_camera_fixed, metrics.json health.camera_fixed with a warning); "
+        "the estimate is unchanged unless drop_pixels",
+    )
+    drop_pixels: bool = Field(
+        False,
+        description="also drop those pixels from the slice (configs/camera_fixed.yaml turns "
+        "it on). Off by default: with it, a filter velocity knocked 0.6 m/s off with a tiny "
+        "covariance (tests/test_filter_lockout.py) makes the terrain read as moving with the "
+        "camera, and the gate lock-out recovery no longer fires. On: upstair s1-2 with a 1 s "
+        "occluding foot, filter toe 17.6x / 15.1x -> 1.29x / 1.08x the clean error; clean "
+        "trials unchanged",
+    )
+    k_sigma: float = Field(
+        3.0, gt=0, description="both hypotheses are tested at this many depth-noise sigmas"
+    )
+    depth_sigma_floor_m: float = Field(
+        0.003,
+        gt=0,
+        description="depth noise sd of one pixel, m: the larger of this and the noise the "
+        "front end measures on level surfaces",
+    )
+    rot_sigma_rad: float = Field(
+        0.005, ge=0, description="sd of the IMU's rotation between two frames, rad"
+    )
+    stamp_sigma_s: float = Field(
+        0.002,
+        ge=0,
+        description="sd of a frame stamp's jitter, s: the predicted motion between two frames "
+        "is uncertain by sqrt(2) x this over the frame interval, as a share of itself (the "
+        "robustness sweep's 2 ms clock jitter removed up to 249 terrain pixels on 5 frames "
+        "of upstair s1 without it)",
+    )
+    min_pixels: int = Field(
+        20,
+        ge=1,
+        description="a surface (pixels of unchanged depth between depth edges) needs at least "
+        "this many pixels that pass the test to count as an object; fewer are chance passes "
+        "of terrain pixels (clean upstair s1-2: at most 12 a frame, 1-3 in one surface; the "
+        "1 s occluding foot: ~6700 in one surface)",
+    )
+
+
 class SmoothingConfig(_Strict):
     """Grid thinning followed by kNN smoothing of the 2D profile (end of Section II.A.1)."""
 
@@ -430,6 +480,7 @@ class FrontendConfig(_Strict):
     """Everything the visual front end needs; defaults reproduce the paper where it is explicit."""
 
     projection: ProjectionConfig = ProjectionConfig()
+    camera_fixed: CameraFixedConfig = CameraFixedConfig()
     smoothing: SmoothingConfig = SmoothingConfig()
     terrain: TerrainConfig = TerrainConfig()
     corners: CornerConfig = CornerConfig()

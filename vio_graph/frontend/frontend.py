@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vio_graph.errors import FrontendError
+from vio_graph.frontend.camera_fixed import CameraFixedFilter
 from vio_graph.frontend.config import FrontendConfig
 from vio_graph.frontend.corners import CornerFeature, extract_corner
 from vio_graph.frontend.icp import IcpResult
@@ -40,6 +41,9 @@ class FrontendResult:
     ``rejection_reason``. ``observation``: the corner relative to the camera (track id kept for
     the same physical corner). ``icp``: the ICP run (matched points for visualisation).
     ``timings_ms``: "projection", "smoothing", "terrain", "corners", "icp", "total".
+    ``n_camera_fixed``: slice pixels found to move with the camera
+    (vio_graph/frontend/camera_fixed.py); dropped from the slice with
+    ``camera_fixed.drop_pixels``, only counted otherwise.
     """
 
     timestamp_s: float
@@ -51,6 +55,7 @@ class FrontendResult:
     rejection_reason: str | None
     icp: IcpResult | None
     timings_ms: dict[str, float] = field(default_factory=dict)
+    n_camera_fixed: int = 0
 
 
 class VisualFrontend:
@@ -63,6 +68,15 @@ class VisualFrontend:
             self.config.tracker, self.config.icp, self.config.corners.edge_sigma_m
         )
         self._corner_terrains = {TerrainKind(k) for k in self.config.corner_terrains}
+        self._camera_fixed: CameraFixedFilter | None = None
+        if self.config.camera_fixed.enabled or self.config.camera_fixed.drop_pixels:
+            pc = self.config.projection
+            self._camera_fixed = CameraFixedFilter(
+                self.config.camera_fixed.k_sigma,
+                pc.speckle_rel_tol,
+                pc.speckle_abs_tol_m,
+                self.config.camera_fixed.min_pixels,
+            )
         sc = self.config.smoothing
         self._noise: DepthNoiseTracker | None = None
         if sc.noise_cell_ratio is not None and sc.grid_cell_m > 0:
@@ -89,6 +103,8 @@ class VisualFrontend:
         """Forget the previous frame (e.g. after a gap in the recording); the measured depth
         noise is kept (the camera did not change)."""
         self._tracker.reset()
+        if self._camera_fixed is not None:
+            self._camera_fixed.reset()
 
     def process(
         self,
@@ -122,12 +138,21 @@ class VisualFrontend:
         t = [time.perf_counter()]
         # eq. 1-2: sagittal slice |x_C| < w, rotated into the ground frame (camera-relative)
         pc = cfg.projection
+        confidence = frame.confidence
+        n_fixed = 0
+        if self._camera_fixed is not None:  # pixels that move with the camera are no terrain
+            fixed = self._camera_fixed_pixels(
+                frame, K, R_ground_cam, predicted_delta_xz_m, predicted_cov_m2, ground_turn_rad
+            )
+            n_fixed = int(np.count_nonzero(fixed))
+            if n_fixed and cfg.camera_fixed.drop_pixels:
+                confidence = np.where(fixed, 0, confidence).astype(frame.confidence.dtype)
         speckle = None
         if pc.speckle_min_agree > 0:  # drop_speckles, evaluated at the slice's pixels only
             speckle = (pc.speckle_rel_tol, pc.speckle_abs_tol_m, pc.speckle_min_agree)
         points_xz = sagittal_slice_from_depth(
             frame.depth_m,
-            frame.confidence,
+            confidence,
             K,
             R_ground_cam,
             pc.half_width_m,
@@ -199,4 +224,45 @@ class VisualFrontend:
             rejection_reason=tracked.reason,
             icp=tracked.icp,
             timings_ms=timings,
+            n_camera_fixed=n_fixed,
+        )
+
+    def _camera_fixed_pixels(
+        self,
+        frame: DepthFrame,
+        K: NDArray[np.float64],
+        R_ground_cam: NDArray[np.float64],
+        predicted_delta_xz_m: NDArray[np.float64] | None,
+        predicted_cov_m2: NDArray[np.float64] | None,
+        ground_turn_rad: float,
+    ) -> NDArray[np.bool_]:
+        """(H, W) slice pixels that move with the camera (camera_fixed.py); all False on the
+        first frame and without an IMU prediction."""
+        assert self._camera_fixed is not None
+        pc, cf = self.config.projection, self.config.camera_fixed
+        depth = np.asarray(frame.depth_m)
+        K = np.asarray(K, dtype=float)
+        x_per_m = np.abs(np.arange(depth.shape[1]) - K[0, 2]) / K[0, 0]
+        with np.errstate(invalid="ignore"):
+            candidates = (
+                (frame.confidence >= pc.min_confidence)
+                & (depth > pc.min_depth_m)
+                & (depth < pc.max_depth_m)
+                & (depth * x_per_m[None, :] < pc.half_width_m)
+            )
+        sigma = cf.depth_sigma_floor_m
+        if np.isfinite(self.depth_noise_m):
+            sigma = max(sigma, self.depth_noise_m)
+        return self._camera_fixed.update(
+            depth,
+            candidates,
+            K,
+            R_ground_cam,
+            predicted_delta_xz_m,
+            predicted_cov_m2,
+            sigma,
+            cf.rot_sigma_rad,
+            ground_turn_rad,
+            frame.timestamp_s,
+            cf.stamp_sigma_s,
         )

@@ -1,0 +1,338 @@
+"""Depth pixels that move with the camera: an object fixed to the rig, not terrain.
+
+A foot (the other leg) swinging past a shank-mounted camera, a trouser leg or a strap close to
+the lens stays at the same pixels and the same depth while the camera moves. In the sagittal
+slice such an object is a rounded surface that ICP registers with zero motion, which pulls
+the displacement towards zero, and the terrain rules can read it as a step or a floor.
+
+Two hypotheses are tested at every slice pixel p of the current frame, each against the
+previous depth image, with the camera motion between the frames that the IMU predicts
+(rotation from the attitude, translation from the filter's velocity):
+
+* camera-fixed: the previous frame saw the same depth at the same pixel,
+  ``r_fixed = |d_k(p) - d_{k-1}(p)|``;
+* world-static: the point ``Q = d_k(p) K^-1 p`` moved into the previous camera frame,
+  ``Q' = R_prev_cur Q + t_prev_cur``, is seen there, ``r_world = min |d_{k-1}(p' + e) - Q'_z|``
+  over the 3x3 pixels ``e`` around its projection ``p'`` (pixel quantisation on slanted
+  surfaces).
+
+A pixel moves with the camera when the first hypothesis holds (``r_fixed`` within the depth
+noise) and the second is refused (``r_world`` beyond the noise plus what the predicted motion's
+own uncertainty can explain). When the predicted motion is too small to tell the two apart
+(stance; a floor under a camera moving parallel to it) both hold and the pixel is kept: the
+test only removes what the IMU says cannot be terrain. A pixel once found camera-fixed stays
+so while its depth does not change (``r_fixed`` within the noise), so the object is not
+re-admitted when the camera pauses. Pure functions plus a small per-frame state; no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class CameraMotion:
+    """Camera motion between two frames in the PREVIOUS camera's optical frame:
+    ``p_prev = R_prev_cur @ p_cur + t_prev_cur_m``, with the translation's (3, 3)
+    covariance in m^2 and the rotation's sd in rad."""
+
+    R_prev_cur: NDArray[np.float64]
+    t_prev_cur_m: NDArray[np.float64]
+    t_cov_m2: NDArray[np.float64]
+    rot_sigma_rad: float = 0.0
+
+
+def motion_from_ground(
+    R_ground_cam_prev: NDArray[np.float64],
+    R_ground_cam_cur: NDArray[np.float64],
+    delta_xz_m: NDArray[np.float64],
+    delta_cov_m2: NDArray[np.float64],
+    rot_sigma_rad: float = 0.0,
+    motion_share_sigma: float = 0.0,
+) -> CameraMotion:
+    """The camera motion of :class:`CameraMotion` from the two frames' camera -> ground
+    rotations (3, 3) and the predicted camera displacement in ground x-z (m) with its
+    (2, 2) covariance (m^2); the ground's lateral axis is y. ``motion_share_sigma``: a
+    further sd of the motion as a share of itself (the frame stamps' jitter over the frame
+    interval), added to the translation's covariance and the rotation's sd."""
+    Rp = np.asarray(R_ground_cam_prev, dtype=float)
+    Rc = np.asarray(R_ground_cam_cur, dtype=float)
+    g = np.array([delta_xz_m[0], 0.0, delta_xz_m[1]], dtype=float)
+    cov_g = np.zeros((3, 3))
+    cov_g[np.ix_([0, 2], [0, 2])] = np.asarray(delta_cov_m2, dtype=float)
+    cov_g += np.eye(3) * (motion_share_sigma * float(np.linalg.norm(g))) ** 2
+    R = Rp.T @ Rc
+    angle = float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+    rot_sigma = float(np.hypot(rot_sigma_rad, motion_share_sigma * angle))
+    return CameraMotion(R, Rp.T @ g, Rp.T @ cov_g @ Rp, rot_sigma)
+
+
+def camera_fixed_mask(
+    depth_prev_m: NDArray,
+    depth_cur_m: NDArray,
+    candidates: NDArray[np.bool_],
+    K: NDArray[np.float64],
+    motion: CameraMotion,
+    depth_sigma_m: float,
+    k_sigma: float = 3.0,
+    held: NDArray[np.bool_] | None = None,
+    same_out: NDArray[np.bool_] | None = None,
+    stats: dict | None = None,
+    view_step_px: int = 4,
+    view_share: float = 0.05,
+) -> NDArray[np.bool_]:
+    """(H, W) mask of the ``candidates`` pixels that move with the camera (module docstring).
+
+    Args:
+        depth_prev_m, depth_cur_m: (H, W) depth images, m; 0 (or non-finite) = invalid.
+        candidates: (H, W) pixels to test (e.g. the valid pixels of the sagittal slice).
+        K: (3, 3) intrinsics, pixels.
+        motion: the predicted camera motion between the frames.
+        depth_sigma_m: depth noise sd of one pixel, m.
+        k_sigma: both tests at this many sigmas.
+        held: (H, W) the previous frame's camera-fixed mask; such a pixel stays camera-fixed
+            while its depth is unchanged, whatever the motion.
+        same_out: (H, W) if given, set to the tested pixels whose depth is unchanged.
+        stats: if given, receives the view test's counts ("confirm", "refute").
+        view_step_px: the view test uses every this-many-th pixel in both directions.
+        view_share: ... or needs this share of its valid pixels confirming the motion.
+    """
+    dp = np.asarray(depth_prev_m, dtype=np.float64)
+    dc = np.asarray(depth_cur_m, dtype=np.float64)
+    h, w = dc.shape
+    out = np.zeros((h, w), dtype=bool)
+    prev_ok = np.isfinite(dp) & (dp > 0)
+    rows, cols = np.nonzero(candidates & prev_ok & np.isfinite(dc) & (dc > 0))
+    if rows.size == 0:
+        return out
+    z = dc[rows, cols]
+    tol_fixed = k_sigma * np.sqrt(2.0) * depth_sigma_m
+    same = np.abs(z - dp[rows, cols]) <= tol_fixed
+    if same_out is not None:
+        same_out[rows[same], cols[same]] = True
+    if held is not None:
+        keep = same & held[rows, cols]
+        out[rows[keep], cols[keep]] = True
+    pad = np.full((h + 4, w + 4), np.inf)  # previous depth, 2 invalid (inf) pixels around
+    pad[2:-2, 2:-2] = np.where(prev_ok, dp, np.inf)
+    # world-static hypothesis at the candidates whose depth did not change
+    idx = np.flatnonzero(same)
+    if idx.size == 0:
+        return out
+    r, c = rows[idx], cols[idx]
+    seen, world = _world_test(pad, r, c, z[idx], K, motion, depth_sigma_m, k_sigma)
+    # a point that would leave the previous view cannot be tested: kept (not seen = unknown)
+    fixed = seen & ~world
+    if not fixed.any():
+        return out
+    # the motion the IMU predicts must show in the view: over the whole image (every
+    # ``view_step_px``-th pixel), the pixels whose depth changed as that motion says must be
+    # at least as many as the unchanged ones it refuses, or ``view_share`` of the view. A
+    # camera that stood still while the filter's velocity was wrong changes no depth (noise
+    # and depth edges change 0.5-1.2 % of the pixels), and its whole view would otherwise
+    # read as moving with the camera; the terrain around an object close to the lens
+    # confirms the motion, even where the object covers most of the valid pixels.
+    k = view_step_px
+    gr, gc = np.nonzero(prev_ok[::k, ::k] & (dc[::k, ::k] > 0))
+    gr, gc = gr * k, gc * k
+    gz = dc[gr, gc]
+    g_same = np.abs(gz - dp[gr, gc]) <= tol_fixed
+    g_seen, g_world = _world_test(pad, gr, gc, gz, K, motion, depth_sigma_m, k_sigma)
+    n_confirm = int(np.count_nonzero(g_seen & ~g_same & g_world))
+    n_refute = int(np.count_nonzero(g_seen & g_same & ~g_world))
+    if stats is not None:
+        stats.update(
+            confirm=n_confirm, refute=n_refute, changed=int(np.count_nonzero(g_seen & ~g_same))
+        )
+    n_seen = int(np.count_nonzero(g_seen))
+    if n_confirm >= n_refute or n_confirm >= view_share * n_seen:
+        out[r[fixed], c[fixed]] = True
+    return out
+
+
+def _world_test(
+    pad: NDArray[np.float64],
+    r: NDArray[np.int64],
+    c: NDArray[np.int64],
+    z: NDArray[np.float64],
+    K: NDArray[np.float64],
+    motion: CameraMotion,
+    depth_sigma_m: float,
+    k_sigma: float,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """World-static hypothesis at pixels (r, c) of depth z (m): (seen, consistent). The point
+    moved into the previous camera frame by ``motion`` is looked up in the previous depth
+    (``pad``: padded by 2 invalid (inf) pixels, so the 3 x 3 lookups need no bounds test);
+    a projection further out than one pixel, or onto no valid pixel, is not seen."""
+    h, w = pad.shape[0] - 4, pad.shape[1] - 4
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    Q = np.column_stack([z * (c - cx) / fx, z * (r - cy) / fy, z])
+    Qp = Q @ np.asarray(motion.R_prev_cur, dtype=float).T + motion.t_prev_cur_m
+    zp = Qp[:, 2]
+    front = zp > 1e-3
+    up = np.where(front, fx * Qp[:, 0] / np.where(front, zp, 1.0) + cx, -10.0)
+    vp = np.where(front, fy * Qp[:, 1] / np.where(front, zp, 1.0) + cy, -10.0)
+    ui, vi = np.rint(up).astype(np.int64), np.rint(vp).astype(np.int64)
+    far = (ui < -1) | (ui > w) | (vi < -1) | (vi > h)
+    ui, vi = np.clip(ui, -1, w) + 2, np.clip(vi, -1, h) + 2
+    best = np.full(z.shape, np.inf)
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            np.minimum(best, np.abs(pad[vi + dv, ui + du] - zp), out=best)
+    seen = np.isfinite(best) & ~far
+    # what the predicted motion's own uncertainty can move a point along the optical axis
+    var_t = float(np.asarray(motion.t_cov_m2)[2, 2])
+    var_rot = (np.linalg.norm(Q[:, :2], axis=1) * motion.rot_sigma_rad) ** 2
+    tol_world = k_sigma * np.sqrt(2.0 * depth_sigma_m**2 + var_t + var_rot)
+    return seen, best <= tol_world
+
+
+def surface_majority(
+    mask: NDArray[np.bool_],
+    depth_m: NDArray,
+    same: NDArray[np.bool_],
+    rel_tol: float,
+    abs_tol_m: float,
+    min_pixels: int,
+) -> NDArray[np.bool_]:
+    """Decide per surface as well as per pixel. The pixels of ``same`` (depth unchanged since
+    the previous frame) are split into surfaces at depth edges (a 4-neighbour differing by
+    more than ``rel_tol * depth + abs_tol_m``, the speckle test's agreement). A surface with
+    fewer than ``min_pixels`` pixels of ``mask`` is no object (an odd pixel that passed the
+    test by chance): none of them is kept. A surface at least half in ``mask`` is camera-fixed
+    as a whole (a pixel of the object whose own test was ambiguous, its warped point having
+    landed on the object again, goes with its surface); in any other surface only the
+    pixels of ``mask`` are. Pixels at a depth edge go with the camera-fixed surface next to
+    them (the object's rim). (H, W) bool."""
+    from scipy import ndimage
+
+    d = np.asarray(depth_m, dtype=np.float64)
+    tol = rel_tol * d + abs_tol_m
+    smooth = same.copy()
+    for axis in (0, 1):  # a pixel at a depth edge separates two surfaces
+        jump = np.abs(np.diff(d, axis=axis))
+        if axis == 0:
+            edge = jump > np.minimum(tol[:-1, :], tol[1:, :])
+            smooth[:-1, :] &= ~edge
+            smooth[1:, :] &= ~edge
+        else:
+            edge = jump > np.minimum(tol[:, :-1], tol[:, 1:])
+            smooth[:, :-1] &= ~edge
+            smooth[:, 1:] &= ~edge
+    labels, n = ndimage.label(smooth)
+    size = np.bincount(labels.ravel(), minlength=n + 1)
+    hits = np.bincount(labels.ravel(), weights=mask.ravel(), minlength=n + 1)
+    counts = hits >= min_pixels
+    whole = counts & (hits >= 0.5 * size)
+    counts[0] = whole[0] = False
+    out = whole[labels] | (counts[labels] & mask)
+    rim = same & ~smooth
+    if out.any() and rim.any():
+        out |= rim & ndimage.binary_dilation(out)
+    return out
+
+
+class CameraFixedFilter:
+    """Per-frame state of :func:`camera_fixed_mask`: the previous depth image, its camera ->
+    ground rotation and camera-fixed mask. :meth:`update` returns the current mask."""
+
+    def __init__(
+        self,
+        k_sigma: float = 3.0,
+        edge_rel_tol: float = 0.03,
+        edge_abs_tol_m: float = 0.01,
+        min_pixels: int = 20,
+    ) -> None:
+        self.k_sigma = float(k_sigma)
+        self.min_pixels = int(min_pixels)
+        self.edge_rel_tol = float(edge_rel_tol)
+        self.edge_abs_tol_m = float(edge_abs_tol_m)
+        self._prev: tuple[NDArray, NDArray[np.float64]] | None = None
+        self._prev_t: float | None = None
+        self._held: NDArray[np.bool_] | None = None
+
+    def reset(self) -> None:
+        self._prev = None
+        self._prev_t = None
+        self._held = None
+
+    def update(
+        self,
+        depth_m: NDArray,
+        candidates: NDArray[np.bool_],
+        K: NDArray[np.float64],
+        R_ground_cam: NDArray[np.float64],
+        predicted_delta_xz_m: NDArray[np.float64] | None,
+        predicted_cov_m2: NDArray[np.float64] | None,
+        depth_sigma_m: float,
+        rot_sigma_rad: float = 0.0,
+        ground_turn_rad: float = 0.0,
+        timestamp_s: float | None = None,
+        stamp_sigma_s: float = 0.0,
+    ) -> NDArray[np.bool_]:
+        """Camera-fixed pixels of this frame (all False without a previous frame or a
+        prediction); remembers this frame for the next call. ``ground_turn_rad``: the caller
+        turned its ground frame by rot_y(``ground_turn_rad``) since the previous frame (a
+        pitch correction); the previous rotation is re-expressed in the turned frame.
+        ``timestamp_s``, ``stamp_sigma_s``: the frame's stamp and the sd of a stamp's jitter
+        (s); the predicted motion is uncertain by sqrt(2) sd / (frame interval) of itself."""
+        share = 0.0
+        if timestamp_s is not None and self._prev_t is not None:
+            dt = float(timestamp_s) - self._prev_t
+            if dt > 0:
+                share = np.sqrt(2.0) * stamp_sigma_s / dt
+        self._prev_t = None if timestamp_s is None else float(timestamp_s)
+        if self._prev is not None and ground_turn_rad != 0.0:
+            c, s = np.cos(ground_turn_rad), np.sin(ground_turn_rad)
+            turn = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+            self._prev = (self._prev[0], turn @ self._prev[1])
+        depth = np.asarray(depth_m)
+        mask = np.zeros(depth.shape, dtype=bool)
+        if (
+            self._prev is not None
+            and predicted_delta_xz_m is not None
+            and predicted_cov_m2 is not None
+            and self._prev[0].shape == depth.shape
+        ):
+            motion = motion_from_ground(
+                self._prev[1],
+                R_ground_cam,
+                predicted_delta_xz_m,
+                predicted_cov_m2,
+                rot_sigma_rad,
+                share,
+            )
+            same = np.zeros(depth.shape, dtype=bool)
+            mask = camera_fixed_mask(
+                self._prev[0],
+                depth,
+                candidates,
+                K,
+                motion,
+                depth_sigma_m,
+                self.k_sigma,
+                self._held,
+                same,
+            )
+            if mask.any():  # on the candidates' bounding box (the slice band), a pixel of
+                # margin for the depth edges
+                rr, cc = np.nonzero(same)
+                r0, r1 = max(rr.min() - 1, 0), rr.max() + 2
+                c0, c1 = max(cc.min() - 1, 0), cc.max() + 2
+                box = (slice(r0, r1), slice(c0, c1))
+                decided = surface_majority(
+                    mask[box],
+                    depth[box],
+                    same[box],
+                    self.edge_rel_tol,
+                    self.edge_abs_tol_m,
+                    self.min_pixels,
+                )
+                mask = np.zeros(depth.shape, dtype=bool)
+                mask[box] = decided
+        self._prev = (depth, np.asarray(R_ground_cam, dtype=float))
+        self._held = mask
+        return mask

@@ -112,7 +112,9 @@ def test_front_end_drops_the_near_lens_blob_from_the_profile() -> None:
     delta = np.subtract(POSE_B[0], POSE_A[0])
     profiles = {}
     for enabled in (True, False):
-        cfg = FrontendConfig.model_validate({"camera_fixed": {"drop_pixels": enabled}})
+        cfg = FrontendConfig.model_validate(
+            {"camera_fixed": {"drop_pixels": enabled, "idle_check_every_frames": 1}}
+        )
         fe = VisualFrontend(cfg)
         fe.process(DepthFrame(0, 0.0, a[0], a[1]), K, a[2], None, None)
         res = fe.process(DepthFrame(1, 1 / 30, b[0], b[1]), K, b[2], delta, COV)
@@ -123,6 +125,25 @@ def test_front_end_drops_the_near_lens_blob_from_the_profile() -> None:
     assert not near[True].any()  # ... and gone with it
     assert len(profiles[True]) > 50  # the terrain beyond the blob is kept
     assert profiles[True][:, 0].max() > 0.5
+
+
+@pytest.mark.parametrize("every", [1, 3])
+def test_report_only_mode_tests_every_nth_frame_until_it_finds_a_surface(every: int) -> None:
+    """Report-only (drop_pixels off): with no pixel held, only every ``every``-th frame is
+    tested (the others are remembered as the previous image); once the blob is found,
+    every frame is tested while it stays. The blob is in view from frame 0 (no previous
+    frame): found at frame ``every`` (1 for every frame), then on every frame."""
+    poses = [POSE_A if k % 2 == 0 else POSE_B for k in range(8)]
+    frames = [_frame(*p, seed=k + 1) for k, p in enumerate(poses)]
+    fe = VisualFrontend(
+        FrontendConfig.model_validate({"camera_fixed": {"idle_check_every_frames": every}})
+    )
+    found = []
+    for k, (depth, conf, R, _) in enumerate(frames):
+        delta = None if k == 0 else np.subtract(poses[k][0], poses[k - 1][0])
+        res = fe.process(DepthFrame(k, k / 30, depth, conf), K, R, delta, None if k == 0 else COV)
+        found.append(res.n_camera_fixed > 1000)
+    assert found == [k >= every for k in range(8)]
 
 
 def test_health_reports_frames_with_camera_fixed_pixels() -> None:

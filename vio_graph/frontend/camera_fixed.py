@@ -259,6 +259,23 @@ class CameraFixedFilter:
         self._prev_t = None
         self._held = None
 
+    @property
+    def holding(self) -> bool:
+        """True if the last tested frame had camera-fixed pixels."""
+        return self._held is not None and bool(self._held.any())
+
+    def remember(
+        self,
+        depth_m: NDArray,
+        R_ground_cam: NDArray[np.float64],
+        timestamp_s: float | None = None,
+    ) -> None:
+        """A frame that is not tested (report-only mode between checks): kept as the
+        previous frame for the next :meth:`update`, with nothing held."""
+        self._prev_t = None if timestamp_s is None else float(timestamp_s)
+        self._prev = (np.asarray(depth_m), np.asarray(R_ground_cam, dtype=float))
+        self._held = None
+
     def update(
         self,
         depth_m: NDArray,

@@ -77,6 +77,7 @@ class VisualFrontend:
                 pc.speckle_abs_tol_m,
                 self.config.camera_fixed.min_pixels,
             )
+        self._camera_fixed_frames = 0  # frames seen by the camera-fixed test (idle checks)
         sc = self.config.smoothing
         self._noise: DepthNoiseTracker | None = None
         if sc.noise_cell_ratio is not None and sc.grid_cell_m > 0:
@@ -105,6 +106,7 @@ class VisualFrontend:
         self._tracker.reset()
         if self._camera_fixed is not None:
             self._camera_fixed.reset()
+            self._camera_fixed_frames = 0
 
     def process(
         self,
@@ -141,12 +143,22 @@ class VisualFrontend:
         confidence = frame.confidence
         n_fixed = 0
         if self._camera_fixed is not None:  # pixels that move with the camera are no terrain
-            fixed = self._camera_fixed_pixels(
-                frame, K, R_ground_cam, predicted_delta_xz_m, predicted_cov_m2, ground_turn_rad
+            cf = cfg.camera_fixed
+            check = (
+                cf.drop_pixels
+                or self._camera_fixed.holding
+                or self._camera_fixed_frames % cf.idle_check_every_frames == 0
             )
-            n_fixed = int(np.count_nonzero(fixed))
-            if n_fixed and cfg.camera_fixed.drop_pixels:
-                confidence = np.where(fixed, 0, confidence).astype(frame.confidence.dtype)
+            self._camera_fixed_frames += 1
+            if check:
+                fixed = self._camera_fixed_pixels(
+                    frame, K, R_ground_cam, predicted_delta_xz_m, predicted_cov_m2, ground_turn_rad
+                )
+                n_fixed = int(np.count_nonzero(fixed))
+                if n_fixed and cf.drop_pixels:
+                    confidence = np.where(fixed, 0, confidence).astype(frame.confidence.dtype)
+            else:
+                self._camera_fixed.remember(frame.depth_m, R_ground_cam, frame.timestamp_s)
         speckle = None
         if pc.speckle_min_agree > 0:  # drop_speckles, evaluated at the slice's pixels only
             speckle = (pc.speckle_rel_tol, pc.speckle_abs_tol_m, pc.speckle_min_agree)

@@ -31,6 +31,7 @@ from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
 from vio_graph.filter.time_offset import centred_clock_line
 from vio_graph.frontend.icp import AUTO_COMPILED_MIN_FRAMES, use_compiled_by_default
 from vio_graph.growable import GrowableArray
+from vio_graph.memory import return_free_heap
 from vio_graph.protocol import Estimator, FilterTrack, FrameRecord, ImuStep
 from vio_graph.recording.reader import Recording
 from vio_graph.recording.streams import ImuTable
@@ -305,8 +306,11 @@ class Replay:
         kinds, idx = replay_order(self.rec)
         while not self._pass(kinds, idx, progress):
             self._restart()
+        self.rec.release_frame_pages()  # no frame is read again
         for e in self._running():
             self._guard(e, float("nan"), e.finish)
+            if e.name == "batch":  # the solve's freed systems (a few hundred MiB on 10 min)
+                return_free_heap()
         self.log.camera_xz = self.camera_paths()
         self.log.shank_pitch_by_mode = self.shank_pitch_paths()
         return self.log

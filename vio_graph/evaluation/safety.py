@@ -262,23 +262,27 @@ def replay_safety(
     cov_m2: list[NDArray[np.float64]],
     in_stance: list[bool],
     profiles: dict[int, NDArray[np.float64]],
-) -> list[SafetyEstimate | None]:
+) -> SafetyLog:
     """The safety outputs of another mode's path (camera, heel, toe per frame), with the same
     keyframe profiles placed at that mode's camera positions, frame by frame (causal in the
-    profiles; the smoothers' poses themselves may use later data). ``cov_m2``: the filter's."""
+    profiles; the smoothers' poses themselves may use later data). ``cov_m2``: the filter's.
+    Returned as a :class:`SafetyLog` (one row of floats a frame, read like the list of
+    SafetyEstimate or None it stands for), as the online replay keeps its own."""
     mon = SafetyMonitor(config)
-    return [
-        mon.update(
-            float(t),
-            path["camera"][k],
-            cov_m2[k],
-            path["heel"][k],
-            path["toe"][k],
-            bool(in_stance[k]),
-            profiles.get(k),
+    out = SafetyLog()
+    for k, t in enumerate(t_s):
+        out.append(
+            mon.update(
+                float(t),
+                path["camera"][k],
+                cov_m2[k],
+                path["heel"][k],
+                path["toe"][k],
+                bool(in_stance[k]),
+                profiles.get(k),
+            )
         )
-        for k, t in enumerate(t_s)
-    ]
+    return out
 
 
 def safety_metrics(

@@ -136,18 +136,24 @@ def merge_points(
     )
 
 
-def merge_keyframes(keyframes: Sequence[KeyframeProfile], config: MapConfig) -> MapCells:
-    """:func:`merge_points` of the keyframes' world points, bit for bit, without holding
-    every point in several forms at once.
+#: keys gathered before they are merged into the sorted distinct keys (merge_keyframes)
+_KEY_BATCH = 1 << 18
 
-    ``merge_points`` on the concatenated points of a 10-minute trial (millions of points)
-    makes the run's peak memory: the points, their cells, keys, the sort and the
-    (cell, keyframe) pairs side by side, ~100 bytes a point. Here the world points are
-    recomputed per keyframe where needed and only one int64 key and one cell index per
-    point are kept across the passes (~47 bytes a point at the peak). The per-cell sums are
-    ``np.bincount`` over all points in the same order as there, and the distinct keyframes
-    per cell are counted per keyframe, so every output is the same.
-    """
+
+def merge_keyframes(keyframes: Sequence[KeyframeProfile], config: MapConfig) -> MapCells:
+    """:func:`merge_points` of the keyframes' world points, bit for bit, in memory that grows
+    with the map's cells, not with its raw points.
+
+    ``merge_points`` on the concatenated points of a 10-minute trial (~3.8 million points,
+    ~200,000 cells) holds the points, their cells, keys, the sort and the (cell, keyframe)
+    pairs side by side, ~100 bytes a point; one key and one cell index per point across the
+    passes still took ~47 bytes a point (~180 MiB), the batch run's peak. Here the sorted
+    distinct cell keys are gathered batch by batch (``np.union1d``), a keyframe's points are
+    then placed in their cells by ``np.searchsorted`` (the cell index ``np.unique``'s
+    inverse gives), and the per-cell counts and sums are accumulated keyframe by keyframe
+    with ``np.add.at``, in the order of the points, i.e. the same additions in the same
+    order as one ``np.bincount`` over all of them; the distinct keyframes per cell are
+    counted per keyframe. So every output is the same."""
     cell = config.cell_size_m
     sizes = np.array([kf.profile_xz_m.shape[0] for kf in keyframes], dtype=np.int64)
     n_points = int(sizes.sum()) if sizes.size else 0
@@ -162,42 +168,44 @@ def merge_keyframes(keyframes: Sequence[KeyframeProfile], config: MapConfig) -> 
             lo = np.minimum(lo, ij.min(axis=0))
             hi_z = max(hi_z, int(ij[:, 1].max()))
     n_z = hi_z - int(lo[1]) + 1
-    # 2. one key per point, ordered by (x cell, z cell), as in merge_points
-    key = np.empty(n_points, dtype=np.int64)
-    start = 0
-    for kf, n in zip(keyframes, sizes.tolist(), strict=True):
-        if n:
-            ij = np.floor(kf.world_points_xz_m() / cell).astype(np.int64)
-            ij -= lo
-            key[start : start + n] = ij[:, 0] * n_z + ij[:, 1]
-            start += n
-    cell_keys, cell_of_point = np.unique(key, return_inverse=True)
-    del key
+
+    def keys_of(world_xz: NDArray[np.float64]) -> NDArray[np.int64]:
+        """One key per point, ordered by (x cell, z cell), as in merge_points."""
+        ij = np.floor(world_xz / cell).astype(np.int64)
+        ij -= lo
+        return ij[:, 0] * n_z + ij[:, 1]
+
+    # 2. the sorted distinct keys (np.unique's cell_keys), merged a batch of points at a time
+    cell_keys = np.zeros(0, dtype=np.int64)
+    batch: list[NDArray[np.int64]] = []
+    batch_n = 0
+    for kf in keyframes:
+        if kf.profile_xz_m.shape[0]:
+            batch.append(keys_of(kf.world_points_xz_m()))
+            batch_n += batch[-1].shape[0]
+            if batch_n >= _KEY_BATCH:
+                cell_keys = np.union1d(cell_keys, np.concatenate(batch))
+                batch, batch_n = [], 0
+    if batch:
+        cell_keys = np.union1d(cell_keys, np.concatenate(batch))
     n_cells = cell_keys.shape[0]
-    del cell_keys
-    # 3. per-cell sums (one coordinate at a time) and counts
-    point_counts = np.bincount(cell_of_point, minlength=n_cells)
-    sums = []
-    for axis in (0, 1):
-        coord = np.empty(n_points)
-        start = 0
-        for kf, n in zip(keyframes, sizes.tolist(), strict=True):
-            if n:
-                coord[start : start + n] = kf.world_points_xz_m()[:, axis]
-                start += n
-        sums.append(np.bincount(cell_of_point, weights=coord, minlength=n_cells))
-        del coord
-    # 4. distinct keyframes per cell: each keyframe counts once in every cell it touches
+    # 3. per-cell counts and sums, keyframe by keyframe in point order; distinct keyframes
+    point_counts = np.zeros(n_cells, dtype=np.int64)
+    sum_x = np.zeros(n_cells)
+    sum_z = np.zeros(n_cells)
     keyframe_counts = np.zeros(n_cells, dtype=np.int64)
-    start = 0
-    for n in sizes.tolist():
-        if n:
-            keyframe_counts[np.unique(cell_of_point[start : start + n])] += 1
-            start += n
+    for kf in keyframes:
+        if kf.profile_xz_m.shape[0]:
+            world = kf.world_points_xz_m()
+            idx = np.searchsorted(cell_keys, keys_of(world))
+            np.add.at(point_counts, idx, 1)
+            np.add.at(sum_x, idx, world[:, 0])
+            np.add.at(sum_z, idx, world[:, 1])
+            keyframe_counts[np.unique(idx)] += 1
     keep = (keyframe_counts >= config.min_keyframes_per_cell) & (
         point_counts >= config.min_points_per_cell
     )
-    means = np.stack([sums[0][keep], sums[1][keep]], axis=1) / point_counts[keep, None]
+    means = np.stack([sum_x[keep], sum_z[keep]], axis=1) / point_counts[keep, None]
     return MapCells(
         points_xz_m=means,
         point_counts=point_counts[keep].astype(np.int64),

@@ -390,6 +390,18 @@ class Recording:
             index=i, timestamp_s=float(self.frame_timestamps_s[i]), depth_m=d, confidence=c
         )
 
+    def release_frame_pages(self) -> None:
+        """Hand back the resident pages of the depth and confidence maps now (as
+        :meth:`frame` does every ``RELEASE_EVERY_FRAMES`` frames); a replay calls it once it
+        has read its last frame, so that the up to ``RELEASE_EVERY_FRAMES`` frames read since
+        the last hand-back do not stay resident through the rest of the run. A no-op if no
+        frame was read."""
+        if "_depth" not in self.__dict__:  # (the cached maps were never opened)
+            return
+        depth, _, conf = self._depth
+        release_pages(depth)
+        release_pages(conf)
+
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[DepthFrame]:
         for i in range(start, self.num_frames if stop is None else min(stop, self.num_frames)):
             yield self.frame(i)

@@ -57,6 +57,8 @@ class BatchSmoother(KeyframeSmootherBase):
         self._first_velocity_index: int | None = None
         self._first_velocity_test = False
         self.first_velocity_relaxed = False
+        #: solves done again with QR (``batch_qr_fallback``: a Cholesky solve retried a step)
+        self.qr_fallbacks = 0
 
     def finish(self) -> None:
         """Flush the pending keyframe and solve the whole graph (timed in ``finish_s``)."""
@@ -78,6 +80,8 @@ class BatchSmoother(KeyframeSmootherBase):
                 log.warning("batch robust statistics unavailable: %s", exc)
         if self.first_velocity_relaxed:
             rep.metrics["batch_first_velocity_relaxed"] = True
+        if self.qr_fallbacks:
+            rep.metrics["batch_qr_fallbacks"] = self.qr_fallbacks
         return rep
 
     def _consume(self, u: KeyframeUpdate) -> None:
@@ -96,11 +100,7 @@ class BatchSmoother(KeyframeSmootherBase):
         self.flush()
         if self.initial.size() == 0:
             raise EstimationError("no keyframe to optimise")
-        params = gtsam.LevenbergMarquardtParams()
-        if self.config.batch_factorization == "QR":
-            params.setLinearSolverType("MULTIFRONTAL_QR")
-        params.setMaxIterations(self.config.batch_max_iterations)
-        params.setRelativeErrorTol(self.config.batch_relative_error_tol)
+        params = self._lm_params(self.config.batch_factorization)
         t0 = time.perf_counter()
         opt = self._optimize(params)
         if self._relax_first_velocity():  # the prior failed its test: solve again without it
@@ -110,10 +110,29 @@ class BatchSmoother(KeyframeSmootherBase):
         assert self._result is not None
         return self._result
 
+    def _lm_params(self, factorization: str) -> gtsam.LevenbergMarquardtParams:
+        """LM parameters of the configured batch solve with ``factorization`` (QR or
+        CHOLESKY, both multifrontal)."""
+        params = gtsam.LevenbergMarquardtParams()
+        params.setLinearSolverType(f"MULTIFRONTAL_{factorization}")
+        params.setMaxIterations(self.config.batch_max_iterations)
+        params.setRelativeErrorTol(self.config.batch_relative_error_tol)
+        return params
+
     def _optimize(
         self, params: gtsam.LevenbergMarquardtParams
     ) -> gtsam.LevenbergMarquardtOptimizer:
-        """LM over the whole graph from the initial values; the answer in ``_result``."""
+        """LM over the whole graph from the initial values; the answer in ``_result``. A
+        Cholesky solve that retried a step is done again with QR (``batch_qr_fallback``)."""
+        opt = self._run_lm(params)
+        cholesky = params.getLinearSolverType() == "MULTIFRONTAL_CHOLESKY"
+        if cholesky and self.config.batch_qr_fallback and not every_step_first_try(opt, params):
+            log.info("batch: an LM step was retried with Cholesky; solving again with QR")
+            self.qr_fallbacks += 1
+            opt = self._run_lm(self._lm_params("QR"))
+        return opt
+
+    def _run_lm(self, params: gtsam.LevenbergMarquardtParams) -> gtsam.LevenbergMarquardtOptimizer:
         opt = gtsam.LevenbergMarquardtOptimizer(self.graph, self.initial, params)
         try:
             self._result = opt.optimize()
@@ -167,6 +186,24 @@ class BatchSmoother(KeyframeSmootherBase):
                 )
             out.append(KeyframeEstimate(t, cam[[0, 2]], cov, R))
         return out
+
+
+def every_step_first_try(
+    opt: gtsam.LevenbergMarquardtOptimizer, params: gtsam.LevenbergMarquardtParams
+) -> bool:
+    """Whether every iteration of a finished LM run took its step at the first lambda it
+    tried. With a fixed lambda factor f, GTSAM divides lambda by f after an accepted step and
+    multiplies it by f after a rejected one (an error that did not decrease, or a linear
+    system it could not factorise), so n iterations without a retry leave lambda at
+    lambda_initial / f**n, and any retry leaves it at least f**2 times that (at least f
+    times if LM gave up at the last iteration)."""
+    if not params.getUseFixedLambdaFactor():
+        return False  # (lambda then also depends on the gain ratio: no such trace)
+    factor = params.getlambdaFactor()
+    expected = params.getlambdaInitial()
+    for _ in range(opt.iterations()):
+        expected = max(expected / factor, params.getlambdaLowerBound())
+    return bool(opt.lambda_() <= expected * np.sqrt(factor))
 
 
 def count_downweighted(

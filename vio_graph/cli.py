@@ -274,23 +274,21 @@ def demo(
     mode: Annotated[str, typer.Option(help="filter | smoother | batch | all.")] = "all",
 ) -> None:
     """Simulate the default upstair trial (embedded default data), run the estimator on it and
-    print the error table. Re-running reuses the simulated recording."""
+    print the error table. Re-running reuses the simulated recording if the simulator's code
+    is the same (vio_graph/sim/cache.py)."""
     from vio_graph.config import load_config
     from vio_graph.pipeline import run_recording
-    from vio_graph.recording import Recording
     from vio_graph.sim import load_scenario
-    from vio_graph.sim import simulate as run_simulation
+    from vio_graph.sim.cache import recording_is_current, simulate_cached
     from vio_graph.viz.progress import progress_bar
 
     rec_dir = out / f"recording_{scenario}_s{seed}"
-    if not rec_dir.exists():
-        config = load_scenario(scenario)
+    config = load_scenario(scenario)
+    if not recording_is_current(rec_dir, config, seed):  # (re)simulate: none, or another sim
         with progress_bar(
             total=None, desc=f"simulating {scenario} seed {seed}", unit="frame"
         ) as bar:
-            run_simulation(config, seed, rec_dir, progress=bar.update_to)
-    else:
-        Recording.open(rec_dir)  # validate the cached recording
+            simulate_cached(config, seed, rec_dir, progress=bar.update_to)
     typer.echo(f"recording   {rec_dir}")
     res_dir = out / "results"
     result = run_recording(

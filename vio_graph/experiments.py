@@ -52,12 +52,11 @@ class TrialRun:
 
 
 def _simulate_one(args: tuple[str, int, Path]) -> Path:
-    from vio_graph.sim import load_scenario, simulate
+    from vio_graph.sim import load_scenario
+    from vio_graph.sim.cache import simulate_cached
 
     scenario, seed, rec_dir = args
-    if not rec_dir.exists():
-        simulate(load_scenario(scenario), seed, rec_dir)
-    return rec_dir
+    return simulate_cached(load_scenario(scenario), seed, rec_dir)
 
 
 def _run_one(args: tuple[Path, Path, str, tuple[str, ...]]) -> dict[str, Any]:

@@ -106,15 +106,14 @@ def _slug(case: FaultCase) -> str:
 
 
 def _simulate_case(args: tuple[str, dict[str, Any], int, Path]) -> Path:
-    from vio_graph.sim import load_scenario, simulate
+    from vio_graph.sim import load_scenario
+    from vio_graph.sim.cache import simulate_cached
 
     scenario, faults, seed, out = args
-    if out.exists():
-        return out
     cfg = load_scenario(scenario)
     if faults:
         cfg = cfg.model_copy(update={"faults": cfg.faults.model_copy(update=faults)})
-    return simulate(cfg, seed, out)
+    return simulate_cached(cfg, seed, out)
 
 
 def run_sweep(

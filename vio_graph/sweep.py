@@ -370,31 +370,15 @@ class SweepTrial:
     results: Path
 
 
-def _recording_matches(rec_dir: Path, scenario_json: str) -> bool:
-    """True if ``rec_dir`` holds a complete recording simulated from this very scenario."""
-    from vio_graph.errors import VioGraphError
-    from vio_graph.recording import Recording
-
-    try:
-        prov = Recording.open(rec_dir).metadata.provenance
-    except (VioGraphError, OSError):
-        return False
-    return json.dumps(prov.config, sort_keys=True) == json.dumps(
-        json.loads(scenario_json), sort_keys=True
-    )
-
-
 def _trial_task(args: tuple[str, int, str, str, str, tuple[str, ...]]) -> dict[str, Any]:
     """Simulate (unless cached) and run one trial; returns its metrics (or an error)."""
     from vio_graph.pipeline import run_recording
-    from vio_graph.sim import simulate
+    from vio_graph.sim.cache import simulate_cached
 
     name, seed, rec, out, config_json, modes = args
     rec_dir, out_dir = Path(rec), Path(out)
     try:
-        scen = condition_scenario(condition_by_name(name))
-        if not _recording_matches(rec_dir, scen.model_dump_json()):
-            simulate(scen, seed, rec_dir, overwrite=True)
+        simulate_cached(condition_scenario(condition_by_name(name)), seed, rec_dir)
         cfg = PipelineConfig.model_validate_json(config_json)
         m = run_recording(
             rec_dir, out_dir, cfg, modes=modes, overwrite=True, visualize=False, progress=False

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-import vio_graph
 from vio_graph.geometry import invert_transform, make_transform, rot_x, rot_y, rot_z
 from vio_graph.recording.metadata import (
     FORMAT_VERSION,
@@ -24,6 +23,7 @@ from vio_graph.recording.metadata import (
 )
 from vio_graph.recording.streams import ContactTable, GroundTruth, ImuTable, JointTable
 from vio_graph.sim import faults as _faults
+from vio_graph.sim.cache import software_tag
 from vio_graph.sim.config import RigConfig, ScenarioConfig
 from vio_graph.sim.contact import simulate_contact
 from vio_graph.sim.gait import LegMotion, simulate_gait
@@ -257,7 +257,7 @@ def _metadata(
             seed=seed,
             # without a contact sensor the saved config is the same as before the section
             config=provenance_config(config),
-            software=f"vio_graph {vio_graph.__version__}",
+            software=software_tag(),
             created_utc=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             notes=notes,
         ),

@@ -365,6 +365,9 @@ def test_sagittal_slice_tables_equal_the_per_pixel_tests() -> None:
         reference = projection._sagittal_slice_reference(depth, conf, K, R, *args)
         assert fast.shape[0] > 0
         assert np.array_equal(fast, reference)
+        # the per-pixel mask (the camera-fixed test's candidates) holds exactly those pixels
+        mask = projection.slice_pixel_mask(depth, conf, K, *args)
+        assert int(np.count_nonzero(mask)) == fast.shape[0]
         full = projection.sagittal_slice(
             projection.depth_to_points_cam(depth, conf, K, args[1], args[2], args[3]), R, half_width
         )

@@ -20,7 +20,7 @@ from vio_graph.frontend.config import FrontendConfig
 from vio_graph.frontend.corners import CornerFeature, extract_corner
 from vio_graph.frontend.icp import IcpResult
 from vio_graph.frontend.noise import DepthNoiseTracker, level_residuals, robust_sigma
-from vio_graph.frontend.projection import sagittal_slice_from_depth
+from vio_graph.frontend.projection import sagittal_slice_from_depth, slice_pixel_mask
 from vio_graph.frontend.smoothing import smooth_profile
 from vio_graph.frontend.terrain import (
     classify_against_stand,
@@ -254,14 +254,15 @@ class VisualFrontend:
         pc, cf = self.config.projection, self.config.camera_fixed
         depth = np.asarray(frame.depth_m)
         K = np.asarray(K, dtype=float)
-        x_per_m = np.abs(np.arange(depth.shape[1]) - K[0, 2]) / K[0, 0]
-        with np.errstate(invalid="ignore"):
-            candidates = (
-                (frame.confidence >= pc.min_confidence)
-                & (depth > pc.min_depth_m)
-                & (depth < pc.max_depth_m)
-                & (depth * x_per_m[None, :] < pc.half_width_m)
-            )
+        candidates = slice_pixel_mask(
+            depth,
+            frame.confidence,
+            K,
+            pc.half_width_m,
+            pc.min_depth_m,
+            pc.max_depth_m,
+            pc.min_confidence,
+        )
         sigma = cf.depth_sigma_floor_m
         if np.isfinite(self.depth_noise_m):
             sigma = max(sigma, self.depth_noise_m)

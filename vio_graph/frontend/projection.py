@@ -41,6 +41,24 @@ def _valid_mask(
     return (confidence >= min_confidence) & (depth_m > min_depth_m) & (depth_m < max_depth_m)
 
 
+def slice_pixel_mask(
+    depth_m: NDArray,
+    confidence: NDArray[np.uint8],
+    K: NDArray[np.float64],
+    half_width_m: float,
+    min_depth_m: float,
+    max_depth_m: float,
+    min_confidence: int,
+) -> NDArray[np.bool_]:
+    """(H, W) the pixels eq. 1 keeps: valid (confidence, min < depth < max) and inside the
+    sagittal slab, depth * |u - c_x| / f_x < half_width_m (the tests of
+    :func:`sagittal_slice_from_depth`, per pixel)."""
+    x_per_m = np.abs(np.arange(np.shape(depth_m)[1]) - K[0, 2]) / K[0, 0]
+    with np.errstate(invalid="ignore"):
+        keep = _valid_mask(depth_m, confidence, min_depth_m, max_depth_m, min_confidence)
+        return keep & (depth_m * x_per_m[None, :] < half_width_m)
+
+
 def depth_to_points_cam(
     depth_m: NDArray[np.float32],
     confidence: NDArray[np.uint8],

@@ -15,6 +15,40 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 
+def _level_arrays(
+    points_xz_m: ArrayLike, level_z_m: ArrayLike, level_x_lo_m: ArrayLike, level_x_hi_m: ArrayLike
+) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """(N, 2) points and the levels' heights and x extents as float arrays."""
+    pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
+    z = np.asarray(level_z_m, dtype=float).ravel()
+    lo = np.asarray(level_x_lo_m, dtype=float).ravel()
+    hi = np.asarray(level_x_hi_m, dtype=float).ravel()
+    return pts, z, lo, hi
+
+
+def _beneath_levels(
+    x: NDArray, pz: NDArray, z: NDArray, lo: NDArray, hi: NDArray, margin_m: float, drop_m: float
+) -> NDArray[np.bool_]:
+    """(N,) points at least ``drop_m`` below a level and more than ``margin_m`` inside its x
+    extent on both sides."""
+    beneath = np.zeros(x.shape[0], dtype=bool)
+    for a in range(z.size):
+        beneath |= (x > lo[a] + margin_m) & (x < hi[a] - margin_m) & (pz < z[a] - drop_m)
+    return beneath
+
+
+def _lower_overlapping(
+    z: NDArray, lo: NDArray, hi: NDArray, a: int, margin_m: float, drop_m: float
+) -> list[int]:
+    """The levels B under level ``a``: at least ``drop_m`` lower and overlapping it in x by
+    more than ``margin_m``."""
+    return [
+        b
+        for b in range(z.size)
+        if b != a and z[b] < z[a] - drop_m and min(hi[a], hi[b]) - max(lo[a], lo[b]) > margin_m
+    ]
+
+
 def under_levels_mask(
     points_xz_m: ArrayLike,
     level_z_m: ArrayLike,
@@ -41,18 +75,12 @@ def under_levels_mask(
       under a flight of open-riser treads; its points up to A's ends go, a riser's points are
       on no such level).
     """
-    pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
-    z = np.asarray(level_z_m, dtype=float).ravel()
-    lo = np.asarray(level_x_lo_m, dtype=float).ravel()
-    hi = np.asarray(level_x_hi_m, dtype=float).ravel()
+    pts, z, lo, hi = _level_arrays(points_xz_m, level_z_m, level_x_lo_m, level_x_hi_m)
     x, pz = pts[:, 0], pts[:, 1]
-    under = np.zeros(pts.shape[0], dtype=bool)
+    under = _beneath_levels(x, pz, z, lo, hi, margin_m, drop_m)
     ahead = x > 1e-6
     slope = np.where(ahead, pz / np.where(ahead, x, 1.0), 0.0)
     for a in range(z.size):
-        a_lo, a_hi = lo[a] + margin_m, hi[a] - margin_m
-        if a_hi > a_lo:
-            under |= (x > a_lo) & (x < a_hi) & (pz < z[a] - drop_m)
         if sight_margin_m is not None and hi[a] - lo[a] > 2 * sight_margin_m:
             # the lowest point of the line of sight over A's inner extent (straight from the
             # camera to the point): at the nearer of A's inner far end and the point
@@ -64,10 +92,8 @@ def under_levels_mask(
         inside = (pz < z[a] - drop_m) & (x >= lo[a]) & (x <= hi[a])
         if not inside.any():
             continue
-        for b in range(z.size):
-            overlap = min(hi[a], hi[b]) - max(lo[a], lo[b])
-            if b != a and z[b] < z[a] - drop_m and overlap > margin_m:
-                under |= inside & (np.abs(pz - z[b]) <= band_m)
+        for b in _lower_overlapping(z, lo, hi, a, margin_m, drop_m):
+            under |= inside & (np.abs(pz - z[b]) <= band_m)
     return under
 
 
@@ -124,21 +150,12 @@ def floor_beyond_slab_mask(
     hides the floor under its top; on a descent the floor nearer than the lowest tread lies
     under the treads above it, so neither gives such points.
     """
-    pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
-    z = np.asarray(level_z_m, dtype=float).ravel()
-    lo = np.asarray(level_x_lo_m, dtype=float).ravel()
-    hi = np.asarray(level_x_hi_m, dtype=float).ravel()
+    pts, z, lo, hi = _level_arrays(points_xz_m, level_z_m, level_x_lo_m, level_x_hi_m)
     x, pz = pts[:, 0], pts[:, 1]
     out = np.zeros(pts.shape[0], dtype=bool)
-    # beneath a level: more than margin_m inside its extent and drop_m below it
-    beneath = np.zeros(pts.shape[0], dtype=bool)
+    beneath = _beneath_levels(x, pz, z, lo, hi, margin_m, drop_m)
     for a in range(z.size):
-        beneath |= (x > lo[a] + margin_m) & (x < hi[a] - margin_m) & (pz < z[a] - drop_m)
-    for a in range(z.size):
-        for b in range(z.size):
-            overlap = min(hi[a], hi[b]) - max(lo[a], lo[b])
-            if b == a or z[b] >= z[a] - drop_m or overlap <= margin_m:
-                continue
+        for b in _lower_overlapping(z, lo, hi, a, margin_m, drop_m):
             on_b = np.abs(pz - z[b]) <= band_m
             in_front = on_b & (x < lo[a]) & ~beneath
             if int(in_front.sum()) >= min_points:

@@ -278,8 +278,8 @@ def demo(
     is the same (vio_graph/sim/cache.py)."""
     from vio_graph.config import load_config
     from vio_graph.pipeline import run_recording
-    from vio_graph.sim import load_scenario
-    from vio_graph.sim.cache import recording_is_current, simulate_cached
+    from vio_graph.sim import load_scenario, simulate
+    from vio_graph.sim.cache import recording_is_current
     from vio_graph.viz.progress import progress_bar
 
     rec_dir = out / f"recording_{scenario}_s{seed}"
@@ -288,7 +288,7 @@ def demo(
         with progress_bar(
             total=None, desc=f"simulating {scenario} seed {seed}", unit="frame"
         ) as bar:
-            simulate_cached(config, seed, rec_dir, progress=bar.update_to)
+            simulate(config, seed, rec_dir, progress=bar.update_to, overwrite=True)
     typer.echo(f"recording   {rec_dir}")
     res_dir = out / "results"
     result = run_recording(

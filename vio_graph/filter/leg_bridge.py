@@ -43,6 +43,10 @@ class BridgeObservation:
     timestamp_s: float
     velocity_xz_mps: NDArray[np.float64]
     cov: NDArray[np.float64]
+    #: the same as a change (m/s) from the velocity at the stretch's start to now, and its
+    #: covariance without the filter's own velocity covariance at the start ((m/s)^2)
+    change_xz_mps: NDArray[np.float64] | None = None
+    change_cov: NDArray[np.float64] | None = None
 
 
 def _rot_deriv(theta: float, u: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -112,6 +116,11 @@ class LegChainBridge:
         """True while a stretch is open or waits for its joints."""
         return self._start is not None or self._pending is not None
 
+    @property
+    def opened(self) -> bool:
+        """True while a stretch is open (a saturated sample since the last trusted one)."""
+        return self._start is not None
+
     def before_saturated(
         self, t_s: float, velocity_xz_mps: ArrayLike, cov_velocity: ArrayLike
     ) -> None:
@@ -170,8 +179,8 @@ class LegChainBridge:
         self._pending = None
         corrected = np.asarray(corrections_now_mps, float) - c2
         since = np.asarray(velocity_now_xz_mps, float) - v2 - corrected
-        v = v0 + (k2 - k0) + since
+        change = (k2 - k0) + since
         hip = self._a_sig * (t2 - t0)
-        cov = P0 + np.eye(2) * (hip**2 + self._r_sig**2)
+        change_cov = np.eye(2) * (hip**2 + self._r_sig**2)
         self.n_observations += 1
-        return BridgeObservation(self._now_s, v, cov)
+        return BridgeObservation(self._now_s, v0 + change, P0 + change_cov, change, change_cov)

@@ -17,9 +17,13 @@ change (:meth:`LegChainBridge.observation`). The foot is no help here: at the cl
 the simulated toe and heel both move at 0.6-4.6 m/s (the push-off clips after toe-off), so a
 foot-contact constraint does not hold.
 
-The observation's noise is honest: the filter's velocity covariance before the stretch plus
-the hip's change (``hip_accel_sigma_mps2`` times the stretch's length) and the encoders'
-rate noise (``rate_sigma_mps``) on each axis; the filter gates it with its chi-square test, so
+The observation's noise is honest: the hip's change (``hip_accel_sigma_mps2`` times the
+stretch's length) and the encoders' rate noise (``rate_sigma_mps``) on each axis. The filter
+fuses it as the change it is (``BridgeObservation.change_xz_mps``, against a copy of its
+velocity at the stretch's start: ``SagittalEskf.update_velocity_change``), so its own error
+from before the stretch is not counted again; as a velocity (``velocity_xz_mps``, for the
+smoothers' prior and ``saturation_bridge_relative: false``) the noise also holds the filter's
+velocity covariance before the stretch. The filter gates it with its chi-square test, so
 vision, the saturation prior and the chain arbitrate. It acts only across a stretch the fault
 monitor flagged as saturated: a clean recording never opens one.
 """

@@ -49,8 +49,8 @@ class BridgeObservation:
     cov: NDArray[np.float64]
     #: the same as a change (m/s) from the velocity at the stretch's start to now, and its
     #: covariance without the filter's own velocity covariance at the start ((m/s)^2)
-    change_xz_mps: NDArray[np.float64] | None = None
-    change_cov: NDArray[np.float64] | None = None
+    change_xz_mps: NDArray[np.float64]
+    change_cov: NDArray[np.float64]
 
 
 def _rot_deriv(theta: float, u: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -7,8 +7,11 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import V
 
+from vio_graph.filter.config import FilterConfig, ImuFaultConfig
+from vio_graph.filter.eskf import SagittalEskf
+from vio_graph.filter.imu_faults import ImuFaultMonitor
 from vio_graph.filter.leg_bridge import LegChainBridge, chain_velocity_xz
-from vio_graph.geometry import rotate_xz
+from vio_graph.geometry import GRAVITY_MPS2, rotate_xz
 from vio_graph.smoother.config import FactorFamilies, SmootherConfig
 from vio_graph.smoother.graph import KeyframeGraphBuilder
 from vio_graph.smoother.synthetic import make_swinging_shank_trial
@@ -84,6 +87,11 @@ def test_bridge_restores_the_velocity_a_clipped_stretch_lost() -> None:
     # window: the last trusted sample before (0.42 s) to the first after (0.48 s)
     expected_var = 0.02**2 + (3.0 * 0.06) ** 2 + 0.1**2
     np.testing.assert_allclose(obs.cov, np.eye(2) * expected_var, atol=1e-12)
+    # the same as a change from the velocity before the stretch (0.42 s), without the
+    # filter's own covariance there
+    true_change = _true_rel_velocity(0.48) - _true_rel_velocity(0.42)
+    np.testing.assert_allclose(obs.change_xz_mps, true_change, atol=0.01)
+    np.testing.assert_allclose(obs.change_cov, np.eye(2) * (expected_var - 0.02**2), atol=1e-12)
 
 
 def test_bridge_does_nothing_without_saturation() -> None:
@@ -135,3 +143,67 @@ def test_smoothers_put_the_bridge_velocity_on_the_keyframe() -> None:
             expected = np.r_[v_cam[0], 0.0, v_cam[1]] - np.cross([0.0, 3.0, 0.0], T[:3, 3])
             np.testing.assert_allclose(priors[0], expected, atol=1e-9)
     assert counts == {True: 1, False: 0}
+
+
+def _two_bridged_stretches(relative: bool) -> tuple[list[float], float, float]:
+    """A level IMU (z up) whose filter starts at rest while the truth moves at 0.1 m/s
+    (sigma 0.1 m/s: the velocity error is correlated with the position it drifts). Two
+    3-sample pulses (+-60/70/60 m/s^2 against a 40 m/s^2 range, 0.7 m/s each) are clipped;
+    after each the chain observes the true velocity change to 0.05 m/s, then a still foot
+    gives the true velocity (three observations, 0.02 m/s). Returns the filter's x velocity
+    error after each bridge and its x velocity and position errors after the stance."""
+    h, rng_ = 0.01, 40.0
+    mon = ImuFaultMonitor(ImuFaultConfig(), accel_range_mps2=rng_, gyro_range_radps=35.0)
+    f = SagittalEskf(FilterConfig(integration="zoh", init_velocity_sigma_mps=0.1))
+    f.initialise(0.0, (0.0, 0.0))
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    push = [60.0, 70.0, 60.0]
+    profile = [0.0] * 10 + push + [0.0] * 20 + [-a for a in push] + [0.0] * 20
+    stretch_end = {10: 12, 33: 35}  # first clipped sample -> last
+    true_x, true_v, t = 0.0, 0.1, 0.0
+    end, v_start, P_start, true_v0 = -1, np.zeros(2), np.eye(2), 0.0
+    after_bridge = []
+    cov = np.eye(2) * 0.05**2
+    for k, a_true in enumerate(profile):
+        if k in stretch_end:
+            _, _, v_start = f.position_velocity()
+            P_start, true_v0, end = f.cov_velocity_m2ps2(), true_v, stretch_end[k] + 1
+            if relative:
+                f.clone_velocity()
+        t += h
+        true_x += true_v * h + 0.5 * a_true * h**2
+        true_v += a_true * h
+        f.propagate(
+            mon.process(
+                ImuSample(t, np.array([np.clip(a_true, -rng_, rng_), 0.0, GRAVITY_MPS2]),
+                          np.zeros(3), q)
+            )
+        )  # fmt: skip
+        if k == end:  # the first trusted sample after the stretch closes it
+            change = np.array([true_v - true_v0, 0.0])
+            if relative:
+                assert f.update_velocity_change(change, cov)
+                assert not f.has_velocity_clone
+            else:
+                assert f.update_velocity(v_start + change, P_start + cov)
+            after_bridge.append(float(f.position_velocity()[2][0] - true_v))
+    for _ in range(3):
+        f.update_velocity((true_v, 0.0), np.eye(2) * 0.02**2)
+    _, p, v = f.position_velocity()
+    return after_bridge, float(v[0] - true_v), float(p[0] - true_x)
+
+
+def test_relative_bridge_keeps_the_velocity_error_from_before_the_stretch() -> None:
+    """The chain measures the change across a stretch, not the velocity before it. As a
+    change against a copy of the filter's velocity (``saturation_bridge_relative``) the
+    clip's loss is restored and the filter's earlier error (-0.1 m/s) is left as it was,
+    still correlated with the position it drifted: the stance then takes the position back
+    to about a centimetre. As a velocity with the filter's own covariance at the start, the
+    filter's estimate counts twice: each bridge pulls the velocity by a fraction of the
+    clip's loss and shrinks the variance, the stance's correction stays in the velocity,
+    and 4 cm of the 6 cm drift remain."""
+    after, v_err, p_err = _two_bridged_stretches(relative=True)
+    np.testing.assert_allclose(after, [-0.1, -0.1], atol=0.005)
+    assert abs(v_err) < 0.002 and abs(p_err) < 0.015
+    after, v_err, p_err = _two_bridged_stretches(relative=False)
+    assert abs(v_err) < 0.002 and p_err < -0.035

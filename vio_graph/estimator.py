@@ -1204,9 +1204,12 @@ class OnlineEstimator:
         velocity is fused, gated (filter/leg_bridge.py). Nothing is done on a clean stream
         beyond the test of the sample's mark."""
         filt = self.filter
+        fi = self.config.filter.imu_faults
         saturated = _saturated(s)
         if saturated:
             t, _, v = filt.position_velocity()
+            if fi.saturation_bridge_relative and not bridge.opened:
+                filt.clone_velocity()  # the start of the change the chain will observe
             bridge.before_saturated(t, v, filt.cov_velocity_m2ps2())
             self._bridge_carry = None  # its IMU-only carry would cross this stretch
         filt.propagate(s)
@@ -1216,12 +1219,21 @@ class OnlineEstimator:
         bridge.after_trusted(t, v, filt.velocity_corrections_mps)
         obs = bridge.observation(self._joint_hist, v, filt.velocity_corrections_mps)
         if obs is not None:
-            gate = self.config.filter.imu_faults.saturation_bridge_gate
             before = (v, filt.velocity_corrections_mps.copy())
-            if filt.update_velocity(obs.velocity_xz_mps, obs.cov, obs.timestamp_s, gate):
+            if fi.saturation_bridge_relative and filt.has_velocity_clone:
+                fused = filt.update_velocity_change(
+                    obs.change_xz_mps, obs.change_cov, fi.saturation_bridge_gate
+                )
+            else:
+                fused = filt.update_velocity(
+                    obs.velocity_xz_mps, obs.cov, obs.timestamp_s, fi.saturation_bridge_gate
+                )
+            if fused:
                 self.n_bridge_fused += 1
                 # for the smoothers, at the next keyframe (process_frame)
                 self._bridge_carry = (obs.velocity_xz_mps, obs.cov, *before)
+        if not bridge.active:
+            filt.drop_velocity_clone()  # observed, or given up (no joints in time)
 
     def _start_filter_at(self, t_s: float) -> None:
         """Start the filter at the first frame's time (``filter.start_at_first_frame``): the

@@ -197,6 +197,15 @@ class ImuFaultConfig(BaseModel):
         description="chi-square gate the bridge's observation (the filter's gate "
         "probability): vision, the saturation prior and the chain arbitrate",
     )
+    saturation_bridge_relative: bool = Field(
+        default=True,
+        description="fuse the bridge as what it measures, the velocity change across the "
+        "stretch, against a copy of the filter's velocity at the stretch's start (stochastic "
+        "cloning; filter/eskf.py update_velocity_change) instead of as a velocity whose "
+        "covariance includes the filter's own at the start: the filter's velocity error from "
+        "before the stretch is not counted again as new information, and keeps its "
+        "correlation with the position for the next stance or frame",
+    )
     gyro_ahrs_test: bool = Field(
         default=True,
         description="test each gyro sample against the rate of the vendor orientation (two "

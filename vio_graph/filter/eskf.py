@@ -89,6 +89,9 @@ _CLONE_TOL_S = 1e-3  # a displacement's t0 must match the clone time to 1 ms
 _CLONE = "clone"  # key of the stochastic clone among the augmented blocks (else LandmarkKey)
 #: key of the slice's tilt error while one frame's level surfaces are fused (never propagated)
 _TILT = "tilt"
+#: key of the velocity clone across a saturated stretch (leg-chain bridge, relative form)
+_VCLONE = "velocity_clone"
+_NOT_LANDMARKS = (_CLONE, _TILT, _VCLONE)
 _I2 = np.eye(2)
 #: variance (m^2) of a height landmark's x: a copy of the camera x that nothing observes
 _FREE_X_VAR_M2 = 1.0
@@ -991,6 +994,50 @@ class SagittalEskf:
             self._record_correction(t)
         return accepted
 
+    def clone_velocity(self) -> None:
+        """Augment the state with a copy of the current velocity (m/s), replacing any previous
+        one: the start of a velocity change that :meth:`update_velocity_change` observes. The
+        copy is static (propagation leaves it) and shares the velocity's error, so its
+        correlation with the position and the rest is kept."""
+        self._require_init()
+        self._marginalise(_VCLONE)
+        J = np.zeros((2, self._P.shape[0]))
+        J[:, 2:4] = _I2
+        self._augment_rows(_VCLONE, self._x[2:4].copy(), J, np.zeros((2, 2)))
+
+    @property
+    def has_velocity_clone(self) -> bool:
+        """True while a velocity copy (:meth:`clone_velocity`) is in the state."""
+        return _VCLONE in self._aug_xz
+
+    def drop_velocity_clone(self) -> None:
+        """Marginalise the velocity copy out of the state (no-op without one)."""
+        self._marginalise(_VCLONE)
+
+    def update_velocity_change(
+        self, dv_xz_mps: ArrayLike, cov: ArrayLike, gate: bool = True
+    ) -> bool:
+        """Fuse an observation of the velocity change (m/s, ground x-z) from the copy of
+        :meth:`clone_velocity` to now, covariance ``cov`` ((m/s)^2): z = v - v_clone,
+        H = [0 I 0 .. -I]. Unlike an observation of the velocity itself built from the
+        filter's own velocity at the copy's time, it does not count that velocity's error
+        as new information, so the position-velocity correlation the error carries stays for
+        the next absolute measurement. The copy is dropped afterwards. Returns True if fused;
+        False if gated out or there is no copy."""
+        self._require_init()
+        if _VCLONE not in self._aug_xz:
+            return False
+        i = self._aug_index(_VCLONE)
+        H = np.zeros((2, self._P.shape[0]))
+        H[:, 2:4] = _I2
+        H[:, i : i + 2] = -_I2
+        innovation = _vec2(dv_xz_mps) - (self._x[2:4] - self._aug_xz[_VCLONE])
+        accepted = self._correct(innovation, H, _cov2(cov), gate, landmark=True)
+        if accepted:
+            self._record_correction(self._t_s)
+        self._marginalise(_VCLONE)
+        return accepted
+
     def _measurement_time(self, timestamp_s: float | None) -> tuple[float, float] | None:
         """(t, t - t_state) of a measurement at ``timestamp_s`` (None: now), or None (counted
         as stale) if it is further than ``max_time_mismatch_s`` from the state."""
@@ -1004,14 +1051,14 @@ class SagittalEskf:
 
     def drop_landmark(self, key: LandmarkKey) -> None:
         """Forget landmark ``key`` (marginalise it out of the state); no-op if unknown."""
-        if key in (_CLONE, _TILT):
+        if key in _NOT_LANDMARKS:
             raise EstimationError(f"{key!r} is not a landmark")
         self._marginalise(key)
 
     @property
     def landmark_keys(self) -> tuple[LandmarkKey, ...]:
         """Keys of the landmarks currently in the state."""
-        return tuple(k for k in self._aug_keys if k not in (_CLONE, _TILT))  # type: ignore[misc]
+        return tuple(k for k in self._aug_keys if k not in _NOT_LANDMARKS)  # type: ignore[misc]
 
     def landmark_keys_of_kind(self, kind: str) -> list[LandmarkKey]:
         """Keys of the landmarks of ``kind`` ("corner", "ankle", "level") in the state, in
@@ -1020,11 +1067,11 @@ class SagittalEskf:
 
     def has_landmark(self, key: LandmarkKey) -> bool:
         """True if landmark ``key`` is in the state (``key in landmark_keys``, one lookup)."""
-        return key in self._aug_xz and key not in (_CLONE, _TILT)
+        return key in self._aug_xz and key not in _NOT_LANDMARKS
 
     def landmark_xz(self, key: LandmarkKey) -> NDArray[np.float64]:
         """Current estimate (m) of landmark ``key``."""
-        if key in (_CLONE, _TILT) or key not in self._aug_xz:
+        if key in _NOT_LANDMARKS or key not in self._aug_xz:
             raise EstimationError(f"unknown landmark {key!r}")
         return self._aug_xz[key].copy()
 

@@ -17,9 +17,13 @@ change (:meth:`LegChainBridge.observation`). The foot is no help here: at the cl
 the simulated toe and heel both move at 0.6-4.6 m/s (the push-off clips after toe-off), so a
 foot-contact constraint does not hold.
 
-The observation's noise is honest: the filter's velocity covariance before the stretch plus
-the hip's change (``hip_accel_sigma_mps2`` times the stretch's length) and the encoders'
-rate noise (``rate_sigma_mps``) on each axis; the filter gates it with its chi-square test, so
+The observation's noise is honest: the hip's change (``hip_accel_sigma_mps2`` times the
+stretch's length) and the encoders' rate noise (``rate_sigma_mps``) on each axis. The filter
+fuses it as the change it is (``BridgeObservation.change_xz_mps``, against a copy of its
+velocity at the stretch's start: ``SagittalEskf.update_velocity_change``), so its own error
+from before the stretch is not counted again; as a velocity (``velocity_xz_mps``, for the
+smoothers' prior and ``saturation_bridge_relative: false``) the noise also holds the filter's
+velocity covariance before the stretch. The filter gates it with its chi-square test, so
 vision, the saturation prior and the chain arbitrate. It acts only across a stretch the fault
 monitor flagged as saturated: a clean recording never opens one.
 """
@@ -43,6 +47,10 @@ class BridgeObservation:
     timestamp_s: float
     velocity_xz_mps: NDArray[np.float64]
     cov: NDArray[np.float64]
+    #: the same as a change (m/s) from the velocity at the stretch's start to now, and its
+    #: covariance without the filter's own velocity covariance at the start ((m/s)^2)
+    change_xz_mps: NDArray[np.float64]
+    change_cov: NDArray[np.float64]
 
 
 def _rot_deriv(theta: float, u: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -112,6 +120,11 @@ class LegChainBridge:
         """True while a stretch is open or waits for its joints."""
         return self._start is not None or self._pending is not None
 
+    @property
+    def opened(self) -> bool:
+        """True while a stretch is open (a saturated sample since the last trusted one)."""
+        return self._start is not None
+
     def before_saturated(
         self, t_s: float, velocity_xz_mps: ArrayLike, cov_velocity: ArrayLike
     ) -> None:
@@ -170,8 +183,8 @@ class LegChainBridge:
         self._pending = None
         corrected = np.asarray(corrections_now_mps, float) - c2
         since = np.asarray(velocity_now_xz_mps, float) - v2 - corrected
-        v = v0 + (k2 - k0) + since
+        change = (k2 - k0) + since
         hip = self._a_sig * (t2 - t0)
-        cov = P0 + np.eye(2) * (hip**2 + self._r_sig**2)
+        change_cov = np.eye(2) * (hip**2 + self._r_sig**2)
         self.n_observations += 1
-        return BridgeObservation(self._now_s, v, cov)
+        return BridgeObservation(self._now_s, v0 + change, P0 + change_cov, change, change_cov)

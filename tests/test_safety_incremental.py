@@ -112,7 +112,7 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
     inc = IncrementalHeightMap(0.005, 3, **kw)
     comp = IncrementalHeightMap(0.005, 3, kernels=_compiled(), **kw)
     xs = [*np.arange(-0.8, 3.5, 0.03), *np.arange(3.5, 0.5, -0.05), 4.5, -1.5, 1.0]
-    n_edges = n_contacts = 0
+    n_edges = n_contacts = n_gaps = 0
     for x0 in xs:
         P = np.diag(rng.uniform(1e-6, 1e-4, 2))
         prof = _keyframe_profile(rng, stairs, float(x0))
@@ -144,6 +144,13 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
                 np.testing.assert_allclose(getattr(w_comp.profile, name), a, rtol=0, atol=TOL_M)
             np.testing.assert_array_equal(w_inc.bins, w_ref.bins)
             np.testing.assert_array_equal(w_comp.bins, w_ref.bins)
+            # the compiled early answer of the gap check: a strip to fill exactly when
+            # gap_terrain finds floors (numpy: always "ask gap_terrain")
+            max_gap = float(rng.choice([0.02, 0.15]))
+            floors = clearance.gap_terrain(w_ref.profile, w_ref.bins, max_gap)[0]
+            assert comp.bridged_gap(lo, hi, max_gap) == (len(floors) > 0)
+            n_gaps += len(floors) > 0
+            assert inc.bridged_gap(lo, hi, max_gap)
             for b in w_ref.bins[:3]:
                 np.testing.assert_array_equal(inc.bin_cov_at(b), ref.bin_cov_at(b))
                 assert inc.bin_sigma(b, 0.003) == ref.bin_sigma(b, 0.003)
@@ -151,6 +158,7 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
             assert inc.bin_below(x) == ref.bin_below(x) == comp.bin_below(x)
     assert n_edges >= 10  # the stairs' edges were found, up and down
     assert agreement is None or n_contacts >= 20  # contacts lowered bins
+    assert n_gaps >= 5  # windows with strips to fill were checked
 
 
 def _random_case(rng: np.random.Generator):
@@ -330,8 +338,8 @@ def test_fused_warm_up_loads_the_kernels_a_fused_monitor_calls() -> None:
     loaded = json.loads(out.stdout.strip().splitlines()[-1])
     for name in (
         "keyframe_step", "frame_terrain", "swing_prediction", "cv_prediction",
-        "swing_edge_risk", "_foot_clearance", "window_bins", "template_motion",
-        "rescan_edges",  # (a standing foot's contact lowering map bins)
+        "swing_edge_risk", "_foot_clearance", "window_bins", "window_bridged_gap",
+        "template_motion", "rescan_edges",  # (a standing foot's contact lowering map bins)
     ):  # fmt: skip
         assert loaded[name], name
     for name in ("consistency_squares", "add_tops", "keyframe_tops", "_coverage"):

@@ -686,6 +686,27 @@ def window_bins(used, mid, se2, a0, a1, i0, bin_m, x_min, x_max, map_sigma):  # 
     return lo, hi, z, sig, bins
 
 
+@numba.njit(cache=True)
+def window_bridged_gap(used, i0, bin_m, a0, a1, x_min, x_max, max_gap):  # pragma: no cover
+    """Whether the used bins among array elements [a0, a1) overlapping [x_min, x_max] (the
+    bins :func:`window_bins` returns) leave a strip between two consecutive ones wider than
+    ``UNSEEN_TOLERANCE_M`` and at most ``max_gap`` wide: the strips clearance.gap_terrain
+    turns into floors and risers (none: it returns nothing). The same x_lo / x_hi floats as
+    :func:`window_bins`, without building the window."""
+    prev_hi = np.nan
+    for e in range(a0, a1):
+        if used[e]:
+            x_lo = (e + i0) * bin_m
+            x_hi = x_lo + bin_m
+            if x_hi >= x_min and x_lo <= x_max:
+                if prev_hi == prev_hi:
+                    gap = x_lo - prev_hi
+                    if gap > UNSEEN_TOLERANCE_M and gap <= max_gap:
+                        return True
+                prev_hi = x_hi
+    return False
+
+
 # ---------------------------------------------------------------------------------------------
 # the keyframe consistency test
 
@@ -1257,11 +1278,11 @@ def warm_up(fused: bool = False) -> None:
     ``fused``: only the kernels a fused monitor (``SafetyMonitor(fused=True)``, the default)
     calls frame by frame: the fused steps (``keyframe_step``, ``frame_terrain``,
     ``swing_prediction``, ``cv_prediction``, ``swing_edge_risk``) and ``foot_clearance``,
-    ``window_bins``, ``template_motion``, ``rescan_edges`` (a standing foot's contact lowering
-    map bins, height_map.IncrementalHeightMap.add_contact). The kernels of the single
-    operations, which it reaches only on rare branches (a non-finite camera), load at their
-    first call instead of costing every process ~0.15-0.2 s of CPU. Otherwise every
-    kernel."""
+    ``window_bins``, ``window_bridged_gap``, ``template_motion``, ``rescan_edges`` (a
+    standing foot's contact lowering map bins, height_map.IncrementalHeightMap.add_contact).
+    The kernels of the single operations, which it reaches only on rare branches (a
+    non-finite camera), load at their first call instead of costing every process
+    ~0.15-0.2 s of CPU. Otherwise every kernel."""
     prof = HeightProfile(
         np.array([0.0, 0.005, 0.01]), np.array([0.005, 0.01, 0.015]), np.zeros(3), np.zeros(3)
     )
@@ -1287,6 +1308,7 @@ def warm_up(fused: bool = False) -> None:
             ), 0.01,
         )  # fmt: skip
     window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
+    window_bridged_gap(used, 0, 0.005, 0, 3, 0.0, 0.01, 0.15)
     phase = np.array([0.0, 0.1, 0.2])
     template_motion(0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]))
     rescan_edges(

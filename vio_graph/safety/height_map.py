@@ -502,14 +502,35 @@ class IncrementalHeightMap(OnlineHeightMap):
         self._profile = None
         self.version += 1
 
+    def _elements(self, x_min_m: float, x_max_m: float) -> tuple[int, int]:
+        """The array elements [a0, a1) holding every bin that overlaps [x_min_m, x_max_m]
+        (finite): bins beyond them lie a bin or more outside the range."""
+        b = self.bin_m
+        n = self._n.shape[0]
+        a0 = min(max(math.floor(x_min_m / b) - 2 - self._i0, 0), n)
+        a1 = min(max(math.floor(x_max_m / b) + 3 - self._i0, a0), n)
+        return a0, a1
+
+    def bridged_gap(self, x_min_m: float, x_max_m: float, max_gap_m: float) -> bool:
+        """Whether the window over [x_min_m, x_max_m] (:meth:`window`) may hold a strip
+        that :func:`~vio_graph.safety.clearance.gap_terrain` fills (a gap between consecutive
+        bins wider than its tolerance and at most ``max_gap_m``): answered by the compiled
+        kernel without building the window; True (ask gap_terrain) without the kernels or
+        for a range that is not finite."""
+        if self._kernels is None or not (math.isfinite(x_min_m) and math.isfinite(x_max_m)):
+            return True
+        a0, a1 = self._elements(x_min_m, x_max_m)
+        return bool(
+            self._kernels.window_bridged_gap(
+                self._used, self._i0, self.bin_m, a0, a1, x_min_m, x_max_m, max_gap_m
+            )
+        )
+
     def window(self, x_min_m: float, x_max_m: float, map_sigma_m: float) -> MapWindow:
         if not (math.isfinite(x_min_m) and math.isfinite(x_max_m)):
             return super().window(x_min_m, x_max_m, map_sigma_m)
         b = self.bin_m
-        n = self._n.shape[0]
-        # bins beyond these indices lie a bin or more outside the range
-        a0 = min(max(math.floor(x_min_m / b) - 2 - self._i0, 0), n)
-        a1 = min(max(math.floor(x_max_m / b) + 3 - self._i0, a0), n)
+        a0, a1 = self._elements(x_min_m, x_max_m)
         if self._kernels is not None:
             lo, hi, z, sig, bins = self._kernels.window_bins(
                 self._used, self._mid, self._se2, a0, a1, self._i0, b, x_min_m, x_max_m, map_sigma_m

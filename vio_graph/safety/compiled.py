@@ -707,6 +707,44 @@ def window_bridged_gap(used, i0, bin_m, a0, a1, x_min, x_max, max_gap):  # pragm
     return False
 
 
+@numba.njit(cache=True)
+def observe_errors(t, h, poses, t0, f0, t1, f1, sums, counts):  # pragma: no cover - compiled
+    """prediction_error.PredictionErrors.observe after its early returns, in one call: the
+    kept instants t[r] + h[s] in (t0, t1] scored against the foot interpolated between the
+    frames (``f0`` at ``t0``, ``f1`` at ``t1``; heel x, z, toe x, z), row by row (np.nonzero's
+    order), their squared errors summed per step from zero and then added to ``sums`` (as
+    np.bincount and ``+=``), the counts to ``counts``; the rows whose last instant has passed
+    get time NaN. In place; returns (any instant scored, rows dropped)."""
+    R, n = poses.shape[0], poses.shape[1]
+    part = np.zeros(n)
+    cnt = np.zeros(n)
+    scored = False
+    dropped = 0
+    span = t1 - t0
+    for r in range(R):
+        for s in range(n):
+            tt = t[r] + h[s]
+            if tt > t0 and tt <= t1:
+                w = (tt - t0) / span
+                d0 = poses[r, s, 0] - (f0[0] + w * (f1[0] - f0[0]))
+                d1 = poses[r, s, 1] - (f0[1] + w * (f1[1] - f0[1]))
+                d2 = poses[r, s, 2] - (f0[2] + w * (f1[2] - f0[2]))
+                d3 = poses[r, s, 3] - (f0[3] + w * (f1[3] - f0[3]))
+                a, b = d0**2 + d1**2, d2**2 + d3**2
+                part[s] += a if a >= b or a != a else b  # (np.maximum: NaN propagates)
+                cnt[s] += 1.0
+                scored = True
+    if scored:
+        for s in range(n):
+            sums[s] += part[s]
+            counts[s] += cnt[s]
+    for r in range(R):
+        if t[r] + h[n - 1] <= t1:
+            t[r] = np.nan
+            dropped += 1
+    return scored, dropped
+
+
 # ---------------------------------------------------------------------------------------------
 # the keyframe consistency test
 
@@ -1278,11 +1316,11 @@ def warm_up(fused: bool = False) -> None:
     ``fused``: only the kernels a fused monitor (``SafetyMonitor(fused=True)``, the default)
     calls frame by frame: the fused steps (``keyframe_step``, ``frame_terrain``,
     ``swing_prediction``, ``cv_prediction``, ``swing_edge_risk``) and ``foot_clearance``,
-    ``window_bins``, ``window_bridged_gap``, ``template_motion``, ``rescan_edges`` (a
-    standing foot's contact lowering map bins, height_map.IncrementalHeightMap.add_contact).
-    The kernels of the single operations, which it reaches only on rare branches (a
-    non-finite camera), load at their first call instead of costing every process
-    ~0.15-0.2 s of CPU. Otherwise every kernel."""
+    ``window_bins``, ``window_bridged_gap``, ``observe_errors``, ``template_motion``,
+    ``rescan_edges`` (a standing foot's contact lowering map bins,
+    height_map.IncrementalHeightMap.add_contact). The kernels of the single operations,
+    which it reaches only on rare branches (a non-finite camera), load at their first call
+    instead of costing every process ~0.15-0.2 s of CPU. Otherwise every kernel."""
     prof = HeightProfile(
         np.array([0.0, 0.005, 0.01]), np.array([0.005, 0.01, 0.015]), np.zeros(3), np.zeros(3)
     )
@@ -1309,6 +1347,10 @@ def warm_up(fused: bool = False) -> None:
         )  # fmt: skip
     window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
     window_bridged_gap(used, 0, 0.005, 0, 3, 0.0, 0.01, 0.15)
+    observe_errors(
+        np.full(2, np.nan), np.zeros(3), np.zeros((2, 3, 4)), 0.0, np.zeros(4), 0.1,
+        np.zeros(4), np.zeros(3), np.zeros(3),
+    )  # fmt: skip
     phase = np.array([0.0, 0.1, 0.2])
     template_motion(0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]))
     rescan_edges(

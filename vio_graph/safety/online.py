@@ -383,7 +383,7 @@ class SafetyMonitor:
         #: instants arrive (this swing's only: pooled with the last 3 swings', the one-step
         #: first swing onto the stair also silenced the next swing's warning of a true
         #: near-trip, 222 ms ahead from a half-right template; upstair_near_trip s1)
-        self.prediction_errors = PredictionErrors(self._h)
+        self.prediction_errors = PredictionErrors(self._h, kernels=kernels)
         self.consistency = MapConsistency(
             config.consistency_window_keyframes,
             config.consistency_min_keyframes,

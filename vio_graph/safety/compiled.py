@@ -532,6 +532,13 @@ def _censored_stats(Z, U, e, top_band, median):  # pragma: no cover - compiled
             elif Z[e, r] > top2:
                 top2 = Z[e, r]
     top = top2 if top2 > -np.inf else top1
+    censored = False  # (most bins: no kept height censored, nothing to allocate)
+    for r in range(cap):
+        if Z[e, r] == Z[e, r] and U[e, r] < top - top_band:
+            censored = True
+            break
+    if not censored:
+        return np.nan, np.nan
     v = np.empty(cap)
     c = 0
     for r in range(cap):

@@ -339,7 +339,7 @@ def test_fused_warm_up_loads_the_kernels_a_fused_monitor_calls() -> None:
     for name in (
         "keyframe_step", "frame_terrain", "swing_prediction", "cv_prediction",
         "swing_edge_risk", "_foot_clearance", "window_bins", "window_bridged_gap",
-        "observe_errors", "template_motion",
+        "observe_errors", "template_motion", "contact_caps",
         "rescan_edges",  # (a standing foot's contact lowering map bins)
     ):  # fmt: skip
         assert loaded[name], name

@@ -200,7 +200,8 @@ class SagittalEskf:
         # augmented static 2D blocks after the 8 core errors: the clone (key "clone") and
         # landmarks (LandmarkKey), in the order of ``_aug_keys``
         self._aug_keys: list[LandmarkKey | str] = []
-        self._aug_xz: dict[LandmarkKey | str, NDArray[np.float64]] = {}
+        # (x, z) as two Python floats: the injection adds to them without an array per block
+        self._aug_xz: dict[LandmarkKey | str, tuple[float, float]] = {}
         self._clone_t_s = 0.0
         self._prev: _ImuMemo | None = None
         # last ground-frame acceleration (m/s^2), for p(t); propagate() stores a tuple
@@ -626,7 +627,7 @@ class SagittalEskf:
             H = H1
             i = self._aug_index(_CLONE)
             H[:, i : i + 2] = -_I2
-            innovation = delta - (p_t1 - self._aug_xz[_CLONE])
+            innovation = delta - (p_t1 - np.array(self._aug_xz[_CLONE]))
         else:
             # the paper: z = p_hat(t0) + delta is a position measurement, H = [I 0 0 0]
             p_t0 = self._position_at(t0)
@@ -690,7 +691,7 @@ class SagittalEskf:
         H[:, 2:4] = dt1 * _I2
         i = self._aug_index(_CLONE)
         H[:, i : i + 2] = -_I2
-        predicted = self._position_ahead(dt1) - self._aug_xz[_CLONE]
+        predicted = self._position_ahead(dt1) - np.array(self._aug_xz[_CLONE])
         V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
         V = V + self.config.measurement_noise_floor_m**2 * _I2
         return H, V, predicted
@@ -780,7 +781,7 @@ class SagittalEskf:
         H[:, 2:4] = dt1 * _I2
         i = self._aug_index(_CLONE)
         H[:, i : i + 2] = -_I2
-        y = _vec2(d.delta_xz_m) - (self._position_ahead(dt1) - self._aug_xz[_CLONE])
+        y = _vec2(d.delta_xz_m) - (self._position_ahead(dt1) - np.array(self._aug_xz[_CLONE]))
         P = self._P.copy()
         if extra_pv_cov is not None:
             P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
@@ -840,7 +841,7 @@ class SagittalEskf:
         H[:, 0:2] = -_I2
         H[:, 2:4] = -dt * _I2
         H[:, i : i + 2] = _I2
-        innovation = rel - (self._aug_xz[key] - self._position_ahead(dt))
+        innovation = rel - (np.array(self._aug_xz[key]) - self._position_ahead(dt))
         accepted = self._correct(innovation, H, V, gate, landmark=True)
         if accepted:
             self._last_accept_s = max(self._last_accept_s, t)
@@ -932,7 +933,7 @@ class SagittalEskf:
         P[m + 1, m + 1] = _FREE_X_VAR_M2
         self._P = P
         self._aug_keys.append(_TILT)
-        self._aug_xz[_TILT] = np.zeros(2)
+        self._aug_xz[_TILT] = (0.0, 0.0)
         out = []
         try:
             for key, z, v, lv in zip(keys, rel_z_m, var_m2, lever_m, strict=True):
@@ -1026,7 +1027,14 @@ class SagittalEskf:
         """Current estimate (m) of landmark ``key``."""
         if key in (_CLONE, _TILT) or key not in self._aug_xz:
             raise EstimationError(f"unknown landmark {key!r}")
-        return self._aug_xz[key].copy()
+        return np.array(self._aug_xz[key])
+
+    def landmark_z(self, key: LandmarkKey) -> float:
+        """Current height estimate (m) of landmark ``key``: ``landmark_xz(key)[1]`` as a
+        float, without the array."""
+        if key in (_CLONE, _TILT) or key not in self._aug_xz:
+            raise EstimationError(f"unknown landmark {key!r}")
+        return self._aug_xz[key][1]
 
     # ------------------------------------------------------------------- state
     def position_velocity(self) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
@@ -1185,9 +1193,11 @@ class SagittalEskf:
         self._x = self._x + dx[:n]
         self.velocity_corrections_mps = self.velocity_corrections_mps + dx[2:4]
         aug = self._aug_xz
+        d = dx.tolist()  # (the same float additions as on arrays, one conversion)
         for j, key in enumerate(self._aug_keys):
             i = n + 2 * j
-            aug[key] = aug[key] + dx[i : i + 2]
+            a0, a1 = aug[key]
+            aug[key] = (a0 + d[i], a1 + d[i + 1])
 
     def _correct_reference(
         self,
@@ -1223,7 +1233,8 @@ class SagittalEskf:
         self.velocity_corrections_mps = self.velocity_corrections_mps + dx[2:4]
         for j, key in enumerate(self._aug_keys):
             i = n + 2 * j
-            self._aug_xz[key] = self._aug_xz[key] + dx[i : i + 2]
+            a0, a1 = self._aug_xz[key]
+            self._aug_xz[key] = (a0 + float(dx[i]), a1 + float(dx[i + 1]))
         return self._counted(True, landmark)
 
     def _set_clone(self, t_s: float) -> None:
@@ -1268,7 +1279,7 @@ class SagittalEskf:
                 self._P, float(dt_s), np.asarray(extra_cov, dtype=float)
             )
             self._aug_keys.append(key)
-            self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+            self._aug_xz[key] = _pair(value_xz)
             return
         P = self._P
         P = 0.5 * (P + P.T)  # (propagation leaves it symmetric only to rounding)
@@ -1282,7 +1293,7 @@ class SagittalEskf:
         Q[m:, m:] = 0.5 * (B + B.T)
         self._P = Q
         self._aug_keys.append(key)
-        self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+        self._aug_xz[key] = _pair(value_xz)
 
     def _augment_rows(
         self,
@@ -1305,7 +1316,7 @@ class SagittalEskf:
         Q[m:, m:] = 0.5 * (B + B.T)
         self._P = Q
         self._aug_keys.append(key)
-        self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+        self._aug_xz[key] = _pair(value_xz)
 
     def _augment_reference(
         self,
@@ -1324,7 +1335,7 @@ class SagittalEskf:
         P[m:, m:] += extra_cov
         self._P = 0.5 * (P + P.T)
         self._aug_keys.append(key)
-        self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+        self._aug_xz[key] = _pair(value_xz)
 
     def _position_ahead(self, dt_s: float) -> NDArray[np.float64]:
         """p(t + dt) = p + v dt + a dt^2 / 2 with the last ground-frame acceleration a (the
@@ -1364,6 +1375,12 @@ class SagittalEskf:
     def _require_init(self) -> None:
         if not self._initialised:
             raise EstimationError("the filter is not initialised; call initialise() first")
+
+
+def _pair(v: ArrayLike) -> tuple[float, float]:
+    """An (x, z) value as two Python floats (an augmented block's nominal value)."""
+    a = np.asarray(v, dtype=float).reshape(-1)
+    return float(a[0]), float(a[1])
 
 
 def _vec2(v: ArrayLike) -> NDArray[np.float64]:

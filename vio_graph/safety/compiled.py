@@ -669,6 +669,61 @@ def add_tops(
 
 
 @numba.njit(cache=True)
+def contact_caps(
+    hx, hz, ox, oz, margin, max_excess, b0, b1, i0, bin_m, Z, U, n, mid, cap, band
+):  # pragma: no cover - compiled
+    """height_map.OnlineHeightMap.add_contact after its checks and the map's growth, for the
+    median statistic, in place: the bins b0..b1 (bin indices) under the heel-toe line
+    capped at the sole's height at their centre plus ``margin``, and the heights of the
+    seen ones moved as there (the bin's censored median, :func:`_censored_stats`' rule, as
+    _bin_stats takes it). Returns the first and last array element whose height changed
+    (-1, -1: none)."""
+    first = last = -1
+    w = np.empty(Z.shape[1])
+    for b in range(b0, b1 + 1):
+        j = b - i0
+        xc = (b + 0.5) * bin_m
+        zc = hz + (oz - hz) * (xc - hx) / (ox - hx) + margin
+        if not zc < cap[j]:
+            continue
+        old_cap = cap[j]
+        cap[j] = zc
+        if not n[j] > 0:
+            continue
+        # the second-highest kept height (the highest when only one), the heights whose
+        # view ceiling reaches it less the band, their median
+        top1 = -np.inf
+        top2 = -np.inf
+        for r in range(Z.shape[1]):
+            if Z[j, r] == Z[j, r]:
+                if Z[j, r] > top1:
+                    top2 = top1
+                    top1 = Z[j, r]
+                elif Z[j, r] > top2:
+                    top2 = Z[j, r]
+        top = top2 if top2 > -np.inf else top1
+        c = 0
+        for r in range(Z.shape[1]):
+            if Z[j, r] == Z[j, r] and not U[j, r] < top - band:
+                w[c] = Z[j, r]
+                c += 1
+        S = np.sort(w[:c])
+        stat = (S[(c - 1) // 2] + S[c // 2]) / 2
+        if stat > zc and stat < zc + max_excess:
+            new = zc
+        elif mid[j] == old_cap:
+            new = stat
+        else:
+            new = mid[j]
+        if new != mid[j]:
+            mid[j] = new
+            if first < 0:
+                first = j
+            last = j
+    return first, last
+
+
+@numba.njit(cache=True)
 def window_bins(used, mid, se2, a0, a1, i0, bin_m, x_min, x_max, map_sigma):  # pragma: no cover
     """The used bins among array elements [a0, a1) overlapping [x_min, x_max]: their x_lo,
     x_hi, height, height sigma and bin index (height_map: _bins_profile of the window)."""
@@ -1324,7 +1379,7 @@ def warm_up(fused: bool = False) -> None:
     calls frame by frame: the fused steps (``keyframe_step``, ``frame_terrain``,
     ``swing_prediction``, ``cv_prediction``, ``swing_edge_risk``) and ``foot_clearance``,
     ``window_bins``, ``window_bridged_gap``, ``observe_errors``, ``template_motion``,
-    ``rescan_edges`` (a standing foot's contact lowering map bins,
+    ``contact_caps`` and ``rescan_edges`` (a standing foot's contact lowering map bins,
     height_map.IncrementalHeightMap.add_contact). The kernels of the single operations,
     which it reaches only on rare branches (a non-finite camera), load at their first call
     instead of costing every process ~0.15-0.2 s of CPU. Otherwise every kernel."""
@@ -1354,6 +1409,10 @@ def warm_up(fused: bool = False) -> None:
         )  # fmt: skip
     window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
     window_bridged_gap(used, 0, 0.005, 0, 3, 0.0, 0.01, 0.15)
+    contact_caps(
+        -0.2, 0.0, 0.0, 0.0, 0.006, 0.04, 0, 1, 0, 0.005, Z, np.full((3, 4), np.inf), n, mid,
+        np.full(3, np.inf), 0.01,
+    )  # fmt: skip
     observe_errors(
         np.full(2, np.nan), np.zeros(3), np.zeros((2, 3, 4)), 0.0, np.zeros(4), 0.1,
         np.zeros(4), np.zeros(3), np.zeros(3),

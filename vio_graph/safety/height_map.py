@@ -436,11 +436,38 @@ class IncrementalHeightMap(OnlineHeightMap):
         self, heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, margin_m: float, max_excess_m: float
     ) -> tuple[int, int] | None:
         """As :meth:`OnlineHeightMap.add_contact`, with the edges of the changed bins
-        scanned again."""
-        changed = super().add_contact(heel_xz_m, toe_xz_m, margin_m, max_excess_m)
+        scanned again (compiled, median statistic: the caps and heights in one kernel call,
+        ``contact_caps``, the same floats)."""
+        if self._kernels is not None and self.statistic == "median":
+            changed = self._add_contact_compiled(heel_xz_m, toe_xz_m, margin_m, max_excess_m)
+        else:
+            changed = super().add_contact(heel_xz_m, toe_xz_m, margin_m, max_excess_m)
         if changed is not None:
             self._rescan_edges(*changed)
         return changed
+
+    def _add_contact_compiled(
+        self, heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, margin_m: float, max_excess_m: float
+    ) -> tuple[int, int] | None:
+        """:meth:`OnlineHeightMap.add_contact` (median statistic) through the kernel."""
+        assert self._kernels is not None
+        hx, hz = (float(v) for v in np.asarray(heel_xz_m, dtype=float).reshape(-1))
+        ox, oz = (float(v) for v in np.asarray(toe_xz_m, dtype=float).reshape(-1))
+        if not all(map(math.isfinite, (hx, hz, ox, oz))) or ox == hx:
+            return None
+        self.max_excess_m = max_excess_m
+        b0 = math.floor(min(hx, ox) / self.bin_m)
+        b1 = math.floor(max(hx, ox) / self.bin_m)
+        self._grow(b0, b1)
+        first, last = self._kernels.contact_caps(
+            hx, hz, ox, oz, float(margin_m), float(max_excess_m), b0, b1, self._i0,
+            self.bin_m, self._z, self._u, self._n, self._mid, self._cap, self.top_band_m,
+        )  # fmt: skip
+        if first < 0:
+            return None
+        self._profile = None
+        self.version += 1
+        return int(first) + self._i0, int(last) + self._i0
 
     def _add_keyframe_compiled(
         self,

@@ -90,6 +90,7 @@ _CLONE = "clone"  # key of the stochastic clone among the augmented blocks (else
 #: key of the slice's tilt error while one frame's level surfaces are fused (never propagated)
 _TILT = "tilt"
 _I2 = np.eye(2)
+_ZERO22 = np.zeros((2, 2))  # a new clone's own noise (none)
 #: variance (m^2) of a height landmark's x: a copy of the camera x that nothing observes
 _FREE_X_VAR_M2 = 1.0
 
@@ -200,6 +201,9 @@ class SagittalEskf:
         # augmented static 2D blocks after the 8 core errors: the clone (key "clone") and
         # landmarks (LandmarkKey), in the order of ``_aug_keys``
         self._aug_keys: list[LandmarkKey | str] = []
+        # (d, state time, clone time, state size, clone index, H, V) of the last
+        # _displacement_setup, for update_displacement(d) on the same state
+        self._setup_memo: tuple | None = None
         # (x, z) as two Python floats: the injection adds to them without an array per block
         self._aug_xz: dict[LandmarkKey | str, tuple[float, float]] = {}
         self._clone_t_s = 0.0
@@ -268,6 +272,7 @@ class SagittalEskf:
         self._x = x
         self._P = 0.5 * (P + P.T)
         self._aug_keys, self._aug_xz = [], {}
+        self._setup_memo = None
         self._prev = None
         self._accel_w_mps2 = np.zeros(2)
         k = self._kernels
@@ -609,26 +614,44 @@ class SagittalEskf:
         """
         self._require_init()
         delta = _vec2(d.delta_xz_m)
-        cov = _cov2(d.cov_m2)
+        # H and V as the gate test of this displacement built them on this state (the same
+        # arrays: the time, the clone and the state's size unchanged since), else built here
+        memo, self._setup_memo = self._setup_memo, None
+        if memo is not None and not (
+            memo[0] is d
+            and memo[1] == self._t_s
+            and memo[2] == self._clone_t_s
+            and memo[3] == self._P.shape[0]
+            and _CLONE in self._aug_xz
+            and memo[4] == self._aug_index(_CLONE)
+        ):
+            memo = None
+        cov = _cov2(d.cov_m2) if memo is None else None
         t1, t0 = float(d.t1_s), float(d.t0_s)
         tol = self.config.max_time_mismatch_s
         if abs(t1 - self._t_s) > tol or t1 < t0:
             self._n_stale += 1
             return False
         dt1 = t1 - self._t_s
-        H1 = np.zeros((2, self._P.shape[0]))
-        H1[:, 0:2] = _I2
-        H1[:, 2:4] = dt1 * _I2
+        if memo is None:
+            H1 = np.zeros((2, self._P.shape[0]))
+            H1[:, 0:2] = _I2
+            H1[:, 2:4] = dt1 * _I2
         p_t1 = self._position_ahead(dt1)
 
         cloning = self.config.measurement_model == "stochastic_cloning"
         if cloning and _CLONE in self._aug_xz and abs(self._clone_t_s - t0) <= _CLONE_TOL_S:
             # relative measurement z = p(t1) - p_c, H = [I dt*I 0 0 -I]
-            H = H1
-            i = self._aug_index(_CLONE)
-            H[:, i : i + 2] = -_I2
+            if memo is None:
+                H = H1
+                i = self._aug_index(_CLONE)
+                H[:, i : i + 2] = -_I2
+            else:
+                H = memo[5]
             innovation = delta - (p_t1 - np.array(self._aug_xz[_CLONE]))
         else:
+            # (the memo exists only for a relative measurement on the current clone)
+            assert memo is None
             # the paper: z = p_hat(t0) + delta is a position measurement, H = [I 0 0 0]
             p_t0 = self._position_at(t0)
             if p_t0 is None:
@@ -640,8 +663,12 @@ class SagittalEskf:
                 self._n_fallback += 1
             H = H1
             innovation = p_t0 + delta - p_t1
-        V = self.config.measurement_cov_inflation * cov
-        V = V + self.config.measurement_noise_floor_m**2 * _I2
+        if memo is None:
+            assert cov is not None
+            V = self.config.measurement_cov_inflation * cov
+            V = V + self.config.measurement_noise_floor_m**2 * _I2
+        else:
+            V = memo[6]
         accepted = self._correct(innovation, H, V)
         if accepted:
             self._last_accept_s = t1
@@ -694,6 +721,8 @@ class SagittalEskf:
         predicted = self._position_ahead(dt1) - np.array(self._aug_xz[_CLONE])
         V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
         V = V + self.config.measurement_noise_floor_m**2 * _I2
+        # for update_displacement(d) on the same state (the frame's gate tests come first)
+        self._setup_memo = (d, self._t_s, self._clone_t_s, self._P.shape[0], i, H, V)
         return H, V, predicted
 
     def displacement_d2(
@@ -1239,6 +1268,18 @@ class SagittalEskf:
 
     def _set_clone(self, t_s: float) -> None:
         """Augment the state with p(t_s) = p + v (t_s - t), replacing any previous clone."""
+        k = self._update_kernels
+        if k is not None:  # compiled: the removal and the augmentation in one call
+            i = self._aug_index(_CLONE) if _CLONE in self._aug_xz else -1
+            dt = t_s - self._t_s
+            self._P = k.recloned(self._P, i, float(dt), _ZERO22)
+            if i >= 0:
+                self._aug_keys.remove(_CLONE)
+            self._aug_keys.append(_CLONE)
+            self._aug_xz.pop(_CLONE, None)  # (re-inserted last, as the removal and append)
+            self._aug_xz[_CLONE] = _pair(self._position_ahead(dt))
+            self._clone_t_s = t_s
+            return
         self._marginalise(_CLONE)
         dt = t_s - self._t_s
         self._augment(_CLONE, self._position_ahead(dt), dt, np.zeros((2, 2)))

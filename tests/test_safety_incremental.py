@@ -112,7 +112,8 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
     inc = IncrementalHeightMap(0.005, 3, **kw)
     comp = IncrementalHeightMap(0.005, 3, kernels=_compiled(), **kw)
     xs = [*np.arange(-0.8, 3.5, 0.03), *np.arange(3.5, 0.5, -0.05), 4.5, -1.5, 1.0]
-    n_edges = n_contacts = n_gaps = 0
+    n_edges = n_contacts = n_gaps = n_kept = 0
+    e_comp_prev = None
     for x0 in xs:
         P = np.diag(rng.uniform(1e-6, 1e-4, 2))
         prof = _keyframe_profile(rng, stairs, float(x0))
@@ -132,6 +133,10 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
         np.testing.assert_array_equal(inc.edge_summary(), ref.edge_summary())
         np.testing.assert_allclose(e_comp.xz_m, e_ref.xz_m, rtol=0, atol=TOL_M)
         np.testing.assert_allclose(e_comp.rise_m, e_ref.rise_m, rtol=0, atol=TOL_M)
+        # (the compiled map keeps its edges' summary while the re-scan leaves them as they were)
+        np.testing.assert_allclose(comp.edge_summary(), ref.edge_summary(), rtol=0, atol=TOL_M)
+        n_kept += comp.edges() is e_comp_prev
+        e_comp_prev = e_comp
         n_edges = max(n_edges, len(e_ref))
         for _ in range(5):
             lo = float(rng.uniform(-2.0, 3.5))
@@ -159,6 +164,7 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
     assert n_edges >= 10  # the stairs' edges were found, up and down
     assert agreement is None or n_contacts >= 20  # contacts lowered bins
     assert n_gaps >= 5  # windows with strips to fill were checked
+    assert n_kept >= 5  # keyframes that left the edges as they were
 
 
 def _random_case(rng: np.random.Generator):

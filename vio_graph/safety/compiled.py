@@ -1098,7 +1098,23 @@ def rescan_edges(
                 first[q],
             )
             k += 1
+    if _same_edges(out_xz, out_rise, out_first, xz, rise, first):
+        return xz, rise, first  # (unchanged: the caller keeps its arrays and their summary)
     return out_xz, out_rise, out_first
+
+
+@numba.njit(cache=True)
+def _same_edges(xz, rise, first, xz0, rise0, first0):  # pragma: no cover - compiled
+    """The edges equal the old ones bit for bit (the same floats, signs of zeros too)."""
+    if rise.shape[0] != rise0.shape[0]:
+        return False
+    for q in range(rise.shape[0]):
+        if first[q] != first0[q]:
+            return False
+        for a, b in ((xz[q, 0], xz0[q, 0]), (xz[q, 1], xz0[q, 1]), (rise[q], rise0[q])):
+            if not (a == b and math.copysign(1.0, a) == math.copysign(1.0, b)):
+                return False
+    return True
 
 
 @numba.njit(cache=True)

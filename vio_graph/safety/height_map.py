@@ -591,6 +591,15 @@ class IncrementalHeightMap(OnlineHeightMap):
     def _find_edges(self) -> Edges:
         return Edges(self._edge_xz, self._edge_rise)
 
+    def _cached_edges(self) -> tuple[int, Edges, tuple[int, float, float]]:
+        # kept while the edge arrays are the same objects: the compiled re-scan hands back
+        # the arrays it was given when the edges did not change (most keyframes)
+        c = self._edges
+        if c is None or c[1].xz_m is not self._edge_xz or c[1].rise_m is not self._edge_rise:
+            e = self._find_edges()
+            c = self._edges = (self.version, e, e.summary())
+        return c
+
     def _step(self, p: int, q: int) -> bool:
         """Consecutive used bins (array elements p < q) form a transition pair
         (:func:`edge_runs`: height change above ``SLOPE_STEP_M``, gap within the max)."""

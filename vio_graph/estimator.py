@@ -1368,8 +1368,10 @@ class OnlineEstimator:
             key = None
             if obs is not None:
                 key = self._corners.key(obs, self._position_at(t)[0], self.filter)
-                # the smoothers see the re-identified corner under one track id too
-                self._corner_observation = dataclasses.replace(obs, track_id=key.id)
+                # the smoothers see the re-identified corner under one track id too (the
+                # observation itself when its track keeps its own id)
+                if key.id != obs.track_id:
+                    self._corner_observation = dataclasses.replace(obs, track_id=key.id)
                 self._corners.saw(key, t)
             self._corners.forget(t, key, self.filter)
             if obs is not None:

@@ -104,6 +104,7 @@ from vio_graph.kinematics import (
     LegPoints,
     knee_from_camera,
     leg_points_from_knee,
+    leg_points_single,
     shank_pitch_rad,
 )
 from vio_graph.protocol import FrameRecord, ImuStep
@@ -1564,10 +1565,19 @@ class OnlineEstimator:
         return (v_cam, cov) if fused else None
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
-        """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""
+        """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints
+        (one pose on Python floats: :func:`~vio_graph.kinematics.leg_points_single`, the same
+        floats as ``RigGeometry.leg_points``)."""
         imu_pitch, chain_pitch, ankle = self.leg_angles(R_world_imu)
         use_enc = self.config.kinematics.shank_pitch_source == "encoders"
-        return self.rig.leg_points(camera_xz_m, imu_pitch, chain_pitch, ankle, use_enc)
+        return leg_points_single(
+            self.rig.leg,
+            camera_xz_m,
+            self.rig.camera_in_shank_xz_m,
+            imu_pitch,
+            chain_pitch if use_enc else imu_pitch,
+            ankle,
+        )
 
     def leg_angles(self, R_world_imu: NDArray[np.float64]) -> tuple[float, float, float]:
         """(IMU shank pitch, thigh-IMU-minus-knee-encoder shank pitch, ankle) in rad, from the

@@ -239,6 +239,60 @@ def test_compiled_augment_and_marginalise_equal_the_numpy_blocks() -> None:
         i = 8 + 2 * int(rng.integers(0, (m - 8) // 2)) if m > 8 else 0
         keep = np.concatenate((np.arange(i), np.arange(i + 2, m)))
         assert np.array_equal(compiled_update.without_block(P, i), P.take(keep, 0).take(keep, 1))
+        # the clone replaced in one call: the removal, then the augmentation, bit for bit
+        want = compiled_update.augmented(compiled_update.without_block(P, i), dt, extra)
+        assert np.array_equal(compiled_update.recloned(P, i, dt, extra), want)
+        want = compiled_update.augmented(P, dt, extra)  # no old clone (i < 0)
+        assert np.array_equal(compiled_update.recloned(P, -1, dt, extra), want)
+
+
+@pytest.mark.parametrize("compiled", ["0", "1"])
+def test_displacement_update_after_its_gate_tests_is_the_same(
+    compiled: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """update_displacement reuses H and V that the frame's gate tests (displacement_d2,
+    displacement_d2_pair) built for the same displacement on the same state: the filter ends
+    in the same state, bit for bit, as one whose updates come without the tests (also when
+    the covariance was widened in between, and when the tests were for another
+    displacement)."""
+    from vio_graph.frontend import icp as icp_module
+
+    monkeypatch.setenv(icp_module.COMPILED_ENV, compiled)
+
+    def run(tests: bool) -> SagittalEskf:
+        rng = np.random.default_rng(12)
+        f = SagittalEskf(FilterConfig())
+        f.initialise(0.0, (0.0, 0.0))
+        t_prev = 0.0
+        for k in range(1, 151):
+            t = k / 100.0
+            f.propagate(_imu(t, rng))
+            if k % 3:
+                continue
+            delta = rng.normal(0, 0.01, 2) + (0.3 if rng.uniform() < 0.15 else 0.0)
+            d = Displacement2D(t_prev, t, delta, np.diag(rng.uniform(1e-6, 1e-5, 2)))
+            other = Displacement2D(t_prev, t, delta + 0.01, np.diag([2e-6, 3e-6]))
+            mode = int(rng.integers(0, 4))
+            if tests:
+                if mode == 0:
+                    f.displacement_d2_pair(d, delta + 0.005)
+                elif mode == 1:
+                    f.displacement_d2(d)
+                    f.inflate_position_velocity(np.eye(4) * 1e-5)
+                elif mode == 2:
+                    f.displacement_d2(other)
+            elif mode == 1:
+                f.inflate_position_velocity(np.eye(4) * 1e-5)
+            f.update_displacement(d)
+            f.update_landmark(LandmarkKey("corner", k % 4), [0.4, -0.3], np.eye(2) * 1e-5, t)
+            t_prev = t
+        return f
+
+    a, b = run(tests=True), run(tests=False)
+    assert (a._update_kernels is not None) == (compiled == "1")
+    assert a._n_acc == b._n_acc and a._n_rej == b._n_rej and a._n_acc > 20
+    assert a._aug_keys == b._aug_keys and a._aug_xz == b._aug_xz
+    assert np.array_equal(a._x, b._x) and np.array_equal(a._P, b._P)
 
 
 def test_position_ahead_is_the_array_formula_bit_for_bit() -> None:

@@ -112,7 +112,8 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
     inc = IncrementalHeightMap(0.005, 3, **kw)
     comp = IncrementalHeightMap(0.005, 3, kernels=_compiled(), **kw)
     xs = [*np.arange(-0.8, 3.5, 0.03), *np.arange(3.5, 0.5, -0.05), 4.5, -1.5, 1.0]
-    n_edges = n_contacts = 0
+    n_edges = n_contacts = n_gaps = n_kept = 0
+    e_comp_prev = None
     for x0 in xs:
         P = np.diag(rng.uniform(1e-6, 1e-4, 2))
         prof = _keyframe_profile(rng, stairs, float(x0))
@@ -132,6 +133,10 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
         np.testing.assert_array_equal(inc.edge_summary(), ref.edge_summary())
         np.testing.assert_allclose(e_comp.xz_m, e_ref.xz_m, rtol=0, atol=TOL_M)
         np.testing.assert_allclose(e_comp.rise_m, e_ref.rise_m, rtol=0, atol=TOL_M)
+        # (the compiled map keeps its edges' summary while the re-scan leaves them as they were)
+        np.testing.assert_allclose(comp.edge_summary(), ref.edge_summary(), rtol=0, atol=TOL_M)
+        n_kept += comp.edges() is e_comp_prev
+        e_comp_prev = e_comp
         n_edges = max(n_edges, len(e_ref))
         for _ in range(5):
             lo = float(rng.uniform(-2.0, 3.5))
@@ -144,6 +149,13 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
                 np.testing.assert_allclose(getattr(w_comp.profile, name), a, rtol=0, atol=TOL_M)
             np.testing.assert_array_equal(w_inc.bins, w_ref.bins)
             np.testing.assert_array_equal(w_comp.bins, w_ref.bins)
+            # the compiled early answer of the gap check: a strip to fill exactly when
+            # gap_terrain finds floors (numpy: always "ask gap_terrain")
+            max_gap = float(rng.choice([0.02, 0.15]))
+            floors = clearance.gap_terrain(w_ref.profile, w_ref.bins, max_gap)[0]
+            assert comp.bridged_gap(lo, hi, max_gap) == (len(floors) > 0)
+            n_gaps += len(floors) > 0
+            assert inc.bridged_gap(lo, hi, max_gap)
             for b in w_ref.bins[:3]:
                 np.testing.assert_array_equal(inc.bin_cov_at(b), ref.bin_cov_at(b))
                 assert inc.bin_sigma(b, 0.003) == ref.bin_sigma(b, 0.003)
@@ -151,6 +163,8 @@ def test_incremental_map_queries_equal_the_reference_on_random_stairs(
             assert inc.bin_below(x) == ref.bin_below(x) == comp.bin_below(x)
     assert n_edges >= 10  # the stairs' edges were found, up and down
     assert agreement is None or n_contacts >= 20  # contacts lowered bins
+    assert n_gaps >= 5  # windows with strips to fill were checked
+    assert n_kept >= 5  # keyframes that left the edges as they were
 
 
 def _random_case(rng: np.random.Generator):
@@ -330,7 +344,8 @@ def test_fused_warm_up_loads_the_kernels_a_fused_monitor_calls() -> None:
     loaded = json.loads(out.stdout.strip().splitlines()[-1])
     for name in (
         "keyframe_step", "frame_terrain", "swing_prediction", "cv_prediction",
-        "swing_edge_risk", "_foot_clearance", "window_bins", "template_motion",
+        "swing_edge_risk", "_foot_clearance", "window_bins", "window_bridged_gap",
+        "observe_errors", "template_motion", "contact_caps",
         "rescan_edges",  # (a standing foot's contact lowering map bins)
     ):  # fmt: skip
         assert loaded[name], name

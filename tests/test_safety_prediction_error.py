@@ -108,3 +108,32 @@ def test_compiled_monitor_discounts_as_the_numpy_one() -> None:
     np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
     np.testing.assert_allclose(b[np.isfinite(b)], a[np.isfinite(a)], rtol=0, atol=1e-9)
     assert [s.near_trip_warning for s in ref] == [s.near_trip_warning for s in comp]
+
+
+def test_compiled_scoring_equals_the_numpy_scoring() -> None:
+    """``observe`` through the compiled kernel (``observe_errors``) leaves the same sums,
+    counts, kept rows and trusted steps as numpy, to the bit, over swings of noisy
+    predictions with frames at jittered times (some instants between frames, some rows
+    dropped, the rows growing past their capacity)."""
+    compiled = pytest.importorskip("vio_graph.safety.compiled")
+    rng = np.random.default_rng(3)
+    h = np.linspace(0.0, 0.3, 11)
+    ref, comp = PredictionErrors(h, capacity=2), PredictionErrors(h, 2, kernels=compiled)
+    t, n_scored = 0.0, 0
+    for _swing in range(4):
+        for pe in (ref, comp):
+            pe.start_swing()
+        for _ in range(30):
+            t += DT * rng.uniform(0.3, 1.7)
+            foot = tuple(rng.normal(0.0, 0.1, 4).tolist())
+            poses = np.asarray(foot)[None] + rng.normal(0.0, 0.02, (len(h), 4))
+            for pe in (ref, comp):
+                pe.observe(t, foot)
+                pe.predict(t, poses)
+            np.testing.assert_array_equal(comp._sums, ref._sums)
+            np.testing.assert_array_equal(comp._counts, ref._counts)
+            np.testing.assert_array_equal(comp._t, ref._t)
+            assert comp._kept == ref._kept
+            assert comp.trusted_steps(0.03) == ref.trusted_steps(0.03)
+        n_scored += int(ref._counts.sum())
+    assert n_scored > 100 and len(ref._t) > 2  # instants were scored; the rows grew

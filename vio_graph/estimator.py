@@ -104,6 +104,7 @@ from vio_graph.kinematics import (
     LegPoints,
     knee_from_camera,
     leg_points_from_knee,
+    leg_points_single,
     shank_pitch_rad,
 )
 from vio_graph.protocol import FrameRecord, ImuStep
@@ -1380,8 +1381,10 @@ class OnlineEstimator:
             key = None
             if obs is not None:
                 key = self._corners.key(obs, self._position_at(t)[0], self.filter)
-                # the smoothers see the re-identified corner under one track id too
-                self._corner_observation = dataclasses.replace(obs, track_id=key.id)
+                # the smoothers see the re-identified corner under one track id too (the
+                # observation itself when its track keeps its own id)
+                if key.id != obs.track_id:
+                    self._corner_observation = dataclasses.replace(obs, track_id=key.id)
                 self._corners.saw(key, t)
             self._corners.forget(t, key, self.filter)
             if obs is not None:
@@ -1574,10 +1577,19 @@ class OnlineEstimator:
         return (v_cam, cov) if fused else None
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
-        """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints."""
+        """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints
+        (one pose on Python floats: :func:`~vio_graph.kinematics.leg_points_single`, the same
+        floats as ``RigGeometry.leg_points``)."""
         imu_pitch, chain_pitch, ankle = self.leg_angles(R_world_imu)
         use_enc = self.config.kinematics.shank_pitch_source == "encoders"
-        return self.rig.leg_points(camera_xz_m, imu_pitch, chain_pitch, ankle, use_enc)
+        return leg_points_single(
+            self.rig.leg,
+            camera_xz_m,
+            self.rig.camera_in_shank_xz_m,
+            imu_pitch,
+            chain_pitch if use_enc else imu_pitch,
+            ankle,
+        )
 
     def leg_angles(self, R_world_imu: NDArray[np.float64]) -> tuple[float, float, float]:
         """(IMU shank pitch, thigh-IMU-minus-knee-encoder shank pitch, ankle) in rad, from the

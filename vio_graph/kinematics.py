@@ -83,3 +83,44 @@ def knee_from_camera(
     cam = np.atleast_2d(np.asarray(camera_xz_m, dtype=float))
     th_s = np.atleast_1d(np.asarray(shank_pitch, dtype=float))
     return cam - rotate_xz(th_s, np.asarray(camera_in_shank_xz_m, dtype=float))
+
+
+def _cos_sin(angle_rad: float) -> tuple[float, float]:
+    """cos and sin of one angle as :func:`~vio_graph.geometry.rotate_xz` takes them (numpy's
+    ufuncs on a (1,) array, so the same floats as the vectorised chain)."""
+    a = np.array([angle_rad], dtype=float)
+    return float(np.cos(a)[0]), float(np.sin(a)[0])
+
+
+def leg_points_single(
+    leg: LegModel,
+    camera_xz_m: ArrayLike,
+    camera_in_shank_xz_m: ArrayLike,
+    shank_pitch_imu_rad: float,
+    shank_pitch_rad: float,
+    ankle_rad: float,
+) -> LegPoints:
+    """:func:`knee_from_camera` then :func:`leg_points_from_knee` for one pose (the online
+    estimator's frame), on Python floats: the same products and sums per axis as the
+    vectorised functions, so the same floats (tests/test_kinematics_single.py); each point
+    (1, 2). ``shank_pitch_imu_rad`` places the knee from the camera, ``shank_pitch_rad``
+    (the IMU's or the encoder chain's) the rest of the leg."""
+    cx, cz = (float(v) for v in np.asarray(camera_xz_m, dtype=float).reshape(2))
+    ux, uz = (float(v) for v in np.asarray(camera_in_shank_xz_m, dtype=float).reshape(2))
+    c, s = _cos_sin(float(shank_pitch_imu_rad))
+    kx, kz = cx - (c * ux + s * uz), cz - (-s * ux + c * uz)
+    th_s = float(shank_pitch_rad)
+    th_f = th_s + float(ankle_rad)
+    if th_s != float(shank_pitch_imu_rad):
+        c, s = _cos_sin(th_s)
+    L = -leg.shank_length_m
+    ax, az = kx + (c * 0.0 + s * L), kz + (-s * 0.0 + c * L)
+    c, s = _cos_sin(th_f)
+    hx, hz = (float(v) for v in leg.heel_in_foot_xz_m)
+    tx, tz = (float(v) for v in leg.toe_in_foot_xz_m)
+    return LegPoints(
+        knee_xz_m=np.array([[kx, kz]]),
+        ankle_xz_m=np.array([[ax, az]]),
+        heel_xz_m=np.array([[ax + (c * hx + s * hz), az + (-s * hx + c * hz)]]),
+        toe_xz_m=np.array([[ax + (c * tx + s * tz), az + (-s * tx + c * tz)]]),
+    )

@@ -178,3 +178,13 @@ def augmented(P, dt_s, extra_cov):  # pragma: no cover - compiled
         for c in range(2):
             Q[m + r, m + c] = 0.5 * (B[r, c] + B[c, r])
     return Q
+
+
+@numba.njit(cache=True)
+def recloned(P, i, dt_s, extra_cov):  # pragma: no cover - compiled
+    """``SagittalEskf._set_clone``'s covariance in one call: the old clone's rows and
+    columns i, i + 1 removed (:func:`without_block`; i < 0: no old clone), then the new
+    clone appended (:func:`augmented`): the same two functions, so the same floats."""
+    if i >= 0:
+        P = without_block(P, i)
+    return augmented(P, dt_s, extra_cov)

@@ -93,6 +93,7 @@ _TILT = "tilt"
 _VCLONE = "velocity_clone"
 _NOT_LANDMARKS = (_CLONE, _TILT, _VCLONE)
 _I2 = np.eye(2)
+_ZERO22 = np.zeros((2, 2))  # a new clone's own noise (none)
 #: variance (m^2) of a height landmark's x: a copy of the camera x that nothing observes
 _FREE_X_VAR_M2 = 1.0
 
@@ -203,7 +204,11 @@ class SagittalEskf:
         # augmented static 2D blocks after the 8 core errors: the clone (key "clone") and
         # landmarks (LandmarkKey), in the order of ``_aug_keys``
         self._aug_keys: list[LandmarkKey | str] = []
-        self._aug_xz: dict[LandmarkKey | str, NDArray[np.float64]] = {}
+        # (d, state time, clone time, state size, clone index, H, V) of the last
+        # _displacement_setup, for update_displacement(d) on the same state
+        self._setup_memo: tuple | None = None
+        # (x, z) as two Python floats: the injection adds to them without an array per block
+        self._aug_xz: dict[LandmarkKey | str, tuple[float, float]] = {}
         self._clone_t_s = 0.0
         self._prev: _ImuMemo | None = None
         # last ground-frame acceleration (m/s^2), for p(t); propagate() stores a tuple
@@ -270,6 +275,7 @@ class SagittalEskf:
         self._x = x
         self._P = 0.5 * (P + P.T)
         self._aug_keys, self._aug_xz = [], {}
+        self._setup_memo = None
         self._prev = None
         self._accel_w_mps2 = np.zeros(2)
         k = self._kernels
@@ -611,26 +617,44 @@ class SagittalEskf:
         """
         self._require_init()
         delta = _vec2(d.delta_xz_m)
-        cov = _cov2(d.cov_m2)
+        # H and V as the gate test of this displacement built them on this state (the same
+        # arrays: the time, the clone and the state's size unchanged since), else built here
+        memo, self._setup_memo = self._setup_memo, None
+        if memo is not None and not (
+            memo[0] is d
+            and memo[1] == self._t_s
+            and memo[2] == self._clone_t_s
+            and memo[3] == self._P.shape[0]
+            and _CLONE in self._aug_xz
+            and memo[4] == self._aug_index(_CLONE)
+        ):
+            memo = None
+        cov = _cov2(d.cov_m2) if memo is None else None
         t1, t0 = float(d.t1_s), float(d.t0_s)
         tol = self.config.max_time_mismatch_s
         if abs(t1 - self._t_s) > tol or t1 < t0:
             self._n_stale += 1
             return False
         dt1 = t1 - self._t_s
-        H1 = np.zeros((2, self._P.shape[0]))
-        H1[:, 0:2] = _I2
-        H1[:, 2:4] = dt1 * _I2
+        if memo is None:
+            H1 = np.zeros((2, self._P.shape[0]))
+            H1[:, 0:2] = _I2
+            H1[:, 2:4] = dt1 * _I2
         p_t1 = self._position_ahead(dt1)
 
         cloning = self.config.measurement_model == "stochastic_cloning"
         if cloning and _CLONE in self._aug_xz and abs(self._clone_t_s - t0) <= _CLONE_TOL_S:
             # relative measurement z = p(t1) - p_c, H = [I dt*I 0 0 -I]
-            H = H1
-            i = self._aug_index(_CLONE)
-            H[:, i : i + 2] = -_I2
-            innovation = delta - (p_t1 - self._aug_xz[_CLONE])
+            if memo is None:
+                H = H1
+                i = self._aug_index(_CLONE)
+                H[:, i : i + 2] = -_I2
+            else:
+                H = memo[5]
+            innovation = delta - (p_t1 - np.array(self._aug_xz[_CLONE]))
         else:
+            # (the memo exists only for a relative measurement on the current clone)
+            assert memo is None
             # the paper: z = p_hat(t0) + delta is a position measurement, H = [I 0 0 0]
             p_t0 = self._position_at(t0)
             if p_t0 is None:
@@ -642,8 +666,12 @@ class SagittalEskf:
                 self._n_fallback += 1
             H = H1
             innovation = p_t0 + delta - p_t1
-        V = self.config.measurement_cov_inflation * cov
-        V = V + self.config.measurement_noise_floor_m**2 * _I2
+        if memo is None:
+            assert cov is not None
+            V = self.config.measurement_cov_inflation * cov
+            V = V + self.config.measurement_noise_floor_m**2 * _I2
+        else:
+            V = memo[6]
         accepted = self._correct(innovation, H, V)
         if accepted:
             self._last_accept_s = t1
@@ -693,9 +721,11 @@ class SagittalEskf:
         H[:, 2:4] = dt1 * _I2
         i = self._aug_index(_CLONE)
         H[:, i : i + 2] = -_I2
-        predicted = self._position_ahead(dt1) - self._aug_xz[_CLONE]
+        predicted = self._position_ahead(dt1) - np.array(self._aug_xz[_CLONE])
         V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
         V = V + self.config.measurement_noise_floor_m**2 * _I2
+        # for update_displacement(d) on the same state (the frame's gate tests come first)
+        self._setup_memo = (d, self._t_s, self._clone_t_s, self._P.shape[0], i, H, V)
         return H, V, predicted
 
     def displacement_d2(
@@ -783,7 +813,7 @@ class SagittalEskf:
         H[:, 2:4] = dt1 * _I2
         i = self._aug_index(_CLONE)
         H[:, i : i + 2] = -_I2
-        y = _vec2(d.delta_xz_m) - (self._position_ahead(dt1) - self._aug_xz[_CLONE])
+        y = _vec2(d.delta_xz_m) - (self._position_ahead(dt1) - np.array(self._aug_xz[_CLONE]))
         P = self._P.copy()
         if extra_pv_cov is not None:
             P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
@@ -843,7 +873,7 @@ class SagittalEskf:
         H[:, 0:2] = -_I2
         H[:, 2:4] = -dt * _I2
         H[:, i : i + 2] = _I2
-        innovation = rel - (self._aug_xz[key] - self._position_ahead(dt))
+        innovation = rel - (np.array(self._aug_xz[key]) - self._position_ahead(dt))
         accepted = self._correct(innovation, H, V, gate, landmark=True)
         if accepted:
             self._last_accept_s = max(self._last_accept_s, t)
@@ -935,7 +965,7 @@ class SagittalEskf:
         P[m + 1, m + 1] = _FREE_X_VAR_M2
         self._P = P
         self._aug_keys.append(_TILT)
-        self._aug_xz[_TILT] = np.zeros(2)
+        self._aug_xz[_TILT] = (0.0, 0.0)
         out = []
         try:
             for key, z, v, lv in zip(keys, rel_z_m, var_m2, lever_m, strict=True):
@@ -1073,7 +1103,14 @@ class SagittalEskf:
         """Current estimate (m) of landmark ``key``."""
         if key in _NOT_LANDMARKS or key not in self._aug_xz:
             raise EstimationError(f"unknown landmark {key!r}")
-        return self._aug_xz[key].copy()
+        return np.array(self._aug_xz[key])
+
+    def landmark_z(self, key: LandmarkKey) -> float:
+        """Current height estimate (m) of landmark ``key``: ``landmark_xz(key)[1]`` as a
+        float, without the array."""
+        if key in (_CLONE, _TILT) or key not in self._aug_xz:
+            raise EstimationError(f"unknown landmark {key!r}")
+        return self._aug_xz[key][1]
 
     # ------------------------------------------------------------------- state
     def position_velocity(self) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
@@ -1232,9 +1269,11 @@ class SagittalEskf:
         self._x = self._x + dx[:n]
         self.velocity_corrections_mps = self.velocity_corrections_mps + dx[2:4]
         aug = self._aug_xz
+        d = dx.tolist()  # (the same float additions as on arrays, one conversion)
         for j, key in enumerate(self._aug_keys):
             i = n + 2 * j
-            aug[key] = aug[key] + dx[i : i + 2]
+            a0, a1 = aug[key]
+            aug[key] = (a0 + d[i], a1 + d[i + 1])
 
     def _correct_reference(
         self,
@@ -1270,11 +1309,24 @@ class SagittalEskf:
         self.velocity_corrections_mps = self.velocity_corrections_mps + dx[2:4]
         for j, key in enumerate(self._aug_keys):
             i = n + 2 * j
-            self._aug_xz[key] = self._aug_xz[key] + dx[i : i + 2]
+            a0, a1 = self._aug_xz[key]
+            self._aug_xz[key] = (a0 + float(dx[i]), a1 + float(dx[i + 1]))
         return self._counted(True, landmark)
 
     def _set_clone(self, t_s: float) -> None:
         """Augment the state with p(t_s) = p + v (t_s - t), replacing any previous clone."""
+        k = self._update_kernels
+        if k is not None:  # compiled: the removal and the augmentation in one call
+            i = self._aug_index(_CLONE) if _CLONE in self._aug_xz else -1
+            dt = t_s - self._t_s
+            self._P = k.recloned(self._P, i, float(dt), _ZERO22)
+            if i >= 0:
+                self._aug_keys.remove(_CLONE)
+            self._aug_keys.append(_CLONE)
+            self._aug_xz.pop(_CLONE, None)  # (re-inserted last, as the removal and append)
+            self._aug_xz[_CLONE] = _pair(self._position_ahead(dt))
+            self._clone_t_s = t_s
+            return
         self._marginalise(_CLONE)
         dt = t_s - self._t_s
         self._augment(_CLONE, self._position_ahead(dt), dt, np.zeros((2, 2)))
@@ -1315,7 +1367,7 @@ class SagittalEskf:
                 self._P, float(dt_s), np.asarray(extra_cov, dtype=float)
             )
             self._aug_keys.append(key)
-            self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+            self._aug_xz[key] = _pair(value_xz)
             return
         P = self._P
         P = 0.5 * (P + P.T)  # (propagation leaves it symmetric only to rounding)
@@ -1329,7 +1381,7 @@ class SagittalEskf:
         Q[m:, m:] = 0.5 * (B + B.T)
         self._P = Q
         self._aug_keys.append(key)
-        self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+        self._aug_xz[key] = _pair(value_xz)
 
     def _augment_rows(
         self,
@@ -1352,7 +1404,7 @@ class SagittalEskf:
         Q[m:, m:] = 0.5 * (B + B.T)
         self._P = Q
         self._aug_keys.append(key)
-        self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+        self._aug_xz[key] = _pair(value_xz)
 
     def _augment_reference(
         self,
@@ -1371,7 +1423,7 @@ class SagittalEskf:
         P[m:, m:] += extra_cov
         self._P = 0.5 * (P + P.T)
         self._aug_keys.append(key)
-        self._aug_xz[key] = np.asarray(value_xz, dtype=float).copy()
+        self._aug_xz[key] = _pair(value_xz)
 
     def _position_ahead(self, dt_s: float) -> NDArray[np.float64]:
         """p(t + dt) = p + v dt + a dt^2 / 2 with the last ground-frame acceleration a (the
@@ -1411,6 +1463,12 @@ class SagittalEskf:
     def _require_init(self) -> None:
         if not self._initialised:
             raise EstimationError("the filter is not initialised; call initialise() first")
+
+
+def _pair(v: ArrayLike) -> tuple[float, float]:
+    """An (x, z) value as two Python floats (an augmented block's nominal value)."""
+    a = np.asarray(v, dtype=float).reshape(-1)
+    return float(a[0]), float(a[1])
 
 
 def _vec2(v: ArrayLike) -> NDArray[np.float64]:

@@ -39,7 +39,7 @@ class LevelLandmarks(LandmarkMemory):
         one surface the line fit split in two, observed once)."""
         known = self.keys(eskf)
         if known:
-            heights = {k: float(eskf.landmark_xz(k)[1]) for k in known}
+            heights = {k: eskf.landmark_z(k) for k in known}
             best = min(known, key=lambda k: abs(heights[k] - height_m))
             d0 = abs(heights[best] - height_m)
             if d0 < self.reidentify_m:

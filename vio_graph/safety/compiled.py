@@ -532,6 +532,13 @@ def _censored_stats(Z, U, e, top_band, median):  # pragma: no cover - compiled
             elif Z[e, r] > top2:
                 top2 = Z[e, r]
     top = top2 if top2 > -np.inf else top1
+    censored = False  # (most bins: no kept height censored, nothing to allocate)
+    for r in range(cap):
+        if Z[e, r] == Z[e, r] and U[e, r] < top - top_band:
+            censored = True
+            break
+    if not censored:
+        return np.nan, np.nan
     v = np.empty(cap)
     c = 0
     for r in range(cap):
@@ -662,6 +669,61 @@ def add_tops(
 
 
 @numba.njit(cache=True)
+def contact_caps(
+    hx, hz, ox, oz, margin, max_excess, b0, b1, i0, bin_m, Z, U, n, mid, cap, band
+):  # pragma: no cover - compiled
+    """height_map.OnlineHeightMap.add_contact after its checks and the map's growth, for the
+    median statistic, in place: the bins b0..b1 (bin indices) under the heel-toe line
+    capped at the sole's height at their centre plus ``margin``, and the heights of the
+    seen ones moved as there (the bin's censored median, :func:`_censored_stats`' rule, as
+    _bin_stats takes it). Returns the first and last array element whose height changed
+    (-1, -1: none)."""
+    first = last = -1
+    w = np.empty(Z.shape[1])
+    for b in range(b0, b1 + 1):
+        j = b - i0
+        xc = (b + 0.5) * bin_m
+        zc = hz + (oz - hz) * (xc - hx) / (ox - hx) + margin
+        if not zc < cap[j]:
+            continue
+        old_cap = cap[j]
+        cap[j] = zc
+        if not n[j] > 0:
+            continue
+        # the second-highest kept height (the highest when only one), the heights whose
+        # view ceiling reaches it less the band, their median
+        top1 = -np.inf
+        top2 = -np.inf
+        for r in range(Z.shape[1]):
+            if Z[j, r] == Z[j, r]:
+                if Z[j, r] > top1:
+                    top2 = top1
+                    top1 = Z[j, r]
+                elif Z[j, r] > top2:
+                    top2 = Z[j, r]
+        top = top2 if top2 > -np.inf else top1
+        c = 0
+        for r in range(Z.shape[1]):
+            if Z[j, r] == Z[j, r] and not U[j, r] < top - band:
+                w[c] = Z[j, r]
+                c += 1
+        S = np.sort(w[:c])
+        stat = (S[(c - 1) // 2] + S[c // 2]) / 2
+        if stat > zc and stat < zc + max_excess:
+            new = zc
+        elif mid[j] == old_cap:
+            new = stat
+        else:
+            new = mid[j]
+        if new != mid[j]:
+            mid[j] = new
+            if first < 0:
+                first = j
+            last = j
+    return first, last
+
+
+@numba.njit(cache=True)
 def window_bins(used, mid, se2, a0, a1, i0, bin_m, x_min, x_max, map_sigma):  # pragma: no cover
     """The used bins among array elements [a0, a1) overlapping [x_min, x_max]: their x_lo,
     x_hi, height, height sigma and bin index (height_map: _bins_profile of the window)."""
@@ -684,6 +746,65 @@ def window_bins(used, mid, se2, a0, a1, i0, bin_m, x_min, x_max, map_sigma):  # 
                 bins[k] = e + i0
                 k += 1
     return lo, hi, z, sig, bins
+
+
+@numba.njit(cache=True)
+def window_bridged_gap(used, i0, bin_m, a0, a1, x_min, x_max, max_gap):  # pragma: no cover
+    """Whether the used bins among array elements [a0, a1) overlapping [x_min, x_max] (the
+    bins :func:`window_bins` returns) leave a strip between two consecutive ones wider than
+    ``UNSEEN_TOLERANCE_M`` and at most ``max_gap`` wide: the strips clearance.gap_terrain
+    turns into floors and risers (none: it returns nothing). The same x_lo / x_hi floats as
+    :func:`window_bins`, without building the window."""
+    prev_hi = np.nan
+    for e in range(a0, a1):
+        if used[e]:
+            x_lo = (e + i0) * bin_m
+            x_hi = x_lo + bin_m
+            if x_hi >= x_min and x_lo <= x_max:
+                if prev_hi == prev_hi:
+                    gap = x_lo - prev_hi
+                    if gap > UNSEEN_TOLERANCE_M and gap <= max_gap:
+                        return True
+                prev_hi = x_hi
+    return False
+
+
+@numba.njit(cache=True)
+def observe_errors(t, h, poses, t0, f0, t1, f1, sums, counts):  # pragma: no cover - compiled
+    """prediction_error.PredictionErrors.observe after its early returns, in one call: the
+    kept instants t[r] + h[s] in (t0, t1] scored against the foot interpolated between the
+    frames (``f0`` at ``t0``, ``f1`` at ``t1``; heel x, z, toe x, z), row by row (np.nonzero's
+    order), their squared errors summed per step from zero and then added to ``sums`` (as
+    np.bincount and ``+=``), the counts to ``counts``; the rows whose last instant has passed
+    get time NaN. In place; returns (any instant scored, rows dropped)."""
+    R, n = poses.shape[0], poses.shape[1]
+    part = np.zeros(n)
+    cnt = np.zeros(n)
+    scored = False
+    dropped = 0
+    span = t1 - t0
+    for r in range(R):
+        for s in range(n):
+            tt = t[r] + h[s]
+            if tt > t0 and tt <= t1:
+                w = (tt - t0) / span
+                d0 = poses[r, s, 0] - (f0[0] + w * (f1[0] - f0[0]))
+                d1 = poses[r, s, 1] - (f0[1] + w * (f1[1] - f0[1]))
+                d2 = poses[r, s, 2] - (f0[2] + w * (f1[2] - f0[2]))
+                d3 = poses[r, s, 3] - (f0[3] + w * (f1[3] - f0[3]))
+                a, b = d0**2 + d1**2, d2**2 + d3**2
+                part[s] += a if a >= b or a != a else b  # (np.maximum: NaN propagates)
+                cnt[s] += 1.0
+                scored = True
+    if scored:
+        for s in range(n):
+            sums[s] += part[s]
+            counts[s] += cnt[s]
+    for r in range(R):
+        if t[r] + h[n - 1] <= t1:
+            t[r] = np.nan
+            dropped += 1
+    return scored, dropped
 
 
 # ---------------------------------------------------------------------------------------------
@@ -977,7 +1098,23 @@ def rescan_edges(
                 first[q],
             )
             k += 1
+    if _same_edges(out_xz, out_rise, out_first, xz, rise, first):
+        return xz, rise, first  # (unchanged: the caller keeps its arrays and their summary)
     return out_xz, out_rise, out_first
+
+
+@numba.njit(cache=True)
+def _same_edges(xz, rise, first, xz0, rise0, first0):  # pragma: no cover - compiled
+    """The edges equal the old ones bit for bit (the same floats, signs of zeros too)."""
+    if rise.shape[0] != rise0.shape[0]:
+        return False
+    for q in range(rise.shape[0]):
+        if first[q] != first0[q]:
+            return False
+        for a, b in ((xz[q, 0], xz0[q, 0]), (xz[q, 1], xz0[q, 1]), (rise[q], rise0[q])):
+            if not (a == b and math.copysign(1.0, a) == math.copysign(1.0, b)):
+                return False
+    return True
 
 
 @numba.njit(cache=True)
@@ -1257,11 +1394,11 @@ def warm_up(fused: bool = False) -> None:
     ``fused``: only the kernels a fused monitor (``SafetyMonitor(fused=True)``, the default)
     calls frame by frame: the fused steps (``keyframe_step``, ``frame_terrain``,
     ``swing_prediction``, ``cv_prediction``, ``swing_edge_risk``) and ``foot_clearance``,
-    ``window_bins``, ``template_motion``, ``rescan_edges`` (a standing foot's contact lowering
-    map bins, height_map.IncrementalHeightMap.add_contact). The kernels of the single
-    operations, which it reaches only on rare branches (a non-finite camera), load at their
-    first call instead of costing every process ~0.15-0.2 s of CPU. Otherwise every
-    kernel."""
+    ``window_bins``, ``window_bridged_gap``, ``observe_errors``, ``template_motion``,
+    ``contact_caps`` and ``rescan_edges`` (a standing foot's contact lowering map bins,
+    height_map.IncrementalHeightMap.add_contact). The kernels of the single operations,
+    which it reaches only on rare branches (a non-finite camera), load at their first call
+    instead of costing every process ~0.15-0.2 s of CPU. Otherwise every kernel."""
     prof = HeightProfile(
         np.array([0.0, 0.005, 0.01]), np.array([0.005, 0.01, 0.015]), np.zeros(3), np.zeros(3)
     )
@@ -1287,6 +1424,15 @@ def warm_up(fused: bool = False) -> None:
             ), 0.01,
         )  # fmt: skip
     window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
+    window_bridged_gap(used, 0, 0.005, 0, 3, 0.0, 0.01, 0.15)
+    contact_caps(
+        -0.2, 0.0, 0.0, 0.0, 0.006, 0.04, 0, 1, 0, 0.005, Z, np.full((3, 4), np.inf), n, mid,
+        np.full(3, np.inf), 0.01,
+    )  # fmt: skip
+    observe_errors(
+        np.full(2, np.nan), np.zeros(3), np.zeros((2, 3, 4)), 0.0, np.zeros(4), 0.1,
+        np.zeros(4), np.zeros(3), np.zeros(3),
+    )  # fmt: skip
     phase = np.array([0.0, 0.1, 0.2])
     template_motion(0.05, np.linspace(0.0, 0.3, 11), phase, np.zeros((3, 4)), np.array([0, 3]))
     rescan_edges(

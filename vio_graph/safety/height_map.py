@@ -436,11 +436,38 @@ class IncrementalHeightMap(OnlineHeightMap):
         self, heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, margin_m: float, max_excess_m: float
     ) -> tuple[int, int] | None:
         """As :meth:`OnlineHeightMap.add_contact`, with the edges of the changed bins
-        scanned again."""
-        changed = super().add_contact(heel_xz_m, toe_xz_m, margin_m, max_excess_m)
+        scanned again (compiled, median statistic: the caps and heights in one kernel call,
+        ``contact_caps``, the same floats)."""
+        if self._kernels is not None and self.statistic == "median":
+            changed = self._add_contact_compiled(heel_xz_m, toe_xz_m, margin_m, max_excess_m)
+        else:
+            changed = super().add_contact(heel_xz_m, toe_xz_m, margin_m, max_excess_m)
         if changed is not None:
             self._rescan_edges(*changed)
         return changed
+
+    def _add_contact_compiled(
+        self, heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, margin_m: float, max_excess_m: float
+    ) -> tuple[int, int] | None:
+        """:meth:`OnlineHeightMap.add_contact` (median statistic) through the kernel."""
+        assert self._kernels is not None
+        hx, hz = (float(v) for v in np.asarray(heel_xz_m, dtype=float).reshape(-1))
+        ox, oz = (float(v) for v in np.asarray(toe_xz_m, dtype=float).reshape(-1))
+        if not all(map(math.isfinite, (hx, hz, ox, oz))) or ox == hx:
+            return None
+        self.max_excess_m = max_excess_m
+        b0 = math.floor(min(hx, ox) / self.bin_m)
+        b1 = math.floor(max(hx, ox) / self.bin_m)
+        self._grow(b0, b1)
+        first, last = self._kernels.contact_caps(
+            hx, hz, ox, oz, float(margin_m), float(max_excess_m), b0, b1, self._i0,
+            self.bin_m, self._z, self._u, self._n, self._mid, self._cap, self.top_band_m,
+        )  # fmt: skip
+        if first < 0:
+            return None
+        self._profile = None
+        self.version += 1
+        return int(first) + self._i0, int(last) + self._i0
 
     def _add_keyframe_compiled(
         self,
@@ -502,14 +529,35 @@ class IncrementalHeightMap(OnlineHeightMap):
         self._profile = None
         self.version += 1
 
+    def _elements(self, x_min_m: float, x_max_m: float) -> tuple[int, int]:
+        """The array elements [a0, a1) holding every bin that overlaps [x_min_m, x_max_m]
+        (finite): bins beyond them lie a bin or more outside the range."""
+        b = self.bin_m
+        n = self._n.shape[0]
+        a0 = min(max(math.floor(x_min_m / b) - 2 - self._i0, 0), n)
+        a1 = min(max(math.floor(x_max_m / b) + 3 - self._i0, a0), n)
+        return a0, a1
+
+    def bridged_gap(self, x_min_m: float, x_max_m: float, max_gap_m: float) -> bool:
+        """Whether the window over [x_min_m, x_max_m] (:meth:`window`) may hold a strip
+        that :func:`~vio_graph.safety.clearance.gap_terrain` fills (a gap between consecutive
+        bins wider than its tolerance and at most ``max_gap_m``): answered by the compiled
+        kernel without building the window; True (ask gap_terrain) without the kernels or
+        for a range that is not finite."""
+        if self._kernels is None or not (math.isfinite(x_min_m) and math.isfinite(x_max_m)):
+            return True
+        a0, a1 = self._elements(x_min_m, x_max_m)
+        return bool(
+            self._kernels.window_bridged_gap(
+                self._used, self._i0, self.bin_m, a0, a1, x_min_m, x_max_m, max_gap_m
+            )
+        )
+
     def window(self, x_min_m: float, x_max_m: float, map_sigma_m: float) -> MapWindow:
         if not (math.isfinite(x_min_m) and math.isfinite(x_max_m)):
             return super().window(x_min_m, x_max_m, map_sigma_m)
         b = self.bin_m
-        n = self._n.shape[0]
-        # bins beyond these indices lie a bin or more outside the range
-        a0 = min(max(math.floor(x_min_m / b) - 2 - self._i0, 0), n)
-        a1 = min(max(math.floor(x_max_m / b) + 3 - self._i0, a0), n)
+        a0, a1 = self._elements(x_min_m, x_max_m)
         if self._kernels is not None:
             lo, hi, z, sig, bins = self._kernels.window_bins(
                 self._used, self._mid, self._se2, a0, a1, self._i0, b, x_min_m, x_max_m, map_sigma_m
@@ -542,6 +590,15 @@ class IncrementalHeightMap(OnlineHeightMap):
 
     def _find_edges(self) -> Edges:
         return Edges(self._edge_xz, self._edge_rise)
+
+    def _cached_edges(self) -> tuple[int, Edges, tuple[int, float, float]]:
+        # kept while the edge arrays are the same objects: the compiled re-scan hands back
+        # the arrays it was given when the edges did not change (most keyframes)
+        c = self._edges
+        if c is None or c[1].xz_m is not self._edge_xz or c[1].rise_m is not self._edge_rise:
+            e = self._find_edges()
+            c = self._edges = (self.version, e, e.summary())
+        return c
 
     def _step(self, p: int, q: int) -> bool:
         """Consecutive used bins (array elements p < q) form a transition pair

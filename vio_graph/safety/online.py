@@ -383,7 +383,7 @@ class SafetyMonitor:
         #: instants arrive (this swing's only: pooled with the last 3 swings', the one-step
         #: first swing onto the stair also silenced the next swing's warning of a true
         #: near-trip, 222 ms ahead from a half-right template; upstair_near_trip s1)
-        self.prediction_errors = PredictionErrors(self._h)
+        self.prediction_errors = PredictionErrors(self._h, kernels=kernels)
         self.consistency = MapConsistency(
             config.consistency_window_keyframes,
             config.consistency_min_keyframes,
@@ -951,6 +951,10 @@ class SafetyMonitor:
         cfg = self.config
         sole = cfg.sole_thickness_m
         x_a, x_b = float(min(heel[0], toe[0])), float(max(heel[0], toe[0]))
+        if isinstance(self.map, IncrementalHeightMap) and not self.map.bridged_gap(
+            x_a - cfg.window_m, x_b + cfg.window_m, cfg.edge_max_gap_m
+        ):  # (compiled: no strip to fill, so gap_terrain would return nothing)
+            return now
         near = self.map.window(x_a - cfg.window_m, x_b + cfg.window_m, cfg.map_sigma_m)
         floors, f_bins, risers, r_bins = gap_terrain(
             near.profile, near.bins, cfg.edge_max_gap_m, x_b + sole

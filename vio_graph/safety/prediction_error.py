@@ -12,6 +12,7 @@ monitor uses it to test only the steps its prediction has been accurate at in th
 from __future__ import annotations
 
 import math
+from types import ModuleType
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,9 +22,14 @@ class PredictionErrors:
     """Online rms of the foot prediction's error per horizon step in the current swing (m).
 
     ``h_s``: the horizon's instants (H + 1,), s after the prediction (h_s[0] = 0, the
-    current pose); ``capacity``: predictions kept at first (grows when needed)."""
+    current pose); ``capacity``: predictions kept at first (grows when needed); ``kernels``:
+    the compiled module (vio_graph/safety/compiled.py, ``observe_errors``: :meth:`observe`'s
+    scoring in one call, the same floats) or None (numpy)."""
 
-    def __init__(self, h_s: NDArray[np.float64], capacity: int = 16) -> None:
+    def __init__(
+        self, h_s: NDArray[np.float64], capacity: int = 16, kernels: ModuleType | None = None
+    ) -> None:
+        self._kernels = kernels
         self._h = np.asarray(h_s, dtype=float)
         n = len(self._h)
         self._sums = np.zeros(n)  # squared errors per step, this swing
@@ -66,6 +72,15 @@ class PredictionErrors:
             return  # (the next finite frame interpolates from the last finite one)
         last, self._last = self._last, (t_s, foot)
         if last is None or not t_s > last[0] or self._kept == 0:
+            return
+        if self._kernels is not None:
+            scored, dropped = self._kernels.observe_errors(
+                self._t, self._h, self._poses, last[0], np.array(last[1]), t_s,
+                np.array(foot), self._sums, self._counts,
+            )  # fmt: skip
+            if scored:
+                self._trusted.clear()
+            self._kept -= int(dropped)
             return
         t0, f0 = last[0], np.array(last[1])
         f1 = np.array(foot)

@@ -1,0 +1,41 @@
+"""The online estimator's one-pose kinematics (vio_graph/kinematics.py ``leg_points_single``)
+gives the vectorised chain's floats (``knee_from_camera`` then ``leg_points_from_knee``) bit
+for bit: knee, ankle, heel and toe over random poses, with the IMU's shank pitch or another
+one for the chain below the knee."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vio_graph.kinematics import (
+    LegModel,
+    knee_from_camera,
+    leg_points_from_knee,
+    leg_points_single,
+)
+
+
+def test_single_pose_equals_the_vectorised_chain_bit_for_bit() -> None:
+    rng = np.random.default_rng(8)
+    n_other = 0
+    for k in range(2000):
+        leg = LegModel(
+            float(rng.uniform(0.3, 0.5)),
+            float(rng.uniform(0.3, 0.5)),
+            (float(rng.normal(-0.05, 0.02)), float(rng.normal(-0.07, 0.02))),
+            (float(rng.normal(0.2, 0.03)), float(rng.normal(-0.07, 0.02))),
+        )
+        cam = rng.normal(0.0, 2.0, 2)
+        cis = rng.normal(0.0, 0.2, 2)
+        imu = float(rng.uniform(-np.pi, np.pi)) if k % 7 else float(rng.choice([0.0, -0.0]))
+        chain = imu if k % 3 else imu + float(rng.normal(0.0, 0.05))
+        ankle = float(rng.normal(0.0, 0.3)) if k % 5 else 0.0
+        n_other += chain != imu
+        knee = knee_from_camera(cam, imu, cis)
+        want = leg_points_from_knee(leg, knee, chain, ankle)
+        got = leg_points_single(leg, cam, cis, imu, chain, ankle)
+        for name in ("knee_xz_m", "ankle_xz_m", "heel_xz_m", "toe_xz_m"):
+            a, b = getattr(got, name), getattr(want, name)
+            assert a.shape == b.shape == (1, 2), name
+            assert a.tobytes() == b.tobytes(), (k, name, a, b)
+    assert n_other > 500  # the chain's own pitch was exercised

@@ -18,8 +18,14 @@ once and cached under results/benchmarks/ (git-ignored). Two kinds of measuremen
   rest`` is the remainder of the process (interpreter, imports, CLI, config, opening the
   recording, metrics.json).
 
-Writes benchmarks/results/end_to_end.json and prints a markdown table.
-Run: python benchmarks/bench_end_to_end.py [--repeats 3]
+With ``--base REV`` the same commands also run on git revision REV (``git archive``d to a
+temporary folder, run from there with it first on the import path), alternated with this
+tree's in every repeat, and the table gives both sides and the ratio this tree / REV. REV's
+first run compiles its numba cache (a minute or two of CPU): it runs once untimed first.
+
+Writes benchmarks/results/end_to_end.json (with ``--base``: end_to_end_ab.json) and prints a
+markdown table.
+Run: python benchmarks/bench_end_to_end.py [--repeats 3] [--base REV]
 """
 
 from __future__ import annotations
@@ -162,12 +168,20 @@ def stages_child(cli_args: list[str], result_file: Path) -> None:
     result_file.write_text(json.dumps({"cpu_s": split, "total_cpu_s": total, "missing": missing}))
 
 
-def _stage_split(rec: Path, out: Path, flags: list[str]) -> dict[str, Any]:
+def _stage_split(
+    rec: Path, out: Path, flags: list[str], tree: Path | None = None
+) -> dict[str, Any]:
     result_file = out.with_suffix(".stages.json")
     env = dict(os.environ, **{v: "1" for v in _common.THREAD_VARIABLES})
-    args = [sys.executable, __file__, "--stages-child", str(result_file), "--"]
+    if tree is not None:  # the package of that tree (this script and _common from here)
+        env["PYTHONPATH"] = str(tree)
+    args = [sys.executable, str(Path(__file__).resolve()), "--stages-child", str(result_file)]
     subprocess.run(
-        args + _run_args(rec, out, flags), check=True, env=env, stdout=subprocess.DEVNULL
+        [*args, "--", *_run_args(rec, out, flags)],
+        check=True,
+        env=env,
+        cwd=tree,
+        stdout=subprocess.DEVNULL,
     )
     split = json.loads(result_file.read_text())
     result_file.unlink()
@@ -175,33 +189,57 @@ def _stage_split(rec: Path, out: Path, flags: list[str]) -> dict[str, Any]:
     return split
 
 
-def run(repeats: int = 3) -> dict[str, Any]:
-    rec = recording()
+def run(repeats: int = 3, base: str | None = None) -> dict[str, Any]:
+    rec = recording().resolve()
     frames = sum(1 for _ in (rec / "depth" / "timestamps.csv").open()) - 1
-    scratch = _common.SCRATCH_DIR / "end_to_end"
+    scratch = (_common.SCRATCH_DIR / "end_to_end").resolve()
     scratch.mkdir(parents=True, exist_ok=True)
+    if base is None:
+        return _run_sides(rec, frames, scratch, repeats, {"this tree": None})
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = _common.extract_revision(base, Path(tmp))
+        cli = [sys.executable, "-m", "vio_graph.cli"]
+        warm = _run_args(rec, scratch / "warm", ["--no-rerun", "--no-plots"])
+        _measure(cli + warm, tree)  # compiles REV's numba cache: not timed
+        shutil.rmtree(scratch / "warm", ignore_errors=True)
+        out = _run_sides(rec, frames, scratch, repeats, {base: tree, "this tree": None})
+    out["base"] = base
+    return out
+
+
+def _run_sides(
+    rec: Path, frames: int, scratch: Path, repeats: int, sides: dict[str, Path | None]
+) -> dict[str, Any]:
+    """Every configuration on every side (a source tree, None: this one), alternated."""
     cli = [sys.executable, "-m", "vio_graph.cli"]
-    runs: dict[str, list[dict[str, float]]] = {name: [] for name in CONFIGS}
-    for _ in range(repeats):  # interleaved: a load change hits both configurations alike
+    runs: dict[tuple[str, str], list[dict[str, float]]] = {
+        (name, side): [] for name in CONFIGS for side in sides
+    }
+    order = list(sides.items())
+    for k in range(repeats):  # interleaved: a load change hits both configurations alike
         for name, (flags, _aim) in CONFIGS.items():
-            out = scratch / "out"
-            runs[name].append(_measure(cli + _run_args(rec, out, flags)))
-            shutil.rmtree(out, ignore_errors=True)
+            for side, tree in order if k % 2 == 0 else order[::-1]:
+                out = scratch / "out"
+                runs[name, side].append(_measure(cli + _run_args(rec, out, flags), tree))
+                shutil.rmtree(out, ignore_errors=True)
     rows = []
     for name, (flags, aim) in CONFIGS.items():
-        wall = statistics.median(r["wall_s"] for r in runs[name])
-        cpu = statistics.median(r["cpu_s"] for r in runs[name])
-        rows.append(
-            {
-                "config": name,
-                "flags": flags,
-                "aim_wall_s": aim,
-                "wall_s": wall,
-                "cpu_s": cpu,
-                "runs": runs[name],
-                "stages": _stage_split(rec, scratch / "out_stages", flags),
-            }
-        )
+        for side, tree in sides.items():
+            r = runs[name, side]
+            rows.append(
+                {
+                    "config": name,
+                    "side": side,
+                    "flags": flags,
+                    "aim_wall_s": aim,
+                    "wall_s": statistics.median(x["wall_s"] for x in r),
+                    "cpu_s": statistics.median(x["cpu_s"] for x in r),
+                    "runs": r,
+                    "stages": _stage_split(rec, scratch / "out_stages", flags, tree),
+                }
+            )
     return {
         "scenario": f"upstair_long stretched to {DURATION_S:g} s, seed 1",
         "duration_s": DURATION_S,
@@ -214,21 +252,29 @@ def run(repeats: int = 3) -> dict[str, Any]:
 def markdown(r: dict[str, Any]) -> str:
     f = _common.fmt
     d = r["duration_s"]
+    sides = list(dict.fromkeys(row.get("side", "this tree") for row in r["rows"]))
+    cpu_of = {(row["config"], row.get("side", "this tree")): row["cpu_s"] for row in r["rows"]}
     whole = [
         [
             f"`vio-graph run REC --out OUT --mode all {' '.join(row['flags'])}`".replace(" `", "`"),
+            *([row.get("side", "this tree")] if len(sides) > 1 else []),
             f"{f(row['wall_s'], 1)} s",
             f"{f(row['cpu_s'], 1)} s",
             f"<= {row['aim_wall_s']:g} s",
             f"{d / row['cpu_s']:.1f}x",
+            *([f"{row['cpu_s'] / cpu_of[row['config'], sides[0]]:.3f}"] if len(sides) > 1 else []),
         ]
         for row in r["rows"]
     ]
+    head = ["command", "wall", "CPU", "aim (wall)", "x real time"]
+    if len(sides) > 1:
+        head = [head[0], "tree", *head[1:], f"CPU / {sides[0]}"]
     names = list(dict.fromkeys(n for row in r["rows"] for n in row["stages"]["cpu_s"]))
     split = [
         [name] + [f(row["stages"]["cpu_s"].get(name, 0.0), 2) for row in r["rows"]]
         for name in names
     ]
+    columns = [row["config"] + (f" ({row['side']})" if len(sides) > 1 else "") for row in r["rows"]]
     split.append(["total"] + [f(row["stages"]["total_cpu_s"], 2) for row in r["rows"]])
     missing = sorted({m for row in r["rows"] for m in row["stages"]["missing"]})
     return "\n".join(
@@ -240,14 +286,15 @@ def markdown(r: dict[str, Any]) -> str:
             "machine the CPU seconds are the figure to compare. Real time factor on CPU "
             "time.",
             "",
-            _common.md_table(["command", "wall", "CPU", "aim (wall)", "x real time"], whole),
+            *([f"Base: `{r['base']}`; CPU ratios this tree / base.", ""] if "base" in r else []),
+            _common.md_table(head, whole),
             "",
             "CPU seconds per stage (one more run of each command, stages wrapped in-process; "
             "a stage's time excludes the stages nested in it, `startup and rest` is the rest "
             "of the process: interpreter, imports, CLI, config, opening the recording, "
             "metrics.json):",
             "",
-            _common.md_table(["stage", *(row["config"] for row in r["rows"])], split),
+            _common.md_table(["stage", *columns], split),
             *(["", "Not measured (renamed or moved): " + ", ".join(missing)] if missing else []),
         ]
     )
@@ -259,9 +306,11 @@ def main() -> None:
         return
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3, help="runs of each command (median)")
+    ap.add_argument("--base", help="git revision to compare with (alternated runs)")
     args = ap.parse_args()
-    r = run(args.repeats)
-    _common.write_result("end_to_end", r)
+    r = run(args.repeats, args.base)
+    # (an A/B result apart: docs/performance.md reads end_to_end.json as this tree's figures)
+    _common.write_result("end_to_end" if args.base is None else "end_to_end_ab", r)
     print(markdown(r))  # noqa: T201 - script output
 
 

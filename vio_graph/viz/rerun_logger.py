@@ -7,7 +7,9 @@ data is shown in 3D at y = 0. Entity layout:
 - ``world/terrain``            terrain mesh (static) and true profile
 - ``world/camera``             estimated camera pose (a time series)
 - ``world/camera/image``       pinhole (static); ``world/camera/image/depth`` the depth image,
-                               which the viewer back-projects through the pinhole
+                               which the viewer back-projects through the pinhole (the
+                               recorded uint16 counts with meter = 1 / depth unit, see
+                               :meth:`Visualizer.log_camera`)
 - ``world/cloud``              depth cloud in the world frame (subsampled)
 - ``world/slice``              sagittal slice (ground frame, placed at the estimate)
 - ``world/features``           corner feature points; ``world/icp`` ICP matches
@@ -94,8 +96,8 @@ class NullVisualizer:
     def abort(self) -> None: ...
 
 
-#: rows of a per-frame entity collected before they are sent (5 s at 30 frames/s; about 6 MB
-#: of depth images at 112 x 86 pixels)
+#: rows of a per-frame entity collected before they are sent (5 s at 30 frames/s; about 11.6 MB
+#: of uint16 depth images at 224 x 172 pixels, 2.9 MB at data/sample's 112 x 86)
 FLUSH_ROWS = 150
 
 

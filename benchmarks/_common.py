@@ -179,9 +179,11 @@ def true_leg_paths(rec: Any, t: Any) -> dict[str, Any]:
     return {b: gt[b].xz_at(t) for b in ("camera", "heel", "toe")}
 
 
-def measure_process(args: list[str]) -> dict[str, float]:
+def measure_process(args: list[str], tree: Path | None = None) -> dict[str, float]:
     """Run ``args`` as a single-threaded child process (BLAS / OpenMP threads = 1); its wall
-    (s), user + system CPU (s) and peak resident memory (MiB), from ``os.wait4``.
+    (s), user + system CPU (s) and peak resident memory (MiB), from ``os.wait4``. ``tree``:
+    a source tree (:func:`extract_revision`) to run instead of this one, first on the import
+    path and the working directory (``python -m`` puts the working directory first).
 
     Raises:
         RuntimeError: the process exited with a non-zero code (its stderr's end included).
@@ -190,8 +192,12 @@ def measure_process(args: list[str]) -> dict[str, float]:
     import time
 
     env = dict(os.environ, **{v: "1" for v in THREAD_VARIABLES})
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree)
     t0 = time.perf_counter()
-    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        args, env=env, cwd=tree, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
     err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""

@@ -18,8 +18,17 @@ once and cached under results/benchmarks/ (git-ignored). Two kinds of measuremen
   rest`` is the remainder of the process (interpreter, imports, CLI, config, opening the
   recording, metrics.json).
 
-Writes benchmarks/results/end_to_end.json and prints a markdown table.
-Run: python benchmarks/bench_end_to_end.py [--repeats 3]
+With ``--base REV`` the same commands also run on git revision REV (``git archive``d to a
+temporary folder, run from there with it first on the import path), alternated with this
+tree's in every repeat, and the table gives both sides and the ratio this tree / REV. REV's
+first run compiles its numba cache (a minute or two of CPU): it runs once untimed first.
+
+``--recording REC --mode M --flags=F``: the same on another recording (e.g. a 600 s trial of
+bench_scale.py), in mode M, with the run flags F as the one configuration (no aim).
+
+Writes benchmarks/results/end_to_end.json (with ``--base``, ``--recording`` or ``--flags``:
+end_to_end_ab.json) and prints a markdown table.
+Run: python benchmarks/bench_end_to_end.py [--repeats 3] [--base REV] [--recording REC]
 """
 
 from __future__ import annotations
@@ -37,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 import _common  # noqa: I001 - first: pins thread pools before numpy is imported
+import numpy as np
 
 DURATION_S = 30.0
 ROOT = _common.BENCH_DIR.parent
@@ -97,8 +107,8 @@ def recording() -> Path:
 _measure = _common.measure_process
 
 
-def _run_args(rec: Path, out: Path, flags: list[str]) -> list[str]:
-    return ["run", str(rec), "--out", str(out), "--mode", "all", "--overwrite", *flags]
+def _run_args(rec: Path, out: Path, flags: list[str], mode: str = "all") -> list[str]:
+    return ["run", str(rec), "--out", str(out), "--mode", mode, "--overwrite", *flags]
 
 
 class StageClock:
@@ -162,12 +172,20 @@ def stages_child(cli_args: list[str], result_file: Path) -> None:
     result_file.write_text(json.dumps({"cpu_s": split, "total_cpu_s": total, "missing": missing}))
 
 
-def _stage_split(rec: Path, out: Path, flags: list[str]) -> dict[str, Any]:
+def _stage_split(
+    rec: Path, out: Path, flags: list[str], tree: Path | None = None, mode: str = "all"
+) -> dict[str, Any]:
     result_file = out.with_suffix(".stages.json")
     env = dict(os.environ, **{v: "1" for v in _common.THREAD_VARIABLES})
-    args = [sys.executable, __file__, "--stages-child", str(result_file), "--"]
+    if tree is not None:  # the package of that tree (this script and _common from here)
+        env["PYTHONPATH"] = str(tree)
+    args = [sys.executable, str(Path(__file__).resolve()), "--stages-child", str(result_file)]
     subprocess.run(
-        args + _run_args(rec, out, flags), check=True, env=env, stdout=subprocess.DEVNULL
+        [*args, "--", *_run_args(rec, out, flags, mode)],
+        check=True,
+        env=env,
+        cwd=tree,
+        stdout=subprocess.DEVNULL,
     )
     split = json.loads(result_file.read_text())
     result_file.unlink()
@@ -175,79 +193,133 @@ def _stage_split(rec: Path, out: Path, flags: list[str]) -> dict[str, Any]:
     return split
 
 
-def run(repeats: int = 3) -> dict[str, Any]:
-    rec = recording()
-    frames = sum(1 for _ in (rec / "depth" / "timestamps.csv").open()) - 1
-    scratch = _common.SCRATCH_DIR / "end_to_end"
-    scratch.mkdir(parents=True, exist_ok=True)
-    cli = [sys.executable, "-m", "vio_graph.cli"]
-    runs: dict[str, list[dict[str, float]]] = {name: [] for name in CONFIGS}
-    for _ in range(repeats):  # interleaved: a load change hits both configurations alike
-        for name, (flags, _aim) in CONFIGS.items():
-            out = scratch / "out"
-            runs[name].append(_measure(cli + _run_args(rec, out, flags)))
-            shutil.rmtree(out, ignore_errors=True)
-    rows = []
-    for name, (flags, aim) in CONFIGS.items():
-        wall = statistics.median(r["wall_s"] for r in runs[name])
-        cpu = statistics.median(r["cpu_s"] for r in runs[name])
-        rows.append(
-            {
-                "config": name,
-                "flags": flags,
-                "aim_wall_s": aim,
-                "wall_s": wall,
-                "cpu_s": cpu,
-                "runs": runs[name],
-                "stages": _stage_split(rec, scratch / "out_stages", flags),
-            }
-        )
-    return {
-        "scenario": f"upstair_long stretched to {DURATION_S:g} s, seed 1",
-        "duration_s": DURATION_S,
+def run(
+    repeats: int = 3,
+    base: str | None = None,
+    rec_path: Path | None = None,
+    mode: str = "all",
+    flags: list[str] | None = None,
+) -> dict[str, Any]:
+    """The two configurations of :data:`CONFIGS` on the 30 s trial, or ``flags`` alone (one
+    configuration, no aim) on the recording ``rec_path``, in ``mode``."""
+    rec = (recording() if rec_path is None else Path(rec_path)).resolve()
+    stamps = np.loadtxt(rec / "depth" / "timestamps.csv", delimiter=",", skiprows=1, ndmin=2)
+    frames = stamps.shape[0]
+    configs = CONFIGS if flags is None else {" ".join(flags) or "(no flags)": (flags, np.nan)}
+    scenario = f"upstair_long stretched to {DURATION_S:g} s, seed 1"
+    if rec_path is not None:
+        scenario = _common.display_path(rec)
+    info = {
+        "scenario": scenario,
+        "duration_s": DURATION_S if rec_path is None else float(np.ptp(stamps[:, 1])),
         "frames": frames,
-        "repeats": repeats,
-        "rows": rows,
+        "mode": mode,
     }
+    scratch = (_common.SCRATCH_DIR / "end_to_end").resolve()
+    scratch.mkdir(parents=True, exist_ok=True)
+    if base is None:
+        return {**info, **_run_sides(rec, scratch, repeats, {"this tree": None}, configs, mode)}
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = _common.extract_revision(base, Path(tmp))
+        cli = [sys.executable, "-m", "vio_graph.cli"]
+        warm = _run_args(rec, scratch / "warm", ["--no-rerun", "--no-plots"], mode)
+        _measure(cli + warm, tree)  # compiles REV's numba cache: not timed
+        shutil.rmtree(scratch / "warm", ignore_errors=True)
+        sides = {base: tree, "this tree": None}
+        out = {**info, **_run_sides(rec, scratch, repeats, sides, configs, mode), "base": base}
+    return out
+
+
+def _run_sides(
+    rec: Path,
+    scratch: Path,
+    repeats: int,
+    sides: dict[str, Path | None],
+    configs: dict[str, tuple[list[str], float]],
+    mode: str,
+) -> dict[str, Any]:
+    """Every configuration on every side (a source tree, None: this one), alternated."""
+    cli = [sys.executable, "-m", "vio_graph.cli"]
+    runs: dict[tuple[str, str], list[dict[str, float]]] = {
+        (name, side): [] for name in configs for side in sides
+    }
+    order = list(sides.items())
+    for k in range(repeats):  # interleaved: a load change hits both configurations alike
+        for name, (flags, _aim) in configs.items():
+            for side, tree in order if k % 2 == 0 else order[::-1]:
+                out = scratch / "out"
+                runs[name, side].append(_measure(cli + _run_args(rec, out, flags, mode), tree))
+                shutil.rmtree(out, ignore_errors=True)
+    rows = []
+    for name, (flags, aim) in configs.items():
+        for side, tree in sides.items():
+            r = runs[name, side]
+            rows.append(
+                {
+                    "config": name,
+                    "side": side,
+                    "flags": flags,
+                    "aim_wall_s": aim,
+                    "wall_s": statistics.median(x["wall_s"] for x in r),
+                    "cpu_s": statistics.median(x["cpu_s"] for x in r),
+                    "runs": r,
+                    "stages": _stage_split(rec, scratch / "out_stages", flags, tree, mode),
+                }
+            )
+    return {"repeats": repeats, "rows": rows}
 
 
 def markdown(r: dict[str, Any]) -> str:
     f = _common.fmt
     d = r["duration_s"]
+    mode = r.get("mode", "all")
+    sides = list(dict.fromkeys(row.get("side", "this tree") for row in r["rows"]))
+    cpu_of = {(row["config"], row.get("side", "this tree")): row["cpu_s"] for row in r["rows"]}
     whole = [
         [
-            f"`vio-graph run REC --out OUT --mode all {' '.join(row['flags'])}`".replace(" `", "`"),
+            f"`vio-graph run REC --out OUT --mode {mode} {' '.join(row['flags'])}`".replace(
+                " `", "`"
+            ),
+            *([row.get("side", "this tree")] if len(sides) > 1 else []),
             f"{f(row['wall_s'], 1)} s",
             f"{f(row['cpu_s'], 1)} s",
-            f"<= {row['aim_wall_s']:g} s",
+            f"<= {row['aim_wall_s']:g} s" if np.isfinite(row["aim_wall_s"]) else "",
             f"{d / row['cpu_s']:.1f}x",
+            *([f"{row['cpu_s'] / cpu_of[row['config'], sides[0]]:.3f}"] if len(sides) > 1 else []),
         ]
         for row in r["rows"]
     ]
+    head = ["command", "wall", "CPU", "aim (wall)", "x real time"]
+    if len(sides) > 1:
+        head = [head[0], "tree", *head[1:], f"CPU / {sides[0]}"]
     names = list(dict.fromkeys(n for row in r["rows"] for n in row["stages"]["cpu_s"]))
     split = [
         [name] + [f(row["stages"]["cpu_s"].get(name, 0.0), 2) for row in r["rows"]]
         for name in names
     ]
+    columns = [row["config"] + (f" ({row['side']})" if len(sides) > 1 else "") for row in r["rows"]]
     split.append(["total"] + [f(row["stages"]["total_cpu_s"], 2) for row in r["rows"]])
     missing = sorted({m for row in r["rows"] for m in row["stages"]["missing"]})
     return "\n".join(
         [
-            f"A {d:g} s trial ({r['frames']} frames; {r['scenario']}), every mode "
-            f"(`--mode all`); each command its own single-threaded process, the two "
+            f"A {d:.3g} s trial ({r['frames']} frames; {r['scenario']}), `--mode {mode}`; "
+            f"each command its own single-threaded process, the commands "
             f"interleaved {r['repeats']} times, medians of wall and user + system CPU seconds "
             "(`os.wait4`). The aims (issue 10) are wall seconds on one core; on a shared "
             "machine the CPU seconds are the figure to compare. Real time factor on CPU "
             "time.",
             "",
-            _common.md_table(["command", "wall", "CPU", "aim (wall)", "x real time"], whole),
+            *([f"Base: `{r['base']}`; CPU ratios this tree / base.", ""] if "base" in r else []),
+            _common.md_table(head, whole),
             "",
             "CPU seconds per stage (one more run of each command, stages wrapped in-process; "
             "a stage's time excludes the stages nested in it, `startup and rest` is the rest "
             "of the process: interpreter, imports, CLI, config, opening the recording, "
             "metrics.json):",
             "",
-            _common.md_table(["stage", *(row["config"] for row in r["rows"])], split),
+            _common.md_table(["stage", *columns], split),
             *(["", "Not measured (renamed or moved): " + ", ".join(missing)] if missing else []),
         ]
     )
@@ -259,9 +331,20 @@ def main() -> None:
         return
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3, help="runs of each command (median)")
+    ap.add_argument("--base", help="git revision to compare with (alternated runs)")
+    ap.add_argument("--recording", type=Path, help="another recording (default: the 30 s trial)")
+    ap.add_argument("--mode", default="all", help="the run's --mode (default all)")
+    ap.add_argument(
+        "--flags",
+        help="one configuration: these run flags (e.g. '--no-rerun'; '' for none) instead of "
+        "the two of issue 10",
+    )
     args = ap.parse_args()
-    r = run(args.repeats)
-    _common.write_result("end_to_end", r)
+    flags = None if args.flags is None else args.flags.split()
+    r = run(args.repeats, args.base, args.recording, args.mode, flags)
+    # (an A/B result apart: docs/performance.md reads end_to_end.json as this tree's figures)
+    default = args.base is None and args.recording is None and flags is None and args.mode == "all"
+    _common.write_result("end_to_end" if default else "end_to_end_ab", r)
     print(markdown(r))  # noqa: T201 - script output
 
 

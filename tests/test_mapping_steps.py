@@ -278,3 +278,40 @@ def test_find_levels_on_a_height_grid_ends() -> None:
     # random points on the grid: the reference searches one window forever here
     grid = np.round(np.random.default_rng(0).random((5000, 2)) * [3, 0.5] / 0.005) * 0.005
     assert len(find_levels(grid)) > 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_under_levels_by_window_equals_the_whole_call(seed: int) -> None:
+    """mapping.steps.under_levels_by_window (one level's x window of the sorted points at a
+    time) gives surface.under_levels_mask's mask bit for bit: open-riser treads over a floor
+    that runs under several of them, a landing over a wall, levels that touch or overlap
+    by less than the margin, points on the extents' ends and on end + margin, NaN points,
+    and a map where nothing is beneath a level."""
+    from vio_graph.mapping.steps import under_levels_by_window
+    from vio_graph.surface import under_levels_mask
+
+    rng = np.random.default_rng(seed)
+    n_treads = 12
+    tread_lo = 0.5 + 0.28 * np.arange(n_treads)
+    z = np.concatenate([0.15 * (1 + np.arange(n_treads)), [0.0, 0.0, 1.9, -0.4]])
+    lo = np.concatenate([tread_lo, [-0.5, 2.0, 3.9, 1.0]])
+    hi = np.concatenate([tread_lo + 0.25, [2.0, 4.5, 6.0, 1.04]])
+    lo[3] = hi[2]  # two treads touching
+    pts = np.column_stack([rng.uniform(-1.0, 6.5, 4000), rng.uniform(-0.6, 2.2, 4000)])
+    pts[rng.integers(0, 4000, 15)] = np.nan
+    pts[rng.integers(0, 4000, 15), 1] = np.nan
+    # on every extent's ends (and a margin in) at every level's height: the window's edges
+    ends = np.concatenate([lo, hi, lo + 0.05, hi - 0.05])
+    pts = np.vstack([pts, np.column_stack([np.repeat(ends, z.size), np.tile(z, ends.size)])])
+    for margin, drop in ((0.05, 0.06), (0.0, 0.1), (0.2, 0.02), (0.01, 0.5)):
+        want = under_levels_mask(pts, z, lo, hi, margin, drop, drop)
+        got = under_levels_by_window(pts, z, lo, hi, margin, drop)
+        assert want.any() and not want.all()
+        np.testing.assert_array_equal(got, want)
+    above = pts[np.isfinite(pts[:, 1])].copy()
+    above[:, 1] = 5.0  # nothing beneath any level
+    assert not under_levels_by_window(above, z, lo, hi, 0.05, 0.06).any()
+    np.testing.assert_array_equal(
+        under_levels_by_window(pts, z, lo, hi, -0.05, 0.06),
+        under_levels_mask(pts, z, lo, hi, -0.05, 0.06, 0.06),
+    )

@@ -93,6 +93,35 @@ def test_map_cells_equal_merge_points_bit_for_bit() -> None:
     assert len(empty.cells) == 0 and empty.cells.points_xz_m.shape == (0, 2)
 
 
+def test_map_cells_equal_merge_points_across_batches(monkeypatch) -> None:
+    """merge_keyframes in batches of consecutive keyframes (``_KEY_BATCH`` points; here a few
+    dozen, so that batches end mid-map, around empty keyframes and at the last one) gives
+    merge_points' cells bit for bit; its sorted distinct keys are np.unique's."""
+    from vio_graph.mapping import local_map
+    from vio_graph.mapping.config import MapConfig
+    from vio_graph.mapping.local_map import merge_points
+
+    rng = np.random.default_rng(11)
+    keys = rng.integers(-50, 50, 400)
+    np.testing.assert_array_equal(local_map._sorted_distinct(keys), np.unique(keys))
+    assert local_map._sorted_distinct(np.zeros(0, np.int64)).shape == (0,)
+    cfg = MapConfig(min_keyframes_per_cell=2)
+    tmap = TerrainMap2D(cfg)
+    for k in range(60):
+        prof = _profile(rng) + rng.normal(0.0, 0.004, (40, 2))
+        if k % 9 == 0 or k == 59:  # empty ones, the last keyframe too
+            prof = np.zeros((0, 2))
+        tmap.add_keyframe(0.1 * k, [0.02 * k - 1.0, rng.normal(0.0, 0.01)], prof)
+    raw, index = tmap.raw_points_xz_m()
+    ref = merge_points(raw, index, cfg)
+    for batch in (1, 37, 80, 10**6):
+        monkeypatch.setattr(local_map, "_KEY_BATCH", batch)
+        got = local_map.merge_keyframes(tmap.keyframes, cfg)
+        assert len(got) > 100
+        for name in ("points_xz_m", "point_counts", "keyframe_counts"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(ref, name))
+
+
 def test_map_without_copy_shares_finite_profiles_only() -> None:
     prof = np.column_stack([np.linspace(0.2, 1.0, 10), np.full(10, -0.4)])
     tmap = TerrainMap2D()

@@ -33,6 +33,22 @@ def test_tum_text_is_the_per_row_formatting() -> None:
     xz[:5] = [[-0.0, 0.0], [-1e-9, 4e-7], [5e-7, -5e-7], [1234.5678915, -0.0000005], [1e-300, 2]]
     for traj in (Trajectory.from_xz(t, xz), Trajectory.from_xz(t[:0], xz[:0])):
         assert format_tum(traj) == _format_tum_reference(traj)
+    # the columns that hold one value in every row are formatted once: any orientation, a
+    # -0.0 among zeros, a NaN or inf column, one row, a time column with a repeat
+    q = rng.normal(size=(400, 4))
+    pos = np.column_stack([xz[:, 0], np.zeros(400), xz[:, 1]])
+    pos[7, 1] = -0.0
+    const = Trajectory.from_xz(t, xz)
+    cases = [
+        Trajectory(t, pos, q / np.linalg.norm(q, axis=1)[:, None]),
+        Trajectory(t, np.column_stack([xz, np.full(400, np.nan)]), const.quat_wxyz),
+        Trajectory(t, np.column_stack([xz, np.full(400, -np.inf)]), -const.quat_wxyz),
+        Trajectory(t[:1], pos[:1], const.quat_wxyz[:1]),
+        Trajectory(np.repeat(t[:200], 2), pos, const.quat_wxyz),
+        Trajectory(np.full(400, 2.5), pos, const.quat_wxyz),
+    ]
+    for traj in cases:
+        assert format_tum(traj) == _format_tum_reference(traj)
 
 
 def _estimate(rng: np.random.Generator, k: int) -> SafetyEstimate:

@@ -214,3 +214,76 @@ def test_sample_recording_entities_and_lengths(tmp_path: Path) -> None:
     assert rows["/world/camera/image/depth"]["columns"] >= {"DepthImage:buffer", "DepthImage:meter"}
     assert "Pinhole:image_from_camera" in rows["/world/camera/image"]["columns"]
     assert rows["/world/camera/image"]["static"] == 1 and rows["/world/est/toe"]["static"] == 1
+
+
+def _depth_reference(path: Path, images: list[Any], meter: float) -> None:
+    """The depth images through one ``rr.log`` each (rerun's own DepthImage conversion)."""
+    rec = rr.RecordingStream("vio_graph")
+    rec.save(str(path))
+    for i, d in enumerate(images):
+        rec.set_time("time", duration=0.1 + i / 30.0)
+        rec.log("world/camera/image/depth", rr.DepthImage(d, meter=meter))
+    rec.flush()
+    rec.disconnect()
+
+
+def _depth_rows(path: Path) -> list[tuple[Any, Any]]:
+    content = rrd_content(path)
+    return [
+        (key[1], rows) for key, rows in sorted(content.items()) if key[0].endswith("image/depth")
+    ]
+
+
+def test_depth_sent_as_the_recorded_integers(tmp_path: Path, monkeypatch) -> None:
+    """Depth images that are recorded millimetres (as the reader makes them: float32 count x
+    float32 unit, 0 = invalid) go to rerun as those uint16 counts with meter 1000, what
+    ``rr.DepthImage(counts, meter=1000)`` writes, across flushes; the viewer's metres (count /
+    meter) are the estimator's to float32 rounding. Images that are not such counts (or
+    without a unit) go as float32 metres with meter 1, as before."""
+    monkeypatch.setattr(rerun_logger, "FLUSH_ROWS", 4)
+    rng = np.random.default_rng(3)
+    counts = [rng.integers(0, 2400, (6, 8)).astype(np.uint16) for _ in range(9)]
+    counts[2][:] = 0  # an empty frame
+    unit = 0.001
+    depth_m = [c.astype(np.float32) * np.float32(unit) for c in counts]
+    K = np.array([[100.0, 0, 4], [0, 100.0, 3], [0, 0, 1]])
+
+    def log(path: Path, images: list[Any], unit_m: float | None) -> None:
+        viz = Visualizer(path)
+        for i, d in enumerate(images):
+            viz.set_time(0.1 + i / 30.0)
+            viz.log_camera(np.zeros(3), np.eye(3), K, 8, 6, d, unit_m)
+        viz.close()
+
+    log(tmp_path / "mm.rrd", depth_m, unit)
+    _depth_reference(tmp_path / "mm_ref.rrd", counts, 1000.0)
+    got = _depth_rows(tmp_path / "mm.rrd")
+    assert got == _depth_rows(tmp_path / "mm_ref.rrd")
+    meters = [m for name, rows in got if name.endswith("meter") for _, m in rows]
+    assert len(meters) == len(counts) and set(np.ravel(meters).tolist()) == {1000.0}
+    for c, d in zip(counts, depth_m, strict=True):
+        np.testing.assert_allclose(c / np.float32(1000.0), d, rtol=2e-7, atol=0)
+
+    floats = [rng.uniform(0.2, 2.0, (6, 8)).astype(np.float32) for _ in range(5)]
+    for name, images, unit_m in (("f", floats, unit), ("none", depth_m, None)):
+        log(tmp_path / f"{name}.rrd", images, unit_m)
+        _depth_reference(tmp_path / f"{name}_ref.rrd", images, 1.0)
+        assert _depth_rows(tmp_path / f"{name}.rrd") == _depth_rows(tmp_path / f"{name}_ref.rrd")
+
+
+def test_depth_image_conversion_is_exact_or_declined() -> None:
+    """``_depth_image``: counts only when they give back the float32 metres bit for bit (a
+    value off the millimetre grid, a negative, a NaN or a count beyond uint16 declines); the
+    float32 copy is never the caller's buffer."""
+    from vio_graph.viz.rerun_logger import _depth_image
+
+    d = np.array([[0, 1, 2047, 65535]], np.uint16).astype(np.float32) * np.float32(0.001)
+    img, meter = _depth_image(d, 0.001)
+    assert img.dtype == np.uint16 and meter == 1000.0
+    assert img.tolist() == [[0, 1, 2047, 65535]]
+    for bad in (d + np.float32(1e-4), -d, np.where(d > 1, np.nan, d), d * 2):
+        img, meter = _depth_image(bad.astype(np.float32), 0.001)
+        assert img.dtype == np.float32 and meter == 1.0 and img is not bad
+        np.testing.assert_array_equal(img, bad)
+    img, _ = _depth_image(d, None)
+    assert img.dtype == np.float32 and img is not d

@@ -284,7 +284,9 @@ class Replay:
         self.p0 = np.zeros(2) if p0 is None else p0
         self.online = OnlineEstimator(config, self.rig, p0)
         self.estimators = make_estimators(config, self.rig, modes, self.p0)
-        self.view = RunView(viz, self.rig, rec.groundtruth, config.output)
+        self.view = RunView(
+            viz, self.rig, rec.groundtruth, config.output, rec.metadata.camera.depth_unit_m
+        )
         self.log = FrameLog()
         self._inject_rng = np.random.default_rng(config.inject.seed)
         self.injected_wrong_associations = 0

@@ -19,7 +19,7 @@ Pure module: no file I/O.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,8 +136,41 @@ def merge_points(
     )
 
 
-#: keys gathered before they are merged into the sorted distinct keys (merge_keyframes)
+#: points of consecutive keyframes handled as one batch by merge_keyframes (about 16 MiB of
+#: working arrays; a 10-minute trial's ~3.8 million points in ~15 batches)
 _KEY_BATCH = 1 << 18
+
+
+def _sorted_distinct(values: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``np.unique(values)`` (sorted distinct integers) by a sort: numpy 2's hash-based
+    ``np.unique`` took ~0.1 s per 4e5 keys here, the sort ~0.02 s."""
+    v = np.sort(values)
+    if v.size:
+        v = v[np.concatenate(([True], v[1:] != v[:-1]))]
+    return v
+
+
+def _world_batches(
+    keyframes: Sequence[KeyframeProfile], max_points: int | None = None
+) -> Iterator[tuple[NDArray[np.float64], NDArray[np.int64], int]]:
+    """The keyframes' world points (P, 2), consecutive non-empty keyframes at a time (about
+    ``max_points`` points a batch; None: :data:`_KEY_BATCH`), with each point's keyframe
+    number within the batch (P,) and the batch's keyframe count. The points are
+    ``camera_xz_m + profile_xz_m`` of each keyframe in order
+    (:meth:`KeyframeProfile.world_points_xz_m`, the same additions)."""
+    limit = _KEY_BATCH if max_points is None else max_points
+    group: list[KeyframeProfile] = []
+    n = 0
+    for kf in keyframes:
+        if kf.profile_xz_m.shape[0]:
+            group.append(kf)
+            n += kf.profile_xz_m.shape[0]
+        if group and (n >= limit or kf is keyframes[-1]):
+            sizes = np.array([g.profile_xz_m.shape[0] for g in group], dtype=np.int64)
+            cams = np.repeat(np.array([g.camera_xz_m for g in group]), sizes, axis=0)
+            cams += np.concatenate([g.profile_xz_m for g in group])
+            yield cams, np.repeat(np.arange(len(group), dtype=np.int64), sizes), len(group)
+            group, n = [], 0
 
 
 def merge_keyframes(keyframes: Sequence[KeyframeProfile], config: MapConfig) -> MapCells:
@@ -147,26 +180,28 @@ def merge_keyframes(keyframes: Sequence[KeyframeProfile], config: MapConfig) -> 
     ``merge_points`` on the concatenated points of a 10-minute trial (~3.8 million points,
     ~200,000 cells) holds the points, their cells, keys, the sort and the (cell, keyframe)
     pairs side by side, ~100 bytes a point; one key and one cell index per point across the
-    passes still took ~47 bytes a point (~180 MiB), the batch run's peak. Here the sorted
-    distinct cell keys are gathered batch by batch (``np.union1d``), a keyframe's points are
-    then placed in their cells by ``np.searchsorted`` (the cell index ``np.unique``'s
-    inverse gives), and the per-cell counts and sums are accumulated keyframe by keyframe
-    with ``np.add.at``, in the order of the points, i.e. the same additions in the same
-    order as one ``np.bincount`` over all of them; the distinct keyframes per cell are
-    counted per keyframe. So every output is the same."""
+    passes still took ~47 bytes a point (~180 MiB), the batch run's peak. Here the points go
+    through in batches of consecutive keyframes (:func:`_world_batches`, ~2.6e5 points): the
+    sorted distinct cell keys are gathered batch by batch (a sort), a batch's points
+    are then placed in their cells by ``np.searchsorted`` (the cell index ``np.unique``'s
+    inverse gives), and the per-cell counts and sums are accumulated with ``np.add.at`` in
+    the order of the points, i.e. the same additions in the same order as one
+    ``np.bincount`` over all of them; the distinct keyframes per cell are counted from the
+    distinct (cell, keyframe) pairs of each batch (a keyframe lies in one batch). So every
+    output is the same. (Keyframe by keyframe, the ~30 numpy calls per keyframe made the
+    merge of a 10-minute trial's 12,000 keyframes cost ~1.3 s of CPU.)"""
     cell = config.cell_size_m
-    sizes = np.array([kf.profile_xz_m.shape[0] for kf in keyframes], dtype=np.int64)
-    n_points = int(sizes.sum()) if sizes.size else 0
+    keyframes = list(keyframes)
+    n_points = sum(kf.profile_xz_m.shape[0] for kf in keyframes)
     if n_points == 0:
         return MapCells(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), cell)
     # 1. extent of the integer cells (for the key layout of merge_points)
     lo = np.full(2, np.iinfo(np.int64).max, dtype=np.int64)
     hi_z = np.iinfo(np.int64).min
-    for kf in keyframes:
-        if kf.profile_xz_m.shape[0]:
-            ij = np.floor(kf.world_points_xz_m() / cell).astype(np.int64)
-            lo = np.minimum(lo, ij.min(axis=0))
-            hi_z = max(hi_z, int(ij[:, 1].max()))
+    for world, _, _ in _world_batches(keyframes):
+        ij = np.floor(world / cell).astype(np.int64)
+        lo = np.minimum(lo, ij.min(axis=0))
+        hi_z = max(hi_z, int(ij[:, 1].max()))
     n_z = hi_z - int(lo[1]) + 1
 
     def keys_of(world_xz: NDArray[np.float64]) -> NDArray[np.int64]:
@@ -177,31 +212,21 @@ def merge_keyframes(keyframes: Sequence[KeyframeProfile], config: MapConfig) -> 
 
     # 2. the sorted distinct keys (np.unique's cell_keys), merged a batch of points at a time
     cell_keys = np.zeros(0, dtype=np.int64)
-    batch: list[NDArray[np.int64]] = []
-    batch_n = 0
-    for kf in keyframes:
-        if kf.profile_xz_m.shape[0]:
-            batch.append(keys_of(kf.world_points_xz_m()))
-            batch_n += batch[-1].shape[0]
-            if batch_n >= _KEY_BATCH:
-                cell_keys = np.union1d(cell_keys, np.concatenate(batch))
-                batch, batch_n = [], 0
-    if batch:
-        cell_keys = np.union1d(cell_keys, np.concatenate(batch))
+    for world, _, _ in _world_batches(keyframes):
+        cell_keys = _sorted_distinct(np.concatenate([cell_keys, keys_of(world)]))
     n_cells = cell_keys.shape[0]
-    # 3. per-cell counts and sums, keyframe by keyframe in point order; distinct keyframes
+    # 3. per-cell counts and sums in point order; distinct keyframes from distinct pairs
     point_counts = np.zeros(n_cells, dtype=np.int64)
     sum_x = np.zeros(n_cells)
     sum_z = np.zeros(n_cells)
     keyframe_counts = np.zeros(n_cells, dtype=np.int64)
-    for kf in keyframes:
-        if kf.profile_xz_m.shape[0]:
-            world = kf.world_points_xz_m()
-            idx = np.searchsorted(cell_keys, keys_of(world))
-            np.add.at(point_counts, idx, 1)
-            np.add.at(sum_x, idx, world[:, 0])
-            np.add.at(sum_z, idx, world[:, 1])
-            keyframe_counts[np.unique(idx)] += 1
+    for world, kf_in_batch, n_kf in _world_batches(keyframes):
+        idx = np.searchsorted(cell_keys, keys_of(world))
+        point_counts += np.bincount(idx, minlength=n_cells)
+        np.add.at(sum_x, idx, world[:, 0])
+        np.add.at(sum_z, idx, world[:, 1])
+        pairs = _sorted_distinct(idx * n_kf + kf_in_batch)
+        keyframe_counts += np.bincount(pairs // n_kf, minlength=n_cells)
     keep = (keyframe_counts >= config.min_keyframes_per_cell) & (
         point_counts >= config.min_points_per_cell
     )

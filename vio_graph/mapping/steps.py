@@ -567,6 +567,45 @@ def _transition(
 _UNDER_LEVEL_PASSES = 3
 
 
+def under_levels_by_window(
+    pts: NDArray[np.float64],
+    z: NDArray[np.float64],
+    lo: NDArray[np.float64],
+    hi: NDArray[np.float64],
+    margin_m: float,
+    drop_m: float,
+) -> NDArray[np.bool_]:
+    """``under_levels_mask(pts, z, lo, hi, margin_m, drop_m, drop_m)`` (vio_graph/surface.py;
+    no line of sight: a map), bit for bit, one level's x window at a time.
+
+    Without a line of sight and with ``margin_m`` >= 0 both of its rules flag a point only
+    through a level A whose x extent [lo, hi] holds it (beneath A: strictly inside the extent
+    less the margin; near a lower level B under A: inside the extent), and A's levels B
+    overlap A in x. So the call for A's window of the x-sorted points, with the levels that
+    overlap A's extent, flags those points as the whole call does through A, and through
+    the other levels it passes at most what the whole call flags (their lower levels among
+    fewer); the union over all levels is the whole call's mask. Each level then costs its
+    window, not the points x levels of the whole call and its pair list over all levels in
+    Python (~1 s of CPU on a 10-minute map: 176,000 points, 745 levels)."""
+    n = pts.shape[0]
+    if margin_m < 0 or n == 0 or z.size == 0:
+        return under_levels_mask(pts, z, lo, hi, margin_m, drop_m, drop_m)
+    by_x = np.argsort(pts[:, 0], kind="stable")
+    xs = pts[by_x, 0]
+    under = np.zeros(n, dtype=bool)
+    for a in range(z.size):
+        i0 = int(np.searchsorted(xs, lo[a], side="left"))
+        i1 = int(np.searchsorted(xs, hi[a], side="right"))
+        if i1 <= i0:
+            continue
+        near = np.flatnonzero((hi >= lo[a]) & (lo <= hi[a]))  # A itself among them
+        rows = by_x[i0:i1]
+        under[rows] |= under_levels_mask(
+            pts[rows], z[near], lo[near], hi[near], margin_m, drop_m, drop_m
+        )
+    return under
+
+
 def estimate_terrain_geometry(
     points_xz_m: ArrayLike,
     weights: ArrayLike | None = None,
@@ -591,13 +630,12 @@ def estimate_terrain_geometry(
     levels = _merge_levels(find_levels(pts, w, cfg), cfg)
     for _ in range(_UNDER_LEVEL_PASSES if cfg.under_level_margin_m is not None else 0):
         drop = cfg.min_rise_m + cfg.level_tolerance_m
-        under = under_levels_mask(
+        under = under_levels_by_window(
             pts,
-            [lv.z_m for lv in levels],
-            [lv.x_start_m for lv in levels],
-            [lv.x_end_m for lv in levels],
+            np.array([lv.z_m for lv in levels], dtype=float),
+            np.array([lv.x_start_m for lv in levels], dtype=float),
+            np.array([lv.x_end_m for lv in levels], dtype=float),
             cfg.under_level_margin_m,
-            drop,
             drop,
         )
         if not under.any():

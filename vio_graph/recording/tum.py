@@ -42,9 +42,23 @@ def format_tum(traj: Trajectory) -> str:
     q = traj.quat_wxyz
     rows = np.column_stack([traj.timestamp_s, traj.position_m, q[:, 1], q[:, 2], q[:, 3], q[:, 0]])
     # Python floats and one %-format per row: the same digits as formatting each numpy
-    # scalar with an f-string (both round through the same double-to-string), ~4x faster
-    line = "%.9f %.6f %.6f %.6f %.6f %.6f %.6f %.6f".__mod__
-    lines = map(line, map(tuple, rows.tolist()))
+    # scalar with an f-string (both round through the same double-to-string), ~4x faster.
+    # A column that holds one value in every row (y = 0 and the identity orientation of the
+    # sagittal paths, Trajectory.from_xz: 5 of the 8) is formatted once into the row's
+    # format, the same text; "one value" by its bits, so -0.0 beside 0.0 or NaNs are not
+    fields = ["%.9f"] + ["%.6f"] * 7
+    varying = list(range(8))
+    if rows.shape[0] > 1:
+        bits = rows.view(np.int64)
+        same = (bits == bits[0]).all(axis=0)
+        varying = [0]  # (the time column always varies)
+        for k in range(1, 8):
+            if same[k]:
+                fields[k] = fields[k] % float(rows[0, k])
+            else:
+                varying.append(k)
+    line = " ".join(fields).__mod__
+    lines = map(line, map(tuple, rows[:, varying].tolist()))
     return "# timestamp tx ty tz qx qy qz qw\n" + "\n".join(lines) + "\n"
 
 

@@ -7,7 +7,9 @@ data is shown in 3D at y = 0. Entity layout:
 - ``world/terrain``            terrain mesh (static) and true profile
 - ``world/camera``             estimated camera pose (a time series)
 - ``world/camera/image``       pinhole (static); ``world/camera/image/depth`` the depth image,
-                               which the viewer back-projects through the pinhole
+                               which the viewer back-projects through the pinhole (the
+                               recorded uint16 counts with meter = 1 / depth unit, see
+                               :meth:`Visualizer.log_camera`)
 - ``world/cloud``              depth cloud in the world frame (subsampled)
 - ``world/slice``              sagittal slice (ground frame, placed at the estimate)
 - ``world/features``           corner feature points; ``world/icp`` ICP matches
@@ -59,12 +61,31 @@ def _xz_to_xyz(xz: NDArray[np.float64]) -> NDArray[np.float64]:
     return xyz
 
 
+def _depth_image(
+    depth_m: NDArray[np.floating], unit_m: float | None
+) -> tuple[NDArray[np.float32] | NDArray[np.uint16], float]:
+    """(image, meter) to send for a depth image in metres: uint16 counts of ``unit_m`` with
+    meter = 1 / unit_m if ``depth_m`` is exactly such counts as the recording reader makes
+    them (float32 count x float32 unit), else a float32 copy with meter = 1. Always a new
+    array: the caller's frame buffer may be reused before the rows are sent."""
+    d = np.asarray(depth_m)
+    if unit_m is not None and unit_m > 0 and d.dtype == np.float32 and d.size:
+        counts = np.rint(d * np.float32(1.0 / unit_m))
+        if 0.0 <= counts.min() and counts.max() <= np.iinfo(np.uint16).max:
+            u16 = counts.astype(np.uint16)
+            if np.array_equal(u16.astype(np.float32) * np.float32(unit_m), d):
+                return u16, 1.0 / unit_m
+    return np.array(d, dtype=np.float32), 1.0
+
+
 class NullVisualizer:
     """Does nothing; same interface as :class:`Visualizer`."""
 
     def set_time(self, timestamp_s: float) -> None: ...
     def log_terrain(self, vertices_m, triangles, profile_xz_m) -> None: ...
-    def log_camera(self, position_m, R_world_cam, K, width_px, height_px, depth_m=None) -> None: ...
+    def log_camera(
+        self, position_m, R_world_cam, K, width_px, height_px, depth_m=None, depth_unit_m=None
+    ) -> None: ...
     def log_cloud(self, points_world_m) -> None: ...
     def log_sagittal(self, name, points_xz_m, radius_m: float = 0.004, color=None) -> None: ...
     def log_segments(self, name, starts_xz_m, ends_xz_m, color=None) -> None: ...
@@ -75,15 +96,15 @@ class NullVisualizer:
     def abort(self) -> None: ...
 
 
-#: rows of a per-frame entity collected before they are sent (5 s at 30 frames/s; about 6 MB
-#: of depth images at 112 x 86 pixels)
+#: rows of a per-frame entity collected before they are sent (5 s at 30 frames/s; about 11.6 MB
+#: of uint16 depth images at 224 x 172 pixels, 2.9 MB at data/sample's 112 x 86)
 FLUSH_ROWS = 150
 
 
 class _Rows:
     """The rows of one per-frame entity not yet sent: per row the time stamp (s), the
-    instances (points (n, 3), strips (k, m, 3) or a depth image (h, w), metres), one radius
-    (m) and one RGB colour."""
+    instances (points (n, 3), strips (k, m, 3), metres, or a depth image (h, w)), one radius
+    (m; for a depth image its ``meter``, units per metre) and one RGB colour."""
 
     def __init__(self, kind: str) -> None:
         self.kind = kind  # "points" | "strips" | "depth"
@@ -155,7 +176,16 @@ class Visualizer(NullVisualizer):
                 static=True,
             )
 
-    def log_camera(self, position_m, R_world_cam, K, width_px, height_px, depth_m=None) -> None:
+    def log_camera(
+        self, position_m, R_world_cam, K, width_px, height_px, depth_m=None, depth_unit_m=None
+    ) -> None:
+        """The camera pose, the pinhole (once) and the depth image ``depth_m`` (metres, 0 =
+        invalid). ``depth_unit_m``: the recording's depth unit (m) if its depth is stored as
+        integers of it (uint16 millimetres from the ToF camera): the image is then sent as
+        those integers with ``meter`` = 1 / unit, which the viewer reads as the same metres,
+        at half the bytes of float32 to encode and store. Sent as float32 metres if the
+        image is not exactly such integers (checked: converted back with the reader's
+        formula, float32 integers times float32 unit, it must give ``depth_m`` bit for bit)."""
         rr = self._rr
         times, translations, rotations = self._camera
         times.append(self._t_s)
@@ -174,8 +204,8 @@ class Visualizer(NullVisualizer):
             )
             self._pinhole_logged = True
         if depth_m is not None:
-            # a copy: the caller's frame buffer may be reused before the rows are sent
-            self._add("world/camera/image/depth", "depth", np.array(depth_m, dtype=np.float32))
+            depth, meter = _depth_image(depth_m, depth_unit_m)
+            self._add("world/camera/image/depth", "depth", depth, meter)
 
     def log_cloud(self, points_world_m) -> None:
         pts = np.asarray(points_world_m, dtype=np.float32).reshape(-1, 3)
@@ -225,16 +255,18 @@ class Visualizer(NullVisualizer):
             return
         n = len(rows.times_s)
         if rows.kind == "depth":
+            dtypes = {np.dtype(np.float32): rr.ChannelDatatype.F32}
+            dtypes[np.dtype(np.uint16)] = rr.ChannelDatatype.U16
             fmt = [
                 rr.components.ImageFormat(
-                    width=d.shape[1], height=d.shape[0], channel_datatype=rr.ChannelDatatype.F32
+                    width=d.shape[1], height=d.shape[0], channel_datatype=dtypes[d.dtype]
                 )
                 for d in rows.data
             ]
             columns = rr.DepthImage.columns(
                 buffer=[d.reshape(-1).view(np.uint8) for d in rows.data],
                 format=fmt,
-                meter=np.ones(n, dtype=np.float32),
+                meter=np.asarray(rows.radii, dtype=np.float32),
             )
         else:
             archetype = rr.Points3D if rows.kind == "points" else rr.LineStrips3D

@@ -43,9 +43,18 @@ class RunView:
     """The rerun view of one run (``viz``: a Visualizer or NullVisualizer)."""
 
     def __init__(
-        self, viz, rig: RigGeometry, groundtruth: GroundTruth | None, output: OutputConfig
+        self,
+        viz,
+        rig: RigGeometry,
+        groundtruth: GroundTruth | None,
+        output: OutputConfig,
+        depth_unit_m: float | None = None,
     ) -> None:
+        """``depth_unit_m``: the recording's depth unit (m, ``camera.depth_unit_m``), with
+        which the depth images go to rerun as the recorded integers (see
+        :meth:`vio_graph.viz.rerun_logger.Visualizer.log_camera`); None: float32 metres."""
         self.viz = viz
+        self.depth_unit_m = depth_unit_m
         self.rig = rig
         self.gt = groundtruth
         self.output = output
@@ -83,6 +92,7 @@ class RunView:
             frame.depth_m.shape[1],
             frame.depth_m.shape[0],
             frame.depth_m,
+            self.depth_unit_m,
         )
         if i % self.output.cloud_every_n_frames == 0:
             viz.log_cloud(

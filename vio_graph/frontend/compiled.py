@@ -1413,3 +1413,130 @@ def slice_xz(
 
 _NB_DY = np.array([0, 0, -1, 1, -1, -1, 1, 1])
 _NB_DX = np.array([-1, 1, 0, 0, -1, 1, -1, 1])
+
+
+# ----------------------------------------------------------------------- camera-fixed pixels
+
+
+@numba.njit(cache=True)
+def _prev_lookup(dp, r, c):  # pragma: no cover - compiled
+    """The previous depth at pixel (r, c) as float64, inf outside the image or where it is
+    invalid (``camera_fixed._world_test``'s padded image)."""
+    if r < 0 or r >= dp.shape[0] or c < 0 or c >= dp.shape[1]:
+        return np.inf
+    d = np.float64(dp[r, c])
+    if math.isfinite(d) and d > 0:
+        return d
+    return np.inf
+
+
+@numba.njit(cache=True)
+def _world_pixel(
+    dp, r, c, z, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+):  # pragma: no cover - compiled
+    """``camera_fixed._world_test`` at one pixel: (seen, consistent). Same operations in the
+    same order as numpy's; ``Q @ R.T`` summed as the BLAS kernel numpy calls sums it
+    (OpenBLAS, Haswell and later: a product, then two fused multiply-adds). ``consistent`` is
+    meaningless when not seen (every use of it is and-ed with ``seen``)."""
+    h, w = dp.shape
+    q0 = z * (c - cx) / fx
+    q1 = z * (r - cy) / fy
+    q2 = z
+    x = _fma(q2, R[0, 2], _fma(q1, R[0, 1], q0 * R[0, 0])) + t[0]
+    y = _fma(q2, R[1, 2], _fma(q1, R[1, 1], q0 * R[1, 0])) + t[1]
+    zp = _fma(q2, R[2, 2], _fma(q1, R[2, 1], q0 * R[2, 0])) + t[2]
+    if not zp > 1e-3:
+        return False, False
+    ui = np.int64(np.rint(fx * x / zp + cx))
+    vi = np.int64(np.rint(fy * y / zp + cy))
+    if ui < -1 or ui > w or vi < -1 or vi > h:
+        return False, False
+    best = np.inf
+    for dv in range(-1, 2):
+        for du in range(-1, 2):
+            best = min(best, abs(_prev_lookup(dp, vi + dv, ui + du) - zp))
+    if not math.isfinite(best):
+        return False, False
+    qn = math.sqrt(q0 * q0 + q1 * q1) * rot_sigma
+    tol_world = k_sigma * math.sqrt(s_world + qn * qn)
+    return True, best <= tol_world
+
+
+@numba.njit(cache=True)
+def camera_fixed(
+    dp,
+    dc,
+    cand,
+    fx,
+    fy,
+    cx,
+    cy,
+    R,
+    t,
+    s_world,
+    rot_sigma,
+    k_sigma,
+    tol_fixed,
+    held,
+    use_held,
+    view_step,
+    view_share,
+    out,
+    same_out,
+):  # pragma: no cover - compiled
+    """``camera_fixed.camera_fixed_mask_reference`` in one pass: ``out`` (H, W, all False on
+    entry) receives the camera-fixed candidates, ``same_out`` the tested pixels whose depth
+    is unchanged. ``tol_fixed`` = k sqrt(2) sd, ``s_world`` = 2 sd^2 + var_t (both as numpy
+    computes them). Returns (view test run, n_confirm, n_refute, n_changed)."""
+    h, w = dc.shape
+    fixed = np.empty(h * w, np.int64)  # flat indices of the refused candidates
+    n_fixed = 0
+    for r in range(h):
+        for c in range(w):
+            if not cand[r, c]:
+                continue
+            zc = np.float64(dc[r, c])
+            zprev = np.float64(dp[r, c])
+            if not (math.isfinite(zprev) and zprev > 0 and math.isfinite(zc) and zc > 0):
+                continue
+            if not abs(zc - zprev) <= tol_fixed:
+                continue
+            same_out[r, c] = True
+            if use_held and held[r, c]:
+                out[r, c] = True
+            seen, world = _world_pixel(
+                dp, r, c, zc, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+            )
+            if seen and not world:
+                fixed[n_fixed] = r * w + c
+                n_fixed += 1
+    if n_fixed == 0:
+        return False, 0, 0, 0
+    # the view test: every view_step-th pixel in both directions
+    n_confirm = 0
+    n_refute = 0
+    n_changed = 0
+    n_seen = 0
+    for r in range(0, h, view_step):
+        for c in range(0, w, view_step):
+            zprev = np.float64(dp[r, c])
+            zc = np.float64(dc[r, c])
+            if not (math.isfinite(zprev) and zprev > 0 and zc > 0):
+                continue
+            seen, world = _world_pixel(
+                dp, r, c, zc, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+            )
+            if not seen:
+                continue
+            n_seen += 1
+            if abs(zc - zprev) <= tol_fixed:
+                if not world:
+                    n_refute += 1
+            else:
+                n_changed += 1
+                if world:
+                    n_confirm += 1
+    if n_confirm >= n_refute or n_confirm >= view_share * n_seen:
+        for i in range(n_fixed):
+            out[fixed[i] // w, fixed[i] % w] = True
+    return True, n_confirm, n_refute, n_changed

@@ -1419,26 +1419,28 @@ _NB_DX = np.array([-1, 1, 0, 0, -1, 1, -1, 1])
 
 
 @numba.njit(cache=True)
-def _prev_lookup(dp, r, c):  # pragma: no cover - compiled
-    """The previous depth at pixel (r, c) as float64, inf outside the image or where it is
-    invalid (``camera_fixed._world_test``'s padded image)."""
-    if r < 0 or r >= dp.shape[0] or c < 0 or c >= dp.shape[1]:
-        return np.inf
-    d = np.float64(dp[r, c])
-    if math.isfinite(d) and d > 0:
-        return d
-    return np.inf
+def _padded_prev(dp):  # pragma: no cover - compiled
+    """``camera_fixed._world_test``'s padded image: the previous depth as float64, inf where
+    it is invalid and on 2 pixels around the image."""
+    h, w = dp.shape
+    pad = np.full((h + 4, w + 4), np.inf)
+    for r in range(h):
+        for c in range(w):
+            d = np.float64(dp[r, c])
+            if math.isfinite(d) and d > 0:
+                pad[r + 2, c + 2] = d
+    return pad
 
 
 @numba.njit(cache=True)
 def _world_pixel(
-    dp, r, c, z, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+    pad, r, c, z, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
 ):  # pragma: no cover - compiled
     """``camera_fixed._world_test`` at one pixel: (seen, consistent). Same operations in the
     same order as numpy's; ``Q @ R.T`` summed as the BLAS kernel numpy calls sums it
     (OpenBLAS, Haswell and later: a product, then two fused multiply-adds). ``consistent`` is
     meaningless when not seen (every use of it is and-ed with ``seen``)."""
-    h, w = dp.shape
+    h, w = pad.shape[0] - 4, pad.shape[1] - 4
     q0 = z * (c - cx) / fx
     q1 = z * (r - cy) / fy
     q2 = z
@@ -1447,14 +1449,20 @@ def _world_pixel(
     zp = _fma(q2, R[2, 2], _fma(q1, R[2, 1], q0 * R[2, 0])) + t[2]
     if not zp > 1e-3:
         return False, False
-    ui = np.int64(np.rint(fx * x / zp + cx))
-    vi = np.int64(np.rint(fy * y / zp + cy))
-    if ui < -1 or ui > w or vi < -1 or vi > h:
+    uf = np.rint(fx * x / zp + cx)
+    vf = np.rint(fy * y / zp + cy)
+    # further out than a pixel: not seen (NaN and overflow too, which numpy's cast to int64
+    # turns into the most negative integer)
+    if not (uf >= -1.0 and uf <= w and vf >= -1.0 and vf <= h):
         return False, False
-    best = np.inf
-    for dv in range(-1, 2):
-        for du in range(-1, 2):
-            best = min(best, abs(_prev_lookup(dp, vi + dv, ui + du) - zp))
+    ui, vi = np.int64(uf), np.int64(vf)
+    # the least of the 9 differences (in a tree: the same value as numpy's running minimum,
+    # no NaN can occur while zp is finite, and a shorter chain of dependent operations)
+    a0 = min(abs(pad[vi + 1, ui + 1] - zp), abs(pad[vi + 1, ui + 2] - zp))
+    a1 = min(abs(pad[vi + 1, ui + 3] - zp), abs(pad[vi + 2, ui + 1] - zp))
+    a2 = min(abs(pad[vi + 2, ui + 2] - zp), abs(pad[vi + 2, ui + 3] - zp))
+    a3 = min(abs(pad[vi + 3, ui + 1] - zp), abs(pad[vi + 3, ui + 2] - zp))
+    best = min(min(min(a0, a1), min(a2, a3)), abs(pad[vi + 3, ui + 3] - zp))
     if not math.isfinite(best):
         return False, False
     qn = math.sqrt(q0 * q0 + q1 * q1) * rot_sigma
@@ -1484,13 +1492,13 @@ def camera_fixed(
     out,
     same_out,
 ):  # pragma: no cover - compiled
-    """``camera_fixed.camera_fixed_mask_reference`` in one pass: ``out`` (H, W, all False on
+    """``camera_fixed.camera_fixed_mask_reference`` compiled: ``out`` (H, W, all False on
     entry) receives the camera-fixed candidates, ``same_out`` the tested pixels whose depth
     is unchanged. ``tol_fixed`` = k sqrt(2) sd, ``s_world`` = 2 sd^2 + var_t (both as numpy
     computes them). Returns (view test run, n_confirm, n_refute, n_changed)."""
     h, w = dc.shape
-    fixed = np.empty(h * w, np.int64)  # flat indices of the refused candidates
-    n_fixed = 0
+    tested = np.empty(h * w, np.int64)  # flat indices of the unchanged candidates
+    n_same = 0
     for r in range(h):
         for c in range(w):
             if not cand[r, c]:
@@ -1504,12 +1512,20 @@ def camera_fixed(
             same_out[r, c] = True
             if use_held and held[r, c]:
                 out[r, c] = True
-            seen, world = _world_pixel(
-                dp, r, c, zc, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
-            )
-            if seen and not world:
-                fixed[n_fixed] = r * w + c
-                n_fixed += 1
+            tested[n_same] = r * w + c
+            n_same += 1
+    if n_same == 0:
+        return False, 0, 0, 0
+    pad = _padded_prev(dp)
+    n_fixed = 0  # the refused ones go to the front of ``tested``
+    for i in range(n_same):
+        r, c = tested[i] // w, tested[i] % w
+        seen, world = _world_pixel(
+            pad, r, c, np.float64(dc[r, c]), fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+        )
+        if seen and not world:
+            tested[n_fixed] = tested[i]
+            n_fixed += 1
     if n_fixed == 0:
         return False, 0, 0, 0
     # the view test: every view_step-th pixel in both directions
@@ -1524,7 +1540,7 @@ def camera_fixed(
             if not (math.isfinite(zprev) and zprev > 0 and zc > 0):
                 continue
             seen, world = _world_pixel(
-                dp, r, c, zc, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+                pad, r, c, zc, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
             )
             if not seen:
                 continue
@@ -1538,5 +1554,5 @@ def camera_fixed(
                     n_confirm += 1
     if n_confirm >= n_refute or n_confirm >= view_share * n_seen:
         for i in range(n_fixed):
-            out[fixed[i] // w, fixed[i] % w] = True
+            out[tested[i] // w, tested[i] % w] = True
     return True, n_confirm, n_refute, n_changed

@@ -154,17 +154,22 @@ class DepthNoiseTracker:
         self.warmup = int(warmup)
         self.hysteresis = float(hysteresis)
         self._values: deque[float] = deque(maxlen=max(int(window), 1))
+        self._sigma: float | None = None  # sigma_m of the current values, once asked for
         self.cell_m = self.base_cell_m
 
     def reset(self) -> None:
         """Forget the measurements and go back to the configured cell."""
         self._values.clear()
+        self._sigma = None
         self.cell_m = self.base_cell_m
 
     @property
     def sigma_m(self) -> float:
-        """Median of the recent frame values, metres (nan before the first one)."""
-        return float(np.median(self._values)) if self._values else float("nan")
+        """Median of the recent frame values, metres (nan before the first one); computed
+        once per new value (the front end asks for it several times a frame)."""
+        if self._sigma is None:
+            self._sigma = float(np.median(self._values)) if self._values else float("nan")
+        return self._sigma
 
     def asked_cell_m(self) -> float:
         """The cell the current noise asks for (the configured cell before the warm-up)."""
@@ -176,6 +181,7 @@ class DepthNoiseTracker:
         """Add one frame's noise value (nan = no measurement) and return the cell to use."""
         if np.isfinite(sigma_m):
             self._values.append(float(sigma_m))
+            self._sigma = None
         asked = self.asked_cell_m()
         if abs(asked - self.cell_m) > self.hysteresis * self.cell_m:
             self.cell_m = asked

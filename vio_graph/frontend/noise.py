@@ -136,6 +136,17 @@ def robust_sigma_reference(residuals_m: NDArray[np.float64]) -> float:
     return float(_MAD_TO_SIGMA * np.median(np.abs(r - np.median(r))))
 
 
+def _median(values: Iterable[float]) -> float:
+    """np.median of finite floats (nan if none), without its per-call overhead: the middle
+    value, or the two middle ones summed and halved, as np.median's mean of them rounds."""
+    v = sorted(values)
+    n = len(v)
+    if n == 0:
+        return float("nan")
+    m = n // 2
+    return float(v[m]) if n % 2 else (v[m - 1] + v[m]) / 2.0
+
+
 class DepthNoiseTracker:
     """Median of the recent per-frame noise values and the thinning cell they ask for."""
 
@@ -168,7 +179,7 @@ class DepthNoiseTracker:
         """Median of the recent frame values, metres (nan before the first one); computed
         once per new value (the front end asks for it several times a frame)."""
         if self._sigma is None:
-            self._sigma = float(np.median(self._values)) if self._values else float("nan")
+            self._sigma = _median(self._values)
         return self._sigma
 
     def asked_cell_m(self) -> float:

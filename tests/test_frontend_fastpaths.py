@@ -368,6 +368,8 @@ def test_sagittal_slice_tables_equal_the_per_pixel_tests() -> None:
         # the per-pixel mask (the camera-fixed test's candidates) holds exactly those pixels
         mask = projection.slice_pixel_mask(depth, conf, K, *args)
         assert int(np.count_nonzero(mask)) == fast.shape[0]
+        # the per-column intervals give the mask of the per-pixel tests written out
+        assert np.array_equal(mask, projection.slice_pixel_mask_reference(depth, conf, K, *args))
         full = projection.sagittal_slice(
             projection.depth_to_points_cam(depth, conf, K, args[1], args[2], args[3]), R, half_width
         )

@@ -103,9 +103,11 @@ def camera_fixed_mask(
         view_share: ... or needs this share of its valid pixels confirming the motion.
 
     Compiled (``compiled.camera_fixed``, numba) when the front end's kernels are on
-    (``VIO_GRAPH_COMPILED``, :func:`vio_graph.frontend.icp.compiled_kernels`): one pass over
-    the pixels, the same tests on the same floats as :func:`camera_fixed_mask_reference`
-    (the numpy formulation), so the same masks and counts (tests/test_frontend_fastpaths.py).
+    (``VIO_GRAPH_COMPILED``, :func:`vio_graph.frontend.icp.compiled_kernels`): one call, no
+    whole-image temporaries, the same tests on the same floats as
+    :func:`camera_fixed_mask_reference` (the numpy formulation; the projection summed as
+    numpy's BLAS sums ``Q @ R.T`` here), so the same masks and counts
+    (tests/test_frontend_fastpaths.py).
     """
     kernels = compiled_kernels()
     if kernels is not None:

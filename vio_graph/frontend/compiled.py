@@ -1438,8 +1438,10 @@ def _world_pixel(
 ):  # pragma: no cover - compiled
     """``camera_fixed._world_test`` at one pixel: (seen, consistent). Same operations in the
     same order as numpy's; ``Q @ R.T`` summed as the BLAS kernel numpy calls sums it
-    (OpenBLAS, Haswell and later: a product, then two fused multiply-adds). ``consistent`` is
-    meaningless when not seen (every use of it is and-ed with ``seen``)."""
+    (OpenBLAS, Haswell and later: a product, then two fused multiply-adds); the other sums
+    round each operation as numpy does (numba contracts none into a fused multiply-add
+    without fastmath). ``consistent`` is meaningless when not seen (every use of it is
+    and-ed with ``seen``)."""
     h, w = pad.shape[0] - 4, pad.shape[1] - 4
     q0 = z * (c - cx) / fx
     q1 = z * (r - cy) / fy

@@ -66,8 +66,8 @@ def level_residuals(
     pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
     lv = np.asarray(list(levels), dtype=float).reshape(-1, 3)
     bx, bz, counts = kernels.level_bands(
-        np.ascontiguousarray(pts[:, 0]),
-        np.ascontiguousarray(pts[:, 1]),
+        pts[:, 0],  # strided views: the kernel reads them in place
+        pts[:, 1],
         float(max_range_m),
         bool(np.isfinite(max_range_m)),
         np.ascontiguousarray(lv[:, 0]),
@@ -86,9 +86,10 @@ def level_residuals(
 def _line_residuals(xs: NDArray[np.float64], zs: NDArray[np.float64]) -> NDArray[np.float64]:
     """z residuals about the least-squares line z = a + b x of the points (contiguous)."""
     xc = xs - xs.mean()
+    zc = zs - zs.mean()  # computed once: the same floats the fit and the residuals used
     sxx = float(xc @ xc)
-    slope = float(xc @ (zs - zs.mean())) / sxx if sxx > 0 else 0.0
-    return zs - zs.mean() - slope * xc
+    slope = float(xc @ zc) / sxx if sxx > 0 else 0.0
+    return zc - slope * xc
 
 
 def level_residuals_reference(

@@ -4,10 +4,11 @@ revision and the working tree) replayed alternately, each in its own process.
 Per process: the compiled kernels loaded (``bench_frontend.compiled_startup_s``), one warm-up
 replay, then ``--replays`` replays of the simulated upstair trial through
 ``bench_frontend.replay_once`` with ``VIO_GRAPH_COMPILED=1`` (the numba paths, what long
-recordings run): the estimator's stage times per frame (wall clock) and the CPU time of every
-``OnlineEstimator.add_frame`` call. The processes alternate base, working tree, base, ...
-``--rounds`` times, so machine load hits both alike; medians and p95 pool all frames of all
-replays of all rounds.
+recordings run): the estimator's stage times per frame (wall clock), the CPU time of every
+``VisualFrontend.process`` call (``frontend_cpu``: the whole front end, the camera-fixed
+test included) and of every ``OnlineEstimator.add_frame`` call. The processes alternate
+base, working tree, base, ... ``--rounds`` times, so machine load hits both alike; medians
+and p95 pool all frames of all replays of all rounds.
 
     python benchmarks/ab_frontend.py --base f239660~1 [--rounds 3] [--replays 2]
 """
@@ -47,13 +48,24 @@ frames = [rec.frame(i) for i in range(rec.num_frames)]
 bf.compiled_startup_s()
 timed = bf._TimedIcp(bf.tracker_module.icp_translation_2d)
 bf.tracker_module.icp_translation_2d = timed
+import time
+from vio_graph.frontend.frontend import VisualFrontend
+fe_cpu = []
+process = VisualFrontend.process
+def timed_process(self, *args, **kwargs):  # CPU time of the whole front end per frame
+    c0 = time.process_time_ns()
+    out = process(self, *args, **kwargs)
+    fe_cpu.append((time.process_time_ns() - c0) * 1e-6)
+    return out
+VisualFrontend.process = timed_process
 bf.replay_once(rec, frames, timed)  # warm-up
 rows, cpu = [], []
+fe_cpu.clear()
 for _ in range(replays):
     run = bf.replay_once(rec, frames, timed)
     rows += run["timings"]
     cpu += run["frame_cpu_ms"]
-print("RESULT" + json.dumps({"rows": rows, "add_frame_cpu_ms": cpu}))
+print("RESULT" + json.dumps({"rows": rows, "add_frame_cpu_ms": cpu, "frontend_cpu_ms": fe_cpu}))
 """
 
 
@@ -65,7 +77,8 @@ def main() -> None:
     args = ap.parse_args()
     new = Path(__file__).resolve().parent.parent
     pooled: dict[str, dict[str, list[float]]] = {
-        name: {s: [] for s in (*STAGES, "add_frame_cpu")} for name in ("base", "new")
+        name: {s: [] for s in (*STAGES, "frontend_cpu", "add_frame_cpu")}
+        for name in ("base", "new")
     }
     with tempfile.TemporaryDirectory() as tmp:
         base = _common.extract_revision(args.base, Path(tmp))
@@ -75,11 +88,12 @@ def main() -> None:
                 for s in STAGES:
                     pooled[name][s] += [row[s] for row in d["rows"]]
                 pooled[name]["add_frame_cpu"] += d["add_frame_cpu_ms"]
+                pooled[name]["frontend_cpu"] += d["frontend_cpu_ms"]
                 ff = np.median([row["frontend_plus_fusion"] for row in d["rows"]])
                 print(f"round {r} {name}: front end + fusion median {ff:.3f} ms", flush=True)
     print("| ms per frame | base median | base p95 | new median | new p95 | ratio of medians |")
     print("|---|---|---|---|---|---|")
-    for s in (*STAGES, "add_frame_cpu"):
+    for s in (*STAGES, "frontend_cpu", "add_frame_cpu"):
         b, n = _common.stats_ms(pooled["base"][s]), _common.stats_ms(pooled["new"][s])
         print(
             f"| {s} | {b['median']:.3f} | {b['p95']:.3f} | {n['median']:.3f} | "

@@ -51,6 +51,43 @@ def test_tracker_cell_known_answers() -> None:
     assert [fresh.update(0.010) for _ in range(30)][-1] == 0.015  # 2 cm asked: capped
 
 
+def test_line_residuals_equal_the_fit_written_out() -> None:
+    """The level line fit (each centring computed once) gives the residuals of the fit
+    written out with the means recomputed, bit for bit, flat and vertical lines included."""
+    from vio_graph.frontend.noise import _line_residuals
+
+    rng = np.random.default_rng(6)
+    for case in range(60):
+        n = int(rng.integers(1, 400))
+        x = rng.uniform(-0.5, 1.5, n) if case % 7 else np.full(n, 0.3)  # sxx = 0 too
+        z = 0.1 * x + rng.normal(0.0, 0.004, n)
+        xc = x - x.mean()
+        sxx = float(xc @ xc)
+        slope = float(xc @ (z - z.mean())) / sxx if sxx > 0 else 0.0
+        assert np.array_equal(_line_residuals(x, z), z - z.mean() - slope * xc)
+
+
+def test_tracker_median_is_np_median_bit_for_bit() -> None:
+    """sigma_m (a sorted list's middle, cached per new value) against np.median of the
+    window, over odd and even window fills, repeated values and a full window sliding."""
+    rng = np.random.default_rng(4)
+    t = DepthNoiseTracker(0.005, 2.0, 0.015, warmup=3, window=7, hysteresis=0.6)
+    assert t.sigma_m != t.sigma_m  # nan before any value
+    window: list[float] = []
+    for k in range(40):
+        v = float(rng.choice([0.003, 0.0041])) if k % 5 == 0 else float(rng.uniform(0.001, 0.01))
+        t.update(v)
+        window = (window + [v])[-7:]
+        assert t.sigma_m == float(np.median(window))
+        assert t.sigma_m == float(np.median(window))  # the cached value
+        t.update(float("nan"))  # no value: nothing changes
+        assert t.sigma_m == float(np.median(window))
+    t.reset()
+    t.update(0.1)
+    t.update(0.2)
+    assert t.sigma_m == float(np.median([0.1, 0.2]))
+
+
 def _frontend_cells(noise_m: float, n_frames: int = 36) -> tuple[float, float]:
     K = pico_flexx_K(112, 86)
     R_world_cam = camera_rotation(0.6)

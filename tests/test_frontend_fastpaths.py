@@ -368,6 +368,8 @@ def test_sagittal_slice_tables_equal_the_per_pixel_tests() -> None:
         # the per-pixel mask (the camera-fixed test's candidates) holds exactly those pixels
         mask = projection.slice_pixel_mask(depth, conf, K, *args)
         assert int(np.count_nonzero(mask)) == fast.shape[0]
+        # the per-column intervals give the mask of the per-pixel tests written out
+        assert np.array_equal(mask, projection.slice_pixel_mask_reference(depth, conf, K, *args))
         full = projection.sagittal_slice(
             projection.depth_to_points_cam(depth, conf, K, args[1], args[2], args[3]), R, half_width
         )
@@ -957,3 +959,82 @@ def test_compiled_under_levels_equals_the_numpy_mask() -> None:
                 assert np.array_equal(fast, ref)
                 n_under += int(ref.sum())
     assert n_under > 1000
+
+
+def _camera_fixed_scene(rng: np.random.Generator, case: int):
+    """Two depth frames of a stair (a camera-fixed blob in most), their camera -> ground
+    rotations and the true ground displacement; NaN and zero pixels sprinkled in."""
+    from vio_graph.frontend.synthetic import (
+        camera_rotation,
+        pico_flexx_K,
+        render_depth,
+        stair_polyline,
+    )
+
+    K = pico_flexx_K()
+    poly = stair_polyline("stair_up", start_x_m=0.5)
+    p0 = np.array([0.0, 0.45]) + rng.normal(0.0, 0.02, 2)
+    step = rng.normal(0.0, [0.03, 0.01]) if case % 4 else np.zeros(2)  # some: standing
+    pitches = 0.6 + rng.normal(0.0, 0.05), 0.6 + rng.normal(0.0, 0.05)
+    frames = []
+    for p, pitch in ((p0, pitches[0]), (p0 + step, pitches[1])):
+        R = camera_rotation(pitch, rng.normal(0.0, 0.02))
+        depth, conf = render_depth(poly, p, R, K, noise_m=0.002, rng=rng)
+        h, w = depth.shape
+        if case % 3:  # the near-lens blob at the same pixels in both frames
+            v, u = np.mgrid[0:h, 0:w]
+            r2 = ((u - 0.5 * w) / (0.45 * w)) ** 2 + ((v - 0.8 * h) / (0.3 * h)) ** 2
+            z = 0.25 + 0.04 * r2 + rng.normal(0.0, 0.002, r2.shape)
+            depth = np.where(r2 < 1.0, z, depth).astype(np.float32)
+        depth[rng.random(depth.shape) < 0.01] = np.nan
+        depth[rng.random(depth.shape) < 0.01] = 0.0
+        frames.append((depth, conf, R))
+    return K, frames, step
+
+
+def test_compiled_camera_fixed_mask_equals_the_numpy_path() -> None:
+    """camera_fixed_mask compiled (one pass, ``compiled.camera_fixed``) against its numpy
+    reference over swings, stance, wrong predictions, turns that move points out of the
+    view or behind the camera, held masks and float64 depth: the same mask, the same
+    unchanged pixels and the same view-test counts, bit for bit (the reference's matrix
+    product summed as this BLAS sums it; else the masks may differ at a rounding tie)."""
+    from vio_graph.frontend import camera_fixed as cf
+
+    assert icp_module.compiled_kernels() is not None
+    exact = _blas_matmul_is_forward_fma()
+    rng = np.random.default_rng(12)
+    n_found = n_view = 0
+    for case in range(40):
+        K, ((d0, c0, R0), (d1, c1, R1)), step = _camera_fixed_scene(rng, case)
+        delta = step + (rng.normal(0.0, 0.03, 2) if case % 5 == 0 else 0.0)  # wrong IMU
+        R1u = R1
+        if case % 7 == 0:  # a large turn: points leave the view / go behind the camera
+            R1u = camera_rotation_any(rng) @ R1
+        motion = cf.motion_from_ground(R0, R1u, delta, np.eye(2) * 0.002**2, 0.005, 0.01)
+        if case % 6 == 0:
+            d0, d1 = d0.astype(np.float64), d1.astype(np.float64)
+        cand = (c1 > 0) & (rng.random(c1.shape) < 0.9)
+        held = None if case % 2 else rng.random(cand.shape) < 0.3
+        sigma = float(rng.choice([0.002, 0.003, 0.01]))
+        got, want = {}, {}
+        for fn, res in ((cf.camera_fixed_mask, got), (cf.camera_fixed_mask_reference, want)):
+            same = np.zeros(cand.shape, dtype=bool)
+            stats: dict = {}
+            mask = fn(d0, d1, cand, K, motion, sigma, 3.0, held, same, stats)
+            res.update(mask=mask, same=same, stats=stats)
+        assert np.array_equal(got["same"], want["same"])
+        assert got["stats"] == want["stats"]
+        if exact:
+            assert np.array_equal(got["mask"], want["mask"])
+        else:  # a rounding tie at a threshold at most
+            assert np.count_nonzero(got["mask"] != want["mask"]) <= 2
+        n_found += bool(want["mask"].any())
+        n_view += bool(want["stats"])
+    assert n_found >= 10 and n_view >= 15  # the cases reach the camera-fixed decision
+
+
+def camera_rotation_any(rng: np.random.Generator) -> np.ndarray:
+    """A random rotation of up to ~90 degrees."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(rng.normal(0.0, 0.8, 3)).as_matrix()

@@ -37,6 +37,25 @@ def test_round_trip(tiny_recording: Path) -> None:
     np.testing.assert_array_equal(rec.groundtruth.frame_edge_visible, gt.frame_edge_visible)
 
 
+def test_frame_equals_the_straightforward_conversion(tiny_recording: Path) -> None:
+    """frame() (one float32 multiply, counts from the valid mask) gives what converting the
+    stored frame step by step gives: uint16 -> float32, times the unit, confidence 0 where
+    the depth is not positive; with zero-depth pixels in the frame."""
+    rec = Recording.open(tiny_recording)
+    depth, scale, conf = rec._depth
+    assert depth.dtype == np.uint16
+    n_zero = 0
+    for k in range(rec.num_frames):
+        f = rec.frame(k)
+        want = np.array(depth[k]).astype(np.float32) * np.float32(scale)
+        want_conf = np.array(conf[k])
+        want_conf[want <= 0] = 0
+        n_zero += int(np.count_nonzero(want == 0))
+        assert f.depth_m.dtype == np.float32 and f.confidence.dtype == np.uint8
+        assert np.array_equal(f.depth_m, want) and np.array_equal(f.confidence, want_conf)
+    assert n_zero > 0  # invalid pixels were zeroed in the confidence
+
+
 def test_frames_are_memory_mapped(tiny_recording: Path) -> None:
     rec = Recording.open(tiny_recording)
     depth, _, conf = rec._depth

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from vio_graph.frontend.icp import compiled_kernels
+
 
 @dataclass(frozen=True)
 class CameraMotion:
@@ -99,7 +101,131 @@ def camera_fixed_mask(
         stats: if given, receives the view test's counts ("confirm", "refute").
         view_step_px: the view test uses every this-many-th pixel in both directions.
         view_share: ... or needs this share of its valid pixels confirming the motion.
+
+    Compiled (``compiled.camera_fixed``, numba) when the front end's kernels are on
+    (``VIO_GRAPH_COMPILED``, :func:`vio_graph.frontend.icp.compiled_kernels`): one call, no
+    whole-image temporaries, the same tests on the same floats as
+    :func:`camera_fixed_mask_reference` (the numpy formulation; the projection summed as
+    numpy's BLAS sums ``Q @ R.T`` here), so the same masks and counts
+    (tests/test_frontend_fastpaths.py).
     """
+    kernels = compiled_kernels()
+    if kernels is not None:
+        out = _camera_fixed_mask_compiled(
+            kernels,
+            depth_prev_m,
+            depth_cur_m,
+            candidates,
+            K,
+            motion,
+            depth_sigma_m,
+            k_sigma,
+            held,
+            same_out,
+            stats,
+            view_step_px,
+            view_share,
+        )
+        if out is not None:
+            return out
+    return camera_fixed_mask_reference(
+        depth_prev_m,
+        depth_cur_m,
+        candidates,
+        K,
+        motion,
+        depth_sigma_m,
+        k_sigma,
+        held,
+        same_out,
+        stats,
+        view_step_px,
+        view_share,
+    )
+
+
+def _camera_fixed_mask_compiled(
+    kernels,
+    depth_prev_m: NDArray,
+    depth_cur_m: NDArray,
+    candidates: NDArray[np.bool_],
+    K: NDArray[np.float64],
+    motion: CameraMotion,
+    depth_sigma_m: float,
+    k_sigma: float,
+    held: NDArray[np.bool_] | None,
+    same_out: NDArray[np.bool_] | None,
+    stats: dict | None,
+    view_step_px: int,
+    view_share: float,
+) -> NDArray[np.bool_] | None:
+    """:func:`camera_fixed_mask` through the compiled kernel, or None when the inputs do not
+    fit it (float32 / float64 (H, W) images, bool masks of the same shape): the numpy path."""
+    dp, dc = np.asarray(depth_prev_m), np.asarray(depth_cur_m)
+    cand = np.asarray(candidates)
+    shape = dc.shape
+    if (
+        dc.ndim != 2
+        or dp.shape != shape
+        or cand.shape != shape
+        or cand.dtype != np.bool_
+        or dp.dtype not in (np.float32, np.float64)
+        or dc.dtype not in (np.float32, np.float64)
+        or (held is not None and (held.shape != shape or held.dtype != np.bool_))
+        or (same_out is not None and (same_out.shape != shape or same_out.dtype != np.bool_))
+        or int(view_step_px) < 1
+    ):
+        return None
+    # the scalars of camera_fixed_mask_reference and _world_test, as they compute them
+    tol_fixed = k_sigma * np.sqrt(2.0) * depth_sigma_m
+    var_t = float(np.asarray(motion.t_cov_m2)[2, 2])
+    s_world = 2.0 * depth_sigma_m**2 + var_t
+    same = np.zeros(shape, dtype=bool)
+    out = np.zeros(shape, dtype=bool)
+    ran, n_confirm, n_refute, n_changed = kernels.camera_fixed(
+        dp,
+        dc,
+        cand,
+        float(K[0, 0]),
+        float(K[1, 1]),
+        float(K[0, 2]),
+        float(K[1, 2]),
+        np.ascontiguousarray(motion.R_prev_cur, dtype=float),
+        np.ascontiguousarray(motion.t_prev_cur_m, dtype=float),
+        float(s_world),
+        float(motion.rot_sigma_rad),
+        float(k_sigma),
+        float(tol_fixed),
+        same if held is None else held,
+        held is not None,
+        int(view_step_px),
+        float(view_share),
+        out,
+        same,
+    )
+    if same_out is not None:
+        same_out |= same
+    if ran and stats is not None:
+        stats.update(confirm=int(n_confirm), refute=int(n_refute), changed=int(n_changed))
+    return out
+
+
+def camera_fixed_mask_reference(
+    depth_prev_m: NDArray,
+    depth_cur_m: NDArray,
+    candidates: NDArray[np.bool_],
+    K: NDArray[np.float64],
+    motion: CameraMotion,
+    depth_sigma_m: float,
+    k_sigma: float = 3.0,
+    held: NDArray[np.bool_] | None = None,
+    same_out: NDArray[np.bool_] | None = None,
+    stats: dict | None = None,
+    view_step_px: int = 4,
+    view_share: float = 0.05,
+) -> NDArray[np.bool_]:
+    """:func:`camera_fixed_mask` in numpy (the tested reference of the compiled kernel)."""
+
     dp = np.asarray(depth_prev_m, dtype=np.float64)
     dc = np.asarray(depth_cur_m, dtype=np.float64)
     h, w = dc.shape

@@ -1413,3 +1413,148 @@ def slice_xz(
 
 _NB_DY = np.array([0, 0, -1, 1, -1, -1, 1, 1])
 _NB_DX = np.array([-1, 1, 0, 0, -1, 1, -1, 1])
+
+
+# ----------------------------------------------------------------------- camera-fixed pixels
+
+
+@numba.njit(cache=True)
+def _padded_prev(dp):  # pragma: no cover - compiled
+    """``camera_fixed._world_test``'s padded image: the previous depth as float64, inf where
+    it is invalid and on 2 pixels around the image."""
+    h, w = dp.shape
+    pad = np.full((h + 4, w + 4), np.inf)
+    for r in range(h):
+        for c in range(w):
+            d = np.float64(dp[r, c])
+            if math.isfinite(d) and d > 0:
+                pad[r + 2, c + 2] = d
+    return pad
+
+
+@numba.njit(cache=True)
+def _world_pixel(
+    pad, r, c, z, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+):  # pragma: no cover - compiled
+    """``camera_fixed._world_test`` at one pixel: (seen, consistent). Same operations in the
+    same order as numpy's; ``Q @ R.T`` summed as the BLAS kernel numpy calls sums it
+    (OpenBLAS, Haswell and later: a product, then two fused multiply-adds); the other sums
+    round each operation as numpy does (numba contracts none into a fused multiply-add
+    without fastmath). ``consistent`` is meaningless when not seen (every use of it is
+    and-ed with ``seen``)."""
+    h, w = pad.shape[0] - 4, pad.shape[1] - 4
+    q0 = z * (c - cx) / fx
+    q1 = z * (r - cy) / fy
+    q2 = z
+    x = _fma(q2, R[0, 2], _fma(q1, R[0, 1], q0 * R[0, 0])) + t[0]
+    y = _fma(q2, R[1, 2], _fma(q1, R[1, 1], q0 * R[1, 0])) + t[1]
+    zp = _fma(q2, R[2, 2], _fma(q1, R[2, 1], q0 * R[2, 0])) + t[2]
+    if not zp > 1e-3:
+        return False, False
+    uf = np.rint(fx * x / zp + cx)
+    vf = np.rint(fy * y / zp + cy)
+    # further out than a pixel: not seen (NaN and overflow too, which numpy's cast to int64
+    # turns into the most negative integer)
+    if not (uf >= -1.0 and uf <= w and vf >= -1.0 and vf <= h):
+        return False, False
+    ui, vi = np.int64(uf), np.int64(vf)
+    # the least of the 9 differences (in a tree: the same value as numpy's running minimum,
+    # no NaN can occur while zp is finite, and a shorter chain of dependent operations)
+    a0 = min(abs(pad[vi + 1, ui + 1] - zp), abs(pad[vi + 1, ui + 2] - zp))
+    a1 = min(abs(pad[vi + 1, ui + 3] - zp), abs(pad[vi + 2, ui + 1] - zp))
+    a2 = min(abs(pad[vi + 2, ui + 2] - zp), abs(pad[vi + 2, ui + 3] - zp))
+    a3 = min(abs(pad[vi + 3, ui + 1] - zp), abs(pad[vi + 3, ui + 2] - zp))
+    best = min(min(min(a0, a1), min(a2, a3)), abs(pad[vi + 3, ui + 3] - zp))
+    if not math.isfinite(best):
+        return False, False
+    qn = math.sqrt(q0 * q0 + q1 * q1) * rot_sigma
+    tol_world = k_sigma * math.sqrt(s_world + qn * qn)
+    return True, best <= tol_world
+
+
+@numba.njit(cache=True)
+def camera_fixed(
+    dp,
+    dc,
+    cand,
+    fx,
+    fy,
+    cx,
+    cy,
+    R,
+    t,
+    s_world,
+    rot_sigma,
+    k_sigma,
+    tol_fixed,
+    held,
+    use_held,
+    view_step,
+    view_share,
+    out,
+    same_out,
+):  # pragma: no cover - compiled
+    """``camera_fixed.camera_fixed_mask_reference`` compiled: ``out`` (H, W, all False on
+    entry) receives the camera-fixed candidates, ``same_out`` the tested pixels whose depth
+    is unchanged. ``tol_fixed`` = k sqrt(2) sd, ``s_world`` = 2 sd^2 + var_t (both as numpy
+    computes them). Returns (view test run, n_confirm, n_refute, n_changed)."""
+    h, w = dc.shape
+    tested = np.empty(h * w, np.int64)  # flat indices of the unchanged candidates
+    n_same = 0
+    for r in range(h):
+        for c in range(w):
+            if not cand[r, c]:
+                continue
+            zc = np.float64(dc[r, c])
+            zprev = np.float64(dp[r, c])
+            if not (math.isfinite(zprev) and zprev > 0 and math.isfinite(zc) and zc > 0):
+                continue
+            if not abs(zc - zprev) <= tol_fixed:
+                continue
+            same_out[r, c] = True
+            if use_held and held[r, c]:
+                out[r, c] = True
+            tested[n_same] = r * w + c
+            n_same += 1
+    if n_same == 0:
+        return False, 0, 0, 0
+    pad = _padded_prev(dp)
+    n_fixed = 0  # the refused ones go to the front of ``tested``
+    for i in range(n_same):
+        r, c = tested[i] // w, tested[i] % w
+        seen, world = _world_pixel(
+            pad, r, c, np.float64(dc[r, c]), fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+        )
+        if seen and not world:
+            tested[n_fixed] = tested[i]
+            n_fixed += 1
+    if n_fixed == 0:
+        return False, 0, 0, 0
+    # the view test: every view_step-th pixel in both directions
+    n_confirm = 0
+    n_refute = 0
+    n_changed = 0
+    n_seen = 0
+    for r in range(0, h, view_step):
+        for c in range(0, w, view_step):
+            zprev = np.float64(dp[r, c])
+            zc = np.float64(dc[r, c])
+            if not (math.isfinite(zprev) and zprev > 0 and zc > 0):
+                continue
+            seen, world = _world_pixel(
+                pad, r, c, zc, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+            )
+            if not seen:
+                continue
+            n_seen += 1
+            if abs(zc - zprev) <= tol_fixed:
+                if not world:
+                    n_refute += 1
+            else:
+                n_changed += 1
+                if world:
+                    n_confirm += 1
+    if n_confirm >= n_refute or n_confirm >= view_share * n_seen:
+        for i in range(n_fixed):
+            out[tested[i] // w, tested[i] % w] = True
+    return True, n_confirm, n_refute, n_changed

@@ -246,6 +246,7 @@ def icp_translation_2d(
 
 
 _KERNELS: list = []  # [module or None] once imported
+_MODES: dict[str | None, str] = {}  # VIO_GRAPH_COMPILED's value -> "off", "auto", ...
 _AUTO = [False]  # what "auto" (VIO_GRAPH_COMPILED unset) means now; see use_compiled_by_default
 
 #: VIO_GRAPH_COMPILED: "1" compiled kernels whenever numba is installed, "0" never (the numpy
@@ -276,8 +277,13 @@ def compiled_kernels():
     """The numba kernels module (``vio_graph.frontend.compiled``), or None: without numba,
     with ``VIO_GRAPH_COMPILED=0``, or under "auto" until :func:`use_compiled_by_default`.
     Imported on first use, so a run that does not use it pays nothing."""
-    mode = os.environ.get(COMPILED_ENV, "auto").strip().lower()
-    if mode in ("0", "false", "no", "off") or (mode == "auto" and not _AUTO[0]):
+    raw = os.environ.get(COMPILED_ENV)  # called a dozen times a frame: the parse cached
+    mode = _MODES.get(raw)
+    if mode is None:
+        mode = "auto" if raw is None else raw.strip().lower()
+        mode = "off" if mode in ("0", "false", "no", "off") else mode
+        _MODES[raw] = mode
+    if mode == "off" or (mode == "auto" and not _AUTO[0]):
         return None
     if not _KERNELS:
         try:

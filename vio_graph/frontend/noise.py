@@ -66,8 +66,8 @@ def level_residuals(
     pts = np.asarray(points_xz_m, dtype=float).reshape(-1, 2)
     lv = np.asarray(list(levels), dtype=float).reshape(-1, 3)
     bx, bz, counts = kernels.level_bands(
-        np.ascontiguousarray(pts[:, 0]),
-        np.ascontiguousarray(pts[:, 1]),
+        pts[:, 0],  # strided views: the kernel reads them in place
+        pts[:, 1],
         float(max_range_m),
         bool(np.isfinite(max_range_m)),
         np.ascontiguousarray(lv[:, 0]),
@@ -86,9 +86,10 @@ def level_residuals(
 def _line_residuals(xs: NDArray[np.float64], zs: NDArray[np.float64]) -> NDArray[np.float64]:
     """z residuals about the least-squares line z = a + b x of the points (contiguous)."""
     xc = xs - xs.mean()
+    zc = zs - zs.mean()  # computed once: the same floats the fit and the residuals used
     sxx = float(xc @ xc)
-    slope = float(xc @ (zs - zs.mean())) / sxx if sxx > 0 else 0.0
-    return zs - zs.mean() - slope * xc
+    slope = float(xc @ zc) / sxx if sxx > 0 else 0.0
+    return zc - slope * xc
 
 
 def level_residuals_reference(
@@ -136,6 +137,17 @@ def robust_sigma_reference(residuals_m: NDArray[np.float64]) -> float:
     return float(_MAD_TO_SIGMA * np.median(np.abs(r - np.median(r))))
 
 
+def _median(values: Iterable[float]) -> float:
+    """np.median of finite floats (nan if none), without its per-call overhead: the middle
+    value, or the two middle ones summed and halved, as np.median's mean of them rounds."""
+    v = sorted(values)
+    n = len(v)
+    if n == 0:
+        return float("nan")
+    m = n // 2
+    return float(v[m]) if n % 2 else (v[m - 1] + v[m]) / 2.0
+
+
 class DepthNoiseTracker:
     """Median of the recent per-frame noise values and the thinning cell they ask for."""
 
@@ -154,17 +166,22 @@ class DepthNoiseTracker:
         self.warmup = int(warmup)
         self.hysteresis = float(hysteresis)
         self._values: deque[float] = deque(maxlen=max(int(window), 1))
+        self._sigma: float | None = None  # sigma_m of the current values, once asked for
         self.cell_m = self.base_cell_m
 
     def reset(self) -> None:
         """Forget the measurements and go back to the configured cell."""
         self._values.clear()
+        self._sigma = None
         self.cell_m = self.base_cell_m
 
     @property
     def sigma_m(self) -> float:
-        """Median of the recent frame values, metres (nan before the first one)."""
-        return float(np.median(self._values)) if self._values else float("nan")
+        """Median of the recent frame values, metres (nan before the first one); computed
+        once per new value (the front end asks for it several times a frame)."""
+        if self._sigma is None:
+            self._sigma = _median(self._values)
+        return self._sigma
 
     def asked_cell_m(self) -> float:
         """The cell the current noise asks for (the configured cell before the warm-up)."""
@@ -176,6 +193,7 @@ class DepthNoiseTracker:
         """Add one frame's noise value (nan = no measurement) and return the cell to use."""
         if np.isfinite(sigma_m):
             self._values.append(float(sigma_m))
+            self._sigma = None
         asked = self.asked_cell_m()
         if abs(asked - self.cell_m) > self.hysteresis * self.cell_m:
             self.cell_m = asked

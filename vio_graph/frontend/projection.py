@@ -52,7 +52,46 @@ def slice_pixel_mask(
 ) -> NDArray[np.bool_]:
     """(H, W) the pixels eq. 1 keeps: valid (confidence, min < depth < max) and inside the
     sagittal slab, depth * |u - c_x| / f_x < half_width_m (the tests of
-    :func:`sagittal_slice_from_depth`, per pixel)."""
+    :func:`sagittal_slice_from_depth`, per pixel). For a float image, tested as that
+    function tests them: per column, depth in [lower, upper[column]] of the cached
+    ``_slice_tables``, in the image's dtype and on the column band only (no float64
+    temporaries); the same mask as :func:`slice_pixel_mask_reference`."""
+    depth_m = np.asarray(depth_m)
+    tables = None
+    if (
+        depth_m.ndim == 2
+        and depth_m.dtype.kind == "f"
+        and np.shape(confidence) == depth_m.shape
+        and np.ndim(min_depth_m) == np.ndim(max_depth_m) == 0
+    ):
+        K = np.asarray(K, dtype=float)
+        tables = _slice_tables(
+            K.tobytes(), depth_m.shape, depth_m.dtype, half_width_m, min_depth_m, max_depth_m
+        )
+    if tables is None:
+        return slice_pixel_mask_reference(
+            depth_m, confidence, K, half_width_m, min_depth_m, max_depth_m, min_confidence
+        )
+    c0, c1, lower, upper, _, _ = tables
+    out = np.zeros(depth_m.shape, dtype=bool)
+    band = out[:, c0:c1]
+    depth = depth_m[:, c0:c1]
+    np.less_equal(depth, upper, out=band)  # max depth and eq. 1 per pixel (NaN fails)
+    band &= depth >= lower
+    band &= np.asarray(confidence)[:, c0:c1] >= min_confidence
+    return out
+
+
+def slice_pixel_mask_reference(
+    depth_m: NDArray,
+    confidence: NDArray[np.uint8],
+    K: NDArray[np.float64],
+    half_width_m: float,
+    min_depth_m: float,
+    max_depth_m: float,
+    min_confidence: int,
+) -> NDArray[np.bool_]:
+    """:func:`slice_pixel_mask` with the per-pixel tests written out."""
     x_per_m = np.abs(np.arange(np.shape(depth_m)[1]) - K[0, 2]) / K[0, 0]
     with np.errstate(invalid="ignore"):
         keep = _valid_mask(depth_m, confidence, min_depth_m, max_depth_m, min_confidence)

@@ -317,7 +317,7 @@ class Recording:
         if n == 0:
             raise RecordingError(self._depth_path(depth), "recording has no depth frames")
         sampled = sorted({0, n // 2, n - 1})
-        if not any((self._convert(i, depth, scale) > 0).any() for i in sampled):
+        if not any(self._convert(i, depth, scale)[2] for i in sampled):
             raise RecordingError(
                 self._depth_path(depth),
                 f"frames {sampled} have no valid depth pixel (empty frames)",
@@ -328,26 +328,32 @@ class Recording:
             layout.DEPTH_MM_FILE if depth.dtype == np.uint16 else layout.DEPTH_M_FILE
         )
 
-    def _convert(self, i: int, depth: np.ndarray, scale: float) -> np.ndarray:
+    def _convert(
+        self, i: int, depth: np.ndarray, scale: float
+    ) -> tuple[np.ndarray, np.ndarray, int]:
+        """Frame ``i``'s depth in metres (float32, 0 = invalid, never NaN: the file holds
+        uint16 or float32, checked on opening, and NaN becomes 0), its valid mask (d > 0) and
+        their count, after the unit checks."""
         try:
-            raw = np.array(depth[i])
+            if depth.dtype == np.float32:
+                raw = np.array(depth[i])
+            else:  # the integer unit scaled in float32, in one pass (= astype, then multiply)
+                d = np.multiply(depth[i], np.float32(scale), dtype=np.float32, casting="unsafe")
         except (OSError, ValueError) as exc:  # the file changed or shrank after opening
             raise RecordingError(
                 self._depth_path(depth), f"frame {i} cannot be read ({_describe(exc)})"
             ) from None
-        if raw.dtype == np.float32:
+        if depth.dtype == np.float32:
             if np.isinf(raw).any() or (raw < 0).any():
                 raise RecordingError(
                     self._depth_path(depth), f"frame {i} has inf or negative depth"
                 )
             d = np.nan_to_num(raw, nan=0.0)
-        else:
-            d = raw.astype(np.float32) * np.float32(scale)
         cam = self.metadata.camera
         # shares of the valid pixels (d > 0) beyond the range checks, counted without copying
         # the valid pixels out (copying them out was most of the cost of reading a frame)
         valid = d > 0
-        n_valid = np.count_nonzero(valid)
+        n_valid = int(np.count_nonzero(valid))
         if n_valid:
             too_far = np.count_nonzero(d > 1.5 * cam.max_range_m) / n_valid
             if too_far > 0.5:
@@ -357,7 +363,11 @@ class Recording:
                     f"range {cam.max_range_m} m (wrong depth unit?)",
                     field="camera.depth_unit_m",
                 )
-            too_near = np.count_nonzero(valid & (d < 0.5 * cam.min_range_m)) / n_valid
+            near_m = 0.5 * cam.min_range_m
+            # valid & (d < near_m), counted as all d < near_m less the invalid pixels (d <= 0,
+            # no NaN), which are all nearer than a positive near_m
+            n_near = 0 if near_m <= 0 else int(np.count_nonzero(d < near_m)) - (d.size - n_valid)
+            too_near = n_near / n_valid
             if too_near > 0.5:
                 raise RecordingError(
                     self._depth_path(depth),
@@ -365,7 +375,7 @@ class Recording:
                     f"min range {cam.min_range_m} m (wrong depth unit?)",
                     field="camera.depth_unit_m",
                 )
-        return d
+        return d, valid, n_valid
 
     @property
     def num_frames(self) -> int:
@@ -379,9 +389,10 @@ class Recording:
         count in the process's resident memory, which therefore stays flat over a long trial
         (a 10-minute recording maps ~2 GB)."""
         depth, scale, conf = self._depth
-        d = self._convert(i, depth, scale)
+        d, valid, n_valid = self._convert(i, depth, scale)
         c = np.array(conf[i])
-        c[d <= 0] = 0
+        if n_valid < d.size:
+            c[~valid] = 0  # d <= 0 (d holds no NaN)
         self._frames_read += 1
         if self._frames_read % RELEASE_EVERY_FRAMES == 0:
             release_pages(depth)

@@ -10,7 +10,12 @@ test included) and of every ``OnlineEstimator.add_frame`` call. The processes al
 base, working tree, base, ... ``--rounds`` times, so machine load hits both alike; medians
 and p95 pool all frames of all replays of all rounds.
 
-    python benchmarks/ab_frontend.py --base f239660~1 [--rounds 3] [--replays 2]
+With ``--clock cpu`` the estimator's stage clock (``time.perf_counter`` in
+vio_graph/estimator.py) is replaced in the child by ``time.process_time``, so every stage time
+(the front end's, fusion, safety, kinematics) is CPU time: other processes on the machine's
+cores do not count. That is the comparison to make on a shared machine.
+
+    python benchmarks/ab_frontend.py --base f239660~1 [--rounds 3] [--replays 2] [--clock cpu]
 """
 
 from __future__ import annotations
@@ -31,24 +36,30 @@ STAGES = (
     "frontend_total",
     "fusion",
     "frontend_plus_fusion",
+    "safety",
+    "kinematics",
 )
 
 _CHILD = r"""
-import json, os, sys
-tree, replays = sys.argv[1], int(sys.argv[2])
+import json, os, sys, time
+tree, replays, clock = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 sys.path[:0] = [tree, os.path.join(tree, "benchmarks")]
 os.environ["VIO_GRAPH_COMPILED"] = "1"
 import _common  # noqa
 import bench_frontend as bf
 import vio_graph
+import vio_graph.estimator as estimator_module
 assert os.path.realpath(vio_graph.__file__).startswith(os.path.realpath(tree))
+if clock == "cpu":
+    class _CpuClock:  # the estimator's stage clock, in CPU time
+        perf_counter = staticmethod(time.process_time)
+    estimator_module.time = _CpuClock
 from vio_graph.recording.reader import Recording
 rec = Recording.open(bf.ensure_recording(None))
 frames = [rec.frame(i) for i in range(rec.num_frames)]
 bf.compiled_startup_s()
 timed = bf._TimedIcp(bf.tracker_module.icp_translation_2d)
 bf.tracker_module.icp_translation_2d = timed
-import time
 from vio_graph.frontend.frontend import VisualFrontend
 fe_cpu = []
 process = VisualFrontend.process
@@ -74,6 +85,9 @@ def main() -> None:
     ap.add_argument("--base", required=True, help="git revision to compare against")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--replays", type=int, default=2, help="timed replays per process")
+    ap.add_argument(
+        "--clock", choices=("wall", "cpu"), default="wall", help="the stage times' clock"
+    )
     args = ap.parse_args()
     new = Path(__file__).resolve().parent.parent
     pooled: dict[str, dict[str, list[float]]] = {
@@ -84,9 +98,9 @@ def main() -> None:
         base = _common.extract_revision(args.base, Path(tmp))
         for r in range(args.rounds):
             for name, tree in (("base", base), ("new", new)):
-                d = _common.run_in_tree(_CHILD, tree, str(args.replays))
+                d = _common.run_in_tree(_CHILD, tree, str(args.replays), args.clock)
                 for s in STAGES:
-                    pooled[name][s] += [row[s] for row in d["rows"]]
+                    pooled[name][s] += [row.get(s, 0.0) for row in d["rows"]]
                 pooled[name]["add_frame_cpu"] += d["add_frame_cpu_ms"]
                 pooled[name]["frontend_cpu"] += d["frontend_cpu_ms"]
                 ff = np.median([row["frontend_plus_fusion"] for row in d["rows"]])
@@ -99,6 +113,11 @@ def main() -> None:
             f"| {s} | {b['median']:.3f} | {b['p95']:.3f} | {n['median']:.3f} | "
             f"{n['p95']:.3f} | {n['median'] / b['median']:.3f} |"
         )
+    info = _common.machine_info()
+    print(
+        f"clock: {args.clock}; frames per side: {len(pooled['base']['fusion'])}; "
+        f"load average (1, 5, 15 min): {info['load_average_1_5_15min']}"
+    )
 
 
 if __name__ == "__main__":

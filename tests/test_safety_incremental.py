@@ -428,3 +428,26 @@ def test_height_map_growth_keeps_the_padded_maps_arrays(compiled: bool) -> None:
     assert grows >= 20  # the map grew a metre or so at a time
     assert len(allocations) <= 6  # the buffers doubled, not one copy a metre
     assert len(new.edges()) >= 30  # the flights' edges were found
+
+
+@pytest.mark.parametrize("motion_model", ["swing_template", "constant_velocity"])
+@pytest.mark.parametrize("compiled", [False, True])
+def test_monitor_without_the_predicted_clearance_keeps_every_other_output(
+    sample_frames, motion_model: str, compiled: bool
+) -> None:
+    """The metrics' replays (``predict_clearance=False``) give every output of every frame
+    of data/sample as the full monitor, to the bit, but ``predicted_min_clearance_m``,
+    which they leave NaN."""
+    if compiled:
+        _compiled()
+    cfg = load_config(None).safety.model_copy(update={"motion_model": motion_model})
+    full = np.array(_replay(sample_frames, cfg, compiled=compiled))
+    lean = np.array(_replay(sample_frames, cfg, compiled=compiled, predict_clearance=False))
+    names = [f.name for f in fields(SafetyEstimate)]
+    first = SafetyMonitor(cfg).update(*sample_frames[0])
+    # the column of predicted_min_clearance_m in _as_row
+    k = sum(np.size(getattr(first, n)) for n in names[: names.index("predicted_min_clearance_m")])
+    assert np.isfinite(full[:, k]).sum() > 50  # the full monitor predicted clearances
+    assert np.isnan(lean[:, k]).all()
+    np.testing.assert_array_equal(np.delete(lean, k, axis=1), np.delete(full, k, axis=1))
+    assert np.isfinite(np.delete(full, k, axis=1)[:, 0]).sum() > 50

@@ -386,7 +386,7 @@ def test_height_map_growth_keeps_the_padded_maps_arrays(compiled: bool) -> None:
     keyframe and contact the bin arrays (heights, sorted heights, ceilings, counts, use,
     statistic, errors, covariances, caps), their first bin and the edges are those of the
     map that pads every array by a metre at a time, bit for bit, while the buffers behind
-    them were allocated only a few times (capacity doubling)."""
+    them were allocated only a few times (capacity grown by half the map)."""
     kernels = _compiled() if compiled else None
     rng = np.random.default_rng(5)
     flights = [_noisy_stairs(rng) for _ in range(3)]
@@ -426,7 +426,7 @@ def test_height_map_growth_keeps_the_padded_maps_arrays(compiled: bool) -> None:
         last_len = new._n.shape[0]
     assert new._n.shape[0] > 5000  # ~29 m of 5 mm bins
     assert grows >= 20  # the map grew a metre or so at a time
-    assert len(allocations) <= 6  # the buffers doubled, not one copy a metre
+    assert len(allocations) <= 10  # the buffers grew by half, not one copy a metre
     assert len(new.edges()) >= 30  # the flights' edges were found
 
 

@@ -161,10 +161,10 @@ class OnlineHeightMap:
     def _grow(self, i_min: int, i_max: int) -> None:
         """Extend the bin arrays to hold bins ``i_min``..``i_max`` (and 1 m more at the side
         that needs it). The arrays are views of length ``n`` (the map's bins) into buffers
-        whose capacity at least doubles when it runs out (``_buf``, element 0 of the views
-        at buffer element ``_off``), so growing costs amortised O(1) per bin, not the
-        O(length) copy of every array each metre: the same arrays, values and ``_i0`` as
-        padding each array by the metre it needs."""
+        (``_buf``, element 0 of the views at buffer element ``_off``) which, when they run
+        out, are copied into new ones with room for half the map more at that side: growing
+        costs amortised O(1) per bin, not the O(length) copy of every array each metre, and
+        the same arrays, values and ``_i0`` as padding each array by the metre it needs."""
         n = self._n.shape[0]
         margin = int(np.ceil(1.0 / self.bin_m))
         if n == 0:
@@ -177,9 +177,11 @@ class OnlineHeightMap:
         size = self._buf[0].shape[0] if self._buf else 0
         a = self._off - (self._i0 - lo)  # buffer element of bin lo
         views = [getattr(self, name) for name, _ in self._ARRAYS]
-        if a < 0 or a + (hi - lo) > size:  # a new buffer, with room at both ends
-            size = max(2 * size, 2 * (hi - lo))
-            a = (size - (hi - lo)) // 2
+        if a < 0 or a + (hi - lo) > size:  # a new buffer, with room on the growing side
+            spare = (hi - lo) // 2  # half the map: amortised O(1) per bin
+            left = spare if a < 0 else a
+            right = spare if a + (hi - lo) > size else size - (a + (hi - lo))
+            size, a = left + (hi - lo) + right, left
             shifted = a + (self._i0 - lo)  # where the current bins go
             bufs = []
             for (_, fill), v in zip(self._ARRAYS, views, strict=True):

@@ -351,3 +351,103 @@ def test_fused_warm_up_loads_the_kernels_a_fused_monitor_calls() -> None:
         assert loaded[name], name
     for name in ("consistency_squares", "add_tops", "keyframe_tops", "_coverage"):
         assert not loaded[name], name
+
+
+class _PaddedMap(IncrementalHeightMap):
+    """The map with the arrays grown as before the growable buffers: every array padded by
+    the metre it needs (a copy of all of them each time)."""
+
+    def _grow(self, i_min: int, i_max: int) -> None:
+        n = self._n.shape[0]
+        if n == 0:
+            self._i0 = i_min - int(np.ceil(1.0 / self.bin_m))
+        if n and self._i0 <= i_min and i_max < self._i0 + n:
+            return
+        margin = int(np.ceil(1.0 / self.bin_m))
+        lo = self._i0 if i_min >= self._i0 else i_min - margin
+        hi = self._i0 + n if i_max < self._i0 + n else i_max + 1 + margin
+        pad_l, pad_r = self._i0 - lo, hi - (self._i0 + n)
+        self._z = np.pad(self._z, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
+        self._zs = np.pad(self._zs, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
+        self._u = np.pad(self._u, ((pad_l, pad_r), (0, 0)), constant_values=np.inf)
+        self._n = np.pad(self._n, (pad_l, pad_r))
+        self._used = np.pad(self._used, (pad_l, pad_r))
+        self._mid = np.pad(self._mid, (pad_l, pad_r))
+        self._se2 = np.pad(self._se2, (pad_l, pad_r))
+        self._cov = np.pad(self._cov, ((pad_l, pad_r), (0, 0)))
+        self._cap = np.pad(self._cap, (pad_l, pad_r), constant_values=np.inf)
+        self._i0 = lo
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_height_map_growth_keeps_the_padded_maps_arrays(compiled: bool) -> None:
+    """Keyframes walking 24 m up repeated noisy stairs, then back past the start (the map
+    grows ~25 times at its right end, then at its left), with foot contacts: after every
+    keyframe and contact the bin arrays (heights, sorted heights, ceilings, counts, use,
+    statistic, errors, covariances, caps), their first bin and the edges are those of the
+    map that pads every array by a metre at a time, bit for bit, while the buffers behind
+    them were allocated only a few times (capacity grown by half the map)."""
+    kernels = _compiled() if compiled else None
+    rng = np.random.default_rng(5)
+    flights = [_noisy_stairs(rng) for _ in range(3)]
+    x_off, parts = 0.0, []
+    for s in flights:  # one long polyline: the flights one after the other
+        s = s[1:] - [s[1, 0], 0.0]
+        parts.append(s + [x_off, 0.0])
+        x_off += s[-1, 0] + 0.05
+    stairs = np.vstack([[[-6.0, 0.0]], *parts, [[x_off + 30.0, 0.0]]])
+    kw = {"agree_keyframes": 2, "agree_m": 0.004, "kernels": kernels}
+    new, old = IncrementalHeightMap(0.005, 3, **kw), _PaddedMap(0.005, 3, **kw)
+    allocations, grows, last_len = set(), 0, 0
+    xs = [*np.arange(0.0, 24.0, 0.08), *np.arange(24.0, -4.0, -0.5)]
+    for x0 in xs:
+        P = np.diag(rng.uniform(1e-6, 1e-4, 2))
+        prof = _keyframe_profile(rng, stairs, float(x0))
+        changed = [m.add_keyframe([x0, 0.5], prof, P) for m in (new, old)]
+        assert changed[0] == changed[1]
+        if rng.random() < 0.5:
+            hx = float(x0 + rng.uniform(0.0, 1.0))
+            hz = float(np.interp(hx, stairs[:, 0] + 1e-9 * np.arange(len(stairs)), stairs[:, 1]))
+            heel = np.array([hx, hz + rng.normal(0.0, 0.003)])
+            toe = heel + [0.25, rng.normal(0.0, 0.01)]
+            assert new.add_contact(heel, toe, 0.006, 0.04) == old.add_contact(
+                heel, toe, 0.006, 0.04
+            )
+        assert new._i0 == old._i0
+        for name, _ in IncrementalHeightMap._ARRAYS:
+            a, b = getattr(new, name), getattr(old, name)
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b, err_msg=name)
+            assert a.base is new._buf[[n for n, _ in new._ARRAYS].index(name)]
+        np.testing.assert_array_equal(new.edges().xz_m, old.edges().xz_m)
+        np.testing.assert_array_equal(new.edges().rise_m, old.edges().rise_m)
+        allocations.add(id(new._buf[0]))
+        grows += new._n.shape[0] != last_len
+        last_len = new._n.shape[0]
+    assert new._n.shape[0] > 5000  # ~29 m of 5 mm bins
+    assert grows >= 20  # the map grew a metre or so at a time
+    assert len(allocations) <= 10  # the buffers grew by half, not one copy a metre
+    assert len(new.edges()) >= 30  # the flights' edges were found
+
+
+@pytest.mark.parametrize("motion_model", ["swing_template", "constant_velocity"])
+@pytest.mark.parametrize("compiled", [False, True])
+def test_monitor_without_the_predicted_clearance_keeps_every_other_output(
+    sample_frames, motion_model: str, compiled: bool
+) -> None:
+    """The metrics' replays (``predict_clearance=False``) give every output of every frame
+    of data/sample as the full monitor, to the bit, but ``predicted_min_clearance_m``,
+    which they leave NaN."""
+    if compiled:
+        _compiled()
+    cfg = load_config(None).safety.model_copy(update={"motion_model": motion_model})
+    full = np.array(_replay(sample_frames, cfg, compiled=compiled))
+    lean = np.array(_replay(sample_frames, cfg, compiled=compiled, predict_clearance=False))
+    names = [f.name for f in fields(SafetyEstimate)]
+    first = SafetyMonitor(cfg).update(*sample_frames[0])
+    # the column of predicted_min_clearance_m in _as_row
+    k = sum(np.size(getattr(first, n)) for n in names[: names.index("predicted_min_clearance_m")])
+    assert np.isfinite(full[:, k]).sum() > 50  # the full monitor predicted clearances
+    assert np.isnan(lean[:, k]).all()
+    np.testing.assert_array_equal(np.delete(lean, k, axis=1), np.delete(full, k, axis=1))
+    assert np.isfinite(np.delete(full, k, axis=1)[:, 0]).sum() > 50

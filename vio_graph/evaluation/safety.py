@@ -267,8 +267,10 @@ def replay_safety(
     keyframe profiles placed at that mode's camera positions, frame by frame (causal in the
     profiles; the smoothers' poses themselves may use later data). ``cov_m2``: the filter's.
     Returned as a :class:`SafetyLog` (one row of floats a frame, read like the list of
-    SafetyEstimate or None it stands for), as the online replay keeps its own."""
-    mon = SafetyMonitor(config)
+    SafetyEstimate or None it stands for), as the online replay keeps its own; its
+    ``predicted_min_clearance_m`` is NaN (not computed: :func:`score_mode` does not score
+    it, and no other output depends on it)."""
+    mon = SafetyMonitor(config, predict_clearance=False)
     out = SafetyLog()
     for k, t in enumerate(t_s):
         out.append(

@@ -138,31 +138,64 @@ class OnlineHeightMap:
         self._se2 = np.zeros(0)  # per bin: its squared standard error, m^2
         self._cov = np.zeros((0, 3))  # sum of (Pxx, Pxz, Pzz)
         self._cap = np.zeros(0)  # per bin: the lowest foot-contact height (+inf: none), m
+        self._buf: list[NDArray] = []  # the buffers the arrays above view (_grow)
+        self._off = 0  # buffer element of array element 0
         self.max_excess_m = 0.0  # excess over a cap that contact removes (0: none yet)
         self._profile: tuple[float, HeightProfile] | None = None  # (map_sigma_m, profile)
         self._profile_bins = np.zeros(0, np.int64)  # bin index of each profile bin
         self._edges: tuple[int, Edges, tuple[int, float, float]] | None = None
 
+    # the bin arrays (attribute, fill value of a bin no keyframe saw)
+    _ARRAYS = (
+        ("_z", NAN),
+        ("_zs", NAN),
+        ("_u", math.inf),
+        ("_n", 0),
+        ("_used", False),
+        ("_mid", 0.0),
+        ("_se2", 0.0),
+        ("_cov", 0.0),
+        ("_cap", math.inf),
+    )
+
     def _grow(self, i_min: int, i_max: int) -> None:
+        """Extend the bin arrays to hold bins ``i_min``..``i_max`` (and 1 m more at the side
+        that needs it). The arrays are views of length ``n`` (the map's bins) into buffers
+        (``_buf``, element 0 of the views at buffer element ``_off``) which, when they run
+        out, are copied into new ones with room for half the map more at that side: growing
+        costs amortised O(1) per bin, not the O(length) copy of every array each metre, and
+        the same arrays, values and ``_i0`` as padding each array by the metre it needs."""
         n = self._n.shape[0]
+        margin = int(np.ceil(1.0 / self.bin_m))
         if n == 0:
-            self._i0 = i_min - int(np.ceil(1.0 / self.bin_m))
+            self._i0 = i_min - margin
         if n and self._i0 <= i_min and i_max < self._i0 + n:
             return
         # grow by at least 1 m at the side that needs it (amortised, not per keyframe)
-        margin = int(np.ceil(1.0 / self.bin_m))
         lo = self._i0 if i_min >= self._i0 else i_min - margin
         hi = self._i0 + n if i_max < self._i0 + n else i_max + 1 + margin
-        pad_l, pad_r = self._i0 - lo, hi - (self._i0 + n)
-        self._z = np.pad(self._z, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
-        self._zs = np.pad(self._zs, ((pad_l, pad_r), (0, 0)), constant_values=np.nan)
-        self._u = np.pad(self._u, ((pad_l, pad_r), (0, 0)), constant_values=np.inf)
-        self._n = np.pad(self._n, (pad_l, pad_r))
-        self._used = np.pad(self._used, (pad_l, pad_r))
-        self._mid = np.pad(self._mid, (pad_l, pad_r))
-        self._se2 = np.pad(self._se2, (pad_l, pad_r))
-        self._cov = np.pad(self._cov, ((pad_l, pad_r), (0, 0)))
-        self._cap = np.pad(self._cap, (pad_l, pad_r), constant_values=np.inf)
+        size = self._buf[0].shape[0] if self._buf else 0
+        a = self._off - (self._i0 - lo)  # buffer element of bin lo
+        views = [getattr(self, name) for name, _ in self._ARRAYS]
+        if a < 0 or a + (hi - lo) > size:  # a new buffer, with room on the growing side
+            spare = (hi - lo) // 2  # half the map: amortised O(1) per bin
+            left = spare if a < 0 else a
+            right = spare if a + (hi - lo) > size else size - (a + (hi - lo))
+            size, a = left + (hi - lo) + right, left
+            shifted = a + (self._i0 - lo)  # where the current bins go
+            bufs = []
+            for (_, fill), v in zip(self._ARRAYS, views, strict=True):
+                buf = np.full((size, *v.shape[1:]), fill, dtype=v.dtype)
+                buf[shifted : shifted + n] = v
+                bufs.append(buf)
+            self._buf = bufs
+        else:  # the buffers hold the new bins already (at their fill values)
+            for buf, v in zip(self._buf, views, strict=True):
+                if v.base is not buf:  # (never: the arrays are only written in place)
+                    buf[self._off : self._off + n] = v
+        for (name, _), buf in zip(self._ARRAYS, self._buf, strict=True):
+            setattr(self, name, buf[a : a + (hi - lo)])
+        self._off = a
         self._i0 = lo
 
     def add_keyframe(

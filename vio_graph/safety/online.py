@@ -316,7 +316,9 @@ class SafetyMonitor:
     consistency test (:class:`MapConsistency` ``reference``). ``fused`` (compiled only): each
     step of a frame in one kernel call, else the kernels of the single operations (the
     previous compiled path, kept for the equality test and the benchmark). Same outputs in
-    every combination."""
+    every combination. ``predict_clearance``: False leaves ``predicted_min_clearance_m``
+    NaN without computing it (the metrics' replays of other modes' paths, which do not
+    score it; no other output depends on it)."""
 
     def __init__(
         self,
@@ -324,10 +326,12 @@ class SafetyMonitor:
         incremental: bool | None = None,
         compiled: bool | None = None,
         fused: bool = True,
+        predict_clearance: bool = True,
     ) -> None:
         if incremental is False and compiled:
             raise ValueError("the compiled safety kernels run on the incremental map")
         self.config = config
+        self.predict_clearance = predict_clearance
         kernels = None
         if incremental is not False and compiled is not False:
             kernels = compiled_kernels(force=bool(compiled))
@@ -727,9 +731,10 @@ class SafetyMonitor:
             self._cleared = []
         pred = pred_edge = risk = NAN  # risk: the minimum over near-trip candidates
         template_motion: NDArray[np.float64] | None = None  # (numpy path: for the check)
+        c_pred = c_d if self.predict_clearance else NAN  # NaN: no predicted clearance
         if use_template and fused:
             pred, pred_edge, risk, new = g.swing_prediction(
-                tau, self._h, *self._flat_templates(), hx, hz, tx, tz, c_d, cfg.window_m,
+                tau, self._h, *self._flat_templates(), hx, hz, tx, tz, c_pred, cfg.window_m,
                 cfg.sole_thickness_m, self.map._used, self.map._mid, self.map._se2,
                 self.map._i0, cfg.bin_m, cfg.map_sigma_m, edges.xz_m, e, cfg.toe_pass_m,
                 cfg.horizon_s / cfg.horizon_steps, cfg.warning_min_forward_speed_mps,
@@ -747,7 +752,7 @@ class SafetyMonitor:
             # the extreme position)
             m_lo, m_hi = motion.min(axis=0), motion.max(axis=0)
             toe_x_max = float(toe[0] + m_hi[2])
-            if math.isfinite(c_d):
+            if math.isfinite(c_pred):
                 lo_x = float(min(heel[0] + m_lo[0], toe[0] + m_lo[2]))
                 hi_x = float(max(heel[0] + m_hi[0], toe_x_max))
                 w = cfg.window_m
@@ -757,9 +762,9 @@ class SafetyMonitor:
         else:
             x0, x1 = min(hx, tx) - cfg.window_m, max(hx, tx) + cfg.window_m
             sweep = None  # the x range of the bins the prediction searches
-            if v_known and math.isfinite(c_d) and speed * cfg.horizon_s < 1e-3:
+            if v_known and math.isfinite(c_pred) and speed * cfg.horizon_s < 1e-3:
                 pred = c_d  # the foot moves < 1 mm over the horizon: within 1 mm of now
-            elif v_known and math.isfinite(c_d):
+            elif v_known and math.isfinite(c_pred):
                 dx = float(v[0]) * cfg.horizon_s  # the foot's x span over the horizon
                 lo_x = float(min(heel[0], toe[0])) + min(dx, 0.0)
                 hi_x = float(max(heel[0], toe[0])) + max(dx, 0.0)

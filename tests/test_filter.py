@@ -359,3 +359,44 @@ def test_dead_reckoning_ignores_displacements_and_attitude_noise_inflates_covari
     run(tilted, m, 1.0, frame_every=None)
     # 1 deg of pitch error on ~9.8 m/s^2 dominates the 0.0118 m/s^2 accelerometer noise
     assert tilted.state.P[2, 2] > 10 * plain.state.P[2, 2]
+
+
+def test_baseline_paths_are_their_states_at_each_frame():
+    """The baselines' per-frame camera position (what their TUM files hold) is their
+    ``state``'s: dead reckoning extrapolates the state's position with its velocity to the
+    frame time, ICP odometry holds its position; bit for bit, frames between IMU samples."""
+    from types import SimpleNamespace
+
+    from vio_graph.protocol import ImuStep
+
+    m = swinging_motion()
+    t = np.arange(0.0, 1.0, 0.01)
+    samples = imu_samples(m, t, _ZERO3, np.array([0.1, -0.05]), noise_sigma=0.02, seed=3)
+    p_true = m.p(t)
+    dr = ImuDeadReckoning(initial_camera_xz_m=p_true[0])
+    odo = IcpOdometry(initial_camera_xz_m=p_true[0])
+    expected: dict[str, list[np.ndarray]] = {"imu_only": [], "icp_only": []}
+    frame_t: list[float] = []
+    for k, s in enumerate(samples):
+        for e in (dr, odo):
+            e.add_imu(ImuStep(shank=s, corrected=s))
+        if k % 3 == 2:  # a frame 4 ms after the sample, with a displacement every other one
+            t_f = float(t[k]) + 0.004
+            d = None
+            if k % 6 == 5:
+                d = Displacement2D(
+                    float(t[k - 3]), float(t[k]), p_true[k] - p_true[k - 3], np.eye(2) * 1e-6
+                )
+            record = SimpleNamespace(timestamp_s=t_f, displacement=d)
+            for e in (dr, odo):
+                e.add_frame(record)  # type: ignore[arg-type]
+            frame_t.append(t_f)
+            sd, so = dr.state, odo.state
+            expected["imu_only"].append(sd.p_xz_m + sd.v_xz_mps * (t_f - sd.timestamp_s))
+            expected["icp_only"].append(so.p_xz_m)
+    times = np.array(frame_t)
+    assert odo.state.n_accepted == len(times) // 2 > 10
+    for e in (dr, odo):
+        np.testing.assert_array_equal(e.camera_path(times, times[:0]), expected[e.name])
+    # the two differ (the test would notice a baseline answering with the other's path)
+    assert not np.array_equal(expected["imu_only"], expected["icp_only"])

@@ -507,7 +507,15 @@ class OnlineEstimator:
         self.n_bridge_fused = 0  # bridge observations the filter took (gate passed)
         #: the latest fused bridge observation not yet given to a keyframe: (velocity, cov,
         #: the filter's velocity and summed corrections just before it was fused)
-        self._bridge_carry: tuple[NDArray, NDArray, NDArray, NDArray] | None = None
+        #: the filter's velocity and summed corrections just before it was fused), then the
+        #: keyframe before the stretch (s) and the velocity change from it to the observation
+        #: and its covariance, or None (no keyframe before the stretch)
+        self._bridge_carry: tuple | None = None
+        #: with the bridge: the last keyframe (s) with the filter's velocity and summed
+        #: corrections then, and at a stretch's start that keyframe with the filter's IMU
+        #: velocity change from it to the start (smoother.factors.saturation_bridge_relative)
+        self._bridge_kf: tuple[float, NDArray, NDArray] | None = None
+        self._bridge_pre: tuple[float, NDArray] | None = None
         per_axis = fi.keep_consistent_axes
         self.imu_repair = (
             NextSampleRepair(
@@ -1083,10 +1091,18 @@ class OnlineEstimator:
         if is_kf and self._bridge_carry is not None:
             # the bridge's velocity carried to this frame by the IMU alone: the filter's
             # velocity change since minus what its measurements corrected
-            v_obs, cov_obs, v_before, corr_before = self._bridge_carry
+            v_obs, cov_obs, v_before, corr_before, pre = self._bridge_carry
             imu_change = velocity - v_before - (self.filter.velocity_corrections_mps - corr_before)
-            bridge_velocity = VelocityObservation(t, v_obs + imu_change, cov_obs)
+            if pre is None:
+                bridge_velocity = VelocityObservation(t, v_obs + imu_change, cov_obs)
+            else:  # also as the change from the keyframe before the stretch
+                t_kf, change, change_cov = pre
+                bridge_velocity = VelocityObservation(
+                    t, v_obs + imu_change, cov_obs, t_kf, change + imu_change, change_cov
+                )
             self._bridge_carry = None
+        if is_kf and self.saturation_bridge is not None:
+            self._bridge_kf = (t, velocity, self.filter.velocity_corrections_mps.copy())
         # 7. safety outputs: the foot against the terrain seen so far (safety/online.py)
         safety = None
         if self.safety is not None:
@@ -1208,8 +1224,15 @@ class OnlineEstimator:
         saturated = _saturated(s)
         if saturated:
             t, _, v = filt.position_velocity()
-            if fi.saturation_bridge_relative and not bridge.opened:
-                filt.clone_velocity()  # the start of the change the chain will observe
+            if not bridge.opened:
+                if fi.saturation_bridge_relative:
+                    filt.clone_velocity()  # the start of the change the chain will observe
+                kf = self._bridge_kf  # the smoothers' change starts at the keyframe before
+                self._bridge_pre = (
+                    None
+                    if kf is None
+                    else (kf[0], v - kf[1] - (filt.velocity_corrections_mps - kf[2]))
+                )
             bridge.before_saturated(t, v, filt.cov_velocity_m2ps2())
             self._bridge_carry = None  # its IMU-only carry would cross this stretch
         filt.propagate(s)
@@ -1231,7 +1254,13 @@ class OnlineEstimator:
             if fused:
                 self.n_bridge_fused += 1
                 # for the smoothers, at the next keyframe (process_frame)
-                self._bridge_carry = (obs.velocity_xz_mps, obs.cov, *before)
+                pre = self._bridge_pre
+                self._bridge_carry = (
+                    obs.velocity_xz_mps,
+                    obs.cov,
+                    *before,
+                    None if pre is None else (pre[0], pre[1] + obs.change_xz_mps, obs.change_cov),
+                )
         if not bridge.active:
             filt.drop_velocity_clone()  # observed, or given up (no joints in time)
 

@@ -268,3 +268,36 @@ def test_smoothers_put_the_bridge_change_between_the_keyframes() -> None:
             and np.linalg.norm(g.at(n).prior()) > 0
         ]
         assert len(priors) == 1
+
+
+def test_smoothers_change_starts_at_a_keyframe_before_the_first_clipped_sample() -> None:
+    """The change handed to the smoothers starts at the last keyframe at or before the
+    filter's time at the stretch's start (one inside the first clipped sample's interval is
+    skipped: the change from it is not measured), with the filter's IMU change from it (its
+    velocity change minus its corrections); none with a clipped sample since that keyframe."""
+    from collections import deque
+    from types import SimpleNamespace
+
+    from vio_graph.estimator import OnlineEstimator
+
+    est = SimpleNamespace(
+        _bridge_kfs=deque(
+            [
+                (0.95, 0.94, np.array([1.0, 0.0]), np.array([0.1, 0.0])),
+                (1.05, 1.04, np.array([1.2, 0.1]), np.array([0.3, 0.0])),
+            ]
+        ),
+        _last_saturated_s=0.5,
+        filter=SimpleNamespace(velocity_corrections_mps=np.array([0.4, 0.0])),
+    )
+    rule = OnlineEstimator._change_since_keyframe
+    # keyframe 1.05 s lies after the filter's 1.04 s: the change starts at 0.95 s
+    t_k, change = rule(est, 1.04, np.array([1.6, 0.2]))
+    assert t_k == 0.95
+    np.testing.assert_allclose(change, [1.6 - 1.0 - 0.3, 0.2])
+    t_k, change = rule(est, 1.06, np.array([1.6, 0.2]))
+    assert t_k == 1.05
+    np.testing.assert_allclose(change, [1.6 - 1.2 - 0.1, 0.1])
+    est._last_saturated_s = 1.0  # a clipped sample after the 0.95 s keyframe's filter time
+    assert rule(est, 1.04, np.array([1.6, 0.2])) is None
+    assert rule(est, 0.90, np.array([1.6, 0.2])) is None  # no keyframe before

@@ -207,3 +207,97 @@ def test_relative_bridge_keeps_the_velocity_error_from_before_the_stretch() -> N
     assert abs(v_err) < 0.002 and abs(p_err) < 0.015
     after, v_err, p_err = _two_bridged_stretches(relative=False)
     assert abs(v_err) < 0.002 and p_err < -0.035
+
+
+def test_smoothers_put_the_bridge_change_between_the_keyframes() -> None:
+    """With the change (``smoother.factors.saturation_bridge_relative``) the bridge becomes
+    one factor V(i) - V(k) between the keyframe before the stretch (k = 1) and the one after
+    it (i = 2): the camera's velocity change moved to the IMU with the gyro at each keyframe,
+    change - omega_i x (R p) + omega_k x (R p), with the chain's covariance alone; no prior
+    on V(i). Without the flag, or without a keyframe at ``since_timestamp_s``, the prior."""
+    T = np.eye(4)
+    T[:3, 3] = [0.02, 0.0, 0.05]  # camera in IMU axes, m
+    change = np.array([-1.3, 0.6])
+    change_cov = np.diag([0.05**2, 0.07**2])
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    est = make_swinging_shank_trial(0.2).filter_estimates[0]
+
+    def gyro(t: float) -> np.ndarray:  # pitch rate 1.85 rad/s at k, 4.85 at i
+        return np.array([0.0, 30.0 * t - 1.0, 0.0])
+
+    def built(relative: bool, since: float) -> gtsam.NonlinearFactorGraph:
+        cfg = SmootherConfig(factors=FactorFamilies(saturation_bridge_relative=relative))
+        b = KeyframeGraphBuilder(cfg, T)
+        ups = []
+        for k in range(31):
+            t = 0.01 * k
+            ups += b.add_imu(ImuSample(t, np.array([0.0, 0.0, 9.81]), gyro(t), q))
+            if k in (4, 9, 19):  # frames at 0.045, 0.095 and 0.195 s, all keyframes
+                ob = VelocityObservation(
+                    0.2, np.array([2.4, 1.1]), np.eye(2) * 0.2**2, since, change, change_cov
+                )
+                obs = [ob] if k == 19 else None
+                ups += b.add_frame(t + 0.005, True, est, None, obs, np.eye(3))
+        assert [u.index for u in ups] == [0, 1, 2]
+        return ups[2].factors
+
+    g = built(True, 0.095)
+    between = [g.at(n) for n in range(g.size()) if isinstance(g.at(n), gtsam.BetweenFactorVector)]
+    assert len(between) == 1
+    assert list(between[0].keys()) == [V(1), V(2)]
+    p = T[:3, 3]
+    lever = np.cross(gyro(0.195), p) - np.cross(gyro(0.095), p)  # i's minus k's
+    expected = np.r_[change[0], 0.0, change[1]] - lever
+    np.testing.assert_allclose(between[0].measured(), expected, atol=1e-9)
+    cov = np.linalg.inv(between[0].noiseModel().information())
+    np.testing.assert_allclose(cov[np.ix_([0, 2], [0, 2])], change_cov, atol=1e-12)
+    assert not any(
+        isinstance(g.at(n), gtsam.PriorFactorVector)
+        and g.at(n).keys()[0] == V(2)
+        and np.linalg.norm(g.at(n).prior()) > 0
+        for n in range(g.size())
+    )
+    for relative, since in ((False, 0.095), (True, 0.155)):  # off; no keyframe at 0.155 s
+        g = built(relative, since)
+        assert not any(isinstance(g.at(n), gtsam.BetweenFactorVector) for n in range(g.size()))
+        priors = [
+            g.at(n)
+            for n in range(g.size())
+            if isinstance(g.at(n), gtsam.PriorFactorVector)
+            and g.at(n).keys()[0] == V(2)
+            and np.linalg.norm(g.at(n).prior()) > 0
+        ]
+        assert len(priors) == 1
+
+
+def test_smoothers_change_starts_at_a_keyframe_before_the_first_clipped_sample() -> None:
+    """The change handed to the smoothers starts at the last keyframe at or before the
+    filter's time at the stretch's start (one inside the first clipped sample's interval is
+    skipped: the change from it is not measured), with the filter's IMU change from it (its
+    velocity change minus its corrections); none with a clipped sample since that keyframe."""
+    from collections import deque
+    from types import SimpleNamespace
+
+    from vio_graph.estimator import OnlineEstimator
+
+    est = SimpleNamespace(
+        _bridge_kfs=deque(
+            [
+                (0.95, 0.94, np.array([1.0, 0.0]), np.array([0.1, 0.0])),
+                (1.05, 1.04, np.array([1.2, 0.1]), np.array([0.3, 0.0])),
+            ]
+        ),
+        _last_saturated_s=0.5,
+        filter=SimpleNamespace(velocity_corrections_mps=np.array([0.4, 0.0])),
+    )
+    rule = OnlineEstimator._change_since_keyframe
+    # keyframe 1.05 s lies after the filter's 1.04 s: the change starts at 0.95 s
+    t_k, change = rule(est, 1.04, np.array([1.6, 0.2]))
+    assert t_k == 0.95
+    np.testing.assert_allclose(change, [1.6 - 1.0 - 0.3, 0.2])
+    t_k, change = rule(est, 1.06, np.array([1.6, 0.2]))
+    assert t_k == 1.05
+    np.testing.assert_allclose(change, [1.6 - 1.2 - 0.1, 0.1])
+    est._last_saturated_s = 1.0  # a clipped sample after the 0.95 s keyframe's filter time
+    assert rule(est, 1.04, np.array([1.6, 0.2])) is None
+    assert rule(est, 0.90, np.array([1.6, 0.2])) is None  # no keyframe before

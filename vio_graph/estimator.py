@@ -508,7 +508,17 @@ class OnlineEstimator:
         self.n_bridge_fused = 0  # bridge observations the filter took (gate passed)
         #: the latest fused bridge observation not yet given to a keyframe: (velocity, cov,
         #: the filter's velocity and summed corrections just before it was fused)
-        self._bridge_carry: tuple[NDArray, NDArray, NDArray, NDArray] | None = None
+        #: the filter's velocity and summed corrections just before it was fused), then the
+        #: keyframe before the stretch (s) and the velocity change from it to the observation
+        #: and its covariance, or None (no keyframe before the stretch)
+        self._bridge_carry: tuple | None = None
+        #: with the bridge: the last keyframes (time s, the filter's time s, velocity and
+        #: summed corrections then), and at a stretch's start the keyframe before it with the
+        #: filter's IMU velocity change from it to the start, for the smoothers' change
+        #: (smoother.factors.saturation_bridge_relative); the last clipped sample's time (s)
+        self._bridge_kfs: deque[tuple[float, float, NDArray, NDArray]] = deque(maxlen=4)
+        self._bridge_pre: tuple[float, NDArray] | None = None
+        self._last_saturated_s = -math.inf
         per_axis = fi.keep_consistent_axes
         self.imu_repair = (
             NextSampleRepair(
@@ -1084,10 +1094,20 @@ class OnlineEstimator:
         if is_kf and self._bridge_carry is not None:
             # the bridge's velocity carried to this frame by the IMU alone: the filter's
             # velocity change since minus what its measurements corrected
-            v_obs, cov_obs, v_before, corr_before = self._bridge_carry
+            v_obs, cov_obs, v_before, corr_before, pre = self._bridge_carry
             imu_change = velocity - v_before - (self.filter.velocity_corrections_mps - corr_before)
-            bridge_velocity = VelocityObservation(t, v_obs + imu_change, cov_obs)
+            if pre is None:
+                bridge_velocity = VelocityObservation(t, v_obs + imu_change, cov_obs)
+            else:  # also as the change from the keyframe before the stretch
+                t_kf, change, change_cov = pre
+                bridge_velocity = VelocityObservation(
+                    t, v_obs + imu_change, cov_obs, t_kf, change + imu_change, change_cov
+                )
             self._bridge_carry = None
+        if is_kf and self.saturation_bridge is not None:
+            self._bridge_kfs.append(
+                (t, self.filter._t_s, velocity, self.filter.velocity_corrections_mps.copy())
+            )
         # 7. safety outputs: the foot against the terrain seen so far (safety/online.py)
         safety = None
         if self.safety is not None:
@@ -1209,8 +1229,11 @@ class OnlineEstimator:
         saturated = _saturated(s)
         if saturated:
             t, _, v = filt.position_velocity()
-            if fi.saturation_bridge_relative and not bridge.opened:
-                filt.clone_velocity()  # the start of the change the chain will observe
+            if not bridge.opened:
+                if fi.saturation_bridge_relative:
+                    filt.clone_velocity()  # the start of the change the chain will observe
+                self._bridge_pre = self._change_since_keyframe(t, v)
+            self._last_saturated_s = s.timestamp_s
             bridge.before_saturated(t, v, filt.cov_velocity_m2ps2())
             self._bridge_carry = None  # its IMU-only carry would cross this stretch
         filt.propagate(s)
@@ -1232,9 +1255,30 @@ class OnlineEstimator:
             if fused:
                 self.n_bridge_fused += 1
                 # for the smoothers, at the next keyframe (process_frame)
-                self._bridge_carry = (obs.velocity_xz_mps, obs.cov, *before)
+                pre = self._bridge_pre
+                self._bridge_carry = (
+                    obs.velocity_xz_mps,
+                    obs.cov,
+                    *before,
+                    None if pre is None else (pre[0], pre[1] + obs.change_xz_mps, obs.change_cov),
+                )
         if not bridge.active:
             filt.drop_velocity_clone()  # observed, or given up (no joints in time)
+
+    def _change_since_keyframe(self, t_s: float, v: NDArray) -> tuple[float, NDArray] | None:
+        """At a stretch's start (the filter's time ``t_s`` before its first clipped sample,
+        its velocity ``v``): the last keyframe at or before ``t_s`` and the filter's IMU
+        velocity change from it to ``t_s`` (its velocity change minus its corrections), or
+        None. A keyframe inside the clipped sample's interval is skipped (the change from it
+        is not measured), and so is one with a clipped sample since: that stretch's loss is
+        not in the IMU's change, and its bridge was a correction."""
+        corr = self.filter.velocity_corrections_mps
+        for t_k, tf_k, v_k, c_k in reversed(self._bridge_kfs):
+            if t_k <= t_s + 1e-9:
+                if self._last_saturated_s > tf_k + 1e-9:
+                    return None
+                return t_k, v - v_k - (corr - c_k)
+        return None
 
     def _start_filter_at(self, t_s: float) -> None:
         """Start the filter at the first frame's time (``filter.start_at_first_frame``): the

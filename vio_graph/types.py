@@ -156,11 +156,20 @@ class VelocityObservation:
     """The camera velocity (m/s, ground axes) at a keyframe from a second source, and its
     covariance ((m/s)^2): the leg-chain bridge across a saturated accelerometer stretch
     (vio_graph/filter/leg_bridge.py), carried by the filter's IMU propagation from the
-    stretch's end to the frame. The smoothers put it on the keyframe's velocity."""
+    stretch's end to the frame. The smoothers put it on the keyframe's velocity, or, with
+    ``change_xz_mps`` (``smoother.factors.saturation_bridge_relative``), on the change of
+    velocity from the keyframe at ``since_timestamp_s`` (the last one before the stretch)."""
 
     timestamp_s: float
     camera_velocity_xz_mps: NDArray[np.float64]
     cov: NDArray[np.float64]
+    #: the keyframe before the stretch (s), the camera velocity change (m/s, ground x-z) from
+    #: it to this frame (the filter's IMU propagation before and after the stretch, the leg
+    #: chain's change across it) and that change's covariance ((m/s)^2, the chain's: the
+    #: hip's change and the encoders' rate noise); None without a keyframe before the stretch
+    since_timestamp_s: float | None = None
+    change_xz_mps: NDArray[np.float64] | None = None
+    change_cov: NDArray[np.float64] | None = None
 
 
 #: A landmark seen from the camera: a terrain corner or the stance ankle.

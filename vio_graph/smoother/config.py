@@ -56,6 +56,18 @@ class FactorFamilies(BaseModel):
         "filter's leg-chain bridge velocity (filter/leg_bridge.py, moved from the camera to "
         "the IMU with the gyro) as a prior on its velocity; no effect without saturation",
     )
+    saturation_bridge_relative: bool = Field(
+        default=False,
+        description="the bridge as the velocity change it measures: a factor between the "
+        "velocities of the keyframes before and after the stretch (the chain's change across "
+        "it, the filter's IMU propagation on either side, the chain's covariance: hip and "
+        "encoder noise) instead of the prior, whose value and noise hold the filter's own "
+        "velocity before the stretch. Off: 4 g seeds 1-3 smoother / batch toe x upstair "
+        "0.53 / 0.57 -> 0.49 / 0.56, obstacle 0.77 / 0.80 -> 0.66 / 0.72, but "
+        "prosthesis_upstair 0.79 / 0.93 -> 0.95 / 1.03 cm, where the chain misses the change "
+        "by 0.1-0.8 m/s and the prior's larger noise weighed it down (docs/robustness.md, "
+        "saturation). No effect without saturation_bridge or without saturation",
+    )
     attitude: bool = Field(default=True, description="vendor AHRS attitude prior per keyframe")
     planar: bool = Field(
         default=True, description="sagittal-plane priors: lateral position and velocity = 0"

@@ -62,6 +62,7 @@ All factors are GTSAM built-ins (no Python CustomFactor on the hot path).
 from __future__ import annotations
 
 import functools
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -367,6 +368,11 @@ class KeyframeGraphBuilder:
         self._interval_flagged = False  # set by _preintegrate for the interval it integrated
         self._last_kf_time_s: float | None = None
         self._last_kf_R: NDArray[np.float64] | None = None
+        # recent keyframes for the bridge's velocity change (factors.saturation_bridge_relative):
+        # time, index, R_world_imu and the IMU times and gyro samples around it (s, rad/s)
+        self._recent_kf: deque[tuple[float, int, NDArray[np.float64], list, list]] = deque(
+            maxlen=64
+        )
         # chained displacement since the last keyframe: start, end, sum (2,), cov (2, 2)
         self._chain: tuple[float, float, NDArray[np.float64], NDArray[np.float64]] | None = None
         # corner track / stance -> its GTSAM key L(j); landmarks of either kind so far
@@ -578,6 +584,8 @@ class KeyframeGraphBuilder:
         self._n_keyframes += 1
         self._last_kf_time_s = t
         self._last_kf_R = R_i
+        if self.config.factors.saturation_bridge_relative:
+            self._recent_kf.append((t, i, R_i, self._imu_t[-2:], self._imu_g[-2:]))
         self._trim_imu(t)
         if self._latest_nav is None or pend.estimate is not None:
             self._latest_nav = (pose_guess, v_guess)
@@ -946,17 +954,58 @@ class KeyframeGraphBuilder:
         ob: VelocityObservation,
         R_i: NDArray[np.float64],
     ) -> None:
-        """V(i) from the leg-chain bridge's camera velocity after a saturated stretch
-        (filter/leg_bridge.py): v_imu = v_cam - omega x (R p_cam), with the gyro
-        interpolated to the keyframe time; loose laterally."""
+        """The leg-chain bridge across a saturated stretch (filter/leg_bridge.py) on the
+        keyframe velocities, moved from the camera to the IMU with the gyro interpolated to
+        each keyframe's time (v_imu = v_cam - omega x (R p_cam)); loose laterally.
+
+        With ``factors.saturation_bridge_relative`` and the keyframe before the stretch still
+        known: V(i) - V(k) = the camera velocity change the filter's IMU (before and after
+        the stretch) and the chain (across it) measured, with the chain's covariance alone.
+        Otherwise V(i) gets the bridge's velocity as a prior, which rests on the filter's own
+        velocity before the stretch: information the graph already holds (the same vision),
+        counted twice."""
         omega = R_i @ self._gyro_at(t)
-        v_imu = _xz_to_3(ob.camera_velocity_xz_mps) - cross3(omega, R_i @ self.imu_p_cam_m)
+        lever_i = cross3(omega, R_i @ self.imu_p_cam_m)  # v_cam - v_imu at keyframe i
         cov3 = np.diag([0.0, 1.0, 0.0])
+        k = self._keyframe_before_bridge(ob)
+        if k is not None:
+            k_index, lever_k = k
+            assert ob.change_xz_mps is not None and ob.change_cov is not None
+            dv_imu = _xz_to_3(ob.change_xz_mps) - lever_i + lever_k
+            _put_xz(cov3, np.asarray(ob.change_cov, dtype=float).reshape(2, 2))
+            batch.add(
+                gtsam.BetweenFactorVector(
+                    V(k_index), V(i), dv_imu, gtsam.noiseModel.Gaussian.Covariance(cov3)
+                ),
+                [V(k_index), V(i)],
+            )
+            return
+        v_imu = _xz_to_3(ob.camera_velocity_xz_mps) - lever_i
         _put_xz(cov3, np.asarray(ob.cov, dtype=float).reshape(2, 2))
         batch.add(
             gtsam.PriorFactorVector(V(i), v_imu, gtsam.noiseModel.Gaussian.Covariance(cov3)),
             [V(i)],
         )
+
+    def _keyframe_before_bridge(
+        self, ob: VelocityObservation
+    ) -> tuple[int, NDArray[np.float64]] | None:
+        """The index of the keyframe ``ob``'s velocity change starts at and its lever-arm
+        velocity omega x (R p_cam) (m/s, world), or None (the relative form is off, the
+        observation has no change, or that keyframe is no longer remembered)."""
+        if (
+            not self.config.factors.saturation_bridge_relative
+            or ob.since_timestamp_s is None
+            or ob.change_xz_mps is None
+            or ob.change_cov is None
+        ):
+            return None
+        for t_k, k_index, R_k, ts, gs in reversed(self._recent_kf):
+            if abs(t_k - ob.since_timestamp_s) < TIME_TOL_S:
+                g = np.asarray(gs, dtype=float)
+                w = np.array([np.interp(t_k, ts, g[:, a]) for a in range(3)])
+                return k_index, cross3(R_k @ w, R_k @ self.imu_p_cam_m)
+        return None
 
     def _interpolate_held(self) -> None:
         """The newest sample is a measurement: replace the held accelerometer samples just

@@ -112,7 +112,9 @@ def test_every_step_first_try_on_a_real_lm_run():
 
 def test_batch_safety_replay_is_kept_as_rows(tmp_path):
     """replay_safety keeps one row a frame (SafetyLog) holding exactly what the monitor
-    returned: every field of every frame of a replay of the monitor on a short path."""
+    returned: every field of every frame of a replay of the monitor on a short path. The
+    replay's monitor skips the predicted clearance (the metrics never score it), so the
+    reference is a monitor built the same way, and that field is NaN in every row."""
     from vio_graph.evaluation.safety import replay_safety
 
     rng = np.random.default_rng(4)
@@ -130,7 +132,7 @@ def test_batch_safety_replay_is_kept_as_rows(tmp_path):
     cfg = SafetyConfig()
     out = replay_safety(cfg, t, path, cov, stance, profiles)
     assert isinstance(out, SafetyLog) and len(out) == n
-    mon = SafetyMonitor(cfg)
+    mon = SafetyMonitor(cfg, predict_clearance=False)
     ref = [
         mon.update(
             float(t[k]), cam[k], cov[k], path["heel"][k], path["toe"][k], stance[k], profiles.get(k)
@@ -145,6 +147,7 @@ def test_batch_safety_replay_is_kept_as_rows(tmp_path):
         for name, v in vars(b).items():
             w = getattr(a, name)
             assert np.array_equal(np.asarray(w), np.asarray(v), equal_nan=True), name
+        assert np.isnan(a.predicted_min_clearance_m)
 
 
 def test_memory_helpers_change_nothing_read(tmp_path):

@@ -287,16 +287,29 @@ def test_fused_compiled_steps_equal_the_per_operation_kernels(
     """The compiled monitor with each step of a frame in one kernel call (``fused``: the
     keyframe step, the clearance and next edge, either prediction) gives every output of
     every frame of data/sample, to the bit, as the kernels of the single operations with
-    the Python between them; over the frames the cleared edges and the map agree too."""
+    the Python between them; over the frames the cleared edges and the map agree too. The
+    swing template's prediction check keeps the same predicted poses (fused: the ones the
+    swing_prediction kernel returns, not the template motion computed again) and measures
+    the same errors."""
     _compiled()
     cfg = load_config(None).safety.model_copy(update={"motion_model": motion_model})
+    assert cfg.warning_error_check
     fused = SafetyMonitor(cfg, compiled=True)
     steps = SafetyMonitor(cfg, compiled=True, fused=False)
     assert fused.fused and not steps.fused
+    kept = 0  # frames with predictions kept for the check
     for k, f in enumerate(sample_frames):
         a, b = _as_row(fused.update(*f)), _as_row(steps.update(*f))
         np.testing.assert_array_equal(a, b, err_msg=f"frame {k}")
         assert fused._cleared == steps._cleared, k
+        pf, ps = fused.prediction_errors, steps.prediction_errors
+        assert pf._kept == ps._kept, k
+        kept += pf._kept > 0
+        np.testing.assert_array_equal(pf._t, ps._t, err_msg=f"frame {k}")
+        live = ~np.isnan(pf._t)  # (free rows keep stale poses)
+        np.testing.assert_array_equal(pf._poses[live], ps._poses[live], err_msg=f"frame {k}")
+        np.testing.assert_array_equal(pf.rms(), ps.rms(), err_msg=f"frame {k}")
+    assert (kept > 10) == (motion_model == "swing_template")  # the check ran
     for name in ("_z", "_n", "_mid", "_se2", "_cov", "_edge_xz", "_edge_first"):
         np.testing.assert_array_equal(getattr(fused.map, name), getattr(steps.map, name))
     assert fused.consistency.pose_scale == steps.consistency.pose_scale != 1.0

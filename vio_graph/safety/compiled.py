@@ -1710,10 +1710,13 @@ def swing_prediction(
     the minimum clearance of the predicted poses to the bins they can reach (NaN when the
     current clearance ``c_d`` is), and :func:`swing_edge_risk` against the edges from the
     next one (index ``e``). Returns (predicted clearance, predicted edge clearance,
-    near-trip clearance, the x of the edges newly cleared)."""
+    near-trip clearance, the x of the edges newly cleared, the motion (H, 4), the predicted
+    poses (H, 4: heel x, z, toe x, z)); the last two for the prediction check
+    (online.SafetyMonitor._trusted_risk), which would otherwise compute them again."""
     motion = template_motion(tau, h, phase, disp, starts)
     H = motion.shape[0]
     hp, tp = np.empty((H, 2)), np.empty((H, 2))
+    poses = np.empty((H, 4))
     m_lo, m_hi = np.empty(4), np.empty(4)
     for c in range(4):  # motion.min / max over the poses, NaN propagated
         lo_c = hi_c = motion[0, c]
@@ -1727,6 +1730,8 @@ def swing_prediction(
     for i in range(H):
         hp[i, 0], hp[i, 1] = hx + motion[i, 0], hz + motion[i, 1]
         tp[i, 0], tp[i, 1] = tx + motion[i, 2], tz + motion[i, 3]
+        poses[i, 0], poses[i, 1] = hp[i, 0], hp[i, 1]
+        poses[i, 2], poses[i, 3] = tp[i, 0], tp[i, 1]
     toe_x_max = tx + m_hi[2]
     pred = np.nan
     if math.isfinite(c_d):
@@ -1755,7 +1760,7 @@ def swing_prediction(
     pred_edge, risk, new = swing_edge_risk(
         hp, tp, edges_xz, e, toe_x_max, toe_pass, sole, dt, min_fwd, near_trip, tol, cleared, half
     )
-    return pred, pred_edge, risk, new
+    return pred, pred_edge, risk, new, motion, poses
 
 
 @numba.njit(cache=True)

@@ -730,10 +730,12 @@ class SafetyMonitor:
         if in_stance:
             self._cleared = []
         pred = pred_edge = risk = NAN  # risk: the minimum over near-trip candidates
-        template_motion: NDArray[np.float64] | None = None  # (numpy path: for the check)
+        # the template motion and the predicted poses, computed once for the check
+        template_motion: NDArray[np.float64] | None = None
+        template_poses: NDArray[np.float64] | None = None
         c_pred = c_d if self.predict_clearance else NAN  # NaN: no predicted clearance
         if use_template and fused:
-            pred, pred_edge, risk, new = g.swing_prediction(
+            pred, pred_edge, risk, new, template_motion, template_poses = g.swing_prediction(
                 tau, self._h, *self._flat_templates(), hx, hz, tx, tz, c_pred, cfg.window_m,
                 cfg.sole_thickness_m, self.map._used, self.map._mid, self.map._se2,
                 self.map._i0, cfg.bin_m, cfg.map_sigma_m, edges.xz_m, e, cfg.toe_pass_m,
@@ -808,7 +810,9 @@ class SafetyMonitor:
                 if cleared and forward_motion(v, cfg) and math.isfinite(d) and not d >= risk:
                     risk = float(d)
         if use_template and check:
-            risk = self._trusted_risk(t_s, tau, heel, toe, edges, e, risk, template_motion)
+            risk = self._trusted_risk(
+                t_s, tau, heel, toe, edges, e, risk, template_motion, template_poses
+            )
         s = nsig if math.isfinite(nsig) else 0.0
         warn = bool(
             not in_stance and math.isfinite(risk) and risk - cfg.warning_sigma * s < cfg.near_trip_m
@@ -863,6 +867,7 @@ class SafetyMonitor:
         e: int,
         risk: float,
         motion: NDArray[np.float64] | None = None,
+        poses: NDArray[np.float64] | None = None,
     ) -> float:
         """The near-trip candidates' minimum clearance (``risk`` over the whole horizon)
         restricted to the horizon steps whose measured prediction error is at most
@@ -871,13 +876,13 @@ class SafetyMonitor:
         check only removes warnings: the last trusted pose's velocity, a one-sided
         difference, could otherwise make it a candidate the whole horizon did not have)."""
         cfg = self.config
-        if motion is None:  # (the numpy path passes the template motion it computed)
+        if motion is None:  # (update passes the template motion it computed)
             motion = self._template_motion(tau, self._h)
         assert motion is not None
+        if poses is None:  # (the swing_prediction kernel returns them: the same floats)
+            poses = np.concatenate([heel[None] + motion[:, :2], toe[None] + motion[:, 2:]], 1)
         m = self.prediction_errors.trusted_steps(cfg.near_trip_m)
-        self.prediction_errors.predict(
-            t_s, np.concatenate([heel[None] + motion[:, :2], toe[None] + motion[:, 2:]], 1)
-        )
+        self.prediction_errors.predict(t_s, poses)
         if m >= cfg.horizon_steps:
             return risk  # every step trusted: the whole horizon, as computed
         if m < 1 or not math.isfinite(risk):

@@ -1033,7 +1033,7 @@ class SagittalEskf:
         self._marginalise(_VCLONE)
         J = np.zeros((2, self._P.shape[0]))
         J[:, 2:4] = _I2
-        self._augment_rows(_VCLONE, self._x[2:4].copy(), J, np.zeros((2, 2)))
+        self._augment_rows(_VCLONE, self._x[2:4], J, _ZERO22)
 
     @property
     def has_velocity_clone(self) -> bool:
@@ -1108,7 +1108,7 @@ class SagittalEskf:
     def landmark_z(self, key: LandmarkKey) -> float:
         """Current height estimate (m) of landmark ``key``: ``landmark_xz(key)[1]`` as a
         float, without the array."""
-        if key in (_CLONE, _TILT) or key not in self._aug_xz:
+        if key in _NOT_LANDMARKS or key not in self._aug_xz:
             raise EstimationError(f"unknown landmark {key!r}")
         return self._aug_xz[key][1]
 
@@ -1329,7 +1329,7 @@ class SagittalEskf:
             return
         self._marginalise(_CLONE)
         dt = t_s - self._t_s
-        self._augment(_CLONE, self._position_ahead(dt), dt, np.zeros((2, 2)))
+        self._augment(_CLONE, self._position_ahead(dt), dt, _ZERO22)
         self._clone_t_s = t_s
 
     def _aug_index(self, key: LandmarkKey | str) -> int:

@@ -318,6 +318,14 @@ class FirstVelocityPrior:
         return gtsam.PriorFactorVector(V(0), self.value, self.relaxed_noise)
 
 
+def _gyro_interp(t_s: float, times_s: Sequence[float], gyro: Sequence) -> NDArray[np.float64]:
+    """The body rate (rad/s, (3,)) at ``t_s``, per axis linear between the samples
+    (``times_s`` ascending, ``gyro`` one (3,) sample each; clamped at the ends)."""
+    ts = np.asarray(times_s)
+    g = np.asarray(gyro, dtype=float)
+    return np.array([np.interp(t_s, ts, g[:, a]) for a in range(3)])
+
+
 class KeyframeGraphBuilder:
     """Turns the shared ingestion stream into per-keyframe factor/value/timestamp batches.
 
@@ -539,9 +547,12 @@ class KeyframeGraphBuilder:
         return remove_yaw(R)
 
     def _gyro_at(self, t_s: float) -> NDArray[np.float64]:
-        ts = np.asarray(self._imu_t)
-        g = np.asarray(self._imu_g)
-        return np.array([np.interp(t_s, ts, g[:, i]) for i in range(3)])
+        return _gyro_interp(t_s, self._imu_t, self._imu_g)
+
+    def _lever_velocity(self, R: NDArray[np.float64], gyro_radps: NDArray) -> NDArray:
+        """omega x (R p_cam) (m/s, world): the camera's velocity minus the IMU's, for the
+        IMU attitude ``R`` and body rate ``gyro_radps``."""
+        return cross3(R @ gyro_radps, R @ self.imu_p_cam_m)
 
     def _new_landmark_key(self, lkey: LandmarkKey) -> int:
         """The next GTSAM key L(j) for a corner track or a stance, remembered."""
@@ -964,8 +975,7 @@ class KeyframeGraphBuilder:
         Otherwise V(i) gets the bridge's velocity as a prior, which rests on the filter's own
         velocity before the stretch: information the graph already holds (the same vision),
         counted twice."""
-        omega = R_i @ self._gyro_at(t)
-        lever_i = cross3(omega, R_i @ self.imu_p_cam_m)  # v_cam - v_imu at keyframe i
+        lever_i = self._lever_velocity(R_i, self._gyro_at(t))  # v_cam - v_imu at keyframe i
         cov3 = np.diag([0.0, 1.0, 0.0])
         k = self._keyframe_before_bridge(ob)
         if k is not None:
@@ -1002,9 +1012,7 @@ class KeyframeGraphBuilder:
             return None
         for t_k, k_index, R_k, ts, gs in reversed(self._recent_kf):
             if abs(t_k - ob.since_timestamp_s) < TIME_TOL_S:
-                g = np.asarray(gs, dtype=float)
-                w = np.array([np.interp(t_k, ts, g[:, a]) for a in range(3)])
-                return k_index, cross3(R_k @ w, R_k @ self.imu_p_cam_m)
+                return k_index, self._lever_velocity(R_k, _gyro_interp(t_k, ts, gs))
         return None
 
     def _interpolate_held(self) -> None:

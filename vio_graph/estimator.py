@@ -288,6 +288,21 @@ class RigGeometry:
         shank = shank_pitch_chain_rad if use_encoders else shank_pitch_imu_rad
         return leg_points_from_knee(self.leg, knee, shank, ankle_rad)
 
+    def leg_points_one(
+        self,
+        camera_xz_m: ArrayLike,
+        shank_pitch_imu_rad: float,
+        shank_pitch_chain_rad: float,
+        ankle_rad: float,
+        use_encoders: bool,
+    ) -> LegPoints:
+        """:meth:`leg_points` for one pose on Python floats (the online estimator's frame;
+        :func:`~vio_graph.kinematics.leg_points_single`, the same floats); each point (1, 2)."""
+        shank = shank_pitch_chain_rad if use_encoders else shank_pitch_imu_rad
+        return leg_points_single(
+            self.leg, camera_xz_m, self.camera_in_shank_xz_m, shank_pitch_imu_rad, shank, ankle_rad
+        )
+
 
 class OnlineEstimator:
     """SP-ESKF front end + fusion + kinematics + keyframes, frame by frame."""
@@ -1622,18 +1637,11 @@ class OnlineEstimator:
 
     def leg_points(self, camera_xz_m: NDArray[np.float64], R_world_imu: NDArray[np.float64]):
         """Knee, ankle, heel, toe (world x-z) for a camera position, using the latest joints
-        (one pose on Python floats: :func:`~vio_graph.kinematics.leg_points_single`, the same
-        floats as ``RigGeometry.leg_points``)."""
+        (one pose on Python floats: :meth:`RigGeometry.leg_points_one`, the same floats as
+        ``RigGeometry.leg_points``)."""
         imu_pitch, chain_pitch, ankle = self.leg_angles(R_world_imu)
         use_enc = self.config.kinematics.shank_pitch_source == "encoders"
-        return leg_points_single(
-            self.rig.leg,
-            camera_xz_m,
-            self.rig.camera_in_shank_xz_m,
-            imu_pitch,
-            chain_pitch if use_enc else imu_pitch,
-            ankle,
-        )
+        return self.rig.leg_points_one(camera_xz_m, imu_pitch, chain_pitch, ankle, use_enc)
 
     def leg_angles(self, R_world_imu: NDArray[np.float64]) -> tuple[float, float, float]:
         """(IMU shank pitch, thigh-IMU-minus-knee-encoder shank pitch, ankle) in rad, from the

@@ -189,10 +189,9 @@ class OnlineHeightMap:
                 buf[shifted : shifted + n] = v
                 bufs.append(buf)
             self._buf = bufs
-        else:  # the buffers hold the new bins already (at their fill values)
-            for buf, v in zip(self._buf, views, strict=True):
-                if v.base is not buf:  # (never: the arrays are only written in place)
-                    buf[self._off : self._off + n] = v
+        else:  # the buffers hold the new bins already (at their fill values): the arrays
+            # are views of them, written only in place
+            assert all(v.base is buf for buf, v in zip(self._buf, views, strict=True))
         for (name, _), buf in zip(self._ARRAYS, self._buf, strict=True):
             setattr(self, name, buf[a : a + (hi - lo)])
         self._off = a

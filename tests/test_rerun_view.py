@@ -287,3 +287,40 @@ def test_depth_image_conversion_is_exact_or_declined() -> None:
         np.testing.assert_array_equal(img, bad)
     img, _ = _depth_image(d, None)
     assert img.dtype == np.float32 and img is not d
+
+
+class _Calls:
+    """A visualizer that accepts every call and does nothing (an active view's target)."""
+
+    def __getattr__(self, name: str) -> Any:
+        return lambda *args, **kwargs: None
+
+
+def test_true_leg_at_the_frame_stamps_equals_the_per_frame_interpolation() -> None:
+    """The view's true leg comes from one table interpolated at every frame stamp (scene);
+    each row is the per-frame interpolation bit for bit, and a stamp that is not the frame's
+    own is interpolated on its own."""
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import RigGeometry
+    from vio_graph.recording.reader import Recording
+    from vio_graph.viz.run_view import RunView, true_leg
+
+    rec = Recording.open(ROOT / "data" / "sample")
+    gt = rec.groundtruth
+    assert gt is not None
+    t = np.asarray(rec.frame_timestamps_s, dtype=float)
+    between = np.concatenate([t[:-1] + np.diff(t) / 3, [t[0] - 1.0, t[-1] + 1.0]])
+    for times in (t, between):
+        table = true_leg(gt, times)
+        assert table.shape == (times.size, 5, 2)
+        for k, tk in enumerate(times):
+            one = true_leg(gt, float(tk))
+            assert np.array_equal(table[k].view(np.int64), one.view(np.int64))
+            bodies = ("knee", "ankle", "heel", "toe", "ankle")
+            assert np.array_equal(one, [gt.trajectories[b].xz_at(float(tk)) for b in bodies])
+    view = RunView(_Calls(), RigGeometry.from_metadata(rec.metadata), gt, PipelineConfig().output)
+    view.scene(rec)
+    assert np.shares_memory(view._true_leg(3, float(t[3])), view._true_legs[1])
+    off = float(t[3]) + 1e-3
+    assert np.array_equal(view._true_leg(3, off), true_leg(gt, off))
+    assert not np.array_equal(view._true_leg(3, off), view._true_leg(3, float(t[3])))

@@ -1188,30 +1188,48 @@ def level_bands(x, z, max_range, check_range, heights, lo, hi, band):  # pragma:
 
 
 @numba.njit(cache=True)
+def _deviation_rank(s, med, j, k):  # pragma: no cover - compiled
+    """The rank-``k`` (0-based) value of the deviations ``|s - med|`` of sorted ``s``, ``j``
+    its first index with ``s[j] >= med``: the deviations left of ``j`` (``|s[j - 1 - a] -
+    med|``, a = 0, 1, ...) and from ``j`` on (``|s[j + b] - med|``) are two rising sequences
+    (rounding is monotone), so the k-th of their union is found by bisecting how many of the
+    k + 1 smallest come from the left one, O(log n): the value the merge of both reaches."""
+    n = s.shape[0]
+    n_left = j
+    n_right = n - j
+    lo = max(0, k + 1 - n_right)
+    hi = min(k + 1, n_left)
+    while lo < hi:  # the least count a taken from the left with left[a] >= right[k - a]
+        a = (lo + hi) // 2
+        if abs(s[j - 1 - a] - med) < abs(s[j + k - a] - med):
+            lo = a + 1
+        else:
+            hi = a
+    best = -np.inf
+    if lo > 0:
+        best = abs(s[j - lo] - med)  # left[lo - 1]
+    if k - lo >= 0:
+        best = max(best, abs(s[j + k - lo] - med))  # right[k - lo]
+    return best
+
+
+@numba.njit(cache=True)
 def median_abs_deviation_sorted(s):  # pragma: no cover - compiled
     """``np.median(np.abs(r - np.median(r)))`` of the values ``s`` (sorted ascending, finite,
     at least one): the median is the middle value (the mean of the two middle ones for an
     even count, ``(a + b) / 2`` as numpy's mean of two), and the deviations ``|s - med|``,
-    falling to the left of the median and rising to its right, are merged from the middle
-    outwards up to the middle rank: the same order statistics, the same floats."""
+    falling to the left of the median and rising to its right, are two sorted sequences
+    whose middle rank(s) are found by bisection (:func:`_deviation_rank`, O(log n) after the
+    sort, where merging them from the middle outwards walked n / 2 values): the same order
+    statistics, the same floats."""
     n = s.shape[0]
     h = n // 2
     med = s[h] if n % 2 == 1 else (s[h - 1] + s[h]) / 2
-    j = 0
-    while j < n and s[j] < med:
-        j += 1
-    i = j - 1
-    prev = 0.0
-    cur = 0.0
-    for _ in range(h + 1):  # ranks 0 .. h of the merged deviations
-        prev = cur
-        if i >= 0 and (j >= n or abs(s[i] - med) <= abs(s[j] - med)):
-            cur = abs(s[i] - med)
-            i -= 1
-        else:
-            cur = abs(s[j] - med)
-            j += 1
-    return cur if n % 2 == 1 else (prev + cur) / 2
+    j = np.searchsorted(s, med)  # the first s[j] >= med
+    cur = _deviation_rank(s, med, j, h)
+    if n % 2 == 1:
+        return cur
+    return (_deviation_rank(s, med, j, h - 1) + cur) / 2
 
 
 # ----------------------------------------------------------------------------- terrain levels

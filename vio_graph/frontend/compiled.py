@@ -223,7 +223,7 @@ def _nearest(src, grid, rank, qx, qz, window, max2):  # pragma: no cover - compi
     return best2, bi, tie
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _before(d2, m, e2, e, px, pos, src, rank):  # pragma: no cover - compiled
     """True if point m at squared distance d2 comes before point e at e2 in the order of a
     scan outwards in x from sorted position ``pos`` (x ``px``) that keeps the nearest in
@@ -242,7 +242,7 @@ def _before(d2, m, e2, e, px, pos, src, rank):  # pragma: no cover - compiled
     return rm > re if left_m else rm < re
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _knn(src, grid, rank, i, kk, best_d, best_i):  # pragma: no cover - compiled
     """The kk nearest source points of source point i (itself included) into ``best_d`` /
     ``best_i`` (squared distances, indices), the same points in the same order as a scan
@@ -572,9 +572,13 @@ def grid_thin(pts, cell_m, max_dense_cells):  # pragma: no cover - compiled
     n = pts.shape[0]
     ix = np.empty(n, np.int64)
     iz = np.empty(n, np.int64)
+    # the points read through a flat view of the (contiguous) array: the same divisions,
+    # but LLVM vectorises this loop, which it did not with pts[i, 0] / pts[i, 1] (~2.5x
+    # faster on a slice of ~8,500 points)
+    flat = pts.reshape(-1)
     for i in range(n):
-        ix[i] = np.int64(math.floor(pts[i, 0] / cell_m))
-        iz[i] = np.int64(math.floor(pts[i, 1] / cell_m))
+        ix[i] = np.int64(math.floor(flat[2 * i] / cell_m))
+        iz[i] = np.int64(math.floor(flat[2 * i + 1] / cell_m))
     ix -= ix.min()
     iz -= iz.min()
     n_z = iz.max() + 1

@@ -917,6 +917,42 @@ def test_compiled_depth_noise_equals_the_numpy_path() -> None:
     assert 0 < sizes < 400  # odd and even counts
 
 
+def test_compiled_robust_sigma_by_bisection_equals_the_numpy_medians() -> None:
+    """robust_sigma's kernel (``compiled.median_abs_deviation_sorted``: the deviations' middle
+    ranks by bisection of the two sorted runs left and right of the median) against
+    ``np.median(np.abs(r - np.median(r)))`` on residual sets of 1 to thousands of values (a
+    replay's size), odd and even, with many ties, signed zeros, a constant run, one-sided
+    sets, infinities and NaNs (the numpy path then): the same float bit for bit."""
+    from vio_graph.frontend import noise
+
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(12)
+    n_kernel = 0
+    for case in range(120):
+        r = rng.normal(0.0, 0.003, int(rng.integers(1, 7000 if case % 2 else 12)))
+        if case % 7 == 6:
+            r = np.abs(r) ** 3  # most deviations on one side
+        if case % 3 == 0:
+            r = np.round(r, 4)  # many ties
+        if case % 4 == 1:
+            r[rng.random(r.size) < 0.3] = -0.0
+            r[rng.random(r.size) < 0.3] = 0.0
+        if case % 5 == 2:
+            r[: r.size // 2] = r[-1]
+        if case % 11 == 3:
+            r[int(rng.integers(0, r.size))] = (np.inf, -np.inf, np.nan)[case % 3]
+        fast, ref = noise.robust_sigma(r), noise.robust_sigma_reference(r)
+        assert fast == ref or (np.isnan(fast) and np.isnan(ref))
+        assert np.signbit(fast) == np.signbit(ref)
+        if np.isfinite(r).all():
+            n_kernel += 1
+            mad = kernels.median_abs_deviation_sorted(np.sort(r))
+            assert mad == np.median(np.abs(r - np.median(r)))
+            assert not np.signbit(mad)
+    assert 100 < n_kernel < 120
+
+
 def test_compiled_under_levels_equals_the_numpy_mask() -> None:
     """surface.under_levels_mask compiled (``compiled.under_levels``, point by point) against
     its numpy form: the same mask for random levels (overlapping, nested, shorter than the

@@ -153,11 +153,15 @@ def floor_beyond_slab_mask(
     pts, z, lo, hi = _level_arrays(points_xz_m, level_z_m, level_x_lo_m, level_x_hi_m)
     x, pz = pts[:, 0], pts[:, 1]
     out = np.zeros(pts.shape[0], dtype=bool)
+    slabs = [
+        (a, b) for a in range(z.size) for b in _lower_overlapping(z, lo, hi, a, margin_m, drop_m)
+    ]
+    if not slabs:  # no level over another (closed stairs, floors, boxes): nothing to test
+        return out
     beneath = _beneath_levels(x, pz, z, lo, hi, margin_m, drop_m)
-    for a in range(z.size):
-        for b in _lower_overlapping(z, lo, hi, a, margin_m, drop_m):
-            on_b = np.abs(pz - z[b]) <= band_m
-            in_front = on_b & (x < lo[a]) & ~beneath
-            if int(in_front.sum()) >= min_points:
-                out |= on_b & (x > hi[a] + margin_m)
+    for a, b in slabs:
+        on_b = np.abs(pz - z[b]) <= band_m
+        in_front = on_b & (x < lo[a]) & ~beneath
+        if int(in_front.sum()) >= min_points:
+            out |= on_b & (x > hi[a] + margin_m)
     return out

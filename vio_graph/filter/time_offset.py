@@ -332,6 +332,8 @@ class TimeOffsetEstimator:
         # every tested tilt (accepted or refused, each capped at the gate), summed
         self._nis_sum = 0.0
         self._nis_n = 0
+        #: (time s, td s, scaled sigma s) when td was first applied, None before
+        self.latched_at: tuple[float, float, float] | None = None
 
     @property
     def td_s(self) -> float:
@@ -440,6 +442,7 @@ class TimeOffsetEstimator:
             armed = self.n_updates > _WARM_UP
             if not self._latched and armed and abs(self.td_s) > self.config.apply_sigmas * sigma:
                 self._latched = True
+                self.latched_at = (float(self._t_s or 0.0), self.td_s, sigma)
             if self._latched:
                 self.applied_s = self.td_s
 
@@ -460,6 +463,16 @@ class TimeOffsetEstimator:
         self.n_rejected = other.n_rejected
         self._nis_sum = other._nis_sum
         self._nis_n = other._nis_n
+        self.latched_at = other.latched_at
+
+    def contradicted(self) -> bool:
+        """True if td was applied and the estimate has since moved from the value applied
+        then by more than ``apply_sigmas`` of that value's (scaled) sigma: the frames fused
+        in between were re-stamped by an offset the later tilts refute."""
+        if self.latched_at is None:
+            return False
+        _, td0, sigma0 = self.latched_at
+        return abs(self.td_s - td0) > self.config.apply_sigmas * sigma0
 
     def report(self) -> dict:
         return {
@@ -469,6 +482,10 @@ class TimeOffsetEstimator:
             "updates": self.n_updates,
             "rejected": self.n_rejected,
             "consistency_scale": self.consistency_scale,
+            "applied_from": None
+            if self.latched_at is None
+            else dict(zip(("t_s", "td_s", "sigma_s"), self.latched_at, strict=True)),
+            "contradicted": self.contradicted(),
         }
 
 

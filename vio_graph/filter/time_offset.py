@@ -401,7 +401,7 @@ class TimeOffsetEstimator:
         r = tilt_sigma_rad**2
         y = m - H @ self.x
         s = float(H @ self.P @ H + r)
-        self._note_nis(y * y / s)
+        self._note_nis(float(y * y) / s)
         if self.n_updates > _WARM_UP and y * y > self._gate * s:
             self.n_rejected += 1
             return False

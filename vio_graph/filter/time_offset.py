@@ -23,7 +23,8 @@ against a tilt noise of ~0.1 deg), independent of the filter's velocity, and can
 biased by it. The same idea as VINS-Mono's (Qin & Shen, IROS 2018: the feature velocity
 times td), with the level line as the feature. td is applied (frames re-stamped
 t - td_applied) once it is ``apply_sigmas`` sigmas away from 0, so a synchronised rig keeps
-its stamps untouched.
+its stamps untouched (the sigma scaled by the tilts' consistency, and not before the gate is
+armed: :meth:`TimeOffsetEstimator._accepted`).
 
 **Clock model** (:class:`ClockModel`). IMU samples are taken on the sensor's crystal at a
 nominal rate; transport (USB, I2C) adds jitter to the host stamps. A least-squares line

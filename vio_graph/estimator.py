@@ -486,6 +486,21 @@ class OnlineEstimator:
         departure of the fused path from visual odometry, and warning lines naming the
         likely cause (vio_graph/health.py)."""
         rep = self.health.report(float(np.degrees(self.pitch_offset.offset_rad)))
+        to = self.time_offset
+        if to.contradicted():
+            assert to.latched_at is not None  # contradicted() needs it
+            t0, td0, sigma0 = to.latched_at
+            rep["ok"] = False
+            rep["warnings"].append(
+                f"WARNING: the camera-IMU time offset was applied at {1e3 * td0:.1f} ms "
+                f"(1-sigma {1e3 * sigma0:.1f} ms) from {t0:.2f} s, but the estimate is now "
+                f"{1e3 * to.td_s:.1f} +- {1e3 * to.sigma_s:.1f} ms: frames fused in between "
+                f"(and, early in a trial, the re-run ones) were re-stamped by a wrong offset, "
+                f"which shifts the estimate by the speed times the error. Likely cause: "
+                f"level-surface tilts noisier than their sigmas (time_offset."
+                f"consistency_scale) at the start; check a run with "
+                f"filter.time_offset.estimate false if the rig is synchronised."
+            )
         rep["stance"] = dict(self.stance_stats)
         fs = self.filter.state
         rep["landmarks"] = {"accepted": fs.n_landmark_accepted, "rejected": fs.n_landmark_rejected}

@@ -315,7 +315,9 @@ class TimeOffsetConfig(BaseModel):
         default=3.0,
         ge=0,
         description="td is applied to the fusion once it is this many sigmas from 0 (a "
-        "synchronised rig keeps its stamps untouched)",
+        "synchronised rig keeps its stamps untouched); the sigma is scaled by the tilts' "
+        "consistency and nothing is applied before 10 tilts were accepted "
+        "(TimeOffsetEstimator.consistency_scale)",
     )
     gate_probability: float = Field(
         default=0.999, gt=0, lt=1, description="chi-square (1 dof) gate of a tilt measurement"

@@ -192,6 +192,15 @@ class ImuFaultConfig(BaseModel):
         "central differences (0.05 deg encoder noise over 20 ms through 0.4 m: 0.03 m/s, "
         "and the interpolation between joint samples)",
     )
+    saturation_bridge_discretisation_sigma: bool = Field(
+        default=True,
+        description="add to the bridge's noise the chain velocity's own discretisation "
+        "error at each end of the stretch, estimated from the joints (half the second "
+        "difference of the chain's central-difference velocity over the neighbouring joint "
+        "periods; filter/leg_bridge.py chain_velocity_discretisation_xz): a push-off the "
+        "joints' rate does not resolve gets the sigma of its miss instead of the hip's and "
+        "encoders' terms alone. The observation waits one joint period longer",
+    )
     saturation_bridge_gate: bool = Field(
         default=True,
         description="chi-square gate the bridge's observation (the filter's gate "

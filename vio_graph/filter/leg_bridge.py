@@ -85,6 +85,43 @@ def chain_velocity_xz(
     return rate_t * _rot_deriv(th_t, u_thigh) + rate_s * _rot_deriv(th_s, c)
 
 
+def chain_velocity_discretisation_xz(
+    joints: Sequence[JointAngles],
+    t_s: float,
+    thigh_length_m: float,
+    camera_in_shank_xz_m: ArrayLike,
+) -> float | None:
+    """The sigma (m/s, per ground axis, the same on x and z) of :func:`chain_velocity_xz`
+    at ``t_s`` from its own discretisation, estimated from the joints: half the norm of the
+    second difference of the chain velocity over the neighbouring joint periods,
+    ||D(t+h) - 2 D(t) + D(t-h)|| / 2 (D the central difference, h the joints' period);
+    None unless samples cover ``t_s`` on both sides by two periods. The norm, not each
+    axis: the error points along the velocity's change, which turns with the shank during
+    a push-off, so one axis's second difference can be smaller than that axis's error.
+
+    The central difference is the mean of the velocity over [t-h, t+h]. For a velocity
+    that is smooth at the joints' rate its error is h^2 v''/6 and the second difference
+    is h^2 v'', so the estimate is 3x the error. For an acceleration that steps at t (a
+    push-off or a heel strike within one joint period, which is what clips an
+    accelerometer) the error is a h/4 and the second difference a h/2: the estimate is
+    the error. So it bounds the error in both cases without a constant fitted to a gait;
+    it is the first-order analogue of the fourth differences the smoothers use for the
+    IMU's own discretisation."""
+    ts = [j.timestamp_s for j in joints]
+    if len(ts) < 5:
+        return None
+    h = float(np.median(np.diff(ts)))
+    if not h > 0:
+        return None
+    vs = [
+        chain_velocity_xz(joints, t_s + k * h, thigh_length_m, camera_in_shank_xz_m)
+        for k in (-1, 0, 1)
+    ]
+    if any(v is None for v in vs):
+        return None
+    return float(np.linalg.norm(vs[2] - 2.0 * vs[1] + vs[0])) / 2.0  # type: ignore[operator]
+
+
 class LegChainBridge:
     """Opens at the first saturated sample, closes at the first trusted one after it, and
     gives one velocity observation per stretch once the joints cover its end.
@@ -101,8 +138,10 @@ class LegChainBridge:
         hip_accel_sigma_mps2: float,
         rate_sigma_mps: float,
         max_wait_s: float = 0.1,
+        discretisation_sigma: bool = False,
     ) -> None:
         self._lt = float(thigh_length_m)
+        self._disc = bool(discretisation_sigma)
         self._c = np.asarray(camera_in_shank_xz_m, dtype=float).reshape(2)
         self._a_sig = float(hip_accel_sigma_mps2)
         self._r_sig = float(rate_sigma_mps)
@@ -175,7 +214,12 @@ class LegChainBridge:
         (t0, v0, P0), (t2, v2, c2) = self._pending
         k0 = chain_velocity_xz(joints, t0, self._lt, self._c)
         k2 = chain_velocity_xz(joints, t2, self._lt, self._c)
-        if k0 is None or k2 is None:
+        d0: float | None = 0.0
+        d2: float | None = 0.0
+        if self._disc and k0 is not None and k2 is not None:
+            d0 = chain_velocity_discretisation_xz(joints, t0, self._lt, self._c)
+            d2 = chain_velocity_discretisation_xz(joints, t2, self._lt, self._c)
+        if k0 is None or k2 is None or d0 is None or d2 is None:
             if self._now_s - t2 > self._max_wait_s:
                 self._pending = None
                 self.n_unbridged += 1
@@ -185,6 +229,6 @@ class LegChainBridge:
         since = np.asarray(velocity_now_xz_mps, float) - v2 - corrected
         change = (k2 - k0) + since
         hip = self._a_sig * (t2 - t0)
-        change_cov = np.eye(2) * (hip**2 + self._r_sig**2)
+        change_cov = np.eye(2) * (hip**2 + self._r_sig**2) + np.eye(2) * (d0**2 + d2**2)
         self.n_observations += 1
         return BridgeObservation(self._now_s, v0 + change, P0 + change_cov, change, change_cov)

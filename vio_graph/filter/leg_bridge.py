@@ -18,7 +18,10 @@ the simulated toe and heel both move at 0.6-4.6 m/s (the push-off clips after to
 foot-contact constraint does not hold.
 
 The observation's noise is honest: the hip's change (``hip_accel_sigma_mps2`` times the
-stretch's length) and the encoders' rate noise (``rate_sigma_mps``) on each axis. The filter
+stretch's length) and the encoders' rate noise (``rate_sigma_mps``) on each axis; optionally
+(off by default, docs/robustness.md) also the chain velocity's own discretisation error at
+each end, estimated from the joints (:func:`chain_velocity_discretisation_xz`), and the ends
+by the five-point derivative (``fourth_order``). The filter
 fuses it as the change it is (``BridgeObservation.change_xz_mps``, against a copy of its
 velocity at the stretch's start: ``SagittalEskf.update_velocity_change``), so its own error
 from before the stretch is not counted again; as a velocity (``velocity_xz_mps``, for the

@@ -10,7 +10,12 @@ from gtsam.symbol_shorthand import V
 from vio_graph.filter.config import FilterConfig, ImuFaultConfig
 from vio_graph.filter.eskf import SagittalEskf
 from vio_graph.filter.imu_faults import ImuFaultMonitor
-from vio_graph.filter.leg_bridge import LegChainBridge, chain_velocity_xz
+from vio_graph.filter.leg_bridge import (
+    LegChainBridge,
+    chain_velocity_discretisation_xz,
+    chain_velocity_second_difference_xz,
+    chain_velocity_xz,
+)
 from vio_graph.geometry import GRAVITY_MPS2, rotate_xz
 from vio_graph.smoother.config import FactorFamilies, SmootherConfig
 from vio_graph.smoother.graph import KeyframeGraphBuilder
@@ -301,3 +306,142 @@ def test_smoothers_change_starts_at_a_keyframe_before_the_first_clipped_sample()
     est._last_saturated_s = 1.0  # a clipped sample after the 0.95 s keyframe's filter time
     assert rule(est, 1.04, np.array([1.6, 0.2])) is None
     assert rule(est, 0.90, np.array([1.6, 0.2])) is None  # no keyframe before
+
+
+# A push-off the joints' 100 Hz does not resolve: the shank's angular acceleration steps
+# from 0 to 600 rad/s^2 at 0.45 s (a joint sample) and back to 0 at 0.48 s; the thigh is still.
+KINK_T0, KINK_T2, KINK_ALPHA = 0.45, 0.48, 600.0
+THIGH_RAD = 0.2
+
+
+def _kink_shank(t: float) -> float:
+    """The shank segment pitch (rad) at t: 2 rad/s, plus the pulse's angle."""
+    s = min(max(t - KINK_T0, 0.0), KINK_T2 - KINK_T0)
+    return -0.3 + 2.0 * t + 0.5 * KINK_ALPHA * s**2 + KINK_ALPHA * s * max(t - KINK_T2, 0.0)
+
+
+def _kink_joints() -> list[JointAngles]:
+    ts = np.arange(30, 61) / RATE_HZ
+    # knee = shank pitch + thigh pitch (chain_velocity_xz's sign convention)
+    return [JointAngles(float(t), THIGH_RAD, _kink_shank(t) + THIGH_RAD, 0.0) for t in ts]
+
+
+def _kink_true_velocity(t: float) -> np.ndarray:
+    """The camera's velocity relative to the hip (m/s), exact: the shank's pitch rate
+    (right-sided at a kink) times the derivative of the rotated camera offset."""
+    s = min(max(t - KINK_T0, 0.0), KINK_T2 - KINK_T0)
+    rate = 2.0 + KINK_ALPHA * s
+    th = _kink_shank(t)
+    return rate * np.array(
+        [-np.sin(th) * CAM_IN_SHANK[0] + np.cos(th) * CAM_IN_SHANK[1],
+         -np.cos(th) * CAM_IN_SHANK[0] - np.sin(th) * CAM_IN_SHANK[1]]
+    )  # fmt: skip
+
+
+def test_chain_discretisation_sigma_is_the_central_difference_error() -> None:
+    """At an acceleration step the central difference is the mean of the velocity over
+    [t-h, t+h], off by a h/4, and half the second difference of the chain velocity is a
+    h/4 too: the estimate is the error, to the rotation's curvature (which it adds). On
+    the smooth swing (angles at up to 2.7 rad/s) it is a few mm/s, at least the error."""
+    joints = _kink_joints()
+    for t in (KINK_T0, KINK_T2):
+        d = chain_velocity_discretisation_xz(joints, t, THIGH_M, CAM_IN_SHANK)
+        v = chain_velocity_xz(joints, t, THIGH_M, CAM_IN_SHANK)
+        assert d is not None and v is not None
+        err = np.abs(v - _kink_true_velocity(t))
+        # a h/4 in norm: 0.086 m x 600 rad/s^2 x 10 ms / 4 = 0.13 m/s
+        assert 0.10 < np.linalg.norm(err) < 0.16
+        # at least the error on each axis, and the same size (the rest is the pitch rate
+        # turning the offset's derivative: the pulse's centripetal change)
+        assert np.all(d >= err) and d < 1.5 * np.linalg.norm(err)
+    smooth = _joints(0.0, 1.0)
+    for t in (0.2, 0.505, 0.8):
+        d = chain_velocity_discretisation_xz(smooth, t, THIGH_M, CAM_IN_SHANK)
+        v = chain_velocity_xz(smooth, t, THIGH_M, CAM_IN_SHANK)
+        assert d is not None and v is not None
+        assert d < 0.005 and np.all(d + 1e-4 >= np.abs(v - _true_rel_velocity(t)))
+    # two periods needed on each side
+    assert chain_velocity_discretisation_xz(joints, 0.59, THIGH_M, CAM_IN_SHANK) is None
+    assert chain_velocity_xz(joints, 0.59, THIGH_M, CAM_IN_SHANK) is not None
+
+
+def _kink_bridge(discretisation: bool, fourth_order: bool = False):
+    """The pulse clipped from 0.45 to 0.48 s, the filter's velocity exact before it."""
+    bridge = LegChainBridge(
+        THIGH_M,
+        CAM_IN_SHANK,
+        1.0,
+        0.02,
+        discretisation_sigma=discretisation,
+        fourth_order=fourth_order,
+    )
+    joints = _kink_joints()
+    bridge.before_saturated(KINK_T0, _kink_true_velocity(KINK_T0), np.eye(2) * 1e-4)
+    obs = None
+    for k in range(48, 60):
+        t = k / RATE_HZ
+        v = _kink_true_velocity(t)
+        bridge.after_trusted(t, v, np.zeros(2))
+        obs = obs or bridge.observation([j for j in joints if j.timestamp_s <= t], v, np.zeros(2))
+    assert obs is not None
+    return obs
+
+
+def test_bridge_sigma_holds_the_discretisation_of_an_unresolved_push_off() -> None:
+    """The chain's change over the pulse is short by about a h/2 (0.2-0.3 m/s: the two ends'
+    central differences each average the step). With the hip's and encoders' terms alone
+    (0.04 m/s per axis here) that miss is 3-7 sigma: a filter's chi-square gate refuses the
+    bridge or, passed, it is taken as if exact. With the discretisation sigma it is within
+    1.5 sigma per axis; the observation waits one joint period longer (0.5 s vs 0.49 s)."""
+    off, on = _kink_bridge(False), _kink_bridge(True)
+
+    def miss_of(obs):  # against the true change from the stretch's start to the observation
+        return obs.change_xz_mps - (
+            _kink_true_velocity(obs.timestamp_s) - _kink_true_velocity(KINK_T0)
+        )
+
+    miss = miss_of(on)
+    np.testing.assert_allclose(miss, miss_of(off), atol=1e-9)  # the same chain change
+    assert 0.15 < np.linalg.norm(miss) < 0.35
+    z_off = np.abs(miss) / np.sqrt(np.diag(off.change_cov))
+    z_on = np.abs(miss) / np.sqrt(np.diag(on.change_cov))
+    assert z_off.max() > 3.0 and np.all(z_on < 1.5)
+    # the added variance is the two ends' estimates, per axis
+    added = np.diag(on.change_cov - off.change_cov)
+    joints = _kink_joints()
+    d0 = chain_velocity_discretisation_xz(joints, KINK_T0, THIGH_M, CAM_IN_SHANK)
+    d2 = chain_velocity_discretisation_xz(joints, KINK_T2, THIGH_M, CAM_IN_SHANK)
+    assert d0 is not None and d2 is not None
+    np.testing.assert_allclose(added, [d0**2 + d2**2] * 2, rtol=1e-12)
+    assert on.change_cov[0, 1] == off.change_cov[0, 1] == 0.0
+    assert off.timestamp_s == pytest.approx(0.49) and on.timestamp_s == pytest.approx(0.50)
+
+
+def test_five_point_chain_velocity_takes_out_the_smooth_part_of_the_error() -> None:
+    """``fourth_order``: the chain velocity at the ends is D - D''/6, the five-point
+    derivative. On the smooth swing its error is under 0.1 mm/s (the central difference's
+    is up to a few mm/s). At the pulse's steps the error left is a h/6 instead of a h/4
+    (the change misses by two thirds of what it did), and the sigma is a third of the
+    second difference instead of half, still covering the miss."""
+    smooth = _joints(0.0, 1.0)
+    for t in (0.2, 0.505, 0.8):
+        d = chain_velocity_second_difference_xz(smooth, t, THIGH_M, CAM_IN_SHANK)
+        v = chain_velocity_xz(smooth, t, THIGH_M, CAM_IN_SHANK)
+        assert d is not None and v is not None
+        assert np.abs(v - d / 6.0 - _true_rel_velocity(t)).max() < 1e-4
+    central, five = _kink_bridge(True), _kink_bridge(True, fourth_order=True)
+
+    def miss_of(obs):
+        return obs.change_xz_mps - (
+            _kink_true_velocity(obs.timestamp_s) - _kink_true_velocity(KINK_T0)
+        )
+
+    ratio = np.linalg.norm(miss_of(five)) / np.linalg.norm(miss_of(central))
+    assert 0.55 < ratio < 0.8
+    assert np.all(np.abs(miss_of(five)) / np.sqrt(np.diag(five.change_cov)) < 1.5)
+    base = (1.0 * (KINK_T2 - KINK_T0)) ** 2 + 0.02**2  # the hip's and encoders' terms
+    np.testing.assert_allclose(
+        (np.diag(five.change_cov) - base) / (np.diag(central.change_cov) - base),
+        (1 / 3) ** 2 / (1 / 2) ** 2,
+        rtol=1e-9,
+    )

@@ -531,6 +531,8 @@ class OnlineEstimator:
                 rig.camera_in_shank_xz_m,
                 fi.saturation_bridge_hip_accel_mps2,
                 fi.saturation_bridge_rate_sigma_mps,
+                discretisation_sigma=fi.saturation_bridge_discretisation_sigma,
+                fourth_order=fi.saturation_bridge_fourth_order,
             )
             if fi.enabled and fi.saturation_bridge and rig.accel_range_mps2
             else None

@@ -192,6 +192,29 @@ class ImuFaultConfig(BaseModel):
         "central differences (0.05 deg encoder noise over 20 ms through 0.4 m: 0.03 m/s, "
         "and the interpolation between joint samples)",
     )
+    saturation_bridge_discretisation_sigma: bool = Field(
+        default=False,
+        description="add to the bridge's noise the chain velocity's own discretisation "
+        "error at each end of the stretch, estimated from the joints (half the norm of the "
+        "second difference of the chain's central-difference velocity over the neighbouring "
+        "joint periods; filter/leg_bridge.py chain_velocity_discretisation_xz): a push-off "
+        "the joints' rate does not resolve gets the sigma of its miss. The observation "
+        "waits one joint period longer. Off: the sweep's cadence_1.5 (16 g clip, the chain "
+        "0.4-0.6 m/s short at a 0.14-0.18 sigma) gains, filter toe x 2.16 -> 1.46 cm, but "
+        "4 g saturation loses, toe x filter / smoother / batch upstair seeds 1-5 1.55 / "
+        "0.83 / 0.85 -> 1.76 / 0.94 / 0.95, prosthesis_upstair seeds 1-3 1.47 / 0.79 / 0.93 "
+        "-> 1.86 / 1.41 / 1.50 (docs/robustness.md)",
+    )
+    saturation_bridge_fourth_order: bool = Field(
+        default=False,
+        description="the chain velocity at the stretch's ends by the five-point (fourth-"
+        "order) derivative of the joints, D - D''/6, instead of their central difference "
+        "D; with saturation_bridge_discretisation_sigma its sigma is a third of the second "
+        "difference (what is left of an acceleration step) instead of half. Off: with "
+        "both on, 4 g upstair seeds 1-3 filter toe x 1.67 -> 1.21 cm but smoother / batch "
+        "0.53 / 0.57 -> 0.68 / 0.69 and obstacle 2.79 / 0.77 / 0.80 -> 2.97 / 0.93 / 0.91 "
+        "(docs/robustness.md)",
+    )
     saturation_bridge_gate: bool = Field(
         default=True,
         description="chi-square gate the bridge's observation (the filter's gate "

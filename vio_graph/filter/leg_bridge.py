@@ -18,7 +18,10 @@ the simulated toe and heel both move at 0.6-4.6 m/s (the push-off clips after to
 foot-contact constraint does not hold.
 
 The observation's noise is honest: the hip's change (``hip_accel_sigma_mps2`` times the
-stretch's length) and the encoders' rate noise (``rate_sigma_mps``) on each axis. The filter
+stretch's length) and the encoders' rate noise (``rate_sigma_mps``) on each axis; optionally
+(off by default, docs/robustness.md) also the chain velocity's own discretisation error at
+each end, estimated from the joints (:func:`chain_velocity_discretisation_xz`), and the ends
+by the five-point derivative (``fourth_order``). The filter
 fuses it as the change it is (``BridgeObservation.change_xz_mps``, against a copy of its
 velocity at the stretch's start: ``SagittalEskf.update_velocity_change``), so its own error
 from before the stretch is not counted again; as a velocity (``velocity_xz_mps``, for the
@@ -85,6 +88,57 @@ def chain_velocity_xz(
     return rate_t * _rot_deriv(th_t, u_thigh) + rate_s * _rot_deriv(th_s, c)
 
 
+def chain_velocity_second_difference_xz(
+    joints: Sequence[JointAngles],
+    t_s: float,
+    thigh_length_m: float,
+    camera_in_shank_xz_m: ArrayLike,
+) -> NDArray[np.float64] | None:
+    """D(t+h) - 2 D(t) + D(t-h) (m/s, ground x-z): the second difference of the chain
+    velocity :func:`chain_velocity_xz` (D) over the joints' period h; None unless samples
+    cover ``t_s`` on both sides by two periods. ``D(t) - this / 6`` is the five-point
+    (fourth-order) derivative."""
+    ts = [j.timestamp_s for j in joints]
+    if len(ts) < 5:
+        return None
+    h = float(np.median(np.diff(ts)))
+    if not h > 0:
+        return None
+    vs = [
+        chain_velocity_xz(joints, t_s + k * h, thigh_length_m, camera_in_shank_xz_m)
+        for k in (-1, 0, 1)
+    ]
+    if vs[0] is None or vs[1] is None or vs[2] is None:
+        return None
+    return vs[2] - 2.0 * vs[1] + vs[0]
+
+
+def chain_velocity_discretisation_xz(
+    joints: Sequence[JointAngles],
+    t_s: float,
+    thigh_length_m: float,
+    camera_in_shank_xz_m: ArrayLike,
+) -> float | None:
+    """The sigma (m/s, per ground axis, the same on x and z) of :func:`chain_velocity_xz`
+    at ``t_s`` from its own discretisation, estimated from the joints: half the norm of the
+    second difference of the chain velocity over the neighbouring joint periods,
+    ||D(t+h) - 2 D(t) + D(t-h)|| / 2 (D the central difference, h the joints' period);
+    None unless samples cover ``t_s`` on both sides by two periods. The norm, not each
+    axis: the error points along the velocity's change, which turns with the shank during
+    a push-off, so one axis's second difference can be smaller than that axis's error.
+
+    The central difference is the mean of the velocity over [t-h, t+h]. For a velocity
+    that is smooth at the joints' rate its error is h^2 v''/6 and the second difference
+    is h^2 v'', so the estimate is 3x the error. For an acceleration that steps at t (a
+    push-off or a heel strike within one joint period, which is what clips an
+    accelerometer) the error is a h/4 and the second difference a h/2: the estimate is
+    the error. So it bounds the error in both cases without a constant fitted to a gait;
+    it is the first-order analogue of the fourth differences the smoothers use for the
+    IMU's own discretisation."""
+    d2v = chain_velocity_second_difference_xz(joints, t_s, thigh_length_m, camera_in_shank_xz_m)
+    return None if d2v is None else float(np.linalg.norm(d2v)) / 2.0
+
+
 class LegChainBridge:
     """Opens at the first saturated sample, closes at the first trusted one after it, and
     gives one velocity observation per stretch once the joints cover its end.
@@ -101,8 +155,12 @@ class LegChainBridge:
         hip_accel_sigma_mps2: float,
         rate_sigma_mps: float,
         max_wait_s: float = 0.1,
+        discretisation_sigma: bool = False,
+        fourth_order: bool = False,
     ) -> None:
         self._lt = float(thigh_length_m)
+        self._disc = bool(discretisation_sigma)
+        self._fourth = bool(fourth_order)
         self._c = np.asarray(camera_in_shank_xz_m, dtype=float).reshape(2)
         self._a_sig = float(hip_accel_sigma_mps2)
         self._r_sig = float(rate_sigma_mps)
@@ -175,7 +233,12 @@ class LegChainBridge:
         (t0, v0, P0), (t2, v2, c2) = self._pending
         k0 = chain_velocity_xz(joints, t0, self._lt, self._c)
         k2 = chain_velocity_xz(joints, t2, self._lt, self._c)
-        if k0 is None or k2 is None:
+        d0: NDArray | None = np.zeros(2)
+        d2: NDArray | None = np.zeros(2)
+        if (self._disc or self._fourth) and k0 is not None and k2 is not None:
+            d0 = chain_velocity_second_difference_xz(joints, t0, self._lt, self._c)
+            d2 = chain_velocity_second_difference_xz(joints, t2, self._lt, self._c)
+        if k0 is None or k2 is None or d0 is None or d2 is None:
             if self._now_s - t2 > self._max_wait_s:
                 self._pending = None
                 self.n_unbridged += 1
@@ -183,8 +246,15 @@ class LegChainBridge:
         self._pending = None
         corrected = np.asarray(corrections_now_mps, float) - c2
         since = np.asarray(velocity_now_xz_mps, float) - v2 - corrected
+        # the discretisation's error at each end: between D''/6 (a velocity smooth at the
+        # joints' rate) and D''/2 (an acceleration step); the five-point derivative takes
+        # out the first, its sigma is the rest (chain_velocity_discretisation_xz)
+        if self._fourth:
+            k0, k2 = k0 - d0 / 6.0, k2 - d2 / 6.0
+        frac = 1.0 / 3.0 if self._fourth else 0.5
+        disc_var = (frac * np.linalg.norm(d0)) ** 2 + (frac * np.linalg.norm(d2)) ** 2
         change = (k2 - k0) + since
         hip = self._a_sig * (t2 - t0)
-        change_cov = np.eye(2) * (hip**2 + self._r_sig**2)
+        change_cov = np.eye(2) * (hip**2 + self._r_sig**2 + (disc_var if self._disc else 0.0))
         self.n_observations += 1
         return BridgeObservation(self._now_s, v0 + change, P0 + change_cov, change, change_cov)

@@ -539,7 +539,6 @@ class OnlineEstimator:
         )
         self.n_bridge_fused = 0  # bridge observations the filter took (gate passed)
         #: the latest fused bridge observation not yet given to a keyframe: (velocity, cov,
-        #: the filter's velocity and summed corrections just before it was fused)
         #: the filter's velocity and summed corrections just before it was fused), then the
         #: keyframe before the stretch (s) and the velocity change from it to the observation
         #: and its covariance, or None (no keyframe before the stretch)

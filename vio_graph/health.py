@@ -357,7 +357,7 @@ class HealthMonitor:
             what = "; ".join(
                 f"{t.family} {100 * t.failing_share:.0f} % of {t.n_windows} windows (mean "
                 f"NIS per dof {t.nis_sum / t.dof_sum:.2f}, {t.nis_sum / t.dof_sum / t.scale:.1f}x "
-                f"its usual {t.scale:.2f})"
+                f"its usual {t.scale:.2g})"
                 for t in bad
             )
             warnings.append(

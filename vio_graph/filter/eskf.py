@@ -98,6 +98,10 @@ _ZERO22 = np.zeros((2, 2))  # a new clone's own noise (none)
 _FREE_X_VAR_M2 = 1.0
 
 
+#: updates :attr:`SagittalEskf.innovations` keeps between two reads
+_INNOVATIONS_KEPT = 10_000
+
+
 @dataclass(frozen=True)
 class FilterState:
     """Snapshot of an estimator (the filter or a baseline); arrays are copies.
@@ -220,8 +224,9 @@ class SagittalEskf:
         self._n_lm_acc = self._n_lm_rej = 0
         #: (y^T S^-1 y, dof, accepted) of every gated or fused update since the caller last
         #: took them (:meth:`take_innovations`): read by the health report's consistency
-        #: test (vio_graph/health.py), never by the filter
-        self.innovations: list[tuple[float, int, bool]] = []
+        #: test (vio_graph/health.py), never by the filter; the latest _INNOVATIONS_KEPT
+        #: only, so a filter nobody reads stays bounded
+        self.innovations: deque[tuple[float, int, bool]] = deque(maxlen=_INNOVATIONS_KEPT)
         self._prev_xa = 0.0  # extra accel sigma of the previous IMU sample (m/s^2)
         # the previous sample's saturation covariance on its clipped axes (body x-z, 2x2) and
         # pitch (rad), when imu_faults.saturation_axis_distrust applies it (None otherwise)
@@ -698,7 +703,8 @@ class SagittalEskf:
     def take_innovations(self) -> list[tuple[float, int, bool]]:
         """The (y^T S^-1 y, dof, accepted) of the updates since the last call, oldest first
         (and forget them): a read-out for the health report, no effect on the estimate."""
-        out, self.innovations = self.innovations, []
+        out = list(self.innovations)
+        self.innovations.clear()
         return out
 
     @property

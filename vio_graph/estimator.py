@@ -483,8 +483,9 @@ class OnlineEstimator:
 
     def health_report(self) -> dict:
         """Is the estimate in trouble? Shares of refused displacements and of stance frames,
-        departure of the fused path from visual odometry, and warning lines naming the
-        likely cause (vio_graph/health.py)."""
+        departure of the fused path from visual odometry, the consistency of the filter's
+        own innovations per measurement family (``innovations``), and warning lines naming
+        the likely cause (vio_graph/health.py)."""
         rep = self.health.report(float(np.degrees(self.pitch_offset.offset_rad)))
         to = self.time_offset
         if to.contradicted():

@@ -3,11 +3,15 @@ against its usual self (vio_graph/health.py, InnovationTest)."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from vio_graph.cli import app
 from vio_graph.filter.eskf import SagittalEskf
 from vio_graph.filter.gating import chi2_quantile_scipy
 from vio_graph.health import (
@@ -156,3 +160,22 @@ def test_the_filter_records_the_gates_statistic_of_each_update() -> None:
     assert not f.update_displacement(far)
     (got,) = f.take_innovations()
     assert got[1:] == (2, False) and got[0] > f.gate_d2
+
+
+def test_a_clean_trial_reports_every_family_and_no_innovation_warning(
+    short_upstair: Path, tmp_path: Path
+) -> None:
+    """End to end on the 4 s upstair trial: the estimator files the filter's updates by
+    family, each family's windows are tested, and a clean trial is consistent."""
+    out = tmp_path / "res"
+    args = ["run", str(short_upstair), "--out", str(out), "--mode", "filter", "--no-rerun"]
+    res = CliRunner().invoke(app, [*args, "--no-plots"])
+    assert res.exit_code == 0, res.output
+    h = json.loads((out / "metrics.json").read_text())["health"]
+    inn = h["innovations"]
+    for family in ("displacement", "corner", "level", "stance"):
+        assert inn[family]["updates"] > 0 and inn[family]["dof"] > 0, family
+        assert not inn[family]["inconsistent"], (family, inn[family])
+    assert inn["displacement"]["windows"] >= 2
+    assert h["innovations_consistent"]
+    assert "innovations are larger" not in res.output

@@ -83,12 +83,13 @@ class HealthLimits:
     #: them), so an honest filter's NIS is well below 1; the test asks whether a run is
     #: worse than that, not whether NIS = 1.
     innovation_reference: dict[str, tuple[float, float]] = field(
+        hash=False,  # (a dict: HealthLimits stays hashable without it)
         default_factory=lambda: {
             "displacement": (0.14, 22.0),
             "corner": (0.052, 39.0),
             "level": (0.18, 14.0),
             "stance": (0.037, 13.0),
-        }
+        },
     )
 
 

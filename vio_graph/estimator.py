@@ -483,8 +483,9 @@ class OnlineEstimator:
 
     def health_report(self) -> dict:
         """Is the estimate in trouble? Shares of refused displacements and of stance frames,
-        departure of the fused path from visual odometry, and warning lines naming the
-        likely cause (vio_graph/health.py)."""
+        departure of the fused path from visual odometry, the consistency of the filter's
+        own innovations per measurement family (``innovations``), and warning lines naming
+        the likely cause (vio_graph/health.py)."""
         rep = self.health.report(float(np.degrees(self.pitch_offset.offset_rad)))
         to = self.time_offset
         if to.contradicted():
@@ -1086,7 +1087,9 @@ class OnlineEstimator:
             d2 = self._test_frame_stamps(t, result.displacement)
             n_refused = self.filter.n_gate_refusals
             self._arbitrate_imu(result.displacement, d2)
+            self._note_innovations(t, "other")
             accepted = self.filter.update_displacement(result.displacement)
+            self._note_innovations(t, "displacement")
             refused = self.filter.n_gate_refusals > n_refused
             self._recover_if_locked_out(refused)
         else:
@@ -1275,6 +1278,7 @@ class OnlineEstimator:
         obs = bridge.observation(self._joint_hist, v, filt.velocity_corrections_mps)
         if obs is not None:
             before = (v, filt.velocity_corrections_mps.copy())
+            self._note_innovations(t, "other")
             if fi.saturation_bridge_relative and filt.has_velocity_clone:
                 fused = filt.update_velocity_change(
                     obs.change_xz_mps, obs.change_cov, fi.saturation_bridge_gate
@@ -1283,6 +1287,7 @@ class OnlineEstimator:
                 fused = filt.update_velocity(
                     obs.velocity_xz_mps, obs.cov, obs.timestamp_s, fi.saturation_bridge_gate
                 )
+            self._note_innovations(t, "bridge")
             if fused:
                 self.n_bridge_fused += 1
                 # for the smoothers, at the next keyframe (process_frame)
@@ -1464,12 +1469,25 @@ class OnlineEstimator:
             self._corners.forget(t, key, self.filter)
             if obs is not None:
                 assert key is not None  # set above for every observation
+                self._note_innovations(t, "other")
                 cov = np.asarray(obs.cov_m2, float) + np.eye(2) * fc.corner_landmark_sigma_m**2
                 self.filter.update_landmark(key, obs.corner_rel_xz_m, cov, t)
+                self._note_innovations(t, "corner")
         if fc.level_landmarks:
+            self._note_innovations(t, "other")
             self._fuse_levels(t)
+            self._note_innovations(t, "level")
         if fc.stance_anchor:
+            self._note_innovations(t, "other")
             self._fuse_stance(t, result, R_world_imu)
+            self._note_innovations(t, "stance")
+
+    def _note_innovations(self, t_s: float, family: str) -> None:
+        """Hand the filter's updates since the last call to the health report's consistency
+        test as measurements of ``family`` (read-only: the estimate is not touched)."""
+        items = self.filter.take_innovations()
+        if items:
+            self.health.add_innovations(t_s, family, items)
 
     def _fuse_levels(self, t: float) -> None:
         """Height landmarks (FilterConfig.level_landmarks): every level surface of this

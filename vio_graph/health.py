@@ -14,14 +14,22 @@ with no look-ahead (pure algorithm, no I/O):
   filter's camera displacement is compared with the sum of the visual displacements over the
   same frames, as a chi-square test (2 dof) with the displacements' own covariances. A
   healthy filter fails it in ~0.1 % of windows (at p = 0.999); a pinned or diverged one in
-  most.
+  most;
+- the consistency of the filter's own innovations, per measurement family (visual
+  displacements, corner and level landmarks, stance anchor): the normalised innovation
+  squared y^T S^-1 y of its accepted updates, summed over windows and tested as a scaled
+  chi-square against the family's usual self (:class:`InnovationTest`). It needs no
+  ground truth: an update whose innovation is larger than the filter's covariance predicts
+  says that covariance (or the measurement's) is optimistic.
 
 :meth:`HealthMonitor.report` returns the figures and at most one warning line per cause.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from statistics import NormalDist
 
 import numpy as np
 from numpy.typing import NDArray
@@ -59,6 +67,30 @@ class HealthLimits:
     #: project's 2 cm accuracy aim. Clean stretches are left to the share above: there the
     #: sum is 1-8 cm on the simulated trials (conservative: their errors are 0.4-1.8 cm)
     max_blind_drift_sigma_m: float = 0.02
+    #: innovation consistency (:class:`InnovationTest`): length (s) of its windows
+    innovation_window_s: float = 1.0
+    #: chi-square probability of one window's test (a window fails above it: 1 % of windows
+    #: of a filter as consistent as on the reference trials)
+    innovation_probability: float = 0.99
+    #: warn when a family's count of failing windows is this improbable for windows that
+    #: fail independently with 1 - innovation_probability each (binomial tail): one failing
+    #: window never warns, two do in a trial of up to 15 windows, three up to 44
+    innovation_trial_probability: float = 0.01
+    #: the filter's usual self per measurement family: (mean normalised innovation squared
+    #: per degree of freedom, dispersion of the window means against a chi-square's), pooled
+    #: over the four paper scenarios, seeds 1-3 (docs/method.md, "Innovation consistency").
+    #: Not 1: the front end's covariances carry floors (its displacement NEES is 4-5 before
+    #: them), so an honest filter's NIS is well below 1; the test asks whether a run is
+    #: worse than that, not whether NIS = 1.
+    innovation_reference: dict[str, tuple[float, float]] = field(
+        hash=False,  # (a dict: HealthLimits stays hashable without it)
+        default_factory=lambda: {
+            "displacement": (0.14, 22.0),
+            "corner": (0.052, 39.0),
+            "level": (0.18, 14.0),
+            "stance": (0.037, 13.0),
+        },
+    )
 
 
 @dataclass
@@ -85,6 +117,11 @@ class HealthMonitor:
         self.max_departure_m = 0.0
         self.max_departure_d2 = 0.0  # largest Mahalanobis^2 of a window
         self.n_recoveries = 0  # gate lock-out recoveries of the filter (estimator sets it)
+        #: per-family consistency of the filter's own innovations (:class:`InnovationTest`)
+        self.innovations = {
+            f: InnovationTest(self.limits, f) for f in self.limits.innovation_reference
+        }
+        self.n_untested_innovations = 0  # updates of other families (the saturation bridge)
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (t, fused camera xz)
         self._window: _Window | None = None
         # forward (x) observability: runs of frames on which nothing but the IMU carried x
@@ -175,6 +212,18 @@ class HealthMonitor:
             self.max_departure_m = max(self.max_departure_m, float(np.hypot(*r)))
             self.max_departure_d2 = max(self.max_departure_d2, d2)
             self._window = _Window(float(t_s), p.copy())
+
+    def add_innovations(
+        self, t_s: float, family: str, items: list[tuple[float, int, bool]]
+    ) -> None:
+        """The filter's updates of one measurement family at time ``t_s`` (s): (normalised
+        innovation squared y^T S^-1 y, its degrees of freedom, accepted)."""
+        test = self.innovations.get(family)
+        if test is None:
+            self.n_untested_innovations += len(items)
+            return
+        for d2, m, accepted in items:
+            test.add(float(t_s), float(d2), int(m), bool(accepted))
 
     def _track_camera_fixed(self, t_s: float, n_pixels: int) -> None:
         if n_pixels <= 0:
@@ -303,6 +352,22 @@ class HealthMonitor:
                 f"forward motion (level floor, no edge in view); the smoothers correct it "
                 f"once a stance or an edge follows."
             )
+        bad = [t for t in self.innovations.values() if t.inconsistent]
+        if bad:
+            worst = max(bad, key=lambda t: (t.failing_share, t.max_window_ratio))
+            what = "; ".join(
+                f"{t.family} {100 * t.failing_share:.0f} % of {t.n_windows} windows (mean "
+                f"NIS per dof {t.nis_sum / t.dof_sum:.2f}, {t.nis_sum / t.dof_sum / t.scale:.1f}x "
+                f"its usual {t.scale:.2g})"
+                for t in bad
+            )
+            warnings.append(
+                f"WARNING: the filter's innovations are larger than its own covariance "
+                f"predicts ({what} failed the {100 * (1 - lim.innovation_probability):g} % "
+                f"chi-square test of {lim.innovation_window_s:g} s windows): its uncertainty "
+                f"is optimistic and the estimate may be off by more than it claims. Likely "
+                f"cause: {_INNOVATION_CAUSES.get(worst.family, 'unknown')}."
+            )
         if self.n_camera_fixed_frames:
             warnings.append(
                 f"WARNING: something moved with the camera (an occluding foot or strap close "
@@ -345,8 +410,169 @@ class HealthMonitor:
                 "longest_run_s": self.max_camera_fixed_run_s,
             },
             "pitch_offset_deg": float(pitch_offset_deg),
-            "ok": not (trouble or weak_x or drift),
+            "innovations": {f: t.summary() for f, t in self.innovations.items()}
+            | {"untested_updates": self.n_untested_innovations},
+            "innovations_consistent": not bad,
+            "ok": not (trouble or weak_x or drift or bad),
             "warnings": warnings,
+        }
+
+
+#: what a family's inconsistency most likely means (the warning's "likely cause")
+_INNOVATION_CAUSES = {
+    "displacement": (
+        "the visual displacements scatter more than the front end's covariances say: depth "
+        "noisier than its model (ToF noise, dark or shiny surfaces, sunlight), or the IMU "
+        "prediction is off (camera-IMU time offset, imu_T_cam, IMU noise settings)"
+    ),
+    "corner": (
+        "the stair-corner positions scatter more than their sigmas: noisy depth near the "
+        "nosings, or corners re-identified on the wrong step (irregular stairs)"
+    ),
+    "level": (
+        "the level surfaces' heights scatter more than their sigmas: depth noisier than the "
+        "front end's model (ToF noise), or treads that are not level"
+    ),
+    "stance": (
+        "the ankle anchor disagrees with the IMU-propagated position: the IMU is noisier "
+        "than the filter's noise settings (a consumer-grade or low-rate IMU: check "
+        "filter.accel_noise_sigma_mps2), a slipping foot, or a stance detector flagging parts "
+        "of the swing (try filter.stance_anchor: false)"
+    ),
+}
+
+
+def binomial_tail(k: int, n: int, p: float) -> float:
+    """P(X >= k) for X ~ Binomial(n, p) (1 for k <= 0)."""
+    if k <= 0:
+        return 1.0
+    return float(sum(math.comb(n, j) * p**j * (1.0 - p) ** (n - j) for j in range(k, n + 1)))
+
+
+def chi2_quantile_wh(probability: float, dof: float) -> float:
+    """Quantile of the chi-square distribution with ``dof`` (> 0, not necessarily an
+    integer) degrees of freedom, Wilson-Hilferty's cube-root normal approximation:
+    dof (1 - 2 / (9 dof) + z sqrt(2 / (9 dof)))^3, z the normal quantile. Within 1 % of the
+    exact value at p = 0.99 from dof = 1 on (4 % at 0.5, worse below: the test keeps
+    dof >= 1; tests/test_health_innovations.py)."""
+    if dof <= 0:
+        raise ValueError(f"dof must be positive, got {dof}")
+    z = NormalDist().inv_cdf(probability)
+    a = 2.0 / (9.0 * dof)
+    return float(dof * max(1.0 - a + z * math.sqrt(a), 0.0) ** 3)
+
+
+class InnovationTest:
+    """Consistency of one measurement family's innovations with the filter's covariance.
+
+    Every update the filter makes has a normalised innovation squared d2 = y^T S^-1 y with
+    m = dim(y) degrees of freedom; if the filter's covariance and the measurement's are
+    honest, d2 is chi-square(m). Over windows of ``innovation_window_s`` the sum q of the
+    accepted updates' d2 and the sum k of their m are compared with the family's usual self
+    (``innovation_reference``: mean d2 per dof c, dispersion phi of the window means
+    against a chi-square's, which covers heavy tails and updates correlated within a
+    window): q / (c phi) against the chi-square quantile with k / phi dof at
+    ``innovation_probability`` (a scaled chi-square matched to the reference's first two
+    moments). Windows are consecutive, each closed by the first update at least
+    ``innovation_window_s`` after its first one once it holds k >= phi (at least one
+    effective degree of freedom); the last, open window is not tested. The family is
+    inconsistent when its count of failing windows is improbable (binomial tail below
+    ``innovation_trial_probability``) for windows failing at the test's own rate. Refused
+    (gated) updates are counted but not summed: the gate truncates d2, and refusals have
+    their own share in the report."""
+
+    def __init__(self, limits: HealthLimits, family: str) -> None:
+        self.limits = limits
+        self.family = family
+        c, phi = limits.innovation_reference[family]
+        if c <= 0 or phi <= 0:
+            raise ValueError(f"innovation reference of {family} must be positive, got {c}, {phi}")
+        self.scale, self.dispersion = float(c), float(phi)
+        self.n_accepted = self.n_refused = 0
+        self.nis_sum = 0.0  # sum of d2 of accepted updates
+        self.dof_sum = 0
+        self.n_windows = self.n_failing = 0
+        self.max_window_ratio = 0.0  # largest window mean d2 per dof / c
+        self.dispersion_sum = 0.0  # sum over windows of (ratio - 1)^2 k / 2
+        self._t0: float | None = None
+        self._q = 0.0
+        self._k = 0
+
+    def add(self, t_s: float, d2: float, m: int, accepted: bool) -> None:
+        """One update at ``t_s`` (s): its y^T S^-1 y, dimension and outcome."""
+        if not accepted:
+            self.n_refused += 1
+            return
+        if not math.isfinite(d2):
+            return
+        if (
+            self._t0 is not None
+            and t_s - self._t0 >= self.limits.innovation_window_s
+            and self._k >= self.dispersion
+        ):
+            self._close()
+        if self._t0 is None:
+            self._t0 = t_s
+        self.n_accepted += 1
+        self.nis_sum += d2
+        self.dof_sum += m
+        self._q += d2
+        self._k += m
+
+    def _close(self) -> None:
+        q, k = self._q, self._k
+        self._t0, self._q, self._k = None, 0.0, 0
+        if k == 0:
+            return
+        ratio = q / (self.scale * k)
+        nu = k / self.dispersion
+        self.n_windows += 1
+        self.n_failing += int(
+            q / (self.scale * self.dispersion)
+            > chi2_quantile_wh(self.limits.innovation_probability, nu)
+        )
+        self.max_window_ratio = max(self.max_window_ratio, ratio)
+        self.dispersion_sum += (ratio - 1.0) ** 2 * k / 2.0
+
+    @property
+    def failing_share(self) -> float:
+        return _share(self.n_failing, self.n_windows)
+
+    @property
+    def trial_p_value(self) -> float:
+        """Probability of at least :attr:`n_failing` failing windows out of :attr:`n_windows`
+        if each failed independently at the test's rate (binomial tail)."""
+        return binomial_tail(
+            self.n_failing, self.n_windows, 1.0 - self.limits.innovation_probability
+        )
+
+    @property
+    def inconsistent(self) -> bool:
+        """Persistently worse than the family's usual self."""
+        return self.trial_p_value < self.limits.innovation_trial_probability
+
+    def summary(self) -> dict:
+        """The figures of metrics.json ``health.innovations.<family>``."""
+        return {
+            "updates": self.n_accepted + self.n_refused,
+            "refused": self.n_refused,
+            "dof": self.dof_sum,
+            "nis_sum": self.nis_sum,
+            "mean_nis_per_dof": self.nis_sum / self.dof_sum if self.dof_sum else float("nan"),
+            "reference_nis_per_dof": self.scale,
+            "reference_dispersion": self.dispersion,
+            "ratio_to_reference": (
+                self.nis_sum / (self.dof_sum * self.scale) if self.dof_sum else float("nan")
+            ),
+            "windows": self.n_windows,
+            "failing_windows": self.n_failing,
+            "failing_share": self.failing_share,
+            "trial_p_value": self.trial_p_value,
+            "max_window_ratio": self.max_window_ratio,
+            "window_dispersion": (
+                self.dispersion_sum / self.n_windows if self.n_windows else float("nan")
+            ),
+            "inconsistent": self.inconsistent,
         }
 
 

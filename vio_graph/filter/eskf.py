@@ -98,6 +98,10 @@ _ZERO22 = np.zeros((2, 2))  # a new clone's own noise (none)
 _FREE_X_VAR_M2 = 1.0
 
 
+#: updates :attr:`SagittalEskf.innovations` keeps between two reads
+_INNOVATIONS_KEPT = 10_000
+
+
 @dataclass(frozen=True)
 class FilterState:
     """Snapshot of an estimator (the filter or a baseline); arrays are copies.
@@ -218,6 +222,11 @@ class SagittalEskf:
         self._last_accept_s = -np.inf
         self._n_imu = self._n_acc = self._n_rej = self._n_stale = self._n_fallback = 0
         self._n_lm_acc = self._n_lm_rej = 0
+        #: (y^T S^-1 y, dof, accepted) of every gated or fused update since the caller last
+        #: took them (:meth:`take_innovations`): read by the health report's consistency
+        #: test (vio_graph/health.py), never by the filter; the latest _INNOVATIONS_KEPT
+        #: only, so a filter nobody reads stays bounded
+        self.innovations: deque[tuple[float, int, bool]] = deque(maxlen=_INNOVATIONS_KEPT)
         self._prev_xa = 0.0  # extra accel sigma of the previous IMU sample (m/s^2)
         # the previous sample's saturation covariance on its clipped axes (body x-z, 2x2) and
         # pitch (rad), when imu_faults.saturation_axis_distrust applies it (None otherwise)
@@ -690,6 +699,13 @@ class SagittalEskf:
         self._require_init()
         if self.config.measurement_model == "stochastic_cloning":
             self._set_clone(float(timestamp_s))
+
+    def take_innovations(self) -> list[tuple[float, int, bool]]:
+        """The (y^T S^-1 y, dof, accepted) of the updates since the last call, oldest first
+        (and forget them): a read-out for the health report, no effect on the estimate."""
+        out = list(self.innovations)
+        self.innovations.clear()
+        return out
 
     @property
     def n_gate_refusals(self) -> int:
@@ -1211,13 +1227,13 @@ class SagittalEskf:
             S_inv = np.array([[1.0 / s00]])
         gate_d2 = self._gate_d2 if dof == 2 else self._gate_d2_1dof
         if gate and d2 > gate_d2:
-            return self._counted(False, landmark)
+            return self._counted(False, landmark, d2, m)
         K = (S_inv @ HP).T  # P H^T S^-1 (P, S symmetric)
         dx = K @ innovation
         P = P - K @ HP
         self._P = 0.5 * (P + P.T)
         self._inject(dx)
-        return self._counted(True, landmark)
+        return self._counted(True, landmark, d2, m)
 
     def _correct_compiled(
         self,
@@ -1233,7 +1249,7 @@ class SagittalEskf:
         k = self._update_kernels
         assert k is not None
         gate_d2 = self._gate_d2 if dof == 2 else self._gate_d2_1dof
-        status, _, P, dx = k.correct(
+        status, d2, P, dx = k.correct(
             self._P,
             np.ascontiguousarray(H, dtype=float),
             np.ascontiguousarray(V, dtype=float),
@@ -1243,14 +1259,18 @@ class SagittalEskf:
         )
         if status == k.SINGULAR:
             raise EstimationError("singular innovation covariance")
+        m = H.shape[0]
         if status == k.GATED:
-            return self._counted(False, landmark)
+            return self._counted(False, landmark, float(d2), m)
         self._P = P
         self._inject(dx)
-        return self._counted(True, landmark)
+        return self._counted(True, landmark, float(d2), m)
 
-    def _counted(self, accepted: bool, landmark: bool) -> bool:
-        """Count an update's outcome (landmark or displacement counters); returns ``accepted``."""
+    def _counted(self, accepted: bool, landmark: bool, d2: float, m: int) -> bool:
+        """Count an update's outcome (landmark or displacement counters) and note its
+        normalised innovation squared ``d2`` with ``m`` degrees of freedom in
+        :attr:`innovations`; returns ``accepted``."""
+        self.innovations.append((d2, m, accepted))
         if landmark:
             if accepted:
                 self._n_lm_acc += 1
@@ -1294,8 +1314,10 @@ class SagittalEskf:
         except np.linalg.LinAlgError as exc:
             raise EstimationError(f"singular innovation covariance: {exc}") from None
         gate_d2 = self._gate_d2 if dof == 2 else self._gate_d2_1dof
-        if gate and float(innovation @ S_inv_y) > gate_d2:
-            return self._counted(False, landmark)
+        d2 = float(innovation @ S_inv_y)
+        m = H.shape[0]
+        if gate and d2 > gate_d2:
+            return self._counted(False, landmark, d2, m)
         K = np.linalg.solve(S, H @ P).T  # K = P H^T S^-1 (S, P symmetric)
         dx = K @ innovation
         # Joseph form of P <- (I - K H) P: same value, stays symmetric positive definite
@@ -1311,7 +1333,7 @@ class SagittalEskf:
             i = n + 2 * j
             a0, a1 = self._aug_xz[key]
             self._aug_xz[key] = (a0 + float(dx[i]), a1 + float(dx[i + 1]))
-        return self._counted(True, landmark)
+        return self._counted(True, landmark, d2, m)
 
     def _set_clone(self, t_s: float) -> None:
         """Augment the state with p(t_s) = p + v (t_s - t), replacing any previous clone."""

@@ -1126,7 +1126,7 @@ class OnlineEstimator:
         bridge_velocity = None
         disc_cov, wait = None, False
         if is_kf and self._bridge_carry is not None:
-            disc_cov, wait = self._bridge_discretisation(t)
+            disc_cov, wait = self._bridge_discretisation()
         if is_kf and self._bridge_carry is not None and not wait:
             # the bridge's velocity carried to this frame by the IMU alone: the filter's
             # velocity change since minus what its measurements corrected
@@ -1310,8 +1310,8 @@ class OnlineEstimator:
         if not bridge.active:
             filt.drop_velocity_clone()  # observed, or given up (no joints in time)
 
-    def _bridge_discretisation(self, t_s: float) -> tuple[NDArray | None, bool]:
-        """For the keyframe at ``t_s`` (s) that would carry the fused bridge to the smoothers:
+    def _bridge_discretisation(self) -> tuple[NDArray | None, bool]:
+        """For a keyframe that would carry the fused bridge to the smoothers:
         the chain's discretisation covariance at the stretch's ends
         (``LegChainBridge.discretisation_cov``) and whether to wait for a later keyframe
         because the joints do not cover the ends yet (at most the bridge's wait, 0.1 s,

@@ -542,7 +542,8 @@ class OnlineEstimator:
         #: the latest fused bridge observation not yet given to a keyframe: (velocity, cov,
         #: the filter's velocity and summed corrections just before it was fused), then the
         #: keyframe before the stretch (s) and the velocity change from it to the observation
-        #: and its covariance, or None (no keyframe before the stretch)
+        #: and its covariance, or None (no keyframe before the stretch), then the stretch's
+        #: start and end (s; for the smoothers' discretisation term)
         self._bridge_carry: tuple | None = None
         #: with the bridge: the last keyframes (time s, the filter's time s, velocity and
         #: summed corrections then), and at a stretch's start the keyframe before it with the
@@ -1125,17 +1126,28 @@ class OnlineEstimator:
         is_kf = self.keyframes.is_keyframe(t, camera_xz)
         self._prev_frame = (t, camera_xz)
         bridge_velocity = None
+        disc_cov, wait = None, False
         if is_kf and self._bridge_carry is not None:
+            disc_cov, wait = self._bridge_discretisation()
+        if is_kf and self._bridge_carry is not None and not wait:
             # the bridge's velocity carried to this frame by the IMU alone: the filter's
             # velocity change since minus what its measurements corrected
-            v_obs, cov_obs, v_before, corr_before, pre = self._bridge_carry
+            v_obs, cov_obs, v_before, corr_before, pre, _ = self._bridge_carry
             imu_change = velocity - v_before - (self.filter.velocity_corrections_mps - corr_before)
             if pre is None:
-                bridge_velocity = VelocityObservation(t, v_obs + imu_change, cov_obs)
+                bridge_velocity = VelocityObservation(
+                    t, v_obs + imu_change, cov_obs, discretisation_cov=disc_cov
+                )
             else:  # also as the change from the keyframe before the stretch
                 t_kf, change, change_cov = pre
                 bridge_velocity = VelocityObservation(
-                    t, v_obs + imu_change, cov_obs, t_kf, change + imu_change, change_cov
+                    t,
+                    v_obs + imu_change,
+                    cov_obs,
+                    t_kf,
+                    change + imu_change,
+                    change_cov,
+                    discretisation_cov=disc_cov,
                 )
             self._bridge_carry = None
         if is_kf and self.saturation_bridge is not None:
@@ -1297,9 +1309,32 @@ class OnlineEstimator:
                     obs.cov,
                     *before,
                     None if pre is None else (pre[0], pre[1] + obs.change_xz_mps, obs.change_cov),
+                    obs.stretch_s,
                 )
         if not bridge.active:
             filt.drop_velocity_clone()  # observed, or given up (no joints in time)
+
+    def _bridge_discretisation(self) -> tuple[NDArray | None, bool]:
+        """For a keyframe that would carry the fused bridge to the smoothers:
+        the chain's discretisation covariance at the stretch's ends
+        (``LegChainBridge.discretisation_cov``) and whether to wait for a later keyframe
+        because the joints do not cover the ends yet (at most the bridge's wait, 0.1 s,
+        after the stretch's end). (None, False) with
+        ``smoother.factors.saturation_bridge_discretisation`` off: the smoothers' bridge as
+        before."""
+        bridge, carry = self.saturation_bridge, self._bridge_carry
+        if (
+            bridge is None
+            or carry is None
+            or carry[5] is None
+            or not self.config.smoother.factors.saturation_bridge_discretisation
+        ):
+            return None, False
+        t0, t2 = carry[5]
+        cov = bridge.discretisation_cov(self._joint_hist, t0, t2)
+        if cov is None and self.filter._t_s - t2 <= bridge.max_wait_s:
+            return None, True
+        return cov, False
 
     def _change_since_keyframe(self, t_s: float, v: NDArray) -> tuple[float, NDArray] | None:
         """At a stretch's start (the filter's time ``t_s`` before its first clipped sample,

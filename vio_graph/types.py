@@ -170,6 +170,11 @@ class VelocityObservation:
     since_timestamp_s: float | None = None
     change_xz_mps: NDArray[np.float64] | None = None
     change_cov: NDArray[np.float64] | None = None
+    #: the chain's own discretisation error at the stretch's two ends ((m/s)^2, 2x2;
+    #: LegChainBridge.discretisation_cov), when it is not already in ``cov`` /
+    #: ``change_cov``; None if not computed (``smoother.factors.saturation_bridge_discretisation``
+    #: off) or the joints did not cover the ends in time
+    discretisation_cov: NDArray[np.float64] | None = None
 
 
 #: A landmark seen from the camera: a terrain corner or the stance ankle.

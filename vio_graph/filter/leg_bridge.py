@@ -54,6 +54,9 @@ class BridgeObservation:
     #: covariance without the filter's own velocity covariance at the start ((m/s)^2)
     change_xz_mps: NDArray[np.float64]
     change_cov: NDArray[np.float64]
+    #: the clipped stretch's start and end (the filter's times, s), for
+    #: :meth:`LegChainBridge.discretisation_cov`; None if not given
+    stretch_s: tuple[float, float] | None = None
 
 
 def _rot_deriv(theta: float, u: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -174,6 +177,11 @@ class LegChainBridge:
         self.n_unbridged = 0  #: stretches without joints in time (or interrupted)
 
     @property
+    def max_wait_s(self) -> float:
+        """How long (s) after a stretch's end the observation waits for the joints."""
+        return self._max_wait_s
+
+    @property
     def active(self) -> bool:
         """True while a stretch is open or waits for its joints."""
         return self._start is not None or self._pending is not None
@@ -257,4 +265,26 @@ class LegChainBridge:
         hip = self._a_sig * (t2 - t0)
         change_cov = np.eye(2) * (hip**2 + self._r_sig**2 + (disc_var if self._disc else 0.0))
         self.n_observations += 1
-        return BridgeObservation(self._now_s, v0 + change, P0 + change_cov, change, change_cov)
+        return BridgeObservation(
+            self._now_s, v0 + change, P0 + change_cov, change, change_cov, (t0, t2)
+        )
+
+    def discretisation_cov(
+        self, joints: Sequence[JointAngles], t0_s: float, t2_s: float
+    ) -> NDArray[np.float64] | None:
+        """The covariance ((m/s)^2, 2x2, ground x-z) of the chain's change across the stretch
+        from ``t0_s`` to ``t2_s`` from its own discretisation at the two ends: the term the
+        filter adds to the bridge's noise with ``discretisation_sigma`` (the same fraction of
+        each end's second difference, :func:`chain_velocity_discretisation_xz`). Zero if the
+        observation already holds it (``discretisation_sigma`` on); None while the joints do
+        not cover both ends by two periods. For the smoothers
+        (``smoother.factors.saturation_bridge_discretisation``): the filter's own fusion
+        is left as configured."""
+        if self._disc:
+            return np.zeros((2, 2))
+        d0 = chain_velocity_second_difference_xz(joints, t0_s, self._lt, self._c)
+        d2 = chain_velocity_second_difference_xz(joints, t2_s, self._lt, self._c)
+        if d0 is None or d2 is None:
+            return None
+        frac = 1.0 / 3.0 if self._fourth else 0.5
+        return np.eye(2) * ((frac * np.linalg.norm(d0)) ** 2 + (frac * np.linalg.norm(d2)) ** 2)

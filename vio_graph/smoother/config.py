@@ -68,6 +68,20 @@ class FactorFamilies(BaseModel):
         "by 0.1-0.8 m/s and the prior's larger noise weighed it down (docs/robustness.md, "
         "saturation). No effect without saturation_bridge or without saturation",
     )
+    saturation_bridge_discretisation: bool = Field(
+        default=True,
+        description="the bridge's noise in the smoothers also holds the leg chain's own "
+        "discretisation error at the stretch's two ends (the term the filter's "
+        "filter.imu_faults.saturation_bridge_discretisation_sigma adds, off there; "
+        "LegChainBridge.discretisation_cov): at 1.5x cadence the bridge missed by 0.37 and "
+        "0.66 m/s at a stated 0.18 and 0.145 m/s and the prior held the velocity off over the "
+        "blind landing. Off: held-out G seeds 7007-7014 smoother / batch toe x 1.49 / 1.41 "
+        "-> 2.23 / 2.13 cm, sweep cadence_1.5 0.93 / 1.03 -> 0.94 / 0.90, 4 g saturation on "
+        "the paper scenarios within 0.01 cm (docs/generalisation.md, G traced). The keyframe "
+        "that carries the bridge may be a later one: the joints must cover the ends by two "
+        "periods (at most 0.1 s). The filter is unchanged. No effect without "
+        "saturation_bridge or without saturation",
+    )
     attitude: bool = Field(default=True, description="vendor AHRS attitude prior per keyframe")
     planar: bool = Field(
         default=True, description="sagittal-plane priors: lateral position and velocity = 0"

@@ -974,15 +974,24 @@ class KeyframeGraphBuilder:
         the stretch) and the chain (across it) measured, with the chain's covariance alone.
         Otherwise V(i) gets the bridge's velocity as a prior, which rests on the filter's own
         velocity before the stretch: information the graph already holds (the same vision),
-        counted twice."""
+        counted twice. Either noise also holds ``ob.discretisation_cov`` (the chain's own
+        discretisation error at the stretch's ends) with
+        ``factors.saturation_bridge_discretisation``."""
         lever_i = self._lever_velocity(R_i, self._gyro_at(t))  # v_cam - v_imu at keyframe i
         cov3 = np.diag([0.0, 1.0, 0.0])
+        # the chain's own discretisation error at the stretch's ends, if handed over
+        # (factors.saturation_bridge_discretisation): a push-off the joints do not resolve
+        disc = np.zeros((2, 2))
+        if self.config.factors.saturation_bridge_discretisation and (
+            ob.discretisation_cov is not None
+        ):
+            disc = np.asarray(ob.discretisation_cov, dtype=float).reshape(2, 2)
         k = self._keyframe_before_bridge(ob)
         if k is not None:
             k_index, lever_k = k
             assert ob.change_xz_mps is not None and ob.change_cov is not None
             dv_imu = _xz_to_3(ob.change_xz_mps) - lever_i + lever_k
-            _put_xz(cov3, np.asarray(ob.change_cov, dtype=float).reshape(2, 2))
+            _put_xz(cov3, np.asarray(ob.change_cov, dtype=float).reshape(2, 2) + disc)
             batch.add(
                 gtsam.BetweenFactorVector(
                     V(k_index), V(i), dv_imu, gtsam.noiseModel.Gaussian.Covariance(cov3)
@@ -991,7 +1000,7 @@ class KeyframeGraphBuilder:
             )
             return
         v_imu = _xz_to_3(ob.camera_velocity_xz_mps) - lever_i
-        _put_xz(cov3, np.asarray(ob.cov, dtype=float).reshape(2, 2))
+        _put_xz(cov3, np.asarray(ob.cov, dtype=float).reshape(2, 2) + disc)
         batch.add(
             gtsam.PriorFactorVector(V(i), v_imu, gtsam.noiseModel.Gaussian.Covariance(cov3)),
             [V(i)],

@@ -17,6 +17,9 @@ true clearance (the true foot against the true terrain):
   what is left is the map itself (depth noise, mixed pixels, binning, occlusion);
 - ``+ foot outline``: the map of ``map only``, the estimated heel / toe relative to the
   estimated camera placed at the true camera (shank pitch, ankle, leg lengths);
+- ``+ pose x only`` / ``+ pose z only``: the camera with only its x (z) error (the other
+  coordinate true) and the true foot outline relative to it, the profiles at the true
+  attitude as in ``map only``: the split of the position error between the axes;
 - ``+ pose``: estimated camera, the true foot outline relative to it;
 - ``online``: the estimate as it is (estimated camera and foot outline).
 
@@ -98,10 +101,15 @@ def main() -> None:
     # the profiles at the true keyframe poses: turned by the attitude error about the camera
     pitch_err = _true_shank_pitch(rec, t) - np.asarray(lg.shank_pitch_imu)
     true_att = {k: _turn(p, pitch_err[k]) for k, p in lg.profiles.items()}
+    # the camera with only its x (z) error, the other coordinate true
+    cam_x = np.column_stack((est["camera"][:, 0], true["camera"][:, 1]))
+    cam_z = np.column_stack((true["camera"][:, 0], est["camera"][:, 1]))
     cases = {
         "map only (filter attitude)": (true["camera"], true["heel"], true["toe"]),
         "map only": (true["camera"], true["heel"], true["toe"]),
         "+ foot outline": (true["camera"], true["camera"] + oh, true["camera"] + ot),
+        "+ pose x only": (cam_x, cam_x + th, cam_x + tt),
+        "+ pose z only": (cam_z, cam_z + th, cam_z + tt),
         "+ pose": (est["camera"], est["camera"] + th, est["camera"] + tt),
         "online": (est["camera"], est["heel"], est["toe"]),
     }
@@ -117,7 +125,7 @@ def main() -> None:
         sc = SafetyConfig(**{**cfg.safety.model_dump(), **over})
         for cname, (cam, heel, toe) in cases.items():
             path = {"camera": cam, "heel": heel, "toe": toe}
-            true_pose = cname in ("map only", "+ foot outline")
+            true_pose = cname in ("map only", "+ foot outline", "+ pose x only", "+ pose z only")
             prof = true_att if true_pose else lg.profiles
             out = replay_safety(sc, t, path, lg.cov_position_m2, lg.in_stance, prof)
             c = np.array([s.clearance_m for s in out])

@@ -82,18 +82,20 @@ def test_monitor_reports_a_heel_inside_the_riser_as_contact(compiled: bool) -> N
     0 and the sigma that of the truncated Gaussian; without it, as before."""
     P_now = np.diag([3.6e-5, 1e-5])  # x sigma 6 mm since the keyframes
     out = {}
-    for on in (False, True):
-        mon = SafetyMonitor(SafetyConfig(non_penetration=on), compiled=compiled)
+    for on, mode in ((False, "contact"), (True, "truncated"), (True, "contact")):
+        cfg = SafetyConfig(non_penetration=on, non_penetration_sigma=mode, foot_sigma_m=0.001)
+        mon = SafetyMonitor(cfg, compiled=compiled)
         _map_down(mon)
-        out[on] = mon.update(1.0, [0.3, 0.8], P_now, [0.48, 0.15], [0.73, 0.15], True)
-    raw, now = out[False], out[True]
+        out[on, mode] = mon.update(1.0, [0.3, 0.8], P_now, [0.48, 0.15], [0.73, 0.15], True)
+    raw, trunc, now = out[False, "contact"], out[True, "truncated"], out[True, "contact"]
     assert raw.clearance_m == pytest.approx(-0.02, abs=0.003)  # 5 mm bins
     assert 0.004 < raw.clearance_sigma_m < 0.008
-    assert now.clearance_m == 0.0
-    assert now.clearance_sigma_m == pytest.approx(
-        non_penetrating(raw.clearance_m, raw.clearance_sigma_m)[1], rel=1e-9
-    )
-    assert now.clearance_sigma_m < 0.5 * raw.clearance_sigma_m
+    assert trunc.clearance_m == now.clearance_m == 0.0
+    q = non_penetrating(raw.clearance_m, raw.clearance_sigma_m)[1]
+    assert trunc.clearance_sigma_m == pytest.approx(q, rel=1e-9)
+    # ~3.3 sigma inside: the truncated Gaussian's 1-sigma is ~0.3 s (1.8-1.9 mm here)
+    assert 0.25 * raw.clearance_sigma_m < q < 0.35 * raw.clearance_sigma_m
+    assert now.clearance_sigma_m == pytest.approx(0.001)  # a contact's: the foot outline's
     # everything else is the same estimate
     np.testing.assert_equal(now.nosing_clearance_m, raw.nosing_clearance_m)
     np.testing.assert_array_equal(now.toe_line_xz_m, raw.toe_line_xz_m)
@@ -104,3 +106,11 @@ def test_monitor_reports_a_heel_inside_the_riser_as_contact(compiled: bool) -> N
         out[on] = mon.update(1.0, [0.3, 0.8], P_now, [0.55, 0.19], [0.80, 0.19], False)
     assert out[True].clearance_m == out[False].clearance_m == pytest.approx(0.04, abs=0.003)
     assert out[True].clearance_sigma_m == out[False].clearance_sigma_m
+
+
+def test_contact_sigma_bounds_only_a_clamped_clearance() -> None:
+    s = 0.004
+    assert non_penetrating(-1e-12, s, 0.001) == (0.0, 0.001)  # q = s = 4 mm > 1 mm
+    assert non_penetrating(-0.05, s, 0.001)[1] == pytest.approx(non_penetrating(-0.05, s)[1])
+    assert non_penetrating(-0.05, s)[1] < 0.001  # 12.5 sigma in: q < the contact's
+    assert non_penetrating(0.002, s, 0.001) == (0.002, s)  # not clamped: unchanged

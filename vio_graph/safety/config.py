@@ -62,6 +62,13 @@ class SafetyConfig(BaseModel):
         "truncated at 0 (safety/clearance.py, non_penetrating); False: the signed distance "
         "as computed (before 2026-12-03, eighth session)",
     )
+    non_penetration_sigma: Literal["truncated", "contact"] = Field(
+        default="contact",
+        description="the sigma of a clearance non_penetration clamps to 0: 'truncated', the "
+        "truncated Gaussian's alone; 'contact', at most the foot outline's foot_sigma_m (a "
+        "clamped foot is reported in contact, and under a standing foot the map is capped "
+        "to the sole, contact_map, so the map's own sigma does not enter)",
+    )
     contact_sigmas: float = Field(
         default=2.0,
         gt=0,

@@ -837,7 +837,8 @@ class SafetyMonitor:
             margin = cfg.contact_sigmas * math.hypot(cfg.foot_sigma_m, cfg.map_sigma_m)
             self.map.add_contact(heel, toe, margin, cfg.edge_min_rise_m)
         if cfg.non_penetration:  # the foot is never inside the terrain (the output only)
-            c_d, sig = non_penetrating(c_d, sig)
+            contact = cfg.foot_sigma_m if cfg.non_penetration_sigma == "contact" else math.inf
+            c_d, sig = non_penetrating(c_d, sig, contact)
         return SafetyEstimate(
             clearance_m=c_d,
             clearance_sigma_m=sig,

@@ -59,7 +59,8 @@ class SafetyConfig(BaseModel):
         description="the reported clearance is the most probable one given that a foot is "
         "never inside the terrain: an estimate below 0 (the foot outline inside the mapped "
         "terrain, a pose or map error) is reported as 0, with the sigma of the Gaussian "
-        "truncated at 0 (safety/clearance.py, non_penetrating); False: the signed distance "
+        "truncated at 0 (safety/clearance.py, non_penetrating; non_penetration_sigma); "
+        "False: the signed distance "
         "as computed (before 2026-12-03, eighth session)",
     )
     non_penetration_sigma: Literal["truncated", "contact"] = Field(

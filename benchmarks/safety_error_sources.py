@@ -17,6 +17,9 @@ true clearance (the true foot against the true terrain):
   what is left is the map itself (depth noise, mixed pixels, binning, occlusion);
 - ``+ foot outline``: the map of ``map only``, the estimated heel / toe relative to the
   estimated camera placed at the true camera (shank pitch, ankle, leg lengths);
+- ``+ pose x only`` / ``+ pose z only``: the camera with only its x (z) error (the other
+  coordinate true) and the true foot outline relative to it, the profiles at the true
+  attitude as in ``map only``: the split of the position error between the axes;
 - ``+ pose``: estimated camera, the true foot outline relative to it;
 - ``online``: the estimate as it is (estimated camera and foot outline).
 
@@ -66,6 +69,55 @@ def _turn(profile_xz_m: np.ndarray, angle_rad: float) -> np.ndarray:
     return np.column_stack((c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1]))
 
 
+def keyframes_covering(
+    x_m: float, camera_xz_m: dict[int, np.ndarray], profiles: dict[int, np.ndarray], bin_m: float
+) -> list[int]:
+    """The keyframes (frame indices, ascending) whose profile, placed at ``camera_xz_m[k]``,
+    has a point within ``bin_m`` of ``x_m`` in x: the views a map bin there can hold."""
+    return sorted(
+        k
+        for k, p in profiles.items()
+        if k in camera_xz_m
+        and np.any(np.abs(camera_xz_m[k][0] + np.asarray(p)[:, 0] - x_m) < bin_m)
+    )
+
+
+def mapped_by(lg, est, true, tc, cfg, frames: list[int]) -> None:
+    """Per frame: the clearance's closest terrain point, the keyframes that covered its bin
+    (the last 24, as a bin keeps) and their camera x error and range against the frame's."""
+    from vio_graph.safety.online import SafetyMonitor
+
+    t = np.asarray(lg.t_s)
+    err = (est["camera"] - true["camera"]) * 1e3
+    mon = SafetyMonitor(cfg.safety, predict_clearance=False)
+    cams: dict[int, np.ndarray] = {}
+    print(
+        "| frame | clearance est / true (mm) | terrain point x, z (m) | views | frames "
+        "| camera x error of the views: median (range), mm | now (mm) | range (m) |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for k in range(len(t)):
+        prof = lg.profiles.get(k)
+        s = _common.monitor_update(mon, lg, est, k)
+        if prof is not None:
+            cams[k] = np.asarray(est["camera"][k])
+        if k not in frames:
+            continue
+        q = s.toe_line_xz_m[1]
+        seen = {j: lg.profiles[j] for j in cams}
+        users = keyframes_covering(float(q[0]), cams, seen, cfg.safety.bin_m)[-24:]
+        if not users:
+            continue
+        ux = err[users, 0]
+        r = np.median([np.hypot(*(q - cams[j])) for j in users])
+        print(
+            f"| {k} | {s.clearance_m * 1e3:.1f} / {tc[k] * 1e3:.1f} | "
+            f"{q[0]:.3f}, {q[1]:.3f} | {len(users)} | {users[0]}-{users[-1]} | "
+            f"{np.median(ux):+.1f} ({ux.min():+.1f} to {ux.max():+.1f}) | {err[k, 0]:+.1f} | "
+            f"{r:.2f} |"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("recording", type=Path, help="simulated recording folder")
@@ -75,6 +127,12 @@ def main() -> None:
         action="append",
         default=[],
         help="NAME=JSON overrides of the safety config (repeatable)",
+    )
+    ap.add_argument(
+        "--mapped-by",
+        default="",
+        help="comma-separated frames: print who mapped the terrain point nearest the foot "
+        "(keyframes, their camera x error and range) instead of the table",
     )
     args = ap.parse_args()
     cfg = load_config(args.config)
@@ -93,15 +151,23 @@ def main() -> None:
     if truth is None:
         raise SystemExit(f"{args.recording}: no true terrain profile / heel / toe")
     tc = truth["clearance_m"]
+    if args.mapped_by:
+        mapped_by(lg, est, true, tc, cfg, [int(f) for f in args.mapped_by.split(",")])
+        return
     oh, ot = est["heel"] - est["camera"], est["toe"] - est["camera"]
     th, tt = true["heel"] - true["camera"], true["toe"] - true["camera"]
     # the profiles at the true keyframe poses: turned by the attitude error about the camera
     pitch_err = _true_shank_pitch(rec, t) - np.asarray(lg.shank_pitch_imu)
     true_att = {k: _turn(p, pitch_err[k]) for k, p in lg.profiles.items()}
+    # the camera with only its x (z) error, the other coordinate true
+    cam_x = np.column_stack((est["camera"][:, 0], true["camera"][:, 1]))
+    cam_z = np.column_stack((true["camera"][:, 0], est["camera"][:, 1]))
     cases = {
         "map only (filter attitude)": (true["camera"], true["heel"], true["toe"]),
         "map only": (true["camera"], true["heel"], true["toe"]),
         "+ foot outline": (true["camera"], true["camera"] + oh, true["camera"] + ot),
+        "+ pose x only": (cam_x, cam_x + th, cam_x + tt),
+        "+ pose z only": (cam_z, cam_z + th, cam_z + tt),
         "+ pose": (est["camera"], est["camera"] + th, est["camera"] + tt),
         "online": (est["camera"], est["heel"], est["toe"]),
     }
@@ -117,7 +183,7 @@ def main() -> None:
         sc = SafetyConfig(**{**cfg.safety.model_dump(), **over})
         for cname, (cam, heel, toe) in cases.items():
             path = {"camera": cam, "heel": heel, "toe": toe}
-            true_pose = cname in ("map only", "+ foot outline")
+            true_pose = cname in ("map only", "+ foot outline", "+ pose x only", "+ pose z only")
             prof = true_att if true_pose else lg.profiles
             out = replay_safety(sc, t, path, lg.cov_position_m2, lg.in_stance, prof)
             c = np.array([s.clearance_m for s in out])

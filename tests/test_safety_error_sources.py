@@ -54,3 +54,17 @@ def test_true_shank_pitch_from_knee_and_ankle() -> None:
         groundtruth=SimpleNamespace(trajectories={"knee": traj(knee), "ankle": traj(ankle)})
     )
     np.testing.assert_allclose(ses._true_shank_pitch(rec, t), pitch, atol=1e-12)
+
+
+def test_keyframes_covering_finds_the_views_of_a_bin() -> None:
+    """Profiles placed at their cameras: only those with a point within one bin of x count."""
+    cams = {3: np.array([0.0, 0.5]), 7: np.array([1.0, 0.5]), 9: np.array([2.0, 0.5])}
+    prof = {
+        3: np.array([[1.0, -0.5], [1.2, -0.5]]),  # points at x = 1.0, 1.2
+        7: np.array([[0.203, -0.5]]),  # x = 1.203: 3 mm from 1.2
+        9: np.array([[-0.7, -0.5]]),  # x = 1.3
+        11: np.array([[0.0, -0.5]]),  # no camera: not a keyframe of the run
+    }
+    assert ses.keyframes_covering(1.2, cams, prof, 0.005) == [3, 7]
+    assert ses.keyframes_covering(1.3, cams, prof, 0.005) == [9]
+    assert ses.keyframes_covering(1.25, cams, prof, 0.005) == []

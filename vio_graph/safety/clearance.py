@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -461,6 +462,38 @@ def clearance_sigma(
         + foot_sigma_m**2
     )
     return max(var, 0.0) ** 0.5
+
+
+#: the mass of a Gaussian within 1 sigma of its mean (erf(1 / sqrt 2))
+ONE_SIGMA_MASS = math.erf(1.0 / math.sqrt(2.0))
+_STD_NORMAL = NormalDist()
+
+
+def non_penetrating(
+    clearance_m: float, sigma_m: float, contact_sigma_m: float = math.inf
+) -> tuple[float, float]:
+    """The clearance and its 1-sigma given that the foot is never inside the terrain.
+
+    With the computed clearance ``c`` and its sigma ``s`` as a Gaussian N(c, s^2) for the
+    true clearance, and the true clearance >= 0 (a foot is never inside the ground), the
+    posterior is that Gaussian truncated at 0. Its most probable value is ``max(c, 0)``; for
+    ``c < 0`` the 1-sigma returned is the width ``q`` of [0, q], which holds the same share
+    of the truncated posterior as +-1 sigma of a Gaussian (0.683):
+    ``Phi((q - c) / s) = 1 - (1 - 0.683) Q(-c / s)``, ``Q`` the upper tail. At ``c = 0``
+    this is ``s``; it falls like ``1.15 s^2 / |c|`` as the penetration grows. A clamped
+    clearance reports the foot in contact; ``contact_sigma_m`` bounds its sigma by that of a
+    contact (the monitor passes the foot outline's, ``safety.foot_sigma_m``, for
+    ``non_penetration_sigma: contact``). For ``c >= 0`` (or NaN / a non-positive sigma) both
+    are returned unchanged (m)."""
+    c, s = float(clearance_m), float(sigma_m)
+    if not c < 0.0:  # (NaN stays NaN)
+        return c, s
+    if not s > 0.0:
+        return 0.0, s
+    a = min(-c / s, 30.0)  # the penetration in sigmas (beyond 30 the tail underflows)
+    tail = 0.5 * math.erfc(a / math.sqrt(2.0))  # Q(a)
+    q = s * (-_STD_NORMAL.inv_cdf((1.0 - ONE_SIGMA_MASS) * tail) - a)
+    return 0.0, min(q, float(contact_sigma_m))
 
 
 def coverage(heel_xz_m: ArrayLike, toe_xz_m: ArrayLike, prof: HeightProfile) -> float:

@@ -54,6 +54,22 @@ class SafetyConfig(BaseModel):
         "above it by less than edge_min_rise_m (mixed pixels of a hidden strip, not a step "
         "the foot estimate overlaps); off: the map is the camera's alone (before 2026-12-03)",
     )
+    non_penetration: bool = Field(
+        default=True,
+        description="the reported clearance is the most probable one given that a foot is "
+        "never inside the terrain: an estimate below 0 (the foot outline inside the mapped "
+        "terrain, a pose or map error) is reported as 0, with the sigma of the Gaussian "
+        "truncated at 0 (safety/clearance.py, non_penetrating; non_penetration_sigma); "
+        "False: the signed distance "
+        "as computed (before 2026-12-03, eighth session)",
+    )
+    non_penetration_sigma: Literal["truncated", "contact"] = Field(
+        default="contact",
+        description="the sigma of a clearance non_penetration clamps to 0: 'truncated', the "
+        "truncated Gaussian's alone; 'contact', at most the foot outline's foot_sigma_m (a "
+        "clamped foot is reported in contact, and under a standing foot the map is capped "
+        "to the sole, contact_map, so the map's own sigma does not enter)",
+    )
     contact_sigmas: float = Field(
         default=2.0,
         gt=0,

@@ -58,6 +58,7 @@ from vio_graph.safety.clearance import (
     clearance_sigma,
     gap_terrain,
     next_edge_index,
+    non_penetrating,
     placement_on_tread,
     unseen_distance,
 )
@@ -835,6 +836,9 @@ class SafetyMonitor:
         if in_stance and cfg.contact_map:  # the standing foot joins the map (next frames)
             margin = cfg.contact_sigmas * math.hypot(cfg.foot_sigma_m, cfg.map_sigma_m)
             self.map.add_contact(heel, toe, margin, cfg.edge_min_rise_m)
+        if cfg.non_penetration:  # the foot is never inside the terrain (the output only)
+            contact = cfg.foot_sigma_m if cfg.non_penetration_sigma == "contact" else math.inf
+            c_d, sig = non_penetrating(c_d, sig, contact)
         return SafetyEstimate(
             clearance_m=c_d,
             clearance_sigma_m=sig,

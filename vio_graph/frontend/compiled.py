@@ -392,11 +392,18 @@ def icp_loop(
     normal_neighbours,
     point_to_line,
     degenerate_ratio,
+    normals,
+    have,
 ):  # pragma: no cover - compiled
     """The ICP iterations. Returns (Tx, Tz, iterations, converged, keep, j, normals, status):
     ``keep`` the kept target indices of the last iteration (in the numpy path's order), ``j``
     (Nt,) matched source index per target (n_src: none), ``normals`` (Ns, 2) source normals
-    (NaN where not computed), status 0 = fine, else a tie (``_TIE*``: run the numpy path)."""
+    (NaN where not computed), status 0 = fine, else a tie (``_TIE*``: run the numpy path).
+
+    ``normals`` (Ns, 2) and ``have`` (Ns,) bool are the source normals known so far, filled in
+    place (a normal is a function of the source points and ``normal_neighbours`` alone, so
+    another ICP on the same source with the same ``normal_neighbours`` may pass them again:
+    :class:`vio_graph.frontend.icp.SourceNormals`); fresh: NaN and False."""
     ns = src.shape[0]
     nt = tgt.shape[0]
     order = np.argsort(src[:, 0], kind="mergesort")
@@ -408,8 +415,6 @@ def icp_loop(
     best_d = np.empty(kk)  # scratch of the normals' neighbour search
     best_i = np.empty(kk, np.int64)
     max2 = max_correspondence_m * max_correspondence_m
-    normals = np.full((ns, 2), np.nan)
-    have = np.zeros(ns, np.bool_)
     j = np.full(nt, ns, np.int64)
     dist = np.full(nt, np.inf)
     keep = np.zeros(0, np.int64)

@@ -1643,3 +1643,44 @@ def camera_fixed(
         for i in range(n_fixed):
             out[tested[i] // w, tested[i] % w] = True
     return True, n_confirm, n_refute, n_changed
+
+
+@numba.njit(cache=True)
+def label4(img):  # pragma: no cover - compiled
+    """``scipy.ndimage.label`` of a 2-D bool image with its default structure (4 neighbours):
+    the components numbered 1, 2, ... in the raster order of their first pixel, as scipy
+    numbers them, 0 outside. Returns (labels (H, W) int32, number of components)."""
+    h, w = img.shape
+    labels = np.zeros((h, w), np.int32)
+    stack = np.empty(h * w, np.int64)  # every pixel is pushed once, when it is labelled
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if not img[r, c] or labels[r, c] != 0:
+                continue
+            n += 1
+            labels[r, c] = n
+            stack[0] = r * w + c
+            top = 1
+            while top > 0:
+                top -= 1
+                p = stack[top]
+                pr = p // w
+                pc = p - pr * w
+                if pr > 0 and img[pr - 1, pc] and labels[pr - 1, pc] == 0:
+                    labels[pr - 1, pc] = n
+                    stack[top] = p - w
+                    top += 1
+                if pr < h - 1 and img[pr + 1, pc] and labels[pr + 1, pc] == 0:
+                    labels[pr + 1, pc] = n
+                    stack[top] = p + w
+                    top += 1
+                if pc > 0 and img[pr, pc - 1] and labels[pr, pc - 1] == 0:
+                    labels[pr, pc - 1] = n
+                    stack[top] = p - 1
+                    top += 1
+                if pc < w - 1 and img[pr, pc + 1] and labels[pr, pc + 1] == 0:
+                    labels[pr, pc + 1] = n
+                    stack[top] = p + 1
+                    top += 1
+    return labels, n

@@ -238,6 +238,40 @@ def _fresh_normals(src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.full(src.shape, np.nan), np.zeros(src.shape[0], dtype=bool)
 
 
+def test_icp_keeping_clear_matches_is_searching_every_time_bit_for_bit() -> None:
+    """The ICP kernel does not search again for a target point whose last match is still
+    clearly its nearest (``keep_clear_matches``): every output (T, iterations, kept pairs,
+    matches, normals, status) is what searching every time gives, bit for bit, on profiles
+    as the front end makes them (duplicates from the smoothing), coarse grids with exact ties,
+    seeds far off (many iterations), both metrics and the fallback's settings."""
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(77)
+    iterations = []
+    for case in range(40):
+        src = _smoothed(rng)
+        if case % 5 == 4:
+            src = np.round(src, 2)
+        box = (src[:, 0] > rng.uniform(-0.1, 0.4)) & (src[:, 0] < rng.uniform(0.3, 0.7))
+        true_T = rng.normal(0, 0.03, 2)
+        tgt = src[box] + true_T + rng.normal(0, [0.0005, 0.002, 0.004][case % 3], (box.sum(), 2))
+        if case % 5 == 4:
+            tgt = np.round(tgt, 2)
+        if tgt.shape[0] == 0:
+            continue
+        tgt = np.ascontiguousarray(tgt)
+        T0 = true_T + rng.normal(0, [0.002, 0.008, 0.015][case % 3], 2)
+        k, corr = ((6, 0.05), (15, 0.03))[case % 2]
+        args = (src, tgt, T0[0], T0[1], 20, 1e-6, corr, 0.1, k, case % 7 != 6, 0.05)
+        fast = kernels.icp_loop(*args, *_fresh_normals(src))
+        slow = kernels.icp_loop(*args, *_fresh_normals(src), False)
+        assert fast[:4] == slow[:4] and fast[-1] == slow[-1], case
+        for a, b in zip(fast[4:7], slow[4:7], strict=True):
+            assert np.array_equal(a, b, equal_nan=True), case
+        iterations.append(fast[2])
+    assert max(iterations) >= 8  # long runs of small steps, where matches are kept
+
+
 def test_compiled_icp_hands_an_exact_tie_back() -> None:
     """Two distinct source points exactly as near to a target point: which one the KD-tree
     picks is its own business, so the kernel must not decide."""
@@ -336,13 +370,21 @@ def test_grid_neighbour_search_equals_the_x_scan_order() -> None:
         grid = kernels._grid(src, 0.01)
         reach = 0.03 * (1.0 + 1e-9) + 1e-12
         for q in src[rng.integers(0, src.shape[0], 30)] + rng.normal(0, 0.01, (30, 2)):
-            best2, bi, tie = kernels._nearest(src, grid, rank, q[0], q[1], reach, 0.03**2)
+            best2, bi, tie, second2 = kernels._nearest(src, grid, rank, q[0], q[1], reach, 0.03**2)
             d2 = (q[0] - src[:, 0]) ** 2 + (q[1] - src[:, 1]) ** 2
             near = np.abs(src - q).max(axis=1) <= reach
             if not near.any():
                 assert bi == src.shape[0] and best2 == np.inf
                 continue
             assert best2 == d2[near].min()
+            # the second-nearest of the points searched (cells around the box: at least the
+            # box's points), the kept one's twins included
+            others = np.delete(d2, bi)
+            assert (
+                others.min()
+                <= second2
+                <= np.delete(d2, bi)[np.delete(near, bi)].min(initial=np.inf)
+            )
             at = np.flatnonzero(near & (d2 == best2))
             assert bi == at[np.argmin(rank[at])]
             distinct = np.abs(src[at] - src[bi]).max(axis=1) > 1e-12

@@ -232,3 +232,39 @@ def test_by_default_the_occluder_is_reported_not_removed(
     assert any("moved with the camera" in w for w in metrics["default"]["health"]["warnings"])
     assert metrics["off"]["health"]["camera_fixed"]["frames"] == 0
     assert metrics["default"]["ate_cm"]["filter"] == metrics["off"]["ate_cm"]["filter"]
+
+
+def test_compiled_surface_labels_and_rim_equal_scipys(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``compiled.label4`` numbers the 4-connected components as ``scipy.ndimage.label`` does
+    (the same label image), :func:`dilate4` is ``binary_dilation`` with its default structure,
+    and ``surface_majority`` on the kernels returns scipy's path's pixels: random masks of
+    several densities (one component, many, none; touching the borders) and depth images
+    with edges."""
+    from scipy import ndimage
+
+    from vio_graph.frontend import icp as icp_module
+    from vio_graph.frontend.camera_fixed import dilate4, surface_majority
+
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "1")
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(5)
+    n_kept = 0
+    for case in range(60):
+        h, w = int(rng.integers(1, 40)), int(rng.integers(1, 60))
+        img = rng.random((h, w)) < [0.0, 0.2, 0.5, 0.6, 0.9, 1.0][case % 6]
+        labels, n = kernels.label4(img)
+        ref, n_ref = ndimage.label(img)
+        assert n == n_ref and np.array_equal(labels, ref)
+        assert np.array_equal(dilate4(img), ndimage.binary_dilation(img))
+        depth = 1.0 + np.cumsum(rng.normal(0.0, 0.01, (h, w)), axis=1)
+        depth[rng.random((h, w)) < 0.1] += 0.2  # depth edges
+        same = rng.random((h, w)) < 0.8
+        mask = same & (rng.random((h, w)) < 0.6)
+        got = surface_majority(mask, depth, same, 0.03, 0.01, 5)
+        monkeypatch.setenv(icp_module.COMPILED_ENV, "0")
+        want = surface_majority(mask, depth, same, 0.03, 0.01, 5)
+        monkeypatch.setenv(icp_module.COMPILED_ENV, "1")
+        assert np.array_equal(got, want)
+        n_kept += int(got.sum())
+    assert n_kept > 0

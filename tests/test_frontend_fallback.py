@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from vio_graph.frontend import icp as icp_module
+from vio_graph.frontend import tracker as tracker_module
 from vio_graph.frontend.config import IcpConfig, TrackerConfig
 from vio_graph.frontend.icp import icp_translation_2d
 from vio_graph.frontend.tracker import CornerTracker
@@ -177,3 +180,46 @@ def test_a_profile_with_a_riser_keeps_its_x() -> None:
     assert abs(d.delta_xz_m[0] - delta[0]) < 0.002
     assert np.sqrt(d.cov_m2[0, 0]) < 0.005
     assert abs(d.delta_xz_m[1] - delta[1]) < 0.002
+
+
+def test_the_restart_check_shares_the_source_normals_bit_for_bit(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The profile fallback's restart check runs ICP again on the same source with the first
+    ICP's source normals (SourceNormals): its displacements and covariances are those of the
+    restart check computing every normal afresh, bit for bit, on the noisy far floors above
+    (where the check widens some claims) with the compiled kernels."""
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "1")
+    delta = np.array([-0.024, -0.045])
+
+    def outputs(check: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
+        got = []
+        for seed in range(12):
+            rng = np.random.default_rng(1000 + seed)
+            pred = delta + rng.normal(0.0, 0.007, 2)
+            cfg = TrackerConfig(fallback_straight_ratio=None, fallback_restart_check=check)
+            tracker = CornerTracker(cfg)
+            tracker.update(0.0, _far_floor(np.zeros(2), 2 * seed), None)
+            out = tracker.update(
+                1 / 30, _far_floor(delta, 2 * seed + 1), None, pred, np.eye(2) * 0.007**2
+            )
+            assert out.displacement is not None, out.reason
+            got.append((out.displacement.delta_xz_m, out.displacement.cov_m2))
+        return got
+
+    shared = outputs()
+    unchecked = outputs(check=False)
+    assert any(not np.array_equal(a[1], b[1]) for a, b in zip(shared, unchecked, strict=True))
+    calls: list[object] = []
+    real = tracker_module.icp_translation_2d
+
+    def fresh(src, tgt, T0, cfg, tree, normals=None):  # type: ignore[no-untyped-def]
+        calls.append(normals)
+        return real(src, tgt, T0, cfg, tree)  # every normal computed again
+
+    monkeypatch.setattr(tracker_module, "icp_translation_2d", fresh)
+    alone = outputs()
+    assert len(calls) == 2 * len(alone)  # ICP and the restart check's ICP on every pair
+    assert all(isinstance(n, icp_module.SourceNormals) for n in calls)
+    for (d1, c1), (d2, c2) in zip(shared, alone, strict=True):
+        assert np.array_equal(d1, d2) and np.array_equal(c1, c2)

@@ -210,6 +210,7 @@ def test_compiled_icp_equals_the_numpy_path() -> None:
                 src, np.ascontiguousarray(tgt), T0[0], T0[1], cfg.max_iterations,
                 cfg.convergence_m, cfg.max_correspondence_m, cfg.trim_fraction,
                 cfg.normal_neighbours, cfg.metric != "point_to_point", cfg.degenerate_ratio,
+                *_fresh_normals(src),
             )[-1]
         )  # fmt: skip
         got = icp_translation_2d(src, tgt, T0, cfg)
@@ -232,6 +233,45 @@ def test_compiled_icp_equals_the_numpy_path() -> None:
     assert any(s != 0 for s in statuses)  # and the ties did go back to the numpy path
 
 
+def _fresh_normals(src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The source normals an ICP kernel call starts from when none are known yet."""
+    return np.full(src.shape, np.nan), np.zeros(src.shape[0], dtype=bool)
+
+
+def test_icp_keeping_clear_matches_is_searching_every_time_bit_for_bit() -> None:
+    """The ICP kernel does not search again for a target point whose last match is still
+    clearly its nearest (``keep_clear_matches``): every output (T, iterations, kept pairs,
+    matches, normals, status) is what searching every time gives, bit for bit, on profiles
+    as the front end makes them (duplicates from the smoothing), coarse grids with exact ties,
+    seeds far off (many iterations), both metrics and the fallback's settings."""
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(77)
+    iterations = []
+    for case in range(40):
+        src = _smoothed(rng)
+        if case % 5 == 4:
+            src = np.round(src, 2)
+        box = (src[:, 0] > rng.uniform(-0.1, 0.4)) & (src[:, 0] < rng.uniform(0.3, 0.7))
+        true_T = rng.normal(0, 0.03, 2)
+        tgt = src[box] + true_T + rng.normal(0, [0.0005, 0.002, 0.004][case % 3], (box.sum(), 2))
+        if case % 5 == 4:
+            tgt = np.round(tgt, 2)
+        if tgt.shape[0] == 0:
+            continue
+        tgt = np.ascontiguousarray(tgt)
+        T0 = true_T + rng.normal(0, [0.002, 0.008, 0.015][case % 3], 2)
+        k, corr = ((6, 0.05), (15, 0.03))[case % 2]
+        args = (src, tgt, T0[0], T0[1], 20, 1e-6, corr, 0.1, k, case % 7 != 6, 0.05)
+        fast = kernels.icp_loop(*args, *_fresh_normals(src))
+        slow = kernels.icp_loop(*args, *_fresh_normals(src), False)
+        assert fast[:4] == slow[:4] and fast[-1] == slow[-1], case
+        for a, b in zip(fast[4:7], slow[4:7], strict=True):
+            assert np.array_equal(a, b, equal_nan=True), case
+        iterations.append(fast[2])
+    assert max(iterations) >= 8  # long runs of small steps, where matches are kept
+
+
 def test_compiled_icp_hands_an_exact_tie_back() -> None:
     """Two distinct source points exactly as near to a target point: which one the KD-tree
     picks is its own business, so the kernel must not decide."""
@@ -240,11 +280,62 @@ def test_compiled_icp_hands_an_exact_tie_back() -> None:
     src = np.array([[-0.25, 0.0], [0.25, 0.0], [0.0, 1.0], [1.0, 1.0]])
     tgt = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]])
     cfg = IcpConfig(max_correspondence_m=0.5, trim_fraction=0.0)
-    out = kernels.icp_loop(src, tgt, 0.0, 0.0, 20, 1e-6, 0.5, 0.0, 3, True, cfg.degenerate_ratio)
+    out = kernels.icp_loop(
+        src, tgt, 0.0, 0.0, 20, 1e-6, 0.5, 0.0, 3, True, cfg.degenerate_ratio, *_fresh_normals(src)
+    )
     assert out[-1] != 0
     got = icp_translation_2d(src, tgt, None, cfg)
     ref = icp_module.icp_translation_2d_reference(src, tgt, None, cfg)
     assert np.array_equal(got.translation_xz_m, ref.translation_xz_m)
+
+
+def _same_result(a: icp_module.IcpResult, b: icp_module.IcpResult) -> bool:
+    counts_a = (a.iterations, a.converged, a.n_correspondences, a.rms_m)
+    counts_b = (b.iterations, b.converged, b.n_correspondences, b.rms_m)
+    return (
+        counts_a == counts_b
+        and np.array_equal(a.translation_xz_m, b.translation_xz_m)
+        and np.array_equal(a.cov_m2, b.cov_m2)
+        and np.array_equal(a.target_points_xz_m, b.target_points_xz_m)
+        and np.array_equal(a.matched_source_xz_m, b.matched_source_xz_m)
+    )
+
+
+def test_shared_source_normals_give_the_same_icp_bit_for_bit() -> None:
+    """ICP calls that share a SourceNormals (the tracker's restart check: the same source and
+    target from a second seed) give what each call gives alone, bit for bit: a normal is the
+    source's own. The cache starts afresh for other points (also the same array changed in
+    place) or another neighbour count, and the second call does compute fewer normals."""
+    rng = np.random.default_rng(23)
+    cfg = IcpConfig(normal_neighbours=15, max_correspondence_m=0.03)
+    reused = 0
+    for case in range(16):
+        src = _smoothed(rng)
+        if case % 4 == 3:  # coarse: exact duplicates and ties (the numpy path may answer)
+            src = np.round(src, 2)
+        box = (src[:, 0] > rng.uniform(-0.1, 0.3)) & (src[:, 0] < rng.uniform(0.35, 0.7))
+        true_T = rng.normal(0, 0.03, 2)
+        tgt = src[box] + true_T + rng.normal(0, 0.002, (int(box.sum()), 2))
+        if tgt.shape[0] == 0:
+            continue
+        shared = icp_module.SourceNormals()
+        seeds = [true_T + rng.normal(0, 0.005, 2) for _ in range(3)]
+        for k, T0 in enumerate(seeds):
+            have_before = int(shared.have.sum()) if k else 0
+            got = icp_translation_2d(src, tgt, T0, cfg, None, shared)
+            alone = icp_translation_2d(src, tgt, T0, cfg)
+            assert _same_result(got, alone), (case, k)
+            reused += have_before
+        other = IcpConfig(normal_neighbours=6, max_correspondence_m=0.03)
+        got = icp_translation_2d(src, tgt, seeds[0], other, None, shared)
+        assert _same_result(got, icp_translation_2d(src, tgt, seeds[0], other))
+        moved = src.copy()
+        moved[::7] += 0.004  # other points in an array the cache has seen
+        shared.arrays(moved, 6)
+        moved[::5] -= 0.003  # ... and the same array changed in place
+        got = icp_translation_2d(moved, tgt, seeds[1], other, None, shared)
+        assert _same_result(got, icp_translation_2d(moved, tgt, seeds[1], other))
+    assert reused > 0  # later calls started from normals already known
 
 
 def _scan_order_neighbours(src: np.ndarray, rank: np.ndarray, i: int, kk: int) -> list[int]:
@@ -279,13 +370,21 @@ def test_grid_neighbour_search_equals_the_x_scan_order() -> None:
         grid = kernels._grid(src, 0.01)
         reach = 0.03 * (1.0 + 1e-9) + 1e-12
         for q in src[rng.integers(0, src.shape[0], 30)] + rng.normal(0, 0.01, (30, 2)):
-            best2, bi, tie = kernels._nearest(src, grid, rank, q[0], q[1], reach, 0.03**2)
+            best2, bi, tie, second2 = kernels._nearest(src, grid, rank, q[0], q[1], reach, 0.03**2)
             d2 = (q[0] - src[:, 0]) ** 2 + (q[1] - src[:, 1]) ** 2
             near = np.abs(src - q).max(axis=1) <= reach
             if not near.any():
                 assert bi == src.shape[0] and best2 == np.inf
                 continue
             assert best2 == d2[near].min()
+            # the second-nearest of the points searched (cells around the box: at least the
+            # box's points), the kept one's twins included
+            others = np.delete(d2, bi)
+            assert (
+                others.min()
+                <= second2
+                <= np.delete(d2, bi)[np.delete(near, bi)].min(initial=np.inf)
+            )
             at = np.flatnonzero(near & (d2 == best2))
             assert bi == at[np.argmin(rank[at])]
             distinct = np.abs(src[at] - src[bi]).max(axis=1) > 1e-12
@@ -311,8 +410,9 @@ def test_compiled_icp_pairs_are_numpys_bit_for_bit() -> None:
         tgt = src[rng.integers(0, src.shape[0], n_tgt)] + 0.004
         tgt = np.ascontiguousarray(tgt + rng.normal(0, 0.001, tgt.shape))  # no exact ties
         tx, tz, _, _, keep, j, normals, status = kernels.icp_loop(
-            src, tgt, 0.004, 0.004, 20, 1e-6, 0.03, 0.1, 15, True, cfg.degenerate_ratio
-        )
+            src, tgt, 0.004, 0.004, 20, 1e-6, 0.03, 0.1, 15, True, cfg.degenerate_ratio,
+            *_fresh_normals(src),
+        )  # fmt: skip
         assert status == 0 and keep.size > 0
         pairs_t, pairs_s, residual, pair_normals, rms = kernels.icp_pairs(
             src, tgt, tx, tz, keep, j, normals

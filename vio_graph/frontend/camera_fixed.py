@@ -332,9 +332,13 @@ def surface_majority(
     as a whole (a pixel of the object whose own test was ambiguous, its warped point having
     landed on the object again, goes with its surface); in any other surface only the
     pixels of ``mask`` are. Pixels at a depth edge go with the camera-fixed surface next to
-    them (the object's rim). (H, W) bool."""
-    from scipy import ndimage
+    them (the object's rim). (H, W) bool.
 
+    With the compiled kernels the surfaces are labelled by ``compiled.label4`` and the rim
+    dilated by :func:`dilate4` (the same labels and pixels as ``scipy.ndimage``'s ``label``
+    and ``binary_dilation``, which a run on the kernels then does not import); the numpy
+    path calls scipy."""
+    kernels = compiled_kernels()
     d = np.asarray(depth_m, dtype=np.float64)
     tol = rel_tol * d + abs_tol_m
     smooth = same.copy()
@@ -348,7 +352,12 @@ def surface_majority(
             edge = jump > np.minimum(tol[:, :-1], tol[:, 1:])
             smooth[:, :-1] &= ~edge
             smooth[:, 1:] &= ~edge
-    labels, n = ndimage.label(smooth)
+    if kernels is not None:
+        labels, n = kernels.label4(smooth)
+    else:
+        from scipy import ndimage
+
+        labels, n = ndimage.label(smooth)
     size = np.bincount(labels.ravel(), minlength=n + 1)
     hits = np.bincount(labels.ravel(), weights=mask.ravel(), minlength=n + 1)
     counts = hits >= min_pixels
@@ -357,7 +366,23 @@ def surface_majority(
     out = whole[labels] | (counts[labels] & mask)
     rim = same & ~smooth
     if out.any() and rim.any():
-        out |= rim & ndimage.binary_dilation(out)
+        if kernels is not None:
+            out |= rim & dilate4(out)
+        else:
+            from scipy import ndimage
+
+            out |= rim & ndimage.binary_dilation(out)
+    return out
+
+
+def dilate4(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """A pixel or one of its 4 neighbours in ``mask``: ``scipy.ndimage.binary_dilation`` with
+    its default structure (the cross), one iteration, nothing beyond the border. (H, W)."""
+    out = mask.copy()
+    out[1:, :] |= mask[:-1, :]
+    out[:-1, :] |= mask[1:, :]
+    out[:, 1:] |= mask[:, :-1]
+    out[:, :-1] |= mask[:, 1:]
     return out
 
 

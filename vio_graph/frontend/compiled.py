@@ -180,19 +180,21 @@ def _cell_range(q, origin, cell, n_cells, reach):  # pragma: no cover - compiled
 @numba.njit(cache=True)
 def _nearest(src, grid, rank, qx, qz, window, max2):  # pragma: no cover - compiled
     """Nearest source point of (qx, qz) among those within ``window`` per axis: (squared
-    distance, index (n_src: none), tie). Squared distances as the KD-tree computes them;
-    among points at the same distance the one first in x order (``rank``), as a scan of the
-    x-sorted source would keep; ``tie`` when a distinct point (not within ``_SAME_M``) is as
-    near as the kept one and within ``max2``."""
+    distance, index (n_src: none), tie, second). Squared distances as the KD-tree computes
+    them; among points at the same distance the one first in x order (``rank``), as a scan of
+    the x-sorted source would keep; ``tie`` when a distinct point (not within ``_SAME_M``) is
+    as near as the kept one and within ``max2``; ``second`` the least squared distance of the
+    other points searched (inf if none; a point at the kept one's distance counts)."""
     x0, z0, cell, nx, nz, start, items = grid
     ns = src.shape[0]
     ilo, ihi = _cell_range(qx, x0, cell, nx, window)
     klo, khi = _cell_range(qz, z0, cell, nz, window)
     best2 = np.inf
+    second2 = np.inf
     bi = ns
     n_equal = 0
     if klo > khi:
-        return best2, bi, False
+        return best2, bi, False, second2
     for ix in range(ilo, ihi + 1):  # the cells klo..khi of a column are contiguous
         for s in range(start[ix * nz + klo], start[ix * nz + khi + 1]):
             m = items[s]
@@ -200,13 +202,17 @@ def _nearest(src, grid, rank, qx, qz, window, max2):  # pragma: no cover - compi
             dz = qz - src[m, 1]
             d2 = dx * dx + dz * dz
             if d2 < best2:
+                second2 = best2
                 best2 = d2
                 bi = m
                 n_equal = 0
             elif d2 == best2:
+                second2 = d2
                 n_equal += 1
                 if rank[m] < rank[bi]:
                     bi = m
+            elif d2 < second2:
+                second2 = d2
     tie = False
     if n_equal > 0 and best2 < max2:
         for ix in range(ilo, ihi + 1):
@@ -220,7 +226,7 @@ def _nearest(src, grid, rank, qx, qz, window, max2):  # pragma: no cover - compi
                     and not _same(src[m, 0], src[m, 1], src[bi, 0], src[bi, 1])
                 ):
                     tie = True
-    return best2, bi, tie
+    return best2, bi, tie, second2
 
 
 @numba.njit(cache=True, inline="always")
@@ -392,11 +398,27 @@ def icp_loop(
     normal_neighbours,
     point_to_line,
     degenerate_ratio,
+    normals,
+    have,
+    keep_clear_matches=True,
 ):  # pragma: no cover - compiled
     """The ICP iterations. Returns (Tx, Tz, iterations, converged, keep, j, normals, status):
     ``keep`` the kept target indices of the last iteration (in the numpy path's order), ``j``
     (Nt,) matched source index per target (n_src: none), ``normals`` (Ns, 2) source normals
-    (NaN where not computed), status 0 = fine, else a tie (``_TIE*``: run the numpy path)."""
+    (NaN where not computed), status 0 = fine, else a tie (``_TIE*``: run the numpy path).
+
+    ``normals`` (Ns, 2) and ``have`` (Ns,) bool are the source normals known so far, filled in
+    place (a normal is a function of the source points and ``normal_neighbours`` alone, so
+    another ICP on the same source with the same ``normal_neighbours`` may pass them again:
+    :class:`vio_graph.frontend.icp.SourceNormals`); fresh: NaN and False.
+
+    ``keep_clear_matches``: a target point whose last match is still clearly its nearest
+    source point is not searched again. Each search also gives a lower bound of the distance
+    of every other source point (the second-nearest searched, or the search box's half-width
+    for those not searched); when T moves by s, no other point comes more than s nearer, so
+    a match nearer than that bound less s (with margins far above rounding) is what the search
+    would return: the same point, the same squared distance (computed alike), no tie. False
+    searches every time (the tests compare the two bit for bit)."""
     ns = src.shape[0]
     nt = tgt.shape[0]
     order = np.argsort(src[:, 0], kind="mergesort")
@@ -408,17 +430,21 @@ def icp_loop(
     best_d = np.empty(kk)  # scratch of the normals' neighbour search
     best_i = np.empty(kk, np.int64)
     max2 = max_correspondence_m * max_correspondence_m
-    normals = np.full((ns, 2), np.nan)
-    have = np.zeros(ns, np.bool_)
     j = np.full(nt, ns, np.int64)
     dist = np.full(nt, np.inf)
+    # per target point: no source point but j[i] is nearer than this (m) at the T of its
+    # last search, less the moves of T since (keep_clear_matches)
+    clear = np.zeros(nt)
     keep = np.zeros(0, np.int64)
     tx, tz = t0x, t0z
+    px, pz = tx, tz  # T of the previous iteration
     converged = False
     iterations = 0
     window = max_correspondence_m * (1.0 + 1e-9) + 1e-12  # |x - x'| beyond: out of range
     for it in range(1, max_iterations + 1):
         iterations = it
+        moved = math.hypot(tx - px, tz - pz) * (1.0 + 1e-9) + 1e-12
+        px, pz = tx, tz
         # eq. 3: nearest source point of every target point moved back by T
         n_found = 0
         for i in range(nt):
@@ -428,16 +454,27 @@ def icp_loop(
             # the search (every point at least as near lies within its distance per axis)
             reach = min(_FIRST_REACH_M, window)
             m = j[i]
+            clear[i] -= moved
             if m < ns:
                 dx = qx - src[m, 0]
                 dz = qz - src[m, 1]
                 d2 = dx * dx + dz * dz
                 if d2 < max2:
-                    reach = math.sqrt(d2) * (1.0 + 1e-9) + 1e-12
-            best2, bi, tie = _nearest(src, grid, rank, qx, qz, reach, max2)
+                    d = math.sqrt(d2)
+                    if keep_clear_matches and d * (1.0 + 1e-9) + 1e-12 < clear[i]:
+                        # still clearly the nearest: what the search below would return
+                        dist[i] = d
+                        n_found += 1
+                        continue
+                    reach = d * (1.0 + 1e-9) + 1e-12
+            box = reach
+            best2, bi, tie, second2 = _nearest(src, grid, rank, qx, qz, reach, max2)
             if reach < window and not best2 * (1.0 + 1e-9) + 1e-24 < reach * reach:
                 # nothing surely this near within the reach: the whole window
-                best2, bi, tie = _nearest(src, grid, rank, qx, qz, window, max2)
+                box = window
+                best2, bi, tie, second2 = _nearest(src, grid, rank, qx, qz, window, max2)
+            # other points: the second-nearest searched, or outside the box searched
+            clear[i] = min(math.sqrt(second2), box) * (1.0 - 1e-9) - 1e-12
             if best2 < max2:
                 if tie:
                     return tx, tz, iterations, converged, keep, j, normals, _TIE
@@ -1638,3 +1675,44 @@ def camera_fixed(
         for i in range(n_fixed):
             out[tested[i] // w, tested[i] % w] = True
     return True, n_confirm, n_refute, n_changed
+
+
+@numba.njit(cache=True)
+def label4(img):  # pragma: no cover - compiled
+    """``scipy.ndimage.label`` of a 2-D bool image with its default structure (4 neighbours):
+    the components numbered 1, 2, ... in the raster order of their first pixel, as scipy
+    numbers them, 0 outside. Returns (labels (H, W) int32, number of components)."""
+    h, w = img.shape
+    labels = np.zeros((h, w), np.int32)
+    stack = np.empty(h * w, np.int64)  # every pixel is pushed once, when it is labelled
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if not img[r, c] or labels[r, c] != 0:
+                continue
+            n += 1
+            labels[r, c] = n
+            stack[0] = r * w + c
+            top = 1
+            while top > 0:
+                top -= 1
+                p = stack[top]
+                pr = p // w
+                pc = p - pr * w
+                if pr > 0 and img[pr - 1, pc] and labels[pr - 1, pc] == 0:
+                    labels[pr - 1, pc] = n
+                    stack[top] = p - w
+                    top += 1
+                if pr < h - 1 and img[pr + 1, pc] and labels[pr + 1, pc] == 0:
+                    labels[pr + 1, pc] = n
+                    stack[top] = p + w
+                    top += 1
+                if pc > 0 and img[pr, pc - 1] and labels[pr, pc - 1] == 0:
+                    labels[pr, pc - 1] = n
+                    stack[top] = p - 1
+                    top += 1
+                if pc < w - 1 and img[pr, pc + 1] and labels[pr, pc + 1] == 0:
+                    labels[pr, pc + 1] = n
+                    stack[top] = p + 1
+                    top += 1
+    return labels, n

@@ -190,12 +190,40 @@ class _NearestSource:
         return dist, j
 
 
+class SourceNormals:
+    """The compiled ICP's source normals, kept from one :func:`icp_translation_2d` call to the
+    next on the same source points (e.g. the tracker's restart check: ICP again on the same
+    source and target from another seed). A normal is the PCA of a source point's
+    ``normal_neighbours`` nearest source points, a function of the source and that count
+    alone, so a normal computed by an earlier call is the one a later call would compute, bit
+    for bit. The cache holds a copy of the source it belongs to and starts afresh when a call
+    brings other points or another neighbour count. The numpy path ignores it."""
+
+    def __init__(self) -> None:
+        self._src: NDArray[np.float64] | None = None
+        self._k = -1
+        self.normals = np.empty((0, 2))
+        self.have = np.zeros(0, dtype=bool)
+
+    def arrays(
+        self, src: NDArray[np.float64], k: int
+    ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """(normals (Ns, 2), have (Ns,)) for ``src`` (contiguous float (Ns, 2)) and ``k``
+        neighbours: the ones kept if they belong to these points and ``k``, else fresh."""
+        if self._k != k or self._src is None or not np.array_equal(self._src, src):
+            self._src, self._k = src.copy(), k
+            self.normals = np.full(src.shape, np.nan)
+            self.have = np.zeros(src.shape[0], dtype=bool)
+        return self.normals, self.have
+
+
 def icp_translation_2d(
     source_xz_m: NDArray[np.float64],
     target_xz_m: NDArray[np.float64],
     initial_translation_xz_m: NDArray[np.float64] | None = None,
     config: IcpConfig | None = None,
     source_tree: cKDTree | None = None,
+    source_normals: SourceNormals | None = None,
 ) -> IcpResult:
     """Translation T (eq. 3-4) such that ``target ~= T + source``.
 
@@ -204,6 +232,8 @@ def icp_translation_2d(
         target_xz_m: (Nt, 2) target points P_t, metres.
         initial_translation_xz_m: (2,) T0 (default zero), metres.
         source_tree: optional prebuilt KD-tree of ``source_xz_m`` (numpy path only).
+        source_normals: optional :class:`SourceNormals` shared by calls on the same source
+            (compiled path only): normals an earlier call computed are not computed again.
 
     Returns:
         IcpResult. ``n_correspondences`` is 0 (and ``rms_m`` inf) when no pair is within
@@ -219,6 +249,10 @@ def icp_translation_2d(
             source_xz_m, target_xz_m, initial_translation_xz_m, config, source_tree
         )
     cfg, src, tgt, T0 = _icp_inputs(source_xz_m, target_xz_m, initial_translation_xz_m, config)
+    if source_normals is None:
+        normals0, have0 = np.full(src.shape, np.nan), np.zeros(src.shape[0], dtype=bool)
+    else:
+        normals0, have0 = source_normals.arrays(src, cfg.normal_neighbours)
     tx, tz, iterations, converged, keep, j, normals, status = kernels.icp_loop(
         src,
         tgt,
@@ -231,6 +265,8 @@ def icp_translation_2d(
         cfg.normal_neighbours,
         cfg.metric != "point_to_point",
         cfg.degenerate_ratio,
+        normals0,
+        have0,
     )
     if status != 0:  # an exact tie: let the KD-tree decide, as the numpy path does
         return icp_translation_2d_reference(src, tgt, T0, cfg, source_tree)

@@ -69,7 +69,12 @@ from numpy.typing import NDArray
 
 from vio_graph.frontend.config import IcpConfig, TrackerConfig
 from vio_graph.frontend.corners import CornerFeature
-from vio_graph.frontend.icp import IcpResult, compiled_kernels, icp_translation_2d
+from vio_graph.frontend.icp import (
+    IcpResult,
+    SourceNormals,
+    compiled_kernels,
+    icp_translation_2d,
+)
 from vio_graph.frontend.smoothing import grid_thin
 from vio_graph.geometry import rot_y_xz
 from vio_graph.types import CornerObservation, Displacement2D
@@ -413,7 +418,8 @@ class CornerTracker:
         if seen is not None and int(seen.sum()) >= cfg.min_correspondences:
             target = target[seen]
         src, tree = self._source(prev, target, T0)
-        icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree)
+        normals = SourceNormals()  # the restart check's ICP reuses the source normals
+        icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree, normals)
         bad = self._quality_problem(icp)
         P = self._prediction_cov(pred_cov)
         d2, gate = self._gate(icp.translation_xz_m, icp.cov_m2, P=P, pred=pred)
@@ -424,7 +430,7 @@ class CornerTracker:
         if _is_straight(icp, cfg.fallback_straight_ratio):  # nothing fixes the slide along it
             T, C = _drop_weakest(T, C, T0, self._fallback_icp_cfg.max_variance_m2)
         elif cfg.fallback_restart_check:
-            C = self._restart_check(src, target, T0, P, tree, icp)
+            C = self._restart_check(src, target, T0, P, tree, icp, normals)
         disp = Displacement2D(prev.timestamp_s, t, -T, C)
         return TrackerOutput(disp, None, icp, None, None, False, d2)
 
@@ -436,6 +442,7 @@ class CornerTracker:
         P: NDArray[np.float64],
         tree: cKDTree | None,
         icp: IcpResult,
+        normals: SourceNormals | None = None,
     ) -> NDArray[np.float64]:
         """Does the profile determine the answer, or the seed? ICP again from the seed moved by
         two prediction sigmas (at most half the correspondence distance) along the direction
@@ -452,7 +459,8 @@ class CornerTracker:
         # distance can leave a well-measured riser's basin, which would look like ambiguity
         reach = 0.5 * self._fallback_icp_cfg.max_correspondence_m
         shift = min(2.0 * float(np.sqrt(max(float(u @ P @ u), 0.0))), reach)
-        icp2 = icp_translation_2d(src, target, T0 + shift * u, self._fallback_icp_cfg, tree)
+        seed = T0 + shift * u
+        icp2 = icp_translation_2d(src, target, seed, self._fallback_icp_cfg, tree, normals)
         d = icp2.translation_xz_m - icp.translation_xz_m
         if _mahalanobis2(d, C, 0.0) > self._cfg.corner_inflate_chi2:
             C = C + np.outer(d, d)

@@ -50,7 +50,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from vio_graph.config import PipelineConfig, load_config
 from vio_graph.estimator import OnlineEstimator, RigGeometry
-from vio_graph.frontend.level import measure_surface_tilt
+from vio_graph.frontend.level import SurfaceTilt
 from vio_graph.geometry import remove_yaw
 from vio_graph.recording.reader import Recording
 from vio_graph.replay import replay_order
@@ -87,6 +87,7 @@ class TiltProbe(OnlineEstimator):
         self._oracle = oracle
         self._oracle_rng = np.random.default_rng(seed)
         self.tilts: list[tuple[float, float, float, float, int]] = []
+        self._true_tilt = 0.0  # the current frame's true tilt (rad), set before fusing it
         # (t0, t1, x of the IMU prediction seeding ICP) of every front-end call with one
         self.seeds: dict[float, tuple[float, float]] = {}
         process = self.frontend.process
@@ -100,33 +101,20 @@ class TiltProbe(OnlineEstimator):
 
     def _level_aiding(self, t: float, profile_xz_m: NDArray[np.float64]) -> float:
         # the attitude this frame's slice was rotated with (the offset is unchanged since)
-        true = residual_tilt_rad(self.R_world_imu(t), self._truth(t))
-        if self._oracle is None:
-            step = super()._level_aiding(t, profile_xz_m)
-        else:  # OnlineEstimator._level_aiding with the fused tilt replaced
-            cfg = self.config.filter.level_aiding
-            self.pitch_offset.predict(t)
-            self.surface_tilt = measure_surface_tilt(
-                profile_xz_m,
-                self._level_rng,
-                np.radians(cfg.max_tilt_deg),
-                cfg.inlier_m,
-                cfg.min_points,
-                cfg.min_extent_m,
-                cfg.max_lines,
-                cfg.correlated_points,
-                cfg.end_trim_m,
-            )
-            step = 0.0
-            if self.surface_tilt is not None:
-                scale, bias_rad = self._oracle
-                st = self.surface_tilt
-                tilt = true + bias_rad + scale * st.sigma_rad * self._oracle_rng.standard_normal()
-                step = self.pitch_offset.update(tilt, st.sigma_rad)
+        self._true_tilt = residual_tilt_rad(self.R_world_imu(t), self._truth(t))
+        step = super()._level_aiding(t, profile_xz_m)
         st = self.surface_tilt
         if st is not None:
-            self.tilts.append((t, st.tilt_rad, st.sigma_rad, true, st.n_lines))
+            self.tilts.append((t, st.tilt_rad, st.sigma_rad, self._true_tilt, st.n_lines))
         return step
+
+    def _tilt_to_fuse(self, t: float, tilt: SurfaceTilt) -> tuple[float, float]:
+        if self._oracle is None:
+            return super()._tilt_to_fuse(t, tilt)
+        # the fused tilt replaced: the truth with the given bias and noise scale
+        scale, bias_rad = self._oracle
+        noise = scale * tilt.sigma_rad * self._oracle_rng.standard_normal()
+        return self._true_tilt + bias_rad + noise, tilt.sigma_rad
 
 
 def _ate_cm(t: NDArray, est_xz: NDArray, traj) -> tuple[float, float]:

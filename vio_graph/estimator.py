@@ -1482,7 +1482,12 @@ class OnlineEstimator:
         )
         if self.surface_tilt is None:
             return 0.0
-        return self.pitch_offset.update(self.surface_tilt.tilt_rad, self.surface_tilt.sigma_rad)
+        return self.pitch_offset.update(*self._tilt_to_fuse(t, self.surface_tilt))
+
+    def _tilt_to_fuse(self, t: float, tilt: SurfaceTilt) -> tuple[float, float]:
+        """The tilt (rad) and its sigma (rad) the pitch offset fuses for the surface tilt
+        measured at ``t``: the measurement itself (a seam for diagnostics that replace it)."""
+        return tilt.tilt_rad, tilt.sigma_rad
 
     def _fuse_landmarks(
         self, t: float, result: FrontendResult, R_world_imu: NDArray[np.float64]

@@ -59,8 +59,8 @@ _CORNER_CFG: list[Any] = [None]
 _icp = tracker_module.icp_translation_2d
 
 
-def _noting_icp(src, tgt, T0=None, cfg=None, tree=None):
-    res = _icp(src, tgt, T0, cfg, tree)
+def _noting_icp(src, tgt, T0=None, cfg=None, *args, **kwargs):
+    res = _icp(src, tgt, T0, cfg, *args, **kwargs)
     _ICP_KIND[id(res)] = cfg is _CORNER_CFG[0]
     return res
 

@@ -15,7 +15,9 @@ really has: the pitch error of the attitude the slice was rotated with, from
   times) against the x error of the IMU prediction that seeded the ICP (``pred_delta``, the
   same two times): the least-squares slope of the one on the other over the displacements
   whose x sigma is below 5 cm (0 = the displacement is independent of the seed, as the filter
-  assumes; 1 = it repeats the seed's error), and the displacements' summed x error against
+  assumes; 1 = it repeats the seed's error; a correlation, not a sensitivity: the mocap
+  noise of the reference motion enters both errors, and ``benchmarks/eval_icp_seed.py``
+  measures the sensitivity), and the displacements' summed x error against
   the summed true x motion (a scale error, %);
 - the filter's camera and toe ATE (cm, x / z, anchored at the first frame as in
   ``metrics.json``).

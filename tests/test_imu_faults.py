@@ -730,3 +730,34 @@ def test_clipped_stretch_keeps_the_prior_sigma_when_the_learnt_scale_is_small() 
     assert 3 * sd * H <= clipped <= np.hypot(before, np.sqrt(2) * 3 * sd * H)
     assert abs(v_err) < 0.01
     assert abs(p_err) < 0.02
+
+
+def test_smoothers_distrust_only_the_interpolated_axes_of_a_held_packet() -> None:
+    """A level, still IMU (z up) whose packet k had a 30 m/s^2 spike on y: the neighbours'
+    interpolation replaces y, x and z keep their measurement. With held_axis_distrust the
+    interpolation's extra variance (interpolated_accel_sigma_mps2, 5 m/s^2 over one 10 ms
+    step: (0.05 m/s)^2 of velocity) goes on y only; without it on all three axes."""
+    n, k = 25, 10
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    truth = [ImuSample(i * H, np.array([0.0, 0.0, GRAVITY_MPS2]), np.zeros(3), q) for i in range(n)]
+    spiked = truth[k].accel_mps2 + [0.0, 30.0, 0.0]
+    held = ImuSample(
+        k * H, truth[k - 1].accel_mps2, np.zeros(3), q,
+        accel_extra_sigma_mps2=ImuFaultConfig().held_accel_sigma_mps2, accel_held=True,
+        measured_accel_mps2=spiked, measured_gyro_radps=np.zeros(3),
+    )  # fmt: skip
+    faulty = [*truth[:k], held, *truth[k + 1 :]]
+    on = SmootherConfig()
+    off = on.model_copy(update={"held_axis_distrust": False})
+    dv_true, cov_true, _ = _imu_factor_delta_v(truth, on)
+    dv_on, cov_on, _ = _imu_factor_delta_v(faulty, on)
+    dv_off, cov_off, _ = _imu_factor_delta_v(faulty, off)
+    # the sample is recovered either way (constant force): only the covariance differs
+    np.testing.assert_allclose(dv_on, dv_true, atol=1e-12)
+    np.testing.assert_allclose(dv_off, dv_true, atol=1e-12)
+    extra = (on.interpolated_accel_sigma_mps2 * H) ** 2  # (m/s)^2 of one distrusted step
+    d_on = np.diag(cov_on - cov_true)
+    d_off = np.diag(cov_off - cov_true)
+    np.testing.assert_allclose(d_on[[0, 2]], 0.0, atol=1e-3 * extra)
+    assert d_on[1] > 0.5 * extra
+    np.testing.assert_allclose(d_off, d_on[1], rtol=1e-6)

@@ -456,7 +456,9 @@ def test_saturation_evidence_nothing_measured_is_dropped() -> None:
     assert learner.scales_mps2[1:] == pytest.approx([20.0, 20.0])
 
 
-def _estimator_after(samples: list[ImuSample], repair: bool, per_axis: bool = True):
+def _estimator_after(
+    samples: list[ImuSample], repair: bool, per_axis: bool = True, axis_distrust: bool = False
+):
     """An online estimator (filter started at the first IMU sample, no frames) fed
     ``samples``: its filter velocity (m/s) and tracked attitude at the last sample."""
     from tests.conftest import tiny_metadata
@@ -470,6 +472,7 @@ def _estimator_after(samples: list[ImuSample], repair: bool, per_axis: bool = Tr
                 "imu_faults": {
                     "repair_from_next_sample": repair,
                     "keep_consistent_axes": per_axis,
+                    "repaired_axis_distrust": axis_distrust,
                 },
             }
         }
@@ -761,3 +764,21 @@ def test_smoothers_distrust_only_the_interpolated_axes_of_a_held_packet() -> Non
     np.testing.assert_allclose(d_on[[0, 2]], 0.0, atol=1e-3 * extra)
     assert d_on[1] > 0.5 * extra
     np.testing.assert_allclose(d_off, d_on[1], rtol=1e-6)
+
+
+def test_filter_distrusts_only_the_interpolated_axes_of_a_repaired_packet() -> None:
+    """The heel strike with a spike on the accelerometer's y and the gyro's x: the repair
+    interpolates y and keeps the measured x and z. With repaired_axis_distrust the
+    interpolation's extra variance (5 m/s^2 over one 10 ms step, (0.05 m/s)^2) goes on y,
+    which the sagittal filter does not carry, so its x-z velocity covariance is the clean
+    stream's; without it both x and z gain about that variance."""
+    n, k = 40, 30
+    truth, spiked = _heel_strike_with_one_axis_spike(n, k)
+    _, _, est_true, _ = _estimator_after(truth, repair=True, axis_distrust=True)
+    _, _, est_on, _ = _estimator_after(spiked, repair=True, axis_distrust=True)
+    _, _, est_off, _ = _estimator_after(spiked, repair=True)
+    assert est_on.imu_repair.n_repaired == 1 and est_on.imu_repair.n_axes_kept == 4
+    P_true, P_on, P_off = (e.filter._P[2:4, 2:4] for e in (est_true, est_on, est_off))
+    np.testing.assert_allclose(P_on, P_true, rtol=1e-9, atol=1e-15)
+    extra = (ImuFaultConfig().interpolated_accel_sigma_mps2 / RATE_HZ) ** 2
+    assert np.trace(P_off - P_true) > 0.5 * extra

@@ -456,7 +456,9 @@ def test_saturation_evidence_nothing_measured_is_dropped() -> None:
     assert learner.scales_mps2[1:] == pytest.approx([20.0, 20.0])
 
 
-def _estimator_after(samples: list[ImuSample], repair: bool, per_axis: bool = True):
+def _estimator_after(
+    samples: list[ImuSample], repair: bool, per_axis: bool = True, axis_distrust: bool = False
+):
     """An online estimator (filter started at the first IMU sample, no frames) fed
     ``samples``: its filter velocity (m/s) and tracked attitude at the last sample."""
     from tests.conftest import tiny_metadata
@@ -470,6 +472,7 @@ def _estimator_after(samples: list[ImuSample], repair: bool, per_axis: bool = Tr
                 "imu_faults": {
                     "repair_from_next_sample": repair,
                     "keep_consistent_axes": per_axis,
+                    "repaired_axis_distrust": axis_distrust,
                 },
             }
         }
@@ -730,3 +733,52 @@ def test_clipped_stretch_keeps_the_prior_sigma_when_the_learnt_scale_is_small() 
     assert 3 * sd * H <= clipped <= np.hypot(before, np.sqrt(2) * 3 * sd * H)
     assert abs(v_err) < 0.01
     assert abs(p_err) < 0.02
+
+
+def test_smoothers_distrust_only_the_interpolated_axes_of_a_held_packet() -> None:
+    """A level, still IMU (z up) whose packet k had a 30 m/s^2 spike on y: the neighbours'
+    interpolation replaces y, x and z keep their measurement. With held_axis_distrust the
+    interpolation's extra variance (interpolated_accel_sigma_mps2, 5 m/s^2 over one 10 ms
+    step: (0.05 m/s)^2 of velocity) goes on y only; without it on all three axes."""
+    n, k = 25, 10
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    truth = [ImuSample(i * H, np.array([0.0, 0.0, GRAVITY_MPS2]), np.zeros(3), q) for i in range(n)]
+    spiked = truth[k].accel_mps2 + [0.0, 30.0, 0.0]
+    held = ImuSample(
+        k * H, truth[k - 1].accel_mps2, np.zeros(3), q,
+        accel_extra_sigma_mps2=ImuFaultConfig().held_accel_sigma_mps2, accel_held=True,
+        measured_accel_mps2=spiked, measured_gyro_radps=np.zeros(3),
+    )  # fmt: skip
+    faulty = [*truth[:k], held, *truth[k + 1 :]]
+    on = SmootherConfig()
+    off = on.model_copy(update={"held_axis_distrust": False})
+    dv_true, cov_true, _ = _imu_factor_delta_v(truth, on)
+    dv_on, cov_on, _ = _imu_factor_delta_v(faulty, on)
+    dv_off, cov_off, _ = _imu_factor_delta_v(faulty, off)
+    # the sample is recovered either way (constant force): only the covariance differs
+    np.testing.assert_allclose(dv_on, dv_true, atol=1e-12)
+    np.testing.assert_allclose(dv_off, dv_true, atol=1e-12)
+    extra = (on.interpolated_accel_sigma_mps2 * H) ** 2  # (m/s)^2 of one distrusted step
+    d_on = np.diag(cov_on - cov_true)
+    d_off = np.diag(cov_off - cov_true)
+    np.testing.assert_allclose(d_on[[0, 2]], 0.0, atol=1e-3 * extra)
+    assert d_on[1] > 0.5 * extra
+    np.testing.assert_allclose(d_off, d_on[1], rtol=1e-6)
+
+
+def test_filter_distrusts_only_the_interpolated_axes_of_a_repaired_packet() -> None:
+    """The heel strike with a spike on the accelerometer's y and the gyro's x: the repair
+    interpolates y and keeps the measured x and z. With repaired_axis_distrust the
+    interpolation's extra variance (5 m/s^2 over one 10 ms step, (0.05 m/s)^2) goes on y,
+    which the sagittal filter does not carry, so its x-z velocity covariance is the clean
+    stream's; without it both x and z gain about that variance."""
+    n, k = 40, 30
+    truth, spiked = _heel_strike_with_one_axis_spike(n, k)
+    _, _, est_true, _ = _estimator_after(truth, repair=True, axis_distrust=True)
+    _, _, est_on, _ = _estimator_after(spiked, repair=True, axis_distrust=True)
+    _, _, est_off, _ = _estimator_after(spiked, repair=True)
+    assert est_on.imu_repair.n_repaired == 1 and est_on.imu_repair.n_axes_kept == 4
+    P_true, P_on, P_off = (e.filter._P[2:4, 2:4] for e in (est_true, est_on, est_off))
+    np.testing.assert_allclose(P_on, P_true, rtol=1e-9, atol=1e-15)
+    extra = (ImuFaultConfig().interpolated_accel_sigma_mps2 / RATE_HZ) ** 2
+    assert np.trace(P_off - P_true) > 0.5 * extra

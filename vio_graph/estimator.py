@@ -558,6 +558,7 @@ class OnlineEstimator:
                 fi.interpolated_accel_sigma_mps2,
                 fi.gyro_ahrs_sigma_radps if per_axis else None,
                 fi.consistent_axis_probability if per_axis else None,
+                fi.repaired_axis_distrust,
             )
             if fi.enabled and fi.repair_from_next_sample
             else None

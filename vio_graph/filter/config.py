@@ -311,6 +311,17 @@ class ImuFaultConfig(BaseModel):
         "axes that disagree are interpolated (filter/imu_repair.py keep_consistent_axes). "
         "False = the whole packet is interpolated",
     )
+    repaired_axis_distrust: bool = Field(
+        default=False,
+        description="with keep_consistent_axes: the interpolated packet's extra accelerometer "
+        "variance (interpolated_accel_sigma_mps2) on its interpolated axes only "
+        "(ImuSample.accel_extra_cov_m2ps4, as smoother.held_axis_distrust does); the kept "
+        "axes are measurements. Off by default: 2 Hz spikes seeds 1-3 filter toe x obstacle "
+        "1.76 -> 1.13 cm, downstair 1.27 -> 0.85, but upstair 0.48 -> 0.98 (seed 2: its "
+        "3.76 s spike alone in the clean recording, 0.68 -> 2.73 cm; not traced to a "
+        "mechanism) and smoother x downstair 0.55 -> 0.73 cm (docs/robustness.md, IMU "
+        "spikes: the interpolated axes only)",
+    )
     consistent_axis_probability: float = Field(
         default=0.999,
         gt=0,

@@ -314,7 +314,10 @@ class SagittalEskf:
         sample's axes; its x-z block here): the sample without its isotropic extra sigma and
         (that 2x2 block, its pitch). Otherwise the sample as it is and None."""
         xc = imu.accel_extra_cov_m2ps4
-        if xc is None or not self.config.imu_faults.saturation_axis_distrust:
+        fi = self.config.imu_faults
+        if xc is None or not (
+            fi.saturation_axis_distrust or (imu.accel_held and fi.repaired_axis_distrust)
+        ):
             return imu, None
         c = np.asarray(xc, dtype=float)[np.ix_([0, 2], [0, 2])]
         pitch = sagittal_pitch(imu.quat_wxyz)

@@ -71,12 +71,16 @@ class NextSampleRepair:
         interpolated_accel_sigma_mps2: float,
         gyro_sigma_radps: float | None = None,
         axis_probability: float | None = None,
+        axis_distrust: bool = False,
     ) -> None:
         self.accel_sigma_mps2 = float(interpolated_accel_sigma_mps2)
         #: per-axis test of the packet's measurement against the interpolation
         #: (:func:`keep_consistent_axes`); None = the whole packet interpolated
         self.gyro_sigma_radps = gyro_sigma_radps
         self.axis_probability = axis_probability
+        #: with the per-axis test: the extra accelerometer variance on the interpolated axes
+        #: only (``ImuSample.accel_extra_cov_m2ps4``), the kept axes being measurements
+        self.axis_distrust = axis_distrust
         self.n_axes_kept = 0  #: axes (accelerometer and gyro) of repaired packets left measured
         self._prev: ImuSample | None = None  # the latest released sample, if measured
         self._pending: ImuSample | None = None  # a repaired packet waiting for its successor
@@ -124,11 +128,18 @@ class NextSampleRepair:
             after.gyro_radps, float
         )
         p, sg = self.axis_probability, self.gyro_sigma_radps
+        cov = held.accel_extra_cov_m2ps4
         if p is not None and sg is not None and held.measured_accel_mps2 is not None:
             ma, mg = held.measured_accel_mps2, held.measured_gyro_radps
             acc = keep_consistent_axes(ma, acc, self.accel_sigma_mps2, p)
             gyr = keep_consistent_axes(mg, gyr, sg, p)
             self.n_axes_kept += int(np.sum(acc == ma) + np.sum(gyr == mg))
+            if self.axis_distrust and cov is None:
+                cov = np.diag(np.where(acc == ma, 0.0, self.accel_sigma_mps2**2))
         return dataclasses.replace(
-            held, accel_mps2=acc, gyro_radps=gyr, accel_extra_sigma_mps2=self.accel_sigma_mps2
+            held,
+            accel_mps2=acc,
+            gyro_radps=gyr,
+            accel_extra_sigma_mps2=self.accel_sigma_mps2,
+            accel_extra_cov_m2ps4=cov,
         )

@@ -193,6 +193,14 @@ class SmootherConfig(BaseModel):
         "interpolation (accelerometer) or the monitor's stand-in (gyro, unless "
         "held_gyro_interpolation); filter.imu_faults.keep_consistent_axes is the filter's",
     )
+    held_axis_distrust: bool = Field(
+        default=True,
+        description="with held_keep_consistent_axes: the interpolated sample's extra "
+        "accelerometer variance (interpolated_accel_sigma_mps2) on the axes that were "
+        "interpolated only (ImuSample-style per-axis covariance, as saturation_axis_distrust "
+        "for clipped axes); the kept axes are measurements. False: on every axis "
+        "(docs/robustness.md, IMU spikes: the interpolated axes only)",
+    )
     held_axis_probability: float = Field(
         default=0.999, gt=0, lt=1, description="probability of that per-axis test"
     )

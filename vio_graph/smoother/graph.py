@@ -1052,14 +1052,18 @@ class KeyframeGraphBuilder:
                 self._imu_g[m] = g_interp
                 sig_g = cfg.interpolated_gyro_sigma_radps
             measured = self._imu_m[m]
+            cov = None
             if cfg.held_keep_consistent_axes and measured is not None:
                 # axes whose measurement agrees with the neighbours keep it (one-axis spike)
                 p, sg = cfg.held_axis_probability, cfg.interpolated_gyro_sigma_radps
                 self._imu_a[m] = keep_consistent_axes(measured[0], self._imu_a[m], sig, p)
                 ok = keep_consistent_axes(measured[1], g_interp, sg, p) == measured[1]
                 self._imu_g[m] = np.where(ok, measured[1], self._imu_g[m])
+                if cfg.held_axis_distrust:
+                    # the kept axes are measurements: the extra variance on the others only
+                    cov = np.diag(np.where(self._imu_a[m] == measured[0], 0.0, sig * sig))
             self._imu_x[m] = (sig, sig_g)
-            self._imu_c[m] = None
+            self._imu_c[m] = cov
             self._imu_h[m] = False
 
     def _trim_imu(self, t: float) -> None:

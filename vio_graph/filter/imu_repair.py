@@ -50,6 +50,15 @@ def keep_consistent_axes(
     return np.where(ok, m, s)
 
 
+def interpolated_axes_cov(
+    kept: ArrayLike, measured: ArrayLike, variance: float
+) -> NDArray[np.float64]:
+    """The extra covariance (3x3, diagonal, ``variance``'s unit) of a repaired packet whose
+    axes :func:`keep_consistent_axes` settled: ``variance`` on the axes it interpolated, 0 on
+    the ones it kept as measured (they are measurements)."""
+    return np.diag(np.where(np.asarray(kept) == np.asarray(measured), 0.0, variance))
+
+
 def _measured(sample: ImuSample) -> bool:
     """True if the fault monitor left the sample as measured (no extra sigma, not held)."""
     return (
@@ -135,7 +144,7 @@ class NextSampleRepair:
             gyr = keep_consistent_axes(mg, gyr, sg, p)
             self.n_axes_kept += int(np.sum(acc == ma) + np.sum(gyr == mg))
             if self.axis_distrust and cov is None:
-                cov = np.diag(np.where(acc == ma, 0.0, self.accel_sigma_mps2**2))
+                cov = interpolated_axes_cov(acc, ma, self.accel_sigma_mps2**2)
         return dataclasses.replace(
             held,
             accel_mps2=acc,

@@ -74,7 +74,7 @@ from numpy.typing import ArrayLike, NDArray
 from vio_graph.errors import EstimationError
 from vio_graph.filter.fast_imu import as_f64
 from vio_graph.filter.gating import chi2_quantile
-from vio_graph.filter.imu_repair import keep_consistent_axes
+from vio_graph.filter.imu_repair import interpolated_axes_cov, keep_consistent_axes
 from vio_graph.geometry import cross3, matrix_from_quat_wxyz, remove_yaw, skew
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.imu_sampling import (
@@ -1061,7 +1061,7 @@ class KeyframeGraphBuilder:
                 self._imu_g[m] = np.where(ok, measured[1], self._imu_g[m])
                 if cfg.held_axis_distrust:
                     # the kept axes are measurements: the extra variance on the others only
-                    cov = np.diag(np.where(self._imu_a[m] == measured[0], 0.0, sig * sig))
+                    cov = interpolated_axes_cov(self._imu_a[m], measured[0], sig * sig)
             self._imu_x[m] = (sig, sig_g)
             self._imu_c[m] = cov
             self._imu_h[m] = False

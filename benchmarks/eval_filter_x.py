@@ -55,7 +55,7 @@ from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.frontend.level import SurfaceTilt
 from vio_graph.geometry import remove_yaw
 from vio_graph.recording.reader import Recording
-from vio_graph.replay import replay_order
+from vio_graph.replay import frames_due
 
 
 def residual_tilt_rad(R_est_world_imu: NDArray, R_true_world_imu: NDArray) -> float:
@@ -153,21 +153,13 @@ def evaluate(
 
     transform = true_x if oracle_displacement_x else None
     disp = []
-    kinds, idx = replay_order(rec)
-    for kind, i in zip(kinds, idx, strict=True):
-        if kind == 0:
-            est.add_imu(rec.imu.sample(int(i)))
-        elif kind == 1:
-            est.add_joints(rec.joints.sample(int(i)))
-        elif est.initialised:
-            e, res = est.add_frame(rec.frame(int(i)), None, transform)
-            rows.append((e.timestamp_s, *e.camera_xz_m, *e.toe_xz_m))
-            d, seed = res.displacement, est.seeds.get(e.timestamp_s)
-            if d is not None and seed is not None and abs(seed[0] - d.t0_s) < 1e-9:
-                x0, x1 = np.interp([d.t0_s, d.t1_s], cam.timestamp_s, cam.position_m[:, 0])
-                disp.append(
-                    (d.delta_xz_m[0] - (x1 - x0), seed[1] - (x1 - x0), x1 - x0, d.cov_m2[0, 0])
-                )
+    for i in frames_due(rec, est):
+        e, res = est.add_frame(rec.frame(i), None, transform)
+        rows.append((e.timestamp_s, *e.camera_xz_m, *e.toe_xz_m))
+        d, seed = res.displacement, est.seeds.get(e.timestamp_s)
+        if d is not None and seed is not None and abs(seed[0] - d.t0_s) < 1e-9:
+            x0, x1 = np.interp([d.t0_s, d.t1_s], cam.timestamp_s, cam.position_m[:, 0])
+            disp.append((d.delta_xz_m[0] - (x1 - x0), seed[1] - (x1 - x0), x1 - x0, d.cov_m2[0, 0]))
     r = np.array(rows)
     T = np.array(est.tilts)
     floor = math.radians(config.filter.level_aiding.measurement_floor_deg)

@@ -43,7 +43,7 @@ from vio_graph.config import PipelineConfig, load_config
 from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.geometry import remove_yaw
 from vio_graph.recording.reader import Recording
-from vio_graph.replay import replay_order
+from vio_graph.replay import frames_due
 
 SPEED_BINS_MPS = (0.0, 0.25, 0.5, 1.0, 1.5, 2.0, 3.0, np.inf)
 
@@ -80,32 +80,26 @@ def replay(rec: Recording, config: PipelineConfig, attitude: str) -> dict[str, A
     est = OnlineEstimator(config, rig, p0)
     gt_att = _gt_attitude(rec, rig) if attitude == "gt" else None
     rows: list[dict[str, Any]] = []
-    kinds, idx = replay_order(rec)
-    for kind, i in zip(kinds, idx, strict=True):
-        if kind == 0:
-            est.add_imu(rec.imu.sample(int(i)))
-        elif kind == 1:
-            est.add_joints(rec.joints.sample(int(i)))
-        elif est.initialised:
-            frame = rec.frame(int(i))
-            override = None if gt_att is None else gt_att(frame.timestamp_s)
-            e, res = est.add_frame(frame, override)
-            row: dict[str, Any] = {
-                "t": frame.timestamp_s,
-                "frame": int(i),
-                "terrain": res.terrain.value,
-                "reason": res.rejection_reason or "",
-                "ms": res.timings_ms.get("total", np.nan),
-                "est_xz": e.camera_xz_m,
-                "disp": None,
-            }
-            d = res.displacement
-            if d is not None:
-                true = _interp_xz(cam.timestamp_s, cam.position_m, d.t1_s) - _interp_xz(
-                    cam.timestamp_s, cam.position_m, d.t0_s
-                )
-                row["disp"] = (d.t0_s, d.t1_s, np.asarray(d.delta_xz_m), np.asarray(d.cov_m2), true)
-            rows.append(row)
+    for i in frames_due(rec, est):
+        frame = rec.frame(i)
+        override = None if gt_att is None else gt_att(frame.timestamp_s)
+        e, res = est.add_frame(frame, override)
+        row: dict[str, Any] = {
+            "t": frame.timestamp_s,
+            "frame": i,
+            "terrain": res.terrain.value,
+            "reason": res.rejection_reason or "",
+            "ms": res.timings_ms.get("total", np.nan),
+            "est_xz": e.camera_xz_m,
+            "disp": None,
+        }
+        d = res.displacement
+        if d is not None:
+            true = _interp_xz(cam.timestamp_s, cam.position_m, d.t1_s) - _interp_xz(
+                cam.timestamp_s, cam.position_m, d.t0_s
+            )
+            row["disp"] = (d.t0_s, d.t1_s, np.asarray(d.delta_xz_m), np.asarray(d.cov_m2), true)
+        rows.append(row)
     fs = est.filter.state
     return {
         "rows": rows,

@@ -47,7 +47,7 @@ from vio_graph.config import load_config
 from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.frontend.tracker import CornerTracker
 from vio_graph.recording.reader import Recording
-from vio_graph.replay import replay_order
+from vio_graph.replay import frames_due
 
 _STANCE_MPS = 0.15
 _X_INFORMATIVE_M2 = 0.05**2
@@ -114,14 +114,8 @@ def _replay(path: Path, config, deltas_m: list[float]) -> list[dict[str, Any]]:
         return out
 
     tracker.update = probed_update  # this instance only
-    kinds, idx = replay_order(rec)
-    for kind, i in zip(kinds, idx, strict=True):
-        if kind == 0:
-            est.add_imu(rec.imu.sample(int(i)))
-        elif kind == 1:
-            est.add_joints(rec.joints.sample(int(i)))
-        elif est.initialised:
-            est.add_frame(rec.frame(int(i)))
+    for i in frames_due(rec, est):
+        est.add_frame(rec.frame(i))
     return rows
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -156,6 +156,25 @@ def replay_order(rec: Recording) -> tuple[NDArray[np.int8], NDArray[np.int64]]:
     priority = np.array([0, 1, 3, 2], np.int8)[kinds]  # contact before the frame
     order = np.lexsort((priority, np.concatenate(times)))
     return kinds[order], idx[order]
+
+
+def frames_due(rec: Recording, online: OnlineEstimator) -> Iterator[int]:
+    """Feed ``online`` the IMU, joint and contact samples of ``rec`` in time order
+    (:func:`replay_order`) and yield the index of each depth frame as it falls due, once the
+    estimator is initialised; the caller processes it (``online.add_frame``). The plain loop
+    of the diagnostic benchmarks: no camera-IMU offset and no frame held for a repaired IMU
+    packet (:class:`Replay` does both)."""
+    kinds, idx = replay_order(rec)
+    for kind, i in zip(kinds.tolist(), idx.tolist(), strict=True):
+        if kind == 0:
+            online.add_imu(rec.imu.sample(i))
+        elif kind == 1:
+            online.add_joints(rec.joints.sample(i))
+        elif kind == 3:
+            assert rec.contact is not None
+            online.add_contact(rec.contact.sample(i))
+        elif online.initialised:
+            yield i
 
 
 def sensor_data_bound(rec: Recording, kinds: NDArray[np.int8], idx: NDArray[np.int64]):

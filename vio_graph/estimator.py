@@ -55,8 +55,10 @@ import dataclasses
 import math
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -126,6 +128,8 @@ from vio_graph.types import (
 
 #: what the front end's tracker says when ICP disagrees with the IMU prediction
 _PREDICTION_REFUSAL = "disagrees with the IMU prediction"
+
+_T = TypeVar("_T")
 
 
 def reference_pitch_offset_quat(
@@ -1089,9 +1093,9 @@ class OnlineEstimator:
             d2 = self._test_frame_stamps(t, result.displacement)
             n_refused = self.filter.n_gate_refusals
             self._arbitrate_imu(result.displacement, d2)
-            self._note_innovations(t, "other")
-            accepted = self.filter.update_displacement(result.displacement)
-            self._note_innovations(t, "displacement")
+            accepted = self._as_family(
+                t, "displacement", self.filter.update_displacement, result.displacement
+            )
             refused = self.filter.n_gate_refusals > n_refused
             self._recover_if_locked_out(refused)
         else:
@@ -1291,16 +1295,25 @@ class OnlineEstimator:
         obs = bridge.observation(self._joint_hist, v, filt.velocity_corrections_mps)
         if obs is not None:
             before = (v, filt.velocity_corrections_mps.copy())
-            self._note_innovations(t, "other")
             if fi.saturation_bridge_relative and filt.has_velocity_clone:
-                fused = filt.update_velocity_change(
-                    obs.change_xz_mps, obs.change_cov, fi.saturation_bridge_gate
+                fused = self._as_family(
+                    t,
+                    "bridge",
+                    filt.update_velocity_change,
+                    obs.change_xz_mps,
+                    obs.change_cov,
+                    fi.saturation_bridge_gate,
                 )
             else:
-                fused = filt.update_velocity(
-                    obs.velocity_xz_mps, obs.cov, obs.timestamp_s, fi.saturation_bridge_gate
+                fused = self._as_family(
+                    t,
+                    "bridge",
+                    filt.update_velocity,
+                    obs.velocity_xz_mps,
+                    obs.cov,
+                    obs.timestamp_s,
+                    fi.saturation_bridge_gate,
                 )
-            self._note_innovations(t, "bridge")
             if fused:
                 self.n_bridge_fused += 1
                 # for the smoothers, at the next keyframe (process_frame)
@@ -1510,18 +1523,23 @@ class OnlineEstimator:
             self._corners.forget(t, key, self.filter)
             if obs is not None:
                 assert key is not None  # set above for every observation
-                self._note_innovations(t, "other")
                 cov = np.asarray(obs.cov_m2, float) + np.eye(2) * fc.corner_landmark_sigma_m**2
-                self.filter.update_landmark(key, obs.corner_rel_xz_m, cov, t)
-                self._note_innovations(t, "corner")
+                self._as_family(
+                    t, "corner", self.filter.update_landmark, key, obs.corner_rel_xz_m, cov, t
+                )
         if fc.level_landmarks:
-            self._note_innovations(t, "other")
-            self._fuse_levels(t)
-            self._note_innovations(t, "level")
+            self._as_family(t, "level", self._fuse_levels, t)
         if fc.stance_anchor:
-            self._note_innovations(t, "other")
-            self._fuse_stance(t, result, R_world_imu)
-            self._note_innovations(t, "stance")
+            self._as_family(t, "stance", self._fuse_stance, t, result, R_world_imu)
+
+    def _as_family(self, t_s: float, family: str, update: Callable[..., _T], *args: object) -> _T:
+        """``update(*args)`` with the filter updates it makes handed to the health report's
+        consistency test as measurements of ``family``; updates made since the last hand-over
+        (by anything else) go first, as ``"other"``. Returns what ``update`` returns."""
+        self._note_innovations(t_s, "other")
+        out = update(*args)
+        self._note_innovations(t_s, family)
+        return out
 
     def _note_innovations(self, t_s: float, family: str) -> None:
         """Hand the filter's updates since the last call to the health report's consistency

@@ -354,10 +354,12 @@ def surface_majority(
             smooth[:, 1:] &= ~edge
     if kernels is not None:
         labels, n = kernels.label4(smooth)
+        dilate = dilate4
     else:
         from scipy import ndimage
 
         labels, n = ndimage.label(smooth)
+        dilate = ndimage.binary_dilation
     size = np.bincount(labels.ravel(), minlength=n + 1)
     hits = np.bincount(labels.ravel(), weights=mask.ravel(), minlength=n + 1)
     counts = hits >= min_pixels
@@ -366,12 +368,7 @@ def surface_majority(
     out = whole[labels] | (counts[labels] & mask)
     rim = same & ~smooth
     if out.any() and rim.any():
-        if kernels is not None:
-            out |= rim & dilate4(out)
-        else:
-            from scipy import ndimage
-
-            out |= rim & ndimage.binary_dilation(out)
+        out |= rim & dilate(out)
     return out
 
 

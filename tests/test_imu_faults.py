@@ -12,7 +12,11 @@ from scipy.spatial.transform import Rotation
 from vio_graph.filter.config import FilterConfig, ImuFaultConfig
 from vio_graph.filter.eskf import SagittalEskf
 from vio_graph.filter.imu_faults import ImuFaultMonitor, velocity_fault_cov
-from vio_graph.filter.imu_repair import NextSampleRepair, keep_consistent_axes
+from vio_graph.filter.imu_repair import (
+    NextSampleRepair,
+    interpolated_axes_cov,
+    keep_consistent_axes,
+)
 from vio_graph.geometry import GRAVITY_MPS2, matrix_from_quat_wxyz, quat_wxyz_from_matrix, rot_y
 from vio_graph.smoother.config import SmootherConfig
 from vio_graph.smoother.graph import KeyframeGraphBuilder, distrust_variances
@@ -782,3 +786,94 @@ def test_filter_distrusts_only_the_interpolated_axes_of_a_repaired_packet() -> N
     np.testing.assert_allclose(P_on, P_true, rtol=1e-9, atol=1e-15)
     extra = (ImuFaultConfig().interpolated_accel_sigma_mps2 / RATE_HZ) ** 2
     assert np.trace(P_off - P_true) > 0.5 * extra
+
+
+def _heel_strike_with_a_hidden_spike(n: int, k: int) -> tuple[list, list]:
+    """A swinging shank whose specific force peaks at sample ``k`` 19 m/s^2 above the
+    midpoint of its neighbours in x (upstair seed 2's heel strike at 3.76 s), and the same
+    stream with a spike of the other sign on that axis (-30 m/s^2) and on the gyro's x
+    (5 rad/s) of packet ``k``: the measured x is 11 m/s^2 below the interpolation, inside
+    the per-axis test's bound (3.3 x 5 m/s^2), so the test finds no corrupt accelerometer
+    axis although x is 30 m/s^2 off."""
+    truth = _pitching(n, lambda t: 20.0 * t)
+    peak = np.zeros((n, 3))
+    peak[k] = (19.0, 0.0, 0.0)
+    truth = [dataclasses.replace(s, accel_mps2=s.accel_mps2 + peak[i])
+             for i, s in enumerate(truth)]  # fmt: skip
+    spiked = list(truth)
+    spiked[k] = dataclasses.replace(
+        truth[k],
+        accel_mps2=truth[k].accel_mps2 + [-30.0, 0, 0],
+        gyro_radps=truth[k].gyro_radps + [5.0, 0, 0],
+    )
+    return truth, spiked
+
+
+def test_interpolated_axes_cov_is_none_when_no_axis_was_interpolated() -> None:
+    measured = np.array([1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(
+        interpolated_axes_cov([1.0, 5.0, 3.0], measured, 25.0), np.diag([0.0, 25.0, 0.0])
+    )
+    # every axis kept: the variance stays on all of them (the caller's isotropic sigma)
+    assert interpolated_axes_cov(measured.copy(), measured, 25.0) is None
+
+
+def test_filter_keeps_distrusting_a_repaired_packet_whose_spike_it_could_not_place() -> None:
+    """The heel strike hides the accelerometer's spike from the per-axis test: every axis is
+    kept, x 30 m/s^2 off (0.3 m/s of velocity). With repaired_axis_distrust the kept axes
+    would be trusted as measurements (no extra variance: on upstair seed 2 the filter then
+    refused the next displacements and its toe x went 0.68 -> 2.73 cm); since the test found
+    no axis to blame, the packet keeps the interpolation's variance on every axis, as
+    without repaired_axis_distrust: (5 m/s^2 x 10 ms)^2 on x and z of the velocity, to the
+    bit."""
+    n, k = 40, 30
+    truth, spiked = _heel_strike_with_a_hidden_spike(n, k)
+    v_true, _, est_true, _ = _estimator_after(truth, repair=True, axis_distrust=True)
+    v_on, _, est_on, _ = _estimator_after(spiked, repair=True, axis_distrust=True)
+    _, _, est_off, _ = _estimator_after(spiked, repair=True)
+    rep = est_on.imu_repair
+    assert rep.n_repaired == 1 and rep.n_axes_kept == 5  # 3 accelerometer + 2 gyro axes
+    # the kept x carries the spike: about 0.3 m/s of velocity error (rotated by the pitch)
+    assert np.linalg.norm(v_on - v_true) > 0.2
+    P_true, P_on, P_off = (e.filter._P[2:4, 2:4] for e in (est_true, est_on, est_off))
+    np.testing.assert_array_equal(P_on, P_off)
+    extra = (ImuFaultConfig().interpolated_accel_sigma_mps2 / RATE_HZ) ** 2
+    gained = np.diag(P_on - P_true)
+    assert np.all(gained > 0.5 * extra)
+    # a spike the test did place (the y of _heel_strike_with_one_axis_spike) still costs
+    # the sagittal velocity nothing (test_filter_distrusts_only_the_interpolated_axes...)
+    truth_y, spiked_y = _heel_strike_with_one_axis_spike(n, k)
+    _, _, est_ty, _ = _estimator_after(truth_y, repair=True, axis_distrust=True)
+    _, _, est_y, _ = _estimator_after(spiked_y, repair=True, axis_distrust=True)
+    np.testing.assert_allclose(
+        est_y.filter._P[2:4, 2:4], est_ty.filter._P[2:4, 2:4], rtol=1e-9, atol=1e-15
+    )
+
+
+def test_smoothers_keep_distrusting_a_held_packet_whose_spike_they_could_not_place() -> None:
+    """The smoothers' twin (held_axis_distrust): the hidden spike of
+    _heel_strike_with_a_hidden_spike keeps the interpolation's variance on every axis of the
+    preintegrated velocity, as without held_axis_distrust."""
+    n, k = 25, 10
+    truth, spiked = _heel_strike_with_a_hidden_spike(n, k)
+    held = dataclasses.replace(
+        spiked[k],
+        accel_mps2=truth[k - 1].accel_mps2,
+        gyro_radps=truth[k].gyro_radps + [0.0, 0.5, 0.0],
+        accel_extra_sigma_mps2=ImuFaultConfig().held_accel_sigma_mps2,
+        gyro_extra_sigma_radps=0.5,
+        accel_held=True,
+        measured_accel_mps2=spiked[k].accel_mps2,
+        measured_gyro_radps=spiked[k].gyro_radps,
+    )
+    faulty = [*truth[:k], held, *truth[k + 1 :]]
+    on = SmootherConfig()
+    assert on.held_axis_distrust
+    off = on.model_copy(update={"held_axis_distrust": False})
+    _, cov_true, _ = _imu_factor_delta_v(truth, on)
+    dv_on, cov_on, _ = _imu_factor_delta_v(faulty, on)
+    dv_off, cov_off, _ = _imu_factor_delta_v(faulty, off)
+    np.testing.assert_array_equal(dv_on, dv_off)
+    np.testing.assert_allclose(cov_on, cov_off, rtol=1e-12, atol=1e-18)
+    extra = (on.interpolated_accel_sigma_mps2 * H) ** 2
+    assert np.all(np.diag(cov_on - cov_true) > 0.5 * extra)

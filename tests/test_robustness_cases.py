@@ -5,7 +5,13 @@ from __future__ import annotations
 from typer.testing import CliRunner
 
 from vio_graph.cli import app
-from vio_graph.robustness import FAULT_CASES, IMU_CASES, OCCLUDER_CASES, SATURATION_CASES
+from vio_graph.robustness import (
+    FAULT_CASES,
+    IMU_CASES,
+    OCCLUDER_CASES,
+    SATURATION_CASES,
+    SPIKE_CASES,
+)
 
 
 def test_saturation_cases_are_the_clean_and_saturation_rows_of_the_imu_sweep() -> None:
@@ -20,7 +26,7 @@ def test_saturation_cases_are_the_clean_and_saturation_rows_of_the_imu_sweep() -
 def test_unknown_case_set_is_refused(tmp_path) -> None:
     res = CliRunner().invoke(app, ["robustness", "--cases", "satur", "--out", str(tmp_path)])
     assert res.exit_code != 0
-    assert "use all, imu, offsets, saturation or occluder" in str(res.exception)
+    assert "use all, imu, offsets, saturation, spikes or occluder" in str(res.exception)
     assert not any(tmp_path.iterdir())  # nothing simulated
 
 
@@ -29,3 +35,10 @@ def test_occluder_cases_are_the_clean_and_occluder_rows_of_the_full_sweep() -> N
     assert names == [("clean", "-"), ("occluding foot in view", "1 s")]
     assert all(c in FAULT_CASES for c in OCCLUDER_CASES)
     assert OCCLUDER_CASES[1].sim_faults == {"occluder_start_s": 3.0, "occluder_duration_s": 1.0}
+
+
+def test_spike_cases_are_the_clean_and_spike_rows_of_the_imu_sweep() -> None:
+    names = [(c.name, c.severity) for c in SPIKE_CASES]
+    assert names == [("clean", "-"), ("IMU spikes", "2 Hz")]
+    assert all(c in IMU_CASES for c in SPIKE_CASES)
+    assert SPIKE_CASES[1].sim_faults == {"imu_spike_rate_hz": 2.0}

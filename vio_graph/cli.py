@@ -678,7 +678,8 @@ def robustness(
             help="'all' faults, or 'imu': clean, IMU spikes / saturation, "
             "camera-IMU offsets -30..30 ms, clock jitter; or 'offsets': clean and the "
             "camera-IMU offsets only; or 'saturation': clean and the 4 g accelerometer "
-            "saturation only; or 'occluder': clean and the occluding foot only."
+            "saturation only; or 'spikes': clean and the 2 Hz IMU spikes only; or 'occluder': "
+            "clean and the occluding foot only."
         ),
     ] = "all",
 ) -> None:
@@ -694,6 +695,7 @@ def robustness(
         OCCLUDER_CASES,
         OFFSET_CASES,
         SATURATION_CASES,
+        SPIKE_CASES,
         run_sweep,
         write_outputs,
     )
@@ -704,11 +706,12 @@ def robustness(
         "imu": IMU_CASES,
         "offsets": OFFSET_CASES,
         "saturation": SATURATION_CASES,
+        "spikes": SPIKE_CASES,
         "occluder": OCCLUDER_CASES,
     }
     if cases not in case_sets:
         raise VioGraphError(
-            f"--cases: unknown {cases!r}; use all, imu, offsets, saturation or occluder"
+            f"--cases: unknown {cases!r}; use all, imu, offsets, saturation, spikes or occluder"
         )
     case_list = case_sets[cases]
     cfg = load_config(config)

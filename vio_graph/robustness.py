@@ -94,6 +94,13 @@ SATURATION_CASES: tuple[FaultCase, ...] = tuple(
 )
 
 
+#: the IMU spike row of IMU_CASES with its clean reference (``vio-graph robustness --cases
+#: spikes``)
+SPIKE_CASES: tuple[FaultCase, ...] = tuple(
+    c for c in IMU_CASES if c.name in ("clean", "IMU spikes")
+)
+
+
 #: the occluding-foot row with its clean reference (``vio-graph robustness --cases occluder``)
 OCCLUDER_CASES: tuple[FaultCase, ...] = tuple(
     c for c in FAULT_CASES if c.name in ("clean", "occluding foot in view")

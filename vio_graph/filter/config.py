@@ -316,11 +316,13 @@ class ImuFaultConfig(BaseModel):
         description="with keep_consistent_axes: the interpolated packet's extra accelerometer "
         "variance (interpolated_accel_sigma_mps2) on its interpolated axes only "
         "(ImuSample.accel_extra_cov_m2ps4, as smoother.held_axis_distrust does); the kept "
-        "axes are measurements. Off by default: 2 Hz spikes seeds 1-3 filter toe x obstacle "
-        "1.76 -> 1.13 cm, downstair 1.27 -> 0.85, but upstair 0.48 -> 0.98 (seed 2: its "
-        "3.76 s spike alone in the clean recording, 0.68 -> 2.73 cm; not traced to a "
-        "mechanism) and smoother x downstair 0.55 -> 0.73 cm (docs/robustness.md, IMU "
-        "spikes: the interpolated axes only)",
+        "axes are measurements; a packet whose test kept every accelerometer axis keeps the "
+        "variance on all of them (imu_repair.interpolated_axes_cov: the spike was not "
+        "placed). Off by default: 2 Hz spikes seeds 1-3 filter toe x downstair 1.27 -> 0.84 "
+        "cm, obstacle 1.76 -> 1.13, upstair 0.48 -> 0.47, but the smoothers, which take the "
+        "filter's ICP seeds, downstair x 0.55 -> 0.73 cm and batch 0.43 -> 0.65 (seed 3: the "
+        "front end's seed sensitivity at 1.3 s; docs/robustness.md, IMU spikes: the filter's "
+        "twin traced)",
     )
     consistent_axis_probability: float = Field(
         default=0.999,

@@ -189,10 +189,11 @@ def _run_into(
         )
         metrics.update(block)
 
-    # map, from the best refined keyframe poses available
+    # map, from the best refined keyframe poses available (position and attitude: the
+    # profiles at that mode's own pitch, FrameLog.profiles_of)
     map_mode = "batch" if "batch" in camera else "smoother" if "smoother" in camera else "filter"
     run_map = build_run_map(
-        t_s, lg.profiles, camera[map_mode], config.mapping, rec.metadata.terrain
+        t_s, lg.profiles_of(map_mode), camera[map_mode], config.mapping, rec.metadata.terrain
     )
     metrics["map"] = {"source_mode": map_mode, **run_map.metrics}
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,6 +31,7 @@ from vio_graph.estimator import OnlineEstimator, RigGeometry
 from vio_graph.filter.baselines import IcpOdometry, ImuDeadReckoning
 from vio_graph.filter.time_offset import centred_clock_line
 from vio_graph.frontend.icp import AUTO_COMPILED_MIN_FRAMES, use_compiled_by_default
+from vio_graph.geometry import rotate_xz
 from vio_graph.growable import GrowableArray
 from vio_graph.memory import return_free_heap
 from vio_graph.protocol import Estimator, FilterTrack, FrameRecord, ImuStep
@@ -139,6 +141,28 @@ class FrameLog:
         self.timings_ms.append(est.timings_ms)
         self.safety.append(est.safety)
         self.cov_position_m2.append(est.cov_position_m2)
+
+    def profiles_of(self, mode: str) -> dict[int, NDArray[np.float64]]:
+        """The keyframe profiles (frame index -> (M, 2), camera-relative, m) at ``mode``'s
+        own keyframe attitude, to be placed at that mode's camera positions.
+
+        ``profiles`` are camera-relative in ground axes: turned by the filter's attitude at
+        the keyframe. A mode with its own attitude (``shank_pitch_by_mode``: a keyframe
+        smoother's refined pitch, which its heel and toe use) turns each profile about the
+        camera by its pitch minus the filter's (rot_y; the camera is on the shank). Without
+        it, the profile sits at the smoothed position with the filter's pitch, a pose no
+        estimator made: 0.3 deg moves a point 1 m ahead of the camera by 5 mm vertically
+        (docs/method.md, "The smoothed modes' map and clearance"). Other modes, and frames
+        without a finite correction: the profiles as they are (the same arrays)."""
+        pitch = self.shank_pitch_by_mode.get(mode)
+        if pitch is None:
+            return self.profiles
+        turn = np.asarray(pitch, dtype=float) - np.asarray(self.shank_pitch_imu, dtype=float)
+        out: dict[int, NDArray[np.float64]] = {}
+        for k, prof in self.profiles.items():
+            a = float(turn[k])
+            out[k] = rotate_xz(a, prof) if math.isfinite(a) and a != 0.0 else prof
+        return out
 
 
 def replay_order(rec: Recording) -> tuple[NDArray[np.int8], NDArray[np.int64]]:

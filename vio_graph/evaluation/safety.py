@@ -266,6 +266,9 @@ def replay_safety(
     """The safety outputs of another mode's path (camera, heel, toe per frame), with the same
     keyframe profiles placed at that mode's camera positions, frame by frame (causal in the
     profiles; the smoothers' poses themselves may use later data). ``cov_m2``: the filter's.
+    ``profiles``: the keyframe profiles at that mode's own keyframe attitude
+    (``FrameLog.profiles_of``; the filter's profiles at a smoother's position and the
+    filter's pitch are a pose no estimator made, docs/method.md).
     Returned as a :class:`SafetyLog` (one row of floats a frame, read like the list of
     SafetyEstimate or None it stands for), as the online replay keeps its own; its
     ``predicted_min_clearance_m`` is NaN (not computed: :func:`score_mode` does not score
@@ -309,8 +312,8 @@ def safety_metrics(
         est = (
             lg.safety
             if mode == "filter"
-            else replay_safety(
-                config, t, paths[mode], lg.cov_position_m2, lg.in_stance, lg.profiles
+            else replay_safety(  # the profiles at the mode's own attitude
+                config, t, paths[mode], lg.cov_position_m2, lg.in_stance, lg.profiles_of(mode)
             )
         )
         clearance[mode], placement[mode] = score_mode(est, truth, t, mode == "filter")

@@ -29,6 +29,7 @@ capped at ``max_variance_m2`` instead of infinity.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from dataclasses import dataclass
@@ -282,7 +283,7 @@ def icp_translation_2d(
 
 
 _KERNELS: list = []  # [module or None] once imported
-_MODES: dict[str | None, str] = {}  # VIO_GRAPH_COMPILED's value -> "off", "auto", ...
+_MODES: dict[str | bytes | None, str] = {}  # VIO_GRAPH_COMPILED's value -> "off", "auto", ...
 _AUTO = [False]  # what "auto" (VIO_GRAPH_COMPILED unset) means now; see use_compiled_by_default
 
 #: VIO_GRAPH_COMPILED: "1" compiled kernels whenever numba is installed, "0" never (the numpy
@@ -309,14 +310,39 @@ def use_compiled_by_default(enabled: bool = True) -> None:
     _AUTO[0] = bool(enabled)
 
 
+def _env_reader():
+    """(read, decode): ``read()`` gives ``VIO_GRAPH_COMPILED``'s current value as stored
+    (None if unset) and ``decode`` turns a stored value into the text ``os.environ.get``
+    returns. On CPython ``os.environ`` keeps the variables in the dict ``_data`` under
+    encoded keys and values (bytes on POSIX), and every change made through ``os.environ``
+    (``monkeypatch.setenv``, ``del os.environ[...]``) goes into it, so a dict look-up reads
+    the current value; ``os.environ.get`` also encodes the key and decodes the value on
+    every call (~0.7 us, and :func:`compiled_kernels` is asked a dozen times a frame). An
+    ``os.environ`` without that layout is read through ``os.environ.get``."""
+    data = getattr(os.environ, "_data", None)
+    encode = getattr(os.environ, "encodekey", None)
+    decode = getattr(os.environ, "decodevalue", None)
+    if isinstance(data, dict) and callable(encode) and callable(decode):
+        try:
+            key = encode(COMPILED_ENV)
+        except (TypeError, ValueError, UnicodeError):  # pragma: no cover - not on CPython
+            pass
+        else:
+            return functools.partial(data.get, key), decode
+    return functools.partial(os.environ.get, COMPILED_ENV), str
+
+
+_ENV_READ, _ENV_DECODE = _env_reader()
+
+
 def compiled_kernels():
     """The numba kernels module (``vio_graph.frontend.compiled``), or None: without numba,
     with ``VIO_GRAPH_COMPILED=0``, or under "auto" until :func:`use_compiled_by_default`.
     Imported on first use, so a run that does not use it pays nothing."""
-    raw = os.environ.get(COMPILED_ENV)  # called a dozen times a frame: the parse cached
+    raw = _ENV_READ()  # called a dozen times a frame: the parse cached
     mode = _MODES.get(raw)
     if mode is None:
-        mode = "auto" if raw is None else raw.strip().lower()
+        mode = "auto" if raw is None else _ENV_DECODE(raw).strip().lower()
         mode = "off" if mode in ("0", "false", "no", "off") else mode
         _MODES[raw] = mode
     if mode == "off" or (mode == "auto" and not _AUTO[0]):

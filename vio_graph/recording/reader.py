@@ -318,7 +318,8 @@ class Recording:
         depth, _, conf = self._depth
         if not _RowReader.can_read(depth) or not _RowReader.can_read(conf):
             return None
-        return _RowReader(depth), _RowReader(conf)
+        conf_path = self.root / layout.CONFIDENCE_FILE
+        return _RowReader(depth, self._depth_path(depth)), _RowReader(conf, conf_path)
 
     def _check_depth_arrays(self) -> None:
         """Convert the first, middle and last frames (catches unit mistakes and corrupt data
@@ -603,23 +604,28 @@ class _RowReader:
     The file is opened once, when the reader is made (right after the map, so the same
     file), and closed when the reader is collected."""
 
-    def __init__(self, mm: np.memmap) -> None:
-        shape = mm.shape[1:]
-        self._open(Path(str(mm.filename)), mm.dtype, shape, int(mm.offset))
+    def __init__(self, mm: np.memmap, path: Path) -> None:
+        self._open(Path(str(mm.filename)), path, mm.dtype, mm.shape[1:], int(mm.offset))
 
-    def _open(self, path: Path, dtype: np.dtype, shape: tuple[int, ...], offset: int) -> None:
-        self.path, self.dtype, self.shape, self.offset = path, dtype, shape, offset
+    def _open(
+        self, file: Path, path: Path, dtype: np.dtype, shape: tuple[int, ...], offset: int
+    ) -> None:
+        # file: the mapped file's absolute name; path: its name in the recording (errors)
+        self.file, self.path, self.dtype, self.shape, self.offset = file, path, dtype, shape, offset
         self.row_bytes = int(dtype.itemsize * math.prod(shape))
-        self.fd = os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+        self.fd = os.open(file, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
         weakref.finalize(self, os.close, self.fd)
 
     def __reduce__(self):  # a copy in another process opens the file again
-        return (_RowReader._reopened, (self.path, self.dtype, self.shape, self.offset))
+        args = (self.file, self.path, self.dtype, self.shape, self.offset)
+        return (_RowReader._reopened, args)
 
     @staticmethod
-    def _reopened(path: Path, dtype: np.dtype, shape: tuple[int, ...], offset: int):
+    def _reopened(
+        file: Path, path: Path, dtype: np.dtype, shape: tuple[int, ...], offset: int
+    ) -> _RowReader:
         reader = _RowReader.__new__(_RowReader)
-        reader._open(path, dtype, shape, offset)
+        reader._open(file, path, dtype, shape, offset)
         return reader
 
     @staticmethod

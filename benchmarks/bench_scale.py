@@ -152,8 +152,9 @@ MEMORY_NOTE = (
     "from them at the end), merged into the map keyframe by keyframe (mapping/local_map.py "
     "merge_keyframes, the same cells bit for bit as merging all points at once, at under half "
     "the memory, ~47 against ~100 bytes a point, and without a second copy of the profiles: "
-    "that merge was the end-of-run peak). Depth frames are memory-mapped and "
-    "their pages handed back every 256 frames."
+    "that merge was the end-of-run peak). Depth frames are read from the files one "
+    "frame at a time (os.preadv; without it, from memory maps whose pages are handed back "
+    "every 256 frames)."
 )
 
 

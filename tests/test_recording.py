@@ -264,3 +264,49 @@ def test_reader_median_equals_numpy_median() -> None:
             assert _median(x) == np.median(x)
     assert np.isnan(_median(np.array([1.0, np.nan, 2.0])))
     assert np.isnan(_median(np.array([])))
+
+
+def test_frames_read_from_the_files_equal_the_memory_maps(
+    tiny_recording: Path, tmp_path: Path
+) -> None:
+    """frame() reads a frame's bytes from the files with os.preadv (_RowReader: no page
+    faults on the maps, nothing to hand back): the same frames bit for bit as reading through
+    the memory maps (the path without preadv), for uint16 and float32 depth files (NaN
+    pixels included), negative indices, IndexError past either end; a copy of the readers
+    in another process opens the files again; a file shrunk after opening is reported."""
+    import pickle
+
+    from vio_graph.recording import layout
+
+    f32 = tmp_path / "f32"
+    shutil.copytree(tiny_recording, f32)
+    counts = np.load(f32 / layout.DEPTH_MM_FILE)
+    metres = counts.astype(np.float32) * np.float32(tiny_metadata().camera.depth_unit_m)
+    metres[0, 0, :3] = np.nan
+    np.save(f32 / layout.DEPTH_M_FILE, metres)
+    (f32 / layout.DEPTH_MM_FILE).unlink()
+    for root in (tiny_recording, f32):
+        rec = Recording.open(root)
+        assert rec._row_readers is not None
+        plain = Recording.open(root)
+        plain.__dict__["_row_readers"] = None  # read through the maps
+        n = rec.num_frames
+        for k in [*range(n), -1, -n]:
+            a, b = rec.frame(k), plain.frame(k)
+            assert a.index == b.index == k and a.timestamp_s == b.timestamp_s
+            assert a.depth_m.dtype == b.depth_m.dtype and a.depth_m.tobytes() == b.depth_m.tobytes()
+            assert a.confidence.tobytes() == b.confidence.tobytes()
+            assert a.depth_m.flags.writeable and a.confidence.flags.owndata
+        for k in (n, -n - 1):
+            with pytest.raises(IndexError):
+                rec.frame(k)
+        copies = pickle.loads(pickle.dumps(rec._row_readers))
+        for copy, reader in zip(copies, rec._row_readers, strict=True):
+            assert copy.fd != reader.fd and copy.read(3).tobytes() == reader.read(3).tobytes()
+    rec = Recording.open(f32)
+    reader = rec._row_readers[0]
+    with open(f32 / layout.DEPTH_M_FILE, "r+b") as f:
+        f.truncate(reader.offset + 2 * reader.row_bytes)
+    assert rec.frame(1).depth_m.shape == counts.shape[1:]
+    with pytest.raises(RecordingError, match="frame 2 cannot be read"):
+        rec.frame(2)

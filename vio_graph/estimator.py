@@ -128,6 +128,9 @@ from vio_graph.types import (
 
 #: what the front end's tracker says when ICP disagrees with the IMU prediction
 _PREDICTION_REFUSAL = "disagrees with the IMU prediction"
+#: the 2x2 identity, never written: ``_I2 * v`` is ``np.eye(2) * v`` (a new array) without
+#: building the identity each frame (~1 us a call, several calls a frame)
+_I2 = np.eye(2)
 
 _T = TypeVar("_T")
 
@@ -1058,9 +1061,7 @@ class OnlineEstimator:
             t_prev, p_prev = self._prev_frame
             dt = t - t_prev
             pred_delta = p_pred - p_prev
-            pred_cov = (
-                self.filter.cov_velocity_m2ps2() * dt**2 + np.eye(2) * (0.5 * 2.0 * dt**2) ** 2
-            )
+            pred_cov = self.filter.cov_velocity_m2ps2() * dt**2 + _I2 * (0.5 * 2.0 * dt**2) ** 2
         # 3. front end (eq. 1-4)
         stand_rel = None
         if self._stand_z_m is not None and self.config.frontend.terrain.stand_level:
@@ -1523,7 +1524,7 @@ class OnlineEstimator:
             self._corners.forget(t, key, self.filter)
             if obs is not None:
                 assert key is not None  # set above for every observation
-                cov = np.asarray(obs.cov_m2, float) + np.eye(2) * fc.corner_landmark_sigma_m**2
+                cov = np.asarray(obs.cov_m2, float) + _I2 * fc.corner_landmark_sigma_m**2
                 self._as_family(
                     t, "corner", self.filter.update_landmark, key, obs.corner_rel_xz_m, cov, t
                 )
@@ -1661,12 +1662,12 @@ class OnlineEstimator:
             first = not self.filter.has_landmark(key)
             if first:
                 self._stance_offset_rad = self.pitch_offset.offset_rad
-            fused = self.filter.update_landmark(key, lever, np.eye(2) * sig2, t, fc.stance_gate)
+            fused = self.filter.update_landmark(key, lever, _I2 * sig2, t, fc.stance_gate)
             if not (first or fused) and self._stance_test.tested:
                 # the gate says the filter and the anchor disagree, while vision has just
                 # confirmed the still ankle: two sensors against the filter's velocity (which
                 # drifts in every swing without vision), so the anchor is taken.
-                fused = self.filter.update_landmark(key, lever, np.eye(2) * sig2, t, False)
+                fused = self.filter.update_landmark(key, lever, _I2 * sig2, t, False)
                 stats["vision_overrides"] += 1
             if first or fused:
                 stats["anchored_frames"] += 1
@@ -1678,7 +1679,7 @@ class OnlineEstimator:
                     timestamp_s=t,
                     stance_id=self._stance_episode,
                     ankle_rel_xz_m=lever.copy(),
-                    cov_m2=np.eye(2) * sig2,
+                    cov_m2=_I2 * sig2,
                     camera_velocity_xz_mps=None if velocity is None else velocity[0],
                     velocity_cov=None if velocity is None else velocity[1],
                 )
@@ -1723,7 +1724,7 @@ class OnlineEstimator:
         assert fc.stance_velocity_sigma_mps is not None
         rate = self._pitch_rate_radps(R_world_imu)
         v_cam = -rate * np.asarray(dlever, dtype=float)
-        cov = np.eye(2) * fc.stance_velocity_sigma_mps**2
+        cov = _I2 * fc.stance_velocity_sigma_mps**2
         fused = self.filter.update_velocity(v_cam, cov, t, fc.stance_gate)
         self.stance_stats["velocity_fused"] += int(fused)
         return (v_cam, cov) if fused else None

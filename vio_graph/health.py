@@ -37,6 +37,9 @@ from numpy.typing import NDArray
 from vio_graph.filter.gating import chi2_2dof_quantile
 from vio_graph.types import Displacement2D
 
+#: the 2x2 identity, never written (``_I2 * v`` is ``np.eye(2) * v``, a new array)
+_I2 = np.eye(2)
+
 
 @dataclass(frozen=True)
 class HealthLimits:
@@ -202,7 +205,7 @@ class HealthMonitor:
         w.sum_cov_m2 = (
             w.sum_cov_m2
             + np.asarray(displacement.cov_m2, dtype=float)
-            + np.eye(2) * self.limits.floor_m**2
+            + _I2 * self.limits.floor_m**2
         )
         if t_s - w.t0_s >= self.limits.window_s:
             r = (p - w.p0_xz_m) - w.sum_delta_xz_m

@@ -302,7 +302,7 @@ def extract_corner(
     features = pts[in_window]
     return CornerFeature(
         feature_points_xz_m=features,
-        mean_xz_m=features.mean(axis=0),
+        mean_xz_m=np.add.reduce(features, axis=0) / features.shape[0],  # = .mean(axis=0)
         edge_xz_m=np.array([ex, ez]),
         upper_height_m=float(h_up),
         lower_height_m=float(h_lo),
@@ -378,7 +378,7 @@ def extract_corner_reference(
         return None
     return CornerFeature(
         feature_points_xz_m=features,
-        mean_xz_m=features.mean(axis=0),
+        mean_xz_m=np.add.reduce(features, axis=0) / features.shape[0],  # = .mean(axis=0)
         edge_xz_m=edge,
         upper_height_m=upper.height_m,
         lower_height_m=lower.height_m,

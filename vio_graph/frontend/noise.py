@@ -84,9 +84,11 @@ def level_residuals(
 
 
 def _line_residuals(xs: NDArray[np.float64], zs: NDArray[np.float64]) -> NDArray[np.float64]:
-    """z residuals about the least-squares line z = a + b x of the points (contiguous)."""
-    xc = xs - xs.mean()
-    zc = zs - zs.mean()  # computed once: the same floats the fit and the residuals used
+    """z residuals about the least-squares line z = a + b x of the points (contiguous).
+    The means as ``ndarray.mean`` computes them (the same sum divided by the count, the same
+    floats) without its Python wrapper (~2.5 us a call)."""
+    xc = xs - np.add.reduce(xs) / xs.size
+    zc = zs - np.add.reduce(zs) / zs.size  # once: the same floats the fit and residuals used
     sxx = float(xc @ xc)
     slope = float(xc @ zc) / sxx if sxx > 0 else 0.0
     return zc - slope * xc

@@ -15,9 +15,11 @@ from __future__ import annotations
 
 import math
 import mmap
+import operator
 import os
 import tokenize
 import warnings
+import weakref
 from collections.abc import Iterator
 from functools import cached_property
 from pathlib import Path
@@ -308,6 +310,17 @@ class Recording:
                 )
         return depth, scale, conf
 
+    @cached_property
+    def _row_readers(self) -> tuple[_RowReader, _RowReader] | None:
+        """Readers of one frame of the depth and confidence files (:class:`_RowReader`),
+        opened once, or None where the frames are read through the memory maps (no
+        ``os.preadv``, or a map whose frames are not contiguous in the file)."""
+        depth, _, conf = self._depth
+        if not _RowReader.can_read(depth) or not _RowReader.can_read(conf):
+            return None
+        conf_path = self.root / layout.CONFIDENCE_FILE
+        return _RowReader(depth, self._depth_path(depth)), _RowReader(conf, conf_path)
+
     def _check_depth_arrays(self) -> None:
         """Convert the first, middle and last frames (catches unit mistakes and corrupt data
         without reading the whole array) and refuse a recording whose sampled frames are all
@@ -329,16 +342,18 @@ class Recording:
         )
 
     def _convert(
-        self, i: int, depth: np.ndarray, scale: float
+        self, i: int, depth: np.ndarray, scale: float, row: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray, int]:
         """Frame ``i``'s depth in metres (float32, 0 = invalid, never NaN: the file holds
         uint16 or float32, checked on opening, and NaN becomes 0), its valid mask (d > 0) and
-        their count, after the unit checks."""
+        their count, after the unit checks. ``row``: the stored frame ``depth[i]`` already
+        read into a new array (:class:`_RowReader`), else it is read from ``depth``."""
         try:
             if depth.dtype == np.float32:
-                raw = np.array(depth[i])
+                raw = np.array(depth[i]) if row is None else row
             else:  # the integer unit scaled in float32, in one pass (= astype, then multiply)
-                d = np.multiply(depth[i], np.float32(scale), dtype=np.float32, casting="unsafe")
+                src = depth[i] if row is None else row
+                d = np.multiply(src, np.float32(scale), dtype=np.float32, casting="unsafe")
         except (OSError, ValueError) as exc:  # the file changed or shrank after opening
             raise RecordingError(
                 self._depth_path(depth), f"frame {i} cannot be read ({_describe(exc)})"
@@ -384,19 +399,33 @@ class Recording:
     def frame(self, i: int) -> DepthFrame:
         """Depth frame ``i`` (float32 metres, 0 = invalid), read lazily from disk.
 
-        Every ``RELEASE_EVERY_FRAMES`` frames the pages of the memory-mapped arrays are
-        handed back (``madvise(MADV_DONTNEED)``): they stay in the page cache, but no longer
-        count in the process's resident memory, which therefore stays flat over a long trial
-        (a 10-minute recording maps ~2 GB)."""
+        Where the system has ``os.preadv`` (Linux, the BSDs, macOS) the frame's bytes are
+        read from the files into new arrays (:class:`_RowReader`), the same bytes as the
+        memory maps hold, without touching the maps: the process's resident memory stays
+        flat over a long trial (a 10-minute recording maps ~2 GB) and a frame costs no page
+        faults (~0.02 ms less a frame). Elsewhere the frame is read through the maps, whose
+        pages are handed back every ``RELEASE_EVERY_FRAMES`` frames
+        (``madvise(MADV_DONTNEED)``): they stay in the page cache, but no longer count in the
+        process's resident memory."""
         depth, scale, conf = self._depth
-        d, valid, n_valid = self._convert(i, depth, scale)
-        c = np.array(conf[i])
+        rows = self._row_readers
+        if rows is None:
+            d, valid, n_valid = self._convert(i, depth, scale)
+            c = np.array(conf[i])
+            self._frames_read += 1
+            if self._frames_read % RELEASE_EVERY_FRAMES == 0:
+                release_pages(depth)
+                release_pages(conf)
+        else:
+            k = operator.index(i)  # numpy's row indexing: from the end if negative
+            n = depth.shape[0]
+            if not -n <= k < n:
+                raise IndexError(f"index {k} is out of bounds for axis 0 with size {n}")
+            k %= n
+            d, valid, n_valid = self._convert(k, depth, scale, rows[0].read(k))
+            c = rows[1].read(k)
         if n_valid < d.size:
             c[~valid] = 0  # d <= 0 (d holds no NaN)
-        self._frames_read += 1
-        if self._frames_read % RELEASE_EVERY_FRAMES == 0:
-            release_pages(depth)
-            release_pages(conf)
         return DepthFrame(
             index=i, timestamp_s=float(self.frame_timestamps_s[i]), depth_m=d, confidence=c
         )
@@ -566,6 +595,64 @@ _NPY_ERRORS = (
     MemoryError,
     tokenize.TokenError,
 )
+
+
+class _RowReader:
+    """Reads row ``i`` (one frame) of a C-ordered ``.npy`` memory map from its file into a
+    new array with one ``os.preadv``: the same bytes as ``np.array(memmap[i])``, without
+    faulting the map's pages in (so nothing to hand back) and with a fresh, writable array.
+    The file is opened once, when the reader is made (right after the map, so the same
+    file), and closed when the reader is collected."""
+
+    def __init__(self, mm: np.memmap, path: Path) -> None:
+        self._open(Path(str(mm.filename)), path, mm.dtype, mm.shape[1:], int(mm.offset))
+
+    def _open(
+        self, file: Path, path: Path, dtype: np.dtype, shape: tuple[int, ...], offset: int
+    ) -> None:
+        # file: the mapped file's absolute name; path: its name in the recording (errors)
+        self.file, self.path, self.dtype, self.shape, self.offset = file, path, dtype, shape, offset
+        self.row_bytes = int(dtype.itemsize * math.prod(shape))
+        self.fd = os.open(file, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+        weakref.finalize(self, os.close, self.fd)
+
+    def __reduce__(self):  # a copy in another process opens the file again
+        args = (self.file, self.path, self.dtype, self.shape, self.offset)
+        return (_RowReader._reopened, args)
+
+    @staticmethod
+    def _reopened(
+        file: Path, path: Path, dtype: np.dtype, shape: tuple[int, ...], offset: int
+    ) -> _RowReader:
+        reader = _RowReader.__new__(_RowReader)
+        reader._open(file, path, dtype, shape, offset)
+        return reader
+
+    @staticmethod
+    def can_read(arr: np.ndarray) -> bool:
+        return (
+            hasattr(os, "preadv")
+            and isinstance(arr, np.memmap)
+            and arr.filename is not None
+            and arr.ndim >= 2
+            and arr.flags.c_contiguous
+        )
+
+    def read(self, i: int) -> np.ndarray:
+        """Row ``i`` as a new array; a RecordingError naming the file if it cannot be read
+        whole (changed or shrunk since opening)."""
+        out = np.empty(self.shape, self.dtype)
+        try:
+            n = os.preadv(self.fd, [out], self.offset + i * self.row_bytes)
+        except OSError as exc:
+            raise RecordingError(
+                self.path, f"frame {i} cannot be read ({_describe(exc)})"
+            ) from None
+        if n != self.row_bytes:
+            raise RecordingError(
+                self.path, f"frame {i} cannot be read (file shorter than when opened)"
+            )
+        return out
 
 
 def release_pages(arr: np.ndarray) -> None:

@@ -1090,12 +1090,10 @@ class OnlineEstimator:
             result = transform_result(result)
         accepted = refused = False
         if result.displacement is not None:
-            d2 = self._test_frame_stamps(t, result.displacement)
+            d2, fused = self._test_frame_stamps(t, result.displacement)
             n_refused = self.filter.n_gate_refusals
-            self._arbitrate_imu(result.displacement, d2)
-            accepted = self._as_family(
-                t, "displacement", self.filter.update_displacement, result.displacement
-            )
+            self._arbitrate_imu(fused, d2)
+            accepted = self._as_family(t, "displacement", self.filter.update_displacement, fused)
             refused = self.filter.n_gate_refusals > n_refused
             self._recover_if_locked_out(refused)
         else:
@@ -1398,24 +1396,33 @@ class OnlineEstimator:
         self._frame_joints = self._joints_at(t)
         return dataclasses.replace(frame, timestamp_s=t)
 
-    def _test_frame_stamps(self, t_s: float, d: Displacement2D) -> float | None:
+    def _test_frame_stamps(
+        self, t_s: float, d: Displacement2D
+    ) -> tuple[float | None, Displacement2D]:
         """Feed the frame-stamp test (``camera_clock_model: auto``): the displacement's gate
         statistic under the frame times in use and under the other choice, whose IMU
         prediction differs by u (time_offset.FrameStampTest). Returns the first (None if not
-        computed): the filter is unchanged, so :meth:`_arbitrate_imu` need not recompute it."""
+        computed; the filter is unchanged, so :meth:`_arbitrate_imu` need not recompute it)
+        and the displacement to fuse: with ``stamp_ambiguity_cov`` its covariance holds the
+        other choice's shift with the test's posterior probability of it
+        (``FrameStampTest.ambiguity_cov``; the gate statistic is then None)."""
         test = self.stamp_test
         if test is None:
-            return None
+            return None, d
         u = test.shift(self._position_at(t_s)[1])
         if u is None:
-            return None
+            return None, d
         # r_line = r_stamp - u: the other hypothesis moves the measurement by -u (or +u)
         moved = np.asarray(d.delta_xz_m, dtype=float) + (u if test.use_line else -u)
         pair = self.filter.displacement_d2_pair(d, moved)  # one H, V for both hypotheses
         if pair is None:
-            return None
+            return None, d
+        line_in_use = test.use_line  # this frame's times (the test may switch on it)
         test.add(*pair)
-        return pair[0]
+        if not self.config.filter.time_offset.stamp_ambiguity_cov:
+            return pair[0], d
+        wider = dataclasses.replace(d, cov_m2=d.cov_m2 + test.ambiguity_cov(u, line_in_use))
+        return None, wider
 
     def _joints_at(self, t_s: float) -> JointAngles | None:
         """Joint angles interpolated at ``t_s`` from the recent samples (held beyond them)."""

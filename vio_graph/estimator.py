@@ -377,6 +377,7 @@ class OnlineEstimator:
         self._stand_z_m: float | None = None
         self._stance_sole_z_m: list[float] = []
         self._refused_in_row = 0  # displacements refused by the gate in a row
+        self._last_fix_t: float | None = None  # time of the last fused displacement (s)
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
         self.health = HealthMonitor(HealthLimits(floor_m=fc.measurement_noise_floor_m))
         #: ankle minus camera in the shank frame (x, z), m, and the sigma (m) of the
@@ -1095,13 +1096,15 @@ class OnlineEstimator:
             self._arbitrate_imu(fused, d2)
             accepted = self._as_family(t, "displacement", self.filter.update_displacement, fused)
             refused = self.filter.n_gate_refusals > n_refused
-            self._recover_if_locked_out(refused)
+            if accepted:
+                self._last_fix_t = t
+            self._recover_if_locked_out(refused, t)
         else:
             self.filter.clone_position(t)
             if _PREDICTION_REFUSAL in (result.rejection_reason or ""):
                 # the front end's gate on the same IMU prediction refused ICP: for the
                 # lock-out it counts like a refusal of the filter's gate
-                self._recover_if_locked_out(True)
+                self._recover_if_locked_out(True, t)
         self._fuse_landmarks(t, result, R_world_imu)
         camera_xz, velocity = self._position_at(t)
         if self.stamp_test is not None:
@@ -1470,7 +1473,7 @@ class OnlineEstimator:
             self.filter.inflate_position_velocity(Q)
             self.n_imu_inconsistent += 1
 
-    def _recover_if_locked_out(self, refused: bool) -> None:
+    def _recover_if_locked_out(self, refused: bool, t_s: float) -> None:
         """Gate lock-out recovery. A chi-square gate at p = 0.999 refuses a correct
         displacement by chance once in a thousand; ``lockout_refusals`` refusals in a row
         mean the filter's own state (a velocity gone wrong) is what disagrees with vision,
@@ -1480,7 +1483,10 @@ class OnlineEstimator:
         self._refused_in_row = self._refused_in_row + 1 if refused else 0
         n = self.config.filter.lockout_refusals
         if n is not None and self._refused_in_row >= n:
-            self.filter.inflate_velocity(self.config.filter.init_velocity_sigma_mps)
+            since = 0.0
+            if self.config.filter.lockout_since_last_fix and self._last_fix_t is not None:
+                since = t_s - self._last_fix_t
+            self.filter.inflate_velocity(self.config.filter.init_velocity_sigma_mps, since)
             self.health.n_recoveries += 1
             self._refused_in_row = 0
 

@@ -536,6 +536,13 @@ class FilterConfig(BaseModel):
         "0.999 three chance refusals in a row happen once in 1e9). The front end's refusals of "
         "ICP against the same IMU prediction count too. None = never",
     )
+    lockout_since_last_fix: bool = Field(
+        default=True,
+        description="the lock-out recovery takes the distrusted velocity error as constant "
+        "since the last fused displacement and widens the position (and the clone) by its "
+        "integral with the matching correlation (SagittalEskf.inflate_velocity since_s), so "
+        "a later velocity measurement corrects the position too. False: velocity only",
+    )
     history_s: float = Field(
         default=2.0, gt=0, description="how long (s) past position estimates are kept for t0"
     )

@@ -48,6 +48,25 @@ def test_inflated_velocity_lets_vision_back_in() -> None:
     assert np.hypot(*f.state.v_xz_mps) < 0.05
 
 
+def test_inflation_since_the_last_fix_lets_a_velocity_correct_the_position() -> None:
+    """A filter 0.4 m/s off in x for the last 0.3 s (so 12 cm off in position), sure of both:
+    after inflate_velocity(0.5, since_s=0.3) an exact velocity observation takes the velocity
+    back and the position with it (to within 1 cm of the 12 cm); inflated on the velocity
+    alone, the same observation leaves the position where it was."""
+    P0 = np.diag([1e-6] * 2 + [1e-6] * 2 + [1e-4] * 2 + [1e-6] * 2)
+    moved = {}
+    for since in (0.3, 0.0):
+        f = SagittalEskf(FilterConfig())
+        f.initialise(0.0, (0.12, 0.0), v_xz=(0.4, 0.0), P0=P0)  # truth: p = 0, v = 0
+        f.inflate_velocity(0.5, since_s=since)
+        x0 = float(f.state.p_xz_m[0])
+        assert f.update_velocity(np.zeros(2), np.eye(2) * 1e-6, 0.0, gate=False)
+        moved[since] = float(f.state.p_xz_m[0]) - x0
+        assert abs(float(f.state.v_xz_mps[0])) < 0.01
+    assert moved[0.3] == pytest.approx(-0.12, abs=0.01)
+    assert abs(moved[0.0]) < 1e-3
+
+
 @pytest.mark.slow
 def test_estimator_recovers_from_a_corrupted_velocity(short_upstair: Path) -> None:
     """Mid-trial the filter's velocity is knocked 0.6 m/s off with a tiny covariance (what a

@@ -380,6 +380,7 @@ class OnlineEstimator:
         self._stand_z_m: float | None = None
         self._stance_sole_z_m: list[float] = []
         self._refused_in_row = 0  # displacements refused by the gate in a row
+        self._last_fix_t: float | None = None  # time of the last fused displacement (s)
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
         self.health = HealthMonitor(HealthLimits(floor_m=fc.measurement_noise_floor_m))
         #: ankle minus camera in the shank frame (x, z), m, and the sigma (m) of the
@@ -1091,20 +1092,20 @@ class OnlineEstimator:
             result = transform_result(result)
         accepted = refused = False
         if result.displacement is not None:
-            d2 = self._test_frame_stamps(t, result.displacement)
+            d2, fused = self._test_frame_stamps(t, result.displacement)
             n_refused = self.filter.n_gate_refusals
-            self._arbitrate_imu(result.displacement, d2)
-            accepted = self._as_family(
-                t, "displacement", self.filter.update_displacement, result.displacement
-            )
+            self._arbitrate_imu(fused, d2)
+            accepted = self._as_family(t, "displacement", self.filter.update_displacement, fused)
             refused = self.filter.n_gate_refusals > n_refused
-            self._recover_if_locked_out(refused)
+            if accepted:
+                self._last_fix_t = t
+            self._recover_if_locked_out(refused, t)
         else:
             self.filter.clone_position(t)
             if _PREDICTION_REFUSAL in (result.rejection_reason or ""):
                 # the front end's gate on the same IMU prediction refused ICP: for the
                 # lock-out it counts like a refusal of the filter's gate
-                self._recover_if_locked_out(True)
+                self._recover_if_locked_out(True, t)
         self._fuse_landmarks(t, result, R_world_imu)
         camera_xz, velocity = self._position_at(t)
         if self.stamp_test is not None:
@@ -1399,24 +1400,33 @@ class OnlineEstimator:
         self._frame_joints = self._joints_at(t)
         return dataclasses.replace(frame, timestamp_s=t)
 
-    def _test_frame_stamps(self, t_s: float, d: Displacement2D) -> float | None:
+    def _test_frame_stamps(
+        self, t_s: float, d: Displacement2D
+    ) -> tuple[float | None, Displacement2D]:
         """Feed the frame-stamp test (``camera_clock_model: auto``): the displacement's gate
         statistic under the frame times in use and under the other choice, whose IMU
         prediction differs by u (time_offset.FrameStampTest). Returns the first (None if not
-        computed): the filter is unchanged, so :meth:`_arbitrate_imu` need not recompute it."""
+        computed; the filter is unchanged, so :meth:`_arbitrate_imu` need not recompute it)
+        and the displacement to fuse: with ``stamp_ambiguity_cov`` its covariance holds the
+        other choice's shift with the test's posterior probability of it
+        (``FrameStampTest.ambiguity_cov``; the gate statistic is then None)."""
         test = self.stamp_test
         if test is None:
-            return None
+            return None, d
         u = test.shift(self._position_at(t_s)[1])
         if u is None:
-            return None
+            return None, d
         # r_line = r_stamp - u: the other hypothesis moves the measurement by -u (or +u)
         moved = np.asarray(d.delta_xz_m, dtype=float) + (u if test.use_line else -u)
         pair = self.filter.displacement_d2_pair(d, moved)  # one H, V for both hypotheses
         if pair is None:
-            return None
+            return None, d
+        line_in_use = test.use_line  # this frame's times (the test may switch on it)
         test.add(*pair)
-        return pair[0]
+        if not self.config.filter.time_offset.stamp_ambiguity_cov:
+            return pair[0], d
+        wider = dataclasses.replace(d, cov_m2=d.cov_m2 + test.ambiguity_cov(u, line_in_use))
+        return None, wider
 
     def _joints_at(self, t_s: float) -> JointAngles | None:
         """Joint angles interpolated at ``t_s`` from the recent samples (held beyond them)."""
@@ -1464,7 +1474,7 @@ class OnlineEstimator:
             self.filter.inflate_position_velocity(Q)
             self.n_imu_inconsistent += 1
 
-    def _recover_if_locked_out(self, refused: bool) -> None:
+    def _recover_if_locked_out(self, refused: bool, t_s: float) -> None:
         """Gate lock-out recovery. A chi-square gate at p = 0.999 refuses a correct
         displacement by chance once in a thousand; ``lockout_refusals`` refusals in a row
         mean the filter's own state (a velocity gone wrong) is what disagrees with vision,
@@ -1474,7 +1484,10 @@ class OnlineEstimator:
         self._refused_in_row = self._refused_in_row + 1 if refused else 0
         n = self.config.filter.lockout_refusals
         if n is not None and self._refused_in_row >= n:
-            self.filter.inflate_velocity(self.config.filter.init_velocity_sigma_mps)
+            since = 0.0
+            if self.config.filter.lockout_since_last_fix and self._last_fix_t is not None:
+                since = t_s - self._last_fix_t
+            self.filter.inflate_velocity(self.config.filter.init_velocity_sigma_mps, since)
             self.health.n_recoveries += 1
             self._refused_in_row = 0
 

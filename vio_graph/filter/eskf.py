@@ -715,11 +715,29 @@ class SagittalEskf:
         """Displacements refused by the chi-square gate so far."""
         return self._n_rej
 
-    def inflate_velocity(self, sigma_mps: float) -> None:
+    def inflate_velocity(self, sigma_mps: float, since_s: float = 0.0) -> None:
         """Add ``sigma_mps``^2 to the velocity variance (both axes): the filter no longer
-        trusts its velocity, so the next measurements can correct it."""
+        trusts its velocity, so the next measurements can correct it.
+
+        ``since_s`` (s) > 0: the distrusted velocity error dv is taken as constant over the
+        last ``since_s`` seconds, so the position carries since_s * dv and the clone
+        (since_s - its age) * dv: the covariance grows by sigma^2 g g^T with g = (since_s,
+        1, clone lever) per axis, which keeps the position-velocity correlation that lets a
+        later velocity measurement correct the position it built up."""
         self._require_init()
-        self._P[2:4, 2:4] += float(sigma_mps) ** 2 * _I2
+        s2 = float(sigma_mps) ** 2
+        since = max(float(since_s), 0.0)
+        if since <= 0.0:
+            self._P[2:4, 2:4] += s2 * _I2
+            return
+        n = self._P.shape[0]
+        G = np.zeros((n, 2))
+        G[0:2] = since * _I2
+        G[2:4] = _I2
+        if _CLONE in self._aug_xz:
+            i = self._aug_index(_CLONE)
+            G[i : i + 2] = max(since - (self._t_s - self._clone_t_s), 0.0) * _I2
+        self._P += s2 * (G @ G.T)
 
     def _displacement_setup(self, d: Displacement2D) -> tuple[NDArray, NDArray, NDArray] | None:
         """The state's part of the gate test of displacement ``d``: (H, the measurement noise

@@ -532,6 +532,25 @@ class FrameStampTest:
         elif self.use_line and self.llr < -self.threshold:
             self.use_line, self.n_switches = False, self.n_switches + 1
 
+    def other_probability(self, line_in_use: bool | None = None) -> float:
+        """Posterior probability (equal priors) of the frame times not in use, 1 / (1 +
+        exp(-+llr)): 0.5 before any evidence, 1/101 at the switching threshold.
+        ``line_in_use``: the choice a frame was stamped with (default: the current one; a
+        frame whose own evidence switched the test was stamped with the other)."""
+        line = self.use_line if line_in_use is None else line_in_use
+        llr = -self.llr if line else self.llr  # log odds, other over in use
+        return float(1.0 / (1.0 + np.exp(-llr)))
+
+    def ambiguity_cov(
+        self, u: NDArray[np.float64], line_in_use: bool | None = None
+    ) -> NDArray[np.float64]:
+        """The covariance (m^2, 2x2) a displacement fused under the frame times in use
+        carries for the other choice: with probability p its prediction is off by u, so the
+        measurement's second moment about it grows by p u u^T. Vanishes as the test decides
+        (p -> 0); half of u u^T while it has seen no evidence."""
+        u = np.asarray(u, dtype=float)
+        return self.other_probability(line_in_use) * np.outer(u, u)
+
     def end_frame(self, velocity_xz_mps: NDArray[np.float64]) -> None:
         if self._delta_s is not None:
             self._prev = (self._delta_s, np.asarray(velocity_xz_mps, dtype=float).copy())

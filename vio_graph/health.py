@@ -581,3 +581,74 @@ class InnovationTest:
 
 def _share(part: int, whole: int) -> float:
     return float(part) / whole if whole else 0.0
+
+
+def smoothed_vs_filtered(
+    t_s: NDArray[np.float64],
+    filter_xz_m: NDArray[np.float64],
+    filter_cov_m2: NDArray[np.float64],
+    other_xz_m: NDArray[np.float64],
+    probability: float = 0.999,
+) -> dict:
+    """Offline consistency of a second estimate of the same path (a smoother's) with the
+    filter's, per axis (x, z). Report only: nothing is changed.
+
+    Both paths are anchored at their first pose (as the ATE). The difference of two
+    estimates of one path has covariance P_f - P_s for a smoother that saw every
+    measurement the filter did (Rauch-Tung-Striebel), which is at most the filter's own
+    P_f. So d^2 = (x_s - x_f)^2 / P_f,xx is at most the difference's chi-square (1 dof),
+    a conservative test: beyond its ``probability`` quantile one of the two estimates is
+    further from the other than the filter's covariance allows, i.e. one of them is wrong
+    (which, the test cannot say). ``t_s`` (N,) s, ``*_xz_m`` (N, 2) m, ``filter_cov_m2``
+    (N, 2, 2) m^2; frames with a non-positive or non-finite variance or a non-finite
+    position are left out. Returns per axis the frames tested, the share beyond the
+    quantile, the largest d^2 with its time and difference (cm), and the largest and
+    RMS difference (cm). The RMS difference needs no covariance: by the triangle
+    inequality it is at most the sum of the two paths' RMS errors, so a difference
+    above twice an accuracy aim means one of them misses it."""
+    t = np.asarray(t_s, dtype=float)
+    f = np.asarray(filter_xz_m, dtype=float).reshape(-1, 2)
+    o = np.asarray(other_xz_m, dtype=float).reshape(-1, 2)
+    var = np.asarray(filter_cov_m2, dtype=float).reshape(-1, 2, 2)[:, [0, 1], [0, 1]]
+    diff = (o - o[:1]) - (f - f[:1]) if len(f) else np.zeros((0, 2))
+    z = NormalDist().inv_cdf(0.5 * (1.0 + probability))
+    limit = z * z  # the chi-square (1 dof) quantile, exact
+    out: dict = {"probability": probability, "chi2_limit": limit}
+    for j, axis in enumerate("xz"):
+        ok = np.isfinite(diff[:, j]) & np.isfinite(var[:, j]) & (var[:, j] > 0)
+        if not ok.any():
+            out[axis] = {"frames": 0, "beyond_share": 0.0, "max_d2": 0.0, "max_d2_at_s": None}
+            out[axis] |= {"difference_at_max_cm": 0.0, "max_difference_cm": 0.0}
+            out[axis] |= {"rms_difference_cm": 0.0}
+            continue
+        d2 = diff[ok, j] ** 2 / var[ok, j]
+        k = int(np.argmax(d2))
+        out[axis] = {
+            "frames": int(ok.sum()),
+            "beyond_share": float(np.mean(d2 > limit)),
+            "max_d2": float(d2[k]),
+            "max_d2_at_s": float(t[ok][k]),
+            "difference_at_max_cm": float(100.0 * diff[ok, j][k]),
+            "max_difference_cm": float(100.0 * np.max(np.abs(diff[ok, j]))),
+            "rms_difference_cm": float(100.0 * np.sqrt(np.mean(diff[ok, j] ** 2))),
+        }
+    out["consistent"] = all(out[a]["max_d2"] <= limit for a in "xz")
+    return out
+
+
+def filter_sigma_summary(filter_cov_m2: NDArray[np.float64]) -> dict:
+    """The filter's own position sigma (cm) per axis: median, 95th percentile and last
+    frame. Report only; it says how far the filter itself claims it may be off (a
+    consistent filter with an x sigma of 1.8 cm is within 2 cm only about as often as
+    a normal variable is within 1.1 sigma)."""
+    var = np.asarray(filter_cov_m2, dtype=float).reshape(-1, 2, 2)[:, [0, 1], [0, 1]]
+    out: dict = {}
+    for j, axis in enumerate("xz"):
+        v = var[np.isfinite(var[:, j]) & (var[:, j] >= 0), j]
+        s = 100.0 * np.sqrt(v) if v.size else np.array([np.nan])
+        out[axis] = {
+            "median_cm": float(np.median(s)),
+            "p95_cm": float(np.percentile(s, 95)),
+            "last_cm": float(s[-1]),
+        }
+    return out

@@ -34,6 +34,7 @@ from vio_graph.evaluation.run_metrics import (
     shank_pitch_error_deg,
     terrain_accuracy,
 )
+from vio_graph.health import filter_sigma_summary, smoothed_vs_filtered
 from vio_graph.io_utils import atomic_write_json, atomic_write_text, remove_temporaries
 from vio_graph.mapping.run_map import build_run_map
 from vio_graph.outputs import (
@@ -277,6 +278,7 @@ def _evaluate(
     metrics["frontend"] = frontend_summary(lg)
     metrics["filter"] = filter_summary(replay)
     metrics["health"] = replay.online.health_report()
+    _add_estimate_consistency(metrics["health"], lg)
     metrics.update(replay.online.fault_report())  # imu_faults, time_offset, timestamps
     if replay.imu_retimed is not None and "imu" in metrics["timestamps"]:
         # the stamps the online clock model saw were already on the offline line
@@ -300,6 +302,23 @@ def _evaluate(
                 gt.trajectories["camera"].xz_at(t_s),
             )
     return metrics
+
+
+def _add_estimate_consistency(health: dict[str, Any], lg: FrameLog) -> None:
+    """Report-only health figures from the whole run (no ground truth): the filter's own
+    position sigma, and each smoother's path tested against the filter's covariance
+    (vio_graph/health.py, smoothed_vs_filtered). Nothing is changed; ``health.ok`` and the
+    warnings are left as the online monitor gave them."""
+    cov = np.asarray(lg.cov_position_m2, dtype=float)
+    t_s = np.asarray(lg.t_s, dtype=float)
+    if "filter" not in lg.camera_xz or len(cov) != len(t_s) or not len(t_s):
+        return
+    health["filter_sigma"] = filter_sigma_summary(cov)
+    for mode in ("smoother", "batch"):
+        if mode in lg.camera_xz and len(lg.camera_xz[mode]) == len(t_s):
+            health[f"{mode}_vs_filter"] = smoothed_vs_filtered(
+                t_s, lg.camera_xz["filter"], cov, lg.camera_xz[mode]
+            )
 
 
 def rerun_report(replay: Replay, gt) -> dict[str, Any]:

@@ -597,13 +597,10 @@ def test_filter_keeps_the_axes_of_a_repaired_packet_that_agree_with_its_neighbou
     np.testing.assert_allclose(steps[k].shank.measured_gyro_radps, spiked[k].gyro_radps)
 
 
-def test_smoothers_keep_the_axes_of_a_held_packet_that_agree_with_its_neighbours() -> None:
-    import gtsam
-
-    n, k = 25, 10
-    truth, spiked = _heel_strike_with_one_axis_spike(n, k)
-    # the monitor's stand-in: the previous force held, the gyro predicted (0.5 rad/s off in
-    # pitch), the measurement carried beside it
+def _with_held_standin(truth: list, spiked: list, k: int) -> list:
+    """The clean stream with sample ``k`` replaced by the monitor's stand-in for the spiked
+    packet: the previous force held, the gyro predicted (0.5 rad/s off in pitch), the
+    measurement carried beside it."""
     held = dataclasses.replace(
         spiked[k],
         accel_mps2=truth[k - 1].accel_mps2,
@@ -614,7 +611,15 @@ def test_smoothers_keep_the_axes_of_a_held_packet_that_agree_with_its_neighbours
         measured_accel_mps2=spiked[k].accel_mps2,
         measured_gyro_radps=spiked[k].gyro_radps,
     )
-    faulty = [*truth[:k], held, *truth[k + 1 :]]
+    return [*truth[:k], held, *truth[k + 1 :]]
+
+
+def test_smoothers_keep_the_axes_of_a_held_packet_that_agree_with_its_neighbours() -> None:
+    import gtsam
+
+    n, k = 25, 10
+    truth, spiked = _heel_strike_with_one_axis_spike(n, k)
+    faulty = _with_held_standin(truth, spiked, k)
     on = SmootherConfig()
     off = SmootherConfig(held_keep_consistent_axes=False)
     dv_true, _, r_true = _imu_factor_delta_v(truth, on)
@@ -856,17 +861,7 @@ def test_smoothers_keep_distrusting_a_held_packet_whose_spike_they_could_not_pla
     preintegrated velocity, as without held_axis_distrust."""
     n, k = 25, 10
     truth, spiked = _heel_strike_with_a_hidden_spike(n, k)
-    held = dataclasses.replace(
-        spiked[k],
-        accel_mps2=truth[k - 1].accel_mps2,
-        gyro_radps=truth[k].gyro_radps + [0.0, 0.5, 0.0],
-        accel_extra_sigma_mps2=ImuFaultConfig().held_accel_sigma_mps2,
-        gyro_extra_sigma_radps=0.5,
-        accel_held=True,
-        measured_accel_mps2=spiked[k].accel_mps2,
-        measured_gyro_radps=spiked[k].gyro_radps,
-    )
-    faulty = [*truth[:k], held, *truth[k + 1 :]]
+    faulty = _with_held_standin(truth, spiked, k)
     on = SmootherConfig()
     assert on.held_axis_distrust
     off = on.model_copy(update={"held_axis_distrust": False})

@@ -674,26 +674,16 @@ def estimate_terrain_geometry(
     cfg = config if config is not None else StepConfig()
     pts, w = _as_points(points_xz_m, weights)
     levels = _merge_levels(find_levels(pts, w, cfg), cfg)
-    for _ in range(_UNDER_LEVEL_PASSES if cfg.under_level_margin_m is not None else 0):
+    margin = cfg.under_level_margin_m
+    for _ in range(_UNDER_LEVEL_PASSES if margin is not None else 0):
+        assert margin is not None
         drop = cfg.min_rise_m + cfg.level_tolerance_m
-        under = under_levels_by_window(
-            pts,
-            np.array([lv.z_m for lv in levels], dtype=float),
-            np.array([lv.x_start_m for lv in levels], dtype=float),
-            np.array([lv.x_end_m for lv in levels], dtype=float),
-            cfg.under_level_margin_m,
-            drop,
-        )
+        z = np.array([lv.z_m for lv in levels], dtype=float)
+        lo = np.array([lv.x_start_m for lv in levels], dtype=float)
+        hi = np.array([lv.x_end_m for lv in levels], dtype=float)
+        under = under_levels_by_window(pts, z, lo, hi, margin, drop)
         if cfg.under_junctions:
-            under |= under_junctions_mask(
-                pts,
-                np.array([lv.z_m for lv in levels], dtype=float),
-                np.array([lv.x_start_m for lv in levels], dtype=float),
-                np.array([lv.x_end_m for lv in levels], dtype=float),
-                cfg.under_level_margin_m,
-                drop,
-                cfg.max_gap_m,
-            )
+            under |= under_junctions_mask(pts, z, lo, hi, margin, drop, cfg.max_gap_m)
         if not under.any():
             break
         # the walking surface only (open risers): find the levels again without them

@@ -315,3 +315,69 @@ def test_under_levels_by_window_equals_the_whole_call(seed: int) -> None:
         under_levels_by_window(pts, z, lo, hi, -0.05, 0.06),
         under_levels_mask(pts, z, lo, hi, -0.05, 0.06, 0.06),
     )
+
+
+def _open_riser_map_with_floor_at_a_junction() -> tuple[np.ndarray, np.ndarray]:
+    """A map of an open-riser flight (rise 0.15 m, tread 0.28 m, 5 treads, then a landing):
+    the treads and landing every 5 mm, no riser points (open), and the floor (z 0) seen
+    through the last open riser only within 45 mm either side of the junction of the last
+    tread and the landing, the strips the beneath-a-level rule leaves out (weight 3 per floor
+    cell, 30 per surface cell)."""
+    rise, tread, n = 0.15, 0.28, 5
+    pts, w = [], []
+    for i in range(n + 1):
+        x0 = 0.5 + i * tread
+        x1 = x0 + (tread if i < n else 1.5) - 0.005
+        xs = np.arange(x0, x1, 0.005)
+        pts.append(np.column_stack([xs, np.full(xs.size, rise * (i + 1))]))
+        w.append(np.full(xs.size, 30.0))
+    floor_x = np.arange(0.5 + n * tread - 0.045, 0.5 + n * tread + 0.046, 0.005)
+    pts.append(np.column_stack([floor_x, np.zeros(floor_x.size)]))
+    w.append(np.full(floor_x.size, 3.0))
+    floor_x = np.arange(-0.5, 0.5, 0.005)  # the floor before the flight
+    pts.append(np.column_stack([floor_x, np.zeros(floor_x.size)]))
+    w.append(np.full(floor_x.size, 30.0))
+    return np.vstack(pts), np.concatenate(w)
+
+
+def test_floor_under_the_junction_of_two_treads_is_not_a_level() -> None:
+    """The floor seen through an open riser at the junction of the last tread and the landing
+    (sweep open_risers seed 1002, batch attitude: 8 floor cells at x 4.573-4.624 m) is not the
+    walking surface: with the junction rule the flight reads 6 up steps of 0.15 m (floor to
+    landing); without it that floor is a level of its own between the tread and the landing
+    (a 0.9 m "rise") and the map's kind is not a stair."""
+    pts, w = _open_riser_map_with_floor_at_a_junction()
+    geo = estimate_terrain_geometry(pts, w, StepConfig())
+    assert geo.kind is TerrainKind.STAIR_UP
+    assert len(geo.steps) == 6
+    np.testing.assert_allclose([s.rise_m for s in geo.steps], 0.15, atol=1e-6)
+    without = estimate_terrain_geometry(pts, w, StepConfig(under_junctions=False))
+    assert without.kind is not TerrainKind.STAIR_UP
+    assert max(s.rise_m for s in without.steps) > 0.5
+
+
+def test_under_junctions_mask_keeps_risers_and_steps_down() -> None:
+    """mapping.steps.under_junctions_mask flags only points ``drop`` below both abutting
+    levels within the margin of their junction: a riser between them (at the heights between
+    the two levels), the lower level's own cells, points beyond the margin and junctions of
+    levels farther apart than the gap are kept."""
+    from vio_graph.mapping.steps import under_junctions_mask
+
+    z = np.array([0.15, 0.30, 0.0])
+    lo = np.array([0.0, 0.28, 1.0])  # the third level starts 0.42 m after the second's end
+    hi = np.array([0.275, 0.58, 2.0])
+    pts = np.array(
+        [
+            [0.27, 0.0],  # floor under the junction, 5 mm before tread 1's end: under
+            [0.30, 0.05],  # 20 mm into tread 2, 0.1 m below the lower: under
+            [0.32, 0.0],  # 40 mm into tread 2: under (within the 50 mm margin)
+            [0.34, 0.0],  # 60 mm into tread 2: left to the beneath-a-level rule
+            [0.20, 0.0],  # 75 mm before tread 1's end: left to the beneath-a-level rule
+            [0.278, 0.22],  # the riser between the two treads: kept
+            [0.27, 0.15],  # tread 1 itself: kept
+            [0.27, 0.12],  # 30 mm below tread 1 (less than the drop): kept
+            [0.60, -0.5],  # past tread 2's end, the next level is not abutting: kept
+        ]
+    )
+    got = under_junctions_mask(pts, z, lo, hi, margin_m=0.05, drop_m=0.04, gap_m=0.03)
+    np.testing.assert_array_equal(got, [True, True, True, False, False, False, False, False, False])

@@ -77,6 +77,14 @@ class StepConfig(_Frozen):
         "open-riser treads, a wall under a landing) are not the walking surface; when any "
         "occur they are dropped and the levels found again, metres; None: keep every point",
     )
+    under_junctions: bool = Field(
+        default=True,
+        description="with under_level_margin_m: also drop map points at least min_rise_m + "
+        "level_tolerance_m below both of two abutting levels (the next starts within "
+        "max_gap_m of the end of the other) within under_level_margin_m of their junction, "
+        "the strips the beneath-a-level rule leaves out (the floor seen through the open "
+        "riser between two treads)",
+    )
     riser_margin_m: float = Field(
         default=0.015,
         ge=0,

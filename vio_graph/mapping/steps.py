@@ -606,6 +606,52 @@ def under_levels_by_window(
     return under
 
 
+def under_junctions_mask(
+    pts: NDArray[np.float64],
+    z: NDArray[np.float64],
+    lo: NDArray[np.float64],
+    hi: NDArray[np.float64],
+    margin_m: float,
+    drop_m: float,
+    gap_m: float,
+) -> NDArray[np.bool_]:
+    """(N,) True for map points beneath the junction of two abutting levels.
+
+    Levels A and C abut when C starts within ``gap_m`` of A's end (an x gap narrower than the
+    one that splits a level is no gap in the surface). A point with x from ``margin_m`` before
+    A's end to ``margin_m`` past C's start and at least ``drop_m`` below the lower of the two is
+    under the walking surface. These are the strips the rule "more than ``margin_m`` inside a
+    level's extent" (:func:`vio_graph.surface.under_levels_mask`) leaves out; it leaves them
+    for a riser set back under its own nosing, and a riser spans the two levels' heights, so
+    it is never ``drop_m`` below the lower one: a point there is the floor seen through an
+    open riser (no line of sight in a map, but a floor 1.5 m below two treads that meet is not
+    the walking surface). Pure; all metres, world frame.
+    """
+    n = pts.shape[0]
+    under = np.zeros(n, dtype=bool)
+    if n == 0 or z.size < 2:
+        return under
+    by_x = np.argsort(pts[:, 0], kind="stable")
+    xs = pts[by_x, 0]
+    by_lo = np.argsort(lo, kind="stable")
+    lo_sorted = lo[by_lo]
+    for a in range(z.size):
+        j0 = int(np.searchsorted(lo_sorted, hi[a] - gap_m, side="left"))
+        j1 = int(np.searchsorted(lo_sorted, hi[a] + gap_m, side="right"))
+        for c in by_lo[j0:j1]:
+            if c == a or lo[c] <= lo[a]:
+                continue
+            x_lo = max(lo[a], hi[a] - margin_m)
+            x_hi = min(hi[c], lo[c] + margin_m)
+            i0 = int(np.searchsorted(xs, x_lo, side="left"))
+            i1 = int(np.searchsorted(xs, x_hi, side="right"))
+            if i1 <= i0:
+                continue
+            rows = by_x[i0:i1]
+            under[rows[pts[rows, 1] < min(z[a], z[c]) - drop_m]] = True
+    return under
+
+
 def estimate_terrain_geometry(
     points_xz_m: ArrayLike,
     weights: ArrayLike | None = None,
@@ -628,16 +674,16 @@ def estimate_terrain_geometry(
     cfg = config if config is not None else StepConfig()
     pts, w = _as_points(points_xz_m, weights)
     levels = _merge_levels(find_levels(pts, w, cfg), cfg)
-    for _ in range(_UNDER_LEVEL_PASSES if cfg.under_level_margin_m is not None else 0):
+    margin = cfg.under_level_margin_m
+    for _ in range(_UNDER_LEVEL_PASSES if margin is not None else 0):
+        assert margin is not None
         drop = cfg.min_rise_m + cfg.level_tolerance_m
-        under = under_levels_by_window(
-            pts,
-            np.array([lv.z_m for lv in levels], dtype=float),
-            np.array([lv.x_start_m for lv in levels], dtype=float),
-            np.array([lv.x_end_m for lv in levels], dtype=float),
-            cfg.under_level_margin_m,
-            drop,
-        )
+        z = np.array([lv.z_m for lv in levels], dtype=float)
+        lo = np.array([lv.x_start_m for lv in levels], dtype=float)
+        hi = np.array([lv.x_end_m for lv in levels], dtype=float)
+        under = under_levels_by_window(pts, z, lo, hi, margin, drop)
+        if cfg.under_junctions:
+            under |= under_junctions_mask(pts, z, lo, hi, margin, drop, cfg.max_gap_m)
         if not under.any():
             break
         # the walking surface only (open risers): find the levels again without them

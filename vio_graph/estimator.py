@@ -99,7 +99,7 @@ from vio_graph.geometry import (
     remove_yaw,
     rot_y,
 )
-from vio_graph.health import HealthLimits, HealthMonitor
+from vio_graph.health import HealthLimits, HealthMonitor, input_fault_context
 from vio_graph.keyframes import KeyframeSelector
 from vio_graph.kinematics import (
     LegModel,
@@ -510,6 +510,16 @@ class OnlineEstimator:
                 f"consistency_scale) at the start; check a run with "
                 f"filter.time_offset.estimate false if the rig is synchronised."
             )
+        if not rep.get("innovations_consistent", True):
+            stamp = self.stamp_test.report() if self.stamp_test is not None else None
+            found = input_fault_context(self.imu_faults.report(), stamp)
+            if found:
+                rep["warnings"].append(
+                    "WARNING: the inputs of this run had faults that make the IMU prediction, "
+                    "and so the innovations above, less reliable than the noise settings say: "
+                    + "; ".join(found)
+                    + ". They may be the cause rather than the depth noise."
+                )
         rep["stance"] = dict(self.stance_stats)
         fs = self.filter.state
         rep["landmarks"] = {"accepted": fs.n_landmark_accepted, "rejected": fs.n_landmark_rejected}

@@ -421,6 +421,35 @@ class HealthMonitor:
         }
 
 
+def input_fault_context(imu_faults: dict, stamp_test: dict | None) -> list[str]:
+    """Faults the estimator itself found in this run's inputs that make its IMU prediction,
+    and so its innovations, less reliable than its noise settings say: IMU samples at the
+    declared range (clipped; ``imu_faults`` of :meth:`OnlineEstimator.fault_report`) and
+    camera stamps the frame-stamp test replaced by the clock line (``stamp_test``). One
+    phrase each, for the warning that follows an innovation inconsistency; empty when the
+    inputs looked clean. No threshold of its own: these are the monitors' decisions."""
+    out = []
+    n_acc = int(imu_faults.get("accel_saturated_samples", 0))
+    n_gyr = int(imu_faults.get("gyro_saturated_samples", 0))
+    if n_acc or n_gyr:
+        what = " and ".join(
+            f"{n} {axis} sample{'s' if n != 1 else ''}"
+            for n, axis in ((n_acc, "accelerometer"), (n_gyr, "gyroscope"))
+            if n
+        )
+        out.append(
+            f"{what} at the IMU's declared range (clipped: the prediction through them is "
+            f"bridged, not measured; metrics.json imu_faults)"
+        )
+    if stamp_test and (stamp_test.get("stamps") == "clock line" or stamp_test.get("switches")):
+        out.append(
+            "camera stamps that scatter about the camera's clock line (the frame-stamp test "
+            f"switched {int(stamp_test.get('switches', 0))} time(s); clock jitter: "
+            "metrics.json timestamps.camera)"
+        )
+    return out
+
+
 #: what a family's inconsistency most likely means (the warning's "likely cause")
 _INNOVATION_CAUSES = {
     "displacement": (

@@ -646,9 +646,15 @@ def smoothed_vs_filtered(
     for j, axis in enumerate("xz"):
         ok = np.isfinite(diff[:, j]) & np.isfinite(var[:, j]) & (var[:, j] > 0)
         if not ok.any():
-            out[axis] = {"frames": 0, "beyond_share": 0.0, "max_d2": 0.0, "max_d2_at_s": None}
-            out[axis] |= {"difference_at_max_cm": 0.0, "max_difference_cm": 0.0}
-            out[axis] |= {"rms_difference_cm": 0.0}
+            out[axis] = {
+                "frames": 0,
+                "beyond_share": 0.0,
+                "max_d2": 0.0,
+                "max_d2_at_s": None,
+                "difference_at_max_cm": 0.0,
+                "max_difference_cm": 0.0,
+                "rms_difference_cm": 0.0,
+            }
             continue
         d2 = diff[ok, j] ** 2 / var[ok, j]
         k = int(np.argmax(d2))

@@ -638,10 +638,10 @@ def under_junctions_mask(
     for a in range(z.size):
         j0 = int(np.searchsorted(lo_sorted, hi[a] - gap_m, side="left"))
         j1 = int(np.searchsorted(lo_sorted, hi[a] + gap_m, side="right"))
+        x_lo = max(lo[a], hi[a] - margin_m)  # the strip starts in A whichever C abuts it
         for c in by_lo[j0:j1]:
             if c == a or lo[c] <= lo[a]:
                 continue
-            x_lo = max(lo[a], hi[a] - margin_m)
             x_hi = min(hi[c], lo[c] + margin_m)
             i0 = int(np.searchsorted(xs, x_lo, side="left"))
             i1 = int(np.searchsorted(xs, x_hi, side="right"))

@@ -1,6 +1,7 @@
 """CPU time of the safety replay metrics.json makes of the batch path
 (vio_graph/evaluation/safety.py ``replay_safety``: the safety monitor over every frame of the
-batch graph's legs, with the keyframe profiles placed at its camera positions), and of the
+batch graph's legs, with the keyframe profiles turned to the batch's attitude and placed at
+its camera positions), and of the
 same monitor with every output (what the online pass computes on the filter's path).
 
 The recording is replayed once in ``--mode batch`` (no outputs) to collect the monitor's
@@ -50,6 +51,8 @@ def _inputs(rec: str, cache: Path) -> dict:
         "cov": np.asarray(lg.cov_position_m2),
         "stance": list(lg.in_stance),
         "profiles": dict(lg.profiles),
+        # metrics.json's batch replay places the profiles at the batch's own attitude
+        "profiles_batch": dict(lg.profiles_of("batch")),
         "paths": paths,
     }
     cache.parent.mkdir(parents=True, exist_ok=True)
@@ -88,7 +91,12 @@ def main() -> None:
     n = len(d["t_s"])
     runs = {
         "metrics replay (batch path)": lambda m: replay_safety(
-            cfg, d["t_s"][:m], d["paths"]["batch"], d["cov"], d["stance"], d["profiles"]
+            cfg,
+            d["t_s"][:m],
+            d["paths"]["batch"],
+            d["cov"],
+            d["stance"],
+            d.get("profiles_batch", d["profiles"]),
         ),
         "every output (filter path)": lambda m: _full_replay(cfg, d, d["paths"]["filter"], m),
     }

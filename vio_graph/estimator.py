@@ -122,6 +122,7 @@ from vio_graph.types import (
     ImuSample,
     JointAngles,
     LandmarkKey,
+    LevelObservation,
     StanceObservation,
     VelocityObservation,
 )
@@ -367,6 +368,9 @@ class OnlineEstimator:
         self._stance_observation: StanceObservation | None = None
         # this frame's corner observation, track id replaced by its landmark's (re-identified)
         self._corner_observation: CornerObservation | None = None
+        #: this frame's level surfaces as the height landmarks they were associated with
+        #: (handed to the smoothers with the frame)
+        self._level_observations: tuple[LevelObservation, ...] = ()
         self._corners = CornerLandmarks(
             fc.corner_reidentify_radius_m, fc.corner_memory_s, fc.max_corner_landmarks
         )
@@ -1213,6 +1217,7 @@ class OnlineEstimator:
             displacement=result.displacement,
             corner=self._corner_observation,
             stance=self._stance_observation,
+            levels=self._level_observations,
             R_world_imu=R_world_imu,
             shank_pitch_imu_rad=imu_pitch,
             shank_pitch_chain_rad=chain_pitch,
@@ -1535,6 +1540,7 @@ class OnlineEstimator:
         fc = self.config.filter
         obs = result.observation
         self._corner_observation = obs
+        self._level_observations = ()
         if fc.corner_landmarks:
             key = None
             if obs is not None:
@@ -1601,6 +1607,10 @@ class OnlineEstimator:
                 self.filter.update_height_landmark(
                     key, line.height_m, line.sigma_m**2 + floor**2, t
                 )
+            self._level_observations = tuple(
+                LevelObservation(t, key.id, line.height_m, line.sigma_m**2 + floor**2)
+                for key, line in found
+            )
             return
         if not found:
             return
@@ -1610,13 +1620,25 @@ class OnlineEstimator:
         st = self.surface_tilt
         slope_sigma = st.sigma_rad * (1.0 + math.tan(st.tilt_rad) ** 2)
         tilt_floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
+        tilt_var = slope_sigma**2 + tilt_floor**2
         self.filter.update_height_landmarks(
             [key for key, _ in found],
             [line.height_m for _, line in found],
             [line.noise_sigma_m**2 + floor**2 for _, line in found],
             [line.x_mid_m for _, line in found],
-            slope_sigma**2 + tilt_floor**2,
+            tilt_var,
             t,
+        )
+        # the smoothers take each surface alone: its own noise and the shared tilt's share
+        # (their correlation within the slice is not kept)
+        self._level_observations = tuple(
+            LevelObservation(
+                t,
+                key.id,
+                line.height_m,
+                line.noise_sigma_m**2 + floor**2 + tilt_var * line.x_mid_m**2,
+            )
+            for key, line in found
         )
 
     def _stance_lever(self, R_world_imu: NDArray[np.float64]):

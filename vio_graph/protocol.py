@@ -32,6 +32,7 @@ from vio_graph.types import (
     FrameEstimate,
     FrameObservation,
     ImuSample,
+    LevelObservation,
     StanceObservation,
     VelocityObservation,
 )
@@ -133,6 +134,9 @@ class FrameRecord:
     #: the leg-chain bridge's camera velocity after a saturated stretch, on the first
     #: keyframe after it (vio_graph/filter/leg_bridge.py), else None
     velocity: VelocityObservation | None = None
+    #: the level surfaces of the slice as the filter's height landmarks (associated by
+    #: height, vio_graph/filter/level_landmarks.py); empty when none was found or fused
+    levels: tuple[LevelObservation, ...] = ()
 
     @property
     def timestamp_s(self) -> float:
@@ -142,14 +146,19 @@ class FrameRecord:
     def is_keyframe(self) -> bool:
         return self.estimate.is_keyframe
 
-    def observations(self, stance_anchors: bool = True) -> list[FrameObservation]:
+    def observations(
+        self, stance_anchors: bool = True, levels: bool = True
+    ) -> list[FrameObservation]:
         """The observations of this frame: the corner, then (``stance_anchors``) the stance
-        anchor, then the bridge's velocity, each if present."""
+        anchor, then the bridge's velocity, then (``levels``) the level surfaces, each if
+        present."""
         obs: list[FrameObservation] = [] if self.corner is None else [self.corner]
         if stance_anchors and self.stance is not None:
             obs.append(self.stance)
         if self.velocity is not None:
             obs.append(self.velocity)
+        if levels:
+            obs.extend(self.levels)
         return obs
 
 

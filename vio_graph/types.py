@@ -152,6 +152,22 @@ class StanceObservation:
 
 
 @dataclass(frozen=True)
+class LevelObservation:
+    """A level surface (tread, landing, floor, obstacle top) seen from the camera: a z-only
+    landmark (the filter's height landmarks, vio_graph/filter/level_landmarks.py).
+
+    ``level_id``: the filter's height landmark the surface was associated with (by height);
+    the same id over the frames that re-identified it. ``height_rel_m``: surface height minus
+    camera height, metres (ground axes); ``var_m2``: its variance, m^2.
+    """
+
+    timestamp_s: float
+    level_id: int
+    height_rel_m: float
+    var_m2: float
+
+
+@dataclass(frozen=True)
 class VelocityObservation:
     """The camera velocity (m/s, ground axes) at a keyframe from a second source, and its
     covariance ((m/s)^2): the leg-chain bridge across a saturated accelerometer stretch
@@ -182,7 +198,9 @@ LandmarkObservation: TypeAlias = CornerObservation | StanceObservation
 
 #: What a frame hands the smoothers besides its displacement: landmarks and the bridge's
 #: velocity.
-FrameObservation: TypeAlias = CornerObservation | StanceObservation | VelocityObservation
+FrameObservation: TypeAlias = (
+    CornerObservation | StanceObservation | VelocityObservation | LevelObservation
+)
 
 
 class LandmarkKey(NamedTuple):

@@ -42,6 +42,13 @@ class FactorFamilies(BaseModel):
         description="the planted ankle during each stance as a landmark seen through the leg "
         "(the filter's stance anchor, vio_graph/filter/stance.py)",
     )
+    height_landmarks: bool = Field(
+        default=True,
+        description="the level surfaces of a keyframe's slice (treads, landings, floor) as "
+        "z-only landmarks, associated by the filter's height landmarks "
+        "(filter.level_landmarks): the floor's height is handed from keyframe to keyframe, "
+        "as the filter's is (docs/method.md, 'Height landmarks in the smoothers')",
+    )
     stance_velocity: bool = Field(
         default=True,
         description="a stance keyframe's IMU velocity from the still ankle (the filter's "

@@ -98,6 +98,7 @@ from vio_graph.types import (
     FrameObservation,
     ImuSample,
     LandmarkKey,
+    LevelObservation,
     StanceObservation,
     VelocityObservation,
 )
@@ -507,7 +508,10 @@ class KeyframeGraphBuilder:
         self._chain = (t, t, np.zeros(2), np.zeros((2, 2)))
         if observation is None:
             obs: list[FrameObservation] = []
-        elif isinstance(observation, (CornerObservation, StanceObservation, VelocityObservation)):
+        elif isinstance(
+            observation,
+            (CornerObservation, StanceObservation, VelocityObservation, LevelObservation),
+        ):
             obs = [observation]
         else:
             obs = list(observation)
@@ -891,6 +895,9 @@ class KeyframeGraphBuilder:
                 if cfg.factors.saturation_bridge:
                     self._add_bridge_velocity(batch, i, t, ob, R_i)
                 continue
+            if isinstance(ob, LevelObservation):
+                self._add_height_landmark(batch, i, t, ob, rot_i, R_i, t_guess)
+                continue
             cov = np.asarray(ob.cov_m2, dtype=float).reshape(2, 2)
             if isinstance(ob, StanceObservation):
                 lkey = LandmarkKey("ankle", ob.stance_id)
@@ -924,6 +931,48 @@ class KeyframeGraphBuilder:
                 and ob.velocity_cov is not None
             ):
                 self._add_stance_velocity(batch, i, t, ob, R_i)
+
+    def _add_height_landmark(
+        self,
+        batch: _FactorBatch,
+        i: int,
+        t: float,
+        ob: LevelObservation,
+        rot_i: gtsam.Rot3,
+        R_i: NDArray[np.float64],
+        t_guess: NDArray[np.float64],
+    ) -> None:
+        """A level surface as a z-only landmark: L(j) (a Pose3 like the corners', its x, y
+        and rotation held by its weak prior) observed from X(i) through the same
+        BetweenFactorPose3 as a corner, with only the z row weighted (zero precision on the
+        rotation and on x, y: a height says nothing about where along the surface it was
+        seen), robustified with the displacement kernel. The filter's height landmarks
+        (filter.level_landmarks) associate the surfaces across keyframes by height."""
+        cfg = self.config
+        lkey = LandmarkKey("level", ob.level_id)
+        o3 = np.array([0.0, 0.0, float(ob.height_rel_m)])
+        lk = self._landmark_of.get(lkey)
+        if lk is None:
+            lk = self._new_landmark_key(lkey)
+            lm = t_guess + R_i @ self.imu_p_cam_m + o3
+            lm[1] = 0.0
+            lm_pose = gtsam.Pose3(gtsam.Rot3(), lm)
+            batch.values.insert(lk, pose3=lm_pose)
+            sig = self._diagonal(
+                *[cfg.landmark_rotation_sigma_rad] * 3,
+                cfg.landmark_position_sigma_m,
+                cfg.landmark_lateral_sigma_m,
+                cfg.landmark_position_sigma_m,
+            )
+            batch.add(gtsam.PriorFactorPose3(lk, lm_pose, sig), [lk])
+        var = max(float(ob.var_m2), cfg.min_measurement_sigma_m**2)
+        noise = robust_noise(
+            cfg,
+            gtsam.noiseModel.Diagonal.Precisions(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0 / var])),
+        )
+        meas = gtsam.Pose3(rot_i.inverse(), R_i.T @ o3 + self.imu_p_cam_m)
+        batch.add(gtsam.BetweenFactorPose3(X(i), lk, meas, noise), [X(i), lk])
+        batch.stamps[lk] = t
 
     def _add_stance_velocity(
         self,

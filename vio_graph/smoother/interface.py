@@ -80,7 +80,9 @@ class KeyframeSmootherBase(ABC):
             record.is_keyframe,
             record.estimate,
             record.displacement,
-            record.observations(self.config.factors.stance_anchors),
+            record.observations(
+                self.config.factors.stance_anchors, self.config.factors.height_landmarks
+            ),
             record.R_world_imu,
         )
 

@@ -990,3 +990,67 @@ def test_gyro_discretization_term_enters_the_rotation_covariance() -> None:
     vel_w, vel_wo = np.diag(with_term[3:9, 3:9]), np.diag(without[3:9, 3:9])
     assert np.all(vel_w >= vel_wo) and np.all(vel_w < 1.01 * vel_wo)
     np.testing.assert_array_equal(with_term[9:, 9:], without[9:, 9:])
+
+
+@pytest.mark.parametrize("cls", [SlidingWindowSmoother, BatchSmoother])
+def test_height_landmarks_bound_z_drift_and_leave_x_alone(cls) -> None:
+    """A floor seen from every keyframe (a z-only landmark, LevelObservation) holds the
+    camera height against displacements biased in z; with no corner in view it must not
+    pull x (only its z row is weighted)."""
+    from dataclasses import replace
+
+    from vio_graph.types import LevelObservation
+
+    tr = make_swinging_shank_trial(
+        10.0,
+        displacement_sigma_m=0.002,
+        displacement_bias_mps=(0.0, 0.01),
+        corners=False,
+        seed=5,
+    )
+    rng = np.random.default_rng(11)
+    floor_z_m = -0.40
+    levels = [
+        [
+            LevelObservation(
+                float(t), 1, floor_z_m - float(xz[1]) + float(rng.normal(0.0, 0.002)), 0.002**2
+            )
+        ]
+        for t, xz in zip(tr.frame_times_s, tr.camera_xz_true_m, strict=True)
+    ]
+    with_levels = replace(tr, observations=levels)
+    idx = np.flatnonzero(tr.is_keyframe)
+    err = {}
+    for name, trial in (("without", tr), ("with", with_levels)):
+        s = cls(SmootherConfig(), trial.imu_T_cam)
+        feed(trial, s)
+        xz = np.array([e.camera_xz_m for e in s.keyframe_estimates(with_covariance=False)])
+        err[name] = xz - trial.camera_xz_true_m[idx]
+    z_without, z_with = rms(err["without"][:, 1]), rms(err["with"][:, 1])
+    assert z_without > 0.02  # 1 cm/s of z bias over 10 s
+    assert z_with < 0.005 and z_with < 0.2 * z_without
+    # x: a height says nothing about x; only the IMU's x-z coupling moves it (a few mm)
+    assert rms(err["with"][:, 0]) < rms(err["without"][:, 0]) + 0.003
+
+
+def test_frame_record_hands_level_observations_only_when_asked() -> None:
+    from vio_graph.protocol import FrameRecord
+    from vio_graph.types import LevelObservation
+
+    lv = (LevelObservation(1.0, 3, -0.4, 1e-6), LevelObservation(1.0, 4, -0.25, 1e-6))
+    corner = CornerObservation(1.0, 0, np.array([0.5, -0.3]), np.eye(2) * 1e-6)
+    rec = FrameRecord(
+        estimate=None,  # type: ignore[arg-type]  (not read by observations())
+        frontend=None,  # type: ignore[arg-type]
+        displacement=None,
+        corner=corner,
+        stance=None,
+        R_world_imu=np.eye(3),
+        shank_pitch_imu_rad=0.0,
+        shank_pitch_chain_rad=0.0,
+        ankle_rad=0.0,
+        in_stance=False,
+        levels=lv,
+    )
+    assert rec.observations() == [corner, *lv]
+    assert rec.observations(levels=False) == [corner]

@@ -1028,7 +1028,8 @@ def test_height_landmarks_bound_z_drift_and_leave_x_alone(cls) -> None:
         err[name] = xz - trial.camera_xz_true_m[idx]
     z_without, z_with = rms(err["without"][:, 1]), rms(err["with"][:, 1])
     assert z_without > 0.02  # 1 cm/s of z bias over 10 s
-    assert z_with < 0.005 and z_with < 0.2 * z_without
+    # (the batch keeps every biased displacement: a compromise, ~5 mm; the window ~1.5 mm)
+    assert z_with < 0.01 and z_with < 0.2 * z_without
     # x: a height says nothing about x; only the IMU's x-z coupling moves it (a few mm)
     assert rms(err["with"][:, 0]) < rms(err["without"][:, 0]) + 0.003
 

@@ -1608,7 +1608,7 @@ class OnlineEstimator:
                     key, line.height_m, line.sigma_m**2 + floor**2, t
                 )
             self._level_observations = tuple(
-                LevelObservation(t, key.id, line.height_m, line.sigma_m**2 + floor**2)
+                LevelObservation(t, key.id, line.height_m, line.sigma_m**2 + floor**2, line.x_mid_m)
                 for key, line in found
             )
             return
@@ -1637,6 +1637,7 @@ class OnlineEstimator:
                 key.id,
                 line.height_m,
                 line.noise_sigma_m**2 + floor**2 + tilt_var * line.x_mid_m**2,
+                line.x_mid_m,
             )
             for key, line in found
         )

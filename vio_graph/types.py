@@ -158,13 +158,17 @@ class LevelObservation:
 
     ``level_id``: the filter's height landmark the surface was associated with (by height);
     the same id over the frames that re-identified it. ``height_rel_m``: surface height minus
-    camera height, metres (ground axes); ``var_m2``: its variance, m^2.
+    camera height, metres (ground axes); ``var_m2``: its variance, m^2. ``x_rel_m``: where
+    along x (m, from the camera, ground axes) the surface was seen (the mean of its points):
+    a pitch error of the attitude the slice was levelled with moves the height by x_rel x
+    the error, so the smoothers, which refine the pitch, observe the point (x_rel, height).
     """
 
     timestamp_s: float
     level_id: int
     height_rel_m: float
     var_m2: float
+    x_rel_m: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -62,6 +62,7 @@ All factors are GTSAM built-ins (no Python CustomFactor on the hot path).
 from __future__ import annotations
 
 import functools
+import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -942,19 +943,27 @@ class KeyframeGraphBuilder:
         R_i: NDArray[np.float64],
         t_guess: NDArray[np.float64],
     ) -> None:
-        """A level surface as a z-only landmark: L(j) (a Pose3 like the corners', its x, y
-        and rotation held by its weak prior) observed from X(i) through the same
-        BetweenFactorPose3 as a corner, with only the z row weighted (zero precision on the
-        rotation and on x, y: a height says nothing about where along the surface it was
-        seen), robustified with the displacement kernel. The filter's height landmarks
-        (filter.level_landmarks) associate the surfaces across keyframes by height."""
+        """A level surface as a z-only landmark L(j) (a Pose3 like the corners', its x, y and
+        rotation held by its weak prior), associated across keyframes by the filter's height
+        landmarks (filter.level_landmarks).
+
+        The factor is a BetweenFactorPose3 from L(j) to X(i), not from X(i) as a corner's:
+        its translation error is then R_i^T (world error) (R_L = I, R_i the attitude the
+        observation was built with, a constant), and only the world-z component of it is
+        weighted (a rank-one square-root information along R_i^T e_z; rotation, x and y carry
+        nothing: a height says nothing about where along the surface it was seen). From X(i)
+        the error would turn with the keyframe's refined rotation, and the landmark's free x,
+        metres from the keyframe on a long floor, would leak into z (1 m x 0.3 deg = 5 mm).
+        Robustified with the displacement kernel."""
         cfg = self.config
         lkey = LandmarkKey("level", ob.level_id)
-        o3 = np.array([0.0, 0.0, float(ob.height_rel_m)])
+        # world vector camera -> the surface point seen, and landmark -> IMU origin
+        o3 = np.array([float(ob.x_rel_m), 0.0, float(ob.height_rel_m)])
+        lever = R_i @ self.imu_p_cam_m + o3
         lk = self._landmark_of.get(lkey)
         if lk is None:
             lk = self._new_landmark_key(lkey)
-            lm = t_guess + R_i @ self.imu_p_cam_m + o3
+            lm = t_guess + lever
             lm[1] = 0.0
             lm_pose = gtsam.Pose3(gtsam.Rot3(), lm)
             batch.values.insert(lk, pose3=lm_pose)
@@ -965,13 +974,14 @@ class KeyframeGraphBuilder:
                 cfg.landmark_position_sigma_m,
             )
             batch.add(gtsam.PriorFactorPose3(lk, lm_pose, sig), [lk])
-        var = max(float(ob.var_m2), cfg.min_measurement_sigma_m**2)
-        noise = robust_noise(
-            cfg,
-            gtsam.noiseModel.Diagonal.Precisions(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0 / var])),
-        )
-        meas = gtsam.Pose3(rot_i.inverse(), R_i.T @ o3 + self.imu_p_cam_m)
-        batch.add(gtsam.BetweenFactorPose3(X(i), lk, meas, noise), [X(i), lk])
+        sigma = math.sqrt(max(float(ob.var_m2), cfg.min_measurement_sigma_m**2))
+        sqrt_info = np.zeros((6, 6))
+        # one upper-triangular row (GTSAM keeps only the upper triangle): world z in the
+        # measurement's frame, R_i^T e_z, over its sigma
+        sqrt_info[3, 3:] = R_i[2, :] / sigma
+        noise = robust_noise(cfg, gtsam.noiseModel.Gaussian.SqrtInformation(sqrt_info))
+        meas = gtsam.Pose3(rot_i, -lever)
+        batch.add(gtsam.BetweenFactorPose3(lk, X(i), meas, noise), [lk, X(i)])
         batch.stamps[lk] = t
 
     def _add_stance_velocity(

@@ -1038,7 +1038,7 @@ def test_frame_record_hands_level_observations_only_when_asked() -> None:
     from vio_graph.protocol import FrameRecord
     from vio_graph.types import LevelObservation
 
-    lv = (LevelObservation(1.0, 3, -0.4, 1e-6), LevelObservation(1.0, 4, -0.25, 1e-6))
+    lv = (LevelObservation(1.0, 3, -0.4, 4e-6), LevelObservation(1.0, 4, -0.25, 1e-6))
     corner = CornerObservation(1.0, 0, np.array([0.5, -0.3]), np.eye(2) * 1e-6)
     rec = FrameRecord(
         estimate=None,  # type: ignore[arg-type]  (not read by observations())
@@ -1053,5 +1053,5 @@ def test_frame_record_hands_level_observations_only_when_asked() -> None:
         in_stance=False,
         levels=lv,
     )
-    assert rec.observations() == [corner, *lv]
+    assert rec.observations() == [corner, lv[1]]  # the better-measured surface only
     assert rec.observations(levels=False) == [corner]

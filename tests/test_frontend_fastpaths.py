@@ -178,7 +178,7 @@ def test_icp_equals_the_straightforward_implementation(normal_neighbours: int) -
 
 def test_compiled_icp_equals_the_numpy_path() -> None:
     """The numba iterations (compiled) against icp_translation_2d_reference: both metrics,
-    with and without trimming, wide normals, coarse grids full of exact ties (the kernel hands
+    with and without trimming, with a robust (reweighted) finish, wide normals, coarse grids full of exact ties (the kernel hands
     those back to the numpy path) and targets out of range."""
     kernels = icp_module.compiled_kernels()
     assert kernels is not None  # numba is a dependency: the compiled path is the one tested
@@ -189,8 +189,11 @@ def test_compiled_icp_equals_the_numpy_path() -> None:
         IcpConfig(metric="point_to_point"),
         IcpConfig(trim_fraction=0.0, normal_neighbours=15),
         IcpConfig(max_correspondence_m=0.03, normal_neighbours=3),
+        IcpConfig(robust_kernel="cauchy"),
+        IcpConfig(robust_kernel="huber", metric="point_to_point"),
+        IcpConfig(robust_kernel="cauchy", trim_fraction=0.0, normal_neighbours=15),
     ]
-    for case in range(40):
+    for case in range(70):
         cfg = configs[case % len(configs)]
         src = _smoothed(rng)
         if case % 5 == 4:  # a coarse grid: exact duplicates and exactly tied distances
@@ -210,7 +213,8 @@ def test_compiled_icp_equals_the_numpy_path() -> None:
                 src, np.ascontiguousarray(tgt), T0[0], T0[1], cfg.max_iterations,
                 cfg.convergence_m, cfg.max_correspondence_m, cfg.trim_fraction,
                 cfg.normal_neighbours, cfg.metric != "point_to_point", cfg.degenerate_ratio,
-                *_fresh_normals(src),
+                *_fresh_normals(src), True, kernels.ROBUST_KERNELS[cfg.robust_kernel],
+                cfg.robust_scale, cfg.sigma_floor_m,
             )[-1]
         )  # fmt: skip
         got = icp_translation_2d(src, tgt, T0, cfg)
@@ -229,7 +233,7 @@ def test_compiled_icp_equals_the_numpy_path() -> None:
             )
         if case == 7:
             assert got.n_correspondences == 0 and np.array_equal(got.translation_xz_m, T0)
-    assert statuses.count(0) >= 25  # mostly compiled,
+    assert statuses.count(0) >= 45  # mostly compiled,
     assert any(s != 0 for s in statuses)  # and the ties did go back to the numpy path
 
 

@@ -401,6 +401,9 @@ def icp_loop(
     normals,
     have,
     keep_clear_matches=True,
+    robust_kernel=0,
+    robust_scale=2.385,
+    sigma_floor_m=0.003,
 ):  # pragma: no cover - compiled
     """The ICP iterations. Returns (Tx, Tz, iterations, converged, keep, j, normals, status):
     ``keep`` the kept target indices of the last iteration (in the numpy path's order), ``j``
@@ -418,7 +421,12 @@ def icp_loop(
     for those not searched); when T moves by s, no other point comes more than s nearer, so
     a match nearer than that bound less s (with margins far above rounding) is what the search
     would return: the same point, the same squared distance (computed alike), no tie. False
-    searches every time (the tests compare the two bit for bit)."""
+    searches every time (the tests compare the two bit for bit).
+
+    ``robust_kernel`` (0 none, ``_CAUCHY``, ``_HUBER``): after the trimmed iterations converge
+    (or reach ``max_iterations``), up to ``max_iterations`` reweighted ones over every pair
+    (weights ``_robust_weight`` of the point-to-line residual, or of the distance), then one
+    more search at the answer for the trimmed pairs ``keep`` (the numpy path's stages)."""
     ns = src.shape[0]
     nt = tgt.shape[0]
     order = np.argsort(src[:, 0], kind="mergesort")
@@ -440,9 +448,14 @@ def icp_loop(
     px, pz = tx, tz  # T of the previous iteration
     converged = False
     iterations = 0
+    stage = 0  # 0 trimmed, 1 reweighted (robust_kernel), 2 the final search at the answer
+    stage_iterations = 0
+    weights = np.empty(nt)
     window = max_correspondence_m * (1.0 + 1e-9) + 1e-12  # |x - x'| beyond: out of range
-    for it in range(1, max_iterations + 1):
-        iterations = it
+    while True:
+        if stage != 2:
+            iterations += 1
+            stage_iterations += 1
         moved = math.hypot(tx - px, tz - pz) * (1.0 + 1e-9) + 1e-12
         px, pz = tx, tz
         # eq. 3: nearest source point of every target point moved back by T
@@ -493,7 +506,7 @@ def icp_loop(
             if dist[i] < np.inf:
                 keep[c] = i
                 c += 1
-        if trim_fraction > 0 and n_found >= 4:
+        if stage != 1 and trim_fraction > 0 and n_found >= 4:
             n_keep = max(3, math.ceil((1.0 - trim_fraction) * n_found))
             dk = dist[keep]
             srt = np.argsort(dk, kind="mergesort")
@@ -509,8 +522,18 @@ def icp_loop(
                     ):
                         return tx, tz, iterations, converged, keep, j, normals, _TIE_TRIM
             keep = keep[srt[:n_keep]]
+        if stage == 2:
+            break
         nk = keep.size
-        if not point_to_line:
+        if stage == 1:
+            dtx, dtz, status = _robust_step(
+                src, tgt, grid, rank, normal_neighbours, normals, have, best_d, best_i, keep,
+                j, tx, tz, point_to_line, degenerate_ratio, robust_kernel, robust_scale,
+                sigma_floor_m, weights,
+            )
+            if status != _OK:
+                return tx, tz, iterations, converged, keep, j, normals, status
+        elif not point_to_line:
             # eq. 4: the mean residual
             rx = 0.0
             rz = 0.0
@@ -557,15 +580,100 @@ def icp_loop(
                 dtz += v1z * step
         tx = tx + dtx
         tz = tz + dtz
-        if math.hypot(dtx, dtz) <= convergence_m:
-            converged = True
-            break
+        converged = math.hypot(dtx, dtz) <= convergence_m
+        if converged or stage_iterations >= max_iterations:
+            if robust_kernel == 0:
+                break
+            stage = 1 if stage == 0 else 2
+            stage_iterations = 0
     # the normals the covariance needs (the numpy path computes them for the kept pairs)
     for c in range(keep.size):
         m = j[keep[c]]
         if _fill_normal(src, grid, rank, normal_neighbours, normals, have, m, best_d, best_i):
             return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
     return tx, tz, iterations, converged, keep, j, normals, _OK
+
+
+_CAUCHY = 1  # robust_kernel codes of icp_loop ("cauchy", "huber" in IcpConfig)
+_HUBER = 2
+ROBUST_KERNELS = {"none": 0, "cauchy": _CAUCHY, "huber": _HUBER}
+
+
+@numba.njit(cache=True)
+def _robust_weight(a, c, kernel):  # pragma: no cover - compiled
+    """IRLS weight of an absolute residual ``a`` for the kernel width ``c`` (as
+    ``icp.robust_weights``)."""
+    if kernel == _CAUCHY:
+        u = a / c
+        return 1.0 / (1.0 + u * u)
+    return 1.0 if a <= c else c / max(a, c)
+
+
+@numba.njit(cache=True)
+def _robust_step(
+    src, tgt, grid, rank, normal_neighbours, normals, have, best_d, best_i, keep, j, tx, tz,
+    point_to_line, degenerate_ratio, kernel, scale, sigma_floor_m, weights,
+):  # pragma: no cover - compiled
+    """One reweighted step over the pairs ``keep`` (as ``icp._robust_step``): (dTx, dTz,
+    status). ``weights`` (>= keep.size,) is scratch; it holds the residuals, then weights."""
+    nk = keep.size
+    for c in range(nk):
+        i = keep[c]
+        m = j[i]
+        rx = (tgt[i, 0] - tx) - src[m, 0]
+        rz = (tgt[i, 1] - tz) - src[m, 1]
+        if point_to_line:
+            if _fill_normal(
+                src, grid, rank, normal_neighbours, normals, have, m, best_d, best_i
+            ):
+                return 0.0, 0.0, _TIE_NORMAL
+            weights[c] = abs(normals[m, 0] * rx + normals[m, 1] * rz)
+        else:
+            weights[c] = math.hypot(rx, rz)
+    width = scale * max(1.4826 * np.median(weights[:nk]), sigma_floor_m)
+    for c in range(nk):
+        weights[c] = _robust_weight(weights[c], width, kernel)
+    if not point_to_line:
+        sw = 0.0
+        sx = 0.0
+        sz = 0.0
+        for c in range(nk):
+            i = keep[c]
+            w = weights[c]
+            sw += w
+            sx += w * ((tgt[i, 0] - tx) - src[j[i], 0])
+            sz += w * ((tgt[i, 1] - tz) - src[j[i], 1])
+        return sx / sw, sz / sw, _OK
+    a = 0.0
+    b = 0.0
+    cc = 0.0
+    gx = 0.0
+    gz = 0.0
+    for c in range(nk):
+        i = keep[c]
+        m = j[i]
+        w = weights[c]
+        nx = normals[m, 0]
+        nz = normals[m, 1]
+        r_n = nx * ((tgt[i, 0] - tx) - src[m, 0]) + nz * ((tgt[i, 1] - tz) - src[m, 1])
+        a += w * nx * nx
+        b += w * nx * nz
+        cc += w * nz * nz
+        gx += w * nx * r_n
+        gz += w * nz * r_n
+    w0, w1, v0x, v0z, v1x, v1z = _eig_sym2(a, b, cc)
+    floor = max(degenerate_ratio * w1, 1e-9)
+    dtx = 0.0
+    dtz = 0.0
+    if w0 > floor:
+        step = (v0x * gx + v0z * gz) / w0
+        dtx += v0x * step
+        dtz += v0z * step
+    if w1 > floor:
+        step = (v1x * gx + v1z * gz) / w1
+        dtx += v1x * step
+        dtz += v1z * step
+    return dtx, dtz, _OK
 
 
 @numba.njit(cache=True)

@@ -323,6 +323,21 @@ class IcpConfig(_Strict):
     normal_neighbours: int = Field(
         6, ge=3, description="source neighbours used to estimate the local normal (covariance)"
     )
+    robust_kernel: Literal["none", "cauchy", "huber"] = Field(
+        "none",
+        description="'none' = the trimmed ICP alone; 'cauchy' / 'huber' = after it converges, "
+        "iteratively reweighted least squares over every pair within max_correspondence_m, "
+        "each weighted by the kernel of its point-to-line residual (point-to-point: its "
+        "distance), so the answer moves continuously with the seed instead of jumping when a "
+        "pair crosses the trimming cut",
+    )
+    robust_scale: float = Field(
+        2.385,
+        gt=0,
+        description="kernel width in residual sigmas (Cauchy 2.385 / Huber 1.345 = 95 % "
+        "efficiency on Gaussian residuals); sigma = 1.4826 x the median absolute residual "
+        "of the pairs at the current T, at least sigma_floor_m",
+    )
     sigma_floor_m: float = Field(
         0.003, gt=0, description="lower bound of the point-to-line residual sigma, m"
     )

@@ -267,6 +267,10 @@ def icp_translation_2d(
         cfg.degenerate_ratio,
         normals0,
         have0,
+        True,
+        kernels.ROBUST_KERNELS[cfg.robust_kernel],
+        cfg.robust_scale,
+        cfg.sigma_floor_m,
     )
     if status != 0:  # an exact tie: let the KD-tree decide, as the numpy path does
         return icp_translation_2d_reference(src, tgt, T0, cfg, source_tree)
@@ -386,11 +390,17 @@ def icp_translation_2d_reference(
     normals = _NormalCache(src, tree, cfg.normal_neighbours)
     nearest = _NearestSource(src, tree, tgt, cfg.max_correspondence_m)
     point_to_line = cfg.metric != "point_to_point"
+    robust = cfg.robust_kernel != "none"
     converged = False
     keep = np.zeros(0, dtype=np.intp)
     j = np.zeros(0, dtype=np.intp)
     iterations = 0
-    for iterations in range(1, cfg.max_iterations + 1):
+    stage = _TRIMMED  # then, with a robust kernel, _ROBUST and a _FINAL query at the answer
+    stage_iterations = 0
+    while True:
+        if stage != _FINAL:
+            iterations += 1
+            stage_iterations += 1
         # eq. 3: nearest source point of T + P_s for every target point
         dist, j = nearest.query(T)
         if iterations == 1 and point_to_line:  # the points later iterations may match, at once
@@ -401,20 +411,28 @@ def icp_translation_2d_reference(
         keep = np.flatnonzero(dist < np.inf)
         if keep.size == 0:
             break
-        if cfg.trim_fraction > 0 and keep.size >= 4:
+        if stage != _ROBUST and cfg.trim_fraction > 0 and keep.size >= 4:
             n_keep = max(3, math.ceil((1.0 - cfg.trim_fraction) * keep.size))
             keep = keep[np.argsort(dist[keep])[:n_keep]]
+        if stage == _FINAL:  # the pairs of the answer, as the trimmed ICP would keep them
+            break
         residual = tgt[keep] - T - src[j[keep]]
-        if not point_to_line:
+        if stage == _ROBUST:
+            n = normals.get(j[keep]) if point_to_line else None
+            dT = _robust_step(n, residual, cfg)
+        elif not point_to_line:
             # eq. 4: translation step = mean residual of the pairs
             dT = residual.mean(axis=0)
         else:
             # point-to-line: solve (sum n n^T) dT = sum n (n . r); needs the source normals
             dT = _point_to_line_step(normals.get(j[keep]), residual, cfg.degenerate_ratio)
         T = T + dT
-        if math.hypot(dT[0], dT[1]) <= cfg.convergence_m:
-            converged = True
-            break
+        converged = math.hypot(dT[0], dT[1]) <= cfg.convergence_m
+        if converged or stage_iterations >= cfg.max_iterations:
+            if not robust:
+                break
+            stage = _ROBUST if stage == _TRIMMED else _FINAL
+            stage_iterations = 0
     if keep.size == 0:
         return _no_correspondence(T, iterations, cfg)
     pairs_t, pairs_s = tgt[keep], src[j[keep]]
@@ -422,6 +440,51 @@ def icp_translation_2d_reference(
     rms = float(np.sqrt((residual**2).sum(axis=1).mean()))
     cov = _covariance(normals.get(j[keep]), residual, cfg)
     return IcpResult(T, cov, iterations, converged, rms, int(keep.size), pairs_t, pairs_s)
+
+
+_TRIMMED, _ROBUST, _FINAL = 0, 1, 2  # stages of the ICP iterations (reference path)
+
+
+def robust_weights(
+    r: NDArray[np.float64], kernel: str, scale: float, sigma_floor_m: float
+) -> NDArray[np.float64]:
+    """IRLS weights of residuals ``r`` (m): the ``kernel``'s (``"cauchy"``: 1 / (1 + (r/c)^2),
+    ``"huber"``: min(1, c / |r|)) with c = ``scale`` x sigma, sigma = 1.4826 x median |r|
+    floored at ``sigma_floor_m``. Smooth in r (Huber: continuous), so the reweighted
+    minimiser moves continuously with the pairs."""
+    a = np.abs(r)
+    c = scale * max(1.4826 * float(np.median(a)), sigma_floor_m)
+    if kernel == "cauchy":
+        u = a / c
+        return 1.0 / (1.0 + u * u)
+    if kernel == "huber":
+        return np.where(a <= c, 1.0, c / np.maximum(a, c))
+    raise FrontendError(f"unknown robust kernel {kernel!r}")
+
+
+def _robust_step(
+    n: NDArray[np.float64] | None, residual: NDArray[np.float64], cfg: IcpConfig
+) -> NDArray[np.float64]:
+    """One IRLS step over all pairs: the weighted point-to-line step (``n`` the source normals)
+    or, with ``n`` None, the weighted mean residual (point-to-point, weights of the distance)."""
+    if n is None:
+        w = robust_weights(np.hypot(residual[:, 0], residual[:, 1]), cfg.robust_kernel,
+                           cfg.robust_scale, cfg.sigma_floor_m)
+        return (w[:, None] * residual).sum(axis=0) / w.sum()
+    nx, nz = n[:, 0], n[:, 1]
+    r_n = nx * residual[:, 0] + nz * residual[:, 1]
+    w = robust_weights(r_n, cfg.robust_kernel, cfg.robust_scale, cfg.sigma_floor_m)
+    wx, wz = w * nx, w * nz
+    (w0, w1), (v0, v1) = _eig_sym2(float(wx @ nx), float(wx @ nz), float(wz @ nz))
+    gx, gz = float(wx @ r_n), float(wz @ r_n)
+    floor = max(cfg.degenerate_ratio * w1, 1e-9)  # degenerate directions: no step
+    dx = dz = 0.0
+    for w_, (vx, vz) in ((w0, v0), (w1, v1)):
+        if w_ > floor:
+            step = (vx * gx + vz * gz) / w_
+            dx += vx * step
+            dz += vz * step
+    return np.array([dx, dz])
 
 
 def _point_to_line_step(

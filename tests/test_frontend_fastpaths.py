@@ -192,8 +192,9 @@ def test_compiled_icp_equals_the_numpy_path() -> None:
         IcpConfig(robust_kernel="cauchy"),
         IcpConfig(robust_kernel="huber", metric="point_to_point"),
         IcpConfig(robust_kernel="cauchy", trim_fraction=0.0, normal_neighbours=15),
+        IcpConfig(robust_kernel="huber", surface_radius_m=0.012),  # numpy path either way
     ]
-    for case in range(70):
+    for case in range(80):
         cfg = configs[case % len(configs)]
         src = _smoothed(rng)
         if case % 5 == 4:  # a coarse grid: exact duplicates and exactly tied distances
@@ -233,7 +234,7 @@ def test_compiled_icp_equals_the_numpy_path() -> None:
             )
         if case == 7:
             assert got.n_correspondences == 0 and np.array_equal(got.translation_xz_m, T0)
-    assert statuses.count(0) >= 45  # mostly compiled,
+    assert statuses.count(0) >= 50  # mostly compiled,
     assert any(s != 0 for s in statuses)  # and the ties did go back to the numpy path
 
 

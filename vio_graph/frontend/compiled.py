@@ -527,9 +527,25 @@ def icp_loop(
         nk = keep.size
         if stage == 1:
             dtx, dtz, status = _robust_step(
-                src, tgt, grid, rank, normal_neighbours, normals, have, best_d, best_i, keep,
-                j, tx, tz, point_to_line, degenerate_ratio, robust_kernel, robust_scale,
-                sigma_floor_m, weights,
+                src,
+                tgt,
+                grid,
+                rank,
+                normal_neighbours,
+                normals,
+                have,
+                best_d,
+                best_i,
+                keep,
+                j,
+                tx,
+                tz,
+                point_to_line,
+                degenerate_ratio,
+                robust_kernel,
+                robust_scale,
+                sigma_floor_m,
+                weights,
             )
             if status != _OK:
                 return tx, tz, iterations, converged, keep, j, normals, status
@@ -611,8 +627,25 @@ def _robust_weight(a, c, kernel):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _robust_step(
-    src, tgt, grid, rank, normal_neighbours, normals, have, best_d, best_i, keep, j, tx, tz,
-    point_to_line, degenerate_ratio, kernel, scale, sigma_floor_m, weights,
+    src,
+    tgt,
+    grid,
+    rank,
+    normal_neighbours,
+    normals,
+    have,
+    best_d,
+    best_i,
+    keep,
+    j,
+    tx,
+    tz,
+    point_to_line,
+    degenerate_ratio,
+    kernel,
+    scale,
+    sigma_floor_m,
+    weights,
 ):  # pragma: no cover - compiled
     """One reweighted step over the pairs ``keep`` (as ``icp._robust_step``): (dTx, dTz,
     status). ``weights`` (>= keep.size,) is scratch; it holds the residuals, then weights."""
@@ -623,9 +656,7 @@ def _robust_step(
         rx = (tgt[i, 0] - tx) - src[m, 0]
         rz = (tgt[i, 1] - tz) - src[m, 1]
         if point_to_line:
-            if _fill_normal(
-                src, grid, rank, normal_neighbours, normals, have, m, best_d, best_i
-            ):
+            if _fill_normal(src, grid, rank, normal_neighbours, normals, have, m, best_d, best_i):
                 return 0.0, 0.0, _TIE_NORMAL
             weights[c] = abs(normals[m, 0] * rx + normals[m, 1] * rz)
         else:

@@ -323,6 +323,15 @@ class IcpConfig(_Strict):
     normal_neighbours: int = Field(
         6, ge=3, description="source neighbours used to estimate the local normal (covariance)"
     )
+    surface_radius_m: float | None = Field(
+        None,
+        gt=0,
+        description="with a robust_kernel: the reweighted stage measures each target point's "
+        "residual to the source surface around it (the source points within this radius, "
+        "weighted (1 - d^2/r^2)^2, their normals averaged as n n^T) instead of to its "
+        "nearest source point, so no pair switches partner and the objective is smooth in T; "
+        "None = nearest source point",
+    )
     robust_kernel: Literal["none", "cauchy", "huber"] = Field(
         "none",
         description="'none' = the trimmed ICP alone; 'cauchy' / 'huber' = after it converges, "

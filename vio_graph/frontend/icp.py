@@ -244,7 +244,7 @@ def icp_translation_2d(
     :func:`icp_translation_2d_reference` runs (the same answer to rounding; tests compare them).
     """
     kernels = compiled_kernels()
-    if kernels is None:
+    if kernels is None or config is not None and config.surface_radius_m is not None:
         return icp_translation_2d_reference(
             source_xz_m, target_xz_m, initial_translation_xz_m, config, source_tree
         )
@@ -417,7 +417,9 @@ def icp_translation_2d_reference(
         if stage == _FINAL:  # the pairs of the answer, as the trimmed ICP would keep them
             break
         residual = tgt[keep] - T - src[j[keep]]
-        if stage == _ROBUST:
+        if stage == _ROBUST and cfg.surface_radius_m is not None:
+            dT = _surface_step(src, tgt - T, tree, normals, cfg)
+        elif stage == _ROBUST:
             n = normals.get(j[keep]) if point_to_line else None
             dT = _robust_step(n, residual, cfg)
         elif not point_to_line:
@@ -468,8 +470,12 @@ def _robust_step(
     """One IRLS step over all pairs: the weighted point-to-line step (``n`` the source normals)
     or, with ``n`` None, the weighted mean residual (point-to-point, weights of the distance)."""
     if n is None:
-        w = robust_weights(np.hypot(residual[:, 0], residual[:, 1]), cfg.robust_kernel,
-                           cfg.robust_scale, cfg.sigma_floor_m)
+        w = robust_weights(
+            np.hypot(residual[:, 0], residual[:, 1]),
+            cfg.robust_kernel,
+            cfg.robust_scale,
+            cfg.sigma_floor_m,
+        )
         return (w[:, None] * residual).sum(axis=0) / w.sum()
     nx, nz = n[:, 0], n[:, 1]
     r_n = nx * residual[:, 0] + nz * residual[:, 1]
@@ -478,6 +484,80 @@ def _robust_step(
     (w0, w1), (v0, v1) = _eig_sym2(float(wx @ nx), float(wx @ nz), float(wz @ nz))
     gx, gz = float(wx @ r_n), float(wz @ r_n)
     floor = max(cfg.degenerate_ratio * w1, 1e-9)  # degenerate directions: no step
+    dx = dz = 0.0
+    for w_, (vx, vz) in ((w0, v0), (w1, v1)):
+        if w_ > floor:
+            step = (vx * gx + vz * gz) / w_
+            dx += vx * step
+            dz += vz * step
+    return np.array([dx, dz])
+
+
+def surface_residuals(
+    src: NDArray[np.float64],
+    q: NDArray[np.float64],
+    tree: cKDTree,
+    normals: _NormalCache,
+    radius_m: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Residuals of points ``q`` (N, 2) to the source surface around them: (r (N,), unit
+    normals (N, 2), support (N,)). Source points s_i within ``radius_m`` of q weigh
+    phi_i = (1 - |q - s_i|^2 / radius^2)^2; the normal is the principal direction of
+    sum phi_i n_i n_i^T (n_i the source normals), r = n . (q - c) with c the phi-weighted
+    centroid, support = sum phi_i (0: nothing within the radius, r = 0). Every term is
+    continuous in q: points enter and leave the neighbourhood with weight 0."""
+    lists = tree.query_ball_point(q, radius_m, return_sorted=True)
+    lens = np.fromiter((len(x) for x in lists), dtype=np.intp, count=len(lists))
+    n_q = q.shape[0]
+    if lens.sum() == 0:
+        return np.zeros(n_q), np.zeros((n_q, 2)), np.zeros(n_q)
+    idx = np.concatenate([np.asarray(x, dtype=np.intp) for x in lists if len(x)])
+    row = np.repeat(np.arange(n_q), lens)
+    d = q[row] - src[idx]
+    u = 1.0 - (d[:, 0] ** 2 + d[:, 1] ** 2) / radius_m**2
+    phi = np.where(u > 0.0, u * u, 0.0)
+    nrm = normals.get(idx)
+
+    def total(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.bincount(row, weights=v, minlength=n_q)
+
+    support = total(phi)
+    a = total(phi * nrm[:, 0] * nrm[:, 0])
+    b = total(phi * nrm[:, 0] * nrm[:, 1])
+    c = total(phi * nrm[:, 1] * nrm[:, 1])
+    theta = 0.5 * np.arctan2(2.0 * b, a - c)  # the larger eigenvalue's direction
+    n = np.column_stack([np.cos(theta), np.sin(theta)])
+    has = support > 0.0
+    cx = total(phi * src[idx, 0])
+    cz = total(phi * src[idx, 1])
+    safe = np.where(has, support, 1.0)
+    r = np.where(has, n[:, 0] * (q[:, 0] - cx / safe) + n[:, 1] * (q[:, 1] - cz / safe), 0.0)
+    return r, n, support
+
+
+def _surface_step(
+    src: NDArray[np.float64],
+    q: NDArray[np.float64],
+    tree: cKDTree,
+    normals: _NormalCache,
+    cfg: IcpConfig,
+) -> NDArray[np.float64]:
+    """One reweighted point-to-surface step: (sum a w n n^T) dT = sum a w n r over the target
+    points, a = support / (1 + support) (fades out at the neighbourhood's edge), w the robust
+    kernel's weight of r (scale from the points with support)."""
+    assert cfg.surface_radius_m is not None
+    r, n, support = surface_residuals(src, q, tree, normals, cfg.surface_radius_m)
+    has = support > 0.0
+    if not has.any():
+        return np.zeros(2)
+    r, n, support = r[has], n[has], support[has]
+    w = robust_weights(r, cfg.robust_kernel, cfg.robust_scale, cfg.sigma_floor_m)
+    w = w * support / (1.0 + support)
+    nx, nz = n[:, 0], n[:, 1]
+    wx, wz = w * nx, w * nz
+    (w0, w1), (v0, v1) = _eig_sym2(float(wx @ nx), float(wx @ nz), float(wz @ nz))
+    gx, gz = float(wx @ r), float(wz @ r)
+    floor = max(cfg.degenerate_ratio * w1, 1e-9)
     dx = dz = 0.0
     for w_, (vx, vz) in ((w0, v0), (w1, v1)):
         if w_ > floor:

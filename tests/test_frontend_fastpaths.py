@@ -178,8 +178,9 @@ def test_icp_equals_the_straightforward_implementation(normal_neighbours: int) -
 
 def test_compiled_icp_equals_the_numpy_path() -> None:
     """The numba iterations (compiled) against icp_translation_2d_reference: both metrics,
-    with and without trimming, with a robust (reweighted) finish, wide normals, coarse grids full of exact ties (the kernel hands
-    those back to the numpy path) and targets out of range."""
+    with and without trimming, with a robust (reweighted) finish, wide normals, coarse grids
+    full of exact ties (the kernel hands those back to the numpy path) and targets out of
+    range."""
     kernels = icp_module.compiled_kernels()
     assert kernels is not None  # numba is a dependency: the compiled path is the one tested
     rng = np.random.default_rng(21)

@@ -396,6 +396,7 @@ def icp_translation_2d_reference(
     j = np.zeros(0, dtype=np.intp)
     iterations = 0
     stage = _TRIMMED  # then, with a robust kernel, _ROBUST and a _FINAL query at the answer
+    tgt_normals: NDArray[np.float64] | None = None
     stage_iterations = 0
     while True:
         if stage != _FINAL:
@@ -418,7 +419,10 @@ def icp_translation_2d_reference(
             break
         residual = tgt[keep] - T - src[j[keep]]
         if stage == _ROBUST and cfg.surface_radius_m is not None:
-            dT = _surface_step(src, tgt - T, tree, normals, cfg)
+            if tgt_normals is None:  # the target's own normals: fixed, whatever T
+                k = min(cfg.normal_neighbours, tgt.shape[0])
+                tgt_normals = _source_normals(tgt, cKDTree(tgt), np.arange(tgt.shape[0]), k)
+            dT = _surface_step(src, tgt - T, tree, normals, cfg, tgt_normals)
         elif stage == _ROBUST:
             n = normals.get(j[keep]) if point_to_line else None
             dT = _robust_step(n, residual, cfg)
@@ -499,13 +503,19 @@ def surface_residuals(
     tree: cKDTree,
     normals: _NormalCache,
     radius_m: float,
+    q_normals: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Residuals of points ``q`` (N, 2) to the source surface around them: (r (N,), unit
     normals (N, 2), support (N,)). Source points s_i within ``radius_m`` of q weigh
     phi_i = (1 - |q - s_i|^2 / radius^2)^2; the normal is the principal direction of
     sum phi_i n_i n_i^T (n_i the source normals), r = n . (q - c) with c the phi-weighted
     centroid, support = sum phi_i (0: nothing within the radius, r = 0). Every term is
-    continuous in q: points enter and leave the neighbourhood with weight 0."""
+    continuous in q: points enter and leave the neighbourhood with weight 0.
+
+    ``q_normals`` (N, 2): the points' own normals (fixed, whatever T). Each phi_i is then
+    multiplied by (n_i . m)^8 (1 for parallel normals, 0.06 at 45 deg, 0 at 90 deg), so a
+    riser point next to a nosing is measured against the riser, not a blend of riser and
+    tread (which rounds the corner and biases T)."""
     lists = tree.query_ball_point(q, radius_m, return_sorted=True)
     lens = np.fromiter((len(x) for x in lists), dtype=np.intp, count=len(lists))
     n_q = q.shape[0]
@@ -517,6 +527,9 @@ def surface_residuals(
     u = 1.0 - (d[:, 0] ** 2 + d[:, 1] ** 2) / radius_m**2
     phi = np.where(u > 0.0, u * u, 0.0)
     nrm = normals.get(idx)
+    if q_normals is not None:
+        cos2 = (nrm[:, 0] * q_normals[row, 0] + nrm[:, 1] * q_normals[row, 1]) ** 2
+        phi = phi * cos2**4
 
     def total(v: NDArray[np.float64]) -> NDArray[np.float64]:
         return np.bincount(row, weights=v, minlength=n_q)
@@ -541,12 +554,13 @@ def _surface_step(
     tree: cKDTree,
     normals: _NormalCache,
     cfg: IcpConfig,
+    q_normals: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
     """One reweighted point-to-surface step: (sum a w n n^T) dT = sum a w n r over the target
     points, a = support / (1 + support) (fades out at the neighbourhood's edge), w the robust
     kernel's weight of r (scale from the points with support)."""
     assert cfg.surface_radius_m is not None
-    r, n, support = surface_residuals(src, q, tree, normals, cfg.surface_radius_m)
+    r, n, support = surface_residuals(src, q, tree, normals, cfg.surface_radius_m, q_normals)
     has = support > 0.0
     if not has.any():
         return np.zeros(2)

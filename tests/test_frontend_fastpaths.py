@@ -178,8 +178,9 @@ def test_icp_equals_the_straightforward_implementation(normal_neighbours: int) -
 
 def test_compiled_icp_equals_the_numpy_path() -> None:
     """The numba iterations (compiled) against icp_translation_2d_reference: both metrics,
-    with and without trimming, wide normals, coarse grids full of exact ties (the kernel hands
-    those back to the numpy path) and targets out of range."""
+    with and without trimming, with a robust (reweighted) finish, wide normals, coarse grids
+    full of exact ties (the kernel hands those back to the numpy path) and targets out of
+    range."""
     kernels = icp_module.compiled_kernels()
     assert kernels is not None  # numba is a dependency: the compiled path is the one tested
     rng = np.random.default_rng(21)
@@ -189,8 +190,12 @@ def test_compiled_icp_equals_the_numpy_path() -> None:
         IcpConfig(metric="point_to_point"),
         IcpConfig(trim_fraction=0.0, normal_neighbours=15),
         IcpConfig(max_correspondence_m=0.03, normal_neighbours=3),
+        IcpConfig(robust_kernel="cauchy"),
+        IcpConfig(robust_kernel="huber", metric="point_to_point"),
+        IcpConfig(robust_kernel="cauchy", trim_fraction=0.0, normal_neighbours=15),
+        IcpConfig(robust_kernel="huber", surface_radius_m=0.012),  # numpy path either way
     ]
-    for case in range(40):
+    for case in range(80):
         cfg = configs[case % len(configs)]
         src = _smoothed(rng)
         if case % 5 == 4:  # a coarse grid: exact duplicates and exactly tied distances
@@ -210,7 +215,8 @@ def test_compiled_icp_equals_the_numpy_path() -> None:
                 src, np.ascontiguousarray(tgt), T0[0], T0[1], cfg.max_iterations,
                 cfg.convergence_m, cfg.max_correspondence_m, cfg.trim_fraction,
                 cfg.normal_neighbours, cfg.metric != "point_to_point", cfg.degenerate_ratio,
-                *_fresh_normals(src),
+                *_fresh_normals(src), True, kernels.ROBUST_KERNELS[cfg.robust_kernel],
+                cfg.robust_scale, cfg.sigma_floor_m,
             )[-1]
         )  # fmt: skip
         got = icp_translation_2d(src, tgt, T0, cfg)
@@ -229,7 +235,7 @@ def test_compiled_icp_equals_the_numpy_path() -> None:
             )
         if case == 7:
             assert got.n_correspondences == 0 and np.array_equal(got.translation_xz_m, T0)
-    assert statuses.count(0) >= 25  # mostly compiled,
+    assert statuses.count(0) >= 50  # mostly compiled,
     assert any(s != 0 for s in statuses)  # and the ties did go back to the numpy path
 
 
@@ -997,9 +1003,64 @@ def test_compiled_seen_under_equals_the_numpy_mask() -> None:
     assert n_seen > 1000
 
 
+def test_compiled_seen_under_with_the_floor_beyond_a_slab_equals_the_numpy_masks() -> None:
+    """``compiled.seen_under_floor`` (the front end's ``points_seen_under`` in one call)
+    against ``seen_under_mask | floor_beyond_slab_mask``: the same mask on an open-riser
+    flight whose floor runs on under a tread (points found beyond the slab), random levels
+    over random clouds, NaNs, no levels, for several margins, drops, bands and counts."""
+    from vio_graph.surface import floor_beyond_slab_mask, seen_under_mask
+
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    tread = np.column_stack([np.linspace(0.4, 0.69, 30), np.full(30, -0.3)])
+    floor = np.column_stack([np.linspace(0.05, 1.6, 160), np.full(160, -0.45)])
+    rng = np.random.default_rng(21)
+    n_beyond = 0
+    for case in range(200):
+        n = int(rng.integers(0, 200))
+        pts = np.column_stack([rng.uniform(-0.1, 2.0, n), rng.uniform(-0.8, 0.4, n)])
+        if case % 2 == 0:  # a tread over the floor, which runs on beyond it
+            scene = np.vstack([tread, floor])
+            pts = np.vstack([pts[: n // 8], scene + rng.normal(0, 0.003, scene.shape)])
+            z = [-0.3, -0.45]
+            lo, hi = [0.4, 0.05], [0.69, 1.6]
+        else:
+            n_lv = int(rng.integers(0, 4))
+            z = rng.uniform(-0.6, 0.2, n_lv).tolist()
+            lo = rng.uniform(-0.1, 1.0, n_lv).tolist()
+            hi = (np.asarray(lo) + rng.uniform(0.0, 1.2, n_lv)).tolist()
+        if case % 5 == 0:
+            pts = np.round(pts, 2)  # ties at the bands' and extents' edges
+        if case % 7 == 0 and pts.shape[0]:
+            pts[rng.integers(0, pts.shape[0]), int(rng.integers(0, 2))] = np.nan
+        for margin, drop, count, min_pts in (
+            (0.05, 0.04, 3, 10),
+            (0.0, 0.0, 1, 0),
+            (0.2, 0.1, 5, 30),
+        ):
+            ref = seen_under_mask(pts, margin, drop, count)
+            beyond = floor_beyond_slab_mask(pts, z, lo, hi, margin, drop, drop, min_pts)
+            ref = ref | beyond
+            fast = kernels.seen_under_floor(
+                np.ascontiguousarray(pts[:, 0]),
+                np.ascontiguousarray(pts[:, 1]),
+                margin,
+                drop,
+                count,
+                np.array(z, dtype=float),
+                np.array(lo, dtype=float),
+                np.array(hi, dtype=float),
+                drop,
+                min_pts,
+            )
+            assert np.array_equal(fast, ref)
+            n_beyond += int(beyond.sum())
+    assert n_beyond > 1000
+
+
 def test_compiled_depth_noise_equals_the_numpy_path() -> None:
     """level_residuals and robust_sigma with the kernels on (``compiled.level_bands``,
-    ``compiled.median_abs_deviation_sorted``) against their numpy references: the same
+    ``compiled.median_abs_deviation``) against their numpy references: the same
     residuals and sigma bit for bit, with points exactly on the range circle and on a band's
     edges, ties, NaNs, no level, overlapping bands, and even and odd counts."""
     from vio_graph.frontend import noise
@@ -1040,9 +1101,9 @@ def test_compiled_depth_noise_equals_the_numpy_path() -> None:
     assert 0 < sizes < 400  # odd and even counts
 
 
-def test_compiled_robust_sigma_by_bisection_equals_the_numpy_medians() -> None:
-    """robust_sigma's kernel (``compiled.median_abs_deviation_sorted``: the deviations' middle
-    ranks by bisection of the two sorted runs left and right of the median) against
+def test_compiled_robust_sigma_by_selection_equals_the_numpy_medians() -> None:
+    """robust_sigma's kernel (``compiled.median_abs_deviation``: both medians by selection,
+    no sort) against
     ``np.median(np.abs(r - np.median(r)))`` on residual sets of 1 to thousands of values (a
     replay's size), odd and even, with many ties, signed zeros, a constant run, one-sided
     sets, infinities and NaNs (the numpy path then): the same float bit for bit."""
@@ -1070,7 +1131,8 @@ def test_compiled_robust_sigma_by_bisection_equals_the_numpy_medians() -> None:
         assert np.signbit(fast) == np.signbit(ref)
         if np.isfinite(r).all():
             n_kernel += 1
-            mad = kernels.median_abs_deviation_sorted(np.sort(r))
+            mad, ok = kernels.median_abs_deviation(r)
+            assert ok
             assert mad == np.median(np.abs(r - np.median(r)))
             assert not np.signbit(mad)
     assert 100 < n_kernel < 120

@@ -133,6 +133,18 @@ class ImuFaultConfig(BaseModel):
         "end's displacements, the bridge and the learnt scales from the filter, lose (smoother "
         "toe x obstacle 0.61 -> 1.19, upstair 0.51 -> 0.72 cm): docs/robustness.md",
     )
+    saturation_axis_distrust_single: bool = Field(
+        default=False,
+        description="saturation_axis_distrust for the samples of a clipped stretch that has "
+        "so far railed one accelerometer axis only (a heel strike's z): the loss then lies "
+        "along that axis turned to the ground, and the frames' measured direction (a level "
+        "floor's z) fixes its share on the other ground axis. Samples of a stretch that "
+        "rails two axes keep the isotropic variance. No effect without saturation. Off: 4 g "
+        "seeds 1-3 filter toe x obstacle 4.09 -> 1.40, upstair 1.67 -> 1.43 cm, downstair and "
+        "prosthesis_upstair within 0.04, but smoother toe x obstacle 0.57 -> 1.17, upstair "
+        "0.53 -> 0.62 cm (through the profile ICP's restart check, "
+        "frontend.tracker.fallback_restart_shift): docs/robustness.md",
+    )
     saturation_sigma_prior_floor: bool = Field(
         default=True,
         description="the learnt scale (saturation_learn_scale) moves the prior's mean only: "

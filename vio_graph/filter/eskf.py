@@ -79,6 +79,7 @@ from vio_graph.errors import EstimationError
 from vio_graph.filter.config import FilterConfig
 from vio_graph.filter.fast_imu import imu_kernels, sagittal_pitch
 from vio_graph.filter.gating import chi2_2dof_quantile, mahalanobis2_2d
+from vio_graph.filter.imu_faults import railed_axis
 from vio_graph.filter.lever_arm import angular_acceleration, lever_arm_terms
 from vio_graph.geometry import matrix_from_quat_wxyz, pitch_of, remove_yaw, rot_y_xz
 from vio_graph.types import Displacement2D, EstimateStatus, ImuSample, LandmarkKey
@@ -231,6 +232,10 @@ class SagittalEskf:
         # the previous sample's saturation covariance on its clipped axes (body x-z, 2x2) and
         # pitch (rad), when imu_faults.saturation_axis_distrust applies it (None otherwise)
         self._prev_xc: tuple[NDArray[np.float64], float] | None = None
+        # with imu_faults.saturation_axis_distrust_single: the railed axis (unit 3-vector) of
+        # the current clipped stretch while it railed only that one, False once it railed
+        # another or two, None outside a stretch
+        self._stretch_axis: NDArray[np.float64] | bool | None = None
         # compiled propagation (filter/compiled_imu.py): the previous sample's memory in one
         # array instead of _prev / _prev_xa / _accel_w_mps2
         self._kernels = imu_kernels()
@@ -315,8 +320,24 @@ class SagittalEskf:
         (that 2x2 block, its pitch). Otherwise the sample as it is and None."""
         xc = imu.accel_extra_cov_m2ps4
         fi = self.config.imu_faults
-        if xc is None or not (
-            fi.saturation_axis_distrust or (imu.accel_held and fi.repaired_axis_distrust)
+        if xc is None:
+            self._stretch_axis = None
+            return imu, None
+        single = False
+        if fi.saturation_axis_distrust_single and not imu.accel_held:
+            # the stretch so far railed this one axis only (None: two, or another)
+            axis = railed_axis(xc)
+            prev = self._stretch_axis
+            if prev is False or (
+                axis is not None
+                and isinstance(prev, np.ndarray)
+                and abs(float(axis @ prev)) < 1.0 - 1e-9
+            ):
+                axis = None
+            self._stretch_axis = False if axis is None else axis
+            single = axis is not None
+        if not (
+            fi.saturation_axis_distrust or single or (imu.accel_held and fi.repaired_axis_distrust)
         ):
             return imu, None
         c = np.asarray(xc, dtype=float)[np.ix_([0, 2], [0, 2])]

@@ -467,6 +467,18 @@ class ImuFaultMonitor:
         }
 
 
+def railed_axis(extra_cov_m2ps4: ArrayLike) -> NDArray[np.float64] | None:
+    """The unit axis (3-vector, the covariance's axes) of a saturated sample's covariance on
+    its railed axes (``ImuSample.accel_extra_cov_m2ps4``) if it rails exactly one axis, else
+    None. Rank one is tested to rounding (the monitor puts exact zeros on the axes within
+    range; a mount rotation adds rounding only), not against a tuned tolerance."""
+    C = np.asarray(extra_cov_m2ps4, dtype=float).reshape(3, 3)
+    w, V = np.linalg.eigh(0.5 * (C + C.T))
+    if not w[2] > 0.0 or w[1] > 1e-9 * w[2]:
+        return None
+    return np.asarray(V[:, 2], dtype=float)
+
+
 def velocity_fault_cov(sigma_mps: float, interval_s: float) -> NDArray[np.float64]:
     """4x4 covariance on (dp, dv) of a velocity jump of sigma ``sigma_mps`` at the middle of
     an interval of ``interval_s`` seconds ending now: dv = j, dp = (interval / 2) j."""

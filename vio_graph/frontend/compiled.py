@@ -401,6 +401,9 @@ def icp_loop(
     normals,
     have,
     keep_clear_matches=True,
+    robust_kernel=0,
+    robust_scale=2.385,
+    sigma_floor_m=0.003,
 ):  # pragma: no cover - compiled
     """The ICP iterations. Returns (Tx, Tz, iterations, converged, keep, j, normals, status):
     ``keep`` the kept target indices of the last iteration (in the numpy path's order), ``j``
@@ -418,7 +421,12 @@ def icp_loop(
     for those not searched); when T moves by s, no other point comes more than s nearer, so
     a match nearer than that bound less s (with margins far above rounding) is what the search
     would return: the same point, the same squared distance (computed alike), no tie. False
-    searches every time (the tests compare the two bit for bit)."""
+    searches every time (the tests compare the two bit for bit).
+
+    ``robust_kernel`` (0 none, ``_CAUCHY``, ``_HUBER``): after the trimmed iterations converge
+    (or reach ``max_iterations``), up to ``max_iterations`` reweighted ones over every pair
+    (weights ``_robust_weight`` of the point-to-line residual, or of the distance), then one
+    more search at the answer for the trimmed pairs ``keep`` (the numpy path's stages)."""
     ns = src.shape[0]
     nt = tgt.shape[0]
     order = np.argsort(src[:, 0], kind="mergesort")
@@ -440,9 +448,14 @@ def icp_loop(
     px, pz = tx, tz  # T of the previous iteration
     converged = False
     iterations = 0
+    stage = 0  # 0 trimmed, 1 reweighted (robust_kernel), 2 the final search at the answer
+    stage_iterations = 0
+    weights = np.empty(nt)
     window = max_correspondence_m * (1.0 + 1e-9) + 1e-12  # |x - x'| beyond: out of range
-    for it in range(1, max_iterations + 1):
-        iterations = it
+    while True:
+        if stage != 2:
+            iterations += 1
+            stage_iterations += 1
         moved = math.hypot(tx - px, tz - pz) * (1.0 + 1e-9) + 1e-12
         px, pz = tx, tz
         # eq. 3: nearest source point of every target point moved back by T
@@ -493,7 +506,7 @@ def icp_loop(
             if dist[i] < np.inf:
                 keep[c] = i
                 c += 1
-        if trim_fraction > 0 and n_found >= 4:
+        if stage != 1 and trim_fraction > 0 and n_found >= 4:
             n_keep = max(3, math.ceil((1.0 - trim_fraction) * n_found))
             dk = dist[keep]
             srt = np.argsort(dk, kind="mergesort")
@@ -509,8 +522,34 @@ def icp_loop(
                     ):
                         return tx, tz, iterations, converged, keep, j, normals, _TIE_TRIM
             keep = keep[srt[:n_keep]]
+        if stage == 2:
+            break
         nk = keep.size
-        if not point_to_line:
+        if stage == 1:
+            dtx, dtz, status = _robust_step(
+                src,
+                tgt,
+                grid,
+                rank,
+                normal_neighbours,
+                normals,
+                have,
+                best_d,
+                best_i,
+                keep,
+                j,
+                tx,
+                tz,
+                point_to_line,
+                degenerate_ratio,
+                robust_kernel,
+                robust_scale,
+                sigma_floor_m,
+                weights,
+            )
+            if status != _OK:
+                return tx, tz, iterations, converged, keep, j, normals, status
+        elif not point_to_line:
             # eq. 4: the mean residual
             rx = 0.0
             rz = 0.0
@@ -557,15 +596,115 @@ def icp_loop(
                 dtz += v1z * step
         tx = tx + dtx
         tz = tz + dtz
-        if math.hypot(dtx, dtz) <= convergence_m:
-            converged = True
-            break
+        converged = math.hypot(dtx, dtz) <= convergence_m
+        if converged or stage_iterations >= max_iterations:
+            if robust_kernel == 0:
+                break
+            stage = 1 if stage == 0 else 2
+            stage_iterations = 0
     # the normals the covariance needs (the numpy path computes them for the kept pairs)
     for c in range(keep.size):
         m = j[keep[c]]
         if _fill_normal(src, grid, rank, normal_neighbours, normals, have, m, best_d, best_i):
             return tx, tz, iterations, converged, keep, j, normals, _TIE_NORMAL
     return tx, tz, iterations, converged, keep, j, normals, _OK
+
+
+_CAUCHY = 1  # robust_kernel codes of icp_loop ("cauchy", "huber" in IcpConfig)
+_HUBER = 2
+ROBUST_KERNELS = {"none": 0, "cauchy": _CAUCHY, "huber": _HUBER}
+
+
+@numba.njit(cache=True)
+def _robust_weight(a, c, kernel):  # pragma: no cover - compiled
+    """IRLS weight of an absolute residual ``a`` for the kernel width ``c`` (as
+    ``icp.robust_weights``)."""
+    if kernel == _CAUCHY:
+        u = a / c
+        return 1.0 / (1.0 + u * u)
+    return 1.0 if a <= c else c / max(a, c)
+
+
+@numba.njit(cache=True)
+def _robust_step(
+    src,
+    tgt,
+    grid,
+    rank,
+    normal_neighbours,
+    normals,
+    have,
+    best_d,
+    best_i,
+    keep,
+    j,
+    tx,
+    tz,
+    point_to_line,
+    degenerate_ratio,
+    kernel,
+    scale,
+    sigma_floor_m,
+    weights,
+):  # pragma: no cover - compiled
+    """One reweighted step over the pairs ``keep`` (as ``icp._robust_step``): (dTx, dTz,
+    status). ``weights`` (>= keep.size,) is scratch; it holds the residuals, then weights."""
+    nk = keep.size
+    for c in range(nk):
+        i = keep[c]
+        m = j[i]
+        rx = (tgt[i, 0] - tx) - src[m, 0]
+        rz = (tgt[i, 1] - tz) - src[m, 1]
+        if point_to_line:
+            if _fill_normal(src, grid, rank, normal_neighbours, normals, have, m, best_d, best_i):
+                return 0.0, 0.0, _TIE_NORMAL
+            weights[c] = abs(normals[m, 0] * rx + normals[m, 1] * rz)
+        else:
+            weights[c] = math.hypot(rx, rz)
+    width = scale * max(1.4826 * np.median(weights[:nk]), sigma_floor_m)
+    for c in range(nk):
+        weights[c] = _robust_weight(weights[c], width, kernel)
+    if not point_to_line:
+        sw = 0.0
+        sx = 0.0
+        sz = 0.0
+        for c in range(nk):
+            i = keep[c]
+            w = weights[c]
+            sw += w
+            sx += w * ((tgt[i, 0] - tx) - src[j[i], 0])
+            sz += w * ((tgt[i, 1] - tz) - src[j[i], 1])
+        return sx / sw, sz / sw, _OK
+    a = 0.0
+    b = 0.0
+    cc = 0.0
+    gx = 0.0
+    gz = 0.0
+    for c in range(nk):
+        i = keep[c]
+        m = j[i]
+        w = weights[c]
+        nx = normals[m, 0]
+        nz = normals[m, 1]
+        r_n = nx * ((tgt[i, 0] - tx) - src[m, 0]) + nz * ((tgt[i, 1] - tz) - src[m, 1])
+        a += w * nx * nx
+        b += w * nx * nz
+        cc += w * nz * nz
+        gx += w * nx * r_n
+        gz += w * nz * r_n
+    w0, w1, v0x, v0z, v1x, v1z = _eig_sym2(a, b, cc)
+    floor = max(degenerate_ratio * w1, 1e-9)
+    dtx = 0.0
+    dtz = 0.0
+    if w0 > floor:
+        step = (v0x * gx + v0z * gz) / w0
+        dtx += v0x * step
+        dtz += v0z * step
+    if w1 > floor:
+        step = (v1x * gx + v1z * gz) / w1
+        dtx += v1x * step
+        dtz += v1z * step
+    return dtx, dtz, _OK
 
 
 @numba.njit(cache=True)
@@ -1140,6 +1279,45 @@ def seen_under(x, z, margin, drop, min_occluders):  # pragma: no cover - compile
 
 
 @numba.njit(cache=True)
+def seen_under_floor(
+    x, z, margin, drop, min_occluders, lz, lo, hi, band, min_points
+):  # pragma: no cover - compiled
+    """:func:`seen_under` or-ed with ``vio_graph.surface.floor_beyond_slab_mask`` (its numpy
+    form is the reference) in one call: the front end's ``points_seen_under`` without the
+    small numpy calls of the slab test per frame. Levels (``lz``, ``lo``, ``hi``) as in the
+    reference; the same comparisons of the same floats, so the same mask bit for bit."""
+    under = seen_under(x, z, margin, drop, min_occluders)
+    n_lv = lz.shape[0]
+    n = x.shape[0]
+    beneath = np.zeros(0, np.bool_)
+    for a in range(n_lv):
+        for b in range(n_lv):
+            # the slab test of ``surface._lower_overlapping``: b at least drop under a and
+            # overlapping it in x by more than margin
+            if b == a or not lz[b] < lz[a] - drop:
+                continue
+            if not min(hi[a], hi[b]) - max(lo[a], lo[b]) > margin:
+                continue
+            if beneath.shape[0] == 0:  # ``surface._beneath_levels``, once, when a slab exists
+                beneath = np.zeros(n, np.bool_)
+                for i in range(n):
+                    for c in range(n_lv):
+                        if x[i] > lo[c] + margin and x[i] < hi[c] - margin and z[i] < lz[c] - drop:
+                            beneath[i] = True
+                            break
+            cnt = 0
+            for i in range(n):
+                if abs(z[i] - lz[b]) <= band and x[i] < lo[a] and not beneath[i]:
+                    cnt += 1
+            if cnt >= min_points:
+                lim = hi[a] + margin
+                for i in range(n):
+                    if abs(z[i] - lz[b]) <= band and x[i] > lim:
+                        under[i] = True
+    return under
+
+
+@numba.njit(cache=True)
 def under_levels(x, pz, z, lo, hi, margin, drop, band, sight_margin, use_sight):  # pragma: no cover
     """``vio_graph.surface.under_levels_mask`` (its numpy form is the reference) point by
     point: the same comparisons of the same floats (the slope ``pz / x`` of a point ahead,
@@ -1228,49 +1406,111 @@ def level_bands(x, z, max_range, check_range, heights, lo, hi, band):  # pragma:
     return bx, bz, counts
 
 
-@numba.njit(cache=True)
-def _deviation_rank(s, med, j, k):  # pragma: no cover - compiled
-    """The rank-``k`` (0-based) value of the deviations ``|s - med|`` of sorted ``s``, ``j``
-    its first index with ``s[j] >= med``: the deviations left of ``j`` (``|s[j - 1 - a] -
-    med|``, a = 0, 1, ...) and from ``j`` on (``|s[j + b] - med|``) are two rising sequences
-    (rounding is monotone), so the k-th of their union is found by bisecting how many of the
-    k + 1 smallest come from the left one, O(log n): the value the merge of both reaches."""
-    n = s.shape[0]
-    n_left = j
-    n_right = n - j
-    lo = max(0, k + 1 - n_right)
-    hi = min(k + 1, n_left)
-    while lo < hi:  # the least count a taken from the left with left[a] >= right[k - a]
-        a = (lo + hi) // 2
-        if abs(s[j - 1 - a] - med) < abs(s[j + k - a] - med):
-            lo = a + 1
-        else:
-            hi = a
-    best = -np.inf
-    if lo > 0:
-        best = abs(s[j - lo] - med)  # left[lo - 1]
-    if k - lo >= 0:
-        best = max(best, abs(s[j + k - lo] - med))  # right[k - lo]
-    return best
+_SIGN64 = np.uint64(1) << np.uint64(63)
 
 
 @numba.njit(cache=True)
-def median_abs_deviation_sorted(s):  # pragma: no cover - compiled
-    """``np.median(np.abs(r - np.median(r)))`` of the values ``s`` (sorted ascending, finite,
-    at least one): the median is the middle value (the mean of the two middle ones for an
-    even count, ``(a + b) / 2`` as numpy's mean of two), and the deviations ``|s - med|``,
-    falling to the left of the median and rising to its right, are two sorted sequences
-    whose middle rank(s) are found by bisection (:func:`_deviation_rank`, O(log n) after the
-    sort, where merging them from the middle outwards walked n / 2 values): the same order
-    statistics, the same floats."""
-    n = s.shape[0]
-    h = n // 2
-    med = s[h] if n % 2 == 1 else (s[h - 1] + s[h]) / 2
-    j = np.searchsorted(s, med)  # the first s[j] >= med
-    cur = _deviation_rank(s, med, j, h)
-    if n % 2 == 1:
-        return cur
-    return (_deviation_rank(s, med, j, h - 1) + cur) / 2
+def _rank_key(keys, work, k):  # pragma: no cover - compiled
+    """The rank-``k`` (0-based) value of ``keys`` (uint64) by radix selection: a histogram of
+    the next 8 bits of the candidates, the bucket that holds rank k kept, 8 passes at most
+    over a shrinking set (``work`` a scratch array of the same size). Branch-light, where a
+    quickselect on ~5,500 random floats mispredicts half its comparisons (~3x slower)."""
+    n = keys.shape[0]
+    for i in range(n):
+        work[i] = keys[i]
+    m = n
+    hist = np.zeros(256, np.int64)
+    for shift in range(56, -8, -8):
+        sh = np.uint64(shift)
+        hist[:] = 0
+        for i in range(m):
+            hist[(work[i] >> sh) & np.uint64(255)] += 1
+        d = 0
+        while k >= hist[d]:
+            k -= hist[d]
+            d += 1
+        if hist[d] == m:
+            continue  # every candidate shares these bits
+        ud = np.uint64(d)
+        c = 0
+        for i in range(m):
+            v = work[i]
+            if (v >> sh) & np.uint64(255) == ud:
+                work[c] = v
+                c += 1
+        m = c
+        if m == 1:
+            break
+    return work[0]
+
+
+@numba.njit(cache=True)
+def _middle_key(keys, work, h, even):  # pragma: no cover - compiled
+    """(rank h - 1 key if ``even`` else the rank-h key, rank-h key) of ``keys``: the rank
+    h - 1 one is the rank-h key when fewer than h keys lie below it, else the largest below
+    it (one pass)."""
+    hi = _rank_key(keys, work, h)
+    if not even:
+        return hi, hi
+    below = 0
+    lo = np.uint64(0)
+    for i in range(keys.shape[0]):
+        v = keys[i]
+        if v < hi:
+            below += 1
+            if v > lo:
+                lo = v
+    return (hi if below < h else lo), hi
+
+
+@numba.njit(cache=True)
+def _key_float(v):  # pragma: no cover - compiled
+    """The float64 of a :func:`_float_keys` key."""
+    b = v ^ _SIGN64 if v >> np.uint64(63) else ~v
+    return np.array([b], np.uint64).view(np.float64)[0]
+
+
+@numba.njit(cache=True)
+def _float_keys(x, keys):  # pragma: no cover - compiled
+    """uint64 keys in the order of the floats ``x`` (finite; -0.0 just below +0.0): the bits,
+    with the sign bit set for a positive value and all bits flipped for a negative one."""
+    u = x.view(np.uint64)
+    for i in range(x.shape[0]):
+        b = u[i]
+        keys[i] = ~b if b >> np.uint64(63) else b | _SIGN64
+
+
+@numba.njit(cache=True)
+def _median_of_keys(x, keys, work):  # pragma: no cover - compiled
+    """Median of the finite floats ``x`` (at least one): the middle value, or the two middle
+    ones as ``(a + b) / 2`` (numpy's mean of two), each found exactly by radix selection."""
+    n = x.shape[0]
+    _float_keys(x, keys)
+    lo, hi = _middle_key(keys, work, n // 2, n % 2 == 0)
+    a, b = _key_float(lo), _key_float(hi)
+    return b if n % 2 == 1 else (a + b) / 2
+
+
+@numba.njit(cache=True)
+def median_abs_deviation(r):  # pragma: no cover - compiled
+    """``np.median(np.abs(r - np.median(r)))`` of ``r`` (1-D, contiguous, at least one value)
+    without sorting: both medians by radix selection (:func:`_median_of_keys`, a few passes
+    over the values, where numpy's sort took ~130 us on a frame's ~5,500 residuals). Returns
+    (mad, ok); ok False (nothing computed) when a value is not finite: the caller runs the
+    numpy path. An order statistic is the same value however it is found; only the sign of
+    a zero median may differ from the sort's pick (-0.0 ranks below +0.0 here), which leaves
+    every deviation ``|r - med|`` the same. So the same float bit for bit."""
+    n = r.shape[0]
+    for i in range(n):
+        if not math.isfinite(r[i]):
+            return np.nan, False
+    keys = np.empty(n, np.uint64)
+    work = np.empty(n, np.uint64)
+    med = _median_of_keys(r, keys, work)
+    dev = np.empty(n)
+    for i in range(n):
+        dev[i] = abs(r[i] - med)
+    return _median_of_keys(dev, keys, work), True
 
 
 # ----------------------------------------------------------------------------- terrain levels

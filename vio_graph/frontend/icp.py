@@ -16,6 +16,12 @@ translation T in the x-z plane, and ``P_target ~= T + P_source``.
   the riser points pull x all the way.
 - Robustness (not in the paper): pairs farther than ``max_correspondence_m`` are ignored and,
   optionally, the worst ``trim_fraction`` of the rest (trimmed ICP).
+- Optional, off by default (``robust_kernel``, ``surface_radius_m``): after the trimmed ICP
+  converges, reweighted iterations over every pair (Huber / Cauchy weights of the residual),
+  measured against the nearest source point or against the source surface around each
+  target point (soft correspondences). They make the answer continuous in the seed T0, which
+  the trimmed nearest-neighbour ICP is not (docs/generalisation.md, "A seed-continuous ICP
+  tried"). The pairs, RMS and covariance are then those the trimmed ICP keeps at the answer.
 
 Covariance (not in the paper). Point-to-point residuals cannot tell a well-constrained corner
 from a flat tread that can slide along itself, so the covariance uses the point-to-line model
@@ -242,9 +248,10 @@ def icp_translation_2d(
     The iterations run compiled (``compiled``, numba) when numba is installed; otherwise,
     and on the rare exact distance ties the kernel hands back, the numpy path
     :func:`icp_translation_2d_reference` runs (the same answer to rounding; tests compare them).
+    The surface stage (``surface_radius_m``) always runs on the numpy path.
     """
     kernels = compiled_kernels()
-    if kernels is None:
+    if kernels is None or config is not None and config.surface_radius_m is not None:
         return icp_translation_2d_reference(
             source_xz_m, target_xz_m, initial_translation_xz_m, config, source_tree
         )
@@ -267,6 +274,10 @@ def icp_translation_2d(
         cfg.degenerate_ratio,
         normals0,
         have0,
+        True,
+        kernels.ROBUST_KERNELS[cfg.robust_kernel],
+        cfg.robust_scale,
+        cfg.sigma_floor_m,
     )
     if status != 0:  # an exact tie: let the KD-tree decide, as the numpy path does
         return icp_translation_2d_reference(src, tgt, T0, cfg, source_tree)
@@ -386,11 +397,18 @@ def icp_translation_2d_reference(
     normals = _NormalCache(src, tree, cfg.normal_neighbours)
     nearest = _NearestSource(src, tree, tgt, cfg.max_correspondence_m)
     point_to_line = cfg.metric != "point_to_point"
+    robust = cfg.robust_kernel != "none"
     converged = False
     keep = np.zeros(0, dtype=np.intp)
     j = np.zeros(0, dtype=np.intp)
     iterations = 0
-    for iterations in range(1, cfg.max_iterations + 1):
+    stage = _TRIMMED  # then, with a robust kernel, _ROBUST and a _FINAL query at the answer
+    tgt_normals: NDArray[np.float64] | None = None
+    stage_iterations = 0
+    while True:
+        if stage != _FINAL:
+            iterations += 1
+            stage_iterations += 1
         # eq. 3: nearest source point of T + P_s for every target point
         dist, j = nearest.query(T)
         if iterations == 1 and point_to_line:  # the points later iterations may match, at once
@@ -401,20 +419,33 @@ def icp_translation_2d_reference(
         keep = np.flatnonzero(dist < np.inf)
         if keep.size == 0:
             break
-        if cfg.trim_fraction > 0 and keep.size >= 4:
+        if stage != _ROBUST and cfg.trim_fraction > 0 and keep.size >= 4:
             n_keep = max(3, math.ceil((1.0 - cfg.trim_fraction) * keep.size))
             keep = keep[np.argsort(dist[keep])[:n_keep]]
+        if stage == _FINAL:  # the pairs of the answer, as the trimmed ICP would keep them
+            break
         residual = tgt[keep] - T - src[j[keep]]
-        if not point_to_line:
+        if stage == _ROBUST and cfg.surface_radius_m is not None:
+            if tgt_normals is None:  # the target's own normals: fixed, whatever T
+                k = min(cfg.normal_neighbours, tgt.shape[0])
+                tgt_normals = _source_normals(tgt, cKDTree(tgt), np.arange(tgt.shape[0]), k)
+            dT = _surface_step(src, tgt - T, tree, normals, cfg, tgt_normals)
+        elif stage == _ROBUST:
+            n = normals.get(j[keep]) if point_to_line else None
+            dT = _robust_step(n, residual, cfg)
+        elif not point_to_line:
             # eq. 4: translation step = mean residual of the pairs
             dT = residual.mean(axis=0)
         else:
             # point-to-line: solve (sum n n^T) dT = sum n (n . r); needs the source normals
             dT = _point_to_line_step(normals.get(j[keep]), residual, cfg.degenerate_ratio)
         T = T + dT
-        if math.hypot(dT[0], dT[1]) <= cfg.convergence_m:
-            converged = True
-            break
+        converged = math.hypot(dT[0], dT[1]) <= cfg.convergence_m
+        if converged or stage_iterations >= cfg.max_iterations:
+            if not robust:
+                break
+            stage = _ROBUST if stage == _TRIMMED else _FINAL
+            stage_iterations = 0
     if keep.size == 0:
         return _no_correspondence(T, iterations, cfg)
     pairs_t, pairs_s = tgt[keep], src[j[keep]]
@@ -422,6 +453,139 @@ def icp_translation_2d_reference(
     rms = float(np.sqrt((residual**2).sum(axis=1).mean()))
     cov = _covariance(normals.get(j[keep]), residual, cfg)
     return IcpResult(T, cov, iterations, converged, rms, int(keep.size), pairs_t, pairs_s)
+
+
+_TRIMMED, _ROBUST, _FINAL = 0, 1, 2  # stages of the ICP iterations (reference path)
+
+
+def robust_weights(
+    r: NDArray[np.float64], kernel: str, scale: float, sigma_floor_m: float
+) -> NDArray[np.float64]:
+    """IRLS weights of residuals ``r`` (m): the ``kernel``'s (``"cauchy"``: 1 / (1 + (r/c)^2),
+    ``"huber"``: min(1, c / |r|)) with c = ``scale`` x sigma, sigma = 1.4826 x median |r|
+    floored at ``sigma_floor_m``. Smooth in r (Huber: continuous), so the reweighted
+    minimiser moves continuously with the pairs."""
+    a = np.abs(r)
+    c = scale * max(1.4826 * float(np.median(a)), sigma_floor_m)
+    if kernel == "cauchy":
+        u = a / c
+        return 1.0 / (1.0 + u * u)
+    if kernel == "huber":
+        return np.where(a <= c, 1.0, c / np.maximum(a, c))
+    raise FrontendError(f"unknown robust kernel {kernel!r}")
+
+
+def _robust_step(
+    n: NDArray[np.float64] | None, residual: NDArray[np.float64], cfg: IcpConfig
+) -> NDArray[np.float64]:
+    """One IRLS step over all pairs: the weighted point-to-line step (``n`` the source normals)
+    or, with ``n`` None, the weighted mean residual (point-to-point, weights of the distance)."""
+    if n is None:
+        w = robust_weights(
+            np.hypot(residual[:, 0], residual[:, 1]),
+            cfg.robust_kernel,
+            cfg.robust_scale,
+            cfg.sigma_floor_m,
+        )
+        return (w[:, None] * residual).sum(axis=0) / w.sum()
+    nx, nz = n[:, 0], n[:, 1]
+    r_n = nx * residual[:, 0] + nz * residual[:, 1]
+    w = robust_weights(r_n, cfg.robust_kernel, cfg.robust_scale, cfg.sigma_floor_m)
+    wx, wz = w * nx, w * nz
+    (w0, w1), (v0, v1) = _eig_sym2(float(wx @ nx), float(wx @ nz), float(wz @ nz))
+    gx, gz = float(wx @ r_n), float(wz @ r_n)
+    floor = max(cfg.degenerate_ratio * w1, 1e-9)  # degenerate directions: no step
+    dx = dz = 0.0
+    for w_, (vx, vz) in ((w0, v0), (w1, v1)):
+        if w_ > floor:
+            step = (vx * gx + vz * gz) / w_
+            dx += vx * step
+            dz += vz * step
+    return np.array([dx, dz])
+
+
+def surface_residuals(
+    src: NDArray[np.float64],
+    q: NDArray[np.float64],
+    tree: cKDTree,
+    normals: _NormalCache,
+    radius_m: float,
+    q_normals: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Residuals of points ``q`` (N, 2) to the source surface around them: (r (N,), unit
+    normals (N, 2), support (N,)). Source points s_i within ``radius_m`` of q weigh
+    phi_i = (1 - |q - s_i|^2 / radius^2)^2; the normal is the principal direction of
+    sum phi_i n_i n_i^T (n_i the source normals), r = n . (q - c) with c the phi-weighted
+    centroid, support = sum phi_i (0: nothing within the radius, r = 0). Every term is
+    continuous in q: points enter and leave the neighbourhood with weight 0.
+
+    ``q_normals`` (N, 2): the points' own normals (fixed, whatever T). Each phi_i is then
+    multiplied by (n_i . m)^8 (1 for parallel normals, 0.06 at 45 deg, 0 at 90 deg), so a
+    riser point next to a nosing is measured against the riser, not a blend of riser and
+    tread (which rounds the corner and biases T)."""
+    lists = tree.query_ball_point(q, radius_m, return_sorted=True)
+    lens = np.fromiter((len(x) for x in lists), dtype=np.intp, count=len(lists))
+    n_q = q.shape[0]
+    if lens.sum() == 0:
+        return np.zeros(n_q), np.zeros((n_q, 2)), np.zeros(n_q)
+    idx = np.concatenate([np.asarray(x, dtype=np.intp) for x in lists if len(x)])
+    row = np.repeat(np.arange(n_q), lens)
+    d = q[row] - src[idx]
+    u = 1.0 - (d[:, 0] ** 2 + d[:, 1] ** 2) / radius_m**2
+    phi = np.where(u > 0.0, u * u, 0.0)
+    nrm = normals.get(idx)
+    if q_normals is not None:
+        cos2 = (nrm[:, 0] * q_normals[row, 0] + nrm[:, 1] * q_normals[row, 1]) ** 2
+        phi = phi * cos2**4
+
+    def total(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.bincount(row, weights=v, minlength=n_q).astype(float)
+
+    support = total(phi)
+    a = total(phi * nrm[:, 0] * nrm[:, 0])
+    b = total(phi * nrm[:, 0] * nrm[:, 1])
+    c = total(phi * nrm[:, 1] * nrm[:, 1])
+    theta = 0.5 * np.arctan2(2.0 * b, a - c)  # the larger eigenvalue's direction
+    n = np.column_stack([np.cos(theta), np.sin(theta)])
+    has = support > 0.0
+    cx = total(phi * src[idx, 0])
+    cz = total(phi * src[idx, 1])
+    safe = np.where(has, support, 1.0)
+    r = np.where(has, n[:, 0] * (q[:, 0] - cx / safe) + n[:, 1] * (q[:, 1] - cz / safe), 0.0)
+    return r, n, support
+
+
+def _surface_step(
+    src: NDArray[np.float64],
+    q: NDArray[np.float64],
+    tree: cKDTree,
+    normals: _NormalCache,
+    cfg: IcpConfig,
+    q_normals: NDArray[np.float64] | None = None,
+) -> NDArray[np.float64]:
+    """One reweighted point-to-surface step: (sum a w n n^T) dT = sum a w n r over the target
+    points, a = support / (1 + support) (fades out at the neighbourhood's edge), w the robust
+    kernel's weight of r (scale from the points with support)."""
+    assert cfg.surface_radius_m is not None
+    r, n, support = surface_residuals(src, q, tree, normals, cfg.surface_radius_m, q_normals)
+    has = support > 0.0
+    if not has.any():
+        return np.zeros(2)
+    r, n, support = r[has], n[has], support[has]
+    w = robust_weights(r, cfg.robust_kernel, cfg.robust_scale, cfg.sigma_floor_m)
+    w = w * support / (1.0 + support)
+    nx, nz = n[:, 0], n[:, 1]
+    wx, wz = w * nx, w * nz
+    (w0, w1), (v0, v1) = _eig_sym2(float(wx @ nx), float(wx @ nz), float(wz @ nz))
+    gx, gz = float(wx @ r), float(wz @ r)
+    floor = max(cfg.degenerate_ratio * w1, 1e-9)
+    dx = dz = 0.0
+    for w_, (vx, vz) in ((w0, v0), (w1, v1)):
+        if w_ > floor:
+            step = (vx * gx + vz * gz) / w_
+            dx += vx * step
+            dz += vz * step
+    return np.array([dx, dz])
 
 
 def _point_to_line_step(

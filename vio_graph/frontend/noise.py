@@ -118,18 +118,17 @@ def level_residuals_reference(
 def robust_sigma(residuals_m: NDArray[np.float64]) -> float:
     """1.4826 x median absolute deviation (nan for an empty input).
 
-    Compiled (``compiled.median_abs_deviation_sorted`` on the sorted values: both middle
-    ranks by bisection, O(log n) after the sort) when the front end's kernels are on and the
-    values are finite: the same float as :func:`robust_sigma_reference`
-    (tests/test_frontend_fastpaths.py)."""
+    Compiled (``compiled.median_abs_deviation``: both medians by selection, O(n), no sort)
+    when the front end's kernels are on and the values are finite: the same float as
+    :func:`robust_sigma_reference` (tests/test_frontend_fastpaths.py)."""
     r = np.asarray(residuals_m, dtype=float).ravel()
     kernels = compiled_kernels()
     if kernels is None or r.size == 0:
         return robust_sigma_reference(r)
-    s = np.sort(r)
-    if not (np.isfinite(s[0]) and np.isfinite(s[-1])):  # NaN sorts last
+    mad, ok = kernels.median_abs_deviation(np.ascontiguousarray(r))
+    if not ok:  # a NaN or an infinity
         return robust_sigma_reference(r)
-    return float(_MAD_TO_SIGMA * kernels.median_abs_deviation_sorted(s))
+    return float(_MAD_TO_SIGMA * mad)
 
 
 def robust_sigma_reference(residuals_m: NDArray[np.float64]) -> float:

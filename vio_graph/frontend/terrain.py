@@ -429,14 +429,20 @@ def points_seen_under(
         under = seen_under_mask(
             profile_xz_m, margin, config.min_step_m, config.under_sight_min_points
         )
-    else:  # the same mask bit for bit (tests/test_frontend_fastpaths.py)
+    else:  # the same mask bit for bit (tests/test_frontend_fastpaths.py): the sight test
+        # and the floor beyond a slab in one compiled call
         pts = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
-        under = kernels.seen_under(
+        return kernels.seen_under_floor(
             np.ascontiguousarray(pts[:, 0]),
             np.ascontiguousarray(pts[:, 1]),
             float(margin),
             float(config.min_step_m),
             int(config.under_sight_min_points),
+            np.array([lv.height_m for lv in levels], dtype=float),
+            np.array([lv.x_min_m for lv in levels], dtype=float),
+            np.array([lv.x_max_m for lv in levels], dtype=float),
+            float(config.min_step_m),
+            int(config.min_level_points),
         )
     if levels:
         under |= floor_beyond_slab_mask(

@@ -458,7 +458,10 @@ class CornerTracker:
         # within ICP's capture range: a seed moved farther than half the correspondence
         # distance can leave a well-measured riser's basin, which would look like ambiguity
         reach = 0.5 * self._fallback_icp_cfg.max_correspondence_m
-        shift = min(2.0 * float(np.sqrt(max(float(u @ P @ u), 0.0))), reach)
+        if self._cfg.fallback_restart_shift == "reach":
+            shift = reach
+        else:
+            shift = min(2.0 * float(np.sqrt(max(float(u @ P @ u), 0.0))), reach)
         seed = T0 + shift * u
         icp2 = icp_translation_2d(src, target, seed, self._fallback_icp_cfg, tree, normals)
         d = icp2.translation_xz_m - icp.translation_xz_m

@@ -491,10 +491,22 @@ def _robust_step(
     nx, nz = n[:, 0], n[:, 1]
     r_n = nx * residual[:, 0] + nz * residual[:, 1]
     w = robust_weights(r_n, cfg.robust_kernel, cfg.robust_scale, cfg.sigma_floor_m)
+    return _weighted_point_to_line_step(w, nx, nz, r_n, cfg.degenerate_ratio)
+
+
+def _weighted_point_to_line_step(
+    w: NDArray[np.float64],
+    nx: NDArray[np.float64],
+    nz: NDArray[np.float64],
+    r_n: NDArray[np.float64],
+    degenerate_ratio: float,
+) -> NDArray[np.float64]:
+    """dT (m) solving (sum w n n^T) dT = sum w n r_n in the non-degenerate eigen-directions
+    (weights ``w``, unit normals (``nx``, ``nz``), residuals along them ``r_n``)."""
     wx, wz = w * nx, w * nz
     (w0, w1), (v0, v1) = _eig_sym2(float(wx @ nx), float(wx @ nz), float(wz @ nz))
     gx, gz = float(wx @ r_n), float(wz @ r_n)
-    floor = max(cfg.degenerate_ratio * w1, 1e-9)  # degenerate directions: no step
+    floor = max(degenerate_ratio * w1, 1e-9)  # degenerate directions: no step
     dx = dz = 0.0
     for w_, (vx, vz) in ((w0, v0), (w1, v1)):
         if w_ > floor:
@@ -574,18 +586,7 @@ def _surface_step(
     r, n, support = r[has], n[has], support[has]
     w = robust_weights(r, cfg.robust_kernel, cfg.robust_scale, cfg.sigma_floor_m)
     w = w * support / (1.0 + support)
-    nx, nz = n[:, 0], n[:, 1]
-    wx, wz = w * nx, w * nz
-    (w0, w1), (v0, v1) = _eig_sym2(float(wx @ nx), float(wx @ nz), float(wz @ nz))
-    gx, gz = float(wx @ r), float(wz @ r)
-    floor = max(cfg.degenerate_ratio * w1, 1e-9)
-    dx = dz = 0.0
-    for w_, (vx, vz) in ((w0, v0), (w1, v1)):
-        if w_ > floor:
-            step = (vx * gx + vz * gz) / w_
-            dx += vx * step
-            dz += vz * step
-    return np.array([dx, dz])
+    return _weighted_point_to_line_step(w, n[:, 0], n[:, 1], r, cfg.degenerate_ratio)
 
 
 def _point_to_line_step(

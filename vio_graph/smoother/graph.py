@@ -566,6 +566,29 @@ class KeyframeGraphBuilder:
         self._landmark_of[lkey] = k
         return k
 
+    def _landmark_node(
+        self, batch: _FactorBatch, lkey: LandmarkKey, guess_m: NDArray[np.float64]
+    ) -> int:
+        """The GTSAM key of landmark ``lkey``; a new one gets its node at ``guess_m`` (world,
+        m; y set to 0) and a weak prior (rotation and y held, x and z loose)."""
+        lk = self._landmark_of.get(lkey)
+        if lk is not None:
+            return lk
+        cfg = self.config
+        lk = self._new_landmark_key(lkey)
+        lm = np.array(guess_m, dtype=float)
+        lm[1] = 0.0
+        lm_pose = gtsam.Pose3(gtsam.Rot3(), lm)
+        batch.values.insert(lk, pose3=lm_pose)
+        sig = self._diagonal(
+            *[cfg.landmark_rotation_sigma_rad] * 3,
+            cfg.landmark_position_sigma_m,
+            cfg.landmark_lateral_sigma_m,
+            cfg.landmark_position_sigma_m,
+        )
+        batch.add(gtsam.PriorFactorPose3(lk, lm_pose, sig), [lk])
+        return lk
+
     def _complete_pending(self) -> KeyframeUpdate:
         """Turn the pending keyframe into its node, initial values and factors, in this
         order: first-keyframe priors or the motion factors from the previous keyframe (IMU,
@@ -907,20 +930,7 @@ class KeyframeGraphBuilder:
                 lkey = LandmarkKey("corner", ob.track_id)
                 o3 = _xz_to_3(ob.corner_rel_xz_m)
                 cov = cov + np.eye(2) * cfg.corner_landmark_sigma_m**2
-            lk = self._landmark_of.get(lkey)
-            if lk is None:
-                lk = self._new_landmark_key(lkey)
-                lm = t_guess + R_i @ p_ic + o3
-                lm[1] = 0.0
-                lm_pose = gtsam.Pose3(gtsam.Rot3(), lm)
-                batch.values.insert(lk, pose3=lm_pose)
-                sig = self._diagonal(
-                    *[cfg.landmark_rotation_sigma_rad] * 3,
-                    cfg.landmark_position_sigma_m,
-                    cfg.landmark_lateral_sigma_m,
-                    cfg.landmark_position_sigma_m,
-                )
-                batch.add(gtsam.PriorFactorPose3(lk, lm_pose, sig), [lk])
+            lk = self._landmark_node(batch, lkey, t_guess + R_i @ p_ic + o3)
             meas = gtsam.Pose3(rot_i.inverse(), R_i.T @ o3 + p_ic)
             noise = _between_noise(_cov3_from_xz(cov, cfg), cfg)
             batch.add(gtsam.BetweenFactorPose3(X(i), lk, meas, noise), [X(i), lk])
@@ -960,20 +970,7 @@ class KeyframeGraphBuilder:
         # world vector camera -> the surface point seen, and landmark -> IMU origin
         o3 = np.array([float(ob.x_rel_m), 0.0, float(ob.height_rel_m)])
         lever = R_i @ self.imu_p_cam_m + o3
-        lk = self._landmark_of.get(lkey)
-        if lk is None:
-            lk = self._new_landmark_key(lkey)
-            lm = t_guess + lever
-            lm[1] = 0.0
-            lm_pose = gtsam.Pose3(gtsam.Rot3(), lm)
-            batch.values.insert(lk, pose3=lm_pose)
-            sig = self._diagonal(
-                *[cfg.landmark_rotation_sigma_rad] * 3,
-                cfg.landmark_position_sigma_m,
-                cfg.landmark_lateral_sigma_m,
-                cfg.landmark_position_sigma_m,
-            )
-            batch.add(gtsam.PriorFactorPose3(lk, lm_pose, sig), [lk])
+        lk = self._landmark_node(batch, lkey, t_guess + lever)
         sigma = math.sqrt(max(float(ob.var_m2), cfg.min_measurement_sigma_m**2))
         sqrt_info = np.zeros((6, 6))
         # one upper-triangular row (GTSAM keeps only the upper triangle): world z in the

@@ -1603,13 +1603,18 @@ class OnlineEstimator:
         for key, _ in found:
             self._levels.saw(key, t)
         if not self.config.filter.level_shared_tilt:
-            for key, line in found:
+            new = [not self.filter.has_landmark(key) for key, _ in found]
+            fused = [
                 self.filter.update_height_landmark(
                     key, line.height_m, line.sigma_m**2 + floor**2, t
                 )
+                for key, line in found
+            ]
+            passed = self._levels_passed(found, new, fused)
             self._level_observations = tuple(
                 LevelObservation(t, key.id, line.height_m, line.sigma_m**2 + floor**2, line.x_mid_m)
-                for key, line in found
+                for (key, line), ok in zip(found, passed, strict=True)
+                if ok
             )
             return
         if not found:
@@ -1621,7 +1626,8 @@ class OnlineEstimator:
         slope_sigma = st.sigma_rad * (1.0 + math.tan(st.tilt_rad) ** 2)
         tilt_floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
         tilt_var = slope_sigma**2 + tilt_floor**2
-        self.filter.update_height_landmarks(
+        new = [not self.filter.has_landmark(key) for key, _ in found]
+        fused = self.filter.update_height_landmarks(
             [key for key, _ in found],
             [line.height_m for _, line in found],
             [line.noise_sigma_m**2 + floor**2 for _, line in found],
@@ -1639,8 +1645,18 @@ class OnlineEstimator:
                 line.noise_sigma_m**2 + floor**2 + tilt_var * line.x_mid_m**2,
                 line.x_mid_m,
             )
-            for key, line in found
+            for (key, line), ok in zip(found, self._levels_passed(found, new, fused), strict=True)
+            if ok
         )
+
+    def _levels_passed(self, found, new: list[bool], fused: list[bool]) -> list[bool]:
+        """Which of this frame's level surfaces the smoothers get: those the filter fused,
+        and first sights it took in as new height landmarks; not those its innovation gate
+        refused (a surface the filter's own state contradicts), nor stale ones."""
+        return [
+            f or (n and self.filter.has_landmark(key))
+            for (key, _), n, f in zip(found, new, fused, strict=True)
+        ]
 
     def _stance_lever(self, R_world_imu: NDArray[np.float64]):
         """ankle - camera through the shank (m, ground axes): R_shank (ankle_in_shank -

@@ -167,6 +167,26 @@ def test_health_reports_frames_with_camera_fixed_pixels() -> None:
     assert clean.report()["camera_fixed"]["frames"] == 0
 
 
+def test_health_does_not_warn_on_camera_fixed_pixels_of_single_frames() -> None:
+    """Detections that are not repeated on the next frame (the test's chance coincidences)
+    are counted but not warned about; two consecutive frames are."""
+    for pattern, warned in (({2, 6}, False), ({2, 3}, True)):
+        h = HealthMonitor()
+        for k in range(10):
+            h.add_frame(
+                k / 30,
+                np.array([0.01 * k, 0.0]),
+                None,
+                False,
+                False,
+                camera_fixed_pixels=60 if k in pattern else 0,
+            )
+        rep = h.report()
+        assert rep["camera_fixed"]["frames"] == 2
+        assert rep["camera_fixed"]["longest_run_frames"] == (2 if warned else 1)
+        assert any("moved with the camera" in w for w in rep["warnings"]) == warned
+
+
 @pytest.fixture(scope="module")
 def occluded_upstair(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The 4 s upstair trial of conftest.short_upstair (seed 3) with the simulator's

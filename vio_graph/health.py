@@ -8,8 +8,10 @@ with no look-ahead (pure algorithm, no I/O):
 - the share of visual displacements the filter's chi-square gate refused;
 - the share of frames anchored in stance;
 - frames on which the front end found pixels that move with the camera (an occluding
-  foot or strap, vio_graph/frontend/camera_fixed.py): reported, with a warning, because
-  such an object is taken for terrain unless ``frontend.camera_fixed.drop_pixels`` removes it;
+  foot or strap, vio_graph/frontend/camera_fixed.py): reported, with a warning when they are
+  found on two consecutive frames or more (a real object persists; a single frame's
+  detection is the test's chance coincidence), because such an object is taken for terrain
+  unless ``frontend.camera_fixed.drop_pixels`` removes it;
 - the departure of the fused path from visual odometry: over windows of ``window_s`` the
   filter's camera displacement is compared with the sum of the visual displacements over the
   same frames, as a chi-square test (2 dof) with the displacements' own covariances. A
@@ -149,6 +151,9 @@ class HealthMonitor:
         self.camera_fixed_last_s: float | None = None
         self._cf_run_start: float | None = None
         self.max_camera_fixed_run_s = 0.0
+        self._cf_run_frames = 0
+        #: frames in the longest run of consecutive frames with camera-fixed pixels
+        self.max_camera_fixed_run_frames = 0
 
     def add_frame(
         self,
@@ -231,7 +236,12 @@ class HealthMonitor:
     def _track_camera_fixed(self, t_s: float, n_pixels: int) -> None:
         if n_pixels <= 0:
             self._cf_run_start = None
+            self._cf_run_frames = 0
             return
+        self._cf_run_frames += 1
+        self.max_camera_fixed_run_frames = max(
+            self.max_camera_fixed_run_frames, self._cf_run_frames
+        )
         self.n_camera_fixed_frames += 1
         self.max_camera_fixed_pixels = max(self.max_camera_fixed_pixels, n_pixels)
         if self.camera_fixed_first_s is None:
@@ -371,7 +381,11 @@ class HealthMonitor:
                 f"is optimistic and the estimate may be off by more than it claims. Likely "
                 f"cause: {_INNOVATION_CAUSES.get(worst.family, 'unknown')}."
             )
-        if self.n_camera_fixed_frames:
+        # an object fixed to the rig is found again on the next frame (once found, every
+        # frame is tested); a detection that does not repeat is the test's own chance
+        # coincidence (41-329 pixels on single frames of 2 of 108 clean sweep trials), counted
+        # in the figures below but not warned about
+        if self.max_camera_fixed_run_frames >= 2:
             warnings.append(
                 f"WARNING: something moved with the camera (an occluding foot or strap close "
                 f"to the lens?) on {self.n_camera_fixed_frames} frames between "
@@ -411,6 +425,7 @@ class HealthMonitor:
                 "first_s": self.camera_fixed_first_s,
                 "last_s": self.camera_fixed_last_s,
                 "longest_run_s": self.max_camera_fixed_run_s,
+                "longest_run_frames": self.max_camera_fixed_run_frames,
             },
             "pitch_offset_deg": float(pitch_offset_deg),
             "innovations": {f: t.summary() for f, t in self.innovations.items()}

@@ -387,6 +387,9 @@ class KeyframeGraphBuilder:
         self._chain: tuple[float, float, NDArray[np.float64], NDArray[np.float64]] | None = None
         # corner track / stance -> its GTSAM key L(j); landmarks of either kind so far
         self._landmark_of: dict[LandmarkKey, int] = {}
+        #: a height landmark's x (m, world) as its node was created: the height factors'
+        #: unweighted x refers to it
+        self._level_x_m: dict[int, float] = {}
         self._n_landmarks = 0
         # latest refined state of the newest keyframe (set by the smoother after each update)
         # (pose, velocity): made into a gtsam.NavState only when a prediction needs it
@@ -426,6 +429,8 @@ class KeyframeGraphBuilder:
         L(j)."""
         dead = set(landmark_keys)
         self._landmark_of = {lk: k for lk, k in self._landmark_of.items() if k not in dead}
+        for k in dead:
+            self._level_x_m.pop(k, None)
 
     # ---- ingestion -----------------------------------------------------------------------------
     def add_imu(
@@ -970,14 +975,24 @@ class KeyframeGraphBuilder:
         # world vector camera -> the surface point seen, and landmark -> IMU origin
         o3 = np.array([float(ob.x_rel_m), 0.0, float(ob.height_rel_m)])
         lever = R_i @ self.imu_p_cam_m + o3
+        new = lkey not in self._landmark_of
         lk = self._landmark_node(batch, lkey, t_guess + lever)
+        if new:
+            self._level_x_m[lk] = float(t_guess[0] + lever[0])
         sigma = math.sqrt(max(float(ob.var_m2), cfg.min_measurement_sigma_m**2))
         sqrt_info = np.zeros((6, 6))
         # one upper-triangular row (GTSAM keeps only the upper triangle): world z in the
         # measurement's frame, R_i^T e_z, over its sigma
         sqrt_info[3, 3:] = R_i[2, :] / sigma
         noise = robust_noise(cfg, gtsam.noiseModel.Gaussian.SqrtInformation(sqrt_info))
-        meas = gtsam.Pose3(rot_i, -lever)
+        # the unweighted x: the keyframe's guessed x from the landmark's (which its prior
+        # keeps where it started), not the surface point's lever. The error is Pose3's
+        # Logmap, whose translation turns with the rotation error (v = t - omega x t / 2 +
+        # ...): an x residual of metres (a floor followed for 20 s) times the smoothed and
+        # the filter's attitudes' difference leaked millimetres into z, and x drifted
+        meas_t = -lever
+        meas_t[0] = float(t_guess[0]) - self._level_x_m[lk]
+        meas = gtsam.Pose3(rot_i, meas_t)
         batch.add(gtsam.BetweenFactorPose3(lk, X(i), meas, noise), [lk, X(i)])
         batch.stamps[lk] = t
 

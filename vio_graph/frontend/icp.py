@@ -592,19 +592,11 @@ def _surface_step(
 def _point_to_line_step(
     n: NDArray[np.float64], residual: NDArray[np.float64], degenerate_ratio: float
 ) -> NDArray[np.float64]:
-    """dT solving (sum n n^T) dT = sum n (n . r) in the non-degenerate eigen-directions."""
+    """dT solving (sum n n^T) dT = sum n (n . r) in the non-degenerate eigen-directions (unit
+    weights: 1.0 * x is x, so the same floats as without them)."""
     nx, nz = n[:, 0], n[:, 1]
     r_n = nx * residual[:, 0] + nz * residual[:, 1]
-    (w0, w1), (v0, v1) = _eig_sym2(float(nx @ nx), float(nx @ nz), float(nz @ nz))
-    gx, gz = float(nx @ r_n), float(nz @ r_n)
-    floor = max(degenerate_ratio * w1, 1e-9)  # degenerate directions: no step
-    dx = dz = 0.0
-    for w, (vx, vz) in ((w0, v0), (w1, v1)):
-        if w > floor:
-            step = (vx * gx + vz * gz) / w
-            dx += vx * step
-            dz += vz * step
-    return np.array([dx, dz])
+    return _weighted_point_to_line_step(np.ones_like(nx), nx, nz, r_n, degenerate_ratio)
 
 
 #: normals are computed up front for the candidates this close (m) to each target's nearest at

@@ -1022,7 +1022,8 @@ def test_height_landmarks_bound_z_drift_and_leave_x_alone(cls) -> None:
     idx = np.flatnonzero(tr.is_keyframe)
     err = {}
     for name, trial in (("without", tr), ("with", with_levels)):
-        s = cls(SmootherConfig(), trial.imu_T_cam)
+        cfg = SmootherConfig(factors=FactorFamilies(height_landmarks=True))
+        s = cls(cfg, trial.imu_T_cam)
         feed(trial, s)
         xz = np.array([e.camera_xz_m for e in s.keyframe_estimates(with_covariance=False)])
         err[name] = xz - trial.camera_xz_true_m[idx]

@@ -1559,6 +1559,12 @@ class OnlineEstimator:
                 )
         if fc.level_landmarks:
             self._as_family(t, "level", self._fuse_levels, t)
+            if result.n_camera_fixed:
+                # something moves with the camera (frontend/camera_fixed.py): a "level
+                # surface" may be that object, at a fixed height below the lens, which would
+                # hold the smoothers' height to the camera's own (the simulated occluding foot:
+                # smoother / batch toe z 1.6 / 0.5 -> 4.0 / 5.1 cm); the smoothers skip them
+                self._level_observations = ()
         if fc.stance_anchor:
             self._as_family(t, "stance", self._fuse_stance, t, result, R_world_imu)
 

@@ -43,11 +43,14 @@ class FactorFamilies(BaseModel):
         "(the filter's stance anchor, vio_graph/filter/stance.py)",
     )
     height_landmarks: bool = Field(
-        default=True,
+        default=False,
         description="the level surfaces of a keyframe's slice (treads, landings, floor) as "
         "z-only landmarks, associated by the filter's height landmarks "
         "(filter.level_landmarks): the floor's height is handed from keyframe to keyframe, "
-        "as the filter's is (docs/method.md, 'Height landmarks in the smoothers')",
+        "as the filter's is (docs/method.md, 'Height landmarks in the smoothers'). Off: it "
+        "ties the graphs to the filter's association, and where the filter fails the smoothers "
+        "would fail with it (occluding foot, upstair seeds 1-2: batch toe z 0.51 -> 5.08 cm); "
+        "it also loses on descents (sweep sts_descent, two_flights_down; held-out Q)",
     )
     stance_velocity: bool = Field(
         default=True,

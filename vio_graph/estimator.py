@@ -1616,11 +1616,8 @@ class OnlineEstimator:
                 )
                 for key, line in found
             ]
-            passed = self._levels_passed(found, new, fused)
-            self._level_observations = tuple(
-                LevelObservation(t, key.id, line.height_m, line.sigma_m**2 + floor**2, line.x_mid_m)
-                for (key, line), ok in zip(found, passed, strict=True)
-                if ok
+            self._hand_levels(
+                t, found, new, fused, [line.sigma_m**2 + floor**2 for _, line in found]
             )
             return
         if not found:
@@ -1643,26 +1640,29 @@ class OnlineEstimator:
         )
         # the smoothers take each surface alone: its own noise and the shared tilt's share
         # (their correlation within the slice is not kept)
-        self._level_observations = tuple(
-            LevelObservation(
-                t,
-                key.id,
-                line.height_m,
-                line.noise_sigma_m**2 + floor**2 + tilt_var * line.x_mid_m**2,
-                line.x_mid_m,
-            )
-            for (key, line), ok in zip(found, self._levels_passed(found, new, fused), strict=True)
-            if ok
+        self._hand_levels(
+            t,
+            found,
+            new,
+            fused,
+            [line.noise_sigma_m**2 + floor**2 + tilt_var * line.x_mid_m**2 for _, line in found],
         )
 
-    def _levels_passed(self, found, new: list[bool], fused: list[bool]) -> list[bool]:
-        """Which of this frame's level surfaces the smoothers get: those the filter fused,
-        and first sights it took in as new height landmarks; not those its innovation gate
-        refused (a surface the filter's own state contradicts), nor stale ones."""
-        return [
-            f or (n and self.filter.has_landmark(key))
-            for (key, _), n, f in zip(found, new, fused, strict=True)
-        ]
+    def _hand_levels(
+        self, t: float, found, new: list[bool], fused: list[bool], var_m2: list[float]
+    ) -> None:
+        """This frame's level surfaces for the smoothers (``smoother.factors.height_landmarks``;
+        nothing is built when it is off), each with its height variance ``var_m2`` (m^2):
+        those the filter fused, and first sights it took in as new height landmarks; not those
+        its innovation gate refused (a surface the filter's own state contradicts), nor stale
+        ones."""
+        if not self.config.smoother.factors.height_landmarks:
+            return
+        self._level_observations = tuple(
+            LevelObservation(t, key.id, line.height_m, v, line.x_mid_m)
+            for (key, line), n, f, v in zip(found, new, fused, var_m2, strict=True)
+            if f or (n and self.filter.has_landmark(key))
+        )
 
     def _stance_lever(self, R_world_imu: NDArray[np.float64]):
         """ankle - camera through the shank (m, ground axes): R_shank (ankle_in_shank -

@@ -244,12 +244,14 @@ def camera_fixed_mask_reference(
         out[rows[keep], cols[keep]] = True
     pad = np.full((h + 4, w + 4), np.inf)  # previous depth, 2 invalid (inf) pixels around
     pad[2:-2, 2:-2] = np.where(prev_ok, dp, np.inf)
+    pad_cur = np.full((h + 4, w + 4), np.inf)  # the current depth, likewise
+    pad_cur[2:-2, 2:-2] = np.where(np.isfinite(dc) & (dc > 0), dc, np.inf)
     # world-static hypothesis at the candidates whose depth did not change
     idx = np.flatnonzero(same)
     if idx.size == 0:
         return out
     r, c = rows[idx], cols[idx]
-    seen, world = _world_test(pad, r, c, z[idx], K, motion, depth_sigma_m, k_sigma)
+    seen, world = _world_test(pad, r, c, z[idx], K, motion, depth_sigma_m, k_sigma, pad_cur)
     # a point that would leave the previous view cannot be tested: kept (not seen = unknown)
     fixed = seen & ~world
     if not fixed.any():
@@ -266,7 +268,7 @@ def camera_fixed_mask_reference(
     gr, gc = gr * k, gc * k
     gz = dc[gr, gc]
     g_same = np.abs(gz - dp[gr, gc]) <= tol_fixed
-    g_seen, g_world = _world_test(pad, gr, gc, gz, K, motion, depth_sigma_m, k_sigma)
+    g_seen, g_world = _world_test(pad, gr, gc, gz, K, motion, depth_sigma_m, k_sigma, pad_cur)
     n_confirm = int(np.count_nonzero(g_seen & ~g_same & g_world))
     n_refute = int(np.count_nonzero(g_seen & g_same & ~g_world))
     if stats is not None:
@@ -288,11 +290,23 @@ def _world_test(
     motion: CameraMotion,
     depth_sigma_m: float,
     k_sigma: float,
+    pad_cur: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """World-static hypothesis at pixels (r, c) of depth z (m): (seen, consistent). The point
     moved into the previous camera frame by ``motion`` is looked up in the previous depth
     (``pad``: padded by 2 invalid (inf) pixels, so the 3 x 3 lookups need no bounds test);
-    a projection further out than one pixel, or onto no valid pixel, is not seen."""
+    a projection further out than one pixel, or onto no valid pixel, is not seen.
+
+    Occlusion (with ``pad_cur``, the current depth padded the same way): where every valid
+    pixel around the projection is nearer than the moved point by more than the tolerance,
+    the previous frame may simply not have seen it, hidden behind a nearer surface (the lower
+    tread just past a nosing, revealed as the camera moves). The nearer surface is taken as
+    such an occluder when it is itself world-static: its pixel among the 9 closest in depth to
+    the moved point, moved into the current frame by the inverse motion, is seen there within
+    the same tolerance, or not seen there at all (out of view, no valid pixel). The point is
+    then not seen (no evidence either way), instead of refused. An object fixed to the
+    camera fails that second test (its own surface, seen again in the current frame, does
+    not follow the inverse motion), so it is still refused."""
     h, w = pad.shape[0] - 4, pad.shape[1] - 4
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     Q = np.column_stack([z * (c - cx) / fx, z * (r - cy) / fy, z])
@@ -313,7 +327,69 @@ def _world_test(
     var_t = float(np.asarray(motion.t_cov_m2)[2, 2])
     var_rot = (np.linalg.norm(Q[:, :2], axis=1) * motion.rot_sigma_rad) ** 2
     tol_world = k_sigma * np.sqrt(2.0 * depth_sigma_m**2 + var_t + var_rot)
-    return seen, best <= tol_world
+    world = best <= tol_world
+    if pad_cur is not None:
+        seen &= ~_hidden(pad, pad_cur, seen & ~world, ui, vi, zp, tol_world, K, motion)
+    return seen, world
+
+
+def _hidden(
+    pad: NDArray[np.float64],
+    pad_cur: NDArray[np.float64],
+    refused: NDArray[np.bool_],
+    ui: NDArray[np.int64],
+    vi: NDArray[np.int64],
+    zp: NDArray[np.float64],
+    tol: NDArray[np.float64],
+    K: NDArray[np.float64],
+    motion: CameraMotion,
+) -> NDArray[np.bool_]:
+    """Of the ``refused`` points (moved into the previous frame at padded pixel (vi, ui),
+    depth zp), those hidden there behind a nearer surface that nothing shows to move with the
+    camera (:func:`_world_test`): every valid neighbour nearer than ``zp - tol``, and the
+    neighbour closest to ``zp`` (first in raster order on ties), moved back into the current
+    frame by the inverse motion, not seen there on valid depth further than ``tol`` (m) from
+    where it should be."""
+    out = np.zeros(zp.shape, dtype=bool)
+    j = np.flatnonzero(refused)
+    if j.size == 0:
+        return out
+    offsets = [(dv, du) for dv in (-1, 0, 1) for du in (-1, 0, 1)]
+    nb = np.stack([pad[vi[j] + dv, ui[j] + du] for dv, du in offsets], axis=1)
+    ok = np.isfinite(nb)
+    nearer = np.all(~ok | (nb < (zp[j] - tol[j])[:, None]), axis=1)
+    k = np.argmin(np.where(ok, np.abs(nb - zp[j][:, None]), np.inf), axis=1)
+    v = nb[np.arange(j.size), k]
+    dv = np.array([o[0] for o in offsets])[k]
+    du = np.array([o[1] for o in offsets])[k]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    u0 = (ui[j] + du - 2).astype(np.float64)
+    v0 = (vi[j] + dv - 2).astype(np.float64)
+    R = np.asarray(motion.R_prev_cur, dtype=float)
+    t = np.asarray(motion.t_prev_cur_m, dtype=float)
+    d0 = v * (u0 - cx) / fx - t[0]
+    d1 = v * (v0 - cy) / fy - t[1]
+    d2 = v - t[2]
+    # R^T (P - t), each sum in this order (the compiled kernel sums likewise)
+    x = R[0, 0] * d0 + R[1, 0] * d1 + R[2, 0] * d2
+    y = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
+    zc = R[0, 2] * d0 + R[1, 2] * d1 + R[2, 2] * d2
+    front = zc > 1e-3
+    h, w = pad.shape[0] - 4, pad.shape[1] - 4
+    uc = np.rint(np.where(front, fx * x / np.where(front, zc, 1.0) + cx, -10.0))
+    vc = np.rint(np.where(front, fy * y / np.where(front, zc, 1.0) + cy, -10.0))
+    inside = front & (uc >= -1) & (uc <= w) & (vc >= -1) & (vc <= h)
+    uci = np.clip(uc, -1, w).astype(np.int64) + 2
+    vci = np.clip(vc, -1, h).astype(np.int64) + 2
+    best = np.full(j.shape, np.inf)
+    for dv2, du2 in offsets:
+        np.minimum(best, np.abs(pad_cur[vci + dv2, uci + du2] - zc), out=best)
+    # the occluder refutes the occlusion only where its own test is decided against it:
+    # moved back, it lands on valid current depth that disagrees (an object fixed to the
+    # lens does); out of view or on no valid pixel, the occlusion stands unrefuted
+    refuted = inside & np.isfinite(best) & (best > tol[j])
+    out[j] = ok.any(axis=1) & nearer & ~refuted
+    return out
 
 
 def surface_majority(

@@ -1766,12 +1766,67 @@ def _project_prev(
 
 
 @numba.njit(cache=True)
+def _hidden_one(dp, dc, vi, ui, z, tol, fx, fy, cx, cy, R, t):  # pragma: no cover - compiled
+    """``camera_fixed._hidden`` for one refused point: moved into the previous frame at
+    pixel (vi, ui) with depth ``z``, is it hidden there behind a nearer surface that nothing
+    shows to move with the camera? Every valid neighbour nearer than ``z - tol``, and the one
+    closest to ``z`` (first in raster order on ties), moved back into the current frame
+    (``dc``) by the inverse motion, not seen there on valid depth further than ``tol`` from
+    where it should be. The same operations in the same order as the numpy path."""
+    lim = z - tol
+    kbest = np.inf
+    vb = 0.0
+    dvb = 0
+    dub = 0
+    found = False
+    for dv in range(-1, 2):
+        for du in range(-1, 2):
+            v = _prev_depth(dp, vi + dv, ui + du)
+            if not math.isfinite(v):
+                continue
+            if not v < lim:
+                return False  # a surface at or behind the point was seen: not hidden
+            a = abs(v - z)
+            if not found or a < kbest:
+                kbest = a
+                vb = v
+                dvb = dv
+                dub = du
+                found = True
+    if not found:
+        return False
+    u0 = np.float64(ui + dub)
+    v0 = np.float64(vi + dvb)
+    d0 = vb * (u0 - cx) / fx - t[0]
+    d1 = vb * (v0 - cy) / fy - t[1]
+    d2 = vb - t[2]
+    x = R[0, 0] * d0 + R[1, 0] * d1 + R[2, 0] * d2
+    y = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
+    zc = R[0, 2] * d0 + R[1, 2] * d1 + R[2, 2] * d2
+    if not zc > 1e-3:
+        return True  # behind the current camera: out of view, the occlusion unrefuted
+    h, w = dc.shape
+    uc = np.rint(fx * x / zc + cx)
+    vc = np.rint(fy * y / zc + cy)
+    if not (uc >= -1.0 and uc <= w and vc >= -1.0 and vc <= h):
+        return True  # out of view
+    uci, vci = np.int64(uc), np.int64(vc)
+    best = np.inf
+    for dv in range(-1, 2):
+        for du in range(-1, 2):
+            best = min(best, abs(_prev_depth(dc, vci + dv, uci + du) - zc))
+    # refuted only by valid current depth that disagrees (no valid pixel: unrefuted)
+    return not (math.isfinite(best) and best > tol)
+
+
+@numba.njit(cache=True)
 def _world_batch(
-    dp, rr, cc, zz, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+    dp, dc, rr, cc, zz, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
 ):  # pragma: no cover - compiled
     """``camera_fixed._world_test`` at a batch of pixels: (seen, consistent) per pixel, the
-    arithmetic by :func:`_project_prev`, then the lookups. ``consistent`` is False when not
-    seen (every use of it is and-ed with ``seen``)."""
+    arithmetic by :func:`_project_prev`, then the lookups; a refused point hidden behind a
+    world-static surface (:func:`_hidden_one`, the current depth ``dc``) is not seen.
+    ``consistent`` is False when not seen (every use of it is and-ed with ``seen``)."""
     h, w = dp.shape
     n = zz.shape[0]
     zp = np.empty(n)
@@ -1808,8 +1863,8 @@ def _world_batch(
         best = min(min(min(a0, a1), min(a2, a3)), abs(_prev_depth(dp, vi + 1, ui + 1) - z))
         if not math.isfinite(best):
             continue
-        seen[i] = True
         world[i] = best <= tol[i]
+        seen[i] = world[i] or not _hidden_one(dp, dc, vi, ui, z, tol[i], fx, fy, cx, cy, R, t)
     return seen, world
 
 
@@ -1867,7 +1922,9 @@ def camera_fixed(
         rr[i] = r
         cc[i] = c
         zz[i] = np.float64(dc[r, c])
-    seen, world = _world_batch(dp, rr, cc, zz, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma)
+    seen, world = _world_batch(
+        dp, dc, rr, cc, zz, fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+    )
     n_fixed = 0  # the refused ones go to the front of ``tested``
     for i in range(n_same):
         if seen[i] and not world[i]:
@@ -1894,7 +1951,7 @@ def camera_fixed(
             unchanged[m] = abs(zc - zprev) <= tol_fixed
             m += 1
     seen, world = _world_batch(
-        dp, vr[:m], vc[:m], vz[:m], fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
+        dp, dc, vr[:m], vc[:m], vz[:m], fx, fy, cx, cy, R, t, s_world, rot_sigma, k_sigma
     )
     n_confirm = 0
     n_refute = 0

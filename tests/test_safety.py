@@ -151,6 +151,31 @@ def test_edges_and_placement_on_a_stair() -> None:
     np.testing.assert_allclose(p.as_array(), [0.25, 0.02, 0.03, 0.26], atol=1e-12)
 
 
+def test_placement_takes_terrain_seen_under_the_next_tread_for_no_nosing() -> None:
+    """Open risers seen by a low camera: the last 8 cm of the tread the foot lands on hold
+    the floor and the lower slab seen *under* the next tread (held-out AH of
+    docs/generalisation.md: z 0.02 / 0.23 m where the tread is at 0.44 m), then the next
+    tread rises. That end is the tread's back edge, at the rise, not a nosing."""
+    bins = [
+        (1.95, 2.05, 0.294),
+        (2.05, 2.25, 0.44),
+        (2.25, 2.26, 0.23),
+        (2.26, 2.27, 0.015),
+        (2.27, 2.30, 0.23),
+        (2.30, 2.33, 0.015),
+        (2.33, 2.60, 0.589),
+    ]
+    lo, hi, z = (np.array(c, float) for c in zip(*bins, strict=True))
+    prof = HeightProfile(lo, hi, z, np.full(len(lo), 0.003))
+    p = placement_on_tread([2.085, 0.44], [2.32, 0.44], prof, 0.015, 0.15, 0.04)
+    # nosing behind the heel at 2.05, back edge where the next tread rises (2.33)
+    np.testing.assert_allclose(p.as_array(), [0.035, 0.27, 0.245, 0.01], atol=1e-12)
+    # a real nosing ahead (descent), lower terrain and nothing higher within the window
+    down = HeightProfile(lo[:3], hi[:3], np.array([0.6, 0.44, 0.30]), np.full(3, 0.003))
+    p = placement_on_tread([2.06, 0.44], [2.24, 0.44], down, 0.015, 0.15, 0.04)
+    assert p.toe_to_nosing_m == pytest.approx(0.01)
+
+
 def test_prediction_constant_velocity() -> None:
     prof = HeightProfile.from_polyline(STEP)
     # the toe 10 cm behind the riser, 5 cm above the floor, moving forward at 1 m/s: after

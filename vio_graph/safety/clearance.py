@@ -377,6 +377,9 @@ def placement_on_tread(
     rests on (a heel overhanging a nosing stands on the upper tread). At each end, the next
     known bin (within ``max_gap_m``) decides: lower by ``min_rise_m`` or more -> that end is
     the nosing, higher -> the back edge (riser of the next step up); no such bin -> unknown.
+    A drop followed (gaps within ``max_gap_m``) by a bin higher than the tread by
+    ``min_rise_m`` is a back edge at that bin: the lower bins are terrain seen under the next
+    tread through an open riser (or a gap in the tread), not a nosing.
     """
     if len(prof) == 0:
         return NO_PLACEMENT
@@ -419,6 +422,22 @@ def placement_on_tread(
                 k += direction
             if 0 <= k < n and abs(prof.z_m[k] - z0) >= min_rise_m:
                 kind = 1 if prof.z_m[k] > z0 else -1
+            if kind == -1:
+                # a drop followed, within the window, by terrain higher than the tread is no
+                # nosing: the lower bins are what a low camera saw *under* the next tread
+                # (open risers) or a gap in this one; the tread ends where the rise starts
+                m = k
+                while 0 <= m + direction < n:
+                    q = m + direction
+                    if (
+                        prof.x_lo_m[q] - prof.x_hi_m[m]
+                        if direction > 0
+                        else prof.x_lo_m[m] - prof.x_hi_m[q]
+                    ) > max_gap_m:
+                        break
+                    if prof.z_m[q] - z0 >= min_rise_m:
+                        return (prof.x_lo_m[q] if direction > 0 else prof.x_hi_m[q]), 1
+                    m = q
             return x_b, kind
 
     x_left, k_left = extend(-1)

@@ -49,8 +49,11 @@ class FactorFamilies(BaseModel):
         "(filter.level_landmarks): the floor's height is handed from keyframe to keyframe, "
         "as the filter's is (docs/method.md, 'Height landmarks in the smoothers'). Off: it "
         "ties the graphs to the filter's association, and where the filter fails the smoothers "
-        "would fail with it (occluding foot, upstair seeds 1-2: batch toe z 0.51 -> 5.08 cm); "
-        "it also loses on descents (sweep sts_descent, two_flights_down; held-out Q)",
+        "would fail with it (occluding foot, upstair seeds 1-2: batch toe z 0.51 -> 5.08 cm; "
+        "height_landmark_association 'graph' removes that coupling); it also loses on "
+        "descents (sweep sts_descent, two_flights_down; held-out Q), with either association: "
+        "there the surfaces seen beyond ~0.4 m read 1.5-3 mm high and scatter more than "
+        "their variance says (docs/method.md, section 4)",
     )
     height_landmark_association: Literal["filter", "graph"] = Field(
         default="filter",
@@ -269,14 +272,12 @@ class SmootherConfig(BaseModel):
         "measures of it (z on a level floor) fixes its share on the blind axis (x). Off: on "
         "every axis. No effect without saturation",
     )
-    height_landmark_kernel: Literal["default", "huber", "cauchy", "geman_mcclure", "none"] = (
-        Field(
-            default="default",
-            description="M-estimator on the height-landmark factors (factors.height_landmarks): "
-            "'default' = robust_kernel / robust_threshold (as the displacements and corners); "
-            "the others with height_landmark_kernel_threshold. A redescending kernel (cauchy, "
-            "geman_mcclure) lets the other factors outvote a wrongly associated surface",
-        )
+    height_landmark_kernel: Literal["default", "huber", "cauchy", "geman_mcclure", "none"] = Field(
+        default="default",
+        description="M-estimator on the height-landmark factors (factors.height_landmarks): "
+        "'default' = robust_kernel / robust_threshold (as the displacements and corners); "
+        "the others with height_landmark_kernel_threshold. A redescending kernel (cauchy, "
+        "geman_mcclure) lets the other factors outvote a wrongly associated surface",
     )
     height_landmark_kernel_threshold: float = Field(
         default=3.0, gt=0, description="its threshold in whitened units (sigmas)"

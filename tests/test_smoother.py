@@ -18,6 +18,7 @@ from vio_graph.smoother.graph import (
     V,
     X,
     camera_xz_cov_from_pose_cov,
+    robust_noise,
 )
 from vio_graph.smoother.imu_sampling import (
     discretization_velocity_var,
@@ -1129,3 +1130,6 @@ def test_graph_level_association_gate() -> None:
     assert b._graph_levels[1].z_m == -0.30
     with pytest.raises(ValidationError):
         SmootherConfig(height_landmark_kernel="tukey")
+    kernel = SmootherConfig(height_landmark_kernel="geman_mcclure")
+    noise = robust_noise(kernel, gtsam.noiseModel.Isotropic.Sigma(1, 0.002), "geman_mcclure", 3.0)
+    assert isinstance(noise, gtsam.noiseModel.Robust)

@@ -18,6 +18,7 @@ from vio_graph.smoother.graph import (
     V,
     X,
     camera_xz_cov_from_pose_cov,
+    robust_noise,
 )
 from vio_graph.smoother.imu_sampling import (
     discretization_velocity_var,
@@ -1056,3 +1057,79 @@ def test_frame_record_hands_level_observations_only_when_asked() -> None:
     )
     assert rec.observations() == [corner, lv[1]]  # the better-measured surface only
     assert rec.observations(levels=False) == [corner]
+
+
+@pytest.mark.parametrize("cls", [SlidingWindowSmoother, BatchSmoother])
+def test_graph_association_refuses_a_surface_the_filter_misassociated(cls) -> None:
+    """For 1 s of a 10 s trial the camera sees a tread 15 cm above the floor, and the
+    filter hands it with the floor's id (a wrong association). With the filter's ids the
+    graphs pull the camera towards it; associated by the graph's own height
+    (``height_landmark_association`` 'graph'), the tread is a landmark of its own and the
+    height stays within 1 mm of the trial with every surface associated right."""
+    from dataclasses import replace
+
+    from vio_graph.types import LevelObservation
+
+    tr = make_swinging_shank_trial(
+        10.0,
+        displacement_sigma_m=0.002,
+        displacement_bias_mps=(0.0, 0.01),
+        corners=False,
+        seed=5,
+    )
+    floor_z_m, tread_z_m = -0.40, -0.25
+
+    def levels(wrong: bool) -> list[list[LevelObservation]]:
+        rng = np.random.default_rng(11)  # the same noise in every case
+        out = []
+        for t, xz in zip(tr.frame_times_s, tr.camera_xz_true_m, strict=True):
+            on_tread = 4.0 <= t < 5.0
+            z = tread_z_m if on_tread else floor_z_m
+            rel = z - float(xz[1]) + float(rng.normal(0.0, 0.002))
+            level_id = 1 if (wrong or not on_tread) else 2
+            out.append([LevelObservation(float(t), level_id, rel, 0.002**2)])
+        return out
+
+    idx = np.flatnonzero(tr.is_keyframe)
+
+    def z_rms(association: str, wrong: bool) -> float:
+        cfg = SmootherConfig(
+            factors=FactorFamilies(height_landmarks=True, height_landmark_association=association)
+        )
+        s = cls(cfg, tr.imu_T_cam)
+        feed(replace(tr, observations=levels(wrong)), s)
+        xz = np.array([e.camera_xz_m for e in s.keyframe_estimates(with_covariance=False)])
+        return rms(xz[:, 1] - tr.camera_xz_true_m[idx, 1])
+
+    right = z_rms("filter", wrong=False)
+    assert right < 0.005
+    # the wrong id pulls: window 0.9 -> 5.8 mm, batch 3.7 -> 42 mm
+    assert z_rms("filter", wrong=True) > right + 0.004
+    assert z_rms("graph", wrong=True) < right + 0.001
+
+
+def test_graph_level_association_gate() -> None:
+    """The graph's association: nearest landmark within the gate and clearly nearest, else a
+    new one; the smoother's estimates move the landmarks; an unknown kernel is refused."""
+    from vio_graph.smoother.graph import _GraphLevel
+    from vio_graph.types import LandmarkKey
+
+    cfg = SmootherConfig(
+        factors=FactorFamilies(height_landmarks=True, height_landmark_association="graph")
+    )
+    b = KeyframeGraphBuilder(cfg, np.eye(4))
+    a = b._graph_level_key(-0.40)
+    assert a == LandmarkKey("level", 0)
+    b._graph_levels[1] = _GraphLevel(a, -0.40)
+    assert b._graph_level_key(-0.42) == a  # 2 cm: the same floor
+    assert b._graph_level_key(-0.36) == LandmarkKey("level", 1)  # 4 cm: beyond the gate
+    assert b._graph_levels[1].z_m == -0.42  # it follows the surface
+    b._graph_levels[2] = _GraphLevel(LandmarkKey("level", 1), -0.37)
+    assert b._graph_level_key(-0.395) == LandmarkKey("level", 2)  # not clearly nearest
+    b.set_level_heights({1: -0.30})
+    assert b._graph_levels[1].z_m == -0.30
+    with pytest.raises(ValidationError):
+        SmootherConfig(height_landmark_kernel="tukey")
+    kernel = SmootherConfig(height_landmark_kernel="geman_mcclure")
+    noise = robust_noise(kernel, gtsam.noiseModel.Isotropic.Sigma(1, 0.002), "geman_mcclure", 3.0)
+    assert isinstance(noise, gtsam.noiseModel.Robust)

@@ -45,6 +45,11 @@ class BatchSmoother(KeyframeSmootherBase):
         super().__init__(config, np.eye(4) if imu_T_cam is None else imu_T_cam)
         # robust IMU factors here only: the full batch re-weights at every LM iteration
         self._builder.robust_imu = True
+        # graph association of level surfaces: by the solution of a first solve
+        self._builder.defer_levels = (
+            config.factors.height_landmarks
+            and config.factors.height_landmark_association == "graph"
+        )
         self.graph = gtsam.NonlinearFactorGraph()
         self.initial = gtsam.Values()
         self._result: gtsam.Values | None = None
@@ -105,6 +110,17 @@ class BatchSmoother(KeyframeSmootherBase):
         opt = self._optimize(params)
         if self._relax_first_velocity():  # the prior failed its test: solve again without it
             opt = self._optimize(params)
+        if self._builder.deferred_levels:  # graph association: by this solution, then again
+            assert self._result is not None
+            first = self._result
+            factors, values = self._builder.associate_deferred_levels(
+                lambda i: float(first.atPose3(X(i)).translation()[2])
+            )
+            self.graph.push_back(factors)
+            self.initial.insert(values)
+            start = gtsam.Values(first)
+            start.insert(values)
+            opt = self._optimize(params, start)
         self.solve_time_ms = (time.perf_counter() - t0) * 1e3
         self.solve_iterations = int(opt.iterations())
         assert self._result is not None
@@ -120,20 +136,25 @@ class BatchSmoother(KeyframeSmootherBase):
         return params
 
     def _optimize(
-        self, params: gtsam.LevenbergMarquardtParams
+        self, params: gtsam.LevenbergMarquardtParams, start: gtsam.Values | None = None
     ) -> gtsam.LevenbergMarquardtOptimizer:
-        """LM over the whole graph from the initial values; the answer in ``_result``. A
-        Cholesky solve that retried a step is done again with QR (``batch_qr_fallback``)."""
-        opt = self._run_lm(params)
+        """LM over the whole graph from ``start`` (default: the initial values); the answer
+        in ``_result``. A Cholesky solve that retried a step is done again with QR
+        (``batch_qr_fallback``)."""
+        opt = self._run_lm(params, start)
         cholesky = params.getLinearSolverType() == "MULTIFRONTAL_CHOLESKY"
         if cholesky and self.config.batch_qr_fallback and not every_step_first_try(opt, params):
             log.info("batch: an LM step was retried with Cholesky; solving again with QR")
             self.qr_fallbacks += 1
-            opt = self._run_lm(self._lm_params("QR"))
+            opt = self._run_lm(self._lm_params("QR"), start)
         return opt
 
-    def _run_lm(self, params: gtsam.LevenbergMarquardtParams) -> gtsam.LevenbergMarquardtOptimizer:
-        opt = gtsam.LevenbergMarquardtOptimizer(self.graph, self.initial, params)
+    def _run_lm(
+        self, params: gtsam.LevenbergMarquardtParams, start: gtsam.Values | None = None
+    ) -> gtsam.LevenbergMarquardtOptimizer:
+        opt = gtsam.LevenbergMarquardtOptimizer(
+            self.graph, self.initial if start is None else start, params
+        )
         try:
             self._result = opt.optimize()
         except RuntimeError as exc:

@@ -49,8 +49,24 @@ class FactorFamilies(BaseModel):
         "(filter.level_landmarks): the floor's height is handed from keyframe to keyframe, "
         "as the filter's is (docs/method.md, 'Height landmarks in the smoothers'). Off: it "
         "ties the graphs to the filter's association, and where the filter fails the smoothers "
-        "would fail with it (occluding foot, upstair seeds 1-2: batch toe z 0.51 -> 5.08 cm); "
-        "it also loses on descents (sweep sts_descent, two_flights_down; held-out Q)",
+        "would fail with it (occluding foot, upstair seeds 1-2: batch toe z 0.51 -> 5.08 cm; "
+        "height_landmark_association 'graph' removes that coupling); it also loses on "
+        "descents (sweep sts_descent, two_flights_down; held-out Q), with either association: "
+        "there the surfaces seen beyond ~0.4 m read 1.5-3 mm high and scatter more than "
+        "their variance says (docs/method.md, section 4)",
+    )
+    height_landmark_association: Literal["filter", "graph"] = Field(
+        default="filter",
+        description="with height_landmarks: which surface is which landmark. 'filter': the "
+        "filter's height landmark ids (LevelObservation.level_id; the filter re-identifies a "
+        "surface by its own height, so where the filter's height fails the graphs inherit a "
+        "wrong association). 'graph': the graph decides by its own height: the surface's "
+        "world height (the keyframe's height as the graph last solved it, moved by the "
+        "filter's motion since, plus the observed height) against each live height "
+        "landmark's estimate, nearest within height_landmark_gate_m and clearly nearest "
+        "(the next at least twice as far), else a new landmark. The fixed-lag smoother uses "
+        "its latest solution; the batch solves once without the height factors, associates "
+        "with that solution and solves again",
     )
     stance_velocity: bool = Field(
         default=True,
@@ -255,6 +271,24 @@ class SmootherConfig(BaseModel):
         "velocity a clipped stretch lost is unknown along one body axis, and what vision "
         "measures of it (z on a level floor) fixes its share on the blind axis (x). Off: on "
         "every axis. No effect without saturation",
+    )
+    height_landmark_kernel: Literal["default", "huber", "cauchy", "geman_mcclure", "none"] = Field(
+        default="default",
+        description="M-estimator on the height-landmark factors (factors.height_landmarks): "
+        "'default' = robust_kernel / robust_threshold (as the displacements and corners); "
+        "the others with height_landmark_kernel_threshold. A redescending kernel (cauchy, "
+        "geman_mcclure) lets the other factors outvote a wrongly associated surface",
+    )
+    height_landmark_kernel_threshold: float = Field(
+        default=3.0, gt=0, description="its threshold in whitened units (sigmas)"
+    )
+    height_landmark_gate_m: float = Field(
+        default=0.03,
+        gt=0,
+        description="factors.height_landmark_association 'graph': a surface within this "
+        "height (m) of a live height landmark's estimate, and clearly nearest to it, is that "
+        "landmark (the filter's level_reidentify_m, the same rule: level surfaces of "
+        "different height are a rise apart, >= 0.10 m on the simulated stairs)",
     )
     robust_kernel: Literal["huber", "cauchy", "none"] = Field(
         default="huber", description="M-estimator on displacement and landmark factors"

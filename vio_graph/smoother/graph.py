@@ -64,7 +64,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import gtsam
@@ -153,6 +153,8 @@ def _m_estimator(kernel: str, threshold: float) -> gtsam.noiseModel.mEstimator.B
         return gtsam.noiseModel.mEstimator.Huber.Create(threshold)
     if kernel == "cauchy":
         return gtsam.noiseModel.mEstimator.Cauchy.Create(threshold)
+    if kernel == "geman_mcclure":
+        return gtsam.noiseModel.mEstimator.GemanMcClure.Create(threshold)
     return None
 
 
@@ -281,6 +283,30 @@ class _FactorBatch:
 
 
 @dataclass
+class _GraphLevel:
+    """A height landmark of the graph's own association
+    (``factors.height_landmark_association`` 'graph'): its key and world height (m): the
+    surface last associated with it, or the smoother's estimate once it has solved it."""
+
+    key: LandmarkKey
+    z_m: float
+
+
+@dataclass
+class DeferredLevel:
+    """A level observation the batch holds back until its first solve (graph association):
+    keyframe index, time (s), the observation, the keyframe's attitude (its rotation and
+    matrix) and its guessed IMU position (m, world)."""
+
+    index: int
+    timestamp_s: float
+    observation: LevelObservation
+    rot: gtsam.Rot3
+    R_world_imu: NDArray[np.float64]
+    t_guess_m: NDArray[np.float64]
+
+
+@dataclass
 class _Pending:
     timestamp_s: float
     estimate: FrameEstimate | None
@@ -391,6 +417,17 @@ class KeyframeGraphBuilder:
         #: unweighted x refers to it
         self._level_x_m: dict[int, float] = {}
         self._n_landmarks = 0
+        # factors.height_landmark_association 'graph': the graph's own height landmarks (by
+        # key), their count, the guessed IMU z (m) of recent keyframes and the refined minus
+        # guessed z of the newest keyframe the smoother solved
+        self._graph_levels: dict[int, _GraphLevel] = {}
+        self._n_graph_levels = 0
+        self._guess_z_m: deque[tuple[int, float]] = deque(maxlen=8)
+        self._graph_dz_m = 0.0
+        #: set by the batch smoother: with the graph association, level observations wait in
+        #: ``deferred_levels`` for a first solve (:meth:`associate_deferred_levels`)
+        self.defer_levels = False
+        self.deferred_levels: list[DeferredLevel] = []
         # latest refined state of the newest keyframe (set by the smoother after each update)
         # (pose, velocity): made into a gtsam.NavState only when a prediction needs it
         self._latest_nav: tuple[gtsam.Pose3, NDArray[np.float64]] | None = None
@@ -418,11 +455,35 @@ class KeyframeGraphBuilder:
 
     # ---- feedback from the smoother ------------------------------------------------------------
     def set_latest_state(
-        self, pose: gtsam.Pose3, velocity_mps: NDArray[np.float64], bias: gtsam.imuBias.ConstantBias
+        self,
+        pose: gtsam.Pose3,
+        velocity_mps: NDArray[np.float64],
+        bias: gtsam.imuBias.ConstantBias,
+        index: int | None = None,
     ) -> None:
-        """Latest estimate of the newest keyframe: used to predict when no filter guess exists."""
+        """Latest estimate of the newest keyframe: used to predict when no filter guess exists.
+        With its ``index``, its refined minus guessed height also moves the following
+        keyframes' guessed heights for the graph's association of level surfaces."""
         self._latest_nav = (pose, np.asarray(velocity_mps, dtype=float))
         self._latest_bias = bias
+        if index is not None:
+            for k, z in self._guess_z_m:
+                if k == index:
+                    self._graph_dz_m = float(pose.translation()[2]) - z
+                    break
+
+    @property
+    def graph_level_keys(self) -> list[int]:
+        """Keys of the graph's own height landmarks (graph association), for
+        :meth:`set_level_heights`."""
+        return list(self._graph_levels)
+
+    def set_level_heights(self, heights_m: dict[int, float]) -> None:
+        """The smoother's current estimates of its height landmarks' world z (m), by key."""
+        for k, z in heights_m.items():
+            g = self._graph_levels.get(k)
+            if g is not None:
+                g.z_m = float(z)
 
     def forget_landmarks(self, landmark_keys: Sequence[int]) -> None:
         """Landmarks marginalised by a fixed-lag smoother: a re-seen track or stance gets a new
@@ -431,6 +492,7 @@ class KeyframeGraphBuilder:
         self._landmark_of = {lk: k for lk, k in self._landmark_of.items() if k not in dead}
         for k in dead:
             self._level_x_m.pop(k, None)
+            self._graph_levels.pop(k, None)
 
     # ---- ingestion -----------------------------------------------------------------------------
     def add_imu(
@@ -622,6 +684,7 @@ class KeyframeGraphBuilder:
         else:
             self._add_motion(batch, i, pend, R_i, pim, v_guess)
         self._add_attitude_and_plane(batch, i, pose_guess, t_guess)
+        self._guess_z_m.append((i, float(t_guess[2])))
         if self.config.factors.landmarks:
             self._add_landmarks(batch, i, t, pend.observations, R_i, t_guess)
 
@@ -957,10 +1020,14 @@ class KeyframeGraphBuilder:
         rot_i: gtsam.Rot3,
         R_i: NDArray[np.float64],
         t_guess: NDArray[np.float64],
+        graph_z_m: float | None = None,
     ) -> None:
         """A level surface as a z-only landmark L(j) (a Pose3 like the corners', its x, y and
         rotation held by its weak prior), associated across keyframes by the filter's height
-        landmarks (filter.level_landmarks).
+        landmarks (filter.level_landmarks) or, with ``factors.height_landmark_association``
+        'graph', by the graph's own height (:meth:`_graph_level_key`; ``graph_z_m`` the
+        keyframe's IMU z the graph solved, else its guess moved by the newest solved
+        keyframe's correction).
 
         The factor is a BetweenFactorPose3 from L(j) to X(i), not from X(i) as a corner's:
         its translation error is then R_i^T (world error) (R_L = I, R_i the attitude the
@@ -969,22 +1036,40 @@ class KeyframeGraphBuilder:
         nothing: a height says nothing about where along the surface it was seen). From X(i)
         the error would turn with the keyframe's refined rotation, and the landmark's free x,
         metres from the keyframe on a long floor, would leak into z (1 m x 0.3 deg = 5 mm).
-        Robustified with the displacement kernel."""
+        Robustified with ``height_landmark_kernel`` (by default the displacements' kernel)."""
         cfg = self.config
-        lkey = LandmarkKey("level", ob.level_id)
         # world vector camera -> the surface point seen, and landmark -> IMU origin
         o3 = np.array([float(ob.x_rel_m), 0.0, float(ob.height_rel_m)])
         lever = R_i @ self.imu_p_cam_m + o3
+        if cfg.factors.height_landmark_association == "graph":
+            if self.defer_levels and graph_z_m is None:
+                self.deferred_levels.append(
+                    DeferredLevel(i, t, ob, rot_i, R_i, np.array(t_guess, dtype=float))
+                )
+                return
+            z_kf = float(t_guess[2]) + self._graph_dz_m if graph_z_m is None else graph_z_m
+            lkey = self._graph_level_key(z_kf + float(lever[2]))
+        else:
+            lkey = LandmarkKey("level", ob.level_id)
         new = lkey not in self._landmark_of
         lk = self._landmark_node(batch, lkey, t_guess + lever)
         if new:
             self._level_x_m[lk] = float(t_guess[0] + lever[0])
+            if cfg.factors.height_landmark_association == "graph":
+                z_kf = float(t_guess[2]) + self._graph_dz_m if graph_z_m is None else graph_z_m
+                self._graph_levels[lk] = _GraphLevel(lkey, z_kf + float(lever[2]))
         sigma = math.sqrt(max(float(ob.var_m2), cfg.min_measurement_sigma_m**2))
         sqrt_info = np.zeros((6, 6))
         # one upper-triangular row (GTSAM keeps only the upper triangle): world z in the
         # measurement's frame, R_i^T e_z, over its sigma
         sqrt_info[3, 3:] = R_i[2, :] / sigma
-        noise = robust_noise(cfg, gtsam.noiseModel.Gaussian.SqrtInformation(sqrt_info))
+        base = gtsam.noiseModel.Gaussian.SqrtInformation(sqrt_info)
+        if cfg.height_landmark_kernel == "default":
+            noise = robust_noise(cfg, base)
+        else:
+            noise = robust_noise(
+                cfg, base, cfg.height_landmark_kernel, cfg.height_landmark_kernel_threshold
+            )
         # the unweighted x: the keyframe's guessed x from the landmark's (which its prior
         # keeps where it started), not the surface point's lever. The error is Pose3's
         # Logmap, whose translation turns with the rotation error (v = t - omega x t / 2 +
@@ -995,6 +1080,41 @@ class KeyframeGraphBuilder:
         meas = gtsam.Pose3(rot_i, meas_t)
         batch.add(gtsam.BetweenFactorPose3(lk, X(i), meas, noise), [lk, X(i)])
         batch.stamps[lk] = t
+
+    def _graph_level_key(self, surface_z_m: float) -> LandmarkKey:
+        """The graph's association of a surface at world height ``surface_z_m`` (m): the
+        nearest live height landmark if within ``height_landmark_gate_m`` and clearly nearest
+        (the next at least twice as far; the filter's rule, filter/level_landmarks.py), else
+        a new one. An associated landmark's height follows the surface (until the smoother's
+        next estimate, :meth:`set_level_heights`), so slow drift of the batch's first
+        solution does not split it."""
+        gate = self.config.height_landmark_gate_m
+        ranked = sorted((abs(surface_z_m - g.z_m), k) for k, g in self._graph_levels.items())
+        if ranked and ranked[0][0] <= gate:
+            if len(ranked) == 1 or ranked[1][0] >= 2.0 * ranked[0][0]:
+                g = self._graph_levels[ranked[0][1]]
+                g.z_m = surface_z_m
+                return g.key
+        lkey = LandmarkKey("level", self._n_graph_levels)
+        self._n_graph_levels += 1
+        return lkey
+
+    def associate_deferred_levels(
+        self, z_of: Callable[[int], float]
+    ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """The batch's held-back level observations (graph association), associated in time
+        order by the keyframes' IMU z from ``z_of(index)`` (m, the first solution): their
+        factors and the new landmarks' initial values (at the observed surfaces)."""
+        batch = _FactorBatch({})
+        for d in self.deferred_levels:
+            z_kf = float(z_of(d.index))
+            t_at = np.array(d.t_guess_m, dtype=float)
+            t_at[2] = z_kf  # the new landmark's node at the surface the solution sees
+            self._add_height_landmark(
+                batch, d.index, d.timestamp_s, d.observation, d.rot, d.R_world_imu, t_at, z_kf
+            )
+        self.deferred_levels = []
+        return batch.graph, batch.values
 
     def _add_stance_velocity(
         self,

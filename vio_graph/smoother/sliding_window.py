@@ -170,7 +170,17 @@ class SlidingWindowSmoother(KeyframeSmootherBase):
             pose,
             self._smoother.calculateEstimateVector(V(i)),
             self._smoother.calculateEstimateConstantBias(B(i)),
+            index=i,
         )
+        levels = self._builder.graph_level_keys
+        if levels:  # (graph association of level surfaces: the landmarks' estimates)
+            self._builder.set_level_heights(
+                {
+                    k: float(self._smoother.calculateEstimatePose3(k).translation()[2])
+                    for k in levels
+                    if k in self._live
+                }
+            )
         if self.config.marginal_covariance == "when_newest" and self._incremental:
             self._newest_cov[i] = self._camera_estimate(i, with_covariance=True, pose=pose)[1]
         self.update_times_ms.append((time.perf_counter() - t0) * 1e3)

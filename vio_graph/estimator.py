@@ -1522,6 +1522,7 @@ class OnlineEstimator:
             cfg.max_lines,
             cfg.correlated_points,
             cfg.end_trim_m,
+            cfg.ray_fit,
         )
         if self.surface_tilt is None:
             return 0.0

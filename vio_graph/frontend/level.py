@@ -152,6 +152,7 @@ def measure_surface_tilt(
     max_lines: int = 4,
     correlated_points: float = 5.0,
     end_trim_m: float = 0.0,
+    ray_fit: bool = False,
 ) -> SurfaceTilt | None:
     """Common tilt of the near-horizontal lines of a profile (floor, treads, obstacle top).
 
@@ -174,6 +175,9 @@ def measure_surface_tilt(
             concave tread-riser corner up; both ends of a stair tread are such corners, on
             the same sides on every tread, so untrimmed they tilt every tread the same way
             (a bias, not noise: it drifts the attitude, then x, on a long stair).
+        ray_fit: fit the lines with their errors along the camera rays (see
+            :func:`_ray_refit`) instead of vertical least squares, whose slope leans towards
+            the rays on a surface seen at a slant (ToF errors lie along the ray).
 
     Returns:
         The tilt, or None when no line has the support (e.g. only a riser in view).
@@ -182,7 +186,7 @@ def measure_surface_tilt(
     if p.ndim != 2 or p.shape[0] < min_points or p.shape[1] != 2:
         return None
     kernels = compiled_kernels()
-    if kernels is None:
+    if kernels is None or ray_fit:
         return _surface_tilt_numpy(
             p,
             rng,
@@ -193,6 +197,7 @@ def measure_surface_tilt(
             max_lines,
             correlated_points,
             end_trim_m,
+            ray_fit,
         )
     # compiled: the whole search in one call (compiled.surface_tilt), the same draws from rng
     status, s, sigma_slope, n_inliers, rows = kernels.surface_tilt(
@@ -235,6 +240,7 @@ def _surface_tilt_numpy(
     max_lines: int,
     correlated_points: float,
     end_trim_m: float,
+    ray_fit: bool = False,
 ) -> SurfaceTilt | None:
     """numpy path of :func:`measure_surface_tilt` (the reference of ``compiled.surface_tilt``;
     ``p`` checked, at least ``min_points`` rows)."""
@@ -281,20 +287,21 @@ def _surface_tilt_numpy(
         szx += Szx / var_k
         info += Sxx / var_k
     s = szx / info
+    heights = [_mean(zs - s * xs) for xs, zs in line_xz]
+    if ray_fit:
+        s, heights = _ray_refit(line_xz, variances, s, heights)
     if abs(s) > max_slope:
         return None
     sigma_slope = math.sqrt(correlated_points / info)
     levels = []
     extent = 0.0
-    for (xs, zs), var_k in zip(line_xz, variances, strict=True):
+    for (xs, zs), var_k, h in zip(line_xz, variances, heights, strict=True):
         x_mid = _mean(xs)
         var_own = correlated_points * var_k / xs.shape[0]
         var_h = var_own + (x_mid * sigma_slope) ** 2
         x_lo, x_hi = float(_min_reduce(xs)), float(_max_reduce(xs))
         extent += x_hi - x_lo
-        levels.append(
-            LevelLine(_mean(zs - s * xs), math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own))
-        )
+        levels.append(LevelLine(h, math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own)))
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),
         sigma_rad=sigma_slope / (1.0 + s * s),
@@ -303,3 +310,58 @@ def _surface_tilt_numpy(
         n_lines=len(lines),
         lines=tuple(levels),
     )
+
+
+def _ray_refit(
+    line_xz: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    variances: list[float],
+    slope: float,
+    heights: list[float],
+    iterations: int = 3,
+) -> tuple[float, list[float]]:
+    """The shared slope and the lines' heights (at x = 0, the camera) fitted with the errors
+    along the camera rays.
+
+    The profile is relative to the camera centre, so a point is p = rho u with u its ray's
+    direction: u is known (the pixel), the range rho carries the ToF error. Vertical least
+    squares regresses z on x, but x = rho u_x is as noisy as z, and the pair errs along u:
+    on a surface seen at a slant the slope leans towards the rays (errors-in-variables), and
+    a line's height, read at the camera by that slope, moves by the lean times its distance
+    (on a descent the rays point down and away: far treads read high). Here each point's
+    range residual rho - h_k / (u_z - s u_x) (where its ray meets line k) is minimised by
+    Gauss-Newton, the Jacobian taken on the error-free directions u, each line weighted by
+    its own residual variance (``variances``, vertical, turned into range by its mean
+    |u_z - s u_x|). Started from the vertical fit (``slope``, ``heights``); falls back to it
+    if a ray runs nearly parallel to a line.
+    """
+    s = slope
+    h = np.array(heights, dtype=float)
+    n_lines = len(line_xz)
+    rays = []
+    for xs, zs in line_xz:
+        rho = np.hypot(xs, zs)
+        rays.append((rho, xs / rho, zs / rho))
+    for _ in range(iterations):
+        A = np.zeros((n_lines + 1, n_lines + 1))
+        b = np.zeros(n_lines + 1)
+        for k, ((rho, ux, uz), var_k) in enumerate(zip(rays, variances, strict=True)):
+            a = uz - s * ux
+            if float(_min_reduce(np.abs(a))) < 0.05:  # a ray within ~3 deg of the line
+                return slope, list(heights)
+            r = rho - h[k] / a
+            j_s = h[k] * ux / (a * a)  # d(h/a)/ds: the residual's derivative is -j_s
+            j_h = 1.0 / a
+            w = float(np.mean(a * a)) / var_k  # range variance = vertical / mean a^2
+            A[0, 0] += w * float(j_s @ j_s)
+            A[0, k + 1] += w * float(j_s @ j_h)
+            A[k + 1, k + 1] += w * float(j_h @ j_h)
+            b[0] += w * float(j_s @ r)
+            b[k + 1] += w * float(j_h @ r)
+        A[1:, 0] = A[0, 1:]
+        try:
+            step = np.linalg.solve(A, b)
+        except np.linalg.LinAlgError:
+            return slope, list(heights)
+        s += float(step[0])
+        h += step[1:]
+    return s, h.tolist()

@@ -80,9 +80,9 @@ class LevelProbe(OnlineEstimator):
         self._levels.key = noting_key  # this instance only
         self._keys: list = []
 
-    def _level_aiding(self, t: float, profile_xz_m: NDArray[np.float64]) -> float:
+    def _level_aiding(self, t: float, profile_xz_m: NDArray[np.float64], *args) -> float:
         self._true_tilt = residual_tilt_rad(self.R_world_imu(t), self._truth(t))
-        return super()._level_aiding(t, profile_xz_m)
+        return super()._level_aiding(t, profile_xz_m, *args)
 
     def _fuse_levels(self, t: float) -> None:
         self._keys = []

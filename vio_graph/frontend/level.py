@@ -152,7 +152,7 @@ def measure_surface_tilt(
     max_lines: int = 4,
     correlated_points: float = 5.0,
     end_trim_m: float = 0.0,
-    ray_fit: bool = False,
+    ray_fit: str = "off",
 ) -> SurfaceTilt | None:
     """Common tilt of the near-horizontal lines of a profile (floor, treads, obstacle top).
 
@@ -175,9 +175,11 @@ def measure_surface_tilt(
             concave tread-riser corner up; both ends of a stair tread are such corners, on
             the same sides on every tread, so untrimmed they tilt every tread the same way
             (a bias, not noise: it drifts the attitude, then x, on a long stair).
-        ray_fit: fit the lines with their errors along the camera rays (see
-            :func:`_ray_refit`) instead of vertical least squares, whose slope leans towards
-            the rays on a surface seen at a slant (ToF errors lie along the ray).
+        ray_fit: "off" (vertical least squares), "heights" (the lines' heights refitted
+            with their errors along the camera rays, :func:`_ray_refit`; the tilt stays the
+            vertical fit's) or "all" (tilt and heights from the ray fit). Vertical least
+            squares leans towards the rays on a surface seen at a slant (ToF errors lie along
+            the ray).
 
     Returns:
         The tilt, or None when no line has the support (e.g. only a riser in view).
@@ -186,7 +188,9 @@ def measure_surface_tilt(
     if p.ndim != 2 or p.shape[0] < min_points or p.shape[1] != 2:
         return None
     kernels = compiled_kernels()
-    if kernels is None or ray_fit:
+    if ray_fit not in ("off", "heights", "all"):
+        raise ValueError(f"ray_fit must be 'off', 'heights' or 'all', not {ray_fit!r}")
+    if kernels is None or ray_fit != "off":
         return _surface_tilt_numpy(
             p,
             rng,
@@ -240,7 +244,7 @@ def _surface_tilt_numpy(
     max_lines: int,
     correlated_points: float,
     end_trim_m: float,
-    ray_fit: bool = False,
+    ray_fit: str = "off",
 ) -> SurfaceTilt | None:
     """numpy path of :func:`measure_surface_tilt` (the reference of ``compiled.surface_tilt``;
     ``p`` checked, at least ``min_points`` rows)."""
@@ -288,8 +292,10 @@ def _surface_tilt_numpy(
         info += Sxx / var_k
     s = szx / info
     heights = [_mean(zs - s * xs) for xs, zs in line_xz]
-    if ray_fit:
-        s, heights = _ray_refit(line_xz, variances, s, heights)
+    if ray_fit != "off":
+        s_ray, heights = _ray_refit(line_xz, variances, s, heights)
+        if ray_fit == "all":
+            s = s_ray
     if abs(s) > max_slope:
         return None
     sigma_slope = math.sqrt(correlated_points / info)

@@ -224,10 +224,10 @@ def test_ray_fit_reads_far_treads_without_the_slant_bias() -> None:
             heights = [ln.height_m for ln in sorted(st.lines, key=lambda ln: ln.x_mid_m)]
             errs.append(np.array(heights) - truth)
         out[ray_fit] = (np.degrees(np.mean(tilts) - true_tilt), np.mean(errs, axis=0) * 1e3)
-    bias_deg, err_mm = out['off']
+    bias_deg, err_mm = out["off"]
     assert bias_deg < -0.04  # measured -0.076 deg
     assert err_mm[2] > 0.8 and err_mm[2] > err_mm[0]  # +0.30 / +0.79 / +1.29 mm
-    bias_deg, err_mm = out['all']
+    bias_deg, err_mm = out["all"]
     # standard errors of the means: 0.01 deg, 0.04 / 0.10 / 0.16 mm
     assert abs(bias_deg) < 0.03  # measured +0.007 deg
     assert np.all(np.abs(err_mm) < 0.5)  # measured -0.09 / -0.17 / -0.25 mm
@@ -235,7 +235,15 @@ def test_ray_fit_reads_far_treads_without_the_slant_bias() -> None:
     p = _treads_seen_down_a_flight(np.random.default_rng(5), -true_tilt)
     fits = {
         mode: measure_surface_tilt(
-            p, np.random.default_rng(5), np.radians(5.0), 0.03, 25, 0.12, 4, 5.0, 0.0,
+            p,
+            np.random.default_rng(5),
+            np.radians(5.0),
+            0.03,
+            25,
+            0.12,
+            4,
+            5.0,
+            0.0,
             ray_fit=mode,
         )  # fmt: skip
         for mode in ("off", "heights", "all")

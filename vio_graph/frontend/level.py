@@ -301,7 +301,7 @@ def _surface_tilt_numpy(
     sigma_slope = math.sqrt(correlated_points / info)
     levels = []
     extent = 0.0
-    for (xs, zs), var_k, h in zip(line_xz, variances, heights, strict=True):
+    for (xs, _zs), var_k, h in zip(line_xz, variances, heights, strict=True):
         x_mid = _mean(xs)
         var_own = correlated_points * var_k / xs.shape[0]
         var_h = var_own + (x_mid * sigma_slope) ** 2

@@ -1523,6 +1523,7 @@ class OnlineEstimator:
             cfg.correlated_points,
             cfg.end_trim_m,
             cfg.ray_fit,
+            self.frontend.grid_cell_m / math.sqrt(12.0),
         )
         if self.surface_tilt is None:
             return 0.0

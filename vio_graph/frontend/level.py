@@ -153,6 +153,7 @@ def measure_surface_tilt(
     correlated_points: float = 5.0,
     end_trim_m: float = 0.0,
     ray_fit: str = "off",
+    isotropic_sigma_m: float = 0.0,
 ) -> SurfaceTilt | None:
     """Common tilt of the near-horizontal lines of a profile (floor, treads, obstacle top).
 
@@ -180,6 +181,8 @@ def measure_surface_tilt(
             vertical fit's) or "all" (tilt and heights from the ray fit). Vertical least
             squares leans towards the rays on a surface seen at a slant (ToF errors lie along
             the ray).
+        isotropic_sigma_m: the part of a profile point's error that is not along its ray
+            (m, each axis; the ray fit's second variance, see :func:`_ray_refit`).
 
     Returns:
         The tilt, or None when no line has the support (e.g. only a riser in view).
@@ -202,6 +205,7 @@ def measure_surface_tilt(
             correlated_points,
             end_trim_m,
             ray_fit,
+            isotropic_sigma_m,
         )
     # compiled: the whole search in one call (compiled.surface_tilt), the same draws from rng
     status, s, sigma_slope, n_inliers, rows = kernels.surface_tilt(
@@ -245,6 +249,7 @@ def _surface_tilt_numpy(
     correlated_points: float,
     end_trim_m: float,
     ray_fit: str = "off",
+    isotropic_sigma_m: float = 0.0,
 ) -> SurfaceTilt | None:
     """numpy path of :func:`measure_surface_tilt` (the reference of ``compiled.surface_tilt``;
     ``p`` checked, at least ``min_points`` rows)."""
@@ -293,7 +298,7 @@ def _surface_tilt_numpy(
     s = szx / info
     heights = [_mean(zs - s * xs) for xs, zs in line_xz]
     if ray_fit != "off":
-        s_ray, heights = _ray_refit(line_xz, variances, s, heights)
+        s_ray, heights = _ray_refit(line_xz, variances, s, heights, isotropic_sigma_m**2)
         if ray_fit == "all":
             s = s_ray
     if abs(s) > max_slope:
@@ -323,22 +328,31 @@ def _ray_refit(
     variances: list[float],
     slope: float,
     heights: list[float],
-    iterations: int = 3,
+    isotropic_var_m2: float = 0.0,
+    iterations: int = 4,
 ) -> tuple[float, list[float]]:
     """The shared slope and the lines' heights (at x = 0, the camera) fitted with the errors
     along the camera rays.
 
     The profile is relative to the camera centre, so a point is p = rho u with u its ray's
     direction: u is known (the pixel), the range rho carries the ToF error. Vertical least
-    squares regresses z on x, but x = rho u_x is as noisy as z, and the pair errs along u:
-    on a surface seen at a slant the slope leans towards the rays (errors-in-variables), and
-    a line's height, read at the camera by that slope, moves by the lean times its distance
-    (on a descent the rays point down and away: far treads read high). Here each point's
-    range residual rho - h_k / (u_z - s u_x) (where its ray meets line k) is minimised by
-    Gauss-Newton, the Jacobian taken on the error-free directions u, each line weighted by
-    its own residual variance (``variances``, vertical, turned into range by its mean
-    |u_z - s u_x|). Started from the vertical fit (``slope``, ``heights``); falls back to it
-    if a ray runs nearly parallel to a line.
+    squares regresses z on x, but x = rho u_x errs together with z, along u: on a surface
+    seen at a slant the slope leans towards the rays (errors-in-variables), and a line's
+    height, read at the camera with that slope, moves by the lean times its distance (on a
+    descent the rays point down and away: far treads read high).
+
+    Each point's error is modelled as a range error of variance v_k (line k) along its ray
+    plus ``isotropic_var_m2`` in each axis (what the thinning and smoothing leave that is not
+    along the ray); its vertical residual z - s x - h_k then has the variance
+    D^2 = v_k (u_z - s u_x)^2 + isotropic (1 + s^2) (the point's Mahalanobis distance to the
+    line), and sum (residual / D)^2 over all lines is minimised by Gauss-Newton from the
+    vertical fit (``slope``, ``heights``). v_k comes from the line's vertical residual
+    variance (``variances``) less the isotropic part, over the line's mean (u_z - s u_x)^2:
+    a line whose scatter is no more than the isotropic part is fitted as by orthogonal
+    regression, one whose scatter is mostly along the rays (far treads) as by range
+    residuals. With no isotropic part this is exactly the range residual
+    rho - h_k / (u_z - s u_x). Falls back to the vertical fit if a ray runs within ~3 deg
+    of a line.
     """
     s = slope
     h = np.array(heights, dtype=float)
@@ -346,23 +360,27 @@ def _ray_refit(
     rays = []
     for xs, zs in line_xz:
         rho = np.hypot(xs, zs)
-        rays.append((rho, xs / rho, zs / rho))
+        rays.append((xs, zs, xs / rho, zs / rho))
+    iso = isotropic_var_m2
     for _ in range(iterations):
         A = np.zeros((n_lines + 1, n_lines + 1))
         b = np.zeros(n_lines + 1)
-        for k, ((rho, ux, uz), var_k) in enumerate(zip(rays, variances, strict=True)):
+        for k, ((xs, zs, ux, uz), var_k) in enumerate(zip(rays, variances, strict=True)):
             a = uz - s * ux
             if float(_min_reduce(np.abs(a))) < 0.05:  # a ray within ~3 deg of the line
                 return slope, list(heights)
-            r = rho - h[k] / a
-            j_s = h[k] * ux / (a * a)  # d(h/a)/ds: the residual's derivative is -j_s
-            j_h = 1.0 / a
-            w = float(np.mean(a * a)) / var_k  # range variance = vertical / mean a^2
-            A[0, 0] += w * float(j_s @ j_s)
-            A[0, k + 1] += w * float(j_s @ j_h)
-            A[k + 1, k + 1] += w * float(j_h @ j_h)
-            b[0] += w * float(j_s @ r)
-            b[k + 1] += w * float(j_h @ r)
+            v_k = max(var_k - iso, 0.0) / float(np.mean(a * a))
+            D = np.sqrt(v_k * a * a + iso * (1.0 + s * s))
+            r = zs - s * xs - h[k]
+            f = r / D
+            dD = (-v_k * a * ux + iso * s) / D
+            j_s = -xs / D - r * dD / (D * D)
+            j_h = -1.0 / D
+            A[0, 0] += float(j_s @ j_s)
+            A[0, k + 1] += float(j_s @ j_h)
+            A[k + 1, k + 1] += float(j_h @ j_h)
+            b[0] -= float(j_s @ f)
+            b[k + 1] -= float(j_h @ f)
         A[1:, 0] = A[0, 1:]
         try:
             step = np.linalg.solve(A, b)

@@ -180,3 +180,131 @@ def test_end_trim_removes_the_corner_rounding_bias() -> None:
         tilt[trim] = np.degrees(t.tilt_rad)
     assert abs(tilt[0.025]) < 0.05, tilt
     assert abs(tilt[0.0]) > 2 * abs(tilt[0.025]) + 0.02, tilt
+
+
+def _treads_seen_down_a_flight(
+    rng: np.random.Generator, tilt_rad: float, ray_sd_m: float = 0.004, iso_sd_m: float = 0.0
+) -> np.ndarray:
+    """Three treads of a descent seen from a camera 0.45 m above the first, each point's ToF
+    error along its ray (``ray_sd_m`` at 0.8 m, growing with range) plus ``iso_sd_m`` in x
+    and z, the slice turned by ``tilt_rad`` about the camera (an attitude error: the rays
+    still meet at the camera)."""
+    parts = []
+    for x0, x1, z in _DESCENT_TREADS:
+        x = np.linspace(x0, x1, 60)
+        zz = np.full_like(x, z)
+        rho = np.hypot(x, zz)
+        u = np.stack([x, zz], axis=1) / rho[:, None]
+        rho = rho + rng.normal(0.0, ray_sd_m, rho.shape) * rho / 0.8
+        parts.append(u * rho[:, None] + rng.normal(0.0, iso_sd_m, (x.size, 2)))
+    c, s = np.cos(tilt_rad), np.sin(tilt_rad)
+    return np.concatenate(parts) @ np.array([[c, s], [-s, c]]).T
+
+
+#: (x from, x to, height) of the treads relative to the camera, m
+_DESCENT_TREADS = ((0.15, 0.40, -0.45), (0.55, 0.80, -0.597), (0.95, 1.20, -0.744))
+
+
+def test_ray_fit_reads_far_treads_without_the_slant_bias() -> None:
+    """Vertical least squares regresses z on x, both noisy along the ray: on a descent the
+    common slope leans towards the rays (too negative) and the heights, read at the camera
+    with that slope, come out too high, the more the farther the tread. Fitted with the
+    errors along the rays, slope and heights are unbiased (mean of 400 frames)."""
+    true_tilt = -np.radians(1.0)
+    truth = np.array([z for *_, z in _DESCENT_TREADS])
+    out = {}
+    for ray_fit in ("off", "all"):
+        rng = np.random.default_rng(0)
+        tilts, errs = [], []
+        for i in range(400):
+            p = _treads_seen_down_a_flight(rng, -true_tilt)
+            st = measure_surface_tilt(
+                p, np.random.default_rng(i), np.radians(5.0), 0.03, 25, 0.12, 4, 5.0, 0.0,
+                ray_fit=ray_fit,
+            )  # fmt: skip
+            assert st is not None and st.n_lines == 3
+            tilts.append(st.tilt_rad)
+            heights = [ln.height_m for ln in sorted(st.lines, key=lambda ln: ln.x_mid_m)]
+            errs.append(np.array(heights) - truth)
+        out[ray_fit] = (np.degrees(np.mean(tilts) - true_tilt), np.mean(errs, axis=0) * 1e3)
+    bias_deg, err_mm = out["off"]
+    assert bias_deg < -0.04  # measured -0.083 deg
+    assert err_mm[2] > 0.8 and err_mm[2] > err_mm[0]  # +0.29 / +0.89 / +1.41 mm
+    bias_deg, err_mm = out["all"]
+    # standard errors of the means: 0.01 deg, 0.04 / 0.10 / 0.16 mm
+    assert abs(bias_deg) < 0.03  # measured +0.001 deg
+    assert np.all(np.abs(err_mm) < 0.5)  # measured -0.09 / -0.08 / -0.13 mm
+    # "heights": the ray fit's heights, the vertical fit's tilt (what the pitch aiding takes)
+    p = _treads_seen_down_a_flight(np.random.default_rng(5), -true_tilt)
+    fits = {
+        mode: measure_surface_tilt(
+            p,
+            np.random.default_rng(5),
+            np.radians(5.0),
+            0.03,
+            25,
+            0.12,
+            4,
+            5.0,
+            0.0,
+            ray_fit=mode,
+        )  # fmt: skip
+        for mode in ("off", "heights", "all")
+    }
+    assert fits["heights"].tilt_rad == fits["off"].tilt_rad
+    assert [ln.height_m for ln in fits["heights"].lines] == [
+        ln.height_m for ln in fits["all"].lines
+    ]
+
+
+@pytest.mark.parametrize("ray_sd_m", [0.0, 0.004])
+def test_ray_fit_takes_the_error_that_is_not_along_the_rays(ray_sd_m: float) -> None:
+    """Points with 1.5 mm of error in x and z besides (or instead of) the range error: the
+    pure ray model (no isotropic part) then leans the other way (the ray through a point
+    displaced off its ray is itself off), the model with the isotropic part is unbiased, and
+    with no range error it is as unbiased as the vertical fit (mean of 400 frames)."""
+    true_tilt = -np.radians(1.0)
+    truth = np.array([z for *_, z in _DESCENT_TREADS])
+    out = {}
+    for mode, iso in (("off", 0.0), ("pure", 0.0), ("mixed", 0.0015)):
+        rng = np.random.default_rng(0)
+        tilts, errs = [], []
+        for i in range(400):
+            p = _treads_seen_down_a_flight(rng, -true_tilt, ray_sd_m, 0.0015)
+            st = measure_surface_tilt(
+                p, np.random.default_rng(i), np.radians(5.0), 0.03, 25, 0.12, 4, 5.0, 0.0,
+                ray_fit="off" if mode == "off" else "all", isotropic_sigma_m=iso,
+            )  # fmt: skip
+            assert st is not None and st.n_lines == 3
+            tilts.append(st.tilt_rad)
+            heights = [ln.height_m for ln in sorted(st.lines, key=lambda ln: ln.x_mid_m)]
+            errs.append(np.array(heights) - truth)
+        out[mode] = (np.degrees(np.mean(tilts) - true_tilt), np.mean(errs, axis=0) * 1e3)
+    # measured (no range error / 4 mm): pure ray +0.027 / +0.026 deg, far height -0.61 /
+    # -0.60 mm; mixed +0.002 / +0.002 deg, heights within 0.15 mm; vertical +0.001 / -0.088
+    assert out["pure"][0] > 0.015 and out["pure"][1][2] < -0.35
+    assert abs(out["mixed"][0]) < 0.015
+    assert np.all(np.abs(out["mixed"][1]) < 0.3)
+    if ray_sd_m == 0.0:
+        assert abs(out["off"][0]) < 0.015
+    else:
+        assert out["off"][0] < -0.05 and out["off"][1][2] > 1.0
+
+
+def test_ray_fit_is_exact_on_clean_treads_and_keeps_a_grazing_line() -> None:
+    rng = np.random.default_rng(1)
+    p = _treads_seen_down_a_flight(rng, 0.0)
+    clean = np.concatenate(
+        [np.stack([np.linspace(x0, x1, 60), np.full(60, z)], 1) for x0, x1, z in _DESCENT_TREADS]
+    )
+    st = measure_surface_tilt(clean, rng, ray_fit="all")
+    assert st is not None and abs(st.tilt_rad) < 1e-9
+    assert sorted(ln.height_m for ln in st.lines) == pytest.approx([-0.744, -0.597, -0.45])
+    # a floor at the camera's height: every ray runs along it, the vertical fit is kept
+    level = np.stack([np.linspace(0.3, 1.0, 80), np.zeros(80)], 1) + rng.normal(0, 1e-3, (80, 2))
+    a = measure_surface_tilt(level, np.random.default_rng(2), ray_fit="off")
+    b = measure_surface_tilt(level, np.random.default_rng(2), ray_fit="all")
+    assert a is not None and a == b
+    with pytest.raises(ValueError, match="ray_fit"):
+        measure_surface_tilt(level, np.random.default_rng(2), ray_fit="yes")
+    assert p.shape == (180, 2)

@@ -55,3 +55,16 @@ def test_front_end_measures_the_residual_tilt(err_deg: float) -> None:
     assert st.tilt_rad == pytest.approx(truth, abs=max(3.0 * st.sigma_rad, np.radians(0.02)))
     # the opposite convention would be off by twice the error
     assert abs(st.tilt_rad + truth) > abs(truth)
+
+
+def test_true_level_of_a_line_is_the_tread_it_overlaps_most() -> None:
+    """benchmarks/eval_level_heights.py's truth: the horizontal segment of the terrain
+    polyline under most of a line's x extent, with the share it covers."""
+    from eval_level_heights import _treads, true_level
+
+    profile = [[-1.0, 0.0], [1.5, 0.0], [1.5, -0.147], [1.78, -0.147], [1.78, -0.294]]
+    treads = _treads(np.array(profile))
+    assert treads.tolist() == [[-1.0, 1.5, 0.0], [1.5, 1.78, -0.147]]
+    assert true_level(treads, 1.55, 1.70) == pytest.approx((-0.147, 1.0))
+    h, cover = true_level(treads, 1.40, 1.60)  # straddles the nosing: 0.1 m on each
+    assert h in (0.0, -0.147) and cover == pytest.approx(0.5)

@@ -1522,6 +1522,8 @@ class OnlineEstimator:
             cfg.max_lines,
             cfg.correlated_points,
             cfg.end_trim_m,
+            cfg.ray_fit,
+            self.frontend.grid_cell_m / math.sqrt(12.0),
         )
         if self.surface_tilt is None:
             return 0.0

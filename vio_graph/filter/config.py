@@ -74,6 +74,14 @@ class LevelAidingConfig(BaseModel):
         description="slope variance multiplier: kNN smoothing (k = 5) correlates neighbouring "
         "profile points",
     )
+    ray_fit: Literal["off", "heights", "all"] = Field(
+        default="off",
+        description="fit the level lines with their errors along the camera rays "
+        "(frontend/level.py, _ray_refit) instead of vertical least squares, whose slope leans "
+        "towards the rays on a surface seen at a slant (far treads of a descent read high): "
+        "'heights' refits the surfaces' heights only (the tilt the pitch aiding fuses stays "
+        "the vertical fit's), 'all' the tilt too",
+    )
     initial_sigma_deg: float = Field(
         default=3.0, gt=0, description="sigma (deg) of the offset before any measurement"
     )

@@ -152,6 +152,8 @@ def measure_surface_tilt(
     max_lines: int = 4,
     correlated_points: float = 5.0,
     end_trim_m: float = 0.0,
+    ray_fit: str = "off",
+    isotropic_sigma_m: float = 0.0,
 ) -> SurfaceTilt | None:
     """Common tilt of the near-horizontal lines of a profile (floor, treads, obstacle top).
 
@@ -174,6 +176,13 @@ def measure_surface_tilt(
             concave tread-riser corner up; both ends of a stair tread are such corners, on
             the same sides on every tread, so untrimmed they tilt every tread the same way
             (a bias, not noise: it drifts the attitude, then x, on a long stair).
+        ray_fit: "off" (vertical least squares), "heights" (the lines' heights refitted
+            with their errors along the camera rays, :func:`_ray_refit`; the tilt stays the
+            vertical fit's) or "all" (tilt and heights from the ray fit). Vertical least
+            squares leans towards the rays on a surface seen at a slant (ToF errors lie along
+            the ray).
+        isotropic_sigma_m: the part of a profile point's error that is not along its ray
+            (m, each axis; the ray fit's second variance, see :func:`_ray_refit`).
 
     Returns:
         The tilt, or None when no line has the support (e.g. only a riser in view).
@@ -182,7 +191,9 @@ def measure_surface_tilt(
     if p.ndim != 2 or p.shape[0] < min_points or p.shape[1] != 2:
         return None
     kernels = compiled_kernels()
-    if kernels is None:
+    if ray_fit not in ("off", "heights", "all"):
+        raise ValueError(f"ray_fit must be 'off', 'heights' or 'all', not {ray_fit!r}")
+    if kernels is None or ray_fit != "off":
         return _surface_tilt_numpy(
             p,
             rng,
@@ -193,6 +204,8 @@ def measure_surface_tilt(
             max_lines,
             correlated_points,
             end_trim_m,
+            ray_fit,
+            isotropic_sigma_m,
         )
     # compiled: the whole search in one call (compiled.surface_tilt), the same draws from rng
     status, s, sigma_slope, n_inliers, rows = kernels.surface_tilt(
@@ -235,6 +248,8 @@ def _surface_tilt_numpy(
     max_lines: int,
     correlated_points: float,
     end_trim_m: float,
+    ray_fit: str = "off",
+    isotropic_sigma_m: float = 0.0,
 ) -> SurfaceTilt | None:
     """numpy path of :func:`measure_surface_tilt` (the reference of ``compiled.surface_tilt``;
     ``p`` checked, at least ``min_points`` rows)."""
@@ -281,20 +296,23 @@ def _surface_tilt_numpy(
         szx += Szx / var_k
         info += Sxx / var_k
     s = szx / info
+    heights = [_mean(zs - s * xs) for xs, zs in line_xz]
+    if ray_fit != "off":
+        s_ray, heights = _ray_refit(line_xz, variances, s, heights, isotropic_sigma_m**2)
+        if ray_fit == "all":
+            s = s_ray
     if abs(s) > max_slope:
         return None
     sigma_slope = math.sqrt(correlated_points / info)
     levels = []
     extent = 0.0
-    for (xs, zs), var_k in zip(line_xz, variances, strict=True):
+    for (xs, _zs), var_k, h in zip(line_xz, variances, heights, strict=True):
         x_mid = _mean(xs)
         var_own = correlated_points * var_k / xs.shape[0]
         var_h = var_own + (x_mid * sigma_slope) ** 2
         x_lo, x_hi = float(_min_reduce(xs)), float(_max_reduce(xs))
         extent += x_hi - x_lo
-        levels.append(
-            LevelLine(_mean(zs - s * xs), math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own))
-        )
+        levels.append(LevelLine(h, math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own)))
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),
         sigma_rad=sigma_slope / (1.0 + s * s),
@@ -303,3 +321,71 @@ def _surface_tilt_numpy(
         n_lines=len(lines),
         lines=tuple(levels),
     )
+
+
+def _ray_refit(
+    line_xz: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    variances: list[float],
+    slope: float,
+    heights: list[float],
+    isotropic_var_m2: float = 0.0,
+    iterations: int = 4,
+) -> tuple[float, list[float]]:
+    """The shared slope and the lines' heights (at x = 0, the camera) fitted with the errors
+    along the camera rays.
+
+    The profile is relative to the camera centre, so a point is p = rho u with u its ray's
+    direction: u is known (the pixel), the range rho carries the ToF error. Vertical least
+    squares regresses z on x, but x = rho u_x errs together with z, along u: on a surface
+    seen at a slant the slope leans towards the rays (errors-in-variables), and a line's
+    height, read at the camera with that slope, moves by the lean times its distance (on a
+    descent the rays point down and away: far treads read high).
+
+    Each point's error is modelled as a range error of variance v_k (line k) along its ray
+    plus ``isotropic_var_m2`` in each axis (what the thinning and smoothing leave that is not
+    along the ray); its vertical residual z - s x - h_k then has the variance
+    D^2 = v_k (u_z - s u_x)^2 + isotropic (1 + s^2) (the point's Mahalanobis distance to the
+    line), and sum (residual / D)^2 over all lines is minimised by Gauss-Newton from the
+    vertical fit (``slope``, ``heights``). v_k comes from the line's vertical residual
+    variance (``variances``) less the isotropic part, over the line's mean (u_z - s u_x)^2:
+    a line whose scatter is no more than the isotropic part is fitted as by orthogonal
+    regression, one whose scatter is mostly along the rays (far treads) as by range
+    residuals. With no isotropic part this is exactly the range residual
+    rho - h_k / (u_z - s u_x). Falls back to the vertical fit if a ray runs within ~3 deg
+    of a line.
+    """
+    s = slope
+    h = np.array(heights, dtype=float)
+    n_lines = len(line_xz)
+    rays = []
+    for xs, zs in line_xz:
+        rho = np.hypot(xs, zs)
+        rays.append((xs, zs, xs / rho, zs / rho))
+    iso = isotropic_var_m2
+    for _ in range(iterations):
+        A = np.zeros((n_lines + 1, n_lines + 1))
+        b = np.zeros(n_lines + 1)
+        for k, ((xs, zs, ux, uz), var_k) in enumerate(zip(rays, variances, strict=True)):
+            a = uz - s * ux
+            if float(_min_reduce(np.abs(a))) < 0.05:  # a ray within ~3 deg of the line
+                return slope, list(heights)
+            v_k = max(var_k - iso, 0.0) / float(np.mean(a * a))
+            D = np.sqrt(v_k * a * a + iso * (1.0 + s * s))
+            r = zs - s * xs - h[k]
+            f = r / D
+            dD = (-v_k * a * ux + iso * s) / D
+            j_s = -xs / D - r * dD / (D * D)
+            j_h = -1.0 / D
+            A[0, 0] += float(j_s @ j_s)
+            A[0, k + 1] += float(j_s @ j_h)
+            A[k + 1, k + 1] += float(j_h @ j_h)
+            b[0] -= float(j_s @ f)
+            b[k + 1] -= float(j_h @ f)
+        A[1:, 0] = A[0, 1:]
+        try:
+            step = np.linalg.solve(A, b)
+        except np.linalg.LinAlgError:
+            return slope, list(heights)
+        s += float(step[0])
+        h += step[1:]
+    return s, h.tolist()

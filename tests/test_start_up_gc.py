@@ -109,3 +109,37 @@ def test_run_command_pauses_until_the_replay_starts(
     assert seen == [(True, True)]
     assert gc.isenabled() and gc.get_freeze_count() == 0
     assert (tmp_path / "o" / "metrics.json").is_file()
+
+
+def test_everything_is_frozen_at_the_interpreter_exit(tmp_path: Path) -> None:
+    """A process that ran ``vio-graph run`` freezes its objects at exit (atexit), after the
+    run's files are complete: the shutdown's collections then skip them."""
+    import json
+    import os
+    import subprocess
+
+    from tests.test_cli import _two_second_recording
+
+    rec = _two_second_recording(tmp_path / "rec")
+    out = tmp_path / "out"
+    code = """
+import atexit, gc, json, sys
+# registered first, so it runs last (atexit runs its handlers in reverse order)
+atexit.register(lambda: print(json.dumps({"frozen": gc.get_freeze_count()})))
+from vio_graph.cli import main
+sys.argv = ["vio-graph", "run", sys.argv[1], "--out", sys.argv[2], "--no-rerun"]
+main()
+"""
+    repo = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(repo) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    r = subprocess.run(
+        [sys.executable, "-c", code, str(rec), str(out)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=repo,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert json.loads(r.stdout.strip().splitlines()[-1])["frozen"] > 10_000
+    assert json.loads((out / "metrics.json").read_text())["frames"] == 60

@@ -18,10 +18,13 @@ s of CPU a run (docs/performance-log.md, "A whole run outside the estimator").
 :func:`start_up_done`, called when the replay starts, moves what then exists out of the
 collector's generations (``gc.freeze``) and turns it back on, so that later passes look only
 at what the run itself creates; the objects go back to the collector when the paused block
-ends (``gc.unfreeze``). Collection frees memory only; no result depends on it."""
+ends (``gc.unfreeze``). At the interpreter's exit everything is frozen again
+(:func:`_freeze_for_exit`): the collections of CPython's shutdown would otherwise pass over
+all of it once more. Collection frees memory only; no result depends on it."""
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import ctypes
 import ctypes.util
@@ -56,6 +59,17 @@ def return_free_heap() -> bool:
 #: the start-up pause of this process: None, "paused" (collector off) or "frozen" (on again,
 #: the start-up's objects frozen)
 _start_up: str | None = None
+#: whether :func:`_freeze_for_exit` is registered with ``atexit`` (once a process)
+_exit_freeze_registered = False
+
+
+def _freeze_for_exit() -> None:
+    """At interpreter exit (an ``atexit`` handler, registered by the first paused start-up):
+    freeze every object, so that the full collections CPython runs while it shuts down
+    (~0.19 s of CPU after a 30 s run, over the ~150,000 objects a run leaves) skip them; the
+    process's end frees that memory anyway. Files and outputs are closed by then (every
+    writer closes its own), so nothing is left for a collected object's finaliser to do."""
+    gc.freeze()
 
 
 @contextlib.contextmanager
@@ -65,10 +79,13 @@ def collection_paused_for_start_up() -> Iterator[None]:
     collector is left as it was if it is off, if objects are already frozen (``gc.freeze``
     by the caller) or inside another such block. On leaving the block it is on again and
     the objects :func:`start_up_done` froze are back in its generations."""
-    global _start_up
+    global _start_up, _exit_freeze_registered
     if _start_up is not None or not gc.isenabled() or gc.get_freeze_count():
         yield
         return
+    if not _exit_freeze_registered:
+        atexit.register(_freeze_for_exit)
+        _exit_freeze_registered = True
     gc.disable()
     _start_up = "paused"
     try:

@@ -253,7 +253,8 @@ def run(
     from vio_graph.memory import collection_paused_for_start_up
 
     # no garbage collection while the modules, the configuration and the kernels load (the
-    # replay's start ends the pause, vio_graph/memory.py): ~0.2 s of CPU less a run
+    # replay's start ends the pause), nor over them at exit (vio_graph/memory.py): ~0.5 s of
+    # CPU less a 30 s run
     with collection_paused_for_start_up():
         from vio_graph.config import load_config
         from vio_graph.pipeline import run_recording

@@ -12,8 +12,8 @@ in use, so no result.
 A run's start-up (its imports, the configuration, opening the recording, numba loading the
 first cached kernels) creates ~200,000 objects that live until the process ends; the cyclic
 collector's passes over them (~300 young, ~30 middle-generation and 2 full collections
-during the start-up of a 30 s run) free almost nothing (~1,300 objects) and cost ~0.15-0.25
-s of CPU a run (docs/performance-log.md, "A whole run outside the estimator").
+during the start-up of a 30 s run) free almost nothing (~1,300 objects) and cost
+~0.15-0.25 s of CPU a run (docs/performance-log.md, "A whole run outside the estimator").
 :func:`collection_paused_for_start_up` turns the collector off for that start-up;
 :func:`start_up_done`, called when the replay starts, moves what then exists out of the
 collector's generations (``gc.freeze``) and turns it back on, so that later passes look only

@@ -185,3 +185,68 @@ def test_safety_log_gives_back_the_estimates_appended() -> None:
         np.testing.assert_array_equal(log.column(name), ref)
     with pytest.raises(KeyError):
         log.column("no_such_field")
+
+
+def test_safety_log_rows_are_the_fields_joined_bit_for_bit() -> None:
+    """SafetyLog.append writes each row from a list of Python floats; the row is, bit for
+    bit, the fields converted one by one and joined as float64 arrays (NaN payloads, signed
+    zeros, float32 arrays, numpy bools and ints included), and None is NaN with a 0 flag."""
+    import dataclasses
+
+    from vio_graph.safety.online import _ARRAY_FIELDS, SafetyEstimate, SafetyLog
+
+    rng = np.random.default_rng(5)
+    payload_nan = np.array([0x7FF8_0000_0000_1234], dtype=np.uint64).view(np.float64)[0]
+    specials = [float("nan"), -0.0, 0.0, float(payload_nan), 1e-310, -np.inf, 5e300]
+
+    def value(k: int) -> float:
+        return specials[k % len(specials)] if k % 3 == 0 else float(rng.normal())
+
+    ests: list = []
+    for k in range(120):
+        if k % 11 == 5:
+            ests.append(None)
+            continue
+        toe_line = rng.normal(size=(2, 2))
+        toe_line[0, 0] = value(k)
+        placement = np.array([value(k + j) for j in range(4)])
+        ests.append(
+            SafetyEstimate(
+                value(k),
+                value(k + 1),
+                toe_line.astype(np.float32) if k % 4 == 0 else toe_line,
+                value(k + 2),
+                value(k + 3),
+                value(k + 4),
+                value(k + 5),
+                np.bool_(k % 2 == 0) if k % 5 else bool(k % 2),
+                value(k + 6),
+                value(k + 7),
+                np.int64(k // 7) if k % 5 else int(k // 7),
+                value(k + 8),
+                np.float64(value(k + 9)),
+                bool(k % 3 == 0),
+                placement,
+                edge_xz_m=np.array([value(k + 10), -0.0]),
+                near_trip_clearance_m=value(k + 11),
+                pose_consistency_scale=float(rng.uniform(1, 2)),
+            )
+        )
+    log = SafetyLog()
+    for e in ests:
+        log.append(e)
+    names = [f.name for f in dataclasses.fields(SafetyEstimate)]
+    scalars = [n for n in names if n not in _ARRAY_FIELDS]
+    arrays = [n for n in names if n in _ARRAY_FIELDS]
+    for k, e in enumerate(ests):
+        if e is None:
+            ref = np.r_[np.full(log._rows.row_shape[0] - 1, np.nan), 0.0]
+        else:
+            ref = np.concatenate(
+                [np.array([float(getattr(e, n)) for n in scalars])]
+                + [np.asarray(getattr(e, n), float).reshape(-1) for n in arrays]
+                + [[1.0]]
+            )
+        row = log._rows.view()[k]
+        assert row.shape == ref.shape
+        np.testing.assert_array_equal(row.view(np.uint64), ref.view(np.uint64), err_msg=str(k))

@@ -37,6 +37,7 @@ from vio_graph.evaluation.run_metrics import (
 from vio_graph.health import filter_sigma_summary, smoothed_vs_filtered
 from vio_graph.io_utils import atomic_write_json, atomic_write_text, remove_temporaries
 from vio_graph.mapping.run_map import build_run_map
+from vio_graph.memory import start_up_done
 from vio_graph.outputs import (
     filter_summary,
     frontend_summary,
@@ -166,6 +167,7 @@ def _run_into(
     # estimate: every estimator through the recording, then every mode's leg points
     replay = Replay(rec, config, set(modes), viz)
     replay.view.scene(rec)
+    start_up_done()  # (the garbage collector's start-up pause, if any, ends: memory.py)
     t_start = time.perf_counter()
     with progress_bar(
         rec.num_frames, f"estimating {Path(recording).name}", "frame", enabled=progress

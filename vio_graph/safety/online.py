@@ -41,6 +41,7 @@ import math
 from collections import deque
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, fields
+from operator import attrgetter
 from types import ModuleType
 
 import numpy as np
@@ -160,15 +161,21 @@ class SafetyLog:
         self._arrays = [(n, _ARRAY_FIELDS[n]) for n in names if n in _ARRAY_FIELDS]
         width = len(self._scalars) + sum(math.prod(s) for _, s in self._arrays) + 1
         self._rows = GrowableArray((width,))  # last column: 1 = an estimate, 0 = None
+        self._scalars_of = attrgetter(*self._scalars)
+        self._arrays_of = attrgetter(*(n for n, _ in self._arrays))
+        self._none_row = [NAN] * (width - 1) + [0.0]
 
     def append(self, s: SafetyEstimate | None) -> None:
+        # the row as one list of Python floats written into the buffer (float64 from each
+        # float exactly, array elements through tolist bit for bit), instead of a small
+        # array per field joined by np.concatenate (~5 -> ~3 us a row)
         if s is None:
-            row = np.full(self._rows.row_shape, NAN)
-            row[-1] = 0.0
-        else:
-            parts = [np.array([float(getattr(s, n)) for n in self._scalars])]
-            parts += [np.asarray(getattr(s, n), float).reshape(-1) for n, _ in self._arrays]
-            row = np.concatenate([*parts, [1.0]])
+            self._rows.append(self._none_row)
+            return
+        row = list(map(float, self._scalars_of(s)))
+        for a in self._arrays_of(s):
+            row += np.asarray(a, float).ravel().tolist()
+        row.append(1.0)
         self._rows.append(row)
 
     def __len__(self) -> int:

@@ -790,6 +790,9 @@ def main() -> None:
     """Console-script entry point: known errors -> one line and exit code 1; SIGINT/SIGTERM
     -> cleanup, a note of the completed outputs, exit code 130/143."""
     signal.signal(signal.SIGTERM, _on_sigterm)
+    from vio_graph.memory import freeze_at_exit
+
+    freeze_at_exit()  # this process is ours: its shutdown need not collect (memory.py)
     # invoke the click command directly: typer's own main turns KeyboardInterrupt into a bare
     # exit code 130, losing which signal it was and what the interrupted command completed
     command = typer.main.get_command(app)

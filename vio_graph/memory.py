@@ -64,12 +64,22 @@ _exit_freeze_registered = False
 
 
 def _freeze_for_exit() -> None:
-    """At interpreter exit (an ``atexit`` handler, registered by the first paused start-up):
+    """At interpreter exit (an ``atexit`` handler, registered by :func:`freeze_at_exit`):
     freeze every object, so that the full collections CPython runs while it shuts down
     (~0.19 s of CPU after a 30 s run, over the ~150,000 objects a run leaves) skip them; the
     process's end frees that memory anyway. Files and outputs are closed by then (every
     writer closes its own), so nothing is left for a collected object's finaliser to do."""
     gc.freeze()
+
+
+def freeze_at_exit() -> None:
+    """Register :func:`_freeze_for_exit` with ``atexit`` (once). Only the console script's
+    own process does this (``vio_graph.cli.main``): a program that imports vio_graph, or calls
+    a command in-process, keeps its own shutdown as it was."""
+    global _exit_freeze_registered
+    if not _exit_freeze_registered:
+        atexit.register(_freeze_for_exit)
+        _exit_freeze_registered = True
 
 
 @contextlib.contextmanager
@@ -79,13 +89,10 @@ def collection_paused_for_start_up() -> Iterator[None]:
     collector is left as it was if it is off, if objects are already frozen (``gc.freeze``
     by the caller) or inside another such block. On leaving the block it is on again and
     the objects :func:`start_up_done` froze are back in its generations."""
-    global _start_up, _exit_freeze_registered
+    global _start_up
     if _start_up is not None or not gc.isenabled() or gc.get_freeze_count():
         yield
         return
-    if not _exit_freeze_registered:
-        atexit.register(_freeze_for_exit)
-        _exit_freeze_registered = True
     gc.disable()
     _start_up = "paused"
     try:

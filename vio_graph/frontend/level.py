@@ -326,9 +326,7 @@ def _surface_tilt_numpy(
         var_h = var_own + (x_mid * sigma_slope) ** 2
         x_lo, x_hi = float(_min_reduce(xs)), float(_max_reduce(xs))
         extent += x_hi - x_lo
-        levels.append(
-            LevelLine(h, math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own), h_ray)
-        )
+        levels.append(LevelLine(h, math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own), h_ray))
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),
         sigma_rad=sigma_slope / (1.0 + s * s),

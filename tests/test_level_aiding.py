@@ -308,3 +308,62 @@ def test_ray_fit_is_exact_on_clean_treads_and_keeps_a_grazing_line() -> None:
     with pytest.raises(ValueError, match="ray_fit"):
         measure_surface_tilt(level, np.random.default_rng(2), ray_fit="yes")
     assert p.shape == (180, 2)
+
+
+def test_ray_heights_ride_along_the_vertical_fit() -> None:
+    """``ray_heights``: every line also carries the ray fit's height (what ray_fit 'heights'
+    would have made its height_m) while height_m and the tilt stay the vertical fit's; on a
+    descent the far tread's ray height is the nearer to the truth (mean of 100 frames)."""
+    truth = np.array([z for *_, z in _DESCENT_TREADS])
+    rng = np.random.default_rng(0)
+    vertical, ray = [], []
+    for i in range(100):
+        p = _treads_seen_down_a_flight(rng, np.radians(1.0))
+        args = (np.radians(5.0), 0.03, 25, 0.12, 4, 5.0, 0.0)
+        both = measure_surface_tilt(p, np.random.default_rng(i), *args, ray_heights=True)
+        off = measure_surface_tilt(p, np.random.default_rng(i), *args)
+        refit = measure_surface_tilt(p, np.random.default_rng(i), *args, ray_fit="heights")
+        assert both is not None and off is not None and refit is not None
+        assert both.tilt_rad == pytest.approx(off.tilt_rad, abs=1e-12)
+        assert [ln.height_m for ln in both.lines] == pytest.approx(
+            [ln.height_m for ln in off.lines], abs=1e-12
+        )
+        assert [ln.ray_height_m for ln in both.lines] == [ln.height_m for ln in refit.lines]
+        assert all(ln.ray_height_m is None for ln in off.lines + refit.lines)
+        lines = sorted(both.lines, key=lambda ln: ln.x_mid_m)
+        vertical.append([ln.height_m for ln in lines])
+        ray.append([ln.ray_height_m for ln in lines])
+    err_vertical_mm = (np.mean(vertical, axis=0) - truth) * 1e3
+    err_ray_mm = (np.mean(ray, axis=0) - truth) * 1e3
+    # measured: vertical +0.25 / +0.82 / +1.28 mm, ray -0.14 / -0.15 / -0.26 (se 0.3) mm
+    assert err_vertical_mm[2] > 0.8
+    assert abs(err_ray_mm[2]) < 0.5 * err_vertical_mm[2]
+
+
+@pytest.mark.parametrize("heights", ["filter", "ray_fit"])
+def test_the_smoothers_get_the_ray_heights_when_asked(heights: str) -> None:
+    """smoother.height_landmark_heights 'ray_fit': the level surfaces handed to the
+    smoothers carry the ray-fitted heights, while the filter fuses its own (vertical fit,
+    LevelLine.height_m); 'filter': the filter's heights."""
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+
+    cfg = PipelineConfig.model_validate(
+        {"smoother": {"height_landmark_heights": heights, "factors": {"height_landmarks": True}}}
+    )
+    est = OnlineEstimator(cfg, RigGeometry.from_metadata(tiny_metadata()))
+    est.filter.initialise(0.0, (0.0, 0.0))
+    p = _treads_seen_down_a_flight(np.random.default_rng(3), np.radians(1.0))
+    est._level_aiding(0.0, p)
+    est._fuse_levels(0.0)
+    assert est.surface_tilt is not None
+    lines = {ln.x_mid_m: ln for ln in est.surface_tilt.lines}
+    handed = est._level_observations
+    assert len(handed) == 3  # first sights, taken in by the filter
+    for obs in handed:
+        line = lines[obs.x_rel_m]
+        if heights == "ray_fit":
+            assert obs.height_rel_m == line.ray_height_m != line.height_m
+        else:
+            assert obs.height_rel_m == line.height_m and line.ray_height_m is None

@@ -328,6 +328,12 @@ class OnlineEstimator:
         self.attitude = AttitudeTracker(config.filter.attitude)
         self.pitch_offset = PitchOffsetFilter(config.filter.level_aiding)
         self._level_rng = np.random.default_rng(config.frontend.seed)
+        #: the level surfaces also carry their ray-fitted heights, for the smoothers only
+        #: (smoother.height_landmark_heights)
+        self._smoother_ray_heights = (
+            config.smoother.factors.height_landmarks
+            and config.smoother.height_landmark_heights == "ray_fit"
+        )
         #: this frame's level-surface tilt measurement (None if no level surface was found)
         self.surface_tilt: SurfaceTilt | None = None
         self.keyframes = KeyframeSelector(config.keyframes)
@@ -1524,6 +1530,7 @@ class OnlineEstimator:
             cfg.end_trim_m,
             cfg.ray_fit,
             self.frontend.grid_cell_m / math.sqrt(12.0),
+            self._smoother_ray_heights,
         )
         if self.surface_tilt is None:
             return 0.0
@@ -1660,8 +1667,16 @@ class OnlineEstimator:
         ones."""
         if not self.config.smoother.factors.height_landmarks:
             return
+        # smoother.height_landmark_heights 'ray_fit': the ray-fitted height (the filter
+        # fused its own, line.height_m)
         self._level_observations = tuple(
-            LevelObservation(t, key.id, line.height_m, v, line.x_mid_m)
+            LevelObservation(
+                t,
+                key.id,
+                line.height_m if line.ray_height_m is None else line.ray_height_m,
+                v,
+                line.x_mid_m,
+            )
             for (key, line), n, f, v in zip(found, new, fused, var_m2, strict=True)
             if f or (n and self.filter.has_landmark(key))
         )

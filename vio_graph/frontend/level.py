@@ -69,6 +69,9 @@ class LevelLine:
     x_max_m: float
     x_mid_m: float = 0.0
     noise_sigma_m: float = 0.0
+    #: the height (m, at the camera) refitted with the errors along the camera rays
+    #: (:func:`_ray_refit`), when asked for (``measure_surface_tilt(ray_heights=True)``)
+    ray_height_m: float | None = None
 
 
 def _best_line(
@@ -154,6 +157,7 @@ def measure_surface_tilt(
     end_trim_m: float = 0.0,
     ray_fit: str = "off",
     isotropic_sigma_m: float = 0.0,
+    ray_heights: bool = False,
 ) -> SurfaceTilt | None:
     """Common tilt of the near-horizontal lines of a profile (floor, treads, obstacle top).
 
@@ -183,6 +187,9 @@ def measure_surface_tilt(
             the ray).
         isotropic_sigma_m: the part of a profile point's error that is not along its ray
             (m, each axis; the ray fit's second variance, see :func:`_ray_refit`).
+        ray_heights: also give each line the ray fit's height (``LevelLine.ray_height_m``),
+            whatever ``ray_fit`` says of ``height_m`` and the tilt (for a consumer that wants
+            the ray-fitted heights while the tilt and ``height_m`` stay the vertical fit's).
 
     Returns:
         The tilt, or None when no line has the support (e.g. only a riser in view).
@@ -193,7 +200,7 @@ def measure_surface_tilt(
     kernels = compiled_kernels()
     if ray_fit not in ("off", "heights", "all"):
         raise ValueError(f"ray_fit must be 'off', 'heights' or 'all', not {ray_fit!r}")
-    if kernels is None or ray_fit != "off":
+    if kernels is None or ray_fit != "off" or ray_heights:
         return _surface_tilt_numpy(
             p,
             rng,
@@ -206,6 +213,7 @@ def measure_surface_tilt(
             end_trim_m,
             ray_fit,
             isotropic_sigma_m,
+            ray_heights,
         )
     # compiled: the whole search in one call (compiled.surface_tilt), the same draws from rng
     status, s, sigma_slope, n_inliers, rows = kernels.surface_tilt(
@@ -250,6 +258,7 @@ def _surface_tilt_numpy(
     end_trim_m: float,
     ray_fit: str = "off",
     isotropic_sigma_m: float = 0.0,
+    ray_heights: bool = False,
 ) -> SurfaceTilt | None:
     """numpy path of :func:`measure_surface_tilt` (the reference of ``compiled.surface_tilt``;
     ``p`` checked, at least ``min_points`` rows)."""
@@ -297,8 +306,13 @@ def _surface_tilt_numpy(
         info += Sxx / var_k
     s = szx / info
     heights = [_mean(zs - s * xs) for xs, zs in line_xz]
-    if ray_fit != "off":
-        s_ray, heights = _ray_refit(line_xz, variances, s, heights, isotropic_sigma_m**2)
+    ray_h: list[float | None] = [None] * len(line_xz)
+    if ray_fit != "off" or ray_heights:
+        s_ray, refit = _ray_refit(line_xz, variances, s, heights, isotropic_sigma_m**2)
+        if ray_heights:
+            ray_h = list(refit)
+        if ray_fit != "off":
+            heights = refit
         if ray_fit == "all":
             s = s_ray
     if abs(s) > max_slope:
@@ -306,13 +320,13 @@ def _surface_tilt_numpy(
     sigma_slope = math.sqrt(correlated_points / info)
     levels = []
     extent = 0.0
-    for (xs, _zs), var_k, h in zip(line_xz, variances, heights, strict=True):
+    for (xs, _zs), var_k, h, h_ray in zip(line_xz, variances, heights, ray_h, strict=True):
         x_mid = _mean(xs)
         var_own = correlated_points * var_k / xs.shape[0]
         var_h = var_own + (x_mid * sigma_slope) ** 2
         x_lo, x_hi = float(_min_reduce(xs)), float(_max_reduce(xs))
         extent += x_hi - x_lo
-        levels.append(LevelLine(h, math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own)))
+        levels.append(LevelLine(h, math.sqrt(var_h), x_lo, x_hi, x_mid, math.sqrt(var_own), h_ray))
     return SurfaceTilt(
         tilt_rad=float(np.arctan(s)),
         sigma_rad=sigma_slope / (1.0 + s * s),

@@ -282,6 +282,16 @@ class SmootherConfig(BaseModel):
     height_landmark_kernel_threshold: float = Field(
         default=3.0, gt=0, description="its threshold in whitened units (sigmas)"
     )
+    height_landmark_heights: Literal["filter", "ray_fit"] = Field(
+        default="filter",
+        description="factors.height_landmarks: the heights handed to the smoothers. 'filter': "
+        "the filter's own (filter.level_aiding.ray_fit decides how they are fitted). "
+        "'ray_fit': each surface's height refitted with its errors along the camera rays "
+        "(frontend/level.py, _ray_refit; far surfaces on a descent read 1.5-3 mm high with "
+        "the vertical fit) for the smoothers only, the filter keeping its own heights "
+        "(the level surfaces are then fitted on the numpy path: the filter's heights and "
+        "tilt equal to rounding, not bit for bit). No effect without height_landmarks",
+    )
     height_landmark_gate_m: float = Field(
         default=0.03,
         gt=0,

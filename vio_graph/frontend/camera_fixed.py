@@ -387,7 +387,12 @@ def _hidden(
     # the occluder refutes the occlusion only where its own test is decided against it:
     # moved back, it lands on valid current depth that disagrees (an object fixed to the
     # lens does); out of view or on no valid pixel, the occlusion stands unrefuted
-    refuted = inside & np.isfinite(best) & (best > tol[j])
+    # ... and only if it shows the signature of something fixed to the lens itself: the same
+    # depth at the same pixel in the current frame (a mixed pixel between two surfaces, which
+    # flickers from frame to frame, or an edge the motion moved, does not)
+    here = pad_cur[vi[j] + dv, ui[j] + du]
+    fixed_here = np.abs(here - v) <= tol[j]
+    refuted = inside & np.isfinite(best) & (best > tol[j]) & fixed_here
     out[j] = ok.any(axis=1) & nearer & ~refuted
     return out
 

@@ -1795,6 +1795,10 @@ def _hidden_one(dp, dc, vi, ui, z, tol, fx, fy, cx, cy, R, t):  # pragma: no cov
                 found = True
     if not found:
         return False
+    # the occluder refutes the occlusion only if fixed to the lens itself: the same depth at
+    # the same pixel in the current frame
+    if not abs(_prev_depth(dc, vi + dvb, ui + dub) - vb) <= tol:
+        return True
     u0 = np.float64(ui + dub)
     v0 = np.float64(vi + dvb)
     d0 = vb * (u0 - cx) / fx - t[0]

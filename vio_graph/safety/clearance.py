@@ -397,20 +397,21 @@ def placement_on_tread(
     z0 = prof.z_m[c]
     n = len(prof)
 
+    def end(i: int, direction: int) -> float:
+        """x of bin ``i``'s end facing ``direction`` (m)."""
+        return prof.x_hi_m[i] if direction > 0 else prof.x_lo_m[i]
+
+    def gap(i: int, j: int) -> float:
+        """Free x between bin ``i`` and its neighbour ``j`` on either side (m)."""
+        return prof.x_lo_m[j] - prof.x_hi_m[i] if j > i else prof.x_lo_m[i] - prof.x_hi_m[j]
+
     def extend(direction: int) -> tuple[float, int]:
         """(boundary x, -1 lower / +1 higher / 0 unknown neighbour) in ``direction``."""
         i = c
         while True:
             j = i + direction
-            if j < 0 or j >= n:
-                return (prof.x_lo_m[i] if direction < 0 else prof.x_hi_m[i]), 0
-            gap = (
-                (prof.x_lo_m[i] - prof.x_hi_m[j])
-                if direction < 0
-                else (prof.x_lo_m[j] - prof.x_hi_m[i])
-            )
-            x_b = prof.x_lo_m[i] if direction < 0 else prof.x_hi_m[i]
-            if gap > max_gap_m:
+            x_b = end(i, direction)
+            if j < 0 or j >= n or gap(i, j) > max_gap_m:
                 return x_b, 0
             dz = prof.z_m[j] - z0
             if abs(dz) <= tolerance_m:
@@ -427,17 +428,10 @@ def placement_on_tread(
                 # nosing: the lower bins are what a low camera saw *under* the next tread
                 # (open risers) or a gap in this one; the tread ends where the rise starts
                 m = k
-                while 0 <= m + direction < n:
-                    q = m + direction
-                    if (
-                        prof.x_lo_m[q] - prof.x_hi_m[m]
-                        if direction > 0
-                        else prof.x_lo_m[m] - prof.x_hi_m[q]
-                    ) > max_gap_m:
-                        break
-                    if prof.z_m[q] - z0 >= min_rise_m:
-                        return (prof.x_lo_m[q] if direction > 0 else prof.x_hi_m[q]), 1
-                    m = q
+                while 0 <= m + direction < n and gap(m, m + direction) <= max_gap_m:
+                    m += direction
+                    if prof.z_m[m] - z0 >= min_rise_m:
+                        return end(m, -direction), 1
             return x_b, kind
 
     x_left, k_left = extend(-1)

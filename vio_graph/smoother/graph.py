@@ -1041,6 +1041,7 @@ class KeyframeGraphBuilder:
         # world vector camera -> the surface point seen, and landmark -> IMU origin
         o3 = np.array([float(ob.x_rel_m), 0.0, float(ob.height_rel_m)])
         lever = R_i @ self.imu_p_cam_m + o3
+        surface_z_m: float | None = None  # the surface's world z (graph association), m
         if cfg.factors.height_landmark_association == "graph":
             if self.defer_levels and graph_z_m is None:
                 self.deferred_levels.append(
@@ -1048,16 +1049,16 @@ class KeyframeGraphBuilder:
                 )
                 return
             z_kf = float(t_guess[2]) + self._graph_dz_m if graph_z_m is None else graph_z_m
-            lkey = self._graph_level_key(z_kf + float(lever[2]))
+            surface_z_m = z_kf + float(lever[2])
+            lkey = self._graph_level_key(surface_z_m)
         else:
             lkey = LandmarkKey("level", ob.level_id)
         new = lkey not in self._landmark_of
         lk = self._landmark_node(batch, lkey, t_guess + lever)
         if new:
             self._level_x_m[lk] = float(t_guess[0] + lever[0])
-            if cfg.factors.height_landmark_association == "graph":
-                z_kf = float(t_guess[2]) + self._graph_dz_m if graph_z_m is None else graph_z_m
-                self._graph_levels[lk] = _GraphLevel(lkey, z_kf + float(lever[2]))
+            if surface_z_m is not None:  # (graph association)
+                self._graph_levels[lk] = _GraphLevel(lkey, surface_z_m)
         sigma = math.sqrt(max(float(ob.var_m2), cfg.min_measurement_sigma_m**2))
         sqrt_info = np.zeros((6, 6))
         # one upper-triangular row (GTSAM keeps only the upper triangle): world z in the

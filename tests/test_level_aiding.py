@@ -205,28 +205,36 @@ def _treads_seen_down_a_flight(
 _DESCENT_TREADS = ((0.15, 0.40, -0.45), (0.55, 0.80, -0.597), (0.95, 1.20, -0.744))
 
 
+#: the slice's attitude error in the ray-fit tests (rad)
+_TRUE_TILT_RAD = -np.radians(1.0)
+
+
+def _mean_fit_errors(ray_sd_m: float, iso_sd_m: float, **fit) -> tuple[float, np.ndarray]:
+    """Over 400 frames of :func:`_treads_seen_down_a_flight` (``ray_sd_m``, ``iso_sd_m``),
+    fitted by ``measure_surface_tilt(..., **fit)``: the mean tilt error (deg) and the mean
+    height error of each tread, near to far (mm)."""
+    truth = np.array([z for *_, z in _DESCENT_TREADS])
+    rng = np.random.default_rng(0)
+    tilts, errs = [], []
+    for i in range(400):
+        p = _treads_seen_down_a_flight(rng, -_TRUE_TILT_RAD, ray_sd_m, iso_sd_m)
+        st = measure_surface_tilt(
+            p, np.random.default_rng(i), np.radians(5.0), 0.03, 25, 0.12, 4, 5.0, 0.0, **fit
+        )
+        assert st is not None and st.n_lines == 3
+        tilts.append(st.tilt_rad)
+        heights = [ln.height_m for ln in sorted(st.lines, key=lambda ln: ln.x_mid_m)]
+        errs.append(np.array(heights) - truth)
+    return np.degrees(np.mean(tilts) - _TRUE_TILT_RAD), np.mean(errs, axis=0) * 1e3
+
+
 def test_ray_fit_reads_far_treads_without_the_slant_bias() -> None:
     """Vertical least squares regresses z on x, both noisy along the ray: on a descent the
     common slope leans towards the rays (too negative) and the heights, read at the camera
     with that slope, come out too high, the more the farther the tread. Fitted with the
     errors along the rays, slope and heights are unbiased (mean of 400 frames)."""
-    true_tilt = -np.radians(1.0)
-    truth = np.array([z for *_, z in _DESCENT_TREADS])
-    out = {}
-    for ray_fit in ("off", "all"):
-        rng = np.random.default_rng(0)
-        tilts, errs = [], []
-        for i in range(400):
-            p = _treads_seen_down_a_flight(rng, -true_tilt)
-            st = measure_surface_tilt(
-                p, np.random.default_rng(i), np.radians(5.0), 0.03, 25, 0.12, 4, 5.0, 0.0,
-                ray_fit=ray_fit,
-            )  # fmt: skip
-            assert st is not None and st.n_lines == 3
-            tilts.append(st.tilt_rad)
-            heights = [ln.height_m for ln in sorted(st.lines, key=lambda ln: ln.x_mid_m)]
-            errs.append(np.array(heights) - truth)
-        out[ray_fit] = (np.degrees(np.mean(tilts) - true_tilt), np.mean(errs, axis=0) * 1e3)
+    true_tilt = _TRUE_TILT_RAD
+    out = {ray_fit: _mean_fit_errors(0.004, 0.0, ray_fit=ray_fit) for ray_fit in ("off", "all")}
     bias_deg, err_mm = out["off"]
     assert bias_deg < -0.04  # measured -0.083 deg
     assert err_mm[2] > 0.8 and err_mm[2] > err_mm[0]  # +0.29 / +0.89 / +1.41 mm
@@ -263,23 +271,12 @@ def test_ray_fit_takes_the_error_that_is_not_along_the_rays(ray_sd_m: float) -> 
     pure ray model (no isotropic part) then leans the other way (the ray through a point
     displaced off its ray is itself off), the model with the isotropic part is unbiased, and
     with no range error it is as unbiased as the vertical fit (mean of 400 frames)."""
-    true_tilt = -np.radians(1.0)
-    truth = np.array([z for *_, z in _DESCENT_TREADS])
-    out = {}
-    for mode, iso in (("off", 0.0), ("pure", 0.0), ("mixed", 0.0015)):
-        rng = np.random.default_rng(0)
-        tilts, errs = [], []
-        for i in range(400):
-            p = _treads_seen_down_a_flight(rng, -true_tilt, ray_sd_m, 0.0015)
-            st = measure_surface_tilt(
-                p, np.random.default_rng(i), np.radians(5.0), 0.03, 25, 0.12, 4, 5.0, 0.0,
-                ray_fit="off" if mode == "off" else "all", isotropic_sigma_m=iso,
-            )  # fmt: skip
-            assert st is not None and st.n_lines == 3
-            tilts.append(st.tilt_rad)
-            heights = [ln.height_m for ln in sorted(st.lines, key=lambda ln: ln.x_mid_m)]
-            errs.append(np.array(heights) - truth)
-        out[mode] = (np.degrees(np.mean(tilts) - true_tilt), np.mean(errs, axis=0) * 1e3)
+    out = {
+        mode: _mean_fit_errors(
+            ray_sd_m, 0.0015, ray_fit="off" if mode == "off" else "all", isotropic_sigma_m=iso
+        )
+        for mode, iso in (("off", 0.0), ("pure", 0.0), ("mixed", 0.0015))
+    }
     # measured (no range error / 4 mm): pure ray +0.027 / +0.026 deg, far height -0.61 /
     # -0.60 mm; mixed +0.002 / +0.002 deg, heights within 0.15 mm; vertical +0.001 / -0.088
     assert out["pure"][0] > 0.015 and out["pure"][1][2] < -0.35

@@ -993,6 +993,18 @@ def test_gyro_discretization_term_enters_the_rotation_covariance() -> None:
     np.testing.assert_array_equal(with_term[9:, 9:], without[9:, 9:])
 
 
+def _z_biased_trial_without_corners():
+    """A 10 s swinging-shank trial whose displacements drift 1 cm/s in z, no corner in view
+    (the height-landmark tests add the level observations)."""
+    return make_swinging_shank_trial(
+        10.0,
+        displacement_sigma_m=0.002,
+        displacement_bias_mps=(0.0, 0.01),
+        corners=False,
+        seed=5,
+    )
+
+
 @pytest.mark.parametrize("cls", [SlidingWindowSmoother, BatchSmoother])
 def test_height_landmarks_bound_z_drift_and_leave_x_alone(cls) -> None:
     """A floor seen from every keyframe (a z-only landmark, LevelObservation) holds the
@@ -1002,13 +1014,7 @@ def test_height_landmarks_bound_z_drift_and_leave_x_alone(cls) -> None:
 
     from vio_graph.types import LevelObservation
 
-    tr = make_swinging_shank_trial(
-        10.0,
-        displacement_sigma_m=0.002,
-        displacement_bias_mps=(0.0, 0.01),
-        corners=False,
-        seed=5,
-    )
+    tr = _z_biased_trial_without_corners()
     rng = np.random.default_rng(11)
     floor_z_m = -0.40
     levels = [
@@ -1070,13 +1076,7 @@ def test_graph_association_refuses_a_surface_the_filter_misassociated(cls) -> No
 
     from vio_graph.types import LevelObservation
 
-    tr = make_swinging_shank_trial(
-        10.0,
-        displacement_sigma_m=0.002,
-        displacement_bias_mps=(0.0, 0.01),
-        corners=False,
-        seed=5,
-    )
+    tr = _z_biased_trial_without_corners()
     floor_z_m, tread_z_m = -0.40, -0.25
 
     def levels(wrong: bool) -> list[list[LevelObservation]]:

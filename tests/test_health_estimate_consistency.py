@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vio_graph.health import filter_sigma_summary, smoothed_vs_filtered
+from vio_graph.health import (
+    HealthLimits,
+    disagreement_warning,
+    filter_sigma_summary,
+    smoothed_vs_filtered,
+)
 
 
 def _paths(n: int = 200, sigma_x_m: float = 0.01, sigma_z_m: float = 0.005):
@@ -64,3 +69,40 @@ def test_filter_sigma_summary_is_the_square_root_of_the_variances() -> None:
     assert rep["x"]["median_cm"] == pytest.approx(1.0)
     assert rep["x"]["last_cm"] == pytest.approx(2.0)
     assert rep["z"]["p95_cm"] == pytest.approx(0.5)
+
+
+def test_a_large_lasting_disagreement_warns_and_names_the_axis() -> None:
+    t, filt, cov = _paths(sigma_z_m=0.002)
+    other = filt.copy()
+    other[:, 1] += np.linspace(0.0, 0.025, len(t))  # the smoother's z walks 2.5 cm away
+    rep = smoothed_vs_filtered(t, filt, cov, other)
+    warning = disagreement_warning("smoother", rep)
+    assert warning is not None and "height (z)" in warning and "forward (x)" not in warning
+    assert "up to 2.5 cm" in warning and "health.smoother_vs_filter" in warning
+
+
+def test_a_large_rms_difference_warns_even_within_the_filter_sigma() -> None:
+    t, filt, cov = _paths(sigma_x_m=0.04)  # a filter that claims 4 cm in x
+    other = filt.copy()
+    other[:, 0] += np.linspace(0.0, 0.05, len(t))  # 2.9 cm RMS apart, under 1.25 sigma
+    rep = smoothed_vs_filtered(t, filt, cov, other)
+    assert rep["x"]["beyond_share"] == 0.0 and rep["x"]["rms_difference_cm"] > 2.0
+    warning = disagreement_warning("batch", rep)
+    assert warning is not None and "forward (x)" in warning
+    other = filt.copy()
+    other[:, 0] += np.linspace(0.0, 0.03, len(t))  # 1.7 cm RMS: no warning
+    assert disagreement_warning("batch", smoothed_vs_filtered(t, filt, cov, other)) is None
+
+
+def test_a_small_or_brief_disagreement_does_not_warn() -> None:
+    t, filt, cov = _paths(sigma_z_m=0.001)
+    small = filt.copy()
+    small[100:, 1] += 0.015  # beyond a 1 mm sigma on half the frames, but 1.5 cm apart
+    rep = smoothed_vs_filtered(t, filt, cov, small)
+    assert rep["z"]["beyond_share"] == pytest.approx(0.5)
+    assert disagreement_warning("batch", rep) is None
+    brief = filt.copy()
+    brief[190:195, 1] += 0.05  # 5 cm apart, on 2.5 % of the frames
+    rep = smoothed_vs_filtered(t, filt, cov, brief)
+    assert disagreement_warning("batch", rep) is None
+    assert disagreement_warning("batch", rep, HealthLimits(max_disagreement_share=0.02))

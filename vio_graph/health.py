@@ -87,6 +87,14 @@ class HealthLimits:
     #: Not 1: the front end's covariances carry floors (its displacement NEES is 4-5 before
     #: them), so an honest filter's NIS is well below 1; the test asks whether a run is
     #: worse than that, not whether NIS = 1.
+    #: offline (:func:`disagreement_warning`): warn when a smoother's path and the filter's
+    #: differ by more than the filter's covariance allows (chi-square, 99.9 %, per frame) on
+    #: more than this share of frames (a consistent pair: at most 0.1 %)...
+    max_disagreement_share: float = 0.05
+    #: ...and by at least this much (m) somewhere; or, whatever the covariance, by this much
+    #: RMS over the trial: two paths this far apart cannot both be within half of it (the
+    #: triangle inequality), so one is off by at least half the project's 2 cm aim
+    min_disagreement_m: float = 0.02
     innovation_reference: dict[str, tuple[float, float]] = field(
         hash=False,  # (a dict: HealthLimits stays hashable without it)
         default_factory=lambda: {
@@ -684,6 +692,43 @@ def smoothed_vs_filtered(
         }
     out["consistent"] = all(out[a]["max_d2"] <= limit for a in "xz")
     return out
+
+
+def disagreement_warning(
+    mode: str, consistency: dict, limits: HealthLimits | None = None
+) -> str | None:
+    """A warning when ``mode``'s path (a smoother's) and the filter's disagree, or None.
+
+    ``consistency`` is :func:`smoothed_vs_filtered`'s report. The pair is in trouble on an
+    axis when their RMS difference is at least ``min_disagreement_m`` (no covariance needed:
+    one of the two is then off by at least half of it, RMS), or when more than
+    ``max_disagreement_share`` of the frames are beyond the chi-square quantile (the
+    difference is larger than the filter's covariance allows) *and* the paths are at least
+    ``min_disagreement_m`` apart somewhere: one of them is off by more than it claims, by a
+    size that matters. Which one, the test cannot say: the filter's own innovation
+    warnings, if any, point at the filter."""
+    lim = limits or HealthLimits()
+    parts = []
+    for axis, name in (("x", "forward (x)"), ("z", "height (z)")):
+        a = consistency.get(axis) or {}
+        share = float(a.get("beyond_share", 0.0))
+        apart_cm = float(a.get("max_difference_cm", 0.0))
+        rms_cm = float(a.get("rms_difference_cm", 0.0))
+        size_cm = 100.0 * lim.min_disagreement_m
+        if rms_cm >= size_cm or (share > lim.max_disagreement_share and apart_cm >= size_cm):
+            parts.append(
+                f"{name} by {rms_cm:.1f} cm RMS (up to {apart_cm:.1f} cm; beyond the filter's "
+                f"covariance on {100.0 * share:.0f} % of frames)"
+            )
+    if not parts:
+        return None
+    return (
+        f"WARNING: the {mode}'s path and the filter's disagree in "
+        + " and in ".join(parts)
+        + ": at least one of them is off by more than it claims (the test cannot say which; "
+        "compare the two paths, and see any innovation warning above for the filter). "
+        f"metrics.json health.{mode}_vs_filter."
+    )
 
 
 def filter_sigma_summary(filter_cov_m2: NDArray[np.float64]) -> dict:

@@ -34,7 +34,7 @@ from vio_graph.evaluation.run_metrics import (
     shank_pitch_error_deg,
     terrain_accuracy,
 )
-from vio_graph.health import filter_sigma_summary, smoothed_vs_filtered
+from vio_graph.health import disagreement_warning, filter_sigma_summary, smoothed_vs_filtered
 from vio_graph.io_utils import atomic_write_json, atomic_write_text, remove_temporaries
 from vio_graph.mapping.run_map import build_run_map
 from vio_graph.memory import start_up_done
@@ -307,10 +307,11 @@ def _evaluate(
 
 
 def _add_estimate_consistency(health: dict[str, Any], lg: FrameLog) -> None:
-    """Report-only health figures from the whole run (no ground truth): the filter's own
-    position sigma, and each smoother's path tested against the filter's covariance
-    (vio_graph/health.py, smoothed_vs_filtered). Nothing is changed; ``health.ok`` and the
-    warnings are left as the online monitor gave them."""
+    """Health figures from the whole run (no ground truth): the filter's own position
+    sigma, and each smoother's path tested against the filter's covariance
+    (vio_graph/health.py, smoothed_vs_filtered). No estimate is changed; a smoother whose
+    path and the filter's disagree beyond that covariance by a size that matters adds a
+    warning and clears ``health.ok`` (health.disagreement_warning)."""
     cov = np.asarray(lg.cov_position_m2, dtype=float)
     t_s = np.asarray(lg.t_s, dtype=float)
     if "filter" not in lg.camera_xz or len(cov) != len(t_s) or not len(t_s):
@@ -321,6 +322,10 @@ def _add_estimate_consistency(health: dict[str, Any], lg: FrameLog) -> None:
             health[f"{mode}_vs_filter"] = smoothed_vs_filtered(
                 t_s, lg.camera_xz["filter"], cov, lg.camera_xz[mode]
             )
+            warning = disagreement_warning(mode, health[f"{mode}_vs_filter"])
+            if warning is not None:
+                health.setdefault("warnings", []).append(warning)
+                health["ok"] = False
 
 
 def rerun_report(replay: Replay, gt) -> dict[str, Any]:

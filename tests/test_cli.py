@@ -150,6 +150,20 @@ def test_simulate_refuses_existing_out(tmp_path: Path, capsys, monkeypatch) -> N
     assert [p.name for p in out.iterdir()] == ["keep.txt"]
 
 
+def test_simulate_names_the_scenario_and_the_field_when_the_terrain_is_too_short(
+    tmp_path: Path, capsys, monkeypatch
+) -> None:
+    scenario = tmp_path / "long_level.yaml"
+    scenario.write_text("name: long_level\nduration_s: 20.0\nterrain: {kind: level}\n")
+    out = tmp_path / "rec"
+    code, _, err = _cli(
+        ["simulate", "--scenario", str(scenario), "--out", str(out)], capsys, monkeypatch
+    )
+    assert code == 1 and str(scenario) in err and "terrain too short" in err
+    assert "terrain.exit_length_m" in err and "m per extra second" in err
+    assert not out.exists()  # nothing half-written
+
+
 def test_run_refuses_nonempty_results(
     tiny_recording: Path, tmp_path: Path, capsys, monkeypatch
 ) -> None:

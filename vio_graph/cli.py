@@ -100,13 +100,19 @@ def simulate(
     """
     if out.exists() and not overwrite:  # before the (slow) simulator imports
         raise VioGraphError(f"{out}: already exists (use --overwrite to replace it)")
+    from vio_graph.errors import SimulationError
     from vio_graph.sim import load_scenario
     from vio_graph.sim import simulate as run_simulation
     from vio_graph.viz.progress import progress_bar
 
     config = load_scenario(scenario)
-    with progress_bar(total=None, desc=f"simulating {scenario} seed {seed}", unit="frame") as bar:
-        path = run_simulation(config, seed, out, progress=bar.update_to, overwrite=overwrite)
+    try:
+        with progress_bar(
+            total=None, desc=f"simulating {scenario} seed {seed}", unit="frame"
+        ) as bar:
+            path = run_simulation(config, seed, out, progress=bar.update_to, overwrite=overwrite)
+    except SimulationError as exc:  # the scenario asks for what the simulator cannot make
+        raise VioGraphError(f"{scenario}: {exc}") from exc
     typer.echo(f"wrote {path}")
 
 

@@ -383,8 +383,12 @@ def plan_strides(
         if t > duration_s + 0.5:
             break
     if not strides or (strides[-1].t_next_s < duration_s + 0.3 and not allow_short):
+        walked_s = strides[-1].t_next_s if strides else 0.0
         raise SimulationError(
-            f"terrain too short for a {duration_s:.1f} s trial: lengthen landing/exit_length_m"
+            f"terrain too short for a {duration_s:.1f} s trial: its walk ends at "
+            f"{walked_s:.1f} s; lengthen terrain.{_end_length_field(terrain.kind)} (about "
+            f"{_metres_per_second(gait):.1f} m per extra second at this gait) or shorten "
+            "duration_s"
         )
     # the final stride needs the next foothold for its swing
     return strides
@@ -403,6 +407,16 @@ def _landing_pitch(gait: GaitConfig, landing: str, kind: str) -> float:
 def _toe_off_pitch(gait: GaitConfig, kind: str) -> float:
     scale = {"level": 1.0, "obstacle": 1.0, "ascent": 0.56, "descent": 0.44}[kind]
     return np.radians(gait.toe_off_pitch_deg) * scale
+
+
+def _end_length_field(kind: str) -> str:
+    """The terrain field that lengthens the walk after the last feature."""
+    return "landing_length_m" if kind in ("stair_up", "stair_down") else "exit_length_m"
+
+
+def _metres_per_second(gait: GaitConfig) -> float:
+    """Level walking speed (m/s) of the gait: stride length over stride time."""
+    return gait.level_stride_length_m * gait.cadence_scale / gait.level_stride_time_s
 
 
 def _pitch_function(strides: list[Stride], next_toes: list, gait: GaitConfig) -> BPoly:
@@ -871,8 +885,9 @@ def simulate_gait(
         t_end = float(pauses.tau(np.array([duration_s + 0.25]))[0]) + 0.01
         if strides[-1].t_next_s < t_end + 0.05:
             raise SimulationError(
-                f"terrain too short for a {duration_s:.1f} s trial: lengthen "
-                "landing/exit_length_m or add steps / flights"
+                f"terrain too short for a {duration_s:.1f} s trial with these pauses: "
+                f"lengthen terrain.{_end_length_field(terrain.kind)}, add steps / flights "
+                "or shorten duration_s"
             )
     t = np.arange(0.0, t_end + 0.5 / DENSE_RATE_HZ, 1.0 / DENSE_RATE_HZ)
     pitch = base_pitch

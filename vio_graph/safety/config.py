@@ -70,6 +70,14 @@ class SafetyConfig(BaseModel):
         "clamped foot is reported in contact, and under a standing foot the map is capped "
         "to the sole, contact_map, so the map's own sigma does not enter)",
     )
+    stance_contact: bool = Field(
+        default=True,
+        description="a foot the estimator holds in stance (its stance anchor, the flag the "
+        "contact map also uses) is reported in contact: clearance 0 with at most the foot "
+        "outline's sigma foot_sigma_m, whatever gap the map leaves under it (a map a few mm "
+        "below the sole; the contact map only lowers bins); empty clearances stay empty; "
+        "off: the map's distance under a standing foot (before 2026-12-04)",
+    )
     contact_sigmas: float = Field(
         default=2.0,
         gt=0,

@@ -846,6 +846,8 @@ class SafetyMonitor:
         if cfg.non_penetration:  # the foot is never inside the terrain (the output only)
             contact = cfg.foot_sigma_m if cfg.non_penetration_sigma == "contact" else math.inf
             c_d, sig = non_penetrating(c_d, sig, contact)
+        if in_stance and cfg.stance_contact and math.isfinite(c_d):  # standing: in contact
+            c_d, sig = 0.0, min(sig, cfg.foot_sigma_m) if sig >= 0.0 else cfg.foot_sigma_m
         return SafetyEstimate(
             clearance_m=c_d,
             clearance_sigma_m=sig,

@@ -198,3 +198,30 @@ def test_score_splits_contact_frames_from_gaussian_ones() -> None:
     assert block["contact"]["within_2sigma"] == pytest.approx(0.6)
     assert block["not_contact"]["within_1sigma"] == pytest.approx(0.70)
     assert block["not_contact"]["within_2sigma"] == pytest.approx(0.95)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_the_contact_bound_is_for_a_sole_in_a_tread_not_a_foot_in_a_riser(compiled: bool) -> None:
+    """safety.non_penetration_sigma 'tread_contact' (default): a swinging foot estimated 2 cm
+    into the riser behind it (a horizontal way out: the pose's x error) keeps the truncated
+    Gaussian's sigma, while a foot 3 mm into the tread below it (a vertical way out) is a
+    contact with the foot outline's; 'contact' bounds both."""
+    P_now = np.diag([3.6e-5, 1e-5])
+    riser = ([0.48, 0.15], [0.73, 0.15])  # heel 2 cm inside the upper step's column
+    tread = ([0.60, 0.147], [0.85, 0.147])  # 3 mm below the lower tread
+    out = {}
+    for mode in ("contact", "tread_contact", "truncated"):
+        for name, (heel, toe) in (("riser", riser), ("tread", tread)):
+            cfg = SafetyConfig(non_penetration_sigma=mode, foot_sigma_m=0.001)
+            mon = SafetyMonitor(cfg, compiled=compiled)
+            _map_down(mon)
+            out[mode, name] = mon.update(1.0, [0.3, 0.8], P_now, heel, toe, False)
+    for name in ("riser", "tread"):
+        assert out["tread_contact", name].clearance_m == 0.0
+    q = out["truncated", "riser"].clearance_sigma_m
+    assert q > 0.0015  # ~0.3 of the raw sigma (4-8 mm), above the contact's 1 mm
+    assert out["tread_contact", "riser"].clearance_sigma_m == q
+    assert out["contact", "riser"].clearance_sigma_m == pytest.approx(0.001)
+    assert out["truncated", "tread"].clearance_sigma_m > 0.0015  # the bound acts here
+    assert out["tread_contact", "tread"].clearance_sigma_m == pytest.approx(0.001)
+    assert out["contact", "tread"].clearance_sigma_m == pytest.approx(0.001)

@@ -83,7 +83,9 @@ def test_monitor_reports_a_heel_inside_the_riser_as_contact(compiled: bool) -> N
     P_now = np.diag([3.6e-5, 1e-5])  # x sigma 6 mm since the keyframes
     out = {}
     for on, mode in ((False, "contact"), (True, "truncated"), (True, "contact")):
-        cfg = SafetyConfig(non_penetration=on, non_penetration_sigma=mode, foot_sigma_m=0.001)
+        cfg = SafetyConfig(
+            non_penetration=on, non_penetration_sigma=mode, foot_sigma_m=0.001, stance_contact=False
+        )  # (the foot stands: without stance_contact, to see the clamp alone)
         mon = SafetyMonitor(cfg, compiled=compiled)
         _map_down(mon)
         out[on, mode] = mon.update(1.0, [0.3, 0.8], P_now, [0.48, 0.15], [0.73, 0.15], True)
@@ -114,3 +116,112 @@ def test_contact_sigma_bounds_only_a_clamped_clearance() -> None:
     assert non_penetrating(-0.05, s, 0.001)[1] == pytest.approx(non_penetrating(-0.05, s)[1])
     assert non_penetrating(-0.05, s)[1] < 0.001  # 12.5 sigma in: q < the contact's
     assert non_penetrating(0.002, s, 0.001) == (0.002, s)  # not clamped: unchanged
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_standing_foot_over_a_map_below_its_sole_is_reported_in_contact(compiled: bool) -> None:
+    """The map reads the lower tread 4 mm below the truth (the sole stands at 0.154 m on a
+    tread mapped at 0.15 m): with the foot in stance the clearance is a contact, 0 with the
+    foot outline's sigma (safety.stance_contact); without it, the map's 4 mm gap with the
+    pose and map sigma. The same foot in swing is unchanged either way, and a standing foot
+    over unmapped terrain stays unknown."""
+    P_now = np.diag([3.6e-5, 1e-5])
+    heel, toe = [0.70, 0.154], [0.95, 0.154]
+    out = {}
+    for on in (False, True):
+        for stance in (False, True):
+            mon = SafetyMonitor(SafetyConfig(stance_contact=on), compiled=compiled)
+            _map_down(mon)
+            out[on, stance] = mon.update(1.0, [0.5, 0.8], P_now, heel, toe, stance)
+    gap = out[False, True]
+    assert gap.clearance_m == pytest.approx(0.004, abs=1e-3)
+    assert gap.clearance_sigma_m > 0.002  # the relative pose (3.2 mm in z) and the map
+    now = out[True, True]
+    assert now.clearance_m == 0.0
+    assert now.clearance_sigma_m == pytest.approx(0.001)  # foot_sigma_m, a contact's
+    np.testing.assert_array_equal(now.toe_line_xz_m, gap.toe_line_xz_m)
+    assert now.predicted_min_clearance_m == gap.predicted_min_clearance_m
+    for on in (False, True):  # swing: the map's distance as it was
+        assert out[on, False].clearance_m == gap.clearance_m
+        assert out[on, False].clearance_sigma_m == gap.clearance_sigma_m
+    # standing where nothing was mapped: no clearance, in contact or not
+    mon = SafetyMonitor(SafetyConfig(stance_contact=True), compiled=compiled)
+    _map_down(mon)
+    far = mon.update(1.0, [3.5, 0.8], P_now, [3.2, 0.15], [3.45, 0.15], True)
+    assert math.isnan(far.clearance_m)
+
+
+def test_score_splits_contact_frames_from_gaussian_ones() -> None:
+    """metrics.json ``clearance.filter``: the shares within 1 / 2 sigma over all frames and
+    split into the frames reported in contact (clearance exactly 0, the sigma a contact's
+    bound) and the others (Gaussian estimates): counted by hand."""
+    from vio_graph.evaluation.safety import score_mode
+    from vio_graph.safety.online import SafetyEstimate
+
+    nan = float("nan")
+    # 100 Gaussian frames (sigma 4 mm; |error| 0.5 / 1.5 / 2.5 sigma on 70 / 25 / 5 frames)
+    # and 50 contact frames (sigma 1 mm; the truth 0.5 mm inside on 30, 2.5 mm on 20)
+    z = np.r_[np.full(70, 0.5), np.full(25, 1.5), np.full(5, 2.5)]
+    true = np.r_[np.full(100, 0.05), np.full(30, -0.0005), np.full(20, -0.0025)]
+    est = np.r_[0.05 + z * 0.004 * np.where(np.arange(100) % 2, 1, -1), np.zeros(50)]
+    sig = np.r_[np.full(100, 0.004), np.full(50, 0.001)]
+    rest = dict.fromkeys(
+        ("nosing_clearance_m", "nosing_sigma_m", "predicted_min_clearance_m", "edge_distance_m")
+        + ("predicted_min_nosing_clearance_m", "edge_distance_sigma_m", "mean_rise_m"),
+        nan,
+    )
+    rest |= {"mean_tread_m": nan, "steps_seen": 0, "near_trip_warning": False, "landing": False}
+    ests = [
+        SafetyEstimate(
+            clearance_m=c,
+            clearance_sigma_m=s,
+            toe_line_xz_m=np.zeros((2, 2)),
+            placement=np.full(4, nan),
+            **rest,
+        )
+        for c, s in zip(est, sig, strict=True)
+    ]
+    n = len(ests)
+    truth = {
+        "clearance_m": true,
+        "nosing_clearance_m": np.full(n, nan),
+        "placement": np.full((n, 4), nan),
+        "t_dense_s": np.arange(n) * 0.03,
+        "near_trip": np.zeros(n, bool),
+        "nosing_dense_m": np.full(n, nan),
+    }
+    block, _ = score_mode(ests, truth, np.arange(n) * 0.03, True)
+    assert block["within_1sigma"] == pytest.approx((70 + 30) / 150)
+    assert block["within_2sigma"] == pytest.approx((95 + 30) / 150)
+    assert block["contact"]["share"] == pytest.approx(50 / 150)
+    assert block["contact"]["within_1sigma"] == pytest.approx(0.6)
+    assert block["contact"]["within_2sigma"] == pytest.approx(0.6)
+    assert block["not_contact"]["within_1sigma"] == pytest.approx(0.70)
+    assert block["not_contact"]["within_2sigma"] == pytest.approx(0.95)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_the_contact_bound_is_for_a_sole_in_a_tread_not_a_foot_in_a_riser(compiled: bool) -> None:
+    """safety.non_penetration_sigma 'tread_contact' (default): a swinging foot estimated 2 cm
+    into the riser behind it (a horizontal way out: the pose's x error) keeps the truncated
+    Gaussian's sigma, while a foot 3 mm into the tread below it (a vertical way out) is a
+    contact with the foot outline's; 'contact' bounds both."""
+    P_now = np.diag([3.6e-5, 1e-5])
+    riser = ([0.48, 0.15], [0.73, 0.15])  # heel 2 cm inside the upper step's column
+    tread = ([0.60, 0.147], [0.85, 0.147])  # 3 mm below the lower tread
+    out = {}
+    for mode in ("contact", "tread_contact", "truncated"):
+        for name, (heel, toe) in (("riser", riser), ("tread", tread)):
+            cfg = SafetyConfig(non_penetration_sigma=mode, foot_sigma_m=0.001)
+            mon = SafetyMonitor(cfg, compiled=compiled)
+            _map_down(mon)
+            out[mode, name] = mon.update(1.0, [0.3, 0.8], P_now, heel, toe, False)
+    for name in ("riser", "tread"):
+        assert out["tread_contact", name].clearance_m == 0.0
+    q = out["truncated", "riser"].clearance_sigma_m
+    assert q > 0.0015  # ~0.3 of the raw sigma (4-8 mm), above the contact's 1 mm
+    assert out["tread_contact", "riser"].clearance_sigma_m == q
+    assert out["contact", "riser"].clearance_sigma_m == pytest.approx(0.001)
+    assert out["truncated", "tread"].clearance_sigma_m > 0.0015  # the bound acts here
+    assert out["tread_contact", "tread"].clearance_sigma_m == pytest.approx(0.001)
+    assert out["contact", "tread"].clearance_sigma_m == pytest.approx(0.001)

@@ -8,6 +8,11 @@ The true clearance and placement per frame come from the ground-truth heel and t
 - ``error_mm``: estimated minus true clearance (median and p95 of |error|, mm), over frames
   where both exist;
 - ``within_1sigma`` / ``within_2sigma``: share of those frames with |error| <= 1 / 2 sigma;
+  the same split by what the estimate is: ``contact`` (``share`` of the frames reported in
+  contact, clearance exactly 0: a clamped or standing foot, whose sigma is the contact's
+  bound and whose error is the true foot's distance to the terrain, e.g. a simulated sole
+  sunk 0-3 mm into the profile) and ``not_contact`` (the Gaussian estimates), each with
+  ``within_1sigma`` / ``within_2sigma``;
 - ``pose_consistency_scale`` / ``map_consistency_scale``: median, max and last value over
   the frames of the factors the keyframes' heights put on the sigma's pose and map terms
   (vio_graph/safety/consistency.py; a pose scale above 1: the filter's covariance
@@ -226,6 +231,13 @@ def score_mode(
         z = np.abs(err[ok]) / sig[ok]
         block["within_1sigma"] = float(np.mean(z <= 1)) if z.size else float("nan")
         block["within_2sigma"] = float(np.mean(z <= 2)) if z.size else float("nan")
+        contact = c[ok] == 0.0  # reported in contact (the clamp or a standing foot)
+        block["contact"] = {"share": float(np.mean(contact)) if z.size else float("nan")}
+        for key, m in (("contact", contact), ("not_contact", ~contact)):
+            for k in (1, 2):
+                block.setdefault(key, {})[f"within_{k}sigma"] = (
+                    float(np.mean(z[m] <= k)) if m.any() else float("nan")
+                )
         for term in ("pose", "map"):
             sc = col(f"{term}_consistency_scale")
             sc = sc[np.isfinite(sc)]

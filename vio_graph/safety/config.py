@@ -63,12 +63,24 @@ class SafetyConfig(BaseModel):
         "False: the signed distance "
         "as computed (before 2026-12-03, eighth session)",
     )
-    non_penetration_sigma: Literal["truncated", "contact"] = Field(
-        default="contact",
+    non_penetration_sigma: Literal["truncated", "contact", "tread_contact"] = Field(
+        default="tread_contact",
         description="the sigma of a clearance non_penetration clamps to 0: 'truncated', the "
         "truncated Gaussian's alone; 'contact', at most the foot outline's foot_sigma_m (a "
         "clamped foot is reported in contact, and under a standing foot the map is capped "
-        "to the sole, contact_map, so the map's own sigma does not enter)",
+        "to the sole, contact_map, so the map's own sigma does not enter); 'tread_contact', "
+        "that bound only when the way out of the terrain is vertical (the sole inside a "
+        "tread); a foot inside a riser's face (the foot-to-terrain line more horizontal "
+        "than vertical: the pose's x error, no sole rests there) keeps the truncated "
+        "Gaussian's ('contact' before 2026-12-04)",
+    )
+    stance_contact: bool = Field(
+        default=True,
+        description="a foot the estimator holds in stance (its stance anchor, the flag the "
+        "contact map also uses) is reported in contact: clearance 0 with at most the foot "
+        "outline's sigma foot_sigma_m, whatever gap the map leaves under it (a map a few mm "
+        "below the sole; the contact map only lowers bins); empty clearances stay empty; "
+        "off: the map's distance under a standing foot (before 2026-12-04)",
     )
     contact_sigmas: float = Field(
         default=2.0,

@@ -844,8 +844,15 @@ class SafetyMonitor:
             margin = cfg.contact_sigmas * math.hypot(cfg.foot_sigma_m, cfg.map_sigma_m)
             self.map.add_contact(heel, toe, margin, cfg.edge_min_rise_m)
         if cfg.non_penetration:  # the foot is never inside the terrain (the output only)
-            contact = cfg.foot_sigma_m if cfg.non_penetration_sigma == "contact" else math.inf
+            mode = cfg.non_penetration_sigma
+            # a contact is the sole on a tread (a vertical way out); inside a riser's face
+            # (a horizontal one) the foot is placed by the pose's x error: no contact's bound
+            tread = not abs(fx - qx) > abs(fz - qz)
+            bound = mode == "contact" or (mode == "tread_contact" and tread)
+            contact = cfg.foot_sigma_m if bound else math.inf
             c_d, sig = non_penetrating(c_d, sig, contact)
+        if in_stance and cfg.stance_contact and math.isfinite(c_d):  # standing: in contact
+            c_d, sig = 0.0, min(sig, cfg.foot_sigma_m) if sig >= 0.0 else cfg.foot_sigma_m
         return SafetyEstimate(
             clearance_m=c_d,
             clearance_sigma_m=sig,

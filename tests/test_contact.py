@@ -99,3 +99,28 @@ def test_contact_proposes_stance_and_vision_still_decides(
     m2 = run_recording(stuck, tmp_path / "rs", cfg, progress=False, visualize=False).metrics
     assert m2["health"]["stance"]["vision_refused"] > 10
     assert m2["ate_cm"]["filter"]["toe"]["x"] < 2.0 * max(m["ate_cm"]["filter"]["toe"]["x"], 1.0)
+
+
+def test_confirm_role_needs_the_quiet_ankle_as_well(short_upstair: Path, tmp_path: Path) -> None:
+    """``filter.stance_contact: confirm``: a stuck load cell (always loaded) proposes nothing
+    the acceleration detector does not, so the stance candidates are exactly those of the
+    same recording without a contact channel; with ``propose`` it proposes every frame."""
+    rec = Recording.open(short_upstair)
+    t = rec.imu.timestamp_s
+    stuck = with_contact(short_upstair, tmp_path / "stuck", np.full(t.size, 700.0), t)
+    base = PipelineConfig()
+    output = base.output.model_copy(update={"rerun": False, "plots": False})
+
+    def candidates(path: Path, role: str, out: str) -> int:
+        cfg = base.model_copy(
+            update={
+                "output": output,
+                "filter": base.filter.model_copy(update={"stance_contact": role}),
+            }
+        )
+        m = run_recording(path, tmp_path / out, cfg, progress=False, visualize=False).metrics
+        return m["health"]["stance"]["candidate_frames"]
+
+    without = candidates(short_upstair, "confirm", "none")
+    assert 0 < candidates(stuck, "confirm", "confirm") == without
+    assert candidates(stuck, "propose", "propose") > without

@@ -1711,9 +1711,12 @@ class OnlineEstimator:
         lever, dlever = self._stance_lever(R_world_imu)
         agrees = self._stance_test.test(t, lever, result.displacement)
         foot_still = self._foot_test.test(self._foot_pitch_rad(R_world_imu))
-        candidate = (
-            self._stance.quiet() if self._last_contact is None else self._last_contact.loaded
-        )
+        if self._last_contact is None:
+            candidate = self._stance.quiet()
+        elif fc.stance_contact == "confirm":
+            candidate = self._last_contact.loaded and self._stance.quiet()
+        else:
+            candidate = self._last_contact.loaded
         if candidate and fc.stance_speed_threshold_mps is not None:
             rate = self._pitch_rate_radps(R_world_imu)
             _, v_cam = self._position_at(t)

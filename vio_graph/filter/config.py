@@ -705,6 +705,16 @@ class FilterConfig(BaseModel):
             "kinematics: ankle - camera = R_shank (ankle_in_shank - camera_in_shank)"
         ),
     )
+    stance_contact: Literal["propose", "confirm"] = Field(
+        default="propose",
+        description="role of a foot-contact channel (contact.csv) in proposing a stance. "
+        "propose: a loaded foot is a stance candidate (vision and the foot's rotation then "
+        "test it). confirm: a candidate needs both the loaded foot and the quiet ankle of "
+        "the acceleration detector: a load cell or switch says the foot carries weight, "
+        "which it also does while it rolls over the heel after contact and over the toe "
+        "before toe-off, when the ankle moves; the acceleration says the ankle is still, and "
+        "the contact rules out a slow swing that looks quiet",
+    )
     stance_accel_threshold_mps2: float = Field(
         default=2.0,
         gt=0,

@@ -42,10 +42,16 @@ def test_gap_terrain_floors_and_risers_of_bridged_strips() -> None:
 STEP = [(-1.0, 0.0), (0.5, 0.0), (0.5, 0.15), (0.78, 0.15), (0.78, 0.30), (2.0, 0.30)]
 
 
-def _monitor(check: bool) -> SafetyMonitor:
+def _monitor(check: bool, stance_contact: bool = False) -> SafetyMonitor:
     """A monitor whose map saw STEP except the last 10 cm of the floor before the riser
-    (the strip the nosing above hides), from three keyframes."""
-    mon = SafetyMonitor(SafetyConfig(bin_m=0.005, min_keyframes=2, gap_floor_check=check))
+    (the strip the nosing above hides), from three keyframes. ``stance_contact`` off by
+    default here: the tests look at what the map says under a foot, not at the report of
+    a standing foot as a contact."""
+    mon = SafetyMonitor(
+        SafetyConfig(
+            bin_m=0.005, min_keyframes=2, gap_floor_check=check, stance_contact=stance_contact
+        )
+    )
     prof = HeightProfile.from_polyline(STEP)
     xs = np.linspace(-0.2, 1.6, 400)
     xs = xs[(xs < 0.40) | (xs >= 0.5)]
@@ -68,6 +74,10 @@ def test_foot_standing_on_the_hidden_strip(check: bool) -> None:
         assert s.clearance_m == pytest.approx(0.0, abs=0.002)
     else:
         assert s.clearance_m == pytest.approx(0.0155, abs=0.002)
+    # reported as a contact (the default), the standing foot is 0 with the outline's sigma
+    mon = _monitor(check, stance_contact=True)
+    s = mon.update(1.0, [0.0, 0.5], np.eye(2) * 1e-6, [0.25, 0.05], [0.47, 0.0], True)
+    assert s.clearance_m == 0.0 and s.clearance_sigma_m <= SafetyConfig().foot_sigma_m
 
 
 def test_foot_swinging_towards_a_hidden_riser_is_not_known() -> None:

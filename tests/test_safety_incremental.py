@@ -280,6 +280,48 @@ def test_compiled_clearance_near_the_foot_equals_every_column() -> None:
         )
 
 
+def _binned(prof: HeightProfile, rng: np.random.Generator) -> HeightProfile:
+    """``prof`` as a height map holds it: 5 mm bins, each with the height under its middle
+    plus noise, some bins missing (gaps of one to a few bins)."""
+    lo = np.arange(np.floor(prof.x_lo_m[0] / 0.005), np.ceil(prof.x_hi_m[-1] / 0.005)) * 0.005
+    k = np.clip(np.searchsorted(prof.x_hi_m, lo + 0.0025), 0, len(prof) - 1)
+    z = prof.z_m[k] + rng.normal(0.0, rng.choice([0.0, 0.001, 0.004]), lo.shape)
+    keep = rng.random(lo.shape) > rng.choice([0.0, 0.05, 0.3])
+    return HeightProfile(lo[keep], lo[keep] + 0.005, z[keep], np.zeros(int(keep.sum())))
+
+
+def test_compiled_foot_clearance_near_the_foot_equals_every_column() -> None:
+    """The compiled clearance of one pose skipping the columns and the hypots that cannot
+    give the minimum (``_foot_clearance_near``, the per-frame kernel's) returns what the
+    loop over every candidate returns (``_foot_clearance``), bit for bit: distance, closest
+    points and column, on random stairs as the map bins them (noise, missing bins), the
+    foot above, on and inside the terrain, far off, and with NaN inputs."""
+    K = _compiled()
+    rng = np.random.default_rng(11)
+    found = {"inside": 0, "negative": 0, "far": 0}
+    for n in range(3000):
+        prof, heel, toe, _, _ = _random_case(rng)
+        if n % 2:
+            prof = _binned(prof, rng)
+        if n % 9 == 0:
+            heel, toe = heel + [0.0, 0.3], toe + [0.0, 0.3]
+            found["far"] += 1
+        if n % 13 == 0:
+            toe = heel + [rng.uniform(-1e-13, 1e-13), rng.uniform(-0.01, 0.01)]  # upright
+        z = prof.z_m.copy()
+        if n % 97 == 0 and len(z):
+            z[int(rng.integers(len(z)))] = np.nan
+        args = (*heel, *toe, prof.x_lo_m, prof.x_hi_m, z)
+        ref = K._foot_clearance(*args)
+        np.testing.assert_array_equal(K._foot_clearance_near(*args), ref, err_msg=f"case {n}")
+        found["negative"] += bool(ref[0] < 0)
+        found["inside"] += any(
+            np.any((p[0] >= prof.x_lo_m) & (p[0] <= prof.x_hi_m) & (p[1] < prof.z_m))
+            for p in (heel, toe)
+        )
+    assert found["negative"] > found["inside"] > 100 and found["far"] > 300
+
+
 @pytest.mark.parametrize("motion_model", ["swing_template", "constant_velocity"])
 def test_fused_compiled_steps_equal_the_per_operation_kernels(
     sample_frames, motion_model: str

@@ -195,6 +195,115 @@ def _clearance_many(a, b, lo, hi, z, sole):  # pragma: no cover - compiled
 NEAR_MARGIN_M = 1e-9
 
 
+#: the squared-distance test before a hypot: a candidate whose squared distance exceeds the
+#: best distance squared by this relative margin is farther than it (the rounding of the
+#: squares and of hypot is ~1e-16 relative), so its hypot is not computed
+SQUARED_MARGIN = 1e-9
+#: below this best distance (m) the squared test is not used (its square could underflow)
+SQUARED_MIN_M = 1e-100
+
+
+@numba.njit(cache=True)
+def _farther(dx, dz, best):  # pragma: no cover - compiled
+    """Whether ``hypot(dx, dz)`` is certainly above ``best`` (from the squares, no hypot):
+    False when in doubt (``best`` tiny, infinite or not positive, NaN)."""
+    if not best > SQUARED_MIN_M:
+        return best <= 0.0 and dx == dx and dz == dz  # a distance is never below 0
+    return dx * dx + dz * dz > best * best * (1.0 + SQUARED_MARGIN)
+
+
+@numba.njit(cache=True)
+def _foot_clearance_near(ax, az, bx, bz, lo, hi, z):  # pragma: no cover - compiled
+    """:func:`_foot_clearance` with the same result, bit for bit, without the hypot of the
+    candidates that cannot be the minimum: a column whose lower bound (its x gap to the
+    foot's span, or the foot's lowest point above its top) exceeds the best so far by more
+    than ``NEAR_MARGIN_M`` is skipped, and a candidate's hypot is taken only when its
+    squared distance does not already exceed the best (:func:`_farther`). The candidates
+    are visited in the reference's order (heel, toe, left corners, right corners; the first
+    minimum wins), and a candidate skipped is above a value already found, so it could not
+    have been that first minimum. When the heel or the toe lies inside a column (the way-out
+    search), or an input is not finite, the reference runs instead."""
+    B = z.shape[0]
+    finite = math.isfinite(ax + az + bx + bz)
+    for i in range(B):
+        if not finite:
+            break
+        finite = math.isfinite(lo[i] + hi[i] + z[i])
+        if (ax >= lo[i] and ax <= hi[i] and az < z[i]) or (
+            bx >= lo[i] and bx <= hi[i] and bz < z[i]
+        ):
+            finite = False  # (a point inside a column: the reference's way-out search)
+    if not finite:
+        return _foot_clearance(ax, az, bx, bz, lo, hi, z)
+    x0, x1 = min(ax, bx), max(ax, bx)
+    zmin = min(az, bz)
+    # an upper bound on the minimum: the heel and the toe against the column nearest each
+    bound = np.inf
+    for px, pz in ((ax, az), (bx, bz)):
+        k0, k1 = 0, B
+        while k0 < k1:
+            m = (k0 + k1) // 2
+            if hi[m] < px:
+                k0 = m + 1
+            else:
+                k1 = m
+        for i in (k0 - 1, k0):
+            if 0 <= i < B:
+                v = math.hypot(px - min(max(px, lo[i]), hi[i]), pz - min(pz, z[i]))
+                if v < bound:
+                    bound = v
+    lb = np.empty(B)  # per column: a lower bound of its candidates
+    for i in range(B):
+        gap = max(lo[i] - x1, x0 - hi[i])
+        up = zmin - z[i]
+        lb[i] = up if gap <= 0.0 else max(gap, up)
+    best = np.inf
+    out = (np.nan, np.nan, np.nan, np.nan, np.nan, -1)
+    for side in range(2):  # heel, then toe, against the columns
+        px, pz = (ax, az) if side == 0 else (bx, bz)
+        for i in range(B):
+            lim = min(best, bound)
+            if lb[i] - NEAR_MARGIN_M > lim:
+                continue
+            cx = min(max(px, lo[i]), hi[i])
+            cz = min(pz, z[i])
+            dx, dz = px - cx, pz - cz
+            if _farther(dx, dz, lim):
+                continue
+            v = math.hypot(dx, dz)
+            if v < best:
+                best = v
+                out = (best, px, pz, cx, cz, i)
+    dx, dz = bx - ax, bz - az
+    L2 = dx * dx + dz * dz
+    wide = x1 - x0 > 1e-12
+    for c in range(2 * B):  # column top corners: the left ones, then the right ones
+        i = c % B
+        lim = min(best, bound)
+        if lb[i] - NEAR_MARGIN_M > lim:
+            continue
+        ex, ez = (lo[i] if c < B else hi[i]), z[i]
+        # _corner_distance, its hypot only when needed
+        s = 0.0
+        if L2 != 0:
+            s = min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
+        qx, qz = ax + s * dx, az + s * dz
+        above = False
+        if wide:
+            z_line = az + (ex - ax) * dz / dx
+            if ex > x0 and ex < x1 and ez > z_line:
+                above = True
+                d = -min(ez - z_line, min(ex - x0, x1 - ex))
+        if not above:
+            if _farther(ex - qx, ez - qz, lim):
+                continue
+            d = math.hypot(ex - qx, ez - qz)
+        if d < best:
+            best = d
+            out = (best, qx, qz, ex, ez, i)
+    return out
+
+
 @numba.njit(cache=True)
 def _pose_clearance(ax, az, bx, bz, lo, hi, z, k0, best):  # pragma: no cover - compiled
     """The minimum of :func:`_clearance_many`'s candidates for one pose over the columns from
@@ -203,33 +312,49 @@ def _pose_clearance(ax, az, bx, bz, lo, hi, z, k0, best):  # pragma: no cover - 
     every candidate of such a column is at least that gap (heel, toe and the segment's
     closest points lie in the span; the inside and above cases need an overlap), and the
     gaps only grow outwards, so the columns left out cannot lower it. ``NEAR_MARGIN_M``
-    covers the rounding of the gap and of the closest points. The same minimum as visiting
-    every column (a minimum does not depend on the order; no candidate is -0.0)."""
+    covers the rounding of the gap and of the closest points. Within the search, a column
+    whose top is below the foot's lowest point by more than the minimum is skipped (each of
+    its candidates is at least that drop), and a candidate's hypot is taken only when its
+    squared distance does not already exceed the minimum (:func:`_farther`). The same
+    minimum as visiting every column (a minimum does not depend on the order; no candidate
+    is -0.0; every input finite)."""
     B = z.shape[0]
     abx, abz = bx - ax, bz - az
     L2 = max(abx * abx + abz * abz, 1e-18)
     x0, x1 = min(ax, bx), max(ax, bx)
+    zmin = min(az, bz)
     slope = abz / abx if abs(abx) > 1e-12 else 0.0
+    wide = x1 - x0 > 1e-12
     for side in range(2):
         i = k0 if side == 0 else k0 - 1
         while 0 <= i < B:
             gap = lo[i] - x1 if side == 0 else x0 - hi[i]
             if gap > NEAR_MARGIN_M and gap - NEAR_MARGIN_M > best:
                 break
+            zi = z[i]
+            if zmin - zi - NEAR_MARGIN_M > best:  # every candidate is at least the drop
+                i += 1 if side == 0 else -1
+                continue
             for px, pz in ((ax, az), (bx, bz)):  # heel and toe against the column
-                if px >= lo[i] and px <= hi[i] and pz < z[i]:
-                    v = pz - z[i]
+                if px >= lo[i] and px <= hi[i] and pz < zi:
+                    v = pz - zi
                 else:
-                    v = math.hypot(px - min(max(px, lo[i]), hi[i]), pz - min(pz, z[i]))
+                    dx, dz = px - min(max(px, lo[i]), hi[i]), pz - min(pz, zi)
+                    if _farther(dx, dz, best):
+                        continue
+                    v = math.hypot(dx, dz)
                 if v < best or v != v:
                     best = v
             for cx in (lo[i], hi[i]):  # the column top's corners against the segment
-                cz = z[i]
-                s = min(max(((cx - ax) * abx + (cz - az) * abz) / L2, 0.0), 1.0)
-                v = math.hypot(cx - (ax + s * abx), cz - (az + s * abz))
                 z_line = az + (cx - ax) * slope
-                if cx > x0 and cx < x1 and cz > z_line and x1 - x0 > 1e-12:
-                    v = z_line - cz
+                if cx > x0 and cx < x1 and zi > z_line and wide:
+                    v = z_line - zi
+                else:
+                    s = min(max(((cx - ax) * abx + (zi - az) * abz) / L2, 0.0), 1.0)
+                    dx, dz = cx - (ax + s * abx), zi - (az + s * abz)
+                    if _farther(dx, dz, best):
+                        continue
+                    v = math.hypot(dx, dz)
                 if v < best or v != v:
                     best = v
             i += 1 if side == 0 else -1
@@ -1616,7 +1741,7 @@ def frame_terrain(
     if B > 0:
         cover = 1.0 if xb <= xa else _coverage(xa, xb, lo, hi)
     if not cover < min_coverage:
-        d, fx, fz, qx, qz, col = _foot_clearance(hx, hz, tx, tz, lo, hi, z)
+        d, fx, fz, qx, qz, col = _foot_clearance_near(hx, hz, tx, tz, lo, hi, z)
         if unseen_check and d > _unseen_distance(xa, xb, lo, hi, x0, x1, max_gap):
             col = -1  # unseen terrain could be closer than the mapped (clearance.py)
             d = fx = fz = qx = qz = nan

@@ -1729,10 +1729,17 @@ def frame_terrain(
     at element 0) and edges (E, 2); ``pose_w``, ``map_w``: the sigma's pose and map weights
     (config times consistency scales), ``pose_xf`` the factor on the pose term's x row and
     column. Returns (clearance, foot x, z, terrain x, z, sigma,
-    next edge index or -1, edge clearance, its sigma, edge x distance, its sigma)."""
+    next edge index or -1, edge clearance, its sigma, edge x distance, its sigma, whether
+    the window holds a strip the gap-floor check fills (:func:`window_bridged_gap` over the
+    same bins, ``max_gap``; False: online.SafetyMonitor._checked_clearance would return the
+    clearance unchanged))."""
     nan = np.nan
     x0, x1 = min(hx, tx) - window_m, max(hx, tx) + window_m
     lo, hi, z, _, bins = _window_any(used, mid, se2, i0, bin_m, x0, x1, map_sigma)
+    nb = used.shape[0]  # (the elements _window_any and height_map._elements search)
+    a0 = min(max(np.int64(math.floor(x0 / bin_m)) - 2 - i0, 0), nb)
+    a1 = min(max(np.int64(math.floor(x1 / bin_m)) + 3 - i0, a0), nb)
+    gapped = window_bridged_gap(used, i0, bin_m, a0, a1, x0, x1, max_gap)
     B = z.shape[0]
     c_d = fx = fz = qx = qz = sig = nan
     # coverage of the foot's x span (clearance.coverage)
@@ -1797,7 +1804,7 @@ def frame_terrain(
         nsig = _sigma(nx, nz, rxx, rxz, rzz, map_w * bs, foot_sigma, half)
         ed = ex - tx
         edsig = (rxx + foot_sigma**2 + (bin_m / 2) ** 2) ** half
-    return c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig
+    return c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig, gapped
 
 
 @numba.njit(cache=True)

@@ -704,9 +704,10 @@ class SafetyMonitor:
         # growth unless configured otherwise (sp >= the clip's lower end > 0)
         pose_xf = 1.0 if cfg.pose_scale_on_x else 1.0 / sp
         # clearance to the terrain and its sigma; the next edge ahead, the clearance to it
+        gapped = True  # whether the window may hold a strip the gap-floor check fills
         if fused and math.isfinite(hx + hz + tx + tz):  # (one kernel call)
             m = self.map
-            c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = g.frame_terrain(
+            c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig, gapped = g.frame_terrain(
                 m._used, m._mid, m._se2, m._cov, m._n, m._i0, cfg.bin_m, edges.xz_m,
                 hx, hz, tx, tz, *P.ravel().tolist(), cfg.window_m, cfg.min_coverage,
                 cfg.unseen_terrain_check, cfg.edge_max_gap_m, cfg.sole_thickness_m,
@@ -716,7 +717,7 @@ class SafetyMonitor:
             c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = self._terrain_now(
                 heel, toe, P.tolist(), edges, pose_w, sm, pose_xf
             )
-        if math.isfinite(c_d) and cfg.gap_floor_check:
+        if math.isfinite(c_d) and cfg.gap_floor_check and gapped:  # (else: unchanged)
             c_d, fx, fz, qx, qz, sig = self._checked_clearance(
                 heel, toe, P.tolist(), (c_d, fx, fz, qx, qz, sig), pose_w, sm, pose_xf
             )

@@ -280,6 +280,25 @@ def test_compiled_clearance_near_the_foot_equals_every_column() -> None:
         )
 
 
+def test_compiled_edge_summary_equals_the_numpy_summary() -> None:
+    """The edge count, mean |rise| and mean spacing the compiled map reports
+    (``edge_summary``: numpy's pairwise summation, in a kernel) are ``Edges.summary``'s,
+    bit for bit, for 0 to 300 edges (every branch of the summation: in order below 8,
+    eight running sums to 128, halves beyond) of values over ten orders of magnitude."""
+    K = _compiled()
+    rng = np.random.default_rng(8)
+    for n in [*range(0, 300), *rng.integers(0, 2000, 40).tolist()]:
+        x = np.cumsum(rng.uniform(0.0, 0.4, n) * 10 ** rng.uniform(-5, 5, n))
+        edges = clearance.Edges(
+            np.stack([x - 1.0, rng.normal(0.0, 1.0, n)], 1),
+            rng.normal(0.0, 0.2, n) * 10 ** rng.uniform(-5, 5, n),
+        )
+        want = edges.summary()
+        got = K.edge_summary(edges.xz_m, edges.rise_m)
+        assert isinstance(got[0], int) and got[0] == want[0], n
+        np.testing.assert_array_equal(np.array(got[1:]), np.array(want[1:]), err_msg=f"{n}")
+
+
 def _binned(prof: HeightProfile, rng: np.random.Generator) -> HeightProfile:
     """``prof`` as a height map holds it: 5 mm bins, each with the height under its middle
     plus noise, some bins missing (gaps of one to a few bins)."""
@@ -400,7 +419,7 @@ def test_fused_warm_up_loads_the_kernels_a_fused_monitor_calls() -> None:
     for name in (
         "keyframe_step", "frame_terrain", "swing_prediction", "cv_prediction",
         "swing_edge_risk", "_foot_clearance", "window_bins", "window_bridged_gap",
-        "observe_errors", "template_motion", "contact_caps",
+        "observe_errors", "template_motion", "contact_caps", "edge_summary",
         "rescan_edges",  # (a standing foot's contact lowering map bins)
     ):  # fmt: skip
         assert loaded[name], name

@@ -1124,6 +1124,93 @@ def _pair_changes(used_mid, p, q, i0, bin_m, max_gap, slope_step):  # pragma: no
     return gap <= max_gap and abs(used_mid[q] - used_mid[p]) > slope_step
 
 
+#: :func:`_pairwise_sum` follows numpy's summation of one contiguous block; longer arrays
+#: (never edges: 8192 of them are 1.6 km of stairs) are summed by numpy
+PAIRWISE_MAX_N = 8192
+
+
+@numba.njit(cache=True)
+def _block_sum(a, lo, n):  # pragma: no cover - compiled
+    """numpy's pairwise summation of ``a[lo:lo + n]`` for n <= 128 (one block): in order
+    below 8 values, else eight running sums combined pairwise and the rest in order."""
+    if n < 8:
+        res = -0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r = np.empty(8)
+    for j in range(8):
+        r[j] = a[lo + j]
+    i = 8
+    while i < n - (n % 8):
+        for j in range(8):
+            r[j] += a[lo + i + j]
+        i += 8
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@numba.njit(cache=True)
+def _pairwise_sum(a, lo, n):  # pragma: no cover - compiled
+    """The sum of ``a[lo:lo + n]`` as numpy's ``np.add.reduce`` of a contiguous float64
+    array adds it (its pairwise summation: blocks of at most 128 values, :func:`_block_sum`,
+    and above that the two halves summed separately and added, the first half a multiple
+    of 8 long), the same float. The halving as a loop over an explicit stack."""
+    lo_s = np.empty(64, np.int64)
+    n_s = np.empty(64, np.int64)
+    state = np.empty(64, np.int64)
+    left = np.empty(64)
+    lo_s[0], n_s[0], state[0] = lo, n, 0
+    sp = 1
+    ret = 0.0
+    while sp > 0:
+        t = sp - 1
+        m = n_s[t]
+        if m <= 128:
+            ret = _block_sum(a, lo_s[t], m)
+            sp -= 1
+            continue
+        n2 = m // 2
+        n2 -= n2 % 8
+        if state[t] == 0:  # the first half
+            state[t] = 1
+            lo_s[sp], n_s[sp], state[sp] = lo_s[t], n2, 0
+            sp += 1
+        elif state[t] == 1:  # the second half
+            left[t] = ret
+            state[t] = 2
+            lo_s[sp], n_s[sp], state[sp] = lo_s[t] + n2, m - n2, 0
+            sp += 1
+        else:
+            ret = left[t] + ret
+            sp -= 1
+    return ret
+
+
+@numba.njit(cache=True)
+def edge_summary(xz, rise):  # pragma: no cover - compiled
+    """clearance.Edges.summary of edges ``xz`` (E, 2), ``rise`` (E,) with E at most
+    ``PAIRWISE_MAX_N``: (number, mean |rise|, mean spacing), NaN where undefined; the same
+    floats (the absolute rises and the consecutive differences summed as numpy does)."""
+    n = rise.shape[0]
+    mean_rise = np.nan
+    tread = np.nan
+    if n:
+        a = np.empty(n)
+        for i in range(n):
+            a[i] = abs(rise[i])
+        mean_rise = (0.0 + _pairwise_sum(a, 0, n)) / n
+    if n >= 2:
+        d = np.empty(n - 1)
+        for i in range(n - 1):
+            d[i] = xz[i + 1, 0] - xz[i, 0]
+        tread = (0.0 + _pairwise_sum(d, 0, n - 1)) / (n - 1)
+    return n, mean_rise, tread
+
+
 @numba.njit(cache=True)
 def rescan_edges(
     used, mid, i0, bin_m, e_lo, e_hi, min_rise, max_gap, slope_step, max_bin, xz, rise, first
@@ -1520,10 +1607,11 @@ def warm_up(fused: bool = False) -> None:
     calls frame by frame: the fused steps (``keyframe_step``, ``frame_terrain``,
     ``swing_prediction``, ``cv_prediction``, ``swing_edge_risk``) and ``foot_clearance``,
     ``window_bins``, ``window_bridged_gap``, ``observe_errors``, ``template_motion``,
-    ``contact_caps`` and ``rescan_edges`` (a standing foot's contact lowering map bins,
-    height_map.IncrementalHeightMap.add_contact). The kernels of the single operations,
-    which it reaches only on rare branches (a non-finite camera), load at their first call
-    instead of costing every process ~0.15-0.2 s of CPU. Otherwise every kernel."""
+    ``edge_summary``, ``contact_caps`` and ``rescan_edges`` (a standing foot's contact
+    lowering map bins, height_map.IncrementalHeightMap.add_contact). The kernels of the
+    single operations, which it reaches only on rare branches (a non-finite camera), load
+    at their first call instead of costing every process ~0.15-0.2 s of CPU. Otherwise
+    every kernel."""
     prof = HeightProfile(
         np.array([0.0, 0.005, 0.01]), np.array([0.005, 0.01, 0.015]), np.zeros(3), np.zeros(3)
     )
@@ -1550,6 +1638,7 @@ def warm_up(fused: bool = False) -> None:
         )  # fmt: skip
     window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
     window_bridged_gap(used, 0, 0.005, 0, 3, 0.0, 0.01, 0.15)
+    edge_summary(np.zeros((2, 2)), np.zeros(2))
     contact_caps(
         -0.2, 0.0, 0.0, 0.0, 0.006, 0.04, 0, 1, 0, 0.005, Z, np.full((3, 4), np.inf), n, mid,
         np.full(3, np.inf), 0.01,

@@ -629,7 +629,12 @@ class IncrementalHeightMap(OnlineHeightMap):
         c = self._edges
         if c is None or c[1].xz_m is not self._edge_xz or c[1].rise_m is not self._edge_rise:
             e = self._find_edges()
-            c = self._edges = (self.version, e, e.summary())
+            k = self._kernels
+            if k is not None and len(e) <= k.PAIRWISE_MAX_N:  # (the same floats, one call)
+                summary = k.edge_summary(e.xz_m, e.rise_m)
+            else:
+                summary = e.summary()
+            c = self._edges = (self.version, e, summary)
         return c
 
     def _step(self, p: int, q: int) -> bool:

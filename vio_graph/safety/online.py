@@ -438,8 +438,11 @@ class SafetyMonitor:
                 self._templates_flat = None
             self._liftoff = None
             return NAN
-        d = np.concatenate([heel, toe]) - self._liftoff[1]
-        self._swing.append((tau, float(d[0]), float(d[1]), float(d[2]), float(d[3])))
+        # heel and toe minus their lift-off positions, on Python floats (the same IEEE
+        # differences as the arrays')
+        (hx, hz), (tx, tz) = heel.tolist(), toe.tolist()
+        lhx, lhz, ltx, ltz = self._liftoff[1].tolist()
+        self._swing.append((tau, hx - lhx, hz - lhz, tx - ltx, tz - ltz))
         return tau
 
     def _edges_reached(self, edges: Edges, e: int, toe_x_max_m: float) -> NDArray[np.float64]:
@@ -514,7 +517,7 @@ class SafetyMonitor:
         the edges re-scanned); else the keyframe binned once for the test and the map."""
         cfg = self.config
         rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
-        cx, cz = (float(v) for v in np.asarray(camera_xz_m, dtype=float))
+        cx, cz = np.asarray(camera_xz_m, dtype=float).tolist()
         m = self.map
         assert isinstance(m, IncrementalHeightMap)
         if self.fused and math.isfinite(cx) and math.isfinite(cz):

@@ -299,6 +299,40 @@ def test_compiled_edge_summary_equals_the_numpy_summary() -> None:
         np.testing.assert_array_equal(np.array(got[1:]), np.array(want[1:]), err_msg=f"{n}")
 
 
+def test_compiled_template_motion_equals_numbas_interp() -> None:
+    """The swing templates' median motion with each column interpolated in place
+    (``template_motion``) is the one through ``np.interp`` (``template_motion_reference``),
+    bit for bit: one to four templates of 2-60 frames, phases before, inside and past them,
+    on sample points, NaN displacements, and templates whose phases repeat a value (these
+    go through ``np.interp`` itself)."""
+    K = _compiled()
+    rng = np.random.default_rng(12)
+    h = np.linspace(0.0, 0.3, 11)
+    repeated = 0
+    for n in range(2000):
+        lengths = rng.integers(2, 60, int(rng.integers(1, 5)))
+        phases, disps = [], []
+        for m in lengths:
+            ph = np.cumsum(rng.uniform(0.01, 0.05, m)) - 0.02
+            if n % 11 == 0:
+                ph[int(rng.integers(1, m))] = ph[0]  # a repeated (or decreasing) phase
+                repeated += 1
+            d = np.cumsum(rng.normal(0.0, 0.01, (m, 4)), 0)
+            if n % 13 == 0:
+                d[int(rng.integers(m)), int(rng.integers(4))] = np.nan
+            phases.append(ph)
+            disps.append(d)
+        starts = np.cumsum([0, *lengths]).astype(np.int64)
+        phase, disp = np.concatenate(phases), np.concatenate(disps)
+        tau = float(rng.choice([rng.uniform(-0.1, 1.5), phase[int(rng.integers(len(phase)))]]))
+        np.testing.assert_array_equal(
+            K.template_motion(tau, h, phase, disp, starts),
+            K.template_motion_reference(tau, h, phase, disp, starts),
+            err_msg=f"case {n}",
+        )
+    assert repeated > 100
+
+
 def _binned(prof: HeightProfile, rng: np.random.Generator) -> HeightProfile:
     """``prof`` as a height map holds it: 5 mm bins, each with the height under its middle
     plus noise, some bins missing (gaps of one to a few bins)."""

@@ -1088,10 +1088,93 @@ def window_merge(srt, old, q):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _interp_column(q, xp, disp, s0, n, c, at):  # pragma: no cover - compiled
+    """``at[:] = np.interp(q, xp, disp[s0:s0 + n, c])`` for strictly increasing ``xp`` (n),
+    without the column's copy and the result's allocation: numba's (numpy's) arithmetic
+    per query (outside the range the end values; at a sample point its value; else the
+    slope of the interval times the offset plus the left value, from the right end if that
+    is NaN), found by bisection (with increasing ``xp`` every search finds the same
+    interval)."""
+    for i in range(q.shape[0]):
+        x = q[i]
+        if x != x:
+            at[i] = x
+            continue
+        if n == 1:
+            at[i] = disp[s0, c]
+            continue
+        if x > xp[n - 1]:
+            at[i] = disp[s0 + n - 1, c]
+            continue
+        if x < xp[0]:
+            at[i] = disp[s0, c]
+            continue
+        lo, hi = 0, n - 1  # the last j with xp[j] <= x
+        while lo < hi:
+            m = (lo + hi + 1) // 2
+            if xp[m] <= x:
+                lo = m
+            else:
+                hi = m - 1
+        j = lo
+        if j == n - 1 or xp[j] == x:
+            at[i] = disp[s0 + j, c]
+            continue
+        y0, y1 = disp[s0 + j, c], disp[s0 + j + 1, c]
+        slope = (y1 - y0) / (xp[j + 1] - xp[j])
+        r = slope * (x - xp[j]) + y0
+        if r != r:
+            r = slope * (x - xp[j + 1]) + y1
+            if r != r and y0 == y1:
+                r = y0
+        at[i] = r
+
+
+@numba.njit(cache=True)
 def template_motion(tau, h, phase, disp, starts):  # pragma: no cover - compiled
     """Median displacement (H, 4) of heel and toe from phase tau to tau + h over the
     templates (online.SafetyMonitor._template_motion): template k is ``phase`` (s) and
-    ``disp`` (., 4) rows ``starts[k]:starts[k + 1]``."""
+    ``disp`` (., 4) rows ``starts[k]:starts[k + 1]``. Each column interpolated in place
+    (:func:`_interp_column`; a template whose phases do not increase strictly goes
+    through ``np.interp``): the floats of :func:`template_motion_reference`."""
+    T, H = starts.shape[0] - 1, h.shape[0]
+    q = np.empty(H + 1)
+    q[0] = tau
+    for i in range(H):
+        q[i + 1] = tau + h[i]
+    out = np.empty((T, H, 4))
+    at = np.empty(H + 1)
+    for k in range(T):
+        s0, s1 = starts[k], starts[k + 1]
+        ph = phase[s0:s1]
+        increasing = s1 > s0
+        for r in range(1, s1 - s0):
+            if not ph[r] > ph[r - 1]:
+                increasing = False
+        for c in range(4):
+            if increasing:
+                _interp_column(q, ph, disp, s0, s1 - s0, c, at)
+            else:
+                at = np.interp(q, ph, np.ascontiguousarray(disp[s0:s1, c]))
+            for i in range(H):
+                out[k, i, c] = at[i + 1] - at[0]
+    if T == 1:
+        return out[0].copy()
+    med = np.empty((H, 4))
+    v = np.empty(T)
+    for i in range(H):
+        for c in range(4):
+            for k in range(T):
+                v[k] = out[k, i, c]
+            v.sort()
+            med[i, c] = v[T // 2] if T % 2 else (v[T // 2 - 1] + v[T // 2]) / 2
+    return med
+
+
+@numba.njit(cache=True)
+def template_motion_reference(tau, h, phase, disp, starts):  # pragma: no cover - compiled
+    """:func:`template_motion` with numba's ``np.interp`` on each column (a copy of it
+    each): the reference its interpolation is tested against."""
     T, H = starts.shape[0] - 1, h.shape[0]
     q = np.empty(H + 1)
     q[0] = tau

@@ -280,6 +280,101 @@ def test_compiled_clearance_near_the_foot_equals_every_column() -> None:
         )
 
 
+def test_compiled_edge_summary_equals_the_numpy_summary() -> None:
+    """The edge count, mean |rise| and mean spacing the compiled map reports
+    (``edge_summary``: numpy's pairwise summation, in a kernel) are ``Edges.summary``'s,
+    bit for bit, for 0 to 300 edges (every branch of the summation: in order below 8,
+    eight running sums to 128, halves beyond) of values over ten orders of magnitude."""
+    K = _compiled()
+    rng = np.random.default_rng(8)
+    for n in [*range(0, 300), *rng.integers(0, 2000, 40).tolist()]:
+        x = np.cumsum(rng.uniform(0.0, 0.4, n) * 10 ** rng.uniform(-5, 5, n))
+        edges = clearance.Edges(
+            np.stack([x - 1.0, rng.normal(0.0, 1.0, n)], 1),
+            rng.normal(0.0, 0.2, n) * 10 ** rng.uniform(-5, 5, n),
+        )
+        want = edges.summary()
+        got = K.edge_summary(edges.xz_m, edges.rise_m)
+        assert isinstance(got[0], int) and got[0] == want[0], n
+        np.testing.assert_array_equal(np.array(got[1:]), np.array(want[1:]), err_msg=f"{n}")
+
+
+def test_compiled_template_motion_equals_numbas_interp() -> None:
+    """The swing templates' median motion with each column interpolated in place
+    (``template_motion``) is the one through ``np.interp`` (``template_motion_reference``),
+    bit for bit: one to four templates of 2-60 frames, phases before, inside and past them,
+    on sample points, NaN displacements, and templates whose phases repeat a value (these
+    go through ``np.interp`` itself)."""
+    K = _compiled()
+    rng = np.random.default_rng(12)
+    h = np.linspace(0.0, 0.3, 11)
+    repeated = 0
+    for n in range(2000):
+        lengths = rng.integers(2, 60, int(rng.integers(1, 5)))
+        phases, disps = [], []
+        for m in lengths:
+            ph = np.cumsum(rng.uniform(0.01, 0.05, m)) - 0.02
+            if n % 11 == 0:
+                ph[int(rng.integers(1, m))] = ph[0]  # a repeated (or decreasing) phase
+                repeated += 1
+            d = np.cumsum(rng.normal(0.0, 0.01, (m, 4)), 0)
+            if n % 13 == 0:
+                d[int(rng.integers(m)), int(rng.integers(4))] = np.nan
+            phases.append(ph)
+            disps.append(d)
+        starts = np.cumsum([0, *lengths]).astype(np.int64)
+        phase, disp = np.concatenate(phases), np.concatenate(disps)
+        tau = float(rng.choice([rng.uniform(-0.1, 1.5), phase[int(rng.integers(len(phase)))]]))
+        np.testing.assert_array_equal(
+            K.template_motion(tau, h, phase, disp, starts),
+            K.template_motion_reference(tau, h, phase, disp, starts),
+            err_msg=f"case {n}",
+        )
+    assert repeated > 100
+
+
+def _binned(prof: HeightProfile, rng: np.random.Generator) -> HeightProfile:
+    """``prof`` as a height map holds it: 5 mm bins, each with the height under its middle
+    plus noise, some bins missing (gaps of one to a few bins)."""
+    lo = np.arange(np.floor(prof.x_lo_m[0] / 0.005), np.ceil(prof.x_hi_m[-1] / 0.005)) * 0.005
+    k = np.clip(np.searchsorted(prof.x_hi_m, lo + 0.0025), 0, len(prof) - 1)
+    z = prof.z_m[k] + rng.normal(0.0, rng.choice([0.0, 0.001, 0.004]), lo.shape)
+    keep = rng.random(lo.shape) > rng.choice([0.0, 0.05, 0.3])
+    return HeightProfile(lo[keep], lo[keep] + 0.005, z[keep], np.zeros(int(keep.sum())))
+
+
+def test_compiled_foot_clearance_near_the_foot_equals_every_column() -> None:
+    """The compiled clearance of one pose skipping the columns and the hypots that cannot
+    give the minimum (``_foot_clearance_near``, the per-frame kernel's) returns what the
+    loop over every candidate returns (``_foot_clearance``), bit for bit: distance, closest
+    points and column, on random stairs as the map bins them (noise, missing bins), the
+    foot above, on and inside the terrain, far off, and with NaN inputs."""
+    K = _compiled()
+    rng = np.random.default_rng(11)
+    found = {"inside": 0, "negative": 0, "far": 0}
+    for n in range(3000):
+        prof, heel, toe, _, _ = _random_case(rng)
+        if n % 2:
+            prof = _binned(prof, rng)
+        if n % 9 == 0:
+            heel, toe = heel + [0.0, 0.3], toe + [0.0, 0.3]
+            found["far"] += 1
+        if n % 13 == 0:
+            toe = heel + [rng.uniform(-1e-13, 1e-13), rng.uniform(-0.01, 0.01)]  # upright
+        z = prof.z_m.copy()
+        if n % 97 == 0 and len(z):
+            z[int(rng.integers(len(z)))] = np.nan
+        args = (*heel, *toe, prof.x_lo_m, prof.x_hi_m, z)
+        ref = K._foot_clearance(*args)
+        np.testing.assert_array_equal(K._foot_clearance_near(*args), ref, err_msg=f"case {n}")
+        found["negative"] += bool(ref[0] < 0)
+        found["inside"] += any(
+            np.any((p[0] >= prof.x_lo_m) & (p[0] <= prof.x_hi_m) & (p[1] < prof.z_m))
+            for p in (heel, toe)
+        )
+    assert found["negative"] > found["inside"] > 100 and found["far"] > 300
+
+
 @pytest.mark.parametrize("motion_model", ["swing_template", "constant_velocity"])
 def test_fused_compiled_steps_equal_the_per_operation_kernels(
     sample_frames, motion_model: str
@@ -358,7 +453,7 @@ def test_fused_warm_up_loads_the_kernels_a_fused_monitor_calls() -> None:
     for name in (
         "keyframe_step", "frame_terrain", "swing_prediction", "cv_prediction",
         "swing_edge_risk", "_foot_clearance", "window_bins", "window_bridged_gap",
-        "observe_errors", "template_motion", "contact_caps",
+        "observe_errors", "template_motion", "contact_caps", "edge_summary",
         "rescan_edges",  # (a standing foot's contact lowering map bins)
     ):  # fmt: skip
         assert loaded[name], name

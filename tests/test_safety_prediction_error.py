@@ -119,7 +119,7 @@ def test_compiled_scoring_equals_the_numpy_scoring() -> None:
     rng = np.random.default_rng(3)
     h = np.linspace(0.0, 0.3, 11)
     ref, comp = PredictionErrors(h, capacity=2), PredictionErrors(h, 2, kernels=compiled)
-    t, n_scored = 0.0, 0
+    t, n_scored, steps_seen = 0.0, 0, set()
     for _swing in range(4):
         for pe in (ref, comp):
             pe.start_swing()
@@ -134,6 +134,10 @@ def test_compiled_scoring_equals_the_numpy_scoring() -> None:
             np.testing.assert_array_equal(comp._counts, ref._counts)
             np.testing.assert_array_equal(comp._t, ref._t)
             assert comp._kept == ref._kept
-            assert comp.trusted_steps(0.03) == ref.trusted_steps(0.03)
+            for bound in (0.01, 0.03, 0.1, 0.13, 0.16, 0.2, 0.3):  # (compiled: Python floats)
+                m = comp.trusted_steps(bound)
+                assert m == ref.trusted_steps(bound)
+                steps_seen.add(m)
         n_scored += int(ref._counts.sum())
     assert n_scored > 100 and len(ref._t) > 2  # instants were scored; the rows grew
+    assert len(steps_seen) >= 5  # (first untrusted steps all over the horizon)

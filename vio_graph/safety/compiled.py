@@ -195,6 +195,115 @@ def _clearance_many(a, b, lo, hi, z, sole):  # pragma: no cover - compiled
 NEAR_MARGIN_M = 1e-9
 
 
+#: the squared-distance test before a hypot: a candidate whose squared distance exceeds the
+#: best distance squared by this relative margin is farther than it (the rounding of the
+#: squares and of hypot is ~1e-16 relative), so its hypot is not computed
+SQUARED_MARGIN = 1e-9
+#: below this best distance (m) the squared test is not used (its square could underflow)
+SQUARED_MIN_M = 1e-100
+
+
+@numba.njit(cache=True)
+def _farther(dx, dz, best):  # pragma: no cover - compiled
+    """Whether ``hypot(dx, dz)`` is certainly above ``best`` (from the squares, no hypot):
+    False when in doubt (``best`` tiny, infinite or not positive, NaN)."""
+    if not best > SQUARED_MIN_M:
+        return best <= 0.0 and dx == dx and dz == dz  # a distance is never below 0
+    return dx * dx + dz * dz > best * best * (1.0 + SQUARED_MARGIN)
+
+
+@numba.njit(cache=True)
+def _foot_clearance_near(ax, az, bx, bz, lo, hi, z):  # pragma: no cover - compiled
+    """:func:`_foot_clearance` with the same result, bit for bit, without the hypot of the
+    candidates that cannot be the minimum: a column whose lower bound (its x gap to the
+    foot's span, or the foot's lowest point above its top) exceeds the best so far by more
+    than ``NEAR_MARGIN_M`` is skipped, and a candidate's hypot is taken only when its
+    squared distance does not already exceed the best (:func:`_farther`). The candidates
+    are visited in the reference's order (heel, toe, left corners, right corners; the first
+    minimum wins), and a candidate skipped is above a value already found, so it could not
+    have been that first minimum. When the heel or the toe lies inside a column (the way-out
+    search), or an input is not finite, the reference runs instead."""
+    B = z.shape[0]
+    finite = math.isfinite(ax + az + bx + bz)
+    for i in range(B):
+        if not finite:
+            break
+        finite = math.isfinite(lo[i] + hi[i] + z[i])
+        if (ax >= lo[i] and ax <= hi[i] and az < z[i]) or (
+            bx >= lo[i] and bx <= hi[i] and bz < z[i]
+        ):
+            finite = False  # (a point inside a column: the reference's way-out search)
+    if not finite:
+        return _foot_clearance(ax, az, bx, bz, lo, hi, z)
+    x0, x1 = min(ax, bx), max(ax, bx)
+    zmin = min(az, bz)
+    # an upper bound on the minimum: the heel and the toe against the column nearest each
+    bound = np.inf
+    for px, pz in ((ax, az), (bx, bz)):
+        k0, k1 = 0, B
+        while k0 < k1:
+            m = (k0 + k1) // 2
+            if hi[m] < px:
+                k0 = m + 1
+            else:
+                k1 = m
+        for i in (k0 - 1, k0):
+            if 0 <= i < B:
+                v = math.hypot(px - min(max(px, lo[i]), hi[i]), pz - min(pz, z[i]))
+                if v < bound:
+                    bound = v
+    lb = np.empty(B)  # per column: a lower bound of its candidates
+    for i in range(B):
+        gap = max(lo[i] - x1, x0 - hi[i])
+        up = zmin - z[i]
+        lb[i] = up if gap <= 0.0 else max(gap, up)
+    best = np.inf
+    out = (np.nan, np.nan, np.nan, np.nan, np.nan, -1)
+    for side in range(2):  # heel, then toe, against the columns
+        px, pz = (ax, az) if side == 0 else (bx, bz)
+        for i in range(B):
+            lim = min(best, bound)
+            if lb[i] - NEAR_MARGIN_M > lim:
+                continue
+            cx = min(max(px, lo[i]), hi[i])
+            cz = min(pz, z[i])
+            dx, dz = px - cx, pz - cz
+            if _farther(dx, dz, lim):
+                continue
+            v = math.hypot(dx, dz)
+            if v < best:
+                best = v
+                out = (best, px, pz, cx, cz, i)
+    dx, dz = bx - ax, bz - az
+    L2 = dx * dx + dz * dz
+    wide = x1 - x0 > 1e-12
+    for c in range(2 * B):  # column top corners: the left ones, then the right ones
+        i = c % B
+        lim = min(best, bound)
+        if lb[i] - NEAR_MARGIN_M > lim:
+            continue
+        ex, ez = (lo[i] if c < B else hi[i]), z[i]
+        # _corner_distance, its hypot only when needed
+        s = 0.0
+        if L2 != 0:
+            s = min(max(((ex - ax) * dx + (ez - az) * dz) / L2, 0.0), 1.0)
+        qx, qz = ax + s * dx, az + s * dz
+        above = False
+        if wide:
+            z_line = az + (ex - ax) * dz / dx
+            if ex > x0 and ex < x1 and ez > z_line:
+                above = True
+                d = -min(ez - z_line, min(ex - x0, x1 - ex))
+        if not above:
+            if _farther(ex - qx, ez - qz, lim):
+                continue
+            d = math.hypot(ex - qx, ez - qz)
+        if d < best:
+            best = d
+            out = (best, qx, qz, ex, ez, i)
+    return out
+
+
 @numba.njit(cache=True)
 def _pose_clearance(ax, az, bx, bz, lo, hi, z, k0, best):  # pragma: no cover - compiled
     """The minimum of :func:`_clearance_many`'s candidates for one pose over the columns from
@@ -203,33 +312,49 @@ def _pose_clearance(ax, az, bx, bz, lo, hi, z, k0, best):  # pragma: no cover - 
     every candidate of such a column is at least that gap (heel, toe and the segment's
     closest points lie in the span; the inside and above cases need an overlap), and the
     gaps only grow outwards, so the columns left out cannot lower it. ``NEAR_MARGIN_M``
-    covers the rounding of the gap and of the closest points. The same minimum as visiting
-    every column (a minimum does not depend on the order; no candidate is -0.0)."""
+    covers the rounding of the gap and of the closest points. Within the search, a column
+    whose top is below the foot's lowest point by more than the minimum is skipped (each of
+    its candidates is at least that drop), and a candidate's hypot is taken only when its
+    squared distance does not already exceed the minimum (:func:`_farther`). The same
+    minimum as visiting every column (a minimum does not depend on the order; no candidate
+    is -0.0; every input finite)."""
     B = z.shape[0]
     abx, abz = bx - ax, bz - az
     L2 = max(abx * abx + abz * abz, 1e-18)
     x0, x1 = min(ax, bx), max(ax, bx)
+    zmin = min(az, bz)
     slope = abz / abx if abs(abx) > 1e-12 else 0.0
+    wide = x1 - x0 > 1e-12
     for side in range(2):
         i = k0 if side == 0 else k0 - 1
         while 0 <= i < B:
             gap = lo[i] - x1 if side == 0 else x0 - hi[i]
             if gap > NEAR_MARGIN_M and gap - NEAR_MARGIN_M > best:
                 break
+            zi = z[i]
+            if zmin - zi - NEAR_MARGIN_M > best:  # every candidate is at least the drop
+                i += 1 if side == 0 else -1
+                continue
             for px, pz in ((ax, az), (bx, bz)):  # heel and toe against the column
-                if px >= lo[i] and px <= hi[i] and pz < z[i]:
-                    v = pz - z[i]
+                if px >= lo[i] and px <= hi[i] and pz < zi:
+                    v = pz - zi
                 else:
-                    v = math.hypot(px - min(max(px, lo[i]), hi[i]), pz - min(pz, z[i]))
+                    dx, dz = px - min(max(px, lo[i]), hi[i]), pz - min(pz, zi)
+                    if _farther(dx, dz, best):
+                        continue
+                    v = math.hypot(dx, dz)
                 if v < best or v != v:
                     best = v
             for cx in (lo[i], hi[i]):  # the column top's corners against the segment
-                cz = z[i]
-                s = min(max(((cx - ax) * abx + (cz - az) * abz) / L2, 0.0), 1.0)
-                v = math.hypot(cx - (ax + s * abx), cz - (az + s * abz))
                 z_line = az + (cx - ax) * slope
-                if cx > x0 and cx < x1 and cz > z_line and x1 - x0 > 1e-12:
-                    v = z_line - cz
+                if cx > x0 and cx < x1 and zi > z_line and wide:
+                    v = z_line - zi
+                else:
+                    s = min(max(((cx - ax) * abx + (zi - az) * abz) / L2, 0.0), 1.0)
+                    dx, dz = cx - (ax + s * abx), zi - (az + s * abz)
+                    if _farther(dx, dz, best):
+                        continue
+                    v = math.hypot(dx, dz)
                 if v < best or v != v:
                     best = v
             i += 1 if side == 0 else -1
@@ -963,10 +1088,93 @@ def window_merge(srt, old, q):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _interp_column(q, xp, disp, s0, n, c, at):  # pragma: no cover - compiled
+    """``at[:] = np.interp(q, xp, disp[s0:s0 + n, c])`` for strictly increasing ``xp`` (n),
+    without the column's copy and the result's allocation: numba's (numpy's) arithmetic
+    per query (outside the range the end values; at a sample point its value; else the
+    slope of the interval times the offset plus the left value, from the right end if that
+    is NaN), found by bisection (with increasing ``xp`` every search finds the same
+    interval)."""
+    for i in range(q.shape[0]):
+        x = q[i]
+        if x != x:
+            at[i] = x
+            continue
+        if n == 1:
+            at[i] = disp[s0, c]
+            continue
+        if x > xp[n - 1]:
+            at[i] = disp[s0 + n - 1, c]
+            continue
+        if x < xp[0]:
+            at[i] = disp[s0, c]
+            continue
+        lo, hi = 0, n - 1  # the last j with xp[j] <= x
+        while lo < hi:
+            m = (lo + hi + 1) // 2
+            if xp[m] <= x:
+                lo = m
+            else:
+                hi = m - 1
+        j = lo
+        if j == n - 1 or xp[j] == x:
+            at[i] = disp[s0 + j, c]
+            continue
+        y0, y1 = disp[s0 + j, c], disp[s0 + j + 1, c]
+        slope = (y1 - y0) / (xp[j + 1] - xp[j])
+        r = slope * (x - xp[j]) + y0
+        if r != r:
+            r = slope * (x - xp[j + 1]) + y1
+            if r != r and y0 == y1:
+                r = y0
+        at[i] = r
+
+
+@numba.njit(cache=True)
 def template_motion(tau, h, phase, disp, starts):  # pragma: no cover - compiled
     """Median displacement (H, 4) of heel and toe from phase tau to tau + h over the
     templates (online.SafetyMonitor._template_motion): template k is ``phase`` (s) and
-    ``disp`` (., 4) rows ``starts[k]:starts[k + 1]``."""
+    ``disp`` (., 4) rows ``starts[k]:starts[k + 1]``. Each column interpolated in place
+    (:func:`_interp_column`; a template whose phases do not increase strictly goes
+    through ``np.interp``): the floats of :func:`template_motion_reference`."""
+    T, H = starts.shape[0] - 1, h.shape[0]
+    q = np.empty(H + 1)
+    q[0] = tau
+    for i in range(H):
+        q[i + 1] = tau + h[i]
+    out = np.empty((T, H, 4))
+    at = np.empty(H + 1)
+    for k in range(T):
+        s0, s1 = starts[k], starts[k + 1]
+        ph = phase[s0:s1]
+        increasing = s1 > s0
+        for r in range(1, s1 - s0):
+            if not ph[r] > ph[r - 1]:
+                increasing = False
+        for c in range(4):
+            if increasing:
+                _interp_column(q, ph, disp, s0, s1 - s0, c, at)
+            else:
+                at = np.interp(q, ph, np.ascontiguousarray(disp[s0:s1, c]))
+            for i in range(H):
+                out[k, i, c] = at[i + 1] - at[0]
+    if T == 1:
+        return out[0].copy()
+    med = np.empty((H, 4))
+    v = np.empty(T)
+    for i in range(H):
+        for c in range(4):
+            for k in range(T):
+                v[k] = out[k, i, c]
+            v.sort()
+            med[i, c] = v[T // 2] if T % 2 else (v[T // 2 - 1] + v[T // 2]) / 2
+    return med
+
+
+@numba.njit(cache=True)
+def template_motion_reference(tau, h, phase, disp, starts):  # pragma: no cover - compiled
+    """:func:`template_motion` with numba's ``np.interp`` on each column (a copy of it
+    each): the reference its interpolation is tested against."""
     T, H = starts.shape[0] - 1, h.shape[0]
     q = np.empty(H + 1)
     q[0] = tau
@@ -997,6 +1205,93 @@ def _pair_changes(used_mid, p, q, i0, bin_m, max_gap, slope_step):  # pragma: no
     """Used bins at array elements p < q form a transition pair (edge_runs' step != 0)."""
     gap = (q + i0) * bin_m - ((p + i0) * bin_m + bin_m)
     return gap <= max_gap and abs(used_mid[q] - used_mid[p]) > slope_step
+
+
+#: :func:`_pairwise_sum` follows numpy's summation of one contiguous block; longer arrays
+#: (never edges: 8192 of them are 1.6 km of stairs) are summed by numpy
+PAIRWISE_MAX_N = 8192
+
+
+@numba.njit(cache=True)
+def _block_sum(a, lo, n):  # pragma: no cover - compiled
+    """numpy's pairwise summation of ``a[lo:lo + n]`` for n <= 128 (one block): in order
+    below 8 values, else eight running sums combined pairwise and the rest in order."""
+    if n < 8:
+        res = -0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r = np.empty(8)
+    for j in range(8):
+        r[j] = a[lo + j]
+    i = 8
+    while i < n - (n % 8):
+        for j in range(8):
+            r[j] += a[lo + i + j]
+        i += 8
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@numba.njit(cache=True)
+def _pairwise_sum(a, lo, n):  # pragma: no cover - compiled
+    """The sum of ``a[lo:lo + n]`` as numpy's ``np.add.reduce`` of a contiguous float64
+    array adds it (its pairwise summation: blocks of at most 128 values, :func:`_block_sum`,
+    and above that the two halves summed separately and added, the first half a multiple
+    of 8 long), the same float. The halving as a loop over an explicit stack."""
+    lo_s = np.empty(64, np.int64)
+    n_s = np.empty(64, np.int64)
+    state = np.empty(64, np.int64)
+    left = np.empty(64)
+    lo_s[0], n_s[0], state[0] = lo, n, 0
+    sp = 1
+    ret = 0.0
+    while sp > 0:
+        t = sp - 1
+        m = n_s[t]
+        if m <= 128:
+            ret = _block_sum(a, lo_s[t], m)
+            sp -= 1
+            continue
+        n2 = m // 2
+        n2 -= n2 % 8
+        if state[t] == 0:  # the first half
+            state[t] = 1
+            lo_s[sp], n_s[sp], state[sp] = lo_s[t], n2, 0
+            sp += 1
+        elif state[t] == 1:  # the second half
+            left[t] = ret
+            state[t] = 2
+            lo_s[sp], n_s[sp], state[sp] = lo_s[t] + n2, m - n2, 0
+            sp += 1
+        else:
+            ret = left[t] + ret
+            sp -= 1
+    return ret
+
+
+@numba.njit(cache=True)
+def edge_summary(xz, rise):  # pragma: no cover - compiled
+    """clearance.Edges.summary of edges ``xz`` (E, 2), ``rise`` (E,) with E at most
+    ``PAIRWISE_MAX_N``: (number, mean |rise|, mean spacing), NaN where undefined; the same
+    floats (the absolute rises and the consecutive differences summed as numpy does)."""
+    n = rise.shape[0]
+    mean_rise = np.nan
+    tread = np.nan
+    if n:
+        a = np.empty(n)
+        for i in range(n):
+            a[i] = abs(rise[i])
+        mean_rise = (0.0 + _pairwise_sum(a, 0, n)) / n
+    if n >= 2:
+        d = np.empty(n - 1)
+        for i in range(n - 1):
+            d[i] = xz[i + 1, 0] - xz[i, 0]
+        tread = (0.0 + _pairwise_sum(d, 0, n - 1)) / (n - 1)
+    return n, mean_rise, tread
 
 
 @numba.njit(cache=True)
@@ -1395,10 +1690,11 @@ def warm_up(fused: bool = False) -> None:
     calls frame by frame: the fused steps (``keyframe_step``, ``frame_terrain``,
     ``swing_prediction``, ``cv_prediction``, ``swing_edge_risk``) and ``foot_clearance``,
     ``window_bins``, ``window_bridged_gap``, ``observe_errors``, ``template_motion``,
-    ``contact_caps`` and ``rescan_edges`` (a standing foot's contact lowering map bins,
-    height_map.IncrementalHeightMap.add_contact). The kernels of the single operations,
-    which it reaches only on rare branches (a non-finite camera), load at their first call
-    instead of costing every process ~0.15-0.2 s of CPU. Otherwise every kernel."""
+    ``edge_summary``, ``contact_caps`` and ``rescan_edges`` (a standing foot's contact
+    lowering map bins, height_map.IncrementalHeightMap.add_contact). The kernels of the
+    single operations, which it reaches only on rare branches (a non-finite camera), load
+    at their first call instead of costing every process ~0.15-0.2 s of CPU. Otherwise
+    every kernel."""
     prof = HeightProfile(
         np.array([0.0, 0.005, 0.01]), np.array([0.005, 0.01, 0.015]), np.zeros(3), np.zeros(3)
     )
@@ -1425,6 +1721,7 @@ def warm_up(fused: bool = False) -> None:
         )  # fmt: skip
     window_bins(used, mid, se2, 0, 3, 0, 0.005, 0.0, 0.01, 0.003)
     window_bridged_gap(used, 0, 0.005, 0, 3, 0.0, 0.01, 0.15)
+    edge_summary(np.zeros((2, 2)), np.zeros(2))
     contact_caps(
         -0.2, 0.0, 0.0, 0.0, 0.006, 0.04, 0, 1, 0, 0.005, Z, np.full((3, 4), np.inf), n, mid,
         np.full(3, np.inf), 0.01,
@@ -1604,10 +1901,17 @@ def frame_terrain(
     at element 0) and edges (E, 2); ``pose_w``, ``map_w``: the sigma's pose and map weights
     (config times consistency scales), ``pose_xf`` the factor on the pose term's x row and
     column. Returns (clearance, foot x, z, terrain x, z, sigma,
-    next edge index or -1, edge clearance, its sigma, edge x distance, its sigma)."""
+    next edge index or -1, edge clearance, its sigma, edge x distance, its sigma, whether
+    the window holds a strip the gap-floor check fills (:func:`window_bridged_gap` over the
+    same bins, ``max_gap``; False: online.SafetyMonitor._checked_clearance would return the
+    clearance unchanged))."""
     nan = np.nan
     x0, x1 = min(hx, tx) - window_m, max(hx, tx) + window_m
     lo, hi, z, _, bins = _window_any(used, mid, se2, i0, bin_m, x0, x1, map_sigma)
+    nb = used.shape[0]  # (the elements _window_any and height_map._elements search)
+    a0 = min(max(np.int64(math.floor(x0 / bin_m)) - 2 - i0, 0), nb)
+    a1 = min(max(np.int64(math.floor(x1 / bin_m)) + 3 - i0, a0), nb)
+    gapped = window_bridged_gap(used, i0, bin_m, a0, a1, x0, x1, max_gap)
     B = z.shape[0]
     c_d = fx = fz = qx = qz = sig = nan
     # coverage of the foot's x span (clearance.coverage)
@@ -1616,7 +1920,7 @@ def frame_terrain(
     if B > 0:
         cover = 1.0 if xb <= xa else _coverage(xa, xb, lo, hi)
     if not cover < min_coverage:
-        d, fx, fz, qx, qz, col = _foot_clearance(hx, hz, tx, tz, lo, hi, z)
+        d, fx, fz, qx, qz, col = _foot_clearance_near(hx, hz, tx, tz, lo, hi, z)
         if unseen_check and d > _unseen_distance(xa, xb, lo, hi, x0, x1, max_gap):
             col = -1  # unseen terrain could be closer than the mapped (clearance.py)
             d = fx = fz = qx = qz = nan
@@ -1672,7 +1976,7 @@ def frame_terrain(
         nsig = _sigma(nx, nz, rxx, rxz, rzz, map_w * bs, foot_sigma, half)
         ed = ex - tx
         edsig = (rxx + foot_sigma**2 + (bin_m / 2) ** 2) ** half
-    return c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig
+    return c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig, gapped
 
 
 @numba.njit(cache=True)

@@ -166,11 +166,11 @@ class OnlineHeightMap:
         costs amortised O(1) per bin, not the O(length) copy of every array each metre, and
         the same arrays, values and ``_i0`` as padding each array by the metre it needs."""
         n = self._n.shape[0]
+        if n and self._i0 <= i_min and i_max < self._i0 + n:
+            return  # (the bins are held: most calls)
         margin = int(np.ceil(1.0 / self.bin_m))
         if n == 0:
             self._i0 = i_min - margin
-        if n and self._i0 <= i_min and i_max < self._i0 + n:
-            return
         # grow by at least 1 m at the side that needs it (amortised, not per keyframe)
         lo = self._i0 if i_min >= self._i0 else i_min - margin
         hi = self._i0 + n if i_max < self._i0 + n else i_max + 1 + margin
@@ -483,8 +483,8 @@ class IncrementalHeightMap(OnlineHeightMap):
     ) -> tuple[int, int] | None:
         """:meth:`OnlineHeightMap.add_contact` (median statistic) through the kernel."""
         assert self._kernels is not None
-        hx, hz = (float(v) for v in np.asarray(heel_xz_m, dtype=float).reshape(-1))
-        ox, oz = (float(v) for v in np.asarray(toe_xz_m, dtype=float).reshape(-1))
+        hx, hz = np.asarray(heel_xz_m, dtype=float).reshape(-1).tolist()
+        ox, oz = np.asarray(toe_xz_m, dtype=float).reshape(-1).tolist()
         if not all(map(math.isfinite, (hx, hz, ox, oz))) or ox == hx:
             return None
         self.max_excess_m = max_excess_m
@@ -629,7 +629,12 @@ class IncrementalHeightMap(OnlineHeightMap):
         c = self._edges
         if c is None or c[1].xz_m is not self._edge_xz or c[1].rise_m is not self._edge_rise:
             e = self._find_edges()
-            c = self._edges = (self.version, e, e.summary())
+            k = self._kernels
+            if k is not None and len(e) <= k.PAIRWISE_MAX_N:  # (the same floats, one call)
+                summary = k.edge_summary(e.xz_m, e.rise_m)
+            else:
+                summary = e.summary()
+            c = self._edges = (self.version, e, summary)
         return c
 
     def _step(self, p: int, q: int) -> bool:

@@ -438,8 +438,11 @@ class SafetyMonitor:
                 self._templates_flat = None
             self._liftoff = None
             return NAN
-        d = np.concatenate([heel, toe]) - self._liftoff[1]
-        self._swing.append((tau, float(d[0]), float(d[1]), float(d[2]), float(d[3])))
+        # heel and toe minus their lift-off positions, on Python floats (the same IEEE
+        # differences as the arrays')
+        (hx, hz), (tx, tz) = heel.tolist(), toe.tolist()
+        lhx, lhz, ltx, ltz = self._liftoff[1].tolist()
+        self._swing.append((tau, hx - lhx, hz - lhz, tx - ltx, tz - ltz))
         return tau
 
     def _edges_reached(self, edges: Edges, e: int, toe_x_max_m: float) -> NDArray[np.float64]:
@@ -514,7 +517,7 @@ class SafetyMonitor:
         the edges re-scanned); else the keyframe binned once for the test and the map."""
         cfg = self.config
         rel = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
-        cx, cz = (float(v) for v in np.asarray(camera_xz_m, dtype=float))
+        cx, cz = np.asarray(camera_xz_m, dtype=float).tolist()
         m = self.map
         assert isinstance(m, IncrementalHeightMap)
         if self.fused and math.isfinite(cx) and math.isfinite(cz):
@@ -704,9 +707,10 @@ class SafetyMonitor:
         # growth unless configured otherwise (sp >= the clip's lower end > 0)
         pose_xf = 1.0 if cfg.pose_scale_on_x else 1.0 / sp
         # clearance to the terrain and its sigma; the next edge ahead, the clearance to it
+        gapped = True  # whether the window may hold a strip the gap-floor check fills
         if fused and math.isfinite(hx + hz + tx + tz):  # (one kernel call)
             m = self.map
-            c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = g.frame_terrain(
+            c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig, gapped = g.frame_terrain(
                 m._used, m._mid, m._se2, m._cov, m._n, m._i0, cfg.bin_m, edges.xz_m,
                 hx, hz, tx, tz, *P.ravel().tolist(), cfg.window_m, cfg.min_coverage,
                 cfg.unseen_terrain_check, cfg.edge_max_gap_m, cfg.sole_thickness_m,
@@ -716,7 +720,7 @@ class SafetyMonitor:
             c_d, fx, fz, qx, qz, sig, e, nc, nsig, ed, edsig = self._terrain_now(
                 heel, toe, P.tolist(), edges, pose_w, sm, pose_xf
             )
-        if math.isfinite(c_d) and cfg.gap_floor_check:
+        if math.isfinite(c_d) and cfg.gap_floor_check and gapped:  # (else: unchanged)
             c_d, fx, fz, qx, qz, sig = self._checked_clearance(
                 heel, toe, P.tolist(), (c_d, fx, fz, qx, qz, sig), pose_w, sm, pose_xf
             )

@@ -109,8 +109,28 @@ class PredictionErrors:
         at most ``max_error_m`` or none measured yet (0: only the current pose)."""
         m = self._trusted.get(max_error_m)
         if m is None:
-            bad = self.rms() > max_error_m  # (NaN: not measured, not bad)
-            bad[0] = False  # the current pose is the estimate itself
-            m = int(np.argmax(bad)) - 1 if bad.any() else len(self._h) - 1
+            if self._kernels is not None:  # (the compiled path: on Python floats)
+                m = _trusted_steps(self._sums.tolist(), self._counts.tolist(), max_error_m)
+            else:
+                bad = self.rms() > max_error_m  # (NaN: not measured, not bad)
+                bad[0] = False  # the current pose is the estimate itself
+                m = int(np.argmax(bad)) - 1 if bad.any() else len(self._h) - 1
             self._trusted[max_error_m] = m
         return m
+
+
+def _trusted_steps(sums: list[float], counts: list[float], max_error_m: float) -> int:
+    """:meth:`PredictionErrors.trusted_steps` on the sums and counts as Python floats, without
+    numpy's per-call cost on 11 values: the same IEEE division and square root per step
+    (0 / 0 is NaN, not bad; a positive sum over no count is +inf, bad), the same answer
+    (tests/test_safety_prediction_error.py)."""
+    for i in range(1, len(sums)):
+        s, c = sums[i], counts[i]
+        if c == 0.0:
+            bad = s > 0.0 and math.inf > max_error_m
+        else:
+            q = s / c
+            bad = q >= 0.0 and math.sqrt(q) > max_error_m  # (NaN and negative: NaN, not bad)
+        if bad:
+            return i - 1
+    return len(sums) - 1

@@ -201,6 +201,13 @@ def fault_lines(metrics: dict) -> list[str]:
             "start; the online output for them was the first pass's (metrics.json "
             "'time_offset' 'rerun')"
         )
+    if "final_rerun" in td:
+        r = td["final_rerun"]
+        lines.append(
+            f"every frame was run once more with the offset held at its final estimate, "
+            f"{1e3 * r['applied_s']:.1f} ms; the written trajectories are that pass's "
+            "(metrics.json 'time_offset' 'final_rerun')"
+        )
     for name, rep in metrics.get("timestamps", {}).items():
         if rep.get("gaps") or rep.get("backwards"):
             lines.append(

@@ -356,7 +356,8 @@ class Replay:
         kinds, idx = replay_order(self.rec)
         while not self._pass(kinds, idx, progress):
             self._restart()
-        if self.config.filter.time_offset.rerun_final and self.online.time_offset.latched:
+        to_cfg = self.config.filter.time_offset
+        if to_cfg.rerun_final and to_cfg.estimate and self.online.time_offset.latched:
             self._restart(final=True)
             if not self._pass(kinds, idx, progress):  # pragma: no cover - _rerun_due says no
                 raise RuntimeError("the final pass asked for another re-run")

@@ -243,6 +243,7 @@ def test_run_summary_reports_faults_offset_and_jumps() -> None:
         )
         == []
     )
+    offset = {"estimate_s": 0.0123, "sigma_s": 0.0004, "applied_s": 0.0123}
     lines = fault_lines(
         {
             "imu_faults": {
@@ -251,13 +252,19 @@ def test_run_summary_reports_faults_offset_and_jumps() -> None:
                 "gyro_repaired_samples": 2,
                 "vision_kept_against_imu": 1,
             },
-            "time_offset": {"estimate_s": 0.0123, "sigma_s": 0.0004, "applied_s": 0.0123},
+            "time_offset": offset,
             "timestamps": {"camera": {"gaps": 3, "gap_total_s": 0.2, "backwards": 1}},
         }
     )
     assert "7 accelerometer" in lines[0] and "2 gyro samples replaced" in lines[0]
     assert "12.3 ms" in lines[1]
     assert lines[2].startswith("camera timestamps: 3 gaps") and "1 stamps" in lines[2]
+    held = {"frames": 300, "applied_s": 0.0299, "estimate_s": 0.0299, "sigma_s": 0.0003}
+    lines = fault_lines({"time_offset": {**offset, "final_rerun": held}})
+    assert "held at its final estimate, 29.9 ms" in lines[-1]
+    refuted = {**held, "applied_s": 0.0}
+    lines = fault_lines({"time_offset": {**offset, "final_rerun": refuted}})
+    assert "stamps as recorded" in lines[-1]
 
 
 def test_restamped_frames_stay_in_order_when_the_offset_is_first_applied() -> None:

@@ -207,6 +207,17 @@ def fault_lines(metrics: dict) -> list[str]:
             "start; the online output for them was the first pass's (metrics.json "
             "'time_offset' 'rerun')"
         )
+    if "final_rerun" in td:
+        r = td["final_rerun"]
+        held = (
+            f"the offset held at its final estimate, {1e3 * r['applied_s']:.1f} ms"
+            if r["applied_s"] != 0.0
+            else "the stamps as recorded (the later tilts refuted the offset applied)"
+        )
+        lines.append(
+            f"every frame was run once more with {held}; the written trajectories are that "
+            "pass's (metrics.json 'time_offset' 'final_rerun')"
+        )
     for name, rep in metrics.get("timestamps", {}).items():
         if rep.get("gaps") or rep.get("backwards"):
             lines.append(

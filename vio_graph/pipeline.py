@@ -287,6 +287,8 @@ def _evaluate(
         metrics["timestamps"]["imu"]["offline_line"] = replay.imu_retimed
     if replay.rerun is not None:
         metrics["time_offset"]["rerun"] = rerun_report(replay, gt)
+    if replay.final_rerun is not None:  # td held at its final estimate over a last pass
+        metrics["time_offset"]["final_rerun"] = dict(replay.final_rerun)
     if gt is not None:
         metrics["terrain_classification"] = terrain_accuracy(
             rec.metadata.terrain.kind, lg.terrain, gt.frame_edge_visible

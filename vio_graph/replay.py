@@ -340,6 +340,9 @@ class Replay:
         #: the filter's camera x-z (m) the first pass gave for those frames (what an online
         #: consumer received), None without a re-run
         self.first_pass_xz: NDArray[np.float64] | None = None
+        #: the final pass (``time_offset.rerun_final``): frames of the pass before it, the
+        #: offset held over it and the estimate and sigma it came from (s); None if none
+        self.final_rerun: dict[str, Any] | None = None
         self._rerun_frame = -1
         self._first_imu_s: float | None = None  # stamp of the first IMU sample taken
         self._live: list[Estimator] = []  # :meth:`_running`'s answer for _live_key
@@ -353,6 +356,11 @@ class Replay:
         kinds, idx = replay_order(self.rec)
         while not self._pass(kinds, idx, progress):
             self._restart()
+        to_cfg = self.config.filter.time_offset
+        if to_cfg.rerun_final and to_cfg.estimate and self.online.time_offset.latched:
+            self._restart(final=True)
+            if not self._pass(kinds, idx, progress):  # pragma: no cover - _rerun_due says no
+                raise RuntimeError("the final pass asked for another re-run")
         self.rec.release_frame_pages()  # no frame is read again
         for e in self._running():
             self._guard(e, float("nan"), e.finish)
@@ -454,7 +462,9 @@ class Replay:
         frame), and frame ``i`` is within ``rerun_window_s`` of the first frame."""
         cfg = self.config.filter.time_offset
         to = self.online.time_offset
-        if self.rerun is not None or cfg.rerun_window_s <= 0 or not to.latched:
+        if self.rerun is not None or self.final_rerun is not None:
+            return False
+        if cfg.rerun_window_s <= 0 or not to.latched:
             return False
         stamps = self.rec.frame_timestamps_s
         if stamps[i] - stamps[0] > cfg.rerun_window_s:
@@ -465,7 +475,7 @@ class Replay:
         nxt = stamps[i + 1] if i + 1 < stamps.size else np.inf
         return bool(nxt - stamps[0] > cfg.rerun_window_s)
 
-    def _restart(self) -> None:
+    def _restart(self, final: bool = False) -> None:
         """Retroactive re-run: what the filter fused before the camera-IMU offset was known
         (slices rotated with the attitude at the wrong time, displacements at the wrong
         interval) would stay in its state, since nothing observes the absolute position
@@ -475,23 +485,44 @@ class Replay:
         gave (what an online consumer received then) are kept in :attr:`first_pass_xz`.
         The estimators are built anew by :func:`make_estimators` (one added to
         :attr:`estimators` by hand is dropped, with a warning); the visualizer is sent the
-        re-run frames again."""
+        re-run frames again.
+
+        ``final``: the pass after the last frame (``time_offset.rerun_final``). The early
+        re-run starts with td known to ``rerun_sigma_s`` (1-3 ms off on downstair), and the
+        frames before the estimate settles keep that error in the state; once every frame
+        has been seen, the replay runs once more with td held at its final estimate
+        (:meth:`TimeOffsetEstimator.final_offset_s`) from the first frame, counting no tilt
+        again, so every frame is re-stamped by the same, best-known offset."""
         old = self.online
+        to = old.time_offset
         t_s = np.asarray(self.log.t_s)
-        self.first_pass_xz = np.asarray(self.estimators["filter"].camera_path(t_s, t_s[:0]))
-        stamp = float(self.rec.frame_timestamps_s[self._rerun_frame])
-        self.rerun = {
-            "frames": len(t_s),
-            "until_stamp_s": stamp,
-            "applied_s": old.time_offset.applied_s,
-            "sigma_s": old.time_offset.sigma_s,
-        }
+        if final:
+            td = to.final_offset_s()
+            self.final_rerun = {
+                "frames": len(t_s),
+                "applied_s": td,
+                "estimate_s": to.td_s,
+                "sigma_s": to.sigma_s,
+            }
+            stamp = np.inf  # no tilt counted again: td is held
+        else:
+            td = to.applied_s
+            self.first_pass_xz = np.asarray(self.estimators["filter"].camera_path(t_s, t_s[:0]))
+            stamp = float(self.rec.frame_timestamps_s[self._rerun_frame])
+            self.rerun = {
+                "frames": len(t_s),
+                "until_stamp_s": stamp,
+                "applied_s": td,
+                "sigma_s": to.sigma_s,
+            }
         gt = self.rec.groundtruth
         if gt is not None:  # the true camera at the first frame's capture time, as without td
-            t0 = self.rec.frame_timestamps_s[0] - old.time_offset.applied_s
+            t0 = self.rec.frame_timestamps_s[0] - td
             self.p0 = gt.trajectories["camera"].xz_at(t0)
         self.online = OnlineEstimator(self.config, self.rig, self.p0)
-        self.online.time_offset.carry_over(old.time_offset)
+        self.online.time_offset.carry_over(to)
+        if final:
+            self.online.time_offset.hold(td)
         self.online.td_counted_until_s = stamp
         estimators = make_estimators(self.config, self.rig, self.modes, self.p0)
         dropped = sorted(set(self.estimators) - set(estimators))

@@ -447,6 +447,19 @@ class TimeOffsetEstimator:
             if self._latched:
                 self.applied_s = self.td_s
 
+    def final_offset_s(self) -> float:
+        """The offset a replay holds over the whole recording once it has seen every frame
+        (``rerun_final``): the estimate if it is still ``apply_sigmas`` scaled sigmas from
+        zero, else 0 (the tilts seen since refute the offset once applied: the stamps are
+        left as recorded)."""
+        sigma = self.sigma_s * self.consistency_scale
+        return self.td_s if abs(self.td_s) > self.config.apply_sigmas * sigma else 0.0
+
+    def hold(self, td_s: float) -> None:
+        """Apply ``td_s`` and keep it: the final pass of a replay (``rerun_final``), which
+        does not count its tilts again (the replay stops the updates)."""
+        self.applied_s = float(td_s)
+
     @property
     def latched(self) -> bool:
         """True once td has been applied (it stays applied)."""

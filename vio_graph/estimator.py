@@ -1543,7 +1543,12 @@ class OnlineEstimator:
         """The attitude tracker's pull towards the vendor, weighed against the pitch offset's
         variance (``filter.attitude.vendor_pitch_sigma_deg``, AttitudeTracker.weigh_pull),
         also in the one-call IMU input's constants."""
-        var = self.pitch_offset.var_rad2 if self.pitch_offset.initialised else math.inf
+        var = math.inf
+        if self.pitch_offset.initialised:
+            # not below the tilts' floor: what the line fits miss is shared by the frames
+            # (a tread's slant, a far tread's slope), so it does not average out
+            floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
+            var = max(self.pitch_offset.var_rad2, floor * floor)
         tau = self.attitude.weigh_pull(var)
         if self._input_consts is not None:
             self._input_consts[self.attitude._kernels.IN_TIME_CONSTANT] = tau

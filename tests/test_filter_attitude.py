@@ -57,3 +57,46 @@ def test_complementary_attitude_converges_to_the_vendor_orientation() -> None:
         tracker.add(s)
     t = samples[-1].timestamp_s
     assert _angle_between(tracker.R_world_imu_at(t), rot_y(RATE_RADPS * t)) < 1e-3
+
+
+def _drifting_vendor(n: int, rate_radps: float) -> list[ImuSample]:
+    """A still body (level, gyro zero) whose vendor orientation drifts in pitch at
+    ``rate_radps`` (the MTi-1's time-correlated orientation error), 100 Hz."""
+    return [
+        ImuSample(
+            0.01 * k,
+            np.array([0.0, 0.0, GRAVITY_MPS2]),
+            np.zeros(3),
+            quat_wxyz_from_matrix(rot_y(rate_radps * 0.01 * k)),
+        )
+        for k in range(n)
+    ]
+
+
+def test_weighed_pull_follows_a_drifting_vendor_error_less() -> None:
+    """Known answer: a vendor pitch error ramping at 1 deg/s for 2 s reaches the tracked
+    attitude as the ramp's lag behind a first-order pull, r (t - tau (1 - exp(-t / tau))):
+    1.135 deg with the 1 s pull; with the pull weighed against a level-aided offset known to
+    0.25 deg (vendor 1 deg: tau = 1 x (0.25^2 + 1) / 0.25^2 = 17 s) 0.113 deg."""
+    rate = np.radians(1.0)
+    errors = {}
+    for sigma in (None, 1.0):
+        tracker = AttitudeTracker(AttitudeConfig(vendor_pitch_sigma_deg=sigma))
+        tau = tracker.weigh_pull(np.radians(0.25) ** 2)
+        assert tau == (1.0 if sigma is None else 17.0 * 1.0)
+        for s in _drifting_vendor(201, rate):
+            tracker.add(s)
+        errors[sigma] = np.degrees(_angle_between(tracker.R_world_imu_at(2.0), np.eye(3)))
+    for sigma, tau in ((None, 1.0), (1.0, 17.0)):
+        expected = np.degrees(rate) * (2.0 - tau * (1.0 - np.exp(-2.0 / tau)))
+        assert abs(errors[sigma] - expected) < 0.01 * expected
+    assert errors[1.0] < 0.12 < 1.1 < errors[None]
+
+
+def test_weighed_pull_returns_to_the_time_constant_without_an_offset() -> None:
+    """No level-aided offset yet (infinite variance) or a lost one (variance far above the
+    vendor's): the pull is the configured one, or close to it."""
+    tracker = AttitudeTracker(AttitudeConfig(time_constant_s=1.0, vendor_pitch_sigma_deg=1.0))
+    assert tracker.weigh_pull(float("inf")) == 1.0
+    assert tracker.weigh_pull(np.radians(10.0) ** 2) < 1.02
+    assert tracker.weigh_pull(np.radians(1.0) ** 2) == 2.0

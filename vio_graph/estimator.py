@@ -485,7 +485,7 @@ class OnlineEstimator:
         c = pool[k.POOL_IN : k.POOL_IN + k.IN_SIZE]
         if not clock.compiled_constants(c, k) or not self.imu_faults.compiled_constants(c, k):
             return
-        c[k.IN_TIME_CONSTANT] = self.attitude.config.time_constant_s
+        c[k.IN_TIME_CONSTANT] = self.attitude.time_constant_s
         # the small state arrays the kernel updates become views of its pool, their values
         # kept: one argument instead of five (the other paths update the same memory)
         mon, stance = self.imu_faults, self._stance
@@ -883,7 +883,7 @@ class OnlineEstimator:
             as_f64(sample.quat_wxyz),
             t,
             dt,
-            min(1.0, dt / att.config.time_constant_s),
+            min(1.0, dt / att.time_constant_s),
             self.pitch_offset.offset_rad,
             dt_filter,
             float(sample.accel_extra_sigma_mps2),
@@ -1532,9 +1532,26 @@ class OnlineEstimator:
             self.frontend.grid_cell_m / math.sqrt(12.0),
             self._smoother_ray_heights,
         )
-        if self.surface_tilt is None:
-            return 0.0
-        return self.pitch_offset.update(*self._tilt_to_fuse(t, self.surface_tilt))
+        step = 0.0
+        if self.surface_tilt is not None:
+            step = self.pitch_offset.update(*self._tilt_to_fuse(t, self.surface_tilt))
+        if self.config.filter.attitude.vendor_pitch_sigma_deg is not None:
+            self._weigh_attitude_pull()
+        return step
+
+    def _weigh_attitude_pull(self) -> None:
+        """The attitude tracker's pull towards the vendor, weighed against the pitch offset's
+        variance (``filter.attitude.vendor_pitch_sigma_deg``, AttitudeTracker.weigh_pull),
+        also in the one-call IMU input's constants."""
+        var = math.inf
+        if self.pitch_offset.initialised:
+            # not below the tilts' floor: what the line fits miss is shared by the frames
+            # (a tread's slant, a far tread's slope), so it does not average out
+            floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
+            var = max(self.pitch_offset.var_rad2, floor * floor)
+        tau = self.attitude.weigh_pull(var)
+        if self._input_consts is not None:
+            self._input_consts[self.attitude._kernels.IN_TIME_CONSTANT] = tau
 
     def _tilt_to_fuse(self, t: float, tilt: SurfaceTilt) -> tuple[float, float]:
         """The tilt (rad) and its sigma (rad) the pitch offset fuses for the surface tilt

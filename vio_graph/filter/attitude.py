@@ -61,6 +61,9 @@ class AttitudeTracker:
 
     def __init__(self, config: AttitudeConfig | None = None) -> None:
         self.config = AttitudeConfig() if config is None else config
+        #: the pull's time constant in use (s): ``config.time_constant_s`` unless the caller
+        #: weighs the pull (:meth:`weigh_pull`)
+        self.time_constant_s = self.config.time_constant_s
         self._R: Mat3 | None = None  # R_world_imu, row-major
         self._t_s = 0.0
         self._gyro_radps = (0.0, 0.0, 0.0)  # rad/s, latest sample
@@ -85,7 +88,7 @@ class AttitudeTracker:
             if dt < 0:
                 raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
             qw, qx, qy, qz = np.asarray(imu.quat_wxyz, dtype=float).tolist()
-            k = min(1.0, dt / self.config.time_constant_s)
+            k = min(1.0, dt / self.time_constant_s)
             self._R = self._kernels.attitude_step(
                 self._R, self._gyro_radps, (gx, gy, gz), (qw, qx, qy, qz), dt, k
             )
@@ -99,7 +102,7 @@ class AttitudeTracker:
                 self._R,
                 rotvec_mat3(0.5 * (px + gx) * dt, 0.5 * (py + gy) * dt, 0.5 * (pz + gz) * dt),
             )
-            k = min(1.0, dt / self.config.time_constant_s)
+            k = min(1.0, dt / self.time_constant_s)
             ex, ey, ez = mat3_rotvec(mat3_tmul(R, R_vendor))
             self._R = mat3_mul(R, rotvec_mat3(k * ex, k * ey, k * ez))
         self._t_s, self._gyro_radps = t, (gx, gy, gz)
@@ -120,7 +123,7 @@ class AttitudeTracker:
                 raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
             R = np.array(self._R).reshape(3, 3)
             R = R @ Rotation.from_rotvec(0.5 * (np.array(self._gyro_radps) + gyro) * dt).as_matrix()
-            k = min(1.0, dt / self.config.time_constant_s)
+            k = min(1.0, dt / self.time_constant_s)
             err = Rotation.from_matrix(R.T @ R_vendor).as_rotvec()
             R = R @ Rotation.from_rotvec(k * err).as_matrix()
         r = R.ravel().tolist()
@@ -132,6 +135,21 @@ class AttitudeTracker:
     @property
     def initialised(self) -> bool:
         return self._R is not None
+
+    def weigh_pull(self, offset_var_rad2: float) -> float:
+        """Slow the pull towards the vendor by how much better the pitch is known without it
+        (``AttitudeConfig.vendor_pitch_sigma_deg``): with ``offset_var_rad2`` the variance of
+        the level-aided pitch offset (rad^2), the time constant becomes ``time_constant_s`` x
+        (var_offset + var_vendor) / var_offset. The two are blended as two estimates of the
+        pitch by their variances; the pull is the vendor's share. Returns the time constant in
+        use (s); unchanged (``time_constant_s``) when the option is off."""
+        sigma_deg = self.config.vendor_pitch_sigma_deg
+        tau = self.config.time_constant_s
+        if sigma_deg is not None and 0.0 < offset_var_rad2 < math.inf:
+            var_vendor = math.radians(sigma_deg) ** 2
+            tau *= (offset_var_rad2 + var_vendor) / offset_var_rad2
+        self.time_constant_s = tau
+        return tau
 
     def gyro_at(self, t_s: float) -> NDArray[np.float64]:
         """Gyro rate (rad/s, IMU axes) at ``t_s``, interpolated over the recent samples (held

@@ -40,6 +40,19 @@ class AttitudeConfig(BaseModel):
         description="complementary filter: time constant (s) of the pull towards the vendor "
         "orientation",
     )
+    vendor_pitch_sigma_deg: float | None = Field(
+        default=None,
+        gt=0,
+        description="complementary filter with the level-surface pitch aiding on: the vendor "
+        "orientation's pitch error sigma (deg, MTi-1 ~1 deg RMS dynamic). The pull towards the "
+        "vendor is then weighed against the level-aided pitch offset's own variance (not "
+        "below level_aiding.measurement_floor_deg^2, the tilt error shared by frames): its time "
+        "constant becomes time_constant_s x (var_offset + var_vendor) / var_offset (12 s at "
+        "the 0.3 deg floor and 1 deg vendor), so while "
+        "level surfaces hold the pitch to a fraction of a degree the vendor's correlated error "
+        "is not imported at its own pace, and when they are lost (the offset's variance grows) "
+        "the pull returns to time_constant_s. None = the fixed time_constant_s",
+    )
 
 
 class LevelAidingConfig(BaseModel):

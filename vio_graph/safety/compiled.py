@@ -22,6 +22,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from vio_graph.compiled_sums import pairwise_sum
 from vio_graph.safety.clearance import (
     MAX_TRANSITION_BIN_M,
     NO_CLEARANCE,
@@ -213,6 +214,20 @@ def _farther(dx, dz, best):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _first_reaching(hi, n, x):  # pragma: no cover - compiled
+    """The first of the ``n`` columns whose right end ``hi`` (ascending, m) is at or past
+    ``x`` (np.searchsorted(hi[:n], x), side left); ``n`` if none."""
+    k0, k1 = 0, n
+    while k0 < k1:
+        m = (k0 + k1) // 2
+        if hi[m] < x:
+            k0 = m + 1
+        else:
+            k1 = m
+    return k0
+
+
+@numba.njit(cache=True)
 def _foot_clearance_near(ax, az, bx, bz, lo, hi, z):  # pragma: no cover - compiled
     """:func:`_foot_clearance` with the same result, bit for bit, without the hypot of the
     candidates that cannot be the minimum: a column whose lower bound (its x gap to the
@@ -240,13 +255,7 @@ def _foot_clearance_near(ax, az, bx, bz, lo, hi, z):  # pragma: no cover - compi
     # an upper bound on the minimum: the heel and the toe against the column nearest each
     bound = np.inf
     for px, pz in ((ax, az), (bx, bz)):
-        k0, k1 = 0, B
-        while k0 < k1:
-            m = (k0 + k1) // 2
-            if hi[m] < px:
-                k0 = m + 1
-            else:
-                k1 = m
+        k0 = _first_reaching(hi, B, px)
         for i in (k0 - 1, k0):
             if 0 <= i < B:
                 v = math.hypot(px - min(max(px, lo[i]), hi[i]), pz - min(pz, z[i]))
@@ -378,13 +387,7 @@ def _clearance_many_near(a, b, lo, hi, z, sole):  # pragma: no cover - compiled
     for t in range(T):
         ax, az, bx, bz = a[t, 0], a[t, 1], b[t, 0], b[t, 1]
         x0 = min(ax, bx)
-        k0, k1 = 0, B  # the first column whose right end reaches the foot's span
-        while k0 < k1:
-            m = (k0 + k1) // 2
-            if hi[m] < x0:
-                k0 = m + 1
-            else:
-                k1 = m
+        k0 = _first_reaching(hi, B, x0)  # the first column reaching the foot's span
         out[t] = _pose_clearance(ax, az, bx, bz, lo, hi, z, k0, np.inf) - sole
     return out
 
@@ -1131,6 +1134,24 @@ def _interp_column(q, xp, disp, s0, n, c, at):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _median_over_templates(out):  # pragma: no cover - compiled
+    """The median over templates (axis 0) of ``out`` (T, H, 4), np.median's floats; one
+    template: a copy of it."""
+    T, H = out.shape[0], out.shape[1]
+    if T == 1:
+        return out[0].copy()
+    med = np.empty((H, 4))
+    v = np.empty(T)
+    for i in range(H):
+        for c in range(4):
+            for k in range(T):
+                v[k] = out[k, i, c]
+            v.sort()
+            med[i, c] = v[T // 2] if T % 2 else (v[T // 2 - 1] + v[T // 2]) / 2
+    return med
+
+
+@numba.njit(cache=True)
 def template_motion(tau, h, phase, disp, starts):  # pragma: no cover - compiled
     """Median displacement (H, 4) of heel and toe from phase tau to tau + h over the
     templates (online.SafetyMonitor._template_motion): template k is ``phase`` (s) and
@@ -1158,17 +1179,7 @@ def template_motion(tau, h, phase, disp, starts):  # pragma: no cover - compiled
                 at = np.interp(q, ph, np.ascontiguousarray(disp[s0:s1, c]))
             for i in range(H):
                 out[k, i, c] = at[i + 1] - at[0]
-    if T == 1:
-        return out[0].copy()
-    med = np.empty((H, 4))
-    v = np.empty(T)
-    for i in range(H):
-        for c in range(4):
-            for k in range(T):
-                v[k] = out[k, i, c]
-            v.sort()
-            med[i, c] = v[T // 2] if T % 2 else (v[T // 2 - 1] + v[T // 2]) / 2
-    return med
+    return _median_over_templates(out)
 
 
 @numba.njit(cache=True)
@@ -1187,17 +1198,7 @@ def template_motion_reference(tau, h, phase, disp, starts):  # pragma: no cover 
             at = np.interp(q, ph, np.ascontiguousarray(disp[starts[k] : starts[k + 1], c]))
             for i in range(H):
                 out[k, i, c] = at[i + 1] - at[0]
-    if T == 1:
-        return out[0].copy()
-    med = np.empty((H, 4))
-    v = np.empty(T)
-    for i in range(H):
-        for c in range(4):
-            for k in range(T):
-                v[k] = out[k, i, c]
-            v.sort()
-            med[i, c] = v[T // 2] if T % 2 else (v[T // 2 - 1] + v[T // 2]) / 2
-    return med
+    return _median_over_templates(out)
 
 
 @numba.njit(cache=True)
@@ -1207,70 +1208,10 @@ def _pair_changes(used_mid, p, q, i0, bin_m, max_gap, slope_step):  # pragma: no
     return gap <= max_gap and abs(used_mid[q] - used_mid[p]) > slope_step
 
 
-#: :func:`_pairwise_sum` follows numpy's summation of one contiguous block; longer arrays
-#: (never edges: 8192 of them are 1.6 km of stairs) are summed by numpy
+#: edges longer than this (never: 8192 of them are 1.6 km of stairs) are summed by numpy;
+#: :func:`vio_graph.compiled_sums.pairwise_sum` is numpy's pairwise summation up to its
+#: 64-level stack, far beyond it
 PAIRWISE_MAX_N = 8192
-
-
-@numba.njit(cache=True)
-def _block_sum(a, lo, n):  # pragma: no cover - compiled
-    """numpy's pairwise summation of ``a[lo:lo + n]`` for n <= 128 (one block): in order
-    below 8 values, else eight running sums combined pairwise and the rest in order."""
-    if n < 8:
-        res = -0.0
-        for i in range(lo, lo + n):
-            res += a[i]
-        return res
-    r = np.empty(8)
-    for j in range(8):
-        r[j] = a[lo + j]
-    i = 8
-    while i < n - (n % 8):
-        for j in range(8):
-            r[j] += a[lo + i + j]
-        i += 8
-    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@numba.njit(cache=True)
-def _pairwise_sum(a, lo, n):  # pragma: no cover - compiled
-    """The sum of ``a[lo:lo + n]`` as numpy's ``np.add.reduce`` of a contiguous float64
-    array adds it (its pairwise summation: blocks of at most 128 values, :func:`_block_sum`,
-    and above that the two halves summed separately and added, the first half a multiple
-    of 8 long), the same float. The halving as a loop over an explicit stack."""
-    lo_s = np.empty(64, np.int64)
-    n_s = np.empty(64, np.int64)
-    state = np.empty(64, np.int64)
-    left = np.empty(64)
-    lo_s[0], n_s[0], state[0] = lo, n, 0
-    sp = 1
-    ret = 0.0
-    while sp > 0:
-        t = sp - 1
-        m = n_s[t]
-        if m <= 128:
-            ret = _block_sum(a, lo_s[t], m)
-            sp -= 1
-            continue
-        n2 = m // 2
-        n2 -= n2 % 8
-        if state[t] == 0:  # the first half
-            state[t] = 1
-            lo_s[sp], n_s[sp], state[sp] = lo_s[t], n2, 0
-            sp += 1
-        elif state[t] == 1:  # the second half
-            left[t] = ret
-            state[t] = 2
-            lo_s[sp], n_s[sp], state[sp] = lo_s[t] + n2, m - n2, 0
-            sp += 1
-        else:
-            ret = left[t] + ret
-            sp -= 1
-    return ret
 
 
 @numba.njit(cache=True)
@@ -1285,12 +1226,12 @@ def edge_summary(xz, rise):  # pragma: no cover - compiled
         a = np.empty(n)
         for i in range(n):
             a[i] = abs(rise[i])
-        mean_rise = (0.0 + _pairwise_sum(a, 0, n)) / n
+        mean_rise = (0.0 + pairwise_sum(a, 0, n)) / n
     if n >= 2:
         d = np.empty(n - 1)
         for i in range(n - 1):
             d[i] = xz[i + 1, 0] - xz[i, 0]
-        tread = (0.0 + _pairwise_sum(d, 0, n - 1)) / (n - 1)
+        tread = (0.0 + pairwise_sum(d, 0, n - 1)) / (n - 1)
     return n, mean_rise, tread
 
 

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from vio_graph.errors import VioGraphError
+from vio_graph.interrupts import on_sigterm
 
 if TYPE_CHECKING:
     from vio_graph.config import PipelineConfig
@@ -656,20 +657,6 @@ def map_command(
     typer.echo(f"map files in {out / 'map'}")
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C so that every ``finally`` (temporary files, the recording
-    writer's folder, the rerun stream) runs before the process exits."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-def _on_sigterm(signum: int, _frame: object) -> None:
-    signal.signal(signum, signal.SIG_IGN)  # a second SIGTERM must not cut the cleanup short
-    raise Terminated(signum)
-
-
 def _report_interrupt(exc: BaseException) -> int:
     """Say what an interrupted command finished; return the exit code (128 + signal)."""
     signum = getattr(exc, "signum", signal.SIGINT)
@@ -806,7 +793,7 @@ def import_bag_command(
 def main() -> None:
     """Console-script entry point: known errors -> one line and exit code 1; SIGINT/SIGTERM
     -> cleanup, a note of the completed outputs, exit code 130/143."""
-    signal.signal(signal.SIGTERM, _on_sigterm)
+    signal.signal(signal.SIGTERM, on_sigterm)
     from vio_graph.memory import freeze_at_exit
 
     freeze_at_exit()  # this process is ours: its shutdown need not collect (memory.py)

@@ -1550,8 +1550,9 @@ class OnlineEstimator:
             floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
             var = max(self.pitch_offset.var_rad2, floor * floor)
         tau = self.attitude.weigh_pull(var)
-        if self._input_consts is not None:
-            self._input_consts[self.attitude._kernels.IN_TIME_CONSTANT] = tau
+        kernels = self.attitude._kernels
+        if self._input_consts is not None and kernels is not None:
+            self._input_consts[kernels.IN_TIME_CONSTANT] = tau
 
     def _tilt_to_fuse(self, t: float, tilt: SurfaceTilt) -> tuple[float, float]:
         """The tilt (rad) and its sigma (rad) the pitch offset fuses for the surface tilt

@@ -7,10 +7,14 @@ from collections.abc import Iterator
 
 from tqdm import tqdm
 
+from vio_graph.interrupts import raise_if_pending
+
 
 class _Bar(tqdm):
     def update_to(self, n: int) -> None:
-        """Set the absolute count (callbacks that report 'n done so far')."""
+        """Set the absolute count (callbacks that report 'n done so far'); a SIGTERM whose
+        exception was swallowed is raised here (vio_graph/interrupts.py)."""
+        raise_if_pending()
         self.update(n - self.n)
 
 

@@ -281,6 +281,38 @@ def camera_fixed_mask_reference(
     return out
 
 
+def _padded_pixel(
+    K: NDArray[np.float64],
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    z: NDArray[np.float64],
+    h: int,
+    w: int,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]]:
+    """Camera points (x, y, z) (m) projected by ``K`` to the nearest pixel of an h x w image
+    padded by 2 pixels: (row, column) in the padded image, clipped to one pixel beyond the
+    image, and whether the point is in front of the camera (z > 1 mm) and within that one
+    pixel of the image."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    front = z > 1e-3
+    u = np.rint(np.where(front, fx * x / np.where(front, z, 1.0) + cx, -10.0)).astype(np.int64)
+    v = np.rint(np.where(front, fy * y / np.where(front, z, 1.0) + cy, -10.0)).astype(np.int64)
+    inside = (u >= -1) & (u <= w) & (v >= -1) & (v <= h)
+    return np.clip(v, -1, h) + 2, np.clip(u, -1, w) + 2, inside
+
+
+def _nearest_depth_3x3(
+    pad: NDArray[np.float64], vi: NDArray[np.int64], ui: NDArray[np.int64], z: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Per point, the smallest |depth - z| (m) over the 3 x 3 pixels of the padded depth
+    ``pad`` around (vi, ui); inf where none of them is valid."""
+    best = np.full(z.shape, np.inf)
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            np.minimum(best, np.abs(pad[vi + dv, ui + du] - z), out=best)
+    return best
+
+
 def _world_test(
     pad: NDArray[np.float64],
     r: NDArray[np.int64],
@@ -312,17 +344,9 @@ def _world_test(
     Q = np.column_stack([z * (c - cx) / fx, z * (r - cy) / fy, z])
     Qp = Q @ np.asarray(motion.R_prev_cur, dtype=float).T + motion.t_prev_cur_m
     zp = Qp[:, 2]
-    front = zp > 1e-3
-    up = np.where(front, fx * Qp[:, 0] / np.where(front, zp, 1.0) + cx, -10.0)
-    vp = np.where(front, fy * Qp[:, 1] / np.where(front, zp, 1.0) + cy, -10.0)
-    ui, vi = np.rint(up).astype(np.int64), np.rint(vp).astype(np.int64)
-    far = (ui < -1) | (ui > w) | (vi < -1) | (vi > h)
-    ui, vi = np.clip(ui, -1, w) + 2, np.clip(vi, -1, h) + 2
-    best = np.full(z.shape, np.inf)
-    for dv in (-1, 0, 1):
-        for du in (-1, 0, 1):
-            np.minimum(best, np.abs(pad[vi + dv, ui + du] - zp), out=best)
-    seen = np.isfinite(best) & ~far
+    vi, ui, inside = _padded_pixel(K, Qp[:, 0], Qp[:, 1], zp, h, w)
+    best = _nearest_depth_3x3(pad, vi, ui, zp)
+    seen = np.isfinite(best) & inside
     # what the predicted motion's own uncertainty can move a point along the optical axis
     var_t = float(np.asarray(motion.t_cov_m2)[2, 2])
     var_rot = (np.linalg.norm(Q[:, :2], axis=1) * motion.rot_sigma_rad) ** 2
@@ -374,16 +398,9 @@ def _hidden(
     x = R[0, 0] * d0 + R[1, 0] * d1 + R[2, 0] * d2
     y = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
     zc = R[0, 2] * d0 + R[1, 2] * d1 + R[2, 2] * d2
-    front = zc > 1e-3
     h, w = pad.shape[0] - 4, pad.shape[1] - 4
-    uc = np.rint(np.where(front, fx * x / np.where(front, zc, 1.0) + cx, -10.0))
-    vc = np.rint(np.where(front, fy * y / np.where(front, zc, 1.0) + cy, -10.0))
-    inside = front & (uc >= -1) & (uc <= w) & (vc >= -1) & (vc <= h)
-    uci = np.clip(uc, -1, w).astype(np.int64) + 2
-    vci = np.clip(vc, -1, h).astype(np.int64) + 2
-    best = np.full(j.shape, np.inf)
-    for dv2, du2 in offsets:
-        np.minimum(best, np.abs(pad_cur[vci + dv2, uci + du2] - zc), out=best)
+    vci, uci, inside = _padded_pixel(K, x, y, zc, h, w)
+    best = _nearest_depth_3x3(pad_cur, vci, uci, zc)
     # the occluder refutes the occlusion only where its own test is decided against it:
     # moved back, it lands on valid current depth that disagrees (an object fixed to the
     # lens does); out of view or on no valid pixel, the occlusion stands unrefuted

@@ -300,3 +300,38 @@ def test_simulate_writes_a_readable_recording(tmp_path) -> None:
     trial = simulate_trial(cfg, 3)
     np.testing.assert_allclose(rec.imu.accel_mps2, trial.imu.accel_mps2, atol=1e-5)
     np.testing.assert_allclose(rec.frame(4).depth_m, trial.render_frame(4)[0], atol=1e-3)
+
+
+def test_terrain_too_short_names_the_length_that_works_for_the_seed() -> None:
+    """The error says where the walk ends against where it must end (0.3 s past the trial)
+    and the shortest end length (0.25 m steps) with which this seed's trial simulates."""
+    import re
+
+    from vio_graph.errors import TerrainTooShortError
+
+    cfg = load_scenario("downstair")
+    short = cfg.model_copy(
+        update={
+            "duration_s": 12.0,
+            "terrain": cfg.terrain.model_copy(update={"landing_length_m": 1.0}),
+        }
+    )
+    with pytest.raises(TerrainTooShortError) as info:
+        simulate_trial(short, seed=1)
+    msg = str(info.value)
+    ends = re.search(r"its walk ends at ([0-9.]+) s and must go on to ([0-9.]+) s", msg)
+    assert ends is not None, msg
+    assert float(ends.group(1)) < float(ends.group(2)) == pytest.approx(12.3)
+    named = re.search(r"with terrain\.landing_length_m: ([0-9.]+) \(now 1\.00\)", msg)
+    assert named is not None, msg
+    length_m = float(named.group(1))
+
+    def with_length(value_m: float):
+        return short.model_copy(
+            update={"terrain": short.terrain.model_copy(update={"landing_length_m": value_m})}
+        )
+
+    trial = simulate_trial(with_length(length_m), seed=1)
+    assert trial.frame_true_time_s[-1] > 11.9
+    with pytest.raises(TerrainTooShortError):  # the shortest such length on the grid
+        simulate_trial(with_length(length_m - 0.25), seed=1)

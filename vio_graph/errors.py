@@ -29,6 +29,15 @@ class SimulationError(VioGraphError):
     """The simulator was asked for something it cannot produce (e.g. an unreachable pose)."""
 
 
+class TerrainTooShortError(SimulationError):
+    """The walk runs out of terrain before the trial ends; ``field`` is the terrain length
+    (``landing_length_m`` or ``exit_length_m``) that lengthens it."""
+
+    def __init__(self, message: str, field: str) -> None:
+        super().__init__(message)
+        self.field = field
+
+
 class EstimationError(VioGraphError):
     """An estimator was fed data it cannot use (e.g. out-of-order timestamps)."""
 

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from scipy.interpolate import BPoly, CubicSpline, make_interp_spline
 from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 
-from vio_graph.errors import ConfigError, SimulationError
+from vio_graph.errors import ConfigError, SimulationError, TerrainTooShortError
 from vio_graph.kinematics import LegModel
 from vio_graph.sim.config import GaitConfig, RigConfig
 from vio_graph.sim.terrain import Terrain
@@ -40,6 +40,7 @@ SWING_PITCH_ITERATIONS = 3
 _EXIT_HEEL_MARGIN_M = 0.03  # first foothold after the stairs: heel this far past the edge
 _EXIT_STEP_M = 0.30  # then one short step before level steps (no 1 m stride off the stairs)
 _MAX_TOE_OVERHANG_M = 0.05  # descent on treads shorter than the foot: toe past the nosing
+_WALK_MARGIN_S = 0.3  # the walk must go on this long past the trial's end (the last swing)
 
 
 def leg_model_for(rig: RigConfig) -> LegModel:
@@ -382,13 +383,16 @@ def plan_strides(
         t += T
         if t > duration_s + 0.5:
             break
-    if not strides or (strides[-1].t_next_s < duration_s + 0.3 and not allow_short):
+    if not strides or (strides[-1].t_next_s < duration_s + _WALK_MARGIN_S and not allow_short):
         walked_s = strides[-1].t_next_s if strides else 0.0
-        raise SimulationError(
+        field = _end_length_field(terrain.kind)
+        raise TerrainTooShortError(
             f"terrain too short for a {duration_s:.1f} s trial: its walk ends at "
-            f"{walked_s:.1f} s; lengthen terrain.{_end_length_field(terrain.kind)} (about "
-            f"{_metres_per_second(gait):.1f} m per extra second at this gait) or shorten "
-            "duration_s"
+            f"{walked_s:.2f} s and must go on to {duration_s + _WALK_MARGIN_S:.2f} s "
+            f"({_WALK_MARGIN_S:.1f} s past the trial's end, for the last swing); lengthen "
+            f"terrain.{field} (about {_metres_per_second(gait):.1f} m per extra second at "
+            "this gait) or shorten duration_s",
+            field,
         )
     # the final stride needs the next foothold for its swing
     return strides
@@ -884,10 +888,11 @@ def simulate_gait(
     else:
         t_end = float(pauses.tau(np.array([duration_s + 0.25]))[0]) + 0.01
         if strides[-1].t_next_s < t_end + 0.05:
-            raise SimulationError(
+            field = _end_length_field(terrain.kind)
+            raise TerrainTooShortError(
                 f"terrain too short for a {duration_s:.1f} s trial with these pauses: "
-                f"lengthen terrain.{_end_length_field(terrain.kind)}, add steps / flights "
-                "or shorten duration_s"
+                f"lengthen terrain.{field}, add steps / flights or shorten duration_s",
+                field,
             )
     t = np.arange(0.0, t_end + 0.5 / DENSE_RATE_HZ, 1.0 / DENSE_RATE_HZ)
     pitch = base_pitch

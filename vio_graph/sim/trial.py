@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from vio_graph.errors import TerrainTooShortError
 from vio_graph.geometry import invert_transform, make_transform, rot_x, rot_y, rot_z
 from vio_graph.recording.metadata import (
     FORMAT_VERSION,
@@ -119,10 +120,46 @@ def _rng(seed: int, stream: str) -> np.random.Generator:
     return np.random.default_rng([seed, _STREAMS.index(stream)])
 
 
+_LENGTH_STEP_M = 0.25  # search step for a terrain length that covers the trial
+_LENGTH_SEARCH_M = 30.0  # give up suggesting a length beyond this much more terrain
+
+
+def _terrain_and_gait(
+    config: ScenarioConfig, seed: int, suggest: bool = True
+) -> tuple[Terrain, LegMotion]:
+    """The terrain and the leg's motion; when the terrain is too short, the error names the
+    shortest length of the end field (0.25 m steps) with which this seed's walk covers the
+    trial (the walk ends on whole strides drawn with jitter, so no formula gives it)."""
+    terrain = build_terrain(config.terrain, _rng(seed, "terrain"))
+    try:
+        motion = simulate_gait(
+            terrain, config.gait, config.rig, config.duration_s, _rng(seed, "gait")
+        )
+    except TerrainTooShortError as err:
+        if not suggest:
+            raise
+        now_m = float(getattr(config.terrain, err.field))
+        for k in range(1, int(_LENGTH_SEARCH_M / _LENGTH_STEP_M) + 1):
+            length_m = now_m + k * _LENGTH_STEP_M
+            longer = config.model_copy(
+                update={"terrain": config.terrain.model_copy(update={err.field: length_m})}
+            )
+            try:
+                _terrain_and_gait(longer, seed, suggest=False)
+            except TerrainTooShortError:
+                continue
+            raise TerrainTooShortError(
+                f"{err}; with terrain.{err.field}: {length_m:.2f} (now {now_m:.2f}) this "
+                f"trial simulates for seed {seed} (checked)",
+                err.field,
+            ) from None
+        raise
+    return terrain, motion
+
+
 def simulate_trial(config: ScenarioConfig, seed: int) -> SimulatedTrial:
     """Simulate one trial in memory (frames are rendered on demand)."""
-    terrain = build_terrain(config.terrain, _rng(seed, "terrain"))
-    motion = simulate_gait(terrain, config.gait, config.rig, config.duration_s, _rng(seed, "gait"))
+    terrain, motion = _terrain_and_gait(config, seed)
     knee_T_cam, knee_T_imu, imu_xz = rig_transforms(config.rig)
     cam_xz = np.asarray(config.rig.camera_in_shank_xz_m, dtype=float)
     R_s_c = knee_T_cam[:3, :3]

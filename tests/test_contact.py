@@ -84,9 +84,11 @@ def test_contact_proposes_stance_and_vision_still_decides(
 ) -> None:
     rec = Recording.open(short_upstair)
     t, f = _load_cell(rec, np.random.default_rng(1))
-    cfg = PipelineConfig().model_copy(
+    base = PipelineConfig()
+    cfg = base.model_copy(
         update={
-            "output": PipelineConfig().output.model_copy(update={"rerun": False, "plots": False})
+            "output": base.output.model_copy(update={"rerun": False, "plots": False}),
+            "filter": base.filter.model_copy(update={"stance_contact": "propose"}),
         }
     )
     good = with_contact(short_upstair, tmp_path / "good", f, t)
@@ -104,7 +106,8 @@ def test_contact_proposes_stance_and_vision_still_decides(
 def test_confirm_role_needs_the_quiet_ankle_as_well(short_upstair: Path, tmp_path: Path) -> None:
     """``filter.stance_contact: confirm``: a stuck load cell (always loaded) proposes nothing
     the acceleration detector does not, so the stance candidates are exactly those of the
-    same recording without a contact channel; with ``propose`` it proposes every frame."""
+    same recording without a contact channel; with ``propose`` it proposes every frame; with
+    ``off`` (the default) the channel is not used at all."""
     rec = Recording.open(short_upstair)
     t = rec.imu.timestamp_s
     stuck = with_contact(short_upstair, tmp_path / "stuck", np.full(t.size, 700.0), t)
@@ -124,3 +127,5 @@ def test_confirm_role_needs_the_quiet_ankle_as_well(short_upstair: Path, tmp_pat
     without = candidates(short_upstair, "confirm", "none")
     assert 0 < candidates(stuck, "confirm", "confirm") == without
     assert candidates(stuck, "propose", "propose") > without
+    assert candidates(stuck, "off", "off") == without
+    assert PipelineConfig().filter.stance_contact == "off"

@@ -929,9 +929,11 @@ class OnlineEstimator:
         self._joint_hist.append(sample)
 
     def add_contact(self, sample: ContactSample) -> None:
-        """Foot contact from a sensor (load cell, heel switch). Once any sample has arrived,
-        the latest one proposes the stance instead of the acceleration detector; vision
-        still tests it (StanceConsistencyTest) and the anchor gate still applies."""
+        """Foot contact from a sensor (load cell, heel switch). With
+        ``filter.stance_contact`` propose or confirm, once any sample has arrived the latest
+        one proposes the stance instead of the acceleration detector (propose) or with it
+        (confirm); vision still tests it (StanceConsistencyTest) and the anchor gate still
+        applies. With off (the default) it is kept and not used."""
         self._last_contact = sample
 
     @property
@@ -1729,7 +1731,7 @@ class OnlineEstimator:
         lever, dlever = self._stance_lever(R_world_imu)
         agrees = self._stance_test.test(t, lever, result.displacement)
         foot_still = self._foot_test.test(self._foot_pitch_rad(R_world_imu))
-        if self._last_contact is None:
+        if self._last_contact is None or fc.stance_contact == "off":
             candidate = self._stance.quiet()
         elif fc.stance_contact == "confirm":
             candidate = self._last_contact.loaded and self._stance.quiet()

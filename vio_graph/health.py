@@ -492,9 +492,9 @@ _INNOVATION_CAUSES = {
         "the ankle anchor disagrees with the IMU-propagated position: the IMU is noisier "
         "than the filter's noise settings (a consumer-grade or low-rate IMU: check "
         "filter.accel_noise_sigma_mps2), a slipping foot, or a stance detector flagging parts "
-        "of the swing or of a rolling foot (with a contact channel, a loaded foot whose "
-        "ankle still moves: try filter.stance_contact: confirm; else filter.stance_anchor: "
-        "false)"
+        "of the swing or of a rolling foot (with filter.stance_contact propose or confirm, "
+        "a loaded foot whose ankle still moves: try filter.stance_contact: off; else "
+        "filter.stance_anchor: false)"
     ),
 }
 

@@ -729,15 +729,16 @@ class FilterConfig(BaseModel):
             "kinematics: ankle - camera = R_shank (ankle_in_shank - camera_in_shank)"
         ),
     )
-    stance_contact: Literal["propose", "confirm"] = Field(
-        default="propose",
+    stance_contact: Literal["off", "propose", "confirm"] = Field(
+        default="off",
         description="role of a foot-contact channel (contact.csv) in proposing a stance. "
+        "off: none, the acceleration detector proposes (a load cell or switch says the foot "
+        "carries weight, which it also does while it rolls over the heel after contact and "
+        "over the toe before toe-off, when the ankle moves; the anchor needs a still ankle). "
         "propose: a loaded foot is a stance candidate (vision and the foot's rotation then "
-        "test it). confirm: a candidate needs both the loaded foot and the quiet ankle of "
-        "the acceleration detector: a load cell or switch says the foot carries weight, "
-        "which it also does while it rolls over the heel after contact and over the toe "
-        "before toe-off, when the ankle moves; the acceleration says the ankle is still, and "
-        "the contact rules out a slow swing that looks quiet",
+        "test it). confirm: a candidate needs both the loaded foot and the quiet ankle "
+        "(the contact rules out a slow swing that looks quiet). Measured on nine trials with "
+        "a channel (docs/method.md section 2): off best on six",
     )
     stance_accel_threshold_mps2: float = Field(
         default=2.0,

@@ -951,7 +951,7 @@ def test_compiled_slice_equals_the_numpy_path_at_every_agreement_count() -> None
         R_xz = np.linalg.qr(rng.normal(size=(3, 3)))[0][[0, 2], :]
         speckle = (np.float32(0.03), np.float32(0.01), min_agree)
         fast = kernels.slice_xz(
-            depth, conf, c0, c1, lower, upper, 1, *speckle, x_grid, y_grid, R_xz
+            depth, conf, c0, c1, lower, upper, 1, *speckle, x_grid[0], y_grid[:, 0], R_xz
         )
         cam = projection._slice_cam_points_numpy(
             depth, conf, c0, c1, lower, upper, 1, speckle if min_agree else None, x_grid, y_grid

@@ -1660,14 +1660,18 @@ _fma: Any = _fma_intrinsic
 
 @numba.njit(cache=True)
 def slice_xz(
-    depth, conf, c0, c1, lower, upper, min_conf, rel_tol, abs_tol, min_agree, x_grid, y_grid, R_xz
+    depth, conf, c0, c1, lower, upper, min_conf, rel_tol, abs_tol, min_agree, x_per_m, y_per_m, R_xz
 ):  # pragma: no cover - compiled
     """``projection.sagittal_slice_from_depth``'s compiled pass: the pixels of columns c0:c1
     with depth in [lower, upper[column]] (float32 bounds) and confidence >= ``min_conf``,
     with ``min_agree`` > 0 also passing ``projection.drop_speckles``' test (float32
     ``rel_tol`` / ``abs_tol``, the same float32 operations as numpy's), back-projected
-    (z = depth as float64, x = z x_grid, y = z y_grid) and rotated by ``R_xz`` (2, 3): the
-    (M, 2) slice in row-major pixel order.
+    (z = depth as float64, x = z x_per_m[column - c0], y = z y_per_m[row]) and rotated by
+    ``R_xz`` (2, 3): the (M, 2) slice in row-major pixel order. ``x_per_m`` (c1 - c0,) and
+    ``y_per_m`` (H,) are one row and one column of the numpy path's (H, c1 - c0) grids (the
+    same values): the two grids (~0.6 MB) did not stay in the cache beside the image, and
+    reading them cost more than the rest of the pass (~80 -> ~40 us a frame without the
+    speckle test).
 
     The speckle test stops counting neighbours once ``min_agree`` of them agree (its need is
     at most that, so the decision is known then). The rotation is summed as the BLAS kernel
@@ -1680,6 +1684,7 @@ def slice_xz(
     r10, r11, r12 = R_xz[1, 0], R_xz[1, 1], R_xz[1, 2]
     m = 0
     for r in range(h):
+        y_m = y_per_m[r]
         for c in range(c0, c1):
             d = depth[r, c]
             if not (d <= upper[c - c0] and d >= lower and conf[r, c] >= min_conf):
@@ -1702,8 +1707,8 @@ def slice_xz(
                 if agree < min(max(n_valid, 1), min_agree):
                     continue
             z = np.float64(d)
-            x = z * x_grid[r, c - c0]
-            y = z * y_grid[r, c - c0]
+            x = z * x_per_m[c - c0]
+            y = z * y_m
             out[m, 0] = _fma(z, r02, _fma(y, r01, x * r00))
             out[m, 1] = _fma(z, r12, _fma(y, r11, x * r10))
             m += 1

@@ -1373,36 +1373,48 @@ def level_bands(x, z, max_range, check_range, heights, lo, hi, band):  # pragma:
     ``x * x + z * z`` against ``max_range**2`` when that is more than 1e-12 relative away, else
     by libm's ``hypot`` as numpy calls it: the same points); then per level ``|z - height| <=
     band`` and ``lo <= x <= hi``. Returns (L, M) x and z of each level's points in input order
-    and the (L,) counts."""
+    and the (L,) counts.
+
+    Without branches on the tests (every point is written at the next free place, which
+    advances when it passes): the slice's points come in pixel order, where band and range
+    membership alternate unpredictably, and the mispredicted branches were most of the time
+    (~49 -> ~31 us on a frame's ~8,500 points). The same points in the same order."""
     n = x.shape[0]
-    keep = np.empty(n, np.int64)
+    xk = np.empty(n)
+    zk = np.empty(n)
     m = 0
-    if check_range:
-        r2 = max_range * max_range
-        r2_in = r2 * (1.0 - 1e-12)
-        r2_out = r2 * (1.0 + 1e-12)
-        for i in range(n):
-            d2 = x[i] * x[i] + z[i] * z[i]
-            if d2 < r2_in or (not d2 > r2_out and math.hypot(x[i], z[i]) < max_range):
-                keep[m] = i
-                m += 1
-    else:
-        for i in range(n):
-            keep[i] = i
-        m = n
+    r2 = max_range * max_range
+    r2_in = r2 * (1.0 - 1e-12)
+    r2_out = r2 * (1.0 + 1e-12)
+    for i in range(n):
+        xi = x[i]
+        zi = z[i]
+        xk[m] = xi
+        zk[m] = zi
+        if check_range:
+            d2 = xi * xi + zi * zi
+            inside = d2 < r2_in
+            if d2 >= r2_in and not d2 > r2_out:  # within 1e-12 of the range (rare): hypot
+                inside = math.hypot(xi, zi) < max_range
+            m += inside
+        else:
+            m += 1
     n_levels = heights.shape[0]
     bx = np.empty((n_levels, m))
     bz = np.empty((n_levels, m))
     counts = np.zeros(n_levels, np.int64)
-    for k in range(m):
-        xi = x[keep[k]]
-        zi = z[keep[k]]
-        for lv in range(n_levels):
-            if abs(zi - heights[lv]) <= band and xi >= lo[lv] and xi <= hi[lv]:
-                c = counts[lv]
-                bx[lv, c] = xi
-                bz[lv, c] = zi
-                counts[lv] = c + 1
+    for lv in range(n_levels):
+        h = heights[lv]
+        x_lo = lo[lv]
+        x_hi = hi[lv]
+        c = 0
+        for k in range(m):  # c <= k: the write stays inside the row
+            xi = xk[k]
+            zi = zk[k]
+            bx[lv, c] = xi
+            bz[lv, c] = zi
+            c += (abs(zi - h) <= band) & (xi >= x_lo) & (xi <= x_hi)
+        counts[lv] = c
     return bx, bz, counts
 
 

@@ -1426,7 +1426,10 @@ def _rank_key(keys, work, k):  # pragma: no cover - compiled
     """The rank-``k`` (0-based) value of ``keys`` (uint64) by radix selection: a histogram of
     the next 8 bits of the candidates, the bucket that holds rank k kept, 8 passes at most
     over a shrinking set (``work`` a scratch array of the same size). Branch-light, where a
-    quickselect on ~5,500 random floats mispredicts half its comparisons (~3x slower)."""
+    quickselect on ~5,500 random floats mispredicts half its comparisons (~3x slower); the
+    pass that keeps the bucket's keys writes every key and advances on a match (a branch on
+    the match missed often when the bucket held a large share: median ~55 -> ~35 us for
+    both medians of a frame's ~5,600 residuals)."""
     n = keys.shape[0]
     for i in range(n):
         work[i] = keys[i]
@@ -1445,11 +1448,10 @@ def _rank_key(keys, work, k):  # pragma: no cover - compiled
             continue  # every candidate shares these bits
         ud = np.uint64(d)
         c = 0
-        for i in range(m):
+        for i in range(m):  # every key written, kept when in the bucket: no branch to miss
             v = work[i]
-            if (v >> sh) & np.uint64(255) == ud:
-                work[c] = v
-                c += 1
+            work[c] = v
+            c += (v >> sh) & np.uint64(255) == ud
         m = c
         if m == 1:
             break
@@ -1466,12 +1468,11 @@ def _middle_key(keys, work, h, even):  # pragma: no cover - compiled
         return hi, hi
     below = 0
     lo = np.uint64(0)
-    for i in range(keys.shape[0]):
+    for i in range(keys.shape[0]):  # a count and a maximum, without branches
         v = keys[i]
-        if v < hi:
-            below += 1
-            if v > lo:
-                lo = v
+        lt = v < hi
+        below += lt
+        lo = max(lo, v if lt else np.uint64(0))
     return (hi if below < h else lo), hi
 
 

@@ -61,6 +61,7 @@ IMU-seeded mode (the default whenever the caller passes a prediction):
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -165,7 +166,7 @@ class CornerTracker:
                 upper_height_m=corner.upper_height_m + dz,
                 lower_height_m=corner.lower_height_m + dz,
             )
-        self._prev = dataclasses.replace(prev, profile_xz_m=prev.profile_xz_m @ R.T, corner=corner)
+        self._prev = _Frame(prev.timestamp_s, prev.profile_xz_m @ R.T, corner, prev.track_id)
 
     def _new_id(self) -> int:
         self._next_id += 1
@@ -389,7 +390,7 @@ class CornerTracker:
     def _has_face(self, corner: CornerFeature) -> bool:
         """True if the feature window holds a face (riser / obstacle side) below the edge."""
         below = corner.feature_points_xz_m[:, 1] < corner.edge_xz_m[1] - 0.01
-        return int(below.sum()) >= self._cfg.min_face_points
+        return int(np.count_nonzero(below)) >= self._cfg.min_face_points
 
     def _profile_icp(
         self,
@@ -501,7 +502,9 @@ class CornerTracker:
 
     def _is_same(self, corner: CornerFeature, prev_corner: CornerFeature, T: NDArray) -> bool:
         moved_back = corner.mean_xz_m - T
-        gap_m = float(np.linalg.norm(moved_back - prev_corner.mean_xz_m))
+        v = moved_back - prev_corner.mean_xz_m
+        # np.linalg.norm of a vector is sqrt(v.dot(v)): the same float without its wrapper
+        gap_m = math.sqrt(float(v.dot(v)))
         return gap_m <= self._cfg.same_corner_gate_m
 
     def _quality_problem(self, icp: IcpResult) -> str | None:

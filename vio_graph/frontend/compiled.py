@@ -738,6 +738,51 @@ def icp_pairs(src, tgt, tx, tz, keep, j, normals):  # pragma: no cover - compile
     return pairs_t, pairs_s, residual, nrm, rms
 
 
+@numba.njit(cache=True)
+def source_crop(prof, tgt, t0x, t0z, grow):  # pragma: no cover - compiled
+    """``tracker.CornerTracker._source``'s crop on the profile: the points of ``prof`` (N, 2)
+    inside the bounding box of ``tgt`` moved back by T0 (``tgt - T0``), grown by ``grow``
+    on every side, in input order. The same comparisons against the same bounds as the
+    numpy form (the box's extremes as np.min / np.max find them: NaN if a coordinate is NaN,
+    which no point passes)."""
+    nt = tgt.shape[0]
+    x_lo = np.inf
+    x_hi = -np.inf
+    z_lo = np.inf
+    z_hi = -np.inf
+    nan_x = False
+    nan_z = False
+    for i in range(nt):
+        mx = tgt[i, 0] - t0x
+        mz = tgt[i, 1] - t0z
+        if math.isnan(mx):
+            nan_x = True
+        else:
+            x_lo = min(x_lo, mx)
+            x_hi = max(x_hi, mx)
+        if math.isnan(mz):
+            nan_z = True
+        else:
+            z_lo = min(z_lo, mz)
+            z_hi = max(z_hi, mz)
+    n = prof.shape[0]
+    out = np.empty((n, 2))
+    if nan_x or nan_z:
+        return out[:0]
+    a = x_lo - grow
+    b = x_hi + grow
+    c = z_lo - grow
+    d = z_hi + grow
+    m = 0
+    for k in range(n):
+        px = prof[k, 0]
+        pz = prof[k, 1]
+        out[m, 0] = px
+        out[m, 1] = pz
+        m += (px >= a) & (px <= b) & (pz >= c) & (pz <= d)
+    return out[:m].copy()
+
+
 # ----------------------------------------------------------------------------- smoothing
 
 

@@ -220,14 +220,20 @@ class CornerTracker:
             assert prev.corner is not None
             pts = prev.corner.feature_points_xz_m
             return pts, _source_tree(pts)
-        moved = target - T0
         grow = self._icp_cfg.max_correspondence_m + self._cfg.source_margin_m
-        mx, mz = moved[:, 0], moved[:, 1]
         prof = prev.profile_xz_m
-        px, pz = prof[:, 0], prof[:, 1]
-        inside = (px >= mx.min() - grow) & (px <= mx.max() + grow)
-        inside &= (pz >= mz.min() - grow) & (pz <= mz.max() + grow)
-        pts = prof[inside]
+        kernels = compiled_kernels()
+        if kernels is not None and target.shape[0] and target.ndim == prof.ndim == 2:
+            # the same points in one compiled call (tests/test_frontend_fastpaths.py)
+            pts = kernels.source_crop(
+                np.ascontiguousarray(prof, dtype=float),
+                np.ascontiguousarray(target, dtype=float),
+                float(T0[0]),
+                float(T0[1]),
+                float(grow),
+            )
+        else:
+            pts = _source_crop_reference(prof, target, T0, grow)
         if pts.shape[0] == 0:
             pts = prof[:1]  # ICP will find no correspondences and say so
         return pts, _source_tree(pts)
@@ -553,6 +559,19 @@ def _drop_weakest(
         return T, C
     u, n = V[:, 1], V[:, 0]
     return T + u * float(u @ (T0 - T)), float(w[0]) * np.outer(n, n) + cap_m2 * np.outer(u, u)
+
+
+def _source_crop_reference(
+    prof: NDArray[np.float64], target: NDArray[np.float64], T0: NDArray[np.float64], grow: float
+) -> NDArray[np.float64]:
+    """The points of ``prof`` inside the bounding box of ``target - T0`` grown by ``grow``
+    (m), in input order (numpy path of ``compiled.source_crop``)."""
+    moved = target - T0
+    mx, mz = moved[:, 0], moved[:, 1]
+    px, pz = prof[:, 0], prof[:, 1]
+    inside = (px >= mx.min() - grow) & (px <= mx.max() + grow)
+    inside &= (pz >= mz.min() - grow) & (pz <= mz.max() + grow)
+    return prof[inside]
 
 
 def _source_tree(pts: NDArray[np.float64]) -> cKDTree | None:

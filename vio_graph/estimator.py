@@ -1620,6 +1620,8 @@ class OnlineEstimator:
     def _note_innovations(self, t_s: float, family: str) -> None:
         """Hand the filter's updates since the last call to the health report's consistency
         test as measurements of ``family`` (read-only: the estimate is not touched)."""
+        if not self.filter.innovations:  # nothing since the last hand-over (most calls)
+            return
         items = self.filter.take_innovations()
         if items:
             self.health.add_innovations(t_s, family, items)

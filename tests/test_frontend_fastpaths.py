@@ -951,7 +951,7 @@ def test_compiled_slice_equals_the_numpy_path_at_every_agreement_count() -> None
         R_xz = np.linalg.qr(rng.normal(size=(3, 3)))[0][[0, 2], :]
         speckle = (np.float32(0.03), np.float32(0.01), min_agree)
         fast = kernels.slice_xz(
-            depth, conf, c0, c1, lower, upper, 1, *speckle, x_grid, y_grid, R_xz
+            depth, conf, c0, c1, lower, upper, 1, *speckle, x_grid[0], y_grid[:, 0], R_xz
         )
         cam = projection._slice_cam_points_numpy(
             depth, conf, c0, c1, lower, upper, 1, speckle if min_agree else None, x_grid, y_grid
@@ -1284,3 +1284,30 @@ def test_means_without_the_wrapper_are_ndarray_mean_bit_for_bit() -> None:
             assert np.array_equal(_line_residuals(xs, zs), reference(xs, zs))
             ours = np.add.reduce(pts, axis=0) / pts.shape[0]
             assert ours.tobytes() == pts.mean(axis=0).tobytes()
+
+
+def test_compiled_source_crop_equals_the_numpy_crop() -> None:
+    """The tracker's ICP source crop (``compiled.source_crop``) against its numpy form: the
+    same points in the same order, with profile points exactly on the grown box's edges,
+    NaNs in the target or the profile, and one-point targets."""
+    from vio_graph.frontend.tracker import _source_crop_reference
+
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(21)
+    n_inside = 0
+    for case in range(300):
+        prof = np.round(rng.uniform(-0.2, 1.2, (int(rng.integers(0, 300)), 2)), 2)
+        tgt = np.round(rng.uniform(0.0, 1.0, (int(rng.integers(1, 60)), 2)), 2)
+        T0 = np.round(rng.normal(0.0, 0.02, 2), 2)
+        grow = float(rng.choice([0.0, 0.01, 0.05]))
+        if case % 13 == 0 and prof.shape[0]:
+            prof[0, int(case % 2)] = np.nan
+        if case % 17 == 0:
+            tgt[-1, int(case % 2)] = np.nan
+        got = kernels.source_crop(prof, tgt, float(T0[0]), float(T0[1]), grow)
+        want = _source_crop_reference(prof, tgt, T0, grow)
+        assert got.shape == want.shape
+        assert np.array_equal(got, want, equal_nan=True)
+        n_inside += want.shape[0]
+    assert n_inside > 1000

@@ -156,6 +156,15 @@ def _saturated(sample: ImuSample) -> bool:
     return sample.accel_extra_sigma_mps2 > 0.0 and not sample.accel_held
 
 
+def _median_finite(values: list[float]) -> float:
+    """np.median of finite floats (at least one): the middle value, or the two middle ones
+    summed and halved, as np.median's mean of two rounds them (the same float)."""
+    v = sorted(values)
+    n = len(v)
+    m = n // 2
+    return v[m] if n % 2 else (v[m - 1] + v[m]) / 2.0
+
+
 def _pooled(
     pool: NDArray[np.float64], at: int, size: int, arr: NDArray[np.float64] | None
 ) -> NDArray[np.float64]:
@@ -1241,8 +1250,12 @@ class OnlineEstimator:
         if not self._in_stance:
             self._stance_sole_z_m.clear()
             return
-        self._stance_sole_z_m.append(min(float(pts.heel_xz_m[0][1]), float(pts.toe_xz_m[0][1])))
-        self._stand_z_m = float(np.median(self._stance_sole_z_m))
+        z = min(float(pts.heel_xz_m[0][1]), float(pts.toe_xz_m[0][1]))
+        self._stance_sole_z_m.append(z)
+        if math.isnan(z) or self._stand_z_m is None or math.isnan(self._stand_z_m):
+            self._stand_z_m = float(np.median(self._stance_sole_z_m))
+        else:  # finite values: np.median's middle value(s) without its ~15 us of dispatch
+            self._stand_z_m = _median_finite(self._stance_sole_z_m)
 
     def _advance_stance_until(self, t_s: float) -> None:
         """Feed the stance detector the queued IMU samples stamped at or before ``t_s`` and
@@ -1609,6 +1622,8 @@ class OnlineEstimator:
     def _note_innovations(self, t_s: float, family: str) -> None:
         """Hand the filter's updates since the last call to the health report's consistency
         test as measurements of ``family`` (read-only: the estimate is not touched)."""
+        if not self.filter.innovations:  # nothing since the last hand-over (most calls)
+            return
         items = self.filter.take_innovations()
         if items:
             self.health.add_innovations(t_s, family, items)

@@ -638,10 +638,14 @@ def _covariance(
     sigma2 = max(float(r_n @ r_n) / r_n.size, cfg.sigma_floor_m**2)
     (w0, w1), (v0, v1) = _eig_sym2(float(nx @ nx), float(nx @ nz), float(nz @ nz))
     floor = max(cfg.degenerate_ratio * w1, 1e-9)
-    cov = np.zeros((2, 2))
+    # sum_k var_k v_k v_k^T on Python floats: the same products and sums, in the same order,
+    # as adding the two outer products to a zero array (one array at the end)
+    xx = xz = zz = 0.0
     for w, (vx, vz) in ((w0, v0), (w1, v1)):
         var = min(sigma2 * cfg.cov_inflation / max(w, 1e-12), cfg.max_variance_m2)
         if cfg.metric == "point_to_line" and w <= floor:
             var = cfg.max_variance_m2
-        cov += var * np.array([[vx * vx, vx * vz], [vx * vz, vz * vz]])
-    return cov
+        xx += var * (vx * vx)
+        xz += var * (vx * vz)
+        zz += var * (vz * vz)
+    return np.array([[xx, xz], [xz, zz]])

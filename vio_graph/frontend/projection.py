@@ -287,8 +287,8 @@ def sagittal_slice_from_depth(
             np.float32(rel),
             np.float32(abs_m),
             int(agree),
-            x_grid,
-            y_grid,
+            x_grid[0],  # the grids' one row and one column: the same values, less memory
+            y_grid[:, 0],
             R_xz,
         )
     points_cam = _slice_cam_points_numpy(

@@ -466,8 +466,8 @@ def _lower_beyond(pts: NDArray[np.float64], levels: Sequence[Level], config: Ter
     if not levels:
         return False
     last = levels[-1]
-    beyond = pts[:, 0] > last.x_max_m + config.level_gap_m
-    lower = pts[beyond][pts[beyond, 1] < last.height_m - config.min_step_m]
+    far = pts[pts[:, 0] > last.x_max_m + config.level_gap_m]  # selected once
+    lower = far[far[:, 1] < last.height_m - config.min_step_m]
     if lower.shape[0] == 0:
         return False
     return bool(lower[:, 0].max() - lower[:, 0].min() >= config.min_level_length_m)

@@ -61,6 +61,7 @@ IMU-seeded mode (the default whenever the caller passes a prediction):
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -165,7 +166,7 @@ class CornerTracker:
                 upper_height_m=corner.upper_height_m + dz,
                 lower_height_m=corner.lower_height_m + dz,
             )
-        self._prev = dataclasses.replace(prev, profile_xz_m=prev.profile_xz_m @ R.T, corner=corner)
+        self._prev = _Frame(prev.timestamp_s, prev.profile_xz_m @ R.T, corner, prev.track_id)
 
     def _new_id(self) -> int:
         self._next_id += 1
@@ -219,14 +220,20 @@ class CornerTracker:
             assert prev.corner is not None
             pts = prev.corner.feature_points_xz_m
             return pts, _source_tree(pts)
-        moved = target - T0
         grow = self._icp_cfg.max_correspondence_m + self._cfg.source_margin_m
-        mx, mz = moved[:, 0], moved[:, 1]
         prof = prev.profile_xz_m
-        px, pz = prof[:, 0], prof[:, 1]
-        inside = (px >= mx.min() - grow) & (px <= mx.max() + grow)
-        inside &= (pz >= mz.min() - grow) & (pz <= mz.max() + grow)
-        pts = prof[inside]
+        kernels = compiled_kernels()
+        if kernels is not None and target.shape[0] and target.ndim == prof.ndim == 2:
+            # the same points in one compiled call (tests/test_frontend_fastpaths.py)
+            pts = kernels.source_crop(
+                np.ascontiguousarray(prof, dtype=float),
+                np.ascontiguousarray(target, dtype=float),
+                float(T0[0]),
+                float(T0[1]),
+                float(grow),
+            )
+        else:
+            pts = _source_crop_reference(prof, target, T0, grow)
         if pts.shape[0] == 0:
             pts = prof[:1]  # ICP will find no correspondences and say so
         return pts, _source_tree(pts)
@@ -389,7 +396,7 @@ class CornerTracker:
     def _has_face(self, corner: CornerFeature) -> bool:
         """True if the feature window holds a face (riser / obstacle side) below the edge."""
         below = corner.feature_points_xz_m[:, 1] < corner.edge_xz_m[1] - 0.01
-        return int(below.sum()) >= self._cfg.min_face_points
+        return int(np.count_nonzero(below)) >= self._cfg.min_face_points
 
     def _profile_icp(
         self,
@@ -501,7 +508,9 @@ class CornerTracker:
 
     def _is_same(self, corner: CornerFeature, prev_corner: CornerFeature, T: NDArray) -> bool:
         moved_back = corner.mean_xz_m - T
-        gap_m = float(np.linalg.norm(moved_back - prev_corner.mean_xz_m))
+        v = moved_back - prev_corner.mean_xz_m
+        # np.linalg.norm of a vector is sqrt(v.dot(v)): the same float without its wrapper
+        gap_m = math.sqrt(float(v.dot(v)))
         return gap_m <= self._cfg.same_corner_gate_m
 
     def _quality_problem(self, icp: IcpResult) -> str | None:
@@ -550,6 +559,19 @@ def _drop_weakest(
         return T, C
     u, n = V[:, 1], V[:, 0]
     return T + u * float(u @ (T0 - T)), float(w[0]) * np.outer(n, n) + cap_m2 * np.outer(u, u)
+
+
+def _source_crop_reference(
+    prof: NDArray[np.float64], target: NDArray[np.float64], T0: NDArray[np.float64], grow: float
+) -> NDArray[np.float64]:
+    """The points of ``prof`` inside the bounding box of ``target - T0`` grown by ``grow``
+    (m), in input order (numpy path of ``compiled.source_crop``)."""
+    moved = target - T0
+    mx, mz = moved[:, 0], moved[:, 1]
+    px, pz = prof[:, 0], prof[:, 1]
+    inside = (px >= mx.min() - grow) & (px <= mx.max() + grow)
+    inside &= (pz >= mz.min() - grow) & (pz <= mz.max() + grow)
+    return prof[inside]
 
 
 def _source_tree(pts: NDArray[np.float64]) -> cKDTree | None:

@@ -421,6 +421,8 @@ def surface_majority(
     rel_tol: float,
     abs_tol_m: float,
     min_pixels: int,
+    onset: NDArray[np.bool_] | None = None,
+    onset_share: float = 0.5,
 ) -> NDArray[np.bool_]:
     """Decide per surface as well as per pixel. The pixels of ``same`` (depth unchanged since
     the previous frame) are split into surfaces at depth edges (a 4-neighbour differing by
@@ -431,6 +433,11 @@ def surface_majority(
     landed on the object again, goes with its surface); in any other surface only the
     pixels of ``mask`` are. Pixels at a depth edge go with the camera-fixed surface next to
     them (the object's rim). (H, W) bool.
+
+    ``onset`` (H, W), if given: the pixels whose depth has stayed since an occlusion onset
+    (:class:`OnsetTracker`); a surface with fewer than ``onset_share`` of its pixels in it
+    keeps none of its pixels, whatever the test said (terrain that keeps its depth while a
+    confidently wrong prediction says it should have moved has no such onset).
 
     With the compiled kernels the surfaces are labelled by ``compiled.label4`` and the rim
     dilated by :func:`dilate4` (the same labels and pixels as ``scipy.ndimage``'s ``label``
@@ -461,6 +468,9 @@ def surface_majority(
     size = np.bincount(labels.ravel(), minlength=n + 1)
     hits = np.bincount(labels.ravel(), weights=mask.ravel(), minlength=n + 1)
     counts = hits >= min_pixels
+    if onset is not None:
+        began = np.bincount(labels.ravel(), weights=onset.ravel(), minlength=n + 1)
+        counts &= began >= onset_share * size
     whole = counts & (hits >= 0.5 * size)
     counts[0] = whole[0] = False
     out = whole[labels] | (counts[labels] & mask)
@@ -481,6 +491,59 @@ def dilate4(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
     return out
 
 
+class OnsetTracker:
+    """Per pixel: has the depth stayed where it went at an occlusion onset? Evidence about
+    an object in front of the terrain that does not come from the predicted motion.
+
+    An object that enters the view close to the lens covers terrain: at its first frame its
+    pixels' depth drops far below what they saw before, and from then on it stays. Terrain
+    that keeps its depth while a wrong prediction says it should have moved has no such
+    onset: its depth history is the terrain's. Per pixel, against the depth it last saw
+    valid (an invalid frame changes nothing, so a ToF gap makes no onset):
+
+    * never valid before (the first frame of the trial, or a pixel that saw nothing): onset
+      (a strap in view from the start);
+    * nearer by more than ``drop_tols`` x the speckle test's agreement
+      (``rel_tol * depth + abs_tol_m`` of the depth before): onset;
+    * within ``keep_sigmas`` depth-noise sigmas (of a difference of two pixels): the status is
+      kept;
+    * any other change: no onset (the depth moved as terrain's does).
+    """
+
+    def __init__(
+        self, drop_tols: float, rel_tol: float, abs_tol_m: float, keep_sigmas: float
+    ) -> None:
+        self.drop_tols = float(drop_tols)
+        self.rel_tol = float(rel_tol)
+        self.abs_tol_m = float(abs_tol_m)
+        self.keep_sigmas = float(keep_sigmas)
+        self._last: NDArray[np.float64] | None = None  # last valid depth, nan = never valid
+        self.onset: NDArray[np.bool_] | None = None
+
+    def reset(self) -> None:
+        self._last = None
+        self.onset = None
+
+    def update(self, depth_m: NDArray, depth_sigma_m: float) -> NDArray[np.bool_]:
+        """The (H, W) onset status after this depth image (0 / non-finite = invalid)."""
+        d = np.asarray(depth_m, dtype=np.float64)
+        valid = np.isfinite(d) & (d > 0)
+        if self._last is None or self._last.shape != d.shape:
+            self._last = np.where(valid, d, np.nan)
+            self.onset = valid.copy()
+            return self.onset
+        last = self._last
+        assert self.onset is not None
+        never = valid & np.isnan(last)
+        with np.errstate(invalid="ignore"):
+            change = d - last
+            drop = valid & (change < -self.drop_tols * (self.rel_tol * last + self.abs_tol_m))
+            keep = valid & (np.abs(change) <= self.keep_sigmas * np.sqrt(2.0) * depth_sigma_m)
+        self.onset = np.where(valid, never | drop | (keep & self.onset), self.onset)
+        self._last = np.where(valid, d, last)
+        return self.onset
+
+
 class CameraFixedFilter:
     """Per-frame state of :func:`camera_fixed_mask`: the previous depth image, its camera ->
     ground rotation and camera-fixed mask. :meth:`update` returns the current mask."""
@@ -491,8 +554,18 @@ class CameraFixedFilter:
         edge_rel_tol: float = 0.03,
         edge_abs_tol_m: float = 0.01,
         min_pixels: int = 20,
+        onset_drop_tols: float | None = None,
+        onset_share: float = 0.5,
     ) -> None:
         self.k_sigma = float(k_sigma)
+        self.onset_share = float(onset_share)
+        # with onset_drop_tols, a surface leaves only if most of its pixels kept their depth
+        # since an occlusion onset (OnsetTracker); the status survives 2 x k_sigma of noise
+        self._onset: OnsetTracker | None = None
+        if onset_drop_tols is not None:
+            self._onset = OnsetTracker(
+                onset_drop_tols, edge_rel_tol, edge_abs_tol_m, 2.0 * float(k_sigma)
+            )
         self.min_pixels = int(min_pixels)
         self.edge_rel_tol = float(edge_rel_tol)
         self.edge_abs_tol_m = float(edge_abs_tol_m)
@@ -504,6 +577,8 @@ class CameraFixedFilter:
         self._prev = None
         self._prev_t = None
         self._held = None
+        if self._onset is not None:
+            self._onset.reset()
 
     @property
     def holding(self) -> bool:
@@ -515,9 +590,13 @@ class CameraFixedFilter:
         depth_m: NDArray,
         R_ground_cam: NDArray[np.float64],
         timestamp_s: float | None = None,
+        depth_sigma_m: float | None = None,
     ) -> None:
         """A frame that is not tested (report-only mode between checks): kept as the
-        previous frame for the next :meth:`update`, with nothing held."""
+        previous frame for the next :meth:`update`, with nothing held; its depth feeds the
+        occlusion onsets (``depth_sigma_m``: the depth noise sd, m, as :meth:`update`'s)."""
+        if self._onset is not None and depth_sigma_m is not None:
+            self._onset.update(depth_m, depth_sigma_m)
         self._prev_t = None if timestamp_s is None else float(timestamp_s)
         self._prev = (np.asarray(depth_m), np.asarray(R_ground_cam, dtype=float))
         self._held = None
@@ -554,6 +633,7 @@ class CameraFixedFilter:
             self._prev = (self._prev[0], turn @ self._prev[1])
         depth = np.asarray(depth_m)
         mask = np.zeros(depth.shape, dtype=bool)
+        onset = None if self._onset is None else self._onset.update(depth, depth_sigma_m)
         if (
             self._prev is not None
             and predicted_delta_xz_m is not None
@@ -593,6 +673,8 @@ class CameraFixedFilter:
                     self.edge_rel_tol,
                     self.edge_abs_tol_m,
                     self.min_pixels,
+                    None if onset is None else onset[box],
+                    self.onset_share,
                 )
                 mask = np.zeros(depth.shape, dtype=bool)
                 mask[box] = decided

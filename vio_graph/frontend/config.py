@@ -97,6 +97,23 @@ class CameraFixedConfig(_Strict):
         "of terrain pixels (clean upstair s1-2: at most 12 a frame, 1-3 in one surface; the "
         "1 s occluding foot: ~6700 in one surface)",
     )
+    onset_drop_tols: float | None = Field(
+        3.0,
+        gt=0,
+        description="occlusion onset (camera_fixed.OnsetTracker): a surface leaves the slice "
+        "only if at least onset_share of its pixels have kept their depth since it dropped "
+        "by more than this many times the speckle test's agreement (3 % + 1 cm of the depth "
+        "before) in one frame, or since they were first valid (the trial's first frame, a "
+        "strap in view from the start). Evidence that does not come from the filter's "
+        "velocity: terrain read as camera-fixed under a confidently wrong prediction has no "
+        "onset. null = no such requirement",
+    )
+    onset_share: float = Field(
+        0.5,
+        gt=0,
+        le=1,
+        description="share of a surface's pixels that must have an occlusion onset",
+    )
     idle_check_every_frames: int = Field(
         3,
         ge=1,

@@ -9,7 +9,7 @@ import pytest
 
 from vio_graph.config import PipelineConfig
 from vio_graph.frontend import VisualFrontend
-from vio_graph.frontend.camera_fixed import CameraFixedFilter
+from vio_graph.frontend.camera_fixed import CameraFixedFilter, OnsetTracker
 from vio_graph.frontend.config import FrontendConfig
 from vio_graph.frontend.synthetic import (
     camera_rotation,
@@ -86,6 +86,44 @@ def test_without_motion_nothing_is_new_but_a_found_blob_stays_out() -> None:
     # the blob leaves the view: its pixels are terrain again
     d = _frame(*POSE_B, seed=4, blob=False)
     assert not _update(f, d, [0.0, 0.0]).any()
+
+
+def test_occlusion_onset_status_per_pixel() -> None:
+    """Known answers of OnsetTracker (speckle agreement 3 % + 1 cm, 3 of them for a drop; the
+    status survives 6 sigma of noise): first valid = onset; a 20 cm drop from 1 m = onset; a
+    mm of noise keeps it; a 5 cm change (terrain moving under the camera) ends it; an invalid
+    frame changes nothing (a ToF gap makes no onset)."""
+    t = OnsetTracker(3.0, 0.03, 0.01, 6.0)
+    d0 = np.array([[1.0, 1.0, 1.0, 0.0]])
+    assert t.update(d0, SIGMA_M).tolist() == [[True, True, True, False]]
+    assert t.update([[1.001, 0.95, 1.0, 0.0]], SIGMA_M).tolist() == [[True, False, True, False]]
+    assert t.update([[1.0, 0.95, 0.8, 0.6]], SIGMA_M).tolist() == [[True, False, True, True]]
+    gap = t.update(np.zeros((1, 4)), SIGMA_M).tolist()
+    assert gap == [[True, False, True, True]]
+    assert t.update([[1.0, 0.95, 0.8, 0.6]], SIGMA_M).tolist() == [[True, False, True, True]]
+    assert t.update([[1.05, 0.5, 0.8, 0.6]], SIGMA_M).tolist() == [[False, True, True, True]]
+
+
+def test_a_surface_without_an_occlusion_onset_is_not_removed() -> None:
+    """The blob's pixels pass the camera-fixed test on the third frame, but their depth came
+    there by 3 cm (a change terrain makes, not the drop of an object covering the terrain):
+    with the onset requirement nothing is removed; without it the blob is, as is the blob
+    that did drop onto the terrain (it entered the view on the second frame)."""
+    a, b = _frame(*POSE_A, seed=1), _frame(*POSE_B, seed=2)
+    inside = b[3]
+    early = (np.where(inside, a[0] + 0.03, a[0]).astype(np.float32), a[1], a[2], a[3])
+    entering = _frame(*POSE_B, seed=5, blob=False)
+    for onset, history, removed in (
+        (3.0, early, False),
+        (None, early, True),
+        (3.0, entering, True),
+    ):
+        f = CameraFixedFilter(onset_drop_tols=onset)
+        _update(f, history, [0.0, 0.0])
+        _update(f, a, np.subtract(POSE_A[0], POSE_B[0]) if history is entering else [0, 0])
+        mask = _update(f, b, np.subtract(POSE_B[0], POSE_A[0]))
+        assert (mask[inside].mean() > 0.99) == removed
+        assert not mask[~inside].any()
 
 
 def test_an_imu_that_reports_no_motion_removes_nothing() -> None:
@@ -319,3 +357,34 @@ def test_terrain_revealed_behind_a_nosing_is_not_taken_for_an_object(
     want = cf.camera_fixed_mask_reference(*args, float(d["depth_sigma_m"]), float(d["k_sigma"]))
     assert np.array_equal(got, want)
     assert int(got.sum()) < CameraFixedFilter().min_pixels
+
+
+def test_compiled_onset_tracker_equals_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``compiled.onset_update`` gives OnsetTracker's numpy status and last depths on random
+    depth sequences (drops, rises, noise, invalid pixels, float32 and float64 images)."""
+    from vio_graph.frontend import icp as icp_module
+
+    n_onsets = 0
+    for dtype in (np.float32, np.float64):
+        trackers = {}
+        for mode in ("0", "1"):
+            monkeypatch.setenv(icp_module.COMPILED_ENV, mode)
+            if mode == "1":
+                assert icp_module.compiled_kernels() is not None
+            t = OnsetTracker(2.0, 0.03, 0.01, 6.0)
+            run = np.random.default_rng(3)
+            depth = run.uniform(0.2, 2.0, (30, 40))
+            for _ in range(25):
+                step = run.choice(
+                    [0.0, 0.002, 0.03, -0.3], size=depth.shape, p=[0.5, 0.3, 0.1, 0.1]
+                )
+                depth = np.clip(depth + step * run.standard_normal(depth.shape) ** 2, 0.1, 3.0)
+                img = np.where(run.random(depth.shape) < 0.1, 0.0, depth).astype(dtype)
+                img[run.random(depth.shape) < 0.02] = np.nan
+                t.update(img, 0.003)
+            trackers[mode] = t
+        a, b = trackers["0"], trackers["1"]
+        assert np.array_equal(a.onset, b.onset)
+        assert np.array_equal(a._last, b._last, equal_nan=True)
+        n_onsets += int(a.onset.sum())
+    assert 0 < n_onsets < 2 * 30 * 40

@@ -435,9 +435,10 @@ def surface_majority(
     them (the object's rim). (H, W) bool.
 
     ``onset`` (H, W), if given: the pixels whose depth has stayed since an occlusion onset
-    (:class:`OnsetTracker`); a surface with fewer than ``onset_share`` of its pixels in it
-    keeps none of its pixels, whatever the test said (terrain that keeps its depth while a
-    confidently wrong prediction says it should have moved has no such onset).
+    (:class:`OnsetTracker`); a surface where fewer than ``onset_share`` of its pixels of
+    ``mask`` are in ``onset`` keeps none of its pixels, whatever the test said (terrain that
+    keeps its depth while a confidently wrong prediction says it should have moved has no
+    such onset).
 
     With the compiled kernels the surfaces are labelled by ``compiled.label4`` and the rim
     dilated by :func:`dilate4` (the same labels and pixels as ``scipy.ndimage``'s ``label``
@@ -469,8 +470,8 @@ def surface_majority(
     hits = np.bincount(labels.ravel(), weights=mask.ravel(), minlength=n + 1)
     counts = hits >= min_pixels
     if onset is not None:
-        began = np.bincount(labels.ravel(), weights=onset.ravel(), minlength=n + 1)
-        counts &= began >= onset_share * size
+        began = np.bincount(labels.ravel(), weights=(mask & onset).ravel(), minlength=n + 1)
+        counts &= began >= onset_share * hits
     whole = counts & (hits >= 0.5 * size)
     counts[0] = whole[0] = False
     out = whole[labels] | (counts[labels] & mask)
@@ -525,23 +526,45 @@ class OnsetTracker:
         self.onset = None
 
     def update(self, depth_m: NDArray, depth_sigma_m: float) -> NDArray[np.bool_]:
-        """The (H, W) onset status after this depth image (0 / non-finite = invalid)."""
+        """The (H, W) onset status after this depth image (0 / non-finite = invalid); the
+        returned array is the tracker's own, updated in place by the next call. Compiled
+        (``compiled.onset_update``) with the front end's kernels: the same status."""
+        d = np.asarray(depth_m)
+        if self._last is None or self._last.shape != d.shape:
+            valid = np.isfinite(d) & (d > 0)
+            self._last = np.where(valid, d, np.nan).astype(np.float64)
+            self.onset = valid
+            return self.onset
+        assert self.onset is not None
+        keep_tol = self.keep_sigmas * np.sqrt(2.0) * float(depth_sigma_m)
+        kernels = compiled_kernels()
+        if kernels is not None and d.ndim == 2 and d.dtype in (np.float32, np.float64):
+            kernels.onset_update(
+                d,
+                self._last,
+                self.onset,
+                self.drop_tols,
+                self.rel_tol,
+                self.abs_tol_m,
+                keep_tol,
+            )
+        else:
+            self._update_reference(d, keep_tol)
+        return self.onset
+
+    def _update_reference(self, depth_m: NDArray, keep_tol_m: float) -> None:
+        """:meth:`update` in numpy (the tested reference of the compiled kernel)."""
+        assert self._last is not None and self.onset is not None
         d = np.asarray(depth_m, dtype=np.float64)
         valid = np.isfinite(d) & (d > 0)
-        if self._last is None or self._last.shape != d.shape:
-            self._last = np.where(valid, d, np.nan)
-            self.onset = valid.copy()
-            return self.onset
         last = self._last
-        assert self.onset is not None
-        never = valid & np.isnan(last)
         with np.errstate(invalid="ignore"):
             change = d - last
-            drop = valid & (change < -self.drop_tols * (self.rel_tol * last + self.abs_tol_m))
-            keep = valid & (np.abs(change) <= self.keep_sigmas * np.sqrt(2.0) * depth_sigma_m)
-        self.onset = np.where(valid, never | drop | (keep & self.onset), self.onset)
-        self._last = np.where(valid, d, last)
-        return self.onset
+            drop = change < -self.drop_tols * (self.rel_tol * last + self.abs_tol_m)
+            kept = np.abs(change) <= keep_tol_m
+        status = np.isnan(last) | drop | (kept & self.onset)
+        np.copyto(self.onset, status, where=valid)
+        np.copyto(self._last, d, where=valid)
 
 
 class CameraFixedFilter:
@@ -577,8 +600,8 @@ class CameraFixedFilter:
         self._prev = None
         self._prev_t = None
         self._held = None
-        if self._onset is not None:
-            self._onset.reset()
+        # the occlusion onsets are kept: across a gap an object still in view keeps its
+        # depth (and its onset), and terrain is compared with what it was before the gap
 
     @property
     def holding(self) -> bool:

@@ -136,13 +136,15 @@ def test_an_imu_that_reports_no_motion_removes_nothing() -> None:
     assert not _update(f, b_unturned, [0.0, 0.0]).any()
 
 
-def test_the_shipped_config_turns_the_test_on() -> None:
+def test_the_default_removes_and_the_shipped_configs_choose() -> None:
     from vio_graph.config import load_config
 
     default = PipelineConfig().frontend.camera_fixed
-    assert default.enabled and not default.drop_pixels  # counted, not dropped, by default
-    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "camera_fixed.yaml")
-    assert cfg.frontend.camera_fixed.drop_pixels
+    assert default.enabled and default.drop_pixels and default.onset_drop_tols is not None
+    configs = Path(__file__).resolve().parents[1] / "configs"
+    assert load_config(configs / "camera_fixed.yaml").frontend.camera_fixed == default
+    report = load_config(configs / "camera_fixed_report_only.yaml").frontend.camera_fixed
+    assert report.enabled and not report.drop_pixels
 
 
 def test_front_end_drops_the_near_lens_blob_from_the_profile() -> None:
@@ -174,7 +176,9 @@ def test_report_only_mode_tests_every_nth_frame_until_it_finds_a_surface(every: 
     poses = [POSE_A if k % 2 == 0 else POSE_B for k in range(8)]
     frames = [_frame(*p, seed=k + 1) for k, p in enumerate(poses)]
     fe = VisualFrontend(
-        FrontendConfig.model_validate({"camera_fixed": {"idle_check_every_frames": every}})
+        FrontendConfig.model_validate(
+            {"camera_fixed": {"drop_pixels": False, "idle_check_every_frames": every}}
+        )
     )
     found = []
     for k, (depth, conf, R, _) in enumerate(frames):
@@ -248,7 +252,7 @@ def test_filter_error_over_an_occluding_foot_stays_bounded(
     from vio_graph.recording.reader import Recording
     from vio_graph.recording.tum import read_tum
 
-    cfg = PipelineConfig.model_validate({"frontend": {"camera_fixed": {"drop_pixels": True}}})
+    cfg = PipelineConfig()  # the removal is the default
     res = run_recording(
         occluded_upstair,
         tmp_path / "r",
@@ -268,15 +272,19 @@ def test_filter_error_over_an_occluding_foot_stays_bounded(
     assert any("moved with the camera" in w for w in res.metrics["health"]["warnings"])
 
 
-def test_by_default_the_occluder_is_reported_not_removed(
+def test_report_only_mode_leaves_the_estimate_as_it_was(
     occluded_upstair: Path, tmp_path: Path
 ) -> None:
-    """The default configuration counts the camera-fixed pixels and warns, and leaves the
-    estimate as it was without the test (drop_pixels off)."""
+    """With drop_pixels off the camera-fixed pixels are counted and warned about, and the
+    estimate is the one without the test; the default (removal) changes it."""
     from vio_graph.pipeline import run_recording
 
     metrics = {}
-    for name, cf in (("default", {}), ("off", {"enabled": False})):
+    for name, cf in (
+        ("report", {"drop_pixels": False}),
+        ("off", {"enabled": False, "drop_pixels": False}),
+        ("default", {}),
+    ):
         cfg = PipelineConfig.model_validate({"frontend": {"camera_fixed": cf}})
         metrics[name] = run_recording(
             occluded_upstair,
@@ -286,10 +294,12 @@ def test_by_default_the_occluder_is_reported_not_removed(
             visualize=False,
             progress=False,
         ).metrics
-    assert metrics["default"]["health"]["camera_fixed"]["frames"] > 20
-    assert any("moved with the camera" in w for w in metrics["default"]["health"]["warnings"])
+    for name in ("report", "default"):
+        assert metrics[name]["health"]["camera_fixed"]["frames"] > 20
+        assert any("moved with the camera" in w for w in metrics[name]["health"]["warnings"])
     assert metrics["off"]["health"]["camera_fixed"]["frames"] == 0
-    assert metrics["default"]["ate_cm"]["filter"] == metrics["off"]["ate_cm"]["filter"]
+    assert metrics["report"]["ate_cm"]["filter"] == metrics["off"]["ate_cm"]["filter"]
+    assert metrics["default"]["ate_cm"]["filter"] != metrics["off"]["ate_cm"]["filter"]
 
 
 def test_compiled_surface_labels_and_rim_equal_scipys(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -43,7 +43,7 @@ class FrontendResult:
     ``timings_ms``: "projection", "smoothing", "terrain", "corners", "icp", "total".
     ``n_camera_fixed``: slice pixels found to move with the camera
     (vio_graph/frontend/camera_fixed.py); dropped from the slice with
-    ``camera_fixed.drop_pixels``, only counted otherwise.
+    ``camera_fixed.drop_pixels`` (the default), only counted otherwise.
     """
 
     timestamp_s: float

@@ -22,7 +22,13 @@ own uncertainty can explain). When the predicted motion is too small to tell the
 (stance; a floor under a camera moving parallel to it) both hold and the pixel is kept: the
 test only removes what the IMU says cannot be terrain. A pixel once found camera-fixed stays
 so while its depth does not change (``r_fixed`` within the noise), so the object is not
-re-admitted when the camera pauses. Pure functions plus a small per-frame state; no I/O.
+re-admitted when the camera pauses.
+
+Both hypotheses use the predicted motion, so a confidently wrong prediction makes terrain that
+keeps its depth read as camera-fixed. A surface therefore leaves only if most of its
+camera-fixed pixels also show an occlusion onset (:class:`OnsetTracker`): their depth dropped
+far below what they saw before, or they were first seen, and has stayed since. That evidence
+comes from the depth images alone. Pure functions plus a small per-frame state; no I/O.
 """
 
 from __future__ import annotations
@@ -577,7 +583,7 @@ class CameraFixedFilter:
         edge_rel_tol: float = 0.03,
         edge_abs_tol_m: float = 0.01,
         min_pixels: int = 20,
-        onset_drop_tols: float | None = None,
+        onset_drop_tols: float | None = 3.0,
         onset_share: float = 0.5,
     ) -> None:
         self.k_sigma = float(k_sigma)

@@ -126,6 +126,23 @@ def test_a_surface_without_an_occlusion_onset_is_not_removed() -> None:
         assert not mask[~inside].any()
 
 
+def test_confirm_frames_returns_a_blob_found_on_consecutive_frames_only() -> None:
+    """With confirm_frames=2 the blob found on the swing frame is not returned yet, and is
+    returned on the next frame, where it is held (stance); a detection that is not repeated
+    (the blob gone on the next frame) is never returned."""
+    a, b = _frame(*POSE_A, seed=1), _frame(*POSE_B, seed=2)
+    c = _frame(*POSE_B, seed=3)
+    gone = _frame(*POSE_B, seed=4, blob=False)
+    for nxt, found in ((c, True), (gone, False)):
+        f = CameraFixedFilter(confirm_frames=2)
+        _update(f, a, [0.0, 0.0])
+        assert not _update(f, b, np.subtract(POSE_B[0], POSE_A[0])).any()
+        assert f.holding
+        mask = _update(f, nxt, [0.0, 0.0])
+        assert (mask[b[3]].mean() > 0.99) == found
+        assert not mask[~b[3]].any()
+
+
 def test_an_imu_that_reports_no_motion_removes_nothing() -> None:
     """The test needs the IMU to say the camera moved: with a zero prediction the blob is
     consistent with a static world, and terrain whose depth changed is never a candidate."""

@@ -585,8 +585,13 @@ class CameraFixedFilter:
         min_pixels: int = 20,
         onset_drop_tols: float | None = 3.0,
         onset_share: float = 0.5,
+        confirm_frames: int = 1,
     ) -> None:
         self.k_sigma = float(k_sigma)
+        # a pixel is returned once it has been camera-fixed on this many consecutive tested
+        # frames (1: at once); the held state below follows the unconfirmed decision
+        self.confirm_frames = int(confirm_frames)
+        self._run: NDArray[np.int32] | None = None
         self.onset_share = float(onset_share)
         # with onset_drop_tols, a surface leaves only if most of its pixels kept their depth
         # since an occlusion onset (OnsetTracker); the status survives 2 x k_sigma of noise
@@ -606,6 +611,7 @@ class CameraFixedFilter:
         self._prev = None
         self._prev_t = None
         self._held = None
+        self._run = None
         # the occlusion onsets are kept: across a gap an object still in view keeps its
         # depth (and its onset), and terrain is compared with what it was before the gap
 
@@ -629,6 +635,7 @@ class CameraFixedFilter:
         self._prev_t = None if timestamp_s is None else float(timestamp_s)
         self._prev = (np.asarray(depth_m), np.asarray(R_ground_cam, dtype=float))
         self._held = None
+        self._run = None
 
     def update(
         self,
@@ -709,4 +716,10 @@ class CameraFixedFilter:
                 mask[box] = decided
         self._prev = (depth, np.asarray(R_ground_cam, dtype=float))
         self._held = mask
-        return mask
+        if self.confirm_frames <= 1:
+            return mask
+        run = self._run
+        if run is None or run.shape != mask.shape:
+            run = np.zeros(mask.shape, dtype=np.int32)
+        self._run = np.where(mask, run + 1, 0).astype(np.int32)
+        return self._run >= self.confirm_frames

@@ -78,6 +78,7 @@ class VisualFrontend:
                 self.config.camera_fixed.min_pixels,
                 self.config.camera_fixed.onset_drop_tols,
                 self.config.camera_fixed.onset_share,
+                self.config.camera_fixed.confirm_frames,
             )
         self._camera_fixed_frames = 0  # frames seen by the camera-fixed test (idle checks)
         sc = self.config.smoothing

@@ -9,7 +9,7 @@ import pytest
 
 from vio_graph.config import PipelineConfig
 from vio_graph.frontend import VisualFrontend
-from vio_graph.frontend.camera_fixed import CameraFixedFilter
+from vio_graph.frontend.camera_fixed import CameraFixedFilter, OnsetTracker
 from vio_graph.frontend.config import FrontendConfig
 from vio_graph.frontend.synthetic import (
     camera_rotation,
@@ -88,6 +88,61 @@ def test_without_motion_nothing_is_new_but_a_found_blob_stays_out() -> None:
     assert not _update(f, d, [0.0, 0.0]).any()
 
 
+def test_occlusion_onset_status_per_pixel() -> None:
+    """Known answers of OnsetTracker (speckle agreement 3 % + 1 cm, 3 of them for a drop; the
+    status survives 6 sigma of noise): first valid = onset; a 20 cm drop from 1 m = onset; a
+    mm of noise keeps it; a 5 cm change (terrain moving under the camera) ends it; an invalid
+    frame changes nothing (a ToF gap makes no onset)."""
+    t = OnsetTracker(3.0, 0.03, 0.01, 6.0)
+    d0 = np.array([[1.0, 1.0, 1.0, 0.0]])
+    assert t.update(d0, SIGMA_M).tolist() == [[True, True, True, False]]
+    assert t.update([[1.001, 0.95, 1.0, 0.0]], SIGMA_M).tolist() == [[True, False, True, False]]
+    assert t.update([[1.0, 0.95, 0.8, 0.6]], SIGMA_M).tolist() == [[True, False, True, True]]
+    gap = t.update(np.zeros((1, 4)), SIGMA_M).tolist()
+    assert gap == [[True, False, True, True]]
+    assert t.update([[1.0, 0.95, 0.8, 0.6]], SIGMA_M).tolist() == [[True, False, True, True]]
+    assert t.update([[1.05, 0.5, 0.8, 0.6]], SIGMA_M).tolist() == [[False, True, True, True]]
+
+
+def test_a_surface_without_an_occlusion_onset_is_not_removed() -> None:
+    """The blob's pixels pass the camera-fixed test on the third frame, but their depth came
+    there by 3 cm (a change terrain makes, not the drop of an object covering the terrain):
+    with the onset requirement nothing is removed; without it the blob is, as is the blob
+    that did drop onto the terrain (it entered the view on the second frame)."""
+    a, b = _frame(*POSE_A, seed=1), _frame(*POSE_B, seed=2)
+    inside = b[3]
+    early = (np.where(inside, a[0] + 0.03, a[0]).astype(np.float32), a[1], a[2], a[3])
+    entering = _frame(*POSE_B, seed=5, blob=False)
+    for onset, history, removed in (
+        (3.0, early, False),
+        (None, early, True),
+        (3.0, entering, True),
+    ):
+        f = CameraFixedFilter(onset_drop_tols=onset)
+        _update(f, history, [0.0, 0.0])
+        _update(f, a, np.subtract(POSE_A[0], POSE_B[0]) if history is entering else [0, 0])
+        mask = _update(f, b, np.subtract(POSE_B[0], POSE_A[0]))
+        assert (mask[inside].mean() > 0.99) == removed
+        assert not mask[~inside].any()
+
+
+def test_confirm_frames_returns_a_blob_found_on_consecutive_frames_only() -> None:
+    """With confirm_frames=2 the blob found on the swing frame is not returned yet, and is
+    returned on the next frame, where it is held (stance); a detection that is not repeated
+    (the blob gone on the next frame) is never returned."""
+    a, b = _frame(*POSE_A, seed=1), _frame(*POSE_B, seed=2)
+    c = _frame(*POSE_B, seed=3)
+    gone = _frame(*POSE_B, seed=4, blob=False)
+    for nxt, found in ((c, True), (gone, False)):
+        f = CameraFixedFilter(confirm_frames=2)
+        _update(f, a, [0.0, 0.0])
+        assert not _update(f, b, np.subtract(POSE_B[0], POSE_A[0])).any()
+        assert f.holding
+        mask = _update(f, nxt, [0.0, 0.0])
+        assert (mask[b[3]].mean() > 0.99) == found
+        assert not mask[~b[3]].any()
+
+
 def test_an_imu_that_reports_no_motion_removes_nothing() -> None:
     """The test needs the IMU to say the camera moved: with a zero prediction the blob is
     consistent with a static world, and terrain whose depth changed is never a candidate."""
@@ -98,13 +153,15 @@ def test_an_imu_that_reports_no_motion_removes_nothing() -> None:
     assert not _update(f, b_unturned, [0.0, 0.0]).any()
 
 
-def test_the_shipped_config_turns_the_test_on() -> None:
+def test_the_default_removes_and_the_shipped_configs_choose() -> None:
     from vio_graph.config import load_config
 
     default = PipelineConfig().frontend.camera_fixed
-    assert default.enabled and not default.drop_pixels  # counted, not dropped, by default
-    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "camera_fixed.yaml")
-    assert cfg.frontend.camera_fixed.drop_pixels
+    assert default.enabled and default.drop_pixels and default.onset_drop_tols is not None
+    configs = Path(__file__).resolve().parents[1] / "configs"
+    assert load_config(configs / "camera_fixed.yaml").frontend.camera_fixed == default
+    report = load_config(configs / "camera_fixed_report_only.yaml").frontend.camera_fixed
+    assert report.enabled and not report.drop_pixels
 
 
 def test_front_end_drops_the_near_lens_blob_from_the_profile() -> None:
@@ -136,7 +193,9 @@ def test_report_only_mode_tests_every_nth_frame_until_it_finds_a_surface(every: 
     poses = [POSE_A if k % 2 == 0 else POSE_B for k in range(8)]
     frames = [_frame(*p, seed=k + 1) for k, p in enumerate(poses)]
     fe = VisualFrontend(
-        FrontendConfig.model_validate({"camera_fixed": {"idle_check_every_frames": every}})
+        FrontendConfig.model_validate(
+            {"camera_fixed": {"drop_pixels": False, "idle_check_every_frames": every}}
+        )
     )
     found = []
     for k, (depth, conf, R, _) in enumerate(frames):
@@ -210,7 +269,7 @@ def test_filter_error_over_an_occluding_foot_stays_bounded(
     from vio_graph.recording.reader import Recording
     from vio_graph.recording.tum import read_tum
 
-    cfg = PipelineConfig.model_validate({"frontend": {"camera_fixed": {"drop_pixels": True}}})
+    cfg = PipelineConfig()  # the removal is the default
     res = run_recording(
         occluded_upstair,
         tmp_path / "r",
@@ -230,15 +289,19 @@ def test_filter_error_over_an_occluding_foot_stays_bounded(
     assert any("moved with the camera" in w for w in res.metrics["health"]["warnings"])
 
 
-def test_by_default_the_occluder_is_reported_not_removed(
+def test_report_only_mode_leaves_the_estimate_as_it_was(
     occluded_upstair: Path, tmp_path: Path
 ) -> None:
-    """The default configuration counts the camera-fixed pixels and warns, and leaves the
-    estimate as it was without the test (drop_pixels off)."""
+    """With drop_pixels off the camera-fixed pixels are counted and warned about, and the
+    estimate is the one without the test; the default (removal) changes it."""
     from vio_graph.pipeline import run_recording
 
     metrics = {}
-    for name, cf in (("default", {}), ("off", {"enabled": False})):
+    for name, cf in (
+        ("report", {"drop_pixels": False}),
+        ("off", {"enabled": False, "drop_pixels": False}),
+        ("default", {}),
+    ):
         cfg = PipelineConfig.model_validate({"frontend": {"camera_fixed": cf}})
         metrics[name] = run_recording(
             occluded_upstair,
@@ -248,10 +311,12 @@ def test_by_default_the_occluder_is_reported_not_removed(
             visualize=False,
             progress=False,
         ).metrics
-    assert metrics["default"]["health"]["camera_fixed"]["frames"] > 20
-    assert any("moved with the camera" in w for w in metrics["default"]["health"]["warnings"])
+    for name in ("report", "default"):
+        assert metrics[name]["health"]["camera_fixed"]["frames"] > 20
+        assert any("moved with the camera" in w for w in metrics[name]["health"]["warnings"])
     assert metrics["off"]["health"]["camera_fixed"]["frames"] == 0
-    assert metrics["default"]["ate_cm"]["filter"] == metrics["off"]["ate_cm"]["filter"]
+    assert metrics["report"]["ate_cm"]["filter"] == metrics["off"]["ate_cm"]["filter"]
+    assert metrics["default"]["ate_cm"]["filter"] != metrics["off"]["ate_cm"]["filter"]
 
 
 def test_compiled_surface_labels_and_rim_equal_scipys(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -319,3 +384,34 @@ def test_terrain_revealed_behind_a_nosing_is_not_taken_for_an_object(
     want = cf.camera_fixed_mask_reference(*args, float(d["depth_sigma_m"]), float(d["k_sigma"]))
     assert np.array_equal(got, want)
     assert int(got.sum()) < CameraFixedFilter().min_pixels
+
+
+def test_compiled_onset_tracker_equals_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``compiled.onset_update`` gives OnsetTracker's numpy status and last depths on random
+    depth sequences (drops, rises, noise, invalid pixels, float32 and float64 images)."""
+    from vio_graph.frontend import icp as icp_module
+
+    n_onsets = 0
+    for dtype in (np.float32, np.float64):
+        trackers = {}
+        for mode in ("0", "1"):
+            monkeypatch.setenv(icp_module.COMPILED_ENV, mode)
+            if mode == "1":
+                assert icp_module.compiled_kernels() is not None
+            t = OnsetTracker(2.0, 0.03, 0.01, 6.0)
+            run = np.random.default_rng(3)
+            depth = run.uniform(0.2, 2.0, (30, 40))
+            for _ in range(25):
+                step = run.choice(
+                    [0.0, 0.002, 0.03, -0.3], size=depth.shape, p=[0.5, 0.3, 0.1, 0.1]
+                )
+                depth = np.clip(depth + step * run.standard_normal(depth.shape) ** 2, 0.1, 3.0)
+                img = np.where(run.random(depth.shape) < 0.1, 0.0, depth).astype(dtype)
+                img[run.random(depth.shape) < 0.02] = np.nan
+                t.update(img, 0.003)
+            trackers[mode] = t
+        a, b = trackers["0"], trackers["1"]
+        assert np.array_equal(a.onset, b.onset)
+        assert np.array_equal(a._last, b._last, equal_nan=True)
+        n_onsets += int(a.onset.sum())
+    assert 0 < n_onsets < 2 * 30 * 40

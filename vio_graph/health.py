@@ -10,8 +10,8 @@ with no look-ahead (pure algorithm, no I/O):
 - frames on which the front end found pixels that move with the camera (an occluding
   foot or strap, vio_graph/frontend/camera_fixed.py): reported, with a warning when they are
   found on two consecutive frames or more (a real object persists; a single frame's
-  detection is the test's chance coincidence), because such an object is taken for terrain
-  unless ``frontend.camera_fixed.drop_pixels`` removes it;
+  detection is the test's chance coincidence); ``frontend.camera_fixed.drop_pixels`` (on by
+  default) removes it from the slice, without which it is taken for terrain;
 - the departure of the fused path from visual odometry: over windows of ``window_s`` the
   filter's camera displacement is compared with the sum of the visual displacements over the
   same frames, as a chi-square test (2 dof) with the displacements' own covariances. A
@@ -399,9 +399,9 @@ class HealthMonitor:
                 f"to the lens?) on {self.n_camera_fixed_frames} frames between "
                 f"{self.camera_fixed_first_s:.2f} s and {self.camera_fixed_last_s:.2f} s (up to "
                 f"{self.max_camera_fixed_pixels} pixels, longest run "
-                f"{self.max_camera_fixed_run_s:.2f} s): unless frontend.camera_fixed."
-                f"drop_pixels removed it, it was taken for terrain there, and the estimate "
-                f"may have jumped (configs/camera_fixed.yaml removes it)."
+                f"{self.max_camera_fixed_run_s:.2f} s): removed from the slice unless "
+                f"frontend.camera_fixed.drop_pixels is off (then it was taken for terrain "
+                f"there, and the estimate may have jumped)."
             )
         return {
             "frames": self.n_frames,

@@ -22,7 +22,13 @@ own uncertainty can explain). When the predicted motion is too small to tell the
 (stance; a floor under a camera moving parallel to it) both hold and the pixel is kept: the
 test only removes what the IMU says cannot be terrain. A pixel once found camera-fixed stays
 so while its depth does not change (``r_fixed`` within the noise), so the object is not
-re-admitted when the camera pauses. Pure functions plus a small per-frame state; no I/O.
+re-admitted when the camera pauses.
+
+Both hypotheses use the predicted motion, so a confidently wrong prediction makes terrain that
+keeps its depth read as camera-fixed. A surface therefore leaves only if most of its
+camera-fixed pixels also show an occlusion onset (:class:`OnsetTracker`): their depth dropped
+far below what they saw before, or they were first seen, and has stayed since. That evidence
+comes from the depth images alone. Pure functions plus a small per-frame state; no I/O.
 """
 
 from __future__ import annotations
@@ -421,6 +427,8 @@ def surface_majority(
     rel_tol: float,
     abs_tol_m: float,
     min_pixels: int,
+    onset: NDArray[np.bool_] | None = None,
+    onset_share: float = 0.5,
 ) -> NDArray[np.bool_]:
     """Decide per surface as well as per pixel. The pixels of ``same`` (depth unchanged since
     the previous frame) are split into surfaces at depth edges (a 4-neighbour differing by
@@ -431,6 +439,12 @@ def surface_majority(
     landed on the object again, goes with its surface); in any other surface only the
     pixels of ``mask`` are. Pixels at a depth edge go with the camera-fixed surface next to
     them (the object's rim). (H, W) bool.
+
+    ``onset`` (H, W), if given: the pixels whose depth has stayed since an occlusion onset
+    (:class:`OnsetTracker`); a surface where fewer than ``onset_share`` of its pixels of
+    ``mask`` are in ``onset`` keeps none of its pixels, whatever the test said (terrain that
+    keeps its depth while a confidently wrong prediction says it should have moved has no
+    such onset).
 
     With the compiled kernels the surfaces are labelled by ``compiled.label4`` and the rim
     dilated by :func:`dilate4` (the same labels and pixels as ``scipy.ndimage``'s ``label``
@@ -461,6 +475,9 @@ def surface_majority(
     size = np.bincount(labels.ravel(), minlength=n + 1)
     hits = np.bincount(labels.ravel(), weights=mask.ravel(), minlength=n + 1)
     counts = hits >= min_pixels
+    if onset is not None:
+        began = np.bincount(labels.ravel(), weights=(mask & onset).ravel(), minlength=n + 1)
+        counts &= began >= onset_share * hits
     whole = counts & (hits >= 0.5 * size)
     counts[0] = whole[0] = False
     out = whole[labels] | (counts[labels] & mask)
@@ -481,6 +498,81 @@ def dilate4(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
     return out
 
 
+class OnsetTracker:
+    """Per pixel: has the depth stayed where it went at an occlusion onset? Evidence about
+    an object in front of the terrain that does not come from the predicted motion.
+
+    An object that enters the view close to the lens covers terrain: at its first frame its
+    pixels' depth drops far below what they saw before, and from then on it stays. Terrain
+    that keeps its depth while a wrong prediction says it should have moved has no such
+    onset: its depth history is the terrain's. Per pixel, against the depth it last saw
+    valid (an invalid frame changes nothing, so a ToF gap makes no onset):
+
+    * never valid before (the first frame of the trial, or a pixel that saw nothing): onset
+      (a strap in view from the start);
+    * nearer by more than ``drop_tols`` x the speckle test's agreement
+      (``rel_tol * depth + abs_tol_m`` of the depth before): onset;
+    * within ``keep_sigmas`` depth-noise sigmas (of a difference of two pixels): the status is
+      kept;
+    * any other change: no onset (the depth moved as terrain's does).
+    """
+
+    def __init__(
+        self, drop_tols: float, rel_tol: float, abs_tol_m: float, keep_sigmas: float
+    ) -> None:
+        self.drop_tols = float(drop_tols)
+        self.rel_tol = float(rel_tol)
+        self.abs_tol_m = float(abs_tol_m)
+        self.keep_sigmas = float(keep_sigmas)
+        self._last: NDArray[np.float64] | None = None  # last valid depth, nan = never valid
+        self.onset: NDArray[np.bool_] | None = None
+
+    def reset(self) -> None:
+        self._last = None
+        self.onset = None
+
+    def update(self, depth_m: NDArray, depth_sigma_m: float) -> NDArray[np.bool_]:
+        """The (H, W) onset status after this depth image (0 / non-finite = invalid); the
+        returned array is the tracker's own, updated in place by the next call. Compiled
+        (``compiled.onset_update``) with the front end's kernels: the same status."""
+        d = np.asarray(depth_m)
+        if self._last is None or self._last.shape != d.shape:
+            valid = np.isfinite(d) & (d > 0)
+            self._last = np.where(valid, d, np.nan).astype(np.float64)
+            self.onset = valid
+            return self.onset
+        assert self.onset is not None
+        keep_tol = self.keep_sigmas * np.sqrt(2.0) * float(depth_sigma_m)
+        kernels = compiled_kernels()
+        if kernels is not None and d.ndim == 2 and d.dtype in (np.float32, np.float64):
+            kernels.onset_update(
+                d,
+                self._last,
+                self.onset,
+                self.drop_tols,
+                self.rel_tol,
+                self.abs_tol_m,
+                keep_tol,
+            )
+        else:
+            self._update_reference(d, keep_tol)
+        return self.onset
+
+    def _update_reference(self, depth_m: NDArray, keep_tol_m: float) -> None:
+        """:meth:`update` in numpy (the tested reference of the compiled kernel)."""
+        assert self._last is not None and self.onset is not None
+        d = np.asarray(depth_m, dtype=np.float64)
+        valid = np.isfinite(d) & (d > 0)
+        last = self._last
+        with np.errstate(invalid="ignore"):
+            change = d - last
+            drop = change < -self.drop_tols * (self.rel_tol * last + self.abs_tol_m)
+            kept = np.abs(change) <= keep_tol_m
+        status = np.isnan(last) | drop | (kept & self.onset)
+        np.copyto(self.onset, status, where=valid)
+        np.copyto(self._last, d, where=valid)
+
+
 class CameraFixedFilter:
     """Per-frame state of :func:`camera_fixed_mask`: the previous depth image, its camera ->
     ground rotation and camera-fixed mask. :meth:`update` returns the current mask."""
@@ -491,8 +583,23 @@ class CameraFixedFilter:
         edge_rel_tol: float = 0.03,
         edge_abs_tol_m: float = 0.01,
         min_pixels: int = 20,
+        onset_drop_tols: float | None = 3.0,
+        onset_share: float = 0.5,
+        confirm_frames: int = 1,
     ) -> None:
         self.k_sigma = float(k_sigma)
+        # a pixel is returned once it has been camera-fixed on this many consecutive tested
+        # frames (1: at once); the held state below follows the unconfirmed decision
+        self.confirm_frames = int(confirm_frames)
+        self._run: NDArray[np.int32] | None = None
+        self.onset_share = float(onset_share)
+        # with onset_drop_tols, a surface leaves only if most of its pixels kept their depth
+        # since an occlusion onset (OnsetTracker); the status survives 2 x k_sigma of noise
+        self._onset: OnsetTracker | None = None
+        if onset_drop_tols is not None:
+            self._onset = OnsetTracker(
+                onset_drop_tols, edge_rel_tol, edge_abs_tol_m, 2.0 * float(k_sigma)
+            )
         self.min_pixels = int(min_pixels)
         self.edge_rel_tol = float(edge_rel_tol)
         self.edge_abs_tol_m = float(edge_abs_tol_m)
@@ -504,6 +611,9 @@ class CameraFixedFilter:
         self._prev = None
         self._prev_t = None
         self._held = None
+        self._run = None
+        # the occlusion onsets are kept: across a gap an object still in view keeps its
+        # depth (and its onset), and terrain is compared with what it was before the gap
 
     @property
     def holding(self) -> bool:
@@ -515,12 +625,17 @@ class CameraFixedFilter:
         depth_m: NDArray,
         R_ground_cam: NDArray[np.float64],
         timestamp_s: float | None = None,
+        depth_sigma_m: float | None = None,
     ) -> None:
         """A frame that is not tested (report-only mode between checks): kept as the
-        previous frame for the next :meth:`update`, with nothing held."""
+        previous frame for the next :meth:`update`, with nothing held; its depth feeds the
+        occlusion onsets (``depth_sigma_m``: the depth noise sd, m, as :meth:`update`'s)."""
+        if self._onset is not None and depth_sigma_m is not None:
+            self._onset.update(depth_m, depth_sigma_m)
         self._prev_t = None if timestamp_s is None else float(timestamp_s)
         self._prev = (np.asarray(depth_m), np.asarray(R_ground_cam, dtype=float))
         self._held = None
+        self._run = None
 
     def update(
         self,
@@ -554,6 +669,7 @@ class CameraFixedFilter:
             self._prev = (self._prev[0], turn @ self._prev[1])
         depth = np.asarray(depth_m)
         mask = np.zeros(depth.shape, dtype=bool)
+        onset = None if self._onset is None else self._onset.update(depth, depth_sigma_m)
         if (
             self._prev is not None
             and predicted_delta_xz_m is not None
@@ -593,9 +709,17 @@ class CameraFixedFilter:
                     self.edge_rel_tol,
                     self.edge_abs_tol_m,
                     self.min_pixels,
+                    None if onset is None else onset[box],
+                    self.onset_share,
                 )
                 mask = np.zeros(depth.shape, dtype=bool)
                 mask[box] = decided
         self._prev = (depth, np.asarray(R_ground_cam, dtype=float))
         self._held = mask
-        return mask
+        if self.confirm_frames <= 1:
+            return mask
+        run = self._run
+        if run is None or run.shape != mask.shape:
+            run = np.zeros(mask.shape, dtype=np.int32)
+        self._run = np.where(mask, run + 1, 0).astype(np.int32)
+        return self._run >= self.confirm_frames

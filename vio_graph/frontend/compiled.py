@@ -2089,3 +2089,27 @@ def label4(img):  # pragma: no cover - compiled
                     stack[top] = p + 1
                     top += 1
     return labels, n
+
+
+@numba.njit(cache=True)
+def onset_update(depth, last, onset, drop_tols, rel_tol, abs_tol, keep_tol):  # pragma: no cover
+    """``camera_fixed.OnsetTracker._update_reference`` compiled, in place: per pixel of the
+    (H, W) ``depth`` (0 / non-finite = invalid), the last valid depth ``last`` (float64, nan
+    = never valid) and the onset status ``onset`` (bool), the same tests on the same
+    float64 values."""
+    h, w = depth.shape
+    for r in range(h):
+        for c in range(w):
+            d = np.float64(depth[r, c])
+            if not (np.isfinite(d) and d > 0.0):
+                continue
+            m = last[r, c]
+            if np.isnan(m):
+                onset[r, c] = True
+            else:
+                change = d - m
+                if change < -drop_tols * (rel_tol * m + abs_tol):
+                    onset[r, c] = True
+                elif not abs(change) <= keep_tol:
+                    onset[r, c] = False
+            last[r, c] = d

@@ -43,7 +43,7 @@ class FrontendResult:
     ``timings_ms``: "projection", "smoothing", "terrain", "corners", "icp", "total".
     ``n_camera_fixed``: slice pixels found to move with the camera
     (vio_graph/frontend/camera_fixed.py); dropped from the slice with
-    ``camera_fixed.drop_pixels``, only counted otherwise.
+    ``camera_fixed.drop_pixels`` (the default), only counted otherwise.
     """
 
     timestamp_s: float
@@ -76,6 +76,9 @@ class VisualFrontend:
                 pc.speckle_rel_tol,
                 pc.speckle_abs_tol_m,
                 self.config.camera_fixed.min_pixels,
+                self.config.camera_fixed.onset_drop_tols,
+                self.config.camera_fixed.onset_share,
+                self.config.camera_fixed.confirm_frames,
             )
         self._camera_fixed_frames = 0  # frames seen by the camera-fixed test (idle checks)
         sc = self.config.smoothing
@@ -158,7 +161,9 @@ class VisualFrontend:
                 if n_fixed and cf.drop_pixels:
                     confidence = np.where(fixed, 0, confidence).astype(frame.confidence.dtype)
             else:
-                self._camera_fixed.remember(frame.depth_m, R_ground_cam, frame.timestamp_s)
+                self._camera_fixed.remember(
+                    frame.depth_m, R_ground_cam, frame.timestamp_s, self._camera_fixed_sigma()
+                )
         speckle = None
         if pc.speckle_min_agree > 0:  # drop_speckles, evaluated at the slice's pixels only
             speckle = (pc.speckle_rel_tol, pc.speckle_abs_tol_m, pc.speckle_min_agree)
@@ -239,6 +244,14 @@ class VisualFrontend:
             n_camera_fixed=n_fixed,
         )
 
+    def _camera_fixed_sigma(self) -> float:
+        """Depth noise sd of one pixel for the camera-fixed test, m: the larger of the floor
+        and the noise measured on level surfaces."""
+        sigma = self.config.camera_fixed.depth_sigma_floor_m
+        if np.isfinite(self.depth_noise_m):
+            sigma = max(sigma, self.depth_noise_m)
+        return float(sigma)
+
     def _camera_fixed_pixels(
         self,
         frame: DepthFrame,
@@ -263,9 +276,7 @@ class VisualFrontend:
             pc.max_depth_m,
             pc.min_confidence,
         )
-        sigma = cf.depth_sigma_floor_m
-        if np.isfinite(self.depth_noise_m):
-            sigma = max(sigma, self.depth_noise_m)
+        sigma = self._camera_fixed_sigma()
         return self._camera_fixed.update(
             depth,
             candidates,

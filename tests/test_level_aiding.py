@@ -381,6 +381,35 @@ def test_weighed_vendor_pull_on_a_simulated_trial(short_upstair) -> None:
     replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
     lg = replay.run()
     assert replay.online.pitch_offset.n_accepted > 0
-    assert replay.online.attitude.time_constant_s > 5.0
+    assert replay.online.attitude.pitch_time_constant_s > 5.0
+    assert replay.online.attitude.time_constant_s == 1.0  # roll and heading: as configured
     err = shank_pitch_error_deg(rec.groundtruth, np.asarray(lg.t_s), np.asarray(lg.shank_pitch_imu))
     assert err["rms"] < 0.5, err
+
+
+def test_vendor_pitch_sigma_estimated_on_a_simulated_trial(short_upstair) -> None:
+    """``filter.attitude.vendor_pitch_sigma_deg: auto`` on a short simulated trial whose
+    vendor pitch error is 1 deg RMS (2 s correlation): the estimate is a fraction of a degree
+    to a degree and a half (short trial, few swings of the error), the pitch pull slows past
+    the configured 1 s, the shank pitch stays within 0.5 deg RMS, and metrics.json's filter
+    section reports it (outputs.vendor_pitch_summary)."""
+    from vio_graph.evaluation.run_metrics import shank_pitch_error_deg
+    from vio_graph.outputs import vendor_pitch_summary
+    from vio_graph.replay import Replay
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    cfg = PipelineConfig()
+    att = cfg.filter.attitude.model_copy(update={"vendor_pitch_sigma_deg": "auto"})
+    cfg = cfg.model_copy(update={"filter": cfg.filter.model_copy(update={"attitude": att})})
+    rec = Recording.open(short_upstair)
+    replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
+    lg = replay.run()
+    est = replay.online.vendor_pitch_variance
+    assert est is not None and est.n > 20
+    assert 0.3 < est.sigma_deg < 1.5, est.sigma_deg
+    assert replay.online.attitude.pitch_time_constant_s > 2.0
+    err = shank_pitch_error_deg(rec.groundtruth, np.asarray(lg.t_s), np.asarray(lg.shank_pitch_imu))
+    assert err["rms"] < 0.5, err
+    summary = vendor_pitch_summary(replay.online)
+    assert summary["mode"] == "auto" and summary["sigma_deg"] == est.sigma_deg
+    assert summary["disagreements"] == est.n

@@ -413,3 +413,16 @@ def test_vendor_pitch_sigma_estimated_on_a_simulated_trial(short_upstair) -> Non
     summary = vendor_pitch_summary(replay.online)
     assert summary["mode"] == "auto" and summary["sigma_deg"] == est.sigma_deg
     assert summary["disagreements"] == est.n
+
+
+@pytest.mark.parametrize("compiled", ["0", "1"])
+def test_a_line_without_x_spread_after_the_end_trim_is_no_tilt(
+    compiled: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A level line 25 cm long whose points, once its ends are trimmed, all sit at one x (a
+    sweep trial's slice did this): no slope is measured (None), not a division by zero."""
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", compiled)  # numpy / numba paths
+    profile = np.array([[0.0, 0.0], [0.25, 0.0]] + [[0.125, 0.0]] * 28)
+    rng = np.random.default_rng(0)
+    assert measure_surface_tilt(profile, rng, end_trim_m=0.025) is None
+    assert measure_surface_tilt(profile, rng, end_trim_m=0.025, ray_fit="heights") is None

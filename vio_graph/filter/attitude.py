@@ -22,7 +22,11 @@ Sources (``AttitudeConfig.source``):
   rad/s, are negligible over a frame), and at every sample it is pulled towards the vendor
   orientation by dt / ``time_constant_s`` of the remaining rotation. Frame-to-frame rotation
   then comes from the gyro (precise), the absolute tilt from the vendor filter (bounded); at
-  the frame time it is extrapolated like ``"vendor_extrapolated"``.
+  the frame time it is extrapolated like ``"vendor_extrapolated"``. With
+  ``vendor_pitch_sigma_deg`` set, the pull about the pitch (shank y) axis is weighed against
+  the level-aided pitch offset (:meth:`AttitudeTracker.weigh_pull`); roll and heading keep
+  ``time_constant_s``. ``"auto"`` estimates the vendor's pitch error online
+  (:class:`VendorPitchVariance`).
 
 The class is pure (no I/O) and keeps only the latest sample.
 """

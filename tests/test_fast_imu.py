@@ -263,8 +263,9 @@ def test_propagate_attitude_and_stance_equal_their_references(
     np.testing.assert_allclose(att_f.R_world_imu_at(6.0), att_r.R_world_imu_at(6.0), atol=1e-12)
 
 
+@pytest.mark.parametrize("vendor_sigma", [None, "auto"])
 def test_a_whole_replay_equals_the_reference_path(
-    short_upstair: Path, monkeypatch: pytest.MonkeyPatch
+    short_upstair: Path, monkeypatch: pytest.MonkeyPatch, vendor_sigma: str | None
 ) -> None:
     """The filter, IMU-only and ICP-only answers of a replay (front end, level aiding and
     stance anchor included) with the scalar fast path, with the compiled kernels
@@ -273,12 +274,19 @@ def test_a_whole_replay_equals_the_reference_path(
     A simulated trial, not the tiny synthetic recording: on the latter's noise-free, exactly
     level geometry a 2e-15 change of the attitude (the rounding difference of the two
     paths) moved the filter's answer by 1.6 mm, a discrete decision flipping on an exact tie;
-    on the simulated trials the answers agree to 1e-13 m."""
+    on the simulated trials the answers agree to 1e-13 m. ``vendor_sigma`` "auto": the pull
+    about the pitch axis weighed by the vendor's estimated pitch error (a pitch gain other
+    than the roll and heading one in every kernel)."""
     rec = Recording.open(short_upstair)
     assert PipelineConfig().filter.strapdown_attitude == "tracked"  # the default path is covered
+    cfg = PipelineConfig()
+    att = cfg.filter.attitude.model_copy(update={"vendor_pitch_sigma_deg": vendor_sigma})
+    cfg = cfg.model_copy(update={"filter": cfg.filter.model_copy(update={"attitude": att})})
 
     def run() -> dict[str, np.ndarray]:
-        rp = Replay(rec, PipelineConfig(), {"filter"}, NullVisualizer())
+        rp = Replay(rec, cfg, {"filter"}, NullVisualizer())
+        if vendor_sigma is not None:
+            pitch_taus.append(rp.online.attitude)
         log = rp.run()
         out = dict(log.camera_xz)
         out["P"] = rp.online.filter.state.P
@@ -288,6 +296,7 @@ def test_a_whole_replay_equals_the_reference_path(
 
     fused: list[int] = []
     one_call: list[int] = []
+    pitch_taus: list[AttitudeTracker] = []  # the trackers, read after their replay
     monkeypatch.setenv("VIO_GRAPH_COMPILED", "0")  # the scalar Python closed forms
     fast = run()
     assert fused[-1] == 0 and one_call[-1] == 0
@@ -328,6 +337,8 @@ def test_a_whole_replay_equals_the_reference_path(
     monkeypatch.setattr(ImuFaultMonitor, "process", ImuFaultMonitor.process_reference)
     monkeypatch.setattr(ClockModel, "_fit", ClockModel._fit_reference)
     ref = run()
+    if vendor_sigma is not None:  # the pitch pull was weighed, differently from roll's
+        assert all(a.pitch_time_constant_s > 2.0 * a.time_constant_s for a in pitch_taus)
     assert set(fast) == set(ref) and {"filter", "imu_only", "icp_only"} <= set(fast)
     assert np.ptp(fast["filter"][:, 0]) > 0.05  # the camera moved
     for got in (fast, compiled):

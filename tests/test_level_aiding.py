@@ -381,6 +381,60 @@ def test_weighed_vendor_pull_on_a_simulated_trial(short_upstair) -> None:
     replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
     lg = replay.run()
     assert replay.online.pitch_offset.n_accepted > 0
-    assert replay.online.attitude.time_constant_s > 5.0
+    assert replay.online.attitude.pitch_time_constant_s > 5.0
+    assert replay.online.attitude.time_constant_s == 1.0  # roll and heading: as configured
     err = shank_pitch_error_deg(rec.groundtruth, np.asarray(lg.t_s), np.asarray(lg.shank_pitch_imu))
     assert err["rms"] < 0.5, err
+
+
+def test_vendor_pitch_sigma_estimated_on_a_simulated_trial(short_upstair) -> None:
+    """``filter.attitude.vendor_pitch_sigma_deg: auto`` on a short simulated trial whose
+    vendor pitch error is 1 deg RMS (2 s correlation): the estimate is within 0.25 deg of the
+    vendor's pitch error RMS over this trial (from the truth: 0.97 deg, estimated 0.88), the
+    pitch pull slows past the configured 1 s, the shank pitch stays within 0.5 deg RMS, and
+    metrics.json's filter section reports it (outputs.vendor_pitch_summary)."""
+    from scipy.spatial.transform import Rotation
+
+    from vio_graph.evaluation.run_metrics import shank_pitch_error_deg
+    from vio_graph.outputs import vendor_pitch_summary
+    from vio_graph.replay import Replay
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    cfg = PipelineConfig()
+    att = cfg.filter.attitude.model_copy(update={"vendor_pitch_sigma_deg": "auto"})
+    cfg = cfg.model_copy(update={"filter": cfg.filter.model_copy(update={"attitude": att})})
+    rec = Recording.open(short_upstair)
+    replay = Replay(rec, cfg, {"filter"}, NullVisualizer())
+    lg = replay.run()
+    est = replay.online.vendor_pitch_variance
+    assert est is not None and est.n > 20
+    st, imu = rec.groundtruth.imu_state, rec.imu
+    n = min(st.timestamp_s.size, imu.timestamp_s.size)
+    assert np.array_equal(st.timestamp_s[:n], imu.timestamp_s[:n])
+    R_true = Rotation.from_quat(st.quat_wxyz[:n, [1, 2, 3, 0]]).as_matrix()
+    R_vendor = Rotation.from_quat(imu.quat_wxyz[:n, [1, 2, 3, 0]]).as_matrix()
+    pitch_err = [
+        Rotation.from_matrix(remove_yaw(v) @ remove_yaw(t).T).as_rotvec()[1]
+        for v, t in zip(R_vendor, R_true, strict=True)
+    ]
+    true_sigma_deg = float(np.degrees(np.sqrt(np.mean(np.square(pitch_err)))))
+    assert abs(est.sigma_deg - true_sigma_deg) < 0.25, (est.sigma_deg, true_sigma_deg)
+    assert replay.online.attitude.pitch_time_constant_s > 2.0
+    err = shank_pitch_error_deg(rec.groundtruth, np.asarray(lg.t_s), np.asarray(lg.shank_pitch_imu))
+    assert err["rms"] < 0.5, err
+    summary = vendor_pitch_summary(replay.online)
+    assert summary["mode"] == "auto" and summary["sigma_deg"] == est.sigma_deg
+    assert summary["disagreements"] == est.n
+
+
+@pytest.mark.parametrize("compiled", ["0", "1"])
+def test_a_line_without_x_spread_after_the_end_trim_is_no_tilt(
+    compiled: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A level line 25 cm long whose points, once its ends are trimmed, all sit at one x (a
+    sweep trial's slice did this): no slope is measured (None), not a division by zero."""
+    monkeypatch.setenv("VIO_GRAPH_COMPILED", compiled)  # numpy / numba paths
+    profile = np.array([[0.0, 0.0], [0.25, 0.0]] + [[0.125, 0.0]] * 28)
+    rng = np.random.default_rng(0)
+    assert measure_surface_tilt(profile, rng, end_trim_m=0.025) is None
+    assert measure_surface_tilt(profile, rng, end_trim_m=0.025, ray_fit="heights") is None

@@ -65,7 +65,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.config import PipelineConfig
 from vio_graph.errors import EstimationError
-from vio_graph.filter.attitude import AttitudeTracker, PitchOffsetFilter, with_pitch_offset
+from vio_graph.filter.attitude import (
+    AttitudeTracker,
+    PitchOffsetFilter,
+    VendorPitchVariance,
+    pitch_disagreement_rad,
+    with_pitch_offset,
+)
 from vio_graph.filter.corner_landmarks import CornerLandmarks
 from vio_graph.filter.eskf import SagittalEskf
 from vio_graph.filter.fast_imu import (
@@ -336,6 +342,13 @@ class OnlineEstimator:
         self.filter = SagittalEskf(config.filter, rig.shank_imu_T_cam)
         self.attitude = AttitudeTracker(config.filter.attitude)
         self.pitch_offset = PitchOffsetFilter(config.filter.level_aiding)
+        #: the vendor orientation's pitch error variance, estimated online
+        #: (``filter.attitude.vendor_pitch_sigma_deg: auto``), or None
+        self.vendor_pitch_variance = (
+            VendorPitchVariance(config.filter.attitude.vendor_sigma_memory_s)
+            if config.filter.attitude.vendor_pitch_sigma_deg == "auto"
+            else None
+        )
         self._level_rng = np.random.default_rng(config.frontend.seed)
         #: the level surfaces also carry their ray-fitted heights, for the smoothers only
         #: (smoother.height_landmark_heights)
@@ -495,6 +508,7 @@ class OnlineEstimator:
         if not clock.compiled_constants(c, k) or not self.imu_faults.compiled_constants(c, k):
             return
         c[k.IN_TIME_CONSTANT] = self.attitude.time_constant_s
+        c[k.IN_PITCH_TIME_CONSTANT] = self.attitude.pitch_time_constant_s
         # the small state arrays the kernel updates become views of its pool, their values
         # kept: one argument instead of five (the other paths update the same memory)
         mon, stance = self.imu_faults, self._stance
@@ -893,6 +907,7 @@ class OnlineEstimator:
             t,
             dt,
             min(1.0, dt / att.time_constant_s),
+            min(1.0, dt / att.pitch_time_constant_s),
             self.pitch_offset.offset_rad,
             dt_filter,
             float(sample.accel_extra_sigma_mps2),
@@ -918,6 +933,7 @@ class OnlineEstimator:
         _, q_slots, mag_slot = self._fused_slots
         g = tuple(gyr.tolist())
         att._R, att._t_s, att._gyro_radps = R, t, g
+        att.vendor_quat_wxyz = sample.quat_wxyz
         att._recent.append((t, R, g))
         self._fused_att = (R, g)
         self._last_taken_s = t
@@ -1551,23 +1567,31 @@ class OnlineEstimator:
         if self.surface_tilt is not None:
             step = self.pitch_offset.update(*self._tilt_to_fuse(t, self.surface_tilt))
         if self.config.filter.attitude.vendor_pitch_sigma_deg is not None:
-            self._weigh_attitude_pull()
+            self._weigh_attitude_pull(t)
         return step
 
-    def _weigh_attitude_pull(self) -> None:
-        """The attitude tracker's pull towards the vendor, weighed against the pitch offset's
-        variance (``filter.attitude.vendor_pitch_sigma_deg``, AttitudeTracker.weigh_pull),
-        also in the one-call IMU input's constants."""
+    def _weigh_attitude_pull(self, t: float) -> None:
+        """The attitude tracker's pull towards the vendor about the pitch axis, weighed against
+        the pitch offset's variance (``filter.attitude.vendor_pitch_sigma_deg``,
+        AttitudeTracker.weigh_pull), also in the one-call IMU input's constants. With
+        ``auto``, the vendor's disagreement with the level-aided pitch at the latest IMU
+        sample first goes to the vendor's variance estimate (VendorPitchVariance)."""
         var = math.inf
         if self.pitch_offset.initialised:
             # not below the tilts' floor: what the line fits miss is shared by the frames
             # (a tread's slant, a far tread's slope), so it does not average out
             floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
             var = max(self.pitch_offset.var_rad2, floor * floor)
-        tau = self.attitude.weigh_pull(var)
+        att, vendor_var = self.attitude, self.vendor_pitch_variance
+        if vendor_var is not None and var < math.inf and att._R is not None:
+            q = att.vendor_quat_wxyz
+            if q is not None:
+                d = pitch_disagreement_rad(att._R, q) - self.pitch_offset.offset_rad
+                vendor_var.add(att._t_s, d, var)
+        tau = att.weigh_pull(var, None if vendor_var is None else vendor_var.var_rad2)
         kernels = self.attitude._kernels
         if self._input_consts is not None and kernels is not None:
-            self._input_consts[kernels.IN_TIME_CONSTANT] = tau
+            self._input_consts[kernels.IN_PITCH_TIME_CONSTANT] = tau
 
     def _tilt_to_fuse(self, t: float, tilt: SurfaceTilt) -> tuple[float, float]:
         """The tilt (rad) and its sigma (rad) the pitch offset fuses for the surface tilt

@@ -18,6 +18,7 @@ from vio_graph.recording.streams import Trajectory
 from vio_graph.recording.tum import write_tum
 
 if TYPE_CHECKING:
+    from vio_graph.estimator import OnlineEstimator
     from vio_graph.replay import FrameLog, Replay
     from vio_graph.safety.online import SafetyLog
 
@@ -126,6 +127,23 @@ def filter_summary(replay: Replay) -> dict[str, Any]:
             "rejected": online.pitch_offset.n_rejected,
             "final_offset_deg": float(np.degrees(online.pitch_offset.offset_rad)),
         },
+        "vendor_pitch": vendor_pitch_summary(online),
+    }
+
+
+def vendor_pitch_summary(online: OnlineEstimator) -> dict[str, Any]:
+    """The vendor orientation's pitch sigma the attitude's pull is weighed with
+    (``filter.attitude.vendor_pitch_sigma_deg``): the configured one, or the online estimate
+    at the end (``auto``; None before any disagreement was taken); the pitch pull's time
+    constant at the end (s)."""
+    configured = online.config.filter.attitude.vendor_pitch_sigma_deg
+    est = online.vendor_pitch_variance
+    sigma = est.sigma_deg if est is not None else configured
+    return {
+        "mode": "off" if configured is None else "auto" if est is not None else "fixed",
+        "sigma_deg": None if sigma is None else float(sigma),
+        "disagreements": 0 if est is None else est.n,
+        "final_pitch_time_constant_s": float(online.attitude.pitch_time_constant_s),
     }
 
 

@@ -22,7 +22,11 @@ Sources (``AttitudeConfig.source``):
   rad/s, are negligible over a frame), and at every sample it is pulled towards the vendor
   orientation by dt / ``time_constant_s`` of the remaining rotation. Frame-to-frame rotation
   then comes from the gyro (precise), the absolute tilt from the vendor filter (bounded); at
-  the frame time it is extrapolated like ``"vendor_extrapolated"``.
+  the frame time it is extrapolated like ``"vendor_extrapolated"``. With
+  ``vendor_pitch_sigma_deg`` set, the pull about the pitch (shank y) axis is weighed against
+  the level-aided pitch offset (:meth:`AttitudeTracker.weigh_pull`); roll and heading keep
+  ``time_constant_s``. ``"auto"`` estimates the vendor's pitch error online
+  (:class:`VendorPitchVariance`).
 
 The class is pure (no I/O) and keeps only the latest sample.
 """
@@ -61,9 +65,11 @@ class AttitudeTracker:
 
     def __init__(self, config: AttitudeConfig | None = None) -> None:
         self.config = AttitudeConfig() if config is None else config
-        #: the pull's time constant in use (s): ``config.time_constant_s`` unless the caller
-        #: weighs the pull (:meth:`weigh_pull`)
+        #: the pull's time constant about the roll and heading axes (s)
         self.time_constant_s = self.config.time_constant_s
+        #: the pull's time constant about the pitch (shank y) axis in use (s):
+        #: ``config.time_constant_s`` unless the caller weighs it (:meth:`weigh_pull`)
+        self.pitch_time_constant_s = self.config.time_constant_s
         self._R: Mat3 | None = None  # R_world_imu, row-major
         self._t_s = 0.0
         self._gyro_radps = (0.0, 0.0, 0.0)  # rad/s, latest sample
@@ -72,6 +78,8 @@ class AttitudeTracker:
             maxlen=_HISTORY_SAMPLES
         )
         self._kernels = imu_kernels()  # compiled complementary step, or None
+        #: the vendor orientation [w, x, y, z] of the latest sample (the one at ``_t_s``)
+        self.vendor_quat_wxyz: NDArray[np.float64] | None = None
 
     def add(self, imu: ImuSample) -> None:
         """Advance to ``imu.timestamp_s`` with the sample's gyro rate and vendor orientation.
@@ -89,8 +97,9 @@ class AttitudeTracker:
                 raise EstimationError(f"IMU sample at {t:.6f} s is older than {self._t_s:.6f} s")
             qw, qx, qy, qz = np.asarray(imu.quat_wxyz, dtype=float).tolist()
             k = min(1.0, dt / self.time_constant_s)
+            kp = min(1.0, dt / self.pitch_time_constant_s)
             self._R = self._kernels.attitude_step(
-                self._R, self._gyro_radps, (gx, gy, gz), (qw, qx, qy, qz), dt, k
+                self._R, self._gyro_radps, (gx, gy, gz), (qw, qx, qy, qz), dt, k, kp
             )
         else:
             R_vendor = quat_matrix(imu.quat_wxyz)
@@ -103,9 +112,11 @@ class AttitudeTracker:
                 rotvec_mat3(0.5 * (px + gx) * dt, 0.5 * (py + gy) * dt, 0.5 * (pz + gz) * dt),
             )
             k = min(1.0, dt / self.time_constant_s)
+            kp = min(1.0, dt / self.pitch_time_constant_s)
             ex, ey, ez = mat3_rotvec(mat3_tmul(R, R_vendor))
-            self._R = mat3_mul(R, rotvec_mat3(k * ex, k * ey, k * ez))
+            self._R = mat3_mul(R, rotvec_mat3(k * ex, kp * ey, k * ez))
         self._t_s, self._gyro_radps = t, (gx, gy, gz)
+        self.vendor_quat_wxyz = imu.quat_wxyz
         self._recent.append((t, self._R, self._gyro_radps))
 
     def add_reference(self, imu: ImuSample) -> None:
@@ -124,31 +135,41 @@ class AttitudeTracker:
             R = np.array(self._R).reshape(3, 3)
             R = R @ Rotation.from_rotvec(0.5 * (np.array(self._gyro_radps) + gyro) * dt).as_matrix()
             k = min(1.0, dt / self.time_constant_s)
-            err = Rotation.from_matrix(R.T @ R_vendor).as_rotvec()
-            R = R @ Rotation.from_rotvec(k * err).as_matrix()
+            kp = min(1.0, dt / self.pitch_time_constant_s)
+            err = Rotation.from_matrix(R.T @ R_vendor).as_rotvec() * np.array([k, kp, k])
+            R = R @ Rotation.from_rotvec(err).as_matrix()
         r = R.ravel().tolist()
         self._R = (r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8])
         gx, gy, gz = gyro.tolist()
         self._t_s, self._gyro_radps = t, (gx, gy, gz)
+        self.vendor_quat_wxyz = imu.quat_wxyz
         self._recent.append((t, self._R, self._gyro_radps))
 
     @property
     def initialised(self) -> bool:
         return self._R is not None
 
-    def weigh_pull(self, offset_var_rad2: float) -> float:
-        """Slow the pull towards the vendor by how much better the pitch is known without it
-        (``AttitudeConfig.vendor_pitch_sigma_deg``): with ``offset_var_rad2`` the variance of
-        the level-aided pitch offset (rad^2), the time constant becomes ``time_constant_s`` x
-        (var_offset + var_vendor) / var_offset. The two are blended as two estimates of the
-        pitch by their variances; the pull is the vendor's share. Returns the time constant in
-        use (s); unchanged (``time_constant_s``) when the option is off."""
+    def weigh_pull(self, offset_var_rad2: float, vendor_var_rad2: float | None = None) -> float:
+        """Slow the pull towards the vendor about the pitch axis by how much better the pitch
+        is known without it (``AttitudeConfig.vendor_pitch_sigma_deg``): with
+        ``offset_var_rad2`` the variance of the level-aided pitch offset (rad^2) and var_vendor
+        the vendor's pitch error variance (the configured sigma squared, or
+        ``vendor_var_rad2`` when the option is ``"auto"``: :class:`VendorPitchVariance`), the
+        pitch time constant becomes ``time_constant_s`` x (var_offset + var_vendor) /
+        var_offset. The two are blended as two estimates of the pitch by their variances; the
+        pull is the vendor's share. Roll and heading keep ``time_constant_s``. Returns the
+        pitch time constant in use (s); ``time_constant_s`` when the option is off or the
+        vendor's variance is not known yet."""
         sigma_deg = self.config.vendor_pitch_sigma_deg
         tau = self.config.time_constant_s
-        if sigma_deg is not None and 0.0 < offset_var_rad2 < math.inf:
+        var_vendor = None
+        if sigma_deg == "auto":
+            var_vendor = vendor_var_rad2
+        elif sigma_deg is not None:
             var_vendor = math.radians(sigma_deg) ** 2
+        if var_vendor is not None and 0.0 < offset_var_rad2 < math.inf:
             tau *= (offset_var_rad2 + var_vendor) / offset_var_rad2
-        self.time_constant_s = tau
+        self.pitch_time_constant_s = tau
         return tau
 
     def gyro_at(self, t_s: float) -> NDArray[np.float64]:
@@ -265,3 +286,68 @@ class PitchOffsetFilter:
         self.var_rad2 *= 1.0 - k
         self.n_accepted += 1
         return step
+
+
+def pitch_disagreement_rad(R_tracked: Mat3, quat_vendor_wxyz: NDArray[np.float64]) -> float:
+    """The vendor orientation's pitch (rad) relative to the tracked attitude at the same
+    sample: the shank-y (pitch axis) component of the rotation vector of R_tracked^T R_vendor
+    (both R_world_imu in shank axes). With the level-surface offset b (which turns the
+    tracked attitude about the same axis), the vendor's pitch relative to the level-aided
+    pitch is this minus b."""
+    return mat3_rotvec(mat3_tmul(R_tracked, quat_matrix(quat_vendor_wxyz)))[1]
+
+
+class VendorPitchVariance:
+    """Online estimate of the vendor orientation's pitch error variance (rad^2), from its
+    disagreement with the level-aided pitch (``vendor_pitch_sigma_deg: auto``).
+
+    With d = vendor pitch - level-aided pitch at one IMU sample and var_level the level-aided
+    pitch's own variance there, E[d^2] = var_vendor + var_level if the two errors are
+    independent, so var_vendor = E[d^2 - var_level]. The expectation is a weighted mean with
+    weights forgotten exponentially over ``memory_s`` seconds, floored at 0 (a vendor that
+    agrees with the level-aided pitch to within the latter's own spread is taken as exact,
+    and the pull stays at ``time_constant_s``). The two errors are not independent while the
+    pull is fast (the tracked pitch follows the vendor, the offset only part of it), which
+    makes the estimate low rather than high: the pull errs towards the configured
+    ``time_constant_s``.
+    """
+
+    def __init__(self, memory_s: float) -> None:
+        if not memory_s > 0.0:
+            raise ValueError(f"memory_s must be > 0, got {memory_s}")
+        self.memory_s = float(memory_s)
+        self._t_s: float | None = None
+        self._w = 0.0  # sum of the weights
+        self._s = 0.0  # weighted sum of d^2 - var_level (rad^2)
+        self.n = 0  # disagreements taken
+
+    def add(self, t_s: float, disagreement_rad: float, level_var_rad2: float) -> None:
+        """Take one disagreement d (rad) at ``t_s`` (s, not decreasing) with the level-aided
+        pitch's variance (rad^2) there."""
+        if not (math.isfinite(disagreement_rad) and math.isfinite(level_var_rad2)):
+            return
+        if self._t_s is not None:
+            if t_s < self._t_s:
+                raise EstimationError(
+                    f"disagreement at {t_s:.6f} s is older than {self._t_s:.6f} s"
+                )
+            decay = math.exp(-(t_s - self._t_s) / self.memory_s)
+            self._w *= decay
+            self._s *= decay
+        self._t_s = t_s
+        self._w += 1.0
+        self._s += disagreement_rad * disagreement_rad - level_var_rad2
+        self.n += 1
+
+    @property
+    def var_rad2(self) -> float | None:
+        """The vendor's pitch error variance (rad^2, >= 0), None before any disagreement."""
+        if self.n == 0:
+            return None
+        return max(0.0, self._s / self._w)
+
+    @property
+    def sigma_deg(self) -> float | None:
+        """:attr:`var_rad2` as a sigma in degrees (None before any disagreement)."""
+        v = self.var_rad2
+        return None if v is None else math.degrees(math.sqrt(v))

@@ -150,10 +150,11 @@ def _mat3_rotvec(m):
 
 
 @numba.njit(cache=True)
-def attitude_step(R, p, g, q, dt, k):
+def attitude_step(R, p, g, q, dt, k, k_pitch):
     """``AttitudeTracker.add``'s complementary step: R_world_imu (row-major 9-tuple) turned by
     the mid-point gyro rate over ``dt`` (previous rate ``p``, new ``g``, rad/s), then pulled by
-    ``k`` of the remaining rotation towards the vendor orientation ``q``."""
+    ``k`` of the remaining rotation towards the vendor orientation ``q`` about the x and z
+    axes and by ``k_pitch`` about the y (pitch) axis."""
     R = _mat3_mul(
         R,
         _rotvec_mat3(0.5 * (p[0] + g[0]) * dt, 0.5 * (p[1] + g[1]) * dt, 0.5 * (p[2] + g[2]) * dt),
@@ -162,7 +163,7 @@ def attitude_step(R, p, g, q, dt, k):
     # mat3_tmul(R, V) = R^T V
     RT = (R[0], R[3], R[6], R[1], R[4], R[7], R[2], R[5], R[8])
     ex, ey, ez = _mat3_rotvec(_mat3_mul(RT, V))
-    return _mat3_mul(R, _rotvec_mat3(k * ex, k * ey, k * ez))
+    return _mat3_mul(R, _rotvec_mat3(k * ex, k_pitch * ey, k * ez))
 
 
 @numba.njit(cache=True)
@@ -489,6 +490,7 @@ def sample_step(
     t,
     dt,
     k_att,
+    k_pitch,
     offset_rad,
     dt_filter,
     xa_now,
@@ -504,7 +506,7 @@ def sample_step(
     propagation's code (see :func:`eskf_propagate`)."""
     R0 = (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6], ws[7], ws[8])
     g0 = (ws[WS_GYRO], ws[WS_GYRO + 1], ws[WS_GYRO + 2])
-    R = attitude_step(R0, g0, gyr, q_vendor, dt, k_att)
+    R = attitude_step(R0, g0, gyr, q_vendor, dt, k_att, k_pitch)
     for i in range(9):
         ws[WS_R + i] = R[i]
     for i in range(3):
@@ -544,11 +546,11 @@ def sample_step(
 
 
 # imu_input's constants (one float64 array, built once per estimator): the IMU clock model's,
-# the fault monitor's and the attitude tracker's time constant
+# the fault monitor's and the attitude tracker's time constants (roll / heading, pitch)
 IN_PERIOD, IN_GAP_PERIODS, IN_WINDOW, IN_SMOOTH, IN_MIN_FIT, IN_KEEP_TOL = range(6)
 IN_ACC_LIM, IN_GYR_LIM, IN_TEST, IN_SIGMA2, IN_GYRO_D2 = range(6, 11)
-IN_TIME_CONSTANT = 11
-IN_SIZE = 12
+IN_TIME_CONSTANT, IN_PITCH_TIME_CONSTANT = 11, 12
+IN_SIZE = 13
 # imu_input's state pool: sample_step's workspace (WS_*) followed by imu_input's constants
 # and the small state arrays of the clock model (ClockModel._st), the fault monitor
 # (ImuFaultMonitor._prev_arr), the stance detector (StanceDetector._prev_arr) and the
@@ -669,6 +671,7 @@ def imu_input(
         t,
         dt,
         min(1.0, dt / c[IN_TIME_CONSTANT]),
+        min(1.0, dt / c[IN_PITCH_TIME_CONSTANT]),
         offset_rad,
         dt_filter,
         xa_now,

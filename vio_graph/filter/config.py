@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from vio_graph.geometry import GRAVITY_MPS2
 
@@ -40,19 +40,36 @@ class AttitudeConfig(BaseModel):
         description="complementary filter: time constant (s) of the pull towards the vendor "
         "orientation",
     )
-    vendor_pitch_sigma_deg: float | None = Field(
+    vendor_pitch_sigma_deg: float | Literal["auto"] | None = Field(
         default=None,
-        gt=0,
         description="complementary filter with the level-surface pitch aiding on: the vendor "
-        "orientation's pitch error sigma (deg, MTi-1 ~1 deg RMS dynamic). The pull towards the "
-        "vendor is then weighed against the level-aided pitch offset's own variance (not "
-        "below level_aiding.measurement_floor_deg^2, the tilt error shared by frames): its time "
-        "constant becomes time_constant_s x (var_offset + var_vendor) / var_offset (12 s at "
-        "the 0.3 deg floor and 1 deg vendor), so while "
-        "level surfaces hold the pitch to a fraction of a degree the vendor's correlated error "
-        "is not imported at its own pace, and when they are lost (the offset's variance grows) "
-        "the pull returns to time_constant_s. None = the fixed time_constant_s",
+        "orientation's pitch error sigma (deg, MTi-1 ~1 deg RMS dynamic), or 'auto' to "
+        "estimate it online from the vendor's disagreement with the level-aided pitch "
+        "(VendorPitchVariance, over vendor_sigma_memory_s). The pull towards the vendor about "
+        "the pitch axis is then weighed against the level-aided pitch offset's own variance "
+        "(not below level_aiding.measurement_floor_deg^2, the tilt error shared by frames): its "
+        "time constant becomes time_constant_s x (var_offset + var_vendor) / var_offset (12 s "
+        "at the 0.3 deg floor and 1 deg vendor), so while level surfaces hold the pitch to a "
+        "fraction of a degree the vendor's correlated error is not imported at its own pace, "
+        "and when they are lost (the offset's variance grows) the pull returns to "
+        "time_constant_s. Roll and heading, which no level surface observes, keep "
+        "time_constant_s (the pull bounds the gyro bias's drift there). None = the fixed "
+        "time_constant_s on every axis",
     )
+    vendor_sigma_memory_s: float = Field(
+        default=30.0,
+        gt=0,
+        description="vendor_pitch_sigma_deg 'auto': time (s) over which the disagreements are "
+        "forgotten (exponential weights); many times the vendor error's correlation time "
+        "(~2 s) so that the variance is averaged over several of its swings",
+    )
+
+    @field_validator("vendor_pitch_sigma_deg")
+    @classmethod
+    def _positive_sigma(cls, v: float | str | None) -> float | str | None:
+        if isinstance(v, float) and not 0.0 < v < math.inf:
+            raise ValueError(f"vendor_pitch_sigma_deg must be > 0 and finite or 'auto', got {v}")
+        return v
 
 
 class LevelAidingConfig(BaseModel):

@@ -1036,6 +1036,8 @@ def surface_tilt(
         variances[q] = var_k
         szx += Szx / var_k
         info += Sxx / var_k
+    if not info > 0.0:  # every trimmed line's points share one x: no slope to measure
+        return 1, 0.0, 0.0, 0, lines
     s = szx / info
     if abs(s) > max_slope:
         return 1, 0.0, 0.0, 0, lines

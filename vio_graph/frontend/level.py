@@ -304,6 +304,8 @@ def _surface_tilt_numpy(
         variances.append(var_k)
         szx += Szx / var_k
         info += Sxx / var_k
+    if not info > 0.0:  # every trimmed line's points share one x: no slope to measure
+        return None
     s = szx / info
     heights = [_mean(zs - s * xs) for xs, zs in line_xz]
     ray_h: list[float | None] = [None] * len(line_xz)

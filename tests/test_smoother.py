@@ -21,6 +21,7 @@ from vio_graph.smoother.graph import (
     robust_noise,
 )
 from vio_graph.smoother.imu_sampling import (
+    common_frame_samples,
     discretization_velocity_var,
     make_preintegration_params,
     midpoint_samples,
@@ -707,9 +708,9 @@ def test_compiled_step_means_equal_the_numpy_sampler() -> None:
     t, a, g = _jittered_shank_imu(40, seed=5)
     cases = [(t[3] + 0.004, t[14] - 0.003), (t[2], t[12]), (t[30], t[-1] + 0.02)]
     cases += [(t[5] - 0.001, t[5] + 0.002)]
-    for t0, t1 in cases:
-        ref = common_frame_samples(t, a, g, t0, t1)
-        got = common_frame_steps(t, a, g, t0, t1, TIME_TOL_S)
+    for (t0, t1), substeps in zip(cases * 2, [1] * len(cases) + [3] * len(cases), strict=True):
+        ref = common_frame_samples(t, a, g, t0, t1, substeps)
+        got = common_frame_steps(t, a, g, t0, t1, TIME_TOL_S, substeps)
         for r, c in zip(ref, got, strict=True):
             assert r.shape == c.shape
             np.testing.assert_allclose(c, r, rtol=1e-12, atol=1e-12)
@@ -1133,3 +1134,43 @@ def test_graph_level_association_gate() -> None:
     kernel = SmootherConfig(height_landmark_kernel="geman_mcclure")
     noise = robust_noise(kernel, gtsam.noiseModel.Isotropic.Sigma(1, 0.002), "geman_mcclure", 3.0)
     assert isinstance(noise, gtsam.noiseModel.Robust)
+
+
+@pytest.mark.parametrize("rate_hz", [50.0, 100.0])
+def test_substeps_cut_the_first_moment_error_n_squared_fold(rate_hz: float) -> None:
+    """A specific force rising linearly, a(t) = a0 + j t, no rotation: the step means are
+    exact, so the preintegrated velocity is too, but GTSAM's v dt + a dt^2 / 2 per step
+    overshoots the position by j h^3 / 12 per step of length h, j T h^2 / 12 over T; with n
+    sub-steps (SmootherConfig.preintegration_substeps) by j T h^2 / (12 n^2)."""
+    h = 1.0 / rate_hz
+    t = h * np.arange(40)
+    a0, j = np.array([1.0, 0.0, -2.0]), np.array([30.0, 0.0, 80.0])  # m/s^2, m/s^3
+    a = a0 + j * t[:, None]
+    g = np.zeros_like(a)
+    t0, t1 = t[5], t[15]
+    T = t1 - t0
+    cfg = SmootherConfig()
+    for n in (1, 2, 4):
+        a_m, g_m, dt = common_frame_samples(t, a, g, t0, t1, n)
+        assert dt.size == 10 * n
+        assert np.isclose(dt.sum(), T)
+        pim = gtsam.PreintegratedCombinedMeasurements(
+            make_preintegration_params(cfg), gtsam.imuBias.ConstantBias()
+        )
+        for k in range(dt.size):
+            pim.integrateMeasurement(a_m[k], g_m[k], float(dt[k]))
+        a_t0 = a0 + j * t0
+        exact_p = a_t0 * T**2 / 2 + j * T**3 / 6
+        exact_v = a_t0 * T + j * T**2 / 2
+        np.testing.assert_allclose(pim.deltaVij(), exact_v, atol=1e-9)
+        np.testing.assert_allclose(
+            pim.deltaPij() - exact_p, j * T * h**2 / (12 * n**2), rtol=1e-6, atol=1e-12
+        )
+
+
+def test_substeps_must_be_positive() -> None:
+    t, a, g = _jittered_shank_imu(20, seed=2)
+    with pytest.raises(EstimationError):
+        common_frame_samples(t, a, g, t[3], t[9], 0)
+    with pytest.raises(ValidationError):
+        SmootherConfig(preintegration_substeps=0)

@@ -841,3 +841,21 @@ def test_displacements_on_jittered_stamps_carry_the_undecided_choice() -> None:
         assert np.all(widened < 13.8)
         assert np.all(widened <= plain + 1e-9)
     assert beyond >= 4
+
+
+def test_frame_stamp_test_total_is_the_unclamped_sum() -> None:
+    """The reported total log-likelihood ratio sums every frame's evidence; the running one
+    is clamped at twice the threshold (so it can switch back) and equals it until then."""
+    test = FrameStampTest(cap_d2=100.0)
+    for _ in range(3):  # 0.5 * (4 - 0) = 2 each, for the line
+        test.add(4.0, 0.0)
+    assert test.llr == pytest.approx(6.0)
+    assert test.llr_total == pytest.approx(6.0)
+    for _ in range(10):  # the same evidence, given as (in use, other) once the line is in use
+        if test.use_line:
+            test.add(0.0, 4.0)
+        else:
+            test.add(4.0, 0.0)
+    assert test.llr == pytest.approx(2.0 * test.threshold)
+    assert test.llr_total == pytest.approx(26.0)
+    assert test.report()["log_likelihood_ratio_line_total"] == pytest.approx(26.0)

@@ -516,6 +516,7 @@ class FrameStampTest:
         self.cap_d2 = float(cap_d2)
         self.threshold = float(threshold)
         self.llr = 0.0  # log-likelihood ratio, line over stamps
+        self.llr_total = 0.0  # the same sum over every frame tested, not clamped
         self.use_line = False
         self.n_switches = 0
         self.n_tested = 0
@@ -539,6 +540,7 @@ class FrameStampTest:
         d2_stamp, d2_line = (b, a) if self.use_line else (a, b)
         lim = 2.0 * self.threshold
         self.llr = min(max(self.llr + 0.5 * (d2_stamp - d2_line), -lim), lim)
+        self.llr_total += 0.5 * (d2_stamp - d2_line)
         self.n_tested += 1
         if not self.use_line and self.llr > self.threshold:
             self.use_line, self.n_switches = True, self.n_switches + 1
@@ -574,6 +576,7 @@ class FrameStampTest:
         return {
             "stamps": "clock line" if self.use_line else "as recorded",
             "log_likelihood_ratio_line": self.llr,
+            "log_likelihood_ratio_line_total": self.llr_total,
             "switches": self.n_switches,
             "frames_tested": self.n_tested,
         }

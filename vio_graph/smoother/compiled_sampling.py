@@ -106,10 +106,10 @@ def _so3_exp(wx, wy, wz, R):
 
 
 @numba.njit(cache=True)
-def common_frame_steps(t, a, g, t0, t1, tol):
-    """``imu_sampling.common_frame_samples(t, a, g, t0, t1)`` (tol = ``TIME_TOL_S``): the
-    step accelerations (K, 3, each in its step-start frame), gyro means (K, 3) and step
-    lengths (K,)."""
+def common_frame_steps(t, a, g, t0, t1, tol, substeps=1):
+    """``imu_sampling.common_frame_samples(t, a, g, t0, t1, substeps)`` (tol =
+    ``TIME_TOL_S``): the step accelerations (K, 3, each in its step-start frame), gyro
+    means (K, 3) and step lengths (K,)."""
     n = t.size
     m = 0
     for i in range(n):
@@ -123,7 +123,15 @@ def common_frame_steps(t, a, g, t0, t1, tol):
             knots[j] = t[i]
             j += 1
     knots[m + 1] = t1
-    nk = m + 2
+    if substeps > 1:
+        coarse = knots
+        knots = np.empty((m + 1) * substeps + 1)
+        for k in range(m + 1):
+            step = coarse[k + 1] - coarse[k]
+            for q in range(substeps):
+                knots[k * substeps + q] = coarse[k] + step * (q / substeps)
+        knots[(m + 1) * substeps] = t1
+    nk = knots.size
     ns = nk - 1
     curv = np.zeros(nk)
     for k in range(nk):

@@ -255,6 +255,17 @@ class SmootherConfig(BaseModel):
         "0.70 vs 0.40 cm); 'raw': each IMU sample held over its step, as GTSAM's "
         "integrateMeasurement assumes (the ablation's baseline)",
     )
+    preintegration_substeps: int = Field(
+        default=1,
+        ge=1,
+        le=8,
+        description="each step between IMU samples (and the keyframe times) is split into "
+        "this many equal sub-steps, each with its own curvature-corrected mean "
+        "(imu_sampling._imu_knots). GTSAM moves the position by v dt + a dt^2 / 2 with the "
+        "step's mean a, which misses the first moment of a changing specific force by "
+        "dt^2 / 12 times its change over the step; n sub-steps cut that n^2-fold. It "
+        "matters at low IMU rates (docs/method.md section 4, 'Sub-steps')",
+    )
     distrust_noise: Literal["per_step", "spread"] = Field(
         default="per_step",
         description="where the extra variance of distrusted IMU samples (saturated, repaired; "

@@ -718,11 +718,13 @@ class KeyframeGraphBuilder:
         t0 = self._last_kf_time_s
         if self._compiled_steps is not None and ts.size and t > t0:
             a_mid, g_mid, dt = self._compiled_steps(
-                ts, acc, np.asarray(self._imu_g), t0, t, TIME_TOL_S
+                ts, acc, np.asarray(self._imu_g), t0, t, TIME_TOL_S, cfg.preintegration_substeps
             )
         else:
             sampler = SAMPLERS[cfg.preintegration]
-            a_mid, g_mid, dt = sampler(ts, acc, np.asarray(self._imu_g), t0, t)
+            a_mid, g_mid, dt = sampler(
+                ts, acc, np.asarray(self._imu_g), t0, t, cfg.preintegration_substeps
+            )
         params = self._params
         # (every sample trusted, the usual case: skip the array work, the answer is (0, 0))
         if any(xa > 0 or xg > 0 for xa, xg in self._imu_x):

@@ -77,10 +77,16 @@ def _second_derivative(t: NDArray[np.float64], y: NDArray[np.float64]) -> NDArra
 
 
 def _imu_knots(
-    times_s: ArrayLike, accel_mps2: ArrayLike, gyro_radps: ArrayLike, t0_s: float, t1_s: float
+    times_s: ArrayLike,
+    accel_mps2: ArrayLike,
+    gyro_radps: ArrayLike,
+    t0_s: float,
+    t1_s: float,
+    substeps: int = 1,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Checked IMU arrays and the step knots over [t0_s, t1_s]: t0, the samples strictly
-    inside, t1."""
+    inside, t1; with ``substeps`` > 1 each of those steps split into that many equal ones
+    (``SmootherConfig.preintegration_substeps``)."""
     t = np.asarray(times_s, dtype=float)
     a = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
     g = np.asarray(gyro_radps, dtype=float).reshape(-1, 3)
@@ -88,8 +94,15 @@ def _imu_knots(
         raise EstimationError("no IMU samples to preintegrate")
     if t1_s <= t0_s:
         raise EstimationError(f"empty preintegration interval [{t0_s}, {t1_s}]")
+    if substeps < 1:
+        raise EstimationError(f"substeps must be >= 1, got {substeps}")
     inner = t[(t > t0_s + TIME_TOL_S) & (t < t1_s - TIME_TOL_S)]
-    return t, a, g, np.concatenate([[t0_s], inner, [t1_s]])
+    knots = np.concatenate([[t0_s], inner, [t1_s]])
+    if substeps > 1:
+        frac = np.arange(substeps) / substeps
+        split = knots[:-1, None] + np.diff(knots)[:, None] * frac[None, :]
+        knots = np.concatenate([split.ravel(), knots[-1:]])
+    return t, a, g, knots
 
 
 def _quadratic_step_means(
@@ -121,6 +134,7 @@ def midpoint_samples(
     gyro_radps: ArrayLike,
     t0_s: float,
     t1_s: float,
+    substeps: int = 1,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Midpoint-rule IMU steps covering [t0_s, t1_s].
 
@@ -140,7 +154,7 @@ def midpoint_samples(
     Returns:
         ``accel_mid (K, 3)``, ``gyro_mid (K, 3)``, ``dt_s (K,)`` with sum(dt) = t1 - t0.
     """
-    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
+    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s, substeps)
     step_means, dt = _quadratic_step_means(t, knots)
 
     g_mid = step_means(g)
@@ -155,6 +169,7 @@ def common_frame_samples(
     gyro_radps: ArrayLike,
     t0_s: float,
     t1_s: float,
+    substeps: int = 1,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Like :func:`midpoint_samples`, but the specific force is averaged in one frame.
 
@@ -168,7 +183,7 @@ def common_frame_samples(
     there (a world-fixed vector is then constant and exact), and each step's mean is handed
     back in the step-start frame, where GTSAM applies it.
     """
-    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
+    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s, substeps)
     step_means, dt = _quadratic_step_means(t, knots)
 
     g_mid = step_means(g)
@@ -193,11 +208,12 @@ def held_samples(
     gyro_radps: ArrayLike,
     t0_s: float,
     t1_s: float,
+    substeps: int = 1,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Raw IMU steps covering [t0_s, t1_s]: each step uses the last sample at or before its
     start (what feeding samples straight into ``integrateMeasurement`` does). Same outputs
     as :func:`midpoint_samples`; kept as the ablation's baseline."""
-    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s)
+    t, a, g, knots = _imu_knots(times_s, accel_mps2, gyro_radps, t0_s, t1_s, substeps)
     idx = np.clip(np.searchsorted(t, knots[:-1] + TIME_TOL_S, side="right") - 1, 0, t.size - 1)
     return a[idx], g[idx], np.diff(knots)
 
@@ -394,7 +410,7 @@ def compiled_sampler(name: str) -> Callable[..., tuple] | None:
     """The compiled version of sampler ``name`` (``SAMPLERS``), or None: only
     "common_frame" has one (smoother/compiled_sampling.py, numba), used when the compiled
     kernels are on (``filter.fast_imu.imu_kernels``). Called as ``f(t, a, g, t0, t1,
-    TIME_TOL_S)`` with float64 arrays; same outputs as the sampler to rounding."""
+    TIME_TOL_S, substeps)`` with float64 arrays; same outputs as the sampler to rounding."""
     from vio_graph.filter.fast_imu import imu_kernels
 
     if name != "common_frame" or imu_kernels() is None:

@@ -603,8 +603,11 @@ class CameraFixedFilter:
         onset_drop_tols: float | None = 3.0,
         onset_share: float = 0.5,
         confirm_frames: int = 1,
+        skip_unable: bool = True,
     ) -> None:
         self.k_sigma = float(k_sigma)
+        # skip the test on frames where it cannot remove a pixel (update); the same masks
+        self.skip_unable = bool(skip_unable)
         # a pixel is returned once it has been camera-fixed on this many consecutive tested
         # frames (1: at once); the held state below follows the unconfirmed decision
         self.confirm_frames = int(confirm_frames)
@@ -711,7 +714,7 @@ class CameraFixedFilter:
             # both in the onset status and of the same depth as in the previous frame (the
             # test's pixels, held ones included, all have that depth): with fewer such
             # pixels in the whole image the test removes nothing, and is skipped
-            able = not self._onset_saw_prev or (
+            able = not (self.skip_unable and self._onset_saw_prev) or (
                 self._onset.n_same >= self.onset_share * self.min_pixels
             )
             self._onset_saw_prev = True

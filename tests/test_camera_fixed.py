@@ -451,3 +451,24 @@ def test_frames_where_the_test_cannot_remove_a_pixel_are_skipped_with_the_same_m
     assert found == [False, False, False, False, True, True, False]
     assert skipping.n_skipped >= 2 and testing.n_skipped == 0
     assert skipping.n_tested + skipping.n_skipped == len(frames)
+
+
+def test_a_walk_whose_onset_pixels_all_pass_as_terrain_skips_the_full_test() -> None:
+    """On a walk over clean terrain thousands of pixels keep their onset and their depth
+    from frame to frame (surfaces whose depth the motion hardly changes), but the test run
+    on those pixels alone refuses none: the full test is skipped, and the masks are the
+    same as testing every frame, the blob that enters the view found as before."""
+    poses = [POSE_A, POSE_B, POSE_A, POSE_B, POSE_A, POSE_B, POSE_B, POSE_A]
+    blob = [False, False, False, False, True, True, True, False]
+    frames = [
+        _frame(*p, seed=10 + i, blob=b) for i, (p, b) in enumerate(zip(poses, blob, strict=True))
+    ]
+    skipping, testing = CameraFixedFilter(), CameraFixedFilter(skip_unable=False)
+    found = []
+    for i, fr in enumerate(frames):
+        delta = [0.0, 0.0] if i == 0 else np.subtract(poses[i][0], poses[i - 1][0])
+        got, want = _update(skipping, fr, delta), _update(testing, fr, delta)
+        assert np.array_equal(got, want)
+        found.append(bool(got.any()))
+    assert found == [False] * 5 + [True, True, False]
+    assert skipping.n_skipped >= 4 and testing.n_skipped == 0

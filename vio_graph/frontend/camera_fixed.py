@@ -686,12 +686,15 @@ class CameraFixedFilter:
         ``candidates``: the (H, W) pixels to test, or a function that returns them, called
         only when the test runs.
 
-        With the occlusion-onset requirement the test runs only when it can remove a pixel:
-        when at least ``onset_share`` x ``min_pixels`` pixels of the whole image are in the
-        onset status and kept the previous frame's depth (a surface needs that many such
-        pixels, :func:`surface_majority`); the onset update counts them at no cost. The
-        skipped frames return the all-False mask the test would have returned
-        (:attr:`n_tested`, :attr:`n_skipped` count the frames)."""
+        With the occlusion-onset requirement (and ``skip_unable``) the full test runs only
+        when it can remove a pixel: a surface needs ``onset_share`` x ``min_pixels`` pixels
+        that pass the test and are in the onset status (:func:`surface_majority`). So the
+        test is skipped when fewer pixels of the whole image are in the onset status with the
+        previous frame's depth (the onset update counts them at no cost), or when the test
+        run on the candidates in the onset status alone (a pixel's test does not depend on
+        the other candidates) passes fewer of them. The skipped frames return the all-False
+        mask the full test would have returned (:attr:`n_tested`, :attr:`n_skipped` count
+        the frames)."""
         share = 0.0
         if timestamp_s is not None and self._prev_t is not None:
             dt = float(timestamp_s) - self._prev_t
@@ -736,6 +739,29 @@ class CameraFixedFilter:
             same = np.zeros(depth.shape, dtype=bool)
             if callable(candidates):
                 candidates = candidates()
+            if onset is not None and self.skip_unable:
+                # first the candidates in the onset status alone: the test decides each pixel
+                # by itself (the view test looks at the whole image, whatever the
+                # candidates), so it finds the full test's pixels in that status; with fewer
+                # than onset_share x min_pixels of them no surface can leave
+                first = camera_fixed_mask(
+                    self._prev[0],
+                    depth,
+                    candidates & onset,
+                    K,
+                    motion,
+                    depth_sigma_m,
+                    self.k_sigma,
+                    self._held,
+                )
+                able = np.count_nonzero(first) >= self.onset_share * self.min_pixels
+        if (
+            able
+            and self._prev is not None
+            and predicted_delta_xz_m is not None
+            and predicted_cov_m2 is not None
+            and self._prev[0].shape == depth.shape
+        ):
             mask = camera_fixed_mask(
                 self._prev[0],
                 depth,

@@ -691,8 +691,9 @@ class CameraFixedFilter:
         that pass the test and are in the onset status (:func:`surface_majority`). So the
         test is skipped when fewer pixels of the whole image are in the onset status with the
         previous frame's depth (the onset update counts them at no cost), or when the test
-        run on the candidates in the onset status alone (a pixel's test does not depend on
-        the other candidates) passes fewer of them. The skipped frames return the all-False
+        run on the image's pixels in the onset status alone (a pixel's test does not depend
+        on the other pixels tested; a superset of the candidates in that status) passes
+        fewer of them. The skipped frames return the all-False
         mask the full test would have returned (:attr:`n_tested`, :attr:`n_skipped` count
         the frames)."""
         share = 0.0
@@ -737,17 +738,16 @@ class CameraFixedFilter:
                 share,
             )
             same = np.zeros(depth.shape, dtype=bool)
-            if callable(candidates):
-                candidates = candidates()
             if onset is not None and self.skip_unable:
-                # first the candidates in the onset status alone: the test decides each pixel
-                # by itself (the view test looks at the whole image, whatever the
-                # candidates), so it finds the full test's pixels in that status; with fewer
-                # than onset_share x min_pixels of them no surface can leave
+                # first the pixels in the onset status alone, anywhere in the image: the test
+                # decides each pixel by itself (the view test looks at the whole image,
+                # whatever is tested), so it finds at least the full test's pixels in that
+                # status; with fewer than onset_share x min_pixels no surface can leave (and
+                # the slice's candidates are not needed)
                 first = camera_fixed_mask(
                     self._prev[0],
                     depth,
-                    candidates & onset,
+                    onset,
                     K,
                     motion,
                     depth_sigma_m,
@@ -762,6 +762,8 @@ class CameraFixedFilter:
             and predicted_cov_m2 is not None
             and self._prev[0].shape == depth.shape
         ):
+            if callable(candidates):
+                candidates = candidates()
             mask = camera_fixed_mask(
                 self._prev[0],
                 depth,

@@ -2120,7 +2120,6 @@ def onset_update(
                     n_fresh += 1
                 elif not abs(change) <= keep_tol:
                     onset[r, c] = False
-                if onset[r, c] and abs(change) <= same_tol:
-                    n_same += 1
+                n_same += onset[r, c] and abs(change) <= same_tol
             last[r, c] = d
     return n_fresh, n_same

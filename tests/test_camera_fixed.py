@@ -387,18 +387,20 @@ def test_terrain_revealed_behind_a_nosing_is_not_taken_for_an_object(
 
 
 def test_compiled_onset_tracker_equals_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``compiled.onset_update`` gives OnsetTracker's numpy status and last depths on random
-    depth sequences (drops, rises, noise, invalid pixels, float32 and float64 images)."""
+    """``compiled.onset_update`` gives OnsetTracker's numpy status, last depths and counts
+    (fresh onsets; onsets of unchanged depth) on random depth sequences (drops, rises, noise,
+    invalid pixels, float32 and float64 images)."""
     from vio_graph.frontend import icp as icp_module
 
     n_onsets = 0
     for dtype in (np.float32, np.float64):
-        trackers = {}
+        trackers, counts = {}, {}
         for mode in ("0", "1"):
             monkeypatch.setenv(icp_module.COMPILED_ENV, mode)
             if mode == "1":
                 assert icp_module.compiled_kernels() is not None
             t = OnsetTracker(2.0, 0.03, 0.01, 6.0)
+            counts[mode] = []
             run = np.random.default_rng(3)
             depth = run.uniform(0.2, 2.0, (30, 40))
             for _ in range(25):
@@ -408,10 +410,65 @@ def test_compiled_onset_tracker_equals_numpy(monkeypatch: pytest.MonkeyPatch) ->
                 depth = np.clip(depth + step * run.standard_normal(depth.shape) ** 2, 0.1, 3.0)
                 img = np.where(run.random(depth.shape) < 0.1, 0.0, depth).astype(dtype)
                 img[run.random(depth.shape) < 0.02] = np.nan
-                t.update(img, 0.003)
+                t.update(img, 0.003, 0.013)
+                counts[mode].append((t.n_fresh, t.n_same))
             trackers[mode] = t
         a, b = trackers["0"], trackers["1"]
         assert np.array_equal(a.onset, b.onset)
         assert np.array_equal(a._last, b._last, equal_nan=True)
+        assert counts["0"] == counts["1"]
+        assert min(c[0] for c in counts["0"][1:]) > 0 and min(c[1] for c in counts["0"][1:]) > 0
         n_onsets += int(a.onset.sum())
     assert 0 < n_onsets < 2 * 30 * 40
+
+
+def test_frames_where_the_test_cannot_remove_a_pixel_are_skipped_with_the_same_masks() -> None:
+    """A surface leaves only with onset_share x min_pixels pixels in the onset status whose
+    depth stayed since the previous frame; the filter skips the test on frames with fewer
+    such pixels in the whole image and returns what the test returns: the same masks as a
+    filter that tests every frame, over terrain whose every depth rises by 3 cm a frame (no
+    pixel keeps an onset: skipped), a blob entering the view, found, held through a stance,
+    and leaving it."""
+    a, b = _frame(*POSE_A, seed=1, blob=False), _frame(*POSE_B, seed=2, blob=False)
+    risen = [
+        (np.where(a[0] > 0, a[0] + dz, 0.0).astype(np.float32),) + a[1:] for dz in (0.03, 0.06)
+    ]
+    frames = [
+        a,
+        *risen,
+        _frame(*POSE_A, seed=3),
+        _frame(*POSE_B, seed=4),
+        _frame(*POSE_B, seed=5),
+        b,
+    ]
+    moves = [(0.0, 0.0)] * 4 + [np.subtract(POSE_B[0], POSE_A[0])] + [(0.0, 0.0)] * 2
+    skipping, testing = CameraFixedFilter(), CameraFixedFilter(skip_unable=False)
+    found = []
+    for fr, delta in zip(frames, moves, strict=True):
+        got, want = _update(skipping, fr, delta), _update(testing, fr, delta)
+        assert np.array_equal(got, want)
+        found.append(bool(got[fr[3]].mean() > 0.99) if fr[3].any() else bool(got.any()))
+    assert found == [False, False, False, False, True, True, False]
+    assert skipping.n_skipped >= 2 and testing.n_skipped == 0
+    assert skipping.n_tested + skipping.n_skipped == len(frames)
+
+
+def test_a_walk_whose_onset_pixels_all_pass_as_terrain_skips_the_full_test() -> None:
+    """On a walk over clean terrain thousands of pixels keep their onset and their depth
+    from frame to frame (surfaces whose depth the motion hardly changes), but the test run
+    on those pixels alone refuses none: the full test is skipped, and the masks are the
+    same as testing every frame, the blob that enters the view found as before."""
+    poses = [POSE_A, POSE_B, POSE_A, POSE_B, POSE_A, POSE_B, POSE_B, POSE_A]
+    blob = [False, False, False, False, True, True, True, False]
+    frames = [
+        _frame(*p, seed=10 + i, blob=b) for i, (p, b) in enumerate(zip(poses, blob, strict=True))
+    ]
+    skipping, testing = CameraFixedFilter(), CameraFixedFilter(skip_unable=False)
+    found = []
+    for i, fr in enumerate(frames):
+        delta = [0.0, 0.0] if i == 0 else np.subtract(poses[i][0], poses[i - 1][0])
+        got, want = _update(skipping, fr, delta), _update(testing, fr, delta)
+        assert np.array_equal(got, want)
+        found.append(bool(got.any()))
+    assert found == [False] * 5 + [True, True, False]
+    assert skipping.n_skipped >= 4 and testing.n_skipped == 0

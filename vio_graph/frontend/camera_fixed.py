@@ -33,6 +33,7 @@ comes from the depth images alone. Pure functions plus a small per-frame state; 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -526,26 +527,36 @@ class OnsetTracker:
         self.keep_sigmas = float(keep_sigmas)
         self._last: NDArray[np.float64] | None = None  # last valid depth, nan = never valid
         self.onset: NDArray[np.bool_] | None = None
+        # counts of the last update: pixels that got an onset in it (a drop or a first valid
+        # depth), and pixels with an onset whose depth stayed within ``same_tol_m`` of the
+        # last valid one
+        self.n_fresh = 0
+        self.n_same = 0
 
     def reset(self) -> None:
         self._last = None
         self.onset = None
+        self.n_fresh = self.n_same = 0
 
-    def update(self, depth_m: NDArray, depth_sigma_m: float) -> NDArray[np.bool_]:
+    def update(
+        self, depth_m: NDArray, depth_sigma_m: float, same_tol_m: float = 0.0
+    ) -> NDArray[np.bool_]:
         """The (H, W) onset status after this depth image (0 / non-finite = invalid); the
-        returned array is the tracker's own, updated in place by the next call. Compiled
-        (``compiled.onset_update``) with the front end's kernels: the same status."""
+        returned array is the tracker's own, updated in place by the next call. Also sets
+        :attr:`n_fresh` and :attr:`n_same` (``same_tol_m``: m). Compiled
+        (``compiled.onset_update``) with the front end's kernels: the same status and counts."""
         d = np.asarray(depth_m)
         if self._last is None or self._last.shape != d.shape:
             valid = np.isfinite(d) & (d > 0)
             self._last = np.where(valid, d, np.nan).astype(np.float64)
             self.onset = valid
+            self.n_fresh, self.n_same = int(np.count_nonzero(valid)), 0
             return self.onset
         assert self.onset is not None
         keep_tol = self.keep_sigmas * np.sqrt(2.0) * float(depth_sigma_m)
         kernels = compiled_kernels()
         if kernels is not None and d.ndim == 2 and d.dtype in (np.float32, np.float64):
-            kernels.onset_update(
+            n_fresh, n_same = kernels.onset_update(
                 d,
                 self._last,
                 self.onset,
@@ -553,12 +564,14 @@ class OnsetTracker:
                 self.rel_tol,
                 self.abs_tol_m,
                 keep_tol,
+                float(same_tol_m),
             )
+            self.n_fresh, self.n_same = int(n_fresh), int(n_same)
         else:
-            self._update_reference(d, keep_tol)
+            self._update_reference(d, keep_tol, float(same_tol_m))
         return self.onset
 
-    def _update_reference(self, depth_m: NDArray, keep_tol_m: float) -> None:
+    def _update_reference(self, depth_m: NDArray, keep_tol_m: float, same_tol_m: float) -> None:
         """:meth:`update` in numpy (the tested reference of the compiled kernel)."""
         assert self._last is not None and self.onset is not None
         d = np.asarray(depth_m, dtype=np.float64)
@@ -568,7 +581,11 @@ class OnsetTracker:
             change = d - last
             drop = change < -self.drop_tols * (self.rel_tol * last + self.abs_tol_m)
             kept = np.abs(change) <= keep_tol_m
-        status = np.isnan(last) | drop | (kept & self.onset)
+            same = np.abs(change) <= same_tol_m
+        first = np.isnan(last)
+        status = first | drop | (kept & self.onset)
+        self.n_fresh = int(np.count_nonzero(valid & (first | drop)))
+        self.n_same = int(np.count_nonzero(valid & status & same))
         np.copyto(self.onset, status, where=valid)
         np.copyto(self._last, d, where=valid)
 
@@ -586,8 +603,11 @@ class CameraFixedFilter:
         onset_drop_tols: float | None = 3.0,
         onset_share: float = 0.5,
         confirm_frames: int = 1,
+        skip_unable: bool = True,
     ) -> None:
         self.k_sigma = float(k_sigma)
+        # skip the test on frames where it cannot remove a pixel (update); the same masks
+        self.skip_unable = bool(skip_unable)
         # a pixel is returned once it has been camera-fixed on this many consecutive tested
         # frames (1: at once); the held state below follows the unconfirmed decision
         self.confirm_frames = int(confirm_frames)
@@ -606,6 +626,11 @@ class CameraFixedFilter:
         self._prev: tuple[NDArray, NDArray[np.float64]] | None = None
         self._prev_t: float | None = None
         self._held: NDArray[np.bool_] | None = None
+        # the onset tracker saw the previous frame (its last depths are that frame's where
+        # it was valid): the count that skips the test (update) then bounds what it finds
+        self._onset_saw_prev = False
+        self.n_tested = 0  # frames the full test ran on / were skipped as unable to remove
+        self.n_skipped = 0
 
     def reset(self) -> None:
         self._prev = None
@@ -630,6 +655,7 @@ class CameraFixedFilter:
         """A frame that is not tested (report-only mode between checks): kept as the
         previous frame for the next :meth:`update`, with nothing held; its depth feeds the
         occlusion onsets (``depth_sigma_m``: the depth noise sd, m, as :meth:`update`'s)."""
+        self._onset_saw_prev = self._onset is not None and depth_sigma_m is not None
         if self._onset is not None and depth_sigma_m is not None:
             self._onset.update(depth_m, depth_sigma_m)
         self._prev_t = None if timestamp_s is None else float(timestamp_s)
@@ -640,7 +666,7 @@ class CameraFixedFilter:
     def update(
         self,
         depth_m: NDArray,
-        candidates: NDArray[np.bool_],
+        candidates: NDArray[np.bool_] | Callable[[], NDArray[np.bool_]],
         K: NDArray[np.float64],
         R_ground_cam: NDArray[np.float64],
         predicted_delta_xz_m: NDArray[np.float64] | None,
@@ -656,7 +682,20 @@ class CameraFixedFilter:
         turned its ground frame by rot_y(``ground_turn_rad``) since the previous frame (a
         pitch correction); the previous rotation is re-expressed in the turned frame.
         ``timestamp_s``, ``stamp_sigma_s``: the frame's stamp and the sd of a stamp's jitter
-        (s); the predicted motion is uncertain by sqrt(2) sd / (frame interval) of itself."""
+        (s); the predicted motion is uncertain by sqrt(2) sd / (frame interval) of itself.
+        ``candidates``: the (H, W) pixels to test, or a function that returns them, called
+        only when the test runs.
+
+        With the occlusion-onset requirement (and ``skip_unable``) the full test runs only
+        when it can remove a pixel: a surface needs ``onset_share`` x ``min_pixels`` pixels
+        that pass the test and are in the onset status (:func:`surface_majority`). So the
+        test is skipped when fewer pixels of the whole image are in the onset status with the
+        previous frame's depth (the onset update counts them at no cost), or when the test
+        run on the image's pixels in the onset status alone (a pixel's test does not depend
+        on the other pixels tested; a superset of the candidates in that status) passes
+        fewer of them. The skipped frames return the all-False
+        mask the full test would have returned (:attr:`n_tested`, :attr:`n_skipped` count
+        the frames)."""
         share = 0.0
         if timestamp_s is not None and self._prev_t is not None:
             dt = float(timestamp_s) - self._prev_t
@@ -669,9 +708,23 @@ class CameraFixedFilter:
             self._prev = (self._prev[0], turn @ self._prev[1])
         depth = np.asarray(depth_m)
         mask = np.zeros(depth.shape, dtype=bool)
-        onset = None if self._onset is None else self._onset.update(depth, depth_sigma_m)
+        onset = None
+        able = True
+        if self._onset is not None:
+            # the test's "same depth" tolerance (camera_fixed_mask's, the same floats)
+            tol_fixed = self.k_sigma * np.sqrt(2.0) * depth_sigma_m
+            onset = self._onset.update(depth, depth_sigma_m, tol_fixed)
+            # a surface leaves only with onset_share x min_pixels (at least) of its pixels
+            # both in the onset status and of the same depth as in the previous frame (the
+            # test's pixels, held ones included, all have that depth): with fewer such
+            # pixels in the whole image the test removes nothing, and is skipped
+            able = not (self.skip_unable and self._onset_saw_prev) or (
+                self._onset.n_same >= self.onset_share * self.min_pixels
+            )
+            self._onset_saw_prev = True
         if (
-            self._prev is not None
+            able
+            and self._prev is not None
             and predicted_delta_xz_m is not None
             and predicted_cov_m2 is not None
             and self._prev[0].shape == depth.shape
@@ -685,6 +738,32 @@ class CameraFixedFilter:
                 share,
             )
             same = np.zeros(depth.shape, dtype=bool)
+            if onset is not None and self.skip_unable:
+                # first the pixels in the onset status alone, anywhere in the image: the test
+                # decides each pixel by itself (the view test looks at the whole image,
+                # whatever is tested), so it finds at least the full test's pixels in that
+                # status; with fewer than onset_share x min_pixels no surface can leave (and
+                # the slice's candidates are not needed)
+                first = camera_fixed_mask(
+                    self._prev[0],
+                    depth,
+                    onset,
+                    K,
+                    motion,
+                    depth_sigma_m,
+                    self.k_sigma,
+                    self._held,
+                )
+                able = np.count_nonzero(first) >= self.onset_share * self.min_pixels
+        if (
+            able
+            and self._prev is not None
+            and predicted_delta_xz_m is not None
+            and predicted_cov_m2 is not None
+            and self._prev[0].shape == depth.shape
+        ):
+            if callable(candidates):
+                candidates = candidates()
             mask = camera_fixed_mask(
                 self._prev[0],
                 depth,
@@ -714,6 +793,10 @@ class CameraFixedFilter:
                 )
                 mask = np.zeros(depth.shape, dtype=bool)
                 mask[box] = decided
+        if able:
+            self.n_tested += 1
+        else:
+            self.n_skipped += 1
         self._prev = (depth, np.asarray(R_ground_cam, dtype=float))
         self._held = mask
         if self.confirm_frames <= 1:

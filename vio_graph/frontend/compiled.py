@@ -2094,12 +2094,18 @@ def label4(img):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def onset_update(depth, last, onset, drop_tols, rel_tol, abs_tol, keep_tol):  # pragma: no cover
+def onset_update(
+    depth, last, onset, drop_tols, rel_tol, abs_tol, keep_tol, same_tol
+):  # pragma: no cover - compiled
     """``camera_fixed.OnsetTracker._update_reference`` compiled, in place: per pixel of the
     (H, W) ``depth`` (0 / non-finite = invalid), the last valid depth ``last`` (float64, nan
     = never valid) and the onset status ``onset`` (bool), the same tests on the same
-    float64 values."""
+    float64 values. Returns the counts of the reference: the pixels that got an onset in
+    this image (a drop or a first valid depth), and those with an onset whose depth is
+    within ``same_tol`` of the last valid one."""
     h, w = depth.shape
+    n_fresh = 0
+    n_same = 0
     for r in range(h):
         for c in range(w):
             d = np.float64(depth[r, c])
@@ -2108,10 +2114,14 @@ def onset_update(depth, last, onset, drop_tols, rel_tol, abs_tol, keep_tol):  # 
             m = last[r, c]
             if np.isnan(m):
                 onset[r, c] = True
+                n_fresh += 1
             else:
                 change = d - m
                 if change < -drop_tols * (rel_tol * m + abs_tol):
                     onset[r, c] = True
+                    n_fresh += 1
                 elif not abs(change) <= keep_tol:
                     onset[r, c] = False
+                n_same += onset[r, c] and abs(change) <= same_tol
             last[r, c] = d
+    return n_fresh, n_same

@@ -754,7 +754,7 @@ class CameraFixedFilter:
                     self.k_sigma,
                     self._held,
                 )
-                able = np.count_nonzero(first) >= self.onset_share * self.min_pixels
+                able = bool(np.count_nonzero(first) >= self.onset_share * self.min_pixels)
         if (
             able
             and self._prev is not None

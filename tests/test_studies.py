@@ -214,11 +214,29 @@ def test_compare_layer_on_the_cluster_equals_its_process_path(
         )
 
 
-def test_killed_worker_loses_no_trial(cluster: _Cluster, trials, serial, tmp_path: Path) -> None:
-    ref_dir, ref_rows = serial
+@pytest.fixture(scope="module")
+def long_trials(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    """Two 5 s trials: tasks long enough (about a second each) for the kill to land in one;
+    with the 1.2 s trials a batch could finish between two polls of the scheduler."""
+    from vio_graph.sim import load_scenario, simulate
+
+    base = load_scenario("upstair")
+    cfg = base.model_copy(
+        update={
+            "duration_s": 5.0,
+            "camera": base.camera.model_copy(update={"width_px": 112, "height_px": 86}),
+        }
+    )
+    root = tmp_path_factory.mktemp("long_trials")
+    return [simulate(cfg, seed=s, out_dir=root / f"up_long_s{s}") for s in (1, 2)]
+
+
+def test_killed_worker_loses_no_trial(cluster: _Cluster, long_trials, tmp_path: Path) -> None:
+    ref_dir = tmp_path / "ref"
+    ref_tasks = make_tasks(long_trials, ("filter",), expand_grid(FAST, None), ref_dir)
+    ref_rows = run_batch(ref_tasks, ref_dir, scheduler="serial")
     out = tmp_path / "study"
-    tasks = make_tasks(trials, ("filter",), expand_grid(FAST, None), out)
-    ref_rows = [r for r in ref_rows if r["mode"] == "filter"]
+    tasks = make_tasks(long_trials, ("filter",), expand_grid(FAST, None), out)
     result: dict[str, list] = {}
     runner = threading.Thread(
         target=lambda: result.setdefault("rows", run_batch(tasks, out, cluster.address))
@@ -232,7 +250,7 @@ def test_killed_worker_loses_no_trial(cluster: _Cluster, trials, serial, tmp_pat
             victim = cluster.worker_process(next(iter(busy)))
             victim.send_signal(signal.SIGKILL)
         else:
-            time.sleep(0.05)
+            time.sleep(0.005)
     runner.join(timeout=120)
     assert victim is not None and victim.wait(timeout=10) == -signal.SIGKILL
     assert not runner.is_alive()

@@ -722,22 +722,22 @@ class CameraFixedFilter:
                 self._onset.n_same >= self.onset_share * self.min_pixels
             )
             self._onset_saw_prev = True
+        prev = self._prev
         if (
             able
-            and self._prev is not None
+            and prev is not None
             and predicted_delta_xz_m is not None
             and predicted_cov_m2 is not None
-            and self._prev[0].shape == depth.shape
+            and prev[0].shape == depth.shape
         ):
             motion = motion_from_ground(
-                self._prev[1],
+                prev[1],
                 R_ground_cam,
                 predicted_delta_xz_m,
                 predicted_cov_m2,
                 rot_sigma_rad,
                 share,
             )
-            same = np.zeros(depth.shape, dtype=bool)
             if onset is not None and self.skip_unable:
                 # first the pixels in the onset status alone, anywhere in the image: the test
                 # decides each pixel by itself (the view test looks at the whole image,
@@ -745,54 +745,11 @@ class CameraFixedFilter:
                 # status; with fewer than onset_share x min_pixels no surface can leave (and
                 # the slice's candidates are not needed)
                 first = camera_fixed_mask(
-                    self._prev[0],
-                    depth,
-                    onset,
-                    K,
-                    motion,
-                    depth_sigma_m,
-                    self.k_sigma,
-                    self._held,
+                    prev[0], depth, onset, K, motion, depth_sigma_m, self.k_sigma, self._held
                 )
                 able = bool(np.count_nonzero(first) >= self.onset_share * self.min_pixels)
-        if (
-            able
-            and self._prev is not None
-            and predicted_delta_xz_m is not None
-            and predicted_cov_m2 is not None
-            and self._prev[0].shape == depth.shape
-        ):
-            if callable(candidates):
-                candidates = candidates()
-            mask = camera_fixed_mask(
-                self._prev[0],
-                depth,
-                candidates,
-                K,
-                motion,
-                depth_sigma_m,
-                self.k_sigma,
-                self._held,
-                same,
-            )
-            if mask.any():  # on the candidates' bounding box (the slice band), a pixel of
-                # margin for the depth edges
-                rr, cc = np.nonzero(same)
-                r0, r1 = max(rr.min() - 1, 0), rr.max() + 2
-                c0, c1 = max(cc.min() - 1, 0), cc.max() + 2
-                box = (slice(r0, r1), slice(c0, c1))
-                decided = surface_majority(
-                    mask[box],
-                    depth[box],
-                    same[box],
-                    self.edge_rel_tol,
-                    self.edge_abs_tol_m,
-                    self.min_pixels,
-                    None if onset is None else onset[box],
-                    self.onset_share,
-                )
-                mask = np.zeros(depth.shape, dtype=bool)
-                mask[box] = decided
+            if able:
+                mask = self._full_test(prev[0], depth, candidates, K, motion, depth_sigma_m, onset)
         if able:
             self.n_tested += 1
         else:
@@ -806,3 +763,50 @@ class CameraFixedFilter:
             run = np.zeros(mask.shape, dtype=np.int32)
         self._run = np.where(mask, run + 1, 0).astype(np.int32)
         return self._run >= self.confirm_frames
+
+    def _full_test(
+        self,
+        prev_depth: NDArray,
+        depth: NDArray,
+        candidates: NDArray[np.bool_] | Callable[[], NDArray[np.bool_]],
+        K: NDArray[np.float64],
+        motion: CameraMotion,
+        depth_sigma_m: float,
+        onset: NDArray[np.bool_] | None,
+    ) -> NDArray[np.bool_]:
+        """The test on the candidates, then decided per surface (:func:`surface_majority`)
+        on the candidates' bounding box (the slice band) with a pixel of margin for the
+        depth edges; (H, W) bool."""
+        if callable(candidates):
+            candidates = candidates()
+        same = np.zeros(depth.shape, dtype=bool)
+        mask = camera_fixed_mask(
+            prev_depth,
+            depth,
+            candidates,
+            K,
+            motion,
+            depth_sigma_m,
+            self.k_sigma,
+            self._held,
+            same,
+        )
+        if not mask.any():
+            return mask
+        rr, cc = np.nonzero(same)
+        r0, r1 = max(rr.min() - 1, 0), rr.max() + 2
+        c0, c1 = max(cc.min() - 1, 0), cc.max() + 2
+        box = (slice(r0, r1), slice(c0, c1))
+        decided = surface_majority(
+            mask[box],
+            depth[box],
+            same[box],
+            self.edge_rel_tol,
+            self.edge_abs_tol_m,
+            self.min_pixels,
+            None if onset is None else onset[box],
+            self.onset_share,
+        )
+        mask = np.zeros(depth.shape, dtype=bool)
+        mask[box] = decided
+        return mask

@@ -10,7 +10,7 @@ from pydantic import ValidationError
 from vio_graph.errors import EstimationError
 from vio_graph.filter.attitude import AttitudeTracker, VendorPitchVariance, pitch_disagreement_rad
 from vio_graph.filter.config import AttitudeConfig
-from vio_graph.geometry import GRAVITY_MPS2, quat_wxyz_from_matrix, rot_y
+from vio_graph.geometry import GRAVITY_MPS2, quat_wxyz_from_matrix, rot_x, rot_y
 from vio_graph.types import ImuSample
 
 RATE_RADPS = 6.0  # swing-phase shank rate
@@ -62,15 +62,16 @@ def test_complementary_attitude_converges_to_the_vendor_orientation() -> None:
     assert _angle_between(tracker.R_world_imu_at(t), rot_y(RATE_RADPS * t)) < 1e-3
 
 
-def _drifting_vendor(n: int, rate_radps: float) -> list[ImuSample]:
-    """A still body (level, gyro zero) whose vendor orientation drifts in pitch at
-    ``rate_radps`` (the MTi-1's time-correlated orientation error), 100 Hz."""
+def _drifting_vendor(n: int, rate_radps: float, rot=rot_y) -> list[ImuSample]:
+    """A still body (level, gyro zero) whose vendor orientation drifts at ``rate_radps``
+    about the axis of ``rot`` (pitch by default; the MTi-1's time-correlated orientation
+    error), 100 Hz."""
     return [
         ImuSample(
             0.01 * k,
             np.array([0.0, 0.0, GRAVITY_MPS2]),
             np.zeros(3),
-            quat_wxyz_from_matrix(rot_y(rate_radps * 0.01 * k)),
+            quat_wxyz_from_matrix(rot(rate_radps * 0.01 * k)),
         )
         for k in range(n)
     ]
@@ -105,21 +106,6 @@ def test_weighed_pull_returns_to_the_time_constant_without_an_offset() -> None:
     assert tracker.weigh_pull(np.radians(1.0) ** 2) == 2.0
 
 
-def _drifting_vendor_roll(n: int, rate_radps: float) -> list[ImuSample]:
-    """As :func:`_drifting_vendor`, the vendor's error drifting in roll (about x)."""
-    from vio_graph.geometry import rot_x
-
-    return [
-        ImuSample(
-            0.01 * k,
-            np.array([0.0, 0.0, GRAVITY_MPS2]),
-            np.zeros(3),
-            quat_wxyz_from_matrix(rot_x(rate_radps * 0.01 * k)),
-        )
-        for k in range(n)
-    ]
-
-
 def test_weighed_pull_keeps_the_time_constant_about_roll() -> None:
     """Level surfaces hold the pitch only: with the pull weighed (pitch 17 s), a vendor error
     ramping in roll reaches the tracked attitude with the 1 s pull's lag, as without the
@@ -128,7 +114,7 @@ def test_weighed_pull_keeps_the_time_constant_about_roll() -> None:
     tracker = AttitudeTracker(AttitudeConfig(vendor_pitch_sigma_deg=1.0))
     assert tracker.weigh_pull(np.radians(0.25) ** 2) == 17.0
     assert tracker.time_constant_s == 1.0
-    for s in _drifting_vendor_roll(201, rate):
+    for s in _drifting_vendor(201, rate, rot_x):
         tracker.add(s)
     err = np.degrees(_angle_between(tracker.R_world_imu_at(2.0), np.eye(3)))
     expected = np.degrees(rate) * (2.0 - 1.0 * (1.0 - np.exp(-2.0)))

@@ -39,19 +39,26 @@ FAST = PipelineConfig().model_copy(
 MODES = ("filter", "smoother")
 
 
-@pytest.fixture(scope="module")
-def trials(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+def _upstair_trials(
+    tmp_path_factory: pytest.TempPathFactory, folder: str, prefix: str, duration_s: float, seeds
+) -> list[Path]:
+    """Simulated upstair trials of ``duration_s`` (s) at 112 x 86 px, one per seed."""
     from vio_graph.sim import load_scenario, simulate
 
     base = load_scenario("upstair")
     cfg = base.model_copy(
         update={
-            "duration_s": 1.2,
+            "duration_s": duration_s,
             "camera": base.camera.model_copy(update={"width_px": 112, "height_px": 86}),
         }
     )
-    root = tmp_path_factory.mktemp("trials")
-    return [simulate(cfg, seed=s, out_dir=root / f"up_s{s}") for s in (1, 2, 3)]
+    root = tmp_path_factory.mktemp(folder)
+    return [simulate(cfg, seed=s, out_dir=root / f"{prefix}_s{s}") for s in seeds]
+
+
+@pytest.fixture(scope="module")
+def trials(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    return _upstair_trials(tmp_path_factory, "trials", "up", 1.2, (1, 2, 3))
 
 
 @pytest.fixture(scope="module")
@@ -218,17 +225,7 @@ def test_compare_layer_on_the_cluster_equals_its_process_path(
 def long_trials(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     """Two 5 s trials: tasks long enough (about a second each) for the kill to land in one;
     with the 1.2 s trials a batch could finish between two polls of the scheduler."""
-    from vio_graph.sim import load_scenario, simulate
-
-    base = load_scenario("upstair")
-    cfg = base.model_copy(
-        update={
-            "duration_s": 5.0,
-            "camera": base.camera.model_copy(update={"width_px": 112, "height_px": 86}),
-        }
-    )
-    root = tmp_path_factory.mktemp("long_trials")
-    return [simulate(cfg, seed=s, out_dir=root / f"up_long_s{s}") for s in (1, 2)]
+    return _upstair_trials(tmp_path_factory, "long_trials", "up_long", 5.0, (1, 2))
 
 
 def test_killed_worker_loses_no_trial(cluster: _Cluster, long_trials, tmp_path: Path) -> None:

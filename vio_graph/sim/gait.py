@@ -936,6 +936,7 @@ def _edge_requirements(
 
 def _swing_shortfall(
     t: NDArray,
+    hip: NDArray,
     ankle: NDArray,
     th: NDArray,
     s: Stride,
@@ -997,6 +998,11 @@ def _swing_shortfall(
         # more than the configured clearance over every edge: lower the swing to it, as far
         # as the sole keeps its margin above the terrain in mid-swing
         room = np.where(early, gap - _EARLY_TOE_GAP_M, gap - _SOLE_MARGIN_M)
+        # ... and as far as the leg reaches (REPAIR_REACH_FRACTION of thigh + shank)
+        reach = REPAIR_REACH_FRACTION * (leg.thigh_length_m + leg.shank_length_m)
+        dx = hip[:, 0] - ankle[:, 0]
+        drop = np.sqrt(np.maximum(reach**2 - dx * dx, 0.0)) - (hip[:, 1] - ankle[:, 1])
+        room = np.minimum(room, drop)
         wb = _lift_bump(f)
         eff = wb > 0.05  # where the bump moves the foot
         room_per_lift = float((room[eff] / wb[eff]).min()) if np.any(eff) else 0.0
@@ -1063,7 +1069,10 @@ def _joint_space_swing(
         th_t = thigh_p(tt)
         sh_t = th_t + knee_p(tt)
         knee_xz = hip[m] - a * np.stack([np.sin(th_t), np.cos(th_t)], axis=1)
-        ankle[m] = knee_xz - b * np.stack([np.sin(sh_t), np.cos(sh_t)], axis=1)
+        ankle_s = knee_xz - b * np.stack([np.sin(sh_t), np.cos(sh_t)], axis=1)
+        if np.linalg.norm(ankle_s - hip[m], axis=1).max() > REPAIR_REACH_FRACTION * (a + b):
+            continue  # the knee profile would straighten the leg too far: keep the via points
+        ankle[m] = ankle_s
         windows.append((t0, t1, m))
     ankle_fk = ankle.copy()
     lift = np.zeros(len(windows))
@@ -1084,7 +1093,7 @@ def _joint_space_swing(
         grew = False
         for j, (t0, _t1, m) in enumerate(windows):
             need, more_toe_up = _swing_shortfall(
-                t[m], ankle[m], th[m], by_toe_off[t0], terrain, gait, leg
+                t[m], hip[m], ankle[m], th[m], by_toe_off[t0], terrain, gait, leg
             )
             if abs(need) > 5e-4 or need > 1e-4:
                 lift[j] += need

@@ -225,7 +225,7 @@ class GaitConfig(_Section):
         "add flexion",
     )
     swing_peak_knee_fraction: dict[str, float] = Field(
-        default_factory=lambda: {"level": 0.30, "ascent": 0.35, "descent": 0.35, "obstacle": 0.40},
+        default_factory=lambda: {"level": 0.30, "ascent": 0.40, "descent": 0.35, "obstacle": 0.40},
         description="joint_space: time of the peak swing knee flexion as a fraction of the swing "
         "(level: peak at ~73 % of the cycle, toe-off at ~61 %: Winter 2009 [V]; stairs: peak at "
         "~75-80 %, toe-off at ~64 %: McFadyen & Winter 1988 [U])",

@@ -998,6 +998,8 @@ def _swing_shortfall(
         # more than the configured clearance over every edge: lower the swing to it, as far
         # as the sole keeps its margin above the terrain in mid-swing
         room = np.where(early, gap - _EARLY_TOE_GAP_M, gap - _SOLE_MARGIN_M)
+        late = f > _EDGE_WINDOW[1]  # the foot coming down to its landing: half its gap
+        room[late] = 0.5 * gap[late]
         # ... and as far as the leg reaches (REPAIR_REACH_FRACTION of thigh + shank)
         reach = REPAIR_REACH_FRACTION * (leg.thigh_length_m + leg.shank_length_m)
         dx = hip[:, 0] - ankle[:, 0]

@@ -808,6 +808,7 @@ _TERMINAL_VIA = {
     "ascent": (0.84, (-0.04, 0.035)),
     "descent": (0.8, (-0.01, 0.05)),
 }
+_MAX_SWING_KNEE_DEG = 140.0  # a swing that would need more knee flexion keeps its via points
 _THIGH_LEAD = 0.55  # share of the thigh's swing excursion done at the knee peak (Winter 2009)
 _THIGH_PEAK_RATE = 1.5  # thigh rate there / its mean rate up to the terminal via point
 
@@ -831,10 +832,10 @@ def _knee_peak_acc(k0: float, k_pk: float, k1: float, t0: float, t_pk: float, t1
     return -2.0 * max(c, 0.0)
 
 
-def _lift_bump(x: NDArray) -> NDArray[np.float64]:
-    """C2 plateau bump on the swing fraction x in [0, 1] (0 with zero rate and acceleration
-    at both ends)."""
-    return _smoothstep5(x / _LIFT_RAMP) * _smoothstep5((1.0 - x) / _LIFT_RAMP)
+def _lift_bump(x: NDArray, x_end: float) -> NDArray[np.float64]:
+    """C2 plateau bump on the swing fraction x (0 with zero rate and acceleration at toe-off
+    and from ``x_end`` on, the terminal-swing via point: the landing approach is left to it)."""
+    return _smoothstep5(x / _LIFT_RAMP) * _smoothstep5((x_end - x) / _LIFT_RAMP)
 
 
 def _knee_profile(
@@ -912,6 +913,7 @@ class _JointSpaceSwing:
     windows_s: tuple[tuple[float, float], ...]
     ankle: object  # BSpline of the ankle (2,) over the motion-time grid
     lift_m: tuple[float, ...]  # clearance bump height per swing, m
+    n_via_points: int = 0  # swings in the grid that kept their via points (fallback)
 
     def apply(self, t: NDArray, ankle: NDArray) -> NDArray[np.float64]:
         out = ankle.copy()
@@ -954,7 +956,8 @@ def _swing_shortfall(
     heel_f = np.array(leg.heel_in_foot_xz_m)
     toe_f = np.array(leg.toe_in_foot_xz_m)
     f = (t - s.t_toe_off_s) / (s.t_next_s - s.t_toe_off_s)
-    w = np.maximum(_lift_bump(f), 0.25)
+    f_end = _TERMINAL_VIA[s.swing_kind][0]
+    w = np.maximum(_lift_bump(f, f_end), 0.25)
     heel = ankle + rot_xz(th, heel_f)
     toe = ankle + rot_xz(th, toe_f)
     fr = np.linspace(0.0, 1.0, 12)
@@ -983,7 +986,7 @@ def _swing_shortfall(
             if not _EDGE_WINDOW[0] <= fc <= _EDGE_WINDOW[1]:
                 continue
             zc = toe[i, 1] + a * (toe[i + 1, 1] - toe[i, 1])
-            wc = max(float(_lift_bump(np.array(fc))), 0.25)
+            wc = max(float(_lift_bump(np.array(fc), f_end)), 0.25)
             if zc - ze < c:
                 need = max(need, (c - (zc - ze)) / wc)
             excess = min(excess, (zc - ze - c) / wc)
@@ -1005,7 +1008,7 @@ def _swing_shortfall(
         dx = hip[:, 0] - ankle[:, 0]
         drop = np.sqrt(np.maximum(reach**2 - dx * dx, 0.0)) - (hip[:, 1] - ankle[:, 1])
         room = np.minimum(room, drop)
-        wb = _lift_bump(f)
+        wb = _lift_bump(f, f_end)
         eff = wb > 0.05  # where the bump moves the foot
         room_per_lift = float((room[eff] / wb[eff]).min()) if np.any(eff) else 0.0
         need = -max(0.0, min(excess, room_per_lift))
@@ -1035,6 +1038,7 @@ def _joint_space_swing(
     ankle = ankle_vp.copy()
     span = _TimeSpans(t)
     windows: list[tuple[float, float, slice | NDArray]] = []
+    n_skipped = 0
     for s in strides:
         t0, t1 = s.t_toe_off_s, s.t_next_s
         m = span(t0 + 1e-9, t1)
@@ -1073,7 +1077,8 @@ def _joint_space_swing(
         knee_xz = hip[m] - a * np.stack([np.sin(th_t), np.cos(th_t)], axis=1)
         ankle_s = knee_xz - b * np.stack([np.sin(sh_t), np.cos(sh_t)], axis=1)
         if np.linalg.norm(ankle_s - hip[m], axis=1).max() > REPAIR_REACH_FRACTION * (a + b):
-            continue  # the knee profile would straighten the leg too far: keep the via points
+            n_skipped += 1  # the knee profile would straighten the leg too far: via points
+            continue
         ankle[m] = ankle_s
         windows.append((t0, t1, m))
     ankle_fk = ankle.copy()
@@ -1089,14 +1094,34 @@ def _joint_space_swing(
         )
         return _ToeUpPitch(sp, tuple((w[0], w[1]) for w in windows), tuple(toe_up.tolist()))
 
+    a_b = leg.thigh_length_m + leg.shank_length_m
+    d_min = _leg_distance(leg, np.radians(_MAX_SWING_KNEE_DEG))
+    failed: set[int] = set()  # swings that keep their via points
+
+    def lifted() -> NDArray:
+        out = ankle_fk.copy()
+        for j, (t0, t1, m) in enumerate(windows):
+            if j in failed:
+                out[m] = ankle_vp[m]
+                toe_up[j] = 0.0
+            else:
+                f_end = _TERMINAL_VIA[by_toe_off[t0].swing_kind][0]
+                out[m, 1] += lift[j] * _lift_bump((t[m] - t0) / (t1 - t0), f_end)
+        return out
+
+    def shortfalls(pitch) -> list[tuple[float, float]]:
+        th = pitch(t)
+        return [
+            (0.0, 0.0)
+            if j in failed
+            else _swing_shortfall(t[m], hip[m], ankle[m], th[m], by_toe_off[t0], terrain, gait, leg)
+            for j, (t0, _t1, m) in enumerate(windows)
+        ]
+
     pitch = swing_pitch(ankle)
     for _ in range(12):
-        th = pitch(t)
         grew = False
-        for j, (t0, _t1, m) in enumerate(windows):
-            need, more_toe_up = _swing_shortfall(
-                t[m], hip[m], ankle[m], th[m], by_toe_off[t0], terrain, gait, leg
-            )
+        for j, (need, more_toe_up) in enumerate(shortfalls(pitch)):
             if abs(need) > 5e-4 or need > 1e-4:
                 lift[j] += need
                 grew = True
@@ -1105,12 +1130,27 @@ def _joint_space_swing(
                 grew = True
         if not grew:
             break
-        ankle = ankle_fk.copy()
-        for j, (t0, t1, m) in enumerate(windows):
-            ankle[m, 1] += lift[j] * _lift_bump((t[m] - t0) / (t1 - t0))
+        ankle = lifted()
+        for j, (_t0, _t1, m) in enumerate(windows):  # too bent or too straight: via points
+            d = np.linalg.norm(ankle[m] - hip[m], axis=1)
+            if d.min() < d_min or d.max() > REPAIR_REACH_FRACTION * a_b:
+                failed.add(j)
+        ankle = lifted()
+        pitch = swing_pitch(ankle)
+    else:  # not converged: the swings still short of their clearance keep their via points
+        for j, (need, more_toe_up) in enumerate(shortfalls(pitch)):
+            if need > 2e-3 or more_toe_up > 2e-2:
+                failed.add(j)
+        ankle = lifted()
         pitch = swing_pitch(ankle)
     spl = make_interp_spline(t, ankle, k=5)
-    js = _JointSpaceSwing(tuple((w[0], w[1]) for w in windows), spl, tuple(lift.tolist()))
+    kept = [j for j in range(len(windows)) if j not in failed]
+    js = _JointSpaceSwing(
+        tuple((windows[j][0], windows[j][1]) for j in kept),
+        spl,
+        tuple(float(lift[j]) for j in kept),
+        n_via_points=n_skipped + len(failed),
+    )
     return js, pitch
 
 

@@ -794,7 +794,7 @@ class _Evaluator:
 
 # --------------------------------------------------------------------------- joint-space swing
 
-_END_FIT_S = 0.025  # stance samples used for the joint state at toe-off / landing
+_END_FIT_S = 0.015  # stance samples used for the joint state at toe-off / landing
 _LIFT_RAMP = 0.3  # the clearance bump ramps up / down over this fraction of the swing
 _SOLE_MARGIN_M = 0.01  # the sole clears the terrain by this much where it would touch it
 _EDGE_WINDOW = (0.1, 0.85)  # toe crossings of edges in this part of the swing get the clearance
@@ -809,7 +809,7 @@ _TERMINAL_VIA = {
     "descent": (0.8, (-0.01, 0.05)),
 }
 _MAX_SWING_KNEE_DEG = 140.0  # a swing that would need more knee flexion keeps its via points
-_THIGH_LEAD = 0.55  # share of the thigh's swing excursion done at the knee peak (Winter 2009)
+_THIGH_LEAD = 0.45  # share of the thigh's excursion done at the knee peak (0.35-0.55 tried)
 _THIGH_PEAK_RATE = 1.5  # thigh rate there / its mean rate up to the terminal via point
 
 
@@ -819,7 +819,7 @@ def _end_state(t: NDArray, y: NDArray, t_ev: float, side: int) -> NDArray[np.flo
     None when there are too few samples there."""
     lo, hi = (t_ev - _END_FIT_S, t_ev) if side < 0 else (t_ev, t_ev + _END_FIT_S)
     i0, i1 = np.searchsorted(t, [lo, hi])
-    if i1 - i0 < 15:
+    if i1 - i0 < 12:
         return None
     p = np.polynomial.polynomial.polyfit(t[i0:i1] - t_ev, y[i0:i1], 4)
     return np.array([p[0], p[1], 2.0 * p[2]])
@@ -1000,7 +1000,7 @@ def _swing_shortfall(
     if need <= 0.0 and np.isfinite(excess) and excess > 0.0:
         # more than the configured clearance over every edge: lower the swing to it, as far
         # as the sole keeps its margin above the terrain in mid-swing
-        room = np.where(early, gap - _EARLY_TOE_GAP_M, gap - _SOLE_MARGIN_M)
+        room = np.where(early, gap - _EARLY_TOE_GAP_M * g, gap - _SOLE_MARGIN_M)
         late = f > _EDGE_WINDOW[1]  # the foot coming down to its landing: half its gap
         room[late] = 0.5 * gap[late]
         # ... and as far as the leg reaches (REPAIR_REACH_FRACTION of thigh + shank)

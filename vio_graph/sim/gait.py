@@ -810,6 +810,7 @@ _TERMINAL_VIA = {
 }
 _MAX_SWING_KNEE_DEG = 140.0  # a swing that would need more knee flexion keeps its via points
 _THIGH_LEAD = 0.45  # share of the thigh's excursion done at the knee peak (0.35-0.55 tried)
+_THIGH_LEAD_OBSTACLE = 1.5  # over an obstacle the hip flexes past its landing pitch (1.1-2.0 tried)
 _THIGH_PEAK_RATE = 1.5  # thigh rate there / its mean rate up to the terminal via point
 
 
@@ -1065,7 +1066,8 @@ def _joint_space_swing(
         th_end = th1[0] if pose is None else pose[0]
         d_th = th_end - th0[0]
         ts = [t0, t_pk]
-        ys = [th0, [th0[0] + _THIGH_LEAD * d_th, _THIGH_PEAK_RATE * d_th / (t_v - t0), 0.0]]
+        lead = _THIGH_LEAD_OBSTACLE if s.swing_kind == "obstacle" else _THIGH_LEAD
+        ys = [th0, [th0[0] + lead * d_th, _THIGH_PEAK_RATE * d_th / (t_v - t0), 0.0]]
         if pose is not None:
             ts.append(t_v)
             ys.append(_via_to_landing(pose[0], th1, t1 - t_v))

@@ -166,3 +166,26 @@ def test_peak_knee_fraction_outside_the_swing_is_rejected() -> None:
         GaitConfig(swing_peak_knee_fraction={"level": 0.9})
     with pytest.raises(ValidationError):
         GaitConfig(swing_model="min_jerk")
+
+
+def test_swing_stats_benchmark_compares_the_models() -> None:
+    """benchmarks/sim_swing_stats.py: scenario specs parse, bad ones are refused, and on the
+    reference upstair the joint-space swing is the gentler one with the configured clearance."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import sim_swing_stats
+
+    assert sim_swing_stats.parse_spec("configs/upstair.yaml") == ("configs/upstair.yaml", 1, None)
+    assert sim_swing_stats.parse_spec("a.yaml:7:1.2") == ("a.yaml", 7, 1.2)
+    with pytest.raises(ValueError, match="path"):
+        sim_swing_stats.parse_spec("a.yaml:1:1.0:2")
+    with pytest.raises(ValueError):
+        sim_swing_stats.parse_spec("a.yaml:one")
+    via = sim_swing_stats.swing_stats("upstair", 1, "via_points")
+    js = sim_swing_stats.swing_stats("upstair", 1, "joint_space")
+    assert js["force_p99_g"] < 5.0 < via["force_p99_g"]
+    assert js["peak_speed_mps"] < via["peak_speed_mps"]
+    assert js["sole_gap_min_m"] > -1e-6
+    assert js["edge_clearance_m"][0] == pytest.approx(0.045, abs=0.004)

@@ -808,6 +808,7 @@ _TERMINAL_VIA = {
     "ascent": (0.84, (-0.04, 0.035)),
     "descent": (0.8, (-0.01, 0.05)),
 }
+_FALLBACK_REACH = 0.988  # a joint-space swing reaching further (hard limit 0.99) keeps via points
 _MAX_SWING_KNEE_DEG = 140.0  # a swing that would need more knee flexion keeps its via points
 _THIGH_LEAD = 0.45  # share of the thigh's excursion done at the knee peak (0.35-0.55 tried)
 _THIGH_LEAD_OBSTACLE = 1.5  # over an obstacle the hip flexes past its landing pitch (1.1-2.0 tried)
@@ -1049,8 +1050,11 @@ def _joint_space_swing(
         th1, k1 = _end_state(t, thigh, t1, +1), _end_state(t, knee_flex, t1, +1)
         if th0 is None:
             continue  # toe-off before the grid's start: keep the via-point swing
-        if th1 is None:  # the last landing is past the grid: keep its via-point swing
-            continue
+        if th1 is None:  # no stance after the last landing: the via-point swing's arrival
+            th1, k1 = _end_state(t, thigh, t1, -1), _end_state(t, knee_flex, t1, -1)
+            if th1 is None:
+                n_skipped += 1
+                continue
         frac = gait.swing_peak_knee_fraction.get(s.swing_kind, 0.33)
         k_pk = np.radians(gait.swing_peak_knee_deg[s.swing_kind])
         t_pk = t0 + frac * (t1 - t0)
@@ -1078,7 +1082,7 @@ def _joint_space_swing(
         sh_t = th_t + knee_p(tt)
         knee_xz = hip[m] - a * np.stack([np.sin(th_t), np.cos(th_t)], axis=1)
         ankle_s = knee_xz - b * np.stack([np.sin(sh_t), np.cos(sh_t)], axis=1)
-        if np.linalg.norm(ankle_s - hip[m], axis=1).max() > REPAIR_REACH_FRACTION * (a + b):
+        if np.linalg.norm(ankle_s - hip[m], axis=1).max() > _FALLBACK_REACH * (a + b):
             n_skipped += 1  # the knee profile would straighten the leg too far: via points
             continue
         ankle[m] = ankle_s
@@ -1135,7 +1139,7 @@ def _joint_space_swing(
         ankle = lifted()
         for j, (_t0, _t1, m) in enumerate(windows):  # too bent or too straight: via points
             d = np.linalg.norm(ankle[m] - hip[m], axis=1)
-            if d.min() < d_min or d.max() > REPAIR_REACH_FRACTION * a_b:
+            if d.min() < d_min or d.max() > _FALLBACK_REACH * a_b:
                 failed.add(j)
         ankle = lifted()
         pitch = swing_pitch(ankle)

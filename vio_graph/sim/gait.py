@@ -14,6 +14,10 @@ Construction (see docs/simulator.md):
    0.97 of thigh + shank;
 5. knee from two-link inverse kinematics (knee flexes forward); joint angles from segment
    angles with vio_graph.kinematics conventions.
+Opt-in ``gait.swing_model = joint_space`` replaces step 3's swing (the hip of step 4 stays):
+thigh and knee angles are C2 quintic pieces from the toe-off state through a peak knee
+flexion and a terminal via point to the landing state, the ankle follows by forward
+kinematics, and a C2 bump raises (or lowers) it to the configured clearances.
 Dense samples (1 kHz) are then wrapped in quintic interpolating splines so derivatives (IMU)
 are analytic.
 """
@@ -1026,7 +1030,7 @@ def _joint_space_swing(
     gait: GaitConfig,
     leg: LegModel,
     base_pitch: BPoly,
-) -> tuple[_JointSpaceSwing, _SwingPitch]:
+) -> tuple[_JointSpaceSwing, _ToeUpPitch]:
     """Joint-space swings on the uniform motion-time grid t (N,) with the hip path (N, 2) and
     the via-point ankle (N, 2) (whose stance samples are the stance): thigh and knee angles
     are C2 quintics (BPoly) from the toe-off state to the landing state through the peak knee

@@ -207,6 +207,45 @@ class GaitConfig(_Section):
         default_factory=lambda: {"level": 0.05, "ascent": -0.06, "descent": 0.10},
         description="hip x minus stance-ankle x at mid-stance, m",
     )
+    swing_model: Literal["via_points", "joint_space"] = Field(
+        "via_points",
+        description="swing of the instrumented leg. via_points: the toe follows a spline "
+        "through clearance via-points and the knee follows by inverse kinematics (fast ankle "
+        "translation in early swing: camera 3.5-4.5 m/s, specific force p99 6-10 g). "
+        "joint_space: thigh and knee angles are C2 quintics from the toe-off state to the "
+        "landing state through a peak knee flexion (swing_peak_knee_deg at "
+        "swing_peak_knee_fraction of the swing), ankle by forward kinematics, raised by a C2 "
+        "bump where the sole would miss the configured clearance",
+    )
+    swing_peak_knee_deg: dict[str, float] = Field(
+        default_factory=lambda: {"level": 62.0, "ascent": 93.0, "descent": 89.0, "obstacle": 95.0},
+        description="joint_space: peak swing knee flexion by swing kind, deg (level ~60-65: "
+        "Winter 2009 [V]; ascent ~93, descent ~89: McFadyen & Winter 1988, Protopapadaki 2007 "
+        "[V]; obstacle lead limb ~90-100: Chou & Draganich 1997 [U]); the clearance check may "
+        "add flexion",
+    )
+    swing_peak_knee_fraction: dict[str, float] = Field(
+        default_factory=lambda: {"level": 0.30, "ascent": 0.40, "descent": 0.35, "obstacle": 0.40},
+        description="joint_space: time of the peak swing knee flexion as a fraction of the swing "
+        "(level: peak at ~73 % of the cycle, toe-off at ~61 %: Winter 2009 [V]; stairs: peak at "
+        "~75-80 %, toe-off at ~64 %: McFadyen & Winter 1988 [U])",
+    )
+    toe_off_roll_fraction: float = Field(
+        1.5,
+        ge=0.0,
+        le=2.0,
+        description="joint_space: foot pitch rate at toe-off as a fraction of its mean rate "
+        "from heel-off to toe-off (the foot leaves the ground still rolling over the toe; "
+        "via_points keeps a zero rate there)",
+    )
+
+    @field_validator("swing_peak_knee_fraction")
+    @classmethod
+    def _fractions_inside_swing(cls, v):
+        for kind, f in v.items():
+            if not 0.1 <= f <= 0.7:
+                raise ValueError(f"swing_peak_knee_fraction[{kind}] = {f} is outside [0.1, 0.7]")
+        return v
 
 
 class RigConfig(_Section):

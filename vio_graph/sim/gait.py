@@ -14,12 +14,17 @@ Construction (see docs/simulator.md):
    0.97 of thigh + shank;
 5. knee from two-link inverse kinematics (knee flexes forward); joint angles from segment
    angles with vio_graph.kinematics conventions.
+Opt-in ``gait.swing_model = joint_space`` replaces step 3's swing (the hip of step 4 stays):
+thigh and knee angles are C2 quintic pieces from the toe-off state through a peak knee
+flexion and a terminal via point to the landing state, the ankle follows by forward
+kinematics, and a C2 bump raises (or lowers) it to the configured clearances.
 Dense samples (1 kHz) are then wrapped in quintic interpolating splines so derivatives (IMU)
 are analytic.
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -434,11 +439,15 @@ def _pitch_function(strides: list[Stride], next_toes: list, gait: GaitConfig) ->
         t_ms = 0.5 * (s.t_toe_off_s + s.t_next_s)
         th_ms = {"level": -0.05, "obstacle": -0.05, "ascent": -0.2, "descent": 0.25}[s.swing_kind]
         rate = 0.6 * (th_next - th_to) / (s.t_next_s - s.t_toe_off_s)
+        # joint_space: the foot still rolls over the toe at toe-off (the ankle leaves moving)
+        rate_to = 0.0
+        if gait.swing_model == "joint_space":
+            rate_to = gait.toe_off_roll_fraction * th_to / (s.t_toe_off_s - s.t_heel_off_s)
         knots += [
             (s.t_contact_s, th_c, 0.0),
             (s.t_flat_s, 0.0, 0.0),
             (s.t_heel_off_s, 0.0, 0.0),
-            (s.t_toe_off_s, th_to, 0.0),
+            (s.t_toe_off_s, th_to, rate_to),
             (t_ms, th_ms, rate),
         ]
     last = strides[-1]
@@ -787,6 +796,374 @@ class _Evaluator:
         return self._spl(t, nu=deriv) if deriv else self._spl(t)
 
 
+# --------------------------------------------------------------------------- joint-space swing
+
+_END_FIT_S = 0.015  # stance samples used for the joint state at toe-off / landing
+_LIFT_RAMP = 0.3  # the clearance bump ramps up / down over this fraction of the swing
+_SOLE_MARGIN_M = 0.01  # the sole clears the terrain by this much where it would touch it
+_EDGE_WINDOW = (0.1, 0.85)  # toe crossings of edges in this part of the swing get the clearance
+_EARLY_SWING = 0.3  # the toe's first clearance comes from the foot pitch up to here
+_EARLY_TOE_GAP_M = 0.004  # ... which keeps the sole this far above the ground
+# terminal-swing via point by swing kind: (fraction of the swing, ankle offset from its
+# landing position (x, z) in m); the late via points of the via-point swing
+_TERMINAL_VIA = {
+    "level": (0.85, (-0.06, 0.02)),
+    "obstacle": (0.88, (-0.04, 0.03)),
+    "ascent": (0.84, (-0.04, 0.035)),
+    "descent": (0.8, (-0.01, 0.05)),
+}
+_FALLBACK_REACH = 0.988  # a joint-space swing reaching further (hard limit 0.99) keeps via points
+_MAX_SWING_KNEE_DEG = 140.0  # a swing that would need more knee flexion keeps its via points
+_THIGH_LEAD = 0.45  # share of the thigh's excursion done at the knee peak (0.35-0.55 tried)
+_THIGH_LEAD_OBSTACLE = 1.5  # over an obstacle the hip flexes past its landing pitch (1.1-2.0 tried)
+_THIGH_PEAK_RATE = 1.5  # thigh rate there / its mean rate up to the terminal via point
+
+
+def _end_state(t: NDArray, y: NDArray, t_ev: float, side: int) -> NDArray[np.float64] | None:
+    """Value, rate and acceleration of the samples y (N,) at t_ev from a quartic fitted to
+    the samples on one side (side -1: [t_ev - _END_FIT_S, t_ev], +1: [t_ev, t_ev + ...]);
+    None when there are too few samples there."""
+    lo, hi = (t_ev - _END_FIT_S, t_ev) if side < 0 else (t_ev, t_ev + _END_FIT_S)
+    i0, i1 = np.searchsorted(t, [lo, hi])
+    if i1 - i0 < 12:
+        return None
+    p = np.polynomial.polynomial.polyfit(t[i0:i1] - t_ev, y[i0:i1], 4)
+    return np.array([p[0], p[1], 2.0 * p[2]])
+
+
+def _knee_peak_acc(k0: float, k_pk: float, k1: float, t0: float, t_pk: float, t1: float) -> float:
+    """Knee acceleration at the peak: that of the flatter of the two parabolas with zero rate
+    at the peak through the toe-off and landing values (no overshoot on either side)."""
+    c = min((k_pk - k0) / (t_pk - t0) ** 2, (k_pk - k1) / (t1 - t_pk) ** 2)
+    return -2.0 * max(c, 0.0)
+
+
+def _lift_bump(x: NDArray, x_end: float) -> NDArray[np.float64]:
+    """C2 plateau bump on the swing fraction x (0 with zero rate and acceleration at toe-off
+    and from ``x_end`` on, the terminal-swing via point: the landing approach is left to it)."""
+    return _smoothstep5(x / _LIFT_RAMP) * _smoothstep5((x_end - x) / _LIFT_RAMP)
+
+
+def _knee_profile(
+    k0: NDArray,
+    k1: NDArray,
+    k_pk: float,
+    t0: float,
+    t_pk: float,
+    t1: float,
+    terminal: tuple[float, float] | None,
+) -> BPoly:
+    """Swing knee flexion (rad, C2 quintic pieces) from the toe-off state k0 (value, rate,
+    acceleration) through the peak k_pk (zero rate) at t_pk, then (``terminal`` = (time,
+    flexion)) through the terminal-swing flexion that holds the ankle above its landing
+    height, to the landing state k1."""
+    k_pk = max(k_pk, k0[0], k1[0])
+    ts = [t0, t_pk]
+    ys = [list(k0), [k_pk, 0.0, _knee_peak_acc(k0[0], k_pk, k1[0], t0, t_pk, t1)]]
+    if terminal is not None:
+        t_v, k_v = terminal
+        ts.append(t_v)
+        ys.append(_via_to_landing(k_v, k1, t1 - t_v))
+    ts.append(t1)
+    ys.append(list(k1))
+    return BPoly.from_derivatives(ts, ys)
+
+
+def _terminal_pose(hip_xz: NDArray, ankle_xz: NDArray, leg: LegModel) -> tuple[float, float] | None:
+    """Thigh pitch and knee flexion (rad) that put the ankle at ``ankle_xz`` below a hip at
+    ``hip_xz`` (knee forward); None when out of the leg's reach (REPAIR_REACH_FRACTION)."""
+    a, b = leg.thigh_length_m, leg.shank_length_m
+    d = float(np.hypot(*(ankle_xz - hip_xz)))
+    if not abs(a - b) + 0.05 < d < REPAIR_REACH_FRACTION * (a + b):
+        return None
+    knee, _ = _two_link_ik(hip_xz[None], ankle_xz[None], leg)
+    thigh = float(np.arctan2(hip_xz[0] - knee[0, 0], hip_xz[1] - knee[0, 1]))
+    shank = float(np.arctan2(knee[0, 0] - ankle_xz[0], knee[0, 1] - ankle_xz[1]))
+    return thigh, shank - thigh
+
+
+def _via_to_landing(v: float, y1: NDArray, dt: float) -> list[float]:
+    """State (value, rate, acceleration) at a via point ``dt`` before a landing state y1 that
+    reaches it with a constant acceleration."""
+    r = 2.0 * (y1[0] - v) / dt - y1[1]
+    return [v, r, (y1[1] - r) / dt]
+
+
+class _ToeUpPitch:
+    """A swing foot pitch with a C2 toe-up correction in early swing (rad, per swing window:
+    zero at toe-off with zero rate and acceleration, full at 15 % of the swing, gone at 45 %)."""
+
+    def __init__(self, pitch, windows_s: tuple, toe_up_rad: tuple) -> None:
+        self._pitch = pitch
+        self._fix = [(t0, t1, d) for (t0, t1), d in zip(windows_s, toe_up_rad, strict=True) if d]
+
+    def __call__(self, t_s):
+        t = np.asarray(t_s, dtype=float)
+        out = self._pitch(t)
+        for t0, t1, d in self._fix:
+            out = out - d * _toe_up_shape((t - t0) / (t1 - t0))
+        return out
+
+
+def _toe_up_shape(f: NDArray) -> NDArray[np.float64]:
+    """Shape of the early-swing toe-up correction on the swing fraction f: C2, 0 at toe-off,
+    1 at 15 % of the swing, 0 again from 45 %."""
+    return _smoothstep5(f / 0.15) * _smoothstep5((0.45 - f) / 0.3)
+
+
+@dataclass(frozen=True)
+class _JointSpaceSwing:
+    """The swing ankle of ``gait.swing_model = joint_space`` over the motion-time grid:
+    ``ankle`` (C5 spline) replaces the via-point ankle strictly inside each swing window."""
+
+    windows_s: tuple[tuple[float, float], ...]
+    ankle: object  # BSpline of the ankle (2,) over the motion-time grid
+    lift_m: tuple[float, ...]  # clearance bump height per swing, m
+    n_via_points: int = 0  # swings in the grid that kept their via points (fallback)
+
+    def apply(self, t: NDArray, ankle: NDArray) -> NDArray[np.float64]:
+        out = ankle.copy()
+        for t0, t1 in self.windows_s:
+            m = (t > t0) & (t < t1)
+            if np.any(m):
+                out[m] = self.ankle(t[m])
+        return out
+
+
+def _edge_requirements(
+    s: Stride, terrain: Terrain, gait: GaitConfig
+) -> list[tuple[float, float, float]]:
+    """(edge x, edge z, clearance) of the edges the toe passes over in this swing."""
+    e = terrain.edges_xz_m
+    if not e.size:
+        return []
+    x0, x1 = s.toe_xz_m[0], s.next_toe_xz_m[0]
+    c = gait.toe_clearance_obstacle_m if s.swing_kind == "obstacle" else gait.toe_clearance_nosing_m
+    return [(float(x), float(z), c) for x, z in e if x0 < x < x1]
+
+
+def _swing_shortfall(
+    t: NDArray,
+    hip: NDArray,
+    ankle: NDArray,
+    th: NDArray,
+    s: Stride,
+    terrain: Terrain,
+    gait: GaitConfig,
+    leg: LegModel,
+) -> tuple[float, float]:
+    """The lift (m, at the bump's plateau) the swing samples (t, ankle, foot pitch th) need:
+    the sole at least _SOLE_MARGIN_M above the terrain where it would touch it, the toe
+    the configured clearance above the edges it passes over (at least over each; negative,
+    i.e. lower the swing, when it clears all of them by more) and above level ground in
+    mid-swing; and the toe-up pitch correction (rad) that keeps the sole above the ground in
+    early swing (f < _EARLY_SWING: the toe just off the ground gets a little less
+    plantarflexion, not a fast lift of the leg)."""
+    heel_f = np.array(leg.heel_in_foot_xz_m)
+    toe_f = np.array(leg.toe_in_foot_xz_m)
+    f = (t - s.t_toe_off_s) / (s.t_next_s - s.t_toe_off_s)
+    f_end = _TERMINAL_VIA[s.swing_kind][0]
+    w = np.maximum(_lift_bump(f, f_end), 0.25)
+    heel = ankle + rot_xz(th, heel_f)
+    toe = ankle + rot_xz(th, toe_f)
+    fr = np.linspace(0.0, 1.0, 12)
+    sole = heel[:, None, :] * (1 - fr[None, :, None]) + toe[:, None, :] * fr[None, :, None]
+    gap = (sole[..., 1] - terrain.height_at(sole[..., 0].ravel()).reshape(sole.shape[:2])).min(1)
+    need = 0.0
+    early = f < _EARLY_SWING
+    # early swing: the toe-up correction (shape _toe_up_shape, about 0.15 m of toe per rad)
+    g = _toe_up_shape(f)
+    ok = early & (g > 0.2)
+    toe_up = 0.0
+    if np.any(ok):
+        toe_up = max(0.0, float(((_EARLY_TOE_GAP_M * g[ok] - gap[ok]) / (0.15 * g[ok])).max()))
+    bad = (gap < -1e-5) & ~early
+    if np.any(bad):
+        need = max(need, float(((_SOLE_MARGIN_M - gap[bad]) / w[bad]).max()))
+    mid = (f >= _EDGE_WINDOW[0]) & (f <= _EDGE_WINDOW[1])
+    excess = np.inf  # the smallest surplus over an edge's clearance, per unit of lift
+    for xe, ze, c in _edge_requirements(s, terrain, gait):
+        # crossings of x = xe by the toe (sign changes), linearly interpolated
+        d = toe[:, 0] - xe
+        k = np.flatnonzero((d[:-1] < 0) & (d[1:] >= 0))
+        for i in k:
+            a = -d[i] / (d[i + 1] - d[i])
+            fc = f[i] + a * (f[i + 1] - f[i])
+            if not _EDGE_WINDOW[0] <= fc <= _EDGE_WINDOW[1]:
+                continue
+            zc = toe[i, 1] + a * (toe[i + 1, 1] - toe[i, 1])
+            wc = max(float(_lift_bump(np.array(fc), f_end)), 0.25)
+            if zc - ze < c:
+                need = max(need, (c - (zc - ze)) / wc)
+            excess = min(excess, (zc - ze - c) / wc)
+    if s.swing_kind == "level":
+        lm = mid & (f >= 0.4) & (f <= 0.7)
+        if np.any(lm):
+            clear = toe[lm, 1] - terrain.height_at(toe[lm, 0])
+            short = gait.toe_clearance_level_m - clear
+            if short.max() > 0:
+                need = max(need, float((short / w[lm]).max()))
+    if need <= 0.0 and np.isfinite(excess) and excess > 0.0:
+        # more than the configured clearance over every edge: lower the swing to it, as far
+        # as the sole keeps its margin above the terrain in mid-swing
+        room = np.where(early, gap - _EARLY_TOE_GAP_M * g, gap - _SOLE_MARGIN_M)
+        late = f > _EDGE_WINDOW[1]  # the foot coming down to its landing: half its gap
+        room[late] = 0.5 * gap[late]
+        # ... and as far as the leg reaches (REPAIR_REACH_FRACTION of thigh + shank)
+        reach = REPAIR_REACH_FRACTION * (leg.thigh_length_m + leg.shank_length_m)
+        dx = hip[:, 0] - ankle[:, 0]
+        drop = np.sqrt(np.maximum(reach**2 - dx * dx, 0.0)) - (hip[:, 1] - ankle[:, 1])
+        room = np.minimum(room, drop)
+        wb = _lift_bump(f, f_end)
+        eff = wb > 0.05  # where the bump moves the foot
+        room_per_lift = float((room[eff] / wb[eff]).min()) if np.any(eff) else 0.0
+        need = -max(0.0, min(excess, room_per_lift))
+    return need, toe_up
+
+
+def _joint_space_swing(
+    t: NDArray,
+    hip: NDArray,
+    ankle_vp: NDArray,
+    strides: list[Stride],
+    terrain: Terrain,
+    gait: GaitConfig,
+    leg: LegModel,
+    base_pitch: BPoly,
+) -> tuple[_JointSpaceSwing, _ToeUpPitch]:
+    """Joint-space swings on the uniform motion-time grid t (N,) with the hip path (N, 2) and
+    the via-point ankle (N, 2) (whose stance samples are the stance): thigh and knee angles
+    are C2 quintics (BPoly) from the toe-off state to the landing state through the peak knee
+    flexion, the ankle follows by forward kinematics, and a C2 bump raises it (inverse
+    kinematics: more hip and knee flexion) where the sole would miss its clearance. Returns
+    the swing ankle and the foot pitch (swing-ankle rule on the new shank)."""
+    a, b = leg.thigh_length_m, leg.shank_length_m
+    knee_vp, _ = _two_link_ik(hip, ankle_vp, leg)
+    thigh = np.arctan2(hip[:, 0] - knee_vp[:, 0], hip[:, 1] - knee_vp[:, 1])
+    knee_flex = np.arctan2(knee_vp[:, 0] - ankle_vp[:, 0], knee_vp[:, 1] - ankle_vp[:, 1]) - thigh
+    ankle = ankle_vp.copy()
+    span = _TimeSpans(t)
+    windows: list[tuple[float, float, slice | NDArray]] = []
+    n_skipped = 0
+    for s in strides:
+        t0, t1 = s.t_toe_off_s, s.t_next_s
+        m = span(t0 + 1e-9, t1)
+        if t0 >= t[-1] or (isinstance(m, slice) and m.stop <= m.start):
+            continue
+        th0, k0 = _end_state(t, thigh, t0, -1), _end_state(t, knee_flex, t0, -1)
+        th1, k1 = _end_state(t, thigh, t1, +1), _end_state(t, knee_flex, t1, +1)
+        if th0 is None:
+            continue  # toe-off before the grid's start: keep the via-point swing
+        if th1 is None:  # no stance after the last landing: the via-point swing's arrival
+            th1, k1 = _end_state(t, thigh, t1, -1), _end_state(t, knee_flex, t1, -1)
+            if th1 is None:
+                n_skipped += 1
+                continue
+        frac = gait.swing_peak_knee_fraction.get(s.swing_kind, 0.33)
+        k_pk = np.radians(gait.swing_peak_knee_deg[s.swing_kind])
+        t_pk = t0 + frac * (t1 - t0)
+        # terminal swing: a joint-space via point from the ankle a little behind and above
+        # its landing position (inverse kinematics under the hip there)
+        f_v, offset = _TERMINAL_VIA[s.swing_kind]
+        t_v = t0 + f_v * (t1 - t0)
+        i_v = min(int(np.searchsorted(t, t_v)), t.size - 1)
+        i_1 = min(int(np.searchsorted(t, t1)), t.size - 1)
+        pose = _terminal_pose(hip[i_v], ankle_vp[i_1] + np.array(offset), leg)
+        # the thigh swings forward fastest around the knee peak (hip flexion leads the knee's
+        # extension): a C2 via point there, at _THIGH_LEAD of its excursion, at its peak rate
+        th_end = th1[0] if pose is None else pose[0]
+        d_th = th_end - th0[0]
+        ts = [t0, t_pk]
+        lead = _THIGH_LEAD_OBSTACLE if s.swing_kind == "obstacle" else _THIGH_LEAD
+        ys = [th0, [th0[0] + lead * d_th, _THIGH_PEAK_RATE * d_th / (t_v - t0), 0.0]]
+        if pose is not None:
+            ts.append(t_v)
+            ys.append(_via_to_landing(pose[0], th1, t1 - t_v))
+        thigh_p = BPoly.from_derivatives([*ts, t1], [*ys, th1])
+        knee_p = _knee_profile(k0, k1, k_pk, t0, t_pk, t1, None if pose is None else (t_v, pose[1]))
+        tt = t[m]
+        th_t = thigh_p(tt)
+        sh_t = th_t + knee_p(tt)
+        knee_xz = hip[m] - a * np.stack([np.sin(th_t), np.cos(th_t)], axis=1)
+        ankle_s = knee_xz - b * np.stack([np.sin(sh_t), np.cos(sh_t)], axis=1)
+        if np.linalg.norm(ankle_s - hip[m], axis=1).max() > _FALLBACK_REACH * (a + b):
+            n_skipped += 1  # the knee profile would straighten the leg too far: via points
+            continue
+        ankle[m] = ankle_s
+        windows.append((t0, t1, m))
+    ankle_fk = ankle.copy()
+    lift = np.zeros(len(windows))
+    toe_up = np.zeros(len(windows))
+    by_toe_off = {s.t_toe_off_s: s for s in strides}
+
+    def swing_pitch(ankle: NDArray) -> _ToeUpPitch:
+        knee, _ = _two_link_ik(hip, ankle, leg)
+        shank = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])
+        sp = _SwingPitch(
+            base_pitch, strides, make_interp_spline(t, shank, k=5), (t[0], t[-1]), gait
+        )
+        return _ToeUpPitch(sp, tuple((w[0], w[1]) for w in windows), tuple(toe_up.tolist()))
+
+    a_b = leg.thigh_length_m + leg.shank_length_m
+    d_min = _leg_distance(leg, np.radians(_MAX_SWING_KNEE_DEG))
+    failed: set[int] = set()  # swings that keep their via points
+
+    def lifted() -> NDArray:
+        out = ankle_fk.copy()
+        for j, (t0, t1, m) in enumerate(windows):
+            if j in failed:
+                out[m] = ankle_vp[m]
+                toe_up[j] = 0.0
+            else:
+                f_end = _TERMINAL_VIA[by_toe_off[t0].swing_kind][0]
+                out[m, 1] += lift[j] * _lift_bump((t[m] - t0) / (t1 - t0), f_end)
+        return out
+
+    def shortfalls(pitch) -> list[tuple[float, float]]:
+        th = pitch(t)
+        return [
+            (0.0, 0.0)
+            if j in failed
+            else _swing_shortfall(t[m], hip[m], ankle[m], th[m], by_toe_off[t0], terrain, gait, leg)
+            for j, (t0, _t1, m) in enumerate(windows)
+        ]
+
+    pitch = swing_pitch(ankle)
+    for _ in range(12):
+        grew = False
+        for j, (need, more_toe_up) in enumerate(shortfalls(pitch)):
+            if abs(need) > 5e-4 or need > 1e-4:
+                lift[j] += need
+                grew = True
+            if more_toe_up > 2e-3:
+                toe_up[j] += more_toe_up
+                grew = True
+        if not grew:
+            break
+        ankle = lifted()
+        for j, (_t0, _t1, m) in enumerate(windows):  # too bent or too straight: via points
+            d = np.linalg.norm(ankle[m] - hip[m], axis=1)
+            if d.min() < d_min or d.max() > _FALLBACK_REACH * a_b:
+                failed.add(j)
+        ankle = lifted()
+        pitch = swing_pitch(ankle)
+    else:  # not converged: the swings still short of their clearance keep their via points
+        for j, (need, more_toe_up) in enumerate(shortfalls(pitch)):
+            if need > 2e-3 or more_toe_up > 2e-2:
+                failed.add(j)
+        ankle = lifted()
+        pitch = swing_pitch(ankle)
+    spl = make_interp_spline(t, ankle, k=5)
+    kept = [j for j in range(len(windows)) if j not in failed]
+    js = _JointSpaceSwing(
+        tuple((windows[j][0], windows[j][1]) for j in kept),
+        spl,
+        tuple(float(lift[j]) for j in kept),
+        n_via_points=n_skipped + len(failed),
+    )
+    return js, pitch
+
+
 # --------------------------------------------------------------------------- pauses
 
 
@@ -879,7 +1256,13 @@ def simulate_gait(
     """Plan and generate the instrumented leg's motion over [0, duration_s + 0.2 s]."""
     leg = leg_model_for(rig)
     pausing = gait.pause_range_s is not None
+    rng_plan = copy.deepcopy(rng)
     strides = plan_strides(terrain, gait, leg, duration_s, rng, allow_short=pausing)
+    if gait.swing_model == "joint_space":  # one more stride, if the terrain has it: the last
+        # swing in the trial then lands on the grid (its landing state is known)
+        more = plan_strides(terrain, gait, leg, duration_s + 0.6, rng_plan, allow_short=True)
+        if len(more) > len(strides):
+            strides = more
     pauses = _draw_pauses(strides, gait, rng) if pausing else None
     next_toes = [s.next_toe_xz_m for s in strides]
     base_pitch = _pitch_function(strides, next_toes, gait)
@@ -894,6 +1277,10 @@ def simulate_gait(
                 f"lengthen terrain.{field}, add steps / flights or shorten duration_s",
                 field,
             )
+    joint_space = gait.swing_model == "joint_space"
+    t_out_end = t_end
+    if joint_space:  # the last swing's landing on the grid (cropped to t_end below)
+        t_end = max(t_end, np.floor(strides[-1].t_next_s * DENSE_RATE_HZ) / DENSE_RATE_HZ)
     t = np.arange(0.0, t_end + 0.5 / DENSE_RATE_HZ, 1.0 / DENSE_RATE_HZ)
     pitch = base_pitch
     # fixed point: the swing foot pitch depends on the shank, the shank (through the ankle
@@ -908,13 +1295,24 @@ def simulate_gait(
         pitch = _SwingPitch(
             base_pitch, strides, make_interp_spline(t, shank_it, k=5), (t[0], t[-1]), gait
         )
+    js = None
+    pitch_hip = pitch_used  # the hip path is the via-point construction's in both models
+    if joint_space:
+        js, pitch_used = _joint_space_swing(t, hip, ankle, strides, terrain, gait, leg, base_pitch)
+        keep = t <= t_out_end + 0.5 / DENSE_RATE_HZ
+        t, hip = t[keep], hip[keep]
+        ankle = js.apply(t, ankle[keep])
+        knee, _ = _two_link_ik(hip, ankle, leg)
+        foot_pitch = pitch_used(t)
     if pauses is not None:  # replay in real time with the pauses, sway during the holds
         tau = t
         t = np.arange(0.0, duration_s + 0.25 + 0.5 / DENSE_RATE_HZ, 1.0 / DENSE_RATE_HZ)
         tau_t = np.minimum(pauses.tau(t), tau[-1])
         # the same construction evaluated at tau(t): contact pivots stay exact
-        ankle = _foot_motion(tau_t, strides, next_toes, terrain, gait, leg, pitch_used)
-        hip = _hip_path(tau_t, ankle, strides, gait, leg, pitch_used)
+        ankle = _foot_motion(tau_t, strides, next_toes, terrain, gait, leg, pitch_hip)
+        hip = _hip_path(tau_t, ankle, strides, gait, leg, pitch_hip)
+        if js is not None:
+            ankle = js.apply(tau_t, ankle)
         foot_pitch = pitch_used(tau_t)
         knee, _ = _two_link_ik(hip, ankle, leg)
         shank_sway = np.arctan2(knee[:, 0] - ankle[:, 0], knee[:, 1] - ankle[:, 1])

@@ -102,3 +102,30 @@ def test_bad_input_raises_mapping_error() -> None:
         terrain_map.add_keyframe(0.0, [0.0, 0.0], np.zeros((4, 3)))
     terrain_map.add_keyframe(0.0, [0.0, 0.0], np.zeros((0, 2)))
     assert terrain_map.points_xz_m.shape == (0, 2)
+
+
+def test_in_order_keyframes_are_found_and_replaced_like_a_fresh_map() -> None:
+    # the sorted-stamp cache grows in a buffer while keyframes come in time order; a stamp
+    # added again (within the match tolerance) replaces its keyframe, wherever it is, and
+    # an out-of-order or forgotten keyframe rebuilds the cache: every lookup agrees with a
+    # search over the stored keyframes
+    rng = np.random.default_rng(3)
+    prof = np.array([[0.3, -0.4], [0.35, -0.4]])
+    terrain_map = TerrainMap2D(MapConfig(max_keyframes=150))
+    stamps = np.cumsum(rng.uniform(0.02, 0.05, 400))
+    for k, t in enumerate(stamps):
+        terrain_map.add_keyframe(t, [0.01 * k, 0.0], prof)
+        if k % 37 == 36:  # the same stamp again, and one before the last: replaced / sorted
+            terrain_map.add_keyframe(stamps[k - 3] + 1e-7, [9.0, 9.0], prof)
+            terrain_map.add_keyframe(stamps[k - 1] - 1e-3, [0.5, 0.5], prof)
+        stored = np.array([kf.timestamp_s for kf in terrain_map.keyframes])
+        assert np.all(np.diff(stored) > 0)
+        assert len(terrain_map) == min(150, len(stored))
+        for t_probe in (t, stamps[max(0, k - 3)], t + 1.0):
+            i = terrain_map._find(t_probe)
+            near = np.flatnonzero(np.abs(stored - t_probe) <= MapConfig().timestamp_match_tol_s)
+            assert (i is None) == (near.size == 0)
+            if i is not None:
+                assert i in near.tolist()
+    replaced = [kf for kf in terrain_map.keyframes if kf.camera_xz_m[0] == 9.0]
+    assert len(replaced) == sum(1 for k in range(250, 400) if k % 37 == 36)

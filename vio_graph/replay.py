@@ -394,11 +394,12 @@ class Replay:
                 if self._first_imu_s is None:
                     self._first_imu_s = step.timestamp_s
                 lines = self._imu_lines
+                t_step = step.timestamp_s  # (a property: read once, not once per estimator)
                 for e in self._running():
                     fed = step
                     if lines and e.name in lines:
                         fed = _at_time(step, float(lines[e.name][i]))
-                    self._guard(e, step.timestamp_s, e.add_imu, fed)
+                    self._guard(e, t_step, e.add_imu, fed)
                 # a frame held for a repaired packet (below) goes once this sample released it
                 if waiting and not self._release_frames(waiting, progress, b):
                     return False
@@ -540,8 +541,9 @@ class Replay:
         frame = self.rec.frame(i)
         record = self.online.process_frame(frame, transform_result=self._inject)
         self.log.add(record)
+        t_s = record.timestamp_s
         for e in self._running():
-            self._guard(e, record.timestamp_s, e.add_frame, record)
+            self._guard(e, t_s, e.add_frame, record)
         self.view.frame(i, frame, record)
 
     def camera_paths(self) -> dict[str, NDArray[np.float64]]:

@@ -424,8 +424,8 @@ class Recording:
             k %= n
             d, valid, n_valid = self._convert(k, depth, scale, rows[0].read(k))
             c = rows[1].read(k)
-        if n_valid < d.size:
-            c[~valid] = 0  # d <= 0 (d holds no NaN)
+        if n_valid < d.size:  # c[~valid] = 0 (d <= 0; d holds no NaN), as one product:
+            np.multiply(c, valid, out=c)  # c * 1 = c, c * 0 = 0 (no mask array built)
         return DepthFrame(
             index=i, timestamp_s=float(self.frame_timestamps_s[i]), depth_m=d, confidence=c
         )

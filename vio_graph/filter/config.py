@@ -738,6 +738,13 @@ class FilterConfig(BaseModel):
     max_level_landmarks: int = Field(
         default=6, ge=1, description="most height landmarks kept in the state (oldest go)"
     )
+    level_one_landmark_per_surface: bool = Field(
+        default=False,
+        description="make no new height landmark within level_reidentify_m of a remembered "
+        "one or of one made from the same slice (skip that line): one surface, one landmark. "
+        "Off: a floor split into near and far lines a few mm apart becomes several landmarks "
+        "the camera height can step between (filter/level_landmarks.py)",
+    )
     stance_anchor: bool = Field(
         default=True,
         description=(

@@ -739,11 +739,13 @@ class FilterConfig(BaseModel):
         default=6, ge=1, description="most height landmarks kept in the state (oldest go)"
     )
     level_one_landmark_per_surface: bool = Field(
-        default=False,
+        default=True,
         description="make no new height landmark within level_reidentify_m of a remembered "
         "one or of one made from the same slice (skip that line): one surface, one landmark. "
-        "Off: a floor split into near and far lines a few mm apart becomes several landmarks "
-        "the camera height can step between (filter/level_landmarks.py)",
+        "Off (the behaviour before session 14): a floor split into near and far lines a few "
+        "mm apart becomes several landmarks the camera height can step between; level s1-5, "
+        "filter toe z 0.34 / 0.51 -> 0.29 / 0.29 cm (via-point / joint-space swing), stairs "
+        "unchanged (filter/level_landmarks.py, docs/generalisation.md)",
     )
     stance_anchor: bool = Field(
         default=True,

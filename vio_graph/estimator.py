@@ -403,7 +403,10 @@ class OnlineEstimator:
             fc.corner_reidentify_radius_m, fc.corner_memory_s, fc.max_corner_landmarks
         )
         self._levels = LevelLandmarks(
-            fc.level_reidentify_m, fc.level_memory_s, fc.max_level_landmarks
+            fc.level_reidentify_m,
+            fc.level_memory_s,
+            fc.max_level_landmarks,
+            fc.level_one_landmark_per_surface,
         )
         self._in_stance = False
         # the surface the foot last stood on (world z, m): the median over the stance's frames
@@ -1661,6 +1664,7 @@ class OnlineEstimator:
         lines = () if self.surface_tilt is None else self.surface_tilt.lines
         camera_z = float(self._position_at(t)[0][1])
         taken: set[LandmarkKey] = set()
+        made: dict[LandmarkKey, float] = {}
         found = []
         # a height whose sigma reaches a third of the association window cannot be told from
         # the next surface's (short, grazing lines far down a descent: 2-5 cm off)
@@ -1668,7 +1672,7 @@ class OnlineEstimator:
         for line in lines:
             if line.sigma_m > max_sigma:
                 continue
-            key = self._levels.key(camera_z + line.height_m, self.filter, taken)
+            key = self._levels.key(camera_z + line.height_m, self.filter, taken, made)
             if key is not None:
                 taken.add(key)
                 found.append((key, line))

@@ -738,6 +738,17 @@ class FilterConfig(BaseModel):
     max_level_landmarks: int = Field(
         default=6, ge=1, description="most height landmarks kept in the state (oldest go)"
     )
+    level_one_landmark_per_surface: bool = Field(
+        default=False,
+        description="make no new height landmark within level_reidentify_m of a remembered "
+        "one or of one made from the same slice (skip that line): one surface, one landmark. "
+        "Off: a floor split into near and far lines a few mm apart becomes several landmarks "
+        "the camera height can step between. On: level s1-5, filter toe z 0.34 / 0.51 -> "
+        "0.29 / 0.29 cm (via-point / joint-space swing), stairs unchanged, but the smoothers "
+        "on level via-point trials z +0.06 cm and the filter's z covariance conservative "
+        "(NEES 0.08); off until the sweep's clearance calibration is re-measured with it "
+        "(filter/level_landmarks.py, docs/generalisation.md)",
+    )
     stance_anchor: bool = Field(
         default=True,
         description=(

@@ -624,13 +624,22 @@ def test_smoothers_take_imu_on_the_clock_line_and_keyframes_at_the_frames_times(
     )
     rec = Recording.open(simulate(cfg, seed=2, out_dir=tmp_path / "rec"))
 
-    seen: dict[int, dict] = {}  # per graph builder: IMU times, keyframes, chain checks
+    # per graph builder, in order of creation: IMU times, keyframes, chain checks (kept on
+    # the builder itself: an id() could be reused by a later builder once one is collected)
+    states: list[dict] = []
     builder = graph_mod.KeyframeGraphBuilder
     add_imu, add_frame = builder.add_imu, builder.add_frame
 
+    def _state(obj) -> dict:
+        st = obj.__dict__.get("_spy_state")
+        if st is None:
+            st = {"imu": [], "kf": [], "broken": 0, "with_disp": 0, "run": True}
+            obj.__dict__["_spy_state"] = st
+            states.append(st)
+        return st
+
     def spy_imu(self, sample):
-        seen.setdefault(id(self), {"imu": [], "kf": [], "broken": 0, "with_disp": 0, "run": True})
-        seen[id(self)]["imu"].append(float(sample.timestamp_s))
+        _state(self)["imu"].append(float(sample.timestamp_s))
         return add_imu(self, sample)
 
     made = []  # the displacement each new keyframe was given (None: no factor)
@@ -641,7 +650,7 @@ def test_smoothers_take_imu_on_the_clock_line_and_keyframes_at_the_frames_times(
         return pending(t, est, disp, *rest)
 
     def spy_frame(self, t, is_kf, est, disp, obs, R=None):
-        s = seen[id(self)]
+        s = _state(self)
         s["run"] = s["run"] and disp is not None
         first = not s["kf"]
         out = add_frame(self, t, is_kf, est, disp, obs, R)
@@ -671,7 +680,7 @@ def test_smoothers_take_imu_on_the_clock_line_and_keyframes_at_the_frames_times(
     lagged = retimed_imu(rec, PipelineConfig(), lag_s).timestamp_s
     assert np.max(np.abs(lagged - line)) > 1e-6
     frame_t = np.asarray(lg.t_s)
-    last_two = list(seen.values())[-2:]  # the re-run's fixed-lag and batch builders
+    last_two = states[-2:]  # the re-run's fixed-lag and batch builders
     for s, times in zip(last_two, (lagged, line), strict=True):
         np.testing.assert_allclose(s["imu"], times[: len(s["imu"])], rtol=0, atol=1e-9)
         assert len(s["imu"]) >= line.size - 1

@@ -630,6 +630,7 @@ class OnlineEstimator:
                 to.clock_window,
                 to.gap_periods,
                 to.camera_clock_model is not False,
+                to.camera_clock_rate_prior_ppm,
             )
             if rig.frame_rate_hz
             else None

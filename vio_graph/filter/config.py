@@ -462,6 +462,16 @@ class TimeOffsetConfig(BaseModel):
     clock_window: int = Field(
         default=200, ge=10, description="samples the clock-model line fit remembers"
     )
+    camera_clock_rate_prior_ppm: float | None = Field(
+        default=100.0,
+        ge=0,
+        description="prior sd (ppm) of the camera clock's rate about the nominal frame rate in "
+        "the online frame clock line (time_offset.ClockModel._fit_rate_prior): the line's "
+        "slope is drawn to the nominal period by the stamps' scatter over this prior, so a "
+        "few seconds of jittered stamps do not tilt it (the free line's newest end was 0.8-1.6 "
+        "ms off over 1-2 s of an upstair trial under 2 ms jitter); stamps without scatter "
+        "still fit any drift; None: the slope is fitted freely",
+    )
     imu_clock_offline_half_window: int = Field(
         default=1000,
         ge=0,

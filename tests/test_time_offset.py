@@ -81,6 +81,39 @@ def test_rate_prior_halves_the_lines_early_error_and_still_follows_a_drifting_cl
     assert all(c.correct(s) == s for s in true)
 
 
+def test_estimator_restamps_frames_on_the_rate_prior_line_when_configured() -> None:
+    """filter.time_offset.camera_clock_rate_prior_ppm reaches the estimator's frame clock:
+    with the camera clock model on, 60 frames under 2 ms of stamp jitter are re-stamped to
+    the prior line's times (closer to the true capture times than the free line's from the
+    30th frame on); the default leaves the slope free."""
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.types import DepthFrame
+
+    base = PipelineConfig()
+    assert base.filter.time_offset.camera_clock_rate_prior_ppm is None
+    rig = RigGeometry.from_metadata(tiny_metadata())
+    T = 1.0 / rig.frame_rate_hz
+    true = 1.0 + T * np.arange(60)
+    stamps = true + np.clip(np.random.default_rng(3).normal(0, 0.002, true.size), -0.01, 0.01)
+    depth, conf = np.zeros((12, 16), np.float32), np.zeros((12, 16), np.uint8)
+    out = {}
+    for prior in (None, 100.0):
+        to = base.filter.time_offset.model_copy(
+            update={"camera_clock_model": True, "camera_clock_rate_prior_ppm": prior}
+        )
+        cfg = base.model_copy(update={"filter": base.filter.model_copy(update={"time_offset": to})})
+        est = OnlineEstimator(cfg, rig)
+        out[prior] = np.array(
+            [est._restamp(DepthFrame(i, s, depth, conf)).timestamp_s for i, s in enumerate(stamps)]
+        )
+    ref = ClockModel(T, base.filter.time_offset.clock_window, 1.9, rate_prior_ppm=100.0)
+    assert np.array_equal(out[100.0], np.array([ref.correct(s) for s in stamps]))
+    err = {k: float(np.sqrt(np.mean((v[30:] - true[30:]) ** 2))) for k, v in out.items()}
+    assert err[100.0] < err[None]
+
+
 def test_centred_clock_line_halves_the_online_lines_error_and_keeps_clean_stamps() -> None:
     """2 ms of stamp jitter on a 100 Hz clock with 50 ppm drift and a 0.3 s gap: the offline
     line (both sides of each sample) is within 0.2 ms RMS of the true times everywhere,

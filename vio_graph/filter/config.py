@@ -462,6 +462,19 @@ class TimeOffsetConfig(BaseModel):
     clock_window: int = Field(
         default=200, ge=10, description="samples the clock-model line fit remembers"
     )
+    landmark_time_sigma: bool = Field(
+        default=False,
+        description="a height or corner landmark measured on a frame carries the frame "
+        "time's uncertainty: its covariance grows by v v^T sigma_t^2 (v the filter's camera "
+        "velocity at the frame), sigma_t^2 the mean square of the frame stamps' distances to "
+        "the camera clock line (ClockModel.scatter_var_s2) when the line times are used (the "
+        "line removes the transport part of the scatter, not a capture jitter, which is "
+        "bounded by it), that times the frame-stamp test's probability of the line when the "
+        "stamps are used; 0 for stamps on their line. A landmark relates the camera's "
+        "position at the frame time to a fixed point, so a time error e moves it by v e "
+        "without the cancellation consecutive displacements have, and a level surface first "
+        "seen in a fast swing keeps that error (estimator._landmark_time_cov)",
+    )
     camera_clock_rate_prior_ppm: float | None = Field(
         default=None,
         ge=0,

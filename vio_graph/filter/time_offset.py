@@ -283,6 +283,14 @@ class ClockModel:
             icpt = float(np.mean(ts - self.period_s * (k - k[-1])))
         return t if abs(icpt - t) < _KEEP_TOL_S else float(icpt)
 
+    def scatter_var_s2(self) -> float:
+        """Mean square (s^2) of the last ``window`` stamps' distances to their line values:
+        how far apart the two candidate times of a sample (stamp, clock line) are; 0 for
+        stamps on their line (bit for bit kept)."""
+        n = self._n_corr if self._st is None or self._kernels is None else int(self._st[-1])
+        c = self._corr[max(0, n - self.window) : n]
+        return float(c @ c) / c.size if c.size else 0.0
+
     def report(self) -> dict:
         n = self._n_corr if self._st is None or self._kernels is None else int(self._st[-1])
         c = self._corr[:n]

@@ -114,6 +114,45 @@ def test_estimator_restamps_frames_on_the_rate_prior_line_when_configured() -> N
     assert err[100.0] < err[None]
 
 
+def test_landmarks_on_jittered_frames_carry_the_frame_times_scatter_times_the_velocity() -> None:
+    """time_offset.landmark_time_sigma: frames under 2 ms of stamp jitter, re-stamped to the
+    clock line, give landmarks the covariance v v^T sigma_t^2 with sigma_t^2 the stamps'
+    mean square distance to the line (known answer: about (2 ms)^2, and exactly the clock's
+    scatter_var_s2); nothing when the flag is off or the stamps sit on their line."""
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.types import DepthFrame
+
+    base = PipelineConfig()
+    assert base.filter.time_offset.landmark_time_sigma is False
+    rig = RigGeometry.from_metadata(tiny_metadata())
+    T = 1.0 / rig.frame_rate_hz
+    true = 1.0 + T * np.arange(150)
+    jittered = true + np.clip(np.random.default_rng(5).normal(0, 0.002, true.size), -0.01, 0.01)
+    depth, conf = np.zeros((12, 16), np.float32), np.zeros((12, 16), np.uint8)
+    v = np.array([0.5, 2.5])  # a fast upward swing, m/s
+
+    def time_cov(flag: bool, stamps: NDArray[np.float64]) -> tuple[object, OnlineEstimator]:
+        to = base.filter.time_offset.model_copy(
+            update={"camera_clock_model": True, "landmark_time_sigma": flag}
+        )
+        cfg = base.model_copy(update={"filter": base.filter.model_copy(update={"time_offset": to})})
+        est = OnlineEstimator(cfg, rig)
+        for i, s in enumerate(stamps):
+            t = est._restamp(DepthFrame(i, s, depth, conf)).timestamp_s
+        est.filter.initialise(t, np.zeros(2), v)
+        return est._landmark_time_cov(t), est
+
+    cov, est = time_cov(True, jittered)
+    assert est.frame_clock is not None
+    var = est.frame_clock.scatter_var_s2()
+    assert np.sqrt(var) == pytest.approx(0.002, rel=0.2)
+    np.testing.assert_allclose(cov, np.outer(v, v) * var, rtol=1e-12)
+    assert time_cov(False, jittered)[0] is None
+    assert time_cov(True, true)[0] is None  # stamps on their line: no doubt about the time
+
+
 def test_centred_clock_line_halves_the_online_lines_error_and_keeps_clean_stamps() -> None:
     """2 ms of stamp jitter on a 100 Hz clock with 50 ppm drift and a 0.3 s gap: the offline
     line (both sides of each sample) is within 0.2 ms RMS of the true times everywhere,

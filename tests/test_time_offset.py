@@ -50,6 +50,109 @@ def test_clock_model_removes_jitter_keeps_exact_stamps_and_reports_gaps() -> Non
     assert rep["backwards"] == 1 and rep["backwards_list"][0]["jump_s"] == pytest.approx(-0.005)
 
 
+def test_rate_prior_halves_the_lines_early_error_and_still_follows_a_drifting_clock() -> None:
+    """A 30 Hz camera whose stamps carry 2 ms of jitter (the robustness sweep's clock fault):
+    over 40 walks, the free line's newest end 1-2 s into the stream is off by about
+    2 s / sqrt(n) (sd), the line with the rate prior (100 ppm) by about s / sqrt(n), half;
+    jitter-free stamps of a clock 50 ppm fast are still followed (to 10 us once the line is
+    fitted), and stamps on the
+    nominal line are kept bit for bit."""
+    T = 1.0 / 30.0
+    true = 0.5 * T + T * np.arange(60)
+    free_err, prior_err = [], []
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        stamps = true + np.clip(rng.normal(0, 0.002, true.size), -0.4 * T, 0.4 * T)
+        free, prior = ClockModel(T, 200, 1.9), ClockModel(T, 200, 1.9, rate_prior_ppm=100.0)
+        f = np.array([free.correct(s) for s in stamps])
+        p = np.array([prior.correct(s) for s in stamps])
+        free_err.append(f[30:] - true[30:])
+        prior_err.append(p[30:] - true[30:])
+    rms_free = float(np.sqrt(np.mean(np.square(free_err))))
+    rms_prior = float(np.sqrt(np.mean(np.square(prior_err))))
+    assert 0.55e-3 < rms_free < 0.9e-3  # 2 * 2 ms / sqrt(30..60)
+    assert rms_prior < 0.6 * rms_free
+    drifting = true * (1 + 50e-6) + 3.0
+    c = ClockModel(T, 200, 1.9, rate_prior_ppm=100.0)
+    out = np.array([c.correct(s) for s in drifting])
+    # (the first 20 stamps assume the nominal period, as without the prior)
+    assert np.max(np.abs(out[20:] - drifting[20:])) < 1e-5
+    c = ClockModel(T, 200, 1.9, rate_prior_ppm=100.0)
+    assert all(c.correct(s) == s for s in true)
+
+
+def test_estimator_restamps_frames_on_the_rate_prior_line_when_configured() -> None:
+    """filter.time_offset.camera_clock_rate_prior_ppm reaches the estimator's frame clock:
+    with the camera clock model on, 60 frames under 2 ms of stamp jitter are re-stamped to
+    the prior line's times (closer to the true capture times than the free line's from the
+    30th frame on); the default leaves the slope free."""
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.types import DepthFrame
+
+    base = PipelineConfig()
+    assert base.filter.time_offset.camera_clock_rate_prior_ppm is None
+    rig = RigGeometry.from_metadata(tiny_metadata())
+    T = 1.0 / rig.frame_rate_hz
+    true = 1.0 + T * np.arange(60)
+    stamps = true + np.clip(np.random.default_rng(3).normal(0, 0.002, true.size), -0.01, 0.01)
+    depth, conf = np.zeros((12, 16), np.float32), np.zeros((12, 16), np.uint8)
+    out = {}
+    for prior in (None, 100.0):
+        to = base.filter.time_offset.model_copy(
+            update={"camera_clock_model": True, "camera_clock_rate_prior_ppm": prior}
+        )
+        cfg = base.model_copy(update={"filter": base.filter.model_copy(update={"time_offset": to})})
+        est = OnlineEstimator(cfg, rig)
+        out[prior] = np.array(
+            [est._restamp(DepthFrame(i, s, depth, conf)).timestamp_s for i, s in enumerate(stamps)]
+        )
+    ref = ClockModel(T, base.filter.time_offset.clock_window, 1.9, rate_prior_ppm=100.0)
+    assert np.array_equal(out[100.0], np.array([ref.correct(s) for s in stamps]))
+    err = {k: float(np.sqrt(np.mean((v[30:] - true[30:]) ** 2))) for k, v in out.items()}
+    assert err[100.0] < err[None]
+
+
+def test_landmarks_on_jittered_frames_carry_the_frame_times_scatter_times_the_velocity() -> None:
+    """time_offset.landmark_time_sigma: frames under 2 ms of stamp jitter, re-stamped to the
+    clock line, give landmarks the covariance v v^T sigma_t^2 with sigma_t^2 the stamps'
+    mean square distance to the line (known answer: about (2 ms)^2, and exactly the clock's
+    scatter_var_s2); nothing when the flag is off or the stamps sit on their line."""
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.types import DepthFrame
+
+    base = PipelineConfig()
+    assert base.filter.time_offset.landmark_time_sigma is False
+    rig = RigGeometry.from_metadata(tiny_metadata())
+    T = 1.0 / rig.frame_rate_hz
+    true = 1.0 + T * np.arange(150)
+    jittered = true + np.clip(np.random.default_rng(5).normal(0, 0.002, true.size), -0.01, 0.01)
+    depth, conf = np.zeros((12, 16), np.float32), np.zeros((12, 16), np.uint8)
+    v = np.array([0.5, 2.5])  # a fast upward swing, m/s
+
+    def time_cov(flag: bool, stamps: NDArray[np.float64]) -> tuple[object, OnlineEstimator]:
+        to = base.filter.time_offset.model_copy(
+            update={"camera_clock_model": True, "landmark_time_sigma": flag}
+        )
+        cfg = base.model_copy(update={"filter": base.filter.model_copy(update={"time_offset": to})})
+        est = OnlineEstimator(cfg, rig)
+        for i, s in enumerate(stamps):
+            t = est._restamp(DepthFrame(i, s, depth, conf)).timestamp_s
+        est.filter.initialise(t, np.zeros(2), v)
+        return est._landmark_time_cov(t), est
+
+    cov, est = time_cov(True, jittered)
+    assert est.frame_clock is not None
+    var = est.frame_clock.scatter_var_s2()
+    assert np.sqrt(var) == pytest.approx(0.002, rel=0.2)
+    np.testing.assert_allclose(cov, np.outer(v, v) * var, rtol=1e-12)
+    assert time_cov(False, jittered)[0] is None
+    assert time_cov(True, true)[0] is None  # stamps on their line: no doubt about the time
+
+
 def test_centred_clock_line_halves_the_online_lines_error_and_keeps_clean_stamps() -> None:
     """2 ms of stamp jitter on a 100 Hz clock with 50 ppm drift and a 0.3 s gap: the offline
     line (both sides of each sample) is within 0.2 ms RMS of the true times everywhere,

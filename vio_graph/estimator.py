@@ -633,6 +633,7 @@ class OnlineEstimator:
                 to.clock_window,
                 to.gap_periods,
                 to.camera_clock_model is not False,
+                to.camera_clock_rate_prior_ppm,
             )
             if rig.frame_rate_hz
             else None
@@ -650,6 +651,7 @@ class OnlineEstimator:
         self.n_imu_inconsistent = 0  # displacements vision kept against the IMU
         self._joint_hist: deque[JointAngles] = deque(maxlen=32)
         self._frame_joints: JointAngles | None = None  # joints at a re-stamped frame time
+        self._frame_on_line = False  # this frame re-stamped to the camera clock line
         self._imu_queue: deque[ImuSample] = deque()  # received, not yet propagated
         self._stance_queue: deque[ImuSample] = deque()  # received, not yet in the detector
         self._filter_started = False
@@ -1435,14 +1437,17 @@ class OnlineEstimator:
         camera clock model, if on); the joints are taken at that time."""
         self._frame_joints = None
         t = frame.timestamp_s
+        self._frame_on_line = False
         if self.frame_clock is not None:
             t_clock = self.frame_clock.correct(t)
             if self.stamp_test is not None:
                 self.stamp_test.note_frame(None if t_clock is None else t_clock - t)
                 if self.stamp_test.use_line and t_clock is not None:
                     t = t_clock
+                    self._frame_on_line = True
             elif t_clock is not None:
                 t = t_clock
+                self._frame_on_line = self.frame_clock.smooth
         t = t - self.time_offset.applied_s
         if self._last_frame_t is not None:
             # the applied offset jumps once (0 -> td when it becomes significant): keep the
@@ -1454,6 +1459,32 @@ class OnlineEstimator:
             return frame
         self._frame_joints = self._joints_at(t)
         return dataclasses.replace(frame, timestamp_s=t)
+
+    def _landmark_time_cov(self, t_s: float) -> NDArray[np.float64] | None:
+        """The covariance (m^2, 2x2) a landmark measured on this frame gains from the
+        uncertainty of the frame's time (``time_offset.landmark_time_sigma``): v v^T
+        sigma_t^2 with v the filter's camera velocity at ``t_s`` and sigma_t^2 the frame
+        stamps' mean square distance to their clock line, in full when the frame is on the
+        line (what the line cannot remove, a capture jitter, is bounded by that scatter), times
+        the frame-stamp test's probability of the line when it is on its stamp. None when
+        off or the stamps are on their line.
+
+        Why: on prosthesis upstair seed 3 under 2 ms of clock jitter, two level surfaces
+        were first seen at 1.52 s in the first fast swing (vz 2.8 m/s) on a frame whose line
+        time was 2.2 ms after its capture: their heights started 6 mm off, and every later
+        sighting pulled the camera's height towards them (filter toe z 0.20 -> 1.09 cm)."""
+        if not self.config.filter.time_offset.landmark_time_sigma or self.frame_clock is None:
+            return None
+        var = self.frame_clock.scatter_var_s2()
+        if not self._frame_on_line:
+            test = self.stamp_test
+            if test is None:
+                return None
+            var *= test.other_probability(False)
+        if var <= 0.0:
+            return None
+        v = self._position_at(t_s)[1]
+        return np.outer(v, v) * var
 
     def _test_frame_stamps(
         self, t_s: float, d: Displacement2D
@@ -1623,6 +1654,9 @@ class OnlineEstimator:
             if obs is not None:
                 assert key is not None  # set above for every observation
                 cov = np.asarray(obs.cov_m2, float) + _I2 * fc.corner_landmark_sigma_m**2
+                time_cov = self._landmark_time_cov(t)
+                if time_cov is not None:
+                    cov = cov + time_cov
                 self._as_family(
                     t, "corner", self.filter.update_landmark, key, obs.corner_rel_xz_m, cov, t
                 )
@@ -1678,6 +1712,9 @@ class OnlineEstimator:
                 found.append((key, line))
         self._levels.forget(t, taken, self.filter)
         floor = self.config.filter.measurement_noise_floor_m
+        time_cov = self._landmark_time_cov(t)
+        if time_cov is not None:  # a height is z only
+            floor = math.sqrt(floor**2 + float(time_cov[1, 1]))
         for key, _ in found:
             self._levels.saw(key, t)
         if not self.config.filter.level_shared_tilt:

@@ -462,6 +462,38 @@ class TimeOffsetConfig(BaseModel):
     clock_window: int = Field(
         default=200, ge=10, description="samples the clock-model line fit remembers"
     )
+    landmark_time_sigma: bool = Field(
+        default=False,
+        description="a height or corner landmark measured on a frame carries the frame "
+        "time's uncertainty: its covariance grows by v v^T sigma_t^2 (v the filter's camera "
+        "velocity at the frame), sigma_t^2 the mean square of the frame stamps' distances to "
+        "the camera clock line (ClockModel.scatter_var_s2) when the line times are used (the "
+        "line removes the transport part of the scatter, not a capture jitter, which is "
+        "bounded by it), that times the frame-stamp test's probability of the line when the "
+        "stamps are used; 0 for stamps on their line. A landmark relates the camera's "
+        "position at the frame time to a fixed point, so a time error e moves it by v e "
+        "without the cancellation consecutive displacements have, and a level surface first "
+        "seen in a fast swing keeps that error (estimator._landmark_time_cov). Off: 2 ms "
+        "clock jitter, filter toe z on held-out seeds 4-10, prosthesis upstair / upstair / "
+        "obstacle 0.41 / 0.74 / 0.43 -> 0.36 / 0.68 / 0.41 cm (downstair 0.77 -> 0.78, x "
+        "unchanged), prosthesis upstair seed 3 1.09 -> 0.80, but on seeds 1-3 upstair z "
+        "0.47 -> 0.52 and obstacle x 1.32 -> 1.52 cm, prosthesis upstair 4 g saturation "
+        "filter x 1.47 -> 1.78 cm; clean rows within 0.01 cm "
+        "(docs/robustness.md, 'Clock jitter in the filter')",
+    )
+    camera_clock_rate_prior_ppm: float | None = Field(
+        default=None,
+        ge=0,
+        description="prior sd (ppm) of the camera clock's rate about the nominal frame rate in "
+        "the online frame clock line (time_offset.ClockModel._fit_rate_prior): the slope is "
+        "drawn to the nominal period by the stamps' scatter over this prior, so a few seconds "
+        "of jittered stamps do not tilt the line; stamps without scatter still fit any drift. "
+        "None (default): the slope is fitted freely. 100 ppm halves the line's error under 2 "
+        "ms stamp jitter (0.47 -> 0.24 ms rms, 12 recordings) and prosthesis upstair seed 3's "
+        "filter toe z (1.09 -> 0.69 cm), but on seeds 4-10 of the four paper scenarios the "
+        "filter is unchanged within seed noise (z 0.59 -> 0.59, x 1.15 -> 1.16 cm), so off "
+        "(docs/robustness.md, 'Clock jitter in the filter'; configs/camera_rate_prior.yaml)",
+    )
     imu_clock_offline_half_window: int = Field(
         default=1000,
         ge=0,

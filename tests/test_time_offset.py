@@ -81,23 +81,32 @@ def test_rate_prior_halves_the_lines_early_error_and_still_follows_a_drifting_cl
     assert all(c.correct(s) == s for s in true)
 
 
+def _jittered_frames(n: int, seed: int):
+    """The default config, the tiny rig, its frame period, n true capture times from 1 s, the
+    same under 2 ms of stamp jitter (clipped at 10 ms), and an empty depth image and
+    confidence for DepthFrames."""
+    from tests.conftest import tiny_metadata
+    from vio_graph.config import PipelineConfig
+    from vio_graph.estimator import RigGeometry
+
+    base = PipelineConfig()
+    rig = RigGeometry.from_metadata(tiny_metadata())
+    T = 1.0 / rig.frame_rate_hz
+    true = 1.0 + T * np.arange(n)
+    stamps = true + np.clip(np.random.default_rng(seed).normal(0, 0.002, n), -0.01, 0.01)
+    return base, rig, T, true, stamps, np.zeros((12, 16), np.float32), np.zeros((12, 16), np.uint8)
+
+
 def test_estimator_restamps_frames_on_the_rate_prior_line_when_configured() -> None:
     """filter.time_offset.camera_clock_rate_prior_ppm reaches the estimator's frame clock:
     with the camera clock model on, 60 frames under 2 ms of stamp jitter are re-stamped to
     the prior line's times (closer to the true capture times than the free line's from the
     30th frame on); the default leaves the slope free."""
-    from tests.conftest import tiny_metadata
-    from vio_graph.config import PipelineConfig
-    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.estimator import OnlineEstimator
     from vio_graph.types import DepthFrame
 
-    base = PipelineConfig()
+    base, rig, T, true, stamps, depth, conf = _jittered_frames(60, 3)
     assert base.filter.time_offset.camera_clock_rate_prior_ppm is None
-    rig = RigGeometry.from_metadata(tiny_metadata())
-    T = 1.0 / rig.frame_rate_hz
-    true = 1.0 + T * np.arange(60)
-    stamps = true + np.clip(np.random.default_rng(3).normal(0, 0.002, true.size), -0.01, 0.01)
-    depth, conf = np.zeros((12, 16), np.float32), np.zeros((12, 16), np.uint8)
     out = {}
     for prior in (None, 100.0):
         to = base.filter.time_offset.model_copy(
@@ -119,18 +128,11 @@ def test_landmarks_on_jittered_frames_carry_the_frame_times_scatter_times_the_ve
     clock line, give landmarks the covariance v v^T sigma_t^2 with sigma_t^2 the stamps'
     mean square distance to the line (known answer: about (2 ms)^2, and exactly the clock's
     scatter_var_s2); nothing when the flag is off or the stamps sit on their line."""
-    from tests.conftest import tiny_metadata
-    from vio_graph.config import PipelineConfig
-    from vio_graph.estimator import OnlineEstimator, RigGeometry
+    from vio_graph.estimator import OnlineEstimator
     from vio_graph.types import DepthFrame
 
-    base = PipelineConfig()
+    base, rig, _, true, jittered, depth, conf = _jittered_frames(150, 5)
     assert base.filter.time_offset.landmark_time_sigma is False
-    rig = RigGeometry.from_metadata(tiny_metadata())
-    T = 1.0 / rig.frame_rate_hz
-    true = 1.0 + T * np.arange(150)
-    jittered = true + np.clip(np.random.default_rng(5).normal(0, 0.002, true.size), -0.01, 0.01)
-    depth, conf = np.zeros((12, 16), np.float32), np.zeros((12, 16), np.uint8)
     v = np.array([0.5, 2.5])  # a fast upward swing, m/s
 
     def time_cov(flag: bool, stamps: NDArray[np.float64]) -> tuple[object, OnlineEstimator]:

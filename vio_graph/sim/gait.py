@@ -918,8 +918,6 @@ class _JointSpaceSwing:
 
     windows_s: tuple[tuple[float, float], ...]
     ankle: object  # BSpline of the ankle (2,) over the motion-time grid
-    lift_m: tuple[float, ...]  # clearance bump height per swing, m
-    n_via_points: int = 0  # swings in the grid that kept their via points (fallback)
 
     def apply(self, t: NDArray, ankle: NDArray) -> NDArray[np.float64]:
         out = ankle.copy()
@@ -1044,7 +1042,6 @@ def _joint_space_swing(
     ankle = ankle_vp.copy()
     span = _TimeSpans(t)
     windows: list[tuple[float, float, slice | NDArray]] = []
-    n_skipped = 0
     for s in strides:
         t0, t1 = s.t_toe_off_s, s.t_next_s
         m = span(t0 + 1e-9, t1)
@@ -1057,7 +1054,6 @@ def _joint_space_swing(
         if th1 is None:  # no stance after the last landing: the via-point swing's arrival
             th1, k1 = _end_state(t, thigh, t1, -1), _end_state(t, knee_flex, t1, -1)
             if th1 is None:
-                n_skipped += 1
                 continue
         frac = gait.swing_peak_knee_fraction.get(s.swing_kind, 0.33)
         k_pk = np.radians(gait.swing_peak_knee_deg[s.swing_kind])
@@ -1087,8 +1083,7 @@ def _joint_space_swing(
         knee_xz = hip[m] - a * np.stack([np.sin(th_t), np.cos(th_t)], axis=1)
         ankle_s = knee_xz - b * np.stack([np.sin(sh_t), np.cos(sh_t)], axis=1)
         if np.linalg.norm(ankle_s - hip[m], axis=1).max() > _FALLBACK_REACH * (a + b):
-            n_skipped += 1  # the knee profile would straighten the leg too far: via points
-            continue
+            continue  # the knee profile would straighten the leg too far: via points
         ankle[m] = ankle_s
         windows.append((t0, t1, m))
     ankle_fk = ankle.copy()
@@ -1155,12 +1150,7 @@ def _joint_space_swing(
         pitch = swing_pitch(ankle)
     spl = make_interp_spline(t, ankle, k=5)
     kept = [j for j in range(len(windows)) if j not in failed]
-    js = _JointSpaceSwing(
-        tuple((windows[j][0], windows[j][1]) for j in kept),
-        spl,
-        tuple(float(lift[j]) for j in kept),
-        n_via_points=n_skipped + len(failed),
-    )
+    js = _JointSpaceSwing(tuple((windows[j][0], windows[j][1]) for j in kept), spl)
     return js, pitch
 
 

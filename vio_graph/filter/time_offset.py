@@ -283,17 +283,21 @@ class ClockModel:
             icpt = float(np.mean(ts - self.period_s * (k - k[-1])))
         return t if abs(icpt - t) < _KEEP_TOL_S else float(icpt)
 
+    def _recorded_corrections(self) -> NDArray[np.float64]:
+        """Every correction (line value - stamp, s) recorded so far (a view; the compiled
+        correct() counts them in its state instead of ``_n_corr``)."""
+        n = self._n_corr if self._st is None or self._kernels is None else int(self._st[-1])
+        return self._corr[:n]
+
     def scatter_var_s2(self) -> float:
         """Mean square (s^2) of the last ``window`` stamps' distances to their line values:
         how far apart the two candidate times of a sample (stamp, clock line) are; 0 for
         stamps on their line (bit for bit kept)."""
-        n = self._n_corr if self._st is None or self._kernels is None else int(self._st[-1])
-        c = self._corr[max(0, n - self.window) : n]
+        c = self._recorded_corrections()[-self.window :]
         return float(c @ c) / c.size if c.size else 0.0
 
     def report(self) -> dict:
-        n = self._n_corr if self._st is None or self._kernels is None else int(self._st[-1])
-        c = self._corr[:n]
+        c = self._recorded_corrections()
         return {
             "gaps": self.n_gaps,
             "gap_total_s": self.gap_total_s,

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from vio_graph.errors import MappingError
+from vio_graph.growable import GrowableArray
 from vio_graph.mapping.config import MapConfig
 
 
@@ -260,8 +261,9 @@ class TerrainMap2D:
         self.config = config if config is not None else MapConfig()
         self._keyframes: list[KeyframeProfile] = []
         self._cells: MapCells | None = None
-        self._times: NDArray[np.float64] | None = None  # sorted timestamps cache
-        self._times_buf: NDArray[np.float64] | None = None  # its room to grow (in order)
+        # sorted timestamps cache, grown in place while keyframes come in time order (a
+        # replay: O(N) in all, where np.append per keyframe copied every earlier stamp)
+        self._times: GrowableArray | None = None
 
     # -- building --------------------------------------------------------------------------
     def add_keyframe(
@@ -292,8 +294,8 @@ class TerrainMap2D:
             last = self._keyframes[-1].timestamp_s if self._keyframes else -np.inf
             self._keyframes.append(keyframe)
             if last <= keyframe.timestamp_s:  # in time order (a replay): no sort needed
-                if times is not None and times.shape[0] == len(self._keyframes) - 1:
-                    times = self._times_appended(times, keyframe.timestamp_s)
+                if times is not None and len(times) == len(self._keyframes) - 1:
+                    times.append(keyframe.timestamp_s)
             else:
                 self._keyframes.sort(key=lambda kf: kf.timestamp_s)
                 times = None
@@ -304,24 +306,6 @@ class TerrainMap2D:
                 times = None
         self._cells = None
         self._times = times
-
-    def _times_appended(
-        self, times: NDArray[np.float64], timestamp_s: float
-    ) -> NDArray[np.float64]:
-        """``np.append(times, timestamp_s)`` where ``times`` is the cache (:meth:`_find`):
-        written into spare room of a buffer grown by doubling, so a replay's keyframes cost
-        O(N) in all instead of a copy of every earlier stamp per keyframe (O(N^2): a 1 h
-        trial's ~70,000 keyframes, seconds). The result is a view of the buffer's first
-        len(times) + 1 entries (only the latest view is kept as the cache, and the entries
-        before it are never rewritten)."""
-        n = times.shape[0]
-        buf = self._times_buf
-        if buf is None or times.base is not buf or n == buf.shape[0]:
-            # not a view of the buffer (the cache was rebuilt by _find), or full: a new one
-            buf = self._times_buf = np.empty(max(64, 2 * (n + 1)))
-            buf[:n] = times
-        buf[n] = timestamp_s
-        return buf[: n + 1]
 
     def update_poses(
         self,
@@ -364,12 +348,15 @@ class TerrainMap2D:
         """Index of the stored keyframe at ``timestamp_s`` (keyframes are kept sorted)."""
         if not self._keyframes:
             return None
-        if self._times is None or self._times.shape[0] != len(self._keyframes):
-            self._times = np.array([kf.timestamp_s for kf in self._keyframes])
-        j = int(np.searchsorted(self._times, timestamp_s))
+        if self._times is None or len(self._times) != len(self._keyframes):
+            self._times = GrowableArray()
+            for kf in self._keyframes:
+                self._times.append(kf.timestamp_s)
+        times = self._times.view()
+        j = int(np.searchsorted(times, timestamp_s))
         for i in (j - 1, j):
-            if 0 <= i < self._times.shape[0]:
-                if abs(self._times[i] - timestamp_s) <= self.config.timestamp_match_tol_s:
+            if 0 <= i < times.shape[0]:
+                if abs(times[i] - timestamp_s) <= self.config.timestamp_match_tol_s:
                     return i
         return None
 

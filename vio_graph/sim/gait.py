@@ -1246,10 +1246,11 @@ def simulate_gait(
     """Plan and generate the instrumented leg's motion over [0, duration_s + 0.2 s]."""
     leg = leg_model_for(rig)
     pausing = gait.pause_range_s is not None
-    rng_plan = copy.deepcopy(rng)
+    joint_space = gait.swing_model == "joint_space"
+    rng_plan = copy.deepcopy(rng) if joint_space else None  # the same draws, planned again
     strides = plan_strides(terrain, gait, leg, duration_s, rng, allow_short=pausing)
-    if gait.swing_model == "joint_space":  # one more stride, if the terrain has it: the last
-        # swing in the trial then lands on the grid (its landing state is known)
+    if rng_plan is not None:  # one more stride, if the terrain has it: the last swing in
+        # the trial then lands on the grid (its landing state is known)
         more = plan_strides(terrain, gait, leg, duration_s + 0.6, rng_plan, allow_short=True)
         if len(more) > len(strides):
             strides = more
@@ -1267,7 +1268,6 @@ def simulate_gait(
                 f"lengthen terrain.{field}, add steps / flights or shorten duration_s",
                 field,
             )
-    joint_space = gait.swing_model == "joint_space"
     t_out_end = t_end
     if joint_space:  # the last swing's landing on the grid (cropped to t_end below)
         t_end = max(t_end, np.floor(strides[-1].t_next_s * DENSE_RATE_HZ) / DENSE_RATE_HZ)

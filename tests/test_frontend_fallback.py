@@ -9,6 +9,7 @@ from vio_graph.frontend import icp as icp_module
 from vio_graph.frontend import tracker as tracker_module
 from vio_graph.frontend.config import IcpConfig, TrackerConfig
 from vio_graph.frontend.icp import icp_translation_2d
+from vio_graph.frontend.smoothing import smooth_profile
 from vio_graph.frontend.tracker import CornerTracker
 
 
@@ -259,3 +260,67 @@ def test_the_restart_at_icp_reach_does_not_inherit_the_prediction_sigma() -> Non
         np.testing.assert_array_equal(
             claims[("reach", 0.001, seed)], claims[("reach", 0.007, seed)]
         )
+
+
+def _ray_noise_floor(camera_height_m: float, rng: np.random.Generator) -> np.ndarray:
+    """A level floor seen by a camera ``camera_height_m`` above it, 900 rays spread evenly in
+    elevation (as pixel rows are) over 0.3-1.6 m, depth noise along each ray growing with
+    range (2 mm + 4 mm/m^2 r^2, ToF-like), then the front end's 5 mm thinning and kNN
+    smoothing. Points relative to the camera."""
+    ang = rng.uniform(np.arctan2(camera_height_m, 1.6), np.arctan2(camera_height_m, 0.3), 900)
+    r = camera_height_m / np.sin(ang)
+    rays = np.column_stack([np.cos(ang), -np.sin(ang)])
+    pts = (r + rng.normal(0.0, 0.002 + 0.004 * r**2))[:, None] * rays
+    return smooth_profile(pts, 5, 0.005, 10)
+
+
+def test_floor_heights_of_the_smoothed_profile_have_no_range_bias() -> None:
+    """Noise along the rays, growing with range, does not make the thinned and smoothed floor
+    read high or low with range: the mean height in each 20 cm band is the true one within
+    0.3 mm (measured: +0.21 mm in the nearest band, where the view ends, 0.07 mm or less
+    beyond; the smoothed points scatter 1.2-1.5 mm)."""
+    rng = np.random.default_rng(5)
+    prof = np.vstack([_ray_noise_floor(0.45, rng) for _ in range(40)])
+    r = np.hypot(prof[:, 0], prof[:, 1])
+    h = prof[:, 1] + 0.45
+    for lo in np.arange(0.4, 1.4, 0.2):
+        band = (r >= lo) & (r < lo + 0.2)
+        assert band.sum() > 500
+        assert abs(h[band].mean()) < 3e-4, (lo, h[band].mean())
+
+
+def test_full_target_profile_icp_walks_less_in_z() -> None:
+    """Level walking, 4 cm a frame with a known height wobble, the IMU seed exact: the
+    per-frame z error of the profile ICP with the 1 cm thinned target (default) and with the
+    whole profile registered (fallback_full_target). The whole profile cuts the sd (measured
+    0.35 -> 0.26 mm), neither has a mean bias beyond 0.05 mm a frame (measured +0.015 and
+    -0.011 mm, standard errors 0.026 and 0.020), and the full target claims the thinned
+    target's z variance within a factor of two (its covariance is scaled by the point-count
+    ratio, so twice the points do not claim twice the information)."""
+    sd, mean, claim = {}, {}, {}
+    for full in (False, True):
+        errs, claims = [], []
+        for seed in range(3):
+            rng = np.random.default_rng(seed)
+            tracker = CornerTracker(TrackerConfig(fallback_full_target=full))
+            z = 0.45
+            tracker.update(0.0, _ray_noise_floor(z, rng), None)
+            for k in range(1, 61):
+                dz = 0.004 * np.sin(k / 5.0)
+                z += dz
+                delta = np.array([0.04, dz])
+                out = tracker.update(
+                    k / 30, _ray_noise_floor(z, rng), None, delta, np.eye(2) * 0.01**2
+                )
+                d = out.displacement
+                assert d is not None, out.reason
+                assert abs(d.delta_xz_m[0] - delta[0]) < 1e-3  # x: the exact seed
+                errs.append(d.delta_xz_m[1] - dz)
+                claims.append(d.cov_m2[1, 1])
+        e = np.array(errs)
+        sd[full], mean[full] = float(e.std()), float(e.mean())
+        claim[full] = float(np.mean(claims))
+    assert 0.5 < claim[True] / claim[False] < 2.0
+    assert sd[True] < 0.85 * sd[False]
+    assert sd[True] < 0.3e-3
+    assert abs(mean[True]) < 0.05e-3 and abs(mean[False]) < 0.05e-3

@@ -415,6 +415,13 @@ class CornerTracker:
             return TrackerOutput(None, None, None, f"no corner in this frame; {gap}", None, False)
         assert prev is not None
         target = grid_thin(profile, cfg.fallback_grid_m) if cfg.fallback_grid_m > 0 else profile
+        # fallback_full_target: register every point of the profile, but claim the
+        # information of the thinned one (its pairs are that many times denser, not
+        # independent: kNN-smoothed neighbours)
+        density = 1.0
+        if cfg.fallback_full_target and target.shape[0]:
+            density = profile.shape[0] / target.shape[0]
+            target = profile
         if target.shape[0] < cfg.min_correspondences or prev.profile_xz_m.shape[0] == 0:
             return TrackerOutput(
                 None, None, None, "no corner in this frame; profile too short", None, False
@@ -427,6 +434,9 @@ class CornerTracker:
         src, tree = self._source(prev, target, T0)
         normals = SourceNormals()  # the restart check's ICP reuses the source normals
         icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree, normals)
+        if density > 1.0:
+            cov = _scaled_cov(icp.cov_m2, density, self._fallback_icp_cfg.max_variance_m2)
+            icp = dataclasses.replace(icp, cov_m2=cov)
         bad = self._quality_problem(icp)
         P = self._prediction_cov(pred_cov)
         d2, gate = self._gate(icp.translation_xz_m, icp.cov_m2, P=P, pred=pred)
@@ -545,6 +555,14 @@ def _is_straight(icp: IcpResult, ratio: float | None) -> bool:
     r = (pt - ps) @ V[:, 0]
     noise = max(float(r @ r) / (2 * r.size), 1e-12)
     return float(w[0]) <= ratio * noise
+
+
+def _scaled_cov(C: NDArray[np.float64], factor: float, cap_m2: float) -> NDArray[np.float64]:
+    """C x ``factor`` with its eigenvalues capped at ``cap_m2`` (an unobservable direction
+    keeps the cap, as ICP gives it)."""
+    w, V = np.linalg.eigh(C)
+    w = np.minimum(w * factor, np.maximum(w, cap_m2))
+    return (V * w) @ V.T
 
 
 def _drop_weakest(

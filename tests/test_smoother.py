@@ -1043,6 +1043,57 @@ def test_height_landmarks_bound_z_drift_and_leave_x_alone(cls) -> None:
     assert rms(err["with"][:, 0]) < rms(err["without"][:, 0]) + 0.003
 
 
+def test_shipped_height_landmark_config_keeps_one_floor_the_filter_split() -> None:
+    """configs/smoother_height_landmarks.yaml (height landmarks, the graph's association) on
+    the 10 s trial whose displacements drift 1 cm/s in z, a floor at z = -0.40 m seen from
+    every frame but handed under two filter ids in turn (the filter's split of one floor,
+    docs/generalisation.md): the graph makes one floor landmark, within 1 cm of the floor's
+    height (the biased displacements pull the whole path and the floor with it by a few mm),
+    and the camera height stays within 1 cm rms; without the floor it drifts by centimetres.
+    The filter's ids would have made two floors."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from vio_graph.config import load_config
+    from vio_graph.types import LandmarkKey, LevelObservation
+
+    path = Path(__file__).resolve().parents[1] / "configs" / "smoother_height_landmarks.yaml"
+    shipped = load_config(path).smoother
+    assert shipped.factors.height_landmarks
+    assert shipped.factors.height_landmark_association == "graph"
+    tr = _z_biased_trial_without_corners()
+    rng = np.random.default_rng(11)
+    floor_z_m = -0.40
+    levels = [
+        [
+            LevelObservation(
+                float(t), 7 + k % 2, floor_z_m - float(xz[1]) + rng.normal(0, 2e-3), 4e-6
+            )
+        ]
+        for k, (t, xz) in enumerate(zip(tr.frame_times_s, tr.camera_xz_true_m, strict=True))
+    ]
+    idx = np.flatnonzero(tr.is_keyframe)
+    z_err = {}
+    for name, trial in (("floor", replace(tr, observations=levels)), ("no floor", tr)):
+        s = BatchSmoother(shipped, trial.imu_T_cam)
+        feed(trial, s)
+        xz = np.array([e.camera_xz_m for e in s.keyframe_estimates(with_covariance=False)])
+        z_err[name] = xz[:, 1] - tr.camera_xz_true_m[idx, 1]
+        if name == "floor":
+            nodes = [k for k in s._builder._landmark_of if k.kind == "level"]
+            assert nodes == [LandmarkKey("level", 0)]  # one floor, one landmark
+            assert s._result is not None
+            floor = s._result.atPose3(s._builder._landmark_of[nodes[0]]).translation()[2]
+            assert floor == pytest.approx(floor_z_m, abs=0.01)
+    assert rms(z_err["no floor"]) > 0.02
+    assert rms(z_err["floor"]) < 0.01
+    by_filter = BatchSmoother(
+        SmootherConfig(factors=FactorFamilies(height_landmarks=True)), tr.imu_T_cam
+    )
+    feed(replace(tr, observations=levels), by_filter)
+    assert sorted(k.id for k in by_filter._builder._landmark_of if k.kind == "level") == [7, 8]
+
+
 def test_frame_record_hands_level_observations_only_when_asked() -> None:
     from vio_graph.protocol import FrameRecord
     from vio_graph.types import LevelObservation

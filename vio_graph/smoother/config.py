@@ -53,7 +53,13 @@ class FactorFamilies(BaseModel):
         "height_landmark_association 'graph' removes that coupling); it also loses on "
         "descents (sweep sts_descent, two_flights_down; held-out Q), with either association: "
         "there the surfaces seen beyond ~0.4 m read 1.5-3 mm high and scatter more than "
-        "their variance says (docs/method.md, section 4)",
+        "their variance says (docs/method.md, section 4). That loss is in the toe, not the "
+        "camera: with the 'graph' association sweep sts_descent seeds 1000-1001 camera z "
+        "smoother / batch 0.28 / 0.28 -> 0.09 / 0.08 cm while toe z 0.33 / 0.29 -> 0.54 / "
+        "0.50, the first frame's leg-chain error (-0.4 to -0.55 cm, the toe ATE's anchor) "
+        "no longer offset by a drifting camera; the fixed-lag smoother's own loss on "
+        "two_flights_down goes with fixed_lag_batch_solver (configs/"
+        "smoother_height_landmarks.yaml; docs/generalisation.md, fifteenth session)",
     )
     height_landmark_association: Literal["filter", "graph"] = Field(
         default="filter",

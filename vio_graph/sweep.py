@@ -330,6 +330,28 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
         overrides={"rig": {"body_height_m": 1.55}, "gait": {"level_stride_length_m": 1.10}},
     ),
     SweepCondition(
+        "swing_joint_space",
+        "swing",
+        "the reference ascent with the gentler swing driven by hip and knee angles "
+        "(gait.swing_model: joint_space; camera 2-3 m/s, IMU 2-5 g where the default swing "
+        "reaches 4-5 m/s and ~10 g)",
+        overrides={"gait": {"swing_model": "joint_space"}},
+    ),
+    SweepCondition(
+        "swing_joint_space_descent",
+        "swing",
+        "the downstair trial with the joint-space swing",
+        scenario="downstair",
+        overrides={"gait": {"swing_model": "joint_space"}},
+    ),
+    SweepCondition(
+        "swing_joint_space_obstacle",
+        "swing",
+        "the obstacle trial (level floor, 14 x 13 cm obstacle) with the joint-space swing",
+        scenario="obstacle",
+        overrides={"gait": {"swing_model": "joint_space"}},
+    ),
+    SweepCondition(
         "prosthesis_low_camera",
         "prosthesis",
         "the powered-prosthesis trial (configs/prosthesis_upstair.yaml) with the camera 15 cm "

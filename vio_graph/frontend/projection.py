@@ -447,21 +447,19 @@ def mixed_pixel_drops(
     jump_m: float,
     abs_tol_m: float,
     rel_tol: float,
-    radius_px: int = 2,
+    radius_px: int = 1,
 ) -> NDArray[np.bool_]:
     """The mixed-pixel test at the pixels (rows, cols) only (True = mixed, drop it).
 
     A ToF pixel whose footprint straddles a depth edge (a stair nosing over the tread below)
     integrates both surfaces and returns a depth in between. Such a pixel is flagged when the
     valid pixels of its (2 radius_px + 1)^2 window span more than ``jump_m``, its depth lies
-    farther than ``abs_tol_m + rel_tol * depth`` from both the nearest and the farthest of them,
-    and it is on no plane through its 3x3 neighbours. The window is wider than 3x3 because the
-    driver's flying-pixel filter invalidates the pixels right at the jump, so a surviving mixed
-    pixel often has only other mixed pixels or none as valid neighbours. For a plane the inverse
-    depth is affine in the pixel coordinates, so a surface pixel (a floor at a grazing angle
-    spans a large depth range too) matches the mean inverse depth of each opposite pair of
-    valid 3x3 neighbours within the same tolerance; a pixel with no valid opposite pair is on
-    no plane that can be checked. A mixed pixel straddles the edge with at least one pair.
+    farther than ``abs_tol_m + rel_tol * depth`` from both the nearest and the farthest of
+    them, and it is on no plane through its 3x3 neighbours: for a plane the inverse depth is
+    affine in the pixel coordinates, so a surface pixel (a floor seen at a grazing angle spans
+    a large depth range too) matches the mean inverse depth of every opposite pair of valid
+    3x3 neighbours within the same tolerance, while a mixed pixel straddles the edge with at
+    least one pair. A pixel without a valid opposite pair is kept (nothing to judge it by).
     A surface pixel at the edge itself sits at one of the extremes and is kept."""
     d = np.asarray(depth_m, dtype=np.float64)
     h, w = d.shape
@@ -486,15 +484,13 @@ def mixed_pixel_drops(
     tol = abs_tol_m + rel_tol * z
     between = (zmax - zmin > jump_m) & (z - zmin > tol) & (zmax - z > tol) & (z > 0)
     planar = np.ones(z.shape, dtype=bool)
-    n_pairs = np.zeros(z.shape, dtype=np.int8)
     with np.errstate(divide="ignore", invalid="ignore"):
         for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):  # the four opposite pairs
             a, b = pad[r + dy, c + dx], pad[r - dy, c - dx]
             both = (a > 0) & (b > 0)
             mid = 2.0 / (1.0 / a + 1.0 / b)  # the plane's depth between them
             planar &= ~both | (np.abs(z - mid) <= tol)
-            n_pairs += both
-    return between & ~(planar & (n_pairs > 0))
+    return between & ~planar
 
 
 def drop_mixed_pixels(
@@ -504,7 +500,7 @@ def drop_mixed_pixels(
     abs_tol_m: float,
     rel_tol: float,
     at: NDArray[np.bool_] | None = None,
-    radius_px: int = 2,
+    radius_px: int = 1,
 ) -> NDArray[np.uint8]:
     """Confidence with the mixed pixels (:func:`mixed_pixel_drops`) set to 0, tested at the
     pixels of the mask ``at`` only (e.g. the slice's pixels; None = every valid pixel)."""

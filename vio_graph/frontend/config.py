@@ -47,6 +47,35 @@ class ProjectionConfig(_Strict):
     speckle_abs_tol_m: float = Field(
         0.01, ge=0, description="speckle test: plus this absolute tolerance, m"
     )
+    mixed_pixel_jump_m: float | None = Field(
+        None,
+        gt=0,
+        description="mixed-pixel test (projection.mixed_pixel_drops), evaluated at the slice's "
+        "pixels: a pixel whose valid 3x3 neighbours span more than this depth jump, m, whose "
+        "depth lies farther than mixed_pixel_abs_tol_m + mixed_pixel_rel_tol x depth from both "
+        "the nearest and the farthest of them (window mixed_pixel_radius_px), and that is on no "
+        "plane through its opposite 3x3 neighbours, straddles a depth edge (a nosing over the "
+        "tread below) and is dropped; null = off",
+    )
+    mixed_pixel_abs_tol_m: float = Field(
+        0.01,
+        ge=0,
+        description="mixed-pixel test: distance from either extreme, m (about 3-4 axial noise "
+        "sd of a pixel at 1 m)",
+    )
+    mixed_pixel_rel_tol: float = Field(
+        0.01, ge=0, description="mixed-pixel test: plus this share of the pixel's depth"
+    )
+    mixed_pixel_radius_px: int = Field(
+        1,
+        ge=1,
+        le=4,
+        description="mixed-pixel test: the near and far extremes are taken over the valid "
+        "pixels of a (2 r + 1)^2 window. 2 reaches across the band the driver's flying-pixel "
+        "filter invalidates at a jump, but also takes the nosing pixel (between the nearer "
+        "upper tread and the lower one) for a mixed pixel: downstair s1000-1002 map nosing "
+        "error 3.0-3.8 -> 7.8-9.1 mm, batch toe x 0.35-0.40 -> 0.76-1.13 cm",
+    )
 
 
 class CameraFixedConfig(_Strict):

@@ -20,7 +20,11 @@ from vio_graph.frontend.config import FrontendConfig
 from vio_graph.frontend.corners import CornerFeature, extract_corner
 from vio_graph.frontend.icp import IcpResult
 from vio_graph.frontend.noise import DepthNoiseTracker, level_residuals, robust_sigma
-from vio_graph.frontend.projection import sagittal_slice_from_depth, slice_pixel_mask
+from vio_graph.frontend.projection import (
+    drop_mixed_pixels,
+    sagittal_slice_from_depth,
+    slice_pixel_mask,
+)
 from vio_graph.frontend.smoothing import smooth_profile
 from vio_graph.frontend.terrain import (
     classify_against_stand,
@@ -164,6 +168,25 @@ class VisualFrontend:
                 self._camera_fixed.remember(
                     frame.depth_m, R_ground_cam, frame.timestamp_s, self._camera_fixed_sigma()
                 )
+        if pc.mixed_pixel_jump_m is not None:  # mixed pixels at depth edges, slice pixels only
+            at = slice_pixel_mask(
+                frame.depth_m,
+                confidence,
+                K,
+                pc.half_width_m,
+                pc.min_depth_m,
+                pc.max_depth_m,
+                pc.min_confidence,
+            )
+            confidence = drop_mixed_pixels(
+                frame.depth_m,
+                confidence,
+                pc.mixed_pixel_jump_m,
+                pc.mixed_pixel_abs_tol_m,
+                pc.mixed_pixel_rel_tol,
+                at,
+                pc.mixed_pixel_radius_px,
+            )
         speckle = None
         if pc.speckle_min_agree > 0:  # drop_speckles, evaluated at the slice's pixels only
             speckle = (pc.speckle_rel_tol, pc.speckle_abs_tol_m, pc.speckle_min_agree)

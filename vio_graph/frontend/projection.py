@@ -437,3 +437,78 @@ def drop_speckles(
     out = np.array(confidence, copy=True)
     out[drop] = 0
     return out
+
+
+def mixed_pixel_drops(
+    depth_m: NDArray[np.floating],
+    confidence: NDArray[np.uint8],
+    rows: NDArray[np.intp],
+    cols: NDArray[np.intp],
+    jump_m: float,
+    abs_tol_m: float,
+    rel_tol: float,
+    radius_px: int = 1,
+) -> NDArray[np.bool_]:
+    """The mixed-pixel test at the pixels (rows, cols) only (True = mixed, drop it).
+
+    A ToF pixel whose footprint straddles a depth edge (a stair nosing over the tread below)
+    integrates both surfaces and returns a depth in between. Such a pixel is flagged when the
+    valid pixels of its (2 radius_px + 1)^2 window span more than ``jump_m``, its depth lies
+    farther than ``abs_tol_m + rel_tol * depth`` from both the nearest and the farthest of
+    them, and it is on no plane through its 3x3 neighbours: for a plane the inverse depth is
+    affine in the pixel coordinates, so a surface pixel (a floor seen at a grazing angle spans
+    a large depth range too) matches the mean inverse depth of every opposite pair of valid
+    3x3 neighbours within the same tolerance, while a mixed pixel straddles the edge with at
+    least one pair. A pixel without a valid opposite pair is kept (nothing to judge it by).
+    A surface pixel at the edge itself sits at one of the extremes and is kept."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    h, w = d.shape
+    rows = np.asarray(rows, dtype=np.intp)
+    cols = np.asarray(cols, dtype=np.intp)
+    valid = (np.asarray(confidence) > 0) & np.isfinite(d) & (d > 0)
+    p = max(int(radius_px), 1)
+    pad = np.zeros((h + 2 * p, w + 2 * p))
+    pad[p:-p, p:-p] = np.where(valid, d, 0.0)
+    r, c = rows + p, cols + p
+    z = pad[r, c]
+    zmax = np.full(z.shape, -np.inf)
+    zmin = np.full(z.shape, np.inf)
+    for dy in range(-p, p + 1):
+        for dx in range(-p, p + 1):
+            if dy == 0 and dx == 0:
+                continue
+            nb = pad[r + dy, c + dx]
+            ok = nb > 0
+            zmax = np.where(ok, np.maximum(zmax, nb), zmax)
+            zmin = np.where(ok, np.minimum(zmin, nb), zmin)
+    tol = abs_tol_m + rel_tol * z
+    between = (zmax - zmin > jump_m) & (z - zmin > tol) & (zmax - z > tol) & (z > 0)
+    planar = np.ones(z.shape, dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):  # the four opposite pairs
+            a, b = pad[r + dy, c + dx], pad[r - dy, c - dx]
+            both = (a > 0) & (b > 0)
+            mid = 2.0 / (1.0 / a + 1.0 / b)  # the plane's depth between them
+            planar &= ~both | (np.abs(z - mid) <= tol)
+    return between & ~planar
+
+
+def drop_mixed_pixels(
+    depth_m: NDArray[np.floating],
+    confidence: NDArray[np.uint8],
+    jump_m: float,
+    abs_tol_m: float,
+    rel_tol: float,
+    at: NDArray[np.bool_] | None = None,
+    radius_px: int = 1,
+) -> NDArray[np.uint8]:
+    """Confidence with the mixed pixels (:func:`mixed_pixel_drops`) set to 0, tested at the
+    pixels of the mask ``at`` only (e.g. the slice's pixels; None = every valid pixel)."""
+    _check_image(np.asarray(depth_m), np.asarray(confidence), np.eye(3))
+    if at is None:
+        at = np.asarray(confidence) > 0
+    rows, cols = np.nonzero(at)
+    drop = mixed_pixel_drops(depth_m, confidence, rows, cols, jump_m, abs_tol_m, rel_tol, radius_px)
+    out = np.array(confidence, copy=True)
+    out[rows[drop], cols[drop]] = 0
+    return out

@@ -154,3 +154,30 @@ def test_true_clearance_is_the_same_with_the_compiled_geometry(
     assert np.isfinite(ref["clearance_m"]).all()
     for key, value in ref.items():
         np.testing.assert_array_equal(got[key], value, err_msg=key)
+
+
+def test_rig_anchor_keeps_a_first_frame_leg_error_in_that_frame() -> None:
+    """A toe path exact but for a 5 mm z error on its first frame, the camera exact: the
+    paper's anchor (the toe's own first sample) moves all N samples by 5 mm (RMSE 5 mm on N-1 of
+    them), the rig anchor (the camera's offset) leaves it on the one frame (5 mm / sqrt(N)); an
+    estimate offset as a whole (an arbitrary start) is removed by both."""
+    t_gt = np.arange(0.0, 4.0, 1 / 120)
+    truth = {
+        "camera": np.column_stack([0.5 * t_gt, 0.45 + 0.02 * np.sin(3 * t_gt)]),
+        "toe": np.column_stack([0.5 * t_gt + 0.1, 0.05 * np.abs(np.sin(2 * t_gt))]),
+    }
+    gt = GroundTruth(trajectories={b: Trajectory.from_xz(t_gt, xz) for b, xz in truth.items()})
+    t_s = np.arange(0.0, 3.9, 1 / 30)
+    start = np.array([1.0, -2.0])  # the estimator's own origin
+    cam = Trajectory.from_xz(t_gt, truth["camera"]).xz_at(t_s) + start
+    toe = Trajectory.from_xz(t_gt, truth["toe"]).xz_at(t_s) + start
+    toe[0, 1] -= 0.005
+    got = evaluate_paths(gt, t_s, {"filter": {"camera": cam, "toe": toe}}, None)
+    n = t_s.size
+    paper, rig = got["ate_cm"]["filter"]["toe"], got["ate_cm_rig"]["filter"]["toe"]
+    assert paper["z"] == pytest.approx(0.5 * np.sqrt((n - 1) / n), rel=1e-6)
+    assert rig["z"] == pytest.approx(0.5 / np.sqrt(n), rel=1e-6)
+    assert rig["x"] == pytest.approx(0.0, abs=1e-9) and paper["x"] == pytest.approx(0.0, abs=1e-9)
+    assert got["ate_cm_rig"]["filter"]["camera"]["z"] == pytest.approx(0.0, abs=1e-9)
+    # without a camera path there is no rig anchor
+    assert evaluate_paths(gt, t_s, {"filter": {"toe": toe}}, None)["ate_cm_rig"]["filter"] == {}

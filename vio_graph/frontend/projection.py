@@ -22,12 +22,13 @@ from numpy.typing import NDArray
 from vio_graph.errors import FrontendError
 
 
-def _check_image(depth_m: NDArray, confidence: NDArray, K: NDArray) -> None:
+def _check_image(depth_m: NDArray, confidence: NDArray, K: NDArray | None = None) -> None:
+    """Depth and confidence are equal (H, W) images; K (if given) is 3x3."""
     if depth_m.ndim != 2 or depth_m.shape != confidence.shape:
         raise FrontendError(
             f"depth {depth_m.shape} and confidence {confidence.shape} must be equal (H, W) images"
         )
-    if np.shape(K) != (3, 3):
+    if K is not None and np.shape(K) != (3, 3):
         raise FrontendError(f"K must be 3x3, got {np.shape(K)}")
 
 
@@ -504,7 +505,7 @@ def drop_mixed_pixels(
 ) -> NDArray[np.uint8]:
     """Confidence with the mixed pixels (:func:`mixed_pixel_drops`) set to 0, tested at the
     pixels of the mask ``at`` only (e.g. the slice's pixels; None = every valid pixel)."""
-    _check_image(np.asarray(depth_m), np.asarray(confidence), np.eye(3))
+    _check_image(np.asarray(depth_m), np.asarray(confidence))
     if at is None:
         at = np.asarray(confidence) > 0
     rows, cols = np.nonzero(at)

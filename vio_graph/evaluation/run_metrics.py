@@ -78,15 +78,14 @@ def evaluate_paths(
         for key in out:
             (out[key] if key != "rpe_cm" else out[key]["0.1s"]).setdefault(mode, {})
         out["rpe_cm"]["1.0s"].setdefault(mode, {})
+        trajs = {body: Trajectory.from_xz(t_s, xz) for body, xz in bodies.items()}
         rig_shift_m = None  # the camera's first-sample offset (truth - estimate), m
-        if "camera" in bodies:
-            cam = Trajectory.from_xz(t_s, bodies["camera"])
-            cam_pair, _ = association("camera", cam)
+        if "camera" in trajs:
+            cam_pair, _ = association("camera", trajs["camera"])
             if len(cam_pair.est_indices):
-                first = cam.position_m[cam_pair.est_indices[0]]
+                first = trajs["camera"].position_m[cam_pair.est_indices[0]]
                 rig_shift_m = cam_pair.ref.position_m[0] - first
-        for body, xz in bodies.items():
-            est = Trajectory.from_xz(t_s, xz)
+        for body, est in trajs.items():
             pair, keep = association(body, est)
             rows = pair.est_indices
             e = Trajectory(  # what associate() keeps of this mode's estimate

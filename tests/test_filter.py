@@ -281,6 +281,35 @@ def test_icp_odometry_chains_displacements_and_holds_when_blind():
     assert odo.state.n_accepted == (t.shape[0] - 1) // 3
 
 
+def test_icp_odometry_sums_are_the_array_sums_bit_for_bit():
+    """IcpOdometry keeps its position, velocity and covariance as Python floats: the same
+    values as the (2,) and (2, 2) array sums and quotients, over awkward magnitudes and a
+    displacement of no duration (velocity kept); NaN or inf refused, the state unchanged."""
+    rng = np.random.default_rng(7)
+    p0 = np.array([0.1, -1e-9])
+    odo = IcpOdometry(initial_camera_xz_m=p0)
+    odo.initialise(0.0, p0, (0.25, -0.5))
+    p, v, cov = p0.copy(), np.array([0.25, -0.5]), np.zeros((2, 2))
+    t = 0.0
+    for k in range(500):
+        delta = rng.normal(size=2) * 10.0 ** rng.integers(-12, 2, size=2)
+        c = rng.normal(size=(2, 2)) * 1e-6
+        dur = 0.0 if k % 17 == 0 else 1.0 / 30 * rng.uniform(0.5, 2.0)
+        assert odo.update_displacement(Displacement2D(t, t + dur, delta, c))
+        dur = (t + dur) - t  # the interval as the stamps give it
+        t += dur
+        p, cov = p + delta, cov + c
+        v = delta / dur if dur > 0 else v
+        s = odo.state
+        assert s.p_xz_m.tobytes() == p.tobytes() and s.v_xz_mps.tobytes() == v.tobytes()
+        assert s.P[:2, :2].tobytes() == cov.tobytes()
+        assert odo._camera_at(t).tobytes() == p.tobytes()
+    for bad in (np.array([np.nan, 0.0]), np.array([0.0, np.inf])):
+        with pytest.raises(EstimationError):
+            odo.update_displacement(Displacement2D(t, t + 0.03, bad, np.eye(2)))
+    assert odo.state.p_xz_m.tobytes() == p.tobytes()
+
+
 def nees_and_rmse(model: str, seed: int) -> tuple[float, float]:
     """Final-position NEES and position RMSE (m) of one noisy 10 s run (numbers quoted in
     the vio_graph.filter.eskf docstring)."""

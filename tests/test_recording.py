@@ -56,6 +56,79 @@ def test_frame_equals_the_straightforward_conversion(tiny_recording: Path) -> No
     assert n_zero > 0  # invalid pixels were zeroed in the confidence
 
 
+@pytest.mark.parametrize(
+    ("scale", "min_range_m", "max_range_m"),
+    [
+        (0.001, 0.1, 2.4),
+        (1e-4, 0.2, 4.0),
+        (1e-3 / 3, 0.1, 5.0),
+        (2.5e-4, 0.0, 1.0),
+        # exact depths (k / 1024 m) on thresholds a hair off a float32: compared in float64,
+        # 3686 / 1024 m would be beyond the far one and 51 / 1024 m not below the near one
+        (2.0**-10, 2.0 * (51 * 2.0**-10 + 1e-9), (3686 * 2.0**-10 - 1e-8) / 1.5),
+    ],
+)
+def test_compiled_conversion_equals_the_numpy_path(
+    tiny_recording: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    scale: float,
+    min_range_m: float,
+    max_range_m: float,
+) -> None:
+    """The reader's one-pass compiled conversion of a uint16 frame (recording/compiled.py,
+    on with the compiled paths) against its numpy path: the same float32 depths bit for bit,
+    the same valid mask and count, and the same unit-check errors, on frames whose units land
+    on, just above and just below the far and near thresholds (compared in float32 as numpy
+    compares a float32 array with a Python float), zero pixels, and frames that fail a check."""
+    pytest.importorskip("numba")
+    from vio_graph.frontend.icp import COMPILED_ENV
+
+    rec = Recording.open(tiny_recording)
+    cam = rec.metadata.camera.model_copy(
+        update={"min_range_m": min_range_m, "max_range_m": max_range_m}
+    )
+    rec.__dict__["metadata"] = rec.metadata.model_copy(update={"camera": cam})
+    rng = np.random.default_rng(3)
+    edges = [0.0]
+    for t in (1.5 * max_range_m, 0.5 * min_range_m):
+        u = int(round(float(np.float32(t)) / float(np.float32(scale))))
+        edges += [float(v) for v in range(max(u - 3, 0), min(u + 4, 65536))]
+    frames = []
+    for k in range(60):
+        kind = k % 4
+        if kind == 0:  # a usual frame: mostly in range, some edge values and zeros
+            f = rng.integers(0, 65536, size=(12, 16)).astype(float)
+            f[rng.random(f.shape) < 0.5] = int(1.0 / scale)
+        elif kind == 1:  # edge values only
+            f = rng.choice(edges, size=(12, 16))
+        elif kind == 2:  # mostly beyond the far threshold (fails a check), or empty
+            f = np.full((12, 16), 65535.0 if k % 8 == 2 else 0.0)
+        else:  # mostly below the near threshold
+            f = rng.choice(edges[: len(edges) // 2 + 1], size=(12, 16))
+            f[0, :3] = 65535.0
+        frames.append(f)
+    depth = np.stack(frames).astype(np.uint16)
+
+    def convert(mode: str, k: int):
+        monkeypatch.setenv(COMPILED_ENV, mode)
+        try:
+            return rec._convert(k, depth, scale, np.array(depth[k]) if k % 2 else None)
+        except RecordingError as exc:
+            return str(exc)
+
+    n_errors = 0
+    for k in range(depth.shape[0]):
+        ref, fast = convert("0", k), convert("1", k)
+        if isinstance(ref, str):
+            n_errors += 1
+            assert fast == ref
+            continue
+        assert not isinstance(fast, str)
+        assert fast[0].dtype == np.float32 and fast[0].tobytes() == ref[0].tobytes()
+        assert np.array_equal(fast[1], ref[1]) and fast[2] == ref[2]
+    assert n_errors > 0  # the checks' errors were compared too
+
+
 def test_frames_are_memory_mapped(tiny_recording: Path) -> None:
     rec = Recording.open(tiny_recording)
     depth, _, conf = rec._depth

@@ -348,9 +348,24 @@ class Recording:
         uint16 or float32, checked on opening, and NaN becomes 0), its valid mask (d > 0) and
         their count, after the unit checks. ``row``: the stored frame ``depth[i]`` already
         read into a new array (:class:`_RowReader`), else it is read from ``depth``."""
+        cam = self.metadata.camera
+        kernels = _compiled_kernels() if depth.dtype == np.uint16 else None
+        counts = None
         try:
             if depth.dtype == np.float32:
                 raw = np.array(depth[i]) if row is None else row
+            elif kernels is not None:  # the numpy lines below in one compiled pass
+                src = np.asarray(depth[i] if row is None else row)
+                d = np.empty(src.shape, np.float32)
+                valid = np.empty(src.shape, np.bool_)
+                counts = kernels.depth_from_units(
+                    src,
+                    np.float32(scale),
+                    np.float32(1.5 * cam.max_range_m),  # float32, as numpy compares d with it
+                    np.float32(0.5 * cam.min_range_m),
+                    d,
+                    valid,
+                )
             else:  # the integer unit scaled in float32, in one pass (= astype, then multiply)
                 src = depth[i] if row is None else row
                 d = np.multiply(src, np.float32(scale), dtype=np.float32, casting="unsafe")
@@ -364,13 +379,16 @@ class Recording:
                     self._depth_path(depth), f"frame {i} has inf or negative depth"
                 )
             d = np.nan_to_num(raw, nan=0.0)
-        cam = self.metadata.camera
         # shares of the valid pixels (d > 0) beyond the range checks, counted without copying
         # the valid pixels out (copying them out was most of the cost of reading a frame)
-        valid = d > 0
-        n_valid = int(np.count_nonzero(valid))
+        if counts is None:
+            valid = d > 0
+            n_valid = int(np.count_nonzero(valid))
+        else:
+            n_valid = counts[0]
         if n_valid:
-            too_far = np.count_nonzero(d > 1.5 * cam.max_range_m) / n_valid
+            n_far = np.count_nonzero(d > 1.5 * cam.max_range_m) if counts is None else counts[1]
+            too_far = n_far / n_valid
             if too_far > 0.5:
                 raise RecordingError(
                     self._depth_path(depth),
@@ -381,7 +399,11 @@ class Recording:
             near_m = 0.5 * cam.min_range_m
             # valid & (d < near_m), counted as all d < near_m less the invalid pixels (d <= 0,
             # no NaN), which are all nearer than a positive near_m
-            n_near = 0 if near_m <= 0 else int(np.count_nonzero(d < near_m)) - (d.size - n_valid)
+            if near_m <= 0:
+                n_near = 0
+            else:
+                n_below = int(np.count_nonzero(d < near_m)) if counts is None else counts[2]
+                n_near = n_below - (d.size - n_valid)
             too_near = n_near / n_valid
             if too_near > 0.5:
                 raise RecordingError(
@@ -527,6 +549,19 @@ class Recording:
         if gt is not None and gt.frame_edge_visible is not None:
             out["edge_visible_fraction"] = round(float(np.mean(gt.frame_edge_visible)), 4)
         return out
+
+
+def _compiled_kernels():
+    """vio_graph/recording/compiled.py when the compiled paths are on (numba installed and
+    :func:`vio_graph.frontend.icp.compiled_kernels` says so: ``VIO_GRAPH_COMPILED``, or "auto"
+    as a replay of a long recording sets it), else None (the numpy path)."""
+    from vio_graph.frontend.icp import compiled_kernels
+
+    if compiled_kernels() is None:
+        return None
+    from vio_graph.recording import compiled
+
+    return compiled
 
 
 def _rate(t: np.ndarray) -> float:

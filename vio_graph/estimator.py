@@ -652,6 +652,11 @@ class OnlineEstimator:
         self._joint_hist: deque[JointAngles] = deque(maxlen=32)
         self._frame_joints: JointAngles | None = None  # joints at a re-stamped frame time
         self._frame_on_line = False  # this frame re-stamped to the camera clock line
+        #: (``time_offset.frame_time_rotation_sigma``) per recent frame time (s): the
+        #: covariance (m^2, 2x2) its time's uncertainty gives a displacement ending or starting
+        #: there, and this frame's slice rotation variance (rad^2)
+        self._time_terms: deque[tuple[float, NDArray[np.float64]]] = deque(maxlen=8)
+        self._frame_rot_var_rad2 = 0.0
         self._imu_queue: deque[ImuSample] = deque()  # received, not yet propagated
         self._stance_queue: deque[ImuSample] = deque()  # received, not yet in the detector
         self._filter_started = False
@@ -1130,6 +1135,7 @@ class OnlineEstimator:
         )
         self._ground_turn_rad = 0.0
         timings.update({f"frontend_{k}": v for k, v in result.timings_ms.items()})
+        self._frame_time_terms(t, result.profile_xz_m)
         # 4. fusion: level surfaces -> pitch of the attitude (used from here on), then eq. 8
         t0 = time.perf_counter()
         self.surface_tilt = None
@@ -1144,7 +1150,7 @@ class OnlineEstimator:
             result = transform_result(result)
         accepted = refused = False
         if result.displacement is not None:
-            d2, fused = self._test_frame_stamps(t, result.displacement)
+            d2, fused = self._test_frame_stamps(t, self._with_time_terms(result.displacement))
             n_refused = self.filter.n_gate_refusals
             self._arbitrate_imu(fused, d2)
             accepted = self._as_family(t, "displacement", self.filter.update_displacement, fused)
@@ -1473,18 +1479,67 @@ class OnlineEstimator:
         were first seen at 1.52 s in the first fast swing (vz 2.8 m/s) on a frame whose line
         time was 2.2 ms after its capture: their heights started 6 mm off, and every later
         sighting pulled the camera's height towards them (filter toe z 0.20 -> 1.09 cm)."""
-        if not self.config.filter.time_offset.landmark_time_sigma or self.frame_clock is None:
+        if not self.config.filter.time_offset.landmark_time_sigma:
             return None
-        var = self.frame_clock.scatter_var_s2()
-        if not self._frame_on_line:
-            test = self.stamp_test
-            if test is None:
-                return None
-            var *= test.other_probability(False)
+        var = self._frame_time_var_s2()
         if var <= 0.0:
             return None
         v = self._position_at(t_s)[1]
         return np.outer(v, v) * var
+
+    def _frame_time_var_s2(self) -> float:
+        """Variance (s^2) of this frame's time: the frame stamps' mean square distance to
+        their clock line, in full when the frame is on the line, times the frame-stamp test's
+        probability of the line when it is on its stamp; 0 without a frame clock model."""
+        if self.frame_clock is None:
+            return 0.0
+        var = self.frame_clock.scatter_var_s2()
+        if not self._frame_on_line:
+            test = self.stamp_test
+            if test is None:
+                return 0.0
+            var *= test.other_probability(False)
+        return max(var, 0.0)
+
+    def _frame_time_terms(self, t_s: float, profile_xz_m: NDArray[np.float64]) -> None:
+        """(``time_offset.frame_time_rotation_sigma``) What this frame's time uncertainty
+        sigma_t does to what it measures: its attitude, taken at its time, turns the slice by
+        omega e for a time error e (omega the latest gyro rate, rad/s), a point at p from the
+        camera moving by about omega e perp(p). Keeps the rotation variance
+        omega^2 sigma_t^2 (rad^2) for this frame's tilt, level and corner measurements, and
+        the covariance (m^2) a displacement gets from this end: omega^2 sigma_t^2 perp(c)
+        perp(c)^T at the profile's centroid c. The position's own term v v^T sigma_t^2 is
+        left out: on jittered obstacle trials it made the filter worse
+        (``landmark_time_sigma`` adds it to the landmarks)."""
+        self._frame_rot_var_rad2 = 0.0
+        if not self.config.filter.time_offset.frame_time_rotation_sigma:
+            return
+        var = self._frame_time_var_s2()
+        if var <= 0.0 or self._last_imu is None:
+            self._time_terms.append((t_s, np.zeros((2, 2))))
+            return
+        w = np.asarray(self._last_imu.gyro_radps, dtype=float)
+        rot_var = float(w @ w) * var
+        self._frame_rot_var_rad2 = rot_var
+        cov = np.zeros((2, 2))
+        if len(profile_xz_m):
+            cx, cz = np.mean(np.asarray(profile_xz_m, dtype=float), axis=0)
+            perp = np.array([cz, -cx])
+            cov = cov + np.outer(perp, perp) * rot_var
+        self._time_terms.append((t_s, cov))
+
+    def _with_time_terms(self, d: Displacement2D) -> Displacement2D:
+        """The displacement with its two frames' time terms (:meth:`_frame_time_terms`)
+        added to its covariance; unchanged when off or when neither frame has them."""
+        if not self.config.filter.time_offset.frame_time_rotation_sigma:
+            return d
+        add = np.zeros((2, 2))
+        for t, cov in self._time_terms:
+            if t == d.t0_s or t == d.t1_s:
+                add = add + cov
+        if not add.any():
+            return d
+        return dataclasses.replace(d, cov_m2=np.asarray(d.cov_m2, dtype=float) + add)
 
     def _test_frame_stamps(
         self, t_s: float, d: Displacement2D
@@ -1599,7 +1654,10 @@ class OnlineEstimator:
         )
         step = 0.0
         if self.surface_tilt is not None:
-            step = self.pitch_offset.update(*self._tilt_to_fuse(t, self.surface_tilt))
+            tilt_rad, sigma_rad = self._tilt_to_fuse(t, self.surface_tilt)
+            if self._frame_rot_var_rad2 > 0.0:
+                sigma_rad = math.sqrt(sigma_rad * sigma_rad + self._frame_rot_var_rad2)
+            step = self.pitch_offset.update(tilt_rad, sigma_rad)
         if self.config.filter.attitude.vendor_pitch_sigma_deg is not None:
             self._weigh_attitude_pull(t)
         return step
@@ -1657,6 +1715,10 @@ class OnlineEstimator:
                 time_cov = self._landmark_time_cov(t)
                 if time_cov is not None:
                     cov = cov + time_cov
+                if self._frame_rot_var_rad2 > 0.0:
+                    cx, cz = np.asarray(obs.corner_rel_xz_m, dtype=float)
+                    perp = np.array([cz, -cx])
+                    cov = cov + np.outer(perp, perp) * self._frame_rot_var_rad2
                 self._as_family(
                     t, "corner", self.filter.update_landmark, key, obs.corner_rel_xz_m, cov, t
                 )
@@ -1719,15 +1781,13 @@ class OnlineEstimator:
             self._levels.saw(key, t)
         if not self.config.filter.level_shared_tilt:
             new = [not self.filter.has_landmark(key) for key, _ in found]
+            rv = self._frame_rot_var_rad2
+            var = [line.sigma_m**2 + floor**2 + rv * line.x_mid_m**2 for _, line in found]
             fused = [
-                self.filter.update_height_landmark(
-                    key, line.height_m, line.sigma_m**2 + floor**2, t
-                )
-                for key, line in found
+                self.filter.update_height_landmark(key, line.height_m, v, t)
+                for (key, line), v in zip(found, var, strict=True)
             ]
-            self._hand_levels(
-                t, found, new, fused, [line.sigma_m**2 + floor**2 for _, line in found]
-            )
+            self._hand_levels(t, found, new, fused, var)
             return
         if not found:
             return
@@ -1737,7 +1797,7 @@ class OnlineEstimator:
         st = self.surface_tilt
         slope_sigma = st.sigma_rad * (1.0 + math.tan(st.tilt_rad) ** 2)
         tilt_floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
-        tilt_var = slope_sigma**2 + tilt_floor**2
+        tilt_var = slope_sigma**2 + tilt_floor**2 + self._frame_rot_var_rad2
         new = [not self.filter.has_landmark(key) for key, _ in found]
         fused = self.filter.update_height_landmarks(
             [key for key, _ in found],

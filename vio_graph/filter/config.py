@@ -481,6 +481,18 @@ class TimeOffsetConfig(BaseModel):
         "filter x 1.47 -> 1.78 cm; clean rows within 0.01 cm "
         "(docs/robustness.md, 'Clock jitter in the filter')",
     )
+    frame_time_rotation_sigma: bool = Field(
+        default=False,
+        description="a frame's attitude is taken at its time, so a time error e turns its "
+        "slice by omega e (omega the gyro rate at the frame, rad/s), which moves a point at "
+        "(x, z) from the camera by about omega e (z, -x): the displacement's covariance "
+        "grows by the rotation variance omega^2 sigma_t^2 times p p^T for the centroid p of "
+        "both its frames' profiles, a corner's by the same at its position, the level "
+        "surfaces' shared tilt and the pitch aiding's tilt by omega^2 sigma_t^2; sigma_t^2 "
+        "as for landmark_time_sigma (the frame stamps' scatter about the camera clock "
+        "line, 0 for stamps on it). "
+        "estimator._frame_time_terms",
+    )
     camera_clock_rate_prior_ppm: float | None = Field(
         default=None,
         ge=0,

@@ -33,6 +33,7 @@ from vio_graph.frontend.terrain import (
     points_under_levels,
 )
 from vio_graph.frontend.tracker import CornerTracker
+from vio_graph.frontend.veil import veil_drops
 from vio_graph.types import CornerObservation, DepthFrame, Displacement2D, TerrainKind
 
 
@@ -201,6 +202,19 @@ class VisualFrontend:
             pc.min_confidence,
             speckle,
         )
+        if pc.veil_window_px is not None:  # mixed pixels along the rays through depth edges
+            sigma_m = pc.veil_sigma_floor_m
+            if self._noise is not None and np.isfinite(self._noise.sigma_m):
+                sigma_m = max(sigma_m, self._noise.sigma_m)
+            veil = veil_drops(
+                points_xz,
+                sigma_m,
+                pc.veil_window_px / float(K[1, 1]),
+                pc.veil_max_incidence_deg,
+                pc.veil_k_sigma,
+            )
+            if veil.any():
+                points_xz = points_xz[~veil]
         t.append(time.perf_counter())
         # kNN smoothing (after grid thinning)
         sc = cfg.smoothing

@@ -65,10 +65,10 @@ def _descent_profile(seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray,
 
 def test_veil_dropped_nosing_and_treads_kept() -> None:
     pts, mixed, clean, nosing = _descent_profile()
-    drop = veil_drops(pts, SIGMA_M, 1.5 / F_PX, 75.0, 3.0)
+    drop = veil_drops(pts, SIGMA_M, 3.0 / F_PX, 75.0, 3.0, 0.5 / F_PX)
     r = np.hypot(pts[:, 0], pts[:, 1])
     # a veil point far from both surfaces along its ray (beyond the grazing allowance)
-    tol = r * np.tan(np.radians(75.0)) * 1.5 / F_PX + 3 * np.sqrt(2) * SIGMA_M
+    tol = r * np.tan(np.radians(75.0)) * 1.5 / F_PX + 3 * np.sqrt(2) * SIGMA_M  # 1 row away
     in_veil = mixed & (r - 0.78 > tol) & (r.max() > r)
     ray_far = np.hypot(0.6 * 0.67 / 0.5, 0.67)  # the nosing's ray meets the lower tread
     in_veil &= (ray_far - r > tol) & (np.abs(np.arctan2(pts[:, 1], pts[:, 0]) + 0.6947) < 0.02)
@@ -93,7 +93,7 @@ def test_grazing_floor_kept() -> None:
     assert np.all(np.isfinite(r))
     r = r + rng.normal(0.0, 0.003, r.size)
     pts = np.column_stack([r * np.cos(phi), r * np.sin(phi)])
-    assert not veil_drops(pts, 0.003, 1.5 / F_PX, 75.0, 3.0).any()
+    assert not veil_drops(pts, 0.003, 3.0 / F_PX, 75.0, 3.0, 0.5 / F_PX).any()
 
 
 def test_two_returns_are_not_a_veil() -> None:
@@ -119,6 +119,7 @@ def test_per_point_sigma_widens_the_allowance() -> None:
         ({"window_rad": 0.0}, "window_rad"),
         ({"max_incidence_deg": 90.0}, "max_incidence_deg"),
         ({"k_sigma": -1.0}, "k_sigma"),
+        ({"ray_tol_rad": -0.001}, "ray_tol_rad"),
     ],
 )
 def test_bad_input_raises(kwargs: dict, match: str) -> None:
@@ -137,6 +138,12 @@ def test_bad_input_raises(kwargs: dict, match: str) -> None:
 def test_config_validates_the_veil_fields() -> None:
     assert ProjectionConfig().veil_window_px is None  # off by default
     assert ProjectionConfig(veil_window_px=1.5).veil_window_px == 1.5
-    for bad in ({"veil_window_px": 0.0}, {"veil_max_incidence_deg": 90.0}, {"veil_k_sigma": -1}):
+    bad_fields = (
+        {"veil_window_px": 0.0},
+        {"veil_max_incidence_deg": 90.0},
+        {"veil_k_sigma": -1},
+        {"veil_ray_tol_px": -0.5},
+    )
+    for bad in bad_fields:
         with pytest.raises(ValidationError):
             ProjectionConfig(**bad)

@@ -86,6 +86,13 @@ class ProjectionConfig(_Strict):
         "and is dropped; the nearest return (a nosing) and the farthest (the tread behind it) "
         "are kept. null = off",
     )
+    veil_ray_tol_px: float = Field(
+        0.5,
+        ge=0,
+        description="veil test: uncertainty of a point's own ray, pixels (footprint and "
+        "sample-position jitter), added to the angle between two points when the grazing "
+        "allowance is computed",
+    )
     veil_max_incidence_deg: float = Field(
         75.0,
         gt=0,

@@ -212,6 +212,7 @@ class VisualFrontend:
                 pc.veil_window_px / float(K[1, 1]),
                 pc.veil_max_incidence_deg,
                 pc.veil_k_sigma,
+                pc.veil_ray_tol_px / float(K[1, 1]),
             )
             if veil.any():
                 points_xz = points_xz[~veil]

@@ -34,6 +34,7 @@ def veil_drops(
     window_rad: float,
     max_incidence_deg: float,
     k_sigma: float,
+    ray_tol_rad: float = 0.0,
 ) -> NDArray[np.bool_]:
     """(N,) True for the profile points that lie between two other returns on nearly the
     same viewing ray (mixed pixels at a depth edge), False for the rest.
@@ -41,16 +42,18 @@ def veil_drops(
     Args:
         points_xz_m: (N, 2) raw slice points relative to the camera centre, ground axes, m.
         sigma_m: depth noise sd of one point, m: a scalar or (N,) per point.
-        window_rad: half-width of the bundle of rays a point is compared with, rad (the
-            pixel's angular size and its sample-position jitter).
+        window_rad: half-width of the bundle of rays a point is compared with, rad.
         max_incidence_deg: the steepest incidence at which the camera returns a surface,
-            deg; along the bundle a surface's range changes by at most
-            ``r * tan(max_incidence) * window_rad``.
+            deg; between two rays ``dphi`` apart a surface's range changes by at most
+            ``r * tan(max_incidence) * dphi``.
         k_sigma: the noise allowance is ``k_sigma * sqrt(sigma_i^2 + sigma_j^2)``.
+        ray_tol_rad: the uncertainty of a point's own ray, rad (the pixel's footprint and the
+            sensor's sample-position jitter), added to ``dphi``.
 
     Point i is dropped when some j and some l within ``window_rad`` of its elevation angle
-    have ``r_i - r_j > tol`` and ``r_l - r_i > tol``, with ``tol = r_i * tan(max_incidence) *
-    window_rad + k_sigma * sqrt(sigma_i^2 + sigma_{j,l}^2)``.
+    have ``r_i - r_j > tol_ij`` and ``r_l - r_i > tol_il``, with ``tol_ij = r_i *
+    tan(max_incidence) * (|phi_i - phi_j| + ray_tol_rad) + k_sigma * sqrt(sigma_i^2 +
+    sigma_j^2)``.
     """
     pts = np.asarray(points_xz_m, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:
@@ -71,27 +74,32 @@ def veil_drops(
         raise FrontendError(f"max_incidence_deg must be in (0, 90), got {max_incidence_deg}")
     if not (np.isfinite(k_sigma) and k_sigma >= 0):
         raise FrontendError(f"k_sigma must be >= 0, got {k_sigma}")
+    if not (np.isfinite(ray_tol_rad) and ray_tol_rad >= 0):
+        raise FrontendError(f"ray_tol_rad must be >= 0, got {ray_tol_rad}")
     if n < 3:
         return np.zeros(n, dtype=bool)
     r = np.hypot(pts[:, 0], pts[:, 1])
     phi = np.arctan2(pts[:, 1], pts[:, 0])
     order = np.argsort(phi, kind="stable")
     r_s, phi_s, s2 = r[order], phi[order], (sigma**2)[order]
-    graze = r_s * np.tan(np.radians(max_incidence_deg)) * window_rad
+    slope = np.tan(np.radians(max_incidence_deg))
     nearer = np.zeros(n, dtype=bool)
     farther = np.zeros(n, dtype=bool)
     for step in range(1, n):  # compare with the points `step` places away in angle order
-        close = phi_s[step:] - phi_s[:-step] <= window_rad
-        if not close.any():
+        dphi = phi_s[step:] - phi_s[:-step]
+        a = np.nonzero(dphi <= window_rad)[0]
+        if a.size == 0:  # the gaps only grow with the step
             break
-        a, b = np.nonzero(close)[0], np.nonzero(close)[0] + step  # pairs (a, b), a before b
+        b = a + step  # pairs (a, b), a before b in angle
         diff = r_s[b] - r_s[a]
         noise = k_sigma * np.sqrt(s2[a] + s2[b])
-        # b farther than a beyond a's allowance, or nearer beyond it (and likewise for b)
-        farther[a] |= diff > graze[a] + noise
-        nearer[a] |= -diff > graze[a] + noise
-        nearer[b] |= diff > graze[b] + noise
-        farther[b] |= -diff > graze[b] + noise
+        spread = slope * (dphi[a] + ray_tol_rad)  # a surface's range change per metre of range
+        tol_a = r_s[a] * spread + noise
+        tol_b = r_s[b] * spread + noise
+        farther[a] |= diff > tol_a
+        nearer[a] |= -diff > tol_a
+        nearer[b] |= diff > tol_b
+        farther[b] |= -diff > tol_b
     drop = np.zeros(n, dtype=bool)
     drop[order] = nearer & farther
     return drop

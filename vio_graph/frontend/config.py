@@ -86,6 +86,12 @@ class ProjectionConfig(_Strict):
         "and is dropped; the nearest return (a nosing) and the farthest (the tread behind it) "
         "are kept. null = off",
     )
+    veil_corners: bool = Field(
+        True,
+        description="veil test: the corner extraction still sees the dropped points (they lie "
+        "on the ray through the nosing and place the face below it); the levels, the noise "
+        "measurement and ICP do not",
+    )
     veil_ray_tol_px: float = Field(
         0.5,
         ge=0,
@@ -102,6 +108,12 @@ class ProjectionConfig(_Strict):
     )
     veil_k_sigma: float = Field(
         3.0, ge=0, description="veil test: noise allowance in depth-noise sigmas (of two points)"
+    )
+    veil_scale_ray_tol: bool = Field(
+        True,
+        description="veil test: when the measured depth noise exceeds veil_sigma_floor_m, "
+        "widen veil_ray_tol_px by the same ratio (a noisier sensor jitters its sample "
+        "positions more as well)",
     )
     veil_sigma_floor_m: float = Field(
         0.003,

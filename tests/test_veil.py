@@ -65,7 +65,7 @@ def _descent_profile(seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray,
 
 def test_veil_dropped_nosing_and_treads_kept() -> None:
     pts, mixed, clean, nosing = _descent_profile()
-    drop = veil_drops(pts, SIGMA_M, 3.0 / F_PX, 75.0, 3.0, 0.5 / F_PX)
+    drop = veil_drops(pts, SIGMA_M, 2.0 / F_PX, 75.0, 3.0, 1.0 / F_PX)
     r = np.hypot(pts[:, 0], pts[:, 1])
     # a veil point far from both surfaces along its ray (beyond the grazing allowance)
     tol = r * np.tan(np.radians(75.0)) * 1.5 / F_PX + 3 * np.sqrt(2) * SIGMA_M  # 1 row away
@@ -93,7 +93,7 @@ def test_grazing_floor_kept() -> None:
     assert np.all(np.isfinite(r))
     r = r + rng.normal(0.0, 0.003, r.size)
     pts = np.column_stack([r * np.cos(phi), r * np.sin(phi)])
-    assert not veil_drops(pts, 0.003, 3.0 / F_PX, 75.0, 3.0, 0.5 / F_PX).any()
+    assert not veil_drops(pts, 0.003, 2.0 / F_PX, 75.0, 3.0, 1.0 / F_PX).any()
 
 
 def test_two_returns_are_not_a_veil() -> None:
@@ -147,3 +147,62 @@ def test_config_validates_the_veil_fields() -> None:
     for bad in bad_fields:
         with pytest.raises(ValidationError):
             ProjectionConfig(**bad)
+
+
+def _stair_down_frame(seed: int = 11) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A depth image looking down a staircase from its top landing (2 mm noise) with 60 % of
+    the pixels at a > 4 cm jump mixed uniformly between their 3x3 extremes."""
+    from vio_graph.frontend.synthetic import (
+        camera_rotation,
+        pico_flexx_K,
+        render_depth,
+        stair_polyline,
+    )
+
+    K = pico_flexx_K()
+    R = camera_rotation(0.7)
+    stairs = stair_polyline("stair_down", n_steps=4, start_x_m=0.6)
+    cam = np.array([0.0, 4 * 0.147 + 0.45])
+    depth, conf = render_depth(stairs, cam, R, K, noise_m=0.002, rng=np.random.default_rng(1))
+    rng = np.random.default_rng(seed)
+    far = np.where(depth > 0, depth, 10.0)
+    pad = np.pad(far, 1, mode="edge")
+    h, w = depth.shape
+    win = [pad[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+    zmax, zmin = np.max(win, axis=0), np.min(win, axis=0)
+    mixed = (depth > 0) & (zmax < 10.0) & (zmax - zmin > 0.04) & (rng.random(depth.shape) < 0.6)
+    wgt = rng.random(depth.shape)
+    depth = np.where(mixed, wgt * zmin + (1 - wgt) * zmax, depth).astype(np.float32)
+    return depth, conf, K, R
+
+
+def test_veil_in_a_rendered_slice_and_the_front_end() -> None:
+    """A rendered stair seen from its top landing: the veil test drops most raw slice points
+    between two treads (the risers face away: any point off the tread heights, the landing at
+    z = -0.45 m and each 0.147 m below, lies in a veil), keeps the points at the first nosing
+    (x = 0.6 m), the landing, the first tread and the floor; the front end with it on still
+    finds the nosing's corner. A known limit: the treads of steps 2 and 3, seen as strips of
+    two or three pixel rows between a nosing and the tread beyond the next one, lie between
+    two returns of the bundle and lose points too."""
+    from vio_graph.frontend.config import FrontendConfig
+    from vio_graph.frontend.frontend import VisualFrontend
+    from vio_graph.frontend.projection import sagittal_slice_from_depth
+    from vio_graph.types import DepthFrame
+
+    depth, conf, K, R = _stair_down_frame()
+    raw = sagittal_slice_from_depth(depth, conf, K, R)
+    drop = veil_drops(raw, 0.003, 2.0 / K[1, 1], 75.0, 3.0, 1.0 / K[1, 1])
+    off_tread = np.min(np.abs(raw[:, 1:] + 0.45 + 0.147 * np.arange(5)), axis=1)
+    veil = off_tread > 0.015
+    assert veil.sum() >= 30
+    assert drop[veil].mean() > 0.6
+    at_nosing = np.hypot(raw[:, 0] - 0.6, raw[:, 1] + 0.45) < 0.01
+    assert at_nosing.sum() >= 5 and not drop[at_nosing].any()
+    x = raw[:, 0]
+    assert not drop[~veil & ((x < 0.9) | (x > 1.45))].any()
+    assert drop[~veil].mean() < 0.02
+    for proj in ({}, {"veil_window_px": 2.0, "veil_ray_tol_px": 1.0}):
+        fe = VisualFrontend(FrontendConfig(projection=ProjectionConfig(**proj)))
+        corner = fe.process(DepthFrame(0, 0.0, depth, conf), K, R).corner
+        assert corner is not None
+        np.testing.assert_allclose(corner.edge_xz_m, [0.6, -0.45], atol=0.03)

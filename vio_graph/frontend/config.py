@@ -93,7 +93,7 @@ class ProjectionConfig(_Strict):
         "measurement and ICP do not",
     )
     veil_ray_tol_px: float = Field(
-        0.5,
+        1.0,
         ge=0,
         description="veil test: uncertainty of a point's own ray, pixels (footprint and "
         "sample-position jitter), added to the angle between two points when the grazing "
@@ -108,12 +108,6 @@ class ProjectionConfig(_Strict):
     )
     veil_k_sigma: float = Field(
         3.0, ge=0, description="veil test: noise allowance in depth-noise sigmas (of two points)"
-    )
-    veil_scale_ray_tol: bool = Field(
-        True,
-        description="veil test: when the measured depth noise exceeds veil_sigma_floor_m, "
-        "widen veil_ray_tol_px by the same ratio (a noisier sensor jitters its sample "
-        "positions more as well)",
     )
     veil_sigma_floor_m: float = Field(
         0.003,

@@ -207,15 +207,13 @@ class VisualFrontend:
             sigma_m = pc.veil_sigma_floor_m
             if self._noise is not None and np.isfinite(self._noise.sigma_m):
                 sigma_m = max(sigma_m, self._noise.sigma_m)
-            # a noisier camera than the floor assumes: its rays are that much less certain too
-            noisier = sigma_m / pc.veil_sigma_floor_m if pc.veil_scale_ray_tol else 1.0
             veil = veil_drops(
                 points_xz,
                 sigma_m,
                 pc.veil_window_px / float(K[1, 1]),
                 pc.veil_max_incidence_deg,
                 pc.veil_k_sigma,
-                noisier * pc.veil_ray_tol_px / float(K[1, 1]),
+                pc.veil_ray_tol_px / float(K[1, 1]),
             )
             if veil.any():
                 veil_xz = points_xz[veil]

@@ -18,6 +18,12 @@ nearly the same ray, of which at most the nearer can be the surface that ray mee
 nearest return of a bundle (a nosing) and the farthest (the lower tread behind the edge) are
 kept; so is a surface seen at a grazing angle, whose spread along the bundle is within the
 allowance.
+
+The bundle should be no wider than a ray's own uncertainty (its footprint and the sensor's
+sample-position jitter): the allowance assumes one surface between the two rays, and a wider
+bundle reaches across an edge to another surface. Then a far tread seen as a strip of two or
+three pixel rows, between the nosing above it and the tread beyond the next nosing, lies
+between two returns of the bundle and loses points as well (tests/test_veil.py).
 """
 
 from __future__ import annotations

@@ -76,6 +76,45 @@ class ProjectionConfig(_Strict):
         "upper tread and the lower one) for a mixed pixel: downstair s1000-1002 map nosing "
         "error 3.0-3.8 -> 7.8-9.1 mm, batch toe x 0.35-0.40 -> 0.76-1.13 cm",
     )
+    veil_window_px: float | None = Field(
+        None,
+        gt=0,
+        description="veil test (frontend.veil.veil_drops) on the raw slice points: a point "
+        "that lies between a nearer and a farther return within this many pixels' angle "
+        "(vertical focal length) of its own viewing ray, by more than a surface seen at "
+        "veil_max_incidence_deg and the depth noise allow, is a mixed pixel at a depth edge "
+        "and is dropped; the nearest return (a nosing) and the farthest (the tread behind it) "
+        "are kept. null = off",
+    )
+    veil_corners: bool = Field(
+        True,
+        description="veil test: the corner extraction still sees the dropped points (they lie "
+        "on the ray through the nosing and place the face below it); the levels, the noise "
+        "measurement and ICP do not",
+    )
+    veil_ray_tol_px: float = Field(
+        1.0,
+        ge=0,
+        description="veil test: uncertainty of a point's own ray, pixels (footprint and "
+        "sample-position jitter), added to the angle between two points when the grazing "
+        "allowance is computed",
+    )
+    veil_max_incidence_deg: float = Field(
+        75.0,
+        gt=0,
+        lt=90,
+        description="veil test: the steepest incidence at which the camera returns a surface, "
+        "deg (the simulated pico flexx2 drops pixels beyond 75)",
+    )
+    veil_k_sigma: float = Field(
+        3.0, ge=0, description="veil test: noise allowance in depth-noise sigmas (of two points)"
+    )
+    veil_sigma_floor_m: float = Field(
+        0.003,
+        gt=0,
+        description="veil test: depth noise sd of one point, m: the larger of this and the "
+        "noise the front end measures on level surfaces",
+    )
 
 
 class CameraFixedConfig(_Strict):

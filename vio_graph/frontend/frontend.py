@@ -33,6 +33,7 @@ from vio_graph.frontend.terrain import (
     points_under_levels,
 )
 from vio_graph.frontend.tracker import CornerTracker
+from vio_graph.frontend.veil import veil_drops
 from vio_graph.types import CornerObservation, DepthFrame, Displacement2D, TerrainKind
 
 
@@ -201,6 +202,22 @@ class VisualFrontend:
             pc.min_confidence,
             speckle,
         )
+        veil_xz = None
+        if pc.veil_window_px is not None:  # mixed pixels along the rays through depth edges
+            sigma_m = pc.veil_sigma_floor_m
+            if self._noise is not None and np.isfinite(self._noise.sigma_m):
+                sigma_m = max(sigma_m, self._noise.sigma_m)
+            veil = veil_drops(
+                points_xz,
+                sigma_m,
+                pc.veil_window_px / float(K[1, 1]),
+                pc.veil_max_incidence_deg,
+                pc.veil_k_sigma,
+                pc.veil_ray_tol_px / float(K[1, 1]),
+            )
+            if veil.any():
+                veil_xz = points_xz[veil]
+                points_xz = points_xz[~veil]
         t.append(time.perf_counter())
         # kNN smoothing (after grid thinning)
         sc = cfg.smoothing
@@ -239,7 +256,13 @@ class VisualFrontend:
         # Fig. 2: RANSAC lines, feature points at the higher line's edge (stairs / obstacles)
         corner = None
         if frame_terrain in self._corner_terrains:
-            corner = extract_corner(profile, self._rng, cfg.corners, frame_terrain)
+            # the veil lies on the ray through the edge: it places the face below a nosing
+            # seen from above (the corner's points below the tread end), though it is no
+            # static surface for the levels and ICP
+            seen = profile
+            if veil_xz is not None and pc.veil_corners:
+                seen = np.vstack([profile, veil_xz])
+            corner = extract_corner(seen, self._rng, cfg.corners, frame_terrain)
         t.append(time.perf_counter())
         # eq. 3-4: ICP against the previous frame, seeded and gated by the IMU prediction
         tracked = self._tracker.update(

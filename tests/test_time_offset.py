@@ -155,6 +155,56 @@ def test_landmarks_on_jittered_frames_carry_the_frame_times_scatter_times_the_ve
     assert time_cov(True, true)[0] is None  # stamps on their line: no doubt about the time
 
 
+def test_jittered_frames_carry_the_slice_rotation_their_time_uncertainty_makes() -> None:
+    """time_offset.frame_time_rotation_sigma: a frame whose time is uncertain by sigma_t
+    while the shank turns at omega has its slice turned by omega e; known answer with the
+    gyro at 6 rad/s and a floor profile 0.5 m below the camera from 0.5 to 1.5 m ahead
+    (centroid (1.0, -0.5)): rotation variance 36 sigma_t^2, a displacement between two such
+    frames gains 2 x 36 sigma_t^2 perp perp^T with perp = (-0.5, -1.0); nothing when off
+    or when the stamps sit on their line."""
+    from vio_graph.estimator import OnlineEstimator
+    from vio_graph.types import DepthFrame, Displacement2D, ImuSample
+
+    base, rig, _, true, jittered, depth, conf = _jittered_frames(150, 5)
+    assert base.filter.time_offset.frame_time_rotation_sigma is False
+    xs = np.linspace(0.5, 1.5, 21)
+    profile = np.column_stack([xs, np.full_like(xs, -0.5)])
+    gyro = np.array([0.0, 6.0, 0.0])
+
+    def run(flag: bool, stamps: NDArray[np.float64]):
+        to = base.filter.time_offset.model_copy(
+            update={"camera_clock_model": True, "frame_time_rotation_sigma": flag}
+        )
+        cfg = base.model_copy(update={"filter": base.filter.model_copy(update={"time_offset": to})})
+        est = OnlineEstimator(cfg, rig)
+        times = []
+        for i, s in enumerate(stamps):
+            times.append(est._restamp(DepthFrame(i, s, depth, conf)).timestamp_s)
+        est.filter.initialise(times[-1], np.zeros(2), np.zeros(2))
+        est._last_imu = ImuSample(
+            times[-1], np.array([0.0, 0.0, 9.81]), gyro, np.array([1.0, 0.0, 0.0, 0.0])
+        )
+        for t in times[-2:]:
+            est._frame_time_terms(t, profile)
+        d = Displacement2D(times[-2], times[-1], np.zeros(2), np.eye(2) * 1e-6)
+        return est, est._with_time_terms(d)
+
+    est, d = run(True, jittered)
+    assert est.frame_clock is not None
+    var = est.frame_clock.scatter_var_s2()
+    assert np.sqrt(var) == pytest.approx(0.002, rel=0.2)
+    assert est._frame_rot_var_rad2 == pytest.approx(36.0 * var, rel=1e-12)
+    perp = np.array([-0.5, -1.0])
+    expected = np.eye(2) * 1e-6 + 2 * 36.0 * var * np.outer(perp, perp)
+    np.testing.assert_allclose(d.cov_m2, expected, rtol=1e-12)
+    est_off, d_off = run(False, jittered)
+    assert est_off._frame_rot_var_rad2 == 0.0
+    np.testing.assert_array_equal(d_off.cov_m2, np.eye(2) * 1e-6)
+    est_clean, d_clean = run(True, true)  # stamps on their line: no doubt about the time
+    assert est_clean._frame_rot_var_rad2 == 0.0
+    np.testing.assert_array_equal(d_clean.cov_m2, np.eye(2) * 1e-6)
+
+
 def test_centred_clock_line_halves_the_online_lines_error_and_keeps_clean_stamps() -> None:
     """2 ms of stamp jitter on a 100 Hz clock with 50 ppm drift and a 0.3 s gap: the offline
     line (both sides of each sample) is within 0.2 ms RMS of the true times everywhere,

@@ -1510,7 +1510,9 @@ class OnlineEstimator:
         the covariance (m^2) a displacement gets from this end: omega^2 sigma_t^2 perp(c)
         perp(c)^T at the profile's centroid c. The position's own term v v^T sigma_t^2 is
         left out: on jittered obstacle trials it made the filter worse
-        (``landmark_time_sigma`` adds it to the landmarks)."""
+        (``landmark_time_sigma`` adds it to the landmarks). sigma_t^2 as there
+        (:meth:`_frame_time_var_s2`): the stamps' scatter about their clock line, weighted by
+        the frame-stamp test's probability of the line on frames kept at their stamps."""
         self._frame_rot_var_rad2 = 0.0
         if not self.config.filter.time_offset.frame_time_rotation_sigma:
             return

@@ -287,3 +287,57 @@ def test_a_repaired_imu_packet_does_not_end_a_quiet_window(reference: bool) -> N
     as_measured, untrusted = run(True), run(False)
     assert all(untrusted[15:])  # quiet from a full window on, the repaired packet included
     assert not all(as_measured[30:42])  # the same packet as a measurement breaks the window
+
+
+def _keyframes_per_stance(rec, stance_keyframes: int, monkeypatch) -> list[tuple[int, int]]:
+    """(anchored frames, keyframes among them) for each run of anchored frames of a replay
+    with ``keyframes.stance_keyframes`` = ``stance_keyframes``."""
+    from vio_graph.estimator import OnlineEstimator
+    from vio_graph.replay import Replay
+    from vio_graph.viz.rerun_logger import NullVisualizer
+
+    frames: list[tuple[bool, bool]] = []
+    process = OnlineEstimator.process_frame
+
+    def keep(self, *args, **kwargs):
+        record = process(self, *args, **kwargs)
+        frames.append((record.stance is not None, record.is_keyframe))
+        return record
+
+    base = PipelineConfig()
+    kf = base.keyframes.model_copy(update={"stance_keyframes": stance_keyframes})
+    with monkeypatch.context() as patch:
+        patch.setattr(OnlineEstimator, "process_frame", keep)
+        Replay(rec, base.model_copy(update={"keyframes": kf}), {"filter"}, NullVisualizer()).run()
+    runs: list[tuple[int, int]] = []
+    n = n_kf = 0
+    for anchored, is_kf in [*frames, (False, False)]:
+        if anchored:
+            n, n_kf = n + 1, n_kf + int(is_kf)
+        elif n:
+            runs.append((n, n_kf))
+            n = n_kf = 0
+    return runs
+
+
+@pytest.mark.slow
+def test_stance_keyframes_put_every_short_stance_into_the_graphs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """IMU at 50 Hz, step over step (sweep seed 1001): the trial's last stance (9.79-9.88 s,
+    4 frames, on the top landing) falls between the keyframes at 9.65 s (interval) and 9.92 s
+    (after it), so the graphs never saw it and their x ran away (toe x 4 cm). With
+    keyframes.stance_keyframes = 2 each stance's first two anchored frames are keyframes; the
+    filter's stances are the same."""
+    from vio_graph.recording.reader import Recording
+    from vio_graph.sim import simulate
+    from vio_graph.sweep import condition_by_name, condition_scenario
+
+    scen = condition_scenario(condition_by_name("imu_50hz"))
+    rec = Recording.open(simulate(scen, 1001, tmp_path / "rec"))
+    before = _keyframes_per_stance(rec, 0, monkeypatch)
+    after = _keyframes_per_stance(rec, 2, monkeypatch)
+    assert [n for n, _ in before] == [n for n, _ in after]  # the filter is unchanged
+    assert before[-1][1] == 0, before  # the last stance: no keyframe
+    assert any(k < min(n, 2) for n, k in before), before
+    assert all(k >= min(n, 2) for n, k in after), after

@@ -1188,7 +1188,8 @@ class OnlineEstimator:
         self._note_stand_surface(pts)
         timings["kinematics"] = (time.perf_counter() - t0) * 1e3
         # 6. keyframes
-        is_kf = self.keyframes.is_keyframe(t, camera_xz)
+        anchored = None if self._stance_observation is None else self._stance_episode
+        is_kf = self.keyframes.is_keyframe(t, camera_xz, anchored)
         self._prev_frame = (t, camera_xz)
         bridge_velocity = None
         disc_cov, wait = None, False

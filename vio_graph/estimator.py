@@ -327,6 +327,15 @@ class RigGeometry:
         )
 
 
+def _turn_cov_m2(p_xz_m: ArrayLike, var_rad2: float) -> NDArray[np.float64]:
+    """Covariance (m^2, 2x2) of where a point at ``p_xz_m`` from the camera lands when the
+    slice is turned by a small angle of variance ``var_rad2`` (rad^2) about the camera: it
+    moves along perp(p) = (z, -x) by the angle times |p|."""
+    x, z = np.asarray(p_xz_m, dtype=float)
+    perp = np.array([z, -x])
+    return np.outer(perp, perp) * var_rad2
+
+
 class OnlineEstimator:
     """SP-ESKF front end + fusion + kinematics + keyframes, frame by frame."""
 
@@ -1519,17 +1528,13 @@ class OnlineEstimator:
             return
         var = self._frame_time_var_s2()
         if var <= 0.0 or self._last_imu is None:
-            self._time_terms.append((t_s, np.zeros((2, 2))))
-            return
+            return  # no term: a displacement from or to this frame gains nothing
         w = np.asarray(self._last_imu.gyro_radps, dtype=float)
         rot_var = float(w @ w) * var
         self._frame_rot_var_rad2 = rot_var
-        cov = np.zeros((2, 2))
         if len(profile_xz_m):
-            cx, cz = np.mean(np.asarray(profile_xz_m, dtype=float), axis=0)
-            perp = np.array([cz, -cx])
-            cov = cov + np.outer(perp, perp) * rot_var
-        self._time_terms.append((t_s, cov))
+            centroid = np.mean(np.asarray(profile_xz_m, dtype=float), axis=0)
+            self._time_terms.append((t_s, _turn_cov_m2(centroid, rot_var)))
 
     def _with_time_terms(self, d: Displacement2D) -> Displacement2D:
         """The displacement with its two frames' time terms (:meth:`_frame_time_terms`)
@@ -1719,9 +1724,7 @@ class OnlineEstimator:
                 if time_cov is not None:
                     cov = cov + time_cov
                 if self._frame_rot_var_rad2 > 0.0:
-                    cx, cz = np.asarray(obs.corner_rel_xz_m, dtype=float)
-                    perp = np.array([cz, -cx])
-                    cov = cov + np.outer(perp, perp) * self._frame_rot_var_rad2
+                    cov = cov + _turn_cov_m2(obs.corner_rel_xz_m, self._frame_rot_var_rad2)
                 self._as_family(
                     t, "corner", self.filter.update_landmark, key, obs.corner_rel_xz_m, cov, t
                 )

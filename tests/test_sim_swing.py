@@ -1,4 +1,5 @@
-"""gait.swing_model: the default via-point swing is unchanged; the opt-in joint-space swing keeps
+"""gait.swing_model: the via-point swing (the default before 2026-12-05) is unchanged; the
+joint-space swing (the default) keeps
 the stance foot fixed, never cuts the terrain, clears nosings as configured and moves the
 camera point within the bounds of published shank kinematics."""
 
@@ -36,12 +37,12 @@ def _close(got, want) -> None:
     np.testing.assert_allclose(np.asarray(got, dtype=float), want, rtol=0.0, atol=1e-9)
 
 
-def test_default_is_the_via_point_swing_unchanged() -> None:
-    """Known answers: samples of the default motion (seed 3, 4 s) as the via-point swing
+def test_via_point_swing_unchanged() -> None:
+    """Known answers: samples of the via-point motion (seed 3, 4 s) as the via-point swing
     produced them before the option existed (bit for bit on the machine that recorded them;
     1e-9 here, so that another CPU's LAPACK rounding does not fail it)."""
     idx = [500, 1500, 2500, 3500]
-    _, _, up = _motion("upstair")
+    _, _, up = _motion("upstair", swing_model="via_points")
     _close(
         up.knee_rad[idx],
         [
@@ -64,7 +65,7 @@ def test_default_is_the_via_point_swing_unchanged() -> None:
             0.5872362244165452,
         ],
     )
-    _, _, lv = _motion("level")
+    _, _, lv = _motion("level", swing_model="via_points")
     _close(
         lv.knee_rad[idx],
         [
@@ -74,9 +75,10 @@ def test_default_is_the_via_point_swing_unchanged() -> None:
             0.6321801151370686,
         ],
     )
-    _, _, explicit = _motion("upstair", swing_model="via_points")
-    np.testing.assert_array_equal(explicit.ankle_xz_m, up.ankle_xz_m)
-    assert GaitConfig().swing_model == "via_points"
+    _, _, default = _motion("upstair")
+    _, _, explicit = _motion("upstair", swing_model="joint_space")
+    np.testing.assert_array_equal(explicit.ankle_xz_m, default.ankle_xz_m)
+    assert GaitConfig().swing_model == "joint_space"
 
 
 @pytest.mark.parametrize("name", ["upstair", "level", "downstair", "upstair_near_trip"])
@@ -151,7 +153,7 @@ def test_joint_space_camera_motion_within_published_bounds(joint_space, name) ->
     assert speed < 3.3
     assert force_p99 < 5.0
     assert knee_rate < 660.0
-    cfg_vp, _, m_vp = _motion(name)
+    cfg_vp, _, m_vp = _motion(name, swing_model="via_points")
     speed_vp, force_vp, _ = _camera_figures(cfg_vp, m_vp)
     assert force_p99 < force_vp and speed < speed_vp
 

@@ -330,26 +330,26 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
         overrides={"rig": {"body_height_m": 1.55}, "gait": {"level_stride_length_m": 1.10}},
     ),
     SweepCondition(
-        "swing_joint_space",
+        "swing_via_points",
         "swing",
-        "the reference ascent with the gentler swing driven by hip and knee angles "
-        "(gait.swing_model: joint_space; camera 2-3 m/s, IMU 2-5 g where the default swing "
-        "reaches 4-5 m/s and ~10 g)",
-        overrides={"gait": {"swing_model": "joint_space"}},
+        "the reference ascent with the more violent via-point swing, the simulator's default "
+        "before 2026-12-05 (gait.swing_model: via_points; camera 4-5 m/s, specific force p99 "
+        "~10 g where the default joint-space swing gives 2-3 m/s and 2-5 g)",
+        overrides={"gait": {"swing_model": "via_points"}},
     ),
     SweepCondition(
-        "swing_joint_space_descent",
+        "swing_via_points_descent",
         "swing",
-        "the downstair trial with the joint-space swing",
+        "the downstair trial with the via-point swing",
         scenario="downstair",
-        overrides={"gait": {"swing_model": "joint_space"}},
+        overrides={"gait": {"swing_model": "via_points"}},
     ),
     SweepCondition(
-        "swing_joint_space_obstacle",
+        "swing_via_points_obstacle",
         "swing",
-        "the obstacle trial (level floor, 14 x 13 cm obstacle) with the joint-space swing",
+        "the obstacle trial (level floor, 14 x 13 cm obstacle) with the via-point swing",
         scenario="obstacle",
-        overrides={"gait": {"swing_model": "joint_space"}},
+        overrides={"gait": {"swing_model": "via_points"}},
     ),
     SweepCondition(
         "prosthesis_low_camera",

@@ -208,14 +208,16 @@ class GaitConfig(_Section):
         description="hip x minus stance-ankle x at mid-stance, m",
     )
     swing_model: Literal["via_points", "joint_space"] = Field(
-        "via_points",
-        description="swing of the instrumented leg. via_points: the toe follows a spline "
-        "through clearance via-points and the knee follows by inverse kinematics (fast ankle "
-        "translation in early swing: camera 3.5-4.5 m/s, specific force p99 6-10 g). "
-        "joint_space: thigh and knee angles are C2 quintics from the toe-off state to the "
-        "landing state through a peak knee flexion (swing_peak_knee_deg at "
-        "swing_peak_knee_fraction of the swing), ankle by forward kinematics, raised by a C2 "
-        "bump where the sole would miss the configured clearance",
+        "joint_space",
+        description="swing of the instrumented leg. joint_space (default): thigh and knee "
+        "angles are C2 quintics from the toe-off state to the landing state through a peak "
+        "knee flexion (swing_peak_knee_deg at swing_peak_knee_fraction of the swing), ankle by "
+        "forward kinematics, raised by a C2 bump where the sole would miss the configured "
+        "clearance (camera 2-3 m/s, specific force 2-5 g, as a shank on real stairs). "
+        "via_points (the default before 2026-12-05, kept as a stress condition): the toe "
+        "follows a spline through clearance via-points and the knee follows by inverse "
+        "kinematics (fast ankle translation in early swing: camera 3.5-4.5 m/s, specific "
+        "force p99 6-10 g, more violent than a real shank)",
     )
     swing_peak_knee_deg: dict[str, float] = Field(
         default_factory=lambda: {"level": 62.0, "ascent": 93.0, "descent": 89.0, "obstacle": 95.0},

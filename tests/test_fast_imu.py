@@ -372,7 +372,7 @@ def test_the_one_call_sample_path_equals_the_separate_kernels_on_faulty_imu(
     def sample(i: int) -> ImuSample:
         s = rec.imu.sample(i)
         acc = np.clip(s.accel_mps2, -14.0, 14.0)  # clipped at the declared range
-        if i in (120, 121, 250):  # corrupt packets
+        if i in (120, 121, 200):  # corrupt packets (200: its neighbours unclipped)
             return dataclasses.replace(s, gyro_radps=s.gyro_radps + 3.0, accel_mps2=-acc)
         return dataclasses.replace(s, accel_mps2=acc)
 
@@ -432,7 +432,7 @@ def test_the_one_call_input_equals_the_separate_calls_on_faulty_imu_and_clock(
         if i in (300, 301):  # stamps at or before the previous one (dropped)
             t = rec.imu.timestamp_s[299] + jitter[299] - 1e-3 * (i - 299)
         acc = np.clip(s.accel_mps2, -14.0, 14.0)  # clipped at the declared range
-        if i in (120, 121, 250):  # corrupt packets
+        if i in (120, 121, 200):  # corrupt packets (200: its neighbours unclipped)
             return dataclasses.replace(
                 s, timestamp_s=t, gyro_radps=s.gyro_radps + 3.0, accel_mps2=-acc
             )

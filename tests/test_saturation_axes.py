@@ -205,18 +205,22 @@ def _batch_camera_x_rms_cm(rec_dir, axis_distrust: bool) -> float:
 
 @pytest.mark.slow
 def test_saturated_obstacle_walk_the_batch_keeps_x(tmp_path) -> None:
-    """Known answer on a simulated trial: the obstacle walk (5 s, seed 3) with the
+    """Known answer on a simulated trial: the obstacle walk (5 s, seed 3, via-point swing) with the
     accelerometer clipped at 4 g. Its swing over the level floor after the obstacle starts
     with a 5-sample stretch clipped on the IMU's z axis (toe-off) and ends with a 3-sample x
     stretch (heel strike), and vision sees no x in between. Variance on every axis: the
-    batch put the swing's x velocity 0.08 m/s low and its camera x is 2.5 cm RMS off; on
-    the clipped axes only, vision's z of the swing fixes the toe-off's x share (0.3 cm; the
+    batch put the swing's x velocity 0.08 m/s low and its camera x is 2.5 cm RMS off; on the
+    clipped axes only, vision's z of the swing fixes the toe-off's x share (0.3 cm; the
     clean walk: 0.2-0.3 cm)."""
     from vio_graph.sim import load_scenario, simulate
 
     cfg = load_scenario("obstacle")
     cfg = cfg.model_copy(
-        update={"faults": cfg.faults.model_copy(update={"imu_accel_saturation_mps2": 39.2})}
+        update={
+            "faults": cfg.faults.model_copy(update={"imu_accel_saturation_mps2": 39.2}),
+            # the via-point swing: its bursts reach the 4 g range (the joint-space one does not)
+            "gait": cfg.gait.model_copy(update={"swing_model": "via_points"}),
+        }
     )
     rec = simulate(cfg, 3, tmp_path / "sat")
     on = _batch_camera_x_rms_cm(rec, True)
@@ -243,23 +247,25 @@ def _filter_toe_x_cm(rec_dir, out_dir, **imu_faults) -> float:
 
 @pytest.mark.slow
 def test_saturated_descent_the_filter_keeps_the_toe(tmp_path) -> None:
-    """Known answer on a simulated trial: the first 3 s of the stair descent (seed 1) with
-    the accelerometer clipped at 4 g. Its first swing clips the IMU's x axis for 6 samples
-    (0.93-0.99 s; the true velocity change is 2.8 m/s) and 3 more stretches follow. With the
-    filter's saturation variance on the clipped axis only (``saturation_axis_distrust``,
-    rotated to the ground by the sample's pitch) vision measures the other axis and the toe x
-    error stays near the clean walk's (1.1 cm against 0.7); with it on both ground axes and
-    the leg-chain bridge fused as a velocity (``saturation_bridge_relative: false``, the
-    default before) the filter ends 10.5 cm off. With the bridge fused as the velocity change
-    it measures (the default), the filter keeps the toe with the variance on both axes too
-    (0.6 cm): the first swing's velocity error is no longer counted twice. (On the 10 s paper
-    trials the axis option is off: it costs prosthesis_upstair and the smoothers,
-    docs/robustness.md.)"""
+    """Known answer on a simulated trial: the first 3 s of the stair descent (seed 1, via-point
+    swing) with the accelerometer clipped at 4 g. Its first swing clips the IMU's x axis for
+    6 samples (0.93-0.99 s; the true velocity change is 2.8 m/s) and 3 more stretches
+    follow. With the filter's saturation variance on the clipped axis only
+    (``saturation_axis_distrust``, rotated to the ground by the sample's pitch) vision
+    measures the other axis and the toe x error stays near the clean walk's (1.1 cm against
+    0.7); with it on both ground axes and the leg-chain bridge fused as a velocity
+    (``saturation_bridge_relative: false``, the default before) the filter ends 10.5 cm off.
+    With the bridge fused as the velocity change it measures (the default), the filter keeps
+    the toe with the variance on both axes too (0.6 cm): the first swing's velocity error is
+    no longer counted twice. (On the 10 s paper trials the axis option is off: it costs
+    prosthesis_upstair and the smoothers, docs/robustness.md.)"""
     from vio_graph.sim import load_scenario, simulate
 
     cfg = load_scenario("downstair")
     faults = cfg.faults.model_copy(update={"imu_accel_saturation_mps2": 39.2})
-    rec = simulate(cfg.model_copy(update={"duration_s": 3.0, "faults": faults}), 1, tmp_path / "r")
+    via = cfg.gait.model_copy(update={"swing_model": "via_points"})  # clips at 4 g
+    cfg = cfg.model_copy(update={"duration_s": 3.0, "faults": faults, "gait": via})
+    rec = simulate(cfg, 1, tmp_path / "r")
     absolute = {"saturation_bridge_relative": False}
     on = _filter_toe_x_cm(rec, tmp_path / "on", saturation_axis_distrust=True, **absolute)
     off = _filter_toe_x_cm(rec, tmp_path / "off", saturation_axis_distrust=False, **absolute)

@@ -117,11 +117,14 @@ def test_stance_contact_points_rest_on_terrain(motions) -> None:
 
 def _steady_mask(m, name: str):
     """Samples of steady strides: tread to tread (two risers) on stairs, all on level ground.
-    The published curves are steady mid-flight strides; the floor/stair transitions are not."""
+    The published curves are steady mid-flight strides; the floor/stair transitions are not,
+    nor is a stride whose landing lies past the end of the simulated motion (its swing is
+    planned to a landing the motion never reaches)."""
     mask = np.zeros(m.t_s.size, dtype=bool)
     for s in m.strides:
         dz = s.next_toe_xz_m[1] - s.toe_xz_m[1]
         steady = s.arrive_kind == s.swing_kind and (name == "level" or abs(dz) > 0.2)
+        steady = steady and s.t_next_s <= m.t_s[-1]
         if steady:
             mask |= (m.t_s >= s.t_contact_s) & (m.t_s < s.t_next_s)
     return mask

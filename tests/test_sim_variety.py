@@ -68,8 +68,13 @@ def test_cadence_scale_stretches_every_phase() -> None:
             2 * (a.t_toe_off_s - a.t_contact_s), rel=1e-12
         )
         assert b.toe_xz_m == a.toe_xz_m  # same footholds, same seed
-    # same path at half the speed: the ankle at 2 t is the ankle at t (to 1 mm: the hip
-    # smoothing window is fixed in seconds, which changes the swing foot pitch slightly)
+    # same path at half the speed with the via-point swing (the toe's path is planned in
+    # space): the ankle at 2 t is the ankle at t (to 1 mm: the hip smoothing window is fixed
+    # in seconds, which changes the swing foot pitch slightly). The joint-space swing (the
+    # default) follows the hip through the leg's angles, so its path moves by ~2 cm.
+    via = {"swing_model": "via_points"}
+    _, m1 = _gait(_with(base, gait=via), 6.0)
+    _, m2 = _gait(_with(base, gait={**via, "cadence_scale": 0.5}), 12.0)
     t = np.linspace(0.5, 5.5, 51)
     np.testing.assert_allclose(m2.ankle(2 * t), m1.ankle(t), atol=1e-3)
     # accelerations scale with cadence^2

@@ -99,16 +99,26 @@ def test_a_detector_that_flags_every_frame_cannot_pin_the_filter(
     assert ate["always_untested"] > 2.0 * ate["always"], ate
 
 
+def _via_points(scen):
+    """The scenario with the via-point swing (the simulator's default before 2026-12-05)."""
+    return scen.model_copy(
+        update={"gait": scen.gait.model_copy(update={"swing_model": "via_points"})}
+    )
+
+
 @pytest.mark.slow
 def test_fast_cadence_stances_correct_the_velocity(tmp_path: Path) -> None:
     """Step over step at 1.5x the cadence: the accelerometer clips at a push-off (16 g) and the
     next foot-flat lasts 0.15 s on a level landing, where vision measures no forward motion.
     The stance anchor needs two frames of one stance; the stance velocity observation
-    corrects the velocity from the first one (seed 1000 of the sweep: toe x 10.3 -> 1.7 cm)."""
+    corrects the velocity from the first one (seed 1000 of the sweep: toe x 10.3 -> 1.7 cm).
+    The via-point swing (the default before 2026-12-05), whose push-off clips; with the
+    joint-space swing nothing clips and the stance velocity matters less (2.7 -> 2.5 cm)."""
     from vio_graph.sim import simulate
     from vio_graph.sweep import condition_by_name, condition_scenario
 
-    rec = simulate(condition_scenario(condition_by_name("cadence_1.5")), 1000, tmp_path / "rec")
+    scen = _via_points(condition_scenario(condition_by_name("cadence_1.5")))
+    rec = simulate(scen, 1000, tmp_path / "rec")
     ate = {}
     for name, sigma in {"with": 0.05, "without": None}.items():
         cfg = _config(stance_velocity_sigma_mps=sigma)
@@ -328,12 +338,13 @@ def test_stance_keyframes_put_every_short_stance_into_the_graphs(
     4 frames, on the top landing) falls between the keyframes at 9.65 s (interval) and 9.92 s
     (after it), so the graphs never saw it and their x ran away (toe x 4 cm). With
     keyframes.stance_keyframes = 2 each stance's first two anchored frames are keyframes; the
-    filter's stances are the same."""
+    filter's stances are the same. The via-point swing (the trial as measured; the
+    default before 2026-12-05)."""
     from vio_graph.recording.reader import Recording
     from vio_graph.sim import simulate
     from vio_graph.sweep import condition_by_name, condition_scenario
 
-    scen = condition_scenario(condition_by_name("imu_50hz"))
+    scen = _via_points(condition_scenario(condition_by_name("imu_50hz")))
     rec = Recording.open(simulate(scen, 1001, tmp_path / "rec"))
     before = _keyframes_per_stance(rec, 0, monkeypatch)
     after = _keyframes_per_stance(rec, 2, monkeypatch)

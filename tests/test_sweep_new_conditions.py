@@ -74,9 +74,10 @@ def test_dropped_frames_condition_drops_frames_and_blanks_the_blackout() -> None
 
 def test_approach_3m_starts_with_no_stair_in_view() -> None:
     scen = condition_scenario(condition_by_name("approach_3m"))
-    terrain = build_terrain(scen.terrain)
-    m = simulate_gait(terrain, scen.gait, scen.rig, scen.duration_s, np.random.default_rng(1000))
-    # the first riser is >= 2.4 m ahead of the toe during the first second: beyond the
-    # camera's 2.4 m range along the floor seen 20 deg below the shank axis
-    first_s = m.t_s <= 1.0
-    assert scen.terrain.approach_length_m - m.toe_xz_m[first_s, 0].max() > 2.4
+    trial = simulate_trial(scen.model_copy(update={"duration_s": 2.0}), 1000)
+    # the ground truth's per-frame "a terrain edge in view": none during the first second
+    # (the first riser 3 m ahead of the toe), then the stair comes into view
+    seen = trial.groundtruth.frame_edge_visible.astype(bool)
+    first_s = trial.frame_true_time_s <= 1.0
+    assert first_s.sum() > 25 and not seen[first_s].any()
+    assert seen[~first_s].any()

@@ -302,7 +302,7 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
         "approach_3m",
         "start",
         "the trial starts 3 m before the stair, walking: the camera sees only floor for the "
-        "first ~3 s",
+        "first second, the stair far ahead after that",
         overrides={
             "duration_s": 13.0,
             "terrain": {"approach_length_m": 4.0, "landing_length_m": 8.0},

@@ -389,7 +389,7 @@ def test_terrain_revealed_behind_a_nosing_is_not_taken_for_an_object(
 def test_compiled_onset_tracker_equals_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
     """``compiled.onset_update`` gives OnsetTracker's numpy status, last depths and counts
     (fresh onsets; onsets of unchanged depth) on random depth sequences (drops, rises, noise,
-    invalid pixels, float32 and float64 images)."""
+    invalid pixels: zero, NaN, inf and negative; float32 and float64 images)."""
     from vio_graph.frontend import icp as icp_module
 
     n_onsets = 0
@@ -410,6 +410,8 @@ def test_compiled_onset_tracker_equals_numpy(monkeypatch: pytest.MonkeyPatch) ->
                 depth = np.clip(depth + step * run.standard_normal(depth.shape) ** 2, 0.1, 3.0)
                 img = np.where(run.random(depth.shape) < 0.1, 0.0, depth).astype(dtype)
                 img[run.random(depth.shape) < 0.02] = np.nan
+                img[run.random(depth.shape) < 0.01] = np.inf
+                img[run.random(depth.shape) < 0.01] = -0.5
                 t.update(img, 0.003, 0.013)
                 counts[mode].append((t.n_fresh, t.n_same))
             trackers[mode] = t

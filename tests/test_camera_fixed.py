@@ -9,7 +9,12 @@ import pytest
 
 from vio_graph.config import PipelineConfig
 from vio_graph.frontend import VisualFrontend
-from vio_graph.frontend.camera_fixed import CameraFixedFilter, OnsetTracker
+from vio_graph.frontend.camera_fixed import (
+    CameraFixedFilter,
+    OnsetTracker,
+    motion_from_ground,
+    motion_from_ground_reference,
+)
 from vio_graph.frontend.config import FrontendConfig
 from vio_graph.frontend.synthetic import (
     camera_rotation,
@@ -389,7 +394,7 @@ def test_terrain_revealed_behind_a_nosing_is_not_taken_for_an_object(
 def test_compiled_onset_tracker_equals_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
     """``compiled.onset_update`` gives OnsetTracker's numpy status, last depths and counts
     (fresh onsets; onsets of unchanged depth) on random depth sequences (drops, rises, noise,
-    invalid pixels, float32 and float64 images)."""
+    invalid pixels: zero, NaN, inf and negative; float32 and float64 images)."""
     from vio_graph.frontend import icp as icp_module
 
     n_onsets = 0
@@ -410,6 +415,8 @@ def test_compiled_onset_tracker_equals_numpy(monkeypatch: pytest.MonkeyPatch) ->
                 depth = np.clip(depth + step * run.standard_normal(depth.shape) ** 2, 0.1, 3.0)
                 img = np.where(run.random(depth.shape) < 0.1, 0.0, depth).astype(dtype)
                 img[run.random(depth.shape) < 0.02] = np.nan
+                img[run.random(depth.shape) < 0.01] = np.inf
+                img[run.random(depth.shape) < 0.01] = -0.5
                 t.update(img, 0.003, 0.013)
                 counts[mode].append((t.n_fresh, t.n_same))
             trackers[mode] = t
@@ -472,3 +479,44 @@ def test_a_walk_whose_onset_pixels_all_pass_as_terrain_skips_the_full_test() -> 
         found.append(bool(got.any()))
     assert found == [False] * 5 + [True, True, False]
     assert skipping.n_skipped >= 4 and testing.n_skipped == 0
+
+
+def test_motion_from_ground_is_its_numpy_reference_bit_for_bit() -> None:
+    """motion_from_ground (the small steps on Python floats) returns the floats of its numpy
+    formulation: random rotations, displacements over eight orders of magnitude, shares as
+    Python and numpy floats, zero and signed-zero entries, and non-finite inputs."""
+    rng = np.random.default_rng(7)
+
+    def rotation(v: np.ndarray) -> np.ndarray:
+        a = float(np.linalg.norm(v))
+        k = v / a
+        K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        return np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * K @ K
+
+    cases = []
+    for i in range(400):
+        Rp = rotation(rng.normal(size=3))
+        Rc = Rp @ rotation(rng.normal(size=3) * 10.0 ** rng.uniform(-6, 0))
+        delta = rng.normal(size=2) * 10.0 ** rng.uniform(-6, 1)
+        A = rng.normal(size=(2, 2)) * 10.0 ** rng.uniform(-6, -1)
+        cov = A @ A.T
+        share = [0.0, 0.05, np.float64(0.02), np.sqrt(2.0) * 0.001 / 0.033][i % 4]
+        cases.append((Rp, Rc, delta, cov, float(rng.uniform(0, 0.01)), share))
+    Rp, Rc = cases[0][0], cases[0][1]
+    cases += [
+        (Rp, Rp, np.zeros(2), np.zeros((2, 2)), 0.0, 0.0),  # no motion: angle from 1.0
+        (Rp, Rc, np.array([0.01, -0.0]), np.array([[1e-6, -0.0], [-0.0, 1e-6]]), 0.0, 0.1),
+        (Rp, Rc, np.array([np.nan, 0.0]), np.eye(2), 0.0, 0.05),
+        (Rp, Rc, np.array([np.inf, 0.0]), np.eye(2), 0.0, 0.05),
+        (Rp, Rc, np.array([0.01, 0.02]), np.array([[np.inf, 0.0], [0.0, 1.0]]), 0.0, 0.0),
+        (Rp, Rc, [0.01, 0.02], [[1e-6, 0.0], [0.0, 1e-6]], 0.001, 0.0),  # lists
+    ]
+    for args in cases:
+        with np.errstate(invalid="ignore"):  # (the NaN and inf cases)
+            got, want = motion_from_ground(*args), motion_from_ground_reference(*args)
+        for a, b in zip(
+            (got.R_prev_cur, got.t_prev_cur_m, got.t_cov_m2, got.rot_sigma_rad),
+            (want.R_prev_cur, want.t_prev_cur_m, want.t_cov_m2, want.rot_sigma_rad),
+            strict=True,
+        ):
+            assert np.asarray(a).tobytes() == np.asarray(b).tobytes()

@@ -965,6 +965,50 @@ def test_compiled_slice_equals_the_numpy_path_at_every_agreement_count() -> None
             assert np.allclose(fast, ref, rtol=0, atol=1e-12)
 
 
+def test_compiled_slice_row_pair_shortcut_at_the_tolerance() -> None:
+    """The compiled slice's shortcut for a need of two (both row neighbours present and
+    agreeing) against the numpy path where the row neighbours lie a float32 step inside or
+    outside the tolerance, are invalid or off the image, for needs of 1-3: the same pixels
+    (a shortcut that accepted a neighbour beyond the tolerance, or one that is not present,
+    would keep pixels the numpy path drops)."""
+    from vio_graph.frontend import projection
+
+    kernels = icp_module.compiled_kernels()
+    assert kernels is not None
+    K = np.array([[210.6, 0.0, 111.5], [0.0, 212.9, 85.5], [0.0, 0.0, 1.0]])
+    rng = np.random.default_rng(21)
+    n_kept = {}
+    for min_agree in (1, 2, 3, 2, 2):
+        rows = np.arange(172, dtype=np.float32)[:, None]
+        depth = (0.3 + 0.002 * rows + np.zeros((1, 224))).astype(np.float32)
+        step = np.float32(0.01) + np.float32(0.03) * depth[:, :1]
+        depth[:, 1::2] = depth[:, :1] + step  # the odd columns at the tolerance of the even
+        # a float32 step or two up or down on a third of the pixels: either side of it
+        nudge = rng.integers(-2, 3, depth.shape) * (rng.random(depth.shape) < 0.33)
+        for k in (-2, -1, 1, 2):
+            at = nudge == k
+            toward = np.float32(np.inf) if k > 0 else np.float32(-np.inf)
+            for _ in range(abs(k)):
+                depth[at] = np.nextafter(depth[at], toward)
+        depth[rng.random(depth.shape) < 0.03] = np.nan
+        conf = np.where(rng.random(depth.shape) < 0.05, 0, 200).astype(np.uint8)
+        tables = projection._slice_tables(K.tobytes(), depth.shape, depth.dtype, 0.5, 0.1, 4.0)
+        c0, c1, lower, upper, x_grid, y_grid = tables
+        R_xz = np.eye(3)[[0, 2], :]
+        speckle = (np.float32(0.03), np.float32(0.01), min_agree)
+        fast = kernels.slice_xz(
+            depth, conf, c0, c1, lower, upper, 1, *speckle, x_grid[0], y_grid[:, 0], R_xz
+        )
+        cam = projection._slice_cam_points_numpy(
+            depth, conf, c0, c1, lower, upper, 1, speckle, x_grid, y_grid
+        )
+        assert fast.shape == (cam.shape[0], 2)
+        assert np.array_equal(fast, cam @ R_xz.T)
+        n_kept[min_agree] = cam.shape[0]
+    # the nudges decide pixels: fewer kept with a larger need, and not all dropped
+    assert 0 < n_kept[3] < n_kept[2] < n_kept[1] < 172 * 224
+
+
 def test_compiled_seen_under_equals_the_numpy_mask() -> None:
     """surface.seen_under_mask compiled (``compiled.seen_under``: sorted prefix, blocks
     skipped by a bound, the count stopped at the threshold) against its numpy form: the same

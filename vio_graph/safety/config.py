@@ -120,6 +120,16 @@ class SafetyConfig(BaseModel):
     template_swings: int = Field(
         default=3, ge=1, le=20, description="previous swings the template's median is over (count)"
     )
+    template_match: Literal["off", "templates", "constant_velocity"] = Field(
+        default="off",
+        description="a template joins this swing's prediction only if its heel and toe "
+        "displacements since lift-off agreed with this swing's so far (rms over the swing's "
+        "frames of the larger distance at most near_trip_m): the first step onto a flight "
+        "(one step) is no template of a two-step swing. When none agrees: 'templates', "
+        "every template (the error check decides); 'constant_velocity', the fallback used "
+        "before any swing was seen. 'off' (default): every template always. Measured, not "
+        "kept on: docs/method.md section 8, 'Near-trips on the joint-space swing'",
+    )
     swing_speed_mps: float = Field(
         default=0.3,
         gt=0,

@@ -323,7 +323,7 @@ def test_template_match_keeps_only_swings_like_this_one() -> None:
     for k in range(1, 4):  # the swing follows the two-step template exactly
         mon._swing.append((float(ph[k]), *two[k].tolist()))
     assert mon._matching_templates() == (1,)
-    mon._swing = [(float(p), *(d + 0.05).tolist()) for p, d in zip(ph[:4], two[:4])]
+    mon._swing = [(float(p), *(d + 0.05).tolist()) for p, d in zip(ph[:4], two[:4], strict=True)]
     assert mon._matching_templates() == ()  # 5 cm off both: none
     with pytest.raises(ValidationError):
         SafetyConfig(template_match="nearest")

@@ -284,9 +284,10 @@ def test_near_trip_warned_on_a_simulated_trial(near_trip_run) -> None:
     m = near_trip_run.metrics["clearance"]["filter"]
     assert m["near_trip"]["events"] == 3  # one per swing, 10-12 mm at the nosing
     # every near-trip warned at or before its minimum; on the default (joint-space) swing
-    # the first swing's by the constant-velocity fallback (96 ms ahead), the next two only
-    # by their lift-off frame, predicted from a template of another kind of swing
-    # (docs/method.md section 8, "Near-trips on the joint-space swing")
+    # the first swing's by the constant-velocity fallback (96 ms ahead), the second's only
+    # by its lift-off frame (its one template, the first swing, never agrees), the third's
+    # by the agreeing template (166 ms ahead on the 5 s trial; docs/method.md section 8,
+    # "Near-trips on the joint-space swing")
     assert m["near_trip"]["recall"] == 1.0
     assert m["near_trip"]["min_lead_ms"] >= 50
     assert m["near_trip"]["precision"] >= 0.5

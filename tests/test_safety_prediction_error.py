@@ -87,7 +87,10 @@ def test_a_swing_unlike_its_template_is_discounted() -> None:
     checked = _two_swings(SafetyConfig(min_keyframes=2), False)
     assert checked[0].near_trip_warning  # lift-off: no error measured in this swing yet
     assert not any(s.near_trip_warning for s in checked[1:])
-    assert all(np.isnan(s.near_trip_clearance_m) for s in checked[1:])  # no step trusted
+    # only the steps it measured right are tested: the first 15 ms (of 20 steps over 0.3 s)
+    # for a few frames, far from the riser, then none (NaN)
+    tested = np.array([s.near_trip_clearance_m for s in checked[1:]])
+    assert not np.any(tested < 0.1) and np.isnan(tested[-1])
     # what the warning does not test is no other output: the predictions stay as they were
     for a, b in zip(unchecked, checked, strict=True):
         assert a.predicted_min_nosing_clearance_m == b.predicted_min_nosing_clearance_m or (

@@ -748,7 +748,8 @@ class SafetyMonitor:
             sel = self._matching_templates()
             if not sel and cfg.template_match == "constant_velocity":
                 use_template = False  # no swing like this one seen yet: as before any swing
-            sel = sel or None  # (none agrees: every template, the check decides)
+            if not sel or len(sel) == len(self._templates):
+                sel = None  # every template (none agrees: the check decides)
             if sel != self._selected:  # another predictor: its errors are still to measure
                 self._selected = sel
                 self._templates_flat = None

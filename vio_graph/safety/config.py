@@ -225,6 +225,13 @@ class SafetyConfig(BaseModel):
         "wrong by more than the margin it tests cannot resolve a near-trip (steps not yet "
         "measured count as accurate); off: every pose over horizon_s (before 2026-12-03)",
     )
+    warning_template_spread: bool = Field(
+        default=False,
+        description="with warning_error_check: a horizon step not yet measured in this swing "
+        "counts as accurate only if the templates the prediction is the median of agree there "
+        "(rms distance from the median at most near_trip_m); off: every such step counts as "
+        "accurate",
+    )
     map_sigma_m: float = Field(
         default=0.003, ge=0, description="1-sigma floor of a map bin's height, m"
     )

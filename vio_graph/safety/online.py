@@ -920,6 +920,15 @@ class SafetyMonitor:
         if poses is None:  # (the swing_prediction kernel returns them: the same floats)
             poses = np.concatenate([heel[None] + motion[:, :2], toe[None] + motion[:, 2:]], 1)
         m = self.prediction_errors.trusted_steps(cfg.near_trip_m)
+        if cfg.warning_template_spread and m >= 1 and len(self._used_templates()) > 1:
+            # a step not measured yet in this swing is as uncertain as the templates
+            # disagree there (their rms distance from the median)
+            bad = ~self.prediction_errors.measured() & (
+                self._template_spread(tau, motion) > cfg.near_trip_m
+            )
+            bad[0] = False  # the current pose is the estimate itself
+            if bad.any():
+                m = min(m, int(np.argmax(bad)) - 1)
         self.prediction_errors.predict(t_s, poses)
         if m >= cfg.horizon_steps:
             return risk  # every step trusted: the whole horizon, as computed
@@ -1076,3 +1085,15 @@ class SafetyMonitor:
             if math.sqrt(float(np.mean(e2))) <= self.config.near_trip_m:
                 out.append(i)
         return tuple(out)
+
+    def _template_spread(self, tau: float, motion: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per horizon step (H + 1,; 0 now): the rms over the used templates of the larger of
+        the heel's and the toe's distance between that template's motion from phase tau and
+        the median ``motion`` (H, 4), m."""
+        q = np.concatenate([[tau], tau + self._h])
+        e2 = []
+        for ph, d in self._used_templates():
+            at = np.stack([np.interp(q, ph, d[:, j]) for j in range(4)], 1)
+            r = (at[1:] - at[:1]) - motion
+            e2.append(np.maximum(r[:, 0] ** 2 + r[:, 1] ** 2, r[:, 2] ** 2 + r[:, 3] ** 2))
+        return np.concatenate([[0.0], np.sqrt(np.mean(e2, axis=0))[1:]])

@@ -108,7 +108,12 @@ class SafetyConfig(BaseModel):
         description="prediction horizon of the minimum clearance (issue: 100-300 ms), s",
     )
     horizon_steps: int = Field(
-        default=10, ge=1, le=50, description="foot poses evaluated over the horizon (count)"
+        default=20,
+        ge=1,
+        le=50,
+        description="foot poses evaluated over the horizon (count): 15 ms apart over 0.3 s, "
+        "the swinging toe (up to 3 m/s past a nosing) 4.5 cm from pose to pose; 10 before "
+        "2026-12-05 (9 cm: the template's closest approach to a nosing fell between poses)",
     )
     motion_model: Literal["swing_template", "constant_velocity"] = Field(
         default="swing_template",
@@ -119,6 +124,17 @@ class SafetyConfig(BaseModel):
     )
     template_swings: int = Field(
         default=3, ge=1, le=20, description="previous swings the template's median is over (count)"
+    )
+    template_match: Literal["off", "templates", "constant_velocity"] = Field(
+        default="templates",
+        description="a template joins this swing's prediction only if its heel and toe "
+        "displacements since lift-off agreed with this swing's so far (rms over the swing's "
+        "frames of the larger distance at most near_trip_m): the first step onto a flight "
+        "(one step) is no template of a two-step swing. When none agrees: 'templates', "
+        "every template (the error check decides; the default); 'constant_velocity', the "
+        "fallback used before any swing was seen (false warnings doubled on ascent); 'off': "
+        "every template always (before 2026-12-05). docs/method.md section 8, 'Near-trips "
+        "on the joint-space swing'",
     )
     swing_speed_mps: float = Field(
         default=0.3,
@@ -208,6 +224,13 @@ class SafetyConfig(BaseModel):
         "checked at t + h against the estimated foot) is at most near_trip_m: a prediction "
         "wrong by more than the margin it tests cannot resolve a near-trip (steps not yet "
         "measured count as accurate); off: every pose over horizon_s (before 2026-12-03)",
+    )
+    warning_template_spread: bool = Field(
+        default=False,
+        description="with warning_error_check: a horizon step not yet measured in this swing "
+        "counts as accurate only if the templates the prediction is the median of agree there "
+        "(rms distance from the median at most near_trip_m); off: every such step counts as "
+        "accurate",
     )
     map_sigma_m: float = Field(
         default=0.003, ge=0, description="1-sigma floor of a map bin's height, m"

@@ -386,6 +386,8 @@ class SafetyMonitor:
         )
         # the templates end to end for the compiled path: phases, displacements, row starts
         self._templates_flat: tuple[NDArray, NDArray, NDArray] | None = None
+        #: the templates this swing's prediction uses (indices into _templates; None: all)
+        self._selected: tuple[int, ...] | None = None
         self._swing: list[tuple[float, float, float, float, float]] = []  # t, heel, toe
         self._liftoff: tuple[float, NDArray[np.float64]] | None = None  # (t, heel+toe (4,))
         self._cleared: list[float] = []  # x of the edges the foot was clear of in this swing
@@ -427,6 +429,9 @@ class SafetyMonitor:
                 return NAN
             self._liftoff = (t_s, np.concatenate([heel, toe]))
             self._swing = []
+            if self._selected is not None:
+                self._selected = None
+                self._templates_flat = None
             self.prediction_errors.start_swing()
         tau = t_s - self._liftoff[0]
         slow = math.isfinite(toe_speed_mps) and toe_speed_mps < cfg.swing_speed_mps / 3
@@ -620,7 +625,7 @@ class SafetyMonitor:
             return self.geometry.template_motion(tau, h, *self._flat_templates())
         out = []
         q = np.concatenate([[tau], tau + h])  # now, then the horizon's instants
-        for ph, d in self._templates:
+        for ph, d in self._used_templates():
             at = np.stack([np.interp(q, ph, d[:, j]) for j in range(4)], 1)
             out.append(at[1:] - at[:1])
         return np.median(np.stack(out), axis=0) if len(out) > 1 else out[0]
@@ -739,6 +744,17 @@ class SafetyMonitor:
         use_template = (
             cfg.motion_model == "swing_template" and bool(self._templates) and math.isfinite(tau)
         )
+        if use_template and cfg.template_match != "off":
+            sel = self._matching_templates()
+            if not sel and cfg.template_match == "constant_velocity":
+                use_template = False  # no swing like this one seen yet: as before any swing
+            if not sel or len(sel) == len(self._templates):
+                sel = None  # every template (none agrees: the check decides)
+            if sel != self._selected:  # another predictor: its errors are still to measure
+                self._selected = sel
+                self._templates_flat = None
+                if check:
+                    self.prediction_errors.start_swing()
         if in_stance:
             self._cleared = []
         pred = pred_edge = risk = NAN  # risk: the minimum over near-trip candidates
@@ -904,6 +920,15 @@ class SafetyMonitor:
         if poses is None:  # (the swing_prediction kernel returns them: the same floats)
             poses = np.concatenate([heel[None] + motion[:, :2], toe[None] + motion[:, 2:]], 1)
         m = self.prediction_errors.trusted_steps(cfg.near_trip_m)
+        if cfg.warning_template_spread and m >= 1 and len(self._used_templates()) > 1:
+            # a step not measured yet in this swing is as uncertain as the templates
+            # disagree there (their rms distance from the median)
+            bad = ~self.prediction_errors.measured() & (
+                self._template_spread(tau, motion) > cfg.near_trip_m
+            )
+            bad[0] = False  # the current pose is the estimate itself
+            if bad.any():
+                m = min(m, int(np.argmax(bad)) - 1)
         self.prediction_errors.predict(t_s, poses)
         if m >= cfg.horizon_steps:
             return risk  # every step trusted: the whole horizon, as computed
@@ -1028,10 +1053,47 @@ class SafetyMonitor:
         """The templates end to end (compiled path): phases (S,), displacements (S, 4) and
         each template's first row (T + 1,)."""
         if self._templates_flat is None:
-            rows = np.cumsum([0] + [len(ph) for ph, _ in self._templates])
+            used = self._used_templates()
+            rows = np.cumsum([0] + [len(ph) for ph, _ in used])
             self._templates_flat = (
-                np.concatenate([ph for ph, _ in self._templates]),
-                np.concatenate([d for _, d in self._templates]),
+                np.concatenate([ph for ph, _ in used]),
+                np.concatenate([d for _, d in used]),
                 rows.astype(np.int64),
             )
         return self._templates_flat
+
+    def _used_templates(self) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        """The templates this swing's prediction is over: those :meth:`_matching_templates`
+        selected, or all of them."""
+        if self._selected is None:
+            return list(self._templates)
+        return [self._templates[i] for i in self._selected]
+
+    def _matching_templates(self) -> tuple[int, ...]:
+        """The templates whose heel and toe displacements since lift-off agree with this
+        swing's so far: rms over this swing's frames of the larger of the heel's and the
+        toe's distance (the template at the frame's phase, held at its end) at most
+        ``near_trip_m``, the margin the warning tests. A one-step swing (the first step onto
+        a flight) is not a two-step one's template: they part by 5-20 cm within 2-3 frames
+        of lift-off."""
+        a = np.asarray(self._swing, dtype=float)  # (frames, 5): phase, heel and toe
+        out = []
+        for i, (ph, d) in enumerate(self._templates):
+            at = np.stack([np.interp(a[:, 0], ph, d[:, j]) for j in range(4)], 1)
+            e = at - a[:, 1:]
+            e2 = np.maximum(e[:, 0] ** 2 + e[:, 1] ** 2, e[:, 2] ** 2 + e[:, 3] ** 2)
+            if math.sqrt(float(np.mean(e2))) <= self.config.near_trip_m:
+                out.append(i)
+        return tuple(out)
+
+    def _template_spread(self, tau: float, motion: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per horizon step (H + 1,; 0 now): the rms over the used templates of the larger of
+        the heel's and the toe's distance between that template's motion from phase tau and
+        the median ``motion`` (H, 4), m."""
+        q = np.concatenate([[tau], tau + self._h])
+        e2 = []
+        for ph, d in self._used_templates():
+            at = np.stack([np.interp(q, ph, d[:, j]) for j in range(4)], 1)
+            r = (at[1:] - at[:1]) - motion
+            e2.append(np.maximum(r[:, 0] ** 2 + r[:, 1] ** 2, r[:, 2] ** 2 + r[:, 3] ** 2))
+        return np.concatenate([[0.0], np.sqrt(np.mean(e2, axis=0))[1:]])

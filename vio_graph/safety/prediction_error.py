@@ -104,6 +104,10 @@ class PredictionErrors:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.sqrt(self._sums / self._counts)  # (0 / 0: NaN)
 
+    def measured(self) -> NDArray[np.bool_]:
+        """Per horizon step (H + 1,): whether an error has been measured in this swing."""
+        return self._counts > 0
+
     def trusted_steps(self, max_error_m: float) -> int:
         """The last horizon step m such that every step up to m has a measured rms error of
         at most ``max_error_m`` or none measured yet (0: only the current pose)."""

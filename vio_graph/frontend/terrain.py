@@ -511,7 +511,7 @@ def classify_against_stand(
         kind is TerrainKind.STAIR_DOWN
         and config.stand_level
         and config.obstacle_far_side
-        and _far_side_down(levels, stand_height_m, config)
+        and _far_side_down(profile_xz_m, levels, stand_height_m, config)
     ):
         return TerrainKind.OBSTACLE
     if kind is not TerrainKind.LEVEL or not config.stand_level or not levels:
@@ -531,16 +531,44 @@ def classify_against_stand(
     return TerrainKind.STAIR_UP
 
 
-def _far_side_down(levels: Sequence[Level], stand_height_m: float, config: TerrainConfig) -> bool:
-    """The nearest level at least ``min_step_m`` above the stand surface and the farthest back
-    at its height (within ``min_step_m``): levels that go down from a raised top to the floor
-    the foot stands on. A descending stair seen by the foot that last stood on its upper
-    tread has no level above that tread."""
-    if len(levels) < 2:
-        return False
-    near, far = levels[0].height_m, levels[-1].height_m
+def _far_side_down(
+    profile_xz_m: NDArray[np.float64],
+    levels: Sequence[Level],
+    stand_height_m: float,
+    config: TerrainConfig,
+) -> bool:
+    """Levels that go down from a raised top to the floor the foot stands on, the floor
+    reappearing where the top's far edge stops hiding it.
+
+    The last level at least ``min_step_m`` above the stand surface is the top, the next level
+    beyond it within ``min_step_m`` of the stand surface the floor. The ray from the camera
+    over the top's far edge meets the floor at ``x_e * z_floor / z_top`` (heights relative to
+    the camera, below it); the nearest floor point beyond the top must lie within
+    ``level_gap_m`` of that: a box's far side hides only its own shadow. A floor seen much
+    farther (e.g. through the gap under an open-riser tread, with the next tread hiding the
+    rest) is not this evidence. A descending stair seen by the foot that last stood on its
+    upper tread has no level above that tread."""
     step = config.min_step_m
-    return near - stand_height_m >= step and abs(far - stand_height_m) < step and near - far >= step
+    raised = [i for i, lv in enumerate(levels) if lv.height_m - stand_height_m >= step]
+    if not raised or raised[0] != 0 or raised[-1] + 1 >= len(levels):
+        return False
+    top, floor = levels[raised[-1]], levels[raised[-1] + 1]
+    if abs(floor.height_m - stand_height_m) >= step or top.height_m >= 0.0:
+        return False
+    pts = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+    band, gap = config.level_band_m, config.level_gap_m
+    # the top's last point (its robust extent stops short of the edge)
+    on_top = pts[
+        (np.abs(pts[:, 1] - top.height_m) <= band)
+        & (pts[:, 0] >= top.x_min_m - gap)
+        & (pts[:, 0] <= top.x_max_m + gap)
+    ]
+    edge_x = float(on_top[:, 0].max()) if on_top.shape[0] else top.x_max_m
+    on_floor = pts[(pts[:, 0] > edge_x) & (np.abs(pts[:, 1] - floor.height_m) <= band)]
+    if on_floor.shape[0] == 0:
+        return False
+    shadow_end_m = edge_x * floor.height_m / top.height_m
+    return float(on_floor[:, 0].min()) <= shadow_end_m + gap
 
 
 @dataclass(frozen=True)
@@ -553,10 +581,14 @@ class SeenObstacle:
     top_z_m: float
     top_x_min_m: float
     top_x_max_m: float
+    stand_z_m: float | None = None  # the surface the foot stood on then (None: unknown)
 
 
 def seen_obstacle(
-    levels: Sequence[Level], camera_xz_m: NDArray[np.float64], config: TerrainConfig
+    levels: Sequence[Level],
+    camera_xz_m: NDArray[np.float64],
+    config: TerrainConfig,
+    stand_z_m: float | None = None,
 ) -> SeenObstacle | None:
     """The obstacle a frame classified OBSTACLE shows: its lowest level is the floor, its
     highest the top (at least ``min_step_m`` higher), placed at the camera position
@@ -568,7 +600,9 @@ def seen_obstacle(
     if top.height_m - floor.height_m < config.min_step_m:
         return None
     cx, cz = float(camera_xz_m[0]), float(camera_xz_m[1])
-    return SeenObstacle(floor.height_m + cz, top.height_m + cz, top.x_min_m + cx, top.x_max_m + cx)
+    return SeenObstacle(
+        floor.height_m + cz, top.height_m + cz, top.x_min_m + cx, top.x_max_m + cx, stand_z_m
+    )
 
 
 def recall_obstacle(
@@ -577,6 +611,7 @@ def recall_obstacle(
     camera_xz_m: NDArray[np.float64],
     seen: SeenObstacle | None,
     config: TerrainConfig,
+    stand_z_m: float | None = None,
 ) -> tuple[TerrainKind, SeenObstacle | None]:
     """Rule step 6 (``obstacle_memory``): the obstacle seen before decides a frame that shows
     only part of it.
@@ -586,19 +621,29 @@ def recall_obstacle(
     either the remembered floor or the remembered top (heights within ``min_step_m``, or half
     the obstacle's height when lower; the top also overlapping the remembered top in x within
     ``level_gap_m``), with at least one on the top, is OBSTACLE: the same box seen with its far
-    side out of view or in its own shadow. A level at any other height (the next tread of a
-    stair) leaves the class as it is.
+    side out of view or in its own shadow. A level at any other height leaves the class as it
+    is; one at least ``min_step_m`` above the remembered top (the next tread of a stair) also
+    forgets the obstacle, and so does a foot that has stood on a surface ``min_step_m`` or
+    more off the one it stood on when the obstacle was seen (it climbed a step).
 
     Args:
         camera_xz_m: (2,) camera position in the frame ``seen`` was placed in, metres.
+        stand_z_m: height of the surface the foot last stood on, same frame (None: unknown).
 
     Returns:
         (class, the obstacle to remember); (``kind``, None) with ``obstacle_memory`` off.
     """
     if not config.obstacle_memory:
         return kind, None
+    if (
+        seen is not None
+        and seen.stand_z_m is not None
+        and stand_z_m is not None
+        and abs(stand_z_m - seen.stand_z_m) >= config.min_step_m
+    ):
+        seen = None  # the foot stands on another surface now
     if kind is TerrainKind.OBSTACLE:
-        new = seen_obstacle(levels, camera_xz_m, config)
+        new = seen_obstacle(levels, camera_xz_m, config, stand_z_m)
         return kind, (seen if new is None else new)
     if seen is None or not levels or kind not in _RECALL_KINDS:
         return kind, seen
@@ -617,10 +662,13 @@ def recall_obstacle(
             on_top = True
             x_lo, x_hi = min(x_lo, lo), max(x_hi, hi)
             continue
+        if z - seen.top_z_m >= config.min_step_m:
+            return kind, None  # a surface above the top: a stair, not that obstacle
         return kind, seen
     if not on_top:
         return kind, seen
-    return TerrainKind.OBSTACLE, SeenObstacle(seen.floor_z_m, seen.top_z_m, x_lo, x_hi)
+    stand = seen.stand_z_m if seen.stand_z_m is not None else stand_z_m
+    return TerrainKind.OBSTACLE, SeenObstacle(seen.floor_z_m, seen.top_z_m, x_lo, x_hi, stand)
 
 
 _RECALL_KINDS = (TerrainKind.LEVEL, TerrainKind.STAIR_UP, TerrainKind.STAIR_DOWN)

@@ -266,7 +266,13 @@ class VisualFrontend:
                 self._track_xz_m = self._track_xz_m + np.asarray(predicted_delta_xz_m, float)
             stand_z = None if stand_height_m is None else stand_height_m + self._track_xz_m[1]
             terrain, self._seen_obstacle = recall_obstacle(
-                terrain, levels, self._track_xz_m, self._seen_obstacle, cfg.terrain, stand_z
+                terrain,
+                levels,
+                self._track_xz_m,
+                self._seen_obstacle,
+                cfg.terrain,
+                stand_z,
+                frame_terrain,
             )
         t.append(time.perf_counter())
         # Fig. 2: RANSAC lines, feature points at the higher line's edge (stairs / obstacles)

@@ -62,13 +62,14 @@ Rule
    last stood on the highest tread in view, so nothing is above it).
 
 6. **The obstacle seen before** (``obstacle_memory``, :func:`recall_obstacle`). An obstacle
-   seen with the floor beside it (a frame classified OBSTACLE with a floor level and a top
-   level) is remembered: the floor's and the top's heights and the top's x extent, placed
-   with the sum of the predicted camera displacements. A later frame that steps 1-5 call
-   LEVEL or a stair, whose levels are all either that floor or that top (overlapping the
-   top in x) with one on the top, is OBSTACLE: the same box with its far side out of view
-   or in its own shadow. A level at any other height leaves the class as it is. Like step 5,
-   this sets the reported class only (no corners).
+   seen with the floor beside it (a frame that steps 1-4 call OBSTACLE, with a floor level
+   and a top level) is remembered: the floor's and the top's heights and the top's x
+   extent, placed with the sum of the predicted camera displacements. A later frame that
+   steps 1-5 call LEVEL or a stair, whose levels are all either that floor or that top
+   (overlapping the top in x) with one on the top, is OBSTACLE: the same box with its far
+   side out of view or in its own shadow. A level at any other height leaves the class as
+   it is; a level above the top, or a foot that stood on another surface since, forgets the
+   obstacle. Like step 5, this sets the reported class only (no corners).
 
 Known limits: a floor and one rising face (an obstacle whose top is out of view) is called
 STAIR_UP, and so is a floor and a raised top whose far side was never seen (a deep platform
@@ -612,12 +613,16 @@ def recall_obstacle(
     seen: SeenObstacle | None,
     config: TerrainConfig,
     stand_z_m: float | None = None,
+    frame_kind: TerrainKind | None = None,
 ) -> tuple[TerrainKind, SeenObstacle | None]:
     """Rule step 6 (``obstacle_memory``): the obstacle seen before decides a frame that shows
     only part of it.
 
-    A frame classified OBSTACLE replaces the remembered obstacle (when its levels give a floor
-    and a top). A later frame classified LEVEL, STAIR_UP or STAIR_DOWN whose every level is
+    A frame whose own geometry (``frame_kind``, rule steps 1-4; default ``kind``) says
+    OBSTACLE replaces the remembered obstacle (when its levels give a floor and a top); an
+    OBSTACLE of step 5 (the stand surface) is not remembered: on open risers the floor seen
+    through the gap behind a tread passes the far-side test of step 5. A later frame
+    classified LEVEL, STAIR_UP or STAIR_DOWN whose every level is
     either the remembered floor or the remembered top (heights within ``min_step_m``, or half
     the obstacle's height when lower; the top also overlapping the remembered top in x within
     ``level_gap_m``), with at least one on the top, is OBSTACLE: the same box seen with its far
@@ -643,8 +648,9 @@ def recall_obstacle(
     ):
         seen = None  # the foot stands on another surface now
     if kind is TerrainKind.OBSTACLE:
+        own = kind if frame_kind is None else frame_kind
         new = seen_obstacle(levels, camera_xz_m, config, stand_z_m)
-        return kind, (seen if new is None else new)
+        return kind, (seen if new is None or own is not TerrainKind.OBSTACLE else new)
     if seen is None or not levels or kind not in _RECALL_KINDS:
         return kind, seen
     cx, cz = float(camera_xz_m[0]), float(camera_xz_m[1])

@@ -15,6 +15,8 @@ from vio_graph.sweep import condition_by_name, condition_scenario
 
 NEW = (
     "obstacle_20x30",
+    "obstacle_curb_8x20",
+    "obstacle_25x50",
     "level_standing",
     "approach_3m",
     "dropped_frames",

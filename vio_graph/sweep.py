@@ -291,6 +291,20 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
         overrides={"terrain": {"obstacle_height_m": 0.20, "obstacle_depth_m": 0.30}},
     ),
     SweepCondition(
+        "obstacle_curb_8x20",
+        "obstacle",
+        "the obstacle trial with a low obstacle like a curb stone: 8 cm high, 20 cm deep",
+        scenario="obstacle",
+        overrides={"terrain": {"obstacle_height_m": 0.08, "obstacle_depth_m": 0.20}},
+    ),
+    SweepCondition(
+        "obstacle_25x50",
+        "obstacle",
+        "the obstacle trial with a platform 25 cm high and 50 cm deep (stepped over)",
+        scenario="obstacle",
+        overrides={"terrain": {"obstacle_height_m": 0.25, "obstacle_depth_m": 0.50}},
+    ),
+    SweepCondition(
         "level_standing",
         "level",
         "level walking (configs/level.yaml) for 25 s, standing 3-8 s once per stride with "

@@ -302,6 +302,21 @@ class TerrainConfig(_Strict):
         "at least min_step_m lower -> STAIR_DOWN, higher -> STAIR_UP (or "
         "OBSTACLE by the short raised level rule); False = the frame alone decides",
     )
+    obstacle_far_side: bool = Field(
+        True,
+        description="with stand_level: a frame whose levels only go down, the nearest at least "
+        "min_step_m above the surface the foot last stood on and the farthest back at that "
+        "surface's height (within min_step_m), is OBSTACLE (the far side of a raised top "
+        "dropping back to the floor), not STAIR_DOWN; the reported class only (corners use "
+        "the frame's own class)",
+    )
+    obstacle_memory: bool = Field(
+        True,
+        description="remember the last obstacle seen with the floor on both sides (its top's "
+        "height and x extent and the floor's height, placed with the predicted camera "
+        "displacements): a later frame whose levels are that top (overlapping it in x) and "
+        "that floor is OBSTACLE, whatever of the far side it shows; the reported class only",
+    )
     under_level_margin_m: float | None = Field(
         0.05,
         gt=0,

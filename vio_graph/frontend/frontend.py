@@ -27,10 +27,12 @@ from vio_graph.frontend.projection import (
 )
 from vio_graph.frontend.smoothing import smooth_profile
 from vio_graph.frontend.terrain import (
+    SeenObstacle,
     classify_against_stand,
     classify_terrain,
     points_seen_under,
     points_under_levels,
+    recall_obstacle,
 )
 from vio_graph.frontend.tracker import CornerTracker
 from vio_graph.frontend.veil import veil_drops
@@ -86,6 +88,10 @@ class VisualFrontend:
                 self.config.camera_fixed.confirm_frames,
             )
         self._camera_fixed_frames = 0  # frames seen by the camera-fixed test (idle checks)
+        # rule step 6 (terrain.recall_obstacle): the camera placed by the sum of the predicted
+        # displacements, and the last obstacle seen with the floor beside it in that frame
+        self._track_xz_m = np.zeros(2)
+        self._seen_obstacle: SeenObstacle | None = None
         sc = self.config.smoothing
         self._noise: DepthNoiseTracker | None = None
         if sc.noise_cell_ratio is not None and sc.grid_cell_m > 0:
@@ -112,6 +118,7 @@ class VisualFrontend:
         """Forget the previous frame (e.g. after a gap in the recording); the measured depth
         noise is kept (the camera did not change)."""
         self._tracker.reset()
+        self._seen_obstacle = None  # placed with displacements across the gap: forget it
         if self._camera_fixed is not None:
             self._camera_fixed.reset()
             self._camera_fixed_frames = 0
@@ -251,6 +258,21 @@ class VisualFrontend:
         if stand_height_m is not None:
             terrain = classify_against_stand(
                 walk, frame_terrain, levels, stand_height_m, cfg.terrain
+            )
+        if cfg.terrain.obstacle_memory:
+            if predicted_delta_xz_m is None:  # no displacement to place this frame by
+                self._seen_obstacle = None
+            else:
+                self._track_xz_m = self._track_xz_m + np.asarray(predicted_delta_xz_m, float)
+            stand_z = None if stand_height_m is None else stand_height_m + self._track_xz_m[1]
+            terrain, self._seen_obstacle = recall_obstacle(
+                terrain,
+                levels,
+                self._track_xz_m,
+                self._seen_obstacle,
+                cfg.terrain,
+                stand_z,
+                frame_terrain,
             )
         t.append(time.perf_counter())
         # Fig. 2: RANSAC lines, feature points at the higher line's edge (stairs / obstacles)

@@ -55,11 +55,28 @@ Rule
    foot stands on, its drop out of view or in the nosing's shadow), above it -> STAIR_UP (or
    OBSTACLE by the short raised level rule of step 3), else LEVEL. The front end looks for
    corners on the class of steps 1-4 only: the stand surface says which way the terrain
-   goes, it puts no edge in the frame.
+   goes, it puts no edge in the frame. With ``obstacle_far_side``, a frame whose levels only
+   go down, from a nearest level at least ``min_step_m`` above the stand surface to a
+   farthest level back at its height, is OBSTACLE: the camera past the near edge of a box
+   sees its top and the floor beyond at the height the foot stands on (a descending foot
+   last stood on the highest tread in view, so nothing is above it).
+
+6. **The obstacle seen before** (``obstacle_memory``, :func:`recall_obstacle`). An obstacle
+   seen with the floor beside it (a frame that steps 1-4 call OBSTACLE, with a floor level
+   and a top level) is remembered: the floor's and the top's heights and the top's x
+   extent, placed with the sum of the predicted camera displacements. A later frame that
+   steps 1-5 call LEVEL or a stair, whose levels are all either that floor or that top
+   (overlapping the top in x) with one on the top, is OBSTACLE: the same box with its far
+   side out of view or in its own shadow. A level at any other height leaves the class as
+   it is; a level above the top, or a foot that stood on another surface since, forgets the
+   obstacle. Like step 5, this sets the reported class only (no corners).
 
 Known limits: a floor and one rising face (an obstacle whose top is out of view) is called
-STAIR_UP; a stair tread cut short by the field of view can look like an obstacle top; a
-box seen from above (camera past its near edge) looks like STAIR_DOWN.
+STAIR_UP, and so is a floor and a raised top whose far side was never seen (a deep platform
+approached with its far edge beyond the view); a stair tread cut short by the field of view
+can look like an obstacle top; a box seen from above (camera past its near edge) looks like
+STAIR_DOWN unless the stand surface (step 5) says the floor beyond is the one the foot
+stands on.
 """
 
 from __future__ import annotations
@@ -491,6 +508,13 @@ def classify_against_stand(
     level seen need not be neighbours (step over step, the swinging foot looks at the tread
     two rises above the one it left, 36 cm on 18 cm stairs), and a level seen from above is
     below the camera, which bounds the difference anyway."""
+    if (
+        kind is TerrainKind.STAIR_DOWN
+        and config.stand_level
+        and config.obstacle_far_side
+        and _far_side_down(profile_xz_m, levels, stand_height_m, config)
+    ):
+        return TerrainKind.OBSTACLE
     if kind is not TerrainKind.LEVEL or not config.stand_level or not levels:
         return kind
     rise = levels[0].height_m - stand_height_m
@@ -506,6 +530,154 @@ def classify_against_stand(
     ):
         return TerrainKind.OBSTACLE
     return TerrainKind.STAIR_UP
+
+
+def _far_side_down(
+    profile_xz_m: NDArray[np.float64],
+    levels: Sequence[Level],
+    stand_height_m: float,
+    config: TerrainConfig,
+) -> bool:
+    """Levels that go down from a raised top to the floor the foot stands on, the floor
+    reappearing where the top's far edge stops hiding it.
+
+    The last level at least ``min_step_m`` above the stand surface is the top, the next level
+    beyond it within ``min_step_m`` of the stand surface the floor. The ray from the camera
+    over the top's far edge meets the floor at ``x_e * z_floor / z_top`` (heights relative to
+    the camera, below it); the nearest floor point beyond the top must lie within
+    ``level_gap_m`` of that: a box's far side hides only its own shadow. A floor seen much
+    farther (e.g. through the gap under an open-riser tread, with the next tread hiding the
+    rest) is not this evidence. A descending stair seen by the foot that last stood on its
+    upper tread has no level above that tread."""
+    step = config.min_step_m
+    raised = [i for i, lv in enumerate(levels) if lv.height_m - stand_height_m >= step]
+    if not raised or raised[0] != 0 or raised[-1] + 1 >= len(levels):
+        return False
+    top, floor = levels[raised[-1]], levels[raised[-1] + 1]
+    if abs(floor.height_m - stand_height_m) >= step or top.height_m >= 0.0:
+        return False
+    pts = np.asarray(profile_xz_m, dtype=float).reshape(-1, 2)
+    band, gap = config.level_band_m, config.level_gap_m
+    # the top's last point (its robust extent stops short of the edge)
+    on_top = pts[
+        (np.abs(pts[:, 1] - top.height_m) <= band)
+        & (pts[:, 0] >= top.x_min_m - gap)
+        & (pts[:, 0] <= top.x_max_m + gap)
+    ]
+    edge_x = float(on_top[:, 0].max()) if on_top.shape[0] else top.x_max_m
+    on_floor = pts[(pts[:, 0] > edge_x) & (np.abs(pts[:, 1] - floor.height_m) <= band)]
+    if on_floor.shape[0] == 0:
+        return False
+    shadow_end_m = edge_x * floor.height_m / top.height_m
+    return float(on_floor[:, 0].min()) <= shadow_end_m + gap
+
+
+@dataclass(frozen=True)
+class SeenObstacle:
+    """An obstacle seen with the floor beside it, placed in the front end's dead-reckoned
+    frame (the sum of the predicted camera displacements; its origin is arbitrary): the
+    floor's and the top's heights and the top's x extent, metres."""
+
+    floor_z_m: float
+    top_z_m: float
+    top_x_min_m: float
+    top_x_max_m: float
+    stand_z_m: float | None = None  # the surface the foot stood on then (None: unknown)
+
+
+def seen_obstacle(
+    levels: Sequence[Level],
+    camera_xz_m: NDArray[np.float64],
+    config: TerrainConfig,
+    stand_z_m: float | None = None,
+) -> SeenObstacle | None:
+    """The obstacle a frame classified OBSTACLE shows: its lowest level is the floor, its
+    highest the top (at least ``min_step_m`` higher), placed at the camera position
+    ``camera_xz_m``; None without two such levels (e.g. an obstacle decided by its faces)."""
+    if len(levels) < 2:
+        return None
+    floor = min(levels, key=lambda lv: lv.height_m)
+    top = max(levels, key=lambda lv: lv.height_m)
+    if top.height_m - floor.height_m < config.min_step_m:
+        return None
+    cx, cz = float(camera_xz_m[0]), float(camera_xz_m[1])
+    return SeenObstacle(
+        floor.height_m + cz, top.height_m + cz, top.x_min_m + cx, top.x_max_m + cx, stand_z_m
+    )
+
+
+def recall_obstacle(
+    kind: TerrainKind,
+    levels: Sequence[Level],
+    camera_xz_m: NDArray[np.float64],
+    seen: SeenObstacle | None,
+    config: TerrainConfig,
+    stand_z_m: float | None = None,
+    frame_kind: TerrainKind | None = None,
+) -> tuple[TerrainKind, SeenObstacle | None]:
+    """Rule step 6 (``obstacle_memory``): the obstacle seen before decides a frame that shows
+    only part of it.
+
+    A frame whose own geometry (``frame_kind``, rule steps 1-4; default ``kind``) says
+    OBSTACLE replaces the remembered obstacle (when its levels give a floor and a top); an
+    OBSTACLE of step 5 (the stand surface) is not remembered: on open risers the floor seen
+    through the gap behind a tread passes the far-side test of step 5. A later frame
+    classified LEVEL, STAIR_UP or STAIR_DOWN whose every level is
+    either the remembered floor or the remembered top (heights within ``min_step_m``, or half
+    the obstacle's height when lower; the top also overlapping the remembered top in x within
+    ``level_gap_m``), with at least one on the top, is OBSTACLE: the same box seen with its far
+    side out of view or in its own shadow. A level at any other height leaves the class as it
+    is; one at least ``min_step_m`` above the remembered top (the next tread of a stair) also
+    forgets the obstacle, and so does a foot that has stood on a surface ``min_step_m`` or
+    more off the one it stood on when the obstacle was seen (it climbed a step).
+
+    Args:
+        camera_xz_m: (2,) camera position in the frame ``seen`` was placed in, metres.
+        stand_z_m: height of the surface the foot last stood on, same frame (None: unknown).
+
+    Returns:
+        (class, the obstacle to remember); (``kind``, None) with ``obstacle_memory`` off.
+    """
+    if not config.obstacle_memory:
+        return kind, None
+    if (
+        seen is not None
+        and seen.stand_z_m is not None
+        and stand_z_m is not None
+        and abs(stand_z_m - seen.stand_z_m) >= config.min_step_m
+    ):
+        seen = None  # the foot stands on another surface now
+    if kind is TerrainKind.OBSTACLE:
+        own = kind if frame_kind is None else frame_kind
+        new = seen_obstacle(levels, camera_xz_m, config, stand_z_m)
+        return kind, (seen if new is None or own is not TerrainKind.OBSTACLE else new)
+    if seen is None or not levels or kind not in _RECALL_KINDS:
+        return kind, seen
+    cx, cz = float(camera_xz_m[0]), float(camera_xz_m[1])
+    tol = min(config.min_step_m, 0.5 * (seen.top_z_m - seen.floor_z_m))
+    gap = config.level_gap_m
+    x_lo, x_hi = seen.top_x_min_m, seen.top_x_max_m
+    on_top = False
+    for lv in levels:
+        z = lv.height_m + cz
+        if abs(z - seen.floor_z_m) < tol:
+            continue
+        lo, hi = lv.x_min_m + cx, lv.x_max_m + cx
+        overlaps = lo <= seen.top_x_max_m + gap and hi >= seen.top_x_min_m - gap
+        if abs(z - seen.top_z_m) < tol and overlaps:
+            on_top = True
+            x_lo, x_hi = min(x_lo, lo), max(x_hi, hi)
+            continue
+        if z - seen.top_z_m >= config.min_step_m:
+            return kind, None  # a surface above the top: a stair, not that obstacle
+        return kind, seen
+    if not on_top:
+        return kind, seen
+    stand = seen.stand_z_m if seen.stand_z_m is not None else stand_z_m
+    return TerrainKind.OBSTACLE, SeenObstacle(seen.floor_z_m, seen.top_z_m, x_lo, x_hi, stand)
+
+
+_RECALL_KINDS = (TerrainKind.LEVEL, TerrainKind.STAIR_UP, TerrainKind.STAIR_DOWN)
 
 
 def _has_wall(levels: Sequence[Level], config: TerrainConfig) -> bool:

@@ -1150,6 +1150,7 @@ class OnlineEstimator:
         self.surface_tilt = None
         if self.config.filter.level_aiding.enabled and R_ground_cam_override is None:
             step = self._level_aiding(t, result.profile_xz_m)
+            self._test_frame_tilt(t, step)
             if stamp > self.td_counted_until_s:
                 self._update_time_offset(t, step)
             if step != 0.0:
@@ -1588,6 +1589,21 @@ class OnlineEstimator:
             for f in ("thigh_pitch_rad", "knee_rad", "ankle_rad")
         ]
         return JointAngles(t_s, float(vals[0]), float(vals[1]), float(vals[2]))
+
+    def _test_frame_tilt(self, t: float, step_rad: float) -> None:
+        """(``time_offset.stamp_test_tilts``) Feed this frame's level-surface tilt to the
+        frame-stamp test: its innovation in the time-offset filter under the frame time in
+        use, with the pitch offset it was measured with and the shank pitch rate at the
+        frame (FrameStampTest.add_tilt)."""
+        tilt, test = self.surface_tilt, self.stamp_test
+        if tilt is None or test is None or not self.config.filter.time_offset.stamp_test_tilts:
+            return
+        la = self.config.filter.level_aiding
+        b_before = self.pitch_offset.offset_rad - step_rad
+        rate = float((self.R_world_imu(t) @ self.attitude.gyro_at(t))[1])
+        sigma = float(np.hypot(tilt.sigma_rad, np.radians(la.measurement_floor_deg)))
+        y, s = self.time_offset.innovation(t, tilt.tilt_rad, sigma, b_before, rate)
+        test.add_tilt(y, s, rate, la.gate_sigmas**2)
 
     def _update_time_offset(self, t: float, step_rad: float) -> None:
         """Feed this frame's level-surface tilt to the time-offset estimator

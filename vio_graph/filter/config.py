@@ -459,6 +459,18 @@ class TimeOffsetConfig(BaseModel):
         "undecided test widens correct stamps' displacements in the fast swing, filter z "
         "0.34 -> 0.39 cm, z NEES 0.82 -> 1.26 (docs/generalisation.md, second held-out set)",
     )
+    stamp_test_tilts: bool = Field(
+        default=False,
+        description="with camera_clock_model 'auto': the level surfaces' tilt of each frame "
+        "is evidence for the frame-stamp test too. The slice is rotated with the attitude "
+        "at the frame's time, so the other choice of time (clock line or stamp, delta "
+        "apart) turns the measured tilt by the shank pitch rate times delta; the tilt's "
+        "innovation in the time-offset filter (pitch error and offset accounted for) is "
+        "tested under both, capped at the level aiding's gate "
+        "(FrameStampTest.add_tilt). A displacement sees a time error only through the "
+        "velocity change over a frame; the tilt sees it through the rotation rate, so the "
+        "test decides within the first fast swings",
+    )
     clock_window: int = Field(
         default=200, ge=10, description="samples the clock-model line fit remembers"
     )

@@ -442,29 +442,6 @@ class TimeOffsetEstimator:
         self._accepted()
         return True
 
-    def innovation(
-        self,
-        t_s: float,
-        tilt_rad: float,
-        tilt_sigma_rad: float,
-        offset_b_rad: float,
-        pitch_rate_radps: float,
-    ) -> tuple[float, float]:
-        """The innovation (rad) and its variance (rad^2) :meth:`update` would compute for
-        the same tilt, without changing the estimate: what the level surfaces' tilt says
-        about this frame's time once the pitch error b and the offset td are accounted for
-        (``FrameStampTest.add_tilt``)."""
-        p00, p01, p10, p11 = self.P.ravel().tolist()
-        if self._t_s is not None and t_s > self._t_s:
-            q0, q1 = self._q.tolist()
-            p00 += q0 * (t_s - self._t_s)
-            p11 += q1 * (t_s - self._t_s)
-        m = tilt_rad + offset_b_rad - pitch_rate_radps * self.applied_s
-        h = -pitch_rate_radps
-        x0, x1 = self.x.tolist()
-        s = p00 + h * (p01 + p10) + h * h * p11 + tilt_sigma_rad**2
-        return m - (x0 + h * x1), float(s)
-
     def update_reference(
         self,
         t_s: float,
@@ -622,7 +599,7 @@ class FrameStampTest:
         is rotated with the attitude at the frame's time, so moving that time by e turns the
         measured tilt by -omega e (omega the shank pitch rate, the sign of the time-offset
         model m = b - omega td). ``residual_rad`` is the tilt's innovation under the frame
-        time in use (variance ``var_rad2``, TimeOffsetEstimator.innovation); under the other
+        time in use (variance ``var_rad2``); under the other
         choice it is moved by -+omega delta (delta = line - stamp). Each statistic capped at
         ``cap_d2``. Without a re-stamping (delta unknown) nothing is added."""
         if self._delta_s is None or not var_rad2 > 0.0:

@@ -1072,4 +1072,3 @@ def test_level_surface_tilts_alone_choose_between_stamps_and_the_clock_line() ->
     test.note_frame(None)
     test.add_tilt(0.01, 1e-5, 5.0, 16.0)
     assert test.n_tilts == 0 and test.llr == 0.0
-

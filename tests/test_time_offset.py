@@ -1025,3 +1025,50 @@ def test_frame_stamp_test_total_is_the_unclamped_sum() -> None:
     assert test.llr == pytest.approx(2.0 * test.threshold)
     assert test.llr_total == pytest.approx(26.0)
     assert test.report()["log_likelihood_ratio_line_total"] == pytest.approx(26.0)
+
+
+def _tilt_evidence(stamps_jitter: bool, seed: int) -> FrameStampTest:
+    """Frames at 30 fps on a shank swinging at w(t) = 5 sin(2 pi t / 1.1) rad/s; a level
+    surface's tilt on a slice rotated with the attitude at the time in use is b - w e + noise
+    (e = time in use - capture time, 0.15 deg of noise, b a constant pitch error), fed to a
+    pitch filter (td = 0) and, as its innovation, to the stamp test. Clock line, stamps and
+    capture instants as in :func:`_stamp_test_on`; only tilts as evidence."""
+    rng = np.random.default_rng(seed)
+    n, T, sig = 300, 1 / 30, np.radians(0.15)
+    line = np.arange(n) * T
+    if stamps_jitter:
+        capture, stamp = line, line + rng.normal(0, 2e-3, n)
+    else:
+        capture = line + rng.normal(0, 1e-3, n)
+        stamp = capture
+    b_est, var = 0.0, np.radians(3.0) ** 2
+    test = FrameStampTest(cap_d2=13.8)
+    b = np.radians(0.8)
+    for k in range(n):
+        test.note_frame(line[k] - stamp[k])
+        used = line[k] if test.use_line else stamp[k]
+        w = 5.0 * np.sin(2 * np.pi * line[k] / 1.1)
+        y = b - b_est - w * (used - capture[k]) + rng.normal(0, sig)  # on the slice at b_est
+        test.add_tilt(y, var + sig**2, w, 16.0)
+        gain = var / (var + sig**2)  # the pitch offset's update
+        b_est, var = b_est + gain * y, var * (1.0 - gain)
+        test.end_frame(np.zeros(2))
+    return test
+
+
+def test_level_surface_tilts_alone_choose_between_stamps_and_the_clock_line() -> None:
+    """The slice turns by the pitch rate times the frame's time error: with tilts as the only
+    evidence, transport jitter on the stamps switches the test to the clock line, exact stamps
+    of jittering capture instants keep it on the stamps; frames without a clock-line time add
+    nothing."""
+    for seed in range(3):
+        jittered = _tilt_evidence(stamps_jitter=True, seed=seed)
+        assert jittered.use_line and jittered.llr > jittered.threshold
+        assert jittered.n_tilts == 300
+        exact = _tilt_evidence(stamps_jitter=False, seed=seed)
+        assert not exact.use_line and exact.n_switches == 0
+        assert exact.llr < -exact.threshold
+    test = FrameStampTest(cap_d2=13.8)
+    test.note_frame(None)
+    test.add_tilt(0.01, 1e-5, 5.0, 16.0)
+    assert test.n_tilts == 0 and test.llr == 0.0

@@ -1589,6 +1589,25 @@ class OnlineEstimator:
         ]
         return JointAngles(t_s, float(vals[0]), float(vals[1]), float(vals[2]))
 
+    def _test_frame_tilt(self, t: float, tilt_rad: float, sigma_rad: float) -> None:
+        """(``time_offset.stamp_test_tilts``) Feed this frame's level-surface tilt to the
+        frame-stamp test (FrameStampTest.add_tilt), before the pitch offset fuses it. The
+        slice was rotated with the current pitch offset and re-stamped by the applied
+        camera-IMU offset, so under the frame time in use the tilt is expected at
+        -omega (td - td_applied) (omega the shank pitch rate, td the offset's estimate), with
+        the variance of the pitch offset, of the tilt (with the level aiding's floor) and
+        omega^2 that of td. The time-offset filter's own pitch state is not used: the final
+        pass of a replay holds it at the end of the recording."""
+        test = self.stamp_test
+        if test is None or not self.config.filter.time_offset.stamp_test_tilts:
+            return
+        to = self.time_offset
+        rate = float((self.R_world_imu(t) @ self.attitude.gyro_at(t))[1])
+        floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
+        y = tilt_rad + rate * (to.td_s - to.applied_s)
+        s = self.pitch_offset.var_rad2 + sigma_rad**2 + floor**2 + rate**2 * to.sigma_s**2
+        test.add_tilt(y, s, rate, self.config.filter.level_aiding.gate_sigmas**2)
+
     def _update_time_offset(self, t: float, step_rad: float) -> None:
         """Feed this frame's level-surface tilt to the time-offset estimator
         (filter/time_offset.py) with the pitch offset it was measured with and the shank pitch
@@ -1663,6 +1682,7 @@ class OnlineEstimator:
         step = 0.0
         if self.surface_tilt is not None:
             tilt_rad, sigma_rad = self._tilt_to_fuse(t, self.surface_tilt)
+            self._test_frame_tilt(t, tilt_rad, sigma_rad)
             if self._frame_rot_var_rad2 > 0.0:
                 sigma_rad = math.sqrt(sigma_rad * sigma_rad + self._frame_rot_var_rad2)
             step = self.pitch_offset.update(tilt_rad, sigma_rad)

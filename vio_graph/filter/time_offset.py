@@ -577,6 +577,7 @@ class FrameStampTest:
         self.use_line = False
         self.n_switches = 0
         self.n_tested = 0
+        self.n_tilts = 0  # of which level-surface tilts (add_tilt)
         self._delta_s: float | None = None
         self._prev: tuple[float, NDArray[np.float64]] | None = None  # (delta, velocity)
 
@@ -591,9 +592,29 @@ class FrameStampTest:
         d0, v0 = self._prev
         return np.asarray(velocity_xz_mps, dtype=float) * self._delta_s - v0 * d0
 
+    def add_tilt(
+        self, residual_rad: float, var_rad2: float, pitch_rate_radps: float, cap_d2: float
+    ) -> None:
+        """One level-surface tilt as evidence (``time_offset.stamp_test_tilts``): the slice
+        is rotated with the attitude at the frame's time, so moving that time by e turns the
+        measured tilt by -omega e (omega the shank pitch rate, the sign of the time-offset
+        model m = b - omega td). ``residual_rad`` is the tilt's innovation under the frame
+        time in use (variance ``var_rad2``); under the other
+        choice it is moved by -+omega delta (delta = line - stamp). Each statistic capped at
+        ``cap_d2``. Without a re-stamping (delta unknown) nothing is added."""
+        if self._delta_s is None or not var_rad2 > 0.0:
+            return
+        shift = pitch_rate_radps * self._delta_s
+        other = residual_rad + (shift if self.use_line else -shift)
+        self._add(residual_rad**2 / var_rad2, other**2 / var_rad2, cap_d2)
+        self.n_tilts += 1
+
     def add(self, d2_in_use: float, d2_other: float) -> None:
         """One displacement's gate statistics under the hypothesis in use and the other."""
-        a, b = min(d2_in_use, self.cap_d2), min(d2_other, self.cap_d2)
+        self._add(d2_in_use, d2_other, self.cap_d2)
+
+    def _add(self, d2_in_use: float, d2_other: float, cap_d2: float) -> None:
+        a, b = min(d2_in_use, cap_d2), min(d2_other, cap_d2)
         d2_stamp, d2_line = (b, a) if self.use_line else (a, b)
         lim = 2.0 * self.threshold
         self.llr = min(max(self.llr + 0.5 * (d2_stamp - d2_line), -lim), lim)
@@ -636,4 +657,5 @@ class FrameStampTest:
             "log_likelihood_ratio_line_total": self.llr_total,
             "switches": self.n_switches,
             "frames_tested": self.n_tested,
+            "tilts_tested": self.n_tilts,
         }

@@ -16,11 +16,16 @@ from vio_graph.robustness import (
 
 def test_saturation_cases_are_the_clean_and_saturation_rows_of_the_imu_sweep() -> None:
     names = [(c.name, c.severity) for c in SATURATION_CASES]
-    assert names == [("clean", "-"), ("IMU accel saturation", "4 g")]
+    assert names == [
+        ("clean", "-"),
+        ("IMU accel saturation", "4 g"),
+        ("IMU accel saturation", "3 g"),
+    ]
     assert SATURATION_CASES[0].sim_faults == {}
-    # the same fault (4 g = 39.2 m/s^2) as the row of the full IMU sweep
-    assert SATURATION_CASES[1] in IMU_CASES
+    # the same faults (4 g = 39.2 m/s^2, 3 g = 29.4 m/s^2) as the rows of the full IMU sweep
+    assert all(c in IMU_CASES for c in SATURATION_CASES)
     assert SATURATION_CASES[1].sim_faults == {"imu_accel_saturation_mps2": 39.2}
+    assert SATURATION_CASES[2].sim_faults == {"imu_accel_saturation_mps2": 29.4}
 
 
 def test_unknown_case_set_is_refused(tmp_path) -> None:

@@ -2124,11 +2124,11 @@ def onset_update(
     trial, with the same status, depths and counts (a NaN last depth fails every
     comparison, as it did in the branches)."""
     h, w = depth.shape
-    n_fresh = 0
-    n_same = 0
+    n_fresh = np.int64(0)
+    n_same = np.int64(0)
     for r in range(h):
-        row_fresh = 0
-        row_same = 0
+        row_fresh = np.int64(0)
+        row_same = np.int64(0)
         for c in range(w):
             d = np.float64(depth[r, c])
             valid = (d > 0.0) & (d < np.inf)  # finite and positive (NaN fails both)

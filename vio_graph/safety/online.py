@@ -745,7 +745,7 @@ class SafetyMonitor:
             cfg.motion_model == "swing_template" and bool(self._templates) and math.isfinite(tau)
         )
         if use_template and cfg.template_match != "off":
-            sel = self._matching_templates()
+            sel: tuple[int, ...] | None = self._matching_templates()
             if not sel and cfg.template_match == "constant_velocity":
                 use_template = False  # no swing like this one seen yet: as before any swing
             if not sel or len(sel) == len(self._templates):

@@ -1602,11 +1602,16 @@ class OnlineEstimator:
         if test is None or not self.config.filter.time_offset.stamp_test_tilts:
             return
         to = self.time_offset
-        rate = float((self.R_world_imu(t) @ self.attitude.gyro_at(t))[1])
+        rate = self._pitch_rate_at(t)
         floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
         y = tilt_rad + rate * (to.td_s - to.applied_s)
         s = self.pitch_offset.var_rad2 + sigma_rad**2 + floor**2 + rate**2 * to.sigma_s**2
         test.add_tilt(y, s, rate, self.config.filter.level_aiding.gate_sigmas**2)
+
+    def _pitch_rate_at(self, t: float) -> float:
+        """The shank's pitch rate at time t (s): the attitude tracker's gyro at t in world axes,
+        about y (rad/s); :meth:`_pitch_rate_radps` is the latest trusted sample's."""
+        return float((self.R_world_imu(t) @ self.attitude.gyro_at(t))[1])
 
     def _update_time_offset(self, t: float, step_rad: float) -> None:
         """Feed this frame's level-surface tilt to the time-offset estimator
@@ -1616,8 +1621,7 @@ class OnlineEstimator:
         if tilt is None or not self.config.filter.time_offset.estimate:
             return
         b_before = self.pitch_offset.offset_rad - step_rad
-        R = self.R_world_imu(t)
-        rate = float((R @ self.attitude.gyro_at(t))[1])
+        rate = self._pitch_rate_at(t)
         floor = np.radians(self.config.filter.level_aiding.measurement_floor_deg)
         self.time_offset.update(
             t, tilt.tilt_rad, float(np.hypot(tilt.sigma_rad, floor)), b_before, rate

@@ -281,6 +281,18 @@ def _gradient(f: NDArray[np.float64], dt_s: float) -> NDArray[np.float64]:
     return out
 
 
+def _template_at(ph: NDArray[np.float64], d: NDArray[np.float64], q: NDArray) -> NDArray:
+    """A swing template's heel and toe displacements (len(q), 4) at the phases q (s), linear
+    between its frames and held at its ends."""
+    return np.stack([np.interp(q, ph, d[:, j]) for j in range(4)], 1)
+
+
+def _worse_foot_sq(e: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per row of heel and toe offsets (N, 4): the larger of the heel's and the toe's squared
+    distance, m^2."""
+    return np.maximum(e[:, 0] ** 2 + e[:, 1] ** 2, e[:, 2] ** 2 + e[:, 3] ** 2)
+
+
 def forward_motion(v_xz_mps: Sequence[float] | NDArray[np.float64], cfg: SafetyConfig) -> bool:
     """The toe moves forward faster than ``warning_min_forward_speed_mps`` and at least as
     fast as it descends (a swing crossing an edge, not a landing)."""
@@ -626,7 +638,7 @@ class SafetyMonitor:
         out = []
         q = np.concatenate([[tau], tau + h])  # now, then the horizon's instants
         for ph, d in self._used_templates():
-            at = np.stack([np.interp(q, ph, d[:, j]) for j in range(4)], 1)
+            at = _template_at(ph, d, q)
             out.append(at[1:] - at[:1])
         return np.median(np.stack(out), axis=0) if len(out) > 1 else out[0]
 
@@ -1079,9 +1091,7 @@ class SafetyMonitor:
         a = np.asarray(self._swing, dtype=float)  # (frames, 5): phase, heel and toe
         out = []
         for i, (ph, d) in enumerate(self._templates):
-            at = np.stack([np.interp(a[:, 0], ph, d[:, j]) for j in range(4)], 1)
-            e = at - a[:, 1:]
-            e2 = np.maximum(e[:, 0] ** 2 + e[:, 1] ** 2, e[:, 2] ** 2 + e[:, 3] ** 2)
+            e2 = _worse_foot_sq(_template_at(ph, d, a[:, 0]) - a[:, 1:])
             if math.sqrt(float(np.mean(e2))) <= self.config.near_trip_m:
                 out.append(i)
         return tuple(out)
@@ -1093,7 +1103,6 @@ class SafetyMonitor:
         q = np.concatenate([[tau], tau + self._h])
         e2 = []
         for ph, d in self._used_templates():
-            at = np.stack([np.interp(q, ph, d[:, j]) for j in range(4)], 1)
-            r = (at[1:] - at[:1]) - motion
-            e2.append(np.maximum(r[:, 0] ** 2 + r[:, 1] ** 2, r[:, 2] ** 2 + r[:, 3] ** 2))
+            at = _template_at(ph, d, q)
+            e2.append(_worse_foot_sq((at[1:] - at[:1]) - motion))
         return np.concatenate([[0.0], np.sqrt(np.mean(e2, axis=0))[1:]])

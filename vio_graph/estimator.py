@@ -1161,11 +1161,15 @@ class OnlineEstimator:
         if result.displacement is not None:
             d2, fused = self._test_frame_stamps(t, self._with_time_terms(result.displacement))
             n_refused = self.filter.n_gate_refusals
+            if result.relocalised and self._widen_for_relocalised(t, fused, d2):
+                d2 = None  # the state's covariance changed
             self._arbitrate_imu(fused, d2)
             accepted = self._as_family(t, "displacement", self.filter.update_displacement, fused)
             refused = self.filter.n_gate_refusals > n_refused
             if accepted:
                 self._last_fix_t = t
+            if result.relocalised:
+                self._count_relocalised(t, accepted)
             self._recover_if_locked_out(refused, t)
         else:
             self.filter.clone_position(t)
@@ -1645,6 +1649,36 @@ class OnlineEstimator:
         if d2_fault is not None and d2_fault <= self.filter.gate_d2:
             self.filter.inflate_position_velocity(Q)
             self.n_imu_inconsistent += 1
+
+    def _widen_for_relocalised(self, t: float, d, d2: float | None) -> bool:
+        """A displacement from the front end's lost-track search that the gate would refuse.
+        The IMU-seeded registration failed for several frames in a row and the unseeded
+        search found this displacement, so the filter's velocity (the seed) is what went
+        wrong: its variance is widened to twice the velocity error the disagreement implies,
+        as an error held over the displacement's interval (SagittalEskf.inflate_velocity
+        ``since_s``), and the update re-anchors it. Returns True if it widened."""
+        if d2 is None:
+            d2 = self.filter.displacement_d2(d)
+        if d2 is None or d2 <= self.filter.gate_d2 or self._prev_frame is None:
+            return False
+        t_prev, p_prev = self._prev_frame
+        dt = float(d.t1_s - d.t0_s)
+        if dt <= 0.0:
+            return False
+        p_now, _ = self._position_at(t)
+        v_err = (np.asarray(d.delta_xz_m, dtype=float) - (p_now - p_prev)) / dt
+        # the error built up over this displacement's interval: the position carries dt x dv
+        # (and the clone, at its start, none), so the displacement corrects the velocity
+        self.filter.inflate_velocity(2.0 * float(np.hypot(*v_err)), dt)
+        return True
+
+    def _count_relocalised(self, t_s: float, fused: bool) -> None:
+        """Health bookkeeping of a displacement from the front end's lost-track search."""
+        h = self.health
+        h.n_relocalised += 1
+        h.n_relocalised_fused += int(fused)
+        if fused and h.first_relocalised_s is None:
+            h.first_relocalised_s = t_s
 
     def _recover_if_locked_out(self, refused: bool, t_s: float) -> None:
         """Gate lock-out recovery. A chi-square gate at p = 0.999 refuses a correct

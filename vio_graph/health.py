@@ -130,6 +130,11 @@ class HealthMonitor:
         self.max_departure_m = 0.0
         self.max_departure_d2 = 0.0  # largest Mahalanobis^2 of a window
         self.n_recoveries = 0  # gate lock-out recoveries of the filter (estimator sets it)
+        # lost-track searches that found a displacement, and those the filter fused (the
+        # estimator sets them; frontend TrackerConfig.relocalise_after_frames)
+        self.n_relocalised = 0
+        self.n_relocalised_fused = 0
+        self.first_relocalised_s: float | None = None
         #: per-family consistency of the filter's own innovations (:class:`InnovationTest`)
         self.innovations = {
             f: InnovationTest(self.limits, f) for f in self.limits.innovation_reference
@@ -373,6 +378,15 @@ class HealthMonitor:
                 f"forward motion (level floor, no edge in view); the smoothers correct it "
                 f"once a stance or an edge follows."
             )
+        if self.n_relocalised_fused:
+            warnings.append(
+                f"WARNING: the visual front end lost track and found it again by an unseeded "
+                f"search on {self.n_relocalised_fused} frames (first at "
+                f"{self.first_relocalised_s:.2f} s): the IMU prediction had moved farther from "
+                f"the truth than ICP can reach from it. Likely cause: saturated or corrupted "
+                f"IMU samples (a knock, a fast swing beyond the accelerometer's range) or a "
+                f"long stretch without vision; the estimate around then is less certain."
+            )
         bad = [t for t in self.innovations.values() if t.inconsistent]
         if bad:
             worst = max(bad, key=lambda t: (t.failing_share, t.max_window_ratio))
@@ -417,6 +431,11 @@ class HealthMonitor:
                 "jump": jump,
             },
             "recoveries": self.n_recoveries,
+            "relocalisations": {
+                "found": self.n_relocalised,
+                "fused": self.n_relocalised_fused,
+                "first_s": self.first_relocalised_s,
+            },
             "x_blind": {
                 "total_s": x_blind_s,
                 "share": x_blind_share,

@@ -639,6 +639,43 @@ class TrackerConfig(_Strict):
         description="corner_check: above this Mahalanobis^2 (2 dof, 95 %) and below gate_chi2 "
         "the ICP covariance is inflated by the disagreement with the nosing difference",
     )
+    relocalise_after_frames: int | None = Field(
+        None,
+        ge=0,
+        description="lost-track search: when the IMU-seeded registration has produced no "
+        "displacement for this many frames in a row and fails again, the whole profile is "
+        "registered against the previous one WITHOUT the IMU seed (a coarse search over every "
+        "displacement up to relocalise_max_speed_mps x the frame interval, then ICP from its "
+        "best candidates); the result skips the front end's prediction gate and goes to the "
+        "filter, whose gate and lock-out recovery arbitrate. An IMU prediction that diverged "
+        "(a saturated accelerometer, a knock) otherwise seeds ICP metres off on every later "
+        "frame, and vision never returns. A search that finds two solutions with the same "
+        "support that disagree beyond their covariances is ambiguous and gives nothing. "
+        "None = off",
+    )
+    relocalise_max_speed_mps: float = Field(
+        4.0,
+        gt=0,
+        description="lost-track search radius: the fastest camera speed searched for, m/s "
+        "(a shank-mounted camera peaks near 3 m/s in swing)",
+    )
+    relocalise_grid_m: float = Field(
+        0.02, gt=0, description="lost-track search: spacing of the coarse translation grid, m"
+    )
+    relocalise_inlier_m: float = Field(
+        0.01,
+        gt=0,
+        description="lost-track search: a target point supports a translation if a previous "
+        "profile point lies within this distance of it, m",
+    )
+    relocalise_support_ratio: float = Field(
+        0.8,
+        gt=0,
+        le=1,
+        description="lost-track search: a second solution with at least this share of the "
+        "best one's support, farther than their covariances allow (gate_chi2), makes the "
+        "search ambiguous",
+    )
 
 
 class FrontendConfig(_Strict):

@@ -51,6 +51,8 @@ class FrontendResult:
     ``n_camera_fixed``: slice pixels found to move with the camera
     (vio_graph/frontend/camera_fixed.py); dropped from the slice with
     ``camera_fixed.drop_pixels`` (the default), only counted otherwise.
+    ``relocalised``: the displacement comes from the tracker's lost-track search (no IMU
+    seed; ``TrackerConfig.relocalise_after_frames``).
     """
 
     timestamp_s: float
@@ -63,6 +65,7 @@ class FrontendResult:
     icp: IcpResult | None
     timings_ms: dict[str, float] = field(default_factory=dict)
     n_camera_fixed: int = 0
+    relocalised: bool = False
 
 
 class VisualFrontend:
@@ -310,6 +313,7 @@ class VisualFrontend:
             icp=tracked.icp,
             timings_ms=timings,
             n_camera_fixed=n_fixed,
+            relocalised=tracked.relocalised,
         )
 
     def _camera_fixed_sigma(self) -> float:

@@ -103,7 +103,8 @@ class TrackerOutput:
     ``displacement``: camera displacement since the previous frame (or None, see ``reason``).
     ``observation``: the current corner relative to the camera (None without a corner).
     ``icp``: the ICP run (None if ICP was not run). ``mahalanobis2``: gate statistic (nan when
-    no prediction was given).
+    no prediction was given). ``relocalised``: the displacement comes from the lost-track
+    search (no IMU seed, no prediction gate; ``TrackerConfig.relocalise_after_frames``).
     """
 
     displacement: Displacement2D | None
@@ -113,6 +114,7 @@ class TrackerOutput:
     track_id: int | None
     same_corner: bool
     mahalanobis2: float = float("nan")
+    relocalised: bool = False
 
 
 @dataclass(frozen=True)
@@ -141,6 +143,7 @@ class CornerTracker:
         self._edge_cov_m2 = np.eye(2) * edge_sigma_m**2
         self._prev: _Frame | None = None
         self._next_id = 0
+        self._frames_without_seeded = 0  # frames since the IMU-seeded ICP last gave a result
 
     def reset(self) -> None:
         """Forget the previous frame (track ids keep increasing)."""
@@ -206,6 +209,8 @@ class CornerTracker:
             predicted_cov_m2,
             np.asarray(profile_xz_m, float),
         )
+        if predicted_delta_xz_m is not None:
+            out = self._relocalise_if_lost(timestamp_s, np.asarray(profile_xz_m, float), out)
         self._prev = _Frame(timestamp_s, np.asarray(profile_xz_m, float), corner, out.track_id)
         return out
 
@@ -331,6 +336,65 @@ class CornerTracker:
             return TrackerOutput(None, obs, icp, bad, track_id, same, d2)
         disp = Displacement2D(prev.timestamp_s, t, -T, C)
         return TrackerOutput(disp, obs, icp, None, track_id, same, d2)
+
+    def _relocalise_if_lost(
+        self, t: float, profile: NDArray[np.float64], out: TrackerOutput
+    ) -> TrackerOutput:
+        """Lost-track search (``relocalise_after_frames``): after that many frames in a row
+        without a seeded displacement, a frame whose seeded registration failed again gets
+        the unseeded search's displacement, if it finds an unambiguous one."""
+        if out.displacement is not None:
+            self._frames_without_seeded = 0
+            return out
+        self._frames_without_seeded += 1
+        n = self._cfg.relocalise_after_frames
+        if n is None or self._frames_without_seeded <= n or self._prev is None:
+            return out
+        if self._gap_problem(t, self._prev) is not None:
+            return out
+        found = self._relocalise(t, profile, self._prev)
+        if found is None:
+            return out
+        disp, icp = found
+        return dataclasses.replace(out, displacement=disp, icp=icp, reason=None, relocalised=True)
+
+    def _relocalise(
+        self, t: float, profile: NDArray[np.float64], prev: _Frame
+    ) -> tuple[Displacement2D, IcpResult] | None:
+        """The displacement since ``prev`` without the IMU seed: the translation grid within
+        ``relocalise_max_speed_mps`` x the frame interval scored by support (target points with
+        a previous profile point within ``relocalise_inlier_m``), ICP of the whole profile from
+        its best separated candidates, and the best-supported result if no other one with
+        comparable support disagrees with it beyond their covariances (None otherwise)."""
+        from scipy.spatial import cKDTree
+
+        cfg = self._cfg
+        target = grid_thin(profile, cfg.fallback_grid_m) if cfg.fallback_grid_m > 0 else profile
+        src = prev.profile_xz_m
+        if min(target.shape[0], src.shape[0]) < cfg.min_correspondences:
+            return None
+        tree = cKDTree(src)
+        radius = max(cfg.relocalise_max_speed_mps * (t - prev.timestamp_s), cfg.relocalise_grid_m)
+        seeds = _grid_seeds(tree, target, radius, cfg.relocalise_grid_m, cfg.relocalise_inlier_m)
+        found: list[tuple[int, NDArray[np.float64], NDArray[np.float64], IcpResult]] = []
+        for T0 in seeds[:4]:
+            if _support(tree, target, T0, cfg.relocalise_inlier_m) < cfg.min_correspondences:
+                break  # seeds come best first
+            icp = icp_translation_2d(src, target, T0, self._fallback_icp_cfg, tree)
+            if self._quality_problem(icp) is not None:
+                continue
+            T = icp.translation_xz_m
+            found.append((_support(tree, target, T, cfg.relocalise_inlier_m), T, icp.cov_m2, icp))
+        if not found:
+            return None
+        found.sort(key=lambda f: -f[0])
+        best_n, T, C, icp = found[0]
+        for n_other, T_other, C_other, _ in found[1:]:
+            if n_other < cfg.relocalise_support_ratio * best_n:
+                continue
+            if _mahalanobis2(T_other - T, C + C_other, 0.0) > cfg.gate_chi2:
+                return None  # two answers the profiles cannot tell apart
+        return Displacement2D(prev.timestamp_s, t, -T, C), icp
 
     def _unseen_corner(
         self,
@@ -599,3 +663,33 @@ def _source_tree(pts: NDArray[np.float64]) -> cKDTree | None:
     from scipy.spatial import cKDTree
 
     return cKDTree(pts)
+
+
+def _support(tree: cKDTree, target: NDArray[np.float64], T: NDArray[np.float64], r: float) -> int:
+    """How many ``target`` points (m), moved back by T (target ~= T + source), have a source
+    point of ``tree`` within ``r`` (m)."""
+    d, _ = tree.query(target - T, distance_upper_bound=r)
+    return int(np.count_nonzero(np.isfinite(d)))
+
+
+def _grid_seeds(
+    tree: cKDTree, target: NDArray[np.float64], radius: float, step: float, r: float
+) -> list[NDArray[np.float64]]:
+    """Translations T on a square grid of spacing ``step`` within ``radius`` (m), best
+    supported first (:func:`_support`), each at least two grid steps from every better one
+    (the separated local maxima of the support)."""
+    axis = np.arange(-radius, radius + 0.5 * step, step)
+    gx, gz = np.meshgrid(axis, axis, indexing="ij")
+    grid = np.stack([gx.ravel(), gz.ravel()], axis=1)
+    moved = (target[None, :, :] - grid[:, None, :]).reshape(-1, 2)
+    d, _ = tree.query(moved, distance_upper_bound=r)
+    score = np.isfinite(d).reshape(grid.shape[0], target.shape[0]).sum(axis=1)
+    seeds: list[NDArray[np.float64]] = []
+    for i in np.argsort(-score, kind="stable"):
+        if score[i] == 0:
+            break
+        if all(np.max(np.abs(grid[i] - s)) >= 2 * step - 1e-12 for s in seeds):
+            seeds.append(grid[i])
+            if len(seeds) == 8:
+                break
+    return seeds

@@ -424,6 +424,9 @@ class OnlineEstimator:
         self._stand_z_m: float | None = None
         self._stance_sole_z_m: list[float] = []
         self._refused_in_row = 0  # displacements refused by the gate in a row
+        # the IMU interval this frame found wrong, for the smoothers (FrameRecord.imu_distrust)
+        self._imu_distrust: tuple[float, float, float] | None = None
+        self._imu_period_s = 1.0 / rig.imu_rate_hz if rig.imu_rate_hz else 0.01
         self._last_fix_t: float | None = None  # time of the last fused displacement (s)
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
         self.health = HealthMonitor(HealthLimits(floor_m=fc.measurement_noise_floor_m))
@@ -1282,6 +1285,7 @@ class OnlineEstimator:
             ankle_rad=ankle,
             in_stance=self._in_stance,
             velocity=bridge_velocity,
+            imu_distrust=self._take_imu_distrust(),
         )
 
     def _note_stand_surface(self, pts) -> None:
@@ -1669,8 +1673,18 @@ class OnlineEstimator:
         v_err = (np.asarray(d.delta_xz_m, dtype=float) - (p_now - p_prev)) / dt
         # the error built up over this displacement's interval: the position carries dt x dv
         # (and the clone, at its start, none), so the displacement corrects the velocity
-        self.filter.inflate_velocity(2.0 * float(np.hypot(*v_err)), dt)
+        sigma_v = 2.0 * float(np.hypot(*v_err))
+        self.filter.inflate_velocity(sigma_v, dt)
+        # for the smoothers: the accelerometer sigma per sample whose sum over the interval's
+        # samples (independent, period p) gives that velocity sigma: sigma_v / sqrt(dt p)
+        p = self._imu_period_s
+        self._imu_distrust = (float(d.t0_s), float(d.t1_s), sigma_v / math.sqrt(dt * p))
         return True
+
+    def _take_imu_distrust(self) -> tuple[float, float, float] | None:
+        """This frame's IMU distrust for the smoothers (FrameRecord.imu_distrust), once."""
+        out, self._imu_distrust = self._imu_distrust, None
+        return out
 
     def _count_relocalised(self, t_s: float, fused: bool) -> None:
         """Health bookkeeping of a displacement from the front end's lost-track search."""

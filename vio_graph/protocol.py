@@ -137,6 +137,10 @@ class FrameRecord:
     #: the level surfaces of the slice as the filter's height landmarks (associated by
     #: height, vio_graph/filter/level_landmarks.py); empty when none was found or fused
     levels: tuple[LevelObservation, ...] = ()
+    #: (t0_s, t1_s, accel_sigma_mps2): the filter found the IMU wrong over [t0, t1] (a
+    #: lost-track displacement it widened its velocity for, estimator._widen_for_relocalised):
+    #: the smoothers add this accelerometer sigma to those samples, else None
+    imu_distrust: tuple[float, float, float] | None = None
 
     @property
     def timestamp_s(self) -> float:

@@ -589,6 +589,19 @@ class KeyframeGraphBuilder:
             out.append(self._complete_pending())
         return out
 
+    def distrust_imu(self, t0_s: float, t1_s: float, accel_sigma_mps2: float) -> None:
+        """Add ``accel_sigma_mps2`` (m/s^2, extra sigma per sample) to the buffered samples
+        whose period touches [t0_s, t1_s] (s), where the filter found the IMU wrong. Samples
+        already preintegrated into a keyframe factor keep theirs."""
+        ts = self._imu_t
+        for m in range(len(ts) - 1, -1, -1):
+            period = ts[m + 1] - ts[m] if m + 1 < len(ts) else 0.0
+            if ts[m] + period < t0_s:
+                break
+            if ts[m] <= t1_s + TIME_TOL_S:
+                xa, xg = self._imu_x[m]
+                self._imu_x[m] = (max(xa, float(accel_sigma_mps2)), xg)
+
     def flush(self) -> list[KeyframeUpdate]:
         """Complete a pending keyframe now (holding the last IMU sample if needed)."""
         return [self._complete_pending()] if self._pending is not None else []

@@ -75,6 +75,8 @@ class KeyframeSmootherBase(ABC):
         """One depth frame: the filter's estimate, displacement, corner and (if
         ``config.factors.stance_anchors``) stance observations, with the attitude they were
         built with."""
+        if record.imu_distrust is not None:
+            self._builder.distrust_imu(*record.imu_distrust)
         self.feed_frame(
             record.timestamp_s,
             record.is_keyframe,

@@ -427,6 +427,8 @@ class OnlineEstimator:
         # the IMU interval this frame found wrong, for the smoothers (FrameRecord.imu_distrust)
         self._imu_distrust: tuple[float, float, float] | None = None
         self._imu_period_s = 1.0 / rig.imu_rate_hz if rig.imu_rate_hz else 0.01
+        # the front end's displacement of the previous frame (fused or not), None if none
+        self._prev_visual: Displacement2D | None = None
         self._last_fix_t: float | None = None  # time of the last fused displacement (s)
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
         self.health = HealthMonitor(HealthLimits(floor_m=fc.measurement_noise_floor_m))
@@ -1161,10 +1163,11 @@ class OnlineEstimator:
         if transform_result is not None:
             result = transform_result(result)
         accepted = refused = False
+        prev_visual, self._prev_visual = self._prev_visual, result.displacement
         if result.displacement is not None:
             d2, fused = self._test_frame_stamps(t, self._with_time_terms(result.displacement))
             n_refused = self.filter.n_gate_refusals
-            if result.relocalised and self._widen_for_relocalised(t, fused, d2):
+            if result.relocalised and self._widen_for_relocalised(t, fused, d2, prev_visual):
                 d2 = None  # the state's covariance changed
             self._arbitrate_imu(fused, d2)
             accepted = self._as_family(t, "displacement", self.filter.update_displacement, fused)
@@ -1654,10 +1657,13 @@ class OnlineEstimator:
             self.filter.inflate_position_velocity(Q)
             self.n_imu_inconsistent += 1
 
-    def _widen_for_relocalised(self, t: float, d, d2: float | None) -> bool:
+    def _widen_for_relocalised(
+        self, t: float, d, d2: float | None, prev: Displacement2D | None
+    ) -> bool:
         """A displacement from the front end's lost-track search that the gate would refuse.
-        The IMU-seeded registration failed for several frames in a row and the unseeded
-        search found this displacement, so the filter's velocity (the seed) is what went
+        The IMU-seeded registration failed and the unseeded search found this displacement;
+        if it continues the previous frame's visual displacement ``prev`` (vision agrees
+        with itself, :meth:`_continues`), the filter's velocity (the seed) is what went
         wrong: its variance is widened to twice the velocity error the disagreement implies,
         as an error held over the displacement's interval (SagittalEskf.inflate_velocity
         ``since_s``), and the update re-anchors it. Returns True if it widened."""
@@ -1667,7 +1673,7 @@ class OnlineEstimator:
             return False
         t_prev, p_prev = self._prev_frame
         dt = float(d.t1_s - d.t0_s)
-        if dt <= 0.0:
+        if dt <= 0.0 or not self._continues(d, prev):
             return False
         p_now, _ = self._position_at(t)
         v_err = (np.asarray(d.delta_xz_m, dtype=float) - (p_now - p_prev)) / dt
@@ -1680,6 +1686,17 @@ class OnlineEstimator:
         p = self._imu_period_s
         self._imu_distrust = (float(d.t0_s), float(d.t1_s), sigma_v / math.sqrt(dt * p))
         return True
+
+    def _continues(self, d, prev: Displacement2D | None) -> bool:
+        """Does displacement ``d``'s velocity continue the previous frame's visual
+        displacement ``prev``'s, within ``filter.relocalised_max_accel_mps2`` times the time
+        between their middles? (Vision consistent with itself; False without ``prev``.)"""
+        if prev is None or abs(float(prev.t1_s) - float(d.t0_s)) > 1e-6:
+            return False
+        v = np.asarray(d.delta_xz_m, dtype=float) / float(d.t1_s - d.t0_s)
+        v_prev = np.asarray(prev.delta_xz_m, dtype=float) / float(prev.t1_s - prev.t0_s)
+        gap = 0.5 * float(d.t1_s - prev.t0_s)
+        return float(np.hypot(*(v - v_prev))) <= self.config.filter.relocalised_max_accel_mps2 * gap
 
     def _take_imu_distrust(self) -> tuple[float, float, float] | None:
         """This frame's IMU distrust for the smoothers (FrameRecord.imu_distrust), once."""

@@ -677,6 +677,17 @@ class FilterConfig(BaseModel):
         "also widens the position on false lock-outs (2 ms jitter, obstacle seed 3 filter toe "
         "x 1.61 -> 4.63 cm; docs/generalisation.md, second held-out set)",
     )
+    relocalised_max_accel_mps2: float = Field(
+        default=60.0,
+        gt=0,
+        description="a displacement of the front end's lost-track search "
+        "(frontend.tracker.relocalise_after_frames) that the gate refuses is taken, with the "
+        "velocity variance widened to cover the disagreement, only if vision agrees with "
+        "itself: its velocity and the previous frame's visual displacement's differ by at "
+        "most this acceleration (m/s^2) times the time between them. A shank peaks near 5 g "
+        "(simulated joint-space swing 2-5 g); a displacement from a corrupted frame rarely "
+        "continues the previous one, and is then left to the gate",
+    )
     history_s: float = Field(
         default=2.0, gt=0, description="how long (s) past position estimates are kept for t0"
     )

@@ -693,8 +693,9 @@ def robustness(
             help="'all' faults, or 'imu': clean, IMU spikes / saturation, "
             "camera-IMU offsets -30..30 ms, clock jitter; or 'offsets': clean and the "
             "camera-IMU offsets only; or 'saturation': clean and the 4 g accelerometer "
-            "saturation only; or 'spikes': clean and the 2 Hz IMU spikes only; or 'occluder': "
-            "clean and the occluding foot only."
+            "saturation only; or 'spikes': clean and the 2 Hz IMU spikes only; or 'knock': "
+            "clean and the 0.1 s IMU knock only; or 'occluder': clean and the occluding foot "
+            "only."
         ),
     ] = "all",
 ) -> None:
@@ -707,6 +708,7 @@ def robustness(
     from vio_graph.robustness import (
         FAULT_CASES,
         IMU_CASES,
+        KNOCK_CASES,
         OCCLUDER_CASES,
         OFFSET_CASES,
         SATURATION_CASES,
@@ -722,11 +724,13 @@ def robustness(
         "offsets": OFFSET_CASES,
         "saturation": SATURATION_CASES,
         "spikes": SPIKE_CASES,
+        "knock": KNOCK_CASES,
         "occluder": OCCLUDER_CASES,
     }
     if cases not in case_sets:
         raise VioGraphError(
-            f"--cases: unknown {cases!r}; use all, imu, offsets, saturation, spikes or occluder"
+            f"--cases: unknown {cases!r}; use all, imu, offsets, saturation, spikes, knock or "
+            "occluder"
         )
     case_list = case_sets[cases]
     cfg = load_config(config)

@@ -427,7 +427,7 @@ class OnlineEstimator:
         # the IMU interval this frame found wrong, for the smoothers (FrameRecord.imu_distrust)
         self._imu_distrust: tuple[float, float, float] | None = None
         self._imu_period_s = 1.0 / rig.imu_rate_hz if rig.imu_rate_hz else 0.01
-        # the front end's displacement of the previous frame (fused or not), None if none
+        # the front end's latest displacement (fused or not), None before the first
         self._prev_visual: Displacement2D | None = None
         self._last_fix_t: float | None = None  # time of the last fused displacement (s)
         #: consistency of the fused estimate (vio_graph/health.py); see :meth:`health_report`
@@ -1163,7 +1163,9 @@ class OnlineEstimator:
         if transform_result is not None:
             result = transform_result(result)
         accepted = refused = False
-        prev_visual, self._prev_visual = self._prev_visual, result.displacement
+        prev_visual = self._prev_visual
+        if result.displacement is not None:
+            self._prev_visual = result.displacement
         if result.displacement is not None:
             d2, fused = self._test_frame_stamps(t, self._with_time_terms(result.displacement))
             n_refused = self.filter.n_gate_refusals
@@ -1688,15 +1690,20 @@ class OnlineEstimator:
         return True
 
     def _continues(self, d, prev: Displacement2D | None) -> bool:
-        """Does displacement ``d``'s velocity continue the previous frame's visual
-        displacement ``prev``'s, within ``filter.relocalised_max_accel_mps2`` times the time
-        between their middles? (Vision consistent with itself; False without ``prev``.)"""
-        if prev is None or abs(float(prev.t1_s) - float(d.t0_s)) > 1e-6:
+        """Does displacement ``d``'s velocity continue the latest earlier visual displacement
+        ``prev``'s (ending at most ``frontend.tracker.max_frame_gap_s`` before ``d`` starts),
+        within ``filter.relocalised_max_accel_mps2`` times the time between their middles?
+        (Vision consistent with itself; False without ``prev``.)"""
+        if prev is None:
+            return False
+        gap = float(d.t0_s) - float(prev.t1_s)  # frames without a displacement between them
+        if not -1e-6 <= gap <= self.config.frontend.tracker.max_frame_gap_s:
             return False
         v = np.asarray(d.delta_xz_m, dtype=float) / float(d.t1_s - d.t0_s)
         v_prev = np.asarray(prev.delta_xz_m, dtype=float) / float(prev.t1_s - prev.t0_s)
-        gap = 0.5 * float(d.t1_s - prev.t0_s)
-        return float(np.hypot(*(v - v_prev))) <= self.config.filter.relocalised_max_accel_mps2 * gap
+        between_s = 0.5 * float(d.t0_s + d.t1_s - prev.t0_s - prev.t1_s)
+        a_max = self.config.filter.relocalised_max_accel_mps2
+        return float(np.hypot(*(v - v_prev))) <= a_max * between_s
 
     def _take_imu_distrust(self) -> tuple[float, float, float] | None:
         """This frame's IMU distrust for the smoothers (FrameRecord.imu_distrust), once."""

@@ -71,7 +71,11 @@ FAULT_CASES: tuple[FaultCase, ...] = (
     FaultCase("clock jitter", "2 ms", {"clock_jitter_s": 0.002}, {}),
 )
 
-#: the IMU and clock faults of issue 11 (``vio-graph robustness --cases imu``): spikes,
+#: an unflagged knock: 60 m/s^2 on two accelerometer axes for 0.1 s at 2 s (a 6 m/s velocity
+#: error per axis inside the sensor's range; vio_graph/sim/config.FaultsConfig.imu_knock_*)
+KNOCK_CASE = FaultCase("IMU knock", "0.1 s x 60 m/s^2", {"imu_knock_start_s": 2.0}, {})
+
+#: the IMU and clock faults of issue 11 (``vio-graph robustness --cases imu``): spikes, a knock,
 #: saturation (4 g, and 3 g: the simulator's joint-space swing reaches 3-4.7 g at its peaks, so
 #: 4 g clips nothing on three of the four paper scenarios and 3 g clips 2-4 % of their samples),
 #: camera-IMU offsets over -30..+30 ms and clock jitter
@@ -79,6 +83,7 @@ IMU_CASES: tuple[FaultCase, ...] = (
     FAULT_CASES[0],
     *(c for c in FAULT_CASES if c.name in ("IMU spikes", "IMU accel saturation")),
     FaultCase("IMU accel saturation", "3 g", {"imu_accel_saturation_mps2": 29.4}, {}),
+    KNOCK_CASE,
     FaultCase("camera-IMU time offset", "-30 ms", {"camera_time_offset_s": -0.03}, {}),
     *(c for c in FAULT_CASES if c.name in ("camera-IMU time offset", "clock jitter")),
     FaultCase("camera-IMU time offset", "30 ms", {"camera_time_offset_s": 0.03}, {}),
@@ -102,6 +107,10 @@ SATURATION_CASES: tuple[FaultCase, ...] = tuple(
 SPIKE_CASES: tuple[FaultCase, ...] = tuple(
     c for c in IMU_CASES if c.name in ("clean", "IMU spikes")
 )
+
+
+#: the knock row of IMU_CASES with its clean reference (``vio-graph robustness --cases knock``)
+KNOCK_CASES: tuple[FaultCase, ...] = (FAULT_CASES[0], KNOCK_CASE)
 
 
 #: the occluding-foot row with its clean reference (``vio-graph robustness --cases occluder``)

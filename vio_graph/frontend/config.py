@@ -653,6 +653,14 @@ class TrackerConfig(_Strict):
         "support that disagree beyond their covariances is ambiguous and gives nothing. "
         "None = off",
     )
+    relocalise_check_frames: int = Field(
+        5,
+        ge=0,
+        description="lost-track search: after a searched displacement, the seeded ones of up "
+        "to this many frames are checked against the search too (the IMU that was wrong may "
+        "still be): the search's result replaces a seeded one it disagrees with or measures "
+        "more than; the checks end at the first seeded result that passes",
+    )
     relocalise_max_speed_mps: float = Field(
         4.0,
         gt=0,

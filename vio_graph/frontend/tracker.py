@@ -144,6 +144,9 @@ class CornerTracker:
         self._prev: _Frame | None = None
         self._next_id = 0
         self._frames_without_seeded = 0  # frames since the IMU-seeded ICP last gave a result
+        # frames left on which a seeded displacement is checked against the search (it follows
+        # a searched one: the IMU may still be wrong)
+        self._verify_seeded = 0
 
     def reset(self) -> None:
         """Forget the previous frame (track ids keep increasing)."""
@@ -342,12 +345,16 @@ class CornerTracker:
     ) -> TrackerOutput:
         """Lost-track search (``relocalise_after_frames``): after that many frames in a row
         without a seeded displacement, a frame whose seeded registration failed again gets
-        the unseeded search's displacement, if it finds an unambiguous one."""
+        the unseeded search's displacement, if it finds an unambiguous one; the seeded
+        displacements that follow a searched one are checked against the search
+        (:meth:`_verified`)."""
+        n = self._cfg.relocalise_after_frames
         if out.displacement is not None:
             self._frames_without_seeded = 0
+            if self._verify_seeded > 0:
+                return self._verified(t, profile, out)
             return out
         self._frames_without_seeded += 1
-        n = self._cfg.relocalise_after_frames
         if n is None or self._frames_without_seeded <= n or self._prev is None:
             return out
         if self._gap_problem(t, self._prev) is not None:
@@ -356,7 +363,33 @@ class CornerTracker:
         if found is None:
             return out
         disp, icp = found
+        self._verify_seeded = self._cfg.relocalise_check_frames
         return dataclasses.replace(out, displacement=disp, icp=icp, reason=None, relocalised=True)
+
+    def _verified(
+        self, t: float, profile: NDArray[np.float64], out: TrackerOutput
+    ) -> TrackerOutput:
+        """A seeded displacement right after a searched one: the IMU that was wrong may still
+        be (a knock lasting several frames), and ICP from a wrong seed can settle in a wrong
+        basin that agrees with it, or measure one axis only and let the IMU carry the other.
+        For up to ``relocalise_check_frames`` frames the search runs too; if it is
+        unambiguous and disagrees with the seeded result beyond their covariances, or
+        measures more (smaller covariance trace), it replaces it (and the next frame is
+        checked again); otherwise the checks end."""
+        assert out.displacement is not None
+        self._verify_seeded -= 1
+        found = None if self._prev is None else self._relocalise(t, profile, self._prev)
+        if found is not None:
+            disp, icp = found
+            seeded = out.displacement
+            v = np.asarray(disp.delta_xz_m) - np.asarray(seeded.delta_xz_m)
+            disagree = _mahalanobis2(v, disp.cov_m2 + seeded.cov_m2, 0.0) > self._cfg.gate_chi2
+            # a seeded result that leaves an axis unmeasured (a riser alone: no z) lets the
+            # IMU carry that axis through the fault; the search measured it
+            if disagree or np.trace(disp.cov_m2) < np.trace(seeded.cov_m2):
+                return dataclasses.replace(out, displacement=disp, icp=icp, relocalised=True)
+        self._verify_seeded = 0
+        return out
 
     def _relocalise(
         self, t: float, profile: NDArray[np.float64], prev: _Frame

@@ -413,6 +413,17 @@ class FaultsConfig(_Section):
     )
     imu_spike_accel_mps2: float = Field(30.0, ge=0, description="accel spike magnitude, m/s^2")
     imu_spike_gyro_radps: float = Field(5.0, ge=0, description="gyro spike magnitude, rad/s")
+    imu_knock_start_s: float | None = Field(
+        None,
+        ge=0,
+        description="start of an IMU knock, s (None: off): imu_knock_accel_mps2 added to the "
+        "accelerometer's x and subtracted from its z for imu_knock_duration_s, a velocity "
+        "error of accel x duration per axis inside the sensor's range, so nothing flags it",
+    )
+    imu_knock_duration_s: float = Field(0.1, ge=0, description="IMU knock length, s")
+    imu_knock_accel_mps2: float = Field(
+        60.0, ge=0, description="IMU knock acceleration on each of two axes, m/s^2"
+    )
     imu_accel_saturation_mps2: float | None = Field(
         None, gt=0, description="clip the accelerometer at this lower range, m/s^2; None: off"
     )

@@ -105,8 +105,9 @@ def corrupt_imu(
     cfg: FaultsConfig,
     rng: np.random.Generator,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
-    """IMU spikes then saturation; returns new accel (N, 3), gyro (N, 3) and the spike
-    sample indices (each spike hits one random axis of both sensors, random signs)."""
+    """IMU spikes, a knock, then saturation; returns new accel (N, 3), gyro (N, 3) and the
+    spike sample indices (each spike hits one random axis of both sensors, random signs).
+    Sample i is taken at i / ``rate_hz`` seconds (the knock's window)."""
     accel = np.array(accel_mps2, dtype=float, copy=True)
     gyro = np.array(gyro_radps, dtype=float, copy=True)
     n = accel.shape[0]
@@ -117,6 +118,11 @@ def corrupt_imu(
         ax_a, ax_g = rng.integers(0, 3, k), rng.integers(0, 3, k)
         accel[spikes, ax_a] += rng.choice([-1.0, 1.0], k) * cfg.imu_spike_accel_mps2
         gyro[spikes, ax_g] += rng.choice([-1.0, 1.0], k) * cfg.imu_spike_gyro_radps
+    if cfg.imu_knock_start_s is not None and cfg.imu_knock_duration_s > 0:
+        i0 = int(round(cfg.imu_knock_start_s * rate_hz))
+        i1 = i0 + int(round(cfg.imu_knock_duration_s * rate_hz))
+        accel[i0:i1, 0] += cfg.imu_knock_accel_mps2
+        accel[i0:i1, 2] -= cfg.imu_knock_accel_mps2
     if cfg.imu_accel_saturation_mps2 is not None:
         lim = cfg.imu_accel_saturation_mps2
         accel = np.clip(accel, -lim, lim)
@@ -142,6 +148,11 @@ def summary(cfg: FaultsConfig, n_dropped: int, n_spikes: int) -> str:
         parts.append(f"occluder {cfg.occluder_start_s:g} s + {cfg.occluder_duration_s:g} s")
     if cfg.imu_spike_rate_hz > 0:
         parts.append(f"{n_spikes} IMU spikes")
+    if cfg.imu_knock_start_s is not None and cfg.imu_knock_duration_s > 0:
+        parts.append(
+            f"IMU knock {cfg.imu_knock_start_s:g} s + {cfg.imu_knock_duration_s:g} s at "
+            f"{cfg.imu_knock_accel_mps2:g} m/s^2"
+        )
     if cfg.imu_accel_saturation_mps2 is not None or cfg.imu_gyro_saturation_radps is not None:
         parts.append(
             f"IMU saturation accel {cfg.imu_accel_saturation_mps2} m/s^2, gyro "

@@ -7,12 +7,15 @@ trial): the peak and p99 of the specific force's norm at the IMU point (g), the 
 peak, the IMU point's peak speed (m/s) and the instrumented leg's swing kinds. The gait is
 simulated without the plausibility check, so conditions above the bound are listed, flagged,
 instead of raising. ``--step-on-depth-m`` overrides ``gait.obstacle_step_on_depth_m`` (e.g.
-0.6 to step over the 25 x 50 cm platform, as before the rule existed).
+0.6 to step over the 25 x 50 cm platform, as before the rule existed); ``--obstacle H D``
+the obstacle's height and depth (m) of obstacle conditions.
 
 Usage::
 
     python benchmarks/sim_shank_peaks.py --condition obstacle_25x50 --seeds 1000 1001 1002
     python benchmarks/sim_shank_peaks.py --seeds 1000          # every condition, ~1 min
+    python benchmarks/sim_shank_peaks.py --condition obstacle_25x50 --obstacle 0.14 0.38 \
+        --step-on-depth-m 0.6 --seeds 1000 1002
 
 Prints a markdown table.
 """
@@ -30,9 +33,17 @@ from vio_graph.sim.trial import _rng, rig_transforms
 from vio_graph.sweep import SWEEP_CONDITIONS, condition_by_name, condition_scenario
 
 
-def shank_peaks(name: str, seed: int, step_on_depth_m: float | None = None) -> dict:
+def shank_peaks(
+    name: str,
+    seed: int,
+    step_on_depth_m: float | None = None,
+    obstacle_m: tuple[float, float] | None = None,
+) -> dict:
     """The figures of one sweep condition and seed (see the module docstring)."""
     cfg = condition_scenario(condition_by_name(name))
+    if obstacle_m is not None and cfg.terrain.kind == "obstacle":
+        size = {"obstacle_height_m": obstacle_m[0], "obstacle_depth_m": obstacle_m[1]}
+        cfg = cfg.model_copy(update={"terrain": cfg.terrain.model_copy(update=size)})
     if step_on_depth_m is not None:
         gait = cfg.gait.model_copy(update={"obstacle_step_on_depth_m": step_on_depth_m})
         cfg = cfg.model_copy(update={"gait": gait})
@@ -56,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--condition", action="append", help="sweep condition (repeatable)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1000])
     ap.add_argument("--step-on-depth-m", type=float, default=None)
+    ap.add_argument("--obstacle", type=float, nargs=2, metavar=("H", "D"), default=None)
     args = ap.parse_args(argv)
     names = args.condition or [c.name for c in SWEEP_CONDITIONS]
     print(
@@ -65,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---|---|---|---|---|---|---|")
     for name in names:
         for seed in args.seeds:
-            s = shank_peaks(name, seed, args.step_on_depth_m)
+            s = shank_peaks(name, seed, args.step_on_depth_m, args.obstacle)
             ok = "ok" if s["peak_g"] <= MAX_SHANK_SPECIFIC_FORCE_G else "**over**"
             print(
                 f"| {name} | {seed} | {s['peak_g']:.1f} | {s['t_peak_s']:.2f} "

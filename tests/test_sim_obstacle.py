@@ -115,3 +115,21 @@ def test_step_on_depth_saved_only_when_set() -> None:
     assert "obstacle_step_on_depth_m" not in provenance_config(cfg)["gait"]
     set_cfg = _obstacle(0.14, 0.13, obstacle_step_on_depth_m=0.4)
     assert provenance_config(set_cfg)["gait"]["obstacle_step_on_depth_m"] == 0.4
+
+
+def test_shank_peaks_benchmark_lists_the_platform_both_ways() -> None:
+    """benchmarks/sim_shank_peaks.py bypasses the check: stepped over (the rule raised), the
+    25 x 50 cm platform is listed over the bound; stepped onto (the default), under it."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import sim_shank_peaks
+
+    over = sim_shank_peaks.shank_peaks("obstacle_25x50", 1000, step_on_depth_m=0.6)
+    onto = sim_shank_peaks.shank_peaks("obstacle_25x50", 1000)
+    assert over["peak_g"] > MAX_SHANK_SPECIFIC_FORCE_G > 2 * onto["peak_g"]
+    assert "obstacle" in over["swings"] and "obstacle" not in onto["swings"]
+    assert onto["swings"][1:3] == ["ascent", "descent"]
+    small = sim_shank_peaks.shank_peaks("obstacle_25x50", 1000, obstacle_m=(0.14, 0.13))
+    assert "obstacle" in small["swings"]  # 13 cm deep: stepped over

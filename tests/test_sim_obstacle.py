@@ -133,3 +133,16 @@ def test_shank_peaks_benchmark_lists_the_platform_both_ways() -> None:
     assert onto["swings"][1:3] == ["ascent", "descent"]
     small = sim_shank_peaks.shank_peaks("obstacle_25x50", 1000, obstacle_m=(0.14, 0.13))
     assert "obstacle" in small["swings"]  # 13 cm deep: stepped over
+
+
+def test_implausible_stair_gait_names_the_stair_and_the_cadence() -> None:
+    """Twice the cadence with the via-point swing on upstair (43 g on seed 1): the error names
+    the stair's rise and tread and the gait fields that made it violent."""
+    cfg = load_scenario("upstair")
+    gait = cfg.gait.model_copy(update={"cadence_scale": 2.0, "swing_model": "via_points"})
+    with pytest.raises(ImplausibleMotionError, match="ascent swing") as err:
+        _terrain_and_gait(cfg.model_copy(update={"gait": gait}), 1)
+    msg = str(err.value)
+    for name in ("terrain.stair_rise_m = 0.147", "gait.cadence_scale = 2", "via_points"):
+        assert name in msg
+    assert err.value.peak_g > MAX_SHANK_SPECIFIC_FORCE_G

@@ -106,10 +106,13 @@ def _cause(terrain: Terrain, gait: GaitConfig) -> str:
     elif terrain.kind in ("stair_up", "stair_down"):
         parts.append(
             f"the stair (terrain.stair_rise_m = {prm['rise_m']:.3f} m, "
-            f"terrain.stair_tread_m = {prm['tread_m']:.3f} m) needs a different geometry"
+            f"terrain.stair_tread_m = {prm['tread_m']:.3f} m) sets the swing's path"
         )
     else:
-        parts.append(f"gait.level_stride_length_m = {gait.level_stride_length_m:.2f} m")
+        parts.append(
+            f"the level stride (gait.level_stride_length_m = {gait.level_stride_length_m:.2f} "
+            f"m, gait.level_stride_time_s = {gait.level_stride_time_s:.2f} s) is too fast"
+        )
     if gait.cadence_scale != 1.0:
         parts.append(
             f"gait.cadence_scale = {gait.cadence_scale:g} (accelerations grow with its square)"

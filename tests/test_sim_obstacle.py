@@ -76,6 +76,19 @@ def test_obstacle_stepped_over_beyond_reach_is_refused() -> None:
     assert 2.0 < err.value.t_s < 2.7  # in the swing over the obstacle
 
 
+def test_plausibility_check_can_be_switched_off_and_is_saved_when_set() -> None:
+    """gait.max_shank_specific_force_g: None simulates the folded swing (for stress tests that
+    clip the accelerometer on purpose); a lower bound refuses the paper obstacle (4.6 g)."""
+    cfg = _obstacle(0.25, 0.50, obstacle_step_on_depth_m=0.60, max_shank_specific_force_g=None)
+    _, m = _terrain_and_gait(cfg, 1000)
+    assert "obstacle" in {s.swing_kind for s in m.strides}
+    assert provenance_config(cfg)["gait"]["max_shank_specific_force_g"] is None
+    low = _obstacle(0.14, 0.13, max_shank_specific_force_g=3.0)
+    with pytest.raises(ImplausibleMotionError, match="max_shank_specific_force_g = 3 g"):
+        _terrain_and_gait(low, 1)
+    assert "max_shank_specific_force_g" not in provenance_config(load_scenario("obstacle"))["gait"]
+
+
 def test_platform_too_short_for_the_foot_is_a_config_error() -> None:
     """Deeper than the step-on rule but shorter than a foot (0.27 m): neither over nor onto."""
     cfg = _obstacle(0.14, 0.27, obstacle_step_on_depth_m=0.20)

@@ -182,6 +182,15 @@ class GaitConfig(_Section):
         "down within the leg's reach (measured: 0.32-0.34 m for H = 1.55-1.75 m, "
         "docs/simulator.md)",
     )
+    max_shank_specific_force_g: float | None = Field(
+        20.0,
+        gt=0,
+        description="plausibility bound: a simulated motion whose specific force at the shank "
+        "IMU exceeds this (g, 1 kHz, whole trial) is refused with an ImplausibleMotionError "
+        "naming the stride and its terrain / gait parameters (vio_graph.sim.plausibility; the "
+        "simulator gives 1.5-10 g with the joint-space swing, up to 14 g with the via-point "
+        "stress swing); None: no check (stress tests that clip the accelerometer on purpose)",
+    )
     stair_toe_margin_m: float = Field(0.03, ge=0, description="ascent: toe to next riser, m")
     stair_heel_margin_m: float = Field(0.03, ge=0, description="descent: heel to riser, m")
     heel_strike_pitch_deg: float = Field(15.0, ge=0, description="foot toe-up at heel strike")

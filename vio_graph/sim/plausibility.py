@@ -5,7 +5,8 @@ The joint-space swing gives a specific force of 2-11 g at the shank IMU on every
 condition and the via-point stress swing up to ~14 g (docs/simulator.md, "Obstacles stepped
 over or onto"); shank-mounted accelerometers read a few g in swing and 5-10 g at heel strike
 in walking (the simulator has no heel-strike impact). A motion whose IMU specific force peaks
-above :data:`MAX_SHANK_SPECIFIC_FORCE_G` is a construction failure (a foothold the leg cannot
+above ``gait.max_shank_specific_force_g`` (:data:`MAX_SHANK_SPECIFIC_FORCE_G` by default) is
+a construction failure (a foothold the leg cannot
 reach, a swing folded back on itself), not a gait: the trial is refused with an error naming
 the terrain or gait parameters of the stride where it happened.
 """
@@ -21,8 +22,8 @@ from vio_graph.sim.config import GaitConfig
 from vio_graph.sim.gait import LegMotion, Stride, steps_onto_obstacle
 from vio_graph.sim.terrain import Terrain
 
-#: bound on the specific force (g) at the shank IMU, analytic at the 1 kHz gait samples
-MAX_SHANK_SPECIFIC_FORCE_G = 20.0
+#: default bound on the specific force (g) at the shank IMU, analytic at the 1 kHz gait samples
+MAX_SHANK_SPECIFIC_FORCE_G: float = GaitConfig.model_fields["max_shank_specific_force_g"].default
 
 
 def shank_specific_force_g(
@@ -57,7 +58,8 @@ def check_plausible_motion(
     where = "" if stride is None else f" in {_phase(stride, t_pk)}"
     raise ImplausibleMotionError(
         f"implausible shank motion: the specific force at the IMU peaks at {peak:.0f} g at "
-        f"t = {t_pk:.2f} s{where} (bound {bound_g:.0f} g, a human shank stays well below it); "
+        f"t = {t_pk:.2f} s{where} (gait.max_shank_specific_force_g = {bound_g:.0f} g, a human "
+        f"shank stays well below it); "
         f"{_cause(terrain, gait)}",
         peak,
         t_pk,

@@ -131,8 +131,8 @@ def _terrain_and_gait(
     """The terrain and the leg's motion; when the terrain is too short, the error names the
     shortest length of the end field (0.25 m steps) with which this seed's walk covers the
     trial (the walk ends on whole strides drawn with jitter, so no formula gives it). A motion
-    whose shank IMU specific force exceeds a human bound raises ImplausibleMotionError
-    (``check_plausible_motion``)."""
+    whose shank IMU specific force exceeds ``gait.max_shank_specific_force_g`` raises
+    ImplausibleMotionError (``check_plausible_motion``)."""
     terrain = build_terrain(config.terrain, _rng(seed, "terrain"))
     try:
         motion = simulate_gait(
@@ -158,8 +158,10 @@ def _terrain_and_gait(
             ) from None
         raise
     # refuse a motion no human shank makes (a foothold out of reach, a folded swing)
-    _, _, imu_xz = rig_transforms(config.rig)
-    check_plausible_motion(motion, imu_xz, config.duration_s, terrain, config.gait)
+    bound_g = config.gait.max_shank_specific_force_g
+    if bound_g is not None:
+        _, _, imu_xz = rig_transforms(config.rig)
+        check_plausible_motion(motion, imu_xz, config.duration_s, terrain, config.gait, bound_g)
     return terrain, motion
 
 
@@ -318,7 +320,7 @@ _LATER_FIELDS = {
         "last_rise_m",
         "open_risers",
     ),
-    "gait": ("obstacle_step_on_depth_m",),
+    "gait": ("obstacle_step_on_depth_m", "max_shank_specific_force_g"),
 }
 
 

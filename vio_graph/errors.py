@@ -38,6 +38,17 @@ class TerrainTooShortError(SimulationError):
         self.field = field
 
 
+class ImplausibleMotionError(SimulationError):
+    """The simulated leg moves faster than a human shank can (``vio_graph.sim.plausibility``):
+    ``peak_g`` is the peak specific force at the IMU (g) at ``t_s``; the message names the
+    terrain or gait parameters of the swing it happened in."""
+
+    def __init__(self, message: str, peak_g: float, t_s: float) -> None:
+        super().__init__(message)
+        self.peak_g = peak_g
+        self.t_s = t_s
+
+
 class EstimationError(VioGraphError):
     """An estimator was fed data it cannot use (e.g. out-of-order timestamps)."""
 

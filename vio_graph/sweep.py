@@ -300,7 +300,8 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
     SweepCondition(
         "obstacle_25x50",
         "obstacle",
-        "the obstacle trial with a platform 25 cm high and 50 cm deep (stepped over)",
+        "the obstacle trial with a platform 25 cm high and 50 cm deep (stepped onto: deeper "
+        "than gait.obstacle_step_on_depth_m, 0.30 m)",
         scenario="obstacle",
         overrides={"terrain": {"obstacle_height_m": 0.25, "obstacle_depth_m": 0.50}},
     ),

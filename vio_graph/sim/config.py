@@ -170,6 +170,27 @@ class GaitConfig(_Section):
     )
     toe_clearance_nosing_m: float = Field(0.045, gt=0, description="over stair nosings, m [U]")
     toe_clearance_obstacle_m: float = Field(0.12, gt=0, description="Patla & Rietdyk 1993 [U]")
+    obstacle_step_on_depth_m: float = Field(
+        0.30,
+        gt=0,
+        description="obstacles deeper than this (terrain.obstacle_depth_m) are stepped onto, "
+        "not over: the instrumented leg steps up onto the top (an ascent swing), the other "
+        "foot swings past to the floor beyond, then the instrumented leg steps down (a descent "
+        "swing). Stepping over, the crossing step spans 0.18 m + depth + 0.20 m + a foot "
+        "length from the trailing to the leading toe (0.95 m at 0.30 m depth, H = 1.75 m: 1.1 "
+        "x thigh + shank); beyond that the simulated hip path cannot bring the leading foot "
+        "down within the leg's reach (measured: 0.32-0.34 m for H = 1.55-1.75 m, "
+        "docs/simulator.md)",
+    )
+    max_shank_specific_force_g: float | None = Field(
+        20.0,
+        gt=0,
+        description="plausibility bound: a simulated motion whose specific force at the shank "
+        "IMU exceeds this (g, 1 kHz, whole trial) is refused with an ImplausibleMotionError "
+        "naming the stride and its terrain / gait parameters (vio_graph.sim.plausibility; the "
+        "simulator gives 1.5-10 g with the joint-space swing, up to 14 g with the via-point "
+        "stress swing); None: no check (stress tests that clip the accelerometer on purpose)",
+    )
     stair_toe_margin_m: float = Field(0.03, ge=0, description="ascent: toe to next riser, m")
     stair_heel_margin_m: float = Field(0.03, ge=0, description="descent: heel to riser, m")
     heel_strike_pitch_deg: float = Field(15.0, ge=0, description="foot toe-up at heel strike")

@@ -46,6 +46,7 @@ _EXIT_HEEL_MARGIN_M = 0.03  # first foothold after the stairs: heel this far pas
 _EXIT_STEP_M = 0.30  # then one short step before level steps (no 1 m stride off the stairs)
 _MAX_TOE_OVERHANG_M = 0.05  # descent on treads shorter than the foot: toe past the nosing
 _WALK_MARGIN_S = 0.3  # the walk must go on this long past the trial's end (the last swing)
+_PLATFORM_MARGIN_M = 0.015  # an obstacle stepped onto: heel and toe at least this far in
 
 
 def leg_model_for(rig: RigConfig) -> LegModel:
@@ -233,6 +234,8 @@ def _plan_steps(
                     toes.append(xs[i - 1] + m + foot_len)
                 toes.append(xs[n - 1] + _EXIT_HEEL_MARGIN_M + foot_len)
         toes.append(toes[-1] + _EXIT_STEP_M)  # short transition step onto the landing
+    elif steps_onto_obstacle(terrain, gait):
+        _platform_steps(toes, xf, float(prm["depth_m"]), foot_len, step, gait)
     elif terrain.kind == "obstacle":
         d = float(prm["depth_m"])
         trail = xf - 0.18  # contralateral (trailing) toe before the obstacle
@@ -244,11 +247,46 @@ def _plan_steps(
     while len(toes) < n_max and toes[-1] + step < x_end:
         toes.append(toes[-1] + step)
     x = np.asarray(toes[:n_max]) + gait.step_jitter_m * rng.standard_normal(min(len(toes), n_max))
-    if terrain.kind in ("stair_up", "stair_down"):  # keep stair footholds on their treads
+    if terrain.kind in ("stair_up", "stair_down") or steps_onto_obstacle(terrain, gait):
+        # keep stair (and platform) footholds on their treads
         x = np.asarray(toes[:n_max]) + np.clip(x - np.asarray(toes[:n_max]), -0.01, 0.01)
     heel_x = x - foot_len
     z = np.maximum(terrain.height_at(x), terrain.height_at(heel_x))
     return list(zip(x.tolist(), z.tolist(), strict=True))
+
+
+def steps_onto_obstacle(terrain: Terrain, gait: GaitConfig) -> bool:
+    """True when the obstacle is deeper than ``gait.obstacle_step_on_depth_m``: the leg steps
+    onto it (ascent, then descent swing) instead of over it (one obstacle swing)."""
+    return terrain.kind == "obstacle" and float(terrain.params["depth_m"]) > (
+        gait.obstacle_step_on_depth_m
+    )
+
+
+def _platform_steps(
+    toes: list[float], xf: float, depth: float, foot_len: float, step: float, gait: GaitConfig
+) -> None:
+    """Footholds (appended to ``toes``, which holds the start) over an obstacle stepped onto,
+    like one stair step up and one down: level steps to the contralateral toe
+    ``gait.stair_toe_margin_m`` before the near face, the instrumented foot onto the top
+    (centred on it), the contralateral foot past it to the floor beyond (heel
+    ``gait.stair_heel_margin_m`` past the far face), the instrumented foot down to the floor
+    one short transition step (_EXIT_STEP_M) further."""
+    room = depth - foot_len
+    if room < 2 * _PLATFORM_MARGIN_M:
+        raise ConfigError(
+            f"terrain.obstacle_depth_m = {depth:.2f} m is deeper than "
+            f"gait.obstacle_step_on_depth_m = {gait.obstacle_step_on_depth_m:.2f} m (too deep "
+            f"to step over) but leaves no room on its top for a {foot_len:.2f} m foot: raise "
+            "gait.obstacle_step_on_depth_m (step over it) or make the obstacle deeper"
+        )
+    trail = xf - gait.stair_toe_margin_m
+    k = max(1, int(np.ceil((trail - toes[0]) / step)))
+    k += 1 - k % 2  # odd: the instrumented leg steps onto the obstacle
+    toes += list(toes[0] + (trail - toes[0]) * np.arange(1, k + 1) / k)
+    toes.append(xf + 0.5 * (depth + foot_len))  # the foot centred on the top
+    toes.append(xf + depth + gait.stair_heel_margin_m + foot_len)
+    toes.append(toes[-1] + _EXIT_STEP_M)
 
 
 def _landing_steps(

@@ -31,6 +31,7 @@ from vio_graph.sim.gait import LegMotion, simulate_gait
 from vio_graph.sim.imu import ImuTruth, simulate_imu
 from vio_graph.sim.joints import simulate_joints
 from vio_graph.sim.mocap import camera_poses, simulate_mocap
+from vio_graph.sim.plausibility import check_plausible_motion
 from vio_graph.sim.terrain import Terrain, build_terrain
 from vio_graph.sim.tof import TofCamera
 
@@ -129,7 +130,9 @@ def _terrain_and_gait(
 ) -> tuple[Terrain, LegMotion]:
     """The terrain and the leg's motion; when the terrain is too short, the error names the
     shortest length of the end field (0.25 m steps) with which this seed's walk covers the
-    trial (the walk ends on whole strides drawn with jitter, so no formula gives it)."""
+    trial (the walk ends on whole strides drawn with jitter, so no formula gives it). A motion
+    whose shank IMU specific force exceeds ``gait.max_shank_specific_force_g`` raises
+    ImplausibleMotionError (``check_plausible_motion``)."""
     terrain = build_terrain(config.terrain, _rng(seed, "terrain"))
     try:
         motion = simulate_gait(
@@ -154,6 +157,11 @@ def _terrain_and_gait(
                 err.field,
             ) from None
         raise
+    # refuse a motion no human shank makes (a foothold out of reach, a folded swing)
+    bound_g = config.gait.max_shank_specific_force_g
+    if bound_g is not None:
+        _, _, imu_xz = rig_transforms(config.rig)
+        check_plausible_motion(motion, imu_xz, config.duration_s, terrain, config.gait, bound_g)
     return terrain, motion
 
 
@@ -302,24 +310,31 @@ def _metadata(
     )
 
 
-#: terrain fields added after recordings were published: left out of the saved config at
+#: fields added after recordings were published, by section: left out of the saved config at
 #: their defaults, so a scenario that does not use them saves the same metadata as before
-_LATER_TERRAIN_FIELDS = (
-    "rise_jitter_m",
-    "tread_jitter_m",
-    "first_rise_m",
-    "last_rise_m",
-    "open_risers",
-)
+_LATER_FIELDS = {
+    "terrain": (
+        "rise_jitter_m",
+        "tread_jitter_m",
+        "first_rise_m",
+        "last_rise_m",
+        "open_risers",
+    ),
+    "gait": ("obstacle_step_on_depth_m", "max_shank_specific_force_g"),
+}
 
 
 def provenance_config(config: ScenarioConfig) -> dict:
     """The scenario as saved in ``metadata.provenance.config`` (JSON-ready): the whole
     config, without the contact section when there is no contact sensor and without the
-    later terrain fields (``_LATER_TERRAIN_FIELDS``) at their defaults."""
-    default = type(config.terrain)()
-    later = {k for k in _LATER_TERRAIN_FIELDS if getattr(config.terrain, k) == getattr(default, k)}
-    exclude: dict = {"terrain": later} if later else {}
+    later fields (``_LATER_FIELDS``) at their defaults."""
+    exclude: dict = {}
+    for section, names in _LATER_FIELDS.items():
+        cfg = getattr(config, section)
+        default = type(cfg)()
+        later = {k for k in names if getattr(cfg, k) == getattr(default, k)}
+        if later:
+            exclude[section] = later
     if config.contact.kind == "none":
         exclude["contact"] = True
     return config.model_dump(mode="json", exclude=exclude or None)

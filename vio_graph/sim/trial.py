@@ -321,6 +321,7 @@ _LATER_FIELDS = {
         "open_risers",
     ),
     "gait": ("obstacle_step_on_depth_m", "max_shank_specific_force_g"),
+    "faults": ("imu_knock_start_s", "imu_knock_duration_s", "imu_knock_accel_mps2"),
 }
 
 

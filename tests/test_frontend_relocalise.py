@@ -44,7 +44,7 @@ def test_a_diverged_prediction_loses_the_track_and_the_search_finds_it_again() -
     c0 = np.array([0.2, 0.55])
     views = [_stair_view(c0 + k * STEP, seed=k) for k in range(5)]
     pred = STEP + WRONG  # 16 cm off: beyond ICP's reach from the seed
-    off = _run(TrackerConfig(), views, pred)
+    off = _run(TrackerConfig(relocalise_after_frames=None), views, pred)
     assert all(o.displacement is None for o in off)  # the premise: lost for good
     on = _run(TrackerConfig(relocalise_after_frames=2), views, pred)
     assert [o.displacement is None for o in on] == [True, True, False, False]

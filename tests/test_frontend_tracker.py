@@ -119,14 +119,20 @@ def test_same_corner_keeps_its_track_id() -> None:
     assert np.linalg.norm(b.displacement.delta_xz_m - delta) < 0.003
 
 
-def test_prediction_half_a_step_off_gives_no_displacement() -> None:
-    """With T0 half a stair period off, ICP cannot produce a result that passes the checks."""
+def test_prediction_half_a_step_off_gives_no_seeded_displacement() -> None:
+    """With T0 half a stair period off, the seeded ICP cannot produce a result that passes the
+    checks; the unseeded lost-track search (on by default) finds the true displacement."""
     delta = SWING["30fps_12cm"]
     (p0, f0), (p1, f1) = _periodic_pair(delta)
-    tracker = CornerTracker(WIDE_GATE)
-    tracker.update(0.0, p0, f0)
-    out = tracker.update(1 / 30, p1, f1, delta + 0.5 * STEP, np.eye(2) * 0.01**2)
-    assert out.displacement is None and out.icp is not None and out.reason
+    outs = []
+    for after in (None, 0):
+        tracker = CornerTracker(WIDE_GATE.model_copy(update={"relocalise_after_frames": after}))
+        tracker.update(0.0, p0, f0)
+        outs.append(tracker.update(1 / 30, p1, f1, delta + 0.5 * STEP, np.eye(2) * 0.01**2))
+    seeded, searched = outs
+    assert seeded.displacement is None and seeded.icp is not None and seeded.reason
+    assert searched.relocalised and searched.displacement is not None
+    assert np.linalg.norm(searched.displacement.delta_xz_m - delta) < 0.005
 
 
 def test_gate_rejects_moved_terrain_but_accepts_it_without_gate() -> None:
@@ -138,14 +144,18 @@ def test_gate_rejects_moved_terrain_but_accepts_it_without_gate() -> None:
     shift = np.array([0.0, 0.05])
     p1, _, f1 = _view(c0 + delta - shift, n1[0] - 0.15, n1[0] + 0.25, seed=6)  # = terrain + shift
     outs = []
-    for gate in (TrackerConfig().gate_chi2, 1e9):
-        tracker = CornerTracker(TrackerConfig(gate_chi2=gate))
+    for gate, after in ((TrackerConfig().gate_chi2, None), (1e9, None), (13.8, 0)):
+        tracker = CornerTracker(TrackerConfig(gate_chi2=gate, relocalise_after_frames=after))
         tracker.update(0.0, p0, f0)
         outs.append(tracker.update(1 / 30, p1, f1, delta, np.eye(2) * 0.005**2))
-    gated, ungated = outs
+    gated, ungated, searched = outs
     assert gated.displacement is None and "IMU prediction" in (gated.reason or "")
     assert ungated.displacement is not None
     np.testing.assert_allclose(ungated.displacement.delta_xz_m, delta - shift, atol=0.004)
+    # the lost-track search (on by default) hands the same displacement on, flagged: the
+    # filter's gate and its continuity rule decide (estimator._widen_for_relocalised)
+    assert searched.relocalised and searched.displacement is not None
+    np.testing.assert_allclose(searched.displacement.delta_xz_m, delta - shift, atol=0.004)
 
 
 def test_no_displacement_without_corner_or_after_a_gap() -> None:

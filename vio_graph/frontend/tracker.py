@@ -355,7 +355,10 @@ class CornerTracker:
                 return self._verified(t, profile, out)
             return out
         self._frames_without_seeded += 1
-        if n is None or self._frames_without_seeded <= n or self._prev is None:
+        paper = not self._cfg.profile_fallback or self._cfg.icp_target != "profile"
+        if n is None or paper or self._prev is None:
+            return out  # (the search is a whole-profile registration: none in paper modes)
+        if self._frames_without_seeded <= n:
             return out
         if self._gap_problem(t, self._prev) is not None:
             return out

@@ -121,7 +121,7 @@ def test_same_corner_keeps_its_track_id() -> None:
 
 def test_prediction_half_a_step_off_gives_no_seeded_displacement() -> None:
     """With T0 half a stair period off, the seeded ICP cannot produce a result that passes the
-    checks; the unseeded lost-track search (on by default) finds the true displacement."""
+    checks; the unseeded lost-track search (relocalise_after_frames) finds the true one."""
     delta = SWING["30fps_12cm"]
     (p0, f0), (p1, f1) = _periodic_pair(delta)
     outs = []
@@ -152,7 +152,7 @@ def test_gate_rejects_moved_terrain_but_accepts_it_without_gate() -> None:
     assert gated.displacement is None and "IMU prediction" in (gated.reason or "")
     assert ungated.displacement is not None
     np.testing.assert_allclose(ungated.displacement.delta_xz_m, delta - shift, atol=0.004)
-    # the lost-track search (on by default) hands the same displacement on, flagged: the
+    # the lost-track search (relocalise_after_frames) hands the same displacement on: the
     # filter's gate and its continuity rule decide (estimator._widen_for_relocalised)
     assert searched.relocalised and searched.displacement is not None
     np.testing.assert_allclose(searched.displacement.delta_xz_m, delta - shift, atol=0.004)

@@ -147,6 +147,9 @@ class CornerTracker:
         # frames left on which a seeded displacement is checked against the search (it follows
         # a searched one: the IMU may still be wrong)
         self._verify_seeded = 0
+        self._last_displacement: Displacement2D | None = None  # the previous frame's output
+        #: the last successful search's support count, source KD-tree and target (m)
+        self._last_search: tuple[int, cKDTree, NDArray[np.float64]] | None = None
 
     def reset(self) -> None:
         """Forget the previous frame (track ids keep increasing)."""
@@ -214,6 +217,7 @@ class CornerTracker:
         )
         if predicted_delta_xz_m is not None:
             out = self._relocalise_if_lost(timestamp_s, np.asarray(profile_xz_m, float), out)
+        self._last_displacement = out.displacement
         self._prev = _Frame(timestamp_s, np.asarray(profile_xz_m, float), corner, out.track_id)
         return out
 
@@ -369,6 +373,21 @@ class CornerTracker:
         self._verify_seeded = self._cfg.relocalise_check_frames
         return dataclasses.replace(out, displacement=disp, icp=icp, reason=None, relocalised=True)
 
+    def _search_window(self, t: float, prev: _Frame) -> tuple[NDArray[np.float64], float]:
+        """Centre (T, m) and radius (m) of the search's grid. After a visual displacement
+        that ended at ``prev``: vision's own constant-velocity prediction, within what
+        ``relocalise_max_accel_mps2`` can change over the interval (0.5 a dt^2), so that a
+        stair's period (0.32 m along the slope) stays out of reach even at 15 fps. Otherwise
+        around no motion, within ``relocalise_max_speed_mps`` x the interval."""
+        cfg = self._cfg
+        dt = t - prev.timestamp_s
+        last = self._last_displacement
+        if last is not None and abs(float(last.t1_s) - prev.timestamp_s) < 1e-9:
+            v = np.asarray(last.delta_xz_m, dtype=float) / float(last.t1_s - last.t0_s)
+            radius = 0.5 * cfg.relocalise_max_accel_mps2 * dt * dt
+            return -v * dt, max(radius, 2.0 * cfg.relocalise_grid_m)
+        return np.zeros(2), max(cfg.relocalise_max_speed_mps * dt, cfg.relocalise_grid_m)
+
     def _verified(
         self, t: float, profile: NDArray[np.float64], out: TrackerOutput
     ) -> TrackerOutput:
@@ -387,9 +406,15 @@ class CornerTracker:
             seeded = out.displacement
             v = np.asarray(disp.delta_xz_m) - np.asarray(seeded.delta_xz_m)
             disagree = _mahalanobis2(v, disp.cov_m2 + seeded.cov_m2, 0.0) > self._cfg.gate_chi2
+            # two answers: the one more of this frame's profile supports (the same count)
+            assert self._last_search is not None  # set by the successful search above
+            n_search, tree, target = self._last_search
+            r = self._cfg.relocalise_inlier_m
+            n_seeded = _support(tree, target, -np.asarray(seeded.delta_xz_m, dtype=float), r)
             # a seeded result that leaves an axis unmeasured (a riser alone: no z) lets the
             # IMU carry that axis through the fault; the search measured it
-            if disagree or np.trace(disp.cov_m2) < np.trace(seeded.cov_m2):
+            more = np.trace(disp.cov_m2) < np.trace(seeded.cov_m2)
+            if (disagree and n_search > n_seeded) or (not disagree and more):
                 return dataclasses.replace(out, displacement=disp, icp=icp, relocalised=True)
         self._verify_seeded = 0
         return out
@@ -397,11 +422,11 @@ class CornerTracker:
     def _relocalise(
         self, t: float, profile: NDArray[np.float64], prev: _Frame
     ) -> tuple[Displacement2D, IcpResult] | None:
-        """The displacement since ``prev`` without the IMU seed: the translation grid within
-        ``relocalise_max_speed_mps`` x the frame interval scored by support (target points with
-        a previous profile point within ``relocalise_inlier_m``), ICP of the whole profile from
-        its best separated candidates, and the best-supported result if no other one with
-        comparable support disagrees with it beyond their covariances (None otherwise)."""
+        """The displacement since ``prev`` without the IMU seed: the translation grid of
+        :meth:`_search_window` scored by support (target points with a previous profile point
+        within ``relocalise_inlier_m``), ICP of the whole profile from its best separated
+        candidates, and the best-supported result if no other one with comparable support
+        disagrees with it beyond their covariances (None otherwise)."""
         from scipy.spatial import cKDTree
 
         cfg = self._cfg
@@ -410,8 +435,10 @@ class CornerTracker:
         if min(target.shape[0], src.shape[0]) < cfg.min_correspondences:
             return None
         tree = cKDTree(src)
-        radius = max(cfg.relocalise_max_speed_mps * (t - prev.timestamp_s), cfg.relocalise_grid_m)
-        seeds = _grid_seeds(tree, target, radius, cfg.relocalise_grid_m, cfg.relocalise_inlier_m)
+        centre, radius = self._search_window(t, prev)
+        seeds = _grid_seeds(
+            tree, target, centre, radius, cfg.relocalise_grid_m, cfg.relocalise_inlier_m
+        )
         found: list[tuple[int, NDArray[np.float64], NDArray[np.float64], IcpResult]] = []
         for T0 in seeds[:4]:
             if _support(tree, target, T0, cfg.relocalise_inlier_m) < cfg.min_correspondences:
@@ -420,6 +447,8 @@ class CornerTracker:
             if self._quality_problem(icp) is not None:
                 continue
             T = icp.translation_xz_m
+            if np.max(np.abs(T - centre)) > radius + cfg.relocalise_grid_m:
+                continue  # ICP walked out of the window (to the next stair period, say)
             found.append((_support(tree, target, T, cfg.relocalise_inlier_m), T, icp.cov_m2, icp))
         if not found:
             return None
@@ -430,6 +459,7 @@ class CornerTracker:
                 continue
             if _mahalanobis2(T_other - T, C + C_other, 0.0) > cfg.gate_chi2:
                 return None  # two answers the profiles cannot tell apart
+        self._last_search = (best_n, tree, target)
         return Displacement2D(prev.timestamp_s, t, -T, C), icp
 
     def _unseen_corner(
@@ -709,14 +739,19 @@ def _support(tree: cKDTree, target: NDArray[np.float64], T: NDArray[np.float64],
 
 
 def _grid_seeds(
-    tree: cKDTree, target: NDArray[np.float64], radius: float, step: float, r: float
+    tree: cKDTree,
+    target: NDArray[np.float64],
+    centre: NDArray[np.float64],
+    radius: float,
+    step: float,
+    r: float,
 ) -> list[NDArray[np.float64]]:
-    """Translations T on a square grid of spacing ``step`` within ``radius`` (m), best
-    supported first (:func:`_support`), each at least two grid steps from every better one
-    (the separated local maxima of the support)."""
+    """Translations T on a square grid of spacing ``step`` within ``radius`` (m) of
+    ``centre``, best supported first (:func:`_support`), each at least two grid steps from
+    every better one (the separated local maxima of the support)."""
     axis = np.arange(-radius, radius + 0.5 * step, step)
     gx, gz = np.meshgrid(axis, axis, indexing="ij")
-    grid = np.stack([gx.ravel(), gz.ravel()], axis=1)
+    grid = np.stack([gx.ravel(), gz.ravel()], axis=1) + np.asarray(centre, dtype=float)
     moved = (target[None, :, :] - grid[:, None, :]).reshape(-1, 2)
     d, _ = tree.query(moved, distance_upper_bound=r)
     score = np.isfinite(d).reshape(grid.shape[0], target.shape[0]).sum(axis=1)

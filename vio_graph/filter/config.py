@@ -202,6 +202,25 @@ class ImuFaultConfig(BaseModel):
         "measurements say each clipped stretch lost (imu_faults.SaturationScaleLearner); "
         "saturation_sigma_range x range is its prior. False: the configured scale throughout",
     )
+    saturation_tangent_cap: bool = Field(
+        default=False,
+        description="cap the half-normal's scale of a clipped axis at the tangent's excess: "
+        "the last trusted sample's value plus its rise per sample since the one before, "
+        "continued to the k-th clipped sample, minus the rail. A peak is concave near its "
+        "top, so its tangent bounds it from above; set per stretch where the tangent reaches "
+        "the rail at the first clipped sample (else no cap). The capped samples keep the "
+        "capped sigma (no floor) and leave the learnt scale alone",
+    )
+    saturation_learn_per_side: bool = Field(
+        default=False,
+        description="learn one scale per IMU axis and rail side (the positive and the "
+        "negative rail of each axis apart) instead of one per axis: the two rails of an axis "
+        "are clipped by different gait events (on the simulated 3 g stairs the shank's x "
+        "rail at the swing's forward peak is exceeded by 7-13 m/s^2 per clipped sample, at "
+        "its backward peak by 2-6), and one scale over-restores the one and under-restores "
+        "the other. Only with saturation_learn_scale; each side starts from the configured "
+        "scale",
+    )
     saturation_explained_fraction: float = Field(
         default=0.1,
         gt=0,

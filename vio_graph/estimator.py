@@ -589,6 +589,7 @@ class OnlineEstimator:
                 fi.saturation_sigma_range * rig.accel_range_mps2,
                 fi.saturation_explained_fraction,
                 fi.saturation_evidence_window_s,
+                per_side=fi.saturation_learn_per_side,
             )
             if fi.enabled and fi.saturation_learn_scale and rig.accel_range_mps2
             else None
@@ -688,11 +689,14 @@ class OnlineEstimator:
         h = 0.0 if prev is None else shank.timestamp_s - prev.timestamp_s
         # IMU axes -> shank axes -> world x-z (the sagittal rotation of the shank's attitude)
         R_xz = _sagittal_rotation(shank.quat_wxyz) @ self.rig.R_shank_imu[[0, 2], :]
+        # axes whose prior the tangent capped (imu_faults.saturation_tangent_cap) say nothing
+        # about the learnt scale
+        free = ~mon.last_capped
         if learner.add_sample(
             shank.timestamp_s,
             h,
-            mon.last_rail_sign,
-            mon.last_restored_mps2,
+            mon.last_rail_sign * free,
+            mon.last_restored_mps2 * free,
             R_xz,
             float(np.trace(self.filter.cov_velocity_m2ps2())),
             self.filter.velocity_corrections_mps,

@@ -202,6 +202,31 @@ class ImuFaultConfig(BaseModel):
         "measurements say each clipped stretch lost (imu_faults.SaturationScaleLearner); "
         "saturation_sigma_range x range is its prior. False: the configured scale throughout",
     )
+    saturation_tangent_cap: bool = Field(
+        default=True,
+        description="cap the half-normal's scale of a clipped axis at the tangent's excess: "
+        "the last trusted sample's value plus its rise per sample since the one before, "
+        "continued to the k-th clipped sample, minus the rail. A peak is concave near its "
+        "top, so its tangent bounds it from above; set per stretch where the tangent reaches "
+        "the rail at the first clipped sample (a jump past the rail: no cap). The capped "
+        "samples keep the capped sigma (no floor) and leave the learnt scale alone. 3 g "
+        "saturation, filter / smoother / batch toe x cm, seeds 1-3: downstair (diagnosed on "
+        "seed 1) 2.13 / 1.53 / 1.60 -> 1.10 / 0.98 / 0.91, upstair 1.64 / 0.39 / 0.42 -> "
+        "1.26 / 0.38 / 0.40, obstacle 2.00 / 0.99 / 0.94 -> 1.85 / 0.92 / 0.84; seeds "
+        "1000-1002: downstair 2.19 / 1.41 / 1.25 -> 1.58 / 0.86 / 0.78, upstair 1.40 / 0.38 / "
+        "0.40 -> 1.26 / 0.43 / 0.45, obstacle unchanged; 4 g and clean trials within 0.02 "
+        "(docs/method.md, 'The tangent bounds a clipped peak')",
+    )
+    saturation_learn_per_side: bool = Field(
+        default=False,
+        description="learn one scale per IMU axis and rail side (the positive and the "
+        "negative rail of each axis apart) instead of one per axis: the two rails of an axis "
+        "are clipped by different gait events (on the simulated 3 g stairs the shank's x "
+        "rail at the swing's forward peak is exceeded by 7-13 m/s^2 per clipped sample, at "
+        "its backward peak by 2-6), and one scale over-restores the one and under-restores "
+        "the other. Only with saturation_learn_scale; each side starts from the configured "
+        "scale",
+    )
     saturation_explained_fraction: float = Field(
         default=0.1,
         gt=0,

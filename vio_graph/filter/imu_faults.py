@@ -145,6 +145,10 @@ class ImuFaultMonitor:
         self._gyro_d2 = chi2_quantile(config.gyro_ahrs_probability, 3)
         self._prev: tuple[float, Mat3, tuple[float, float, float]] | None = None
         self._last_acc: tuple[float, ...] | None = None  # last trusted specific force
+        self._prev_acc: tuple[float, ...] | None = None  # the trusted one before it
+        #: the tangent's excess per clipped axis at the stretch's k-th sample is
+        #: entry + slope k (m/s^2 beyond the rail, IMU axes; None: no cap for this stretch)
+        self._tangent: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._acc_run = 0  # consecutive samples with a saturated accelerometer axis
         #: scale (m/s^2) of the half-normal prior per IMU axis: the configured one until a
         #: SaturationScaleLearner has evidence (set_accel_scales)
@@ -154,6 +158,7 @@ class ImuFaultMonitor:
         self.last_rail_sign = np.zeros(3)
         self.last_restored_mps2 = np.zeros(3)
         self.last_extra_cov = np.zeros((3, 3))
+        self.last_capped = np.zeros(3, dtype=bool)
         self.n_accel_saturated = 0  #: samples with an accelerometer axis at the rail
         self.n_gyro_saturated = 0  #: samples with a gyro axis at the rail
         self.n_gyro_repaired = 0  #: gyro samples replaced by the orientation's rate
@@ -175,13 +180,22 @@ class ImuFaultMonitor:
             self.n_accel_saturated += 1
             a = np.asarray(accel_mps2, dtype=float)
             rail = np.abs(a) >= self._acc_lim
-            scale = self.accel_scales_mps2
+            scale = self._side_scales(a)
+            cap = self._tangent_cap(a, rail)
+            capped = np.zeros(3, dtype=bool)
+            if cap is not None:
+                # the half-normal's scale no larger than the tangent's excess (mean 0.8, sd
+                # 0.6 of it: the bound lies beyond most of the prior's mass)
+                capped = rail & (cap < scale)
+                scale = np.where(capped, cap, scale)
             self.last_rail_sign = np.where(rail, np.sign(a), 0.0)
             self.last_restored_mps2 = self.last_rail_sign * scale * _HALF_NORMAL_MEAN
+            #: the railed axes whose scale the tangent set (not the learnt one's)
+            self.last_capped = capped
             acc = np.where(rail, a + np.sign(a) * scale * _HALF_NORMAL_MEAN, a)
             corr = np.sqrt(2.0 * self._acc_run - 1.0) if self.config.saturation_correlated else 1.0
             if self.config.saturation_sigma_prior_floor:
-                scale = np.maximum(scale, self._acc_sig)
+                scale = np.where(capped, scale, np.maximum(scale, self._acc_sig))
             sig_axes = np.where(rail, scale * _HALF_NORMAL_SD * corr, 0.0)
             xa = max(xa, float(np.max(sig_axes)))
             #: the prior's covariance on the clipped axes only (ImuSample.accel_extra_cov_m2ps4)
@@ -193,6 +207,47 @@ class ImuFaultMonitor:
             self.n_gyro_saturated += 1
             xg = max(xg, self._gyr_sig * _HALF_NORMAL_SD)
         return acc, xa, xg
+
+    def _set_trusted(self, acc: tuple[float, ...]) -> None:
+        """Remember a trusted specific force (and the one before it, for the tangent)."""
+        self._prev_acc, self._last_acc = self._last_acc, acc
+
+    def _tangent_cap(self, a: NDArray[np.float64], rail: NDArray[np.bool_]) -> NDArray | None:
+        """With ``saturation_tangent_cap``: the largest excess (m/s^2, per IMU axis, inf
+        where there is no bound) the clipped axes can have at this sample of the stretch.
+
+        A clipped peak is concave near its top, so the tangent at the last trusted sample
+        (its value plus the rise per sample since the one before, continued k samples)
+        bounds it from above. The bound is set at the stretch's first sample, per railed
+        axis, only where the tangent itself reaches the rail there (a signal that jumps
+        past the rail, or fell into it, is not a concave peak: no bound)."""
+        if not self.config.saturation_tangent_cap:
+            return None
+        k = self._acc_run
+        if k == 1:
+            self._tangent = None
+            if self._last_acc is not None and self._prev_acc is not None:
+                last = np.asarray(self._last_acc, dtype=float)
+                prev = np.asarray(self._prev_acc, dtype=float)
+                sgn = np.sign(a)
+                rise = np.maximum(sgn * (last - prev), 0.0)  # towards the rail, per sample
+                first = sgn * last + rise - np.abs(a)  # the tangent's excess at k = 1
+                ok = rail & (first > 0.0)
+                if ok.any():
+                    self._tangent = (np.where(ok, first - rise, np.inf), np.where(ok, rise, 0.0))
+        if self._tangent is None:
+            return None
+        base, rise = self._tangent
+        return np.maximum(base + rise * k, 0.0)
+
+    def _side_scales(self, accel_mps2: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The prior's scale per IMU axis for this sample: :attr:`accel_scales_mps2` as is
+        (3 scales), or, with one scale per axis and rail side (6: the positive rails' x, y,
+        z, then the negative rails'), the one of the side each axis is on."""
+        s = self.accel_scales_mps2
+        if s.shape[0] == 3:
+            return s
+        return np.where(accel_mps2 >= 0.0, s[:3], s[3:])
 
     def _after_test(self, repaired: bool, d2: float = -1.0) -> None:
         """Learn the residual's spread from a tested sample (statistic ``d2`` >= 0 under
@@ -266,7 +321,7 @@ class ImuFaultMonitor:
         self._prev = (t, R, (gx, gy, gz) if repaired is None else repaired)
         self._after_test(repaired is not None, -1.0 if gyr_sat else d2)
         if repaired is None and not acc_sat:
-            self._last_acc = tuple(acc_l)
+            self._set_trusted(tuple(acc_l))
         if (
             repaired is None
             and acc is None
@@ -326,7 +381,7 @@ class ImuFaultMonitor:
             self.max_gyro_d2 = max(self.max_gyro_d2, d2)
         if d2 >= 0.0 or self._repair_run:
             self._after_test(False, d2)
-        self._last_acc = tuple(acc.tolist())
+        self._set_trusted(tuple(acc.tolist()))
 
     def finish_compiled(
         self,
@@ -368,7 +423,7 @@ class ImuFaultMonitor:
         if repaired:
             prev[11], prev[12], prev[13] = px, py, pz
         elif not acc_sat:  # (fault_check stored the gyro)
-            self._last_acc = tuple(acc.tolist())
+            self._set_trusted(tuple(acc.tolist()))
         if (
             not repaired
             and new_acc is None
@@ -422,7 +477,7 @@ class ImuFaultMonitor:
         self._prev = (t, _as_mat3(R), (gx, gy, gz))
         self._after_test(repaired is not gyr, -1.0 if gyr_sat else d2)
         if repaired is gyr and not acc_sat:
-            self._last_acc = tuple(acc.tolist())
+            self._set_trusted(tuple(acc.tolist()))
         if (
             repaired is gyr
             and xa == sample.accel_extra_sigma_mps2
@@ -490,7 +545,7 @@ def velocity_fault_cov(sigma_mps: float, interval_s: float) -> NDArray[np.float6
 class _Episode:
     """Clipped stretches close together and the evidence window after them."""
 
-    U: NDArray[np.float64]  # (2, 3) world x-z velocity per unit of scale on each IMU axis
+    U: NDArray[np.float64]  # (2, 3 or 6) world x-z velocity per unit of each scale
     restored_mps: NDArray[np.float64]  # (2,) velocity the prior put back (world x-z)
     corrections0_mps: NDArray[np.float64]  # the filter's correction sum at the start
     var_before: float  # the filter's velocity variance (trace) before the first stretch
@@ -521,13 +576,19 @@ class SaturationScaleLearner:
     stretch outweighs it.
     """
 
-    def __init__(self, s0_mps2: float, explained_fraction: float, window_s: float) -> None:
+    def __init__(
+        self, s0_mps2: float, explained_fraction: float, window_s: float, per_side: bool = False
+    ) -> None:
         self.s0 = float(s0_mps2)
         self.explained_fraction = float(explained_fraction)
         self.window_s = float(window_s)
-        self._A = np.eye(3) / self.s0**2  # normal equations, prior included
-        self._b = np.full(3, 1.0 / self.s0)
-        self.scales_mps2 = np.full(3, self.s0)
+        #: one scale per IMU axis and rail side (6: positive x, y, z, then negative x, y, z;
+        #: ``imu_faults.saturation_learn_per_side``) instead of one per axis (3)
+        self.per_side = bool(per_side)
+        n = 6 if self.per_side else 3
+        self._A = np.eye(n) / self.s0**2  # normal equations, prior included
+        self._b = np.full(n, 1.0 / self.s0)
+        self.scales_mps2 = np.full(n, self.s0)
         self._ep: _Episode | None = None
         self.n_evidence = 0  #: stretches (merged) whose evidence was used
         self.n_dropped = 0  #: stretches whose velocity was not measured within window_s
@@ -557,10 +618,18 @@ class SaturationScaleLearner:
         if rail_sign.any():
             if ep is None:
                 ep = self._ep = _Episode(
-                    np.zeros((2, 3)), np.zeros(2), corrections_mps.copy(), velocity_var
+                    np.zeros((2, self._A.shape[0])),
+                    np.zeros(2),
+                    corrections_mps.copy(),
+                    velocity_var,
                 )
             ep.in_stretch = True
-            ep.U += (_HALF_NORMAL_MEAN * h) * (R_xz_imu * rail_sign)
+            du = (_HALF_NORMAL_MEAN * h) * (R_xz_imu * rail_sign)
+            if self.per_side:  # each railed axis's column on the side it is clipped at
+                ep.U[:, :3] += du * (rail_sign > 0.0)
+                ep.U[:, 3:] += du * (rail_sign < 0.0)
+            else:
+                ep.U += du
             ep.restored_mps += h * (R_xz_imu @ restored_mps2)
             return False
         if ep is None:

@@ -110,6 +110,15 @@ def test_imu_spikes_at_the_configured_rate_and_saturation(clean) -> None:
     assert np.isclose(np.abs(gyro), 3.0).sum() > 5
 
 
+def test_imu_knock_adds_its_acceleration_for_its_window_only(clean) -> None:
+    trial = simulate_trial(_cfg(imu_knock_start_s=1.5, imu_knock_accel_mps2=60.0), 4)
+    diff = trial.imu.accel_mps2 - clean.imu.accel_mps2
+    hit = np.flatnonzero(np.abs(diff).max(axis=1) > 0)
+    np.testing.assert_array_equal(hit, np.arange(150, 160))  # 0.1 s at 100 Hz from 1.5 s
+    np.testing.assert_allclose(diff[hit], np.tile([60.0, 0.0, -60.0], (10, 1)), atol=1e-9)
+    np.testing.assert_array_equal(trial.imu.gyro_radps, clean.imu.gyro_radps)
+
+
 def test_time_offset_shifts_depth_stamps_and_jitter_spreads_them(clean) -> None:
     trial = simulate_trial(_cfg(camera_time_offset_s=0.015), 4)
     np.testing.assert_allclose(trial.frame_timestamps_s - trial.frame_true_time_s, 0.015)

@@ -8,6 +8,7 @@ from vio_graph.cli import app
 from vio_graph.robustness import (
     FAULT_CASES,
     IMU_CASES,
+    KNOCK_CASES,
     OCCLUDER_CASES,
     SATURATION_CASES,
     SPIKE_CASES,
@@ -31,8 +32,15 @@ def test_saturation_cases_are_the_clean_and_saturation_rows_of_the_imu_sweep() -
 def test_unknown_case_set_is_refused(tmp_path) -> None:
     res = CliRunner().invoke(app, ["robustness", "--cases", "satur", "--out", str(tmp_path)])
     assert res.exit_code != 0
-    assert "use all, imu, offsets, saturation, spikes or occluder" in str(res.exception)
+    assert "use all, imu, offsets, saturation, spikes, knock or occluder" in str(res.exception)
     assert not any(tmp_path.iterdir())  # nothing simulated
+
+
+def test_knock_cases_are_the_clean_and_knock_rows_of_the_imu_sweep() -> None:
+    names = [(c.name, c.severity) for c in KNOCK_CASES]
+    assert names == [("clean", "-"), ("IMU knock", "0.1 s x 60 m/s^2")]
+    assert all(c in IMU_CASES for c in KNOCK_CASES)
+    assert KNOCK_CASES[1].sim_faults == {"imu_knock_start_s": 2.0}
 
 
 def test_occluder_cases_are_the_clean_and_occluder_rows_of_the_full_sweep() -> None:

@@ -1677,7 +1677,7 @@ class OnlineEstimator:
             d2 = self.filter.displacement_d2(d)
         if d2 is None or d2 <= self.filter.gate_d2 or self._prev_frame is None:
             return False
-        t_prev, p_prev = self._prev_frame
+        _, p_prev = self._prev_frame
         dt = float(d.t1_s - d.t0_s)
         if dt <= 0.0 or not self._continues(d, prev):
             return False

@@ -63,7 +63,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -125,6 +125,19 @@ class _Frame:
     track_id: int | None
 
 
+class _Search(NamedTuple):
+    """A lost-track search's answer: the displacement and its ICP run, with what the
+    comparison with a seeded result needs: the answer's support (target points with a
+    previous profile point within ``relocalise_inlier_m``), the previous profile's KD-tree
+    and the thinned target (m) it was counted on."""
+
+    displacement: Displacement2D
+    icp: IcpResult
+    support: int
+    tree: cKDTree
+    target: NDArray[np.float64]
+
+
 class CornerTracker:
     """Keeps the previous frame and turns corner features into displacements (module doc)."""
 
@@ -148,8 +161,6 @@ class CornerTracker:
         # a searched one: the IMU may still be wrong)
         self._verify_seeded = 0
         self._last_displacement: Displacement2D | None = None  # the previous frame's output
-        #: the last successful search's support count, source KD-tree and target (m)
-        self._last_search: tuple[int, cKDTree, NDArray[np.float64]] | None = None
 
     def reset(self) -> None:
         """Forget the previous frame (track ids keep increasing)."""
@@ -369,7 +380,7 @@ class CornerTracker:
         found = self._relocalise(t, profile, self._prev)
         if found is None:
             return out
-        disp, icp = found
+        disp, icp = found.displacement, found.icp
         self._verify_seeded = self._cfg.relocalise_check_frames
         return dataclasses.replace(out, displacement=disp, icp=icp, reason=None, relocalised=True)
 
@@ -402,31 +413,28 @@ class CornerTracker:
         self._verify_seeded -= 1
         found = None if self._prev is None else self._relocalise(t, profile, self._prev)
         if found is not None:
-            disp, icp = found
+            disp, icp = found.displacement, found.icp
             seeded = out.displacement
             v = np.asarray(disp.delta_xz_m) - np.asarray(seeded.delta_xz_m)
             disagree = _mahalanobis2(v, disp.cov_m2 + seeded.cov_m2, 0.0) > self._cfg.gate_chi2
             # two answers: the one more of this frame's profile supports (the same count)
-            assert self._last_search is not None  # set by the successful search above
-            n_search, tree, target = self._last_search
             r = self._cfg.relocalise_inlier_m
-            n_seeded = _support(tree, target, -np.asarray(seeded.delta_xz_m, dtype=float), r)
+            T_seeded = -np.asarray(seeded.delta_xz_m, dtype=float)
+            n_seeded = _support(found.tree, found.target, T_seeded, r)
             # a seeded result that leaves an axis unmeasured (a riser alone: no z) lets the
             # IMU carry that axis through the fault; the search measured it
             more = np.trace(disp.cov_m2) < np.trace(seeded.cov_m2)
-            if (disagree and n_search > n_seeded) or (not disagree and more):
+            if (disagree and found.support > n_seeded) or (not disagree and more):
                 return dataclasses.replace(out, displacement=disp, icp=icp, relocalised=True)
         self._verify_seeded = 0
         return out
 
-    def _relocalise(
-        self, t: float, profile: NDArray[np.float64], prev: _Frame
-    ) -> tuple[Displacement2D, IcpResult] | None:
+    def _relocalise(self, t: float, profile: NDArray[np.float64], prev: _Frame) -> _Search | None:
         """The displacement since ``prev`` without the IMU seed: the translation grid of
         :meth:`_search_window` scored by support (target points with a previous profile point
         within ``relocalise_inlier_m``), ICP of the whole profile from its best separated
         candidates, and the best-supported result if no other one with comparable support
-        disagrees with it beyond their covariances (None otherwise)."""
+        disagrees with it beyond their covariances (None otherwise), as a :class:`_Search`."""
         from scipy.spatial import cKDTree
 
         cfg = self._cfg
@@ -459,8 +467,7 @@ class CornerTracker:
                 continue
             if _mahalanobis2(T_other - T, C + C_other, 0.0) > cfg.gate_chi2:
                 return None  # two answers the profiles cannot tell apart
-        self._last_search = (best_n, tree, target)
-        return Displacement2D(prev.timestamp_s, t, -T, C), icp
+        return _Search(Displacement2D(prev.timestamp_s, t, -T, C), icp, best_n, tree, target)
 
     def _unseen_corner(
         self,

@@ -102,3 +102,37 @@ def test_on_a_floor_the_search_measures_z_and_claims_no_x() -> None:
         d = o.displacement
         assert abs(d.delta_xz_m[1] - STEP[1]) < 0.002
         assert d.cov_m2[0, 0] > 0.99 * IcpConfig().max_variance_m2  # x: unobservable
+
+
+def _with_unseen(view: np.ndarray) -> np.ndarray:
+    """``view`` with two copies of it 1.5 and 3 m lower: surfaces the previous frame did not
+    see, so that a third of the profile can be registered."""
+    return np.vstack([view, view - [0.0, 1.5], view - [0.0, 3.0]])
+
+
+def test_an_answer_that_registers_a_minority_of_the_profile_is_refused() -> None:
+    c0 = np.array([0.2, 0.55])
+    views = [_stair_view(c0, seed=30), _with_unseen(_stair_view(c0 + STEP, 31))]
+    lenient = TrackerConfig(relocalise_after_frames=0, relocalise_min_share=0.05)
+    found = _run(lenient, views, STEP + WRONG)[0]
+    assert found.relocalised and found.displacement is not None  # it registers ...
+    assert np.abs(found.displacement.delta_xz_m - STEP).max() < 0.004
+    strict = _run(TrackerConfig(relocalise_after_frames=0), views, STEP + WRONG)[0]
+    assert strict.displacement is None and not strict.relocalised  # ... a third of it
+
+
+def test_an_imu_prediction_as_well_supported_as_the_answer_rivals_it() -> None:
+    from scipy.spatial import cKDTree
+
+    from vio_graph.frontend.tracker import Displacement2D, _Search
+
+    c0 = np.array([0.0, 0.5])
+    prev, cur = _comb(c0, seed=1), _comb(c0 + STEP, seed=2)
+    tree = cKDTree(prev)
+    answer = _Search(Displacement2D(0.0, DT, STEP, np.eye(2) * 1e-6), None, cur.shape[0], tree, cur)
+    tracker = CornerTracker(TrackerConfig(relocalise_after_frames=0))
+    cov = np.eye(2) * 0.002**2
+    period = np.array([0.06, 0.0])  # the comb repeats: the prediction fits as well
+    assert tracker._prediction_rivals(answer, STEP + period, cov)
+    assert not tracker._prediction_rivals(answer, STEP + WRONG, cov)  # fits nothing
+    assert not tracker._prediction_rivals(answer, STEP + 0.001, cov)  # the same answer

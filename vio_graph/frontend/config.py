@@ -688,13 +688,24 @@ class TrackerConfig(_Strict):
         description="lost-track search: a target point supports a translation if a previous "
         "profile point lies within this distance of it, m",
     )
+    relocalise_min_share: float = Field(
+        0.5,
+        gt=0,
+        le=1,
+        description="lost-track search: the answer must register at least this share of the "
+        "frame's (thinned) profile within relocalise_inlier_m of the previous profile; a "
+        "registration of a minority of the profile is a partial overlap whose translation "
+        "the rest of the profile does not confirm (fast 15 fps swing frames: 20-30 % and "
+        "centimetres off; after a knock: 90-100 %)",
+    )
     relocalise_support_ratio: float = Field(
         0.8,
         gt=0,
         le=1,
         description="lost-track search: a second solution with at least this share of the "
         "best one's support, farther than their covariances allow (gate_chi2), makes the "
-        "search ambiguous",
+        "search ambiguous; the IMU-seeded prediction is one of the candidates, so a search "
+        "answer is used only where the prediction's translation has clearly less support",
     )
 
 

@@ -227,7 +227,13 @@ class CornerTracker:
             np.asarray(profile_xz_m, float),
         )
         if predicted_delta_xz_m is not None:
-            out = self._relocalise_if_lost(timestamp_s, np.asarray(profile_xz_m, float), out)
+            out = self._relocalise_if_lost(
+                timestamp_s,
+                np.asarray(profile_xz_m, float),
+                out,
+                np.asarray(predicted_delta_xz_m, dtype=float),
+                self._prediction_cov(predicted_cov_m2),
+            )
         self._last_displacement = out.displacement
         self._prev = _Frame(timestamp_s, np.asarray(profile_xz_m, float), corner, out.track_id)
         return out
@@ -356,12 +362,18 @@ class CornerTracker:
         return TrackerOutput(disp, obs, icp, None, track_id, same, d2)
 
     def _relocalise_if_lost(
-        self, t: float, profile: NDArray[np.float64], out: TrackerOutput
+        self,
+        t: float,
+        profile: NDArray[np.float64],
+        out: TrackerOutput,
+        pred_m: NDArray[np.float64],
+        pred_cov_m2: NDArray[np.float64],
     ) -> TrackerOutput:
         """Lost-track search (``relocalise_after_frames``): after that many frames in a row
         without a seeded displacement, a frame whose seeded registration failed again gets
-        the unseeded search's displacement, if it finds an unambiguous one; the seeded
-        displacements that follow a searched one are checked against the search
+        the unseeded search's displacement, if it finds an unambiguous one that the IMU's
+        prediction (``pred_m``, covariance ``pred_cov_m2``, m / m^2) does not rival; the
+        seeded displacements that follow a searched one are checked against the search
         (:meth:`_verified`)."""
         n = self._cfg.relocalise_after_frames
         if out.displacement is not None:
@@ -378,11 +390,28 @@ class CornerTracker:
         if self._gap_problem(t, self._prev) is not None:
             return out
         found = self._relocalise(t, profile, self._prev)
-        if found is None:
+        if found is None or self._prediction_rivals(found, pred_m, pred_cov_m2):
             return out
         disp, icp = found.displacement, found.icp
         self._verify_seeded = self._cfg.relocalise_check_frames
         return dataclasses.replace(out, displacement=disp, icp=icp, reason=None, relocalised=True)
+
+    def _prediction_rivals(
+        self, found: _Search, pred_m: NDArray[np.float64], pred_cov_m2: NDArray[np.float64]
+    ) -> bool:
+        """Is the IMU's predicted displacement (m) a second solution the profiles cannot
+        tell from the search's: disagreeing beyond their covariances, with at least
+        ``relocalise_support_ratio`` of its support? The search is for an IMU that has
+        lost track, whose prediction no part of the profile supports (after a knock: none
+        of 50 points); where the seeded registration failed for another reason (a partial
+        overlap in a fast swing), the prediction is about as well supported as any answer."""
+        cfg = self._cfg
+        d = -np.asarray(found.displacement.delta_xz_m, dtype=float) + pred_m
+        cov = found.displacement.cov_m2 + pred_cov_m2
+        if _mahalanobis2(d, cov, 0.0) <= cfg.gate_chi2:
+            return False  # the same answer
+        n_pred = _support(found.tree, found.target, -pred_m, cfg.relocalise_inlier_m)
+        return n_pred >= cfg.relocalise_support_ratio * found.support
 
     def _search_window(self, t: float, prev: _Frame) -> tuple[NDArray[np.float64], float]:
         """Centre (T, m) and radius (m) of the search's grid. After a visual displacement
@@ -406,7 +435,8 @@ class CornerTracker:
         be (a knock lasting several frames), and ICP from a wrong seed can settle in a wrong
         basin that agrees with it, or measure one axis only and let the IMU carry the other.
         For up to ``relocalise_check_frames`` frames the search runs too; if it is
-        unambiguous and disagrees with the seeded result beyond their covariances, or
+        unambiguous and disagrees with the seeded result beyond their covariances with
+        clearly more support, or
         measures more (smaller covariance trace), it replaces it (and the next frame is
         checked again); otherwise the checks end."""
         assert out.displacement is not None
@@ -417,14 +447,16 @@ class CornerTracker:
             seeded = out.displacement
             v = np.asarray(disp.delta_xz_m) - np.asarray(seeded.delta_xz_m)
             disagree = _mahalanobis2(v, disp.cov_m2 + seeded.cov_m2, 0.0) > self._cfg.gate_chi2
-            # two answers: the one more of this frame's profile supports (the same count)
+            # two answers: the search's only if clearly more of this frame's profile
+            # supports it (the same count; the ambiguity test's ratio)
             r = self._cfg.relocalise_inlier_m
             T_seeded = -np.asarray(seeded.delta_xz_m, dtype=float)
             n_seeded = _support(found.tree, found.target, T_seeded, r)
             # a seeded result that leaves an axis unmeasured (a riser alone: no z) lets the
             # IMU carry that axis through the fault; the search measured it
             more = np.trace(disp.cov_m2) < np.trace(seeded.cov_m2)
-            if (disagree and found.support > n_seeded) or (not disagree and more):
+            clearly = n_seeded < self._cfg.relocalise_support_ratio * found.support
+            if (disagree and clearly) or (not disagree and more):
                 return dataclasses.replace(out, displacement=disp, icp=icp, relocalised=True)
         self._verify_seeded = 0
         return out
@@ -462,6 +494,8 @@ class CornerTracker:
             return None
         found.sort(key=lambda f: -f[0])
         best_n, T, C, icp = found[0]
+        if best_n < cfg.relocalise_min_share * target.shape[0]:
+            return None  # a partial overlap: most of the profile does not confirm it
         for n_other, T_other, C_other, _ in found[1:]:
             if n_other < cfg.relocalise_support_ratio * best_n:
                 continue

@@ -436,9 +436,9 @@ class CornerTracker:
         basin that agrees with it, or measure one axis only and let the IMU carry the other.
         For up to ``relocalise_check_frames`` frames the search runs too; if it is
         unambiguous and disagrees with the seeded result beyond their covariances with
-        clearly more support, or
-        measures more (smaller covariance trace), it replaces it (and the next frame is
-        checked again); otherwise the checks end."""
+        clearly more support (the seeded translation's below ``relocalise_support_ratio``
+        of it), or measures more (smaller covariance trace), it replaces it (and the next
+        frame is checked again); otherwise the checks end."""
         assert out.displacement is not None
         self._verify_seeded -= 1
         found = None if self._prev is None else self._relocalise(t, profile, self._prev)

@@ -1477,41 +1477,54 @@ def level_bands(x, z, max_range, check_range, heights, lo, hi, band):  # pragma:
 _SIGN64 = np.uint64(1) << np.uint64(63)
 
 
+#: the radix selection's digits: sign and exponent first (12 bits), then the mantissa 12
+#: bits at a time (the last digit overlaps bits the candidates then share)
+_RADIX_SHIFTS = np.array([52, 40, 28, 16, 4, 0], np.uint64)
+_RADIX_MASK = np.uint64(4095)
+
+
 @numba.njit(cache=True)
 def _rank_key(keys, work, k):  # pragma: no cover - compiled
     """The rank-``k`` (0-based) value of ``keys`` (uint64) by radix selection: a histogram of
-    the next 8 bits of the candidates, the bucket that holds rank k kept, 8 passes at most
-    over a shrinking set (``work`` a scratch array of the same size). Branch-light, where a
-    quickselect on ~5,500 random floats mispredicts half its comparisons (~3x slower); the
-    pass that keeps the bucket's keys writes every key and advances on a match (a branch on
-    the match missed often when the bucket held a large share: median ~55 -> ~35 us for
-    both medians of a frame's ~5,600 residuals)."""
+    the next 12 bits of the candidates, the bucket that holds rank k kept, 6 passes at most
+    over a shrinking set (``work`` a scratch array of the same size; ``keys`` unchanged).
+    Branch-light, where a quickselect on ~5,500 random floats mispredicts half its
+    comparisons (~3x slower); the pass that keeps the bucket's keys writes every key and
+    advances on a match (a branch on the match missed often when the bucket held a large
+    share). The first digit is the sign and the exponent, so a frame's residuals (a few
+    binades about zero) leave a few hundred candidates after one pass, where 8-bit digits
+    (sign and 7 exponent bits first) kept about half of them for the next two passes (both
+    medians of a frame's ~5,600 residuals ~53 -> ~30 us). The histogram is cleared in the
+    pass that keeps the bucket, at the candidates' own digits (a pass costs its candidates,
+    not the 4,096 bins)."""
     n = keys.shape[0]
-    for i in range(n):
-        work[i] = keys[i]
+    src = keys
     m = n
-    hist = np.zeros(256, np.int64)
-    for shift in range(56, -8, -8):
-        sh = np.uint64(shift)
-        hist[:] = 0
+    hist = np.zeros(4096, np.int64)
+    for p in range(_RADIX_SHIFTS.shape[0]):
+        sh = _RADIX_SHIFTS[p]
         for i in range(m):
-            hist[(work[i] >> sh) & np.uint64(255)] += 1
+            hist[(src[i] >> sh) & _RADIX_MASK] += 1
         d = 0
         while k >= hist[d]:
             k -= hist[d]
             d += 1
         if hist[d] == m:
-            continue  # every candidate shares these bits
+            hist[d] = 0  # every candidate shares these bits
+            continue
         ud = np.uint64(d)
         c = 0
         for i in range(m):  # every key written, kept when in the bucket: no branch to miss
-            v = work[i]
+            v = src[i]
+            dg = (v >> sh) & _RADIX_MASK
+            hist[dg] = 0
             work[c] = v
-            c += (v >> sh) & np.uint64(255) == ud
+            c += dg == ud
+        src = work
         m = c
         if m == 1:
             break
-    return work[0]
+    return src[0]
 
 
 @numba.njit(cache=True)
@@ -1580,6 +1593,58 @@ def median_abs_deviation(r):  # pragma: no cover - compiled
     for i in range(n):
         dev[i] = abs(r[i] - med)
     return _median_of_keys(dev, keys, work), True
+
+
+@numba.njit(cache=True)
+def level_noise(pts, max_range, check_range, levels, band, min_count):  # pragma: no cover
+    """``noise.level_noise_sigma``'s compiled pass: the bands of :func:`level_bands` of the
+    (N, 2) points (``levels`` (L, 3): height, x_min, x_max; both C-contiguous: a strided
+    argument costs numba's dispatcher ~6 us to type), a least-squares line through each band of at
+    least ``min_count`` points as ``noise._line_residuals`` fits it (the means by numpy's
+    pairwise sum, the two dot products by BLAS ``ddot`` as numpy's ``@`` calls it), the
+    residuals pooled in level order and their median absolute deviation
+    (:func:`median_abs_deviation`). Returns (residuals, mad, ok): mad nan without residuals,
+    ok False when a residual is not finite (the caller then runs numpy on the residuals).
+    One call in place of the bands, one numpy fit per level and the MAD (~50 us of numpy's
+    per-call overhead a frame); the same floats."""
+    bx, bz, counts = level_bands(
+        pts[:, 0],
+        pts[:, 1],
+        max_range,
+        check_range,
+        np.ascontiguousarray(levels[:, 0]),
+        np.ascontiguousarray(levels[:, 1]),
+        np.ascontiguousarray(levels[:, 2]),
+        band,
+    )
+    total = 0
+    for k in range(counts.shape[0]):
+        if counts[k] >= min_count:
+            total += counts[k]
+    res = np.empty(total)
+    m = 0
+    for k in range(counts.shape[0]):
+        n = counts[k]
+        if n < min_count:
+            continue
+        xs = bx[k]
+        zs = bz[k]
+        mx = pairwise_sum(xs, 0, n) / n
+        mz = pairwise_sum(zs, 0, n) / n
+        xc = np.empty(n)
+        zc = np.empty(n)
+        for i in range(n):
+            xc[i] = xs[i] - mx
+            zc[i] = zs[i] - mz
+        sxx = np.dot(xc, xc)
+        slope = np.dot(xc, zc) / sxx if sxx > 0 else 0.0
+        for i in range(n):
+            res[m + i] = zc[i] - slope * xc[i]
+        m += n
+    if m == 0:
+        return res, np.nan, True
+    mad, ok = median_abs_deviation(res)
+    return res, mad, ok
 
 
 # ----------------------------------------------------------------------------- terrain levels

@@ -1484,7 +1484,7 @@ _RADIX_MASK = np.uint64(4095)
 
 
 @numba.njit(cache=True)
-def _rank_key(keys, work, k):  # pragma: no cover - compiled
+def _rank_key(keys, work, k, hist, ready):  # pragma: no cover - compiled
     """The rank-``k`` (0-based) value of ``keys`` (uint64) by radix selection: a histogram of
     the next 12 bits of the candidates, the bucket that holds rank k kept, 6 passes at most
     over a shrinking set (``work`` a scratch array of the same size; ``keys`` unchanged).
@@ -1496,15 +1496,16 @@ def _rank_key(keys, work, k):  # pragma: no cover - compiled
     (sign and 7 exponent bits first) kept about half of them for the next two passes (both
     medians of a frame's ~5,600 residuals ~53 -> ~30 us). The histogram is cleared in the
     pass that keeps the bucket, at the candidates' own digits (a pass costs its candidates,
-    not the 4,096 bins)."""
+    not the 4,096 bins). ``hist`` (4,096 int64): zeros, or with ``ready`` the first digit's
+    histogram of ``keys`` (counted as the keys were made); all zeros again on return."""
     n = keys.shape[0]
     src = keys
     m = n
-    hist = np.zeros(4096, np.int64)
     for p in range(_RADIX_SHIFTS.shape[0]):
         sh = _RADIX_SHIFTS[p]
-        for i in range(m):
-            hist[(src[i] >> sh) & _RADIX_MASK] += 1
+        if p > 0 or not ready:
+            for i in range(m):
+                hist[(src[i] >> sh) & _RADIX_MASK] += 1
         d = 0
         while k >= hist[d]:
             k -= hist[d]
@@ -1528,11 +1529,11 @@ def _rank_key(keys, work, k):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _middle_key(keys, work, h, even):  # pragma: no cover - compiled
+def _middle_key(keys, work, h, even, hist, ready):  # pragma: no cover - compiled
     """(rank h - 1 key if ``even`` else the rank-h key, rank-h key) of ``keys``: the rank
     h - 1 one is the rank-h key when fewer than h keys lie below it, else the largest below
-    it (one pass)."""
-    hi = _rank_key(keys, work, h)
+    it (one pass). ``hist``, ``ready``: as :func:`_rank_key`'s."""
+    hi = _rank_key(keys, work, h, hist, ready)
     if not even:
         return hi, hi
     below = 0
@@ -1553,22 +1554,27 @@ def _key_float(v):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _float_keys(x, keys):  # pragma: no cover - compiled
+def _float_keys(x, keys, hist):  # pragma: no cover - compiled
     """uint64 keys in the order of the floats ``x`` (finite; -0.0 just below +0.0): the bits,
-    with the sign bit set for a positive value and all bits flipped for a negative one."""
+    with the sign bit set for a positive value and all bits flipped for a negative one; the
+    first radix digit of each counted in ``hist`` (zeros before: :func:`_rank_key`'s first
+    pass, done here)."""
     u = x.view(np.uint64)
     for i in range(x.shape[0]):
         b = u[i]
-        keys[i] = ~b if b >> np.uint64(63) else b | _SIGN64
+        key = ~b if b >> np.uint64(63) else b | _SIGN64
+        keys[i] = key
+        hist[key >> _RADIX_SHIFTS[0]] += 1
 
 
 @numba.njit(cache=True)
-def _median_of_keys(x, keys, work):  # pragma: no cover - compiled
+def _median_of_keys(x, keys, work, hist):  # pragma: no cover - compiled
     """Median of the finite floats ``x`` (at least one): the middle value, or the two middle
-    ones as ``(a + b) / 2`` (numpy's mean of two), each found exactly by radix selection."""
+    ones as ``(a + b) / 2`` (numpy's mean of two), each found exactly by radix selection
+    (``hist``: 4,096 zeros, zeros again on return)."""
     n = x.shape[0]
-    _float_keys(x, keys)
-    lo, hi = _middle_key(keys, work, n // 2, n % 2 == 0)
+    _float_keys(x, keys, hist)
+    lo, hi = _middle_key(keys, work, n // 2, n % 2 == 0, hist, True)
     a, b = _key_float(lo), _key_float(hi)
     return b if n % 2 == 1 else (a + b) / 2
 
@@ -1588,11 +1594,12 @@ def median_abs_deviation(r):  # pragma: no cover - compiled
             return np.nan, False
     keys = np.empty(n, np.uint64)
     work = np.empty(n, np.uint64)
-    med = _median_of_keys(r, keys, work)
+    hist = np.zeros(4096, np.int64)
+    med = _median_of_keys(r, keys, work, hist)
     dev = np.empty(n)
     for i in range(n):
         dev[i] = abs(r[i] - med)
-    return _median_of_keys(dev, keys, work), True
+    return _median_of_keys(dev, keys, work, hist), True
 
 
 @numba.njit(cache=True)

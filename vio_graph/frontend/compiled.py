@@ -1769,6 +1769,23 @@ def find_levels(z, x, band, max_levels, min_points, gap_m, min_length_m):  # pra
     return out[:n_out]
 
 
+@numba.njit(cache=True)
+def find_levels_xz(pts, band, max_levels, min_points, gap_m, min_length_m):  # pragma: no cover
+    """:func:`find_levels` of the (N, 2) profile ``pts`` (C-contiguous), sorted by height
+    here (a stable sort): one call in place of numpy's argsort and two gathers. Points of
+    equal height may come in another order than numpy's (unstable) argsort puts them, which
+    changes no level: a band takes all points of a height or none, its x values are sorted,
+    and a height's count and first rank are the same whatever the order among equals."""
+    order = np.argsort(pts[:, 1], kind="mergesort")
+    n = order.shape[0]
+    z = np.empty(n)
+    x = np.empty(n)
+    for i in range(n):
+        z[i] = pts[order[i], 1]
+        x[i] = pts[order[i], 0]
+    return find_levels(z, x, band, max_levels, min_points, gap_m, min_length_m)
+
+
 # ----------------------------------------------------------------------------- depth slice
 
 

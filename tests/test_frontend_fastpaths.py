@@ -1145,6 +1145,44 @@ def test_compiled_depth_noise_equals_the_numpy_path() -> None:
     assert 0 < sizes < 400  # odd and even counts
 
 
+def test_compiled_level_noise_sigma_equals_the_numpy_path() -> None:
+    """level_noise_sigma in one compiled call (``compiled.level_noise``: bands, line fits,
+    MAD) against robust_sigma_reference(level_residuals_reference(...)): the same float bit
+    for bit, with band edges, ties, NaNs, infinities, no level, levels below the point
+    count, overlapping bands and a replay-sized band of thousands of points."""
+    from vio_graph.frontend import noise
+
+    assert icp_module.compiled_kernels() is not None
+    rng = np.random.default_rng(23)
+    n_finite = 0
+    for case in range(200):
+        n = int(rng.integers(0, 9000 if case % 10 == 0 else 1500))
+        pts = np.column_stack([rng.uniform(-0.2, 1.0, n), rng.uniform(-0.6, 0.2, n)])
+        heights = rng.uniform(-0.6, 0.2, int(rng.integers(0, 5)))
+        if case % 3 == 0 and n:  # dense bands about a tilted line
+            heights = np.append(heights, -0.3)
+            pts[: n // 2, 1] = -0.3 + 0.02 * pts[: n // 2, 0] + rng.normal(0, 0.003, n // 2)
+        if case % 4 == 0:
+            pts = np.round(pts, 2)  # on the bands' edges, ties
+        if case % 9 == 0 and n:
+            pts[0, 1] = np.nan
+        if case % 13 == 0 and n:
+            pts[-1] = (0.5, np.inf)
+        levels = [
+            (h, lo, lo + rng.uniform(0.05, 1.2))
+            for h, lo in zip(heights, rng.uniform(-0.2, 0.8, heights.size), strict=True)
+        ]
+        for max_range in (0.6, np.inf):
+            for band in (0.02, 0.0):
+                for min_points in (5, 20):
+                    args = (pts, levels, band, min_points, max_range)
+                    fast = noise.level_noise_sigma(*args)
+                    ref = noise.level_noise_sigma_reference(*args)
+                    assert fast == ref or (np.isnan(fast) and np.isnan(ref)), (case, fast, ref)
+                    n_finite += int(np.isfinite(ref))
+    assert n_finite > 500
+
+
 def test_compiled_robust_sigma_by_selection_equals_the_numpy_medians() -> None:
     """robust_sigma's kernel (``compiled.median_abs_deviation``: both medians by selection,
     no sort) against
@@ -1355,3 +1393,21 @@ def test_compiled_source_crop_equals_the_numpy_crop() -> None:
         assert np.array_equal(got, want, equal_nan=True)
         n_inside += want.shape[0]
     assert n_inside > 1000
+
+
+def test_compiled_switch_follows_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    """compiled_kernels reads VIO_GRAPH_COMPILED through os.environ's own dict (one lookup):
+    every change made through os.environ is seen at the next call, as os.environ.get sees
+    it (on, off, unset = "auto", off by default until use_compiled_by_default)."""
+    assert icp_module.compiled_kernels() is not None  # the fixture's "1"
+    monkeypatch.setenv(icp_module.COMPILED_ENV, "0")
+    assert icp_module._compiled_env_raw() in ("0", b"0")
+    assert icp_module.compiled_kernels() is None
+    monkeypatch.setenv(icp_module.COMPILED_ENV, " On ")
+    assert icp_module.compiled_kernels() is not None
+    monkeypatch.delenv(icp_module.COMPILED_ENV)
+    assert icp_module._compiled_env_raw() is None
+    monkeypatch.setattr(icp_module, "_AUTO", [False])
+    assert icp_module.compiled_kernels() is None
+    monkeypatch.setattr(icp_module, "_AUTO", [True])
+    assert icp_module.compiled_kernels() is not None

@@ -1477,49 +1477,63 @@ def level_bands(x, z, max_range, check_range, heights, lo, hi, band):  # pragma:
 _SIGN64 = np.uint64(1) << np.uint64(63)
 
 
+#: the radix selection's digits: sign and exponent first (12 bits), then the mantissa 12
+#: bits at a time (the last digit overlaps bits the candidates then share)
+_RADIX_SHIFTS = np.array([52, 40, 28, 16, 4, 0], np.uint64)
+_RADIX_MASK = np.uint64(4095)
+
+
 @numba.njit(cache=True)
-def _rank_key(keys, work, k):  # pragma: no cover - compiled
+def _rank_key(keys, work, k, hist, ready):  # pragma: no cover - compiled
     """The rank-``k`` (0-based) value of ``keys`` (uint64) by radix selection: a histogram of
-    the next 8 bits of the candidates, the bucket that holds rank k kept, 8 passes at most
-    over a shrinking set (``work`` a scratch array of the same size). Branch-light, where a
-    quickselect on ~5,500 random floats mispredicts half its comparisons (~3x slower); the
-    pass that keeps the bucket's keys writes every key and advances on a match (a branch on
-    the match missed often when the bucket held a large share: median ~55 -> ~35 us for
-    both medians of a frame's ~5,600 residuals)."""
+    the next 12 bits of the candidates, the bucket that holds rank k kept, 6 passes at most
+    over a shrinking set (``work`` a scratch array of the same size; ``keys`` unchanged).
+    Branch-light, where a quickselect on ~5,500 random floats mispredicts half its
+    comparisons (~3x slower); the pass that keeps the bucket's keys writes every key and
+    advances on a match (a branch on the match missed often when the bucket held a large
+    share). The first digit is the sign and the exponent, so a frame's residuals (a few
+    binades about zero) leave a few hundred candidates after one pass, where 8-bit digits
+    (sign and 7 exponent bits first) kept about half of them for the next two passes (both
+    medians of a frame's ~5,600 residuals ~53 -> ~30 us). The histogram is cleared in the
+    pass that keeps the bucket, at the candidates' own digits (a pass costs its candidates,
+    not the 4,096 bins). ``hist`` (4,096 int64): zeros, or with ``ready`` the first digit's
+    histogram of ``keys`` (counted as the keys were made); all zeros again on return."""
     n = keys.shape[0]
-    for i in range(n):
-        work[i] = keys[i]
+    src = keys
     m = n
-    hist = np.zeros(256, np.int64)
-    for shift in range(56, -8, -8):
-        sh = np.uint64(shift)
-        hist[:] = 0
-        for i in range(m):
-            hist[(work[i] >> sh) & np.uint64(255)] += 1
+    for p in range(_RADIX_SHIFTS.shape[0]):
+        sh = _RADIX_SHIFTS[p]
+        if p > 0 or not ready:
+            for i in range(m):
+                hist[(src[i] >> sh) & _RADIX_MASK] += 1
         d = 0
         while k >= hist[d]:
             k -= hist[d]
             d += 1
         if hist[d] == m:
-            continue  # every candidate shares these bits
+            hist[d] = 0  # every candidate shares these bits
+            continue
         ud = np.uint64(d)
         c = 0
         for i in range(m):  # every key written, kept when in the bucket: no branch to miss
-            v = work[i]
+            v = src[i]
+            dg = (v >> sh) & _RADIX_MASK
+            hist[dg] = 0
             work[c] = v
-            c += (v >> sh) & np.uint64(255) == ud
+            c += dg == ud
+        src = work
         m = c
         if m == 1:
             break
-    return work[0]
+    return src[0]
 
 
 @numba.njit(cache=True)
-def _middle_key(keys, work, h, even):  # pragma: no cover - compiled
+def _middle_key(keys, work, h, even, hist, ready):  # pragma: no cover - compiled
     """(rank h - 1 key if ``even`` else the rank-h key, rank-h key) of ``keys``: the rank
     h - 1 one is the rank-h key when fewer than h keys lie below it, else the largest below
-    it (one pass)."""
-    hi = _rank_key(keys, work, h)
+    it (one pass). ``hist``, ``ready``: as :func:`_rank_key`'s."""
+    hi = _rank_key(keys, work, h, hist, ready)
     if not even:
         return hi, hi
     below = 0
@@ -1540,22 +1554,27 @@ def _key_float(v):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _float_keys(x, keys):  # pragma: no cover - compiled
+def _float_keys(x, keys, hist):  # pragma: no cover - compiled
     """uint64 keys in the order of the floats ``x`` (finite; -0.0 just below +0.0): the bits,
-    with the sign bit set for a positive value and all bits flipped for a negative one."""
+    with the sign bit set for a positive value and all bits flipped for a negative one; the
+    first radix digit of each counted in ``hist`` (zeros before: :func:`_rank_key`'s first
+    pass, done here)."""
     u = x.view(np.uint64)
     for i in range(x.shape[0]):
         b = u[i]
-        keys[i] = ~b if b >> np.uint64(63) else b | _SIGN64
+        key = ~b if b >> np.uint64(63) else b | _SIGN64
+        keys[i] = key
+        hist[key >> _RADIX_SHIFTS[0]] += 1
 
 
 @numba.njit(cache=True)
-def _median_of_keys(x, keys, work):  # pragma: no cover - compiled
+def _median_of_keys(x, keys, work, hist):  # pragma: no cover - compiled
     """Median of the finite floats ``x`` (at least one): the middle value, or the two middle
-    ones as ``(a + b) / 2`` (numpy's mean of two), each found exactly by radix selection."""
+    ones as ``(a + b) / 2`` (numpy's mean of two), each found exactly by radix selection
+    (``hist``: 4,096 zeros, zeros again on return)."""
     n = x.shape[0]
-    _float_keys(x, keys)
-    lo, hi = _middle_key(keys, work, n // 2, n % 2 == 0)
+    _float_keys(x, keys, hist)
+    lo, hi = _middle_key(keys, work, n // 2, n % 2 == 0, hist, True)
     a, b = _key_float(lo), _key_float(hi)
     return b if n % 2 == 1 else (a + b) / 2
 
@@ -1575,11 +1594,64 @@ def median_abs_deviation(r):  # pragma: no cover - compiled
             return np.nan, False
     keys = np.empty(n, np.uint64)
     work = np.empty(n, np.uint64)
-    med = _median_of_keys(r, keys, work)
+    hist = np.zeros(4096, np.int64)
+    med = _median_of_keys(r, keys, work, hist)
     dev = np.empty(n)
     for i in range(n):
         dev[i] = abs(r[i] - med)
-    return _median_of_keys(dev, keys, work), True
+    return _median_of_keys(dev, keys, work, hist), True
+
+
+@numba.njit(cache=True)
+def level_noise(pts, max_range, check_range, levels, band, min_count):  # pragma: no cover
+    """``noise.level_noise_sigma``'s compiled pass: the bands of :func:`level_bands` of the
+    (N, 2) points (``levels`` (L, 3): height, x_min, x_max; both C-contiguous: a strided
+    argument costs numba's dispatcher ~6 us to type), a least-squares line through each band of at
+    least ``min_count`` points as ``noise._line_residuals`` fits it (the means by numpy's
+    pairwise sum, the two dot products by BLAS ``ddot`` as numpy's ``@`` calls it), the
+    residuals pooled in level order and their median absolute deviation
+    (:func:`median_abs_deviation`). Returns (residuals, mad, ok): mad nan without residuals,
+    ok False when a residual is not finite (the caller then runs numpy on the residuals).
+    One call in place of the bands, one numpy fit per level and the MAD (~50 us of numpy's
+    per-call overhead a frame); the same floats."""
+    bx, bz, counts = level_bands(
+        pts[:, 0],
+        pts[:, 1],
+        max_range,
+        check_range,
+        np.ascontiguousarray(levels[:, 0]),
+        np.ascontiguousarray(levels[:, 1]),
+        np.ascontiguousarray(levels[:, 2]),
+        band,
+    )
+    total = 0
+    for k in range(counts.shape[0]):
+        if counts[k] >= min_count:
+            total += counts[k]
+    res = np.empty(total)
+    m = 0
+    for k in range(counts.shape[0]):
+        n = counts[k]
+        if n < min_count:
+            continue
+        xs = bx[k]
+        zs = bz[k]
+        mx = pairwise_sum(xs, 0, n) / n
+        mz = pairwise_sum(zs, 0, n) / n
+        xc = np.empty(n)
+        zc = np.empty(n)
+        for i in range(n):
+            xc[i] = xs[i] - mx
+            zc[i] = zs[i] - mz
+        sxx = np.dot(xc, xc)
+        slope = np.dot(xc, zc) / sxx if sxx > 0 else 0.0
+        for i in range(n):
+            res[m + i] = zc[i] - slope * xc[i]
+        m += n
+    if m == 0:
+        return res, np.nan, True
+    mad, ok = median_abs_deviation(res)
+    return res, mad, ok
 
 
 # ----------------------------------------------------------------------------- terrain levels
@@ -1697,6 +1769,23 @@ def find_levels(z, x, band, max_levels, min_points, gap_m, min_length_m):  # pra
     return out[:n_out]
 
 
+@numba.njit(cache=True)
+def find_levels_xz(pts, band, max_levels, min_points, gap_m, min_length_m):  # pragma: no cover
+    """:func:`find_levels` of the (N, 2) profile ``pts`` (C-contiguous), sorted by height
+    here (a stable sort): one call in place of numpy's argsort and two gathers. Points of
+    equal height may come in another order than numpy's (unstable) argsort puts them, which
+    changes no level: a band takes all points of a height or none, its x values are sorted,
+    and a height's count and first rank are the same whatever the order among equals."""
+    order = np.argsort(pts[:, 1], kind="mergesort")
+    n = order.shape[0]
+    z = np.empty(n)
+    x = np.empty(n)
+    for i in range(n):
+        z[i] = pts[order[i], 1]
+        x[i] = pts[order[i], 0]
+    return find_levels(z, x, band, max_levels, min_points, gap_m, min_length_m)
+
+
 # ----------------------------------------------------------------------------- depth slice
 
 
@@ -1750,29 +1839,38 @@ def slice_xz(
     Haswell and later): a product, then two fused multiply-adds, so the same floats on this
     BLAS, and within an ulp on another."""
     h, w = depth.shape
-    out = np.empty((h * (c1 - c0), 2))
+    nb = c1 - c0
+    out = np.empty((h * nb, 2))
     r00, r01, r02 = R_xz[0, 0], R_xz[0, 1], R_xz[0, 2]
     r10, r11, r12 = R_xz[1, 0], R_xz[1, 1], R_xz[1, 2]
     m = 0
     for r in range(h):
         y_m = y_per_m[r]
-        for c in range(c0, c1):
-            d = depth[r, c]
-            if not (d <= upper[c - c0] and d >= lower and conf[r, c] >= min_conf):
+        drow = depth[r]  # one row's views: no 2-D index arithmetic per pixel (~10 % of the pass)
+        crow = conf[r]
+        for j in range(nb):
+            c = c0 + j
+            d = drow[c]
+            if not (d <= upper[j] and d >= lower and crow[c] >= min_conf):
                 continue
-            if min_agree > 0 and _present(depth, conf, r, c):
+            if min_agree > 0 and crow[c] > 0 and math.isfinite(d) and d > 0:  # _present
                 tol = abs_tol + rel_tol * d
                 # the usual case first: with a need of two, both row neighbours present and
                 # agreeing decide it (the loop below visits them first and stops there)
-                row_pair = (
-                    min_agree == 2
-                    and c >= 1
-                    and c + 1 < w
-                    and _present(depth, conf, r, c - 1)
-                    and abs(depth[r, c - 1] - d) <= tol
-                    and _present(depth, conf, r, c + 1)
-                    and abs(depth[r, c + 1] - d) <= tol
-                )
+                row_pair = False
+                if min_agree == 2 and c >= 1 and c + 1 < w:
+                    dl = drow[c - 1]
+                    dr = drow[c + 1]
+                    row_pair = (
+                        crow[c - 1] > 0
+                        and math.isfinite(dl)
+                        and dl > 0
+                        and abs(dl - d) <= tol
+                        and crow[c + 1] > 0
+                        and math.isfinite(dr)
+                        and dr > 0
+                        and abs(dr - d) <= tol
+                    )
                 if not row_pair:
                     n_valid = 0
                     agree = 0
@@ -1790,7 +1888,7 @@ def slice_xz(
                     if agree < min(max(n_valid, 1), min_agree):
                         continue
             z = np.float64(d)
-            x = z * x_per_m[c - c0]
+            x = z * x_per_m[j]
             y = z * y_m
             out[m, 0] = _fma(z, r02, _fma(y, r01, x * r00))
             out[m, 1] = _fma(z, r12, _fma(y, r11, x * r10))

@@ -19,7 +19,7 @@ from vio_graph.frontend.camera_fixed import CameraFixedFilter
 from vio_graph.frontend.config import FrontendConfig
 from vio_graph.frontend.corners import CornerFeature, extract_corner
 from vio_graph.frontend.icp import IcpResult
-from vio_graph.frontend.noise import DepthNoiseTracker, level_residuals, robust_sigma
+from vio_graph.frontend.noise import DepthNoiseTracker, level_noise_sigma
 from vio_graph.frontend.projection import (
     drop_mixed_pixels,
     sagittal_slice_from_depth,
@@ -250,13 +250,13 @@ class VisualFrontend:
             # under_sight_profile: they are static returns, which ICP uses as well
             profile = walk if cfg.terrain.under_sight_profile else profile[~under]
         if self._noise is not None:  # the next frame's thinning cell
-            residuals = level_residuals(
+            sigma = level_noise_sigma(  # robust_sigma(level_residuals(...)) in one call
                 points_xz,
                 [(lv.height_m, lv.x_min_m, lv.x_max_m) for lv in levels],
                 cfg.terrain.level_band_m,
                 max_range_m=sc.noise_max_range_m,
             )
-            self._noise.update(robust_sigma(residuals))
+            self._noise.update(sigma)
         terrain = frame_terrain
         if stand_height_m is not None:
             terrain = classify_against_stand(

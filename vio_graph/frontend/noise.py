@@ -25,6 +25,7 @@ The cell in use changes only when the asked cell differs from it by more than
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Iterable
 
@@ -81,6 +82,47 @@ def level_residuals(
             continue
         out.append(_line_residuals(bx[k, :n_own], bz[k, :n_own]))
     return np.concatenate(out) if out else np.zeros(0)
+
+
+def level_noise_sigma(
+    points_xz_m: NDArray[np.float64],
+    levels: Iterable[tuple[float, float, float]],
+    band_m: float,
+    min_points: int = 20,
+    max_range_m: float = np.inf,
+) -> float:
+    """The frame's depth noise: ``robust_sigma(level_residuals(...))`` (same arguments; nan
+    without residuals). With the front end's kernels on, the bands, the line fits and the
+    median absolute deviation in one compiled call (``compiled.level_noise``), the same float
+    as :func:`level_noise_sigma_reference` (tests/test_frontend_fastpaths.py)."""
+    kernels = compiled_kernels()
+    if kernels is None:
+        return level_noise_sigma_reference(points_xz_m, levels, band_m, min_points, max_range_m)
+    pts = np.ascontiguousarray(points_xz_m, dtype=float).reshape(-1, 2)
+    lv = np.array(levels if isinstance(levels, list) else list(levels), dtype=float)
+    residuals, mad, ok = kernels.level_noise(
+        pts,
+        float(max_range_m),
+        bool(math.isfinite(max_range_m)),
+        lv.reshape(-1, 3),
+        float(band_m),
+        max(int(min_points), 3),
+    )
+    if not ok:  # a NaN or an infinity among the residuals
+        return robust_sigma_reference(residuals)
+    return float(_MAD_TO_SIGMA * mad)
+
+
+def level_noise_sigma_reference(
+    points_xz_m: NDArray[np.float64],
+    levels: Iterable[tuple[float, float, float]],
+    band_m: float,
+    min_points: int = 20,
+    max_range_m: float = np.inf,
+) -> float:
+    """numpy path of :func:`level_noise_sigma`."""
+    residuals = level_residuals_reference(points_xz_m, levels, band_m, min_points, max_range_m)
+    return robust_sigma_reference(residuals)
 
 
 def _line_residuals(xs: NDArray[np.float64], zs: NDArray[np.float64]) -> NDArray[np.float64]:

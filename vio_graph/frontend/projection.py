@@ -289,7 +289,7 @@ def sagittal_slice_from_depth(
             np.float32(abs_m),
             int(agree),
             x_grid[0],  # the grids' one row and one column: the same values, less memory
-            y_grid[:, 0],
+            np.ascontiguousarray(y_grid[:, 0]),  # (a strided argument: ~6 us of dispatch)
             R_xz,
         )
     points_cam = _slice_cam_points_numpy(

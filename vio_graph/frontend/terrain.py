@@ -156,11 +156,9 @@ def find_levels(profile_xz_m: NDArray[np.float64], config: TerrainConfig) -> lis
     kernels = compiled_kernels()
     if kernels is None:
         return find_levels_reference(profile_xz_m, config)
-    pts = np.asarray(profile_xz_m, dtype=float)
-    order = np.argsort(pts[:, 1])
-    rows = kernels.find_levels(
-        pts[order, 1],
-        pts[order, 0],
+    pts = np.ascontiguousarray(profile_xz_m, dtype=float)
+    rows = kernels.find_levels_xz(  # sorted by height inside
+        pts,
         float(config.level_band_m),
         int(config.max_levels),
         int(config.min_level_points),

@@ -12,12 +12,17 @@ archive``; its first process compiles numba's cache, untimed) and this tree alte
 ``--rounds`` times and the medians over the rounds are printed side by side.
 
     python benchmarks/bench_run_split.py --recording REC [--mode all] [--base REV] [--rounds 3]
+        [--plots]
 
 (``--base-tree DIR`` instead of ``--base``: a base tree already unpacked, whose numba cache
 is then reused.)
 
 REC: e.g. the 30 s or 60 s trial of ``python benchmarks/bench_scale.py``. The run writes
-into a temporary folder with ``--no-rerun --no-plots``.
+into a temporary folder with ``--no-rerun --no-plots``; with ``--plots``, ``--no-rerun``
+only (the figures of a default run), and the figures get rows of their own: the overview and
+clearance PNGs, and the map PNG, which is also inside the row of the map's files
+(``export_map``: PLY, PCD, JSON, CSV and the PNG; a row of its own with or without
+``--plots``).
 """
 
 from __future__ import annotations
@@ -31,7 +36,7 @@ import _common  # noqa: I001 - before numpy: pins the thread pools numpy reads o
 
 _CHILD = r"""
 import functools, gc, json, os, sys, time
-tree, rec, mode, out = sys.argv[1:5]
+tree, rec, mode, out, plots = sys.argv[1:6]
 sys.path.insert(0, tree)
 T = {}
 N = {}
@@ -75,6 +80,13 @@ wrap(PL, "write_frames_csv", "end: frames.csv")
 wrap(PL, "_evaluate", "end: metrics")
 wrap(ES, "safety_metrics", "end: safety metrics (replays)")
 wrap(PL, "build_run_map", "end: map")
+import vio_graph.mapping.export as MX
+wrap(MX, "export_map", "end: map files (PLY, PCD, JSON, CSV; PNG with --plots)")
+if plots == "plots":
+    import vio_graph.viz.plots as VP
+    wrap(VP, "plot_run_overview", "end: overview PNG")
+    wrap(VP, "plot_clearance", "end: clearance PNG")
+    wrap(MX, "write_map_png", "(within the map files) map PNG")
 guard = RP.Replay._guard
 def by_estimator(self, e, t_s, fn, *a):
     t = time.process_time()
@@ -84,8 +96,9 @@ def by_estimator(self, e, t_s, fn, *a):
         label = "replay: " + e.name + (" (finish)" if fn.__name__ == "finish" else "")
         T[label] = T.get(label, 0.0) + time.process_time() - t
 RP.Replay._guard = by_estimator
-sys.argv = ["vio-graph", "run", rec, "--out", out, "--mode", mode, "--no-rerun", "--no-plots",
-            "--overwrite"]
+sys.argv = ["vio-graph", "run", rec, "--out", out, "--mode", mode, "--no-rerun", "--overwrite"]
+if plots != "plots":
+    sys.argv.append("--no-plots")
 import contextlib, io
 with contextlib.redirect_stdout(io.StringIO()):
     try:
@@ -104,8 +117,9 @@ print("RESULT" + json.dumps({"T": T, "N": N}))
 """
 
 
-def _round(tree: Path, rec: Path, mode: str, tmp: Path) -> dict:
-    return _common.run_in_tree(_CHILD, tree, str(rec.resolve()), mode, str(tmp / "out"))
+def _round(tree: Path, rec: Path, mode: str, tmp: Path, plots: bool = False) -> dict:
+    flag = "plots" if plots else "no-plots"
+    return _common.run_in_tree(_CHILD, tree, str(rec.resolve()), mode, str(tmp / "out"), flag)
 
 
 def _table(rows: dict[str, list[dict]]) -> str:
@@ -140,6 +154,7 @@ def main() -> None:
         "--base-tree", type=Path, help="instead of --base: a source tree already unpacked"
     )
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--plots", action="store_true", help="draw the figures too (rows of their own)")
     args = ap.parse_args()
     here = _common.BENCH_DIR.parent
     with tempfile.TemporaryDirectory() as tmp_s:
@@ -147,12 +162,12 @@ def main() -> None:
         trees = {"this tree": here}
         if args.base or args.base_tree:
             base = args.base_tree or _common.extract_revision(args.base, tmp)
-            _round(base, args.recording, args.mode, tmp)  # untimed: numba's cache
+            _round(base, args.recording, args.mode, tmp, args.plots)  # untimed: numba's cache
             trees = {args.base or "base": base, **trees}
         rows: dict[str, list[dict]] = {n: [] for n in trees}
         for k in range(args.rounds):
             for name, tree in trees.items():
-                r = _round(tree, args.recording, args.mode, tmp)
+                r = _round(tree, args.recording, args.mode, tmp, args.plots)
                 rows[name].append(r)
                 print(f"round {k} {name}: process {r['T']['process']:.2f} s CPU", flush=True)
     print(_table(rows))

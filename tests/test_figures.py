@@ -141,3 +141,23 @@ def test_plot_indices_keep_every_extreme_of_a_long_series() -> None:
     assert set((peaks + 1).tolist()) - set(np.flatnonzero(np.isnan(z_nan)).tolist()) <= set(
         plot_indices(z_nan, max_points=MAX_PLOT_POINTS).tolist()
     )
+
+
+def test_overview_png_is_the_default_encodings_pixels(tmp_path: Path) -> None:
+    """plot_run_overview writes through save_png (zlib level PNG_COMPRESS_LEVEL): decoded,
+    the same pixels and text chunks as the same figure saved matplotlib's default way."""
+    from PIL import Image
+
+    from vio_graph.viz.plots import overview_figure, plot_run_overview
+
+    rec = Recording.open(ROOT / "data" / "sample")
+    toe = rec.groundtruth.trajectories["toe"]
+    t_s = toe.timestamp_s[::10]
+    paths = {"filter": {"camera": toe.xz_at(t_s) + [0.0, 0.5], "toe": toe.xz_at(t_s)}}
+    ours = plot_run_overview(tmp_path / "overview.png", rec, t_s, paths, {})
+    default = tmp_path / "default.png"
+    overview_figure(rec, t_s, paths, {}).savefig(default, dpi=110)
+    assert ours.read_bytes() != default.read_bytes()
+    with Image.open(ours) as a, Image.open(default) as b:
+        assert a.size == b.size and a.text == b.text
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

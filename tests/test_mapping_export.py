@@ -160,3 +160,27 @@ def test_export_map_writes_every_file(tmp_path: Path, stair_scene) -> None:
     ]
     with pytest.raises(OutputError):
         export_map(tmp_path, terrain_map.points_xz_m, geometry, formats=("ply", "las"))
+
+
+def test_map_png_is_the_default_encodings_pixels(tmp_path: Path, stair_scene) -> None:
+    """The map figure is written at zlib level PNG_COMPRESS_LEVEL (save_png) instead of
+    matplotlib's default: decoded, the same pixels and the same text chunks (Software) as
+    the figure saved the default way; only the compression differs."""
+    from PIL import Image
+
+    from vio_graph.mapping.export import map_figure
+    from vio_graph.viz.plots import PNG_COMPRESS_LEVEL
+
+    terrain, terrain_map, geometry = stair_scene
+    cams = np.array([kf.camera_xz_m for kf in terrain_map.keyframes])
+    written = export_map(
+        tmp_path / "out", terrain_map.points_xz_m, geometry, terrain, camera_xz_m=cams
+    )
+    default = tmp_path / "default.png"
+    map_figure(terrain_map.points_xz_m, geometry, terrain, cams).savefig(default, format="png")
+    assert PNG_COMPRESS_LEVEL != 6  # (Pillow's default: the test would compare nothing)
+    assert written["png"].read_bytes() != default.read_bytes()
+    with Image.open(written["png"]) as ours, Image.open(default) as theirs:
+        assert ours.size == theirs.size and ours.mode == theirs.mode
+        assert ours.text == theirs.text
+        np.testing.assert_array_equal(np.asarray(ours), np.asarray(theirs))

@@ -471,6 +471,42 @@ def test_approached_needs_the_foot_clear_of_the_edge_first() -> None:
     assert got.tolist() == [False, False, False, True, False, False, False, False, False]
 
 
+def _approached_on_numpy_scalars(swing, edge_index, clearance_m, near_trip_m):
+    """approached as it was written before it read Python lists (the reference)."""
+    out = np.zeros(len(swing), bool)
+    cleared, prev = False, -2
+    for k in range(len(swing)):
+        if not swing[k]:
+            cleared, prev = False, -2
+            continue
+        if edge_index[k] != prev:
+            cleared, prev = False, int(edge_index[k])
+        out[k] = cleared
+        if clearance_m[k] >= near_trip_m:
+            cleared = True
+    return out
+
+
+def test_approached_on_python_values_is_the_numpy_scalar_loop() -> None:
+    """approached reads Python bools, ints and floats instead of numpy scalars: the same
+    flags as the loop over the arrays, on random swings, edge runs (with -1, no edge) and
+    clearances with NaN, at and around the threshold."""
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        n = int(rng.integers(1, 3000))
+        swing = rng.random(n) < 0.8
+        edge = np.cumsum(rng.random(n) < 0.02) - 1
+        clear = rng.choice([0.0, 0.01, 0.02, 0.03, np.nan], n) + rng.normal(0, 1e-3, n) * (
+            rng.random(n) < 0.5
+        )
+        for thr in (0.02, 0.0, float("nan")):
+            want = _approached_on_numpy_scalars(swing, edge, clear, thr)
+            got = approached(swing, edge, clear, thr)
+            assert got.dtype == bool and got.shape == (n,)
+            np.testing.assert_array_equal(got, want)
+    assert approached(np.zeros(0, bool), np.zeros(0, int), np.zeros(0), 0.02).shape == (0,)
+
+
 # descending stair: nosings at x 0.5, 0.78, 1.06 (rise 0.15 m, tread 0.28 m)
 DOWN = [(-1.0, 0.0), (0.5, 0.0), (0.5, -0.15), (0.78, -0.15), (0.78, -0.30), (1.06, -0.30)]
 DOWN += [(1.06, -0.45), (2.0, -0.45)]

@@ -64,3 +64,38 @@ def test_replay_at_the_modes_attitude_gives_the_true_clearance():
     assert ok.sum() > 30  # the foot is over mapped ground for most of the trial
     np.testing.assert_allclose(c_own[ok], want, atol=1e-9)
     assert np.median(np.abs(c_as_is[ok] - want)) > 5e-3
+
+
+def test_profiles_of_is_kept_while_its_inputs_are_the_same():
+    """profiles_of turns every keyframe once a mode (the safety replay and the map both ask):
+    asked again it returns the same dict, while the turns and the profile arrays are the
+    same; a pitch changed in place, a profile replaced or a keyframe added is turned anew,
+    and every answer equals a fresh FrameLog's bit for bit."""
+    lg, *_ = _flat_ground_trial()
+    first = lg.profiles_of("smoother")
+    assert lg.profiles_of("smoother") is first
+
+    def fresh() -> dict:
+        other = FrameLog()
+        other.t_s, other.shank_pitch_imu = lg.t_s, lg.shank_pitch_imu
+        other.profiles = dict(lg.profiles)
+        other.shank_pitch_by_mode = {"smoother": lg.shank_pitch_by_mode["smoother"].copy()}
+        return other.profiles_of("smoother")
+
+    def same(a: dict, b: dict) -> bool:
+        return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+    lg.shank_pitch_by_mode["smoother"][6] += 1e-3  # in place: the same array object
+    changed = lg.profiles_of("smoother")
+    assert changed is not first and same(changed, fresh())
+    assert not np.array_equal(changed[6], first[6]) and changed[8] is not first[8]
+    lg.profiles[8] = lg.profiles[8] + 1e-3  # a profile replaced by another array
+    replaced = lg.profiles_of("smoother")
+    assert replaced is not changed and same(replaced, fresh())
+    lg.t_s.append(3.0)
+    lg.shank_pitch_imu.append(0.1)
+    lg.shank_pitch_by_mode["smoother"] = np.append(lg.shank_pitch_by_mode["smoother"], 0.2)
+    lg.profiles[90] = lg.profiles[0]
+    added = lg.profiles_of("smoother")
+    assert added is not replaced and 90 in added and same(added, fresh())
+    assert lg.profiles_of("smoother") is added

@@ -396,6 +396,41 @@ def test_batch_counts_downweighted_outliers() -> None:
     assert b["max_whitened_error"] > 1.5 * c["max_whitened_error"]
 
 
+def test_downweighted_counts_in_one_pass_are_the_two_passes_bit_for_bit() -> None:
+    """BatchSmoother.robust_outliers counts the IMU and the other robust factors in one pass
+    over the graph (count_downweighted_both); the answers are count_downweighted's, called
+    once per kind, exactly: counts, and the largest whitened error to the bit, at thresholds
+    where some factors of each kind are down-weighted and some are not."""
+    from vio_graph.smoother.batch import count_downweighted, count_downweighted_both
+    from vio_graph.smoother.synthetic import feed, make_swinging_shank_trial
+
+    bad = BatchSmoother(SmootherConfig(), np.eye(4))
+    feed(make_swinging_shank_trial(duration_s=3.0, seed=1, outlier_frames=(40, 61)), bad)
+    result = bad.solve()
+    graph = bad.graph
+    ref = count_downweighted(graph, result, 1.0)
+    ref_imu = count_downweighted(graph, result, 1.0, imu=True)
+    # thresholds inside each kind's spread of errors: both branches of the test are taken
+    thresholds = [(0.0, 0.0), (1.0, 1.0), (1e9, 1e9)]
+    thresholds.append((0.5 * ref["max_whitened_error"], 0.5 * ref_imu["max_whitened_error"]))
+    for thr, thr_imu in thresholds:
+        want = count_downweighted(graph, result, thr)
+        want_imu = count_downweighted(graph, result, thr_imu, imu=True)
+        got, got_imu = count_downweighted_both(graph, result, thr, thr_imu)
+        assert got == want and got_imu == want_imu
+        assert type(got["max_whitened_error"]) is float
+    mid, mid_imu = count_downweighted_both(
+        graph, result, 0.5 * ref["max_whitened_error"], 0.5 * ref_imu["max_whitened_error"]
+    )
+    assert 0 < mid["downweighted"] < mid["robust_factors"]
+    assert ref_imu["robust_factors"] > 0 and 0 < mid_imu["downweighted"]
+    out = bad.robust_outliers()
+    cfg = SmootherConfig()
+    want = count_downweighted(graph, result, cfg.robust_threshold)
+    want_imu = count_downweighted(graph, result, cfg.imu_robust_threshold, imu=True)
+    assert out == {**want, **{f"imu_{k}": v for k, v in want_imu.items()}}
+
+
 def test_discretization_variance_zero_for_cubic_and_sized_by_a_kink() -> None:
     t = np.arange(0.0, 0.3, 0.01)
     cubic = np.stack([1.0 + 2 * t - 3 * t**2 + 4 * t**3] * 3, axis=-1)

@@ -467,9 +467,11 @@ def write_map_png(
     title: str | None = None,
 ) -> Path:
     """Write :func:`map_figure` as a PNG (atomically)."""
+    from vio_graph.viz.plots import save_png
+
     fig = map_figure(points_xz_m, geometry, terrain_info, camera_xz_m, title)
     with atomic_path(Path(path), suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
+        save_png(fig, tmp)
     return Path(path)
 
 

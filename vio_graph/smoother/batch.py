@@ -8,6 +8,7 @@ upper bound of what the graph can do).
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 import gtsam
@@ -182,8 +183,10 @@ class BatchSmoother(KeyframeSmootherBase):
         beyond the kernel threshold, i.e. measurements the smoother effectively rejected.
         Returns {"robust_factors": n, "downweighted": k, "max_whitened_error": e}."""
         result = self.solve() if self._result is None else self._result
-        out = count_downweighted(self.graph, result, self.config.robust_threshold)
-        imu = count_downweighted(self.graph, result, self.config.imu_robust_threshold, imu=True)
+        # one pass over the graph for both counts (count_downweighted twice, bit for bit)
+        out, imu = count_downweighted_both(
+            self.graph, result, self.config.robust_threshold, self.config.imu_robust_threshold
+        )
         out.update({f"imu_{k}": v for k, v in imu.items()})
         return out
 
@@ -255,3 +258,40 @@ def count_downweighted(
         if err > threshold:
             n_down += 1
     return {"robust_factors": n_robust, "downweighted": n_down, "max_whitened_error": worst}
+
+
+def count_downweighted_both(
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    threshold: float,
+    imu_threshold: float,
+) -> tuple[dict[str, float], dict[str, float]]:
+    """``count_downweighted(graph, values, threshold)`` and ``count_downweighted(graph,
+    values, imu_threshold, imu=True)`` in one pass over the graph: the same factors, the
+    same whitened errors and the same answers (a 10-minute batch graph has ~78,000 factors;
+    two passes cost ~0.5 s of CPU at the end of a run). The norm is ``sqrt(e . e)``, what
+    ``np.linalg.norm`` computes for a real vector."""
+    n_robust = [0, 0]  # [other, imu]
+    n_down = [0, 0]
+    worst = [0.0, 0.0]
+    limit = (threshold, imu_threshold)
+    robust_type, imu_type = gtsam.noiseModel.Robust, gtsam.CombinedImuFactor
+    for k in range(graph.size()):
+        f = graph.at(k)
+        if f is None or not hasattr(f, "noiseModel"):
+            continue
+        nm = f.noiseModel()
+        if not isinstance(nm, robust_type):
+            continue
+        j = 1 if isinstance(f, imu_type) else 0
+        n_robust[j] += 1
+        w = nm.noise().whiten(f.unwhitenedError(values))  # type: ignore[attr-defined]
+        w = w.ravel(order="K")  # (np.linalg.norm: the raveled vector, sqrt of its dot)
+        err = math.sqrt(w.dot(w))
+        worst[j] = max(worst[j], err)
+        if err > limit[j]:
+            n_down[j] += 1
+    return tuple(  # type: ignore[return-value]
+        {"robust_factors": n_robust[j], "downweighted": n_down[j], "max_whitened_error": worst[j]}
+        for j in (0, 1)
+    )

@@ -293,7 +293,7 @@ def icp_translation_2d(
 
 
 _KERNELS: list = []  # [module or None] once imported
-_MODES: dict[str | None, str] = {}  # VIO_GRAPH_COMPILED's value -> "off", "auto", ...
+_MODES: dict[str | bytes | None, str] = {}  # VIO_GRAPH_COMPILED's value -> "off", "auto", ...
 _AUTO = [False]  # what "auto" (VIO_GRAPH_COMPILED unset) means now; see use_compiled_by_default
 
 #: VIO_GRAPH_COMPILED: "1" compiled kernels whenever numba is installed, "0" never (the numpy

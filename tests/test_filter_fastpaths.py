@@ -331,10 +331,10 @@ def test_stand_height_median_equals_numpy_median() -> None:
 
 
 def test_displacement_h_and_noise_are_the_array_formulas_bit_for_bit() -> None:
-    """The gate's H, V and the symmetrised covariance built on Python floats
-    (eskf._clone_h, _measurement_v, _cov2) are the arrays the numpy expressions they replaced
-    give, signed zeros included."""
-    from vio_graph.filter.eskf import _I2, _clone_h, _cov2, _measurement_v
+    """The displacement's and a landmark's H, V and the symmetrised covariance built on
+    Python floats (eskf._clone_h, _landmark_h, _measurement_v, _cov2) are the arrays the
+    numpy expressions they replaced give, signed zeros included."""
+    from vio_graph.filter.eskf import _I2, _clone_h, _cov2, _landmark_h, _measurement_v
 
     rng = np.random.default_rng(11)
     for _ in range(300):
@@ -346,6 +346,13 @@ def test_displacement_h_and_noise_are_the_array_formulas_bit_for_bit() -> None:
         want_h[:, 2:4] = dt1 * _I2
         want_h[:, i : i + 2] = -_I2
         got_h = _clone_h(n, dt1, i)
+        assert np.array_equal(got_h, want_h)
+        assert np.array_equal(np.signbit(got_h), np.signbit(want_h))
+        want_h = np.zeros((2, n))
+        want_h[:, 0:2] = -_I2
+        want_h[:, 2:4] = -dt1 * _I2
+        want_h[:, i : i + 2] = _I2
+        got_h = _landmark_h(n, dt1, i)
         assert np.array_equal(got_h, want_h)
         assert np.array_equal(np.signbit(got_h), np.signbit(want_h))
         c = rng.normal(0, 1e-3, (2, 2))

@@ -673,7 +673,7 @@ class SagittalEskf:
             H1 = np.zeros((2, self._P.shape[0]))
             H1[:, 0:2] = _I2
             H1[:, 2:4] = dt1 * _I2
-        p_t1 = self._position_ahead(dt1)
+        p_t1 = self._position_ahead_xz(dt1)
 
         cloning = self.config.measurement_model == "stochastic_cloning"
         if cloning and _CLONE in self._aug_xz and abs(self._clone_t_s - t0) <= _CLONE_TOL_S:
@@ -684,7 +684,9 @@ class SagittalEskf:
                 H[:, i : i + 2] = -_I2
             else:
                 H = memo[5]
-            innovation = delta - (p_t1 - np.array(self._aug_xz[_CLONE]))
+            # delta - (p(t1) - clone) per axis on floats (the array expression's values)
+            (d0, d1), (c0, c1) = delta.tolist(), self._aug_xz[_CLONE]
+            innovation = np.array([d0 - (p_t1[0] - c0), d1 - (p_t1[1] - c1)])
         else:
             # (the memo exists only for a relative measurement on the current clone)
             assert memo is None
@@ -698,7 +700,7 @@ class SagittalEskf:
             if cloning:
                 self._n_fallback += 1
             H = H1
-            innovation = p_t0 + delta - p_t1
+            innovation = p_t0 + delta - np.array(p_t1)
         if memo is None:
             assert cov is not None
             V = self.config.measurement_cov_inflation * cov
@@ -926,11 +928,11 @@ class SagittalEskf:
             self._augment(key, self._position_ahead(dt) + rel, dt, V)
             return False
         i = self._aug_index(key)
-        H = np.zeros((2, self._P.shape[0]))
-        H[:, 0:2] = -_I2
-        H[:, 2:4] = -dt * _I2
-        H[:, i : i + 2] = _I2
-        innovation = rel - (np.array(self._aug_xz[key]) - self._position_ahead(dt))
+        H = _landmark_h(self._P.shape[0], dt, i)
+        # rel - (L - p(t)) per axis on floats (the array expression's values)
+        (r0, r1), (a0, a1) = rel.tolist(), self._aug_xz[key]
+        p0, p1 = self._position_ahead_xz(dt)
+        innovation = np.array([r0 - (a0 - p0), r1 - (a1 - p1)])
         accepted = self._correct(innovation, H, V, gate, landmark=True)
         if accepted:
             self._last_accept_s = max(self._last_accept_s, t)
@@ -1583,6 +1585,29 @@ def _measurement_v(c: ArrayLike, inflation: float, floor_m: float) -> NDArray[np
             [inflation * s10 + z, inflation * s11 + f2],
         ]
     )
+
+
+def _landmark_h(n: int, dt: float, i: int) -> NDArray[np.float64]:
+    """A landmark observation's H (2 x n): [-I, -dt I, 0.., I at columns i, i + 1, 0..],
+    entry by entry the values of ``H[:, 0:2] = -I; H[:, 2:4] = -dt I; H[:, i:i+2] = I`` on
+    zeros (with the signed zeros -0.0 and -dt * 0.0 the array products leave)."""
+    H = np.zeros((2, n))
+    row0, row1 = H[0], H[1]
+    row0[0] = -1.0
+    row1[1] = -1.0
+    row0[1] = -0.0
+    row1[0] = -0.0
+    ndt = -dt
+    row0[2] = ndt
+    row1[3] = ndt
+    z = ndt * 0.0
+    row0[3] = z
+    row1[2] = z
+    row0[i] = 1.0
+    row1[i + 1] = 1.0
+    row0[i + 1] = 0.0
+    row1[i] = 0.0
+    return H
 
 
 def _clone_h(n: int, dt1: float, i: int) -> NDArray[np.float64]:

@@ -328,3 +328,42 @@ def test_stand_height_median_equals_numpy_median() -> None:
         got = _median_finite(values.tolist())
         want = float(np.median(values))
         assert np.float64(got).tobytes() == np.float64(want).tobytes()
+
+
+def test_displacement_h_and_noise_are_the_array_formulas_bit_for_bit() -> None:
+    """The displacement's and a landmark's H, V and the symmetrised covariance built on
+    Python floats (eskf._clone_h, _landmark_h, _measurement_v, _cov2) are the arrays the
+    numpy expressions they replaced give, signed zeros included."""
+    from vio_graph.filter.eskf import _I2, _clone_h, _cov2, _landmark_h, _measurement_v
+
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        n = 8 + 2 * int(rng.integers(1, 6))
+        i = 8 + 2 * int(rng.integers(0, (n - 8) // 2))
+        dt1 = float(rng.normal(0, 0.005))
+        want_h = np.zeros((2, n))
+        want_h[:, 0:2] = _I2
+        want_h[:, 2:4] = dt1 * _I2
+        want_h[:, i : i + 2] = -_I2
+        got_h = _clone_h(n, dt1, i)
+        assert np.array_equal(got_h, want_h)
+        assert np.array_equal(np.signbit(got_h), np.signbit(want_h))
+        want_h = np.zeros((2, n))
+        want_h[:, 0:2] = -_I2
+        want_h[:, 2:4] = -dt1 * _I2
+        want_h[:, i : i + 2] = _I2
+        got_h = _landmark_h(n, dt1, i)
+        assert np.array_equal(got_h, want_h)
+        assert np.array_equal(np.signbit(got_h), np.signbit(want_h))
+        c = rng.normal(0, 1e-3, (2, 2))
+        inflation, floor = float(rng.uniform(0.5, 3.0)), float(rng.uniform(0.0, 0.01))
+        want_c = 0.5 * (c + c.T)
+        assert np.array_equal(_cov2(c), want_c)
+        want_v = inflation * want_c + floor**2 * _I2
+        got_v = _measurement_v(c, inflation, floor)
+        assert np.array_equal(got_v, want_v)
+        assert np.array_equal(np.signbit(got_v), np.signbit(want_v))
+    with pytest.raises(EstimationError):
+        _cov2(np.array([[1.0, np.nan], [0.0, 1.0]]))
+    with pytest.raises(EstimationError):
+        _cov2(np.eye(3))

@@ -1202,7 +1202,7 @@ class OnlineEstimator:
             self._in_stance,
             corner_seen,
             refused=refused,
-            velocity_sigma_x_mps=float(np.sqrt(max(self.filter.variance(2), 0.0))),
+            velocity_sigma_x_mps=math.sqrt(max(self.filter.variance(2), 0.0)),
             distrusted_imu_samples=self.imu_faults.n_distrusted,
             camera_fixed_pixels=result.n_camera_fixed,
         )
@@ -1579,7 +1579,7 @@ class OnlineEstimator:
         test = self.stamp_test
         if test is None:
             return None, d
-        u = test.shift(self._position_at(t_s)[1])
+        u = test.shift(self.filter.position_velocity()[2])  # the velocity _position_at gives
         if u is None:
             return None, d
         # r_line = r_stamp - u: the other hypothesis moves the measurement by -u (or +u)
@@ -1639,7 +1639,7 @@ class OnlineEstimator:
             return
         b_before = self.pitch_offset.offset_rad - step_rad
         rate = self._pitch_rate_at(t)
-        floor = np.radians(self.config.filter.level_aiding.measurement_floor_deg)
+        floor = math.radians(self.config.filter.level_aiding.measurement_floor_deg)
         self.time_offset.update(
             t, tilt.tilt_rad, float(np.hypot(tilt.sigma_rad, floor)), b_before, rate
         )
@@ -1748,7 +1748,7 @@ class OnlineEstimator:
         self.surface_tilt = measure_surface_tilt(
             profile_xz_m,
             self._level_rng,
-            np.radians(cfg.max_tilt_deg),
+            math.radians(cfg.max_tilt_deg),
             cfg.inlier_m,
             cfg.min_points,
             cfg.min_extent_m,
@@ -1947,10 +1947,12 @@ class OnlineEstimator:
             if f or (n and self.filter.has_landmark(key))
         )
 
-    def _stance_lever(self, R_world_imu: NDArray[np.float64]):
+    def _stance_lever(self, R_world_imu: NDArray[np.float64], theta: float | None = None):
         """ankle - camera through the shank (m, ground axes): R_shank (ankle_in_shank -
-        camera_in_shank), and its derivative by the shank pitch."""
-        theta = self.rig.shank_pitch_rad(R_world_imu)
+        camera_in_shank), and its derivative by the shank pitch. ``theta``: the shank pitch
+        of ``R_world_imu`` (rad) if the caller has it already."""
+        if theta is None:
+            theta = self.rig.shank_pitch_rad(R_world_imu)
         u0, u1 = self._ankle_from_camera_shank_m.tolist()
         # geometry.rotate_xz written out on scalars (the same products and sums, no stack)
         c, s = np.cos(theta), np.sin(theta)
@@ -1974,9 +1976,10 @@ class OnlineEstimator:
         pin the estimate, and a velocity drifted in a blind swing cannot lock the anchor out.
         """
         fc = self.config.filter
-        lever, dlever = self._stance_lever(R_world_imu)
+        theta = self.rig.shank_pitch_rad(R_world_imu)  # the lever's and the foot's, once
+        lever, dlever = self._stance_lever(R_world_imu, theta)
         agrees = self._stance_test.test(t, lever, result.displacement)
-        foot_still = self._foot_test.test(self._foot_pitch_rad(R_world_imu))
+        foot_still = self._foot_test.test(self._foot_pitch_rad(R_world_imu, theta))
         if self._last_contact is None or fc.stance_contact == "off":
             candidate = self._stance.quiet()
         elif fc.stance_contact == "confirm":
@@ -2049,13 +2052,18 @@ class OnlineEstimator:
             self._foot_test.reset()
         self._in_stance = stance
 
-    def _foot_pitch_rad(self, R_world_imu: NDArray[np.float64]) -> float | None:
-        """Foot pitch (rad): the IMU shank pitch (the one the stance lever uses) plus the
-        ankle encoder at this frame; None without a joints stream."""
+    def _foot_pitch_rad(
+        self, R_world_imu: NDArray[np.float64], theta: float | None = None
+    ) -> float | None:
+        """Foot pitch (rad): the IMU shank pitch (the one the stance lever uses; ``theta`` if
+        the caller has it) plus the ankle encoder at this frame; None without a joints
+        stream."""
         j = self._frame_joints if self._frame_joints is not None else self._last_joints
         if j is None:
             return None
-        return self.rig.shank_pitch_rad(R_world_imu) + float(j.ankle_rad)
+        if theta is None:
+            theta = self.rig.shank_pitch_rad(R_world_imu)
+        return theta + float(j.ankle_rad)
 
     def _pitch_rate_radps(self, R_world_imu: NDArray[np.float64]) -> float:
         """The shank's pitch rate (rad/s, about the ground frame's lateral axis) from the

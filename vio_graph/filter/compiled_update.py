@@ -142,6 +142,24 @@ def gate_d2(P, H, V, y):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def gate_d2_pair(P, H, V, y, y_other):  # pragma: no cover - compiled
+    """(:func:`gate_d2` of ``y``, of ``y_other``) with H P and S built once: the same two
+    floats as two calls."""
+    HP = _hp(H, P)
+    S = _innovation_cov(H, HP, V)
+    s00, s11 = S[0, 0], S[1, 1]
+    s01 = 0.5 * (S[0, 1] + S[1, 0])
+    det = s00 * s11 - s01 * s01
+    if det == 0.0 or not math.isfinite(det):
+        return np.nan, np.nan
+    y0, y1 = y[0], y[1]
+    d2 = (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s01 * y0)) / det
+    y0, y1 = y_other[0], y_other[1]
+    d2_other = (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s01 * y0)) / det
+    return d2, d2_other
+
+
+@numba.njit(cache=True)
 def without_block(P, i):  # pragma: no cover - compiled
     """P without rows and columns i, i + 1 (``SagittalEskf._marginalise``'s take): a copy,
     the same values."""

@@ -673,7 +673,7 @@ class SagittalEskf:
             H1 = np.zeros((2, self._P.shape[0]))
             H1[:, 0:2] = _I2
             H1[:, 2:4] = dt1 * _I2
-        p_t1 = self._position_ahead(dt1)
+        p_t1 = self._position_ahead_xz(dt1)
 
         cloning = self.config.measurement_model == "stochastic_cloning"
         if cloning and _CLONE in self._aug_xz and abs(self._clone_t_s - t0) <= _CLONE_TOL_S:
@@ -684,7 +684,9 @@ class SagittalEskf:
                 H[:, i : i + 2] = -_I2
             else:
                 H = memo[5]
-            innovation = delta - (p_t1 - np.array(self._aug_xz[_CLONE]))
+            # delta - (p(t1) - clone) per axis on floats (the array expression's values)
+            (d0, d1), (c0, c1) = delta.tolist(), self._aug_xz[_CLONE]
+            innovation = np.array([d0 - (p_t1[0] - c0), d1 - (p_t1[1] - c1)])
         else:
             # (the memo exists only for a relative measurement on the current clone)
             assert memo is None
@@ -698,7 +700,7 @@ class SagittalEskf:
             if cloning:
                 self._n_fallback += 1
             H = H1
-            innovation = p_t0 + delta - p_t1
+            innovation = p_t0 + delta - np.array(p_t1)
         if memo is None:
             assert cov is not None
             V = self.config.measurement_cov_inflation * cov
@@ -774,14 +776,14 @@ class SagittalEskf:
         ):
             return None
         dt1 = t1 - self._t_s
-        H = np.zeros((2, self._P.shape[0]))
-        H[:, 0:2] = _I2
-        H[:, 2:4] = dt1 * _I2
         i = self._aug_index(_CLONE)
-        H[:, i : i + 2] = -_I2
-        predicted = self._position_ahead(dt1) - np.array(self._aug_xz[_CLONE])
-        V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
-        V = V + self.config.measurement_noise_floor_m**2 * _I2
+        H = _clone_h(self._P.shape[0], dt1, i)
+        # p(t1) - clone per axis on floats (the array subtraction's values)
+        (p0, p1), (c0, c1) = self._position_ahead_xz(dt1), self._aug_xz[_CLONE]
+        predicted = np.array([p0 - c0, p1 - c1])
+        V = _measurement_v(
+            d.cov_m2, self.config.measurement_cov_inflation, self.config.measurement_noise_floor_m
+        )
         # for update_displacement(d) on the same state (the frame's gate tests come first)
         self._setup_memo = (d, self._t_s, self._clone_t_s, self._P.shape[0], i, H, V)
         return H, V, predicted
@@ -827,9 +829,8 @@ class SagittalEskf:
         y = _vec2(d.delta_xz_m) - predicted
         y_other = _vec2(other_delta_xz_m) - predicted
         P = self._P
-        if self._update_kernels is not None:
-            d2 = self._update_kernels.gate_d2(P, H, V, y)
-            d2_other = self._update_kernels.gate_d2(P, H, V, y_other)
+        if self._update_kernels is not None:  # H P and S once for both (the same floats)
+            d2, d2_other = self._update_kernels.gate_d2_pair(P, H, V, y, y_other)
             if math.isnan(d2) or math.isnan(d2_other):
                 raise EstimationError("singular innovation covariance")
             return d2, d2_other
@@ -927,11 +928,11 @@ class SagittalEskf:
             self._augment(key, self._position_ahead(dt) + rel, dt, V)
             return False
         i = self._aug_index(key)
-        H = np.zeros((2, self._P.shape[0]))
-        H[:, 0:2] = -_I2
-        H[:, 2:4] = -dt * _I2
-        H[:, i : i + 2] = _I2
-        innovation = rel - (np.array(self._aug_xz[key]) - self._position_ahead(dt))
+        H = _landmark_h(self._P.shape[0], dt, i)
+        # rel - (L - p(t)) per axis on floats (the array expression's values)
+        (r0, r1), (a0, a1) = rel.tolist(), self._aug_xz[key]
+        p0, p1 = self._position_ahead_xz(dt)
+        innovation = np.array([r0 - (a0 - p0), r1 - (a1 - p1)])
         accepted = self._correct(innovation, H, V, gate, landmark=True)
         if accepted:
             self._last_accept_s = max(self._last_accept_s, t)
@@ -1388,7 +1389,7 @@ class SagittalEskf:
                 self._aug_keys.remove(_CLONE)
             self._aug_keys.append(_CLONE)
             self._aug_xz.pop(_CLONE, None)  # (re-inserted last, as the removal and append)
-            self._aug_xz[_CLONE] = _pair(self._position_ahead(dt))
+            self._aug_xz[_CLONE] = self._position_ahead_xz(dt)
             self._clone_t_s = t_s
             return
         self._marginalise(_CLONE)
@@ -1494,22 +1495,29 @@ class SagittalEskf:
         Jacobian keeps only the I and dt*I blocks: the a-term is second order in dt)."""
         # on Python floats (a frame asks ~10 times): the same products and sums per axis as
         # ``x[0:2] + dt * x[2:4] + (0.5 dt^2) a`` on arrays, without five small-array calls
+        return np.array(self._position_ahead_xz(dt_s))
+
+    def _position_ahead_xz(self, dt_s: float) -> tuple[float, float]:
+        """:meth:`_position_ahead` as two Python floats (the same values)."""
         x0, x1, v0, v1 = self._x[:4].tolist()
         a0, a1 = self._accel_w_mps2
         h = 0.5 * dt_s**2
-        return np.array([x0 + dt_s * v0 + h * float(a0), x1 + dt_s * v1 + h * float(a1)])
+        return x0 + dt_s * v0 + h * float(a0), x1 + dt_s * v1 + h * float(a1)
 
-    def _remember(self, t_s: float, p_xz: NDArray) -> None:
-        """Append (t_s, p) to the history, dropping entries at or after t_s (keeps it sorted)."""
-        while self._history and self._history[-1][0] >= t_s:
-            self._history.pop()
-        self._history.append((t_s, p_xz.copy()))
-        while self._history and self._history[0][0] < t_s - self.config.history_s:
-            self._history.popleft()
+    def _remember(self, t_s: float, p_xz: NDArray, owned: bool = False) -> None:
+        """Append (t_s, p) to the history, dropping entries at or after t_s (keeps it sorted).
+        ``owned``: ``p_xz`` is a new array no one else holds (kept as is, not copied)."""
+        history = self._history
+        while history and history[-1][0] >= t_s:
+            history.pop()
+        history.append((t_s, p_xz if owned else p_xz.copy()))
+        oldest = t_s - self.config.history_s
+        while history and history[0][0] < oldest:
+            history.popleft()
 
     def _record_correction(self, t_s: float) -> None:
         """Replace history entries from ``t_s`` on with the corrected estimate."""
-        self._remember(t_s, self._position_ahead(t_s - self._t_s))
+        self._remember(t_s, self._position_ahead(t_s - self._t_s), owned=True)
         if self._t_s > t_s:
             self._remember(self._t_s, self._x[0:2])
 
@@ -1544,9 +1552,79 @@ def _vec2(v: ArrayLike) -> NDArray[np.float64]:
     return a
 
 
+def _cov2_floats(c: ArrayLike) -> tuple[float, float, float, float]:
+    """A finite 2x2 covariance, symmetrised, as its (00, 01, 10, 11) entries: the same
+    0.5 (a_ij + a_ji) per entry as :func:`_cov2`, on Python floats."""
+    a = np.asarray(c, dtype=float)
+    if a.shape != (2, 2):
+        raise EstimationError(f"expected a finite 2x2 covariance, got shape {a.shape}")
+    (a00, a01), (a10, a11) = a.tolist()
+    if not (
+        math.isfinite(a00) and math.isfinite(a01) and math.isfinite(a10) and math.isfinite(a11)
+    ):
+        raise EstimationError(f"expected a finite 2x2 covariance, got shape {a.shape}")
+    return 0.5 * (a00 + a00), 0.5 * (a01 + a10), 0.5 * (a10 + a01), 0.5 * (a11 + a11)
+
+
 def _cov2(c: ArrayLike) -> NDArray[np.float64]:
     """A finite 2x2 covariance, symmetrised (new array)."""
-    a = np.asarray(c, dtype=float)
-    if a.shape != (2, 2) or not all(map(math.isfinite, a.ravel().tolist())):
-        raise EstimationError(f"expected a finite 2x2 covariance, got shape {a.shape}")
-    return 0.5 * (a + a.T)
+    s00, s01, s10, s11 = _cov2_floats(c)
+    return np.array([[s00, s01], [s10, s11]])
+
+
+def _measurement_v(c: ArrayLike, inflation: float, floor_m: float) -> NDArray[np.float64]:
+    """A displacement's measurement noise ``inflation * _cov2(c) + floor_m**2 * I`` (2x2),
+    entry by entry on Python floats: the same products and sums as on arrays (the off-diagonal
+    floor term is floor^2 * 0.0, added as numpy adds it)."""
+    s00, s01, s10, s11 = _cov2_floats(c)
+    f2 = floor_m**2
+    z = f2 * 0.0
+    return np.array(
+        [
+            [inflation * s00 + f2, inflation * s01 + z],
+            [inflation * s10 + z, inflation * s11 + f2],
+        ]
+    )
+
+
+def _landmark_h(n: int, dt: float, i: int) -> NDArray[np.float64]:
+    """A landmark observation's H (2 x n): [-I, -dt I, 0.., I at columns i, i + 1, 0..],
+    entry by entry the values of ``H[:, 0:2] = -I; H[:, 2:4] = -dt I; H[:, i:i+2] = I`` on
+    zeros (with the signed zeros -0.0 and -dt * 0.0 the array products leave)."""
+    H = np.zeros((2, n))
+    row0, row1 = H[0], H[1]
+    row0[0] = -1.0
+    row1[1] = -1.0
+    row0[1] = -0.0
+    row1[0] = -0.0
+    ndt = -dt
+    row0[2] = ndt
+    row1[3] = ndt
+    z = ndt * 0.0
+    row0[3] = z
+    row1[2] = z
+    row0[i] = 1.0
+    row1[i + 1] = 1.0
+    row0[i + 1] = 0.0
+    row1[i] = 0.0
+    return H
+
+
+def _clone_h(n: int, dt1: float, i: int) -> NDArray[np.float64]:
+    """The relative displacement's H (2 x n): [I, dt1 I, 0.., -I at columns i, i + 1, 0..],
+    entry by entry the values of ``H[:, 0:2] = I; H[:, 2:4] = dt1 I; H[:, i:i+2] = -I`` on
+    zeros (with the signed zeros dt1 * 0.0 and -0.0 the array products leave)."""
+    H = np.zeros((2, n))
+    row0, row1 = H[0], H[1]
+    row0[0] = 1.0
+    row1[1] = 1.0
+    row0[2] = dt1
+    row1[3] = dt1
+    z = dt1 * 0.0
+    row0[3] = z
+    row1[2] = z
+    row0[i] = -1.0
+    row1[i + 1] = -1.0
+    row0[i + 1] = -0.0
+    row1[i] = -0.0
+    return H

@@ -43,8 +43,9 @@ class LandmarkMemory:
             else:
                 alive.append(k)
         # the state's order is kept by the drops, so ``alive`` is keys(eskf) now
-        kept_kind = sorted(alive, key=lambda k: self._seen.get(k, t_s))
-        for k in kept_kind[: max(0, len(kept_kind) - self.max_landmarks)]:
-            if k not in current:
-                eskf.drop_landmark(k)
+        if len(alive) > self.max_landmarks:  # (else nothing to drop: no sort needed)
+            kept_kind = sorted(alive, key=lambda k: self._seen.get(k, t_s))
+            for k in kept_kind[: len(kept_kind) - self.max_landmarks]:
+                if k not in current:
+                    eskf.drop_landmark(k)
         self._seen = {k: v for k, v in self._seen.items() if k in current or eskf.has_landmark(k)}

@@ -127,36 +127,41 @@ def correct(P, H, V, y, gate, gate_d2):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def gate_d2(P, H, V, y):  # pragma: no cover - compiled
-    """y^T (H P H^T + V)^-1 y for a 2-row H (``gating.mahalanobis2_2d``'s closed form), or
-    nan when the innovation covariance is singular or not finite."""
+def _gate_terms(P, H, V):  # pragma: no cover - compiled
+    """The innovation covariance S = H P H^T + V of a 2-row H as (s00, s01, s11, det), s01
+    the mean of its two off-diagonal entries."""
     HP = _hp(H, P)
     S = _innovation_cov(H, HP, V)
     s00, s11 = S[0, 0], S[1, 1]
     s01 = 0.5 * (S[0, 1] + S[1, 0])
-    det = s00 * s11 - s01 * s01
-    if det == 0.0 or not math.isfinite(det):
-        return np.nan
+    return s00, s01, s11, s00 * s11 - s01 * s01
+
+
+@numba.njit(cache=True)
+def _gate_quadratic(y, s00, s01, s11, det):  # pragma: no cover - compiled
+    """y^T S^-1 y from :func:`_gate_terms`' values, in closed form."""
     y0, y1 = y[0], y[1]
     return (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s01 * y0)) / det
+
+
+@numba.njit(cache=True)
+def gate_d2(P, H, V, y):  # pragma: no cover - compiled
+    """y^T (H P H^T + V)^-1 y for a 2-row H (``gating.mahalanobis2_2d``'s closed form), or
+    nan when the innovation covariance is singular or not finite."""
+    s00, s01, s11, det = _gate_terms(P, H, V)
+    if det == 0.0 or not math.isfinite(det):
+        return np.nan
+    return _gate_quadratic(y, s00, s01, s11, det)
 
 
 @numba.njit(cache=True)
 def gate_d2_pair(P, H, V, y, y_other):  # pragma: no cover - compiled
     """(:func:`gate_d2` of ``y``, of ``y_other``) with H P and S built once: the same two
     floats as two calls."""
-    HP = _hp(H, P)
-    S = _innovation_cov(H, HP, V)
-    s00, s11 = S[0, 0], S[1, 1]
-    s01 = 0.5 * (S[0, 1] + S[1, 0])
-    det = s00 * s11 - s01 * s01
+    s00, s01, s11, det = _gate_terms(P, H, V)
     if det == 0.0 or not math.isfinite(det):
         return np.nan, np.nan
-    y0, y1 = y[0], y[1]
-    d2 = (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s01 * y0)) / det
-    y0, y1 = y_other[0], y_other[1]
-    d2_other = (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s01 * y0)) / det
-    return d2, d2_other
+    return _gate_quadratic(y, s00, s01, s11, det), _gate_quadratic(y_other, s00, s01, s11, det)
 
 
 @numba.njit(cache=True)

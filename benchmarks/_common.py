@@ -179,36 +179,55 @@ def true_leg_paths(rec: Any, t: Any) -> dict[str, Any]:
     return {b: gt[b].xz_at(t) for b in ("camera", "heel", "toe")}
 
 
+#: run by a small Python process that starts and waits for the measured command: its argv
+#: (JSON) and working directory; prints the child's wall, CPU, peak RSS and exit code (JSON)
+_MEASURING_PARENT = """
+import json, os, subprocess, sys, time
+args, cwd = json.loads(sys.argv[1]), sys.argv[2] or None
+t0 = time.perf_counter()
+proc = subprocess.Popen(args, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+err = proc.stderr.read()
+_, status, usage = os.wait4(proc.pid, 0)
+wall = time.perf_counter() - t0
+sys.stderr.buffer.write(err[-4000:])
+print(json.dumps({"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
+                  "peak_rss_mib": usage.ru_maxrss / 1024.0,
+                  "code": os.waitstatus_to_exitcode(status)}))
+"""
+
+
 def measure_process(args: list[str], tree: Path | None = None) -> dict[str, float]:
     """Run ``args`` as a single-threaded child process (BLAS / OpenMP threads = 1); its wall
     (s), user + system CPU (s) and peak resident memory (MiB), from ``os.wait4``. ``tree``:
     a source tree (:func:`extract_revision`) to run instead of this one, first on the import
     path and the working directory (``python -m`` puts the working directory first).
 
+    The command is started by a small Python process, not by this one: Linux folds the
+    high-water RSS of the process that execs into the new program's peak (and Python's
+    subprocess execs from a vfork child sharing its parent's memory), so a command started
+    from a long-lived benchmark process reported that process's memory as its own (``vio-graph
+    --help`` at 119 MiB instead of 18). The small parent's own ~10 MiB is the floor left.
+
     Raises:
         RuntimeError: the process exited with a non-zero code (its stderr's end included).
     """
     import subprocess
-    import time
+    import sys
 
     env = dict(os.environ, **{v: "1" for v in THREAD_VARIABLES})
     if tree is not None:
         env["PYTHONPATH"] = str(tree)
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(
-        args, env=env, cwd=tree, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
-    code = os.waitstatus_to_exitcode(status)
-    if code != 0:
-        raise RuntimeError(f"{' '.join(args)} failed ({code}):\n{err[-2000:]}")
-    return {
-        "wall_s": wall,
-        "cpu_s": usage.ru_utime + usage.ru_stime,
-        "peak_rss_mib": usage.ru_maxrss / 1024.0,
-    }
+    cwd = "" if tree is None else str(tree)
+    runner = [sys.executable, "-c", _MEASURING_PARENT, json.dumps(list(args)), cwd]
+    done = subprocess.run(runner, env=env, cwd=tree, capture_output=True, check=False)
+    err = done.stderr.decode(errors="replace")
+    lines = done.stdout.decode(errors="replace").strip().splitlines()
+    if done.returncode != 0 or not lines:
+        raise RuntimeError(f"measuring {' '.join(args)} failed:\n{err[-2000:]}")
+    got = json.loads(lines[-1])
+    if got["code"] != 0:
+        raise RuntimeError(f"{' '.join(args)} failed ({got['code']}):\n{err[-2000:]}")
+    return {"wall_s": got["wall_s"], "cpu_s": got["cpu_s"], "peak_rss_mib": got["peak_rss_mib"]}
 
 
 def extract_revision(rev: str, out: Path) -> Path:

@@ -662,28 +662,30 @@ class SagittalEskf:
             and memo[4] == self._aug_index(_CLONE)
         ):
             memo = None
-        cov = _cov2(d.cov_m2) if memo is None else None
+        if memo is None:
+            V = _measurement_v(
+                d.cov_m2,
+                self.config.measurement_cov_inflation,
+                self.config.measurement_noise_floor_m,
+            )
+        else:
+            V = memo[6]
         t1, t0 = float(d.t1_s), float(d.t0_s)
         tol = self.config.max_time_mismatch_s
         if abs(t1 - self._t_s) > tol or t1 < t0:
             self._n_stale += 1
             return False
         dt1 = t1 - self._t_s
-        if memo is None:
-            H1 = np.zeros((2, self._P.shape[0]))
-            H1[:, 0:2] = _I2
-            H1[:, 2:4] = dt1 * _I2
         p_t1 = self._position_ahead_xz(dt1)
 
         cloning = self.config.measurement_model == "stochastic_cloning"
         if cloning and _CLONE in self._aug_xz and abs(self._clone_t_s - t0) <= _CLONE_TOL_S:
             # relative measurement z = p(t1) - p_c, H = [I dt*I 0 0 -I]
-            if memo is None:
-                H = H1
-                i = self._aug_index(_CLONE)
-                H[:, i : i + 2] = -_I2
-            else:
-                H = memo[5]
+            H = (
+                _clone_h(self._P.shape[0], dt1, self._aug_index(_CLONE))
+                if memo is None
+                else memo[5]
+            )
             # delta - (p(t1) - clone) per axis on floats (the array expression's values)
             (d0, d1), (c0, c1) = delta.tolist(), self._aug_xz[_CLONE]
             innovation = np.array([d0 - (p_t1[0] - c0), d1 - (p_t1[1] - c1)])
@@ -699,14 +701,10 @@ class SagittalEskf:
                 return False
             if cloning:
                 self._n_fallback += 1
-            H = H1
+            H = np.zeros((2, self._P.shape[0]))
+            H[:, 0:2] = _I2
+            H[:, 2:4] = dt1 * _I2
             innovation = p_t0 + delta - np.array(p_t1)
-        if memo is None:
-            assert cov is not None
-            V = self.config.measurement_cov_inflation * cov
-            V = V + self.config.measurement_noise_floor_m**2 * _I2
-        else:
-            V = memo[6]
         accepted = self._correct(innovation, H, V)
         if accepted:
             self._last_accept_s = t1
@@ -867,17 +865,14 @@ class SagittalEskf:
         ):
             return None
         dt1 = t1 - self._t_s
-        H = np.zeros((2, self._P.shape[0]))
-        H[:, 0:2] = _I2
-        H[:, 2:4] = dt1 * _I2
-        i = self._aug_index(_CLONE)
-        H[:, i : i + 2] = -_I2
+        H = _clone_h(self._P.shape[0], dt1, self._aug_index(_CLONE))
         y = _vec2(d.delta_xz_m) - (self._position_ahead(dt1) - np.array(self._aug_xz[_CLONE]))
         P = self._P.copy()
         if extra_pv_cov is not None:
             P[:4, :4] += np.asarray(extra_pv_cov, dtype=float)
-        V = self.config.measurement_cov_inflation * _cov2(d.cov_m2)
-        V = V + self.config.measurement_noise_floor_m**2 * _I2
+        V = _measurement_v(
+            d.cov_m2, self.config.measurement_cov_inflation, self.config.measurement_noise_floor_m
+        )
         S = H @ P @ H.T + V
         return float(y @ np.linalg.solve(0.5 * (S + S.T), y))
 
@@ -1493,12 +1488,12 @@ class SagittalEskf:
     def _position_ahead(self, dt_s: float) -> NDArray[np.float64]:
         """p(t + dt) = p + v dt + a dt^2 / 2 with the last ground-frame acceleration a (the
         Jacobian keeps only the I and dt*I blocks: the a-term is second order in dt)."""
-        # on Python floats (a frame asks ~10 times): the same products and sums per axis as
-        # ``x[0:2] + dt * x[2:4] + (0.5 dt^2) a`` on arrays, without five small-array calls
         return np.array(self._position_ahead_xz(dt_s))
 
     def _position_ahead_xz(self, dt_s: float) -> tuple[float, float]:
         """:meth:`_position_ahead` as two Python floats (the same values)."""
+        # on Python floats (a frame asks ~10 times): the same products and sums per axis as
+        # ``x[0:2] + dt * x[2:4] + (0.5 dt^2) a`` on arrays, without five small-array calls
         x0, x1, v0, v1 = self._x[:4].tolist()
         a0, a1 = self._accel_w_mps2
         h = 0.5 * dt_s**2

@@ -277,6 +277,26 @@ SWEEP_CONDITIONS: tuple[SweepCondition, ...] = (
         overrides={"camera": {"edge_gap_m": (0.02, 0.06)}},
     ),
     SweepCondition(
+        "tof_multipath",
+        "depth",
+        "multipath interference: depths near every concave corner (tread meets riser) read "
+        "long by up to 1 cm, decaying over 5 cm (camera.multipath_bias_m)",
+        overrides={"camera": {"multipath_bias_m": 0.01, "multipath_decay_m": 0.05}},
+    ),
+    SweepCondition(
+        "tof_wiggling",
+        "depth",
+        "ToF wiggling error left after calibration: 5 mm amplitude, 0.5 m period in depth",
+        overrides={"camera": {"wiggling_amplitude_m": 0.005, "wiggling_period_m": 0.5}},
+    ),
+    SweepCondition(
+        "tof_depth_scale",
+        "depth",
+        "depth scale error of +1 % (the pico flexx2's specified accuracy limit; calibration, "
+        "temperature)",
+        overrides={"camera": {"depth_scale_error": 0.01}},
+    ),
+    SweepCondition(
         "long_2min",
         "length",
         "2-minute ascent over 14 flights of 12 steps with landings (configs/upstair_long.yaml)",

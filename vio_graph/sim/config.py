@@ -346,6 +346,40 @@ class CameraConfig(_Section):
         "real pico flexx2 stair profiles show 0.03-0.06 m; None: off",
     )
 
+    depth_scale_error: float = Field(
+        0.0,
+        gt=-0.1,
+        lt=0.1,
+        description="systematic depth scale error (calibration, temperature): every depth is "
+        "multiplied by 1 + this; the pico flexx2 specifies <= 1 % of distance; 0: off",
+    )
+    wiggling_amplitude_m: float = Field(
+        0.0,
+        ge=0,
+        le=0.05,
+        description="ToF 'wiggling' (harmonics of the modulation signal): depth error "
+        "A sin(2 pi z / period + phase) left after calibration, m; a few mm typical; 0: off",
+    )
+    wiggling_period_m: float = Field(
+        0.5,
+        gt=0,
+        description="depth period of the wiggling error, m (a quarter of the "
+        "unambiguous range is typical)",
+    )
+    wiggling_phase_rad: float = Field(0.0, description="phase of the wiggling error, rad")
+    multipath_bias_m: float = Field(
+        0.0,
+        ge=0,
+        le=0.1,
+        description="multipath interference in concave corners (tread meets riser): light "
+        "bounced off one face returns via the other, so depths near the corner read long by "
+        "up to this, m; decays as exp(-r / multipath_decay_m) with the distance r from the "
+        "corner; real ToF: cm near corners; 0: off",
+    )
+    multipath_decay_m: float = Field(
+        0.05, gt=0, description="decay length of the multipath depth error from the corner, m"
+    )
+
     @field_validator("edge_gap_m")
     @classmethod
     def _gap_range(cls, v):

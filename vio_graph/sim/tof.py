@@ -44,6 +44,18 @@ def _extremes_3x3(a: NDArray) -> tuple[NDArray, NDArray]:
     return zmax, zmin
 
 
+def concave_corners_xz(profile_xz_m: NDArray) -> NDArray[np.float64]:
+    """(K, 2) vertices of a terrain profile (x increasing, solid below) where it turns up
+    into the solid: the inner corners where a tread or floor meets the riser above it, or
+    (descending) a riser meets the tread below it. Multipath collects there."""
+    p = np.asarray(profile_xz_m, float)
+    if p.shape[0] < 3:
+        return np.zeros((0, 2))
+    a, b = p[1:-1] - p[:-2], p[2:] - p[1:-1]
+    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return p[1:-1][cross > 1e-9]
+
+
 class TofCamera:
     """Pinhole ToF camera over a terrain. ``render`` is pure given its generator."""
 
@@ -68,6 +80,7 @@ class TofCamera:
         # floor under the flight, so they use the walking surface (the treads) instead
         open_risers = bool(terrain.params.get("open_risers", 0))
         self._surface_xz = terrain.profile_xz_m if mesh is None or open_risers else mesh
+        self._concave_xz = concave_corners_xz(self._surface_xz)
 
     def camera_model(self) -> CameraModel:
         c = self.cfg
@@ -132,7 +145,7 @@ class TofCamera:
         dot = (n_w[..., 0] * dx + n_w[..., 1] * dy) + n_w[..., 2] * dz
         cos_inc = np.abs(dot) / np.sqrt((dx * dx + dy * dy) + dz * dz)
         incidence = np.arccos(np.clip(cos_inc, 0.0, 1.0))
-        z = z_true
+        z = self._systematic(z_true, hit, position, d_w)
         if c.noise:
             far = np.where(hit, t_hit, 10.0)  # misses behave like a far background
             zmax, zmin = _extremes_3x3(far)
@@ -162,6 +175,36 @@ class TofCamera:
         depth = np.where(valid, z, 0.0).astype(np.float32)
         conf = np.where(valid, np.clip(np.round(255 * (1 - sigma / c.max_noise_m)), 1, 255), 0)
         return depth, conf.astype(np.uint8)
+
+    def _systematic(
+        self, z_true: NDArray, hit: NDArray, position: NDArray, d_w: NDArray
+    ) -> NDArray:
+        """Deterministic depth errors of real ToF cameras (all off by default, then
+        ``z_true`` itself is returned): the multipath excess near concave corners, the
+        wiggling error and a depth scale error, in that order. No random draws."""
+        c = self.cfg
+        if not (c.multipath_bias_m or c.wiggling_amplitude_m or c.depth_scale_error):
+            return z_true
+        z = z_true.copy()
+        if c.multipath_bias_m and self._concave_xz.shape[0]:
+            # hit points in the world's x-z plane (depth is along a ray with camera z = 1)
+            px = position[0] + z_true * d_w[..., 0]
+            pz = position[2] + z_true * d_w[..., 2]
+            near = self._concave_xz[np.abs(self._concave_xz[:, 0] - position[0]) < 4.0]
+            if near.shape[0]:
+                r2 = np.full(z.shape, np.inf)
+                for cx, cz in near:
+                    np.minimum(r2, (px - cx) ** 2 + (pz - cz) ** 2, out=r2)
+                excess = c.multipath_bias_m * np.exp(-np.sqrt(r2) / c.multipath_decay_m)
+                z = np.where(hit, z + excess, z)
+        if c.wiggling_amplitude_m:
+            wiggle = c.wiggling_amplitude_m * np.sin(
+                2 * np.pi * z / c.wiggling_period_m + c.wiggling_phase_rad
+            )
+            z = np.where(hit, z + wiggle, z)
+        if c.depth_scale_error:
+            z = z * (1.0 + c.depth_scale_error)
+        return z
 
     def edge_gap_bands(
         self, position_m: NDArray, band_m: NDArray

@@ -68,6 +68,7 @@ from vio_graph.errors import EstimationError
 from vio_graph.filter.attitude import (
     AttitudeTracker,
     PitchOffsetFilter,
+    SurfaceBendTest,
     VendorPitchVariance,
     pitch_disagreement_rad,
     with_pitch_offset,
@@ -96,7 +97,7 @@ from vio_graph.filter.level_landmarks import LevelLandmarks
 from vio_graph.filter.stance import FootRotationTest, StanceConsistencyTest, StanceDetector
 from vio_graph.filter.time_offset import ClockModel, FrameStampTest, TimeOffsetEstimator
 from vio_graph.frontend.frontend import FrontendResult, VisualFrontend
-from vio_graph.frontend.level import SurfaceTilt, measure_surface_tilt
+from vio_graph.frontend.level import SurfaceTilt, measure_face_lean, measure_surface_tilt
 from vio_graph.geometry import (
     invert_transform,
     matrix_from_quat_wxyz,
@@ -359,6 +360,11 @@ class OnlineEstimator:
             else None
         )
         self._level_rng = np.random.default_rng(config.frontend.seed)
+        # the faces' RANSAC draws from its own stream: the level fits' draws stay as they were
+        self._face_rng = np.random.default_rng([config.frontend.seed, 1])
+        la = config.filter.level_aiding
+        self.bend_test = SurfaceBendTest(la.bend_memory_s, la.bend_sigmas) if la.bend_test else None
+        self._surfaces_were_bent = False  # the bend test's verdict at the previous tilt
         #: the level surfaces also carry their ray-fitted heights, for the smoothers only
         #: (smoother.height_landmark_heights)
         self._smoother_ray_heights = (
@@ -1635,7 +1641,7 @@ class OnlineEstimator:
         (filter/time_offset.py) with the pitch offset it was measured with and the shank pitch
         rate at the frame time."""
         tilt = self.surface_tilt
-        if tilt is None or not self.config.filter.time_offset.estimate:
+        if tilt is None or tilt.bent or not self.config.filter.time_offset.estimate:
             return
         b_before = self.pitch_offset.offset_rad - step_rad
         rate = self._pitch_rate_at(t)
@@ -1760,7 +1766,10 @@ class OnlineEstimator:
             self._smoother_ray_heights,
         )
         step = 0.0
-        if self.surface_tilt is not None:
+        if self.surface_tilt is not None and self._surfaces_bent(t, profile_xz_m):
+            # a biased pitch measurement: not fused, not given to the time-offset estimator
+            self.surface_tilt = dataclasses.replace(self.surface_tilt, bent=True)
+        elif self.surface_tilt is not None:
             tilt_rad, sigma_rad = self._tilt_to_fuse(t, self.surface_tilt)
             self._test_frame_tilt(t, tilt_rad, sigma_rad)
             if self._frame_rot_var_rad2 > 0.0:
@@ -1769,6 +1778,40 @@ class OnlineEstimator:
         if self.config.filter.attitude.vendor_pitch_sigma_deg is not None:
             self._weigh_attitude_pull(t)
         return step
+
+    def _surfaces_bent(self, t: float, profile_xz_m: NDArray[np.float64]) -> bool:
+        """Feed this frame's tilt and face lean to the bend test (``level_aiding.bend_test``)
+        and say whether the surfaces are bent (their tilt then is not a pitch measurement)."""
+        test, tilt = self.bend_test, self.surface_tilt
+        if test is None or tilt is None:
+            return False
+        cfg = self.config.filter.level_aiding
+        face = measure_face_lean(
+            profile_xz_m,
+            self._face_rng,
+            math.radians(cfg.max_tilt_deg),
+            cfg.inlier_m,
+            cfg.face_min_points,
+            cfg.face_min_extent_m,
+            cfg.max_lines,
+            cfg.correlated_points,
+            cfg.end_trim_m,
+        )
+        if face is not None:
+            test.add(t, tilt.tilt_rad, tilt.sigma_rad**2, face.tilt_rad, face.sigma_rad**2)
+        if not test.bent(t):
+            self._surfaces_were_bent = False
+            return False
+        test.n_bent_frames += 1
+        if not self._surfaces_were_bent:
+            # the tilts fused so far measured the bend too: drop what they taught the pitch
+            # offset and the camera-IMU time offset (the attitude falls back on the vendor's)
+            self._surfaces_were_bent = True
+            test.n_resets += 1
+            self.pitch_offset.reset()
+            if self.config.filter.time_offset.estimate:
+                self.time_offset.forget()
+        return True
 
     def _weigh_attitude_pull(self, t: float) -> None:
         """The attitude tracker's pull towards the vendor about the pitch axis, weighed against

@@ -126,8 +126,25 @@ def filter_summary(replay: Replay) -> dict[str, Any]:
             "accepted": online.pitch_offset.n_accepted,
             "rejected": online.pitch_offset.n_rejected,
             "final_offset_deg": float(np.degrees(online.pitch_offset.offset_rad)),
+            "bend_test": bend_test_summary(online),
         },
         "vendor_pitch": vendor_pitch_summary(online),
+    }
+
+
+def bend_test_summary(online: OnlineEstimator) -> dict[str, Any] | None:
+    """The level surfaces' bend test (``filter.level_aiding.bend_test``): frames with both a
+    level tilt and a face lean, frames whose tilt was held back as bent, and the last
+    weighted mean disagreement (deg); None when the test is off."""
+    test = online.bend_test
+    if test is None:
+        return None
+    mean = test.mean_rad()
+    return {
+        "pairs": test.n_pairs,
+        "bent_frames": test.n_bent_frames,
+        "resets": test.n_resets,
+        "mean_disagreement_deg": None if mean is None else float(np.degrees(mean)),
     }
 
 

@@ -260,11 +260,19 @@ class PitchOffsetFilter:
         self._t_s: float | None = None
         self.n_accepted = 0
         self.n_rejected = 0
+        self.n_resets = 0
 
     @property
     def initialised(self) -> bool:
         """True once a measurement was accepted."""
         return self.n_accepted > 0
+
+    def reset(self) -> None:
+        """Back to no knowledge (offset 0 at ``initial_sigma_deg``): what the tilts taught is
+        dropped (they turned out to measure a bend of the surfaces, SurfaceBendTest)."""
+        self.offset_rad = 0.0
+        self.var_rad2 = np.radians(self.config.initial_sigma_deg) ** 2
+        self.n_resets += 1
 
     def predict(self, t_s: float) -> None:
         if self._t_s is not None and t_s > self._t_s:
@@ -286,6 +294,79 @@ class PitchOffsetFilter:
         self.var_rad2 *= 1.0 - k
         self.n_accepted += 1
         return step
+
+
+class SurfaceBendTest:
+    """Are the level surfaces' tilts a rotation of the slice, or a bend of the surfaces?
+
+    A pitch error of the attitude turns every surface of the slice by the same angle: the
+    level surfaces' tilt and the vertical faces' lean (``frontend.level.measure_face_lean``,
+    as a tilt) agree. Depth errors that depend on where a point is (multipath excess near
+    the concave tread-riser corners, the wiggling error of the range) bend the surfaces
+    instead, and bend treads and risers in opposite senses: their tilts then disagree, and
+    the tread tilt is a biased pitch measurement that a random-walk offset would follow.
+
+    Each frame with both gives d = tread tilt - face tilt with variance v = sum of the two
+    fits' variances. The test keeps the inverse-variance weighted mean of d with weights
+    forgotten exponentially over ``memory_s`` seconds; the surfaces are *bent* while that
+    mean is more than ``sigmas`` of its standard error (1 / sqrt(sum of weights)) from 0,
+    with at least ``min_frames`` (decayed) frames behind it. Rigid surfaces give a mean
+    indistinguishable from 0 whatever the pitch error. Pure; no I/O.
+    """
+
+    def __init__(self, memory_s: float, sigmas: float, min_frames: float = 5.0) -> None:
+        if not (memory_s > 0.0 and sigmas > 0.0):
+            raise ValueError(f"memory_s and sigmas must be > 0, got {memory_s}, {sigmas}")
+        self.memory_s = float(memory_s)
+        self.sigmas = float(sigmas)
+        self.min_frames = float(min_frames)
+        self._t_s: float | None = None
+        self._n = 0.0  # decayed frame count
+        self._w = 0.0  # decayed sum of 1 / v
+        self._wd = 0.0  # decayed sum of d / v
+        self.n_pairs = 0
+        self.n_bent_frames = 0  # frames whose tilt the test held back (counted by the caller)
+        self.n_resets = 0  # times the caller dropped what earlier tilts taught
+
+    def _decay_to(self, t_s: float) -> None:
+        if self._t_s is not None and t_s > self._t_s:
+            k = math.exp(-(t_s - self._t_s) / self.memory_s)
+            self._n *= k
+            self._w *= k
+            self._wd *= k
+        if self._t_s is None or t_s > self._t_s:
+            self._t_s = t_s
+
+    def add(
+        self,
+        t_s: float,
+        tread_tilt_rad: float,
+        tread_var_rad2: float,
+        face_tilt_rad: float,
+        face_var_rad2: float,
+    ) -> None:
+        """One frame's level-surface tilt and face lean (rad) with their variances (rad^2)."""
+        v = tread_var_rad2 + face_var_rad2
+        d = tread_tilt_rad - face_tilt_rad
+        if not (math.isfinite(d) and v > 0.0 and math.isfinite(v)):
+            return
+        self._decay_to(t_s)
+        self._n += 1.0
+        self._w += 1.0 / v
+        self._wd += d / v
+        self.n_pairs += 1
+
+    def mean_rad(self) -> float | None:
+        """The weighted mean disagreement (rad), None before any pair."""
+        return None if self._w <= 0.0 else self._wd / self._w
+
+    def bent(self, t_s: float) -> bool:
+        """True if the surfaces seen up to ``t_s`` are bent (see the class docstring)."""
+        self._decay_to(t_s)
+        if self._n < self.min_frames or self._w <= 0.0:
+            return False
+        mean = self._wd / self._w
+        return mean * mean * self._w > self.sigmas * self.sigmas
 
 
 def pitch_disagreement_rad(R_tracked: Mat3, quat_vendor_wxyz: NDArray[np.float64]) -> float:

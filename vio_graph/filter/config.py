@@ -112,6 +112,29 @@ class LevelAidingConfig(BaseModel):
         "'heights' refits the surfaces' heights only (the tilt the pitch aiding fuses stays "
         "the vertical fit's), 'all' the tilt too",
     )
+    bend_test: bool = Field(
+        default=True,
+        description="compare the level surfaces' tilt with the vertical faces' lean in each "
+        "slice (filter/attitude.SurfaceBendTest): a pitch error turns both alike, depth "
+        "errors that bend the surfaces (multipath in the tread-riser corners, wiggling) tilt "
+        "them in opposite senses; while they disagree beyond bend_sigmas the tilts are not "
+        "fused (nor given to the time-offset estimator). False = fuse every tilt",
+    )
+    bend_memory_s: float = Field(
+        default=1.0, gt=0, description="memory (s) of the bend test's weighted mean"
+    )
+    bend_sigmas: float = Field(
+        default=3.0,
+        gt=0,
+        description="the bend test flags the surfaces when the mean disagreement is this many "
+        "standard errors from 0",
+    )
+    face_min_extent_m: float = Field(
+        default=0.06, gt=0, description="height (m) a vertical face needs for the bend test"
+    )
+    face_min_points: int = Field(
+        default=12, ge=3, description="profile points a vertical face needs for the bend test"
+    )
     initial_sigma_deg: float = Field(
         default=3.0, gt=0, description="sigma (deg) of the offset before any measurement"
     )

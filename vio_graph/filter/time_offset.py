@@ -379,6 +379,8 @@ class TimeOffsetEstimator:
         self.config = config
         self.x = np.zeros(2)
         self.P = np.diag([initial_b_sigma_rad**2, config.initial_sigma_s**2])
+        self._P0 = self.P.copy()
+        self.n_forgotten = 0  #: times :meth:`forget` dropped what the tilts had taught
         self._q = np.array([b_drift_rad_per_sqrt_s**2, config.drift_s_per_sqrt_s**2])
         self._gate = chi2_quantile(config.gate_probability, 1)
         self._t_s: float | None = None
@@ -504,6 +506,20 @@ class TimeOffsetEstimator:
             if self._latched:
                 self.applied_s = self.td_s
 
+    def forget(self) -> None:
+        """Drop what the tilts taught (the level surfaces turned out bent by depth errors,
+        ``filter.attitude.SurfaceBendTest``: their tilts measured the bend, not the pitch
+        and the stamps): back to the prior, unapplied and unlatched, warming up again."""
+        self.x = np.zeros(2)
+        self.P = self._P0.copy()
+        self.applied_s = 0.0
+        self._latched = False
+        self.latched_at = None
+        self.n_updates = 0
+        self._nis_sum = 0.0
+        self._nis_n = 0
+        self.n_forgotten += 1
+
     def final_offset_s(self) -> float:
         """The offset a replay holds over the whole recording once it has seen every frame
         (``rerun_final``): the estimate if it is still ``apply_sigmas`` scaled sigmas from
@@ -557,6 +573,7 @@ class TimeOffsetEstimator:
             if self.latched_at is None
             else dict(zip(("t_s", "td_s", "sigma_s"), self.latched_at, strict=True)),
             "contradicted": self.contradicted(),
+            "forgotten": self.n_forgotten,
         }
 
 

@@ -50,6 +50,10 @@ class SurfaceTilt:
     #: per line: (height m, its sigma m, x min m, x max m) relative to the camera, the height
     #: taken after levelling the slice by the common tilt (``LevelLine``)
     lines: tuple[LevelLine, ...] = ()
+    #: the vertical faces disagree with this tilt (``filter.attitude.SurfaceBendTest``): the
+    #: surfaces are bent by depth errors, the tilt is not a pitch measurement (set by the
+    #: estimator; the lines' heights are kept)
+    bent: bool = False
 
 
 @dataclass(frozen=True)
@@ -243,6 +247,57 @@ def measure_surface_tilt(
         extent_m=extent,
         n_lines=len(levels),
         lines=tuple(levels),
+    )
+
+
+def measure_face_lean(
+    profile_xz_m: NDArray[np.float64],
+    rng: np.random.Generator,
+    max_lean_rad: float = np.radians(5.0),
+    inlier_m: float = 0.004,
+    min_points: int = 12,
+    min_extent_m: float = 0.06,
+    max_faces: int = 4,
+    correlated_points: float = 5.0,
+    end_trim_m: float = 0.025,
+) -> SurfaceTilt | None:
+    """Lean of the vertical faces of a profile (risers, obstacle sides), as the tilt the level
+    surfaces would show under the same rotation of the slice.
+
+    A pitch error of the attitude turns the whole slice: level surfaces then fall (or rise)
+    with x, and vertical faces lean by the same angle. The faces are fitted as
+    :func:`measure_surface_tilt` fits the level surfaces, with x and z swapped (near-vertical
+    lines x = c + s z, a shared s); a rotation that gives the level surfaces the tilt tau gives
+    the faces s = -tan(tau), so the returned ``tilt_rad`` is -atan(s) and is comparable with
+    the level surfaces' tilt. Depth errors that bend the surfaces instead of turning them
+    (multipath near the concave corners, wiggling) tilt the treads and lean the risers in
+    opposite senses, which is what ``filter.attitude.SurfaceBendTest`` looks for.
+
+    Returns None without a face of ``min_points`` points over ``min_extent_m`` of height
+    (``lines`` is left empty: face heights mean nothing here).
+    """
+    p = np.asarray(profile_xz_m, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 2 or p.shape[0] < min_points:
+        return None
+    lean = measure_surface_tilt(
+        np.ascontiguousarray(p[:, ::-1]),
+        rng,
+        max_lean_rad,
+        inlier_m,
+        min_points,
+        min_extent_m,
+        max_faces,
+        correlated_points,
+        end_trim_m,
+    )
+    if lean is None:
+        return None
+    return SurfaceTilt(
+        tilt_rad=-lean.tilt_rad,
+        sigma_rad=lean.sigma_rad,
+        n_inliers=lean.n_inliers,
+        extent_m=lean.extent_m,
+        n_lines=lean.n_lines,
     )
 
 

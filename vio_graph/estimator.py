@@ -1796,6 +1796,7 @@ class OnlineEstimator:
             cfg.max_lines,
             cfg.correlated_points,
             cfg.end_trim_m,
+            tilt,
         )
         if face is not None:
             test.add(t, tilt.tilt_rad, tilt.sigma_rad**2, face.tilt_rad, face.sigma_rad**2)

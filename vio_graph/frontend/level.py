@@ -260,9 +260,14 @@ def measure_face_lean(
     max_faces: int = 4,
     correlated_points: float = 5.0,
     end_trim_m: float = 0.025,
+    level: SurfaceTilt | None = None,
 ) -> SurfaceTilt | None:
     """Lean of the vertical faces of a profile (risers, obstacle sides), as the tilt the level
     surfaces would show under the same rotation of the slice.
+
+    ``level``: the profile's level surfaces (:func:`measure_surface_tilt`); their points
+    (within 2 ``inlier_m`` of a line, over its x extent widened by ``end_trim_m``) are left
+    out first, so that the faces' RANSAC pairs are drawn from the faces.
 
     A pitch error of the attitude turns the whole slice: level surfaces then fall (or rise)
     with x, and vertical faces lean by the same angle. The faces are fitted as
@@ -279,6 +284,19 @@ def measure_face_lean(
     p = np.asarray(profile_xz_m, dtype=float)
     if p.ndim != 2 or p.shape[1] != 2 or p.shape[0] < min_points:
         return None
+    if level is not None and level.lines:
+        slope = math.tan(level.tilt_rad)
+        x, z = p[:, 0], p[:, 1]
+        on_level = np.zeros(p.shape[0], dtype=bool)
+        for line in level.lines:
+            on_level |= (
+                (np.abs(z - line.height_m - slope * x) < 2.0 * inlier_m)
+                & (x > line.x_min_m - end_trim_m)
+                & (x < line.x_max_m + end_trim_m)
+            )
+        p = p[~on_level]
+        if p.shape[0] < min_points:
+            return None
     lean = measure_surface_tilt(
         np.ascontiguousarray(p[:, ::-1]),
         rng,

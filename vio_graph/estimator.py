@@ -566,6 +566,19 @@ class OnlineEstimator:
                 f"consistency_scale) at the start; check a run with "
                 f"filter.time_offset.estimate false if the rig is synchronised."
             )
+        bend = self.bend_test
+        if bend is not None and bend.n_bent_frames:
+            mean = bend.mean_rad()
+            rep["warnings"].append(
+                f"WARNING: the level surfaces looked bent on {bend.n_bent_frames} frames of "
+                f"{self.health.n_frames} (treads and risers disagreed on the slice's tilt, "
+                f"last weighted mean {math.degrees(mean or 0.0):+.1f} deg): a pitch error turns "
+                f"both alike, so their tilt was not used as a pitch measurement there and "
+                f"the pitch rested on the IMU's own attitude. Likely cause: systematic depth "
+                f"errors of the camera (multipath in the tread-riser corners, range "
+                f"'wiggling', dark or shiny surfaces); metric maps and heights near the "
+                f"corners are less certain too."
+            )
         if not rep.get("innovations_consistent", True):
             stamp = self.stamp_test.report() if self.stamp_test is not None else None
             found = input_fault_context(self.imu_faults.report(), stamp)

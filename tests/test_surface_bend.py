@@ -195,11 +195,12 @@ def _pitch_error_and_report(rec_path, **level_aiding):
 def test_multipath_is_caught_and_the_pitch_kept_off_the_bend(multipath_upstair) -> None:
     """Against ground truth: with 2 cm of multipath the treads tilt by ~1 deg and, fused,
     bias the pitch beyond the IMU's own attitude error. The bend test flags the surfaces and
-    warns; the pitch then rests on the IMU's attitude (within 0.15 deg RMS of a run without
-    any level aiding) and is closer to the truth than with every tilt fused."""
+    warns; their tilts are then shrunk towards the IMU's pitch, and the pitch error is
+    smaller than with every tilt fused, and not far from the IMU's own (the vendor model's
+    error on this seed is itself ~1 deg)."""
     fused, _ = _pitch_error_and_report(multipath_upstair, bend_test=False)
     on, report = _pitch_error_and_report(multipath_upstair, bend_test=True)
     imu, _ = _pitch_error_and_report(multipath_upstair, enabled=False)
     assert on["rms"] < fused["rms"] - 0.1, (on, fused)
-    assert abs(on["rms"] - imu["rms"]) < 0.15, (on, imu)
+    assert on["rms"] < imu["rms"] + 0.15, (on, imu)
     assert any("level surfaces looked bent" in w for w in report["warnings"])

@@ -1780,8 +1780,13 @@ class OnlineEstimator:
         )
         step = 0.0
         if self.surface_tilt is not None and self._surfaces_bent(t, profile_xz_m):
-            # a biased pitch measurement: not fused, not given to the time-offset estimator
+            # a biased pitch measurement: shrunk towards the IMU's own pitch by how far the
+            # bias may reach, and not given to the time-offset estimator
             self.surface_tilt = dataclasses.replace(self.surface_tilt, bent=True)
+            tilt_rad, sigma_rad = self._bent_tilt(self.surface_tilt)
+            if self._frame_rot_var_rad2 > 0.0:
+                sigma_rad = math.sqrt(sigma_rad * sigma_rad + self._frame_rot_var_rad2)
+            step = self.pitch_offset.update(tilt_rad, sigma_rad)
         elif self.surface_tilt is not None:
             tilt_rad, sigma_rad = self._tilt_to_fuse(t, self.surface_tilt)
             self._test_frame_tilt(t, tilt_rad, sigma_rad)
@@ -1791,6 +1796,26 @@ class OnlineEstimator:
         if self.config.filter.attitude.vendor_pitch_sigma_deg is not None:
             self._weigh_attitude_pull(t)
         return step
+
+    def _bent_tilt(self, tilt: SurfaceTilt) -> tuple[float, float]:
+        """The residual tilt (rad) and its sigma (rad) to fuse from bent surfaces.
+
+        What the treads measure is m = b + tilt (b the current pitch offset): the IMU
+        attitude's pitch error e plus the bend's bias beta on the treads. The bend test's
+        mean disagreement dbar is the treads' bias minus the faces' (of opposite signs);
+        nothing in a frame says how it splits between them, so the treads' share is taken
+        as half: beta ~ N(0, (dbar / 2)^2). With e ~ N(0, sigma_v^2)
+        (``bend_vendor_sigma_deg``) the posterior of e given m has the mean k m and the
+        variance k (dbar / 2)^2, k = sigma_v^2 / (sigma_v^2 + (dbar / 2)^2). The fused
+        residual is k m - b, with that variance added to the fit's: a slight bend still
+        corrects the attitude, a strong one leaves it mostly to the IMU."""
+        assert self.bend_test is not None
+        dbar = 0.5 * (self.bend_test.mean_rad() or 0.0)
+        var_v = math.radians(self.config.filter.level_aiding.bend_vendor_sigma_deg) ** 2
+        k = var_v / (var_v + dbar * dbar)
+        b = self.pitch_offset.offset_rad
+        residual = k * (b + tilt.tilt_rad) - b
+        return residual, math.sqrt(tilt.sigma_rad**2 + k * dbar * dbar)
 
     def _surfaces_bent(self, t: float, profile_xz_m: NDArray[np.float64]) -> bool:
         """Feed this frame's tilt and face lean to the bend test (``level_aiding.bend_test``)
@@ -1818,11 +1843,10 @@ class OnlineEstimator:
             return False
         test.n_bent_frames += 1
         if not self._surfaces_were_bent:
-            # the tilts fused so far measured the bend too: drop what they taught the pitch
-            # offset and the camera-IMU time offset (the attitude falls back on the vendor's)
+            # the tilts fused so far measured the bend too: drop what they taught the
+            # camera-IMU time offset (the pitch offset is left to the shrunk tilts from here)
             self._surfaces_were_bent = True
             test.n_resets += 1
-            self.pitch_offset.reset()
             if self.config.filter.time_offset.estimate:
                 self.time_offset.forget()
         return True

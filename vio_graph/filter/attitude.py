@@ -260,19 +260,11 @@ class PitchOffsetFilter:
         self._t_s: float | None = None
         self.n_accepted = 0
         self.n_rejected = 0
-        self.n_resets = 0
 
     @property
     def initialised(self) -> bool:
         """True once a measurement was accepted."""
         return self.n_accepted > 0
-
-    def reset(self) -> None:
-        """Back to no knowledge (offset 0 at ``initial_sigma_deg``): what the tilts taught is
-        dropped (they turned out to measure a bend of the surfaces, SurfaceBendTest)."""
-        self.offset_rad = 0.0
-        self.var_rad2 = np.radians(self.config.initial_sigma_deg) ** 2
-        self.n_resets += 1
 
     def predict(self, t_s: float) -> None:
         if self._t_s is not None and t_s > self._t_s:

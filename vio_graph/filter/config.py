@@ -117,8 +117,9 @@ class LevelAidingConfig(BaseModel):
         description="compare the level surfaces' tilt with the vertical faces' lean in each "
         "slice (filter/attitude.SurfaceBendTest): a pitch error turns both alike, depth "
         "errors that bend the surfaces (multipath in the tread-riser corners, wiggling) tilt "
-        "them in opposite senses; while they disagree beyond bend_sigmas the tilts are not "
-        "fused (nor given to the time-offset estimator). False = fuse every tilt",
+        "them in opposite senses; while they disagree beyond bend_sigmas the tilts are shrunk "
+        "towards the IMU's pitch by the disagreement (bend_vendor_sigma_deg) and not given to "
+        "the time-offset estimator. False = fuse every tilt as measured",
     )
     bend_memory_s: float = Field(
         default=1.0, gt=0, description="memory (s) of the bend test's weighted mean"
@@ -128,6 +129,13 @@ class LevelAidingConfig(BaseModel):
         gt=0,
         description="the bend test flags the surfaces when the mean disagreement is this many "
         "standard errors from 0",
+    )
+    bend_vendor_sigma_deg: float = Field(
+        default=1.0,
+        gt=0,
+        description="pitch error (deg, 1-sigma) of the IMU's own attitude that bent surfaces' "
+        "tilts are weighed against (the MTi-1's dynamic roll/pitch accuracy, 1 deg RMS by "
+        "its datasheet): their tilt is shrunk by sigma^2 / (sigma^2 + (disagreement / 2)^2)",
     )
     face_min_extent_m: float = Field(
         default=0.06, gt=0, description="height (m) a vertical face needs for the bend test"

@@ -551,6 +551,7 @@ class TimeOffsetEstimator:
         self._nis_sum = other._nis_sum
         self._nis_n = other._nis_n
         self.latched_at = other.latched_at
+        self.n_forgotten = other.n_forgotten
 
     def contradicted(self) -> bool:
         """True if td was applied and the estimate has since moved from the value applied

@@ -211,7 +211,13 @@ def test_an_anchor_does_not_follow_a_turn_of_the_attitude(tmp_path: Path) -> Non
     later. An anchor kept across such a turn drags the camera by the turn times the 0.36 m
     camera-ankle lever (sweep seed 1001: filter toe x 2.7 cm with the height landmarks, 3.3 cm
     before them); restarting the anchor when the turn exceeds the anchor's own sigma keeps it
-    at 2.1 cm (1.9 cm before)."""
+    at 2.1 cm (1.9 cm before).
+
+    Both runs keep the vision override unconditional (stance_override_needs_power off): the
+    run without the restart has one override whose displacements could not see the
+    disagreement, and refusing it (the default since 2026-12-05) takes that run from 1.98
+    to 1.28 cm, which hides the restart's own effect this test is about (with the restart:
+    1.09 cm either way)."""
     from vio_graph.sim import simulate
     from vio_graph.sweep import condition_by_name, condition_scenario
 
@@ -219,7 +225,7 @@ def test_an_anchor_does_not_follow_a_turn_of_the_attitude(tmp_path: Path) -> Non
     rec = simulate(scen, 1001, tmp_path / "rec")
     ate = {}
     for on in (True, False):
-        cfg = _config(stance_attitude_reanchor=on)
+        cfg = _config(stance_attitude_reanchor=on, stance_override_needs_power=False)
         res = run_recording(rec, tmp_path / str(on), cfg, progress=False, visualize=False)
         ate[on] = res.metrics["ate_cm"]["filter"]["toe"]["x"]
         if on:
@@ -357,3 +363,39 @@ def test_stance_keyframes_put_every_short_stance_into_the_graphs(
     assert before[-1][1] == 0, before  # the last stance: no keyframe
     assert any(k < min(n, 2) for n, k in before), before
     assert all(k >= min(n, 2) for n, k in after), after
+
+
+def test_a_blind_displacement_gives_the_override_no_power() -> None:
+    """A displacement whose x is unobservable (sigma 1 m) passes the stance test along x
+    whatever the ankle does (here 3 cm); the chain it starts cannot side with the anchor
+    against an x disagreement (resolves False), while an informative chain can."""
+    lever = np.array([0.0, -0.4])
+    blind = StanceConsistencyTest(13.8, 0.001, 0.002)
+    sharp = StanceConsistencyTest(13.8, 0.001, 0.002)
+    for test, sx, dx in ((blind, 1.0, 0.03), (sharp, 0.003, 0.0)):
+        test.test(0.0, lever, None)
+        d = Displacement2D(0.0, 0.033, np.array([dx, 0.0]), np.diag([sx**2, 0.003**2]))
+        assert test.test(0.033, lever, d)
+    assert not blind.resolves(np.array([0.10, 0.0]))
+    assert blind.resolves(np.array([0.0, 0.10]))  # its z was measured
+    assert sharp.resolves(np.array([0.10, 0.0]))
+
+
+def test_the_weighted_chain_ignores_a_blind_link() -> None:
+    """Summed, one x-blind link blinds the since-onset chain's x for the rest of the stance;
+    weighted by inverse covariance, the later sharp links still catch a slow x drift."""
+    lever = np.array([0.0, -0.4])
+    res = {}
+    for weighted in (False, True):
+        test = StanceConsistencyTest(13.8, 0.0005, 0.002, weighted_chain=weighted)
+        test.test(0.0, lever, None)
+        sx = [1.0] + [0.0025] * 4
+        ok = []
+        for k, s in enumerate(sx):  # the ankle drifts 0.7 cm a frame in x
+            d = Displacement2D(
+                0.033 * k, 0.033 * (k + 1), np.array([0.007, 0.0]), np.diag([s**2, 0.0025**2])
+            )
+            ok.append(test.test(0.033 * (k + 1), lever, d))
+        res[weighted] = ok
+    assert all(res[False])
+    assert not all(res[True])

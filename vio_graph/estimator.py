@@ -450,6 +450,7 @@ class OnlineEstimator:
             chi2_2dof_quantile(fc.stance_test_probability) if fc.stance_test else np.inf,
             self._lever_sigma_m,
             fc.measurement_noise_floor_m,
+            fc.stance_test_weighted_chain,
         )
         # the foot turns about its heel or toe: the nearer one bounds the ankle's motion
         contact_m = min(
@@ -470,6 +471,7 @@ class OnlineEstimator:
             "foot_refused": 0,
             "gate_refused": 0,
             "vision_overrides": 0,
+            "override_unpowered": 0,
             "attitude_reanchors": 0,
             "anchored_frames": 0,
             "velocity_fused": 0,
@@ -2101,8 +2103,16 @@ class OnlineEstimator:
             first = not self.filter.has_landmark(key)
             if first:
                 self._stance_offset_rad = self.pitch_offset.offset_rad
+            innovation = None
+            if not first and fc.stance_override_needs_power:
+                # the anchor's disagreement with the filter before the update: the ankle
+                # motion since onset that the filter's camera implies
+                innovation = lever - (self.filter.landmark_xz(key) - self._position_at(t)[0])
             fused = self.filter.update_landmark(key, lever, _I2 * sig2, t, fc.stance_gate)
-            if not (first or fused) and self._stance_test.tested:
+            powered = innovation is None or self._stance_test.resolves(innovation)
+            if not (first or fused) and self._stance_test.tested and not powered:
+                stats["override_unpowered"] += 1
+            if not (first or fused) and self._stance_test.tested and powered:
                 # the gate says the filter and the anchor disagree, while vision has just
                 # confirmed the still ankle: two sensors against the filter's velocity (which
                 # drifts in every swing without vision), so the anchor is taken.

@@ -963,6 +963,26 @@ class FilterConfig(BaseModel):
         "on: sts_slow_30fps 2.74 -> 1.12, sts_slow_15fps 2.20 -> 2.04; paper scenarios seeds "
         "1-5 identical except prosthesis_upstair 0.97 -> 1.05. False = no foot test",
     )
+    stance_test_weighted_chain: bool = Field(
+        default=False,
+        description="the since-onset stance consistency test weighs each visual displacement "
+        "by its inverse covariance (an estimate of the ankle's mean motion per frame) instead "
+        "of summing the displacements: an x-blind displacement (ICP sigma ~1 m, only treads "
+        "in view) then no longer blinds the chain's x for the rest of the stance "
+        "(filter/stance.StanceConsistencyTest). Identical to the sum when the links' "
+        "covariances are equal",
+    )
+    stance_override_needs_power: bool = Field(
+        default=True,
+        description="the vision override of a refused stance anchor (stance_gate) needs "
+        "vision to have been able to see the disagreement: the chain of displacements since "
+        "onset must reject a still ankle had the ankle moved by the anchor's innovation "
+        "(StanceConsistencyTest.resolves, same chi-square probability). A displacement whose "
+        "x is unobservable (ICP x sigma ~1 m, only treads in view) passes the stance test "
+        "vacuously along x and would otherwise force an anchor the filter refuses by ~10 cm "
+        "(upstair_step_to_step_slow seed 12, t = 15.615 s: camera x -11.1 cm in one update); "
+        "without that power the refusal stands and the stance ends",
+    )
     stance_test_probability: float = Field(
         default=0.999,
         gt=0,

@@ -204,3 +204,22 @@ def test_multipath_is_caught_and_the_pitch_kept_off_the_bend(multipath_upstair) 
     assert on["rms"] < fused["rms"] - 0.1, (on, fused)
     assert on["rms"] < imu["rms"] + 0.15, (on, imu)
     assert any("level surfaces looked bent" in w for w in report["warnings"])
+
+
+def test_bend_test_counts_judged_frames_and_onsets() -> None:
+    test = SurfaceBendTest(memory_s=1.0, sigmas=3.0)
+    sd2 = math.radians(0.5) ** 2
+    verdicts = []
+    t = 0.0
+    for k in range(40):
+        t += 1 / 30
+        if k < 20:  # bent: 2 deg apart
+            test.add(t, math.radians(-1.0), sd2, math.radians(1.0), sd2)
+        verdicts.append(test.judge(t if k < 20 else t + 10.0))  # then the evidence fades
+    bent = [b for b, _ in verdicts]
+    onsets = [o for _, o in verdicts]
+    first = bent.index(True)
+    assert 4 <= first <= 6  # ~5 (decayed) frames are needed before any verdict
+    assert all(bent[first:20]) and not any(bent[20:])
+    assert onsets.count(True) == 1 and onsets[first]
+    assert test.n_bent_frames == 20 - first and test.n_resets == 1

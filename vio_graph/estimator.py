@@ -364,7 +364,6 @@ class OnlineEstimator:
         self._face_rng = np.random.default_rng([config.frontend.seed, 1])
         la = config.filter.level_aiding
         self.bend_test = SurfaceBendTest(la.bend_memory_s, la.bend_sigmas) if la.bend_test else None
-        self._surfaces_were_bent = False  # the bend test's verdict at the previous tilt
         #: the level surfaces also carry their ray-fitted heights, for the smoothers only
         #: (smoother.height_landmark_heights)
         self._smoother_ray_heights = (
@@ -1782,17 +1781,15 @@ class OnlineEstimator:
             self._smoother_ray_heights,
         )
         step = 0.0
-        if self.surface_tilt is not None and self._surfaces_bent(t, profile_xz_m):
-            # a biased pitch measurement: shrunk towards the IMU's own pitch by how far the
-            # bias may reach, and not given to the time-offset estimator
-            self.surface_tilt = dataclasses.replace(self.surface_tilt, bent=True)
-            tilt_rad, sigma_rad = self._bent_tilt(self.surface_tilt)
-            if self._frame_rot_var_rad2 > 0.0:
-                sigma_rad = math.sqrt(sigma_rad * sigma_rad + self._frame_rot_var_rad2)
-            step = self.pitch_offset.update(tilt_rad, sigma_rad)
-        elif self.surface_tilt is not None:
-            tilt_rad, sigma_rad = self._tilt_to_fuse(t, self.surface_tilt)
-            self._test_frame_tilt(t, tilt_rad, sigma_rad)
+        if self.surface_tilt is not None:
+            if self._surfaces_bent(t, profile_xz_m):
+                # a biased pitch measurement: shrunk towards the IMU's own pitch by how far
+                # the bias may reach, and not given to the time-offset estimator
+                self.surface_tilt = dataclasses.replace(self.surface_tilt, bent=True)
+                tilt_rad, sigma_rad = self._bent_tilt(self.surface_tilt)
+            else:
+                tilt_rad, sigma_rad = self._tilt_to_fuse(t, self.surface_tilt)
+                self._test_frame_tilt(t, tilt_rad, sigma_rad)
             if self._frame_rot_var_rad2 > 0.0:
                 sigma_rad = math.sqrt(sigma_rad * sigma_rad + self._frame_rot_var_rad2)
             step = self.pitch_offset.update(tilt_rad, sigma_rad)
@@ -1841,18 +1838,12 @@ class OnlineEstimator:
         )
         if face is not None:
             test.add(t, tilt.tilt_rad, tilt.sigma_rad**2, face.tilt_rad, face.sigma_rad**2)
-        if not test.bent(t):
-            self._surfaces_were_bent = False
-            return False
-        test.n_bent_frames += 1
-        if not self._surfaces_were_bent:
+        bent, onset = test.judge(t)
+        if onset and self.config.filter.time_offset.estimate:
             # the tilts fused so far measured the bend too: drop what they taught the
             # camera-IMU time offset (the pitch offset is left to the shrunk tilts from here)
-            self._surfaces_were_bent = True
-            test.n_resets += 1
-            if self.config.filter.time_offset.estimate:
-                self.time_offset.forget()
-        return True
+            self.time_offset.forget()
+        return bent
 
     def _weigh_attitude_pull(self, t: float) -> None:
         """The attitude tracker's pull towards the vendor about the pitch axis, weighed against
@@ -2103,21 +2094,20 @@ class OnlineEstimator:
             first = not self.filter.has_landmark(key)
             if first:
                 self._stance_offset_rad = self.pitch_offset.offset_rad
-            innovation = None
-            if not first and fc.stance_override_needs_power:
-                # the anchor's disagreement with the filter before the update: the ankle
-                # motion since onset that the filter's camera implies
-                innovation = lever - (self.filter.landmark_xz(key) - self._position_at(t)[0])
             fused = self.filter.update_landmark(key, lever, _I2 * sig2, t, fc.stance_gate)
-            powered = innovation is None or self._stance_test.resolves(innovation)
-            if not (first or fused) and self._stance_test.tested and not powered:
-                stats["override_unpowered"] += 1
-            if not (first or fused) and self._stance_test.tested and powered:
+            if not (first or fused) and self._stance_test.tested:
                 # the gate says the filter and the anchor disagree, while vision has just
                 # confirmed the still ankle: two sensors against the filter's velocity (which
-                # drifts in every swing without vision), so the anchor is taken.
-                fused = self.filter.update_landmark(key, lever, _I2 * sig2, t, False)
-                stats["vision_overrides"] += 1
+                # drifts in every swing without vision), so the anchor is taken, if vision
+                # could have seen the disagreement (a refused update left the state as it
+                # was: this is the anchor's innovation, the ankle motion since onset that
+                # the filter's camera implies)
+                innovation = lever - (self.filter.landmark_xz(key) - self._position_at(t)[0])
+                if fc.stance_override_needs_power and not self._stance_test.resolves(innovation):
+                    stats["override_unpowered"] += 1
+                else:
+                    fused = self.filter.update_landmark(key, lever, _I2 * sig2, t, False)
+                    stats["vision_overrides"] += 1
             if first or fused:
                 stats["anchored_frames"] += 1
                 velocity = None

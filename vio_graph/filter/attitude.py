@@ -317,8 +317,9 @@ class SurfaceBendTest:
         self._w = 0.0  # decayed sum of 1 / v
         self._wd = 0.0  # decayed sum of d / v
         self.n_pairs = 0
-        self.n_bent_frames = 0  # frames whose tilt the test held back (counted by the caller)
-        self.n_resets = 0  # times the caller dropped what earlier tilts taught
+        self.n_bent_frames = 0  # frames judged bent (:meth:`judge`)
+        self.n_resets = 0  # verdicts that turned to bent (:meth:`judge`'s onsets)
+        self._was_bent = False  # the previous judged frame's verdict
 
     def _decay_to(self, t_s: float) -> None:
         if self._t_s is not None and t_s > self._t_s:
@@ -359,6 +360,16 @@ class SurfaceBendTest:
             return False
         mean = self._wd / self._w
         return mean * mean * self._w > self.sigmas * self.sigmas
+
+    def judge(self, t_s: float) -> tuple[bool, bool]:
+        """This frame's verdict, counted: (bent, onset), onset True when the previous judged
+        frame was not bent (what the earlier tilts taught may then be dropped)."""
+        bent = self.bent(t_s)
+        onset = bent and not self._was_bent
+        self._was_bent = bent
+        self.n_bent_frames += bent
+        self.n_resets += onset
+        return bent, onset
 
 
 def pitch_disagreement_rad(R_tracked: Mat3, quat_vendor_wxyz: NDArray[np.float64]) -> float:

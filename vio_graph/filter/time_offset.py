@@ -377,17 +377,21 @@ class TimeOffsetEstimator:
         self, config: TimeOffsetConfig, initial_b_sigma_rad: float, b_drift_rad_per_sqrt_s: float
     ) -> None:
         self.config = config
-        self.x = np.zeros(2)
-        self.P = np.diag([initial_b_sigma_rad**2, config.initial_sigma_s**2])
-        self._P0 = self.P.copy()
+        self._P0 = np.diag([initial_b_sigma_rad**2, config.initial_sigma_s**2])
         self.n_forgotten = 0  #: times :meth:`forget` dropped what the tilts had taught
         self._q = np.array([b_drift_rad_per_sqrt_s**2, config.drift_s_per_sqrt_s**2])
         self._gate = chi2_quantile(config.gate_probability, 1)
         self._t_s: float | None = None
+        self.n_rejected = 0
+        self._start_from_prior()
+
+    def _start_from_prior(self) -> None:
+        """The estimate at its prior: nothing learnt, applied or latched (start, forget)."""
+        self.x = np.zeros(2)
+        self.P = self._P0.copy()
         self.applied_s = 0.0  #: td the fusion uses now (s)
         self._latched = False
         self.n_updates = 0
-        self.n_rejected = 0
         # consistency of the tilts with their sigmas: the normalised innovations y^2 / s of
         # every tested tilt (accepted or refused, each capped at the gate), summed
         self._nis_sum = 0.0
@@ -510,14 +514,7 @@ class TimeOffsetEstimator:
         """Drop what the tilts taught (the level surfaces turned out bent by depth errors,
         ``filter.attitude.SurfaceBendTest``: their tilts measured the bend, not the pitch
         and the stamps): back to the prior, unapplied and unlatched, warming up again."""
-        self.x = np.zeros(2)
-        self.P = self._P0.copy()
-        self.applied_s = 0.0
-        self._latched = False
-        self.latched_at = None
-        self.n_updates = 0
-        self._nis_sum = 0.0
-        self._nis_n = 0
+        self._start_from_prior()
         self.n_forgotten += 1
 
     def final_offset_s(self) -> float:
